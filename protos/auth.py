@@ -1,0 +1,75 @@
+"""The rig-token handshake, shared by coordinator, node and operator tools.
+
+Both sides prove they know the rig's secret token before any pose or frame
+moves, without sending it: the client sends a random nonce, the coordinator
+answers with its own nonce and ``HMAC(token, "coordinator", rig_id, nonces)``,
+the client checks that proof (a rogue advertiser without the token fails here)
+and answers with ``HMAC(token, role, rig_id, slot, nonces)`` (a node without the
+token fails there). Nonces are single use.
+"""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import os
+import secrets
+from pathlib import Path
+
+NONCE_BYTES = 32
+MIN_TOKEN_BYTES = 16
+
+
+class TokenError(ValueError):
+    """The rig token is missing or unusable; the message names the file."""
+
+
+def new_nonce() -> bytes:
+    return secrets.token_bytes(NONCE_BYTES)
+
+
+def new_token() -> str:
+    """A fresh rig token (256 bits, URL-safe text)."""
+    return secrets.token_urlsafe(32)
+
+
+def _mac(token: bytes, *parts: bytes | str) -> bytes:
+    h = hmac.new(token, digestmod=hashlib.sha256)
+    for part in parts:
+        b = part.encode() if isinstance(part, str) else part
+        h.update(len(b).to_bytes(4, "big"))
+        h.update(b)
+    return h.digest()
+
+
+def coordinator_proof(token: bytes, rig_id: str, client_nonce: bytes, server_nonce: bytes) -> bytes:
+    return _mac(token, "shadowless/v1/coordinator", rig_id, client_nonce, server_nonce)
+
+
+def client_proof(token: bytes, role: str, rig_id: str, slot: str, client_nonce: bytes, server_nonce: bytes) -> bytes:
+    return _mac(token, "shadowless/v1/" + role, rig_id, slot, client_nonce, server_nonce)
+
+
+def verify(expected: bytes, given: bytes) -> bool:
+    return hmac.compare_digest(expected, given)
+
+
+def read_token(path: str | os.PathLike[str]) -> bytes:
+    """Read a rig token from ``path`` (whitespace stripped); refuse short or world-readable files."""
+    p = Path(path)
+    try:
+        text = p.read_text().strip()
+    except FileNotFoundError as exc:
+        raise TokenError(f"rig token file {p} does not exist (create one with `shadowless rig init`)") from exc
+    except OSError as exc:
+        raise TokenError(f"cannot read rig token file {p}: {exc.strerror}") from exc
+    if len(text.encode()) < MIN_TOKEN_BYTES:
+        raise TokenError(f"rig token in {p} is shorter than {MIN_TOKEN_BYTES} bytes")
+    return text.encode()
+
+
+def resolve_token(token_file: str | None, env: str = "SHADOWLESS_TOKEN_FILE") -> bytes:
+    """The token from ``--token-file`` or the ``SHADOWLESS_TOKEN_FILE`` environment variable."""
+    path = token_file or os.environ.get(env)
+    if not path:
+        raise TokenError(f"no rig token: pass --token-file or set {env}")
+    return read_token(path)

@@ -1,0 +1,243 @@
+from protos import common_pb2 as _common_pb2
+from protos import node_pb2 as _node_pb2
+from google.protobuf.internal import containers as _containers
+from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
+from google.protobuf import descriptor as _descriptor
+from google.protobuf import message as _message
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
+from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
+
+DESCRIPTOR: _descriptor.FileDescriptor
+
+class NodeState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    NODE_STATE_UNSPECIFIED: _ClassVar[NodeState]
+    NODE_STATE_EXPECTED: _ClassVar[NodeState]
+    NODE_STATE_JOINED: _ClassVar[NodeState]
+    NODE_STATE_LIVE: _ClassVar[NodeState]
+    NODE_STATE_LOST: _ClassVar[NodeState]
+NODE_STATE_UNSPECIFIED: NodeState
+NODE_STATE_EXPECTED: NodeState
+NODE_STATE_JOINED: NodeState
+NODE_STATE_LIVE: NodeState
+NODE_STATE_LOST: NodeState
+
+class StatusRequest(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class NodeStatus(_message.Message):
+    __slots__ = ("slot", "state", "hostname", "pid", "clock_offset_ms", "clock_drift_ppm", "clock_rtt_ms", "last_swap_frame", "last_swap_age_ms", "frames_shown", "frames_late", "frames_dropped", "assignment_revision", "pose_kind", "last_seen_age_ms", "clock_error_ms", "joins")
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    HOSTNAME_FIELD_NUMBER: _ClassVar[int]
+    PID_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_OFFSET_MS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_DRIFT_PPM_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_RTT_MS_FIELD_NUMBER: _ClassVar[int]
+    LAST_SWAP_FRAME_FIELD_NUMBER: _ClassVar[int]
+    LAST_SWAP_AGE_MS_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_SHOWN_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_LATE_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_DROPPED_FIELD_NUMBER: _ClassVar[int]
+    ASSIGNMENT_REVISION_FIELD_NUMBER: _ClassVar[int]
+    POSE_KIND_FIELD_NUMBER: _ClassVar[int]
+    LAST_SEEN_AGE_MS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_ERROR_MS_FIELD_NUMBER: _ClassVar[int]
+    JOINS_FIELD_NUMBER: _ClassVar[int]
+    slot: str
+    state: NodeState
+    hostname: str
+    pid: int
+    clock_offset_ms: float
+    clock_drift_ppm: float
+    clock_rtt_ms: float
+    last_swap_frame: int
+    last_swap_age_ms: float
+    frames_shown: int
+    frames_late: int
+    frames_dropped: int
+    assignment_revision: int
+    pose_kind: str
+    last_seen_age_ms: float
+    clock_error_ms: float
+    joins: int
+    def __init__(self, slot: _Optional[str] = ..., state: _Optional[_Union[NodeState, str]] = ..., hostname: _Optional[str] = ..., pid: _Optional[int] = ..., clock_offset_ms: _Optional[float] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ms: _Optional[float] = ..., last_swap_frame: _Optional[int] = ..., last_swap_age_ms: _Optional[float] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., assignment_revision: _Optional[int] = ..., pose_kind: _Optional[str] = ..., last_seen_age_ms: _Optional[float] = ..., clock_error_ms: _Optional[float] = ..., joins: _Optional[int] = ...) -> None: ...
+
+class SyncStats(_message.Message):
+    __slots__ = ("frames", "skew_p50_ms", "skew_p99_ms", "skew_max_ms", "skew_source", "clock_error_p99_ms", "frames_late", "frames_dropped", "out_of_order")
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    SKEW_P50_MS_FIELD_NUMBER: _ClassVar[int]
+    SKEW_P99_MS_FIELD_NUMBER: _ClassVar[int]
+    SKEW_MAX_MS_FIELD_NUMBER: _ClassVar[int]
+    SKEW_SOURCE_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_ERROR_P99_MS_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_LATE_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_DROPPED_FIELD_NUMBER: _ClassVar[int]
+    OUT_OF_ORDER_FIELD_NUMBER: _ClassVar[int]
+    frames: int
+    skew_p50_ms: float
+    skew_p99_ms: float
+    skew_max_ms: float
+    skew_source: str
+    clock_error_p99_ms: float
+    frames_late: int
+    frames_dropped: int
+    out_of_order: int
+    def __init__(self, frames: _Optional[int] = ..., skew_p50_ms: _Optional[float] = ..., skew_p99_ms: _Optional[float] = ..., skew_max_ms: _Optional[float] = ..., skew_source: _Optional[str] = ..., clock_error_p99_ms: _Optional[float] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., out_of_order: _Optional[int] = ...) -> None: ...
+
+class Refusal(_message.Message):
+    __slots__ = ("peer", "slot", "reason", "age_s")
+    PEER_FIELD_NUMBER: _ClassVar[int]
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    AGE_S_FIELD_NUMBER: _ClassVar[int]
+    peer: str
+    slot: str
+    reason: str
+    age_s: float
+    def __init__(self, peer: _Optional[str] = ..., slot: _Optional[str] = ..., reason: _Optional[str] = ..., age_s: _Optional[float] = ...) -> None: ...
+
+class RigStatus(_message.Message):
+    __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s")
+    RIG_ID_FIELD_NUMBER: _ClassVar[int]
+    RIG_NAME_FIELD_NUMBER: _ClassVar[int]
+    INSTANCE_ID_FIELD_NUMBER: _ClassVar[int]
+    RIG_DIR_FIELD_NUMBER: _ClassVar[int]
+    PROTOCOL_VERSION_FIELD_NUMBER: _ClassVar[int]
+    UPTIME_S_FIELD_NUMBER: _ClassVar[int]
+    NODES_FIELD_NUMBER: _ClassVar[int]
+    SYNC_FIELD_NUMBER: _ClassVar[int]
+    SHOWING_FIELD_NUMBER: _ClassVar[int]
+    REFUSALS_FIELD_NUMBER: _ClassVar[int]
+    LATENCY_BUDGET_MS_FIELD_NUMBER: _ClassVar[int]
+    CPU_S_FIELD_NUMBER: _ClassVar[int]
+    rig_id: str
+    rig_name: str
+    instance_id: str
+    rig_dir: str
+    protocol_version: int
+    uptime_s: float
+    nodes: _containers.RepeatedCompositeFieldContainer[NodeStatus]
+    sync: SyncStats
+    showing: str
+    refusals: _containers.RepeatedCompositeFieldContainer[Refusal]
+    latency_budget_ms: float
+    cpu_s: float
+    def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ...) -> None: ...
+
+class NodeList(_message.Message):
+    __slots__ = ("nodes",)
+    NODES_FIELD_NUMBER: _ClassVar[int]
+    nodes: _containers.RepeatedCompositeFieldContainer[NodeStatus]
+    def __init__(self, nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ...) -> None: ...
+
+class ShowRequest(_message.Message):
+    __slots__ = ("image", "space", "apply_lut", "persist", "name")
+    IMAGE_FIELD_NUMBER: _ClassVar[int]
+    SPACE_FIELD_NUMBER: _ClassVar[int]
+    APPLY_LUT_FIELD_NUMBER: _ClassVar[int]
+    PERSIST_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    image: _common_pb2.Image
+    space: _node_pb2.Space
+    apply_lut: bool
+    persist: bool
+    name: str
+    def __init__(self, image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., space: _Optional[_Union[_node_pb2.Space, str]] = ..., apply_lut: _Optional[bool] = ..., persist: _Optional[bool] = ..., name: _Optional[str] = ...) -> None: ...
+
+class ShowReply(_message.Message):
+    __slots__ = ("frame_id", "content_id", "pts_ns")
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    CONTENT_ID_FIELD_NUMBER: _ClassVar[int]
+    PTS_NS_FIELD_NUMBER: _ClassVar[int]
+    frame_id: int
+    content_id: str
+    pts_ns: int
+    def __init__(self, frame_id: _Optional[int] = ..., content_id: _Optional[str] = ..., pts_ns: _Optional[int] = ...) -> None: ...
+
+class PlaySettings(_message.Message):
+    __slots__ = ("fps", "loops", "wait", "pattern", "frames", "width", "height", "latency_ms", "settle_s")
+    FPS_FIELD_NUMBER: _ClassVar[int]
+    LOOPS_FIELD_NUMBER: _ClassVar[int]
+    WAIT_FIELD_NUMBER: _ClassVar[int]
+    PATTERN_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
+    SETTLE_S_FIELD_NUMBER: _ClassVar[int]
+    fps: float
+    loops: int
+    wait: bool
+    pattern: str
+    frames: int
+    width: int
+    height: int
+    latency_ms: float
+    settle_s: float
+    def __init__(self, fps: _Optional[float] = ..., loops: _Optional[int] = ..., wait: _Optional[bool] = ..., pattern: _Optional[str] = ..., frames: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., latency_ms: _Optional[float] = ..., settle_s: _Optional[float] = ...) -> None: ...
+
+class PlayItem(_message.Message):
+    __slots__ = ("settings", "frame")
+    SETTINGS_FIELD_NUMBER: _ClassVar[int]
+    FRAME_FIELD_NUMBER: _ClassVar[int]
+    settings: PlaySettings
+    frame: _common_pb2.Image
+    def __init__(self, settings: _Optional[_Union[PlaySettings, _Mapping]] = ..., frame: _Optional[_Union[_common_pb2.Image, _Mapping]] = ...) -> None: ...
+
+class PlayReply(_message.Message):
+    __slots__ = ("frames_sent", "frames_shown", "frames_late", "frames_dropped", "sync", "coordinator_cpu_s", "nodes", "wall_s", "skews_ms", "clock_errors_ms")
+    FRAMES_SENT_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_SHOWN_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_LATE_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_DROPPED_FIELD_NUMBER: _ClassVar[int]
+    SYNC_FIELD_NUMBER: _ClassVar[int]
+    COORDINATOR_CPU_S_FIELD_NUMBER: _ClassVar[int]
+    NODES_FIELD_NUMBER: _ClassVar[int]
+    WALL_S_FIELD_NUMBER: _ClassVar[int]
+    SKEWS_MS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_ERRORS_MS_FIELD_NUMBER: _ClassVar[int]
+    frames_sent: int
+    frames_shown: int
+    frames_late: int
+    frames_dropped: int
+    sync: SyncStats
+    coordinator_cpu_s: float
+    nodes: int
+    wall_s: float
+    skews_ms: _containers.RepeatedScalarFieldContainer[float]
+    clock_errors_ms: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, frames_sent: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., coordinator_cpu_s: _Optional[float] = ..., nodes: _Optional[int] = ..., wall_s: _Optional[float] = ..., skews_ms: _Optional[_Iterable[float]] = ..., clock_errors_ms: _Optional[_Iterable[float]] = ...) -> None: ...
+
+class StopRequest(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class StopReply(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class ConfigureRequest(_message.Message):
+    __slots__ = ("slot", "homography", "lut", "gain", "output_width", "output_height", "clear_pose")
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    HOMOGRAPHY_FIELD_NUMBER: _ClassVar[int]
+    LUT_FIELD_NUMBER: _ClassVar[int]
+    GAIN_FIELD_NUMBER: _ClassVar[int]
+    OUTPUT_WIDTH_FIELD_NUMBER: _ClassVar[int]
+    OUTPUT_HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    CLEAR_POSE_FIELD_NUMBER: _ClassVar[int]
+    slot: str
+    homography: _node_pb2.Homography
+    lut: _node_pb2.Lut
+    gain: float
+    output_width: int
+    output_height: int
+    clear_pose: bool
+    def __init__(self, slot: _Optional[str] = ..., homography: _Optional[_Union[_node_pb2.Homography, _Mapping]] = ..., lut: _Optional[_Union[_node_pb2.Lut, _Mapping]] = ..., gain: _Optional[float] = ..., output_width: _Optional[int] = ..., output_height: _Optional[int] = ..., clear_pose: _Optional[bool] = ...) -> None: ...
+
+class ConfigureReply(_message.Message):
+    __slots__ = ("revision",)
+    REVISION_FIELD_NUMBER: _ClassVar[int]
+    revision: int
+    def __init__(self, revision: _Optional[int] = ...) -> None: ...

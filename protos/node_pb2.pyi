@@ -1,0 +1,266 @@
+from protos import common_pb2 as _common_pb2
+from google.protobuf.internal import containers as _containers
+from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
+from google.protobuf import descriptor as _descriptor
+from google.protobuf import message as _message
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
+from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
+
+DESCRIPTOR: _descriptor.FileDescriptor
+
+class Space(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    SPACE_UNSPECIFIED: _ClassVar[Space]
+    SPACE_CONTENT: _ClassVar[Space]
+    SPACE_PROJECTOR: _ClassVar[Space]
+
+class DropReason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    DROP_REASON_UNSPECIFIED: _ClassVar[DropReason]
+    DROP_REASON_LATE: _ClassVar[DropReason]
+    DROP_REASON_SUPERSEDED: _ClassVar[DropReason]
+    DROP_REASON_MISSING_CONTENT: _ClassVar[DropReason]
+SPACE_UNSPECIFIED: Space
+SPACE_CONTENT: Space
+SPACE_PROJECTOR: Space
+DROP_REASON_UNSPECIFIED: DropReason
+DROP_REASON_LATE: DropReason
+DROP_REASON_SUPERSEDED: DropReason
+DROP_REASON_MISSING_CONTENT: DropReason
+
+class NodeInfo(_message.Message):
+    __slots__ = ("hostname", "host_boot_id", "pid", "software_version", "output", "native_width", "native_height")
+    HOSTNAME_FIELD_NUMBER: _ClassVar[int]
+    HOST_BOOT_ID_FIELD_NUMBER: _ClassVar[int]
+    PID_FIELD_NUMBER: _ClassVar[int]
+    SOFTWARE_VERSION_FIELD_NUMBER: _ClassVar[int]
+    OUTPUT_FIELD_NUMBER: _ClassVar[int]
+    NATIVE_WIDTH_FIELD_NUMBER: _ClassVar[int]
+    NATIVE_HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    hostname: str
+    host_boot_id: str
+    pid: int
+    software_version: str
+    output: str
+    native_width: int
+    native_height: int
+    def __init__(self, hostname: _Optional[str] = ..., host_boot_id: _Optional[str] = ..., pid: _Optional[int] = ..., software_version: _Optional[str] = ..., output: _Optional[str] = ..., native_width: _Optional[int] = ..., native_height: _Optional[int] = ...) -> None: ...
+
+class JoinRequest(_message.Message):
+    __slots__ = ("login", "info")
+    LOGIN_FIELD_NUMBER: _ClassVar[int]
+    INFO_FIELD_NUMBER: _ClassVar[int]
+    login: _common_pb2.LoginRequest
+    info: NodeInfo
+    def __init__(self, login: _Optional[_Union[_common_pb2.LoginRequest, _Mapping]] = ..., info: _Optional[_Union[NodeInfo, _Mapping]] = ...) -> None: ...
+
+class JoinReply(_message.Message):
+    __slots__ = ("session", "slot", "rig_id", "instance_id", "heartbeat_interval_ms")
+    SESSION_FIELD_NUMBER: _ClassVar[int]
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    RIG_ID_FIELD_NUMBER: _ClassVar[int]
+    INSTANCE_ID_FIELD_NUMBER: _ClassVar[int]
+    HEARTBEAT_INTERVAL_MS_FIELD_NUMBER: _ClassVar[int]
+    session: str
+    slot: str
+    rig_id: str
+    instance_id: str
+    heartbeat_interval_ms: int
+    def __init__(self, session: _Optional[str] = ..., slot: _Optional[str] = ..., rig_id: _Optional[str] = ..., instance_id: _Optional[str] = ..., heartbeat_interval_ms: _Optional[int] = ...) -> None: ...
+
+class StreamRequest(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class Homography(_message.Message):
+    __slots__ = ("m",)
+    M_FIELD_NUMBER: _ClassVar[int]
+    m: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, m: _Optional[_Iterable[float]] = ...) -> None: ...
+
+class Mesh(_message.Message):
+    __slots__ = ("mesh_id", "vertices", "uvs", "faces")
+    MESH_ID_FIELD_NUMBER: _ClassVar[int]
+    VERTICES_FIELD_NUMBER: _ClassVar[int]
+    UVS_FIELD_NUMBER: _ClassVar[int]
+    FACES_FIELD_NUMBER: _ClassVar[int]
+    mesh_id: str
+    vertices: bytes
+    uvs: bytes
+    faces: bytes
+    def __init__(self, mesh_id: _Optional[str] = ..., vertices: _Optional[bytes] = ..., uvs: _Optional[bytes] = ..., faces: _Optional[bytes] = ...) -> None: ...
+
+class ProjectionPose(_message.Message):
+    __slots__ = ("p", "mesh", "near_mm", "far_mm")
+    P_FIELD_NUMBER: _ClassVar[int]
+    MESH_FIELD_NUMBER: _ClassVar[int]
+    NEAR_MM_FIELD_NUMBER: _ClassVar[int]
+    FAR_MM_FIELD_NUMBER: _ClassVar[int]
+    p: _containers.RepeatedScalarFieldContainer[float]
+    mesh: Mesh
+    near_mm: float
+    far_mm: float
+    def __init__(self, p: _Optional[_Iterable[float]] = ..., mesh: _Optional[_Union[Mesh, _Mapping]] = ..., near_mm: _Optional[float] = ..., far_mm: _Optional[float] = ...) -> None: ...
+
+class Lut(_message.Message):
+    __slots__ = ("channels", "entries", "values")
+    CHANNELS_FIELD_NUMBER: _ClassVar[int]
+    ENTRIES_FIELD_NUMBER: _ClassVar[int]
+    VALUES_FIELD_NUMBER: _ClassVar[int]
+    channels: int
+    entries: int
+    values: bytes
+    def __init__(self, channels: _Optional[int] = ..., entries: _Optional[int] = ..., values: _Optional[bytes] = ...) -> None: ...
+
+class Assignment(_message.Message):
+    __slots__ = ("revision", "slot", "output_width", "output_height", "homography", "projection", "lut", "gain", "content_width", "content_height")
+    REVISION_FIELD_NUMBER: _ClassVar[int]
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    OUTPUT_WIDTH_FIELD_NUMBER: _ClassVar[int]
+    OUTPUT_HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    HOMOGRAPHY_FIELD_NUMBER: _ClassVar[int]
+    PROJECTION_FIELD_NUMBER: _ClassVar[int]
+    LUT_FIELD_NUMBER: _ClassVar[int]
+    GAIN_FIELD_NUMBER: _ClassVar[int]
+    CONTENT_WIDTH_FIELD_NUMBER: _ClassVar[int]
+    CONTENT_HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    revision: int
+    slot: str
+    output_width: int
+    output_height: int
+    homography: Homography
+    projection: ProjectionPose
+    lut: Lut
+    gain: float
+    content_width: int
+    content_height: int
+    def __init__(self, revision: _Optional[int] = ..., slot: _Optional[str] = ..., output_width: _Optional[int] = ..., output_height: _Optional[int] = ..., homography: _Optional[_Union[Homography, _Mapping]] = ..., projection: _Optional[_Union[ProjectionPose, _Mapping]] = ..., lut: _Optional[_Union[Lut, _Mapping]] = ..., gain: _Optional[float] = ..., content_width: _Optional[int] = ..., content_height: _Optional[int] = ...) -> None: ...
+
+class Content(_message.Message):
+    __slots__ = ("content_id", "image")
+    CONTENT_ID_FIELD_NUMBER: _ClassVar[int]
+    IMAGE_FIELD_NUMBER: _ClassVar[int]
+    content_id: str
+    image: _common_pb2.Image
+    def __init__(self, content_id: _Optional[str] = ..., image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ...) -> None: ...
+
+class Frame(_message.Message):
+    __slots__ = ("frame_id", "pts_ns", "content_id", "space", "apply_lut", "slot_content", "tag")
+    class SlotContentEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: str
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[str] = ...) -> None: ...
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    PTS_NS_FIELD_NUMBER: _ClassVar[int]
+    CONTENT_ID_FIELD_NUMBER: _ClassVar[int]
+    SPACE_FIELD_NUMBER: _ClassVar[int]
+    APPLY_LUT_FIELD_NUMBER: _ClassVar[int]
+    SLOT_CONTENT_FIELD_NUMBER: _ClassVar[int]
+    TAG_FIELD_NUMBER: _ClassVar[int]
+    frame_id: int
+    pts_ns: int
+    content_id: str
+    space: Space
+    apply_lut: bool
+    slot_content: _containers.ScalarMap[str, str]
+    tag: str
+    def __init__(self, frame_id: _Optional[int] = ..., pts_ns: _Optional[int] = ..., content_id: _Optional[str] = ..., space: _Optional[_Union[Space, str]] = ..., apply_lut: _Optional[bool] = ..., slot_content: _Optional[_Mapping[str, str]] = ..., tag: _Optional[str] = ...) -> None: ...
+
+class Evict(_message.Message):
+    __slots__ = ("content_ids",)
+    CONTENT_IDS_FIELD_NUMBER: _ClassVar[int]
+    content_ids: _containers.RepeatedScalarFieldContainer[str]
+    def __init__(self, content_ids: _Optional[_Iterable[str]] = ...) -> None: ...
+
+class FramePacket(_message.Message):
+    __slots__ = ("content", "frame", "evict")
+    CONTENT_FIELD_NUMBER: _ClassVar[int]
+    FRAME_FIELD_NUMBER: _ClassVar[int]
+    EVICT_FIELD_NUMBER: _ClassVar[int]
+    content: Content
+    frame: Frame
+    evict: Evict
+    def __init__(self, content: _Optional[_Union[Content, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., evict: _Optional[_Union[Evict, _Mapping]] = ...) -> None: ...
+
+class SwapReport(_message.Message):
+    __slots__ = ("frame_id", "pts_ns", "swap_rig_ns", "host_monotonic_ns")
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    PTS_NS_FIELD_NUMBER: _ClassVar[int]
+    SWAP_RIG_NS_FIELD_NUMBER: _ClassVar[int]
+    HOST_MONOTONIC_NS_FIELD_NUMBER: _ClassVar[int]
+    frame_id: int
+    pts_ns: int
+    swap_rig_ns: int
+    host_monotonic_ns: int
+    def __init__(self, frame_id: _Optional[int] = ..., pts_ns: _Optional[int] = ..., swap_rig_ns: _Optional[int] = ..., host_monotonic_ns: _Optional[int] = ...) -> None: ...
+
+class FrameDrop(_message.Message):
+    __slots__ = ("frame_id", "reason", "late_by_ns")
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    LATE_BY_NS_FIELD_NUMBER: _ClassVar[int]
+    frame_id: int
+    reason: DropReason
+    late_by_ns: int
+    def __init__(self, frame_id: _Optional[int] = ..., reason: _Optional[_Union[DropReason, str]] = ..., late_by_ns: _Optional[int] = ...) -> None: ...
+
+class Heartbeat(_message.Message):
+    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns")
+    ASSIGNMENT_REVISION_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_OFFSET_NS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_DRIFT_PPM_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_RTT_NS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_SAMPLES_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_SHOWN_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_LATE_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_DROPPED_FIELD_NUMBER: _ClassVar[int]
+    RENDER_MS_P50_FIELD_NUMBER: _ClassVar[int]
+    HOST_MONOTONIC_NS_FIELD_NUMBER: _ClassVar[int]
+    RIG_ESTIMATE_NS_FIELD_NUMBER: _ClassVar[int]
+    assignment_revision: int
+    clock_offset_ns: int
+    clock_drift_ppm: float
+    clock_rtt_ns: int
+    clock_samples: int
+    frames_shown: int
+    frames_late: int
+    frames_dropped: int
+    render_ms_p50: float
+    host_monotonic_ns: int
+    rig_estimate_ns: int
+    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ...) -> None: ...
+
+class NodeReport(_message.Message):
+    __slots__ = ("heartbeat", "swap", "drop")
+    HEARTBEAT_FIELD_NUMBER: _ClassVar[int]
+    SWAP_FIELD_NUMBER: _ClassVar[int]
+    DROP_FIELD_NUMBER: _ClassVar[int]
+    heartbeat: Heartbeat
+    swap: SwapReport
+    drop: FrameDrop
+    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., swap: _Optional[_Union[SwapReport, _Mapping]] = ..., drop: _Optional[_Union[FrameDrop, _Mapping]] = ...) -> None: ...
+
+class ReportAck(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class PingRequest(_message.Message):
+    __slots__ = ("t0_local_ns",)
+    T0_LOCAL_NS_FIELD_NUMBER: _ClassVar[int]
+    t0_local_ns: int
+    def __init__(self, t0_local_ns: _Optional[int] = ...) -> None: ...
+
+class PingReply(_message.Message):
+    __slots__ = ("t0_local_ns", "t1_rig_ns", "t2_rig_ns", "instance_id")
+    T0_LOCAL_NS_FIELD_NUMBER: _ClassVar[int]
+    T1_RIG_NS_FIELD_NUMBER: _ClassVar[int]
+    T2_RIG_NS_FIELD_NUMBER: _ClassVar[int]
+    INSTANCE_ID_FIELD_NUMBER: _ClassVar[int]
+    t0_local_ns: int
+    t1_rig_ns: int
+    t2_rig_ns: int
+    instance_id: str
+    def __init__(self, t0_local_ns: _Optional[int] = ..., t1_rig_ns: _Optional[int] = ..., t2_rig_ns: _Optional[int] = ..., instance_id: _Optional[str] = ...) -> None: ...

@@ -1,0 +1,21 @@
+"""Wire protocol version. Every Hello/Join carries it; a mismatch is refused."""
+
+PROTOCOL_VERSION = 1
+
+#: mDNS service type the coordinator advertises.
+SERVICE_TYPE = "_shadowless._tcp.local."
+
+#: gRPC metadata key that carries the session id after the handshake.
+SESSION_KEY = "x-shadowless-session"
+
+#: Largest gRPC message either side accepts (a 16-bit 4K still is ~50 MB raw).
+MAX_MESSAGE_BYTES = 256 * 1024 * 1024
+
+GRPC_OPTIONS = [
+    ("grpc.max_send_message_length", MAX_MESSAGE_BYTES),
+    ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
+    ("grpc.keepalive_time_ms", 10_000),
+    ("grpc.keepalive_timeout_ms", 5_000),
+    ("grpc.keepalive_permit_without_calls", 1),
+    ("grpc.http2.max_pings_without_data", 0),
+]

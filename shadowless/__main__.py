@@ -1,0 +1,3 @@
+from shadowless.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,87 @@
+"""The one `shadowless` command. Subcommands live in the package that owns them
+and are imported only when used, so an edge node that installed only
+``shadowless[node]`` can run ``shadowless node`` without the coordinator's stack.
+
+Each subcommand module exposes ``configure(parser)`` and ``run(args) -> int``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: name -> (module, one-line summary). Order is the order of `--help`.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "coordinator": ("coordinator.cli", "run the coordinator: holds the rig, serves nodes and operators"),
+    "node": ("node.cli", "run one node (one per projector, on its edge computer)"),
+    "rig": ("coordinator.rigcli", "create or inspect a rig directory (slots, token)"),
+    "status": ("coordinator.operator", "show the rig's nodes and sync figures (--json for scripts)"),
+    "show": ("coordinator.operator", "show an image on every projector"),
+    "play": ("coordinator.operator", "play a sequence of images, or a generated test sequence"),
+    "configure": ("coordinator.operator", "set a slot's pose, LUT, gain or output size by hand"),
+    "local": ("coordinator.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
+    "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
+    "demo": ("sim.demo", "the whole rig in the virtual room: what `make demo` runs"),
+    "bench": ("bench.cli", "benchmarks that print JSON (sync, room, calibration, compensation)"),
+}
+
+EPILOG = """\
+a rig in three steps:
+  shadowless rig init rigs/table --grid 5x5 --resolution 1920x1080
+  shadowless coordinator --rig rigs/table               # on the coordinator machine
+  shadowless node --slot r0c0 --token-file /etc/shadowless/token   # on each edge computer
+
+try it on one machine:
+  shadowless local --nodes 4          # coordinator + 4 offscreen nodes, prints sync figures
+  shadowless demo                     # the full virtual room (what `make demo` runs)
+
+`shadowless COMMAND --help` explains each command.
+"""
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="shadowless",
+        description="Shadowless projection mapping with a synthetic-aperture projector rig.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    from shadowless import __version__
+
+    parser.add_argument("--version", action="version", version=f"shadowless {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, summary) in COMMANDS.items():
+        p = sub.add_parser(name, help=summary, description=summary, formatter_class=argparse.RawDescriptionHelpFormatter)
+        if name == command:
+            try:
+                mod = importlib.import_module(module)
+            except ImportError as exc:
+                raise SystemExit(
+                    f"shadowless {name}: this install lacks what it needs ({exc.name or exc}); "
+                    f"install the matching extra, e.g. pip install 'shadowless[all]'"
+                ) from exc
+            configure = getattr(mod, "configure_" + name, None) or mod.configure
+            configure(p)
+            p.set_defaults(_module=mod)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(command if command in COMMANDS else None)
+    args = parser.parse_args(argv)
+    if not args.command:
+        parser.print_help()
+        return 2
+    mod = args._module
+    run = getattr(mod, "run_" + args.command, None) or mod.run
+    try:
+        return int(run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

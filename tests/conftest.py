@@ -1,0 +1,77 @@
+"""Shared test fixtures. Every test is checked for leaked processes and threads."""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("SHADOWLESS_TEST", "1")
+
+
+def child_pids(root: int | None = None) -> set[int]:
+    """All live descendants of ``root`` (default: this process), read from /proc."""
+    root = os.getpid() if root is None else root
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        # pid (comm) state ppid ...; comm may contain spaces and parentheses
+        fields = stat[stat.rfind(")") + 2 :].split()
+        if fields[0] == "Z":
+            continue
+        parents[int(entry.name)] = int(fields[1])
+    found: set[int] = set()
+    frontier = [root]
+    while frontier:
+        p = frontier.pop()
+        for pid, ppid in parents.items():
+            if ppid == p and pid not in found:
+                found.add(pid)
+                frontier.append(pid)
+    return found
+
+
+def _live_threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t.is_alive()}
+
+
+@pytest.fixture(autouse=True)
+def no_leaks(request):
+    """Fail a test that leaves processes or threads behind (after a short grace)."""
+    before_pids = child_pids()
+    before_threads = _live_threads()
+    yield
+    if request.node.get_closest_marker("allow_leaks"):
+        return
+    deadline = time.monotonic() + 5.0
+    while True:
+        pids = child_pids() - before_pids
+        threads = {t for t in _live_threads() - before_threads if not t.name.startswith(("asyncio_", "ThreadPoolExecutor"))}
+        if not pids and not threads:
+            return
+        if time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    problems = []
+    if pids:
+        problems.append(f"leaked processes {sorted(pids)}")
+    if threads:
+        problems.append(f"leaked threads {sorted(t.name for t in threads)}")
+    pytest.fail("; ".join(problems), pytrace=False)
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "allow_leaks: a module-scoped rig fixture owns processes across tests")
