@@ -1,0 +1,37 @@
+"""`shadowless bench NAME …`: reproducible benchmarks that print one JSON document.
+
+Each benchmark is a module ``bench/<name>.py`` exposing ``configure(parser)``
+and ``run(args) -> int``; it prints the figures, the machine and the parameters.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+
+BENCHMARKS: dict[str, str] = {
+    "sync": "swap synchronisation of N real node processes on loopback",
+    "room": "virtual-room capture speed and light-drop statistics per projector subset",
+    "calibration": "captures, time and error of sequential vs multiplexed calibration",
+    "compensation": "blur-compensation solve time and quality, ours vs the per-projector baseline",
+}
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="bench", metavar="NAME", required=True)
+    for name, summary in BENCHMARKS.items():
+        p = sub.add_parser(name, help=summary, description=summary)
+        try:
+            mod = importlib.import_module(f"bench.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"bench.{name}":
+                raise
+            p.set_defaults(_bench=None)
+            continue
+        mod.configure(p)
+        p.set_defaults(_bench=mod)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args._bench is None:
+        raise SystemExit(f"benchmark {args.bench!r} is not available in this build")
+    return int(args._bench.run(args) or 0)
