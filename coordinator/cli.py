@@ -1,0 +1,86 @@
+"""`shadowless coordinator`: serve a rig directory to nodes and operators."""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+from pathlib import Path
+
+from coordinator.errors import CoordinatorError, RigError
+from coordinator.logs import setup_logging
+from protos.auth import TokenError, resolve_token
+
+log = logging.getLogger("coordinator")
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Run the coordinator of a rig: it holds calibration, LUTs and content (persisted in the rig\n"
+        "directory), advertises itself over mDNS as _shadowless._tcp, lets nodes join with the rig\n"
+        "token, streams frames and schedules synchronized swaps. Stop it with Ctrl-C or SIGTERM:\n"
+        "it unregisters from mDNS and closes node streams gracefully; restart it on the same rig\n"
+        "directory and every node comes back by itself."
+    )
+    p.epilog = (
+        "examples:\n"
+        "  shadowless rig init rigs/table --grid 5x5\n"
+        "  shadowless coordinator --rig rigs/table\n"
+        "  shadowless coordinator --rig rigs/table --listen 10.0.0.2:7600 --mdns-interface 10.0.0.2\n"
+        "  shadowless coordinator --rig rigs/table --tls-cert cert.pem --tls-key key.pem"
+    )
+    p.add_argument("--rig", required=True, metavar="DIR", help="rig directory (with rig.toml; see `shadowless rig init`)")
+    p.add_argument("--listen", default="0.0.0.0:7600", metavar="HOST:PORT",
+                   help="gRPC address (default 0.0.0.0:7600; port 0 picks a free one, mDNS tells nodes)")
+    p.add_argument("--token-file", metavar="FILE",
+                   help="rig token file (default: $SHADOWLESS_TOKEN_FILE, else DIR/token)")
+    p.add_argument("--mdns-interface", action="append", metavar="IP",
+                   help="advertise only on this IPv4 address (repeatable; default: every interface)")
+    p.add_argument("--no-mdns", action="store_true", help="do not advertise; nodes then need --coordinator HOST:PORT")
+    p.add_argument("--latency-ms", type=float, help="schedule frames this far ahead (default: rig.toml's latency_ms)")
+    p.add_argument("--tls-cert", metavar="PEM", help="serve TLS with this certificate chain (with --tls-key)")
+    p.add_argument("--tls-key", metavar="PEM", help="private key for --tls-cert")
+    p.add_argument("--port-file", metavar="FILE", help="write the bound port here once listening (for scripts)")
+    p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+
+
+async def serve(args: argparse.Namespace) -> int:
+    from coordinator.rig import Rig
+    from coordinator.server import Coordinator
+
+    rig = Rig(args.rig)
+    token_file = args.token_file
+    if not token_file:
+        import os
+
+        token_file = os.environ.get("SHADOWLESS_TOKEN_FILE") or str(Path(args.rig) / "token")
+    token = resolve_token(token_file)
+    tls = None
+    if args.tls_cert or args.tls_key:
+        if not (args.tls_cert and args.tls_key):
+            raise CoordinatorError("TLS needs both --tls-cert and --tls-key")
+        tls = (Path(args.tls_cert).read_bytes(), Path(args.tls_key).read_bytes())
+    coord = Coordinator(rig, token, listen=args.listen, mdns_interfaces=args.mdns_interface,
+                        advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms)
+    await coord.start()
+    if args.port_file:
+        from coordinator.store import atomic_write_text
+
+        atomic_write_text(args.port_file, f"{coord.port}\n")
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    await stop.wait()
+    log.info("shutting down")
+    await coord.stop()
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    setup_logging(args.log_level, name="coordinator")
+    try:
+        return asyncio.run(serve(args))
+    except (CoordinatorError, RigError, TokenError, OSError) as exc:
+        log.error("%s", exc)
+        return 2

@@ -1,0 +1,270 @@
+"""A whole rig on this machine: one coordinator process and N node processes on
+127.0.0.1, with mDNS bound to the loopback interface. Used by `shadowless local`,
+`shadowless bench sync`, the demo and the tests.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from coordinator.operator import Client, play_dict, status_dict
+from coordinator.rig import init_rig
+from protos import auth, control_pb2
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def grid_names(n: int) -> list[str]:
+    cols = max(1, math.ceil(math.sqrt(n)))
+    return [f"r{i // cols}c{i % cols}" for i in range(n)]
+
+
+class LocalRig:
+    """Processes of a local rig. Use as a context manager; everything is stopped on exit.
+
+    Parameters
+    ----------
+    slots:
+        Slot names (one node each unless ``start_nodes=False``).
+    workdir:
+        Where the rig directory, logs and snapshots go.
+    output_size, content_size:
+        (w, h) of every projector output and of the shared content.
+    clock_offsets_ms, clock_drifts_ppm:
+        Per-slot test hooks that make node clocks wrong on purpose.
+    node_output:
+        Output spec for every node (``offscreen`` or ``room://HOST:PORT``).
+    """
+
+    def __init__(self, slots: list[str], workdir: Path, *, output_size=(160, 90), content_size=(160, 90),
+                 clock_offsets_ms: dict[str, float] | None = None, clock_drifts_ppm: dict[str, float] | None = None,
+                 node_output: str = "offscreen", snapshots: bool = False, latency_ms: float = 50.0,
+                 rig_name: str | None = None, extra_node_args: dict[str, list[str]] | None = None, mdns: bool = True):
+        self.slots = list(slots)
+        self.workdir = Path(workdir)
+        self.rig_dir = self.workdir / "rig"
+        self.log_dir = self.workdir / "logs"
+        self.snapshot_dir = self.workdir / "snapshots" if snapshots else None
+        self.output_size, self.content_size = output_size, content_size
+        self.offsets = clock_offsets_ms or {}
+        self.drifts = clock_drifts_ppm or {}
+        self.node_output = node_output
+        self.latency_ms = latency_ms
+        self.rig_name = rig_name or f"local-{os.getpid()}-{int(time.time() * 1000) % 100000}"
+        self.extra_node_args = extra_node_args or {}
+        self.mdns = mdns
+        self.port = free_port()
+        self.coordinator: subprocess.Popen | None = None
+        self.nodes: dict[str, subprocess.Popen] = {}
+        self._logs: list = []
+
+    # ---------------------------------------------------------------- lifecycle
+    def create(self) -> "LocalRig":
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        if not (self.rig_dir / "rig.toml").exists():
+            init_rig(self.rig_dir, name=self.rig_name, slots=self.slots, width=self.output_size[0],
+                     height=self.output_size[1], content_width=self.content_size[0],
+                     content_height=self.content_size[1], latency_ms=self.latency_ms)
+        self.token = auth.read_token(self.rig_dir / "token")
+        return self
+
+    def __enter__(self) -> "LocalRig":
+        self.create()
+        self.start_coordinator()
+        for s in self.slots:
+            self.start_node(s)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _env(self) -> dict:
+        env = dict(os.environ)
+        env.setdefault("LP_NUM_THREADS", "1")   # many llvmpipe contexts share two cores
+        env["PYTHONUNBUFFERED"] = "1"
+        return env
+
+    def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
+        log = open(self.log_dir / f"{name}.log", "ab")
+        self._logs.append(log)
+        return subprocess.Popen([sys.executable, "-m", "shadowless", *args], stdout=log, stderr=subprocess.STDOUT,
+                                env=self._env(), start_new_session=True)
+
+    def start_coordinator(self) -> None:
+        assert self.coordinator is None or self.coordinator.poll() is not None, "coordinator already running"
+        args = ["coordinator", "--rig", str(self.rig_dir), "--listen", f"127.0.0.1:{self.port}"]
+        args += ["--mdns-interface", "127.0.0.1"] if self.mdns else ["--no-mdns"]
+        self.coordinator = self._spawn("coordinator", args)
+
+    def stop_coordinator(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
+        if self.coordinator is not None and self.coordinator.poll() is None:
+            self.coordinator.send_signal(sig)
+            try:
+                self.coordinator.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.coordinator.kill()
+                self.coordinator.wait()
+
+    def node_args(self, slot: str) -> list[str]:
+        args = ["node", "--slot", slot, "--token-file", str(self.rig_dir / "token"), "--output", self.node_output]
+        if self.mdns:
+            args += ["--mdns-interface", "127.0.0.1", "--rig", self.rig_name]
+        else:
+            args += ["--coordinator", f"127.0.0.1:{self.port}"]
+        if self.snapshot_dir is not None:
+            args += ["--snapshot-dir", str(self.snapshot_dir)]
+        if slot in self.offsets:
+            args += ["--clock-offset-ms", str(self.offsets[slot])]
+        if slot in self.drifts:
+            args += ["--clock-drift-ppm", str(self.drifts[slot])]
+        return args + self.extra_node_args.get(slot, [])
+
+    def start_node(self, slot: str, extra: list[str] | None = None) -> subprocess.Popen:
+        proc = self._spawn(f"node-{slot}", self.node_args(slot) + (extra or []))
+        self.nodes[slot] = proc
+        return proc
+
+    def stop_node(self, slot: str, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
+        proc = self.nodes.get(slot)
+        if proc is not None and proc.poll() is None:
+            proc.send_signal(sig)
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    def close(self) -> None:
+        for slot in list(self.nodes):
+            if self.nodes[slot].poll() is None:
+                self.nodes[slot].send_signal(signal.SIGTERM)
+        for slot in list(self.nodes):
+            self.stop_node(slot)
+        self.stop_coordinator()
+        for f in self._logs:
+            f.close()
+        self._logs.clear()
+
+    def log(self, name: str) -> str:
+        f = self.log_dir / f"{name}.log"
+        return f.read_text(errors="replace") if f.exists() else ""
+
+    # ---------------------------------------------------------------- talking to it
+    async def client(self, timeout: float = 30.0) -> Client:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                return await Client.connect(f"127.0.0.1:{self.port}", self.token)
+            except Exception:
+                if time.monotonic() > deadline:
+                    raise
+                if self.coordinator is not None and self.coordinator.poll() is not None:
+                    raise RuntimeError("coordinator exited:\n" + self.log("coordinator")[-3000:])
+                await asyncio.sleep(0.2)
+
+    async def wait_live(self, client: Client, slots: list[str] | None = None, *, timeout: float = 120.0,
+                        min_joins: dict[str, int] | None = None) -> control_pb2.RigStatus:
+        """Wait until every slot in ``slots`` is live (and has joined at least ``min_joins`` times)."""
+        want = set(self.slots if slots is None else slots)
+        deadline = time.monotonic() + timeout
+        while True:
+            st = await client.status()
+            live = {n.slot for n in st.nodes if n.state == control_pb2.NODE_STATE_LIVE
+                    and n.joins >= (min_joins or {}).get(n.slot, 0)}
+            if want <= live:
+                return st
+            if time.monotonic() > deadline:
+                missing = sorted(want - live)
+                tails = "\n".join(f"--- node {s}:\n{self.log('node-' + s)[-1500:]}" for s in missing[:3])
+                raise TimeoutError(f"nodes not live after {timeout:.0f} s: {missing}\n{tails}")
+            for s, p in self.nodes.items():
+                if s in want and p.poll() is not None:
+                    raise RuntimeError(f"node {s} exited with {p.returncode}:\n{self.log('node-' + s)[-3000:]}")
+            await asyncio.sleep(0.25)
+
+
+def test_card(width: int, height: int) -> np.ndarray:
+    """A test image: colour ramps, a grid and a centre cross; (H, W, 3) uint16."""
+    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    img = np.stack([x / max(1, width - 1), y / max(1, height - 1), 0.5 + 0.5 * np.sin(x / 7.0) * np.cos(y / 9.0)], axis=-1)
+    grid = ((x.astype(int) % 40) < 2) | ((y.astype(int) % 40) < 2)
+    img[grid] = 1.0
+    cy, cx = height // 2, width // 2
+    img[max(0, cy - 1): cy + 2, :] = 0.0
+    img[:, max(0, cx - 1): cx + 2] = 0.0
+    return np.round(np.clip(img, 0, 1) * 65535).astype(np.uint16)
+
+
+# ---------------------------------------------------------------- `shadowless local`
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Start a coordinator and N offscreen nodes on 127.0.0.1 (mDNS on loopback), show an image on all "
+                     "of them, play a counter sequence, print the sync figures, and stop everything.")
+    p.add_argument("--nodes", type=int, default=4, help="how many node processes (default 4)")
+    p.add_argument("--fps", type=float, default=30.0, help="sequence frame rate (default 30)")
+    p.add_argument("--seconds", type=float, default=5.0, help="sequence length (default 5 s)")
+    p.add_argument("--image", help="still to show first (default: a generated test card)")
+    p.add_argument("--size", default="160x90", help="projector output and content size WxH (default 160x90)")
+    p.add_argument("--clock-offset-ms", type=float, default=0.0,
+                   help="inject clock offsets spread over ±this many ms across the nodes (test hook)")
+    p.add_argument("--clock-drift-ppm", type=float, default=0.0, help="inject drifts spread over ±this many ppm")
+    p.add_argument("--keep", metavar="DIR", help="keep the rig directory, logs and snapshots in DIR")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+
+
+def spread(n: int, amplitude: float, seed: int) -> list[float]:
+    rng = np.random.default_rng(seed)
+    return [float(v) for v in rng.uniform(-amplitude, amplitude, n)] if amplitude else [0.0] * n
+
+
+async def _local(args) -> int:
+    w, h = (int(v) for v in args.size.split("x"))
+    slots = grid_names(args.nodes)
+    workdir = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="shadowless-local-"))
+    offsets = dict(zip(slots, spread(len(slots), args.clock_offset_ms, 1)))
+    drifts = dict(zip(slots, spread(len(slots), args.clock_drift_ppm, 2)))
+    with LocalRig(slots, workdir, output_size=(w, h), content_size=(w, h), clock_offsets_ms=offsets,
+                  clock_drifts_ppm=drifts, snapshots=True) as rig:
+        print(f"rig {rig.rig_name}: coordinator on 127.0.0.1:{rig.port}, {len(slots)} nodes; logs in {rig.log_dir}", file=sys.stderr)
+        async with await rig.client() as c:
+            await rig.wait_live(c)
+            from coordinator.operator import read_image
+
+            img = read_image(args.image) if args.image else test_card(w, h)
+            await c.show(img, name=args.image or "test card")
+            await asyncio.sleep(1.0)
+            frames = max(1, int(args.fps * args.seconds))
+            reply = await c.play(control_pb2.PlaySettings(fps=args.fps, pattern="counter", frames=frames, width=w,
+                                                          height=h, wait=True))
+            status = status_dict(await c.status())
+    result = {"nodes": len(slots), "fps": args.fps, **play_dict(reply), "node_table": status["nodes"],
+              "workdir": str(workdir)}
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        s = result["sync"]
+        print(f"{result['nodes']} nodes, {result['frames_sent']} frames at {args.fps:g} fps: shown by all "
+              f"{result['frames_shown']}, late {result['frames_late']}, dropped {result['frames_dropped']}")
+        print(f"swap skew p50 {s['skew_p50_ms']} ms, p99 {s['skew_p99_ms']} ms, max {s['skew_max_ms']} ms "
+              f"({s['skew_source']}); clock error p99 {s['clock_error_p99_ms']} ms; out of order {s['out_of_order']}")
+        print(f"snapshots of the still: {workdir / 'snapshots'}")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    return asyncio.run(_local(args))

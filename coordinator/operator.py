@@ -1,0 +1,313 @@
+"""Operator commands: `shadowless status`, `show`, `play`, `configure`.
+
+They talk to a running coordinator over gRPC (RigControl), after the same
+rig-token handshake the nodes use.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import grpc
+import numpy as np
+
+from protos import auth, codec, common_pb2, control_pb2, control_pb2_grpc, node_pb2
+from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
+
+
+class OperatorError(Exception):
+    pass
+
+
+# ---------------------------------------------------------------- connection
+def add_connection_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("which coordinator")
+    g.add_argument("--coordinator", metavar="HOST:PORT", help="address of the coordinator (default: find it over mDNS)")
+    g.add_argument("--rig-dir", metavar="DIR", help="a rig directory on this machine: its token is used")
+    g.add_argument("--rig", metavar="NAME", help="with mDNS: the rig's name or id")
+    g.add_argument("--token-file", metavar="FILE", help="rig token (default: $SHADOWLESS_TOKEN_FILE or RIG_DIR/token)")
+    g.add_argument("--mdns-interface", action="append", metavar="IP", help="browse mDNS on this IPv4 address only")
+    g.add_argument("--tls-ca", metavar="PEM", help="use TLS, trusting this CA certificate")
+    g.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
+
+
+class Client:
+    """An authenticated RigControl client. ``async with Client.connect(...) as c: await c.status()``."""
+
+    def __init__(self, channel: grpc.aio.Channel, stub, session: str):
+        self.channel, self.stub, self.session = channel, stub, session
+        self.md = ((SESSION_KEY, session),)
+
+    @classmethod
+    async def connect(cls, target: str, token: bytes, *, tls_ca: bytes | None = None, tls_server_name: str | None = None) -> "Client":
+        options = list(GRPC_OPTIONS)
+        if tls_ca is not None:
+            if tls_server_name:
+                options.append(("grpc.ssl_target_name_override", tls_server_name))
+            channel = grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(tls_ca), options=options)
+        else:
+            channel = grpc.aio.insecure_channel(target, options=options)
+        stub = control_pb2_grpc.RigControlStub(channel)
+        try:
+            cn = auth.new_nonce()
+            hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=cn, role="operator"), timeout=10)
+            if not auth.verify(auth.coordinator_proof(token, hello.rig_id, cn, hello.server_nonce), hello.server_proof):
+                raise OperatorError(f"the coordinator at {target} could not prove it knows the rig token (wrong token file?)")
+            proof = auth.client_proof(token, "operator", hello.rig_id, "", cn, hello.server_nonce)
+            reply = await stub.Login(common_pb2.LoginRequest(protocol_version=PROTOCOL_VERSION, role="operator", client_nonce=cn,
+                                                             server_nonce=hello.server_nonce, client_proof=proof), timeout=10)
+        except grpc.aio.AioRpcError as exc:
+            await channel.close()
+            raise OperatorError(f"coordinator at {target}: {exc.details() or exc.code().name}") from exc
+        except BaseException:
+            await channel.close()
+            raise
+        return cls(channel, stub, reply.session)
+
+    async def __aenter__(self) -> "Client":
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.channel.close()
+
+    async def status(self) -> control_pb2.RigStatus:
+        return await self.stub.Status(control_pb2.StatusRequest(), metadata=self.md, timeout=10)
+
+    async def show(self, image: np.ndarray, *, name: str = "", persist: bool = False, space: int = node_pb2.SPACE_CONTENT,
+                   apply_lut: bool = True) -> control_pb2.ShowReply:
+        req = control_pb2.ShowRequest(image=codec.encode_image(image, compress=True), name=name, persist=persist,
+                                      space=space, apply_lut=apply_lut)
+        return await self.stub.Show(req, metadata=self.md, timeout=60)
+
+    async def play(self, settings: control_pb2.PlaySettings, frames: list[np.ndarray] = ()) -> control_pb2.PlayReply:
+        async def items():
+            yield control_pb2.PlayItem(settings=settings)
+            for f in frames:
+                yield control_pb2.PlayItem(frame=codec.encode_image(f, compress=True))
+
+        return await self.stub.Play(items(), metadata=self.md)
+
+    async def configure(self, req: control_pb2.ConfigureRequest) -> control_pb2.ConfigureReply:
+        return await self.stub.Configure(req, metadata=self.md, timeout=10)
+
+
+async def open_client(args: argparse.Namespace) -> Client:
+    token_file = args.token_file or os.environ.get("SHADOWLESS_TOKEN_FILE")
+    if not token_file and args.rig_dir:
+        token_file = str(Path(args.rig_dir) / "token")
+    if not token_file:
+        raise OperatorError("no rig token: pass --rig-dir DIR, --token-file FILE or set SHADOWLESS_TOKEN_FILE")
+    token = auth.read_token(token_file)
+    target = args.coordinator
+    if not target:
+        from node.discovery import Discovery
+
+        disc = Discovery(interfaces=args.mdns_interface)
+        await disc.start()
+        try:
+            ads = await disc.find(rig=args.rig, timeout=3.0)
+        finally:
+            await disc.close()
+        if not ads:
+            raise OperatorError("no coordinator found over mDNS; pass --coordinator HOST:PORT")
+        if len({a.rig_id for a in ads}) > 1:
+            raise OperatorError("several rigs found: " + ", ".join(a.name for a in ads) + "; pick one with --rig")
+        target = ads[0].target
+    tls_ca = Path(args.tls_ca).read_bytes() if getattr(args, "tls_ca", None) else None
+    return await Client.connect(target, token, tls_ca=tls_ca, tls_server_name=getattr(args, "tls_server_name", None))
+
+
+# ---------------------------------------------------------------- formatting
+STATE_NAMES = {v: k.removeprefix("NODE_STATE_").lower() for k, v in control_pb2.NodeState.items()}
+
+
+def status_dict(st: control_pb2.RigStatus) -> dict:
+    def num(x: float) -> float | None:
+        return None if math.isnan(x) else round(x, 4)
+
+    return {
+        "rig": {"name": st.rig_name, "id": st.rig_id, "instance": st.instance_id, "dir": st.rig_dir,
+                "protocol": st.protocol_version, "uptime_s": round(st.uptime_s, 1), "showing": st.showing,
+                "latency_budget_ms": st.latency_budget_ms, "coordinator_cpu_s": round(st.cpu_s, 3)},
+        "nodes": [{
+            "slot": n.slot, "state": STATE_NAMES.get(n.state, "?"), "host": n.hostname, "pid": n.pid,
+            "clock_offset_ms": round(n.clock_offset_ms, 3), "drift_ppm": round(n.clock_drift_ppm, 2),
+            "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": num(n.clock_error_ms),
+            "last_swap_frame": n.last_swap_frame, "last_swap_age_ms": num(n.last_swap_age_ms),
+            "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
+            "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins,
+        } for n in st.nodes],
+        "sync": {"frames": st.sync.frames, "skew_p50_ms": num(st.sync.skew_p50_ms), "skew_p99_ms": num(st.sync.skew_p99_ms),
+                 "skew_max_ms": num(st.sync.skew_max_ms), "skew_source": st.sync.skew_source,
+                 "clock_error_p99_ms": num(st.sync.clock_error_p99_ms), "late": st.sync.frames_late,
+                 "dropped": st.sync.frames_dropped, "out_of_order": st.sync.out_of_order},
+        "refusals": [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1)} for r in st.refusals],
+    }
+
+
+def status_table(d: dict) -> str:
+    r = d["rig"]
+    lines = [f"rig {r['name']} ({r['id']})  instance {r['instance']}  up {r['uptime_s']:.0f} s  showing: {r['showing']}"]
+    hdr = f"{'slot':<8}{'state':<10}{'host':<16}{'offset ms':>11}{'drift ppm':>10}{'rtt ms':>8}{'last frame':>18}{'shown':>8}{'late':>6}{'drop':>6}  pose"
+    lines.append(hdr)
+    for n in d["nodes"]:
+        lines.append(f"{n['slot']:<8}{n['state']:<10}{(n['host'] or '-')[:15]:<16}{n['clock_offset_ms']:>11.3f}{n['drift_ppm']:>10.1f}"
+                     f"{n['rtt_ms']:>8.3f}{n['last_swap_frame'] or '-':>18}{n['shown']:>8}{n['late']:>6}{n['dropped']:>6}  {n['pose']}")
+    s = d["sync"]
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    lines.append(f"sync: {s['frames']} frames, skew p50 {fmt(s['skew_p50_ms'])} ms, p99 {fmt(s['skew_p99_ms'])} ms, "
+                 f"max {fmt(s['skew_max_ms'])} ms ({s['skew_source'] or 'no data'}); late {s['late']}, dropped {s['dropped']}, "
+                 f"out of order {s['out_of_order']}")
+    for ref in d["refusals"][-5:]:
+        lines.append(f"refused {ref['peer']} {ref['slot']}: {ref['reason']} ({ref['age_s']:.0f} s ago)")
+    return "\n".join(lines)
+
+
+def read_image(path: str) -> np.ndarray:
+    """Read an image file as (H, W, C) RGB: 8/16-bit PNG/TIFF/JPEG via OpenCV, or float32 .npy."""
+    p = Path(path)
+    if p.suffix == ".npy":
+        return np.load(p, allow_pickle=False)
+    import cv2
+
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise OperatorError(f"cannot read image {p} (missing, or not an image OpenCV reads)")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)
+    return img
+
+
+# ---------------------------------------------------------------- commands
+def configure_status(p: argparse.ArgumentParser) -> None:
+    p.description = "Show the rig: every slot's node state, clock offset, drift, last swap, late/dropped frames, and the swap skew."
+    p.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
+    add_connection_args(p)
+
+
+def configure_show(p: argparse.ArgumentParser) -> None:
+    p.description = ("Show an image on every projector (warped by each one's pose). 16-bit PNGs and float32 .npy "
+                     "files keep their precision.")
+    p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1])")
+    p.add_argument("--persist", action="store_true", help="make it the rig's content (shown again after a restart)")
+    add_connection_args(p)
+
+
+def configure_play(p: argparse.ArgumentParser) -> None:
+    p.description = "Play a sequence of images (a folder, sorted by name) or a generated counter pattern, with synchronized swaps."
+    p.add_argument("source", nargs="?", help="a folder of images (omit with --pattern)")
+    p.add_argument("--pattern", choices=["counter"], help="generate frames on the coordinator instead")
+    p.add_argument("--frames", type=int, default=150, help="with --pattern: how many frames (default 150)")
+    p.add_argument("--size", default="320x180", help="with --pattern: content size WxH (default 320x180)")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
+    p.add_argument("--loops", type=int, default=0, help="extra loops (default 0: once)")
+    p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    add_connection_args(p)
+
+
+def configure_configure(p: argparse.ArgumentParser) -> None:
+    p.description = "Set a slot's pose, LUT, gain or output size by hand (calibration normally does this)."
+    p.add_argument("--slot", required=True)
+    p.add_argument("--homography", metavar="FILE_OR_9_NUMBERS",
+                   help="content px -> projector px: a .npy (3,3) file or 9 comma-separated numbers, row-major")
+    p.add_argument("--lut", metavar="NPY", help="(C, E) float32 inverse-response LUT")
+    p.add_argument("--gain", type=float, help="linear gain (0..16)")
+    p.add_argument("--resolution", metavar="WxH", help="output size")
+    p.add_argument("--clear-pose", action="store_true", help="remove the pose (the projector shows black)")
+    add_connection_args(p)
+
+
+async def _status(args) -> int:
+    async with await open_client(args) as c:
+        d = status_dict(await c.status())
+    print(json.dumps(d, indent=2) if args.json else status_table(d))
+    return 0
+
+
+async def _show(args) -> int:
+    img = read_image(args.image)
+    async with await open_client(args) as c:
+        r = await c.show(img, name=Path(args.image).name, persist=args.persist)
+    print(f"showing {args.image} ({img.shape[1]}x{img.shape[0]} {img.dtype}) as frame {r.frame_id}, content {r.content_id}")
+    return 0
+
+
+def play_dict(r: control_pb2.PlayReply) -> dict:
+    s = status_dict(control_pb2.RigStatus(sync=r.sync))["sync"]
+    return {"frames_sent": r.frames_sent, "frames_shown": r.frames_shown, "frames_late": r.frames_late,
+            "frames_dropped": r.frames_dropped, "nodes": r.nodes, "wall_s": round(r.wall_s, 3),
+            "coordinator_cpu_s": round(r.coordinator_cpu_s, 4), "sync": s}
+
+
+async def _play(args) -> int:
+    frames: list[np.ndarray] = []
+    st = control_pb2.PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait)
+    if args.pattern:
+        w, h = (int(v) for v in args.size.split("x"))
+        st.pattern, st.frames, st.width, st.height = args.pattern, args.frames, w, h
+    elif args.source:
+        files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
+        if not files:
+            raise OperatorError(f"no images in {args.source}")
+        frames = [read_image(str(f)) for f in files]
+    else:
+        raise OperatorError("give a folder of images or --pattern counter")
+    async with await open_client(args) as c:
+        r = await c.play(st, frames)
+    d = play_dict(r)
+    print(json.dumps(d, indent=2) if args.json else
+          f"played {d['frames_sent']} frames on {d['nodes']} nodes: shown by all {d['frames_shown']}, late {d['frames_late']}, "
+          f"dropped {d['frames_dropped']}; skew p99 {d['sync']['skew_p99_ms']} ms")
+    return 0
+
+
+async def _configure(args) -> int:
+    req = control_pb2.ConfigureRequest(slot=args.slot, clear_pose=args.clear_pose)
+    if args.homography:
+        if Path(args.homography).exists():
+            h = np.load(args.homography).astype(np.float64)
+        else:
+            h = np.array([float(v) for v in args.homography.split(",")], dtype=np.float64)
+        if h.size != 9:
+            raise OperatorError("a homography needs 9 numbers")
+        req.homography.m.extend(h.ravel().tolist())
+    if args.lut:
+        from coordinator.wire import lut_message
+
+        req.lut.CopyFrom(lut_message(np.load(args.lut).astype(np.float32)))
+    if args.gain is not None:
+        req.gain = args.gain
+    if args.resolution:
+        req.output_width, req.output_height = (int(v) for v in args.resolution.split("x"))
+    async with await open_client(args) as c:
+        r = await c.configure(req)
+    print(f"slot {args.slot} now at revision {r.revision}")
+    return 0
+
+
+def _runner(coro_fn):
+    def run(args) -> int:
+        try:
+            return asyncio.run(coro_fn(args))
+        except (OperatorError, auth.TokenError) as exc:
+            print(f"shadowless {args.command}: {exc}", file=sys.stderr)
+            return 2
+        except grpc.aio.AioRpcError as exc:
+            print(f"shadowless {args.command}: {exc.details() or exc.code().name}", file=sys.stderr)
+            return 2
+
+    return run
+
+
+run_status = _runner(_status)
+run_show = _runner(_show)
+run_play = _runner(_play)
+run_configure = _runner(_configure)

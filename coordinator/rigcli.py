@@ -1,0 +1,66 @@
+"""`shadowless rig`: create and inspect rig directories."""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+
+from coordinator.errors import RigError
+
+
+def _size(text: str) -> tuple[int, int]:
+    m = re.fullmatch(r"(\d+)x(\d+)", text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="rig_command", metavar="ACTION", required=True)
+    init = sub.add_parser("init", help="create a rig directory: rig.toml with slots, and a fresh token",
+                          description="Create a rig directory: rig.toml (human-editable) and a token file (0600). "
+                                      "Copy the token to every node (e.g. /etc/shadowless/token).")
+    init.add_argument("dir", help="the rig directory to create")
+    init.add_argument("--name", help="rig name, advertised over mDNS (default: the directory's name)")
+    g = init.add_mutually_exclusive_group()
+    g.add_argument("--grid", type=_size, metavar="COLSxROWS", default=(5, 5),
+                   help="slots r0c0… for a projector array (default 5x5)")
+    g.add_argument("--slots", help="explicit comma-separated slot names instead of a grid")
+    init.add_argument("--resolution", type=_size, default=(1920, 1080), metavar="WxH", help="projector output size (default 1920x1080)")
+    init.add_argument("--content-size", type=_size, default=(1200, 600), metavar="WxH",
+                      help="shared image size in content px (default 1200x600: 1 px per mm on a 1200x600 mm table)")
+    init.add_argument("--latency-ms", type=float, default=50.0, help="frame scheduling budget (default 50)")
+    init.add_argument("--force", action="store_true", help="replace an existing rig.toml (keeps the token and state)")
+    show = sub.add_parser("show", help="print a rig directory's configuration and per-slot state as JSON")
+    show.add_argument("dir")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from coordinator.rig import Rig, grid_slots, init_rig
+
+    try:
+        if args.rig_command == "init":
+            cols, rows = args.grid
+            slots = [s.strip() for s in args.slots.split(",") if s.strip()] if args.slots else grid_slots(rows, cols)
+            path = init_rig(args.dir, name=args.name or Path(args.dir).resolve().name, slots=slots,
+                            width=args.resolution[0], height=args.resolution[1], content_width=args.content_size[0],
+                            content_height=args.content_size[1], latency_ms=args.latency_ms, force=args.force)
+            print(f"created rig in {path}: {len(slots)} slots; token in {path / 'token'} (copy it to every node)")
+            return 0
+        rig = Rig(args.dir)
+        doc = {
+            "name": rig.config.name, "id": rig.config.rig_id, "dir": str(rig.path),
+            "content": [rig.config.content_width, rig.config.content_height],
+            "slots": {n: {"size": [s.width, s.height], "revision": s.revision, "gain": s.gain,
+                          "pose": s.pose.kind if s.pose else None, "lut": s.lut is not None, "source": s.source}
+                      for n, s in rig.slots.items()},
+        }
+        json.dump(doc, sys.stdout, indent=2)
+        print()
+        return 0
+    except (RigError, ValueError) as exc:
+        print(f"shadowless rig: {exc}", file=sys.stderr)
+        return 2

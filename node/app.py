@@ -1,0 +1,304 @@
+"""A node: find the coordinator, prove the rig token, join, keep the clock in
+step, feed the presenter, report swaps, and come back by itself after anything.
+
+The network side runs on one asyncio loop (grpc.aio + AsyncZeroconf); the GL
+side runs on the presenter thread. A session lives from a successful Join to
+the first broken stream; then the node backs off (exponentially, with jitter,
+never busy-looping) and starts over with discovery, while the projector keeps
+showing the last frame.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import random
+import socket
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import grpc
+
+from node.clock import ClockEstimator, ClockSample, LocalClock
+from node.discovery import Discovery
+from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
+from node.presenter import Presenter
+from node.wire import assignment_from_message, frame_for_slot
+from protos import auth, common_pb2, node_pb2, node_pb2_grpc
+from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
+
+log = logging.getLogger("node")
+
+REFUSAL_CODES = {grpc.StatusCode.FAILED_PRECONDITION, grpc.StatusCode.UNAUTHENTICATED, grpc.StatusCode.NOT_FOUND,
+                 grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.PERMISSION_DENIED}
+
+
+@dataclass
+class NodeConfig:
+    slot: str
+    token: bytes
+    coordinator: str | None = None          # HOST:PORT; None = mDNS
+    rig: str | None = None                  # rig name or id to pick among advertisements
+    mdns_interfaces: list[str] | None = None
+    output: str = "offscreen"
+    snapshot_dir: Path | None = None
+    clock_offset_ms: float = 0.0
+    clock_drift_ppm: float = 0.0
+    protocol_version: int = PROTOCOL_VERSION
+    tls_ca: bytes | None = None
+    tls_server_name: str | None = None
+    ping_hz: float = 4.0
+    backoff_min_s: float = 0.2
+    backoff_max_s: float = 5.0
+    refusal_backoff_s: float = 10.0
+
+
+def _boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:  # pragma: no cover - non-Linux
+        return ""
+
+
+class Node:
+    def __init__(self, config: NodeConfig):
+        self.cfg = config
+        self.clock = LocalClock(offset_ns=int(config.clock_offset_ms * 1e6), drift_ppm=config.clock_drift_ppm)
+        self.estimator = ClockEstimator()
+        self.presenter: Presenter | None = None
+        self._reports: asyncio.Queue | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._instance = ""
+        self._stopping = asyncio.Event()
+        self.joins = 0
+
+    # ---------------------------------------------------------------- reports (thread-safe)
+    def _report(self, rep: node_pb2.NodeReport) -> None:
+        loop, q = self._loop, self._reports
+        if loop is not None and q is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(q.put_nowait, rep)
+
+    # ---------------------------------------------------------------- main loop
+    async def run(self) -> int:
+        self._loop = asyncio.get_running_loop()
+        self._reports = asyncio.Queue()
+        from node.presenter import tune_interpreter
+
+        tune_interpreter()
+        self.presenter = Presenter(slot=self.cfg.slot, output_spec=self.cfg.output, clock=self.clock,
+                                   estimator=self.estimator, report=self._report, snapshot_dir=self.cfg.snapshot_dir)
+        self.presenter.start()
+        await asyncio.get_running_loop().run_in_executor(None, self.presenter.ready.wait)
+        if self.presenter.failed is not None:
+            log.error("cannot open output %r: %s", self.cfg.output, self.presenter.failed)
+            return 3
+        discovery = None
+        if self.cfg.coordinator is None:
+            discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
+            await discovery.start()
+        backoff = self.cfg.backoff_min_s
+        try:
+            while not self._stopping.is_set():
+                if self.presenter.failed is not None:
+                    log.error("presenter stopped: %s", self.presenter.failed)
+                    return 3
+                delay = backoff
+                try:
+                    targets = await self._targets(discovery)
+                    for target in targets:
+                        joined = await self._session(target)
+                        if joined:
+                            backoff = self.cfg.backoff_min_s
+                            delay = backoff
+                            break
+                    else:
+                        if targets:
+                            log.warning("could not reach the coordinator at %s", ", ".join(targets))
+                except Refused as exc:
+                    log.error("refused: %s (retrying in %.0f s)", exc, self.cfg.refusal_backoff_s)
+                    delay = self.cfg.refusal_backoff_s
+                except CoordinatorNotTrusted as exc:
+                    log.error("%s (retrying in %.0f s)", exc, self.cfg.refusal_backoff_s)
+                    delay = self.cfg.refusal_backoff_s
+                except DiscoveryError as exc:
+                    log.warning("%s", exc)
+                except grpc.aio.AioRpcError as exc:
+                    log.warning("coordinator unreachable (%s: %s)", exc.code().name, exc.details())
+                backoff = min(self.cfg.backoff_max_s, backoff * 2)
+                try:
+                    await asyncio.wait_for(self._stopping.wait(), delay * random.uniform(0.8, 1.2))
+                except asyncio.TimeoutError:
+                    pass
+        finally:
+            if discovery is not None:
+                await discovery.close()
+            self.presenter.stop()
+            await asyncio.get_running_loop().run_in_executor(None, self.presenter.join, 5.0)
+        return 0
+
+    def stop(self) -> None:
+        self._stopping.set()
+
+    async def _targets(self, discovery: Discovery | None) -> list[str]:
+        if discovery is None:
+            return [self.cfg.coordinator]
+        ads = await discovery.find(rig=self.cfg.rig, timeout=3.0)
+        if not ads:
+            raise DiscoveryError(f"no coordinator advertised over mDNS{' for rig ' + repr(self.cfg.rig) if self.cfg.rig else ''}"
+                                 " yet; still looking (or pass --coordinator HOST:PORT)")
+        rigs = {a.rig_id for a in ads}
+        if len(rigs) > 1:
+            names = ", ".join(sorted(f"{a.name} ({a.rig_id})" for a in ads))
+            raise DiscoveryError(f"several rigs are advertised ({names}); pick one with --rig NAME")
+        for a in ads:
+            if a.protocol and a.protocol != str(self.cfg.protocol_version):
+                log.warning("rig %s advertises protocol %s, this node speaks %d", a.name, a.protocol, self.cfg.protocol_version)
+        return [a.target for a in ads]
+
+    def _channel(self, target: str) -> grpc.aio.Channel:
+        options = list(GRPC_OPTIONS)
+        if self.cfg.tls_ca is not None:
+            if self.cfg.tls_server_name:
+                options.append(("grpc.ssl_target_name_override", self.cfg.tls_server_name))
+            return grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(root_certificates=self.cfg.tls_ca), options=options)
+        return grpc.aio.insecure_channel(target, options=options)
+
+    # ---------------------------------------------------------------- one session
+    async def _session(self, target: str) -> bool:
+        """Join ``target`` and serve until a stream breaks. True if the join succeeded."""
+        async with self._channel(target) as channel:
+            stub = node_pb2_grpc.NodeLinkStub(channel)
+            try:
+                session, instance, hb_ms = await self._handshake(stub, target)
+            except grpc.aio.AioRpcError as exc:
+                if exc.code() in REFUSAL_CODES:
+                    raise Refused(f"coordinator at {target}: {exc.details()}") from exc
+                log.debug("cannot join %s: %s", target, exc.code())
+                return False
+            self.joins += 1
+            if instance != self._instance:
+                if self._instance:
+                    log.info("coordinator instance changed (%s -> %s): resyncing clock", self._instance, instance)
+                self._instance = instance
+                self.estimator.reset()
+                self.presenter.submit("reset")
+            log.info("joined rig at %s as %s (session %s…)", target, self.cfg.slot, session[:6])
+            md = ((SESSION_KEY, session),)
+            # a first clock estimate before any frame can be scheduled
+            await self._ping_burst(stub, md, count=8)
+            tasks = [
+                asyncio.create_task(self._assignments(stub, md), name="assignments"),
+                asyncio.create_task(self._frames(stub, md), name="frames"),
+                asyncio.create_task(self._report_stream(stub, md, hb_ms / 1000.0), name="report"),
+                asyncio.create_task(self._pings(stub, md), name="pings"),
+                asyncio.create_task(self._stopping.wait(), name="stopping"),
+            ]
+            done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+            for t in pending:
+                t.cancel()
+            await asyncio.gather(*pending, return_exceptions=True)
+            for t in done:
+                exc = t.exception() if not t.cancelled() else None
+                if isinstance(exc, grpc.aio.AioRpcError):
+                    log.warning("lost the coordinator (%s: %s); will rejoin", exc.code().name, exc.details())
+                elif exc is not None and not isinstance(exc, asyncio.CancelledError):
+                    log.error("session ended by %s: %r", t.get_name(), exc)
+            return True
+
+    async def _handshake(self, stub, target: str) -> tuple[str, str, int]:
+        client_nonce = auth.new_nonce()
+        hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=self.cfg.protocol_version,
+                                                         client_nonce=client_nonce, role="node", slot=self.cfg.slot),
+                                 timeout=5)
+        expected = auth.coordinator_proof(self.cfg.token, hello.rig_id, client_nonce, hello.server_nonce)
+        if not auth.verify(expected, hello.server_proof):
+            raise CoordinatorNotTrusted(
+                f"the coordinator at {target} (rig {hello.rig_name!r}) could not prove it knows the rig token: "
+                "this node has the wrong token file, or that advertiser is not our coordinator")
+        proof = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
+        size = self.presenter.native_size or (0, 0)
+        info = node_pb2.NodeInfo(hostname=socket.gethostname(), host_boot_id=_boot_id(), pid=os.getpid(),
+                                 software_version=_version(), output=self.cfg.output.split("?")[0],
+                                 native_width=size[0], native_height=size[1])
+        login = common_pb2.LoginRequest(protocol_version=self.cfg.protocol_version, role="node", slot=self.cfg.slot,
+                                        client_nonce=client_nonce, server_nonce=hello.server_nonce, client_proof=proof)
+        reply = await stub.Join(node_pb2.JoinRequest(login=login, info=info), timeout=5)
+        return reply.session, reply.instance_id, reply.heartbeat_interval_ms or 500
+
+    async def _ping_once(self, stub, md) -> None:
+        t0 = self.clock.now()
+        rep = await stub.Ping(node_pb2.PingRequest(t0_local_ns=t0), metadata=md, timeout=2)
+        t3 = self.clock.now()
+        self.estimator.add(ClockSample(t0, rep.t1_rig_ns, rep.t2_rig_ns, t3))
+
+    async def _ping_burst(self, stub, md, *, count: int) -> None:
+        for _ in range(count):
+            await self._ping_once(stub, md)
+            await asyncio.sleep(0.01)
+
+    async def _pings(self, stub, md) -> None:
+        period = 1.0 / max(0.1, self.cfg.ping_hz)
+        while True:
+            await asyncio.sleep(period * random.uniform(0.8, 1.2))
+            await self._ping_once(stub, md)
+
+    async def _assignments(self, stub, md) -> None:
+        async for msg in stub.Assignments(node_pb2.StreamRequest(), metadata=md):
+            try:
+                self.presenter.submit("assignment", assignment_from_message(msg))
+            except ValueError as exc:
+                log.error("ignoring a malformed assignment r%d: %s", msg.revision, exc)
+
+    async def _frames(self, stub, md) -> None:
+        async for pkt in stub.Frames(node_pb2.StreamRequest(), metadata=md):
+            kind = pkt.WhichOneof("item")
+            if kind == "frame":
+                self.presenter.submit("frame", frame_for_slot(pkt.frame, self.cfg.slot))
+            elif kind == "content":
+                self.presenter.submit("content", (pkt.content.content_id, pkt.content.image))
+            elif kind == "evict":
+                self.presenter.submit("evict", list(pkt.evict.content_ids))
+
+    async def _report_stream(self, stub, md, heartbeat_s: float) -> None:
+        q = self._reports
+        while not q.empty():  # reports from a previous session are stale
+            q.get_nowait()
+
+        async def items():
+            next_hb = 0.0
+            while True:
+                now = time.monotonic()
+                if now >= next_hb:
+                    next_hb = now + heartbeat_s
+                    yield self._heartbeat()
+                try:
+                    yield await asyncio.wait_for(q.get(), max(0.01, next_hb - time.monotonic()))
+                except asyncio.TimeoutError:
+                    continue
+
+        await stub.Report(items(), metadata=md)
+
+    def _heartbeat(self) -> node_pb2.NodeReport:
+        est = self.estimator.estimate
+        host = self.clock.host_now()
+        local = self.clock.from_host(host)
+        st = self.presenter.stats
+        a = self.presenter.assignment
+        hb = node_pb2.Heartbeat(
+            assignment_revision=a.revision if a else 0, frames_shown=st.shown, frames_late=st.late,
+            frames_dropped=st.dropped, render_ms_p50=self.presenter.render_ms_p50(), host_monotonic_ns=host,
+        )
+        if est is not None:
+            hb.clock_offset_ns = int(est.rig_time(local) - local)
+            hb.clock_drift_ppm = est.drift * 1e6
+            hb.clock_rtt_ns = est.best_rtt_ns
+            hb.clock_samples = est.samples
+            hb.rig_estimate_ns = est.rig_time(local)
+        return node_pb2.NodeReport(heartbeat=hb)
+
+
+def _version() -> str:
+    from shadowless import __version__
+
+    return __version__

@@ -1,0 +1,187 @@
+"""Node clocks: the local clock (with test hooks that make it wrong on purpose)
+and the rig-clock estimator (NTP-style exchanges filtered by minimum round trip).
+
+Times are integer nanoseconds. The *rig clock* is the coordinator's monotonic
+clock; a node estimates ``rig = local + offset(local)`` with an offset that is
+a straight line in local time (offset and drift), fitted over the exchanges
+whose round trip was close to the best one seen (queueing delay only ever adds
+to a round trip, so the fastest exchanges carry the least error).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+
+class LocalClock:
+    """This host's monotonic clock, optionally offset and drifting (test hooks).
+
+    ``local = host + offset_ns + (host - anchor) * drift_ppm * 1e-6`` where
+    ``host`` is ``CLOCK_MONOTONIC``. With no hooks, local time *is* host time.
+    """
+
+    def __init__(self, *, offset_ns: int = 0, drift_ppm: float = 0.0, source: Callable[[], int] = time.monotonic_ns):
+        self._source = source
+        self.offset_ns = int(offset_ns)
+        self.drift = float(drift_ppm) * 1e-6
+        self._anchor = source()
+
+    @property
+    def faked(self) -> bool:
+        return self.offset_ns != 0 or self.drift != 0.0
+
+    def host_now(self) -> int:
+        return self._source()
+
+    def from_host(self, host_ns: int) -> int:
+        return host_ns + self.offset_ns + int(round((host_ns - self._anchor) * self.drift))
+
+    def to_host(self, local_ns: int) -> int:
+        return int(round((local_ns - self.offset_ns + self._anchor * self.drift) / (1.0 + self.drift)))
+
+    def now(self) -> int:
+        return self.from_host(self._source())
+
+    def sleep_until(self, local_ns: int, *, spin_ns: int = 300_000) -> int:
+        """Block until the local clock reads ``local_ns``; return the host time on waking.
+
+        Sleeps with the kernel's high-resolution timer (``time.sleep`` uses
+        ``clock_nanosleep`` on Linux) to within ``spin_ns`` of the deadline,
+        then yields in a short loop to land on it without burning a core.
+        """
+        deadline = self.to_host(local_ns)
+        while True:
+            now = self._source()
+            remaining = deadline - now
+            if remaining <= 0:
+                return now
+            if remaining > spin_ns:
+                time.sleep((remaining - spin_ns) / 1e9)
+            else:
+                time.sleep(0)
+
+
+@dataclass(frozen=True)
+class ClockSample:
+    """One exchange: t0/t3 on the local clock, t1/t2 on the rig clock (ns)."""
+
+    t0: int
+    t1: int
+    t2: int
+    t3: int
+
+    @property
+    def rtt(self) -> int:
+        return (self.t3 - self.t0) - (self.t2 - self.t1)
+
+    @property
+    def offset(self) -> float:
+        return ((self.t1 - self.t0) + (self.t2 - self.t3)) / 2.0
+
+    @property
+    def midpoint(self) -> float:
+        return (self.t0 + self.t3) / 2.0
+
+
+@dataclass(frozen=True)
+class ClockEstimate:
+    offset_ns: float      # rig - local at ``ref_local_ns``
+    drift: float          # d(offset)/d(local), dimensionless (1e-6 = 1 ppm)
+    ref_local_ns: float
+    best_rtt_ns: int
+    samples: int
+
+    def rig_time(self, local_ns: int) -> int:
+        return int(round(local_ns + self.offset_ns + self.drift * (local_ns - self.ref_local_ns)))
+
+    def local_time(self, rig_ns: int) -> int:
+        # invert rig = local + off + drift*(local - ref)
+        return int(round((rig_ns - self.offset_ns + self.drift * self.ref_local_ns) / (1.0 + self.drift)))
+
+
+class ClockEstimator:
+    """Offset and drift of the rig clock relative to the local clock.
+
+    Parameters
+    ----------
+    window_ns:
+        Exchanges older than this are forgotten (drift is fitted over the window).
+    rtt_slack:
+        A bucket's fastest exchange is used if its round trip is within ``best * (1 + rtt_slack) + rtt_margin_ns``; weights fall with the excess round trip.
+    bucket_ns:
+        The window is cut into buckets this long; each contributes its fastest exchange.
+    min_drift_span_ns:
+        Drift is fitted only once the used exchanges span at least this long.
+    """
+
+    def __init__(self, *, window_ns: int = 30_000_000_000, rtt_slack: float = 0.5, min_drift_span_ns: int = 2_000_000_000,
+                 max_samples: int = 512, bucket_ns: int = 1_000_000_000, rtt_margin_ns: int = 5_000_000):
+        self.bucket_ns = bucket_ns
+        self.rtt_margin_ns = rtt_margin_ns
+        self.window_ns = window_ns
+        self.rtt_slack = rtt_slack
+        self.min_drift_span_ns = min_drift_span_ns
+        self._samples: deque[ClockSample] = deque(maxlen=max_samples)
+        self._lock = threading.Lock()
+        self._estimate: ClockEstimate | None = None
+
+    def reset(self) -> None:
+        with self._lock:
+            self._samples.clear()
+            self._estimate = None
+
+    def add(self, sample: ClockSample) -> ClockEstimate | None:
+        if sample.rtt < 0 or sample.t3 < sample.t0:
+            return self._estimate  # impossible exchange (clock stepped?): ignore it
+        with self._lock:
+            self._samples.append(sample)
+            horizon = sample.t3 - self.window_ns
+            while self._samples and self._samples[0].t3 < horizon:
+                self._samples.popleft()
+            self._estimate = self._fit(list(self._samples))
+            return self._estimate
+
+    @property
+    def estimate(self) -> ClockEstimate | None:
+        return self._estimate
+
+    def _fit(self, samples: list[ClockSample]) -> ClockEstimate | None:
+        if not samples:
+            return None
+        rtts = np.array([s.rtt for s in samples], dtype=np.float64)
+        mids = np.array([s.midpoint for s in samples], dtype=np.float64)
+        offs = np.array([s.offset for s in samples], dtype=np.float64)
+        best = float(rtts.min())
+        # The fastest exchange of each time bucket: spread over the window for the drift,
+        # each as free of queueing delay as that moment allowed.
+        buckets = np.floor((mids - mids.min()) / self.bucket_ns).astype(np.int64)
+        order = np.lexsort((rtts, buckets))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = buckets[order][1:] != buckets[order][:-1]
+        pick = order[first]
+        keep = pick[rtts[pick] <= best * (1.0 + self.rtt_slack) + self.rtt_margin_ns]
+        m, o, r = mids[keep], offs[keep], rtts[keep]
+        w = 1.0 / (r - best + max(best, 100_000.0))   # an exchange's error bound grows with its excess round trip
+        ref = float(mids[-1])
+        span = float(m.max() - m.min()) if len(m) else 0.0
+        if len(m) >= 4 and span >= self.min_drift_span_ns:
+            x = m - ref
+            sw = w.sum()
+            xm = (w * x).sum() / sw
+            ym = (w * o).sum() / sw
+            var = (w * (x - xm) ** 2).sum()
+            drift = float((w * (x - xm) * (o - ym)).sum() / var) if var > 0 else 0.0
+            offset = ym - drift * xm
+        else:
+            # too short for a drift: the single fastest exchange is the best offset we have
+            i = int(np.argmin(rtts))
+            drift, offset, ref = 0.0, float(offs[i]), float(mids[i])
+        if not math.isfinite(offset) or not math.isfinite(drift):
+            return self._estimate
+        return ClockEstimate(offset_ns=offset, drift=drift, ref_local_ns=ref, best_rtt_ns=int(best), samples=int(len(keep)))

@@ -1,0 +1,91 @@
+"""Find coordinators on the local network over mDNS (``_shadowless._tcp.local.``)."""
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass
+
+from zeroconf import InterfaceChoice, IPVersion, ServiceStateChange
+from zeroconf.asyncio import AsyncServiceBrowser, AsyncServiceInfo, AsyncZeroconf
+
+from node.errors import DiscoveryError
+from protos.version import SERVICE_TYPE
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Advertisement:
+    name: str          # rig name (mDNS instance)
+    rig_id: str
+    host: str
+    port: int
+    protocol: str
+    instance: str
+
+    @property
+    def target(self) -> str:
+        return f"{self.host}:{self.port}"
+
+
+class Discovery:
+    """A long-lived mDNS browser; :meth:`find` returns the rigs currently advertised."""
+
+    def __init__(self, *, interfaces: list[str] | None = None):
+        self.interfaces = interfaces
+        self._azc: AsyncZeroconf | None = None
+        self._browser: AsyncServiceBrowser | None = None
+        self._names: set[str] = set()
+        self._changed = asyncio.Event()
+
+    async def start(self) -> None:
+        try:
+            self._azc = AsyncZeroconf(interfaces=self.interfaces or InterfaceChoice.All, ip_version=IPVersion.V4Only)
+        except OSError as exc:
+            raise DiscoveryError(f"cannot start mDNS on {self.interfaces or 'all interfaces'}: {exc}") from exc
+        self._browser = AsyncServiceBrowser(self._azc.zeroconf, SERVICE_TYPE, handlers=[self._on_change])
+
+    def _on_change(self, zeroconf, service_type: str, name: str, state_change: ServiceStateChange) -> None:
+        if state_change is ServiceStateChange.Removed:
+            self._names.discard(name)
+        else:
+            self._names.add(name)
+        self._changed.set()
+
+    async def close(self) -> None:
+        if self._browser is not None:
+            await self._browser.async_cancel()
+        if self._azc is not None:
+            await self._azc.async_close()
+        self._browser = self._azc = None
+
+    async def _resolve(self, name: str) -> Advertisement | None:
+        info = AsyncServiceInfo(SERVICE_TYPE, name)
+        if not await info.async_request(self._azc.zeroconf, 1500):
+            return None
+        props = {k.decode(): (v or b"").decode() for k, v in info.properties.items()}
+        addrs = info.parsed_addresses(IPVersion.V4Only)
+        if not addrs or not info.port:
+            return None
+        return Advertisement(name=props.get("name") or name.removesuffix("." + SERVICE_TYPE), rig_id=props.get("rig", ""),
+                             host=addrs[0], port=info.port, protocol=props.get("proto", ""),
+                             instance=props.get("instance", ""))
+
+    async def find(self, *, rig: str | None = None, timeout: float = 3.0) -> list[Advertisement]:
+        """Advertised rigs matching ``rig`` (name or id), waiting up to ``timeout`` for a first one."""
+        assert self._azc is not None, "call start() first"
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while True:
+            found = []
+            for name in list(self._names):
+                ad = await self._resolve(name)
+                if ad is not None and (rig is None or rig in (ad.name, ad.rig_id)):
+                    found.append(ad)
+            if found or loop.time() >= deadline:
+                return found
+            self._changed.clear()
+            try:
+                await asyncio.wait_for(self._changed.wait(), max(0.05, deadline - loop.time()))
+            except asyncio.TimeoutError:
+                pass
