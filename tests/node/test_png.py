@@ -1,0 +1,160 @@
+"""node/png.py against OpenCV's PNG codec (libpng) as the independent reference."""
+from __future__ import annotations
+
+import os
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from node.png import FILTERS, PngError, decode_png, decode_png_text, encode_png, read_png, write_png
+
+RNG = np.random.default_rng(20240601)
+
+
+def _random(shape, dtype):
+    return RNG.integers(0, np.iinfo(dtype).max + 1, size=shape, dtype=dtype)
+
+
+def _cv_to_png_order(img: np.ndarray) -> np.ndarray:
+    """OpenCV decodes to BGR(A); PNG (and node.png) order is RGB(A)."""
+    if img.ndim == 3 and img.shape[2] == 3:
+        return img[:, :, ::-1]
+    if img.ndim == 3 and img.shape[2] == 4:
+        return img[:, :, [2, 1, 0, 3]]
+    return img
+
+
+def _squeeze_grey(img: np.ndarray) -> np.ndarray:
+    return img[:, :, 0] if img.ndim == 3 and img.shape[2] == 1 else img
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("shape", [(1, 1), (5, 7), (6, 3, 1), (4, 9, 2), (13, 11, 3), (8, 5, 4)])
+@pytest.mark.parametrize("filter", FILTERS)
+def test_round_trip_and_libpng_agrees(dtype, shape, filter):
+    img = _random(shape, dtype)
+    data = encode_png(img, filter=filter)
+    back = decode_png(data)
+    expected = _squeeze_grey(img)
+    assert back.dtype == dtype and back.shape == expected.shape
+    np.testing.assert_array_equal(back, expected)
+    if not (img.ndim == 3 and img.shape[2] == 2):  # OpenCV has no grey+alpha image type
+        ref = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert ref is not None, "libpng rejected our file"
+        np.testing.assert_array_equal(_cv_to_png_order(ref), expected)
+
+
+LIBPNG_FILTERS = {
+    "sub": cv2.IMWRITE_PNG_FILTER_SUB,
+    "up": cv2.IMWRITE_PNG_FILTER_UP,
+    "average": cv2.IMWRITE_PNG_FILTER_AVG,
+    "paeth": cv2.IMWRITE_PNG_FILTER_PAETH,
+    "all": cv2.IMWRITE_PNG_ALL_FILTERS,
+}
+
+
+def _libpng_filter_bytes(data: bytes, h: int, w: int, bpp: int) -> set[int]:
+    """The row filter types in a PNG written by libpng (inflate the IDAT ourselves)."""
+    pos, idat = 8, b""
+    while pos < len(data):
+        n = int.from_bytes(data[pos : pos + 4], "big")
+        if data[pos + 4 : pos + 8] == b"IDAT":
+            idat += data[pos + 8 : pos + 8 + n]
+        pos += 12 + n
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * bpp)
+    return set(raw[:, 0].tolist())
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("channels", [1, 3, 4])
+@pytest.mark.parametrize("libpng_filter", sorted(LIBPNG_FILTERS))
+def test_reads_libpng_files_with_every_filter(dtype, channels, libpng_filter):
+    h, w = 37, 53
+    yy, xx = np.mgrid[0:h, 0:w]
+    base = np.stack([np.sin(xx / 5.0 + c) * np.cos(yy / 7.0 - c) for c in range(channels)], axis=-1)
+    scale = np.iinfo(dtype).max
+    img = ((base + 1) / 2 * scale).astype(dtype)
+    img[::5, ::3] = _random(img[::5, ::3].shape, dtype)  # some noise
+    bgr = _cv_to_png_order(img) if channels > 1 else img[:, :, 0]
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), [cv2.IMWRITE_PNG_FILTER, LIBPNG_FILTERS[libpng_filter]])
+    assert ok
+    data = buf.tobytes()
+    # guard: libpng really used the filter asked for (Average = 3, Paeth = 4 are the hard ones)
+    used = _libpng_filter_bytes(data, h, w, channels * img.itemsize)
+    code = {"sub": 1, "up": 2, "average": 3, "paeth": 4}.get(libpng_filter)
+    assert code in used if code else len(used) >= 2
+    np.testing.assert_array_equal(decode_png(data), _squeeze_grey(img))
+
+
+def test_text_chunks_round_trip():
+    img = _random((4, 4, 3), np.uint8)
+    data = encode_png(img, text={"frame_id": "17", "tag": "show:white"})
+    assert decode_png_text(data) == {"frame_id": "17", "tag": "show:white"}
+    with pytest.raises(ValueError):
+        encode_png(img, text={"": "x"})
+    with pytest.raises(ValueError):
+        encode_png(img, text={"key": "snow \u2603"})
+
+
+def test_write_png_is_atomic_and_leaves_no_temp_files(tmp_path):
+    img = _random((20, 30, 3), np.uint8)
+    path = tmp_path / "r0c0.png"
+    write_png(path, img, compress_level=1)
+    first_inode = os.stat(path).st_ino
+    img2 = _random((20, 30, 3), np.uint8)
+    write_png(path, img2)
+    assert os.stat(path).st_ino != first_inode  # replaced by rename, not rewritten in place
+    np.testing.assert_array_equal(read_png(path), img2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r0c0.png"]
+
+
+def test_write_png_failure_keeps_the_old_file(tmp_path):
+    path = tmp_path / "a.png"
+    img = _random((3, 3), np.uint8)
+    write_png(path, img)
+    with pytest.raises(ValueError):
+        write_png(path, np.zeros((3, 3), np.float32))
+    np.testing.assert_array_equal(read_png(path), img)
+    assert [p.name for p in tmp_path.iterdir()] == ["a.png"]
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [np.zeros((4, 4), np.float32), np.zeros((4, 4, 5), np.uint8), np.zeros((0, 4), np.uint8), np.zeros(4, np.uint8)],
+)
+def test_encode_rejects_bad_images(bad):
+    with pytest.raises(ValueError):
+        encode_png(bad)
+
+
+def test_encode_rejects_bad_options():
+    img = np.zeros((2, 2), np.uint8)
+    with pytest.raises(ValueError, match="filter"):
+        encode_png(img, filter="best")
+    with pytest.raises(ValueError, match="compress_level"):
+        encode_png(img, compress_level=11)
+
+
+def test_decode_detects_corruption_and_unsupported_files():
+    img = _random((6, 6, 3), np.uint8)
+    data = bytearray(encode_png(img))
+    with pytest.raises(PngError, match="signature"):
+        decode_png(b"GIF89a" + bytes(data[6:]))
+    flipped = bytearray(data)
+    flipped[40] ^= 0xFF  # inside IHDR/IDAT: CRC must catch it
+    with pytest.raises(PngError, match="CRC"):
+        decode_png(bytes(flipped))
+    with pytest.raises(PngError, match="truncated"):
+        decode_png(bytes(data[:-20]))
+    interlaced = cv2.imencode(".png", np.zeros((8, 8), np.uint8))[1].tobytes()
+    # rewrite IHDR's interlace byte and fix its CRC
+    ihdr = bytearray(interlaced[16:29])
+    ihdr[12] = 1
+    patched = interlaced[:16] + bytes(ihdr) + zlib.crc32(b"IHDR" + bytes(ihdr)).to_bytes(4, "big") + interlaced[33:]
+    with pytest.raises(PngError, match="interlaced"):
+        decode_png(patched)
+    palette = cv2.imencode(".png", np.zeros((8, 8), np.uint8), [cv2.IMWRITE_PNG_BILEVEL, 1])[1].tobytes()
+    with pytest.raises(PngError, match="bit depth|palette"):
+        decode_png(palette)
