@@ -1,0 +1,10 @@
+#version 330 core
+// Projection pose: sample the content at the mesh's UV, u * W - 0.5 and v * H - 0.5 in content pixels.
+#include "pipeline.glsl"
+
+in vec2 uv;
+out vec4 colour;
+
+void main() {
+    colour = finish(sample_content(uv * vec2(textureSize(content, 0)) - 0.5));
+}

@@ -1,0 +1,63 @@
+// Shared by warp.frag.glsl and mesh.frag.glsl, which include it (moderngl resolves the include).
+//
+// Content sampling reproduces cv2.warpPerspective(..., INTER_LINEAR, BORDER_CONSTANT, 0)
+// in float arithmetic: bilinear interpolation between the four texels around a point given
+// in content pixels (OpenCV convention: texel (x, y) has its centre at integer (x, y)),
+// texels outside the content counting as 0. texelFetch + explicit weights, not the
+// hardware filter, so the result does not depend on a GPU's 8-bit sub-texel precision.
+//
+// Then the node's luminance pipeline: value = LUT(clamp(gain * value)) per channel,
+// or clamp(value) when apply_lut is 0; quantised to round(255 * value).
+
+uniform sampler2D content;      // (H, W) texels, row 0 = top row of the image, never filtered
+uniform int content_grey;       // 1: content has 1 or 2 channels, replicate .r to RGB
+uniform sampler2D lut;          // (3, E) R32F: row c = channel c, sample k at luminance k / (E - 1)
+uniform int lut_size;           // E >= 2
+uniform float gain;
+uniform int apply_lut;
+
+vec3 content_rgb(vec4 t) {
+    return content_grey != 0 ? t.rrr : t.rgb;
+}
+
+vec3 sample_content(vec2 xy) {
+    ivec2 size = textureSize(content, 0);
+    // At or beyond one pixel outside (or not a number) all four texels are outside: 0.
+    // Inside, p0 is in -1..size-1 and p1 in 0..size, so only those two tests remain.
+    if (!(all(greaterThan(xy, vec2(-1.0))) && all(lessThan(xy, vec2(size))))) {
+        return vec3(0.0);
+    }
+    vec2 base = floor(xy);
+    vec2 f = xy - base;
+    ivec2 p0 = ivec2(base);
+    ivec2 p1 = p0 + 1;
+    // Texels outside the content weigh 0 (BORDER_CONSTANT 0); fetch clamped, branch-free.
+    vec2 w0 = (1.0 - f) * vec2(greaterThanEqual(p0, ivec2(0)));
+    vec2 w1 = f * vec2(lessThan(p1, size));
+    ivec2 q0 = max(p0, ivec2(0));
+    ivec2 q1 = min(p1, size - 1);
+    vec4 top = w0.x * texelFetch(content, q0, 0) + w1.x * texelFetch(content, ivec2(q1.x, q0.y), 0);
+    vec4 bottom = w0.x * texelFetch(content, ivec2(q0.x, q1.y), 0) + w1.x * texelFetch(content, q1, 0);
+    return content_rgb(w0.y * top + w1.y * bottom);
+}
+
+float lut_channel(float v, int channel) {
+    float t = clamp(v, 0.0, 1.0) * float(lut_size - 1);
+    int i = min(int(t), lut_size - 2);
+    float y0 = texelFetch(lut, ivec2(i, channel), 0).r;
+    float y1 = texelFetch(lut, ivec2(i + 1, channel), 0).r;
+    return mix(y0, y1, t - float(i));
+}
+
+vec4 finish(vec3 value) {
+    vec3 v = value;
+    if (apply_lut != 0) {
+        v = clamp(v * gain, 0.0, 1.0);
+        v = vec3(lut_channel(v.r, 0), lut_channel(v.g, 1), lut_channel(v.b, 2));
+    }
+    v = clamp(v, 0.0, 1.0);
+    // Quantise here, to round(255 * v) (halves up), so the unorm8 framebuffer stores exactly
+    // that level whether the driver's float->unorm conversion rounds or truncates
+    // (+0.25 keeps k/255 from landing a hair below k under truncation).
+    return vec4((floor(v * 255.0 + 0.5) + 0.25) / 255.0, 1.0);
+}

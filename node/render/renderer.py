@@ -1,0 +1,569 @@
+"""The node's renderer: content -> this projector's pixels, with moderngl.
+
+One :class:`Renderer` draws into its own framebuffer (``width`` x ``height``, the
+projector's pixels). Per frame it does one draw call: a full-screen triangle whose
+fragment shader warps the content through the homography pose, or the textured mesh
+of a projection pose with depth test. The same shader then applies the node's gain
+and inverse-response LUT and quantises to 8 bits. See ``pipeline.glsl``.
+
+Conventions (shared with the whole project)
+--------------------------------------------
+* Pixel (x, y) has its centre at integer (x, y) (OpenCV); images are numpy arrays with
+  row 0 at the top. The framebuffer itself is in GL order (row 0 at the bottom) so that
+  a window output can blit it to the screen unchanged; :meth:`Renderer.read` flips.
+* A homography maps content pixels to projector pixels exactly as
+  ``cv2.warpPerspective(content, H, (width, height))`` uses it; the warp reproduces
+  ``INTER_LINEAR`` with ``BORDER_CONSTANT`` 0, in float arithmetic.
+* A 3x4 projection matrix maps world mm to projector pixels (homogeneous, positive depth
+  in front); mesh UV (0, 0) is the top-left corner of the content, content pixel
+  ``x = u * W - 0.5``.
+
+Threading: every method must be called from the one thread that owns the GL context.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Mesh", "RenderError", "Renderer", "SPACES"]
+
+SPACES = ("content", "projector")
+
+# numpy dtype -> moderngl texture dtype. 8/16-bit integers become normalised textures
+# (GL divides by 255 / 65535 when sampling); floats are sampled as stored.
+_TEXTURE_DTYPES = {
+    np.dtype(np.uint8): "f1",
+    np.dtype(np.uint16): "nu2",
+    np.dtype(np.float16): "f2",
+    np.dtype(np.float32): "f4",
+}
+
+
+class RenderError(RuntimeError):
+    """OpenGL is unusable or refused a request; the message says what to check."""
+
+
+def _load_shader(name: str) -> str:
+    """Read a shader file that lives beside this module."""
+    return resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A textured triangle mesh in world coordinates.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float32
+        World mm.
+    uvs : (V, 2) float32
+        Texture coordinates; (0, 0) is the top-left corner of the content image and
+        (1, 1) its bottom-right corner (content pixel x = u * W - 0.5).
+    faces : (F, 3) uint32
+        Vertex indices of each triangle, all < V.
+
+    Arrays are converted to these dtypes (C-contiguous); shapes, finiteness and index
+    ranges are checked (ValueError).
+    """
+
+    vertices: np.ndarray
+    uvs: np.ndarray
+    faces: np.ndarray
+
+    def __post_init__(self) -> None:
+        vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
+        uvs = np.ascontiguousarray(self.uvs, dtype=np.float32)
+        faces_in = np.asarray(self.faces)
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] < 3:
+            raise ValueError(f"mesh vertices must be (V, 3) with V >= 3, got shape {vertices.shape}")
+        if uvs.shape != (vertices.shape[0], 2):
+            raise ValueError(f"mesh uvs must be (V, 2) = ({vertices.shape[0]}, 2), got shape {uvs.shape}")
+        if faces_in.ndim != 2 or faces_in.shape[1] != 3 or faces_in.shape[0] < 1:
+            raise ValueError(f"mesh faces must be (F, 3) with F >= 1, got shape {faces_in.shape}")
+        if not np.issubdtype(faces_in.dtype, np.integer):
+            raise ValueError(f"mesh faces must hold integer vertex indices, got {faces_in.dtype}")
+        if faces_in.min() < 0 or faces_in.max() >= vertices.shape[0]:
+            raise ValueError(
+                f"mesh faces index vertices {int(faces_in.min())}..{int(faces_in.max())}, "
+                f"but there are only {vertices.shape[0]} vertices"
+            )
+        if not (np.isfinite(vertices).all() and np.isfinite(uvs).all()):
+            raise ValueError("mesh vertices and uvs must be finite")
+        object.__setattr__(self, "vertices", vertices)
+        object.__setattr__(self, "uvs", uvs)
+        object.__setattr__(self, "faces", np.ascontiguousarray(faces_in, dtype=np.uint32))
+
+
+@dataclass
+class _Content:
+    texture: Any  # moderngl.Texture
+    shape: tuple[int, ...]
+    dtype: np.dtype
+    grey: bool
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (self.shape[1], self.shape[0])
+
+
+def _check_size(width: int, height: int, limit: int) -> tuple[int, int]:
+    if isinstance(width, bool) or isinstance(height, bool):
+        raise ValueError(f"output size must be two integers, got {width!r} x {height!r}")
+    try:
+        w, h = int(width), int(height)
+    except (TypeError, ValueError):
+        raise ValueError(f"output size must be two integers, got {width!r} x {height!r}") from None
+    if w != width or h != height or not (1 <= w <= limit and 1 <= h <= limit):
+        raise ValueError(f"output size must be whole pixels in 1..{limit}, got {width!r} x {height!r}")
+    return w, h
+
+
+def _mat_bytes(m: np.ndarray) -> bytes:
+    """GLSL matN uniform bytes (column-major float32) for a row-major numpy (N, N)."""
+    return np.ascontiguousarray(m.T, dtype=np.float32).tobytes()
+
+
+class Renderer:
+    """Renders content into one projector's pixels (see module docstring).
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+        The GL context (OpenGL >= 3.3) the calling thread owns.
+    width, height : int
+        Output size in projector pixels.
+    """
+
+    def __init__(self, ctx: Any, width: int, height: int):
+        import moderngl  # the node extra; imported here so `import node.render` stays light
+
+        self._mgl = moderngl
+        if ctx.version_code < 330:
+            raise RenderError(
+                f"OpenGL 3.3 or newer is needed, this context offers {ctx.version_code // 100}."
+                f"{ctx.version_code // 10 % 10} ({ctx.info.get('GL_RENDERER', '?')}); update the GPU driver or Mesa"
+            )
+        self.ctx = ctx
+        self._owns_ctx = False
+        self._released = False
+        self._max_texture = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
+        self._width, self._height = _check_size(width, height, self._max_texture)
+        try:
+            # moderngl resolves `#include "pipeline.glsl"` from ctx.includes
+            ctx.includes["pipeline.glsl"] = _load_shader("pipeline.glsl")
+            fullscreen = _load_shader("fullscreen.vert.glsl")
+            self._warp = ctx.program(vertex_shader=fullscreen, fragment_shader=_load_shader("warp.frag.glsl"))
+            self._mesh_prog = ctx.program(
+                vertex_shader=_load_shader("mesh.vert.glsl"), fragment_shader=_load_shader("mesh.frag.glsl")
+            )
+        except moderngl.Error as exc:
+            raise RenderError(f"the renderer's shaders do not compile on this driver: {exc}") from exc
+        self._warp_vao = ctx.vertex_array(self._warp, [])
+        for prog in (self._warp, self._mesh_prog):
+            prog["content"].value = 0
+            prog["lut"].value = 1
+        self._contents: dict[str, _Content] = {}
+        self._lut_tex: Any = None
+        self._lut_shape: tuple[int, int] | None = None
+        self.set_lut(None)
+        self.set_gain(1.0)
+        # pose: None, ("homography", H, content_size) or ("projection", P, near, far)
+        self._pose: tuple | None = None
+        self._pose_content_size: tuple[int, int] | None = None
+        self._warp_pose_bytes = b""
+        self._warp_identity_bytes = b""
+        self._mesh_vao: Any = None
+        self._mesh_vbo: Any = None
+        self._mesh_ibo: Any = None
+        self._fbo: Any = None
+        self._color: Any = None
+        self._depth: Any = None
+        self._allocate_targets()
+
+    # ------------------------------------------------------------------ construction
+
+    @classmethod
+    def standalone(cls, width: int, height: int) -> "Renderer":
+        """A renderer on its own headless EGL context (released by :meth:`release`)."""
+        import moderngl
+
+        try:
+            ctx = moderngl.create_standalone_context(backend="egl", require=330)
+        except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
+            raise RenderError(
+                "cannot create a headless OpenGL 3.3 context through EGL "
+                f"({exc}); install Mesa's EGL and DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri)"
+            ) from exc
+        try:
+            renderer = cls(ctx, width, height)
+        except BaseException:
+            ctx.release()
+            raise
+        renderer._owns_ctx = True
+        return renderer
+
+    def _allocate_targets(self) -> None:
+        """(Re)create the framebuffer and read-back buffers for the current size."""
+        for obj in (self._fbo, self._color, self._depth):
+            if obj is not None:
+                obj.release()
+        size = (self._width, self._height)
+        self._color = self.ctx.texture(size, 4, dtype="f1")
+        self._color.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+        self._depth = self.ctx.depth_renderbuffer(size)
+        self._fbo = self.ctx.framebuffer(color_attachments=[self._color], depth_attachment=self._depth)
+        self._fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        self._raw = np.empty((self._height, self._width, 3), np.uint8)  # GL order (bottom row first)
+        self._image = np.empty((self._height, self._width, 3), np.uint8)  # row 0 at the top
+        # projector space: GL window coords -> OpenCV projector pixels (the content *is* in projector pixels)
+        self._warp_identity_bytes = _mat_bytes(self._window_to_pixels())
+        self._update_pose_uniforms()
+
+    def _window_to_pixels(self) -> np.ndarray:
+        """(3, 3) float64: GL window coords (centres at +0.5, rows bottom-up) -> OpenCV pixels."""
+        return np.array([[1.0, 0.0, -0.5], [0.0, -1.0, self._height - 0.5], [0.0, 0.0, 1.0]])
+
+    # ------------------------------------------------------------------ properties
+
+    @property
+    def width(self) -> int:
+        return self._width
+
+    @property
+    def height(self) -> int:
+        return self._height
+
+    @property
+    def framebuffer(self) -> Any:
+        """The moderngl.Framebuffer rendered into (RGBA8, GL row order; outputs blit from it)."""
+        return self._fbo
+
+    def resize(self, width: int, height: int) -> None:
+        """Change the output size (reallocates the framebuffer; the pose is kept)."""
+        w, h = _check_size(width, height, self._max_texture)
+        if (w, h) != (self._width, self._height):
+            self._width, self._height = w, h
+            self._allocate_targets()
+
+    # ------------------------------------------------------------------ pose
+
+    def set_homography(self, h: np.ndarray, content_size: tuple[int, int]) -> None:
+        """Planar pose: ``h`` (3, 3) maps content pixels to projector pixels.
+
+        Parameters
+        ----------
+        h : (3, 3) float64
+            Homography, as ``cv2.warpPerspective(content, h, (width, height))`` uses it.
+        content_size : (int, int)
+            (width, height) of the content this pose was calibrated for; rendering
+            content of another size raises ValueError.
+        """
+        hm = np.asarray(h, dtype=np.float64)
+        if hm.shape != (3, 3):
+            raise ValueError(f"homography must be (3, 3), got shape {hm.shape}")
+        if not np.isfinite(hm).all():
+            raise ValueError("homography must be finite")
+        try:
+            cw, ch = (int(v) for v in content_size)
+        except (TypeError, ValueError):
+            raise ValueError(f"content_size must be (width, height), got {content_size!r}") from None
+        if cw < 1 or ch < 1 or tuple(content_size) != (cw, ch):
+            raise ValueError(f"content_size must be two positive integers, got {content_size!r}")
+        scale = np.abs(hm).max()
+        if scale == 0 or np.linalg.cond(hm / scale) > 1e12:
+            raise ValueError("homography is singular (it does not map the content onto a plane)")
+        centre = hm @ np.array([(cw - 1) / 2.0, (ch - 1) / 2.0, 1.0])
+        if abs(centre[2]) <= 1e-12 * np.abs(centre).max():
+            raise ValueError("homography maps the content centre to infinity")
+        self._pose = ("homography", hm.copy(), (cw, ch))
+        self._pose_content_size = (cw, ch)
+        self._update_pose_uniforms()
+
+    def set_projection(self, p: np.ndarray, mesh: Mesh, *, near: float, far: float) -> None:
+        """3D pose: ``p`` (3, 4) maps world mm to projector pixels; ``mesh`` is the surface.
+
+        Parameters
+        ----------
+        p : (3, 4) float64
+            Projection matrix (OpenCV convention, homogeneous). Its scale is irrelevant;
+            its sign is taken so that the mesh lies at positive depth.
+        mesh : Mesh
+            Surface, textured with the content through its UVs.
+        near, far : float
+            Depth range in mm along the projector's axis (0 < near < far); geometry
+            outside it is clipped.
+        """
+        pm = np.asarray(p, dtype=np.float64)
+        if pm.shape != (3, 4):
+            raise ValueError(f"projection matrix must be (3, 4), got shape {pm.shape}")
+        if not np.isfinite(pm).all():
+            raise ValueError("projection matrix must be finite")
+        if not isinstance(mesh, Mesh):
+            raise ValueError(f"mesh must be a Mesh, got {type(mesh).__name__}")
+        near, far = float(near), float(far)
+        if not (math.isfinite(near) and math.isfinite(far) and 0.0 < near < far):
+            raise ValueError(f"need 0 < near < far (finite, mm), got near={near}, far={far}")
+        axis = np.linalg.norm(pm[2, :3])
+        if axis == 0:
+            raise ValueError("projection matrix has no depth axis (its third row starts with zeros)")
+        pm = pm / axis  # third row . (X, 1) = depth in mm
+        depth = mesh.vertices.astype(np.float64) @ pm[2, :3] + pm[2, 3]
+        if np.median(depth) < 0:
+            pm = -pm
+        data = np.concatenate([mesh.vertices, mesh.uvs], axis=1).astype(np.float32)
+        for obj in (self._mesh_vao, self._mesh_vbo, self._mesh_ibo):
+            if obj is not None:
+                obj.release()
+        self._mesh_vbo = self.ctx.buffer(data.tobytes())
+        self._mesh_ibo = self.ctx.buffer(mesh.faces.tobytes())
+        self._mesh_vao = self.ctx.vertex_array(
+            self._mesh_prog,
+            [(self._mesh_vbo, "3f 2f", "in_position", "in_uv")],
+            index_buffer=self._mesh_ibo,
+            index_element_size=4,
+        )
+        self._pose = ("projection", pm, near, far)
+        self._pose_content_size = None
+        self._update_pose_uniforms()
+
+    def clear_pose(self) -> None:
+        """Forget the pose: content frames render black until a new pose is set."""
+        self._pose = None
+        self._pose_content_size = None
+        for obj in (self._mesh_vao, self._mesh_vbo, self._mesh_ibo):
+            if obj is not None:
+                obj.release()
+        self._mesh_vao = self._mesh_vbo = self._mesh_ibo = None
+
+    def _update_pose_uniforms(self) -> None:
+        """Recompute the pose's uniforms (they depend on the output size too)."""
+        if self._pose is None:
+            return
+        if self._pose[0] == "homography":
+            hm, (cw, ch) = self._pose[1], self._pose[2]
+            inv = np.linalg.inv(hm)
+            # w > 0 on the horizon side where the content is: where H sends the content centre
+            if (hm @ np.array([(cw - 1) / 2.0, (ch - 1) / 2.0, 1.0]))[2] < 0:
+                inv = -inv
+            m = inv @ self._window_to_pixels()
+            self._warp_pose_bytes = _mat_bytes(m / np.abs(m).max())
+        else:
+            pm, near, far = self._pose[1], self._pose[2], self._pose[3]
+            w, h = self._width, self._height
+            x, y, d = pm  # rows; d . (X, 1) = depth (mm)
+            clip = np.empty((4, 4))
+            # NDC x = 2 (px + 0.5) / W - 1; NDC y = 1 - 2 (py + 0.5) / H (OpenCV rows top-down)
+            clip[0] = (2.0 * x + d) / w - d
+            clip[1] = d - (2.0 * y + d) / h
+            clip[2] = (far + near) / (far - near) * d
+            clip[2, 3] -= 2.0 * far * near / (far - near)
+            clip[3] = d
+            self._mesh_prog["world_to_clip"].write(_mat_bytes(clip))
+
+    # ------------------------------------------------------------------ luminance
+
+    def set_lut(self, lut: np.ndarray | None) -> None:
+        """Inverse-response LUT: (C, E) float32, C in {1, 3}, E >= 2; None = identity.
+
+        Row c holds E samples of channel c's input value (0..1) for linear luminance
+        ``k / (E - 1)``, k = 0..E-1; values between samples are interpolated linearly.
+        A single row (C = 1) applies to all three channels.
+        """
+        if lut is None:
+            table = np.array([[0.0, 1.0]] * 3, np.float32)
+        else:
+            table = np.asarray(lut, dtype=np.float32)
+            if table.ndim != 2 or table.shape[0] not in (1, 3) or table.shape[1] < 2:
+                raise ValueError(f"LUT must be (C, E) with C in {{1, 3}} and E >= 2, got shape {table.shape}")
+            if table.shape[1] > self._max_texture:
+                raise ValueError(f"LUT has {table.shape[1]} samples; this GPU allows at most {self._max_texture}")
+            if not np.isfinite(table).all():
+                raise ValueError("LUT values must be finite")
+            if table.shape[0] == 1:
+                table = np.repeat(table, 3, axis=0)
+        table = np.ascontiguousarray(table)
+        e = table.shape[1]
+        if self._lut_shape != (3, e):
+            if self._lut_tex is not None:
+                self._lut_tex.release()
+            self._lut_tex = self.ctx.texture((e, 3), 1, dtype="f4")
+            self._lut_tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+            self._lut_shape = (3, e)
+        self._lut_tex.write(table.tobytes())
+        for prog in (self._warp, self._mesh_prog):
+            prog["lut_size"].value = e
+
+    def set_gain(self, gain: float) -> None:
+        """Linear gain applied to the content before the LUT (>= 0)."""
+        g = float(gain)
+        if not math.isfinite(g) or g < 0:
+            raise ValueError(f"gain must be finite and >= 0, got {gain!r}")
+        for prog in (self._warp, self._mesh_prog):
+            prog["gain"].value = g
+        self._gain = g
+
+    @property
+    def gain(self) -> float:
+        return self._gain
+
+    # ------------------------------------------------------------------ content
+
+    def upload(self, content_id: str, image: np.ndarray) -> None:
+        """Upload content once under ``content_id`` (content ids are immutable).
+
+        Parameters
+        ----------
+        content_id : str
+            Non-empty. Uploading an id that is already present does nothing (no GPU
+            transfer), provided shape and dtype match; otherwise ValueError (forget it first).
+        image : (H, W) or (H, W, C) uint8, uint16, float16 or float32, C in 1..4
+            Integers are normalised to [0, 1] (/255, /65535); floats are linear values.
+            C = 1 (grey) is replicated to RGB; C = 2 is grey + alpha, C = 4 RGBA: alpha is ignored.
+        """
+        if not isinstance(content_id, str) or not content_id:
+            raise ValueError(f"content_id must be a non-empty string, got {content_id!r}")
+        arr = np.asarray(image)
+        if arr.ndim == 2:
+            arr = arr[:, :, None]
+        if arr.ndim != 3 or not 1 <= arr.shape[2] <= 4:
+            raise ValueError(f"content must be (H, W) or (H, W, C) with C in 1..4, got shape {np.shape(image)}")
+        if arr.dtype not in _TEXTURE_DTYPES:
+            raise ValueError(f"content dtype must be uint8, uint16, float16 or float32, got {arr.dtype}")
+        h, w, c = arr.shape
+        if not (1 <= w <= self._max_texture and 1 <= h <= self._max_texture):
+            raise ValueError(f"content size {w}x{h} is outside 1..{self._max_texture} pixels per side")
+        existing = self._contents.get(content_id)
+        if existing is not None:
+            if existing.shape == arr.shape and existing.dtype == arr.dtype:
+                return
+            raise ValueError(
+                f"content {content_id!r} is already uploaded as {existing.shape} {existing.dtype}, "
+                f"not {arr.shape} {arr.dtype}; content ids are immutable (forget() it first)"
+            )
+        tex = self.ctx.texture((w, h), c, np.ascontiguousarray(arr), dtype=_TEXTURE_DTYPES[arr.dtype], alignment=1)
+        tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+        tex.repeat_x = tex.repeat_y = False
+        self._contents[content_id] = _Content(tex, arr.shape, arr.dtype, c <= 2)
+
+    def forget(self, content_id: str) -> None:
+        """Release the content uploaded under ``content_id`` (no error if unknown)."""
+        entry = self._contents.pop(content_id, None)
+        if entry is not None:
+            entry.texture.release()
+
+    def has(self, content_id: str) -> bool:
+        return content_id in self._contents
+
+    @property
+    def content_ids(self) -> tuple[str, ...]:
+        """Ids currently uploaded, oldest first."""
+        return tuple(self._contents)
+
+    # ------------------------------------------------------------------ drawing
+
+    def render(self, content_id: str | None, *, space: str = "content", apply_lut: bool = True) -> None:
+        """Draw one frame into :attr:`framebuffer` (one draw call).
+
+        Parameters
+        ----------
+        content_id : str or None
+            Uploaded content to show; None or "" renders black.
+        space : {"content", "projector"}
+            ``content``: warp through the pose (black without a pose). ``projector``:
+            the content already is in projector pixels and must be exactly
+            ``width`` x ``height`` (ValueError otherwise).
+        apply_lut : bool
+            True: value = LUT(clamp(gain * value)); False: value = clamp(value)
+            (no gain, no LUT; e.g. calibration patterns).
+        """
+        if space not in SPACES:
+            raise ValueError(f"space must be one of {SPACES}, got {space!r}")
+        fbo = self._fbo
+        fbo.use()
+        if not content_id:
+            fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+            return
+        entry = self._contents.get(content_id)
+        if entry is None:
+            raise KeyError(f"content {content_id!r} is not uploaded (upload() it first; it may have been forgotten)")
+        if space == "projector":
+            if entry.size != (self._width, self._height):
+                raise ValueError(
+                    f"projector-space content is {entry.size[0]}x{entry.size[1]} but the output is "
+                    f"{self._width}x{self._height}; they must match"
+                )
+            self._draw_warp(entry, self._warp_identity_bytes, apply_lut)
+            return
+        if self._pose is None:
+            fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+            return
+        if self._pose[0] == "homography":
+            if entry.size != self._pose_content_size:
+                cw, ch = self._pose_content_size
+                raise ValueError(
+                    f"content {content_id!r} is {entry.size[0]}x{entry.size[1]} but the homography pose "
+                    f"was set for {cw}x{ch} content"
+                )
+            self._draw_warp(entry, self._warp_pose_bytes, apply_lut)
+            return
+        prog = self._mesh_prog
+        prog["content_grey"].value = int(entry.grey)
+        prog["apply_lut"].value = int(apply_lut)
+        entry.texture.use(0)
+        self._lut_tex.use(1)
+        fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        self.ctx.enable_only(self._mgl.DEPTH_TEST)
+        self.ctx.depth_func = "<"
+        try:
+            self._mesh_vao.render(self._mgl.TRIANGLES)
+        finally:
+            self.ctx.enable_only(self._mgl.NOTHING)
+
+    def _draw_warp(self, entry: _Content, matrix: bytes, apply_lut: bool) -> None:
+        prog = self._warp
+        prog["frag_to_content"].write(matrix)
+        prog["content_grey"].value = int(entry.grey)
+        prog["apply_lut"].value = int(apply_lut)
+        entry.texture.use(0)
+        self._lut_tex.use(1)
+        self.ctx.enable_only(self._mgl.NOTHING)
+        self._warp_vao.render(self._mgl.TRIANGLES, vertices=3)
+
+    def read(self) -> np.ndarray:
+        """What the projector receives: (height, width, 3) uint8 RGB, row 0 at the top.
+
+        The returned array is the renderer's own buffer, overwritten by the next
+        :meth:`read` (and reallocated by :meth:`resize`): copy it to keep it.
+        """
+        self._fbo.read_into(self._raw, components=3, alignment=1)
+        np.copyto(self._image, self._raw[::-1])
+        return self._image
+
+    # ------------------------------------------------------------------ teardown
+
+    def release(self) -> None:
+        """Release every GL object (and the context, for :meth:`standalone`). Idempotent."""
+        if self._released:
+            return
+        self._released = True
+        for entry in self._contents.values():
+            entry.texture.release()
+        self._contents.clear()
+        for obj in (
+            self._mesh_vao, self._mesh_vbo, self._mesh_ibo, self._warp_vao, self._warp, self._mesh_prog,
+            self._lut_tex, self._fbo, self._color, self._depth,
+        ):  # fmt: skip
+            if obj is not None:
+                obj.release()
+        if self._owns_ctx:
+            self.ctx.release()
+
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
