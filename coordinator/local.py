@@ -178,6 +178,15 @@ class LocalRig:
                     raise RuntimeError("coordinator exited:\n" + self.log("coordinator")[-3000:])
                 await asyncio.sleep(0.2)
 
+    def wait_ready(self, timeout: float = 30.0) -> None:
+        """Block until the coordinator answers an authenticated call."""
+
+        async def go():
+            c = await self.client(timeout)
+            await c.channel.close()
+
+        asyncio.run(go())
+
     async def wait_live(self, client: Client, slots: list[str] | None = None, *, timeout: float = 120.0,
                         min_joins: dict[str, int] | None = None) -> control_pb2.RigStatus:
         """Wait until every slot in ``slots`` is live (and has joined at least ``min_joins`` times)."""
@@ -199,7 +208,7 @@ class LocalRig:
             await asyncio.sleep(0.25)
 
 
-def test_card(width: int, height: int) -> np.ndarray:
+def card_image(width: int, height: int) -> np.ndarray:
     """A test image: colour ramps, a grid and a centre cross; (H, W, 3) uint16."""
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)
     img = np.stack([x / max(1, width - 1), y / max(1, height - 1), 0.5 + 0.5 * np.sin(x / 7.0) * np.cos(y / 9.0)], axis=-1)
@@ -245,7 +254,7 @@ async def _local(args) -> int:
             await rig.wait_live(c)
             from coordinator.operator import read_image
 
-            img = read_image(args.image) if args.image else test_card(w, h)
+            img = read_image(args.image) if args.image else card_image(w, h)
             await c.show(img, name=args.image or "test card")
             await asyncio.sleep(1.0)
             frames = max(1, int(args.fps * args.seconds))

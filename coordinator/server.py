@@ -333,18 +333,37 @@ class Coordinator:
             self._send_still_to(sess)
 
     # ------------------------------------------------------------------ frames
-    def _publish(self, packet: bytes, sessions: list[NodeSession]) -> None:
-        for s in sessions:
-            s.push(packet)
+    def _send(self, sessions: list[NodeSession], *, frame: node_pb2.Frame | None = None,
+              contents: dict[str, Content] | None = None, evict: list[str] | None = None) -> None:
+        """Queue one packet per group of sessions that lack the same contents.
 
-    def _ensure_content(self, content: Content, sessions: list[NodeSession], packet: bytes | None = None) -> bytes | None:
-        need = [s for s in sessions if content.content_id not in s.sent_content]
-        if need:
-            packet = packet or wire.content_packet(content)
-            for s in need:
-                s.push(packet)
-                s.sent_content.add(content.content_id)
-        return packet
+        Contents are encoded once; each distinct packet is serialized once and the
+        same bytes go to every session of its group.
+        """
+        contents = contents or {}
+        groups: dict[frozenset[str], list[NodeSession]] = {}
+        for s in sessions:
+            missing = frozenset(cid for cid in contents if cid not in s.sent_content)
+            groups.setdefault(missing, []).append(s)
+        encoded: dict[str, node_pb2.Content] = {}
+        for missing, members in groups.items():
+            pkt = node_pb2.FramePacket()
+            for cid in sorted(missing):
+                if cid not in encoded:
+                    encoded[cid] = wire.content_message(contents[cid])
+                pkt.contents.append(encoded[cid])
+            if frame is not None:
+                pkt.frame.CopyFrom(frame)
+            if evict:
+                pkt.evict.content_ids.extend(evict)
+            data = pkt.SerializeToString()
+            for s in members:
+                s.push(data)
+                s.sent_content |= missing
+                if evict:
+                    s.sent_content.difference_update(evict)
+        if frame is not None:
+            self.sync.expect(frame.frame_id, frame.pts_ns, frame.tag, {s.slot for s in sessions})
 
     def _frame(self, content_id: str, *, tag: str, space: int, apply_lut: bool, pts_ns: int | None = None,
                slot_content: dict[str, str] | None = None) -> node_pb2.Frame:
@@ -357,10 +376,7 @@ class Coordinator:
         frame.CopyFrom(self.current_frame)
         frame.frame_id = self.new_frame_id()
         frame.pts_ns = self.rig_now() + self.latency_ns
-        for cid in {frame.content_id, *frame.slot_content.values()} - {""}:
-            self._ensure_content(self.current_contents[cid], [sess])
-        sess.push(wire.frame_packet(frame))
-        self.sync.expect(frame.frame_id, frame.pts_ns, frame.tag, {sess.slot})
+        self._send([sess], frame=frame, contents=self.current_contents)
 
     def _set_still(self, content: Content, *, tag: str, space: int, apply_lut: bool, publish: bool = True) -> node_pb2.Frame:
         self.current_contents = {content.content_id: content}
@@ -368,10 +384,7 @@ class Coordinator:
         self.current_frame = frame
         self.showing = f"{tag} {content.name or content.content_id}"
         if publish:
-            sessions = self.live_sessions()
-            self._ensure_content(content, sessions)
-            self._publish(wire.frame_packet(frame), sessions)
-            self.sync.expect(frame.frame_id, frame.pts_ns, tag, {s.slot for s in sessions})
+            self._send(self.live_sessions(), frame=frame, contents=self.current_contents)
         return frame
 
     def show(self, content: Content, *, space: int = node_pb2.SPACE_CONTENT, apply_lut: bool = True,
@@ -428,18 +441,12 @@ class Coordinator:
                 content = make(i)
                 sessions = self.live_sessions()
                 nodes_seen.update(s.slot for s in sessions)
-                self._ensure_content(content, sessions)
                 frame = self._frame(content.content_id, tag=tag, space=node_pb2.SPACE_CONTENT, apply_lut=True,
                                     pts_ns=max(tick, self.rig_now() + latency_ns // 2))
-                self._publish(wire.frame_packet(frame), sessions)
-                self.sync.expect(frame.frame_id, frame.pts_ns, tag, {s.slot for s in sessions})
+                evict = [prev_content] if prev_content and prev_content != content.content_id and not cache_all else None
+                self._send(sessions, frame=frame, contents={content.content_id: content}, evict=evict)
                 sent.append(frame.frame_id)
                 self.current_frame, self.current_contents = frame, {content.content_id: content}
-                if prev_content and prev_content != content.content_id and not cache_all:
-                    evict = wire.evict_packet([prev_content])
-                    for s in sessions:
-                        s.sent_content.discard(prev_content)
-                    self._publish(evict, sessions)
                 prev_content = content.content_id
             # wait for the last swap reports
             deadline = time.monotonic() + (latency_ns / 1e9) + (st.settle_s or 1.0) + self.sync.timeout_s

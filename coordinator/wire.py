@@ -47,16 +47,6 @@ def homography_from_message(msg: node_pb2.Homography) -> HomographyPose:
     return HomographyPose(np.array(msg.m, dtype=np.float64).reshape(3, 3))
 
 
-def content_packet(content: Content, *, compress: bool = False) -> bytes:
-    """A serialized FramePacket carrying ``content`` (encoded once, sent to every node)."""
-    pkt = node_pb2.FramePacket(content=node_pb2.Content(
-        content_id=content.content_id, image=codec.encode_image(content.image, compress=compress)))
-    return pkt.SerializeToString()
-
-
-def frame_packet(frame: node_pb2.Frame) -> bytes:
-    return node_pb2.FramePacket(frame=frame).SerializeToString()
-
-
-def evict_packet(content_ids: list[str]) -> bytes:
-    return node_pb2.FramePacket(evict=node_pb2.Evict(content_ids=content_ids)).SerializeToString()
+def content_message(content: Content, *, compress: bool = False) -> node_pb2.Content:
+    """The wire form of ``content`` (encode once, reuse for every packet)."""
+    return node_pb2.Content(content_id=content.content_id, image=codec.encode_image(content.image, compress=compress))

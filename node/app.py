@@ -100,8 +100,9 @@ class Node:
         backoff = self.cfg.backoff_min_s
         try:
             while not self._stopping.is_set():
-                if self.presenter.failed is not None:
-                    log.error("presenter stopped: %s", self.presenter.failed)
+                if not self.presenter.is_alive():
+                    log.error("the renderer stopped (%s); exiting so the service manager restarts the node",
+                              self.presenter.failed)
                     return 3
                 delay = backoff
                 try:
@@ -193,6 +194,7 @@ class Node:
                 asyncio.create_task(self._report_stream(stub, md, hb_ms / 1000.0), name="report"),
                 asyncio.create_task(self._pings(stub, md), name="pings"),
                 asyncio.create_task(self._stopping.wait(), name="stopping"),
+                asyncio.create_task(self._watch_presenter(), name="presenter"),
             ]
             done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
             for t in pending:
@@ -205,6 +207,10 @@ class Node:
                 elif exc is not None and not isinstance(exc, asyncio.CancelledError):
                     log.error("session ended by %s: %r", t.get_name(), exc)
             return True
+
+    async def _watch_presenter(self) -> None:
+        while self.presenter.is_alive():
+            await asyncio.sleep(0.5)
 
     async def _handshake(self, stub, target: str) -> tuple[str, str, int]:
         client_nonce = auth.new_nonce()
@@ -252,12 +258,11 @@ class Node:
 
     async def _frames(self, stub, md) -> None:
         async for pkt in stub.Frames(node_pb2.StreamRequest(), metadata=md):
-            kind = pkt.WhichOneof("item")
-            if kind == "frame":
+            for content in pkt.contents:
+                self.presenter.submit("content", (content.content_id, content.image))
+            if pkt.HasField("frame"):
                 self.presenter.submit("frame", frame_for_slot(pkt.frame, self.cfg.slot))
-            elif kind == "content":
-                self.presenter.submit("content", (pkt.content.content_id, pkt.content.image))
-            elif kind == "evict":
+            if pkt.HasField("evict"):
                 self.presenter.submit("evict", list(pkt.evict.content_ids))
 
     async def _report_stream(self, stub, md, heartbeat_s: float) -> None:

@@ -48,12 +48,13 @@ class LocalClock:
     def now(self) -> int:
         return self.from_host(self._source())
 
-    def sleep_until(self, local_ns: int, *, spin_ns: int = 300_000) -> int:
+    def sleep_until(self, local_ns: int) -> int:
         """Block until the local clock reads ``local_ns``; return the host time on waking.
 
-        Sleeps with the kernel's high-resolution timer (``time.sleep`` uses
-        ``clock_nanosleep`` on Linux) to within ``spin_ns`` of the deadline,
-        then yields in a short loop to land on it without burning a core.
+        One high-resolution kernel sleep (``time.sleep`` is ``clock_nanosleep``
+        on Linux): no spinning, because a dozen nodes spinning at the same
+        instant on a small machine would starve each other of the very CPU
+        they are waiting to swap on. See :func:`precise_timers` for the slack.
         """
         deadline = self.to_host(local_ns)
         while True:
@@ -61,10 +62,19 @@ class LocalClock:
             remaining = deadline - now
             if remaining <= 0:
                 return now
-            if remaining > spin_ns:
-                time.sleep((remaining - spin_ns) / 1e9)
-            else:
-                time.sleep(0)
+            time.sleep(remaining / 1e9)
+
+
+def precise_timers() -> None:
+    """Ask Linux for 1 µs timer slack (default 50 µs) so sleeps end on time. Best effort."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        PR_SET_TIMERSLACK = 29
+        libc.prctl(PR_SET_TIMERSLACK, 1000, 0, 0, 0)
+    except (OSError, AttributeError):  # pragma: no cover - not Linux
+        pass
 
 
 @dataclass(frozen=True)

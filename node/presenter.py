@@ -27,6 +27,8 @@ from protos import codec, common_pb2, node_pb2
 
 log = logging.getLogger(__name__)
 
+import os
+_DEBUG_TIMING = bool(os.environ.get("SHADOWLESS_DEBUG_TIMING"))
 #: a frame may be shown this late (ns) before it counts as late and is dropped
 LATE_TOLERANCE_NS = 500_000
 #: wake this long before the deadline, then sleep the rest precisely
@@ -68,14 +70,14 @@ class Presenter(threading.Thread):
         self._last_frame_id = 0
         self._current: FrameOrder | None = None
         self._evicted: set[str] = set()
-        self._stop = False
+        self._halt = False
 
     # ---- called from other threads --------------------------------------
     def submit(self, kind: str, payload=None) -> None:
         self.inbox.put((kind, payload))
 
     def stop(self) -> None:
-        self._stop = True
+        self._halt = True
         self.inbox.put(("stop", None))
 
     def render_ms_p50(self) -> float:
@@ -97,6 +99,7 @@ class Presenter(threading.Thread):
         out = self._output or open_output(self.output_spec, slot=self.slot, snapshot_dir=self.snapshot_dir)
         self._output = out
         ctx = out.make_context()
+        self._ctx = ctx
         size = out.native_size()
         self.native_size = size
         w, h = size or (640, 360)
@@ -107,7 +110,7 @@ class Presenter(threading.Thread):
         out.swap()
         self.ready.set()
         try:
-            while not self._stop:
+            while not self._halt:
                 try:
                     kind, payload = self.inbox.get(timeout=0.5)
                 except queue.Empty:
@@ -199,6 +202,7 @@ class Presenter(threading.Thread):
             return
         self._render(renderer, frame)
         out.prepare(renderer)
+        self._ctx.finish()   # the frame must be complete in the back buffer before its time comes
         # sleep coarsely, then re-read the estimate (it may have been refined) and land on the deadline
         if deadline - self.clock.now() > COARSE_WAKE_NS:
             self.clock.sleep_until(deadline - COARSE_WAKE_NS)
@@ -211,6 +215,9 @@ class Presenter(threading.Thread):
         self.clock.sleep_until(deadline)
         out.swap()
         host = self.clock.host_now()
+        if _DEBUG_TIMING:
+            log.info("timing frame %d: swap %.3f ms after deadline", frame.frame_id,
+                     (host - self.clock.to_host(deadline)) / 1e6)
         swap_rig = est.rig_time(self.clock.from_host(host))
         previous = self._current
         self._current = frame
@@ -226,5 +233,9 @@ class Presenter(threading.Thread):
 
 
 def tune_interpreter() -> None:
-    """Let the presenter thread take the GIL back quickly when its deadline comes."""
+    """Let the presenter thread take the GIL back quickly when its deadline comes,
+    and let its sleeps end close to the deadline."""
+    from node.clock import precise_timers
+
     sys.setswitchinterval(0.0005)
+    precise_timers()

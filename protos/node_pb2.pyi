@@ -176,14 +176,14 @@ class Evict(_message.Message):
     def __init__(self, content_ids: _Optional[_Iterable[str]] = ...) -> None: ...
 
 class FramePacket(_message.Message):
-    __slots__ = ("content", "frame", "evict")
-    CONTENT_FIELD_NUMBER: _ClassVar[int]
+    __slots__ = ("contents", "frame", "evict")
+    CONTENTS_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
     EVICT_FIELD_NUMBER: _ClassVar[int]
-    content: Content
+    contents: _containers.RepeatedCompositeFieldContainer[Content]
     frame: Frame
     evict: Evict
-    def __init__(self, content: _Optional[_Union[Content, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., evict: _Optional[_Union[Evict, _Mapping]] = ...) -> None: ...
+    def __init__(self, contents: _Optional[_Iterable[_Union[Content, _Mapping]]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., evict: _Optional[_Union[Evict, _Mapping]] = ...) -> None: ...
 
 class SwapReport(_message.Message):
     __slots__ = ("frame_id", "pts_ns", "swap_rig_ns", "host_monotonic_ns")

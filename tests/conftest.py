@@ -43,6 +43,12 @@ def _live_threads() -> set[threading.Thread]:
     return {t for t in threading.enumerate() if t.is_alive()}
 
 
+def _is_runtime_thread(t: threading.Thread) -> bool:
+    """Threads owned by a library for the whole process, not by a test: asyncio's default
+    executor workers and grpc.aio's single completion-queue poller (started on first use)."""
+    return t.name.startswith(("asyncio_", "ThreadPoolExecutor")) or "_poll_wrapper" in t.name
+
+
 @pytest.fixture(autouse=True)
 def no_leaks(request):
     """Fail a test that leaves processes or threads behind (after a short grace)."""
@@ -54,7 +60,7 @@ def no_leaks(request):
     deadline = time.monotonic() + 5.0
     while True:
         pids = child_pids() - before_pids
-        threads = {t for t in _live_threads() - before_threads if not t.name.startswith(("asyncio_", "ThreadPoolExecutor"))}
+        threads = {t for t in _live_threads() - before_threads if not _is_runtime_thread(t)}
         if not pids and not threads:
             return
         if time.monotonic() > deadline:

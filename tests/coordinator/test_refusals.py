@@ -1,0 +1,191 @@
+"""Who may join: protocol version, rig token (both directions), slot names, TLS."""
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import time
+
+import grpc
+import pytest
+
+from coordinator.local import LocalRig
+from protos import auth, common_pb2, node_pb2, node_pb2_grpc
+from protos.version import PROTOCOL_VERSION
+
+
+def run(coro):
+    return asyncio.run(coro)
+
+
+def wait_for_log(rig: LocalRig, name: str, text: str, timeout: float = 60.0) -> str:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        log = rig.log(name)
+        if text in log:
+            return log
+        time.sleep(0.2)
+    raise AssertionError(f"{name} never logged {text!r}:\n{rig.log(name)[-2000:]}")
+
+
+@pytest.fixture
+def small_rig(tmp_path):
+    r = LocalRig(["r0c0", "r0c1"], tmp_path, output_size=(32, 32), content_size=(32, 32), mdns=False).create()
+    r.start_coordinator()
+    r.wait_ready()
+    yield r
+    r.close()
+
+
+def test_wrong_protocol_version_gets_a_clear_refusal(small_rig):
+    small_rig.start_node("r0c0", ["--protocol-version", str(PROTOCOL_VERSION + 1)])
+    log = wait_for_log(small_rig, "node-r0c0", "protocol version mismatch")
+    assert f"speaks shadowless protocol {PROTOCOL_VERSION + 1}" in log and f"speaks {PROTOCOL_VERSION}" in log
+
+    async def refusals():
+        async with await small_rig.client() as c:
+            return [r.reason for r in (await c.status()).refusals]
+
+    assert any("protocol version mismatch" in r for r in run(refusals()))
+    assert small_rig.nodes["r0c0"].poll() is None, "a refused node keeps retrying (an upgrade heals it)"
+
+
+def test_node_with_wrong_token_does_not_trust_the_coordinator(small_rig, tmp_path):
+    bad = tmp_path / "bad-token"
+    bad.write_text(auth.new_token())
+    small_rig.start_node("r0c0", ["--token-file", str(bad)])
+    log = wait_for_log(small_rig, "node-r0c0", "could not prove it knows the rig token")
+    assert "wrong token file" in log
+
+
+def test_rogue_coordinator_cannot_capture_a_node(small_rig, tmp_path):
+    rogue = LocalRig(["r0c0"], tmp_path / "rogue", output_size=(32, 32), content_size=(32, 32), mdns=False).create()
+    rogue.start_coordinator()
+    try:
+        # a node of the real rig pointed at the rogue (as a rogue mDNS advertisement would)
+        small_rig.start_node("r0c0", ["--coordinator", f"127.0.0.1:{rogue.port}"])
+        wait_for_log(small_rig, "node-r0c0", "could not prove it knows the rig token")
+
+        async def rogue_nodes():
+            async with await rogue.client() as c:
+                return [n.state for n in (await c.status()).nodes]
+
+        from protos import control_pb2
+
+        assert run(rogue_nodes()) == [control_pb2.NODE_STATE_EXPECTED]
+    finally:
+        rogue.close()
+
+
+async def _join(port: int, token: bytes, slot: str, *, tamper: bool = False):
+    async with grpc.aio.insecure_channel(f"127.0.0.1:{port}") as ch:
+        stub = node_pb2_grpc.NodeLinkStub(ch)
+        cn = auth.new_nonce()
+        hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=cn, role="node", slot=slot))
+        proof = auth.client_proof(token, "node", hello.rig_id, slot, cn, hello.server_nonce)
+        if tamper:
+            proof = bytes(b ^ 1 for b in proof)
+        login = common_pb2.LoginRequest(protocol_version=PROTOCOL_VERSION, role="node", slot=slot, client_nonce=cn,
+                                        server_nonce=hello.server_nonce, client_proof=proof)
+        return await stub.Join(node_pb2.JoinRequest(login=login, info=node_pb2.NodeInfo(hostname="test")))
+
+
+def test_coordinator_refuses_a_node_without_the_token(small_rig):
+    with pytest.raises(grpc.aio.AioRpcError) as err:
+        run(_join(small_rig.port, small_rig.token, "r0c0", tamper=True))
+    assert err.value.code() == grpc.StatusCode.UNAUTHENTICATED
+    assert "rig token mismatch" in err.value.details() and "r0c0" in err.value.details()
+
+
+def test_unknown_slot_is_refused_with_the_known_slots(small_rig):
+    with pytest.raises(grpc.aio.AioRpcError) as err:
+        run(_join(small_rig.port, small_rig.token, "r9c9"))
+    assert err.value.code() == grpc.StatusCode.NOT_FOUND
+    assert "r0c0, r0c1" in err.value.details()
+
+
+def test_nonces_are_single_use(small_rig):
+    async def replay():
+        async with grpc.aio.insecure_channel(f"127.0.0.1:{small_rig.port}") as ch:
+            stub = node_pb2_grpc.NodeLinkStub(ch)
+            cn = auth.new_nonce()
+            hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=cn, role="node", slot="r0c0"))
+            proof = auth.client_proof(small_rig.token, "node", hello.rig_id, "r0c0", cn, hello.server_nonce)
+            login = common_pb2.LoginRequest(protocol_version=PROTOCOL_VERSION, role="node", slot="r0c0", client_nonce=cn,
+                                            server_nonce=hello.server_nonce, client_proof=proof)
+            await stub.Join(node_pb2.JoinRequest(login=login))
+            await stub.Join(node_pb2.JoinRequest(login=login))
+
+    with pytest.raises(grpc.aio.AioRpcError) as err:
+        run(replay())
+    assert "single use" in err.value.details()
+
+
+def test_calls_without_a_session_are_refused(small_rig):
+    async def go():
+        async with grpc.aio.insecure_channel(f"127.0.0.1:{small_rig.port}") as ch:
+            stub = node_pb2_grpc.NodeLinkStub(ch)
+            async for _ in stub.Frames(node_pb2.StreamRequest()):
+                pass
+
+    with pytest.raises(grpc.aio.AioRpcError) as err:
+        run(go())
+    assert err.value.code() == grpc.StatusCode.UNAUTHENTICATED
+
+
+def test_health_and_reflection_answer_generic_tools(small_rig):
+    from grpc_health.v1 import health_pb2, health_pb2_grpc
+    from grpc_reflection.v1alpha import reflection_pb2, reflection_pb2_grpc
+
+    async def go():
+        async with grpc.aio.insecure_channel(f"127.0.0.1:{small_rig.port}") as ch:
+            health = await health_pb2_grpc.HealthStub(ch).Check(health_pb2.HealthCheckRequest(service="shadowless.v1.NodeLink"))
+            refl = reflection_pb2_grpc.ServerReflectionStub(ch)
+
+            async def reqs():
+                yield reflection_pb2.ServerReflectionRequest(list_services="")
+
+            services = []
+            async for resp in refl.ServerReflectionInfo(reqs()):
+                services = [s.name for s in resp.list_services_response.service]
+            return health.status, services
+
+    status, services = run(go())
+    assert status == health_pb2.HealthCheckResponse.SERVING
+    assert {"shadowless.v1.NodeLink", "shadowless.v1.RigControl", "grpc.health.v1.Health"} <= set(services)
+
+
+def test_tls_channel(tmp_path):
+    key, cert = tmp_path / "key.pem", tmp_path / "cert.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=shadowless-test",
+                    "-addext", "subjectAltName=DNS:shadowless-test,IP:127.0.0.1", "-keyout", str(key), "-out", str(cert)],
+                   check=True, capture_output=True)
+    rig = LocalRig(["r0c0"], tmp_path / "tls", output_size=(32, 32), content_size=(32, 32), mdns=False,
+                   extra_node_args={"r0c0": ["--tls-ca", str(cert), "--tls-server-name", "shadowless-test"]}).create()
+    import sys
+
+    rig.coordinator = rig._spawn("coordinator", ["coordinator", "--rig", str(rig.rig_dir), "--listen", f"127.0.0.1:{rig.port}",
+                                                 "--no-mdns", "--tls-cert", str(cert), "--tls-key", str(key)])
+    try:
+        rig.start_node("r0c0")
+
+        async def go():
+            from coordinator.operator import Client
+
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    c = await Client.connect(f"127.0.0.1:{rig.port}", rig.token, tls_ca=cert.read_bytes(),
+                                             tls_server_name="shadowless-test")
+                    break
+                except Exception:
+                    assert time.monotonic() < deadline
+                    await asyncio.sleep(0.3)
+            async with c:
+                await rig.wait_live(c, timeout=60)
+
+        run(go())
+        # a plaintext client cannot talk to the TLS coordinator
+        with pytest.raises(grpc.aio.AioRpcError):
+            run(asyncio.wait_for(_join(rig.port, rig.token, "r0c0"), 10))
+    finally:
+        rig.close()
