@@ -74,6 +74,9 @@ class Output(abc.ABC):
     def after_swap(self, renderer: "Renderer", info: SwapInfo) -> None:
         """Called right after :meth:`swap`; may read back and ship the frame."""
 
+    def poll(self) -> None:
+        """Called when the presenter is idle (no frame for a while): keep a window responsive."""
+
     def close(self) -> None:
         """Release the context and any connection."""
 
