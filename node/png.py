@@ -27,6 +27,7 @@ __all__ = [
     "decode_png_text",
     "write_png",
     "read_png",
+    "atomic_write_bytes",
     "FILTERS",
 ]
 
