@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from node.errors import NodeError
+
 __all__ = [
     "PngError",
     "encode_png",
@@ -41,7 +43,7 @@ _MAX_CHUNK = 2**31 - 1
 _MAX_DIM = 2**24  # sanity bound on width/height from untrusted files
 
 
-class PngError(ValueError):
+class PngError(NodeError, ValueError):
     """A PNG file is malformed or uses a feature this reader does not support."""
 
 

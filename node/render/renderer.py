@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from node.errors import NodeError
+
 __all__ = ["Mesh", "RenderError", "Renderer", "SPACES"]
 
 SPACES = ("content", "projector")
@@ -43,7 +45,7 @@ _TEXTURE_DTYPES = {
 }
 
 
-class RenderError(RuntimeError):
+class RenderError(NodeError, RuntimeError):
     """OpenGL is unusable or refused a request; the message says what to check."""
 
 
