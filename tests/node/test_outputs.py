@@ -386,3 +386,14 @@ def test_fullscreen_window_under_xvfb(xvfb, tmp_path):
     assert not result["should_close"] and result["close_requests"] == 1
     assert result["after_escape_black"]
     assert "320x480" in result["wrong_size"] and "640x480" in result["wrong_size"]
+
+
+def test_offscreen_without_egl_says_what_to_install(monkeypatch):
+    import moderngl
+
+    def no_egl(**kwargs):
+        raise Exception("eglGetDisplay failed")
+
+    monkeypatch.setattr(moderngl, "create_standalone_context", no_egl)
+    with pytest.raises(OutputError, match="eglGetDisplay failed.*libegl1"):
+        OffscreenOutput(slot="r0c0").make_context()

@@ -602,3 +602,22 @@ def test_release_is_idempotent_and_context_manager():
         r.render("a", space="projector")
         assert r.read().shape == (8, 8, 3)
     r.release()
+
+
+def test_unusable_gl_is_reported_with_what_to_do(monkeypatch):
+    from types import SimpleNamespace
+
+    import moderngl
+
+    from node.render import RenderError
+
+    old = SimpleNamespace(version_code=210, info={"GL_RENDERER": "ancient"})
+    with pytest.raises(RenderError, match=r"3\.3 or newer.*2\.1 \(ancient\)"):
+        Renderer(old, 8, 8)
+
+    def no_egl(**kwargs):
+        raise Exception("eglInitialize failed")
+
+    monkeypatch.setattr(moderngl, "create_standalone_context", no_egl)
+    with pytest.raises(RenderError, match="eglInitialize failed.*libegl1"):
+        Renderer.standalone(8, 8)
