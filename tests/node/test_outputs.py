@@ -397,3 +397,9 @@ def test_offscreen_without_egl_says_what_to_install(monkeypatch):
     monkeypatch.setattr(moderngl, "create_standalone_context", no_egl)
     with pytest.raises(OutputError, match="eglGetDisplay failed.*libegl1"):
         OffscreenOutput(slot="r0c0").make_context()
+
+
+def test_window_without_glfw_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "glfw", None)  # makes `import glfw` fail
+    with pytest.raises(OutputError, match=r"shadowless\[window\]"):
+        open_output("window:0", slot="r0c0")
