@@ -1,0 +1,356 @@
+"""Ground truth of a room: poses, homographies, correspondences, light transport, light drop.
+
+For tests and benchmarks only: the coordinator never reads these, it has to
+measure them through captures. ``room.truth`` is a :class:`Truth`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+import scipy.sparse
+
+from sim.geometry import plane_homography
+from sim.optics import REMAP_STEPS, Sensor, sample_weights_1d
+
+if TYPE_CHECKING:  # pragma: no cover
+    from sim.room import Room
+
+
+@dataclass(frozen=True, eq=False)
+class ProjectorTruth:
+    """A projector's true optics at the room's resolution (``native_*``: at native resolution).
+
+    ``P = K [R | t]`` maps world mm to projector pixels; the response maps an
+    input value v in [0, 1] to ``black + (1 - black) v**gamma`` (per channel),
+    times ``peak``.
+    """
+
+    slot: str
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    P: np.ndarray
+    size: tuple[int, int]
+    native_K: np.ndarray
+    native_size: tuple[int, int]
+    center: np.ndarray
+    gamma: np.ndarray
+    black: np.ndarray
+    peak: float
+    aperture: float
+    focus: float
+    falloff: float
+    powered: bool
+
+
+@dataclass(frozen=True, eq=False)
+class CameraTruth:
+    """A camera's true optics at the room's resolution, and its sensor."""
+
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    P: np.ndarray
+    size: tuple[int, int]
+    center: np.ndarray
+    gain: float
+    exposure: float
+    sensor: Sensor
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceTruth:
+    """What each camera pixel sees of the static room (no occluders).
+
+    Attributes
+    ----------
+    points : (H, W, 3) float32   world mm (nan where nothing)
+    normals : (H, W, 3) float32
+    uv : (H, W, 2) float32       content uv of the table or mesh (nan where nothing)
+    kind : (H, W) uint8          0 nothing, 1 table, 2 mesh
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    uv: np.ndarray
+    kind: np.ndarray
+
+
+class Truth:
+    """Ground-truth queries on a :class:`~sim.room.Room` (always its current state)."""
+
+    def __init__(self, room: "Room") -> None:
+        self._room = room
+
+    # ------------------------------------------------------------ optics
+
+    def projector(self, slot: str) -> ProjectorTruth:
+        p = self._room.projector(slot)
+        d = p.pinhole
+        return ProjectorTruth(
+            slot, d.K.copy(), d.R.copy(), d.t.copy(), d.P, d.size, p.native.K.copy(), p.native.size, d.center,
+            p.response.gamma.copy(), p.response.black.copy(), p.peak, p.aperture, p.focus, p.falloff, p.powered,
+        )
+
+    def camera(self, camera: int = 0) -> CameraTruth:
+        c = self._room.scene.camera(camera)
+        d = c.pinhole
+        return CameraTruth(d.K.copy(), d.R.copy(), d.t.copy(), d.P, d.size, d.center, c.gain, c.exposure, c.sensor)
+
+    def table_to_camera_homography(self, camera: int = 0) -> np.ndarray:
+        """(3, 3) float64: table mm (x, y) -> camera pixels."""
+        d = self._room.scene.camera(camera).pinhole
+        return plane_homography(d.K, d.R, d.t)
+
+    def table_to_projector_homography(self, slot: str) -> np.ndarray:
+        """(3, 3) float64: table mm (x, y) -> projector pixels (at the room's resolution)."""
+        d = self._room.projector(slot).pinhole
+        return plane_homography(d.K, d.R, d.t)
+
+    def content_to_table_homography(self, content_size: tuple[int, int]) -> np.ndarray:
+        """(3, 3) float64: content pixels -> table mm for a content image covering the table.
+
+        Content x runs along world +x, content y along world -y (the table seen
+        from above), pixel centres at integers: ``x_mm = W_mm (x + 0.5) / w - W_mm / 2``.
+        """
+        table = self._room.scene.table
+        if table is None:
+            raise ValueError("this room has no table")
+        w, h = content_size
+        tw, th = table.size
+        return np.array([[tw / w, 0.0, tw / w * 0.5 - tw / 2], [0.0, -th / h, th / 2 - th / h * 0.5], [0.0, 0.0, 1.0]])
+
+    def content_to_projector_homography(self, slot: str, content_size: tuple[int, int]) -> np.ndarray:
+        """(3, 3) float64: the planar pose of ``slot`` for content covering the table."""
+        H = self.table_to_projector_homography(slot) @ self.content_to_table_homography(content_size)
+        return H / H[2, 2]
+
+    # ------------------------------------------------------------ per-pixel truth
+
+    def _view(self, camera: int):
+        return self._room._view(camera)
+
+    def _full(self, camera: int, roi_array: np.ndarray, fill) -> np.ndarray:
+        W, H = self._room.scene.camera(camera).size
+        x0, y0, x1, y1 = self._view(camera).roi
+        out = np.full((H, W, *roi_array.shape[2:]), fill, dtype=roi_array.dtype)
+        out[y0:y1, x0:x1] = roi_array
+        return out
+
+    def surface(self, camera: int = 0) -> SurfaceTruth:
+        """Static surface seen by each camera pixel."""
+        with self._room._lock:
+            v = self._view(camera)
+            none = v.kind == 0
+            pts = v.points.astype(np.float32)
+            pts[none] = np.nan
+            nrm = v.normals.astype(np.float32)
+            nrm[none] = np.nan
+            return SurfaceTruth(self._full(camera, pts, np.nan), self._full(camera, nrm, np.nan), self._full(camera, v.content_uv, np.nan), self._full(camera, v.kind, 0))
+
+    def projector_coordinates(self, slot: str, camera: int = 0) -> np.ndarray:
+        """Sub-pixel projector coordinates of each camera pixel's surface point.
+
+        Returns
+        -------
+        (H, W, 2) float32; nan where the projector does not light the point
+        (outside its image, facing away, or hidden by the mesh). Occluders are
+        ignored here; see :meth:`shadow_mask`.
+        """
+        with self._room._lock:
+            w, h = self._room.projector(slot).size
+            view = self._view(camera)
+            plan = view.plans[slot]
+            uv = np.full((view.shape[0] * view.shape[1], 2), np.nan, np.float32)
+            inside = (plan.uv[:, 0] >= -0.5) & (plan.uv[:, 0] <= w - 0.5) & (plan.uv[:, 1] >= -0.5) & (plan.uv[:, 1] <= h - 0.5)
+            uv[plan.lit[inside]] = plan.uv[inside]
+            return self._full(camera, uv.reshape(*view.shape, 2), np.nan)
+
+    def irradiance(self, slot: str, camera: int = 0, *, occluders: bool = True) -> np.ndarray:
+        """Albedo x peak x irradiance of ``slot`` at full white at each camera pixel's surface point.
+
+        Returns
+        -------
+        (H, W) float32, in the units of :meth:`transport` before the camera gain.
+        """
+        with self._room._lock:
+            view = self._view(camera)
+            w = view.plans[slot].weight.copy()
+            if occluders:
+                dyn = self._room._dynamic_state(view)
+                b = dyn.blocked.get(slot)
+                if b is not None and len(b):
+                    w.reshape(-1)[b] = 0.0
+            return self._full(camera, w, np.float32(0.0))
+
+    def shadow_mask(self, slot: str, camera: int = 0) -> np.ndarray:
+        """(H, W) bool: occluders block ``slot``'s light at the pixel's surface point."""
+        with self._room._lock:
+            view = self._view(camera)
+            dyn = self._room._dynamic_state(view)
+            m = np.zeros(view.shape, bool)
+            b = dyn.blocked.get(slot)
+            if b is not None and len(b):
+                m.reshape(-1)[b] = True
+            m &= view.plans[slot].weight > 0
+            return self._full(camera, m, False)
+
+    def occluder_mask(self, camera: int = 0) -> np.ndarray:
+        """(H, W) bool: the camera sees an occluder (hand) at the pixel."""
+        with self._room._lock:
+            view = self._view(camera)
+            dyn = self._room._dynamic_state(view)
+            W, H = self._room.scene.camera(camera).size
+            m = np.zeros(H * W, bool)
+            m[dyn.hand_index] = True
+            return m.reshape(H, W)
+
+    def light_drop(self, camera: int = 0) -> np.ndarray:
+        """Fraction of the light lost to occluders at each camera pixel's surface point.
+
+        ``1 - sum_i E_i v_i / sum_i E_i`` over the powered projectors, with
+        ``E_i`` the full-white irradiance of projector i at the point (peak,
+        distance, incidence, lens fall-off, mesh self-occlusion) and ``v_i``
+        whether its line of sight is free of occluders. The surface point is
+        the static one behind the pixel, also where the camera sees the hand.
+        Pixels that see nothing (or no powered projector) have 0.
+
+        Returns
+        -------
+        (H, W) float32 in [0, 1]
+        """
+        with self._room._lock:
+            view = self._view(camera)
+            dyn = self._room._dynamic_state(view)
+            total = np.zeros(view.shape, np.float64)
+            kept = np.zeros(view.shape, np.float64)
+            for slot in self._room.active:
+                w = view.plans[slot].weight.astype(np.float64)
+                total += w
+                b = dyn.blocked.get(slot)
+                if b is not None and len(b):
+                    w = w.copy()
+                    w.reshape(-1)[b] = 0.0
+                kept += w
+            with np.errstate(divide="ignore", invalid="ignore"):
+                drop = np.where(total > 0, 1.0 - kept / total, 0.0)
+            return self._full(camera, np.clip(drop, 0.0, 1.0).astype(np.float32), np.float32(0.0))
+
+    def illumination_count(self, camera: int = 0, *, occluders: bool = False) -> np.ndarray:
+        """(H, W) int32: how many powered projectors light each pixel's surface point (the paper's heat map).
+
+        A projector counts where the point is inside its image, faces it and
+        is not hidden by the mesh (and, with ``occluders``, not shadowed).
+        """
+        with self._room._lock:
+            view = self._view(camera)
+            count = np.zeros(view.shape, np.int32)
+            dyn = self._room._dynamic_state(view) if occluders else None
+            for slot in self._room.active:
+                lit = np.isfinite(self.projector_coordinates(slot, camera)[..., 0])
+                x0, y0, x1, y1 = view.roi
+                m = lit[y0:y1, x0:x1]
+                if dyn is not None:
+                    b = dyn.blocked.get(slot)
+                    if b is not None and len(b):
+                        m.reshape(-1)[b] = False
+                count += m
+            return self._full(camera, count, np.int32(0))
+
+    # ------------------------------------------------------------ light transport
+
+    def transport(self, slot: str, camera: int = 0) -> scipy.sparse.csr_matrix:
+        """Light transport from ``slot``'s pixels to the camera's, as the capture applies it.
+
+        Entry ``[y * W + x, v * w + u]`` is the camera's linear signal at pixel
+        (x, y) (fraction of full scale, before noise and quantisation) per unit
+        of relative luminance emitted by projector pixel (u, v); channels do
+        not mix, so the same matrix serves R, G and B. With ``lum_i`` the
+        emitted luminance of every powered projector (``response(frame)``),
+        ``Room.render_linear()[..., c].ravel() == sum_i transport_i @ lum_i[..., c].ravel()``.
+        Current occluders and the exposure are included.
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix (H*W, w*h) float32
+        """
+        room = self._room
+        with room._lock:
+            spec = room.projector(slot)
+            cam = room.scene.camera(camera)
+            W, H = cam.size
+            w, h = spec.size
+            view = self._view(camera)
+            dyn = room._dynamic_state(view)
+            plan = view.plans[slot]
+            x0, y0, x1, y1 = view.roi
+            wr = x1 - x0
+            rows_all, cols_all, vals_all = [], [], []
+            map1, map2 = cv2.convertMaps(plan.mapx, plan.mapy, cv2.CV_16SC2)
+            local = np.arange(view.shape[0] * view.shape[1])
+            cam_index = (y0 + local // wr) * W + (x0 + local % wr)
+            blocked = dyn.blocked.get(slot)
+            for level in plan.coef:
+                c = plan.coef_2d(level).reshape(-1).copy()
+                if blocked is not None and len(blocked):
+                    c[blocked] = 0.0
+                if len(dyn.hand_roi):
+                    c[dyn.hand_roi] = 0.0
+                r, cidx, v = _entries(map1.reshape(-1, 2), map2.reshape(-1), c, plan.sigmas[level], plan.upsample, plan.pad, (w, h))
+                rows_all.append(cam_index[r])
+                cols_all.append(cidx)
+                vals_all.append(v)
+            if len(dyn.hand_index):
+                hs = room._samples(view, dyn, slot)
+                hm1, hm2 = cv2.convertMaps(hs.mapx, hs.mapy, cv2.CV_16SC2)
+                for level, c in hs.coef.items():
+                    r, cidx, v = _entries(hm1.reshape(-1, 2), hm2.reshape(-1), c, plan.sigmas[level], plan.upsample, plan.pad, (w, h))
+                    rows_all.append(dyn.hand_index[r])
+                    cols_all.append(cidx)
+                    vals_all.append(v)
+            scale = cam.gain * cam.exposure
+            rows = np.concatenate(rows_all) if rows_all else np.zeros(0, np.int64)
+            cols = np.concatenate(cols_all) if cols_all else np.zeros(0, np.int64)
+            vals = (np.concatenate(vals_all) if vals_all else np.zeros(0)) * scale
+            m = scipy.sparse.coo_matrix((vals.astype(np.float32), (rows, cols)), shape=(H * W, w * h))
+            return m.tocsr()
+
+
+def _entries(map1: np.ndarray, map2: np.ndarray, coef: np.ndarray, sigma: float, upsample: int, pad: int, size: tuple[int, int]):
+    """Sparse entries (row, column, value) of one blur level's sampling (fixed-point maps as cv2.remap uses them)."""
+    nz = np.flatnonzero(coef)
+    if len(nz) == 0:
+        return nz, nz, np.zeros(0)
+    s = upsample
+    ix = map1[nz, 0].astype(np.int64) - pad
+    iy = map1[nz, 1].astype(np.int64) - pad
+    fx = (map2[nz] & (REMAP_STEPS - 1)).astype(np.int64)
+    fy = (map2[nz] >> 5).astype(np.int64)
+    qx, rx = np.divmod(ix, s)
+    qy, ry = np.divmod(iy, s)
+    dj_min, table = sample_weights_1d(sigma, upsample=s)
+    wx = table[rx, fx]  # (n, nd)
+    wy = table[ry, fy]
+    c = coef[nz].astype(np.float64)
+    w, h = size
+    rows, cols, vals = [], [], []
+    nd = table.shape[2]
+    for b in range(nd):
+        col_y = qy + dj_min + b
+        oky = (col_y >= 0) & (col_y < h) & (wy[:, b] != 0)
+        if not oky.any():
+            continue
+        for a in range(nd):
+            col_x = qx + dj_min + a
+            ok = oky & (col_x >= 0) & (col_x < w) & (wx[:, a] != 0)
+            if not ok.any():
+                continue
+            rows.append(nz[ok])
+            cols.append(col_y[ok] * w + col_x[ok])
+            vals.append(c[ok] * wx[ok, a] * wy[ok, b])
+    if not rows:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
