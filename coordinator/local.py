@@ -86,6 +86,7 @@ class LocalRig:
 
     def __enter__(self) -> "LocalRig":
         self.create()
+        self.started = time.monotonic()
         self.start_coordinator()
         for s in self.slots:
             self.start_node(s)
@@ -258,8 +259,7 @@ async def _local(args) -> int:
             await c.show(img, name=args.image or "test card")
             await asyncio.sleep(1.0)
             frames = max(1, int(args.fps * args.seconds))
-            reply = await c.play(control_pb2.PlaySettings(fps=args.fps, pattern="counter", frames=frames, width=w,
-                                                          height=h, wait=True))
+            reply = await c.play(control_pb2.PlaySettings(fps=args.fps, pattern="counter", frames=frames, wait=True))
             status = status_dict(await c.status())
     result = {"nodes": len(slots), "fps": args.fps, **play_dict(reply), "node_table": status["nodes"],
               "workdir": str(workdir)}

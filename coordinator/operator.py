@@ -205,7 +205,6 @@ def configure_play(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", nargs="?", help="a folder of images (omit with --pattern)")
     p.add_argument("--pattern", choices=["counter"], help="generate frames on the coordinator instead")
     p.add_argument("--frames", type=int, default=150, help="with --pattern: how many frames (default 150)")
-    p.add_argument("--size", default="320x180", help="with --pattern: content size WxH (default 320x180)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
     p.add_argument("--loops", type=int, default=0, help="extra loops (default 0: once)")
     p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
@@ -251,8 +250,7 @@ async def _play(args) -> int:
     frames: list[np.ndarray] = []
     st = control_pb2.PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait)
     if args.pattern:
-        w, h = (int(v) for v in args.size.split("x"))
-        st.pattern, st.frames, st.width, st.height = args.pattern, args.frames, w, h
+        st.pattern, st.frames = args.pattern, args.frames
     elif args.source:
         files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
         if not files:

@@ -76,6 +76,8 @@ class NodeSession:
     shown: int = 0
     late: int = 0
     dropped: int = 0
+    still_frames: set[int] = field(default_factory=set)   # ids of still frames sent to this node
+    still_retries: int = 0
 
     @property
     def same_host(self) -> bool:
@@ -371,12 +373,22 @@ class Coordinator:
                               content_id=content_id, space=space, apply_lut=apply_lut, tag=tag,
                               slot_content=slot_content or {})
 
-    def _send_still_to(self, sess: NodeSession) -> None:
+    def _send_still_to(self, sess: NodeSession, *, budget_ns: int | None = None) -> None:
         frame = node_pb2.Frame()
         frame.CopyFrom(self.current_frame)
         frame.frame_id = self.new_frame_id()
-        frame.pts_ns = self.rig_now() + self.latency_ns
+        frame.pts_ns = self.rig_now() + (budget_ns or self.latency_ns)
+        sess.still_frames = {frame.frame_id}
         self._send([sess], frame=frame, contents=self.current_contents)
+
+    def _retry_still(self, sess: NodeSession, frame_id: int) -> None:
+        """A still must end up on every projector: a node that dropped it gets it again, with more time."""
+        if frame_id not in sess.still_frames or self.current_frame is None or not self.current_frame.tag.startswith("show"):
+            return
+        sess.still_retries += 1
+        budget = min(2_000_000_000, self.latency_ns * 2 ** min(sess.still_retries, 6))
+        log.info("node %s dropped still frame %d; resending with %.0f ms budget", sess.slot, frame_id, budget / 1e6)
+        self._send_still_to(sess, budget_ns=budget)
 
     def _set_still(self, content: Content, *, tag: str, space: int, apply_lut: bool, publish: bool = True) -> node_pb2.Frame:
         self.current_contents = {content.content_id: content}
@@ -384,12 +396,32 @@ class Coordinator:
         self.current_frame = frame
         self.showing = f"{tag} {content.name or content.content_id}"
         if publish:
-            self._send(self.live_sessions(), frame=frame, contents=self.current_contents)
+            sessions = self.live_sessions()
+            for sess in sessions:
+                sess.still_frames = {frame.frame_id}
+                sess.still_retries = 0
+            self._send(sessions, frame=frame, contents=self.current_contents)
         return frame
+
+    def fit_content(self, content: Content) -> Content:
+        """Scale an image to the rig's content size (the poses map content px); same dtype."""
+        w, h = self.content_size()
+        img = content.image
+        if img.shape[1] == w and img.shape[0] == h:
+            return content
+        import cv2
+
+        interp = cv2.INTER_AREA if img.shape[1] > w else cv2.INTER_LINEAR
+        scaled = cv2.resize(img, (w, h), interpolation=interp)
+        if scaled.ndim == 2:
+            scaled = scaled[:, :, None]
+        return Content(scaled, name=content.name)
 
     def show(self, content: Content, *, space: int = node_pb2.SPACE_CONTENT, apply_lut: bool = True,
              persist: bool = False, tag: str = "show") -> node_pb2.Frame:
         self.stop_playback()
+        if space == node_pb2.SPACE_CONTENT:
+            content = self.fit_content(content)
         if persist:
             self.rig.set_content(content)
         return self._set_still(content, tag=tag, space=space, apply_lut=apply_lut)
@@ -416,10 +448,11 @@ class Coordinator:
         latency_ns = int(st.latency_ms * 1e6) if st.latency_ms > 0 else self.latency_ns
         if frames is None:
             count = st.frames or int(fps * 5)
-            w, h = st.width or 320, st.height or 180
+            w, h = self.content_size()
             make = lambda i: counter_pattern(i, w, h)  # noqa: E731
         else:
             count = len(frames) * (st.loops + 1)
+            frames = [self.fit_content(f) for f in frames]
             make = lambda i: frames[i % len(frames)]  # noqa: E731
         tag = f"play:{uuid.uuid4().hex[:8]}"
         results: list[FrameResult] = []
@@ -490,6 +523,7 @@ class Coordinator:
             else:
                 sess.dropped += 1
             self.sync.on_drop(sess.slot, rep.drop.frame_id, rep.drop.reason)
+            self._retry_still(sess, rep.drop.frame_id)
 
     # ------------------------------------------------------------------ configure
     def configure(self, req: control_pb2.ConfigureRequest) -> int:

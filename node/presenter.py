@@ -146,7 +146,11 @@ class Presenter(threading.Thread):
                  "yes" if a.lut is not None else "identity")
         # what is on screen now follows the new assignment at once
         if self._current is not None:
-            self._render(renderer, self._current)
+            try:
+                self._render(renderer, self._current)
+            except ValueError as exc:
+                log.error("cannot re-render the current frame with the new assignment: %s", exc)
+                renderer.render(None)
             out.prepare(renderer)
             out.swap()
 
@@ -200,7 +204,12 @@ class Presenter(threading.Thread):
         if frame.content_id and not renderer.has(frame.content_id):
             self._drop(frame, node_pb2.DROP_REASON_MISSING_CONTENT)
             return
-        self._render(renderer, frame)
+        try:
+            self._render(renderer, frame)
+        except ValueError as exc:   # the renderer refuses what it cannot show correctly
+            log.error("cannot show frame %d: %s", frame.frame_id, exc)
+            self._drop(frame, node_pb2.DROP_REASON_UNRENDERABLE)
+            return
         out.prepare(renderer)
         self._ctx.finish()   # the frame must be complete in the back buffer before its time comes
         # sleep coarsely, then re-read the estimate (it may have been refined) and land on the deadline

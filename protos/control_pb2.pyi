@@ -157,14 +157,12 @@ class ShowReply(_message.Message):
     def __init__(self, frame_id: _Optional[int] = ..., content_id: _Optional[str] = ..., pts_ns: _Optional[int] = ...) -> None: ...
 
 class PlaySettings(_message.Message):
-    __slots__ = ("fps", "loops", "wait", "pattern", "frames", "width", "height", "latency_ms", "settle_s")
+    __slots__ = ("fps", "loops", "wait", "pattern", "frames", "latency_ms", "settle_s")
     FPS_FIELD_NUMBER: _ClassVar[int]
     LOOPS_FIELD_NUMBER: _ClassVar[int]
     WAIT_FIELD_NUMBER: _ClassVar[int]
     PATTERN_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
-    WIDTH_FIELD_NUMBER: _ClassVar[int]
-    HEIGHT_FIELD_NUMBER: _ClassVar[int]
     LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
     SETTLE_S_FIELD_NUMBER: _ClassVar[int]
     fps: float
@@ -172,11 +170,9 @@ class PlaySettings(_message.Message):
     wait: bool
     pattern: str
     frames: int
-    width: int
-    height: int
     latency_ms: float
     settle_s: float
-    def __init__(self, fps: _Optional[float] = ..., loops: _Optional[int] = ..., wait: _Optional[bool] = ..., pattern: _Optional[str] = ..., frames: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., latency_ms: _Optional[float] = ..., settle_s: _Optional[float] = ...) -> None: ...
+    def __init__(self, fps: _Optional[float] = ..., loops: _Optional[int] = ..., wait: _Optional[bool] = ..., pattern: _Optional[str] = ..., frames: _Optional[int] = ..., latency_ms: _Optional[float] = ..., settle_s: _Optional[float] = ...) -> None: ...
 
 class PlayItem(_message.Message):
     __slots__ = ("settings", "frame")

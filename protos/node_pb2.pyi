@@ -20,6 +20,7 @@ class DropReason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DROP_REASON_LATE: _ClassVar[DropReason]
     DROP_REASON_SUPERSEDED: _ClassVar[DropReason]
     DROP_REASON_MISSING_CONTENT: _ClassVar[DropReason]
+    DROP_REASON_UNRENDERABLE: _ClassVar[DropReason]
 SPACE_UNSPECIFIED: Space
 SPACE_CONTENT: Space
 SPACE_PROJECTOR: Space
@@ -27,6 +28,7 @@ DROP_REASON_UNSPECIFIED: DropReason
 DROP_REASON_LATE: DropReason
 DROP_REASON_SUPERSEDED: DropReason
 DROP_REASON_MISSING_CONTENT: DropReason
+DROP_REASON_UNRENDERABLE: DropReason
 
 class NodeInfo(_message.Message):
     __slots__ = ("hostname", "host_boot_id", "pid", "software_version", "output", "native_width", "native_height")
