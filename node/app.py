@@ -49,6 +49,7 @@ class NodeConfig:
     tls_ca: bytes | None = None
     tls_server_name: str | None = None
     ping_hz: float = 4.0
+    realtime: bool = True
     backoff_min_s: float = 0.2
     backoff_max_s: float = 5.0
     refusal_backoff_s: float = 10.0
@@ -87,7 +88,8 @@ class Node:
 
         tune_interpreter()
         self.presenter = Presenter(slot=self.cfg.slot, output_spec=self.cfg.output, clock=self.clock,
-                                   estimator=self.estimator, report=self._report, snapshot_dir=self.cfg.snapshot_dir)
+                                   estimator=self.estimator, report=self._report, snapshot_dir=self.cfg.snapshot_dir,
+                                   realtime=self.cfg.realtime)
         self.presenter.start()
         await asyncio.get_running_loop().run_in_executor(None, self.presenter.ready.wait)
         if self.presenter.failed is not None:

@@ -38,6 +38,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tls-ca", metavar="PEM", help="connect with TLS, trusting this CA certificate")
     p.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
     p.add_argument("--ping-hz", type=float, default=4.0, help="clock exchanges per second (default 4)")
+    p.add_argument("--no-realtime", action="store_true",
+                   help="do not raise the swap to real-time priority (SCHED_FIFO needs CAP_SYS_NICE)")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     test = p.add_argument_group("test hooks (make this node deliberately wrong)")
     test.add_argument("--clock-offset-ms", type=float, default=0.0, help="offset this node's clock by this much")
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
                      mdns_interfaces=args.mdns_interface, output=args.output, snapshot_dir=args.snapshot_dir,
                      clock_offset_ms=args.clock_offset_ms, clock_drift_ppm=args.clock_drift_ppm,
                      protocol_version=args.protocol_version, tls_ca=tls_ca, tls_server_name=args.tls_server_name,
-                     ping_hz=args.ping_hz)
+                     ping_hz=args.ping_hz, realtime=not args.no_realtime)
 
     async def main() -> int:
         node = Node(cfg)

@@ -9,6 +9,7 @@ late; a frame older than the one on screen is never shown (no reordering).
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import sys
 import threading
@@ -27,12 +28,45 @@ from protos import codec, common_pb2, node_pb2
 
 log = logging.getLogger(__name__)
 
-import os
+#: log each swap's distance from its deadline (diagnostics)
 _DEBUG_TIMING = bool(os.environ.get("SHADOWLESS_DEBUG_TIMING"))
 #: a frame may be shown this late (ns) before it counts as late and is dropped
 LATE_TOLERANCE_NS = 500_000
 #: wake this long before the deadline, then sleep the rest precisely
 COARSE_WAKE_NS = 2_000_000
+
+
+class RealtimeWindow:
+    """Run the last sleep and the swap at real-time priority (SCHED_FIFO), the rest normally.
+
+    A projector's swap is a real-time deadline: when a dozen nodes share a small
+    machine, or a node's other threads are busy, a normal thread that wakes on
+    time may still wait for a CPU. Only the short wake-swap-timestamp window is
+    real-time, so the thread never renders at that priority and cannot starve
+    the machine. Needs CAP_SYS_NICE (the systemd unit grants it); without it the
+    node says so once and runs at normal priority.
+    """
+
+    def __init__(self, enabled: bool, priority: int = 50):
+        self.active = False
+        if not enabled or not hasattr(os, "sched_setscheduler"):
+            return
+        try:
+            self._fifo = os.sched_param(priority)
+            self._normal = os.sched_param(0)
+            os.sched_setscheduler(0, os.SCHED_FIFO, self._fifo)
+            os.sched_setscheduler(0, os.SCHED_OTHER, self._normal)
+            self.active = True
+        except (PermissionError, OSError) as exc:
+            log.info("real-time swap priority unavailable (%s); swapping at normal priority", exc.strerror or exc)
+
+    def __enter__(self) -> None:
+        if self.active:
+            os.sched_setscheduler(0, os.SCHED_FIFO, self._fifo)
+
+    def __exit__(self, *exc) -> None:
+        if self.active:
+            os.sched_setscheduler(0, os.SCHED_OTHER, self._normal)
 
 
 @dataclass
@@ -51,7 +85,7 @@ class Presenter(threading.Thread):
 
     def __init__(self, *, slot: str, output_spec: str, clock: LocalClock, estimator: ClockEstimator,
                  report: Callable[[node_pb2.NodeReport], None], snapshot_dir: Path | None = None,
-                 output: Output | None = None):
+                 output: Output | None = None, realtime: bool = True):
         super().__init__(name=f"presenter-{slot}", daemon=True)
         self.slot = slot
         self.clock = clock
@@ -60,6 +94,7 @@ class Presenter(threading.Thread):
         self.output_spec = output_spec
         self.snapshot_dir = snapshot_dir
         self._output = output
+        self._realtime_wanted = realtime
         self.inbox: queue.Queue = queue.Queue()
         self.stats = PresenterStats()
         self.assignment: NodeAssignment | None = None
@@ -105,6 +140,7 @@ class Presenter(threading.Thread):
         w, h = size or (640, 360)
         renderer = Renderer(ctx, w, h)
         self.renderer = renderer
+        self._rt = RealtimeWindow(self._realtime_wanted)
         renderer.render(None)
         out.prepare(renderer)
         out.swap()
@@ -114,6 +150,7 @@ class Presenter(threading.Thread):
                 try:
                     kind, payload = self.inbox.get(timeout=0.5)
                 except queue.Empty:
+                    out.poll()   # a window keeps handling its events between frames
                     continue
                 if kind == "stop":
                     break
@@ -221,9 +258,10 @@ class Presenter(threading.Thread):
         if late_by > LATE_TOLERANCE_NS:
             self._drop(frame, node_pb2.DROP_REASON_LATE, late_by)
             return
-        self.clock.sleep_until(deadline)
-        out.swap()
-        host = self.clock.host_now()
+        with self._rt:
+            self.clock.sleep_until(deadline)
+            out.swap()
+            host = self.clock.host_now()
         if _DEBUG_TIMING:
             log.info("timing frame %d: swap %.3f ms after deadline", frame.frame_id,
                      (host - self.clock.to_host(deadline)) / 1e6)

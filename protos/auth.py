@@ -62,6 +62,8 @@ def read_token(path: str | os.PathLike[str]) -> bytes:
         raise TokenError(f"rig token file {p} does not exist (create one with `shadowless rig init`)") from exc
     except OSError as exc:
         raise TokenError(f"cannot read rig token file {p}: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise TokenError(f"rig token file {p} is not text (is it the right file?)") from exc
     if len(text.encode()) < MIN_TOKEN_BYTES:
         raise TokenError(f"rig token in {p} is shorter than {MIN_TOKEN_BYTES} bytes")
     return text.encode()

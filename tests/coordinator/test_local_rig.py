@@ -119,8 +119,9 @@ def test_rendered_output_matches_reference_warp(rig):
         got = cv2.cvtColor(cv2.imread(str(rig.snapshot_dir / f"{slot}.png"), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGR2RGB)
         want = reference(img, homography_for(i), lut_for(i), gain)
         diff = np.abs(got.astype(int) - want.astype(int))[1:-1, 1:-1]   # ignore the 1-px frame
-        # tolerance: GPU bilinear weights are 8-bit fixed point in llvmpipe; a steep LUT amplifies that
-        assert np.percentile(diff, 99) <= 3 and diff.mean() < 0.6, (slot, diff.max(), diff.mean())
+        # tolerance: OpenCV's warp snaps coordinates to 1/32 px and the LUT's slope near black amplifies
+        # that; the renderer itself interpolates in float (tests/node/test_render.py bounds it tighter)
+        assert np.percentile(diff, 99) <= 2 and diff.mean() < 0.3, (slot, diff.max(), diff.mean())
 
 
 def test_swaps_align_despite_wrong_clocks(rig):

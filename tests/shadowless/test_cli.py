@@ -1,0 +1,88 @@
+"""The one `shadowless` command: help that teaches, and the operator commands against a real rig."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from shadowless.cli import COMMANDS
+
+
+def sh(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_top_level_help_lists_every_command_and_a_workflow():
+    out = sh("--help").stdout
+    for name in COMMANDS:
+        assert name in out
+    assert "rig init" in out and "shadowless local" in out
+
+
+@pytest.mark.parametrize("command", ["coordinator", "node", "rig", "status", "show", "play", "configure", "local", "bench"])
+def test_each_command_explains_itself(command):
+    r = sh(command, "--help")
+    assert r.returncode == 0, r.stderr
+    assert len(r.stdout.splitlines()) > 5
+
+
+def test_node_help_documents_the_clock_test_hooks():
+    out = sh("node", "--help").stdout
+    assert "--clock-offset-ms" in out and "--clock-drift-ppm" in out and "--protocol-version" not in out
+
+
+def test_rig_init_and_show(tmp_path):
+    r = sh("rig", "init", str(tmp_path / "r"), "--grid", "3x2", "--resolution", "1280x800")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(sh("rig", "show", str(tmp_path / "r")).stdout)
+    assert sorted(doc["slots"]) == ["r0c0", "r0c1", "r0c2", "r1c0", "r1c1", "r1c2"]
+    assert doc["slots"]["r0c0"]["size"] == [1280, 800]
+    again = sh("rig", "init", str(tmp_path / "r"))
+    assert again.returncode == 2 and "already holds a rig" in again.stderr
+
+
+def test_missing_rig_directory_is_a_clear_error(tmp_path):
+    r = sh("coordinator", "--rig", str(tmp_path / "nope"), "--listen", "127.0.0.1:0", "--no-mdns")
+    assert r.returncode == 2 and "not a rig directory" in r.stderr and "rig init" in r.stderr
+
+
+def test_operator_commands_against_a_running_rig(tmp_path):
+    import cv2
+
+    from coordinator.local import LocalRig
+
+    rig = LocalRig(["r0c0", "r0c1"], tmp_path, output_size=(48, 32), content_size=(48, 32), snapshots=True, mdns=False)
+    with rig:
+        rig.wait_ready()
+        conn = ["--coordinator", f"127.0.0.1:{rig.port}", "--rig-dir", str(rig.rig_dir)]
+        deadline = time.monotonic() + 60
+        while True:
+            st = json.loads(sh("status", "--json", *conn).stdout)
+            if all(n["state"] == "live" for n in st["nodes"]):
+                break
+            assert time.monotonic() < deadline, st
+            time.sleep(0.5)
+        assert st["rig"]["name"] == rig.rig_name and {n["slot"] for n in st["nodes"]} == {"r0c0", "r0c1"}
+        table = sh("status", *conn).stdout
+        assert "r0c0" in table and "live" in table and "skew" in table
+
+        h = np.array([[1.0, 0, 2], [0, 1.0, 1], [0, 0, 1]])
+        np.save(tmp_path / "h.npy", h)
+        r = sh("configure", "--slot", "r0c1", "--homography", str(tmp_path / "h.npy"), "--gain", "0.5", *conn)
+        assert r.returncode == 0 and "revision" in r.stdout, r.stderr
+
+        img = np.full((32, 48, 3), 40000, np.uint16)
+        cv2.imwrite(str(tmp_path / "grey.png"), img)
+        r = sh("show", str(tmp_path / "grey.png"), "--persist", *conn)
+        assert r.returncode == 0, r.stderr
+        r = sh("play", "--pattern", "counter", "--frames", "15", "--fps", "15", "--json", *conn)
+        assert r.returncode == 0, r.stderr
+        played = json.loads(r.stdout)
+        assert played["frames_sent"] == 15 and played["nodes"] == 2
+
+        bad = sh("status", "--coordinator", f"127.0.0.1:{rig.port}", "--token-file", str(tmp_path / "h.npy"))
+        assert bad.returncode == 2 and "token" in bad.stderr
