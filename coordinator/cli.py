@@ -40,6 +40,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--latency-ms", type=float, help="schedule frames this far ahead (default: rig.toml's latency_ms)")
     p.add_argument("--tls-cert", metavar="PEM", help="serve TLS with this certificate chain (with --tls-key)")
     p.add_argument("--tls-key", metavar="PEM", help="private key for --tls-cert")
+    p.add_argument("--camera", action="append", metavar="SPEC",
+                   help="camera for calibration jobs: room://HOST:PORT, opencv:INDEX, a device path or folder:DIR "
+                        "(repeatable; default: rig.toml's cameras)")
     p.add_argument("--port-file", metavar="FILE", help="write the bound port here once listening (for scripts)")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
@@ -61,7 +64,8 @@ async def serve(args: argparse.Namespace) -> int:
             raise CoordinatorError("TLS needs both --tls-cert and --tls-key")
         tls = (Path(args.tls_cert).read_bytes(), Path(args.tls_key).read_bytes())
     coord = Coordinator(rig, token, listen=args.listen, mdns_interfaces=args.mdns_interface,
-                        advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms)
+                        advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms,
+                        cameras=args.camera)
     await coord.start()
     if args.port_file:
         from coordinator.store import atomic_write_text

@@ -15,6 +15,7 @@ A coordinator restarted on the same directory serves the same rig.
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 import time
 import tomllib
@@ -146,6 +147,7 @@ class RigConfig:
     latency_ms: float = 50.0
     heartbeat_ms: int = 500
     lost_after_ms: int = 2500
+    cameras: tuple[str, ...] = ()
 
 
 def _check_size(what: str, w: object, h: object) -> tuple[int, int]:
@@ -183,9 +185,12 @@ def parse_config(text: str, *, source: str = "rig.toml") -> RigConfig:
     lost = doc.get("lost_after_ms", max(2500, 5 * hb if isinstance(hb, int) else 2500))
     if not isinstance(hb, int) or not 50 <= hb <= 60_000 or not isinstance(lost, int) or lost < 2 * hb:
         raise RigError(f"{source}: heartbeat_ms must be 50..60000 and lost_after_ms at least twice it")
+    cameras = doc.get("cameras", [])
+    if not isinstance(cameras, list) or not all(isinstance(c, str) and c for c in cameras):
+        raise RigError(f'{source}: cameras must be a list of sources, e.g. cameras = ["room://127.0.0.1:7700", "opencv:0"]')
     return RigConfig(
         name=doc["name"], rig_id=doc["id"], slots=slots, content_width=cw, content_height=ch,
-        latency_ms=float(latency), heartbeat_ms=hb, lost_after_ms=lost,
+        latency_ms=float(latency), heartbeat_ms=hb, lost_after_ms=lost, cameras=tuple(cameras),
     )
 
 
@@ -194,7 +199,7 @@ def grid_slots(rows: int, cols: int) -> list[str]:
 
 
 def render_config(name: str, rig_id: str, slots: list[str], *, width: int, height: int,
-                  content_width: int, content_height: int, latency_ms: float) -> str:
+                  content_width: int, content_height: int, latency_ms: float, cameras: list[str] = ()) -> str:
     lines = [
         "# A shadowless rig. Edit by hand; the coordinator reads this file when it starts.",
         "# Calibration results, LUTs and content live beside it (slots/, luts/, content/).",
@@ -207,6 +212,8 @@ def render_config(name: str, rig_id: str, slots: list[str], *, width: int, heigh
         f"latency_ms = {latency_ms:g}",
         "heartbeat_ms = 500",
         "lost_after_ms = 2500",
+        "# cameras for calibration: room://HOST:PORT (virtual room), opencv:INDEX or a device path, folder:DIR",
+        f"cameras = [{', '.join(json.dumps(c) for c in cameras)}]",
         "",
         "[defaults]",
         "# each projector's output resolution unless its slot says otherwise",
@@ -222,7 +229,7 @@ def render_config(name: str, rig_id: str, slots: list[str], *, width: int, heigh
 
 def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920, height: int = 1080,
              content_width: int = 1200, content_height: int = 600, latency_ms: float = 50.0,
-             force: bool = False) -> Path:
+             cameras: list[str] = (), force: bool = False) -> Path:
     """Create a rig directory with ``rig.toml`` and a fresh token; refuse to overwrite one."""
     path = Path(path)
     if (path / "rig.toml").exists() and not force:
@@ -235,7 +242,8 @@ def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920
     _check_size("output", width, height)
     _check_size("content", content_width, content_height)
     text = render_config(name, uuid.uuid4().hex[:12], slots, width=width, height=height,
-                         content_width=content_width, content_height=content_height, latency_ms=latency_ms)
+                         content_width=content_width, content_height=content_height, latency_ms=latency_ms,
+                         cameras=list(cameras))
     parse_config(text)  # what we write must read back
     path.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path / "rig.toml", text)
@@ -274,7 +282,6 @@ class Rig:
         f = self.path / "slots" / f"{name}.json"
         if not f.exists():
             return SlotState(name=name, width=width, height=height)
-        import json
 
         try:
             doc = json.loads(f.read_text())
@@ -303,7 +310,6 @@ class Rig:
         meta_f = self.path / "content" / "current.json"
         if not meta_f.exists():
             return None
-        import json
 
         try:
             meta = json.loads(meta_f.read_text())

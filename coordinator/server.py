@@ -110,7 +110,8 @@ class Coordinator:
     """The rig's single source of truth. Create, ``await start()``, ``await stop()``."""
 
     def __init__(self, rig: Rig, token: bytes, *, listen: str = "0.0.0.0:7600", mdns_interfaces: list[str] | None = None,
-                 advertise: bool = True, tls: tuple[bytes, bytes] | None = None, latency_ms: float | None = None):
+                 advertise: bool = True, tls: tuple[bytes, bytes] | None = None, latency_ms: float | None = None,
+                 cameras: list[str] | None = None):
         self.rig = rig
         self.token = token
         self.listen = listen
@@ -134,6 +135,11 @@ class Coordinator:
         self.current_contents: dict[str, Content] = {}
         self.showing = "nothing"
         self._play_task: asyncio.Task | None = None
+        self._waiters: dict[int, asyncio.Future] = {}
+        self._pattern_ids: set[str] = set()
+        self.camera_specs: list[str] = list(cameras if cameras is not None else rig.config.cameras)
+        self._job_lock = asyncio.Lock()
+        self.sync.add_listener(self._resolve_waiter)
         self._server: grpc.aio.Server | None = None
         self._health = None
         self._advertiser: Advertiser | None = None
@@ -345,7 +351,12 @@ class Coordinator:
         contents = contents or {}
         groups: dict[frozenset[str], list[NodeSession]] = {}
         for s in sessions:
-            missing = frozenset(cid for cid in contents if cid not in s.sent_content)
+            if frame is not None:   # a node needs only what its own slot shows
+                cid = frame.slot_content[s.slot] if s.slot in frame.slot_content else frame.content_id
+                needed = {cid} & contents.keys()
+            else:
+                needed = contents.keys()
+            missing = frozenset(cid for cid in needed if cid not in s.sent_content)
             groups.setdefault(missing, []).append(s)
         encoded: dict[str, node_pb2.Content] = {}
         for missing, members in groups.items():
@@ -430,6 +441,91 @@ class Coordinator:
         if self._play_task is not None and not self._play_task.done():
             self._play_task.cancel()
         self._play_task = None
+
+    def _resolve_waiter(self, result: FrameResult) -> None:
+        fut = self._waiters.pop(result.frame_id, None)
+        if fut is not None and not fut.done():
+            fut.set_result(result)
+
+    async def show_patterns(self, images: dict[str, np.ndarray | None], *, content: np.ndarray | None = None,
+                            apply_lut: bool = False, settle_s: float = 0.05, attempts: int = 4,
+                            timeout_s: float = 15.0) -> FrameResult:
+        """Show per-slot projector-space images (or one content image through the poses) on every
+        connected node and return once all of them swapped it in, plus ``settle_s``.
+
+        A node that dropped the frame (late) gets it again with a longer budget; after ``attempts``
+        the call fails and names the nodes that never showed it.
+        """
+        self.stop_playback()
+        sessions = self.live_sessions()
+        contents: dict[str, Content] = {}
+        slot_content: dict[str, str] = {}
+        default, space = "", node_pb2.SPACE_PROJECTOR
+        if content is not None:
+            c = self.fit_content(Content(content, name="pattern"))
+            contents[c.content_id] = c
+            default, space = c.content_id, node_pb2.SPACE_CONTENT
+        for slot, img in images.items():
+            st = self.rig.slot(slot)
+            if img is None:
+                slot_content[slot] = ""
+                continue
+            c = Content(img, name=f"pattern {slot}")
+            if c.image.shape[:2] != (st.height, st.width):
+                raise ValueError(f"pattern for {slot} is {c.image.shape[1]}x{c.image.shape[0]}, "
+                                 f"its projector is {st.width}x{st.height}")
+            contents[c.content_id] = c
+            slot_content[slot] = c.content_id
+        evict = sorted(self._pattern_ids - contents.keys())
+        budget = self.latency_ns
+        loop = asyncio.get_running_loop()
+        for _ in range(attempts):
+            frame = self._frame(default, tag="pattern", space=space, apply_lut=apply_lut,
+                                slot_content=slot_content, pts_ns=self.rig_now() + budget)
+            fut = loop.create_future()
+            self._waiters[frame.frame_id] = fut
+            self._send(sessions, frame=frame, contents=contents, evict=evict)
+            evict = []
+            self.current_frame, self.current_contents = frame, contents
+            self.showing = "calibration pattern"
+            try:
+                result = await asyncio.wait_for(fut, timeout_s)
+            finally:
+                self._waiters.pop(frame.frame_id, None)
+            if result.shown_by_all:
+                break
+            budget = min(4 * budget, 2_000_000_000)
+            sessions = self.live_sessions()
+        else:
+            raise CoordinatorError(f"node(s) {', '.join(result.missing)} did not show the pattern after "
+                                   f"{attempts} tries (late or disconnected); check `shadowless status`")
+        self._pattern_ids = set(contents)
+        if settle_s > 0:
+            await asyncio.sleep(settle_s)
+        return result
+
+    def restore_content(self) -> None:
+        """After a job: show the rig's content again (or black)."""
+        if self.rig.content is not None:
+            self.show(self.rig.content, tag="show:restored")
+        else:
+            self.current_frame, self.current_contents = None, {}
+            self.showing = "nothing"
+
+    async def run_job(self, kind: str, params: dict, emit) -> dict:
+        from coordinator.jobs import JobContext, resolve
+
+        job = resolve(kind)
+        if self._job_lock.locked():
+            raise CoordinatorError("another job is running on this rig; wait for it or cancel it")
+        async with self._job_lock:
+            specs = params.pop("cameras", None) or self.camera_specs
+            ctx = JobContext(coordinator=self, emit=emit, camera_specs=list(specs))
+            try:
+                return await job(ctx, params)
+            finally:
+                ctx.close()
+                self.restore_content()
 
     async def play(self, frames: list[Content] | None, settings: control_pb2.PlaySettings) -> control_pb2.PlayReply:
         """Play ``frames`` (or a generated pattern) at ``settings.fps``; return the figures."""
@@ -578,6 +674,16 @@ class Coordinator:
         for peer, slot, reason, at in self.refusals:
             msg.refusals.add(peer=peer, slot=slot, reason=reason, age_s=now - at)
         return msg
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serializable: {type(o).__name__}")
 
 
 def sync_message(summary: dict) -> control_pb2.SyncStats:
@@ -779,6 +885,53 @@ class RigControlService:
         self.c.operator_session(context)
         self.c.stop_playback()
         return control_pb2.StopReply()
+
+    async def RunJob(self, request, context):
+        import json
+
+        from coordinator.jobs import Progress
+
+        try:
+            self.c.operator_session(context)
+            params = json.loads(request.params_json or "{}")
+            if not isinstance(params, dict):
+                raise ValueError("job parameters must be a JSON object")
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        except ValueError as exc:
+            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"bad job parameters: {exc}")
+        events: asyncio.Queue = asyncio.Queue()
+
+        def emit(ev) -> None:
+            if isinstance(ev, Progress):
+                events.put_nowait(control_pb2.JobEvent(progress=control_pb2.JobProgress(
+                    stage=ev.stage, item=ev.item, done=ev.done, total=ev.total, message=ev.message, value=ev.value)))
+            else:
+                events.put_nowait(control_pb2.JobEvent(log=str(ev)))
+
+        task = asyncio.create_task(self.c.run_job(request.kind, params, emit), name=f"job:{request.kind}")
+        try:
+            while True:
+                getter = asyncio.ensure_future(events.get())
+                done, _ = await asyncio.wait({getter, task}, return_when=asyncio.FIRST_COMPLETED)
+                if getter in done:
+                    yield getter.result()
+                    continue
+                getter.cancel()
+                while not events.empty():
+                    yield events.get_nowait()
+                break
+            try:
+                result = task.result()
+            except (CoordinatorError, ValueError, OSError) as exc:
+                log.error("job %s failed: %s", request.kind, exc)
+                await context.abort(grpc.StatusCode.FAILED_PRECONDITION, f"{request.kind}: {exc}")
+            yield control_pb2.JobEvent(result_json=json.dumps(result, default=_json_default))
+        finally:
+            if not task.done():
+                log.warning("job %s cancelled by its client", request.kind)
+                task.cancel()
+                await asyncio.gather(task, return_exceptions=True)
 
     @_guard
     async def Configure(self, request, context):

@@ -38,6 +38,7 @@ class FrameResult:
     clock_errors_ms: tuple[float, ...]
     late: int
     dropped: int
+    missing: tuple[str, ...] = ()   # expected slots that did not swap it in
 
 
 def percentile(values, q: float) -> float:
@@ -109,6 +110,7 @@ class SyncTracker:
             frame_id=rec.frame_id, tag=rec.tag, shown_by_all=bool(rec.expected) and set(rec.swaps) >= rec.expected,
             nodes=len(swaps), skew_ms=skew, source="host-clock" if same_host else "estimates",
             clock_errors_ms=errors, late=late, dropped=len(rec.drops) - late,
+            missing=tuple(sorted(rec.expected - set(rec.swaps))),
         )
         self.results.append(result)
         for fn in list(self._listeners):

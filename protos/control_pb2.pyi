@@ -237,3 +237,37 @@ class ConfigureReply(_message.Message):
     REVISION_FIELD_NUMBER: _ClassVar[int]
     revision: int
     def __init__(self, revision: _Optional[int] = ...) -> None: ...
+
+class JobRequest(_message.Message):
+    __slots__ = ("kind", "params_json")
+    KIND_FIELD_NUMBER: _ClassVar[int]
+    PARAMS_JSON_FIELD_NUMBER: _ClassVar[int]
+    kind: str
+    params_json: str
+    def __init__(self, kind: _Optional[str] = ..., params_json: _Optional[str] = ...) -> None: ...
+
+class JobProgress(_message.Message):
+    __slots__ = ("stage", "item", "done", "total", "message", "value")
+    STAGE_FIELD_NUMBER: _ClassVar[int]
+    ITEM_FIELD_NUMBER: _ClassVar[int]
+    DONE_FIELD_NUMBER: _ClassVar[int]
+    TOTAL_FIELD_NUMBER: _ClassVar[int]
+    MESSAGE_FIELD_NUMBER: _ClassVar[int]
+    VALUE_FIELD_NUMBER: _ClassVar[int]
+    stage: str
+    item: str
+    done: int
+    total: int
+    message: str
+    value: float
+    def __init__(self, stage: _Optional[str] = ..., item: _Optional[str] = ..., done: _Optional[int] = ..., total: _Optional[int] = ..., message: _Optional[str] = ..., value: _Optional[float] = ...) -> None: ...
+
+class JobEvent(_message.Message):
+    __slots__ = ("progress", "log", "result_json")
+    PROGRESS_FIELD_NUMBER: _ClassVar[int]
+    LOG_FIELD_NUMBER: _ClassVar[int]
+    RESULT_JSON_FIELD_NUMBER: _ClassVar[int]
+    progress: JobProgress
+    log: str
+    result_json: str
+    def __init__(self, progress: _Optional[_Union[JobProgress, _Mapping]] = ..., log: _Optional[str] = ..., result_json: _Optional[str] = ...) -> None: ...

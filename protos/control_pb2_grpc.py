@@ -75,6 +75,11 @@ class RigControlStub:
                 request_serializer=protos_dot_control__pb2.ConfigureRequest.SerializeToString,
                 response_deserializer=protos_dot_control__pb2.ConfigureReply.FromString,
                 _registered_method=True)
+        self.RunJob = channel.unary_stream(
+                '/shadowless.v1.RigControl/RunJob',
+                request_serializer=protos_dot_control__pb2.JobRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.JobEvent.FromString,
+                _registered_method=True)
 
 
 class RigControlServicer:
@@ -131,6 +136,15 @@ class RigControlServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def RunJob(self, request, context):
+        """Run a long job on the coordinator (calibration, response, light transport,
+        compensation) and follow its progress. Cancelling the call cancels the job;
+        what a job completed is already persisted, so running it again resumes.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_RigControlServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -173,6 +187,11 @@ def add_RigControlServicer_to_server(servicer, server):
                     servicer.Configure,
                     request_deserializer=protos_dot_control__pb2.ConfigureRequest.FromString,
                     response_serializer=protos_dot_control__pb2.ConfigureReply.SerializeToString,
+            ),
+            'RunJob': grpc.unary_stream_rpc_method_handler(
+                    servicer.RunJob,
+                    request_deserializer=protos_dot_control__pb2.JobRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.JobEvent.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -391,6 +410,33 @@ class RigControl:
             '/shadowless.v1.RigControl/Configure',
             protos_dot_control__pb2.ConfigureRequest.SerializeToString,
             protos_dot_control__pb2.ConfigureReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def RunJob(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(
+            request,
+            target,
+            '/shadowless.v1.RigControl/RunJob',
+            protos_dot_control__pb2.JobRequest.SerializeToString,
+            protos_dot_control__pb2.JobEvent.FromString,
             options,
             channel_credentials,
             insecure,
