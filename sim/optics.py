@@ -17,8 +17,8 @@ How a projector's frame reaches a camera pixel
    fixed ladder (:data:`SIGMA_LEVELS`), weighted so the blend has the wanted
    variance (:func:`blend_levels`).
 4. **Sampling**: the blurred field is read with bilinear interpolation at the
-   camera pixel's sub-pixel projector coordinate (``cv2.remap`` with
-   fixed-point maps; :func:`sample_weights_1d` gives the identical linear weights).
+   camera pixel's sub-pixel projector coordinate (``cv2.remap``;
+   :func:`sample_weights_1d` and :func:`remap_fractions` give the identical linear weights).
 5. **Irradiance**: multiplied by :func:`irradiance_factor` (distance,
    incidence, lens fall-off) and the projector's peak output.
 
@@ -36,7 +36,7 @@ import numpy as np
 #: Blur ladder in projector pixels; a pixel's sigma is a blend of two neighbours.
 SIGMA_LEVELS: tuple[float, ...] = (0.0, 0.2, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0, 11.0, 16.0)
 
-#: Sub-pixel steps of OpenCV's fixed-point remap (``cv2.INTER_TAB_SIZE``).
+#: Sub-pixel steps of OpenCV's fixed-point remap (``cv2.INTER_TAB_SIZE``), used before OpenCV 5.
 REMAP_STEPS = 32
 
 #: Reference distance (mm) of :func:`irradiance_factor`: 1.0 = on-axis, fronto-parallel, 1 m away.
@@ -233,33 +233,57 @@ def field_coordinates(u: np.ndarray, *, upsample: int, pad: int) -> np.ndarray:
 def sample_weights_1d(sigma_px: float, *, upsample: int) -> tuple[int, np.ndarray]:
     """Exact 1D weights of footprint + blur + bilinear sampling, per projector pixel.
 
-    A sample at field position ``k = pad + s q + rho + f / 32`` (integer
-    ``q``, residue ``0 <= rho < s``, fraction index ``0 <= f < 32``, as in
-    OpenCV's fixed-point remap) receives from projector pixel ``q + dj`` the
-    weight ``table[rho, f, dj - dj_min]``.
+    A sample at field position ``k = pad + s q + rho + f`` (integer ``q``,
+    residue ``0 <= rho < s``, fraction ``0 <= f < 1``) reads the field at
+    ``pad + s q + rho`` with weight ``1 - f`` and at the next sample with
+    weight ``f``; it receives from projector pixel ``q + dj`` the weight
+    ``(1 - f) * table[rho, 0, dj - dj_min] + f * table[rho, 1, dj - dj_min]``.
 
     Returns
     -------
     dj_min : int
-    table : (s, 32, n) float64
-        Rows sum to one (light is conserved).
+    table : (s, 2, n) float64
+        Each ``table[rho, t]`` sums to one (light is conserved).
     """
     s = int(upsample)
     g = gaussian_kernel(sigma_px * s)
     r = len(g) // 2
     dj_min = math.floor(-r / s)
-    dj_max = math.floor((s - 1 + 1 + r) / s)
-    table = np.zeros((s, REMAP_STEPS, dj_max - dj_min + 1))
+    dj_max = math.floor((s + r) / s)
+    table = np.zeros((s, 2, dj_max - dj_min + 1))
     for rho in range(s):
-        for f in range(REMAP_STEPS):
-            b = (1.0 - f / REMAP_STEPS, f / REMAP_STEPS)
-            for t in (0, 1):
-                if b[t] == 0.0:
-                    continue
-                for m in range(-r, r + 1):
-                    k = rho + t - m  # field index relative to pad + s q, before division
-                    table[rho, f, math.floor(k / s) - dj_min] += b[t] * g[m + r]
+        for t in (0, 1):
+            for m in range(-r, r + 1):
+                k = rho + t - m  # field index relative to pad + s q
+                table[rho, t, math.floor(k / s) - dj_min] += g[m + r]
     return dj_min, table
+
+
+def remap_fractions(coords: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Integer sample and interpolation fraction ``cv2.remap`` uses for float32 map values.
+
+    OpenCV 5 interpolates float maps exactly; older versions round to 1/32
+    (``cv2.INTER_TAB_SIZE``). Which one applies is probed once.
+
+    Returns
+    -------
+    base : int64 array, fraction : float64 array in [0, 1)
+    """
+    x = np.asarray(coords, np.float32).astype(np.float64)
+    if not _REMAP_EXACT:
+        x = np.round(x * REMAP_STEPS) / REMAP_STEPS
+    base = np.floor(x)
+    return base.astype(np.int64), x - base
+
+
+def _probe_remap_exact() -> bool:
+    img = np.array([[0.0, 1.0], [0.0, 1.0]], np.float32)
+    m = np.full((1, 1), 0.3, np.float32)
+    out = cv2.remap(img, m, np.zeros_like(m), cv2.INTER_LINEAR)
+    return abs(float(out[0, 0]) - 0.3) < 1e-6
+
+
+_REMAP_EXACT = _probe_remap_exact()
 
 
 # ---------------------------------------------------------------- irradiance

@@ -57,7 +57,7 @@ class MeshRaster:
             self._gprog = self.ctx.program(vertex_shader=_shader("gbuffer.vert.glsl"), fragment_shader=_shader("gbuffer.frag.glsl"))
             self._dprog = self.ctx.program(vertex_shader=_shader("depth.vert.glsl"), fragment_shader=_shader("depth.frag.glsl"))
             self._gvao = self.ctx.vertex_array(self._gprog, [(self._vbo, "3f 3f 2f", "in_position", "in_normal", "in_uv")], self._ibo)
-            self._dvao = self.ctx.vertex_array(self._dprog, [(self._vbo, "3f 24x", "in_position")], self._ibo)
+            self._dvao = self.ctx.vertex_array(self._dprog, [(self._vbo, "3f 20x", "in_position")], self._ibo)
         except Exception:
             self.close()
             raise

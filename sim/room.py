@@ -66,6 +66,9 @@ SIGMA_TOLERANCE = 0.1
 #: Largest camera-footprint sigma (projector px) — a grazing camera pixel is not blurred further.
 CAMERA_SIGMA_LIMIT = 2.0
 
+#: Shadow-map texels per projector pixel and axis (mesh self-occlusion).
+SHADOW_MAP_SCALE = 2
+
 #: Offset (mm) along the normal before testing an occluder point's own shadows.
 _SELF_OFFSET = 0.5
 
@@ -421,8 +424,7 @@ class Room:
         with MeshRaster(self.scene.mesh) as raster:
             for p in self.scene.projectors:
                 w, h = p.pinhole.size
-                k = max(1, math.ceil(1024 / w))
-                device = p.pinhole.scaled((w * k, h * k))
+                device = p.pinhole.scaled((w * SHADOW_MAP_SCALE, h * SHADOW_MAP_SCALE))
                 self._shadow_maps[p.slot] = (device, raster.depth_map(device))
             for i, c in enumerate(self.scene.cameras):
                 self._mesh_gbuffers[i] = raster.gbuffer(c.pinhole)

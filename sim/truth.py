@@ -8,12 +8,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 import scipy.sparse
 
 from sim.geometry import plane_homography
-from sim.optics import REMAP_STEPS, Sensor, sample_weights_1d
+from sim.optics import Sensor, remap_fractions, sample_weights_1d
 
 if TYPE_CHECKING:  # pragma: no cover
     from sim.room import Room
@@ -252,7 +251,7 @@ class Truth:
             for slot in self._room.active:
                 lit = np.isfinite(self.projector_coordinates(slot, camera)[..., 0])
                 x0, y0, x1, y1 = view.roi
-                m = lit[y0:y1, x0:x1]
+                m = lit[y0:y1, x0:x1].copy()
                 if dyn is not None:
                     b = dyn.blocked.get(slot)
                     if b is not None and len(b):
@@ -289,7 +288,6 @@ class Truth:
             x0, y0, x1, y1 = view.roi
             wr = x1 - x0
             rows_all, cols_all, vals_all = [], [], []
-            map1, map2 = cv2.convertMaps(plan.mapx, plan.mapy, cv2.CV_16SC2)
             local = np.arange(view.shape[0] * view.shape[1])
             cam_index = (y0 + local // wr) * W + (x0 + local % wr)
             blocked = dyn.blocked.get(slot)
@@ -299,15 +297,14 @@ class Truth:
                     c[blocked] = 0.0
                 if len(dyn.hand_roi):
                     c[dyn.hand_roi] = 0.0
-                r, cidx, v = _entries(map1.reshape(-1, 2), map2.reshape(-1), c, plan.sigmas[level], plan.upsample, plan.pad, (w, h))
+                r, cidx, v = _entries(plan.mapx.reshape(-1), plan.mapy.reshape(-1), c, plan.sigmas[level], plan.upsample, plan.pad, (w, h))
                 rows_all.append(cam_index[r])
                 cols_all.append(cidx)
                 vals_all.append(v)
             if len(dyn.hand_index):
                 hs = room._samples(view, dyn, slot)
-                hm1, hm2 = cv2.convertMaps(hs.mapx, hs.mapy, cv2.CV_16SC2)
                 for level, c in hs.coef.items():
-                    r, cidx, v = _entries(hm1.reshape(-1, 2), hm2.reshape(-1), c, plan.sigmas[level], plan.upsample, plan.pad, (w, h))
+                    r, cidx, v = _entries(hs.mapx.reshape(-1), hs.mapy.reshape(-1), c, plan.sigmas[level], plan.upsample, plan.pad, (w, h))
                     rows_all.append(dyn.hand_index[r])
                     cols_all.append(cidx)
                     vals_all.append(v)
@@ -319,21 +316,19 @@ class Truth:
             return m.tocsr()
 
 
-def _entries(map1: np.ndarray, map2: np.ndarray, coef: np.ndarray, sigma: float, upsample: int, pad: int, size: tuple[int, int]):
-    """Sparse entries (row, column, value) of one blur level's sampling (fixed-point maps as cv2.remap uses them)."""
+def _entries(mapx: np.ndarray, mapy: np.ndarray, coef: np.ndarray, sigma: float, upsample: int, pad: int, size: tuple[int, int]):
+    """Sparse entries (row, column, value) of one blur level's sampling, as ``cv2.remap`` reads the field."""
     nz = np.flatnonzero(coef)
     if len(nz) == 0:
         return nz, nz, np.zeros(0)
     s = upsample
-    ix = map1[nz, 0].astype(np.int64) - pad
-    iy = map1[nz, 1].astype(np.int64) - pad
-    fx = (map2[nz] & (REMAP_STEPS - 1)).astype(np.int64)
-    fy = (map2[nz] >> 5).astype(np.int64)
-    qx, rx = np.divmod(ix, s)
-    qy, ry = np.divmod(iy, s)
+    ix, fx = remap_fractions(mapx[nz])
+    iy, fy = remap_fractions(mapy[nz])
+    qx, rx = np.divmod(ix - pad, s)
+    qy, ry = np.divmod(iy - pad, s)
     dj_min, table = sample_weights_1d(sigma, upsample=s)
-    wx = table[rx, fx]  # (n, nd)
-    wy = table[ry, fy]
+    wx = (1.0 - fx)[:, None] * table[rx, 0] + fx[:, None] * table[rx, 1]  # (n, nd)
+    wy = (1.0 - fy)[:, None] * table[ry, 0] + fy[:, None] * table[ry, 1]
     c = coef[nz].astype(np.float64)
     w, h = size
     rows, cols, vals = [], [], []
