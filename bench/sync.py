@@ -68,6 +68,7 @@ async def _one(n: int, args, workdir: Path) -> dict:
         "out_of_order": s["out_of_order"],
         "coordinator_cpu_s": d["coordinator_cpu_s"],
         "coordinator_cpu_ms_per_frame": round(1e3 * d["coordinator_cpu_s"] / max(1, d["frames_sent"]), 4),
+        "encode_cpu_ms_per_frame": round(1e3 * d["encode_cpu_s"] / max(1, d["frames_sent"]), 4),
         "startup_s": round(startup, 2),
     }
 
@@ -94,6 +95,8 @@ async def _all(args) -> dict:
             "ratio": round(last["coordinator_cpu_ms_per_frame"] / max(1e-9, first["coordinator_cpu_ms_per_frame"]), 3),
             "per_added_node_ms": round((last["coordinator_cpu_ms_per_frame"] - first["coordinator_cpu_ms_per_frame"])
                                        / max(1, last["nodes"] - first["nodes"]), 4),
+            # encoding happens once per frame whatever the node count: this ratio should stay near 1
+            "encode_ratio": round(last["encode_cpu_ms_per_frame"] / max(1e-9, first["encode_cpu_ms_per_frame"]), 3),
         }
     return doc
 

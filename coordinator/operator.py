@@ -243,7 +243,7 @@ def play_dict(r: control_pb2.PlayReply) -> dict:
     s = status_dict(control_pb2.RigStatus(sync=r.sync))["sync"]
     return {"frames_sent": r.frames_sent, "frames_shown": r.frames_shown, "frames_late": r.frames_late,
             "frames_dropped": r.frames_dropped, "nodes": r.nodes, "wall_s": round(r.wall_s, 3),
-            "coordinator_cpu_s": round(r.coordinator_cpu_s, 4), "sync": s}
+            "coordinator_cpu_s": round(r.coordinator_cpu_s, 4), "encode_cpu_s": round(r.encode_cpu_s, 4), "sync": s}
 
 
 async def _play(args) -> int:

@@ -136,6 +136,7 @@ class Coordinator:
         self.showing = "nothing"
         self._play_task: asyncio.Task | None = None
         self._waiters: dict[int, asyncio.Future] = {}
+        self.encode_cpu_s = 0.0
         self._pattern_ids: set[str] = set()
         self.camera_specs: list[str] = list(cameras if cameras is not None else rig.config.cameras)
         self._job_lock = asyncio.Lock()
@@ -283,6 +284,13 @@ class Coordinator:
         if old is not None and not old.closed:
             log.info("node %s rejoined from %s; closing its previous session", login.slot, peer)
             self._drop_session(old, lost=False)
+        st = self.rig.slot(login.slot)
+        native = (req.info.native_width, req.info.native_height)
+        if all(native) and native != (st.width, st.height):
+            # the display knows its resolution better than rig.toml; a pose made for another size is stale
+            log.warning("node %s drives a %dx%d output, rig.toml says %dx%d: adopting the node's size%s", login.slot,
+                        *native, st.width, st.height, " (recalibrate this slot)" if st.pose is not None else "")
+            self.rig.update_slot(login.slot, size=native, source="node")
         self.joins[login.slot] = self.joins.get(login.slot, 0) + 1
         sess = NodeSession(session=secrets.token_hex(16), slot=login.slot, peer=peer, info=req.info,
                            instance_joins=self.joins[login.slot])
@@ -348,6 +356,7 @@ class Coordinator:
         Contents are encoded once; each distinct packet is serialized once and the
         same bytes go to every session of its group.
         """
+        t0 = time.thread_time()
         contents = contents or {}
         groups: dict[frozenset[str], list[NodeSession]] = {}
         for s in sessions:
@@ -370,11 +379,13 @@ class Coordinator:
             if evict:
                 pkt.evict.content_ids.extend(evict)
             data = pkt.SerializeToString()
+            self.encode_cpu_s += time.thread_time() - t0
             for s in members:
                 s.push(data)
                 s.sent_content |= missing
                 if evict:
                     s.sent_content.difference_update(evict)
+            t0 = time.thread_time()
         if frame is not None:
             self.sync.expect(frame.frame_id, frame.pts_ns, frame.tag, {s.slot for s in sessions})
 
@@ -554,7 +565,7 @@ class Coordinator:
         results: list[FrameResult] = []
         remove = self.sync.add_listener(lambda r: results.append(r) if r.tag == tag else None)
         oo_before = self.sync.out_of_order
-        cpu0, wall0 = cpu_seconds(), time.monotonic()
+        cpu0, wall0, enc0 = cpu_seconds(), time.monotonic(), self.encode_cpu_s
         sent: list[int] = []
         nodes_seen: set[str] = set()
         prev_content: str | None = None
@@ -591,6 +602,7 @@ class Coordinator:
             nodes=len(nodes_seen), wall_s=time.monotonic() - wall0,
             skews_ms=[r.skew_ms for r in sorted(results, key=lambda r: r.frame_id)],
             clock_errors_ms=[e for r in results for e in r.clock_errors_ms],
+            encode_cpu_s=self.encode_cpu_s - enc0,
         )
         reply.sync.CopyFrom(sync_message(summary))
         self.showing = f"{tag} finished"
@@ -601,11 +613,9 @@ class Coordinator:
         sess.last_seen = time.monotonic()
         if sess.state == control_pb2.NODE_STATE_JOINED:
             sess.state = control_pb2.NODE_STATE_LIVE
-        kind = rep.WhichOneof("item")
-        if kind == "heartbeat":
+        if rep.HasField("heartbeat"):
             sess.heartbeat = rep.heartbeat
-        elif kind == "swap":
-            sw = rep.swap
+        for sw in rep.swaps:
             if sw.frame_id < sess.last_swap_frame:
                 self.sync.out_of_order += 1
                 log.error("node %s reported frame %d after frame %d", sess.slot, sw.frame_id, sess.last_swap_frame)
@@ -613,13 +623,13 @@ class Coordinator:
             sess.last_swap_at = time.monotonic()
             sess.shown += 1
             self.sync.on_swap(sess.slot, sw.frame_id, sw.swap_rig_ns, sw.host_monotonic_ns, sess.same_host)
-        elif kind == "drop":
-            if rep.drop.reason == node_pb2.DROP_REASON_LATE:
+        for drop in rep.drops:
+            if drop.reason == node_pb2.DROP_REASON_LATE:
                 sess.late += 1
             else:
                 sess.dropped += 1
-            self.sync.on_drop(sess.slot, rep.drop.frame_id, rep.drop.reason)
-            self._retry_still(sess, rep.drop.frame_id)
+            self.sync.on_drop(sess.slot, drop.frame_id, drop.reason)
+            self._retry_still(sess, drop.frame_id)
 
     # ------------------------------------------------------------------ configure
     def configure(self, req: control_pb2.ConfigureRequest) -> int:

@@ -75,7 +75,7 @@ class Node:
         self.joins = 0
 
     # ---------------------------------------------------------------- reports (thread-safe)
-    def _report(self, rep: node_pb2.NodeReport) -> None:
+    def _report(self, rep: node_pb2.SwapReport | node_pb2.FrameDrop) -> None:
         loop, q = self._loop, self._reports
         if loop is not None and q is not None and not loop.is_closed():
             loop.call_soon_threadsafe(q.put_nowait, rep)
@@ -267,7 +267,7 @@ class Node:
             if pkt.HasField("evict"):
                 self.presenter.submit("evict", list(pkt.evict.content_ids))
 
-    async def _report_stream(self, stub, md, heartbeat_s: float) -> None:
+    async def _report_stream(self, stub, md, heartbeat_s: float, *, batch_s: float = 0.05) -> None:
         q = self._reports
         while not q.empty():  # reports from a previous session are stale
             q.get_nowait()
@@ -276,17 +276,23 @@ class Node:
             next_hb = 0.0
             while True:
                 now = time.monotonic()
+                rep = node_pb2.NodeReport()
                 if now >= next_hb:
                     next_hb = now + heartbeat_s
-                    yield self._heartbeat()
-                try:
-                    yield await asyncio.wait_for(q.get(), max(0.01, next_hb - time.monotonic()))
-                except asyncio.TimeoutError:
-                    continue
+                    rep.heartbeat.CopyFrom(self._heartbeat())
+                else:
+                    try:
+                        first = await asyncio.wait_for(q.get(), max(0.01, next_hb - now))
+                    except asyncio.TimeoutError:
+                        continue
+                    await asyncio.sleep(batch_s)   # gather what follows into the same message
+                    for item in [first] + [q.get_nowait() for _ in range(q.qsize())]:
+                        (rep.swaps if isinstance(item, node_pb2.SwapReport) else rep.drops).append(item)
+                yield rep
 
         await stub.Report(items(), metadata=md)
 
-    def _heartbeat(self) -> node_pb2.NodeReport:
+    def _heartbeat(self) -> node_pb2.Heartbeat:
         est = self.estimator.estimate
         host = self.clock.host_now()
         local = self.clock.from_host(host)
@@ -302,7 +308,7 @@ class Node:
             hb.clock_rtt_ns = est.best_rtt_ns
             hb.clock_samples = est.samples
             hb.rig_estimate_ns = est.rig_time(local)
-        return node_pb2.NodeReport(heartbeat=hb)
+        return hb
 
 
 def _version() -> str:

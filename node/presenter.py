@@ -79,12 +79,13 @@ class PresenterStats:
 class Presenter(threading.Thread):
     """Drives an :class:`~node.outputs.Output` and a renderer from one thread.
 
-    ``report`` is called (from this thread) with a ``node_pb2.NodeReport`` for
-    every swap and drop; it must be thread-safe and must not block.
+    ``report`` is called (from this thread) with a ``node_pb2.SwapReport`` for
+    every swap and a ``node_pb2.FrameDrop`` for every drop; it must be
+    thread-safe and must not block.
     """
 
     def __init__(self, *, slot: str, output_spec: str, clock: LocalClock, estimator: ClockEstimator,
-                 report: Callable[[node_pb2.NodeReport], None], snapshot_dir: Path | None = None,
+                 report: Callable[[node_pb2.SwapReport | node_pb2.FrameDrop], None], snapshot_dir: Path | None = None,
                  output: Output | None = None, realtime: bool = True):
         super().__init__(name=f"presenter-{slot}", daemon=True)
         self.slot = slot
@@ -218,7 +219,7 @@ class Presenter(threading.Thread):
             self.stats.late += 1
         else:
             self.stats.dropped += 1
-        self.report(node_pb2.NodeReport(drop=node_pb2.FrameDrop(frame_id=frame.frame_id, reason=reason, late_by_ns=late_by)))
+        self.report(node_pb2.FrameDrop(frame_id=frame.frame_id, reason=reason, late_by_ns=late_by))
 
     def _render(self, renderer, frame: FrameOrder) -> None:
         t = time.perf_counter()
@@ -270,8 +271,8 @@ class Presenter(threading.Thread):
         self._current = frame
         self._last_frame_id = frame.frame_id
         self.stats.shown += 1
-        self.report(node_pb2.NodeReport(swap=node_pb2.SwapReport(
-            frame_id=frame.frame_id, pts_ns=frame.pts_ns, swap_rig_ns=swap_rig, host_monotonic_ns=host)))
+        self.report(node_pb2.SwapReport(frame_id=frame.frame_id, pts_ns=frame.pts_ns, swap_rig_ns=swap_rig,
+                                        host_monotonic_ns=host))
         out.after_swap(renderer, SwapInfo(slot=self.slot, frame_id=frame.frame_id, tag=frame.tag, pts_ns=frame.pts_ns,
                                           swap_rig_ns=swap_rig, host_monotonic_ns=host))
         if previous is not None and previous.content_id in self._evicted and previous.content_id != frame.content_id:

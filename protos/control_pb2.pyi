@@ -183,7 +183,7 @@ class PlayItem(_message.Message):
     def __init__(self, settings: _Optional[_Union[PlaySettings, _Mapping]] = ..., frame: _Optional[_Union[_common_pb2.Image, _Mapping]] = ...) -> None: ...
 
 class PlayReply(_message.Message):
-    __slots__ = ("frames_sent", "frames_shown", "frames_late", "frames_dropped", "sync", "coordinator_cpu_s", "nodes", "wall_s", "skews_ms", "clock_errors_ms")
+    __slots__ = ("frames_sent", "frames_shown", "frames_late", "frames_dropped", "sync", "coordinator_cpu_s", "nodes", "wall_s", "skews_ms", "clock_errors_ms", "encode_cpu_s")
     FRAMES_SENT_FIELD_NUMBER: _ClassVar[int]
     FRAMES_SHOWN_FIELD_NUMBER: _ClassVar[int]
     FRAMES_LATE_FIELD_NUMBER: _ClassVar[int]
@@ -194,6 +194,7 @@ class PlayReply(_message.Message):
     WALL_S_FIELD_NUMBER: _ClassVar[int]
     SKEWS_MS_FIELD_NUMBER: _ClassVar[int]
     CLOCK_ERRORS_MS_FIELD_NUMBER: _ClassVar[int]
+    ENCODE_CPU_S_FIELD_NUMBER: _ClassVar[int]
     frames_sent: int
     frames_shown: int
     frames_late: int
@@ -204,7 +205,8 @@ class PlayReply(_message.Message):
     wall_s: float
     skews_ms: _containers.RepeatedScalarFieldContainer[float]
     clock_errors_ms: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, frames_sent: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., coordinator_cpu_s: _Optional[float] = ..., nodes: _Optional[int] = ..., wall_s: _Optional[float] = ..., skews_ms: _Optional[_Iterable[float]] = ..., clock_errors_ms: _Optional[_Iterable[float]] = ...) -> None: ...
+    encode_cpu_s: float
+    def __init__(self, frames_sent: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., coordinator_cpu_s: _Optional[float] = ..., nodes: _Optional[int] = ..., wall_s: _Optional[float] = ..., skews_ms: _Optional[_Iterable[float]] = ..., clock_errors_ms: _Optional[_Iterable[float]] = ..., encode_cpu_s: _Optional[float] = ...) -> None: ...
 
 class StopRequest(_message.Message):
     __slots__ = ()

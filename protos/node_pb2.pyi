@@ -236,14 +236,14 @@ class Heartbeat(_message.Message):
     def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ...) -> None: ...
 
 class NodeReport(_message.Message):
-    __slots__ = ("heartbeat", "swap", "drop")
+    __slots__ = ("heartbeat", "swaps", "drops")
     HEARTBEAT_FIELD_NUMBER: _ClassVar[int]
-    SWAP_FIELD_NUMBER: _ClassVar[int]
-    DROP_FIELD_NUMBER: _ClassVar[int]
+    SWAPS_FIELD_NUMBER: _ClassVar[int]
+    DROPS_FIELD_NUMBER: _ClassVar[int]
     heartbeat: Heartbeat
-    swap: SwapReport
-    drop: FrameDrop
-    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., swap: _Optional[_Union[SwapReport, _Mapping]] = ..., drop: _Optional[_Union[FrameDrop, _Mapping]] = ...) -> None: ...
+    swaps: _containers.RepeatedCompositeFieldContainer[SwapReport]
+    drops: _containers.RepeatedCompositeFieldContainer[FrameDrop]
+    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., swaps: _Optional[_Iterable[_Union[SwapReport, _Mapping]]] = ..., drops: _Optional[_Iterable[_Union[FrameDrop, _Mapping]]] = ...) -> None: ...
 
 class ReportAck(_message.Message):
     __slots__ = ()

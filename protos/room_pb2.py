@@ -25,7 +25,7 @@ _sym_db = _symbol_database.Default()
 from protos import common_pb2 as protos_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x11protos/room.proto\x12\rshadowless.v1\x1a\x13protos/common.proto\"(\n\x18\x44\x65scribeProjectorRequest\x12\x0c\n\x04slot\x18\x01 \x01(\t\"C\n\x14ProjectorDescription\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\r\n\x05width\x18\x02 \x01(\r\x12\x0e\n\x06height\x18\x03 \x01(\r\"\x85\x01\n\x0e\x44isplayedFrame\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\x10\n\x08\x66rame_id\x18\x02 \x01(\x04\x12\x13\n\x0bswap_rig_ns\x18\x03 \x01(\x03\x12\x19\n\x11host_monotonic_ns\x18\x04 \x01(\x03\x12#\n\x05image\x18\x05 \x01(\x0b\x32\x14.shadowless.v1.Image\"\x0c\n\nDisplayAck\" \n\x0e\x43\x61ptureRequest\x12\x0e\n\x06\x63\x61mera\x18\x01 \x01(\r\"N\n\x0c\x43\x61ptureReply\x12#\n\x05image\x18\x01 \x01(\x0b\x32\x14.shadowless.v1.Image\x12\x19\n\x11host_monotonic_ns\x18\x02 \x01(\x03\x32\xf7\x01\n\x04Room\x12\x61\n\x11\x44\x65scribeProjector\x12\'.shadowless.v1.DescribeProjectorRequest\x1a#.shadowless.v1.ProjectorDescription\x12\x45\n\x07\x44isplay\x12\x1d.shadowless.v1.DisplayedFrame\x1a\x19.shadowless.v1.DisplayAck(\x01\x12\x45\n\x07\x43\x61pture\x12\x1d.shadowless.v1.CaptureRequest\x1a\x1b.shadowless.v1.CaptureReplyb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x11protos/room.proto\x12\rshadowless.v1\x1a\x13protos/common.proto\"(\n\x18\x44\x65scribeProjectorRequest\x12\x0c\n\x04slot\x18\x01 \x01(\t\"T\n\x14ProjectorDescription\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\r\n\x05width\x18\x02 \x01(\r\x12\x0e\n\x06height\x18\x03 \x01(\r\x12\x0f\n\x07powered\x18\x04 \x01(\x08\"\x15\n\x13\x44\x65scribeRoomRequest\"]\n\x11\x43\x61meraDescription\x12\r\n\x05index\x18\x01 \x01(\r\x12\x0c\n\x04name\x18\x02 \x01(\t\x12\r\n\x05width\x18\x03 \x01(\r\x12\x0e\n\x06height\x18\x04 \x01(\r\x12\x0c\n\x04\x62its\x18\x05 \x01(\r\"\xaf\x01\n\x0fRoomDescription\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x37\n\nprojectors\x18\x02 \x03(\x0b\x32#.shadowless.v1.ProjectorDescription\x12\x11\n\trig_slots\x18\x03 \x03(\t\x12\x31\n\x07\x63\x61meras\x18\x04 \x03(\x0b\x32 .shadowless.v1.CameraDescription\x12\x0f\n\x07surface\x18\x05 \x01(\t\"\x92\x01\n\x0e\x44isplayedFrame\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\x10\n\x08\x66rame_id\x18\x02 \x01(\x04\x12\x13\n\x0bswap_rig_ns\x18\x03 \x01(\x03\x12\x19\n\x11host_monotonic_ns\x18\x04 \x01(\x03\x12#\n\x05image\x18\x05 \x01(\x0b\x32\x14.shadowless.v1.Image\x12\x0b\n\x03tag\x18\x06 \x01(\t\"\x1c\n\nDisplayAck\x12\x0e\n\x06\x66rames\x18\x01 \x01(\x04\"s\n\x0e\x43\x61ptureRequest\x12\x0e\n\x06\x63\x61mera\x18\x01 \x01(\r\x12\x19\n\x11not_before_rig_ns\x18\x02 \x01(\x03\x12\x12\n\ntimeout_ms\x18\x03 \x01(\r\x12\x10\n\x08\x65xposure\x18\x04 \x01(\x02\x12\x10\n\x08\x63ompress\x18\x05 \x01(\x08\"@\n\tFrameUsed\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\x10\n\x08\x66rame_id\x18\x02 \x01(\x04\x12\x13\n\x0bswap_rig_ns\x18\x03 \x01(\x03\"\x9a\x01\n\x0c\x43\x61ptureReply\x12#\n\x05image\x18\x01 \x01(\x0b\x32\x14.shadowless.v1.Image\x12\x19\n\x11host_monotonic_ns\x18\x02 \x01(\x03\x12\x0c\n\x04\x62its\x18\x03 \x01(\r\x12(\n\x06\x66rames\x18\x04 \x03(\x0b\x32\x18.shadowless.v1.FrameUsed\x12\x12\n\nlate_slots\x18\x05 \x03(\t\"+\n\x0bSlotRequest\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\x0e\n\x06\x63\x61mera\x18\x02 \x01(\r\"\x1f\n\rCameraRequest\x12\x0e\n\x06\x63\x61mera\x18\x01 \x01(\r\"\x9b\x02\n\x0eProjectorTruth\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\t\n\x01k\x18\x02 \x03(\x01\x12\t\n\x01r\x18\x03 \x03(\x01\x12\t\n\x01t\x18\x04 \x03(\x01\x12\t\n\x01p\x18\x05 \x03(\x01\x12\r\n\x05width\x18\x06 \x01(\r\x12\x0e\n\x06height\x18\x07 \x01(\r\x12\x14\n\x0cnative_width\x18\x08 \x01(\r\x12\x15\n\rnative_height\x18\t \x01(\r\x12\x0e\n\x06\x63\x65nter\x18\n \x03(\x01\x12\r\n\x05gamma\x18\x0b \x03(\x01\x12\r\n\x05\x62lack\x18\x0c \x03(\x01\x12\x0c\n\x04peak\x18\r \x01(\x01\x12\x13\n\x0b\x61perture_mm\x18\x0e \x01(\x01\x12\x10\n\x08\x66ocus_mm\x18\x0f \x01(\x01\x12\x0f\n\x07\x66\x61lloff\x18\x10 \x01(\x01\x12\x0f\n\x07powered\x18\x11 \x01(\x08\"\xbd\x01\n\x0b\x43\x61meraTruth\x12\t\n\x01k\x18\x01 \x03(\x01\x12\t\n\x01r\x18\x02 \x03(\x01\x12\t\n\x01t\x18\x03 \x03(\x01\x12\t\n\x01p\x18\x04 \x03(\x01\x12\r\n\x05width\x18\x05 \x01(\r\x12\x0e\n\x06height\x18\x06 \x01(\r\x12\x0e\n\x06\x63\x65nter\x18\x07 \x03(\x01\x12\x0c\n\x04gain\x18\x08 \x01(\x01\x12\x10\n\x08\x65xposure\x18\t \x01(\x01\x12\x11\n\tfull_well\x18\n \x01(\x01\x12\x12\n\nread_noise\x18\x0b \x01(\x01\x12\x0c\n\x04\x62its\x18\x0c \x01(\r\"!\n\x10SetActiveRequest\x12\r\n\x05slots\x18\x01 \x03(\t\" \n\x0eSetActiveReply\x12\x0e\n\x06\x61\x63tive\x18\x01 \x03(\t\"l\n\x08HandSpec\x12\t\n\x01x\x18\x01 \x01(\x01\x12\t\n\x01y\x18\x02 \x01(\x01\x12\x0e\n\x06height\x18\x03 \x01(\x01\x12\x0f\n\x07yaw_deg\x18\x04 \x01(\x01\x12\x0c\n\x04pose\x18\x05 \x01(\t\x12\r\n\x05scale\x18\x06 \x01(\x01\x12\x0c\n\x04side\x18\x07 \x01(\t\"8\n\x07\x42oxSpec\x12\x0e\n\x06\x63\x65nter\x18\x01 \x03(\x01\x12\x0c\n\x04size\x18\x02 \x03(\x01\x12\x0f\n\x07yaw_deg\x18\x03 \x01(\x01\"D\n\x0cHandKeyframe\x12\x0e\n\x06time_s\x18\x01 \x01(\x01\x12\t\n\x01x\x18\x02 \x01(\x01\x12\t\n\x01y\x18\x03 \x01(\x01\x12\x0e\n\x06height\x18\x04 \x01(\x01\"s\n\x0cHandPathSpec\x12.\n\tkeyframes\x18\x01 \x03(\x0b\x32\x1b.shadowless.v1.HandKeyframe\x12\x0c\n\x04loop\x18\x02 \x01(\x08\x12%\n\x04hand\x18\x03 \x01(\x0b\x32\x17.shadowless.v1.HandSpec\"\x8f\x01\n\x13SetOccludersRequest\x12&\n\x05hands\x18\x01 \x03(\x0b\x32\x17.shadowless.v1.HandSpec\x12%\n\x05\x62oxes\x18\x02 \x03(\x0b\x32\x16.shadowless.v1.BoxSpec\x12)\n\x04path\x18\x03 \x01(\x0b\x32\x1b.shadowless.v1.HandPathSpec\"\'\n\x11SetOccludersReply\x12\x12\n\nprimitives\x18\x01 \x01(\r\"1\n\nTruthImage\x12#\n\x05image\x18\x01 \x01(\x0b\x32\x14.shadowless.v1.Image\"[\n\x0cSparseMatrix\x12\x0c\n\x04rows\x18\x01 \x01(\x04\x12\x0c\n\x04\x63ols\x18\x02 \x01(\x04\x12\x0e\n\x06indptr\x18\x03 \x01(\x0c\x12\x0f\n\x07indices\x18\x04 \x01(\x0c\x12\x0e\n\x06values\x18\x05 \x01(\x0c\x32\xcb\x02\n\x04Room\x12\x61\n\x11\x44\x65scribeProjector\x12\'.shadowless.v1.DescribeProjectorRequest\x1a#.shadowless.v1.ProjectorDescription\x12R\n\x0c\x44\x65scribeRoom\x12\".shadowless.v1.DescribeRoomRequest\x1a\x1e.shadowless.v1.RoomDescription\x12\x45\n\x07\x44isplay\x12\x1d.shadowless.v1.DisplayedFrame\x1a\x19.shadowless.v1.DisplayAck(\x01\x12\x45\n\x07\x43\x61pture\x12\x1d.shadowless.v1.CaptureRequest\x1a\x1b.shadowless.v1.CaptureReply2\xfa\x04\n\tRoomTruth\x12N\n\x11GetProjectorTruth\x12\x1a.shadowless.v1.SlotRequest\x1a\x1d.shadowless.v1.ProjectorTruth\x12J\n\x0eGetCameraTruth\x12\x1c.shadowless.v1.CameraRequest\x1a\x1a.shadowless.v1.CameraTruth\x12K\n\tSetActive\x12\x1f.shadowless.v1.SetActiveRequest\x1a\x1d.shadowless.v1.SetActiveReply\x12T\n\x0cSetOccluders\x12\".shadowless.v1.SetOccludersRequest\x1a .shadowless.v1.SetOccludersReply\x12G\n\x0cGetLightDrop\x12\x1c.shadowless.v1.CameraRequest\x1a\x19.shadowless.v1.TruthImage\x12J\n\x0fGetOccluderMask\x12\x1c.shadowless.v1.CameraRequest\x1a\x19.shadowless.v1.TruthImage\x12P\n\x17GetProjectorCoordinates\x12\x1a.shadowless.v1.SlotRequest\x1a\x19.shadowless.v1.TruthImage\x12G\n\x0cGetTransport\x12\x1a.shadowless.v1.SlotRequest\x1a\x1b.shadowless.v1.SparseMatrixb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -35,15 +35,53 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_DESCRIBEPROJECTORREQUEST']._serialized_start=57
   _globals['_DESCRIBEPROJECTORREQUEST']._serialized_end=97
   _globals['_PROJECTORDESCRIPTION']._serialized_start=99
-  _globals['_PROJECTORDESCRIPTION']._serialized_end=166
-  _globals['_DISPLAYEDFRAME']._serialized_start=169
-  _globals['_DISPLAYEDFRAME']._serialized_end=302
-  _globals['_DISPLAYACK']._serialized_start=304
-  _globals['_DISPLAYACK']._serialized_end=316
-  _globals['_CAPTUREREQUEST']._serialized_start=318
-  _globals['_CAPTUREREQUEST']._serialized_end=350
-  _globals['_CAPTUREREPLY']._serialized_start=352
-  _globals['_CAPTUREREPLY']._serialized_end=430
-  _globals['_ROOM']._serialized_start=433
-  _globals['_ROOM']._serialized_end=680
+  _globals['_PROJECTORDESCRIPTION']._serialized_end=183
+  _globals['_DESCRIBEROOMREQUEST']._serialized_start=185
+  _globals['_DESCRIBEROOMREQUEST']._serialized_end=206
+  _globals['_CAMERADESCRIPTION']._serialized_start=208
+  _globals['_CAMERADESCRIPTION']._serialized_end=301
+  _globals['_ROOMDESCRIPTION']._serialized_start=304
+  _globals['_ROOMDESCRIPTION']._serialized_end=479
+  _globals['_DISPLAYEDFRAME']._serialized_start=482
+  _globals['_DISPLAYEDFRAME']._serialized_end=628
+  _globals['_DISPLAYACK']._serialized_start=630
+  _globals['_DISPLAYACK']._serialized_end=658
+  _globals['_CAPTUREREQUEST']._serialized_start=660
+  _globals['_CAPTUREREQUEST']._serialized_end=775
+  _globals['_FRAMEUSED']._serialized_start=777
+  _globals['_FRAMEUSED']._serialized_end=841
+  _globals['_CAPTUREREPLY']._serialized_start=844
+  _globals['_CAPTUREREPLY']._serialized_end=998
+  _globals['_SLOTREQUEST']._serialized_start=1000
+  _globals['_SLOTREQUEST']._serialized_end=1043
+  _globals['_CAMERAREQUEST']._serialized_start=1045
+  _globals['_CAMERAREQUEST']._serialized_end=1076
+  _globals['_PROJECTORTRUTH']._serialized_start=1079
+  _globals['_PROJECTORTRUTH']._serialized_end=1362
+  _globals['_CAMERATRUTH']._serialized_start=1365
+  _globals['_CAMERATRUTH']._serialized_end=1554
+  _globals['_SETACTIVEREQUEST']._serialized_start=1556
+  _globals['_SETACTIVEREQUEST']._serialized_end=1589
+  _globals['_SETACTIVEREPLY']._serialized_start=1591
+  _globals['_SETACTIVEREPLY']._serialized_end=1623
+  _globals['_HANDSPEC']._serialized_start=1625
+  _globals['_HANDSPEC']._serialized_end=1733
+  _globals['_BOXSPEC']._serialized_start=1735
+  _globals['_BOXSPEC']._serialized_end=1791
+  _globals['_HANDKEYFRAME']._serialized_start=1793
+  _globals['_HANDKEYFRAME']._serialized_end=1861
+  _globals['_HANDPATHSPEC']._serialized_start=1863
+  _globals['_HANDPATHSPEC']._serialized_end=1978
+  _globals['_SETOCCLUDERSREQUEST']._serialized_start=1981
+  _globals['_SETOCCLUDERSREQUEST']._serialized_end=2124
+  _globals['_SETOCCLUDERSREPLY']._serialized_start=2126
+  _globals['_SETOCCLUDERSREPLY']._serialized_end=2165
+  _globals['_TRUTHIMAGE']._serialized_start=2167
+  _globals['_TRUTHIMAGE']._serialized_end=2216
+  _globals['_SPARSEMATRIX']._serialized_start=2218
+  _globals['_SPARSEMATRIX']._serialized_end=2309
+  _globals['_ROOM']._serialized_start=2312
+  _globals['_ROOM']._serialized_end=2643
+  _globals['_ROOMTRUTH']._serialized_start=2646
+  _globals['_ROOMTRUTH']._serialized_end=3280
 # @@protoc_insertion_point(module_scope)

@@ -39,6 +39,11 @@ class RoomStub:
                 request_serializer=protos_dot_room__pb2.DescribeProjectorRequest.SerializeToString,
                 response_deserializer=protos_dot_room__pb2.ProjectorDescription.FromString,
                 _registered_method=True)
+        self.DescribeRoom = channel.unary_unary(
+                '/shadowless.v1.Room/DescribeRoom',
+                request_serializer=protos_dot_room__pb2.DescribeRoomRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.RoomDescription.FromString,
+                _registered_method=True)
         self.Display = channel.stream_unary(
                 '/shadowless.v1.Room/Display',
                 request_serializer=protos_dot_room__pb2.DisplayedFrame.SerializeToString,
@@ -56,6 +61,13 @@ class RoomServicer:
 
     def DescribeProjector(self, request, context):
         """Which projector a slot drives in the room, and its resolution.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def DescribeRoom(self, request, context):
+        """The projectors and cameras of the room (sizes only, no ground truth).
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -82,6 +94,11 @@ def add_RoomServicer_to_server(servicer, server):
                     servicer.DescribeProjector,
                     request_deserializer=protos_dot_room__pb2.DescribeProjectorRequest.FromString,
                     response_serializer=protos_dot_room__pb2.ProjectorDescription.SerializeToString,
+            ),
+            'DescribeRoom': grpc.unary_unary_rpc_method_handler(
+                    servicer.DescribeRoom,
+                    request_deserializer=protos_dot_room__pb2.DescribeRoomRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.RoomDescription.SerializeToString,
             ),
             'Display': grpc.stream_unary_rpc_method_handler(
                     servicer.Display,
@@ -121,6 +138,33 @@ class Room:
             '/shadowless.v1.Room/DescribeProjector',
             protos_dot_room__pb2.DescribeProjectorRequest.SerializeToString,
             protos_dot_room__pb2.ProjectorDescription.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def DescribeRoom(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.Room/DescribeRoom',
+            protos_dot_room__pb2.DescribeRoomRequest.SerializeToString,
+            protos_dot_room__pb2.RoomDescription.FromString,
             options,
             channel_credentials,
             insecure,
@@ -175,6 +219,391 @@ class Room:
             '/shadowless.v1.Room/Capture',
             protos_dot_room__pb2.CaptureRequest.SerializeToString,
             protos_dot_room__pb2.CaptureReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+
+class RoomTruthStub:
+    """------------------------------------------------------------------ ground truth
+
+    """
+
+    def __init__(self, channel):
+        """Constructor.
+
+        Args:
+            channel: A grpc.Channel.
+        """
+        self.GetProjectorTruth = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/GetProjectorTruth',
+                request_serializer=protos_dot_room__pb2.SlotRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.ProjectorTruth.FromString,
+                _registered_method=True)
+        self.GetCameraTruth = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/GetCameraTruth',
+                request_serializer=protos_dot_room__pb2.CameraRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.CameraTruth.FromString,
+                _registered_method=True)
+        self.SetActive = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/SetActive',
+                request_serializer=protos_dot_room__pb2.SetActiveRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.SetActiveReply.FromString,
+                _registered_method=True)
+        self.SetOccluders = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/SetOccluders',
+                request_serializer=protos_dot_room__pb2.SetOccludersRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.SetOccludersReply.FromString,
+                _registered_method=True)
+        self.GetLightDrop = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/GetLightDrop',
+                request_serializer=protos_dot_room__pb2.CameraRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.TruthImage.FromString,
+                _registered_method=True)
+        self.GetOccluderMask = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/GetOccluderMask',
+                request_serializer=protos_dot_room__pb2.CameraRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.TruthImage.FromString,
+                _registered_method=True)
+        self.GetProjectorCoordinates = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/GetProjectorCoordinates',
+                request_serializer=protos_dot_room__pb2.SlotRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.TruthImage.FromString,
+                _registered_method=True)
+        self.GetTransport = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/GetTransport',
+                request_serializer=protos_dot_room__pb2.SlotRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.SparseMatrix.FromString,
+                _registered_method=True)
+
+
+class RoomTruthServicer:
+    """------------------------------------------------------------------ ground truth
+
+    """
+
+    def GetProjectorTruth(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetCameraTruth(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SetActive(self, request, context):
+        """Power exactly these projectors (e.g. a subset P9D); unknown slots are refused.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SetOccluders(self, request, context):
+        """Replace the occluders (hands, boxes) or set a moving hand.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetLightDrop(self, request, context):
+        """(H, W, 1) float32: fraction of the light lost to occluders at each camera pixel.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetOccluderMask(self, request, context):
+        """(H, W, 1) uint8: 1 where the camera sees an occluder.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetProjectorCoordinates(self, request, context):
+        """(H, W, 2) float32: projector pixel of each camera pixel's surface point (NaN: unlit).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetTransport(self, request, context):
+        """Camera <- projector light transport (CSR), as the capture applies it.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+
+def add_RoomTruthServicer_to_server(servicer, server):
+    rpc_method_handlers = {
+            'GetProjectorTruth': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetProjectorTruth,
+                    request_deserializer=protos_dot_room__pb2.SlotRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.ProjectorTruth.SerializeToString,
+            ),
+            'GetCameraTruth': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetCameraTruth,
+                    request_deserializer=protos_dot_room__pb2.CameraRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.CameraTruth.SerializeToString,
+            ),
+            'SetActive': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetActive,
+                    request_deserializer=protos_dot_room__pb2.SetActiveRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.SetActiveReply.SerializeToString,
+            ),
+            'SetOccluders': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetOccluders,
+                    request_deserializer=protos_dot_room__pb2.SetOccludersRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.SetOccludersReply.SerializeToString,
+            ),
+            'GetLightDrop': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetLightDrop,
+                    request_deserializer=protos_dot_room__pb2.CameraRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.TruthImage.SerializeToString,
+            ),
+            'GetOccluderMask': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetOccluderMask,
+                    request_deserializer=protos_dot_room__pb2.CameraRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.TruthImage.SerializeToString,
+            ),
+            'GetProjectorCoordinates': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetProjectorCoordinates,
+                    request_deserializer=protos_dot_room__pb2.SlotRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.TruthImage.SerializeToString,
+            ),
+            'GetTransport': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetTransport,
+                    request_deserializer=protos_dot_room__pb2.SlotRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.SparseMatrix.SerializeToString,
+            ),
+    }
+    generic_handler = grpc.method_handlers_generic_handler(
+            'shadowless.v1.RoomTruth', rpc_method_handlers)
+    server.add_generic_rpc_handlers((generic_handler,))
+    server.add_registered_method_handlers('shadowless.v1.RoomTruth', rpc_method_handlers)
+
+
+ # This class is part of an EXPERIMENTAL API.
+class RoomTruth:
+    """------------------------------------------------------------------ ground truth
+
+    """
+
+    @staticmethod
+    def GetProjectorTruth(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/GetProjectorTruth',
+            protos_dot_room__pb2.SlotRequest.SerializeToString,
+            protos_dot_room__pb2.ProjectorTruth.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetCameraTruth(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/GetCameraTruth',
+            protos_dot_room__pb2.CameraRequest.SerializeToString,
+            protos_dot_room__pb2.CameraTruth.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetActive(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/SetActive',
+            protos_dot_room__pb2.SetActiveRequest.SerializeToString,
+            protos_dot_room__pb2.SetActiveReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetOccluders(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/SetOccluders',
+            protos_dot_room__pb2.SetOccludersRequest.SerializeToString,
+            protos_dot_room__pb2.SetOccludersReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetLightDrop(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/GetLightDrop',
+            protos_dot_room__pb2.CameraRequest.SerializeToString,
+            protos_dot_room__pb2.TruthImage.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetOccluderMask(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/GetOccluderMask',
+            protos_dot_room__pb2.CameraRequest.SerializeToString,
+            protos_dot_room__pb2.TruthImage.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetProjectorCoordinates(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/GetProjectorCoordinates',
+            protos_dot_room__pb2.SlotRequest.SerializeToString,
+            protos_dot_room__pb2.TruthImage.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetTransport(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/GetTransport',
+            protos_dot_room__pb2.SlotRequest.SerializeToString,
+            protos_dot_room__pb2.SparseMatrix.FromString,
             options,
             channel_credentials,
             insecure,
