@@ -1,0 +1,243 @@
+"""The virtual-room output: render offscreen and send every swapped frame to ``shadowless room``.
+
+``--output room://HOST:PORT`` makes a node's projector the room's projector of
+the same slot. The node renders into an offscreen EGL context at the size the
+room reports for the slot; after each swap the frame is read back and queued,
+and a background thread streams it to the room (``Room.Display``) with its swap
+instants. The presenter is never held up: the queue is bounded and, if the room
+is slow or away, the oldest frames are dropped and counted. The stream is
+reopened whenever the room restarts.
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from node.outputs import Output, OutputError, SwapInfo, _check_slot, wants_snapshot, write_snapshot
+
+if TYPE_CHECKING:  # pragma: no cover
+    import moderngl
+
+    from node.render.renderer import Renderer
+
+log = logging.getLogger(__name__)
+
+
+def parse_room_spec(spec: str) -> str:
+    """``room://HOST:PORT`` (or ``HOST:PORT``) -> ``HOST:PORT``; OutputError if malformed."""
+    text = spec.strip()
+    address = text[len("room://") :] if text.startswith("room://") else text
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise OutputError(f"output {spec!r}: expected room://HOST:PORT, e.g. room://127.0.0.1:50070")
+    return address
+
+
+class RoomOutput(Output):
+    """Frames go to the virtual room.
+
+    Parameters
+    ----------
+    spec : str
+        ``room://HOST:PORT``.
+    slot : str
+        The node's slot, i.e. which of the room's projectors this node drives.
+    snapshot_dir : Path, optional
+        As for the offscreen output: ``show`` frames are also written as PNG + JSON.
+    queue_size : int
+        Frames waiting to be sent; beyond it the oldest is dropped (:attr:`frames_dropped`).
+    connect_timeout : float
+        How long :meth:`native_size` keeps trying to reach the room (it may still be starting).
+    """
+
+    kind = "room"
+
+    def __init__(self, spec: str, *, slot: str, snapshot_dir: Path | None = None, queue_size: int = 4, connect_timeout: float = 10.0) -> None:
+        self.slot = _check_slot(slot)
+        self.address = parse_room_spec(spec)
+        self.snapshot_dir = Path(snapshot_dir) if snapshot_dir is not None else None
+        self.connect_timeout = connect_timeout
+        self._ctx: Any = None
+        self._queue: collections.deque = collections.deque()
+        self._queue_size = max(1, int(queue_size))
+        self._cond = threading.Condition()
+        self._stop = False
+        self._thread: threading.Thread | None = None
+        self._channel = None
+        self._stub = None
+        #: counters (read them from any thread)
+        self.frames_queued = 0
+        self.frames_sent = 0
+        self.frames_dropped = 0
+        self.streams_opened = 0
+        self.last_error: str | None = None
+        self.last_image: np.ndarray | None = None
+
+    # ---------------------------------------------------------------- connection
+
+    def _ensure_channel(self):
+        if self._stub is None:
+            import grpc
+
+            from protos import room_pb2_grpc
+            from protos.version import GRPC_OPTIONS
+
+            options = [*GRPC_OPTIONS, ("grpc.initial_reconnect_backoff_ms", 100), ("grpc.max_reconnect_backoff_ms", 1000)]
+            self._channel = grpc.insecure_channel(self.address, options=options)
+            self._stub = room_pb2_grpc.RoomStub(self._channel)
+        return self._stub
+
+    # ---------------------------------------------------------------- Output
+
+    def make_context(self) -> "moderngl.Context":
+        if self._ctx is None:
+            import moderngl
+
+            try:
+                self._ctx = moderngl.create_standalone_context(backend="egl", require=330)
+            except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
+                raise OutputError(
+                    f"cannot create a headless OpenGL 3.3 context through EGL ({exc}); install Mesa's EGL and "
+                    "DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri)"
+                ) from exc
+        return self._ctx
+
+    def native_size(self) -> tuple[int, int]:
+        """The room's resolution for this slot (asks the room; retries while it starts up)."""
+        import grpc
+
+        from protos import room_pb2
+
+        stub = self._ensure_channel()
+        deadline = time.monotonic() + self.connect_timeout
+        while True:
+            try:
+                d = stub.DescribeProjector(room_pb2.DescribeProjectorRequest(slot=self.slot), timeout=max(0.5, min(5.0, deadline - time.monotonic())))
+                return int(d.width), int(d.height)
+            except grpc.RpcError as exc:
+                code = exc.code()
+                if code == grpc.StatusCode.NOT_FOUND:
+                    raise OutputError(f"the room at {self.address} has no projector for slot {self.slot!r}: {exc.details()}") from None
+                if time.monotonic() >= deadline or code not in (grpc.StatusCode.UNAVAILABLE, grpc.StatusCode.DEADLINE_EXCEEDED):
+                    raise OutputError(
+                        f"cannot reach the virtual room at {self.address} ({code.name}: {exc.details()}); "
+                        "start it with `shadowless room` or fix --output room://HOST:PORT"
+                    ) from None
+                time.sleep(0.2)
+
+    def after_swap(self, renderer: "Renderer", info: SwapInfo) -> None:
+        image = np.array(renderer.read(), dtype=np.uint8, copy=True)  # the renderer reuses its buffer
+        self.last_image = image
+        if self.snapshot_dir is not None and wants_snapshot(info):
+            try:
+                write_snapshot(self.snapshot_dir, image, info)
+            except OSError as exc:
+                log.warning("cannot write the snapshot of frame %d to %s: %s", info.frame_id, self.snapshot_dir, exc)
+        self.send(image, info)
+
+    def send(self, image: np.ndarray, info: SwapInfo) -> None:
+        """Queue a frame for the room without waiting (drops the oldest if the queue is full)."""
+        with self._cond:
+            if len(self._queue) >= self._queue_size:
+                self._queue.popleft()
+                self.frames_dropped += 1
+            self._queue.append((image, info))
+            self.frames_queued += 1
+            self._cond.notify_all()
+        if self._thread is None:
+            self._start_sender()
+
+    def flush(self, timeout: float = 5.0) -> bool:
+        """Wait until the queue is empty (sent or dropped); True if it emptied in time."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self._queue:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.05))
+        return True
+
+    def close(self) -> None:
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+            self._thread = None
+        if self._channel is not None:
+            self._channel.close()
+            self._channel = None
+            self._stub = None
+        if self._ctx is not None:
+            self._ctx.release()
+            self._ctx = None
+
+    # ---------------------------------------------------------------- sender thread
+
+    def _start_sender(self) -> None:
+        self._ensure_channel()
+        self._thread = threading.Thread(target=self._run, name=f"room-output-{self.slot}", daemon=True)
+        self._thread.start()
+
+    def _messages(self, done: threading.Event):
+        from protos import codec, room_pb2
+
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop and not done.is_set():
+                    self._cond.wait(0.1)
+                if (self._stop and not self._queue) or done.is_set():
+                    return
+                image, info = self._queue.popleft()
+                self._cond.notify_all()
+            msg = room_pb2.DisplayedFrame(
+                slot=info.slot or self.slot,
+                frame_id=info.frame_id,
+                swap_rig_ns=info.swap_rig_ns,
+                host_monotonic_ns=info.host_monotonic_ns,
+                tag=info.tag,
+                image=codec.encode_image(image),
+            )
+            self.frames_sent += 1  # handed to grpc (a frame in flight when the room goes away is lost)
+            yield msg
+
+    def _run(self) -> None:
+        import grpc
+
+        backoff = 0.1
+        while True:
+            with self._cond:
+                if self._stop and not self._queue:
+                    return
+                while not self._queue and not self._stop:
+                    self._cond.wait(0.1)
+                if self._stop and not self._queue:
+                    return
+            done = threading.Event()
+            try:
+                self.streams_opened += 1
+                self._stub.Display(self._messages(done))
+                backoff = 0.1
+            except grpc.RpcError as exc:
+                code = exc.code()
+                self.last_error = f"{code.name}: {exc.details()}"
+                if code == grpc.StatusCode.INVALID_ARGUMENT or code == grpc.StatusCode.NOT_FOUND:
+                    log.error("the room at %s refuses %s's frames: %s", self.address, self.slot, exc.details())
+                else:
+                    log.info("room stream for %s ended (%s); reconnecting", self.slot, self.last_error)
+                with self._cond:
+                    if self._stop:
+                        self.frames_dropped += len(self._queue)
+                        self._queue.clear()
+                        return
+                    self._cond.wait(backoff)
+                backoff = min(2.0, backoff * 2)
+            finally:
+                done.set()

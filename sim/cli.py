@@ -1,0 +1,167 @@
+"""`shadowless room`: run the virtual room as a gRPC service on this machine."""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+import time
+
+from sim.errors import SimError
+
+EPILOG = """\
+what it serves (one port, 127.0.0.1 by default):
+  Room       nodes send what they show:     shadowless node --slot r0c0 --output room://127.0.0.1:50070 ...
+             the coordinator captures:      camera room://127.0.0.1:50070 (rig.toml `cameras` or --camera)
+  RoomTruth  ground truth for tests and benchmarks (poses, light transport, light drop, hands);
+             --no-truth leaves it out. Health and reflection are served too.
+
+examples:
+  shadowless room                                   # the paper's 5x5 rig over the table, scaled down
+  shadowless room --surface bust --port 50071       # the procedural bust on the table
+  shadowless room --hand 0,0 --hand-height 200      # a hand 0.2 m above the table centre
+  shadowless room --hand 100,50 --hand-height 0 --hand-pose point   # a fingertip touching the table
+  shadowless room --hand-path -400,0:400,0 --hand-period 4          # a hand sweeping across
+  shadowless room --subset P9D                      # only the dense central 3x3 projectors lit
+  shadowless room --write-layout my-room.toml       # dump the reference layout, edit it, then:
+  shadowless room --layout my-room.toml
+
+subsets (paper section 5.2): P1 (one bright unit at the centre), P9D, P9W, P13, P17, P20, P25;
+see `python -c "import sim.scene; help(sim.scene)"` for the pictures.
+"""
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y in millimetres (e.g. 0,0 or -250.5,120), got {text!r}") from None
+    return x, y
+
+
+def _path(text: str) -> list[tuple[float, float]]:
+    points = [_pair(p) for p in text.split(":")]
+    if len(points) < 2:
+        raise argparse.ArgumentTypeError(f"a hand path needs at least two points X0,Y0:X1,Y1, got {text!r}")
+    return points
+
+
+def _scale(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}") from None
+    if not 0 < v <= 1:
+        raise argparse.ArgumentTypeError(f"a scale is a fraction of the native resolution in (0, 1], got {v}")
+    return v
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Run the virtual room: simulated projectors, camera, table, objects and hands, served over\n"
+        "gRPC. Nodes send it the frames they show; the coordinator captures from it as from a camera."
+    )
+    parser.epilog = EPILOG
+    g = parser.add_argument_group("the room")
+    g.add_argument("--layout", metavar="FILE", help="room layout (TOML: any projectors, cameras, surfaces); default: the paper's 5x5 rig")
+    g.add_argument("--surface", default="table", metavar="table|bust|MESH",
+                   help="what the reference rig projects on: the table (default), the procedural bust on it, or an OBJ/PLY mesh in mm")
+    g.add_argument("--projector-scale", type=_scale, default=0.25, metavar="S",
+                   help="projector resolution relative to native 1280x800 (default 0.25: 320x200, fast)")
+    g.add_argument("--camera-scale", type=_scale, default=0.25, metavar="S",
+                   help="camera resolution relative to native 2592x1944 (default 0.25: 648x486)")
+    g.add_argument("--full-resolution", action="store_true", help="native resolutions (same as both scales 1; slow)")
+    g.add_argument("--pitch", type=float, default=250.0, metavar="MM", help="spacing of the reference 5x5 array (default 250 mm)")
+    g.add_argument("--aperture", type=float, default=10.0, metavar="MM", help="projector lens aperture: more is more defocus blur (default 10)")
+    g.add_argument("--seed", type=int, default=0, help="unit-to-unit variation and sensor noise (default 0)")
+    g.add_argument("--no-noise", action="store_true", help="captures without shot and read noise (still quantised)")
+    g.add_argument("--subset", metavar="NAME", help="power only a named subset: P1, P9D, P9W, P13, P17, P20 or P25")
+    g.add_argument("--write-layout", metavar="FILE", help="write the room's layout as TOML and exit (a starting point for --layout)")
+    h = parser.add_argument_group("a hand over the table")
+    h.add_argument("--hand", type=_pair, metavar="X,Y", help="place a hand (palm centre, or fingertip with --hand-pose point) at table mm X,Y")
+    h.add_argument("--hand-height", type=float, default=200.0, metavar="MM", help="height of the hand's lowest point (default 200; 0 touches)")
+    h.add_argument("--hand-pose", choices=["flat", "point"], default="flat", help="flat: palm parallel to the table; point: index finger down")
+    h.add_argument("--hand-yaw", type=float, default=0.0, metavar="DEG", help="direction the fingers point, counter-clockwise from +y")
+    h.add_argument("--hand-path", type=_path, metavar="X0,Y0:X1,Y1[:...]", help="move the hand along these points and back, repeatedly")
+    h.add_argument("--hand-period", type=float, default=4.0, metavar="S", help="seconds for one round trip of --hand-path (default 4)")
+    n = parser.add_argument_group("network")
+    n.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    n.add_argument("--port", type=int, default=None, help="port (default 50070; 0 picks a free one, printed at start)")
+    n.add_argument("--no-truth", action="store_true", help="do not serve the RoomTruth service")
+
+
+def build_room(args: argparse.Namespace):
+    """The Room the arguments describe (shared with the demo wiring)."""
+    from sim.occluders import Hand, HandPath
+    from sim.room import Room
+    from sim.scene import SUBSETS, load_layout, reference_scene
+
+    ps, cs = (1.0, 1.0) if args.full_resolution else (args.projector_scale, args.camera_scale)
+    if args.layout:
+        scene = load_layout(args.layout, projector_scale=ps, camera_scale=cs, seed=args.seed)
+    else:
+        scene = reference_scene(ps, cs, args.surface, args.seed, pitch=args.pitch, aperture=args.aperture)
+    room = Room(scene, seed=args.seed, noise=not args.no_noise)
+    if args.subset:
+        if args.subset not in SUBSETS:
+            raise SimError(f"unknown subset {args.subset!r}; choose one of {', '.join(SUBSETS)}")
+        room.set_active(SUBSETS[args.subset])
+    template = Hand(height=args.hand_height, pose=args.hand_pose, yaw_deg=args.hand_yaw)
+    if args.hand_path:
+        pts = args.hand_path + args.hand_path[-2::-1]  # there and back
+        dt = args.hand_period / (len(pts) - 1)
+        keys = tuple((i * dt, x, y, args.hand_height) for i, (x, y) in enumerate(pts))
+        room.set_occluders(HandPath(keys, loop=True, template=template))
+    elif args.hand:
+        room.set_occluders([Hand(position=args.hand, height=args.hand_height, pose=args.hand_pose, yaw_deg=args.hand_yaw)])
+    return room
+
+
+def run(args: argparse.Namespace) -> int:
+    from sim.service import DEFAULT_PORT, serve
+
+    try:
+        room = build_room(args)
+        if args.write_layout:
+            from sim.scene import write_layout
+
+            write_layout(room.scene, args.write_layout)
+            print(f"wrote {args.write_layout}")
+            return 0
+        t0 = time.monotonic()
+        for camera in range(len(room.scene.cameras)):
+            room.prepare(camera)
+        prep = time.monotonic() - t0
+    except (SimError, OSError) as exc:
+        print(f"shadowless room: {exc}", file=sys.stderr)
+        return 2
+    port = DEFAULT_PORT if args.port is None else args.port
+
+    def ready(server) -> None:
+        scene = room.scene
+        w, h = room.projector_size(room.slots[0])
+        W, H = room.camera_size(0)
+        print(
+            f"room: listening on {server.address} — {len(room.slots)} projectors {w}x{h}, "
+            f"{len(scene.cameras)} camera(s) {W}x{H}, powered {len(room.active)}, prepared in {prep:.1f} s"
+            + ("" if args.no_truth else "; RoomTruth on"),
+            flush=True,
+        )
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                loop.add_signal_handler(sig, stop.set)
+            except (NotImplementedError, RuntimeError):  # pragma: no cover - non-main thread / platform
+                pass
+        await serve(room, host=args.host, port=port, truth=not args.no_truth, on_ready=ready, stop=stop)
+
+    try:
+        asyncio.run(main())
+    except SimError as exc:
+        print(f"shadowless room: {exc}", file=sys.stderr)
+        return 2
+    print("room: stopped", flush=True)
+    return 0

@@ -1,0 +1,132 @@
+"""The node's room output against a real room service on 127.0.0.1."""
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from node.outputs import OutputError, SwapInfo, open_output
+from node.room_output import RoomOutput
+from sim.client import RoomClient
+from sim.room import Room
+from sim.scene import reference_scene
+from sim.service import RoomServerThread
+
+
+class StandInRenderer:
+    """What the presenter hands to an output: something with read() -> (h, w, 3) uint8 (reused buffer)."""
+
+    def __init__(self, w: int, h: int) -> None:
+        self.buffer = np.zeros((h, w, 3), np.uint8)
+
+    def show(self, value: int) -> "StandInRenderer":
+        self.buffer[:] = value
+        return self
+
+    def read(self) -> np.ndarray:
+        return self.buffer
+
+
+def info(frame_id: int, slot: str = "r2c2") -> SwapInfo:
+    now = time.monotonic_ns()
+    return SwapInfo(slot=slot, frame_id=frame_id, tag=f"show-{frame_id}", pts_ns=now, swap_rig_ns=now, host_monotonic_ns=now)
+
+
+def small_room() -> Room:
+    room = Room(reference_scene(projector_scale=0.125, camera_scale=0.125), noise=False)
+    room.set_active(["r2c2"])
+    return room
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(predicate, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def test_frames_reach_the_room_and_change_what_the_camera_sees(tmp_path):
+    with RoomServerThread(small_room()) as server, RoomClient(server.address) as client:
+        out = open_output(f"room://{server.address}", slot="r2c2", snapshot_dir=tmp_path)
+        try:
+            assert isinstance(out, RoomOutput)
+            assert out.native_size() == (160, 100)
+            ctx = out.make_context()
+            assert ctx.version_code >= 330 and out.make_context() is ctx
+            renderer = StandInRenderer(160, 100)
+            out.after_swap(renderer.show(0), info(1))
+            assert out.flush()
+            assert wait_for(lambda: server.server.service.frames_received >= 1)
+            dark = client.capture()
+            assert dark.frames == {"r2c2": (1, dark.frames["r2c2"][1])}
+            out.after_swap(renderer.show(255), info(2))
+            assert out.flush() and wait_for(lambda: server.server.service.frames_received >= 2)
+            bright = client.capture()
+            assert bright.frames["r2c2"][0] == 2
+            assert bright.image.mean() > 10 * dark.image.mean() + 0.005  # one of the 25 units, full white
+            assert (tmp_path / "r2c2.png").exists() and (tmp_path / "r2c2.json").exists()
+            assert out.frames_dropped == 0 and out.frames_sent == 2
+        finally:
+            out.close()
+
+
+def test_a_slow_or_absent_room_costs_dropped_frames_not_waiting_and_the_output_reconnects():
+    port = free_port()
+    out = RoomOutput(f"room://127.0.0.1:{port}", slot="r2c2", queue_size=2)
+    try:
+        renderer = StandInRenderer(160, 100)
+        for k in range(10):  # nobody listens: the queue keeps the newest two
+            out.after_swap(renderer.show(k), info(k))
+        assert out.frames_queued == 10
+        assert out.frames_dropped >= 7
+        with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
+            assert wait_for(lambda: server.server.service.frames_received >= 1)
+            assert client.capture().frames["r2c2"][0] == 9  # the newest frame made it
+        # The room goes away and comes back (a new process would do the same): the output follows.
+        out.after_swap(renderer.show(3), info(10))
+        time.sleep(0.3)
+        with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
+            out.after_swap(renderer.show(200), info(11))
+            assert wait_for(lambda: client.capture().frames.get("r2c2", (0, 0))[0] == 11)
+        assert out.streams_opened >= 2
+    finally:
+        out.close()
+
+
+def test_wrong_frame_sizes_are_refused_with_the_expected_size():
+    with RoomServerThread(small_room()) as server:
+        out = RoomOutput(f"room://{server.address}", slot="r2c2")
+        try:
+            out.after_swap(StandInRenderer(320, 200), info(1))
+            assert wait_for(lambda: out.last_error is not None)
+            assert "INVALID_ARGUMENT" in out.last_error and "160x100" in out.last_error
+        finally:
+            out.close()
+
+
+def test_unknown_slots_and_unreachable_rooms_are_operator_errors():
+    with RoomServerThread(small_room()) as server:
+        out = RoomOutput(f"room://{server.address}", slot="r9c9")
+        try:
+            with pytest.raises(OutputError, match="no projector for slot 'r9c9'"):
+                out.native_size()
+        finally:
+            out.close()
+    out = RoomOutput(f"room://127.0.0.1:{free_port()}", slot="r0c0", connect_timeout=0.5)
+    try:
+        with pytest.raises(OutputError, match="shadowless room"):
+            out.native_size()
+    finally:
+        out.close()
+    with pytest.raises(OutputError, match="room://HOST:PORT"):
+        RoomOutput("room://nohost", slot="r0c0")
