@@ -1,0 +1,10 @@
+"""Errors of the compensation package; each message says what the operator can do."""
+from __future__ import annotations
+
+
+class CompensationError(Exception):
+    """Base of every error raised by :mod:`coordinator.compensation` (bad shapes raise ``ValueError``)."""
+
+
+class TransportFileError(CompensationError):
+    """A stored light-transport file is missing, truncated or inconsistent."""

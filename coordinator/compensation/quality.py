@@ -1,0 +1,108 @@
+"""Quality of a compensation: PSNR / SSIM against the target, and a side-by-side picture."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+__all__ = ["Quality", "quality", "side_by_side", "srgb_to_linear", "linear_to_srgb"]
+
+
+@dataclass(frozen=True)
+class Quality:
+    """PSNR (dB) and SSIM of a captured result against its target (both linear, data range 1)."""
+
+    psnr: float
+    ssim: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"psnr": round(self.psnr, 3), "ssim": round(self.ssim, 4)}
+
+
+def quality(target: np.ndarray, captured: np.ndarray) -> Quality:
+    """PSNR and SSIM of ``captured`` against ``target`` via scikit-image (``data_range=1``).
+
+    Parameters
+    ----------
+    target, captured : (H, W) or (H, W, C) float
+        Linear luminance images of the same shape; ``captured`` is clipped to [0, 1] first
+        (a camera cannot report more than full scale).
+    """
+    t = np.asarray(target, dtype=np.float64)
+    c = np.asarray(captured, dtype=np.float64)
+    if t.shape != c.shape:
+        raise ValueError(f"target {t.shape} and captured {c.shape} differ in shape")
+    if t.ndim not in (2, 3) or min(t.shape[:2]) < 7:
+        raise ValueError(f"images must be (H, W) or (H, W, C) with H, W >= 7, got {t.shape}")
+    c = np.clip(c, 0.0, 1.0)
+    psnr = float(peak_signal_noise_ratio(t, c, data_range=1.0))
+    ssim = float(structural_similarity(t, c, data_range=1.0, channel_axis=2 if t.ndim == 3 else None))
+    return Quality(psnr=psnr, ssim=ssim)
+
+
+def srgb_to_linear(img: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] (or uint8) -> linear luminance, float32 of the same shape."""
+    v = np.asarray(img)
+    v = v.astype(np.float32) / 255.0 if v.dtype == np.uint8 else v.astype(np.float32)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(img: np.ndarray) -> np.ndarray:
+    """Linear luminance -> sRGB-encoded float32 in [0, 1] (clipped)."""
+    v = np.clip(np.asarray(img, dtype=np.float32), 0.0, 1.0)
+    return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055).astype(np.float32)
+
+
+def side_by_side(
+    images: Sequence[np.ndarray],
+    labels: Sequence[str] | None = None,
+    *,
+    linear: bool = True,
+    gap: int = 8,
+    label_height: int = 28,
+) -> np.ndarray:
+    """Place images left to right with a caption above each: ``(H', W', 3) uint8`` (BGR = RGB order kept).
+
+    Parameters
+    ----------
+    images : sequence of (H, W) or (H, W, C) arrays
+        Float images in [0, 1] (linear luminance when ``linear``, shown sRGB-encoded) or uint8.
+        Images of different heights are scaled to the first one's height.
+    labels : sequence of str, optional
+        One caption per image.
+    """
+    if not images:
+        raise ValueError("no images")
+    if labels is not None and len(labels) != len(images):
+        raise ValueError(f"{len(images)} images but {len(labels)} labels")
+    height = int(np.asarray(images[0]).shape[0])
+    tiles = []
+    for img in images:
+        a = np.asarray(img)
+        if a.ndim == 2:
+            a = a[:, :, None]
+        if a.ndim != 3 or a.shape[2] not in (1, 3):
+            raise ValueError(f"images must be (H, W), (H, W, 1) or (H, W, 3), got {np.asarray(img).shape}")
+        if a.dtype != np.uint8:
+            f = linear_to_srgb(a) if linear else np.clip(a.astype(np.float32), 0, 1)
+            a = np.rint(f * 255).astype(np.uint8)
+        if a.shape[2] == 1:
+            a = np.repeat(a, 3, axis=2)
+        if a.shape[0] != height:
+            w = max(1, round(a.shape[1] * height / a.shape[0]))
+            a = cv2.resize(a, (w, height), interpolation=cv2.INTER_AREA)
+        tiles.append(a)
+    width = sum(t.shape[1] for t in tiles) + gap * (len(tiles) + 1)
+    top = label_height if labels is not None else 0
+    canvas = np.full((height + top + 2 * gap, width, 3), 32, dtype=np.uint8)
+    x = gap
+    for i, t in enumerate(tiles):
+        canvas[top + gap : top + gap + height, x : x + t.shape[1]] = t
+        if labels is not None:
+            cv2.putText(canvas, str(labels[i]), (x, gap + label_height - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
+                        (235, 235, 235), 1, cv2.LINE_AA)
+        x += t.shape[1] + gap
+    return canvas
