@@ -38,7 +38,8 @@ def quality(target: np.ndarray, captured: np.ndarray) -> Quality:
     if t.ndim not in (2, 3) or min(t.shape[:2]) < 7:
         raise ValueError(f"images must be (H, W) or (H, W, C) with H, W >= 7, got {t.shape}")
     c = np.clip(c, 0.0, 1.0)
-    psnr = float(peak_signal_noise_ratio(t, c, data_range=1.0))
+    with np.errstate(divide="ignore"):  # identical images: PSNR is +inf
+        psnr = float(peak_signal_noise_ratio(t, c, data_range=1.0))
     ssim = float(structural_similarity(t, c, data_range=1.0, channel_axis=2 if t.ndim == 3 else None))
     return Quality(psnr=psnr, ssim=ssim)
 

@@ -339,7 +339,7 @@ _MOSAIC_SOURCES = ("astronaut", "coffee", "rocket", "chelsea", "text", "immunohi
                    "camera", "page", "hubble_deep_field", "coins", "grass", "colorwheel", "clock")
 
 
-def test_image(height: int, width: int, *, channels: int = 3, seed: int = 0) -> np.ndarray:
+def sample_image(height: int, width: int, *, channels: int = 3, seed: int = 0) -> np.ndarray:
     """A sharp test picture: scikit-image's sample photos tiled at native resolution (no upsampling).
 
     Returns ``(H, W, 3)`` or ``(H, W)`` float32 sRGB-encoded values in [0, 1] (``channels`` 3 or
