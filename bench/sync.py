@@ -30,6 +30,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--drift-ppm", type=float, default=200.0, help="inject clock drifts within ±this (default 200)")
     p.add_argument("--warmup", type=float, default=8.0, help="seconds for the clock estimators to settle (default 8)")
     p.add_argument("--latency-ms", type=float, default=50.0, help="scheduling budget (default 50)")
+    p.add_argument("--no-realtime", action="store_true", help="nodes swap at normal priority (for comparison)")
     p.add_argument("--keep", metavar="DIR", help="keep rig directories and logs here")
 
 
@@ -44,7 +45,8 @@ async def _one(n: int, args, workdir: Path) -> dict:
     drifts = dict(zip(slots, spread(n, args.drift_ppm, 2)))
     t0 = time.monotonic()
     with LocalRig(slots, workdir, output_size=(w, h), content_size=(w, h), clock_offsets_ms=offsets,
-                  clock_drifts_ppm=drifts, latency_ms=args.latency_ms) as rig:
+                  clock_drifts_ppm=drifts, latency_ms=args.latency_ms,
+                  extra_node_args={s: ["--no-realtime"] for s in slots} if args.no_realtime else None) as rig:
         async with await rig.client() as c:
             await rig.wait_live(c, timeout=300)
             startup = time.monotonic() - t0
@@ -85,7 +87,7 @@ async def _all(args) -> dict:
         "machine": machine(),
         "parameters": {"nodes": counts, "fps": args.fps, "seconds": args.seconds, "size": args.size,
                        "offset_ms": args.offset_ms, "drift_ppm": args.drift_ppm, "warmup_s": args.warmup,
-                       "latency_ms": args.latency_ms},
+                       "latency_ms": args.latency_ms, "realtime": not args.no_realtime},
         "runs": runs,
     }
     if len(runs) >= 2:

@@ -23,12 +23,13 @@ import grpc
 from node.clock import ClockEstimator, ClockSample, LocalClock
 from node.discovery import Discovery
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
-from node.presenter import Presenter
+from node.presenter import PresenterProcess, PresenterSettings
 from node.wire import assignment_from_message, frame_for_slot
 from protos import auth, common_pb2, node_pb2, node_pb2_grpc
 from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
 
 log = logging.getLogger("node")
+_DEBUG_TIMING = bool(os.environ.get("SHADOWLESS_DEBUG_TIMING"))
 
 REFUSAL_CODES = {grpc.StatusCode.FAILED_PRECONDITION, grpc.StatusCode.UNAUTHENTICATED, grpc.StatusCode.NOT_FOUND,
                  grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.PERMISSION_DENIED}
@@ -67,34 +68,41 @@ class Node:
         self.cfg = config
         self.clock = LocalClock(offset_ns=int(config.clock_offset_ms * 1e6), drift_ppm=config.clock_drift_ppm)
         self.estimator = ClockEstimator()
-        self.presenter: Presenter | None = None
+        self.presenter: PresenterProcess | None = None
         self._reports: asyncio.Queue | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._instance = ""
         self._stopping = asyncio.Event()
         self.joins = 0
 
-    # ---------------------------------------------------------------- reports (thread-safe)
+    # ---------------------------------------------------------------- reports
     def _report(self, rep: node_pb2.SwapReport | node_pb2.FrameDrop) -> None:
-        loop, q = self._loop, self._reports
-        if loop is not None and q is not None and not loop.is_closed():
-            loop.call_soon_threadsafe(q.put_nowait, rep)
+        if self._reports is not None:
+            self._reports.put_nowait(rep)
+
+    def _clock_sample(self, sample: ClockSample) -> None:
+        est = self.estimator.add(sample)
+        if est is not None and self.presenter is not None:
+            self.presenter.submit("clock", est)
 
     # ---------------------------------------------------------------- main loop
     async def run(self) -> int:
         self._loop = asyncio.get_running_loop()
         self._reports = asyncio.Queue()
-        from node.presenter import tune_interpreter
-
-        tune_interpreter()
-        self.presenter = Presenter(slot=self.cfg.slot, output_spec=self.cfg.output, clock=self.clock,
-                                   estimator=self.estimator, report=self._report, snapshot_dir=self.cfg.snapshot_dir,
-                                   realtime=self.cfg.realtime)
+        root = logging.getLogger()
+        fmt = root.handlers[0].formatter._fmt if root.handlers and root.handlers[0].formatter else None
+        self.presenter = PresenterProcess(PresenterSettings(
+            slot=self.cfg.slot, output_spec=self.cfg.output, clock_offset_ns=self.clock.offset_ns,
+            clock_drift_ppm=self.clock.drift_ppm, clock_anchor_ns=self.clock.anchor_ns,
+            snapshot_dir=self.cfg.snapshot_dir, realtime=self.cfg.realtime, log_level=root.level,
+            **({"log_format": fmt} if fmt else {})))
         self.presenter.start()
-        await asyncio.get_running_loop().run_in_executor(None, self.presenter.ready.wait)
-        if self.presenter.failed is not None:
+        ok = await asyncio.get_running_loop().run_in_executor(None, self.presenter.wait_ready, 120.0)
+        if not ok:
             log.error("cannot open output %r: %s", self.cfg.output, self.presenter.failed)
+            self.presenter.stop()
             return 3
+        self.presenter.attach(self._loop, self._report)
         discovery = None
         if self.cfg.coordinator is None:
             discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
@@ -136,8 +144,8 @@ class Node:
         finally:
             if discovery is not None:
                 await discovery.close()
-            self.presenter.stop()
-            await asyncio.get_running_loop().run_in_executor(None, self.presenter.join, 5.0)
+            self.presenter.detach(self._loop)
+            await asyncio.get_running_loop().run_in_executor(None, self.presenter.stop)
         return 0
 
     def stop(self) -> None:
@@ -185,6 +193,7 @@ class Node:
                     log.info("coordinator instance changed (%s -> %s): resyncing clock", self._instance, instance)
                 self._instance = instance
                 self.estimator.reset()
+                self.presenter.submit("clock", None)
                 self.presenter.submit("reset")
             log.info("joined rig at %s as %s (session %s…)", target, self.cfg.slot, session[:6])
             md = ((SESSION_KEY, session),)
@@ -238,7 +247,7 @@ class Node:
         t0 = self.clock.now()
         rep = await stub.Ping(node_pb2.PingRequest(t0_local_ns=t0), metadata=md, timeout=2)
         t3 = self.clock.now()
-        self.estimator.add(ClockSample(t0, rep.t1_rig_ns, rep.t2_rig_ns, t3))
+        self._clock_sample(ClockSample(t0, rep.t1_rig_ns, rep.t2_rig_ns, t3))
 
     async def _ping_burst(self, stub, md, *, count: int) -> None:
         for _ in range(count):
@@ -261,8 +270,11 @@ class Node:
     async def _frames(self, stub, md) -> None:
         async for pkt in stub.Frames(node_pb2.StreamRequest(), metadata=md):
             for content in pkt.contents:
-                self.presenter.submit("content", (content.content_id, content.image))
+                self.presenter.submit("content", (content.content_id, content.image.SerializeToString()))
             if pkt.HasField("frame"):
+                if _DEBUG_TIMING and (est := self.estimator.estimate) is not None:
+                    log.info("timing: frame %d received %.1f ms before its pts", pkt.frame.frame_id,
+                             (pkt.frame.pts_ns - est.rig_time(self.clock.now())) / 1e6)
                 self.presenter.submit("frame", frame_for_slot(pkt.frame, self.cfg.slot))
             if pkt.HasField("evict"):
                 self.presenter.submit("evict", list(pkt.evict.content_ids))
@@ -297,10 +309,9 @@ class Node:
         host = self.clock.host_now()
         local = self.clock.from_host(host)
         st = self.presenter.stats
-        a = self.presenter.assignment
         hb = node_pb2.Heartbeat(
-            assignment_revision=a.revision if a else 0, frames_shown=st.shown, frames_late=st.late,
-            frames_dropped=st.dropped, render_ms_p50=self.presenter.render_ms_p50(), host_monotonic_ns=host,
+            assignment_revision=st["revision"], frames_shown=st["shown"], frames_late=st["late"],
+            frames_dropped=st["dropped"], render_ms_p50=st["render_ms_p50"], host_monotonic_ns=host,
         )
         if est is not None:
             hb.clock_offset_ns = int(est.rig_time(local) - local)

@@ -26,11 +26,18 @@ class LocalClock:
     ``host`` is ``CLOCK_MONOTONIC``. With no hooks, local time *is* host time.
     """
 
-    def __init__(self, *, offset_ns: int = 0, drift_ppm: float = 0.0, source: Callable[[], int] = time.monotonic_ns):
+    def __init__(self, *, offset_ns: int = 0, drift_ppm: float = 0.0, source: Callable[[], int] = time.monotonic_ns,
+                 anchor_ns: int | None = None):
         self._source = source
         self.offset_ns = int(offset_ns)
-        self.drift = float(drift_ppm) * 1e-6
-        self._anchor = source()
+        self.drift_ppm = float(drift_ppm)
+        self.drift = self.drift_ppm * 1e-6
+        self._anchor = source() if anchor_ns is None else int(anchor_ns)
+
+    @property
+    def anchor_ns(self) -> int:
+        """Host time at which the drift hook starts counting (shared with the presenter process)."""
+        return self._anchor
 
     @property
     def faked(self) -> bool:

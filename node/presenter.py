@@ -1,16 +1,24 @@
-"""The presenter: the one thread that owns the node's GL context.
+"""The presenter: a process of its own that owns the node's GL context.
 
-It takes assignments, content and frames in arrival order from a queue,
-renders each frame into the back buffer as soon as it arrives, waits until the
-frame's presentation time on its estimate of the rig clock, swaps, and reports
-the swap. A frame whose time has passed is dropped and counted, never shown
-late; a frame older than the one on screen is never shown (no reordering).
+It takes assignments, content, frames and clock estimates in arrival order
+from a pipe, renders each frame into the back buffer as soon as it arrives,
+waits until the frame's presentation time on its estimate of the rig clock,
+swaps, and reports the swap. A frame whose time has passed is dropped and
+counted, never shown late; a frame older than the one on screen is never shown
+(no reordering).
+
+Why a process: the swap is a real-time deadline, and a Python thread that
+wakes on time still needs the GIL. If the network thread held it and was then
+descheduled on a busy machine, the swap would wait for it (tens of ms were
+measured with 16 nodes on 2 cores). Alone in its process, the presenter's
+single thread never waits for anyone's GIL.
 """
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import os
-import queue
+import statistics
 import sys
 import threading
 import time
@@ -21,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from node.clock import ClockEstimator, LocalClock
+from node.clock import ClockEstimate, LocalClock
 from node.outputs import Output, SwapInfo, open_output
 from node.wire import FrameOrder, NodeAssignment
 from protos import codec, common_pb2, node_pb2
@@ -32,8 +40,6 @@ log = logging.getLogger(__name__)
 _DEBUG_TIMING = bool(os.environ.get("SHADOWLESS_DEBUG_TIMING"))
 #: a frame may be shown this late (ns) before it counts as late and is dropped
 LATE_TOLERANCE_NS = 500_000
-#: wake this long before the deadline, then sleep the rest precisely
-COARSE_WAKE_NS = 2_000_000
 
 
 class RealtimeWindow:
@@ -41,8 +47,9 @@ class RealtimeWindow:
 
     A projector's swap is a real-time deadline: when a dozen nodes share a small
     machine, or a node's other threads are busy, a normal thread that wakes on
-    time may still wait for a CPU. Only the short wake-swap-timestamp window is
-    real-time, so the thread never renders at that priority and cannot starve
+    time may still wait for a CPU. The thread enters this window once the frame
+    is rendered, sleeps in it until the deadline (using no CPU), swaps,
+    timestamps and leaves: it never renders at that priority and cannot starve
     the machine. Needs CAP_SYS_NICE (the systemd unit grants it); without it the
     node says so once and runs at normal priority.
     """
@@ -76,90 +83,97 @@ class PresenterStats:
     dropped: int = 0
 
 
-class Presenter(threading.Thread):
-    """Drives an :class:`~node.outputs.Output` and a renderer from one thread.
+@dataclass(frozen=True)
+class PresenterSettings:
+    slot: str
+    output_spec: str
+    clock_offset_ns: int
+    clock_drift_ppm: float
+    clock_anchor_ns: int
+    snapshot_dir: Path | None = None
+    realtime: bool = True
+    log_level: int = logging.INFO
+    log_format: str = "%(asctime)s %(levelname)-7s %(message)s"
 
-    ``report`` is called (from this thread) with a ``node_pb2.SwapReport`` for
-    every swap and a ``node_pb2.FrameDrop`` for every drop; it must be
-    thread-safe and must not block.
+
+class Presenter:
+    """The presenter loop (runs in the presenter process, or in a test's thread).
+
+    ``report(kind, payload)`` receives ``("swap", SwapReport)``, ``("drop", FrameDrop)``
+    and ``("stats", dict)``.
     """
 
-    def __init__(self, *, slot: str, output_spec: str, clock: LocalClock, estimator: ClockEstimator,
-                 report: Callable[[node_pb2.SwapReport | node_pb2.FrameDrop], None], snapshot_dir: Path | None = None,
-                 output: Output | None = None, realtime: bool = True):
-        super().__init__(name=f"presenter-{slot}", daemon=True)
+    def __init__(self, *, slot: str, output: Output, clock: LocalClock,
+                 report: Callable[[str, object], None], realtime: bool = True):
         self.slot = slot
         self.clock = clock
-        self.estimator = estimator
         self.report = report
-        self.output_spec = output_spec
-        self.snapshot_dir = snapshot_dir
-        self._output = output
-        self._realtime_wanted = realtime
-        self.inbox: queue.Queue = queue.Queue()
+        self.out = output
+        self.estimate: ClockEstimate | None = None
         self.stats = PresenterStats()
         self.assignment: NodeAssignment | None = None
-        self.ready = threading.Event()
-        self.failed: BaseException | None = None
         self.native_size: tuple[int, int] | None = None
+        self._realtime_wanted = realtime
         self._render_ms: deque[float] = deque(maxlen=120)
         self._last_frame_id = 0
         self._current: FrameOrder | None = None
         self._evicted: set[str] = set()
-        self._halt = False
-
-    # ---- called from other threads --------------------------------------
-    def submit(self, kind: str, payload=None) -> None:
-        self.inbox.put((kind, payload))
-
-    def stop(self) -> None:
-        self._halt = True
-        self.inbox.put(("stop", None))
 
     def render_ms_p50(self) -> float:
-        vals = list(self._render_ms)
-        return float(np.median(vals)) if vals else 0.0
+        # statistics, not numpy: np.median imports numpy.ma on first use (~0.1 s, mid-playback)
+        return statistics.median(self._render_ms) if self._render_ms else 0.0
 
-    # ---- the thread ---------------------------------------------------------
-    def run(self) -> None:
-        try:
-            self._run()
-        except BaseException as exc:  # reported to the app, which exits non-zero
-            self.failed = exc
-            log.exception("presenter failed")
-            self.ready.set()
-
-    def _run(self) -> None:
+    def open(self) -> None:
         from node.render.renderer import Renderer
 
-        out = self._output or open_output(self.output_spec, slot=self.slot, snapshot_dir=self.snapshot_dir)
-        self._output = out
-        ctx = out.make_context()
+        ctx = self.out.make_context()
         self._ctx = ctx
-        size = out.native_size()
-        self.native_size = size
-        w, h = size or (640, 360)
-        renderer = Renderer(ctx, w, h)
-        self.renderer = renderer
+        self.native_size = self.out.native_size()
+        w, h = self.native_size or (640, 360)
+        self.renderer = Renderer(ctx, w, h)
         self._rt = RealtimeWindow(self._realtime_wanted)
-        renderer.render(None)
-        out.prepare(renderer)
-        out.swap()
-        self.ready.set()
-        try:
-            while not self._halt:
-                try:
-                    kind, payload = self.inbox.get(timeout=0.5)
-                except queue.Empty:
-                    out.poll()   # a window keeps handling its events between frames
-                    continue
-                if kind == "stop":
-                    break
-                handler = getattr(self, "_on_" + kind)
-                handler(renderer, out, payload)
-        finally:
-            renderer.release()
-            out.close()
+        self._warm_up()
+        self.renderer.render(None)
+        self.out.prepare(self.renderer)
+        self.out.swap()
+
+    def _warm_up(self) -> None:
+        """Draw once with every shader path so the driver compiles them now (llvmpipe JITs a
+        shader at its first draw, ~0.1 s), not while the first real frame waits for its deadline."""
+        r = self.renderer
+        img = np.zeros((r.height, r.width, 3), np.uint8)
+        r.upload("__warm__", img)
+        r.set_homography(np.eye(3), (r.width, r.height))
+        for lut in (None, np.tile(np.linspace(0, 1, 16, dtype=np.float32), (3, 1))):
+            r.set_lut(lut)
+            r.render("__warm__", space="content", apply_lut=True)
+            r.render("__warm__", space="content", apply_lut=False)
+        r.render("__warm__", space="projector", apply_lut=False)
+        self._ctx.finish()
+        r.forget("__warm__")
+        r.set_lut(None)
+        r.clear_pose()
+
+    def close(self) -> None:
+        self.renderer.release()
+        self.out.close()
+
+    def handle(self, kind: str, payload) -> None:
+        t = time.perf_counter()
+        getattr(self, "_on_" + kind)(self.renderer, self.out, payload)
+        if _DEBUG_TIMING and (dt := time.perf_counter() - t) > 0.005 and kind != "frame":
+            log.info("timing: %s took %.1f ms", kind, dt * 1e3)
+
+    def idle(self) -> None:
+        self.out.poll()   # a window keeps handling its events between frames
+
+    def _send_stats(self) -> None:
+        self.report("stats", {"shown": self.stats.shown, "late": self.stats.late, "dropped": self.stats.dropped,
+                              "render_ms_p50": self.render_ms_p50(),
+                              "revision": self.assignment.revision if self.assignment else 0})
+
+    def _on_clock(self, renderer, out, estimate: ClockEstimate | None) -> None:
+        self.estimate = estimate
 
     def _on_assignment(self, renderer, out: Output, a: NodeAssignment) -> None:
         from node.render.renderer import Mesh
@@ -182,6 +196,7 @@ class Presenter(threading.Thread):
         self.assignment = a
         log.info("assignment r%d: %s pose, %dx%d, gain %.3f, LUT %s", a.revision, a.pose_kind, *size, a.gain,
                  "yes" if a.lut is not None else "identity")
+        self._send_stats()
         # what is on screen now follows the new assignment at once
         if self._current is not None:
             try:
@@ -192,12 +207,12 @@ class Presenter(threading.Thread):
             out.prepare(renderer)
             out.swap()
 
-    def _on_content(self, renderer, out, msg: common_pb2.Image | tuple[str, common_pb2.Image]) -> None:
-        cid, image_msg = msg
+    def _on_content(self, renderer, out, msg: tuple[str, bytes]) -> None:
+        cid, image_bytes = msg
         if renderer.has(cid):
             return
         try:
-            img = codec.decode_image(image_msg)
+            img = codec.decode_image(common_pb2.Image.FromString(image_bytes))
         except codec.ImageCodecError as exc:
             log.error("content %s is malformed: %s", cid, exc)
             return
@@ -215,11 +230,14 @@ class Presenter(threading.Thread):
         self._last_frame_id = 0
 
     def _drop(self, frame: FrameOrder, reason: int, late_by: int = 0) -> None:
+        if _DEBUG_TIMING:
+            log.info("timing frame %d: dropped (reason %d) %.3f ms late", frame.frame_id, reason, late_by / 1e6)
         if reason == node_pb2.DROP_REASON_LATE:
             self.stats.late += 1
         else:
             self.stats.dropped += 1
-        self.report(node_pb2.FrameDrop(frame_id=frame.frame_id, reason=reason, late_by_ns=late_by))
+        self.report("drop", node_pb2.FrameDrop(frame_id=frame.frame_id, reason=reason, late_by_ns=late_by))
+        self._send_stats()
 
     def _render(self, renderer, frame: FrameOrder) -> None:
         t = time.perf_counter()
@@ -230,12 +248,14 @@ class Presenter(threading.Thread):
         if frame.frame_id <= self._last_frame_id:
             self._drop(frame, node_pb2.DROP_REASON_SUPERSEDED)
             return
-        est = self.estimator.estimate
+        est = self.estimate
         if est is None:
             self._drop(frame, node_pb2.DROP_REASON_LATE)
             return
         deadline = est.local_time(frame.pts_ns)
         late_by = self.clock.now() - deadline
+        if _DEBUG_TIMING:
+            log.info("timing: frame %d reached the presenter %.1f ms before its deadline", frame.frame_id, -late_by / 1e6)
         if late_by > LATE_TOLERANCE_NS:
             self._drop(frame, node_pb2.DROP_REASON_LATE, late_by)
             return
@@ -250,11 +270,7 @@ class Presenter(threading.Thread):
             return
         out.prepare(renderer)
         self._ctx.finish()   # the frame must be complete in the back buffer before its time comes
-        # sleep coarsely, then re-read the estimate (it may have been refined) and land on the deadline
-        if deadline - self.clock.now() > COARSE_WAKE_NS:
-            self.clock.sleep_until(deadline - COARSE_WAKE_NS)
-            est = self.estimator.estimate or est
-            deadline = est.local_time(frame.pts_ns)
+        deadline = est.local_time(frame.pts_ns)
         late_by = self.clock.now() - deadline
         if late_by > LATE_TOLERANCE_NS:
             self._drop(frame, node_pb2.DROP_REASON_LATE, late_by)
@@ -271,19 +287,170 @@ class Presenter(threading.Thread):
         self._current = frame
         self._last_frame_id = frame.frame_id
         self.stats.shown += 1
-        self.report(node_pb2.SwapReport(frame_id=frame.frame_id, pts_ns=frame.pts_ns, swap_rig_ns=swap_rig,
-                                        host_monotonic_ns=host))
+        self.report("swap", node_pb2.SwapReport(frame_id=frame.frame_id, pts_ns=frame.pts_ns, swap_rig_ns=swap_rig,
+                                                host_monotonic_ns=host))
         out.after_swap(renderer, SwapInfo(slot=self.slot, frame_id=frame.frame_id, tag=frame.tag, pts_ns=frame.pts_ns,
                                           swap_rig_ns=swap_rig, host_monotonic_ns=host))
         if previous is not None and previous.content_id in self._evicted and previous.content_id != frame.content_id:
             renderer.forget(previous.content_id)
             self._evicted.discard(previous.content_id)
+        self._send_stats()
 
 
-def tune_interpreter() -> None:
-    """Let the presenter thread take the GIL back quickly when its deadline comes,
-    and let its sleeps end close to the deadline."""
+def tune_process() -> None:
+    """Let sleeps end close to their deadline (1 µs timer slack)."""
     from node.clock import precise_timers
 
-    sys.setswitchinterval(0.0005)
     precise_timers()
+
+
+def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
+    """Entry point of the presenter process."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)   # the node process decides when we stop
+    logging.basicConfig(level=settings.log_level, format=settings.log_format, stream=sys.stderr, force=True)
+    tune_process()
+    clock = LocalClock(offset_ns=settings.clock_offset_ns, drift_ppm=settings.clock_drift_ppm,
+                       anchor_ns=settings.clock_anchor_ns)
+
+    def report(kind: str, payload) -> None:
+        if isinstance(payload, (node_pb2.SwapReport, node_pb2.FrameDrop)):
+            payload = payload.SerializeToString()
+        conn_out.send((kind, payload))
+
+    try:
+        out = open_output(settings.output_spec, slot=settings.slot, snapshot_dir=settings.snapshot_dir)
+        p = Presenter(slot=settings.slot, output=out, clock=clock, report=report, realtime=settings.realtime)
+        p.open()
+    except Exception as exc:
+        log.exception("cannot open output %r", settings.output_spec)
+        conn_out.send(("failed", f"{type(exc).__name__}: {exc}"))
+        return
+    conn_out.send(("ready", p.native_size))
+    try:
+        while True:
+            if not conn_in.poll(0.5):
+                p.idle()
+                continue
+            try:
+                kind, payload = conn_in.recv()
+            except EOFError:   # the node process is gone
+                break
+            if kind == "stop":
+                break
+            p.handle(kind, payload)
+    except Exception as exc:
+        log.exception("presenter failed")
+        try:
+            conn_out.send(("failed", f"{type(exc).__name__}: {exc}"))
+        except OSError:
+            pass
+    finally:
+        p.close()
+
+
+def _grow_pipe(fd: int, want: int = 8 * 2**20) -> None:
+    """Make a pipe's kernel buffer as large as allowed (default 64 KiB holds one small frame)."""
+    try:
+        import fcntl
+
+        limit = int(Path("/proc/sys/fs/pipe-max-size").read_text())
+        F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)
+        fcntl.fcntl(fd, F_SETPIPE_SZ, min(want, limit) if os.geteuid() else want)
+    except (OSError, ValueError, ImportError):  # pragma: no cover - not Linux, or not permitted
+        pass
+
+
+class PresenterProcess:
+    """The node process's handle on its presenter process.
+
+    :meth:`submit` writes to a pipe with a large kernel buffer (no thread, so no
+    GIL contention in the node process); reports arrive on the event loop
+    through :meth:`attach`.
+    """
+
+    def __init__(self, settings: PresenterSettings):
+        ctx = multiprocessing.get_context("spawn")
+        child_in, self._to_child = ctx.Pipe(duplex=False)      # (reader, writer)
+        self._from_child, child_out = ctx.Pipe(duplex=False)
+        self._process = ctx.Process(target=presenter_main, args=(child_in, child_out, settings),
+                                    name=f"presenter-{settings.slot}", daemon=True)
+        self._child_ends = (child_in, child_out)
+        _grow_pipe(self._to_child.fileno())
+        self.native_size: tuple[int, int] | None = None
+        self.failed: str | None = None
+        self.stats: dict = {"shown": 0, "late": 0, "dropped": 0, "render_ms_p50": 0.0, "revision": 0}
+        self._ready = threading.Event()
+        self._on_report: Callable[[object], None] | None = None
+
+    def start(self) -> None:
+        self._process.start()
+        for end in self._child_ends:
+            end.close()
+
+    def submit(self, kind: str, payload=None) -> None:
+        """Send to the presenter. The pipe is grown to megabytes so this does not block
+        for frames; a very large still may wait while the presenter reads it."""
+        try:
+            self._to_child.send((kind, payload))
+        except (OSError, ValueError):   # the presenter is gone; the node notices and exits
+            self.failed = self.failed or "the presenter process exited"
+
+    def attach(self, loop, on_report: Callable[[object], None]) -> None:
+        """Deliver swap/drop reports (as protobuf messages) to ``on_report`` on ``loop``."""
+        self._on_report = on_report
+        loop.add_reader(self._from_child.fileno(), self._readable)
+
+    def detach(self, loop) -> None:
+        try:
+            loop.remove_reader(self._from_child.fileno())
+        except (ValueError, OSError):
+            pass
+
+    def _readable(self) -> None:
+        while self._from_child.poll():
+            try:
+                kind, payload = self._from_child.recv()
+            except (EOFError, OSError):
+                self.failed = self.failed or "the presenter process exited"
+                self._ready.set()
+                return
+            self._dispatch(kind, payload)
+
+    def _dispatch(self, kind: str, payload) -> None:
+        if kind == "ready":
+            self.native_size = tuple(payload) if payload else None
+            self._ready.set()
+        elif kind == "failed":
+            self.failed = payload
+            self._ready.set()
+        elif kind == "stats":
+            self.stats = payload
+        elif kind == "swap" and self._on_report:
+            self._on_report(node_pb2.SwapReport.FromString(payload))
+        elif kind == "drop" and self._on_report:
+            self._on_report(node_pb2.FrameDrop.FromString(payload))
+
+    def wait_ready(self, timeout: float = 60.0) -> bool:
+        """Block until the presenter reports ready or failed (reads the pipe itself)."""
+        deadline = time.monotonic() + timeout
+        while not self._ready.is_set() and time.monotonic() < deadline:
+            if self._from_child.poll(0.1):
+                self._readable()
+            elif not self._process.is_alive():
+                self.failed = self.failed or f"the presenter process exited with {self._process.exitcode}"
+                break
+        return self._ready.is_set() and self.failed is None
+
+    def is_alive(self) -> bool:
+        return self._process.is_alive() and self.failed is None
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self.submit("stop")
+        self._process.join(timeout)
+        if self._process.is_alive():
+            self._process.terminate()
+            self._process.join(2.0)
+        self._to_child.close()
+        self._from_child.close()

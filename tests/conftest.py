@@ -12,8 +12,10 @@ import pytest
 os.environ.setdefault("SHADOWLESS_TEST", "1")
 
 
-def child_pids(root: int | None = None) -> set[int]:
-    """All live descendants of ``root`` (default: this process), read from /proc."""
+def child_pids(root: int | None = None, *, exclude: set[int] = frozenset()) -> set[int]:
+    """All live descendants of ``root`` (default: this process), read from /proc,
+    not descending into the subtrees of ``exclude`` (processes a longer-lived
+    fixture owns; their own children are theirs to manage)."""
     root = os.getpid() if root is None else root
     parents: dict[int, int] = {}
     for entry in Path("/proc").iterdir():
@@ -33,7 +35,7 @@ def child_pids(root: int | None = None) -> set[int]:
     while frontier:
         p = frontier.pop()
         for pid, ppid in parents.items():
-            if ppid == p and pid not in found:
+            if ppid == p and pid not in found and pid not in exclude:
                 found.add(pid)
                 frontier.append(pid)
     return found
@@ -59,7 +61,7 @@ def no_leaks(request):
         return
     deadline = time.monotonic() + 5.0
     while True:
-        pids = child_pids() - before_pids
+        pids = child_pids(exclude=before_pids)
         threads = {t for t in _live_threads() - before_threads if not _is_runtime_thread(t)}
         if not pids and not threads:
             return
