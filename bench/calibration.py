@@ -1,0 +1,290 @@
+"""`shadowless bench calibration`: captures, time and error of the sequential and the
+multiplexed calibration modes for rigs of several sizes, in the virtual room.
+
+The calibration job runs in-process against :class:`sim.room.Room` through
+:class:`RoomJobContext`, which implements the calls a coordinator job makes
+(show per-slot patterns, capture, progress, compute) on the room directly, so
+the figures measure calibration itself, not gRPC or the node processes. The
+table -> camera mapping comes from known table points written from the
+room's truth with click noise (:func:`table_points_from_truth`), as an
+operator would click them. Errors are against the room's ground truth
+(:func:`planar_errors`).
+
+This module is also the test kit of ``tests/coordinator/calibration`` (the
+adapter, truth-derived point files and error measures); it may import ``sim``,
+the coordinator never does.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from coordinator.calibration import planar
+from coordinator.calibration.points import PointSet, write_points
+from coordinator.jobs import JobError
+
+#: Which projectors a rig of N uses on the reference 5x5 array (spread out, centre first).
+RIG_SUBSETS = {1: ["r2c2"], 4: ["r1c1", "r1c3", "r3c1", "r3c3"]}
+
+
+def rig_slots(n: int) -> list[str]:
+    """Slots of an N-projector rig on the 5x5 array: the named subsets for 1, 9 (P9W), 25; else the first N."""
+    from sim.scene import SUBSETS
+
+    if n in RIG_SUBSETS:
+        return list(RIG_SUBSETS[n])
+    if n == 9:
+        return list(SUBSETS["P9W"])
+    if n == 25:
+        return list(SUBSETS["P25"])
+    if not 1 <= n <= 25:
+        raise ValueError(f"the reference rig has 1..25 projectors, not {n}")
+    return list(SUBSETS["P25"][:n])
+
+
+class RoomJobContext:
+    """The JobContext calls calibration makes, served by an in-process room.
+
+    Parameters
+    ----------
+    room : sim.room.Room
+    rig : coordinator.rig.Rig
+        Its slots must be room projectors; each is "connected" unless listed in ``offline``.
+    cameras : int
+        How many of the room's cameras the job sees.
+    exposure : float, optional
+        Relative camera exposure for every capture (None: the room camera's own).
+    unpowered : slots whose projector stays dark whatever it is shown (a projector that is off).
+    """
+
+    def __init__(self, room, rig, *, cameras: int = 1, exposure: float | None = None,
+                 unpowered: tuple[str, ...] = (), offline: tuple[str, ...] = ()):
+        self.room = room
+        self.rig = rig
+        self.camera_specs = [f"room-in-process:{i}" for i in range(cameras)]
+        self.exposure = exposure
+        self.unpowered = set(unpowered)
+        self.offline = set(offline)
+        self.events: list[tuple] = []
+        self.shows = 0
+        self.captures = 0
+        room.set_active([s for s in rig.slots if s not in self.unpowered])
+
+    def live_slots(self) -> list[str]:
+        return [s for s in self.rig.slots if s not in self.offline]
+
+    def projector_size(self, slot: str) -> tuple[int, int]:
+        st = self.rig.slot(slot)
+        return st.width, st.height
+
+    async def show(self, images: dict, *, settle_s: float = 0.05, require: list[str] | None = None) -> None:
+        need = [s for s, img in images.items() if img is not None] if require is None else require
+        missing = [s for s in need if s not in self.live_slots()]
+        if missing:
+            raise JobError(f"projector(s) {', '.join(missing)} not connected: start their nodes (see `shadowless status`)")
+        for s in self.live_slots():
+            w, h = self.projector_size(s)
+            img = images.get(s)
+            frame = np.zeros((h, w, 3), np.uint8) if img is None else np.asarray(img)
+            if frame.ndim == 2:
+                frame = np.repeat(frame[:, :, None], 3, axis=2)
+            if frame.shape[:2] != (h, w):
+                raise ValueError(f"pattern for {s} is {frame.shape[1]}x{frame.shape[0]}, its projector is {w}x{h}")
+            self.room.set_frame(s, frame)
+        self.shows += 1
+
+    async def capture(self, index: int = 0) -> np.ndarray:
+        self.captures += 1
+        return self.room.capture(index, exposure=self.exposure)
+
+    async def compute(self, fn, *args, **kwargs):
+        return fn(*args, **kwargs)
+
+    def progress(self, stage: str, item: str = "", done: int = 0, total: int = 0, message: str = "",
+                 value: float = math.nan) -> None:
+        self.events.append(("progress", stage, item, done, total, message))
+
+    def log(self, message: str) -> None:
+        self.events.append(("log", message))
+
+
+def make_rig(path: Path, room, slots: list[str], *, content_size: tuple[int, int] = (1200, 600)):
+    """A rig directory whose slots are ``slots`` at the room's projector resolution."""
+    from coordinator.rig import Rig, init_rig
+
+    w, h = room.projector_size(slots[0])
+    init_rig(path, name=f"bench-{len(slots)}", slots=slots, width=w, height=h, content_width=content_size[0],
+             content_height=content_size[1])
+    return Rig(path)
+
+
+def table_points_from_truth(room, path: Path | None = None, *, camera: int = 0, grid: tuple[int, int] = (5, 3),
+                            click_noise_px: float = 0.3, inset_mm: float = 40.0, seed: int = 0) -> list[PointSet]:
+    """Known table points (marks on a grid over the table) as an operator clicks them in the camera.
+
+    The pixels are the true projections with Gaussian click noise; written to
+    ``path`` as a points file when given.
+    """
+    rng = np.random.default_rng(seed)
+    tw, th = room.scene.table.size
+    xs = np.linspace(-tw / 2 + inset_mm, tw / 2 - inset_mm, grid[0])
+    ys = np.linspace(th / 2 - inset_mm, -th / 2 + inset_mm, grid[1])
+    xy = np.array([[x, y] for y in ys for x in xs])
+    H = room.truth.table_to_camera_homography(camera)
+    px = planar.apply_homography(H, xy) + rng.normal(0.0, click_noise_px, (len(xy), 2))
+    names = tuple(f"mark {i + 1}" for i in range(len(xy)))
+    sets = [PointSet("world", camera, names, np.column_stack([xy, np.zeros(len(xy))]), px)]
+    if path is not None:
+        write_points(path, sets)
+    return sets
+
+
+def landmarks_from_truth(room, path: Path | None = None, *, camera: int = 0, count: int = 20,
+                         click_noise_px: float = 0.5, model_transform: tuple[np.ndarray, np.ndarray] | None = None,
+                         seed: int = 0) -> list[PointSet]:
+    """Mesh landmarks clicked in the camera: surface points of the mesh the camera sees, spread over it.
+
+    ``model_transform`` (R, t) with ``world = R model + t``: write the points in
+    the model frame (as a scanned mesh would have them), else in the world frame.
+    """
+    rng = np.random.default_rng(seed)
+    surf = room.truth.surface(camera)
+    ys, xs = np.nonzero(surf.kind == 2)
+    if len(ys) < count:
+        raise ValueError("the camera sees too little of the mesh for landmarks")
+    # spread: farthest-point sampling over the seen mesh pixels
+    pix = np.column_stack([xs, ys]).astype(np.float64)
+    chosen = [int(rng.integers(len(pix)))]
+    d = np.linalg.norm(pix - pix[chosen[0]], axis=1)
+    for _ in range(count - 1):
+        k = int(np.argmax(d))
+        chosen.append(k)
+        d = np.minimum(d, np.linalg.norm(pix - pix[k], axis=1))
+    X = surf.points[ys[chosen], xs[chosen]].astype(np.float64)
+    cam = room.truth.camera(camera)
+    h = (X @ cam.R.T + cam.t) @ cam.K.T
+    px = h[:, :2] / h[:, 2:3] + rng.normal(0.0, click_noise_px, (len(X), 2))
+    frame = "world"
+    if model_transform is not None:
+        R, t = model_transform
+        X = (X - np.asarray(t)) @ np.asarray(R)   # model = R^T (world - t)
+        frame = "model"
+    sets = [PointSet(frame, camera, tuple(f"landmark {i + 1}" for i in range(len(X))), X, px)]
+    if path is not None:
+        write_points(path, sets)
+    return sets
+
+
+def planar_errors(room, slot: str, pose: np.ndarray, content_size: tuple[int, int], *, step: int = 4) -> tuple[float, float]:
+    """RMS and max distance (projector px) between ``pose`` and the true content -> projector homography,
+    over the content pixels (the table) that land inside the projector's image."""
+    truth = room.truth.content_to_projector_homography(slot, content_size)
+    w, h = content_size
+    g = np.stack(np.meshgrid(np.arange(0, w, step), np.arange(0, h, step)), -1).reshape(-1, 2).astype(np.float64)
+    t = planar.apply_homography(truth, g)
+    pw, ph = room.projector_size(slot)
+    inside = (t[:, 0] >= -0.5) & (t[:, 1] >= -0.5) & (t[:, 0] <= pw - 0.5) & (t[:, 1] <= ph - 0.5)
+    return planar.homography_difference(pose, truth, g[inside])
+
+
+def mesh_errors(room, slot: str, P: np.ndarray, *, camera: int = 0) -> tuple[float, float, int]:
+    """RMS, max (projector px) and count: ``P`` against the truth over the mesh surface the camera sees
+    and the projector lights (the visible surface)."""
+    from coordinator.calibration.threed import project
+
+    surf = room.truth.surface(camera)
+    pc = room.truth.projector_coordinates(slot, camera)
+    vis = (surf.kind == 2) & np.isfinite(pc[..., 0])
+    X = surf.points[vis].astype(np.float64)
+    est, _ = project(P, X)
+    true, _ = project(room.truth.projector(slot).P, X)
+    d = np.linalg.norm(est - true, axis=1)
+    return float(np.sqrt(np.mean(d ** 2))), float(d.max()), int(len(d))
+
+
+# ---------------------------------------------------------------------- the benchmark
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Calibrate rigs of several sizes in the virtual room, sequential (Gray codes, one projector after another)\n"
+        "and multiplexed (every projector at once), and print one JSON document: captures, wall time and the\n"
+        "RMS / max error of the poses against the room's truth (projector pixels, over the table)."
+    )
+    parser.add_argument("--projectors", default="1,9,25", help="rig sizes, comma separated (default 1,9,25)")
+    parser.add_argument("--modes", default="sequential,multiplexed", help="modes to run (default both)")
+    parser.add_argument("--projector-scale", type=float, default=0.25, help="room projector resolution scale (default 0.25)")
+    parser.add_argument("--camera-scale", type=float, default=0.25, help="room camera resolution scale (default 0.25)")
+    parser.add_argument("--seed", type=int, default=0, help="room seed (unit variation, noise)")
+    parser.add_argument("--click-noise", type=float, default=0.3, help="px of noise on the known table points (default 0.3)")
+
+
+async def _run_one(room, slots: list[str], mode: str, table_points, workdir: Path) -> dict:
+    from coordinator.calibration.job import calibrate
+
+    rig = make_rig(workdir, room, slots)
+    ctx = RoomJobContext(room, rig)
+    points_doc = {"frame": "world", "points": [{"xyz": list(map(float, x)), "pixel": list(map(float, p)), "camera": 0}
+                                              for x, p in zip(table_points[0].xyz, table_points[0].pixels)]}
+    t0 = time.perf_counter()
+    result = await calibrate(ctx, {"mode": mode, "table_points": points_doc, "settle_s": 0.0})
+    wall = time.perf_counter() - t0
+    content = (rig.config.content_width, rig.config.content_height)
+    errs = {s: planar_errors(room, s, rig.slot(s).pose.matrix, content) for s in slots}
+    rms = [e[0] for e in errs.values()]
+    mx = [e[1] for e in errs.values()]
+    return {"captures": result["captures"], "wall_s": round(wall, 3), "wall_s_per_capture": round(wall / result["captures"], 4),
+            "rms_px_worst_slot": round(max(rms), 4), "rms_px_mean": round(float(np.mean(rms)), 4),
+            "max_px": round(max(mx), 4), "fit_rms_px_mean": round(float(np.mean([d["rms_px"] for d in result["slots"].values()])), 4)}
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench.machine import machine
+    from sim.room import Room
+    from sim.scene import reference_scene
+
+    sizes = [int(v) for v in str(args.projectors).split(",") if v.strip()]
+    modes = [m.strip() for m in str(args.modes).split(",") if m.strip()]
+    for m in modes:
+        if m not in ("sequential", "multiplexed"):
+            raise SystemExit(f"unknown mode {m!r}: sequential or multiplexed")
+    t_room = time.perf_counter()
+    room = Room(reference_scene(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed),
+                seed=args.seed)
+    room.prepare(0)
+    setup_s = time.perf_counter() - t_room
+    points = table_points_from_truth(room, click_noise_px=args.click_noise, seed=args.seed)
+    figures: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory(prefix="bench-calibration-") as tmp:
+        for n in sizes:
+            slots = rig_slots(n)
+            figures[str(n)] = {}
+            for mode in modes:
+                figures[str(n)][mode] = asyncio.run(_run_one(room, slots, mode, points, Path(tmp) / f"{n}-{mode}"))
+    summary = {}
+    if "multiplexed" in modes and sizes:
+        lo, hi = str(min(sizes)), str(max(sizes))
+        summary["multiplexed_captures_ratio_largest_to_smallest"] = round(
+            figures[hi]["multiplexed"]["captures"] / figures[lo]["multiplexed"]["captures"], 3)
+        if "sequential" in modes:
+            summary["sequential_to_multiplexed_wall_ratio_largest"] = round(
+                figures[hi]["sequential"]["wall_s"] / figures[hi]["multiplexed"]["wall_s"], 2)
+    doc = {
+        "benchmark": "calibration",
+        "parameters": {"projectors": sizes, "modes": modes, "projector_scale": args.projector_scale,
+                       "camera_scale": args.camera_scale, "seed": args.seed, "click_noise_px": args.click_noise,
+                       "projector_size": list(room.projector_size("r0c0")), "camera_size": list(room.camera_size(0)),
+                       "table_mapping": "15 known table points with click noise", "room_setup_s": round(setup_s, 3)},
+        "figures": figures,
+        "summary": summary,
+        "notes": "in-process room (no gRPC, no node processes): wall time is calibration compute plus simulated captures; "
+                 "on a real rig add per capture the swap latency and settle time",
+        "machine": machine(),
+    }
+    print(json.dumps(doc, indent=2))
+    return 0
