@@ -69,6 +69,7 @@ class RoomOutput(Output):
         self._cond = threading.Condition()
         self._stop = False
         self._thread: threading.Thread | None = None
+        self._inflight: tuple | None = None
         self._channel = None
         self._stub = None
         #: counters (read them from any thread)
@@ -196,6 +197,7 @@ class RoomOutput(Output):
                 if (self._stop and not self._queue) or done.is_set():
                     return
                 image, info = self._queue.popleft()
+                self._inflight = (image, info)
                 self._cond.notify_all()
             msg = room_pb2.DisplayedFrame(
                 slot=info.slot or self.slot,
@@ -226,13 +228,20 @@ class RoomOutput(Output):
                 self._stub.Display(self._messages(done))
                 backoff = 0.1
             except grpc.RpcError as exc:
+                done.set()  # first: the broken stream's generator must take no more frames
                 code = exc.code()
                 self.last_error = f"{code.name}: {exc.details()}"
-                if code == grpc.StatusCode.INVALID_ARGUMENT or code == grpc.StatusCode.NOT_FOUND:
+                refused = code in (grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.NOT_FOUND)
+                if refused:
                     log.error("the room at %s refuses %s's frames: %s", self.address, self.slot, exc.details())
                 else:
                     log.info("room stream for %s ended (%s); reconnecting", self.slot, self.last_error)
                 with self._cond:
+                    # The projector must end up showing the newest frame: if the stream broke with it
+                    # in flight and nothing newer is waiting, send it again on the next stream.
+                    if self._inflight is not None and not self._queue and not self._stop and not refused:
+                        self._queue.append(self._inflight)
+                    self._inflight = None
                     if self._stop:
                         self.frames_dropped += len(self._queue)
                         self._queue.clear()

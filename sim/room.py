@@ -119,6 +119,17 @@ class _View:
     distance: np.ndarray  # (hr, wr) float64 from the camera centre (inf: nothing)
     cam_area: np.ndarray  # (hr, wr) float64 camera pixel footprint, mm^2
     plans: dict[str, _Plan] = field(default_factory=dict)
+    surf: np.ndarray = field(default=None)  # (n,) flat ROI indices that see a surface
+    scratch: np.ndarray = field(default=None)  # (hr, wr, 3) float32 work buffer of captures
+
+    def __post_init__(self) -> None:
+        self.surf = np.flatnonzero(self.kind.reshape(-1) != NOTHING)
+        # Surface-only copies, contiguous, for the per-projector precomputation.
+        self.s_points = np.ascontiguousarray(self.points.reshape(-1, 3)[self.surf])
+        self.s_normals = np.ascontiguousarray(self.normals.reshape(-1, 3)[self.surf])
+        self.s_albedo = self.albedo.reshape(-1)[self.surf]
+        self.s_cam_area = self.cam_area.reshape(-1)[self.surf]
+        self.scratch = np.empty((*self.kind.shape, 3), np.float32)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -209,9 +220,8 @@ class Room:
 
     @property
     def active(self) -> list[str]:
-        """The powered projectors."""
-        with self._lock:
-            return list(self._active)
+        """The powered projectors (no lock: the list is replaced, never changed in place)."""
+        return list(self._active)
 
     def projector(self, slot: str) -> ProjectorSpec:
         """The specification of projector ``slot`` (raises :class:`UnknownSlotError`)."""
@@ -354,6 +364,7 @@ class Room:
             x0, y0, x1, y1 = view.roi
             W, H = cam.size
             acc = np.zeros((*view.shape, 3), np.float32)
+            sample = view.scratch
             hand_acc = np.zeros((len(dyn.hand_index), 3), np.float32)
             for slot in self._active:
                 if self._frames[slot] is None:
@@ -362,7 +373,7 @@ class Room:
                 fields = self._field(slot, plan)
                 blocked = dyn.blocked.get(slot)
                 for level, coef in plan.coef.items():
-                    sample = cv2.remap(fields[level], plan.mapx, plan.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+                    cv2.remap(fields[level], plan.mapx, plan.mapy, cv2.INTER_LINEAR, dst=sample, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
                     if blocked is not None and len(blocked):
                         sample.reshape(-1, 3)[blocked] = 0.0
                     if coef.ndim == 3:
@@ -373,8 +384,8 @@ class Room:
                 if len(dyn.hand_index):
                     hs = self._samples(view, dyn, slot)
                     for level, coef in hs.coef.items():
-                        sample = cv2.remap(fields[level], hs.mapx, hs.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-                        hand_acc += sample[0] * coef[:, None]
+                        hand = cv2.remap(fields[level], hs.mapx, hs.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+                        hand_acc += hand[0] * coef[:, None]
             if len(dyn.hand_roi):
                 acc.reshape(-1, 3)[dyn.hand_roi] = 0.0
             out = np.zeros((H, W, 3), np.float32)
@@ -504,12 +515,12 @@ class Room:
     def _build_plan(self, view: _View, spec: ProjectorSpec) -> _Plan:
         dev = spec.pinhole
         w, h = dev.size
-        surf = np.flatnonzero(view.kind.reshape(-1) != NOTHING)
-        pts = view.points.reshape(-1, 3)[surf]
-        nrm = view.normals.reshape(-1, 3)[surf]
+        surf = view.surf
+        pts = view.s_points
+        nrm = view.s_normals
         g = _geometry(dev, pts, nrm, falloff=spec.falloff)
         proj_area = g["area"]
-        cam_area = view.cam_area.reshape(-1)[surf]
+        cam_area = view.s_cam_area
         ok = np.isfinite(proj_area) & np.isfinite(cam_area)
         if self._upsample is not None:
             s = int(self._upsample)
@@ -557,7 +568,7 @@ class Room:
         fy = np.where(lit, s * (v + 0.5) - 0.5 + pad, -10.0)
         mapx = roi_map(fx, -10.0, np.float32)
         mapy = roi_map(fy, -10.0, np.float32)
-        weight = roi_map(np.where(lit, view.albedo.reshape(-1)[surf] * spec.peak * e, 0.0), 0.0, np.float32)
+        weight = roi_map(np.where(lit, view.s_albedo * spec.peak * e, 0.0), 0.0, np.float32)
         lo_map = roi_map(lo, 0, np.int8)
         alpha_map = roi_map(np.where(lit, alpha, 0.0), 0.0, np.float32)
         coef = _blend_coefficients(weight, lo_map, alpha_map, len(sigmas), three=n_roi <= _COEF3_LIMIT)
@@ -592,22 +603,26 @@ class Room:
             return _Dynamic(key, prims, {}, empty, empty, np.zeros((0, 3)), np.zeros((0, 3)))
         # 1. Camera pixels that see an occluder: rays over the projected boxes of the primitives.
         mask = np.zeros((H, W), bool)
-        for prim in prims:
-            for c, r in prim.cull_spheres():
-                bb = _projected_bbox(cam, c, r)
+        boxes = [[_projected_bbox(cam, c, r) for c, r in prim.cull_spheres()] for prim in prims]
+        for prim_boxes in boxes:
+            for bb in prim_boxes:
                 if bb is None:
                     mask[:] = True
-                    break
-                bx0, by0, bx1, by1 = (int(np.clip(v, 0, lim)) for v, lim in zip((math.floor(bb[0]), math.floor(bb[1]), math.ceil(bb[2]) + 1, math.ceil(bb[3]) + 1), (W, H, W, H)))
+                    continue
+                bx0, by0, bx1, by1 = _pixel_box(bb, W, H)
                 mask[by0:by1, bx0:bx1] = True
         idx = np.flatnonzero(mask)
         xs, ys = idx % W, idx // W
         dirs = cam.rays(np.column_stack([xs, ys]).astype(np.float64))
         best = np.full(len(idx), np.inf)
-        for prim in prims:
-            t_in, t_out = prim.interval_from(cam.center, dirs[:, 0], dirs[:, 1], dirs[:, 2])
-            ok = (t_in > 0) & (t_in <= t_out)
-            best = np.where(ok & (t_in < best), t_in, best)
+        for prim, prim_boxes in zip(prims, boxes):
+            sel = np.flatnonzero(_in_boxes(xs, ys, prim_boxes))
+            if len(sel) == 0:
+                continue
+            d = dirs[sel]
+            t_in, t_out = prim.interval_from(cam.center, d[:, 0], d[:, 1], d[:, 2])
+            ok = (t_in > 0) & (t_in <= t_out) & (t_in < best[sel])
+            best[sel[ok]] = t_in[ok]
         static = np.full(len(idx), np.inf)
         in_roi = (xs >= x0) & (xs < x1) & (ys >= y0) & (ys < y1)
         static[in_roi] = view.distance[ys[in_roi] - y0, xs[in_roi] - x0]
@@ -666,8 +681,13 @@ class Room:
             vec /= dist[:, None]
             blocked = np.zeros(len(idx), bool)
             for prim in dyn.primitives:
-                t_in, t_out = prim.interval_from(dev.center, vec[:, 0], vec[:, 1], vec[:, 2])
-                blocked |= (t_in < dist - 1e-6) & (t_out > 1e-6)
+                # Only points whose projector pixel lies in the primitive's projected boxes can be hidden by it.
+                sel = np.flatnonzero(_in_boxes(u[idx], v[idx], [_projected_bbox(dev, c, r) for c, r in prim.cull_spheres()]))
+                if len(sel) == 0:
+                    continue
+                d = vec[sel]
+                t_in, t_out = prim.interval_from(dev.center, d[:, 0], d[:, 1], d[:, 2])
+                blocked[sel] |= (t_in < dist[sel] - 1e-6) & (t_out > 1e-6)
             lit[idx[blocked]] = False
         if self.scene.mesh is not None and lit.any():
             idx = np.flatnonzero(lit)
@@ -762,7 +782,8 @@ def _tile_index(uv: np.ndarray, dev: Pinhole) -> tuple[np.ndarray, np.ndarray, t
     tx = np.clip(((uv[:, 0] - origin) // T).astype(np.int64), 0, ntx - 1)
     ty = np.clip(((uv[:, 1] - origin) // T).astype(np.int64), 0, nty - 1)
     tid = ty * ntx + tx
-    order = np.argsort(tid, kind="stable").astype(np.int32)
+    # A stable sort of small integers is a radix sort in numpy: linear time.
+    order = np.argsort(tid.astype(np.uint16) if ntx * nty < 65536 else tid, kind="stable").astype(np.int32)
     starts = np.searchsorted(tid[order], np.arange(ntx * nty + 1))
     cx = origin + (np.arange(ntx) + 0.5) * T
     cy = origin + (np.arange(nty) + 0.5) * T
@@ -812,6 +833,25 @@ def _cone_candidates(plan: _Plan, dev: Pinhole, spheres) -> np.ndarray:
         return np.zeros(0, np.int64)
     offsets = np.repeat(first - (np.cumsum(counts) - counts), counts) + np.arange(total)
     return plan.order[offsets].astype(np.int64)
+
+
+def _pixel_box(bb, W: int, H: int) -> tuple[int, int, int, int]:
+    """Integer pixel range (x0, y0, x1, y1), clipped to the image, covering a float box."""
+    x0 = int(np.clip(math.floor(bb[0]), 0, W))
+    y0 = int(np.clip(math.floor(bb[1]), 0, H))
+    x1 = int(np.clip(math.ceil(bb[2]) + 1, 0, W))
+    y1 = int(np.clip(math.ceil(bb[3]) + 1, 0, H))
+    return x0, y0, max(x0, x1), max(y0, y1)
+
+
+def _in_boxes(x: np.ndarray, y: np.ndarray, boxes) -> np.ndarray:
+    """Whether points (pixel coordinates) fall in any of ``boxes`` (None: a box covering everything)."""
+    out = np.zeros(np.shape(x), bool)
+    for bb in boxes:
+        if bb is None:
+            return np.ones(np.shape(x), bool)
+        out |= (x >= bb[0] - 1) & (x <= bb[2] + 1) & (y >= bb[1] - 1) & (y <= bb[3] + 1)
+    return out
 
 
 def _projected_bbox(device: Pinhole, center: np.ndarray, radius: float):

@@ -88,7 +88,7 @@ def test_a_slow_or_absent_room_costs_dropped_frames_not_waiting_and_the_output_r
         for k in range(10):  # nobody listens: the queue keeps the newest two
             out.after_swap(renderer.show(k), info(k))
         assert out.frames_queued == 10
-        assert out.frames_dropped >= 7
+        assert out.frames_dropped >= 5  # at most 2 wait in the queue, a few went to failed streams
         with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
             assert wait_for(lambda: server.server.service.frames_received >= 1)
             assert client.capture().frames["r2c2"][0] == 9  # the newest frame made it
@@ -97,8 +97,12 @@ def test_a_slow_or_absent_room_costs_dropped_frames_not_waiting_and_the_output_r
         time.sleep(0.3)
         with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
             out.after_swap(renderer.show(200), info(11))
+            ok = wait_for(lambda: client.capture().frames.get("r2c2", (0, 0))[0] == 11)
+            assert ok, (out.streams_opened, out.frames_sent, out.frames_dropped, out.last_error, client.capture().frames)
+        # A room that restarts while the node shows a still frame gets that frame again.
+        with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
             assert wait_for(lambda: client.capture().frames.get("r2c2", (0, 0))[0] == 11)
-        assert out.streams_opened >= 2
+        assert out.streams_opened >= 3
     finally:
         out.close()
 
