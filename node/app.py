@@ -24,12 +24,11 @@ from node.clock import ClockEstimator, ClockSample, LocalClock
 from node.discovery import Discovery
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.presenter import PresenterProcess, PresenterSettings
-from node.wire import assignment_from_message, frame_for_slot
+from node.wire import assignment_from_message
 from protos import auth, common_pb2, node_pb2, node_pb2_grpc
 from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
 
 log = logging.getLogger("node")
-_DEBUG_TIMING = bool(os.environ.get("SHADOWLESS_DEBUG_TIMING"))
 
 REFUSAL_CODES = {grpc.StatusCode.FAILED_PRECONDITION, grpc.StatusCode.UNAUTHENTICATED, grpc.StatusCode.NOT_FOUND,
                  grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.PERMISSION_DENIED}
@@ -180,6 +179,9 @@ class Node:
         """Join ``target`` and serve until a stream breaks. True if the join succeeded."""
         async with self._channel(target) as channel:
             stub = node_pb2_grpc.NodeLinkStub(channel)
+            stub._frames_raw = channel.unary_stream(   # Frames, delivered as serialized FramePackets
+                "/shadowless.v1.NodeLink/Frames", request_serializer=node_pb2.StreamRequest.SerializeToString,
+                response_deserializer=None)
             try:
                 session, instance, hb_ms = await self._handshake(stub, target)
             except grpc.aio.AioRpcError as exc:
@@ -268,16 +270,11 @@ class Node:
                 log.error("ignoring a malformed assignment r%d: %s", msg.revision, exc)
 
     async def _frames(self, stub, md) -> None:
-        async for pkt in stub.Frames(node_pb2.StreamRequest(), metadata=md):
-            for content in pkt.contents:
-                self.presenter.submit("content", (content.content_id, content.image.SerializeToString()))
-            if pkt.HasField("frame"):
-                if _DEBUG_TIMING and (est := self.estimator.estimate) is not None:
-                    log.info("timing: frame %d received %.1f ms before its pts", pkt.frame.frame_id,
-                             (pkt.frame.pts_ns - est.rig_time(self.clock.now())) / 1e6)
-                self.presenter.submit("frame", frame_for_slot(pkt.frame, self.cfg.slot))
-            if pkt.HasField("evict"):
-                self.presenter.submit("evict", list(pkt.evict.content_ids))
+        # The packets go to the presenter as received bytes: parsing (and copying the images)
+        # happens once, in the process that uses them.
+        call = stub._frames_raw(node_pb2.StreamRequest(), metadata=md)
+        async for data in call:
+            self.presenter.submit("packet", data)
 
     async def _report_stream(self, stub, md, heartbeat_s: float, *, batch_s: float = 0.05) -> None:
         q = self._reports

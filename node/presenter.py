@@ -31,7 +31,7 @@ import numpy as np
 
 from node.clock import ClockEstimate, LocalClock
 from node.outputs import Output, SwapInfo, open_output
-from node.wire import FrameOrder, NodeAssignment
+from node.wire import FrameOrder, NodeAssignment, frame_for_slot
 from protos import codec, common_pb2, node_pb2
 
 log = logging.getLogger(__name__)
@@ -175,6 +175,16 @@ class Presenter:
     def _on_clock(self, renderer, out, estimate: ClockEstimate | None) -> None:
         self.estimate = estimate
 
+    def _on_packet(self, renderer, out, data: bytes) -> None:
+        """A FramePacket as received: cache its contents, show its frame, forget evicted contents."""
+        pkt = node_pb2.FramePacket.FromString(data)
+        for content in pkt.contents:
+            self._on_content(renderer, out, (content.content_id, content.image))
+        if pkt.HasField("frame"):
+            self._on_frame(renderer, out, frame_for_slot(pkt.frame, self.slot))
+        if pkt.HasField("evict"):
+            self._on_evict(renderer, out, list(pkt.evict.content_ids))
+
     def _on_assignment(self, renderer, out: Output, a: NodeAssignment) -> None:
         from node.render.renderer import Mesh
 
@@ -207,12 +217,12 @@ class Presenter:
             out.prepare(renderer)
             out.swap()
 
-    def _on_content(self, renderer, out, msg: tuple[str, bytes]) -> None:
-        cid, image_bytes = msg
+    def _on_content(self, renderer, out, msg: tuple[str, common_pb2.Image]) -> None:
+        cid, image = msg
         if renderer.has(cid):
             return
         try:
-            img = codec.decode_image(common_pb2.Image.FromString(image_bytes))
+            img = codec.decode_image(image)
         except codec.ImageCodecError as exc:
             log.error("content %s is malformed: %s", cid, exc)
             return
