@@ -29,6 +29,7 @@ from .response import (
     verify_linearity,
 )
 from .solver import (
+    FrameCompensator,
     PerProjectorResult,
     SolveResult,
     TransportOperator,
@@ -67,6 +68,7 @@ __all__ = [
     "verify_linearity",
     "brightness_scale",
     "TransportOperator",
+    "FrameCompensator",
     "SolveResult",
     "PerProjectorResult",
     "solve",

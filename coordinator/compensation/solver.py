@@ -55,6 +55,7 @@ __all__ = [
     "solve_per_projector",
     "objective",
     "operator_for",
+    "FrameCompensator",
 ]
 
 Progress = Callable[[int, float], None]
@@ -121,6 +122,11 @@ class TransportOperator:
     @property
     def nnz(self) -> int:
         return int(self.L.nnz)
+
+    def clear_cache(self) -> None:
+        """Forget the cached step bound (benchmarks time it as part of a solve)."""
+        self._lipschitz = None
+        self.lipschitz_info = {}
 
     def matvec(self, x: np.ndarray, *, pool: Executor | None = None) -> np.ndarray:
         """``L @ x`` for ``x`` of shape (n_content,) or (n_content, C), float32."""
@@ -641,3 +647,59 @@ def solve_per_projector(
     start = clock()
     results = [solve(Li, share, x0=None if x0s is None else x0s[i], **options) for i, Li in enumerate(L_list)]
     return PerProjectorResult(xs=[r.x for r in results], results=results, seconds=clock() - start)
+
+
+class FrameCompensator:
+    """Warm-started compensation of a video, one bounded solve per frame.
+
+    Each frame starts from the previous frame's solution; when content and camera grids
+    coincide (square ``L``) the start also adds the change of the target since the previous
+    frame (``delta``), which follows moving content far better than the bare previous
+    solution. Every frame then runs at most ``iterations`` APG iterations (``first_iterations``
+    for the first frame or after :meth:`reset`), so the time per frame is bounded.
+
+    Parameters
+    ----------
+    L : scipy.sparse matrix or TransportOperator
+    iterations, first_iterations : int
+        Iteration budget per frame and for a cold start.
+    delta : bool
+        Add the target change to the warm start (square ``L`` only).
+    solve_options :
+        Passed to :func:`solve` (``tol``, ``time_limit``, ``content_shape``, ``threads`` ...).
+    """
+
+    def __init__(self, L: sp.spmatrix | TransportOperator, *, iterations: int = 4, first_iterations: int = 60,
+                 delta: bool = True, **solve_options: Any) -> None:
+        if iterations < 1 or first_iterations < 1:
+            raise ValueError("iteration budgets must be >= 1")
+        self.op = operator_for(L, threads=solve_options.pop("threads", None))
+        self.iterations = iterations
+        self.first_iterations = first_iterations
+        self.delta = delta and self.op.shape[0] == self.op.shape[1]
+        solve_options.setdefault("gap_tol", 0.0)
+        solve_options.setdefault("pg_tol", 0.0)
+        self.options = solve_options
+        self._x: np.ndarray | None = None
+        self._target: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Forget the previous frame (e.g. after a cut)."""
+        self._x = None
+        self._target = None
+
+    def __call__(self, target: np.ndarray, *, progress: Progress | None = None) -> SolveResult:
+        """Compensate one frame (same shapes as :func:`solve`); returns its :class:`SolveResult`."""
+        target = np.asarray(target, dtype=np.float32)
+        x0 = None
+        budget = self.first_iterations
+        if self._x is not None and self._target is not None and self._target.shape == target.shape:
+            budget = self.iterations
+            if self.delta:
+                x0 = self._x.reshape(target.shape) + (target - self._target)
+            else:
+                x0 = self._x
+        res = solve(self.op, target, x0=x0, max_iter=budget, progress=progress, **self.options)
+        self._x = res.x
+        self._target = target
+        return res
