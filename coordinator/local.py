@@ -55,7 +55,8 @@ class LocalRig:
     def __init__(self, slots: list[str], workdir: Path, *, output_size=(160, 90), content_size=(160, 90),
                  clock_offsets_ms: dict[str, float] | None = None, clock_drifts_ppm: dict[str, float] | None = None,
                  node_output: str = "offscreen", snapshots: bool = False, latency_ms: float = 50.0,
-                 rig_name: str | None = None, extra_node_args: dict[str, list[str]] | None = None, mdns: bool = True):
+                 rig_name: str | None = None, extra_node_args: dict[str, list[str]] | None = None, mdns: bool = True,
+                 coordinator_args: list[str] | None = None, env: dict[str, str] | None = None):
         self.slots = list(slots)
         self.workdir = Path(workdir)
         self.rig_dir = self.workdir / "rig"
@@ -69,6 +70,8 @@ class LocalRig:
         self.rig_name = rig_name or f"local-{os.getpid()}-{int(time.time() * 1000) % 100000}"
         self.extra_node_args = extra_node_args or {}
         self.mdns = mdns
+        self.coordinator_args = list(coordinator_args or [])
+        self.extra_env = dict(env or {})
         self.port = free_port()
         self.coordinator: subprocess.Popen | None = None
         self.nodes: dict[str, subprocess.Popen] = {}
@@ -99,6 +102,7 @@ class LocalRig:
         env = dict(os.environ)
         env.setdefault("LP_NUM_THREADS", "1")   # many llvmpipe contexts share two cores
         env["PYTHONUNBUFFERED"] = "1"
+        env.update(self.extra_env)
         return env
 
     def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
@@ -111,7 +115,7 @@ class LocalRig:
         assert self.coordinator is None or self.coordinator.poll() is not None, "coordinator already running"
         args = ["coordinator", "--rig", str(self.rig_dir), "--listen", f"127.0.0.1:{self.port}"]
         args += ["--mdns-interface", "127.0.0.1"] if self.mdns else ["--no-mdns"]
-        self.coordinator = self._spawn("coordinator", args)
+        self.coordinator = self._spawn("coordinator", args + self.coordinator_args)
 
     def stop_coordinator(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
         if self.coordinator is not None and self.coordinator.poll() is None:

@@ -1,0 +1,260 @@
+"""`shadowless demo` (what `make demo` runs): the whole rig in the virtual room.
+
+It starts the room (the paper's 5x5 ceiling array over a 1200x600 mm table, plus
+the single bright projector "p1" at the centre position), a coordinator that
+captures from the room's camera, and one node process per projector whose
+frames go to the room. It aligns the projectors (calibration, or the room's
+ground-truth poses with ``--poses truth``), shows an image on every projector,
+puts a hand 0.2 m above the table, and compares the single bright projector (P1)
+with the 25-projector synthetic aperture (P25): side-by-side pictures like the
+paper's teaser, light-drop maps and a short report, written to ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from coordinator.local import LocalRig, free_port
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = __doc__.split("\n\n")[0].replace("`shadowless demo` (what `make demo` runs): ", "").strip()
+    p.epilog = ("writes to OUT: teaser.png (P1 vs P25, without and with the hand), light_drop.png, "
+                "report.json and report.md, and rig/ (the rig directory and every process's log)")
+    p.add_argument("--out", default="results/demo", help="results folder (default results/demo)")
+    p.add_argument("--image", help="image to project (default: scikit-image's astronaut)")
+    p.add_argument("--poses", choices=["calibrate", "truth"], default="calibrate",
+                   help="align by calibrating through the camera (default) or take the room's ground truth")
+    p.add_argument("--hand", default="320,120", metavar="X,Y", help="hand position on the table in mm (default 320,120)")
+    p.add_argument("--hand-height", type=float, default=200.0, help="height of the hand above the table (default 200 mm)")
+    p.add_argument("--content-size", default="600x300", metavar="WxH",
+                   help="shared image size in content px over the 1200x600 mm table (default 600x300: 2 mm/px)")
+
+
+def _say(msg: str) -> None:
+    print(f"[demo {time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
+def content_to_table(size: tuple[int, int], table_mm=(1200.0, 600.0)) -> np.ndarray:
+    """(3, 3): content px -> table mm; content spans the table, x along +x, rows along -y."""
+    w, h = size
+    tw, th = table_mm
+    return np.array([[tw / w, 0.0, tw / (2 * w) - tw / 2], [0.0, -th / h, th / 2 - th / (2 * h)], [0.0, 0.0, 1.0]])
+
+
+def table_region(camera_p: np.ndarray, cam_size: tuple[int, int], table_mm=(1200.0, 600.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Where the table is in the camera image, and the table area (mm^2) each pixel covers.
+
+    Returns ``(on_table (H, W) bool, px_area (H, W) float64)`` from the camera's
+    3x4 matrix: the table plane z = 0 maps to the image by ``P[:, [0, 1, 3]]``.
+    """
+    W, H = cam_size
+    h_tc = camera_p[:, [0, 1, 3]]
+    tw, th = table_mm
+    corners = np.array([[-tw / 2, -th / 2, 1], [tw / 2, -th / 2, 1], [tw / 2, th / 2, 1], [-tw / 2, th / 2, 1]]).T
+    px = h_tc @ corners
+    px = (px[:2] / px[2]).T
+    on = np.zeros((H, W), np.uint8)
+    cv2.fillConvexPoly(on, np.round(px * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+    # area of a pixel on the table = 1 / |det J| of the table->camera map, J at each pixel
+    h_ct = np.linalg.inv(h_tc)
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    q = h_ct @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
+    x, y, w = q
+    a, b, c = h_ct[0]
+    d, e, f = h_ct[1]
+    g, hh, _ = h_ct[2]
+    # Jacobian of (x/w, y/w) with respect to pixel (u, v)
+    j11 = (a * w - x * g) / w**2
+    j12 = (b * w - x * hh) / w**2
+    j21 = (d * w - y * g) / w**2
+    j22 = (e * w - y * hh) / w**2
+    area = np.abs(j11 * j22 - j12 * j21).reshape(H, W)
+    return on.astype(bool), area
+
+
+def table_points(camera_p: np.ndarray, *, noise_px: float = 0.3, seed: int = 0) -> list[list[float]]:
+    """Known points for the table->camera mapping: marks on the table (world mm) and where an operator
+    clicked them in the camera image (the truth plus click noise). ``[[x_mm, y_mm, u_px, v_px], ...]``"""
+    rng = np.random.default_rng(seed)
+    pts = []
+    for x in (-560.0, -280.0, 0.0, 280.0, 560.0):
+        for y in (-260.0, 0.0, 260.0):
+            u = camera_p @ np.array([x, y, 0.0, 1.0])
+            uv = u[:2] / u[2] + rng.normal(0, noise_px, 2)
+            pts.append([x, y, float(uv[0]), float(uv[1])])
+    return pts
+
+
+def default_image() -> np.ndarray:
+    from skimage import data
+
+    return data.astronaut()
+
+
+def fit_image(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Centre-crop to the content aspect ratio, then resize to ``size`` (w, h)."""
+    w, h = size
+    ih, iw = img.shape[:2]
+    target = w / h
+    if iw / ih > target:
+        cw = int(round(ih * target))
+        img = img[:, (iw - cw) // 2: (iw - cw) // 2 + cw]
+    else:
+        ch = int(round(iw / target))
+        img = img[(ih - ch) // 2: (ih - ch) // 2 + ch]
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def _label(img: np.ndarray, text: str) -> np.ndarray:
+    out = img.copy()
+    cv2.rectangle(out, (0, 0), (out.shape[1], 26), (0, 0, 0), -1)
+    cv2.putText(out, text, (8, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+def _to8(img: np.ndarray) -> np.ndarray:
+    """Camera image (linear float) -> 8-bit sRGB-ish for viewing."""
+    v = np.clip(img, 0, 1) ** (1 / 2.2)
+    return cv2.cvtColor((v * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR)
+
+
+def _heat(drop: np.ndarray, on: np.ndarray) -> np.ndarray:
+    v = (np.clip(drop, 0, 1) * 255).astype(np.uint8)
+    heat = cv2.applyColorMap(v, cv2.COLORMAP_INFERNO)
+    heat[~on] = (40, 40, 40)
+    return heat
+
+
+async def _demo(args) -> int:
+    from coordinator.jobclient import ProgressView, run_job
+    from protos import control_pb2
+    from sim.client import RoomClient
+    from sim.occluders import Hand
+    from sim.scene import SUBSETS
+
+    t_start = time.monotonic()
+    out = Path(args.out)
+    work = out / "rig"
+    if work.exists():
+        shutil.rmtree(work)
+    out.mkdir(parents=True, exist_ok=True)
+    (work / "logs").mkdir(parents=True, exist_ok=True)
+    cw, ch = (int(v) for v in args.content_size.split("x"))
+    hx, hy = (float(v) for v in args.hand.split(","))
+
+    room_port = free_port()
+    room_log = open(work / "logs" / "room.log", "wb")
+    room_proc = subprocess.Popen([sys.executable, "-m", "shadowless", "room", "--host", "127.0.0.1", "--port", str(room_port)],
+                                 stdout=room_log, stderr=subprocess.STDOUT, start_new_session=True)
+    report: dict = {"poses": args.poses, "hand_mm": [hx, hy], "hand_height_mm": args.hand_height,
+                    "content_size": [cw, ch]}
+    try:
+        room = RoomClient(f"127.0.0.1:{room_port}")
+        room.wait_ready(60)
+        desc = room.describe()
+        slots = [p.slot for p in desc.projectors]
+        cam = room.camera_truth(0)
+        cam_p = np.array(cam.p).reshape(3, 4)
+        cam_size = (cam.width, cam.height)
+        _say(f"virtual room on 127.0.0.1:{room_port}: {len(slots)} projectors, camera {cam.width}x{cam.height}")
+
+        size = room.projector_size(slots[0])
+        rig = LocalRig(slots, work, output_size=size, content_size=(cw, ch), node_output=f"room://127.0.0.1:{room_port}",
+                       mdns=True, rig_name="demo", latency_ms=80.0,
+                       coordinator_args=["--camera", f"room://127.0.0.1:{room_port}"])
+        with rig:
+            _say(f"coordinator on 127.0.0.1:{rig.port}; starting {len(slots)} node processes (one per projector)")
+            async with await rig.client(timeout=60) as c:
+                await rig.wait_live(c, timeout=300)
+                report["startup_s"] = round(time.monotonic() - t_start, 1)
+                _say(f"all {len(slots)} nodes live after {report['startup_s']} s")
+
+                t0 = time.monotonic()
+                if args.poses == "truth":
+                    _say("NOTE: poses are taken from the room's ground truth, not calibrated (--poses truth)")
+                    c2t = content_to_table((cw, ch))
+                    for slot in slots:
+                        p = np.array(room.projector_truth(slot).p).reshape(3, 4)
+                        h = p[:, [0, 1, 3]] @ c2t
+                        req = control_pb2.ConfigureRequest(slot=slot)
+                        req.homography.m.extend((h / h[2, 2]).ravel().tolist())
+                        await c.configure(req)
+                else:
+                    # The 25-projector array and the single bright unit are two rigs in one room:
+                    # switch each on in turn (as an operator would) and calibrate it.
+                    report["calibration"] = {}
+                    for name in ("P25", "P1"):
+                        room.set_active(SUBSETS[name])
+                        _say(f"calibrating {name} ({len(SUBSETS[name])} projector(s)) through the room's camera")
+                        params = {"mode": "multiplexed", "table_points": table_points(cam_p), "force": True,
+                                  "slots": SUBSETS[name]}
+                        report["calibration"][name] = await run_job(c, "calibrate", params, view=ProgressView(sys.stdout))
+                report["alignment_s"] = round(time.monotonic() - t0, 1)
+
+                img = fit_image(cv2.cvtColor(cv2.imread(args.image), cv2.COLOR_BGR2RGB) if args.image else default_image(), (cw, ch))
+                shown = await c.show(img, name=Path(args.image).name if args.image else "astronaut", persist=True)
+                _say("showing the image on every projector")
+
+                def capture():
+                    cap = room.capture(0, not_before_rig_ns=shown.pts_ns, timeout_ms=20000)
+                    return cap.image
+
+                on, px_area = table_region(cam_p, cam_size)
+                from bench.room import drop_statistics
+
+                shots, drops = {}, {}
+                for name in ("P1", "P25"):
+                    room.set_active(SUBSETS[name])
+                    room.set_occluders([])
+                    shots[(name, False)] = capture()
+                    room.set_occluders([Hand(position=(hx, hy), height=args.hand_height)])
+                    shots[(name, True)] = capture()
+                    drops[name] = room.light_drop(0)
+                    report.setdefault("light_drop", {})[name] = drop_statistics(drops[name], on, px_area)
+                room.set_occluders([])
+                room.set_active(SUBSETS["P25"])
+                _say("captured P1 and P25, without and with the hand")
+    finally:
+        room_proc.terminate()
+        try:
+            room_proc.wait(10)
+        except subprocess.TimeoutExpired:
+            room_proc.kill()
+        room_log.close()
+
+    # exposure: both setups are equally bright (p1 is the paper's high-luminance unit)
+    tiles = [[_label(_to8(shots[(n, h)]), f"{n}{' + hand 0.2 m' if h else ''}") for h in (False, True)] for n in ("P1", "P25")]
+    teaser = np.vstack([np.hstack(row) for row in tiles])
+    cv2.imwrite(str(out / "teaser.png"), teaser)
+    heat = np.hstack([_label(_heat(drops[n], on), f"light drop {n} (black 0 %, yellow 100 %)") for n in ("P1", "P25")])
+    cv2.imwrite(str(out / "light_drop.png"), heat)
+    report["total_s"] = round(time.monotonic() - t_start, 1)
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    lines = ["# shadowless demo", "",
+             f"Poses: {'calibrated through the camera' if args.poses == 'calibrate' else 'ground truth of the room (not calibrated)'}.",
+             f"Hand {args.hand_height:.0f} mm above the table at ({hx:.0f}, {hy:.0f}) mm.", "",
+             "| setup | max light drop | mean drop (affected) | area below 50 % (mm²) | umbra ≥ 90 % (mm²) | transition (mm) |",
+             "|---|---|---|---|---|---|"]
+    for n, s in report["light_drop"].items():
+        lines.append(f"| {n} | {s['max']:.0%} | {s['mean']:.0%} | {s['area_below_50_mm2']:.0f} | {s['umbra_mm2']:.0f} | "
+                     f"{s['transition_mm'] if s['transition_mm'] is not None else '-'} |")
+    lines += ["", "Pictures: teaser.png (P1 vs P25, without and with the hand), light_drop.png.",
+              f"Run time: {report['total_s']} s (start-up {report['startup_s']} s, alignment {report['alignment_s']} s)."]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    _say(f"results in {out}/ ({report['total_s']} s)")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    return asyncio.run(_demo(args))
