@@ -125,8 +125,10 @@ class _View:
     def __post_init__(self) -> None:
         self.surf = np.flatnonzero(self.kind.reshape(-1) != NOTHING)
         # Surface-only copies, contiguous, for the per-projector precomputation.
-        self.s_points = np.ascontiguousarray(self.points.reshape(-1, 3)[self.surf])
-        self.s_normals = np.ascontiguousarray(self.normals.reshape(-1, 3)[self.surf])
+        flat_p = self.points.reshape(-1, 3)
+        flat_n = self.normals.reshape(-1, 3)
+        self.s_points = tuple(np.ascontiguousarray(flat_p[self.surf, k]) for k in range(3))
+        self.s_normals = tuple(np.ascontiguousarray(flat_n[self.surf, k]) for k in range(3))
         self.s_albedo = self.albedo.reshape(-1)[self.surf]
         self.s_cam_area = self.cam_area.reshape(-1)[self.surf]
         self.scratch = np.empty((*self.kind.shape, 3), np.float32)
@@ -525,7 +527,8 @@ class Room:
         if self._upsample is not None:
             s = int(self._upsample)
         elif ok.any():
-            s = int(np.clip(round(float(np.median(np.sqrt(proj_area[ok] / cam_area[ok])))), 1, 4))
+            some = np.flatnonzero(ok)[:: max(1, int(ok.sum()) // 20000)]  # a sample is plenty for a median
+            s = int(np.clip(round(float(np.median(np.sqrt(proj_area[some] / cam_area[some])))), 1, 4))
         else:
             s = 1
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -540,7 +543,9 @@ class Room:
         lit = (depth > 0) & (e > 0) & (u > -0.5 - margin) & (u < w - 0.5 + margin) & (v > -0.5 - margin) & (v < h - 0.5 + margin)
         if self.scene.mesh is not None and lit.any():
             idx = np.flatnonzero(lit)
-            lit[idx[self._mesh_shadowed(spec.slot, pts[idx], nrm[idx])]] = False
+            sub_p = np.column_stack([a[idx] for a in pts])
+            sub_n = np.column_stack([a[idx] for a in nrm])
+            lit[idx[self._mesh_shadowed(spec.slot, sub_p, sub_n)]] = False
         # Blur levels: one if the blur hardly varies, else a blend of two ladder levels per pixel.
         sl = sigma[lit]
         if len(sl) == 0 or float(sl.max() - sl.min()) <= SIGMA_TOLERANCE:
@@ -573,7 +578,9 @@ class Room:
         alpha_map = roi_map(np.where(lit, alpha, 0.0), 0.0, np.float32)
         coef = _blend_coefficients(weight, lo_map, alpha_map, len(sigmas), three=n_roi <= _COEF3_LIMIT)
         lit_roi = surf[lit]
-        uv = np.column_stack([u[lit], v[lit]]).astype(np.float32)
+        uv = np.empty((len(lit_roi), 2), np.float32)
+        uv[:, 0] = u[lit]
+        uv[:, 1] = v[lit]
         order, starts, tiles, tile_dirs, tile_ang = _tile_index(uv, dev)
         return _Plan(s, pad, sigmas, mapx, mapy, weight, lo_map, alpha_map, coef, lit_roi, order, starts, tiles, uv, tile_dirs, tile_ang)
 
@@ -718,29 +725,67 @@ class Room:
 # ---------------------------------------------------------------- helpers
 
 
-def _geometry(dev: Pinhole, pts: np.ndarray, nrm: np.ndarray, *, falloff: float) -> dict[str, np.ndarray]:
-    """Per-point projection and photometry of one device, component-wise for speed.
+def _soa(a) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, z) component arrays of (n, 3) points or of a tuple of three arrays."""
+    if isinstance(a, tuple):
+        return a
+    return a[:, 0], a[:, 1], a[:, 2]
 
+
+def _affine_row(row: np.ndarray, X: np.ndarray, Y: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    out = row[0] * X
+    out += row[1] * Y
+    out += row[2] * Z
+    out += row[3]
+    return out
+
+
+def _geometry(dev: Pinhole, pts, nrm, *, falloff: float) -> dict[str, np.ndarray]:
+    """Per-point projection and photometry of one device, component-wise and in place for speed.
+
+    ``pts``, ``nrm``: (n, 3) arrays or (x, y, z) tuples of (n,) arrays.
     Returns u, v (pixels), depth (mm along the axis), distance (mm), irradiance
     (:func:`sim.optics.irradiance_factor`) and area (:func:`sim.geometry.pixel_footprint_area`).
     """
     P = dev._P
-    X, Y, Z = pts[:, 0], pts[:, 1], pts[:, 2]
-    hx = P[0, 0] * X + P[0, 1] * Y + P[0, 2] * Z + P[0, 3]
-    hy = P[1, 0] * X + P[1, 1] * Y + P[1, 2] * Z + P[1, 3]
-    hz = P[2, 0] * X + P[2, 1] * Y + P[2, 2] * Z + P[2, 3]
+    X, Y, Z = _soa(pts)
+    NX, NY, NZ = _soa(nrm)
+    hz = _affine_row(P[2], X, Y, Z)
     c = dev.center
-    vx, vy, vz = c[0] - X, c[1] - Y, c[2] - Z
-    d2 = vx * vx + vy * vy + vz * vz
+    vx = c[0] - X
+    vy = c[1] - Y
+    vz = c[2] - Z
+    d2 = vx * vx
+    d2 += vy * vy
+    d2 += vz * vz
     d = np.sqrt(d2)
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = hx / hz
-        v = hy / hz
-        cos_t = (nrm[:, 0] * vx + nrm[:, 1] * vy + nrm[:, 2] * vz) / d
+        u = _affine_row(P[0], X, Y, Z)
+        u /= hz
+        v = _affine_row(P[1], X, Y, Z)
+        v /= hz
+        cos_t = NX * vx
+        cos_t += NY * vy
+        cos_t += NZ * vz
+        cos_t /= d
         cos_a = hz / d  # depth / distance (K's last row is (0, 0, 1))
         valid = (cos_t > 0) & (cos_a > 1e-6)
-        e = np.where(valid, cos_t * cos_a ** (falloff - 3.0) * (REFERENCE_DISTANCE_MM * REFERENCE_DISTANCE_MM) / d2, 0.0)
-        area = np.where(valid, d2 * cos_a**3 / (dev.K[0, 0] * dev.K[1, 1] * cos_t), np.inf)
+        k = falloff - 3.0
+        if k == -2.0:
+            e = 1.0 / (cos_a * cos_a)
+        elif k == -3.0:
+            e = 1.0 / (cos_a * cos_a * cos_a)
+        else:
+            e = np.power(cos_a, k)
+        e *= cos_t
+        e *= REFERENCE_DISTANCE_MM * REFERENCE_DISTANCE_MM
+        e /= d2
+        e[~valid] = 0.0
+        area = cos_a * cos_a * cos_a
+        area *= d2
+        area /= dev.K[0, 0] * dev.K[1, 1]
+        area /= cos_t
+        area[~valid] = np.inf
     return {"u": u, "v": v, "depth": hz, "distance": d, "irradiance": e, "area": area}
 
 
@@ -779,8 +824,11 @@ def _tile_index(uv: np.ndarray, dev: Pinhole) -> tuple[np.ndarray, np.ndarray, t
     origin = -4.0 * T
     ntx = int(math.ceil((w - origin + 4 * T) / T))
     nty = int(math.ceil((h - origin + 4 * T) / T))
-    tx = np.clip(((uv[:, 0] - origin) // T).astype(np.int64), 0, ntx - 1)
-    ty = np.clip(((uv[:, 1] - origin) // T).astype(np.int64), 0, nty - 1)
+    # Truncation equals floor for the non-negative values that survive the clamp below.
+    tx = ((uv[:, 0] - origin) * (1.0 / T)).astype(np.int32)
+    ty = ((uv[:, 1] - origin) * (1.0 / T)).astype(np.int32)
+    np.clip(tx, 0, ntx - 1, out=tx)
+    np.clip(ty, 0, nty - 1, out=ty)
     tid = ty * ntx + tx
     # A stable sort of small integers is a radix sort in numpy: linear time.
     order = np.argsort(tid.astype(np.uint16) if ntx * nty < 65536 else tid, kind="stable").astype(np.int32)

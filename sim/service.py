@@ -35,6 +35,9 @@ DEFAULT_PORT = 50070
 #: Default wait of a Capture for late frames.
 DEFAULT_CAPTURE_TIMEOUT_MS = 2000
 
+#: A node without an open stream still counts as streaming this long after its last frame (s).
+RECENT_S = 10.0
+
 
 @dataclass(frozen=True)
 class _Shown:
@@ -76,6 +79,7 @@ class RoomService(room_pb2_grpc.RoomServicer):
         self._latest: dict[str, _Shown] = {}  # what arrived (loop thread)
         self._shown: dict[str, _Shown] = {}  # what the room shows (worker thread)
         self._streams: dict[str, int] = {}
+        self._arrived: dict[str, float] = {}  # slot -> monotonic s of its last frame
         self._changed: asyncio.Condition | None = None
         self.frames_received = 0
 
@@ -95,7 +99,9 @@ class RoomService(room_pb2_grpc.RoomServicer):
             self._shown[slot] = shown
 
     def streaming_slots(self) -> set[str]:
-        return {s for s, n in self._streams.items() if n > 0} | set(self._latest)
+        """Slots whose node streams frames: an open Display stream, or a frame in the last :data:`RECENT_S` s."""
+        now = time.monotonic()
+        return {s for s, n in self._streams.items() if n > 0} | {s for s, t in self._arrived.items() if now - t < RECENT_S}
 
     # ---------------------------------------------------------------- RPCs
 
@@ -149,6 +155,7 @@ class RoomService(room_pb2_grpc.RoomServicer):
                 with self._pending_lock:
                     self._pending[msg.slot] = (image, shown)
                 self._latest[msg.slot] = shown
+                self._arrived[msg.slot] = time.monotonic()
                 accepted += 1
                 self.frames_received += 1
                 async with cond:
