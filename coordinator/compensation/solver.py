@@ -594,17 +594,24 @@ def _lbfgsb(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, tol: float, 
 
     shape = x.shape
     history: list[float] = []
-    state = {"k": 0, "reason": None}
+    state: dict[str, Any] = {"k": 0, "reason": None}
+    r0 = op.matvec(x, pool=pool) - c
+    f0 = _dot(r0, r0)
+    history.append(f0)
+    if max_iter == 0 or f0 <= 0:
+        return SolveResult(x=x, objective=f0, iterations=0, converged=f0 <= 0,
+                           reason="optimal" if f0 <= 0 else "max_iter", history=history)
+    scale = 1.0 / f0  # L-BFGS-B's ftol is absolute below 1: work on f / f0
 
     def fun(v: np.ndarray) -> tuple[float, np.ndarray]:
         xv = v.astype(np.float32).reshape(shape)
         r = op.matvec(xv, pool=pool) - c
         g = op.rmatvec(r, pool=pool)
-        return _dot(r, r), (2.0 * g).astype(np.float64).reshape(-1)
+        return _dot(r, r) * scale, (2.0 * scale) * g.astype(np.float64).reshape(-1)
 
     def callback(intermediate_result: Any) -> None:
         state["k"] += 1
-        fk = float(intermediate_result.fun)
+        fk = float(intermediate_result.fun) / scale
         history.append(fk)
         if progress is not None:
             progress(state["k"], fk)
@@ -612,17 +619,23 @@ def _lbfgsb(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, tol: float, 
             state["reason"] = "time_limit"
             raise StopIteration
 
-    f0, _ = fun(x.reshape(-1).astype(np.float64))
-    history.append(f0)
-    if max_iter == 0:
-        return SolveResult(x=x, objective=f0, iterations=0, converged=False, reason="max_iter", history=history)
+    # projected gradient (infinity norm) at the start, for the relative pg_tol
+    g0 = 2.0 * scale * op.rmatvec(r0, pool=pool).astype(np.float64)
+    pg0 = float(np.abs(np.clip(x - g0, 0, 1) - x).max())
     res = minimize(fun, x.reshape(-1).astype(np.float64), jac=True, method="L-BFGS-B", bounds=[(0.0, 1.0)] * x.size,
-                   callback=callback, options={"maxiter": max_iter, "ftol": max(tol, 1e-15), "gtol": max(pg_tol, 0.0) * 1e-3,
-                                               "maxcor": 10})
+                   callback=callback, options={"maxiter": max_iter, "ftol": max(tol, 1e-15),
+                                               "gtol": max(pg_tol * pg0, 1e-300), "maxcor": 10})
     xs = np.clip(res.x, 0, 1).astype(np.float32).reshape(shape)
     f = objective(op, xs, c)
-    reason = state["reason"] or ("max_iter" if res.nit >= max_iter else ("objective" if res.success else "stalled"))
-    return SolveResult(x=xs, objective=f, iterations=int(res.nit), converged=bool(res.success) and state["reason"] is None,
+    if state["reason"]:
+        reason = state["reason"]
+    elif res.nit >= max_iter:
+        reason = "max_iter"
+    elif res.success:
+        reason = "gradient" if "PROJ_GRAD" in str(res.message) else "objective"
+    else:
+        reason = "stalled"
+    return SolveResult(x=xs, objective=f, iterations=int(res.nit), converged=bool(res.success) and not state["reason"],
                        reason=reason, history=history)
 
 

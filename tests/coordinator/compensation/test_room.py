@@ -1,0 +1,78 @@
+"""The compensation numerics on the virtual room: response/LUT of a projector and its light transport.
+
+The room is an independent physical simulation; its ground truth (response gamma, transport
+matrix) is read only here, to check what the numerics recover from captures.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coordinator.compensation import (
+    DotGrid,
+    apply_lut,
+    fit_response,
+    grey_levels,
+    inverse_lut,
+    measure_response,
+    measure_transport,
+    response_mask,
+    transport_error,
+    verify_linearity,
+)
+
+from sim import room as sim_room
+from sim import scene as sim_scene
+
+SLOT = "r1c3"
+
+
+@pytest.fixture(scope="module")
+def room():
+    room = sim_room.Room(sim_scene.reference_scene(projector_scale=0.125, camera_scale=0.125), noise=False)
+    room.set_active([SLOT])
+    return room
+
+
+def show(room, frame: np.ndarray, exposure: float) -> np.ndarray:
+    room.set_frame(SLOT, frame)
+    return room.capture(exposure=exposure)
+
+
+def test_response_lut_and_linearity_in_the_room(room):
+    w, h = room.projector_size(SLOT)
+    exposure = 20 * room.truth.camera().exposure  # one projector of 25: open up the camera
+    levels = grey_levels(17)
+    caps = [show(room, np.full((h, w, 3), round(255 * v), np.uint8), exposure) for v in levels]
+    mask = response_mask(caps[-1], caps[0])
+    assert mask.mean() > 0.05
+    resp = fit_response(levels, measure_response(caps, mask=mask))
+    truth = room.truth.projector(SLOT)
+    assert np.allclose(resp.gamma, truth.gamma, atol=0.01)
+    lut = inverse_lut(resp, entries=1024)
+    y = np.linspace(0, 1, 11)
+    frames = [np.broadcast_to(apply_lut(lut, np.full((1, 1, 3), v)), (h, w, 3)).copy() for v in y]
+    after = measure_response([show(room, f, exposure) for f in frames], mask=mask)
+    report = verify_linearity(y, after, tolerance=0.01)
+    assert report.linear, report
+    before = measure_response([show(room, np.full((h, w, 3), round(255 * v), np.uint8), exposure) for v in y], mask=mask)
+    assert not verify_linearity(y, before, tolerance=0.01).linear
+
+
+def test_transport_measured_in_the_room_matches_its_truth(room):
+    w, h = room.projector_size(SLOT)
+    exposure = 20 * room.truth.camera().exposure
+    # content = this projector's pixels; its pixels reach the camera through the table plane
+    h_pc = room.truth.table_to_camera_homography() @ np.linalg.inv(room.truth.table_to_projector_homography(SLOT))
+    h_pc /= h_pc[2, 2]
+    grid = DotGrid(w, h, 5)
+    black = show(room, np.zeros((h, w, 3), np.uint8), exposure)
+    caps = (show(room, np.repeat(grid.pattern(k, value=255, dtype=np.uint8)[:, :, None], 3, axis=2), exposure)
+            for k in range(len(grid)))
+    measured = measure_transport(caps, black, grid=grid, homography=h_pc, radius=2)
+    truth = room.truth.projector(SLOT)
+    # the truth maps emitted luminance; the dots emit 1 - black above the black frame
+    expected = room.truth.transport(SLOT) * (exposure / room.truth.camera().exposure) * float(np.mean(1 - truth.black))
+    assert measured.shape == expected.shape
+    err = transport_error(measured, expected)
+    assert err < 0.01, err  # sensor quantisation only
