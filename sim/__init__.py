@@ -2,8 +2,24 @@
 
 Nothing outside ``sim/`` imports this package except tests, benchmarks and the
 demo wiring; the coordinator only sees the room through its gRPC camera
-(``room://HOST:PORT``). Entry points::
+(``room://HOST:PORT``) and nodes through ``--output room://HOST:PORT``.
+
+Modules
+-------
+geometry   pinhole devices (K, R, t, look-at, projection, rays, GL projection)
+optics     projector response, pixel footprint + defocus kernels, irradiance, camera sensor
+mesh       OBJ/PLY reading and writing, the procedural bust
+occluders  analytic solids with exact ray tests, the hand with forearm, hand paths
+scene      projectors, cameras, table, mesh; the paper's 5x5 rig; subsets P1 ... P25; layout files
+raster     moderngl (EGL) rasterisation: camera G-buffers and projector depth maps of meshes
+room       the Room: precomputation per camera and projector, fast linear captures
+truth      ground truth: poses, homographies, correspondences, light transport, light drop
+service    the Room and RoomTruth gRPC services; client: a synchronous client; wire: messages
+cli        ``shadowless room``
+
+Entry points::
 
     from sim.scene import reference_scene, load_layout, SUBSETS
     from sim.room import Room
+    from sim.occluders import Hand, HandPath, Box
 """

@@ -189,6 +189,7 @@ class Pinhole:
     t: np.ndarray
     size: tuple[int, int]
     _P: np.ndarray = field(init=False, repr=False)
+    _center: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=np.float64)
@@ -206,6 +207,7 @@ class Pinhole:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "size", (w, h))
         object.__setattr__(self, "_P", projection_matrix(K, R, t))
+        object.__setattr__(self, "_center", -R.T @ t)
 
     @property
     def P(self) -> np.ndarray:
@@ -215,7 +217,7 @@ class Pinhole:
     @property
     def center(self) -> np.ndarray:
         """(3,) float64 optical centre in world mm."""
-        return -self.R.T @ self.t
+        return self._center.copy()
 
     @property
     def axis(self) -> np.ndarray:

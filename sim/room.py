@@ -610,7 +610,7 @@ class Room:
             return _Dynamic(key, prims, {}, empty, empty, np.zeros((0, 3)), np.zeros((0, 3)))
         # 1. Camera pixels that see an occluder: rays over the projected boxes of the primitives.
         mask = np.zeros((H, W), bool)
-        boxes = [[_projected_bbox(cam, c, r) for c, r in prim.cull_spheres()] for prim in prims]
+        boxes = [_projected_bboxes(cam, prim.cull_spheres()) for prim in prims]
         for prim_boxes in boxes:
             for bb in prim_boxes:
                 if bb is None:
@@ -689,7 +689,7 @@ class Room:
             blocked = np.zeros(len(idx), bool)
             for prim in dyn.primitives:
                 # Only points whose projector pixel lies in the primitive's projected boxes can be hidden by it.
-                sel = np.flatnonzero(_in_boxes(u[idx], v[idx], [_projected_bbox(dev, c, r) for c, r in prim.cull_spheres()]))
+                sel = np.flatnonzero(_in_boxes(u[idx], v[idx], _projected_bboxes(dev, prim.cull_spheres())))
                 if len(sel) == 0:
                     continue
                 d = vec[sel]
@@ -849,17 +849,17 @@ def _cone_candidates(plan: _Plan, dev: Pinhole, spheres) -> np.ndarray:
     """
     ntx, nty, origin, T = plan.tiles
     marked = np.zeros((nty, ntx), bool)
-    for center, radius in spheres:
-        q = np.asarray(center, np.float64) - dev.center
-        D = float(np.linalg.norm(q))
-        bb = _projected_bbox(dev, center, radius)
+    c0 = dev._center
+    for (center, radius), bb in zip(spheres, _projected_bboxes(dev, spheres)):
+        q = np.asarray(center, np.float64) - c0
+        D = math.sqrt(float(q @ q))
         if D <= radius * 1.001 or bb is None:
             return plan.order.astype(np.int64)
         u0, v0, u1, v1 = bb
-        tx0 = int(np.clip((u0 - origin) // T - 1, 0, ntx - 1))
-        tx1 = int(np.clip((u1 - origin) // T + 1, 0, ntx - 1))
-        ty0 = int(np.clip((v0 - origin) // T - 1, 0, nty - 1))
-        ty1 = int(np.clip((v1 - origin) // T + 1, 0, nty - 1))
+        tx0 = min(max(int((u0 - origin) // T) - 1, 0), ntx - 1)
+        tx1 = min(max(int((u1 - origin) // T) + 1, 0), ntx - 1)
+        ty0 = min(max(int((v0 - origin) // T) - 1, 0), nty - 1)
+        ty1 = min(max(int((v1 - origin) // T) + 1, 0), nty - 1)
         sub = plan.tile_dirs[ty0 : ty1 + 1, tx0 : tx1 + 1]
         limit = math.cos(min(math.pi, math.asin(min(1.0, radius / D)) + plan.tile_ang))
         near = (sub @ (q / D)) >= limit
@@ -900,6 +900,21 @@ def _in_boxes(x: np.ndarray, y: np.ndarray, boxes) -> np.ndarray:
             return np.ones(np.shape(x), bool)
         out |= (x >= bb[0] - 1) & (x <= bb[2] + 1) & (y >= bb[1] - 1) & (y <= bb[3] + 1)
     return out
+
+
+_CUBE = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
+
+
+def _projected_bboxes(device: Pinhole, spheres) -> list:
+    """:func:`_projected_bbox` of many spheres at once."""
+    centers = np.array([c for c, _ in spheres], np.float64)
+    radii = np.array([r for _, r in spheres], np.float64)
+    corners = centers[:, None, :] + radii[:, None, None] * _CUBE  # (S, 8, 3)
+    pix, z = device.project(corners)
+    lo = pix.min(axis=1)
+    hi = pix.max(axis=1)
+    behind = np.any(z <= 1.0, axis=1)
+    return [None if behind[k] else (float(lo[k, 0]), float(lo[k, 1]), float(hi[k, 0]), float(hi[k, 1])) for k in range(len(spheres))]
 
 
 def _projected_bbox(device: Pinhole, center: np.ndarray, radius: float):
