@@ -234,18 +234,27 @@ def _table_corners(size, grow: float) -> np.ndarray:
 
 
 def auto_gain(projectors, camera: Pinhole, *, albedo: float, level: float = TARGET_LEVEL) -> float:
-    """Camera gain for which the powered projectors at full white reach ``level`` where the camera's axis meets z = 0."""
+    """Camera gain for which the powered projectors at full white reach ``level`` on the camera's axis.
+
+    The reference point is where the axis meets the table plane z = 0 (a
+    horizontal surface); for a camera that does not look down, a surface
+    facing the camera 1 m along its axis.
+    """
     c = camera.center
     a = camera.axis
-    if a[2] >= -1e-9:
-        raise LayoutError("the camera must look down towards the table plane")
-    point = c + (-c[2] / a[2]) * a
+    if a[2] < -1e-9 and c[2] > 0:
+        point, normal = c + (-c[2] / a[2]) * a, np.array([0.0, 0.0, 1.0])
+    else:
+        point, normal = c + 1000.0 * a, -a
     total = 0.0
     for p in projectors:
         if p.powered:
-            total += p.peak * float(irradiance_factor(p.native.center, p.native.axis, point, np.array([0.0, 0.0, 1.0]), falloff=p.falloff))
+            total += p.peak * float(irradiance_factor(p.native.center, p.native.axis, point, normal, falloff=p.falloff))
     if total <= 0:
-        raise LayoutError("no powered projector lights the point on the camera's axis; cannot set the exposure")
+        raise LayoutError(
+            f"no powered projector lights the point on the camera's axis ({point.round(1).tolist()} mm); "
+            "aim a projector there or give the camera an explicit gain"
+        )
     return level / (albedo * total)
 
 
@@ -371,6 +380,7 @@ def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale
         resolution = [2592, 1944]
         focal_px = 2645
         exposure = 1.0              # relative to the automatic exposure
+        gain = 0.088                # optional: absolute signal per albedo x irradiance (replaces the automatic one)
         full_well = 10000
         read_noise = 2.5
         bits = 12
@@ -475,7 +485,7 @@ def _scene_from_doc(doc: dict, *, base: Path, projector_scale: float, camera_sca
         principal = tuple(_vec(e, "principal", 2, ((res[0] - 1) / 2, (res[1] - 1) / 2), where=where))
         native = _device(pos, target, up, res, focal, principal)
         albedo = table.albedo if table is not None else mesh_albedo
-        gain = auto_gain(projectors, native, albedo=albedo)
+        gain = float(e["gain"]) if "gain" in e else auto_gain(projectors, native, albedo=albedo)
         sensor = Sensor(float(e.get("full_well", 10000.0)), float(e.get("read_noise", 2.5)), int(e.get("bits", 12)), float(e.get("gamma", 1.0)))
         cameras.append(CameraSpec(str(e.get("name", f"camera{i}")), native, native.scaled(_scaled_size(res, camera_scale)), gain, float(e.get("exposure", 1.0)), sensor))
     return Scene(tuple(projectors), tuple(cameras), table, mesh, mesh_albedo, source, name=str(doc.get("name", "room")))
@@ -540,6 +550,7 @@ def write_layout(scene: Scene, path: str | Path) -> None:
             f"focal_px = {fmt(n.K[0, 0])}",
             f"principal = {fmt(n.K[:2, 2])}",
             f"exposure = {fmt(c.exposure)}",
+            f"gain = {fmt(c.gain)}",
             f"full_well = {fmt(c.sensor.full_well)}",
             f"read_noise = {fmt(c.sensor.read_noise)}",
             f"bits = {fmt(c.sensor.bits)}",
