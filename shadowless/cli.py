@@ -20,6 +20,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "play": ("coordinator.operator", "play a sequence of images, or a generated test sequence"),
     "configure": ("coordinator.operator", "set a slot's pose, LUT, gain or output size by hand"),
     "local": ("coordinator.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
+    "calibrate": ("coordinator.calibration.cli", "calibrate the projectors with the camera (poses pushed to the nodes)"),
+    "alignment": ("coordinator.calibration.cli", "measure each projector's residual misalignment; heat map over the table"),
     "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
     "demo": ("sim.demo", "the whole rig in the virtual room: what `make demo` runs"),
     "bench": ("bench.cli", "benchmarks that print JSON (sync, room, calibration, compensation)"),

@@ -56,8 +56,13 @@ def residuals(table_to_projector: np.ndarray, table_to_camera: np.ndarray, measu
 
 
 def heatmap(points_mm: dict[str, np.ndarray], values: dict[str, np.ndarray], *, table_mm: tuple[float, float],
-            width: int = 600) -> np.ndarray:
+            width: int = 600, step: int = 4) -> np.ndarray:
     """Largest residual of any projector at each point of the table, interpolated between the dots.
+
+    Each projector's residuals are interpolated linearly inside its dots' hull
+    (Delaunay, ``scipy.interpolate.LinearNDInterpolator``) and extended with
+    the nearest dot's value outside it, on a grid ``step`` times coarser than
+    the map (the field is smooth at the dot spacing), then upsampled.
 
     Parameters
     ----------
@@ -68,30 +73,37 @@ def heatmap(points_mm: dict[str, np.ndarray], values: dict[str, np.ndarray], *, 
 
     Returns
     -------
-    (h, width) float32; NaN where no projector has dots around.
+    (h, width) float32; NaN where no projector has dots.
     Row 0 is the table's +y edge, like the content image.
     """
-    from scipy.interpolate import griddata
+    import cv2
+    from scipy.interpolate import LinearNDInterpolator
+    from scipy.spatial import QhullError, cKDTree
 
     tw, th = table_mm
     height = max(2, int(round(width * th / tw)))
-    xs = (np.arange(width) + 0.5) / width * tw - tw / 2
-    ys = th / 2 - (np.arange(height) + 0.5) / height * th
-    gx, gy = np.meshgrid(xs, ys)
-    out = np.full((height, width), np.nan, np.float32)
+    cw, ch = max(2, width // step), max(2, height // step)
+    xs = (np.arange(cw) + 0.5) / cw * tw - tw / 2
+    ys = th / 2 - (np.arange(ch) + 0.5) / ch * th
+    q = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    out = np.full(len(q), np.nan, np.float32)
     for slot, pts in points_mm.items():
-        v = values[slot]
-        if len(pts) < 3:
+        v = np.asarray(values[slot], np.float64)
+        if len(pts) == 0:
             continue
-        try:
-            lin = griddata(pts, v, (gx, gy), method="linear")
-        except Exception:  # qhull refuses degenerate (collinear) point sets
-            lin = np.full(gx.shape, np.nan)
-        near = griddata(pts, v, (gx, gy), method="nearest")
-        # beyond the dots' hull, extend the nearest value (projector edges are where misalignment shows first)
-        grid = np.where(np.isfinite(lin), lin, near).astype(np.float32)
-        out = np.fmax(out, grid)
-    return out
+        grid = v[cKDTree(pts).query(q)[1]]
+        if len(pts) >= 3:
+            try:
+                lin = LinearNDInterpolator(pts, v)(q)
+                grid = np.where(np.isfinite(lin), lin, grid)
+            except QhullError:   # collinear dots: nearest values only
+                pass
+        out = np.fmax(out, grid.astype(np.float32))
+    coarse = out.reshape(ch, cw)
+    filled = np.nan_to_num(coarse, nan=0.0)
+    up = cv2.resize(filled, (width, height), interpolation=cv2.INTER_LINEAR)
+    mask = cv2.resize(np.isfinite(coarse).astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
+    return np.where(mask, up, np.nan).astype(np.float32)
 
 
 def render_heatmap(values: np.ndarray, *, full_scale: float = HEATMAP_FULL_SCALE_PX) -> bytes:

@@ -510,8 +510,14 @@ async def _pose_cameras_and_mesh(ctx, setup: CameraSetup, opts: Options, world_s
     for i, sets in world_sets.items():
         if not sets:
             continue
+        K = opts.intrinsics.get(i)
+        own = [s for s in model_sets if s.camera == i]
         try:
-            fit = await ctx.compute(threed.pose_camera, sets, setup.sizes[i], K=opts.intrinsics.get(i))
+            if K is None and all(s.planar for s in sets) and sum(len(s) for s in own) >= 8:
+                # table points alone rarely fix a ceiling camera's focal length; the object's landmarks
+                # (not coplanar, in its own frame) calibrate the intrinsics, the table then poses the camera
+                K = (await ctx.compute(threed.pose_camera, own, setup.sizes[i])).device.K
+            fit = await ctx.compute(threed.pose_camera, sets, setup.sizes[i], K=K)
         except CalibrationError as exc:
             raise JobError(f"camera {i}: {exc}") from exc
         setup.devices[i] = fit.device
@@ -523,8 +529,12 @@ async def _pose_cameras_and_mesh(ctx, setup: CameraSetup, opts: Options, world_s
     if model_sets:
         try:
             R, t, rms = await ctx.compute(threed.register_mesh, model_sets, setup.devices)
+            world_all = [s for sets in world_sets.values() for s in sets]
+            devices, R, t, rms = await ctx.compute(threed.refine_scene, setup.devices, world_all, model_sets, R, t,
+                                                   fixed_intrinsics=set(opts.intrinsics))
         except CalibrationError as exc:
             raise JobError(str(exc)) from exc
+        setup.devices.update(devices)
         mesh = mesh.transformed(R, t)
         setup.mesh_rms = rms
         ctx.log(f"mesh registered from {sum(len(s) for s in model_sets)} landmarks (rms {rms:.2f} px)")

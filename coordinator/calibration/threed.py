@@ -38,6 +38,9 @@ from coordinator.calibration.points import PointSet
 SHADERS = Path(__file__).resolve().parent / "shaders"
 TABLE, MESH = 1, 2
 
+#: A camera posed from table points alone (unknown intrinsics) must view the table at least this obliquely.
+MIN_TILT_DEG = 25.0
+
 
 # ---------------------------------------------------------------------- meshes
 @dataclass(frozen=True, eq=False)
@@ -486,7 +489,8 @@ def pose_camera(sets: list[PointSet], size: tuple[int, int], *, K: np.ndarray | 
         Without it: non-coplanar points give a full calibration (DLT, then
         ``cv2.calibrateCamera``); coplanar points (the table alone) give the
         focal length with the principal point at the image centre and square
-        pixels (Zhang's constraints for a single view).
+        pixels (Zhang's constraints for a single view), which needs an oblique
+        view (at least :data:`MIN_TILT_DEG`), else :class:`CalibrationError`.
     """
     import cv2
 
@@ -503,11 +507,14 @@ def pose_camera(sets: list[PointSet], size: tuple[int, int], *, K: np.ndarray | 
         R, _ = cv2.Rodrigues(rvec)
         dev = Pinhole(np.asarray(K, np.float64), R, tvec.reshape(3), size)
     elif planar:
-        if len(X) < 4:
-            raise CalibrationError("need at least 4 table points to pose a camera")
         f0 = _focal_from_plane(X[:, :2], x, size)
         K0 = np.array([[f0, 0, (w - 1) / 2], [0, f0, (h - 1) / 2], [0, 0, 1.0]])
         dev = _refine(X, x, size, K0, principal=False, aspect=False)
+        tilt = math.degrees(math.acos(min(1.0, abs(float(dev.R[2] @ [0.0, 0.0, 1.0])))))
+        if tilt < MIN_TILT_DEG:
+            raise CalibrationError(
+                f"the camera looks almost straight at the table (tilted {tilt:.0f} deg): its focal length cannot be "
+                "measured from table points alone; add landmarks on the object, or give the camera's intrinsics")
     else:
         if len(X) < 6:
             raise CalibrationError(f"need at least 6 non-coplanar points to calibrate a camera, got {len(X)}")
@@ -587,6 +594,65 @@ def register_mesh(sets: list[PointSet], cameras: dict[int, Pinhole], *, threshol
     R, _ = cv2.Rodrigues(sol.x[:3])
     r = resid(sol.x).reshape(-1, 2)
     return R, sol.x[3:].copy(), float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
+
+
+def refine_scene(cameras: dict[int, Pinhole], world: list[PointSet], model: list[PointSet], R: np.ndarray,
+                 t: np.ndarray, *, fixed_intrinsics: set[int] = frozenset(), scale: float = 1.0) -> tuple[dict[int, Pinhole], np.ndarray, np.ndarray, float]:
+    """Joint least squares over every camera (focal length, principal point, pose) and the mesh's
+    model -> world transform, from world points (table, world landmarks) and model landmarks together.
+
+    Staged estimates (:func:`pose_camera`, then :func:`register_mesh`) leave the camera's pose poorly
+    fixed when its world points lie on the table (rotation and translation trade off for a plane seen
+    from above); the landmarks' depth fixes what the table cannot, and the table fixes where the
+    object stands. Robust (soft L1, ``scale`` px) so a mis-clicked point does not pull the solution.
+
+    Returns
+    -------
+    cameras (refined), R (3, 3), t (3,) with ``world = R model + t``, and the rms reprojection error (px)
+    """
+    import cv2
+    from scipy.optimize import least_squares
+
+    ids = sorted(cameras)
+    free = [i for i in ids if i not in fixed_intrinsics]
+
+    def unpack(p):
+        out, k = {}, 0
+        for i in ids:
+            K = cameras[i].K.copy()
+            if i in free:
+                K[0, 0] = K[1, 1] = p[k]
+                K[0, 2], K[1, 2] = p[k + 1], p[k + 2]
+                k += 3
+            Rc, _ = cv2.Rodrigues(p[k:k + 3])
+            out[i] = Pinhole(K, Rc, p[k + 3:k + 6], cameras[i].size)
+            k += 6
+        Rm, _ = cv2.Rodrigues(p[k:k + 3])
+        return out, Rm, p[k + 3:k + 6]
+
+    p0 = []
+    for i in ids:
+        c = cameras[i]
+        if i in free:
+            p0 += [0.5 * (c.K[0, 0] + c.K[1, 1]), c.K[0, 2], c.K[1, 2]]
+        p0 += list(cv2.Rodrigues(c.R)[0].ravel()) + list(c.t)
+    p0 += list(cv2.Rodrigues(np.asarray(R, np.float64))[0].ravel()) + list(np.asarray(t, np.float64).ravel())
+
+    def resid(p):
+        cams, Rm, tm = unpack(p)
+        out = []
+        for s in world:
+            if s.camera in cams:
+                out.append((cams[s.camera].project(s.xyz)[0] - s.pixels).ravel())
+        for s in model:
+            if s.camera in cams:
+                out.append((cams[s.camera].project(s.xyz @ Rm.T + tm)[0] - s.pixels).ravel())
+        return np.concatenate(out)
+
+    sol = least_squares(resid, np.asarray(p0, np.float64), loss="soft_l1", f_scale=scale, x_scale="jac")
+    cams, Rm, tm = unpack(sol.x)
+    r = resid(sol.x).reshape(-1, 2)
+    return cams, Rm, tm, float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
 
 
 # ---------------------------------------------------------------------- ray casting
