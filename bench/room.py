@@ -17,8 +17,12 @@ Prints one JSON document:
   - ``area_below_50_mm2``: table area left with less than 50 % of its light;
   - ``umbra_mm2``: table area that lost at least 90 % (the umbra);
   - ``transition_mm``: how far one travels from the 10 %-of-max contour to the
-    region within 90 % of the max (median over the contour): a hard shadow edge
-    gives about a camera pixel (~2 mm), a synthetic-aperture shadow tens of mm;
+    region within 90 % of the max (median over the contour). 0 means the drop
+    jumps from under 10 % to over 90 % of its max between neighbouring camera
+    pixels (~2 mm): a hard edge; a synthetic-aperture shadow fades in over tens
+    of mm or more. The map is geometric (pinhole visibility): lens blur and the
+    projector pixel's footprint soften any real edge by about one projector
+    pixel more (~4 mm at the default scale);
   - ``max_step``: largest drop difference between neighbouring camera pixels
     (1.0 = a black shadow right next to full light).
 

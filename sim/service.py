@@ -383,6 +383,7 @@ class RoomServerThread:
             loop.run_forever()
             loop.run_until_complete(self.server.stop(0.5))
             loop.run_until_complete(loop.shutdown_asyncgens())
+            loop.run_until_complete(loop.shutdown_default_executor())
             loop.close()
 
         self._thread = threading.Thread(target=main, name="room-server", daemon=True)
