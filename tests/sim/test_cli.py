@@ -1,7 +1,6 @@
 """`shadowless room`: help that teaches, a real process serving on 127.0.0.1, clean shutdown."""
 from __future__ import annotations
 
-import os
 import re
 import signal
 import subprocess
