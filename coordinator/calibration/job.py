@@ -356,7 +356,7 @@ async def calibrate(ctx, params: dict) -> dict:
     sizes = {s: ctx.projector_size(s) for s in slots}
     results: dict[str, dict] = {}
     failed: dict[str, str] = {}
-    status = "failed"
+    status = "interrupted"      # resumable, like "incomplete"; only "complete" makes the next run start afresh
     try:
         dark, white_all = await _exposure(ctx, shots, slots, sizes, opts)
         setup = await _cameras(ctx, shots, slots, sizes, opts, run, dark, white_all, content_size)
@@ -746,7 +746,7 @@ def _check_dot_saturation(caps: list[np.ndarray], dec: multiplex.CodedDecode, ca
 
 # ---------------------------------------------------------------------- sequential (3D)
 def _gray_3d(decodes, surfaces, setup: CameraSetup, slot: str, size, opts: Options):
-    Xs, xs = [], []
+    Xs, xs, per_camera = [], [], {}
     for i, d in enumerate(decodes):
         if i not in surfaces:
             continue
@@ -755,6 +755,7 @@ def _gray_3d(decodes, surfaces, setup: CameraSetup, slot: str, size, opts: Optio
         ys, xx = np.nonzero(use)
         Xs.append(pts[ys, xx])
         xs.append(d.projector[ys, xx].astype(np.float64))
+        per_camera[i] = {"decoded": int(len(ys)), "on_mesh": int(np.sum(kind[ys, xx] == threed.MESH))}
     X, x = np.vstack(Xs), np.vstack(xs)
     _seen_check(slot, decodes, len(X), opts)
     fit = threed.calibrate_projector(X, x, size, seed=opts.seed)
@@ -767,7 +768,7 @@ def _gray_3d(decodes, surfaces, setup: CameraSetup, slot: str, size, opts: Optio
     keep = counts >= 3
     centre = np.column_stack([uniq % (size[0] + 1), uniq // (size[0] + 1)]).astype(np.float64)
     r = threed.residuals(fit.device, sums[keep] / counts[keep, None], centre[keep])
-    return fit, r[np.isfinite(r)], len(X)
+    return fit, r[np.isfinite(r)], len(X), per_camera
 
 
 async def _sequential_3d(ctx, shots, todo, sizes, opts, run, setup: CameraSetup, results, failed) -> None:
@@ -788,7 +789,7 @@ async def _sequential_3d(ctx, shots, todo, sizes, opts, run, setup: CameraSetup,
         try:
             white, black, caps = await _gray_captures(ctx, shots, slot, sizes[slot], opts, "gray codes")
             decodes = await ctx.compute(_decode_all, white, black, caps, sizes[slot], opts)
-            fit, r, count = await ctx.compute(_gray_3d, decodes, surfaces, setup, slot, sizes[slot], opts)
+            fit, r, count, per_camera = await ctx.compute(_gray_3d, decodes, surfaces, setup, slot, sizes[slot], opts)
             near, far = threed.depth_range(fit.device.P, setup.rig_mesh.vertices)
         except _Abort:
             raise
@@ -802,7 +803,7 @@ async def _sequential_3d(ctx, shots, todo, sizes, opts, run, setup: CameraSetup,
         pose = ProjectionPose(P, setup.rig_mesh, near_mm=near, far_mm=far)
         doc = _slot_doc(run, slot, opts, rms=float(np.sqrt(np.mean(r ** 2))) if len(r) else math.nan,
                         mx=float(r.max()) if len(r) else math.nan, points=len(r), raw_rms=fit.rms, decoded=count,
-                        inliers=fit.count, captures=shots.count - before,
+                        inliers=fit.count, captures=shots.count - before, cameras=per_camera,
                         K=fit.device.K.tolist(), center_mm=fit.device.center.tolist())
         _save_slot(ctx, slot, pose, doc)
         results[slot] = doc

@@ -313,3 +313,50 @@ def test_3d_calibration_registers_a_mesh_given_in_its_own_frame(bust_room, tmp_p
     # ... and, camera, mesh and projector being calibrated consistently, every texture point lands where it should
     rms, mx, n = mesh_vertex_errors(bust_room, "r2c2", pose.matrix, pose.mesh.vertices)
     assert n > 1000 and rms <= 1.0 and rms < 0.5, (rms, mx)
+
+
+LAYOUT = """
+name = "bust seen by two cameras"
+[table]
+size = [1200, 600]
+[mesh]
+builtin = "bust"
+[[projector]]
+slot = "front"
+position = [60, 480, 1300]
+target = [0, 0, 250]
+[[camera]]
+position = [-550, 650, 1150]
+target = [0, 0, 250]
+exposure = 0.4
+[[camera]]
+position = [550, 650, 1150]
+target = [0, 0, 250]
+exposure = 0.4
+"""
+
+
+def test_3d_calibration_pools_several_cameras(tmp_path):
+    """Three cameras in the paper; here two, on either side of the object: both feed correspondences."""
+    from sim.mesh import bust, save_mesh
+    from sim.room import Room
+    from sim.scene import load_layout
+
+    from coordinator.calibration.points import write_points
+
+    (tmp_path / "room.toml").write_text(LAYOUT)
+    room = Room(load_layout(tmp_path / "room.toml", projector_scale=0.2, camera_scale=0.2), seed=2)
+    save_mesh(bust(), tmp_path / "bust.obj")
+    write_points(tmp_path / "table.json", [s for i in (0, 1) for s in table_points_from_truth(room, camera=i, seed=i)])
+    write_points(tmp_path / "landmarks.json", [s for i in (0, 1) for s in landmarks_from_truth(room, camera=i, count=20, seed=i)])
+    rig = make_rig(tmp_path / "rig", room, ["front"])
+    result = run(calibrate(RoomJobContext(room, rig, cameras=2), {
+        "mesh": str(tmp_path / "bust.obj"), "table_points": str(tmp_path / "table.json"),
+        "landmarks": str(tmp_path / "landmarks.json"), "settle_s": 0}))
+    per_camera = result["slots"]["front"]["cameras"]
+    assert set(per_camera) == {0, 1} and all(c["on_mesh"] > 1000 for c in per_camera.values()), per_camera
+    assert [c["camera"] for c in result["camera_setup"]] == [0, 1]
+    P = rig.slot("front").pose.matrix
+    for cam in (0, 1):
+        rms, mx, n = mesh_errors(room, "front", P, camera=cam)
+        assert n > 1000 and rms < 0.5, (cam, rms, mx)
