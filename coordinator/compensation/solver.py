@@ -500,7 +500,7 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
         if why is not None:
             reason = why
             break
-    # x_cur = x_{k}, its objective f; restore y-state is not needed
+    # x_cur holds the last iterate and f its objective (the extrapolated point y is discarded)
     return SolveResult(x=x_cur, objective=f, iterations=k, converged=reason in ("gap", "objective", "gradient", "optimal"),
                        reason=reason, history=stop.history, gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
