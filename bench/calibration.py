@@ -186,6 +186,24 @@ def landmarks_from_truth(room, path: Path | None = None, *, camera: int = 0, cou
     return sets
 
 
+def board_albedo(room, spec, *, camera: int = 0, supersample: int = 4, px_per_mm: int = 2) -> np.ndarray:
+    """(H, W) float32 albedo factor a camera sees when a ChArUco board lies on the table: the board image
+    mapped through the true table -> camera homography, integrated over each camera pixel (supersampled),
+    black squares reflecting 8 % of what white ones do."""
+    import cv2
+
+    board_img = spec.board().generateImage((round(spec.squares_x * spec.square_mm * px_per_mm),
+                                            round(spec.squares_y * spec.square_mm * px_per_mm)), marginSize=0)
+    ss, ppm = supersample, px_per_mm
+    S = np.array([[1 / ppm, 0, 0.5 / ppm], [0, 1 / ppm, 0.5 / ppm], [0, 0, 1]])       # board image px -> board mm
+    B = np.array([[1, 0, spec.origin_mm[0]], [0, -1, spec.origin_mm[1]], [0, 0, 1]])  # board mm -> table mm
+    U = np.array([[ss, 0, (ss - 1) / 2], [0, ss, (ss - 1) / 2], [0, 0, 1]])            # camera px -> supersampled px
+    W, H = room.camera_size(camera)
+    fine = cv2.warpPerspective(board_img.astype(np.float32) / 255.0, U @ room.truth.table_to_camera_homography(camera) @ B @ S,
+                               (W * ss, H * ss), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1.0)
+    return (0.08 + 0.92 * cv2.resize(fine, (W, H), interpolation=cv2.INTER_AREA)).astype(np.float32)
+
+
 def planar_errors(room, slot: str, pose: np.ndarray, content_size: tuple[int, int], *, step: int = 4) -> tuple[float, float]:
     """RMS and max distance (projector px) between ``pose`` and the true content -> projector homography,
     over the content pixels (the table) that land inside the projector's image."""

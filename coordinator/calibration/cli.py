@@ -19,6 +19,8 @@ from coordinator.operator import add_connection_args
 EXAMPLES = """\
 examples:
   shadowless calibrate --rig-dir rigs/table --table-points marks.json
+  shadowless calibrate --rig-dir rigs/table --charuco board.json --table-only   # then remove the board:
+  shadowless calibrate --rig-dir rigs/table                                      # reuses the saved table mapping
   shadowless calibrate --rig-dir rigs/table --mode sequential --slots r0c0,r0c1
   shadowless calibrate --rig-dir rigs/table --table-points marks.json --record /tmp/cal-run1
   shadowless calibrate --rig-dir rigs/table --camera folder:/tmp/cal-run1/camera0 --force   # replay offline
@@ -71,6 +73,8 @@ def configure_calibrate(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mesh", metavar="PATH", help="OBJ/PLY mesh of the object (path on the coordinator's machine)")
     g.add_argument("--landmarks", metavar="FILE", help="mesh landmarks clicked in the camera (points file, read here)")
     g.add_argument("--no-table", action="store_true", help="3D: do not use the table around the object")
+    g.add_argument("--table-only", action="store_true", help="only map the table into the camera(s) (e.g. from a ChArUco "
+                   "board) and save it; remove the board, then calibrate without --charuco/--table-points to reuse it")
     c = p.add_argument_group("cameras and captures")
     c.add_argument("--camera", action="append", metavar="SPEC",
                    help="camera(s) for this run: room://HOST:PORT, opencv:INDEX, /dev/videoN, folder:DIR (default: the coordinator's)")
@@ -119,6 +123,8 @@ def calibrate_params(args: argparse.Namespace) -> dict:
         params["mesh"] = str(m.absolute()) if m.exists() else args.mesh
     if args.no_table:
         params["use_table"] = False
+    if args.table_only:
+        params["table_only"] = True
     if args.force:
         params["force"] = True
     if args.stop_on_error:
@@ -133,6 +139,9 @@ def _fmt(v, nd: int = 3) -> str:
 
 
 def calibrate_report(result: dict) -> str:
+    if not result.get("slots") and not result.get("failed"):
+        cams = ", ".join(f"camera {c['camera']} ({_fmt(c.get('table_rms_px'))} px)" for c in result.get("camera_setup", []))
+        return f"table mapped and saved: {cams}; remove any board from the table, then run `shadowless calibrate` again"
     lines = [f"calibration run {result.get('run')}: {result.get('mode')} mode on the {result.get('surface')}, "
              f"{result.get('captures')} captures in {_fmt(result.get('wall_s'), 1)} s"
              + (" (resumed)" if result.get("resumed") else "")]

@@ -41,6 +41,8 @@ Parameters (JSON; defaults from rig.toml's ``[calibration]`` table, see
     min_pixels    fewest decoded camera pixels a projector needs (2000)
     min_contrast  white - black below this is shadow (0.004 of full scale)
     max_saturated over-exposure limit: fraction of lit pixels saturated (0.02)
+    table_only    only map the table (e.g. from a ChArUco board), save it, stop; a later run without
+                  table_points/charuco reuses the saved mapping (so the board can be removed first)
     force, record, keep_going, seed, rounds
 """
 from __future__ import annotations
@@ -70,6 +72,7 @@ UNDER_EXPOSED = 0.02        # every projector white must reach at least this (fr
 MIN_LIT_PIXELS = 50         # fewer lit camera pixels than this: the projector is not seen
 MIN_COARSE_DOTS = 6         # multiplexed stage 1: fewest decoded dots for a coarse pose
 MIN_LATTICE_DOTS = 12       # multiplexed stage 2: fewest measured dots for the final pose
+LATTICE_DOTS_WANTED = 40    # multiplexed stage 2: add rounds when a projector would get fewer dots than this
 
 class _Abort(JobError):
     """A problem no other projector can avoid (a camera's exposure): the run stops."""
@@ -77,7 +80,7 @@ class _Abort(JobError):
 
 _KNOWN = {"mode", "surface", "slots", "table_mm", "table_points", "charuco", "mesh", "landmarks", "intrinsics",
           "use_table", "settle_s", "min_pixels", "min_contrast", "max_saturated", "force", "record", "keep_going",
-          "seed", "rounds"}
+          "seed", "rounds", "table_only"}
 
 
 # ---------------------------------------------------------------------- options
@@ -102,6 +105,8 @@ class Options:
     keep_going: bool = True
     seed: int = 0
     rounds: int = 4
+    table_only: bool = False
+    saved_table: dict[int, dict] = field(default_factory=dict)   # camera -> {"H", "size"} from calibration/cameras.json
     fingerprint: str = ""
 
     @classmethod
@@ -196,9 +201,13 @@ class Options:
             raise JobError("settle_s must be in 0..30, min_pixels >= 12, min_contrast and max_saturated in (0, 1]")
         if not 1 <= o.rounds <= 16:
             raise JobError("rounds must be in 1..16")
-        if not o.table_points and o.charuco is None and not (o.surface == "mesh" and o.landmarks):
-            raise JobError("the table -> camera mapping needs known points: set table_points (a points file, or "
-                           "[calibration] table_points = [[x_mm, y_mm, u_px, v_px], ...] in rig.toml) or a charuco board")
+        o.table_only = bool(merged.get("table_only", False))
+        if not o.table_points and o.charuco is None:
+            o.saved_table = _saved_table(rig_dir)
+            if o.table_only or not (o.saved_table or (o.surface == "mesh" and o.landmarks)):
+                raise JobError("the table -> camera mapping needs known points: set table_points (a points file, or "
+                               "[calibration] table_points = [[x_mm, y_mm, u_px, v_px], ...] in rig.toml) or a charuco "
+                               "board (e.g. a first run with --charuco board.json --table-only, then remove the board)")
         o.fingerprint = o._fingerprint()
         return o
 
@@ -211,7 +220,23 @@ class Options:
             h.update(s.frame.encode() + bytes([s.camera]) + s.xyz.tobytes() + s.pixels.tobytes())
         if self.mesh_path and Path(self.mesh_path).exists():
             h.update(Path(self.mesh_path).read_bytes())
+        for i in sorted(self.saved_table):
+            h.update(np.asarray(self.saved_table[i]["H"], np.float64).tobytes())
         return h.hexdigest()
+
+
+def _saved_table(rig_dir: Path) -> dict[int, dict]:
+    """The table -> camera mappings a previous run saved (calibration/cameras.json), by camera."""
+    f = calibration_dir(rig_dir) / "cameras.json"
+    if not f.exists():
+        return {}
+    try:
+        doc = json.loads(f.read_text())
+        return {int(c["camera"]): {"H": np.array(c["table_to_camera"], np.float64), "size": tuple(c["size"]),
+                                   "saved_at": doc.get("saved_at")}
+                for c in doc.get("cameras", []) if "table_to_camera" in c}
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise JobError(f"{f}: cannot read the saved table mapping ({exc}); give table points or a board again") from exc
 
 
 # ---------------------------------------------------------------------- persistence / resume
@@ -360,6 +385,9 @@ async def calibrate(ctx, params: dict) -> dict:
     try:
         dark, white_all = await _exposure(ctx, shots, slots, sizes, opts)
         setup = await _cameras(ctx, shots, slots, sizes, opts, run, dark, white_all, content_size)
+        if opts.table_only:
+            todo = []
+            ctx.log("table mapped (calibration/cameras.json); remove the board and run `shadowless calibrate` again")
         if todo:
             if opts.surface == "table" and opts.mode == "multiplexed":
                 await _multiplexed(ctx, shots, todo, sizes, opts, run, setup, dark, content_size, results, failed)
@@ -455,6 +483,8 @@ async def _cameras(ctx, shots: _Captures, slots, sizes, opts: Options, run: Run,
             world_sets[i].append(PointSet("world", i, tuple(f"charuco {k}" for k in range(len(txy))),
                                           np.column_stack([txy, np.zeros(len(txy))]), px))
     for i in shots.cameras:
+        for s in world_sets[i]:
+            _check_points_inside(s.pixels, setup.sizes[i], i)
         table_only = [s for s in world_sets[i] if s.planar]
         if len(table_only) and sum(len(s) for s in table_only) >= 4:
             xy = np.vstack([s.xyz[:, :2] for s in table_only])
@@ -465,14 +495,22 @@ async def _cameras(ctx, shots: _Captures, slots, sizes, opts: Options, run: Run,
                 raise JobError(f"camera {i}: {exc}") from exc
             setup.table_to_camera[i] = fit.H
             setup.table_rms[i] = fit.rms
-            _check_points_inside(px, setup.sizes[i], i)
+    for i, saved in opts.saved_table.items():
+        if i in setup.sizes and i not in setup.table_to_camera:
+            if tuple(saved["size"]) != setup.sizes[i]:
+                raise JobError(f"camera {i} now delivers {setup.sizes[i][0]}x{setup.sizes[i][1]} images but the saved table "
+                               f"mapping was made at {saved['size'][0]}x{saved['size'][1]}: map the table again")
+            setup.table_to_camera[i] = saved["H"]
+            setup.table_rms[i] = math.nan
+            ctx.log(f"camera {i}: using the table mapping saved by an earlier run")
     if opts.surface == "table":
         if not setup.table_to_camera:
             raise JobError("no camera has 4 or more known table points: the table -> camera mapping needs them")
     else:
         await _pose_cameras_and_mesh(ctx, setup, opts, world_sets)
     ctx.progress("cameras", "", ncam, ncam, "ok")
-    doc = {"run": run.run_id, "table_mm": list(opts.table_mm), "content_size": list(content_size), "cameras": []}
+    doc = {"run": run.run_id, "saved_at": time.time(), "table_mm": list(opts.table_mm), "content_size": list(content_size),
+           "cameras": []}
     for i in shots.cameras:
         entry: dict[str, Any] = {"camera": i, "size": list(setup.sizes[i])}
         if i in setup.table_to_camera:
@@ -505,6 +543,9 @@ async def _pose_cameras_and_mesh(ctx, setup: CameraSetup, opts: Options, world_s
         raise JobError(f"mesh {opts.mesh_path} has no texture coordinates: export it with UVs (the content is its texture)")
     model_sets = [s for s in opts.landmarks if s.frame == "model"]
     for s in opts.landmarks:
+        if s.camera not in setup.sizes:
+            raise JobError(f"landmarks name camera {s.camera}, but the job has {len(setup.sizes)} camera(s)")
+        _check_points_inside(s.pixels, setup.sizes[s.camera], s.camera)
         if s.frame == "world":
             world_sets.setdefault(s.camera, []).append(s)
     for i, sets in world_sets.items():
@@ -700,6 +741,14 @@ async def _multiplexed(ctx, shots, todo, sizes, opts, run, setup, dark_all, cont
         return
     lattice = multiplex.plan_lattice(coarse, H_t2c, sizes={s: sizes[s] for s in ok}, camera_size=setup.sizes[cam],
                                      table_mm=opts.table_mm, rounds=opts.rounds)
+    per_slot = min(sum(len(r.centres[s]) for r in lattice.rounds) for s in ok)
+    if per_slot < LATTICE_DOTS_WANTED and opts.rounds < 16:
+        # more projectors than one lattice holds at this camera resolution: add rounds (the only growth with N)
+        need = min(16, math.ceil(opts.rounds * LATTICE_DOTS_WANTED / max(per_slot, 1)))
+        if need > opts.rounds:
+            ctx.log(f"lattice: {per_slot} dots for some projector in {opts.rounds} rounds; using {need} rounds")
+            lattice = multiplex.plan_lattice(coarse, H_t2c, sizes={s: sizes[s] for s in ok}, camera_size=setup.sizes[cam],
+                                             table_mm=opts.table_mm, rounds=need)
     found: dict[str, list[multiplex.DotMatches]] = {s: [] for s in ok}
     start = shots.count
     for r in range(len(lattice.rounds)):

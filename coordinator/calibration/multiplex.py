@@ -36,7 +36,11 @@ refined camera -> projector mapping.
 
 Captures for the whole rig: 1 dark + ``2 bits`` coded + ``rounds`` lattice
 (plus a retry round only when stage 1 fails a projector), independent of N up
-to the lattice's capacity. Stage 2 doubles as the alignment check: drawing the
+to the lattice's capacity: a lattice step is a few dot widths in the camera,
+so one round holds a few hundred dots over the table; the job adds rounds
+only when a projector would get fewer than ~40 dots (beyond ~35 projectors at
+the room's default camera resolution), i.e. about one capture per 9 extra
+projectors, against 2 log2(w h) + 2 per projector for the sequential mode. Stage 2 doubles as the alignment check: drawing the
 lattice through the rig's *current* poses and measuring where the dots land
 gives each projector's residual misalignment (:mod:`coordinator.calibration.alignment`).
 """

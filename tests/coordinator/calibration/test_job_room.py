@@ -12,6 +12,7 @@ import pytest
 
 from bench.calibration import (
     RoomJobContext,
+    board_albedo,
     landmarks_from_truth,
     make_rig,
     mesh_errors,
@@ -207,8 +208,13 @@ def test_operator_errors_name_the_slot_or_the_camera(small_room, small_points, t
     with pytest.raises(JobError, match=r"camera 0 under-exposed .* raise the exposure"):
         run(calibrate(RoomJobContext(small_room, rig, exposure=0.02), dict(params)))
     # parameters and setup
+    fresh = make_rig(tmp_path / "e", small_room, ["r2c2"])
     with pytest.raises(JobError, match="needs known points"):
-        run(calibrate(RoomJobContext(small_room, rig), {"mode": "sequential"}))
+        run(calibrate(RoomJobContext(small_room, fresh), {"mode": "sequential"}))
+    far = tmp_path / "far.json"
+    far.write_text(json.dumps({"points": [{"xy": [x, y], "pixel": [5000 + x, 10 + y]} for x, y in [(0, 0), (1, 0), (0, 1), (1, 1)]]}))
+    with pytest.raises(JobError, match="4 known point.s. lie outside its 389x292 image"):
+        run(calibrate(RoomJobContext(small_room, fresh), {**params, "table_points": str(far)}))
     with pytest.raises(JobError, match="unknown calibration parameter"):
         run(calibrate(RoomJobContext(small_room, rig), {**params, "colour": "red"}))
     with pytest.raises(JobError, match="r2c2 not connected"):
@@ -221,6 +227,34 @@ def test_operator_errors_name_the_slot_or_the_camera(small_room, small_points, t
     bad.write_text('{"points": [{"xy": [0, 0]}]}')
     with pytest.raises(JobError, match="needs pixel"):
         run(calibrate(RoomJobContext(small_room, rig), {**params, "table_points": str(bad)}))
+
+
+def test_a_charuco_board_maps_the_table_then_calibration_reuses_the_mapping(room, tmp_path):
+    """The operator lays a board on the table, maps the table (--table-only), removes the board, calibrates."""
+    from coordinator.calibration.planar import CharucoSpec
+
+    board = {"squares_x": 11, "squares_y": 7, "square_mm": 80.0, "marker_mm": 60.0, "dictionary": "DICT_5X5_100",
+             "origin_mm": [-440.0, 280.0]}
+    albedo = board_albedo(room, CharucoSpec.from_dict(board))
+
+    class BoardOnTable(RoomJobContext):
+        async def capture(self, index=0):
+            return (await super().capture(index)) * albedo[:, :, None]
+
+    slots = ["r0c0", "r2c2", "r4c4"]
+    rig = make_rig(tmp_path / "rig", room, slots)
+    mapped = run(calibrate(BoardOnTable(room, rig), {"charuco": board, "table_only": True, "settle_s": 0}))
+    assert mapped["slots"] == {} and mapped["captures"] == 2 and all(rig.slot(s).pose is None for s in slots)
+    H = np.array(json.loads((rig.path / "calibration" / "cameras.json").read_text())["cameras"][0]["table_to_camera"])
+    grid = np.array([[x, y] for x in np.linspace(-600, 600, 13) for y in np.linspace(-300, 300, 7)])
+    from coordinator.calibration.planar import homography_difference
+
+    assert homography_difference(H, room.truth.table_to_camera_homography(), grid)[0] < 0.1
+    ctx = RoomJobContext(room, rig)                     # the board is gone
+    run(calibrate(ctx, {"mode": "multiplexed", "settle_s": 0}))
+    assert any("using the table mapping saved" in e[1] for e in ctx.events if e[0] == "log")
+    errs = check_bound(room, rig, slots)
+    assert max(e[0] for e in errs.values()) < 0.1
 
 
 def test_alignment_check_measures_residuals_and_finds_a_shifted_projector(room, multiplexed_rig):

@@ -100,18 +100,11 @@ def test_charuco_board_on_the_table_gives_the_table_mapping():
     lit = room.capture(noise=False)
     spec = CharucoSpec(squares_x=11, squares_y=7, square_mm=80.0, marker_mm=60.0, dictionary="DICT_5X5_100",
                        origin_mm=(-440.0, 280.0))
-    ppm, ss = 2, 4       # board image px per mm; supersampling per camera pixel and axis
-    board_img = spec.board().generateImage((11 * 80 * ppm, 7 * 80 * ppm), marginSize=0)
-    # board image px (u, v) -> board mm ((u + 0.5) / ppm, ...) -> table mm -> camera px -> supersampled px
-    S = np.array([[1 / ppm, 0, 0.5 / ppm], [0, 1 / ppm, 0.5 / ppm], [0, 0, 1]])
-    B = np.array([[1, 0, spec.origin_mm[0]], [0, -1, spec.origin_mm[1]], [0, 0, 1]])
-    U = np.array([[ss, 0, (ss - 1) / 2], [0, ss, (ss - 1) / 2], [0, 0, 1]])
+    from bench.calibration import board_albedo
+
     H_true = room.truth.table_to_camera_homography()
-    W, Hc = room.camera_size()
-    fine = cv2.warpPerspective(board_img.astype(np.float32) / 255.0, U @ H_true @ B @ S, (W * ss, Hc * ss),
-                               flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1.0)
-    albedo = cv2.resize(fine, (W, Hc), interpolation=cv2.INTER_AREA)
-    photo = lit * (0.08 + 0.92 * albedo[:, :, None])
+    albedo = board_albedo(room, spec)           # supersampled 4x4 per camera pixel
+    photo = lit * albedo[:, :, None]
     photo = np.clip(photo + np.random.default_rng(0).normal(0, 0.004, photo.shape), 0, 1).astype(np.float32)
     txy, px = detect_charuco(photo, spec)
     assert len(txy) >= 50
