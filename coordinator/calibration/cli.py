@@ -193,13 +193,16 @@ def alignment_params(args: argparse.Namespace) -> dict:
 
 def alignment_report(result: dict) -> str:
     lines = [f"{'slot':<10} {'rms px':>8} {'p95 px':>8} {'max px':>8} {'dots':>6}  worst at (mm)"]
+    lines[0] += " (mm on the table, or camera px on a mesh)"
     for slot, d in result.get("slots", {}).items():
-        at = d.get("worst_at_mm")
+        at = d.get("worst_at_mm", d.get("worst_at_camera_px"))
         lines.append(f"{slot:<10} {_fmt(d.get('rms_px')):>8} {_fmt(d.get('p95_px')):>8} {_fmt(d.get('max_px')):>8} "
                      f"{d.get('dots', 0):>6}  {'' if at is None else f'({at[0]:.0f}, {at[1]:.0f})'}{d.get('note', '')}")
     if result.get("worst_slot"):
-        lines.append(f"worst: {result['worst_slot']} ({_fmt(result.get('worst_px'))} px)")
-    lines.append(f"heat map: {result.get('heatmap')} (red = {result.get('heatmap_full_scale_px', 1)} px or more)")
+        lines.append(f"worst: {result['worst_slot']} ({_fmt(result.get('worst_rms_px'))} px rms)")
+    for m in result.get("heatmaps", [{"file": result.get("heatmap"), "frame": "table mm"}]):
+        lines.append(f"heat map: {m['file']} over the {'table' if m['frame'] == 'table mm' else 'camera image'} "
+                     f"(red = {result.get('heatmap_full_scale_px', 1)} px or more)")
     return "\n".join(lines)
 
 

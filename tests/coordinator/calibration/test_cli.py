@@ -50,5 +50,5 @@ def test_reports_are_tables_an_operator_can_read():
     assert "multiplexed mode" in lines[0] and "26 captures" in lines[0]
     assert lines[2].split()[:4] == ["r0c0", "0.012", "0.050", "160"] and "earlier part of this run" in lines[3]
     text = alignment_report({"slots": {"r0c0": {"rms_px": 0.1, "p95_px": 0.2, "max_px": 0.3, "dots": 40, "worst_at_mm": [10, -20]}},
-                             "worst_slot": "r0c0", "worst_px": 0.3, "heatmap": "/rig/calibration/alignment.png"})
+                             "worst_slot": "r0c0", "worst_rms_px": 0.1, "heatmap": "/rig/calibration/alignment.png"})
     assert "(10, -20)" in text and "worst: r0c0" in text and "alignment.png" in text

@@ -318,6 +318,18 @@ def test_3d_calibration_on_the_bust_meets_the_bound(bust_room, bust_file, tmp_pa
         assert rms < 0.5
         assert pose.near_mm < 800 and pose.far_mm > 1400
     assert Rig(rig.path).slot(slots[0]).pose.mesh.mesh_id == rig.slot(slots[0]).pose.mesh.mesh_id
+    # the alignment check on the object: small residuals, and a projector shifted by 1.5 px is seen as such
+    good = run(run_alignment(RoomJobContext(bust_room, rig), {"settle_s": 0}))
+    for s in slots:
+        d = good["slots"][s]
+        assert d["dots"] >= 30 and d["rms_px"] < 0.3, (s, d)
+    pose = rig.slot(slots[1]).pose
+    shifted = np.array([[1, 0, 1.5], [0, 1, 0], [0, 0, 1.0]]) @ pose.matrix
+    rig.update_slot(slots[1], pose=ProjectionPose(shifted, pose.mesh, pose.near_mm, pose.far_mm), source="test")
+    bad = run(run_alignment(RoomJobContext(bust_room, rig), {"settle_s": 0}))
+    d = bad["slots"][slots[1]]
+    assert bad["worst_slot"] == slots[1] and abs(d["mean_offset_px"][0] - 1.5) < 0.2 and abs(d["mean_offset_px"][1]) < 0.2, d
+    assert bad["heatmaps"][0]["frame"] == "camera px" and cv2.imread(bad["heatmap"]).shape[:2] == (450, 600)   # the camera image, 600 px wide
 
 
 def test_3d_calibration_registers_a_mesh_given_in_its_own_frame(bust_room, tmp_path):
