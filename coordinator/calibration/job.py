@@ -668,7 +668,7 @@ async def _sequential(ctx, shots, todo, sizes, opts, run, setup, content_size, r
             failed[slot] = str(exc)
             ctx.log(f"{slot}: {exc}")
             continue
-        pose = planar._normalise(fit.H @ H_c2t)
+        pose = planar.normalise(fit.H @ H_c2t)
         doc = _slot_doc(run, slot, opts, rms=float(np.sqrt(np.mean(r ** 2))) if len(r) else math.nan,
                         mx=float(r.max()) if len(r) else math.nan, points=len(r), raw_rms=fit.rms,
                         decoded=count, inliers=fit.count, captures=shots.count - captures_before)
@@ -741,12 +741,12 @@ async def _multiplexed(ctx, shots, todo, sizes, opts, run, setup, dark_all, cont
         return
     lattice = multiplex.plan_lattice(coarse, H_t2c, sizes={s: sizes[s] for s in ok}, camera_size=setup.sizes[cam],
                                      table_mm=opts.table_mm, rounds=opts.rounds)
-    per_slot = min(sum(len(r.centres[s]) for r in lattice.rounds) for s in ok)
+    per_slot = int(np.median([sum(len(r.centres[s]) for r in lattice.rounds) for s in ok]))
     if per_slot < LATTICE_DOTS_WANTED and opts.rounds < 16:
         # more projectors than one lattice holds at this camera resolution: add rounds (the only growth with N)
         need = min(16, math.ceil(opts.rounds * LATTICE_DOTS_WANTED / max(per_slot, 1)))
         if need > opts.rounds:
-            ctx.log(f"lattice: {per_slot} dots for some projector in {opts.rounds} rounds; using {need} rounds")
+            ctx.log(f"lattice: {per_slot} dots per projector in {opts.rounds} rounds; using {need} rounds")
             lattice = multiplex.plan_lattice(coarse, H_t2c, sizes={s: sizes[s] for s in ok}, camera_size=setup.sizes[cam],
                                              table_mm=opts.table_mm, rounds=need)
     found: dict[str, list[multiplex.DotMatches]] = {s: [] for s in ok}
@@ -771,7 +771,7 @@ async def _multiplexed(ctx, shots, todo, sizes, opts, run, setup, dark_all, cont
         except CalibrationError as exc:
             failed[s] = f"{s}: {exc}"
             continue
-        pose = planar._normalise(fit.H @ H_c2t)
+        pose = planar.normalise(fit.H @ H_c2t)
         doc = _slot_doc(run, s, opts, rms=fit.rms, mx=fit.max, points=fit.count, coarse_dots=int(seen[s]),
                         captures=shots.count - start)
         _save_slot(ctx, s, HomographyPose(pose), doc)

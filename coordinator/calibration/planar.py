@@ -33,7 +33,8 @@ def _points(a, name: str) -> np.ndarray:
     return p
 
 
-def _normalise(H: np.ndarray) -> np.ndarray:
+def normalise(H: np.ndarray) -> np.ndarray:
+    """``H`` as (3, 3) float64 scaled so ``H[2, 2] = 1``; CalibrationError when degenerate."""
     H = np.asarray(H, np.float64)
     if H.shape != (3, 3):
         raise ValueError(f"a homography must be (3, 3), got {H.shape}")
@@ -75,7 +76,7 @@ def compose_pose(camera_to_projector: np.ndarray, table_to_camera: np.ndarray, *
                  table_mm: tuple[float, float]) -> np.ndarray:
     """A node's planar pose: (3, 3) float64 content px -> projector px."""
     H = np.asarray(camera_to_projector, np.float64) @ np.asarray(table_to_camera, np.float64) @ content_to_table(content_size, table_mm)
-    return _normalise(H)
+    return normalise(H)
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,7 +149,7 @@ def fit_homography(src: np.ndarray, dst: np.ndarray, *, threshold: float = 1.5, 
         raise CalibrationError(f"homography estimation failed: {exc.err or exc}") from exc
     if H is None:
         raise CalibrationError(f"no consistent homography among {len(s)} correspondences")
-    H = _normalise(H)
+    H = normalise(H)
     inl = np.zeros(len(s), bool)
     for _ in range(max(1, refine_rounds)):
         res = np.linalg.norm(apply_homography(H, s) - d, axis=1)
@@ -164,7 +165,7 @@ def fit_homography(src: np.ndarray, dst: np.ndarray, *, threshold: float = 1.5, 
             raise CalibrationError(f"homography refinement failed: {exc.err or exc}") from exc
         if H2 is None:
             raise CalibrationError("homography refinement failed (degenerate inliers)")
-        H = _normalise(H2)
+        H = normalise(H2)
     res = np.linalg.norm(apply_homography(H, s) - d, axis=1)
     inl = np.nan_to_num(res, nan=np.inf) <= threshold
     r = res[inl]

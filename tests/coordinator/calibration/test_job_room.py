@@ -229,6 +229,18 @@ def test_operator_errors_name_the_slot_or_the_camera(small_room, small_points, t
         run(calibrate(RoomJobContext(small_room, rig), {**params, "table_points": str(bad)}))
 
 
+def test_projectors_short_of_coded_dots_get_a_retry_round_then_a_clear_error(small_room, small_points, tmp_path, monkeypatch):
+    from coordinator.calibration import job
+
+    monkeypatch.setattr(job, "MIN_COARSE_DOTS", 1000)     # no projector can show that many dots on the table
+    rig = make_rig(tmp_path / "rig", small_room, ["r1c1", "r2c2"])
+    ctx = RoomJobContext(small_room, rig)
+    with pytest.raises(JobError, match=r"too few dots decoded for r1c1 \(\d+ < 1000\)"):
+        run(calibrate(ctx, {"mode": "multiplexed", "table_points": small_points, "settle_s": 0}))
+    assert ctx.shows == 2 + 20 + 20          # exposure, the coded round, and its retry for the two projectors
+    assert any(e[1] == "coded dots (retry)" for e in ctx.events if e[0] == "progress")
+
+
 def test_a_charuco_board_maps_the_table_then_calibration_reuses_the_mapping(room, tmp_path):
     """The operator lays a board on the table, maps the table (--table-only), removes the board, calibrates."""
     from coordinator.calibration.planar import CharucoSpec
