@@ -229,6 +229,22 @@ def test_operator_errors_name_the_slot_or_the_camera(small_room, small_points, t
         run(calibrate(RoomJobContext(small_room, rig), {**params, "table_points": str(bad)}))
 
 
+def test_known_points_listed_in_the_rig_file(small_room, tmp_path):
+    rig = make_rig(tmp_path / "rig", small_room, ["r2c2"])
+    pts = table_points_from_truth(small_room, click_noise_px=0.3)[0]
+    rows = ", ".join(f"[{x:.1f}, {y:.1f}, {u:.2f}, {v:.2f}]" for (x, y, _), (u, v) in zip(pts.xyz, pts.pixels))
+    with open(rig.path / "rig.toml", "a") as f:
+        f.write(f"\n[calibration]\nmode = \"sequential\"\nsettle_s = 0\ntable_points = [{rows}]\n")
+    rig = Rig(rig.path)                       # the coordinator reads rig.toml; the extra table is calibration's
+    result = run(calibrate(RoomJobContext(small_room, rig), {}))
+    assert result["mode"] == "sequential"
+    check_bound(small_room, rig, ["r2c2"])
+    with open(rig.path / "rig.toml", "a") as f:
+        f.write("colour = 1\n")
+    with pytest.raises(JobError, match="unknown \\[calibration\\] key"):
+        run(calibrate(RoomJobContext(small_room, rig), {}))
+
+
 def test_projectors_short_of_coded_dots_get_a_retry_round_then_a_clear_error(small_room, small_points, tmp_path, monkeypatch):
     from coordinator.calibration import job
 
