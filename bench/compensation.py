@@ -10,6 +10,13 @@ Solve times of ours and of the baseline are measured side by side in this one ru
 Also: the paper's camera size 2592x1944 with 25 projectors (time to 1 % of the optimum), warm-started
 video at 960x540 (ms per frame), and a sweep over camera noise showing what decides the quality
 ordering. Prints one JSON document; progress goes to stderr.
+
+The camera model matters for the quality ordering and is a stated parameter: per frame, read
+noise 5e-4 of full scale and shot noise 0.01*sqrt(signal) (10 000 e- full well), 8 frames
+averaged per pattern for both methods. A single projector's dots carry 1/N of the rig's light,
+so each L_i is measured N times less precisely than L; with exact matrices (``oracle_*``) the
+baseline, which can shift each projector's image on its own, is the sharper one. The sweep
+shows where the two cross.
 """
 from __future__ import annotations
 
@@ -446,7 +453,9 @@ def _targets(doc: dict[str, Any]) -> dict[str, Any]:
                                     "iterations_25_over_1": round(rows[25]["ours"]["iterations"] / rows[1]["ours"]["iterations"], 3)}
     if 25 in rows:
         v = rows[25]["baseline_over_ours"]
-        t["baseline_25_over_ours_25"] = {"value": v, "limit": ">= 20", "met": v >= 20}
+        work = rows[25]["baseline"]["iterations"] / rows[25]["ours"]["iterations"]
+        t["baseline_25_over_ours_25"] = {"value": v, "limit": ">= 20", "met": v >= 20,
+                                         "iterations_ratio": round(work, 2)}
         q = rows[25]["quality"]
         d = q["ours"]["psnr"] - q["baseline"]["psnr"]
         t["quality_order_measured"] = {

@@ -64,7 +64,12 @@ _CHUNK = 1 << 16  # float32 elements per partial dot product (float64 accumulati
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """Dot product of two float32 arrays of the same shape, accumulated in float64 across chunks."""
+    """Dot product of two float32 arrays of the same shape, accumulated in float64 across chunks.
+
+    2-D views whose rows are contiguous (channel-major slices) are summed row by row, no copy.
+    """
+    if a.ndim == 2 and not (a.flags.c_contiguous and b.flags.c_contiguous):
+        return math.fsum(_dot(a[i], b[i]) for i in range(a.shape[0]))
     a = a.reshape(-1)
     b = b.reshape(-1)
     n = a.size
@@ -138,21 +143,26 @@ class TransportOperator:
 
     @staticmethod
     def _apply(blocks: list, rows: int, v: np.ndarray, pool: Executor | None) -> np.ndarray:
-        v = np.ascontiguousarray(v, dtype=np.float32)
-        if len(blocks) == 1:
-            return blocks[0][2] @ v
-        out = np.empty((rows, *v.shape[1:]), dtype=np.float32)
+        v = np.asarray(v, dtype=np.float32)
+        if v.ndim == 1:
+            vt = np.ascontiguousarray(v)[None, :]
+        elif v.ndim == 2:
+            vt = np.ascontiguousarray(v.T)  # channel-major: one contiguous vector per channel
+        else:
+            raise ValueError(f"expected (n,) or (n, C), got {v.shape}")
+        out = np.empty((vt.shape[0], rows), dtype=np.float32)
 
         def one(block: tuple[int, int, sp.csr_matrix]) -> None:
             a, b, m = block
-            out[a:b] = m @ v
+            for k in range(vt.shape[0]):
+                out[k, a:b] = m @ vt[k]
 
-        if pool is None:
+        if pool is None or len(blocks) == 1:
             for blk in blocks:
                 one(blk)
         else:
             list(pool.map(one, blocks))
-        return out
+        return out[0] if v.ndim == 1 else np.ascontiguousarray(out.T)
 
     def lipschitz(self, *, iterations: int = 6, pool: Executor | None = None) -> float:
         """A step bound ``Lip >= ||L||_2^2`` (largest eigenvalue of ``L^T L``), cached.
@@ -436,17 +446,20 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
     fwd, adj = op.forward_blocks, op.adjoint_blocks
     run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None else (lambda fn, items: [fn(i) for i in items])
     step = np.float32(1.0 / lip)
-    x_cur = x  # x_k
-    x_prev = x.copy()  # x_{k-1} (equal at start: y_0 = x_0)
-    lx_cur = op.matvec(x_cur, pool=pool)
+    # channel-major (C, n) layout: every channel of every row block is one contiguous vector
+    c = np.ascontiguousarray(c.T)
+    x_cur = np.ascontiguousarray(x.T)  # x_k
+    x_prev = x_cur.copy()  # x_{k-1} (equal at start: y_0 = x_0)
+    lx_cur = np.ascontiguousarray(op.matvec(x).T)
     r = lx_cur - c  # residual at y
     f = _dot(r, r)
     stop.history.append(f)
     if max_iter == 0 or f <= 0:
-        return SolveResult(x=x_cur, objective=f, iterations=0, converged=f <= 0,
+        return SolveResult(x=np.ascontiguousarray(x_cur.T), objective=f, iterations=0, converged=f <= 0,
                            reason="optimal" if f <= 0 else "max_iter", history=stop.history)
     rr, rc = f, _dot(r, c)
     lx_new = np.empty_like(lx_cur)
+    channels = c.shape[0]
     beta = 0.0
     t = 1.0
     k = 0
@@ -473,15 +486,16 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
 
         def camera_phase(block: tuple[int, int, sp.csr_matrix]) -> tuple[float, float, float]:
             a, b, m = block
-            lxn = lx_new[a:b]
-            lxn[...] = m @ x_cur
-            cb = c[a:b]
-            rb = r[a:b]
+            lxn = lx_new[:, a:b]
+            for ch in range(channels):
+                lxn[ch] = m @ x_cur[ch]
+            cb = c[:, a:b]
+            rb = r[:, a:b]
             np.subtract(lxn, cb, out=rb)
             fpart = _dot(rb, rb)
             # y_{k+1} = x_{k+1} + beta (x_{k+1} - x_k)  =>  L y = Lx_{k+1} + beta (Lx_{k+1} - Lx_k)
             if beta_next != 0.0:
-                lxc = lx_cur[a:b]
+                lxc = lx_cur[:, a:b]
                 np.subtract(lxn, lxc, out=lxc)
                 lxc *= bn
                 rb += lxc
@@ -501,12 +515,12 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
             reason = why
             break
     # x_cur holds the last iterate and f its objective (the extrapolated point y is discarded)
-    return SolveResult(x=x_cur, objective=f, iterations=k, converged=reason in ("gap", "objective", "gradient", "optimal"),
+    return SolveResult(x=np.ascontiguousarray(x_cur.T), objective=f, iterations=k, converged=reason in ("gap", "objective", "gradient", "optimal"),
                        reason=reason, history=stop.history, gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
 
 def _content_phase_factory(x_cur: np.ndarray, x_prev: np.ndarray, r: np.ndarray, step: np.float32, beta: np.float32):
-    """One content-row block of an APG iteration.
+    """One content-row block of an APG iteration (arrays channel-major: (C, n)).
 
     Computes ``g = (L^T r)[a:b]`` (gradient at ``y``), ``y = x_k + beta (x_k - x_{k-1})`` and
     ``x_{k+1} = clip(y - g / Lip)``, stores ``x_{k+1}`` over ``x_{k-1}`` and returns the partial
@@ -515,8 +529,10 @@ def _content_phase_factory(x_cur: np.ndarray, x_prev: np.ndarray, r: np.ndarray,
 
     def phase(block: tuple[int, int, sp.csr_matrix]) -> tuple[float, float, float]:
         a, b, m = block
-        xc, xp = x_cur[a:b], x_prev[a:b]
-        g = m @ r
+        xc, xp = x_cur[:, a:b], x_prev[:, a:b]  # (C, nb) views
+        g = np.empty(xc.shape, dtype=np.float32)
+        for ch in range(g.shape[0]):
+            g[ch] = m @ r[ch]
         gneg = float(np.minimum(g, 0).sum(dtype=np.float64))
         if beta != 0:
             y = np.subtract(xc, xp)  # beta (x_k - x_{k-1}) + x_k
