@@ -114,6 +114,9 @@ class RoomJobContext:
     def log(self, message: str) -> None:
         self.events.append(("log", message))
 
+    def set_pose(self, slot: str, pose, *, source: str = "calibration") -> None:
+        self.rig.update_slot(slot, pose=pose, source=source)
+
 
 def make_rig(path: Path, room, slots: list[str], *, content_size: tuple[int, int] = (1200, 600)):
     """A rig directory whose slots are ``slots`` at the room's projector resolution."""

@@ -209,12 +209,16 @@ class RoomCamera(_SizeCheck):
         self._stub = room_pb2_grpc.RoomStub(self._channel)
         self._lock = threading.Lock()
 
+    def not_before(self, rig_ns: int) -> None:
+        """The next capture must see frames swapped at or after ``rig_ns`` (the last pattern's time)."""
+        self._last_ns = max(self._last_ns, int(rig_ns))
+
     def capture(self) -> np.ndarray:
+        import time
+
         import grpc
 
         from protos import codec, room_pb2
-
-        import time
 
         req = room_pb2.CaptureRequest(camera=self.index, not_before_rig_ns=self._last_ns if self.wait else 0,
                                       timeout_ms=int(min(self.timeout_s, 30.0) * 1000))

@@ -110,9 +110,22 @@ class JobContext:
         return self._cameras[index]
 
     async def capture(self, index: int = 0) -> np.ndarray:
-        """One capture from camera ``index``: (H, W, 3) float32 in [0, 1]."""
+        """One capture from camera ``index``: (H, W, 3) float32 in [0, 1].
+
+        A camera that can tell which frames it sees (the room) is told the last pattern's
+        presentation time, so it never captures an older pattern."""
         cam = self.camera(index)
+        if hasattr(cam, "not_before") and self.coordinator.last_pattern_pts_ns:
+            cam.not_before(self.coordinator.last_pattern_pts_ns)
         return await asyncio.to_thread(cam.capture)
+
+    def set_pose(self, slot: str, pose, *, source: str = "calibration") -> None:
+        """Persist a slot's pose (HomographyPose, ProjectionPose or None) and push it to its node."""
+        self.coordinator.update_slot(slot, pose=pose, source=source)
+
+    def set_slot(self, slot: str, **changes) -> None:
+        """Persist any of pose/lut/gain for a slot and push the new assignment to its node."""
+        self.coordinator.update_slot(slot, **changes)
 
     async def compute(self, fn: Callable[..., Any], *args, **kwargs) -> Any:
         """Run CPU-heavy ``fn`` on a worker thread (numpy/OpenCV/SciPy release the GIL)."""

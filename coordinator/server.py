@@ -138,6 +138,7 @@ class Coordinator:
         self._waiters: dict[int, asyncio.Future] = {}
         self.encode_cpu_s = 0.0
         self._pattern_ids: set[str] = set()
+        self.last_pattern_pts_ns = 0
         self.camera_specs: list[str] = list(cameras if cameras is not None else rig.config.cameras)
         self._job_lock = asyncio.Lock()
         self.sync.add_listener(self._resolve_waiter)
@@ -511,6 +512,7 @@ class Coordinator:
             raise CoordinatorError(f"node(s) {', '.join(result.missing)} did not show the pattern after "
                                    f"{attempts} tries (late or disconnected); check `shadowless status`")
         self._pattern_ids = set(contents)
+        self.last_pattern_pts_ns = frame.pts_ns
         if settle_s > 0:
             await asyncio.sleep(settle_s)
         return result
@@ -632,6 +634,14 @@ class Coordinator:
             self._retry_still(sess, drop.frame_id)
 
     # ------------------------------------------------------------------ configure
+    def update_slot(self, slot: str, **changes):
+        """Change a slot's assignment (persisted first), then push it to the slot's node."""
+        st = self.rig.update_slot(slot, **changes)
+        sess = self.by_slot.get(slot)
+        if sess is not None:
+            sess.assignment_event.set()
+        return st
+
     def configure(self, req: control_pb2.ConfigureRequest) -> int:
         kwargs: dict = {}
         if req.HasField("homography"):
@@ -644,11 +654,7 @@ class Coordinator:
             kwargs["gain"] = req.gain
         if req.output_width or req.output_height:
             kwargs["size"] = (req.output_width, req.output_height)
-        st = self.rig.update_slot(req.slot, **kwargs)
-        sess = self.by_slot.get(req.slot)
-        if sess is not None:
-            sess.assignment_event.set()
-        return st.revision
+        return self.update_slot(req.slot, **kwargs).revision
 
     # ------------------------------------------------------------------ status
     def status(self) -> control_pb2.RigStatus:

@@ -291,12 +291,8 @@ def _finish_run(rig_dir: Path, run: Run, status: str) -> None:
 
 
 def _push(ctx, slot: str, pose) -> None:
-    """Persist a slot's pose and wake its node's assignment stream."""
-    ctx.rig.update_slot(slot, pose=pose, source="calibration")
-    coordinator = getattr(ctx, "coordinator", None)
-    sess = getattr(coordinator, "by_slot", {}).get(slot) if coordinator is not None else None
-    if sess is not None:
-        sess.assignment_event.set()
+    """Persist a slot's pose and push it to its node."""
+    ctx.set_pose(slot, pose, source="calibration")
 
 
 def _round(x: float, nd: int = 4) -> float | None:

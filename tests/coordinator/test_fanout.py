@@ -1,0 +1,84 @@
+"""Frame fan-out: each packet is serialized once and the same bytes go to every node;
+a still is sent once and afterwards only referenced."""
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+
+from coordinator.rig import Content, Rig, grid_slots, init_rig
+from coordinator.server import Coordinator, NodeSession
+from protos import node_pb2
+
+
+def make(tmp_path, n=3):
+    rig = Rig(init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, n), width=32, height=32,
+                       content_width=32, content_height=32))
+
+    async def build():
+        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False)
+        sessions = []
+        for slot in rig.slots:
+            s = NodeSession(session=slot, slot=slot, peer="test", info=node_pb2.NodeInfo(), instance_joins=1)
+            s.frames_open = True
+            coord.by_slot[slot] = coord.sessions[slot] = s
+            sessions.append(s)
+        return coord, sessions
+
+    return asyncio.run(build())
+
+
+def packets(s: NodeSession) -> list[bytes]:
+    out = list(s.packets)
+    s.packets.clear()
+    return out
+
+
+def test_one_serialization_for_every_node_and_a_still_is_sent_once(tmp_path):
+    coord, sessions = make(tmp_path)
+    img = (np.random.default_rng(0).random((32, 32, 3)) * 65535).astype(np.uint16)
+    coord.show(Content(img))
+    first = [packets(s) for s in sessions]
+    assert all(len(p) == 1 for p in first)
+    assert len({id(p[0]) for p in first}) == 1, "the same bytes object is queued for every node"
+    pkt = node_pb2.FramePacket.FromString(first[0][0])
+    assert len(pkt.contents) == 1 and pkt.frame.content_id == pkt.contents[0].content_id
+    from protos import common_pb2
+
+    assert pkt.contents[0].image.dtype == common_pb2.DTYPE_UINT16, "a 16-bit still stays 16-bit on the wire"
+
+    coord.show(Content(img))   # the same still again: only a reference travels
+    again = node_pb2.FramePacket.FromString(packets(sessions[0])[0])
+    assert len(again.contents) == 0 and again.frame.content_id == pkt.frame.content_id
+    assert again.frame.frame_id > pkt.frame.frame_id
+
+
+def test_a_late_joiner_gets_the_content_others_already_have(tmp_path):
+    coord, sessions = make(tmp_path)
+    img = np.full((32, 32, 3), 7, np.uint8)
+    coord.show(Content(img))
+    for s in sessions:
+        packets(s)
+    sessions[1].sent_content.clear()          # as after a rejoin
+    coord.on_frames_open(sessions[1])
+    pkt = node_pb2.FramePacket.FromString(packets(sessions[1])[0])
+    assert len(pkt.contents) == 1 and pkt.frame.pts_ns > 0
+    assert not sessions[0].packets
+
+
+def test_per_slot_patterns_carry_only_each_nodes_own_image(tmp_path):
+    coord, sessions = make(tmp_path)
+    images = {s.slot: np.full((32, 32), 10 * i, np.uint8) for i, s in enumerate(sessions)}
+
+    async def go():
+        task = asyncio.ensure_future(coord.show_patterns(images, settle_s=0))
+        await asyncio.sleep(0.01)
+        got = {s.slot: node_pb2.FramePacket.FromString(packets(s)[0]) for s in sessions}
+        task.cancel()
+        return got
+
+    got = asyncio.run(go())
+    for slot, pkt in got.items():
+        assert len(pkt.contents) == 1
+        assert pkt.frame.slot_content[slot] == pkt.contents[0].content_id
+        assert pkt.frame.space == node_pb2.SPACE_PROJECTOR
