@@ -171,17 +171,37 @@ def test_killed_node_is_lost_others_keep_running_and_it_rejoins(rig):
     run(go())
 
 
+ATTEMPT_MARKS = ("could not reach the coordinator", "coordinator unreachable", "no coordinator advertised")
+
+
+def attempts(rig) -> dict[str, int]:
+    return {s: sum(rig.log("node-" + s).count(m) for m in ATTEMPT_MARKS) for s in rig.slots}
+
+
 @pytest.mark.allow_leaks
 def test_coordinator_restart_brings_every_node_back_with_the_same_rig(rig):
-    async def go():
-        async with await rig.client() as c:
-            before = await rig.wait_live(c, timeout=180)
-        joins = {n.slot: n.joins for n in before.nodes}
-        from coordinator.rig import Rig
+    still = card_image(*CONTENT)[::-1].copy()   # a different image than before, persisted in the rig
 
-        revisions = {name: st.revision for name, st in Rig(rig.rig_dir).slots.items()}
-        rig.stop_coordinator(signal.SIGKILL)      # a crash, not a clean exit
-        rig.start_coordinator()
+    async def before_crash():
+        async with await rig.client() as c:
+            st = await rig.wait_live(c, timeout=180)
+            shown = await c.show(still, name="persisted", persist=True)
+            return st, shown
+
+    before, shown = run(before_crash())
+    from coordinator.rig import Rig
+
+    revisions = {name: st.revision for name, st in Rig(rig.rig_dir).slots.items()}
+    rig.stop_coordinator(signal.SIGKILL)      # a crash, not a clean exit
+    tries_before = attempts(rig)
+    time.sleep(6.0)                           # the nodes are on their own now
+    tries = {s: n - tries_before[s] for s, n in attempts(rig).items()}
+    # exponential backoff: a handful of attempts in 6 s, not a busy loop
+    assert all(1 <= n <= 12 for n in tries.values()), tries
+    assert all(p.poll() is None for p in rig.nodes.values()), "every node survived the coordinator's crash"
+    rig.start_coordinator()
+
+    async def after_restart():
         async with await rig.client(timeout=60) as c:
             after = await rig.wait_live(c, timeout=180, min_joins={s: 1 for s in rig.slots})
             assert after.instance_id != before.instance_id
@@ -192,9 +212,28 @@ def test_coordinator_restart_brings_every_node_back_with_the_same_rig(rig):
                 await asyncio.sleep(0.3)
                 after = await c.status()
             assert all(n.pose_kind == "homography" for n in after.nodes)
-            r = await c.play(control_pb2.PlaySettings(fps=10, pattern="counter", frames=10,
-                                                      wait=True, latency_ms=150))
-            assert r.nodes == N_NODES and r.sync.out_of_order == 0
-        return joins
+            return after
 
-    run(go())
+    run(after_restart())
+    # the persisted still is shown again by every node without anyone asking
+    deadline = time.monotonic() + 60
+    pending = set(rig.slots)
+    while pending and time.monotonic() < deadline:
+        for slot in list(pending):
+            meta = rig.snapshot_dir / f"{slot}.json"
+            if meta.exists():
+                doc = json.loads(meta.read_text())
+                if doc.get("tag") == "show:restored" and doc.get("frame_id", 0) > shown.frame_id:
+                    pending.discard(slot)
+        time.sleep(0.2)
+    assert not pending, f"no restored still from {sorted(pending)}"
+    got = cv2.cvtColor(cv2.imread(str(rig.snapshot_dir / f"{rig.slots[0]}.png")), cv2.COLOR_BGR2RGB)
+    want = reference(still, homography_for(0), lut_for(0), 0.9)
+    assert np.abs(got.astype(int) - want.astype(int))[1:-1, 1:-1].mean() < 0.3
+
+    async def play_after():
+        async with await rig.client() as c:
+            return await c.play(control_pb2.PlaySettings(fps=10, pattern="counter", frames=10, wait=True, latency_ms=150))
+
+    r = run(play_after())
+    assert r.nodes == N_NODES and r.sync.out_of_order == 0
