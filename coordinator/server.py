@@ -743,13 +743,18 @@ def _guard(fn):
     return wrapper
 
 
-class NodeLinkService:
+class _Handshake:
+    """The first half of the rig-token handshake, the same on both services."""
+
     def __init__(self, coord: Coordinator):
         self.c = coord
 
     @_guard
     async def Hello(self, request, context):
         return self.c.hello(request, _peer(context))
+
+
+class NodeLinkService(_Handshake):
 
     @_guard
     async def Join(self, request, context):
@@ -838,13 +843,7 @@ def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
     server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler("shadowless.v1.NodeLink", handlers),))
 
 
-class RigControlService:
-    def __init__(self, coord: Coordinator):
-        self.c = coord
-
-    @_guard
-    async def Hello(self, request, context):
-        return self.c.hello(request, _peer(context))
+class RigControlService(_Handshake):
 
     @_guard
     async def Login(self, request, context):

@@ -160,6 +160,19 @@ def _check_slot(slot: str) -> str:
 # ------------------------------------------------------------------------- offscreen
 
 
+def headless_context() -> "moderngl.Context":
+    """A standalone OpenGL 3.3 context through EGL (Mesa's llvmpipe where there is no GPU)."""
+    import moderngl
+
+    try:
+        return moderngl.create_standalone_context(backend="egl", require=330)
+    except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
+        raise OutputError(
+            f"cannot create a headless OpenGL 3.3 context through EGL ({exc}); install Mesa's EGL and "
+            "DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri) or the GPU vendor's EGL"
+        ) from exc
+
+
 class OffscreenOutput(Output):
     """Headless output: renders into an EGL context; nothing is displayed.
 
@@ -197,15 +210,7 @@ class OffscreenOutput(Output):
 
     def make_context(self) -> "moderngl.Context":
         if self._ctx is None:
-            import moderngl
-
-            try:
-                self._ctx = moderngl.create_standalone_context(backend="egl", require=330)
-            except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
-                raise OutputError(
-                    f"cannot create a headless OpenGL 3.3 context through EGL ({exc}); install Mesa's EGL and "
-                    "DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri) or the GPU vendor's EGL"
-                ) from exc
+            self._ctx = headless_context()
         return self._ctx
 
     def after_swap(self, renderer: "Renderer", info: SwapInfo) -> None:

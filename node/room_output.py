@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from node.outputs import Output, OutputError, SwapInfo, _check_slot, wants_snapshot, write_snapshot
+from node.outputs import Output, OutputError, SwapInfo, _check_slot, headless_context, wants_snapshot, write_snapshot
 
 if TYPE_CHECKING:  # pragma: no cover
     import moderngl
@@ -98,15 +98,7 @@ class RoomOutput(Output):
 
     def make_context(self) -> "moderngl.Context":
         if self._ctx is None:
-            import moderngl
-
-            try:
-                self._ctx = moderngl.create_standalone_context(backend="egl", require=330)
-            except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
-                raise OutputError(
-                    f"cannot create a headless OpenGL 3.3 context through EGL ({exc}); install Mesa's EGL and "
-                    "DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri)"
-                ) from exc
+            self._ctx = headless_context()
         return self._ctx
 
     def native_size(self) -> tuple[int, int]:
