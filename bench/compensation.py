@@ -98,6 +98,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--video-size", type=_size, default=None, metavar="WxH", help="video figure size (default 960x540)")
     parser.add_argument("--video-frames", type=int, default=None, help="frames per clip (default 30; 0 skips the video figure)")
     parser.add_argument("--video-iterations", type=int, default=4, help="APG iterations per warm-started frame")
+    parser.add_argument("--video-deadline-ms", type=float, default=None,
+                        help="optional per-frame deadline: stop a frame's iterations once it has used this long")
     parser.add_argument("--sweep-frames", type=_ints, default=None, metavar="F,F,...",
                         help="frames averaged per pattern in the camera-noise sweep (empty skips it)")
     parser.add_argument("--sweep-size", type=_size, default=(324, 243), metavar="WxH")
@@ -381,10 +383,12 @@ def _video(args: argparse.Namespace) -> dict[str, Any]:
         cv2.circle(f, (w // 8 + 6 * k, h // 2), max(4, h // 9), float(args.target_range[1]), -1, cv2.LINE_AA)
         clips["overlay"].append(f)
     out: dict[str, Any] = {"size": f"{w}x{h}", "projectors": n, "frames": frames,
-                           "iterations_per_frame": args.video_iterations, "warm_start": "previous solution + target change"}
+                           "iterations_per_frame": args.video_iterations, "deadline_ms": args.video_deadline_ms,
+                           "warm_start": "previous solution + target change"}
     for name, clip in clips.items():
-        comp = FrameCompensator(op, iterations=args.video_iterations, threads=args.threads)
-        times, gaps, q_warm, q_conv, q_none = [], [], [], [], []
+        deadline = None if args.video_deadline_ms is None else args.video_deadline_ms / 1000
+        comp = FrameCompensator(op, iterations=args.video_iterations, deadline=deadline, threads=args.threads)
+        times, gaps, q_warm, q_conv, q_none, its = [], [], [], [], [], []
         first = None
         for k, frame in enumerate(clip):
             t = time.perf_counter()
@@ -394,6 +398,7 @@ def _video(args: argparse.Namespace) -> dict[str, Any]:
                 first = dt
             else:
                 times.append(dt)
+                its.append(res.iterations)
             if k % 5 == 4 or k == len(clip) - 1:
                 ref = solve(op, frame, x0=res.x, tol=1e-6, max_iter=1000, threads=args.threads)
                 fbest = min(ref.objective, res.objective)
@@ -406,6 +411,7 @@ def _video(args: argparse.Namespace) -> dict[str, Any]:
             "ms_per_frame_median": round(1000 * float(np.median(times)), 2) if times else None,
             "ms_per_frame_max": round(1000 * float(np.max(times)), 2) if times else None,
             "ms_first_frame": round(1000 * first, 2) if first is not None else None,
+            "iterations_per_frame_mean": round(float(np.mean(its)), 2) if its else None,
             "relative_gap_to_converged_mean": round(float(np.mean(gaps)), 4),
             "psnr_none_mean": round(float(np.mean(q_none)), 3),
             "psnr_warm_mean": round(float(np.mean(q_warm)), 3),

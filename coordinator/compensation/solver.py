@@ -694,14 +694,21 @@ class FrameCompensator:
         Iteration budget per frame and for a cold start.
     delta : bool
         Add the target change to the warm start (square ``L`` only).
+    deadline : float, optional
+        Seconds per frame: a warm-started frame stops after the iteration that crosses it
+        (its result then says ``reason == "time_limit"``).
     solve_options :
         Passed to :func:`solve` (``tol``, ``time_limit``, ``content_shape``, ``threads`` ...).
     """
 
     def __init__(self, L: sp.spmatrix | TransportOperator, *, iterations: int = 4, first_iterations: int = 60,
-                 delta: bool = True, **solve_options: Any) -> None:
+                 delta: bool = True, deadline: float | None = None, **solve_options: Any) -> None:
         if iterations < 1 or first_iterations < 1:
             raise ValueError("iteration budgets must be >= 1")
+        if deadline is not None:
+            if deadline <= 0:
+                raise ValueError(f"deadline must be positive, got {deadline}")
+            solve_options["time_limit"] = deadline
         self.op = operator_for(L, threads=solve_options.pop("threads", None))
         self.iterations = iterations
         self.first_iterations = first_iterations

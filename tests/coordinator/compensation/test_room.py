@@ -76,3 +76,41 @@ def test_transport_measured_in_the_room_matches_its_truth(room):
     assert measured.shape == expected.shape
     err = transport_error(measured, expected)
     assert err < 0.01, err  # sensor quantisation only
+
+
+def test_rig_transport_measured_with_all_projectors_at_once():
+    """25 projectors show the same dot grid (each warped by its pose): S*S + 1 captures give L = sum L_i."""
+    import scipy.sparse as sp
+
+    full = sim_room.Room(sim_scene.reference_scene(projector_scale=0.25, camera_scale=0.125), noise=False)
+    truth = full.truth
+    wc, hc = 200, 100  # content covering the table, 6 mm per pixel
+    h_cc = truth.table_to_camera_homography() @ truth.content_to_table_homography((wc, hc))
+    h_cc /= h_cc[2, 2]
+    warps = {}
+    for slot in full.slots:
+        # each projector shows the content through its pose (nearest content pixel: 0/255 frames)
+        w, h = full.projector_size(slot)
+        u, v = np.meshgrid(np.arange(w), np.arange(h))
+        p = np.linalg.inv(truth.content_to_projector_homography(slot, (wc, hc))) @ np.stack(
+            [u.ravel(), v.ravel(), np.ones(u.size)])
+        x = np.rint(p[0] / p[2]).astype(np.int64)
+        y = np.rint(p[1] / p[2]).astype(np.int64)
+        ok = (x >= 0) & (x < wc) & (y >= 0) & (y < hc)
+        warps[slot] = sp.csr_matrix((np.ones(ok.sum(), np.float32), (np.flatnonzero(ok), (y * wc + x)[ok])),
+                                    shape=(w * h, wc * hc))
+
+    def show_all(pattern: np.ndarray) -> np.ndarray:
+        for slot, warp in warps.items():
+            w, h = full.projector_size(slot)
+            frame = np.rint(255 * (warp @ pattern.ravel())).astype(np.uint8).reshape(h, w)
+            full.set_frame(slot, np.repeat(frame[:, :, None], 3, axis=2))
+        return full.capture()
+
+    grid = DotGrid(wc, hc, 5)
+    black = show_all(np.zeros((hc, wc), np.float32))
+    measured = measure_transport((show_all(grid.pattern(k)) for k in range(len(grid))), black, grid=grid,
+                                 homography=h_cc, radius=2)
+    expected = sum(truth.transport(s) @ warps[s] * float(np.mean(1 - truth.projector(s).black)) for s in full.slots)
+    err = transport_error(measured, sp.csr_matrix(expected))
+    assert err < 0.005, err

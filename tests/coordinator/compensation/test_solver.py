@@ -209,3 +209,28 @@ def test_objective_value_is_float64_accurate():
     c = rng.random(3000).astype(np.float32)
     exact = float(np.sum((L.astype(np.float64) @ x.astype(np.float64) - c) ** 2))
     assert math.isclose(objective(L, x, c), exact, rel_tol=1e-6)
+
+
+def test_frame_compensator_warm_starts_and_keeps_deadlines(problem):
+    from coordinator.compensation import FrameCompensator
+
+    L, _, target = problem
+    frames = [target[:, :, 1].copy() for _ in range(3)]
+    for k, f in enumerate(frames):
+        f[4:9, 3 + 2 * k : 8 + 2 * k] = 0.8  # a small square moves right
+    comp = FrameCompensator(L, iterations=5, first_iterations=200)
+    first = comp(frames[0])
+    assert first.iterations > 5
+    later = [comp(f) for f in frames[1:]]
+    assert all(r.iterations == 5 for r in later)
+    # the warm start (previous solution + target change) beats a cold start with the same budget
+    cold = solve(L, frames[2], max_iter=5, tol=0, gap_tol=0, pg_tol=0)
+    assert later[-1].objective < cold.objective
+    ticks = iter(range(10_000))
+    timed = FrameCompensator(L, iterations=50, first_iterations=50, deadline=3, clock=lambda: float(next(ticks)))
+    res = timed(frames[0])
+    assert res.reason == "time_limit" and res.iterations < 10
+    comp.reset()
+    assert comp(frames[0]).iterations > 5
+    with pytest.raises(ValueError):
+        FrameCompensator(L, deadline=0)
