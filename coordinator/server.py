@@ -12,10 +12,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import os
 import resource
 import secrets
-import socket
 import time
 import uuid
 from collections import deque
@@ -28,7 +26,7 @@ import numpy as np
 from coordinator import wire
 from coordinator.errors import CoordinatorError
 from coordinator.mdns import Advertiser
-from coordinator.rig import Content, HomographyPose, Rig
+from coordinator.rig import Content, Rig
 from coordinator.sync import FrameResult, SyncTracker, summarize
 from protos import auth, codec, common_pb2, control_pb2, node_pb2
 from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
@@ -191,7 +189,6 @@ class Coordinator:
                  self.rig.config.name, self.rig.config.rig_id, self.port, self.instance_id)
 
     async def stop(self, grace: float = 2.0) -> None:
-        from grpc_health.v1 import health_pb2
 
         if self._health is not None:
             await self._health.enter_graceful_shutdown()

@@ -10,7 +10,6 @@ The generated modules are imported as ``protos.<name>_pb2`` and
 from __future__ import annotations
 
 import argparse
-import difflib
 import shutil
 import sys
 import tempfile
