@@ -39,6 +39,8 @@ SERVER_OPTIONS = GRPC_OPTIONS + [
     ("grpc.so_reuseport", 0),
 ]
 NONCE_TTL_S = 30.0
+MAX_OPERATOR_SESSIONS = 256
+OPERATOR_SESSION_TTL_S = 12 * 3600.0
 MAX_PENDING_PACKETS = 512
 HOST_BOOT_ID = ""
 try:
@@ -122,7 +124,7 @@ class Coordinator:
         self.port = 0
         self.sessions: dict[str, NodeSession] = {}      # session id -> node session
         self.by_slot: dict[str, NodeSession] = {}
-        self.operators: set[str] = set()
+        self.operators: dict[str, float] = {}   # operator session -> last use (monotonic)
         self.joins: dict[str, int] = {}
         self.pending: dict[bytes, tuple[bytes, float]] = {}   # server nonce -> (client nonce, expiry)
         self.refusals: deque[tuple[str, str, str, float]] = deque(maxlen=64)
@@ -301,7 +303,10 @@ class Coordinator:
     def login(self, req: common_pb2.LoginRequest, peer: str) -> common_pb2.LoginReply:
         self.check_login(req, peer, "operator")
         session = secrets.token_hex(16)
-        self.operators.add(session)
+        self.operators[session] = time.monotonic()
+        if len(self.operators) > MAX_OPERATOR_SESSIONS:   # every CLI call logs in: forget the oldest
+            for old in sorted(self.operators, key=self.operators.get)[: len(self.operators) - MAX_OPERATOR_SESSIONS]:
+                del self.operators[old]
         return common_pb2.LoginReply(session=session, rig_id=self.rig.config.rig_id, instance_id=self.instance_id)
 
     def node_session(self, context: grpc.aio.ServicerContext) -> NodeSession:
@@ -314,8 +319,10 @@ class Coordinator:
 
     def operator_session(self, context: grpc.aio.ServicerContext) -> None:
         sid = dict(context.invocation_metadata() or ()).get(SESSION_KEY, "")
-        if sid not in self.operators:
+        if sid not in self.operators or time.monotonic() - self.operators[sid] > OPERATOR_SESSION_TTL_S:
+            self.operators.pop(sid, None)
             raise RpcRefusal(grpc.StatusCode.UNAUTHENTICATED, "not logged in: call Hello and Login with the rig token")
+        self.operators[sid] = time.monotonic()
 
     # ------------------------------------------------------------------ sessions
     def _drop_session(self, sess: NodeSession, *, lost: bool) -> None:
