@@ -1,8 +1,10 @@
 """Errors of the compensation package; each message says what the operator can do."""
 from __future__ import annotations
 
+from coordinator.errors import CoordinatorError
 
-class CompensationError(Exception):
+
+class CompensationError(CoordinatorError):
     """Base of every error raised by :mod:`coordinator.compensation` (bad shapes raise ``ValueError``)."""
 
 
