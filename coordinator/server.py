@@ -191,7 +191,7 @@ class Coordinator:
                  self.rig.config.name, self.rig.config.rig_id, self.port, self.instance_id)
 
     async def stop(self, grace: float = 2.0) -> None:
-
+        """Graceful shutdown: health NOT_SERVING, mDNS unregister, streams closed, server stopped."""
         if self._health is not None:
             await self._health.enter_graceful_shutdown()
         if self._advertiser is not None:
@@ -207,11 +207,8 @@ class Coordinator:
             sess.close()
         if self._server is not None:
             await self._server.stop(grace)
-        await asyncio.gather(*self._tasks, *( [self._play_task] if self._play_task else []), return_exceptions=True)
-
-    async def wait_closed(self) -> None:
-        if self._server is not None:
-            await self._server.wait_for_termination()
+        pending = self._tasks + ([self._play_task] if self._play_task else [])
+        await asyncio.gather(*pending, return_exceptions=True)
 
     # ------------------------------------------------------------------ helpers
     def rig_now(self) -> int:
