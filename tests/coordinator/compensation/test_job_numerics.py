@@ -1,0 +1,271 @@
+"""The numerics the compensation jobs add on top of coordinator/compensation: checked against
+independent references (matrix products, cv2 warps, closed forms, brute force)."""
+from __future__ import annotations
+
+import asyncio
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from bench.compensation_room import bilinear_warp_matrix, image_param
+from coordinator.calibration.planar import content_to_table
+from coordinator.compensation import DotGrid, apply_lut, measure_transport, transport_error
+from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.job import (
+    _feed_measure,
+    _patch_layouts,
+    best_scale,
+    camera_target,
+    choose_spacing,
+    content_to_camera,
+    decode_image_param,
+    encode_image_param,
+    inscribed_region,
+    patch_labels,
+    patch_response,
+    prepare_image,
+    projector_frame,
+)
+from coordinator.compensation.synthetic import simulate_captures, synthetic_rig, synthetic_transport
+from coordinator.compensation.transport import apply_homography
+
+POSE = np.array([[0.52, 0.03, 12.0], [-0.02, 0.55, 9.0], [1e-5, 2e-5, 1.0]])
+
+
+def test_projector_frame_is_the_nodes_bilinear_lookup_then_gain_and_lut():
+    rng = np.random.default_rng(1)
+    content = rng.random((40, 60, 3)).astype(np.float32)
+    size = (48, 36)
+    B = bilinear_warp_matrix(POSE, size, (60, 40))
+    warped = (B @ content.reshape(-1, 3)).reshape(36, 48, 3)
+    lut = np.stack([np.linspace(0, 1, 1024) ** (1 / g) for g in (2.0, 2.2, 2.4)]).astype(np.float32)
+    out = projector_frame(content, POSE, size, lut=lut, gain=0.8)
+    ref = apply_lut(lut, warped, gain=0.8)
+    assert out.shape == (36, 48, 3) and out.dtype == np.uint8
+    # cv2 interpolates with 1/32-pixel weights, the matrix (and the node) exactly: a level at most apart
+    assert np.abs(out.astype(int) - ref.astype(int)).max() <= 1
+    assert np.mean(out != ref) < 0.05
+    # LUT off: the warped values themselves; grey content is replicated to three channels
+    plain = projector_frame(content[:, :, 0], POSE, size, apply=False)
+    assert np.array_equal(plain[:, :, 0], plain[:, :, 2])
+    assert np.abs(plain[:, :, 0].astype(int) - np.rint(255 * warped[:, :, 0]).astype(int)).max() <= 1
+
+
+def test_bilinear_matrix_matches_cv2_warp_and_rows_sum_to_one_inside():
+    content = np.random.default_rng(2).random((30, 50)).astype(np.float32)
+    size = (40, 30)
+    B = bilinear_warp_matrix(POSE, size, (50, 30))
+    mine = (B @ content.ravel()).reshape(30, 40)
+    ref = cv2.warpPerspective(content, POSE, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    assert np.abs(mine - ref).max() < 0.02
+    rows = np.asarray(B.sum(axis=1)).ravel().reshape(30, 40)
+    v, u = np.mgrid[0:30, 0:40]
+    x, y = apply_homography(np.linalg.inv(POSE), u, v)
+    inside = (x >= 0) & (x <= 49) & (y >= 0) & (y <= 29)
+    assert np.allclose(rows[inside], 1.0)
+
+
+def test_choose_spacing_is_the_smallest_the_transport_accepts():
+    H = np.array([[1.3, 0.05, 20.0], [0.02, 1.25, 15.0], [1e-5, 0.0, 1.0]])
+    content, camera = (60, 80), (130, 160)
+    for radius in (1, 2, 3):
+        s = choose_spacing(H, content, camera, radius)
+        black = np.zeros(camera, np.float32)
+        for spacing, ok in ((s, True), (s - 1, False)):
+            if spacing < 1:
+                continue
+            grid = DotGrid(content[1], content[0], spacing)
+            caps = (np.zeros(camera, np.float32) for _ in range(len(grid)))
+            if ok:
+                measure_transport(caps, black, grid=grid, homography=H, radius=radius)
+            else:
+                with pytest.raises(ValueError, match="too small"):
+                    measure_transport(caps, black, grid=grid, homography=H, radius=radius)
+    assert choose_spacing(H, content, camera, 2, guard=3) > choose_spacing(H, content, camera, 2)
+
+
+def test_inscribed_region_lies_inside_the_content_and_fills_most_of_it():
+    # a camera looking down at a slight angle: the content's outline is a mild trapezoid
+    H = np.array([[0.9, 0.01, 40.0], [-0.005, 0.95, 60.0], [2e-5, 1e-5, 1.0]])
+    size, camera = (300, 150), (300, 420)
+    rows, cols = inscribed_region(H, size, camera, margin=0)
+    Hi = np.linalg.inv(H)
+    ys, xs = np.mgrid[rows, cols]
+    x, y = apply_homography(Hi, xs.ravel(), ys.ravel())
+    assert x.min() >= -0.5 and y.min() >= -0.5 and x.max() <= 299.5 and y.max() <= 149.5
+    # brute force: camera pixels whose centre maps inside the content
+    ys, xs = np.mgrid[0:camera[0], 0:camera[1]]
+    x, y = apply_homography(Hi, xs.ravel(), ys.ravel())
+    inside = np.sum((x >= -0.5) & (y >= -0.5) & (x <= 299.5) & (y <= 149.5))
+    area = (rows.stop - rows.start) * (cols.stop - cols.start)
+    assert 0.93 * inside < area <= inside
+    r2, c2 = inscribed_region(H, size, camera, margin=5)
+    assert r2.start == rows.start + 5 and c2.stop == cols.stop - 5
+    with pytest.raises(CompensationError, match="too little"):
+        inscribed_region(H, (5, 5), camera)
+
+
+def test_patch_labels_cut_the_frame_and_mark_edge_bands():
+    lab = patch_labels((40, 30), (3, 4), border=0)
+    assert lab.shape == (30, 40) and set(np.unique(lab)) == set(range(12))
+    assert lab[0, 0] == 0 and lab[-1, -1] == 11 and lab[0, -1] == 3
+    counts = np.bincount(lab.ravel())
+    assert counts.min() >= 90 and counts.max() <= 110
+    edged = patch_labels((40, 30), (3, 4), border=2)
+    assert (edged[:2] == -1).all() and (edged[:, -2:] == -1).all()
+    inner = edged >= 0
+    assert np.array_equal(edged[inner], lab[inner])
+    # every remaining pixel is at least 2 px from a pixel of another patch
+    for k in range(12):
+        m = (edged == k).astype(np.uint8)
+        grown = cv2.dilate(m, np.ones((3, 3), np.uint8), iterations=1).astype(bool)
+        assert set(np.unique(lab[grown])) == {k}
+    with pytest.raises(ValueError):
+        patch_labels((5, 5), (4, 4))
+
+
+def test_patch_layouts_show_every_level_repeatedly():
+    levels = np.linspace(0.05, 0.95, 15)
+    layouts = _patch_layouts(levels, 16, 2, seed=3)
+    shown = np.concatenate(layouts)
+    assert len(layouts) == 2 and all(len(x) == 16 for x in layouts)
+    for v in levels:
+        assert np.sum(shown == v) >= 2
+
+
+def test_patch_response_recovers_a_response_through_a_homography_and_fall_off():
+    """A synthetic projector -> camera: fall-off across the image, gamma response, blur at patch edges."""
+    size, grid = (64, 48), (3, 4)
+    gamma = np.array([2.0, 2.2, 2.4])
+    black_level = 0.01
+    H = np.array([[2.1, 0.1, 10.0], [0.05, 2.0, 8.0], [1e-4, 0.0, 1.0]])  # projector -> camera
+    cam = (120, 160)
+    fall = np.linspace(0.5, 1.0, cam[1])[None, :, None] * np.ones((cam[0], 1, 1))
+
+    def capture(frame_levels: np.ndarray) -> np.ndarray:
+        lum = black_level + (1 - black_level) * frame_levels[:, :, None] ** gamma
+        img = cv2.warpPerspective(lum.astype(np.float32), H, cam[::-1], flags=cv2.INTER_LINEAR)
+        img = cv2.GaussianBlur(img, (0, 0), 1.0)
+        return (img * fall).astype(np.float32)
+
+    shown = patch_labels(size, grid, border=0)
+    labels = patch_labels(size, grid, border=3)
+    interior = np.linspace(0.1, 0.9, 9)
+    layouts = _patch_layouts(interior, 12, 2, seed=0)
+    caps = [capture(layout[shown]) for layout in layouts]
+    black = capture(np.zeros(size[::-1]))
+    white = capture(np.ones(size[::-1]))
+    cam_labels = cv2.warpPerspective(labels.astype(np.float32), H, cam[::-1], flags=cv2.INTER_NEAREST,
+                                     borderValue=-1).astype(np.int32)
+    valid = (white - black).mean(axis=2) > 0.05
+    lv, rho = patch_response(caps, layouts, white=white, black=black, camera_labels=cam_labels, valid=valid)
+    assert len(lv) >= 18
+    expected = lv[:, None] ** gamma[None, :]
+    assert np.abs(rho - expected).max() < 2e-3
+    # without the edge bands, blur from neighbouring patches biases the result
+    lv2, rho2 = patch_response(caps, layouts, white=white, black=black,
+                               camera_labels=cv2.warpPerspective(shown.astype(np.float32), H, cam[::-1],
+                                                                 flags=cv2.INTER_NEAREST, borderValue=-1).astype(np.int32),
+                               valid=valid)
+    assert np.abs(rho2 - lv2[:, None] ** gamma[None, :]).max() > 5 * np.abs(rho - expected).max()
+
+
+def test_image_parameters_round_trip(tmp_path):
+    rng = np.random.default_rng(4)
+    rgb8 = rng.integers(0, 256, (20, 30, 3), dtype=np.uint8)
+    rgb16 = rng.integers(0, 65536, (20, 30, 3), dtype=np.uint16)
+    grey = rng.random((20, 30)).astype(np.float32)
+    cv2.imwrite(str(tmp_path / "a.png"), cv2.cvtColor(rgb8, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(tmp_path / "b.png"), cv2.cvtColor(rgb16, cv2.COLOR_RGB2BGR))
+    np.save(tmp_path / "c.npy", grey)
+    for f, ref in (("a.png", rgb8), ("b.png", rgb16), ("c.npy", grey[:, :, None])):
+        img, name = decode_image_param(json.loads(json.dumps(encode_image_param(tmp_path / f))))
+        assert name == f and img.dtype == ref.dtype and np.array_equal(img, ref)
+    img, _ = decode_image_param(image_param(rgb8))
+    assert np.array_equal(img, rgb8)
+    with pytest.raises(CompensationError, match="corrupt"):
+        decode_image_param({"name": "x.png", "data": "not base64!"})
+    bad = encode_image_param(tmp_path / "a.png")
+    import base64
+    import zlib
+
+    bad["data"] = base64.b64encode(zlib.compress(b"not an image")).decode()
+    with pytest.raises(CompensationError, match="cannot read"):
+        decode_image_param(bad)
+
+
+def test_prepare_image_scales_to_the_content_and_decodes_srgb():
+    img = np.full((60, 100, 3), 128, np.uint8)
+    out = prepare_image(img, (50, 30))
+    assert out.shape == (30, 50, 3) and out.dtype == np.float32 and np.allclose(out, 128 / 255)
+    lin = prepare_image(img, (50, 30), srgb=True)
+    assert np.allclose(lin, ((128 / 255 + 0.055) / 1.055) ** 2.4, atol=1e-6)
+    grey16 = np.full((30, 50), 65535, np.uint16)
+    assert np.allclose(prepare_image(grey16, (50, 30)), 1.0)
+
+
+def test_camera_target_and_best_scale():
+    H = np.array([[1.5, 0.0, 10.0], [0.0, 1.5, 5.0], [0.0, 0.0, 1.0]])
+    img = np.zeros((20, 30), np.float32)
+    img[5:15, 10:20] = 1.0
+    t = camera_target(img, H, (50, 70))
+    assert t.shape == (50, 70, 1)
+    x, y = apply_homography(H, np.array([15.0]), np.array([10.0]))
+    assert t[int(round(y[0])), int(round(x[0])), 0] == pytest.approx(1.0)
+    assert t[0, 0, 0] == 0.0
+    rng = np.random.default_rng(5)
+    p, q = rng.random(100), rng.random(100)
+    a = best_scale(p, q)
+    ref = np.linalg.lstsq(p[:, None], q, rcond=None)[0][0]
+    assert a == pytest.approx(ref)
+    assert best_scale(p, -q) == 0.0 and best_scale(np.zeros(3), q[:3]) == 0.0
+
+
+def test_content_to_camera_reads_the_calibration(tmp_path):
+    H_tc = np.array([[0.45, 0.01, 320.0], [0.0, -0.46, 240.0], [0.0, 0.0, 1.0]])
+    (tmp_path / "calibration").mkdir()
+    doc = {"content_size": [300, 150], "table_mm": [1200, 600],
+           "cameras": [{"camera": 0, "size": [648, 486], "table_to_camera": H_tc.tolist()}]}
+    (tmp_path / "calibration" / "cameras.json").write_text(json.dumps(doc))
+    H, size = content_to_camera(tmp_path, (300, 150))
+    ref = H_tc @ content_to_table((300, 150), (1200, 600))
+    assert np.allclose(H, ref / ref[2, 2]) and size == (648, 486)
+    with pytest.raises(CompensationError, match="calibrated for content 300x150"):
+        content_to_camera(tmp_path, (600, 300))
+    with pytest.raises(CompensationError, match="camera 1 has no table mapping"):
+        content_to_camera(tmp_path, (300, 150), camera=1)
+    with pytest.raises(CompensationError, match="run `shadowless calibrate` first"):
+        content_to_camera(tmp_path / "nowhere", (300, 150))
+
+
+def test_feeding_captures_from_the_loop_equals_measuring_directly():
+    rig = synthetic_rig(4, content_shape=(24, 32), radius=2, seed=1)
+    L = synthetic_transport(rig)
+    grid = DotGrid(32, 24, 5)
+    black = np.full((24, 32), 0.01, np.float32)
+    caps = list(simulate_captures(L, grid, (24, 32), black=0.01, read_noise=1e-3, rng=np.random.default_rng(0)))
+    direct = measure_transport(iter(caps), black, grid=grid, radius=2)
+
+    class Ctx:
+        async def compute(self, fn, *a, **k):
+            return await asyncio.to_thread(fn, *a, **k)
+
+    async def shots():
+        for c in caps:
+            await asyncio.sleep(0)
+            yield c
+
+    fed = asyncio.run(_feed_measure(Ctx(), shots(), black, grid=grid, radius=2))
+    assert transport_error(fed, direct) == 0.0
+    assert transport_error(direct, L) < 0.05
+
+    async def short():
+        for c in caps[:3]:
+            yield c
+
+    from coordinator.jobs import JobError
+
+    with pytest.raises(JobError, match="needs 25 captures"):
+        asyncio.run(_feed_measure(Ctx(), short(), black, grid=grid, radius=2))
