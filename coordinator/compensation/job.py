@@ -82,7 +82,7 @@ from coordinator.compensation.response import (
     verify_linearity,
 )
 from coordinator.compensation.response import measure_response as response_means
-from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve, solve_per_projector
+from coordinator.compensation.solver import TransportOperator, solve
 from coordinator.compensation.transport import (
     DotGrid,
     apply_homography,
@@ -100,6 +100,7 @@ __all__ = [
     "measure_transport",
     "compensate",
     "compensate_sequence",
+    "ContentWarmStart",
     "content_to_camera",
     "projector_frame",
     "choose_spacing",
@@ -469,6 +470,70 @@ def best_scale(prediction: np.ndarray, target: np.ndarray) -> float:
     t = np.asarray(target, np.float64).ravel()
     den = float(np.dot(p, p))
     return max(float(np.dot(p, t)) / den, 0.0) if den > 0 else 0.0
+
+
+class ContentWarmStart:
+    """Warm-started compensation of a sequence when content and camera grids differ.
+
+    :class:`~coordinator.compensation.FrameCompensator` adds the target's change to the
+    previous solution only when ``L`` is square (content = camera grid). Here the content's own
+    change is known: frame ``k`` starts from ``x_{k-1} + a (content_k - content_{k-1})``, where
+    ``a`` is the scale that best maps content to the target (``L a content ~ target``), clipped to
+    [0, 1]; the first frame (or one after :meth:`reset`) starts from ``a content``. Each frame then
+    runs ``iterations`` APG iterations (``first_iterations`` for the first), so the time per
+    frame is bounded.
+
+    Parameters
+    ----------
+    L : scipy.sparse matrix or TransportOperator, (n_camera, n_content)
+    iterations, first_iterations : int
+    content_shape : (H, W)
+    solve_options :
+        Passed to :func:`~coordinator.compensation.solve` (``tol``, ``threads``, ...).
+    """
+
+    def __init__(self, L, *, iterations: int = 4, first_iterations: int = 60, content_shape: Sequence[int],
+                 **solve_options: Any) -> None:
+        if iterations < 1 or first_iterations < 1:
+            raise ValueError("iteration budgets must be >= 1")
+        self.op = L if isinstance(L, TransportOperator) else TransportOperator(L)
+        self.iterations, self.first_iterations = iterations, first_iterations
+        self.content_shape = (int(content_shape[0]), int(content_shape[1]))
+        if self.content_shape[0] * self.content_shape[1] != self.op.shape[1]:
+            raise ValueError(f"content_shape {self.content_shape} does not hold L's {self.op.shape[1]} content pixels")
+        solve_options.setdefault("gap_tol", 0.0)
+        solve_options.setdefault("pg_tol", 0.0)
+        self.options = solve_options
+        self._x: np.ndarray | None = None
+        self._content: np.ndarray | None = None
+        self._scale: float | None = None
+
+    @property
+    def scale(self) -> float | None:
+        """The content -> target scale found on the first frame (None before it)."""
+        return self._scale
+
+    def reset(self) -> None:
+        """Forget the previous frame (e.g. after a cut)."""
+        self._x = self._content = self._scale = None
+
+    def __call__(self, target: np.ndarray, content: np.ndarray):
+        """Compensate one frame: ``target`` (Hc, Wc, C) camera signal, ``content`` (H, W, C) linear; a SolveResult."""
+        content = np.asarray(content, np.float32)
+        if content.ndim == 2:
+            content = content[:, :, None]
+        if self._x is None or self._content is None or self._content.shape != content.shape:
+            flat = content.reshape(-1, content.shape[2])
+            self._scale = best_scale(self.op.matvec(flat), np.asarray(target, np.float32).reshape(-1, content.shape[2]))
+            x0 = np.clip(content * np.float32(self._scale), 0, 1)
+            budget = self.first_iterations
+        else:
+            x0 = np.clip(self._x.reshape(content.shape) + np.float32(self._scale) * (content - self._content), 0, 1)
+            budget = self.iterations
+        res = solve(self.op, target, x0=x0, max_iter=budget, content_shape=self.content_shape, **self.options)
+        self._x = res.x
+        self._content = content
+        return res
 
 
 # ====================================================================== job plumbing
@@ -1472,7 +1537,7 @@ async def compensate_sequence(ctx, params: dict) -> dict:
     s = _target_level(row_white(tr.L, tr.camera_shape), region, level)
     op = await ctx.compute(TransportOperator, tr.L)
     await ctx.compute(op.lipschitz)
-    comp = FrameCompensator(op, iterations=iterations, first_iterations=first, content_shape=(ch, cw))
+    comp = ContentWarmStart(op, iterations=iterations, first_iterations=first, content_shape=(ch, cw))
     srgb = bool(params.get("srgb", False))
     times: list[float] = []
     objectives: list[float] = []
@@ -1485,7 +1550,7 @@ async def compensate_sequence(ctx, params: dict) -> dict:
         content = prepare_image(image, (cw, ch), srgb=srgb)
         target = camera_target(content, tr.H, tr.camera_shape) * np.float32(s)
         t = time.perf_counter()
-        res = await ctx.compute(comp, target)
+        res = await ctx.compute(comp, target, content)
         times.append(time.perf_counter() - t)
         objectives.append(res.objective)
         x = np.clip(res.x, 0, 1).reshape(ch, cw, -1)
@@ -1498,7 +1563,7 @@ async def compensate_sequence(ctx, params: dict) -> dict:
         "ms_per_frame_mean": round(1000 * float(np.mean(warm)), 2),
         "ms_per_frame_median": round(1000 * float(np.median(warm)), 2),
         "ms_per_frame_max": round(1000 * float(np.max(warm)), 2),
-        "objective_mean": float(np.mean(objectives)), "transport": _transport_summary(tr),
+        "objective_mean": float(np.mean(objectives)), "scale": comp.scale, "transport": _transport_summary(tr),
     }
     if params.get("play", True):
         from coordinator.operator import play_dict
