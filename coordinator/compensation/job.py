@@ -61,7 +61,7 @@ import queue
 import time
 import zlib
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -104,6 +104,9 @@ __all__ = [
     "content_to_camera",
     "projector_frame",
     "choose_spacing",
+    "psf_radius",
+    "psf_profile",
+    "edge_energy",
     "camera_target",
     "inscribed_region",
     "patch_labels",
@@ -115,6 +118,8 @@ __all__ = [
 SUBDIR = "compensation"
 #: fewest camera pixels a response patch must cover to count
 MIN_PATCH_PIXELS = 12
+#: fraction of a measured L's light on its windows' outer ring above which a larger radius is advised
+EDGE_WARNING = 0.06
 #: relative white level below which the rig's light is "not reached" when choosing the target level
 TARGET_PERCENTILE = 2.0
 
@@ -252,6 +257,94 @@ def choose_spacing(homography: np.ndarray, content_shape: Sequence[int], camera_
             return s
     raise CompensationError(f"no dot spacing up to {limit} separates {2 * radius + 1}-pixel windows: the content is "
                             "much coarser than the camera; lower the radius")
+
+
+def _jacobian_scale(homography: np.ndarray, x: float, y: float) -> float:
+    """``sqrt(|det J|)`` of a homography at ``(x, y)``: how many destination px one source px spans."""
+    h = np.asarray(homography, np.float64)
+    d = 0.5
+    px, py = apply_homography(h, np.array([x - d, x + d, x, x]), np.array([y, y, y - d, y + d]))
+    jx = np.array([px[1] - px[0], py[1] - py[0]])
+    jy = np.array([px[3] - px[2], py[3] - py[2]])
+    return float(np.sqrt(abs(jx[0] * jy[1] - jx[1] * jy[0])))
+
+
+def psf_profile(c: float, p: float, *, blur: float = 0.0, step: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """1-D light profile of one content pixel on the camera (model), for :func:`psf_radius`.
+
+    A node samples the content bilinearly: projector pixel centres within one content pixel
+    (``c`` camera px) of a content pixel get weight ``1 - |d| / c`` (a triangle); each of them
+    lights a box one projector pixel (``p`` camera px) wide; an optional Gaussian ``blur`` (sigma,
+    camera px) stands for defocus. Returns ``(x, f)``: positions (camera px) and the normalised
+    profile (float64), ``f`` summing to 1 over the grid of spacing ``step``.
+    """
+    half = c + p / 2 + 4 * blur + 1
+    x = np.arange(-half, half + step / 2, step)
+    f = np.clip(1 - np.abs(x) / max(c, step), 0, None)
+    m = max(1, int(round(p / step)))
+    box = np.ones(m + 1 - m % 2)  # odd length: the convolution stays centred
+    f = np.convolve(f, box, mode="same")
+    if blur > 0:
+        g = np.exp(-0.5 * (x / blur) ** 2)
+        f = np.convolve(f, g / g.sum(), mode="same")
+    return x, f / f.sum()
+
+
+def psf_radius(homography: np.ndarray, poses: Sequence[np.ndarray], content_size: tuple[int, int], *,
+               tolerance: float = 1e-4, blur: float = 0.0, limit: int = 16) -> int:
+    """The smallest camera-pixel radius whose windows hold a content pixel's light, from the rig's geometry.
+
+    Scales at the content's centre: ``c`` camera px per content px (``homography``, content ->
+    camera) and ``p`` camera px per projector px (the median over ``poses``, content ->
+    projector). The light profile (:func:`psf_profile`) is integrated over camera pixels for
+    sub-pixel offsets of the window centre in [-0.5, 0.5]; the radius is the smallest whose
+    ``(2R+1)^2`` window leaves at most ``tolerance`` of the squared light (the Frobenius norm of a
+    column of ``L``) outside, on average. A radius larger than needed only adds noisy entries to
+    a measured ``L`` (they cost quality); defocus needs more (``blur``, or see :func:`edge_energy`).
+    """
+    w, h = content_size
+    x0, y0 = (w - 1) / 2, (h - 1) / 2
+    c = _jacobian_scale(homography, x0, y0)
+    p = float(np.median([c / _jacobian_scale(pose, x0, y0) for pose in poses])) if len(poses) else c
+    step = 0.01
+    x, f = psf_profile(c, p, blur=blur, step=step)
+    cdf = np.concatenate([[0.0], np.cumsum(f)])
+    n = int(np.ceil(x[-1])) + 2
+    for r in range(1, limit + 1):
+        missing = []
+        for u in np.linspace(-0.5, 0.5, 11):
+            edges = np.arange(-n, n + 1) + 0.5 + u          # camera pixel edges around the rounded centre
+            idx = np.clip(np.searchsorted(x, edges), 0, len(f))
+            v = np.diff(cdf[idx])                            # light of camera pixels k = -n .. n-1
+            k = np.arange(-n, n) + 1
+            e = v ** 2
+            inside = e[np.abs(k) <= r].sum() / e.sum()
+            missing.append(1 - inside ** 2)                   # separable: the same profile along y
+        if float(np.mean(missing)) <= tolerance:
+            return r
+    return limit
+
+
+def edge_energy(L: sp.spmatrix, homography: np.ndarray, content_shape: Sequence[int], camera_shape: Sequence[int],
+                radius: int) -> float:
+    """Share of a measured ``L``'s squared entries (its Frobenius norm) on the outer ring of its windows.
+
+    The light of a content pixel decays away from its centre, so what a ``(2R+1)^2`` window
+    cut off is at most about what lies on its outer ring: a share near zero says the windows
+    hold the PSFs; a few per cent says light was cut off (missing from ``L``): measure with a
+    larger radius.
+    """
+    hc, wc = int(camera_shape[0]), int(camera_shape[1])
+    base, _, _ = transport_windows(homography, content_shape, camera_shape, 0)
+    csc = sp.csc_matrix(L)
+    cols = np.repeat(np.arange(csc.shape[1]), np.diff(csc.indptr))
+    rows = csc.indices.astype(np.int64)
+    dx = rows % wc - base[cols, 0]
+    dy = rows // wc - base[cols, 1]
+    ring = (np.abs(dx) == radius) | (np.abs(dy) == radius)
+    v = csc.data.astype(np.float64) ** 2
+    total = float(v.sum())
+    return float(v[ring].sum()) / total if total > 0 else 0.0
 
 
 def camera_target(image: np.ndarray, homography: np.ndarray, camera_shape: Sequence[int]) -> np.ndarray:
@@ -1014,7 +1107,7 @@ _TRANSPORT_KEYS = {"slots", "radius", "spacing", "frames", "settle_s", "camera",
 
 @dataclass
 class _TransportOptions:
-    radius: int
+    radius: int | None
     spacing: int | None
     frames: int
     settle_s: float
@@ -1028,7 +1121,7 @@ class _TransportOptions:
     def parse(cls, params: dict, *, known: set[str] = _TRANSPORT_KEYS) -> "_TransportOptions":
         _check_known(params, known, "transport")
         frames = _int(params, "frames", 1, 1, 256)
-        return cls(radius=_int(params, "radius", 2, 1, 16), spacing=_int(params, "spacing", None, 2, 64),
+        return cls(radius=_int(params, "radius", None, 1, 16), spacing=_int(params, "spacing", None, 2, 64),
                    frames=frames, settle_s=_float(params, "settle_s", 0.05, 0.0, 30.0),
                    camera=_int(params, "camera", 0, 0, 64), force=bool(params.get("force", False)),
                    baseline=bool(params.get("baseline", False)),
@@ -1056,7 +1149,8 @@ class _Transport:
 def _transport_fingerprint(ctx, slots: list[str], H: np.ndarray, opts: _TransportOptions) -> str:
     rig = ctx.rig
     h = hashlib.blake2b(digest_size=10)
-    h.update(repr((rig.config.content_width, rig.config.content_height, _camera_spec(ctx, opts.camera), opts.camera,
+    # the camera is identified by its index and its calibration (H), not by how it is reached (its spec)
+    h.update(repr((rig.config.content_width, rig.config.content_height, opts.camera,
                    opts.radius, opts.spacing, opts.frames)).encode())
     h.update(np.asarray(H, np.float64).tobytes())
     for s in sorted(slots):
@@ -1117,6 +1211,9 @@ async def _ensure_transport(ctx, opts: _TransportOptions, slots: list[str] | Non
     if slots is None:
         slots = _slots_param(ctx, {}, need_pose=True)
     H, cal_size = _geometry(ctx, opts.camera)
+    cw, ch = rig.config.content_width, rig.config.content_height
+    if opts.radius is None:
+        opts = replace(opts, radius=psf_radius(H, [rig.slot(s).pose.matrix for s in slots], (cw, ch)))
     fp = _transport_fingerprint(ctx, slots, H, opts)
     if not opts.force:
         found = _load_valid_transport(ctx, fp, H, slots)
@@ -1127,12 +1224,12 @@ async def _ensure_transport(ctx, opts: _TransportOptions, slots: list[str] | Non
     if not measure:
         raise JobError("no valid light-transport measurement for the rig as it is now (poses, LUTs or gains changed, "
                        "or none was made): run `shadowless transport`")
+    _camera_spec(ctx, opts.camera)
     missing = [s for s in rig.slots if rig.slot(s).lut is None and s in slots]
     if missing:
         ctx.log(f"warning: {', '.join(missing)} have no inverse-response LUT: the light transport assumes linear "
                 "projectors; run `shadowless response` first")
     t0 = time.monotonic()
-    cw, ch = rig.config.content_width, rig.config.content_height
     shots = _Shots(ctx, camera=opts.camera, settle_s=opts.settle_s, frames=opts.frames)
     ctx.progress("transport", "", 0, 1, "every projector black")
     black = await shots.content(np.zeros((ch, cw), np.uint8))
@@ -1157,12 +1254,17 @@ async def _ensure_transport(ctx, opts: _TransportOptions, slots: list[str] | Non
 
     L = await _feed_measure(ctx, patterns(), black, grid=grid, homography=H, radius=opts.radius)
     seconds = time.monotonic() - t0
+    edge = await ctx.compute(edge_energy, L, H, (ch, cw), cam, opts.radius)
+    if edge > EDGE_WARNING:
+        ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * opts.radius + 1}-pixel "
+                f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius "
+                f"{opts.radius + 1})")
     meta = {"fingerprint": fp, "radius": opts.radius, "spacing": spacing, "frames": opts.frames,
             "captures": shots.count, "patterns": len(grid), "content_size": [cw, ch], "camera_size": [cam[1], cam[0]],
             "content_to_camera": np.asarray(H).tolist(), "camera": opts.camera,
             "camera_spec": _camera_spec(ctx, opts.camera), "slots": sorted(slots), "measured_at": time.time(),
             "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": round(seconds, 3), "nnz": int(L.nnz),
-            "black_file": f"black-{fp}.npy"}
+            "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5)}
     d = _dir(rig)
     atomic_save_npy(d / meta["black_file"], black)
     await ctx.compute(save_transport, d / "transport.npz", L, meta)
@@ -1264,6 +1366,7 @@ def _transport_summary(tr: _Transport) -> dict:
     m = tr.meta
     return {"reused": tr.reused, "captures": m["captures"], "patterns": m["patterns"], "spacing": m["spacing"],
             "radius": m["radius"], "frames": m["frames"], "seconds": m["seconds"], "nnz": m["nnz"],
+            "edge_energy": m.get("edge_energy"),
             "shape": list(tr.L.shape), "slots": len(tr.slots), "date": m["date"], "fingerprint": m["fingerprint"],
             "file": f"{SUBDIR}/transport.npz"}
 
@@ -1273,7 +1376,7 @@ async def measure_transport(ctx, params: dict) -> dict:
 
     Parameters (JSON)::
 
-        radius            PSF recovery radius in camera pixels (default 2)
+        radius            PSF recovery radius in camera pixels (default: from the geometry, :func:`psf_radius`)
         spacing           dot-grid spacing in content pixels (default: the smallest that separates the
                           windows, plus one pixel of guard)
         frames            captures averaged per pattern (default 1)
@@ -1285,12 +1388,11 @@ async def measure_transport(ctx, params: dict) -> dict:
     """
     t0 = time.monotonic()
     opts = _TransportOptions.parse(dict(params))
-    _camera_spec(ctx, opts.camera)
     slots = _slots_param(ctx, params, need_pose=True)
     tr = await _ensure_transport(ctx, opts, slots)
     white = row_white(tr.L, tr.camera_shape)
     cw, ch = ctx.rig.config.content_width, ctx.rig.config.content_height
-    rows, cols = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=opts.radius + 2)
+    rows, cols = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)
     region = white[rows, cols]
     summary = {**_transport_summary(tr), "white": {"p2": _round(float(np.percentile(region, 2)), 5),
                                                    "median": _round(float(np.median(region)), 5),
@@ -1369,7 +1471,6 @@ async def compensate(ctx, params: dict) -> dict:
         image, name = _load_image(params)
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
-    _camera_spec(ctx, topts.camera)
     slots = _slots_param(ctx, params, need_pose=True)
     tr = await _ensure_transport(ctx, topts, slots, measure=bool(params.get("measure", True)))
     rig = ctx.rig
@@ -1527,7 +1628,6 @@ async def compensate_sequence(ctx, params: dict) -> dict:
     fps = _float(params, "fps", 30.0, 0.1, 1000.0)
     loops = _int(params, "loops", 0, 0, 10_000)
     camera = _int(params, "camera", 0, 0, 64)
-    _camera_spec(ctx, camera)
     topts = _TransportOptions.parse({"camera": camera})
     slots = _slots_param(ctx, {}, need_pose=True)
     tr = await _ensure_transport(ctx, topts, slots, measure=bool(params.get("measure", False)))

@@ -269,3 +269,85 @@ def test_feeding_captures_from_the_loop_equals_measuring_directly():
 
     with pytest.raises(JobError, match="needs 25 captures"):
         asyncio.run(_feed_measure(Ctx(), short(), black, grid=grid, radius=2))
+
+
+def _brute_force_missing(c: float, p: float, r: int, *, trials: int = 12, projectors: int = 25, sub: int = 20,
+                         seed: int = 0) -> float:
+    """Squared light of one content pixel outside a (2r+1)^2 camera window, by explicit projector pixels.
+
+    Each of ``projectors`` lattices (pitch ``p`` camera px, random phase) lights boxes ``p`` wide, weighted
+    bilinearly by the distance of their centre to the content pixel (``1 - |d|/c`` per axis); the
+    light is integrated over camera pixels (``sub`` x ``sub`` samples each) around a content pixel
+    centre at a random sub-pixel position. Returns the outside share of the squared light summed
+    over the trials (a projector coarser than the content lights some content pixels not at all).
+    """
+    rng = np.random.default_rng(seed)
+    n = int(np.ceil(c + p)) + r + 2
+    out = []
+    for _ in range(trials):
+        u, v = rng.uniform(-0.5, 0.5, 2)
+        fine = (np.arange(-n * sub, n * sub) + 0.5) / sub      # sample positions, camera px, centre at 0
+        img = np.zeros((fine.size, fine.size))
+        centres = np.arange(-np.ceil((c + p) / p) - 1, np.ceil((c + p) / p) + 2) * p
+        for phase in rng.uniform(0, p, (projectors, 2)):     # the rig: every projector, its own phase
+            for cy in centres + phase[1]:
+                wy = max(0.0, 1 - abs(cy - v) / c)
+                if wy == 0:
+                    continue
+                iny = np.abs(fine - cy) <= p / 2
+                for cx in centres + phase[0]:
+                    wx = max(0.0, 1 - abs(cx - u) / c)
+                    if wx == 0:
+                        continue
+                    inx = np.abs(fine - cx) <= p / 2
+                    img[np.ix_(iny, inx)] += wx * wy
+        pix = img.reshape(2 * n, sub, 2 * n, sub).sum(axis=(1, 3))
+        e = pix ** 2
+        k = np.arange(-n, n)
+        out.append((e.sum() - e[np.ix_(np.abs(k) <= r, np.abs(k) <= r)].sum(), e.sum()))
+    # over many content pixels (phases), as the Frobenius norm of L adds them up
+    return float(sum(o for o, _ in out) / sum(t for _, t in out))
+
+
+def test_psf_radius_holds_the_light_of_explicit_projector_pixels():
+    from coordinator.compensation.job import psf_profile, psf_radius
+
+    x, f = psf_profile(1.2, 2.0, blur=0.5)
+    assert f.sum() == pytest.approx(1.0) and f.min() >= 0 and abs(float(np.sum(x * f))) < 1e-6
+    for c, q in ((0.95, 0.40), (1.7, 0.9), (0.5, 1.0)):
+        H = np.array([[c, 0.0, 5.0], [0.0, c, 7.0], [0.0, 0.0, 1.0]])        # content -> camera
+        pose = np.array([[q, 0.0, 1.0], [0.0, q, 2.0], [0.0, 0.0, 1.0]])      # content -> projector
+        r = psf_radius(H, [pose], (100, 50), tolerance=1e-4)
+        p = c / q
+        assert _brute_force_missing(c, p, r) < 3e-4, (c, p, r)
+        assert _brute_force_missing(c, p, r - 1) > 1e-4 or r == 1, (c, p, r)
+    # the typical (median) projector decides; blur needs more
+    H = np.diag([1.0, 1.0, 1.0])
+    fine, coarse = np.diag([1.0, 1.0, 1.0]), np.diag([0.25, 0.25, 1.0])
+    assert psf_radius(H, [coarse, coarse, fine], (100, 50)) == psf_radius(H, [coarse], (100, 50))
+    assert psf_radius(H, [fine, fine, coarse], (100, 50)) == psf_radius(H, [fine], (100, 50)) < psf_radius(H, [coarse], (100, 50))
+    assert psf_radius(H, [fine], (100, 50), blur=1.5) > psf_radius(H, [fine], (100, 50))
+
+
+def test_edge_energy_is_the_light_on_the_windows_outer_ring():
+    import scipy.sparse as sp
+
+    from coordinator.compensation.job import edge_energy
+    from coordinator.compensation.transport import transport_windows
+
+    H = np.array([[1.4, 0.02, 6.0], [0.01, 1.35, 5.0], [0.0, 0.0, 1.0]])
+    content, camera, R = (20, 30), (45, 60), 2
+    _, rows, valid = transport_windows(H, content, camera, R)
+    rng = np.random.default_rng(7)
+    values = rng.random(rows.shape)
+    k = 2 * R + 1
+    dy, dx = np.divmod(np.arange(k * k), k)
+    ring = (np.abs(dx - R) == R) | (np.abs(dy - R) == R)
+    values[:, ring] *= 0.1
+    cols = np.repeat(np.arange(rows.shape[0])[:, None], k * k, axis=1)
+    L = sp.csr_matrix((values[valid], (rows[valid], cols[valid])), shape=(camera[0] * camera[1], rows.shape[0]))
+    expected = (values[:, ring][valid[:, ring]] ** 2).sum() / (values[valid] ** 2).sum()
+    assert edge_energy(L, H, content, camera, R) == pytest.approx(expected, rel=1e-9)
+    values[:, ring] = 0
+    L0 = sp.csr_matrix((values[valid], (rows[valid], cols[valid])), shape=L.shape)
+    assert edge_energy(L0, H, content, camera, R) == 0.0

@@ -10,16 +10,19 @@ import json
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from bench.calibration import make_rig, table_points_from_truth
 from bench.compensation_room import RoomCompensationContext, demo_image, image_param, points_doc, truth_transport
 from coordinator.compensation import brightness_scale, load_transport, transport_error
 from coordinator.compensation.job import (
+    EDGE_WARNING,
     _load_stored_response,
     compensate,
     compensate_sequence,
     measure_response,
     measure_transport,
+    psf_radius,
 )
 from coordinator.jobs import JobError
 
@@ -74,12 +77,19 @@ def test_transport_matches_the_rooms_truth_and_is_reused(setup):
     c0 = ctx.captures
     out = run(measure_transport(ctx, {"settle_s": 0.0}))
     assert not out["reused"] and out["captures"] == out["patterns"] + 1 == ctx.captures - c0
-    assert out["patterns"] == out["spacing"] ** 2 and out["radius"] == 2
     L, meta = load_transport(rig.path / "compensation" / "transport.npz")
+    H = np.asarray(meta["content_to_camera"])
+    assert out["patterns"] == out["spacing"] ** 2
+    assert out["radius"] == psf_radius(H, [rig.slot(s).pose.matrix for s in SLOTS], CONTENT)
     assert meta["fingerprint"] == out["fingerprint"] and meta["content_size"] == list(CONTENT)
     truth = truth_transport(room.truth.transport, lambda s: room.truth.projector(s).black, rig, SLOTS)
     err = transport_error(L, truth)
     assert err < 0.1, err
+    # the radius holds the light: the truth inside the measured windows is nearly all of it
+    windows = sp.csr_matrix((np.ones(L.nnz, np.float32), L.indices, L.indptr), shape=L.shape)
+    inside = np.sum(truth.multiply(windows).data.astype(np.float64) ** 2) / np.sum(truth.data.astype(np.float64) ** 2)
+    assert inside > 0.999, inside
+    assert out["edge_energy"] < EDGE_WARNING
     # unchanged rig: reused without a capture
     c0 = ctx.captures
     assert run(measure_transport(ctx, {"settle_s": 0.0}))["reused"] and ctx.captures == c0
