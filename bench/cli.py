@@ -13,6 +13,7 @@ BENCHMARKS: dict[str, str] = {
     "room": "virtual-room capture speed and light-drop statistics per projector subset",
     "calibration": "captures, time and error of sequential vs multiplexed calibration",
     "compensation": "blur-compensation solve time and quality, ours vs the per-projector baseline",
+    "compensation_room": "blur compensation through the coordinator's jobs in the virtual room: captures, L error, quality",
 }
 
 

@@ -35,6 +35,7 @@ JOBS: dict[str, str] = {
     "response": "coordinator.compensation.job:measure_response",
     "transport": "coordinator.compensation.job:measure_transport",
     "compensate": "coordinator.compensation.job:compensate",
+    "compensate_sequence": "coordinator.compensation.job:compensate_sequence",
 }
 
 

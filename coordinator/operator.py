@@ -209,6 +209,9 @@ def configure_play(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loops", type=int, default=0, help="extra loops (default 0: once)")
     p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    p.add_argument("--compensate", action="store_true", help="compensate the rig's blur frame by frame (warm-started "
+                   "solves over the measured light transport, see `shadowless compensate`), then play")
+    p.add_argument("--iterations", type=int, default=4, help="with --compensate: solver iterations per frame (default 4)")
     add_connection_args(p)
 
 
@@ -249,6 +252,8 @@ def play_dict(r: control_pb2.PlayReply) -> dict:
 async def _play(args) -> int:
     frames: list[np.ndarray] = []
     st = control_pb2.PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait)
+    if args.compensate:
+        return await _play_compensated(args)
     if args.pattern:
         st.pattern, st.frames = args.pattern, args.frames
     elif args.source:
@@ -264,6 +269,27 @@ async def _play(args) -> int:
     print(json.dumps(d, indent=2) if args.json else
           f"played {d['frames_sent']} frames on {d['nodes']} nodes: shown by all {d['frames_shown']}, late {d['frames_late']}, "
           f"dropped {d['frames_dropped']}; skew p99 {d['sync']['skew_p99_ms']} ms")
+    return 0
+
+
+async def _play_compensated(args) -> int:
+    """`play --compensate`: the coordinator's compensate_sequence job (progress on stderr)."""
+    from coordinator.compensation.job import encode_image_param
+    from coordinator.jobclient import run_job
+
+    if args.pattern or not args.source:
+        raise OperatorError("--compensate plays a folder of images (not a generated pattern)")
+    files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
+    if not files:
+        raise OperatorError(f"no images in {args.source}")
+    params = {"frames": [encode_image_param(f) for f in files], "fps": args.fps, "loops": args.loops,
+              "iterations": args.iterations}
+    async with await open_client(args) as c:
+        r = await run_job(c, "compensate_sequence", params)
+    print(json.dumps(r, indent=2) if args.json else
+          f"compensated {r['frames']} frames ({r['ms_per_frame_mean']} ms per frame after the first, {r['iterations_per_frame']} "
+          f"iterations each), played {r['play']['frames_sent']} frames on {r['play']['nodes']} nodes: late "
+          f"{r['play']['frames_late']}, dropped {r['play']['frames_dropped']}")
     return 0
 
 
