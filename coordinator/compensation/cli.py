@@ -219,6 +219,8 @@ def configure_compensate(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-iter", type=int, metavar="N", help="iteration budget (default 300)")
     g.add_argument("--tol", type=float, metavar="T", help="relative objective decrease that stops (default 1e-5)")
     g.add_argument("--method", choices=["apg", "steepest", "lbfgsb"], help="solver (default apg)")
+    g.add_argument("--regularization", type=float, metavar="MU", help="ridge weight towards the uncompensated image, "
+                   "relative to ||L||^2 (default 0.02; 0 fits the measured L exactly, noise included)")
     g.add_argument("--no-show", action="store_true", help="solve and store figures only; leave the content as it is")
     g.add_argument("--no-measure", action="store_true", help="fail instead of measuring L when none is valid")
     e = p.add_argument_group("evaluation")
@@ -241,7 +243,7 @@ def compensate_params(args: argparse.Namespace) -> dict:
     params.update(_common_params(args))
     params.update(_transport_params(args))
     for key, attr in (("level", "level"), ("max_iter", "max_iter"), ("tol", "tol"), ("method", "method"),
-                      ("eval_frames", "eval_frames")):
+                      ("eval_frames", "eval_frames"), ("regularization", "regularization")):
         value = getattr(args, attr, None)
         if value is not None:
             params[key] = value

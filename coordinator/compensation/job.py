@@ -101,6 +101,7 @@ __all__ = [
     "compensate",
     "compensate_sequence",
     "ContentWarmStart",
+    "RidgeProblem",
     "content_to_camera",
     "projector_frame",
     "choose_spacing",
@@ -120,6 +121,8 @@ SUBDIR = "compensation"
 MIN_PATCH_PIXELS = 12
 #: fraction of a measured L's light on its windows' outer ring above which a larger radius is advised
 EDGE_WARNING = 0.06
+#: default ridge weight of the solves, relative to ||L||_2^2 (see RidgeProblem)
+DEFAULT_REGULARIZATION = 0.02
 #: relative white level below which the rig's light is "not reached" when choosing the target level
 TARGET_PERCENTILE = 2.0
 
@@ -565,6 +568,53 @@ def best_scale(prediction: np.ndarray, target: np.ndarray) -> float:
     return max(float(np.dot(p, t)) / den, 0.0) if den > 0 else 0.0
 
 
+class RidgeProblem:
+    """``min ||L x - c'||^2 + lam ||x - x_prior||^2, 0 <= x <= 1`` as one bounded least-squares problem.
+
+    A measured ``L`` carries camera noise; the plain solve fits it, and the content it finds
+    carries a fine texture that the real rig shows (lower SSIM). The penalty keeps ``x`` near a
+    prior (the uncompensated image, scaled) along directions ``L`` hardly sees; ``lam = mu *
+    ||L||_2^2`` makes ``mu`` independent of the rig's brightness. The system is solved as the
+    stacked least squares ``[L; sqrt(lam) I] x ~ [c'; sqrt(lam) x_prior]`` with the bounded
+    solver of :mod:`coordinator.compensation.solver`.
+
+    Parameters
+    ----------
+    L : scipy.sparse matrix or TransportOperator, (n_camera, n_content)
+    mu : float
+        Relative weight (0: the plain problem).
+    """
+
+    def __init__(self, L: sp.spmatrix, mu: float) -> None:
+        if mu < 0 or not math.isfinite(mu):
+            raise ValueError(f"mu must be finite and >= 0, got {mu}")
+        self.data = L if isinstance(L, TransportOperator) else TransportOperator(L)
+        self.mu = float(mu)
+        self.lam = self.mu * self.data.lipschitz() if mu > 0 else 0.0
+        self.shape = self.data.shape
+        if self.lam > 0:
+            eye = sp.identity(self.shape[1], dtype=np.float32, format="csr") * np.float32(math.sqrt(self.lam))
+            self.op = TransportOperator(sp.vstack([self.data.L, eye], format="csr"))
+        else:
+            self.op = self.data
+
+    def target(self, target: np.ndarray, prior: np.ndarray) -> np.ndarray:
+        """The stacked target: ``(n_camera [+ n_content], C) float32``."""
+        t = np.asarray(target, np.float32)
+        channels = t.shape[-1] if t.ndim == 3 else (t.shape[1] if t.ndim == 2 and t.shape[0] == self.shape[0] else 1)
+        t = t.reshape(self.shape[0], channels)
+        if self.lam == 0:
+            return np.ascontiguousarray(t)
+        x = np.asarray(prior, np.float32).reshape(self.shape[1], channels)
+        return np.ascontiguousarray(np.vstack([t, np.float32(math.sqrt(self.lam)) * x]))
+
+    def data_objective(self, x: np.ndarray, target: np.ndarray) -> float:
+        """``||L x - c'||^2`` (float64), without the penalty."""
+        from coordinator.compensation.solver import objective
+
+        return objective(self.data, x, target)
+
+
 class ContentWarmStart:
     """Warm-started compensation of a sequence when content and camera grids differ.
 
@@ -574,22 +624,26 @@ class ContentWarmStart:
     ``a`` is the scale that best maps content to the target (``L a content ~ target``), clipped to
     [0, 1]; the first frame (or one after :meth:`reset`) starts from ``a content``. Each frame then
     runs ``iterations`` APG iterations (``first_iterations`` for the first), so the time per
-    frame is bounded.
+    frame is bounded. With ``mu > 0`` (or a :class:`RidgeProblem` for ``L``) every frame is
+    solved with the ridge penalty towards its scaled content.
 
     Parameters
     ----------
-    L : scipy.sparse matrix or TransportOperator, (n_camera, n_content)
+    L : scipy.sparse matrix, TransportOperator or RidgeProblem, (n_camera, n_content)
     iterations, first_iterations : int
     content_shape : (H, W)
+    mu : float
+        Ridge weight (see :class:`RidgeProblem`; ignored when ``L`` is one).
     solve_options :
         Passed to :func:`~coordinator.compensation.solve` (``tol``, ``threads``, ...).
     """
 
     def __init__(self, L, *, iterations: int = 4, first_iterations: int = 60, content_shape: Sequence[int],
-                 **solve_options: Any) -> None:
+                 mu: float = 0.0, **solve_options: Any) -> None:
         if iterations < 1 or first_iterations < 1:
             raise ValueError("iteration budgets must be >= 1")
-        self.op = L if isinstance(L, TransportOperator) else TransportOperator(L)
+        self.problem = L if isinstance(L, RidgeProblem) else RidgeProblem(L, mu)
+        self.op = self.problem.data
         self.iterations, self.first_iterations = iterations, first_iterations
         self.content_shape = (int(content_shape[0]), int(content_shape[1]))
         if self.content_shape[0] * self.content_shape[1] != self.op.shape[1]:
@@ -623,7 +677,12 @@ class ContentWarmStart:
         else:
             x0 = np.clip(self._x.reshape(content.shape) + np.float32(self._scale) * (content - self._content), 0, 1)
             budget = self.iterations
-        res = solve(self.op, target, x0=x0, max_iter=budget, content_shape=self.content_shape, **self.options)
+        if self._scale is not None and self.problem.lam > 0:
+            prior = np.clip(content * np.float32(self._scale), 0, 1)
+            goal = self.problem.target(target, prior)
+        else:
+            goal = target
+        res = solve(self.problem.op, goal, x0=x0, max_iter=budget, content_shape=self.content_shape, **self.options)
         self._x = res.x
         self._content = content
         return res
@@ -1405,6 +1464,7 @@ async def measure_transport(ctx, params: dict) -> dict:
 
 # ====================================================================== compensate
 _COMPENSATE_KEYS = {"image", "image_path", "srgb", "level", "max_iter", "tol", "method", "evaluate", "baseline",
+                    "regularization",
                     "eval_frames", "measure", "persist", "camera", "settle_s", "radius", "spacing", "frames", "force",
                     "baseline_frames", "baseline_exposure", "slots"}
 
@@ -1446,6 +1506,8 @@ async def compensate(ctx, params: dict) -> dict:
         level         target white as a fraction of the rig's white at its 2nd percentile inside the
                       content (default 0.9); with ``baseline`` the level the dimmest projector's share allows
         max_iter, tol, method   solver budget (300), relative objective decrease (1e-5), "apg"
+        regularization  ridge weight towards the uncompensated image, relative to ||L||^2 (0.02; 0: none),
+                      see :class:`RidgeProblem`
         evaluate      capture the result without compensation, with ours (and the baseline): PSNR/SSIM and
                       compensation/quality.png (eval_frames captures averaged, default 4)
         baseline      also solve and show the per-projector baseline (measures its L_i when missing)
@@ -1457,6 +1519,7 @@ async def compensate(ctx, params: dict) -> dict:
     params = dict(params)
     _check_known(params, _COMPENSATE_KEYS, "compensate")
     level = _float(params, "level", 0.9, 0.01, 1.0)
+    mu = _float(params, "regularization", DEFAULT_REGULARIZATION, 0.0, 100.0)
     max_iter = _int(params, "max_iter", 300, 1, 100_000)
     tol = _float(params, "tol", 1e-5, 0.0, 1.0)
     method = str(params.get("method", "apg"))
@@ -1496,39 +1559,45 @@ async def compensate(ctx, params: dict) -> dict:
     if s <= 0:
         raise JobError("the rig adds no light inside the content area: check the light-transport measurement")
     target = np.ascontiguousarray(T * np.float32(s))
-    op = await ctx.compute(TransportOperator, tr.L)
+    problem = await ctx.compute(RidgeProblem, tr.L, mu)
     flat = content.reshape(-1, content.shape[2])
-    alpha = best_scale(await ctx.compute(op.matvec, flat), target.reshape(-1, target.shape[2]))
+    alpha = best_scale(await ctx.compute(problem.data.matvec, flat), target.reshape(-1, target.shape[2]))
     none = np.clip(content * np.float32(alpha), 0, 1).astype(np.float32)
     report = _threadsafe(ctx)
     ctx.progress("solve", "", 0, max_iter, "objective")
     progress = _throttled(lambda k, f: report("solve", "", k, max_iter, "objective", f))
-    res = await ctx.compute(solve, op, target, x0=none, content_shape=(ch, cw), max_iter=max_iter, tol=tol,
-                            method=method, progress=progress)
+    res = await ctx.compute(solve, problem.op, problem.target(target, none), x0=none, content_shape=(ch, cw),
+                            max_iter=max_iter, tol=tol, method=method, progress=progress)
     ctx.progress("solve", "", res.iterations, res.iterations, res.reason, res.objective)
     x = np.clip(res.x, 0, 1).astype(np.float32).reshape(ch, cw, -1)
+    data_objective = await ctx.compute(problem.data_objective, x, target)
+    initial_objective = await ctx.compute(problem.data_objective, none, target)
     result = {
         "image": name, "content_size": [cw, ch], "channels": int(x.shape[2]), "target_level": round(s, 6),
         "target_level_from": level_note, "level": level, "none_scale": round(alpha, 6),
         "solve": {"method": method, "iterations": res.iterations, "reason": res.reason, "converged": res.converged,
-                  "objective": res.objective, "initial_objective": res.history[0] if res.history else None,
-                  "gap": _round(res.gap, 6), "seconds": round(res.seconds, 3), "lipschitz": res.lipschitz},
+                  "objective": data_objective, "initial_objective": initial_objective,
+                  "penalised_objective": res.objective, "regularization": mu, "gap": _round(res.gap, 6),
+                  "seconds": round(res.seconds, 3), "lipschitz": res.lipschitz},
         "transport": _transport_summary(tr),
         "saturated_fraction": {"low": round(float(np.mean(x <= 1e-4)), 5), "high": round(float(np.mean(x >= 1 - 1e-4)), 5)},
     }
     base_res = None
     if want_baseline:
         names = sorted(base_L)
-        ops = [TransportOperator(base_L[k]) for k in names]
-        done = [0]
+        share = target / np.float32(len(names))
 
         def run_baseline():
+            # the conventional method, as ours: each projector's own ridge problem for c'/N, from its own
+            # uncompensated start
             out = []
-            for i, o in enumerate(ops):
-                out.append(solve(o, target / np.float32(len(ops)), content_shape=(ch, cw), max_iter=max_iter, tol=tol,
-                                 method=method))
-                done[0] = i + 1
-                report("baseline solve", names[i], i + 1, len(ops), f"{out[-1].iterations} iterations")
+            for i, k in enumerate(names):
+                p = RidgeProblem(base_L[k], mu)
+                a = best_scale(p.data.matvec(flat), share.reshape(-1, share.shape[2]))
+                start = np.clip(content * np.float32(a), 0, 1)
+                out.append(solve(p.op, p.target(share, start), x0=start, content_shape=(ch, cw), max_iter=max_iter,
+                                 tol=tol, method=method))
+                report("baseline solve", k, i + 1, len(names), f"{out[-1].iterations} iterations")
             return out
 
         t_b = time.monotonic()
@@ -1602,7 +1671,7 @@ async def _evaluate(ctx, tr: _Transport, slots: list[str], content: np.ndarray, 
 
 # ====================================================================== sequence
 _SEQUENCE_KEYS = {"frames", "fps", "loops", "iterations", "first_iterations", "level", "srgb", "measure", "camera",
-                  "play", "latency_ms"}
+                  "play", "latency_ms", "regularization"}
 
 
 async def compensate_sequence(ctx, params: dict) -> dict:
@@ -1612,7 +1681,7 @@ async def compensate_sequence(ctx, params: dict) -> dict:
 
         frames            list of images ({"name", "data"} each, see :func:`encode_image_param`)
         iterations        APG iterations per frame after the first (default 4); first_iterations (60)
-        level, srgb       as `compensate`
+        level, srgb, regularization   as `compensate`
         fps, loops        playback (30 fps, 0 extra loops); play: false only compensates
         measure           measure L when no valid one is stored (default false: run `shadowless transport`)
     """
@@ -1635,9 +1704,9 @@ async def compensate_sequence(ctx, params: dict) -> dict:
     cw, ch = rig.config.content_width, rig.config.content_height
     region = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)
     s = _target_level(row_white(tr.L, tr.camera_shape), region, level)
-    op = await ctx.compute(TransportOperator, tr.L)
-    await ctx.compute(op.lipschitz)
-    comp = ContentWarmStart(op, iterations=iterations, first_iterations=first, content_shape=(ch, cw))
+    mu = _float(params, "regularization", DEFAULT_REGULARIZATION, 0.0, 100.0)
+    problem = await ctx.compute(RidgeProblem, tr.L, mu)
+    comp = ContentWarmStart(problem, iterations=iterations, first_iterations=first, content_shape=(ch, cw))
     srgb = bool(params.get("srgb", False))
     times: list[float] = []
     objectives: list[float] = []
@@ -1652,7 +1721,7 @@ async def compensate_sequence(ctx, params: dict) -> dict:
         t = time.perf_counter()
         res = await ctx.compute(comp, target, content)
         times.append(time.perf_counter() - t)
-        objectives.append(res.objective)
+        objectives.append(problem.data_objective(res.x, target))
         x = np.clip(res.x, 0, 1).reshape(ch, cw, -1)
         contents.append(Content(np.rint(x * 65535).astype(np.uint16), name=f"compensated {name}"))
         ctx.progress("compensate", "", k + 1, len(frames), f"{1000 * times[-1]:.0f} ms", res.objective)

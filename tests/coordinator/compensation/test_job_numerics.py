@@ -351,3 +351,32 @@ def test_edge_energy_is_the_light_on_the_windows_outer_ring():
     values[:, ring] = 0
     L0 = sp.csr_matrix((values[valid], (rows[valid], cols[valid])), shape=L.shape)
     assert edge_energy(L0, H, content, camera, R) == 0.0
+
+
+def test_ridge_problem_solves_the_penalised_bounded_least_squares():
+    import scipy.sparse as sp
+    from scipy.optimize import lsq_linear
+
+    from coordinator.compensation import solve
+    from coordinator.compensation.job import RidgeProblem
+
+    rng = np.random.default_rng(8)
+    L = sp.random(60, 40, density=0.15, random_state=9, dtype=np.float64).tocsr().astype(np.float32)
+    target = rng.random((60, 1)).astype(np.float32) * 1.5
+    prior = rng.random((40, 1)).astype(np.float32)
+    for mu in (0.0, 0.05, 1.0):
+        problem = RidgeProblem(L, mu)
+        lam = mu * problem.data.lipschitz()
+        assert problem.lam == pytest.approx(lam)
+        res = solve(problem.op, problem.target(target, prior), x0=prior, tol=1e-12, gap_tol=0, pg_tol=0, max_iter=5000)
+        dense = np.vstack([L.toarray(), np.sqrt(lam) * np.eye(40)])
+        ref = lsq_linear(dense, np.concatenate([target[:, 0], np.sqrt(lam) * prior[:, 0]]), bounds=(0, 1),
+                         tol=1e-12, max_iter=10000)
+        f = lambda x: float(np.sum((L @ x - target[:, 0]) ** 2) + lam * np.sum((x - prior[:, 0]) ** 2))  # noqa: E731
+        assert f(res.x.ravel()) == pytest.approx(f(ref.x), rel=1e-4, abs=1e-6)
+        assert problem.data_objective(res.x, target) == pytest.approx(float(np.sum((L @ res.x.ravel() - target[:, 0]) ** 2)),
+                                                                      rel=1e-5)
+    # a stronger penalty keeps the solution nearer the prior
+    d = [np.abs(solve(RidgeProblem(L, m).op, RidgeProblem(L, m).target(target, prior), x0=prior, max_iter=2000).x.ravel()
+                - prior[:, 0]).sum() for m in (0.0, 0.1, 10.0)]
+    assert d[0] > d[1] > d[2]
