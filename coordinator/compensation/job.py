@@ -19,15 +19,20 @@ the one content image ``p`` every projector shows (``b``: the rig's black level)
 ``transport``
     ``S*S`` dot-grid captures with every projector showing the same content pattern
     through its pose (plus one black capture): the summed light transport ``L`` (camera
-    pixels x content pixels), stored in ``compensation/transport.npz``. With ``baseline``,
-    each projector's ``L_i`` is measured too, one projector at a time (``N*S*S``
-    captures), for the conventional method only.
+    pixels x content pixels), stored in ``compensation/transport.npz``. The PSF radius
+    follows the geometry (:func:`psf_radius`: bilinear lookup, projector and camera pixel
+    sizes) and the spacing is the smallest that keeps the dots' windows apart
+    (:func:`choose_spacing`); a measured ``L`` whose windows cut light is reported
+    (:func:`edge_energy`). With ``baseline``, each projector's ``L_i`` is measured too, one
+    projector at a time (``N*S*S`` captures), for the conventional method only.
 ``compensate``
-    One bounded least-squares solve ``p' = argmin ||L p - c'||^2, 0 <= p <= 1`` for an
-    image; the result becomes the rig's content (float32) and is shown on every node. With
-    ``evaluate``, the result without compensation, with ours and (``baseline``) with the
-    per-projector method are captured and scored against the target (PSNR/SSIM) and put
-    side by side in ``compensation/quality.png``.
+    One bounded least-squares solve ``p' = argmin ||L p - c'||^2 + lam ||p - p0||^2,
+    0 <= p <= 1`` for an image (:class:`RidgeProblem`; ``p0`` the uncompensated image, the
+    small ridge keeps the measured ``L``'s noise out of the result); the result becomes the
+    rig's content (float32) and is shown on every node. With ``evaluate``, the result
+    without compensation, with ours and (``baseline``) with the per-projector method are
+    captured and scored against the target (PSNR/SSIM) and put side by side in
+    ``compensation/quality.png``.
 ``compensate_sequence``
     Frame-by-frame warm-started solves of a sequence, then synchronized playback.
 
@@ -1608,7 +1613,8 @@ async def compensate(ctx, params: dict) -> dict:
                               "solve_seconds_sum": round(sum(r.seconds for r in results), 3)}
         result["baseline_over_ours_seconds"] = round(result["baseline"]["solve_seconds_sum"] / max(res.seconds, 1e-9), 2)
     if evaluate:
-        result["quality"] = await _evaluate(ctx, tr, slots, content, none, x, base_res, T, s, region, eval_frames, name)
+        result["quality"] = await _evaluate(ctx, tr, content, none, x, base_res, T, s, region, eval_frames, name,
+                                            settle_s=topts.settle_s)
     d = _dir(rig)
     result["wall_s"] = round(time.monotonic() - t0, 3)
     atomic_write_json(d / "result.json", {**result, "finished_at": time.time()})
@@ -1618,13 +1624,13 @@ async def compensate(ctx, params: dict) -> dict:
     return result
 
 
-async def _evaluate(ctx, tr: _Transport, slots: list[str], content: np.ndarray, none: np.ndarray, ours: np.ndarray,
+async def _evaluate(ctx, tr: _Transport, content: np.ndarray, none: np.ndarray, ours: np.ndarray,
                     base_res: dict | None, T: np.ndarray, s: float, region: tuple[slice, slice], frames: int,
-                    name: str) -> dict:
+                    name: str, *, settle_s: float) -> dict:
     """Capture none / baseline / ours; PSNR, SSIM and the side-by-side picture."""
     rig = ctx.rig
     camera = int(tr.meta["camera"])
-    shots = _Shots(ctx, camera=camera, settle_s=0.05, frames=frames)
+    shots = _Shots(ctx, camera=camera, settle_s=settle_s, frames=frames)
     ctx.progress("evaluate", "", 0, 3 if base_res else 2, "without compensation")
     black = await shots.content(np.zeros(content.shape[:2], np.float32))
     scores: dict[str, dict] = {}
