@@ -729,7 +729,7 @@ class _Feed:
         self._q: queue.Queue = queue.Queue(maxsize=4)
         self._error: BaseException | None = None
 
-    def offer(self, item: np.ndarray) -> bool:
+    def offer(self, item: object) -> bool:
         """Queue ``item`` if there is room (the queue is bounded: the consumer sets the pace)."""
         try:
             self._q.put_nowait(item)
@@ -737,8 +737,9 @@ class _Feed:
         except queue.Full:
             return False
 
-    def close(self) -> None:
-        self._q.put(self._END)
+    def offer_end(self) -> bool:
+        """Queue the end of the captures if there is room."""
+        return self.offer(self._END)
 
     def abort(self, exc: BaseException) -> None:
         self._error = exc
@@ -1258,7 +1259,8 @@ async def _feed_measure(ctx, shots_iter, black: np.ndarray, **options) -> sp.csr
                 await asyncio.sleep(0.005)
             if task.done():
                 break
-        feed.close()
+        while not task.done() and not feed.offer_end():
+            await asyncio.sleep(0.005)
         return await task
     except BaseException as exc:
         feed.abort(exc)

@@ -201,6 +201,14 @@ def test_refusals_name_what_to_do(setup, tmp_path):
     bare.update_slot(SLOTS[1], pose=ProjectionPose(np.hstack([np.eye(3), np.ones((3, 1))]), mesh))
     with pytest.raises(JobError, match="planar rigs"):
         run(measure_transport(bctx, {"slots": SLOTS[:2]}))
+    # a camera that cannot change its exposure (like the coordinator's): the baseline must average frames instead
+    class FixedExposure(RoomCompensationContext):
+        async def capture(self, index: int = 0):
+            return await super().capture(index)
+
+    fixed = FixedExposure(room, rig)
+    with pytest.raises(JobError, match="cannot change exposure"):
+        run(measure_transport(fixed, {"baseline": True, "baseline_exposure": 4.0, "settle_s": 0.0}))
     # another set of projectors than the stored L was measured with, and no measuring allowed
     with pytest.raises(JobError, match="run `shadowless transport`"):
         run(compensate(ctx, {"image": image_param(demo_image(CONTENT)), "measure": False, "slots": SLOTS[:2]}))
