@@ -51,8 +51,9 @@ Rig directory (all writes atomic)::
     compensation/quality.json, .png      the last evaluation
     compensation/sequence.json           figures of the last compensated sequence
 
-A stored ``L`` is reused while its fingerprint matches (poses, LUTs, gains, content size,
-camera, table mapping, dot grid); ``force`` measures again. Responses and baseline
+A stored ``L`` is reused while the rig is as it was measured (poses, LUTs, gains, content
+size, camera, table mapping) and its dot grid matches whatever radius, spacing or frames the
+caller sets; ``force`` measures again. Responses and baseline
 matrices are stored per projector, so an interrupted run resumes where it stopped.
 """
 from __future__ import annotations
@@ -1181,6 +1182,8 @@ class _TransportOptions:
     baseline: bool
     baseline_frames: int
     baseline_exposure: float
+    #: measurement options the caller set (radius, spacing, frames): a stored L must match only these
+    given: frozenset = frozenset()
 
     @classmethod
     def parse(cls, params: dict, *, known: set[str] = _TRANSPORT_KEYS) -> "_TransportOptions":
@@ -1191,7 +1194,8 @@ class _TransportOptions:
                    camera=_int(params, "camera", 0, 0, 64), force=bool(params.get("force", False)),
                    baseline=bool(params.get("baseline", False)),
                    baseline_frames=_int(params, "baseline_frames", frames, 1, 4096),
-                   baseline_exposure=_float(params, "baseline_exposure", 1.0, 1e-3, 1e4))
+                   baseline_exposure=_float(params, "baseline_exposure", 1.0, 1e-3, 1e4),
+                   given=frozenset(k for k in ("radius", "spacing", "frames") if params.get(k) is not None))
 
 
 @dataclass
@@ -1211,12 +1215,12 @@ class _Transport:
         return int(self.meta["content_size"][1]), int(self.meta["content_size"][0])
 
 
-def _transport_fingerprint(ctx, slots: list[str], H: np.ndarray, opts: _TransportOptions) -> str:
+def _rig_state_fingerprint(ctx, slots: list[str], H: np.ndarray, camera: int) -> str:
+    """What a measured ``L`` depends on in the rig: content size, camera, and each slot's size, gain, pose, LUT."""
     rig = ctx.rig
     h = hashlib.blake2b(digest_size=10)
     # the camera is identified by its index and its calibration (H), not by how it is reached (its spec)
-    h.update(repr((rig.config.content_width, rig.config.content_height, opts.camera,
-                   opts.radius, opts.spacing, opts.frames)).encode())
+    h.update(repr((rig.config.content_width, rig.config.content_height, camera)).encode())
     h.update(np.asarray(H, np.float64).tobytes())
     for s in sorted(slots):
         st = rig.slot(s)
@@ -1226,7 +1230,14 @@ def _transport_fingerprint(ctx, slots: list[str], H: np.ndarray, opts: _Transpor
     return h.hexdigest()
 
 
-def _load_valid_transport(ctx, fingerprint: str, H: np.ndarray, slots: list[str]) -> _Transport | None:
+def _transport_fingerprint(state: str, opts: _TransportOptions) -> str:
+    """One measurement: the rig's state and the dot grid it was measured with (names its black capture and
+    ties the baseline's ``L_i`` to it)."""
+    return hashlib.blake2b(repr((state, opts.radius, opts.spacing, opts.frames)).encode(), digest_size=10).hexdigest()
+
+
+def _load_valid_transport(ctx, state: str, opts: _TransportOptions, H: np.ndarray, slots: list[str]) -> _Transport | None:
+    """The stored ``L`` if it was measured with the rig as it is now and with every option the caller set."""
     d = _dir(ctx.rig)
     f = d / "transport.npz"
     if not f.exists():
@@ -1236,7 +1247,9 @@ def _load_valid_transport(ctx, fingerprint: str, H: np.ndarray, slots: list[str]
     except TransportFileError as exc:
         ctx.log(f"stored light transport ignored: {exc}")
         return None
-    if meta.get("fingerprint") != fingerprint:
+    if meta.get("rig_state") != state:
+        return None
+    if any(meta.get(k) != getattr(opts, k) for k in opts.given):
         return None
     try:
         black = np.load(d / str(meta["black_file"]), allow_pickle=False).astype(np.float32)
@@ -1280,16 +1293,19 @@ async def _ensure_transport(ctx, opts: _TransportOptions, slots: list[str] | Non
     cw, ch = rig.config.content_width, rig.config.content_height
     if opts.radius is None:
         opts = replace(opts, radius=psf_radius(H, [rig.slot(s).pose.matrix for s in slots], (cw, ch)))
-    fp = _transport_fingerprint(ctx, slots, H, opts)
+    state = _rig_state_fingerprint(ctx, slots, H, opts.camera)
+    fp = _transport_fingerprint(state, opts)
     if not opts.force:
-        found = _load_valid_transport(ctx, fp, H, slots)
+        found = _load_valid_transport(ctx, state, opts, H, slots)
         if found is not None:
             ctx.log(f"light transport: reusing the stored measurement of {found.meta.get('date', '?')} "
                     f"({found.meta.get('captures')} captures)")
             return found
     if not measure:
+        asked = ", ".join(f"{k} {getattr(opts, k)}" for k in sorted(opts.given))
         raise JobError("no valid light-transport measurement for the rig as it is now (poses, LUTs or gains changed, "
-                       "or none was made): run `shadowless transport`")
+                       f"or none was made{'; or it was measured with another ' + asked if asked else ''}): "
+                       "run `shadowless transport`")
     _camera_spec(ctx, opts.camera)
     missing = [s for s in rig.slots if rig.slot(s).lut is None and s in slots]
     if missing:
@@ -1325,7 +1341,7 @@ async def _ensure_transport(ctx, opts: _TransportOptions, slots: list[str] | Non
         ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * opts.radius + 1}-pixel "
                 f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius "
                 f"{opts.radius + 1})")
-    meta = {"fingerprint": fp, "radius": opts.radius, "spacing": spacing, "frames": opts.frames,
+    meta = {"fingerprint": fp, "rig_state": state, "radius": opts.radius, "spacing": spacing, "frames": opts.frames,
             "captures": shots.count, "patterns": len(grid), "content_size": [cw, ch], "camera_size": [cam[1], cam[0]],
             "content_to_camera": np.asarray(H).tolist(), "camera": opts.camera,
             "camera_spec": _camera_spec(ctx, opts.camera), "slots": sorted(slots), "measured_at": time.time(),

@@ -100,6 +100,16 @@ def test_transport_matches_the_rooms_truth_and_is_reused(setup):
     assert not run(measure_transport(ctx, {"settle_s": 0.0, "force": True}))["reused"]
     _, meta = load_transport(rig.path / "compensation" / "transport.npz")
     assert [p.name for p in (rig.path / "compensation").glob("black-*.npy")] == [meta["black_file"]]
+    # options: only those the caller sets must match the stored measurement
+    r, sp_ = meta["radius"], meta["spacing"]
+    assert run(measure_transport(ctx, {"settle_s": 0.0, "radius": r, "spacing": sp_, "frames": 1}))["reused"]
+    wider = run(measure_transport(ctx, {"settle_s": 0.0, "radius": r + 1}))
+    assert not wider["reused"] and wider["radius"] == r + 1
+    c0 = ctx.captures
+    assert run(measure_transport(ctx, {"settle_s": 0.0}))["radius"] == r + 1 and ctx.captures == c0
+    with pytest.raises(JobError, match="another radius"):
+        run(compensate(ctx, {"image": image_param(demo_image(CONTENT)), "radius": r, "measure": False, "persist": False}))
+    assert run(measure_transport(ctx, {"settle_s": 0.0, "force": True}))["radius"] == r
 
 
 def test_compensation_orders_none_baseline_ours_and_persists_the_result(setup):
