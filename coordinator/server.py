@@ -29,15 +29,11 @@ from coordinator.mdns import Advertiser
 from coordinator.rig import Content, Rig
 from coordinator.sync import FrameResult, SyncTracker, summarize
 from protos import auth, codec, common_pb2, control_pb2, node_pb2
-from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
+from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SERVER_GRPC_OPTIONS, SESSION_KEY
 
 log = logging.getLogger(__name__)
 
-SERVER_OPTIONS = GRPC_OPTIONS + [
-    ("grpc.http2.min_ping_interval_without_data_ms", 5_000),
-    ("grpc.http2.max_ping_strikes", 0),
-    ("grpc.so_reuseport", 0),
-]
+SERVER_OPTIONS = SERVER_GRPC_OPTIONS + [("grpc.so_reuseport", 0)]
 NONCE_TTL_S = 30.0
 MAX_OPERATOR_SESSIONS = 256
 OPERATOR_SESSION_TTL_S = 12 * 3600.0

@@ -19,3 +19,11 @@ GRPC_OPTIONS = [
     ("grpc.keepalive_permit_without_calls", 1),
     ("grpc.http2.max_pings_without_data", 0),
 ]
+
+#: Servers accept the clients' keepalive pings (every 10 s, also between calls): gRPC's
+#: default refuses pings more often than every 5 minutes and closes idle channels with
+#: GOAWAY "too_many_pings".
+SERVER_GRPC_OPTIONS = GRPC_OPTIONS + [
+    ("grpc.http2.min_ping_interval_without_data_ms", 5_000),
+    ("grpc.http2.max_ping_strikes", 0),
+]

@@ -22,7 +22,7 @@ import grpc
 import numpy as np
 
 from protos import codec, room_pb2, room_pb2_grpc
-from protos.version import GRPC_OPTIONS
+from protos.version import SERVER_GRPC_OPTIONS
 from sim import wire
 from sim.errors import FrameError, SimError, UnknownSlotError
 from sim.room import Room
@@ -309,7 +309,7 @@ class RoomServer:
         from grpc_reflection.v1alpha import reflection
 
         self._worker = _Worker()
-        self._server = grpc.aio.server(options=GRPC_OPTIONS)
+        self._server = grpc.aio.server(options=SERVER_GRPC_OPTIONS)
         self.service = RoomService(self.room, self._worker)
         room_pb2_grpc.add_RoomServicer_to_server(self.service, self._server)
         names = [room_pb2.DESCRIPTOR.services_by_name["Room"].full_name]
