@@ -212,9 +212,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "calibration, luminance responses, light transport (ours: every projector at once; baseline: one\n"
         "projector at a time), solve, and the captured quality of none / baseline / ours. One JSON document."
     )
-    parser.add_argument("--projector-scale", type=float, default=0.25, help="room projector resolution (default 0.25: 320x200)")
+    parser.add_argument("--projector-scale", type=float, default=0.5,
+                        help="room projector resolution (default 0.5: 640x400, about 2.5 mm per pixel on the table)")
     parser.add_argument("--camera-scale", type=float, default=0.25, help="room camera resolution (default 0.25: 648x486)")
-    parser.add_argument("--content-size", default="600x300", metavar="WxH", help="rig content size (default 600x300, 2 mm/px)")
+    parser.add_argument("--content-size", default="300x150", metavar="WxH",
+                        help="rig content size (default 300x150: 4 mm/px, coarser than a projector pixel, so each projector "
+                             "alone can render the content and the per-projector baseline has blur to undo; at 600x300 "
+                             "a projector pixel spans about 1.2 content px and the baseline's L_i amplify camera noise)")
     parser.add_argument("--aperture", type=float, default=10.0, help="projector lens aperture, mm (defocus; default 10)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-noise", action="store_true", help="camera without shot/read noise (still 12-bit)")
@@ -226,6 +230,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-baseline", action="store_true", help="skip the per-projector baseline")
     parser.add_argument("--single", action="store_true", help="skip the 1-projector rig (time ratio)")
     parser.add_argument("--max-iter", type=int, default=300)
+    parser.add_argument("--regularization", type=float, default=None, metavar="MU",
+                        help="ridge weight of the solves, relative to ||L||^2 (default: the compensate job's)")
     parser.add_argument("--eval-frames", type=int, default=8, help="captures averaged per evaluated result (default 8)")
     parser.add_argument("--video-frames", type=int, default=20, help="frames of the compensated sequence (0 skips it)")
     parser.add_argument("--video-iterations", type=int, default=4, help="solver iterations per sequence frame")
@@ -276,6 +282,8 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {out['transport']['relative_error']})")
     params = {"image": image_param(demo_image(content_size), "astronaut.png"), "evaluate": True, "settle_s": 0.0,
               "eval_frames": args.eval_frames, "max_iter": args.max_iter, "radius": args.radius, "frames": args.frames}
+    if args.regularization is not None:
+        params["regularization"] = args.regularization
     if baseline:
         params.update(baseline=True, baseline_frames=args.baseline_frames or args.frames,
                       baseline_exposure=args.baseline_exposure or float(len(slots)))
@@ -303,7 +311,10 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
         wide = demo_image((content_size[0] + args.video_frames, content_size[1]))
         frames = [image_param(np.ascontiguousarray(wide[:, k:k + content_size[0]]), f"f{k:03d}.png")
                   for k in range(args.video_frames)]
-        seq = await compensate_sequence(ctx, {"frames": frames, "iterations": args.video_iterations, "play": False})
+        sparams = {"frames": frames, "iterations": args.video_iterations, "play": False}
+        if args.regularization is not None:
+            sparams["regularization"] = args.regularization
+        seq = await compensate_sequence(ctx, sparams)
         out["sequence"] = {k: seq[k] for k in ("frames", "iterations_per_frame", "ms_first_frame", "ms_per_frame_mean",
                                                "ms_per_frame_median", "ms_per_frame_max")}
         out["sequence"]["clip"] = "the picture slides 1 content px per frame"

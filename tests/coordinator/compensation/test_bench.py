@@ -35,3 +35,27 @@ def test_quick_bench_reports_every_figure(capsys, tmp_path):
     assert video["frames"] == 3 and video["pan"]["ms_per_frame_mean"] > 0
     assert video["overlay"]["psnr_warm_mean"] > video["overlay"]["psnr_none_mean"]
     assert doc["noise_sweep"] is None
+
+
+def test_room_bench_runs_the_jobs_and_reports_the_comparison(capsys, tmp_path):
+    """`shadowless bench compensation_room` on a small room: the coordinator's jobs end to end, in-process."""
+    from bench import compensation_room
+
+    parser = argparse.ArgumentParser()
+    compensation_room.configure(parser)
+    args = parser.parse_args(["--projector-scale", "0.25", "--camera-scale", "0.15", "--content-size", "150x75",
+                              "--video-frames", "2", "--eval-frames", "2", "--max-iter", "100", "--out", str(tmp_path)])
+    assert compensation_room.run(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["benchmark"] == "compensation_room" and doc["parameters"]["camera_size"] == [389, 292]
+    r25, t = doc["rigs"]["25"], doc["targets"]
+    # L costs the same captures for 1 or 25 projectors; the baseline's L_i cost N times as many
+    assert t["transport_captures_25_vs_1"][0] == t["transport_captures_25_vs_1"][1] == r25["transport"]["captures"]
+    assert r25["compensate"]["baseline"]["captures"] == 25 * (r25["transport"]["captures"] - 1) + 1
+    assert r25["transport"]["relative_error"] < 0.1
+    assert t["baseline_25_over_ours_25_solve"] > 5
+    # with the room's true transport both methods sharpen, ours the most
+    o = t["quality_order_oracle"]
+    assert o["ours"] > o["baseline"] > o["none"] + 1.0, o
+    assert r25["sequence"]["frames"] == 2 and r25["sequence"]["ms_per_frame_mean"] > 0
+    assert (tmp_path / "quality.png").exists() and json.loads((tmp_path / "quality.json").read_text())["ours"]
