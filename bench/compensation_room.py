@@ -280,10 +280,10 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
     out["transport"] = {"captures": ctx.captures - c0, "wall_s": round(wall, 2), "spacing": tr["spacing"],
                         "radius": tr["radius"], "nnz": tr["nnz"], "relative_error": round(transport_error(L, truth), 5)}
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {out['transport']['relative_error']})")
+    ridge = {} if args.regularization is None else {"regularization": args.regularization}
     params = {"image": image_param(demo_image(content_size), "astronaut.png"), "evaluate": True, "settle_s": 0.0,
-              "eval_frames": args.eval_frames, "max_iter": args.max_iter, "radius": args.radius, "frames": args.frames}
-    if args.regularization is not None:
-        params["regularization"] = args.regularization
+              "eval_frames": args.eval_frames, "max_iter": args.max_iter, "radius": args.radius, "frames": args.frames,
+              **ridge}
     if baseline:
         params.update(baseline=True, baseline_frames=args.baseline_frames or args.frames,
                       baseline_exposure=args.baseline_exposure or float(len(slots)))
@@ -311,10 +311,8 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
         wide = demo_image((content_size[0] + args.video_frames, content_size[1]))
         frames = [image_param(np.ascontiguousarray(wide[:, k:k + content_size[0]]), f"f{k:03d}.png")
                   for k in range(args.video_frames)]
-        sparams = {"frames": frames, "iterations": args.video_iterations, "play": False}
-        if args.regularization is not None:
-            sparams["regularization"] = args.regularization
-        seq = await compensate_sequence(ctx, sparams)
+        seq = await compensate_sequence(ctx, {"frames": frames, "iterations": args.video_iterations, "play": False,
+                                              **ridge})
         out["sequence"] = {k: seq[k] for k in ("frames", "iterations_per_frame", "ms_first_frame", "ms_per_frame_mean",
                                                "ms_per_frame_median", "ms_per_frame_max")}
         out["sequence"]["clip"] = "the picture slides 1 content px per frame"

@@ -286,7 +286,7 @@ async def _compensate(c, img: np.ndarray, work: Path, slots: list[str]) -> dict:
     _say(f"blur compensation of {len(slots)} projectors: luminance responses (grey patches, one projector at a time)")
     resp = await run_job(c, "response", {"slots": slots}, view=view)
     _say("light transport: dot grids shown by every projector at once")
-    tr = await run_job(c, "transport", {"slots": slots, "force": True}, view=view)
+    tr = await run_job(c, "transport", {"slots": slots}, view=view)
     path = work / "target.png"
     cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     _say("solving and capturing the image without and with compensation")
