@@ -223,6 +223,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-noise", action="store_true", help="camera without shot/read noise (still 12-bit)")
     parser.add_argument("--radius", type=int, default=2, help="PSF recovery radius (default 2)")
+    parser.add_argument("--response-frames", type=int, default=1, help="captures averaged per grey pattern (default 1)")
     parser.add_argument("--frames", type=int, default=1, help="captures averaged per dot pattern, ours (default 1)")
     parser.add_argument("--baseline-frames", type=int, default=None, help="captures averaged per pattern, baseline (default: --frames)")
     parser.add_argument("--baseline-exposure", type=float, default=None,
@@ -257,7 +258,7 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
     _log(f"N={len(slots)}: calibrated ({cal['captures']} captures)")
     c0 = ctx.captures
     t = time.perf_counter()
-    resp = await measure_response(ctx, {"settle_s": 0.0})
+    resp = await measure_response(ctx, {"settle_s": 0.0, "frames": args.response_frames})
     gam = {s: float(np.max(np.abs(np.asarray(d["gamma"]) - room.truth.projector(s).gamma))) for s, d in resp["slots"].items()}
     curve = {}
     for s in resp["slots"]:

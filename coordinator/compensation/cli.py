@@ -118,12 +118,14 @@ def configure_response(p: argparse.ArgumentParser) -> None:
     g.add_argument("--reference", type=_reference, metavar="SLOT|LUMINANCE",
                    help="match the rig's white to this projector's (measured) or to a camera luminance above black")
     g.add_argument("--lut-entries", type=int, metavar="E", help="LUT entries (default 1024)")
+    g.add_argument("--frames", type=int, metavar="F", help="captures averaged per pattern (default 1; raise it "
+                   "when a projector alone is dim in the camera: its fitted curve carries the camera's noise)")
 
 
 def response_params(args: argparse.Namespace) -> dict:
     params = _common_params(args)
     for key, attr in (("slots", "slots"), ("mode", "mode"), ("levels", "levels"), ("grid", "grid"),
-                      ("reference", "reference"), ("lut_entries", "lut_entries")):
+                      ("reference", "reference"), ("lut_entries", "lut_entries"), ("frames", "frames")):
         value = getattr(args, attr, None)
         if value is not None:
             params[key] = value

@@ -888,7 +888,7 @@ def _round(v: float, nd: int = 4) -> float | None:
 
 # ====================================================================== response
 _RESPONSE_KEYS = {"slots", "levels", "mode", "grid", "repeats", "reference", "lut_entries", "settle_s", "camera",
-                  "force", "verify_levels", "tolerance", "seed", "keep_going"}
+                  "force", "verify_levels", "tolerance", "seed", "keep_going", "frames"}
 
 
 @dataclass
@@ -906,6 +906,7 @@ class _ResponseOptions:
     tolerance: float
     seed: int
     keep_going: bool
+    frames: int = 1
 
     @classmethod
     def parse(cls, params: dict) -> "_ResponseOptions":
@@ -932,7 +933,7 @@ class _ResponseOptions:
             settle_s=_float(params, "settle_s", 0.05, 0.0, 30.0), camera=_int(params, "camera", 0, 0, 64),
             force=bool(params.get("force", False)), verify_levels=_int(params, "verify_levels", 6, 3, 64),
             tolerance=_float(params, "tolerance", 0.01, 1e-4, 0.5), seed=_int(params, "seed", 0, 0, 2**31),
-            keep_going=bool(params.get("keep_going", True)),
+            keep_going=bool(params.get("keep_going", True)), frames=_int(params, "frames", 1, 1, 64),
         )
 
 
@@ -951,7 +952,7 @@ def _response_fingerprint(ctx, slot: str, opts: _ResponseOptions, H: np.ndarray 
     st = ctx.rig.slot(slot)
     h = hashlib.blake2b(digest_size=8)
     h.update(repr((slot, st.width, st.height, opts.mode, opts.levels, opts.grid, opts.repeats, opts.seed,
-                   _camera_spec(ctx, opts.camera), opts.camera)).encode())
+                   _camera_spec(ctx, opts.camera), opts.camera, opts.frames)).encode())
     if isinstance(st.pose, HomographyPose):
         h.update(st.pose.matrix.tobytes())
     if H is not None:
@@ -982,6 +983,8 @@ async def measure_response(ctx, params: dict) -> dict:
                        units above black; default none (gains 1, headroom against the dimmest projector reported)
         lut_entries    LUT size (default 1024, at least 1024)
         verify_levels  linear levels shown through the LUTs to check linearity (6); tolerance (0.01)
+        frames         captures averaged per pattern (default 1): a projector alone may give the camera
+                       little light, and its patches then carry the camera's noise into the fitted curve
         settle_s, camera, force, seed, keep_going
     """
     t0 = time.monotonic()
@@ -993,7 +996,7 @@ async def measure_response(ctx, params: dict) -> dict:
     if opts.mode == "patches":
         H, _ = _geometry(ctx, opts.camera)
     out_dir = _dir(rig) / "responses"
-    shots = _Shots(ctx, camera=opts.camera, settle_s=opts.settle_s)
+    shots = _Shots(ctx, camera=opts.camera, settle_s=opts.settle_s, frames=opts.frames)
     sizes = {s: ctx.projector_size(s) for s in slots}
     levels = grey_levels(opts.levels)
     responses: dict[str, Response] = {}

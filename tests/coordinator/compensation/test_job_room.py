@@ -70,6 +70,12 @@ def test_response_fits_each_projector_and_linearises_the_rig(setup):
     c0 = ctx.captures
     again = run(measure_response(ctx, {"settle_s": 0.0}))
     assert ctx.captures - c0 == 6 and all(d["resumed"] for d in again["slots"].values())
+    # frames: every pattern captured and averaged that many times (a changed option measures again)
+    c0 = ctx.captures
+    avg = run(measure_response(ctx, {"settle_s": 0.0, "slots": SLOTS[:1], "frames": 2}))
+    assert ctx.captures - c0 == 2 * (1 + 3 + 6) == avg["captures"] and not avg["slots"][SLOTS[0]]["resumed"]
+    resp, _ = _load_stored_response(rig.path / "compensation" / "responses" / f"{SLOTS[0]}.json", None)
+    assert np.allclose(resp.gamma, room.truth.projector(SLOTS[0]).gamma, atol=0.03)
 
 
 def test_transport_matches_the_rooms_truth_and_is_reused(setup):
