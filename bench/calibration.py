@@ -1,34 +1,38 @@
 """`shadowless bench calibration`: captures, time and error of the sequential and the
 multiplexed calibration modes for rigs of several sizes, in the virtual room.
 
-The calibration job runs in-process against :class:`sim.room.Room` through
-:class:`RoomJobContext`, which implements the calls a coordinator job makes
-(show per-slot patterns, capture, progress, compute) on the room directly, so
-the figures measure calibration itself, not gRPC or the node processes. The
-table -> camera mapping comes from known table points written from the
-room's truth with click noise (:func:`table_points_from_truth`), as an
-operator would click them. Errors are against the room's ground truth
-(:func:`planar_errors`).
+The coordinator's ``calibrate`` job runs in-process against :class:`sim.room.Room` through
+:class:`shadowless.room_driver.RoomDriver` (the rig driver whose projectors and cameras are
+the room's), so the figures measure calibration itself, not gRPC or the node processes. The
+table -> camera mapping comes from known table points written from the room's truth with
+click noise (:func:`table_points_from_truth`), as an operator would click them. Errors are
+against the room's ground truth (:func:`planar_errors`).
 
-This module is also the test kit of ``tests/coordinator/calibration`` (the
-adapter, truth-derived point files and error measures); it may import ``sim``,
-the coordinator never does.
+This module is also the test kit of ``tests/coordinator/calibration`` (rigs, truth-derived
+point files and error measures); it may import ``sim``, the coordinator never does.
 """
 from __future__ import annotations
 
 import argparse
 import asyncio
 import json
-import math
 import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
+from bench.machine import machine
 from coordinator.calibration import planar
 from coordinator.calibration.points import PointSet, write_points
-from coordinator.jobs import JobError
+from coordinator.calibration.threed import project
+from coordinator.rig import Rig, init_rig
+from protos.spaces import content_to_table
+from shadowless.room_driver import RoomDriver
+from sim.room import Room
+from sim.scene import SUBSETS, reference_scene
 
 #: Which projectors a rig of N uses on the reference 5x5 array (spread out, centre first).
 RIG_SUBSETS = {1: ["r2c2"], 4: ["r1c1", "r1c3", "r3c1", "r3c3"]}
@@ -36,8 +40,6 @@ RIG_SUBSETS = {1: ["r2c2"], 4: ["r1c1", "r1c3", "r3c1", "r3c3"]}
 
 def rig_slots(n: int) -> list[str]:
     """Slots of an N-projector rig on the 5x5 array: the named subsets for 1, 9 (P9W), 25; else the first N."""
-    from sim.scene import SUBSETS
-
     if n in RIG_SUBSETS:
         return list(RIG_SUBSETS[n])
     if n == 9:
@@ -49,79 +51,8 @@ def rig_slots(n: int) -> list[str]:
     return list(SUBSETS["P25"][:n])
 
 
-class RoomJobContext:
-    """The JobContext calls calibration makes, served by an in-process room.
-
-    Parameters
-    ----------
-    room : sim.room.Room
-    rig : coordinator.rig.Rig
-        Its slots must be room projectors; each is "connected" unless listed in ``offline``.
-    cameras : int
-        How many of the room's cameras the job sees.
-    exposure : float, optional
-        Relative camera exposure for every capture (None: the room camera's own).
-    unpowered : slots whose projector stays dark whatever it is shown (a projector that is off).
-    """
-
-    def __init__(self, room, rig, *, cameras: int = 1, exposure: float | None = None,
-                 unpowered: tuple[str, ...] = (), offline: tuple[str, ...] = ()):
-        self.room = room
-        self.rig = rig
-        self.camera_specs = [f"room-in-process:{i}" for i in range(cameras)]
-        self.exposure = exposure
-        self.unpowered = set(unpowered)
-        self.offline = set(offline)
-        self.events: list[tuple] = []
-        self.shows = 0
-        self.captures = 0
-        room.set_active([s for s in rig.slots if s not in self.unpowered])
-
-    def live_slots(self) -> list[str]:
-        return [s for s in self.rig.slots if s not in self.offline]
-
-    def projector_size(self, slot: str) -> tuple[int, int]:
-        st = self.rig.slot(slot)
-        return st.width, st.height
-
-    async def show(self, images: dict, *, settle_s: float = 0.05, require: list[str] | None = None) -> None:
-        need = [s for s, img in images.items() if img is not None] if require is None else require
-        missing = [s for s in need if s not in self.live_slots()]
-        if missing:
-            raise JobError(f"projector(s) {', '.join(missing)} not connected: start their nodes (see `shadowless status`)")
-        for s in self.live_slots():
-            w, h = self.projector_size(s)
-            img = images.get(s)
-            frame = np.zeros((h, w, 3), np.uint8) if img is None else np.asarray(img)
-            if frame.ndim == 2:
-                frame = np.repeat(frame[:, :, None], 3, axis=2)
-            if frame.shape[:2] != (h, w):
-                raise ValueError(f"pattern for {s} is {frame.shape[1]}x{frame.shape[0]}, its projector is {w}x{h}")
-            self.room.set_frame(s, frame)
-        self.shows += 1
-
-    async def capture(self, index: int = 0) -> np.ndarray:
-        self.captures += 1
-        return self.room.capture(index, exposure=self.exposure)
-
-    async def compute(self, fn, *args, **kwargs):
-        return fn(*args, **kwargs)
-
-    def progress(self, stage: str, item: str = "", done: int = 0, total: int = 0, message: str = "",
-                 value: float = math.nan) -> None:
-        self.events.append(("progress", stage, item, done, total, message))
-
-    def log(self, message: str) -> None:
-        self.events.append(("log", message))
-
-    def set_pose(self, slot: str, pose, *, source: str = "calibration") -> None:
-        self.rig.update_slot(slot, pose=pose, source=source)
-
-
-def make_rig(path: Path, room, slots: list[str], *, content_size: tuple[int, int] = (1200, 600)):
+def make_rig(path: Path, room, slots: list[str], *, content_size: tuple[int, int] = (1200, 600)) -> Rig:
     """A rig directory whose slots are ``slots`` at the room's projector resolution."""
-    from coordinator.rig import Rig, init_rig
-
     w, h = room.projector_size(slots[0])
     init_rig(path, name=f"bench-{len(slots)}", slots=slots, width=w, height=h, content_width=content_size[0],
              content_height=content_size[1])
@@ -193,8 +124,6 @@ def board_albedo(room, spec, *, camera: int = 0, supersample: int = 4, px_per_mm
     """(H, W) float32 albedo factor a camera sees when a ChArUco board lies on the table: the board image
     mapped through the true table -> camera homography, integrated over each camera pixel (supersampled),
     black squares reflecting 8 % of what white ones do."""
-    import cv2
-
     board_img = spec.board().generateImage((round(spec.squares_x * spec.square_mm * px_per_mm),
                                             round(spec.squares_y * spec.square_mm * px_per_mm)), marginSize=0)
     ss, ppm = supersample, px_per_mm
@@ -222,8 +151,6 @@ def planar_errors(room, slot: str, pose: np.ndarray, content_size: tuple[int, in
 def mesh_errors(room, slot: str, P: np.ndarray, *, camera: int = 0) -> tuple[float, float, int]:
     """RMS, max (projector px) and count: ``P`` against the truth over the mesh surface the camera sees
     and the projector lights (the visible surface)."""
-    from coordinator.calibration.threed import project
-
     surf = room.truth.surface(camera)
     pc = room.truth.projector_coordinates(slot, camera)
     vis = (surf.kind == 2) & np.isfinite(pc[..., 0])
@@ -239,10 +166,6 @@ def mesh_vertex_errors(room, slot: str, P: np.ndarray, vertices: np.ndarray, *, 
     against where it belongs (the true projection of the true vertex), over the vertices of the visible
     surface: RMS, max (projector px) and count. With a mesh registered from landmarks, registration and
     projector errors partly cancel; this measures what the audience sees."""
-    from scipy.spatial import cKDTree
-
-    from coordinator.calibration.threed import project
-
     true_v = room.scene.mesh.vertices.astype(np.float64)
     surf = room.truth.surface(camera)
     pc = room.truth.projector_coordinates(slot, camera)
@@ -272,14 +195,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 async def _run_one(room, slots: list[str], mode: str, table_points, workdir: Path, seconds_per_capture: float) -> dict:
-    from coordinator.calibration.job import calibrate
-
     rig = make_rig(workdir, room, slots)
-    ctx = RoomJobContext(room, rig)
+    driver = RoomDriver(room, rig)
     points_doc = {"frame": "world", "points": [{"xyz": list(map(float, x)), "pixel": list(map(float, p)), "camera": 0}
                                               for x, p in zip(table_points[0].xyz, table_points[0].pixels)]}
     t0 = time.perf_counter()
-    result = await calibrate(ctx, {"mode": mode, "table_points": points_doc, "settle_s": 0.0})
+    result = await driver.run("calibrate", {"mode": mode, "table_points": points_doc, "settle_s": 0.0})
     wall = time.perf_counter() - t0
     content = (rig.config.content_width, rig.config.content_height)
     errs = {s: planar_errors(room, s, rig.slot(s).pose.matrix, content) for s in slots}
@@ -288,7 +209,7 @@ async def _run_one(room, slots: list[str], mode: str, table_points, workdir: Pat
     # the same poses with the clicked table mapping replaced by the true one: the projector calibration's own error
     H_est = np.array(json.loads((rig.path / "calibration" / "cameras.json").read_text())["cameras"][0]["table_to_camera"])
     fix = np.linalg.inv(H_est) @ room.truth.table_to_camera_homography(0)
-    c2t = planar.content_to_table(content, room.scene.table.size)
+    c2t = content_to_table(content, room.scene.table.size)
     own = {s: planar_errors(room, s, rig.slot(s).pose.matrix @ np.linalg.inv(c2t) @ fix @ c2t, content) for s in slots}
     return {"captures": result["captures"], "wall_s": round(wall, 3), "wall_s_per_capture": round(wall / result["captures"], 4),
             "est_rig_s": round(result["captures"] * seconds_per_capture, 1),
@@ -300,10 +221,6 @@ async def _run_one(room, slots: list[str], mode: str, table_points, workdir: Pat
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.machine import machine
-    from sim.room import Room
-    from sim.scene import reference_scene
-
     sizes = [int(v) for v in str(args.projectors).split(",") if v.strip()]
     modes = [m.strip() for m in str(args.modes).split(",") if m.strip()]
     for m in modes:

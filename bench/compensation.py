@@ -32,9 +32,20 @@ import tracemalloc
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from bench.machine import machine
+from coordinator.compensation.quality import quality, side_by_side, srgb_to_linear
+from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve, solve_per_projector
+from coordinator.compensation.synthetic import (
+    camera_noise,
+    sample_image,
+    simulate_captures,
+    synthetic_rig,
+    synthetic_transport,
+)
+from coordinator.compensation.transport import DotGrid, transport_error, transport_from_captures
 
 PAPER_TABLE_1 = {
     "none": {"psnr": 19.54, "ssim": 0.44},
@@ -134,9 +145,6 @@ def _apply_defaults(args: argparse.Namespace) -> None:
 
 
 def _target(h: int, w: int, channels: int, lo_hi: tuple[float, float], seed: int) -> np.ndarray:
-    from coordinator.compensation import srgb_to_linear
-    from coordinator.compensation.synthetic import sample_image
-
     img = srgb_to_linear(sample_image(h, w, channels=channels, seed=seed))
     lo, hi = lo_hi
     return np.ascontiguousarray(lo + (hi - lo) * img, dtype=np.float32)
@@ -164,12 +172,9 @@ def _maxrss_gib() -> float:
 
 
 def _measure(L, grid, shape, cam: dict[str, float], rng: np.random.Generator, radius: int):
-    from coordinator.compensation import measure_transport
-    from coordinator.compensation.synthetic import camera_noise, simulate_captures
-
     black = camera_noise(np.zeros(shape, dtype=np.float32), read_noise=cam["read"], shot_noise=cam["shot"], rng=rng)
     caps = simulate_captures(L, grid, shape, read_noise=cam["read"], shot_noise=cam["shot"], rng=rng)
-    return measure_transport(caps, black, grid=grid, radius=radius)
+    return transport_from_captures(caps, black, grid=grid, radius=radius)
 
 
 def _solve_opts(args: argparse.Namespace) -> dict[str, Any]:
@@ -177,17 +182,6 @@ def _solve_opts(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
-    from coordinator.compensation import (
-        DotGrid,
-        TransportOperator,
-        quality,
-        side_by_side,
-        solve,
-        solve_per_projector,
-        transport_error,
-    )
-    from coordinator.compensation.synthetic import synthetic_rig, synthetic_transport
-
     w, h = args.size
     counts = sorted(set(args.projectors))
     rig = synthetic_rig(max(counts), content_shape=(h, w), radius=args.radius, seed=args.seed)
@@ -263,8 +257,6 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
         del Ls
         picture = None
         if args.out is not None:
-            import cv2
-
             args.out.mkdir(parents=True, exist_ok=True)
             pic = side_by_side([target, cap_none, cap_base, cap_ours],
                                ["target", f"none {q['none']['psnr']:.2f} dB", f"baseline {q['baseline']['psnr']:.2f} dB",
@@ -304,9 +296,6 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 
 def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
-    from coordinator.compensation import TransportOperator, quality, solve
-    from coordinator.compensation.synthetic import synthetic_rig, synthetic_transport
-
     w, h = args.paper_size
     n = 25
     rig = synthetic_rig(n, content_shape=(h, w), radius=args.radius, seed=args.seed)
@@ -358,11 +347,6 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _video(args: argparse.Namespace) -> dict[str, Any]:
-    import cv2
-
-    from coordinator.compensation import FrameCompensator, TransportOperator, quality, solve
-    from coordinator.compensation.synthetic import synthetic_rig, synthetic_transport
-
     w, h = args.video_size
     n = 25
     rig = synthetic_rig(n, content_shape=(h, w), radius=args.radius, seed=args.seed)
@@ -422,9 +406,6 @@ def _video(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _noise_sweep(args: argparse.Namespace) -> list[dict[str, Any]]:
-    from coordinator.compensation import DotGrid, quality, solve, solve_per_projector
-    from coordinator.compensation.synthetic import synthetic_rig, synthetic_transport
-
     w, h = args.sweep_size
     n = 25
     rig = synthetic_rig(n, content_shape=(h, w), radius=args.radius, seed=args.seed)

@@ -1,14 +1,14 @@
 """`shadowless bench compensation_room`: blur compensation measured in the virtual room.
 
-The coordinator's jobs (``calibrate``, ``response``, ``transport``, ``compensate``) run
-in-process against :class:`sim.room.Room` through :class:`RoomCompensationContext`, which
-renders what every node would output (the node's warp, gain and LUT, computed by
-:func:`coordinator.compensation.job.projector_frame`) into the room, so the figures measure
-the method, not gRPC or node processes. Reported: captures and time of each stage, the
-fitted response against the room's gamma, the measured ``L`` against the room's
-ground-truth transport (relative Frobenius error), solve times of ours for a 1- and a
-25-projector rig and of the per-projector baseline, and PSNR/SSIM of the image captured
-without compensation, with the baseline and with ours, plus the side-by-side picture.
+The coordinator's jobs (``calibrate``, ``response``, ``transport``, ``compensate``,
+``compensate_sequence``) run in-process against :class:`sim.room.Room` through
+:class:`shadowless.room_driver.RoomDriver`, which renders what every node would output (the
+node's warp, gain and LUT: :func:`protos.spaces.warp_content`) into the room, so the figures
+measure the method, not gRPC or node processes. Reported: captures and time of each stage, the
+fitted response against the room's gamma, the measured ``L`` against the room's ground-truth
+transport (relative Frobenius error), solve times of ours for a 1- and a 25-projector rig and
+of the per-projector baseline, and PSNR/SSIM of the image captured without compensation, with
+the baseline and with ours, plus the side-by-side picture.
 
 The baseline's matrices ``L_i`` are measured one projector at a time; a projector alone
 gives the camera 1/N of the light, so by default its captures use an N times longer
@@ -16,127 +16,58 @@ exposure (``--baseline-exposure``; the room's camera can), so each ``L_i`` is me
 the signal level ``L`` is.
 
 This module is also the test kit of ``tests/coordinator/compensation/test_job_*``: the
-adapter and the ground-truth transport (:func:`truth_transport`). It may import ``sim``;
-the coordinator never does.
+ground-truth transport (:func:`truth_transport`, built on the node's lookup
+:func:`bilinear_warp_matrix`), the demo picture and the calibration points. It may import
+``sim``; the coordinator never does.
 """
 from __future__ import annotations
 
 import argparse
 import asyncio
 import json
+import shutil
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Callable
 
+import cv2
 import numpy as np
 import scipy.sparse as sp
+from skimage import data as skimage_data
 
-from bench.calibration import RoomJobContext, make_rig, table_points_from_truth
+from bench.calibration import make_rig, table_points_from_truth
+from bench.machine import machine
+from coordinator.compensation.geometry import camera_target, inscribed_region
+from coordinator.compensation.image_param import encode_image_array, prepare_image
+from coordinator.compensation.quality import quality
+from coordinator.compensation.ridge import RidgeProblem, best_scale
+from coordinator.compensation.solver import solve
+from coordinator.compensation.transport import load_transport, transport_error
+from protos.spaces import bilinear_taps, projector_samples
+from shadowless.room_driver import RoomDriver
+from sim.room import Room
+from sim.scene import SUBSETS, reference_scene
 
 
 # ---------------------------------------------------------------------- the test kit
-class _RoomCoordinator:
-    """The two coordinator calls the compensation jobs make: ``show`` (a still, persisted) and ``play``."""
-
-    def __init__(self, ctx: "RoomCompensationContext"):
-        self.ctx = ctx
-        self.shown = None
-        self.played: list = []
-
-    def show(self, content, *, persist: bool = False, **_):
-        if persist:
-            self.ctx.rig.set_content(content)
-        self.ctx.render_content(content.image)
-        self.shown = content
-        return content
-
-    async def play(self, frames, settings):
-        from protos import control_pb2
-
-        t0 = time.monotonic()
-        count = len(frames) * (settings.loops + 1)
-        for i in range(count):
-            self.ctx.render_content(frames[i % len(frames)].image)
-        self.played = list(frames)
-        return control_pb2.PlayReply(frames_sent=count, frames_shown=count, nodes=len(self.ctx.live_slots()),
-                                     wall_s=time.monotonic() - t0)
-
-
-class RoomCompensationContext(RoomJobContext):
-    """The JobContext calls the compensation jobs make, served by an in-process room.
-
-    Content shown through poses is rendered as a node does it (bilinear warp, gain, LUT,
-    ``round(255 v)``), with each slot's stored pose, LUT and gain; ``set_slot`` persists
-    in the rig like the coordinator. ``capture(index, exposure=)`` scales the camera's
-    exposure (relative to the room camera's own). Heavy work runs on worker threads, as
-    :meth:`coordinator.jobs.JobContext.compute` does.
-    """
-
-    def __init__(self, room, rig, **kw):
-        super().__init__(room, rig, **kw)
-        self.coordinator = _RoomCoordinator(self)
-        self.content_shows = 0
-
-    def render_content(self, image: np.ndarray | None, *, apply_lut: bool = True) -> None:
-        from coordinator.compensation.job import projector_frame
-
-        cw, ch = self.rig.config.content_width, self.rig.config.content_height
-        img = None if image is None else np.asarray(image)
-        if img is not None and img.shape[:2] != (ch, cw):
-            raise ValueError(f"content is {img.shape[1]}x{img.shape[0]}, the rig's is {cw}x{ch}")
-        for s in self.live_slots():
-            st = self.rig.slot(s)
-            if img is None or st.pose is None:
-                frame = np.zeros((st.height, st.width, 3), np.uint8)
-            else:
-                frame = projector_frame(img, st.pose.matrix, (st.width, st.height), lut=st.lut, gain=st.gain,
-                                        apply=apply_lut)
-            self.room.set_frame(s, frame)
-
-    async def show_content(self, image, *, apply_lut: bool = True, settle_s: float = 0.05) -> None:
-        await asyncio.to_thread(self.render_content, image, apply_lut=apply_lut)
-        self.content_shows += 1
-
-    async def capture(self, index: int = 0, *, exposure: float | None = None) -> np.ndarray:
-        self.captures += 1
-        base = self.exposure if self.exposure is not None else self.room.truth.camera(index).exposure
-        e = base * (1.0 if exposure is None else float(exposure))
-        return await asyncio.to_thread(self.room.capture, index, exposure=e)
-
-    async def compute(self, fn, *args, **kwargs):
-        return await asyncio.to_thread(fn, *args, **kwargs)
-
-    def set_slot(self, slot: str, **changes) -> None:
-        self.rig.update_slot(slot, **changes)
-
-
 def bilinear_warp_matrix(pose: np.ndarray, projector_size: tuple[int, int], content_size: tuple[int, int]) -> sp.csr_matrix:
     """The node's content lookup as a matrix: ``(w*h, W*H)`` CSR float64, projector px x content px.
 
     Row ``v * w + u`` holds the bilinear weights of the four content texels around
-    ``pose^-1 (u, v)`` (texels outside the content weigh 0), exactly the float arithmetic of
-    ``node/render/pipeline.glsl``.
+    ``pose^-1 (u, v)`` (texels outside the content weigh 0): :func:`protos.spaces.projector_samples`
+    and :func:`protos.spaces.bilinear_taps`, the one definition of what a node samples.
     """
-    w, h = projector_size
-    cw, ch = content_size
-    v, u = np.mgrid[0:h, 0:w]
-    q = np.linalg.inv(np.asarray(pose, np.float64)) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x, y = q[0] / q[2], q[1] / q[2]
-    ok_w = (q[2] > 0) & np.isfinite(x) & np.isfinite(y)
-    x = np.where(ok_w, x, -10.0)
-    y = np.where(ok_w, y, -10.0)
-    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-    fx, fy = x - x0, y - y0
+    w, h = (int(v) for v in projector_size)
+    x, y = projector_samples(pose, (w, h))
     rows, cols, vals = [], [], []
-    for dx, dy, wt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        X, Y = x0 + dx, y0 + dy
-        ok = ok_w & (X >= 0) & (X < cw) & (Y >= 0) & (Y < ch) & (wt > 0)
+    for index, weight in bilinear_taps(x, y, content_size):
+        ok = weight > 0
         rows.append(np.flatnonzero(ok))
-        cols.append(Y[ok] * cw + X[ok])
-        vals.append(wt[ok])
+        cols.append(index[ok])
+        vals.append(weight[ok])
+    cw, ch = (int(v) for v in content_size)
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(w * h, cw * ch))
 
 
@@ -168,10 +99,7 @@ def points_doc(points) -> dict:
 
 def demo_image(size: tuple[int, int]) -> np.ndarray:
     """scikit-image's astronaut, centre-cropped to ``size`` (w, h)'s aspect and resized: (h, w, 3) uint8."""
-    import cv2
-    from skimage import data
-
-    img = data.astronaut()
+    img = skimage_data.astronaut()
     w, h = size
     ih, iw = img.shape[:2]
     if iw / ih > w / h:
@@ -181,28 +109,6 @@ def demo_image(size: tuple[int, int]) -> np.ndarray:
         cht = round(iw * h / w)
         img = img[(ih - cht) // 2:(ih - cht) // 2 + cht]
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-
-
-def image_param(image: np.ndarray, name: str = "image.png") -> dict:
-    """An in-memory image as the ``image`` job parameter (PNG bytes, compressed, base64)."""
-    import base64
-    import zlib
-
-    import cv2
-
-    a = np.asarray(image)
-    if a.dtype == np.float32:
-        import io
-
-        buf = io.BytesIO()
-        np.save(buf, a, allow_pickle=False)
-        raw, name = buf.getvalue(), name.rsplit(".", 1)[0] + ".npy"
-    else:
-        ok, png = cv2.imencode(".png", cv2.cvtColor(a, cv2.COLOR_RGB2BGR) if a.ndim == 3 else a)
-        if not ok:
-            raise ValueError("cannot encode the image")
-        raw = png.tobytes()
-    return {"name": name, "data": base64.b64encode(zlib.compress(raw, 6)).decode("ascii")}
 
 
 # ---------------------------------------------------------------------- the benchmark
@@ -244,56 +150,51 @@ def _log(msg: str) -> None:
 
 
 async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, points, *, baseline: bool) -> dict:
-    from coordinator.calibration.job import calibrate
-    from coordinator.compensation.job import compensate, measure_response, measure_transport
-    from coordinator.compensation import load_transport
-    from coordinator.compensation.transport import transport_error
-
     rig = make_rig(workdir, room, slots, content_size=content_size)
-    ctx = RoomCompensationContext(room, rig)
+    driver = RoomDriver(room, rig)
     out: dict = {"projectors": len(slots)}
     t = time.perf_counter()
-    cal = await calibrate(ctx, {"mode": "multiplexed", "table_points": points_doc(points), "settle_s": 0.0})
+    cal = await driver.run("calibrate", {"mode": "multiplexed", "table_points": points_doc(points), "settle_s": 0.0})
     out["calibration"] = {"captures": cal["captures"], "wall_s": round(time.perf_counter() - t, 2)}
     _log(f"N={len(slots)}: calibrated ({cal['captures']} captures)")
-    c0 = ctx.captures
+    c0 = driver.captures
     t = time.perf_counter()
-    resp = await measure_response(ctx, {"settle_s": 0.0, "frames": args.response_frames})
+    resp = await driver.run("response", {"settle_s": 0.0, "frames": args.response_frames})
     gam = {s: float(np.max(np.abs(np.asarray(d["gamma"]) - room.truth.projector(s).gamma))) for s, d in resp["slots"].items()}
     curve = {}
     for s in resp["slots"]:
         doc = json.loads((rig.path / "compensation" / "responses" / f"{s}.json").read_text())["response"]
         lv, cv = np.asarray(doc["levels"]), np.asarray(doc["curve"])
         curve[s] = float(np.abs(cv - lv[None, :] ** room.truth.projector(s).gamma[:, None]).max())
-    out["response"] = {"captures": ctx.captures - c0, "wall_s": round(time.perf_counter() - t, 2),
+    out["response"] = {"captures": driver.captures - c0, "wall_s": round(time.perf_counter() - t, 2),
                        "gamma_error_max": round(max(gam.values()), 4),
                        "curve_error_max": round(max(curve.values()), 4),
                        "curve_error_median": round(float(np.median(list(curve.values()))), 4),
                        "linearity": resp["linearity"], "brightness": resp["brightness"]}
-    _log(f"N={len(slots)}: responses ({ctx.captures - c0} captures, normalised curve error <= {max(curve.values()):.4f}, "
-         f"linearity max error {resp['linearity']['max_error']})")
-    c0 = ctx.captures
+    _log(f"N={len(slots)}: responses ({driver.captures - c0} captures, normalised curve error <= "
+         f"{max(curve.values()):.4f}, linearity max error {resp['linearity']['max_error']})")
+    c0 = driver.captures
     t = time.perf_counter()
-    tr = await measure_transport(ctx, {"settle_s": 0.0, "radius": args.radius, "frames": args.frames})
+    tr = await driver.run("transport", {"settle_s": 0.0, "radius": args.radius, "frames": args.frames})
     wall = time.perf_counter() - t
     L, _ = load_transport(rig.path / "compensation" / "transport.npz")
     truth = truth_transport(room.truth.transport, lambda s: room.truth.projector(s).black, rig, slots)
-    out["transport"] = {"captures": ctx.captures - c0, "wall_s": round(wall, 2), "spacing": tr["spacing"],
+    out["transport"] = {"captures": driver.captures - c0, "wall_s": round(wall, 2), "spacing": tr["spacing"],
                         "radius": tr["radius"], "nnz": tr["nnz"], "relative_error": round(transport_error(L, truth), 5)}
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {out['transport']['relative_error']})")
     ridge = {} if args.regularization is None else {"regularization": args.regularization}
-    params = {"image": image_param(demo_image(content_size), "astronaut.png"), "evaluate": True, "settle_s": 0.0,
-              "eval_frames": args.eval_frames, "max_iter": args.max_iter, "radius": args.radius, "frames": args.frames,
-              **ridge}
+    params = {"image": encode_image_array(demo_image(content_size), "astronaut.png"), "evaluate": True,
+              "settle_s": 0.0, "eval_frames": args.eval_frames, "max_iter": args.max_iter, "radius": args.radius,
+              "frames": args.frames, **ridge}
     if baseline:
         params.update(baseline=True, baseline_frames=args.baseline_frames or args.frames,
                       baseline_exposure=args.baseline_exposure or float(len(slots)))
-    c0 = ctx.captures
+    c0 = driver.captures
     t = time.perf_counter()
-    res = await compensate(ctx, params)
+    res = await driver.run("compensate", params)
     out["compensate"] = {k: res[k] for k in ("solve", "target_level", "target_level_from", "quality", "baseline",
                                              "baseline_over_ours_seconds") if k in res}
-    out["compensate"]["captures"] = ctx.captures - c0
+    out["compensate"]["captures"] = driver.captures - c0
     out["compensate"]["wall_s"] = round(time.perf_counter() - t, 2)
     out["compensate"]["solve"]["ms_per_iteration"] = round(1000 * res["solve"]["seconds"] / max(res["solve"]["iterations"], 1), 3)
     if baseline:
@@ -307,13 +208,11 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
         _log(f"N={len(slots)}: oracle solves (the room's true transport)")
         out["compensate"]["oracle"] = await asyncio.to_thread(_oracle, rig, res, truth, truths, content_size)
     if args.video_frames > 0:
-        from coordinator.compensation.job import compensate_sequence
-
         wide = demo_image((content_size[0] + args.video_frames, content_size[1]))
-        frames = [image_param(np.ascontiguousarray(wide[:, k:k + content_size[0]]), f"f{k:03d}.png")
+        frames = [encode_image_array(np.ascontiguousarray(wide[:, k:k + content_size[0]]), f"f{k:03d}.png")
                   for k in range(args.video_frames)]
-        seq = await compensate_sequence(ctx, {"frames": frames, "iterations": args.video_iterations, "play": False,
-                                              **ridge})
+        seq = await driver.run("compensate_sequence", {"frames": frames, "iterations": args.video_iterations,
+                                                       "play": False, **ridge})
         out["sequence"] = {k: seq[k] for k in ("frames", "iterations_per_frame", "ms_first_frame", "ms_per_frame_mean",
                                                "ms_per_frame_median", "ms_per_frame_max")}
         out["sequence"]["clip"] = "the picture slides 1 content px per frame"
@@ -324,9 +223,6 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
 def _oracle(rig, res: dict, truth: sp.spmatrix, truths: dict, content_size) -> dict:
     """Both methods solved with the room's true transport, scored through it (no camera): what each could
     reach with perfect measurements, at the same target, ridge weight and iteration budget."""
-    from coordinator.compensation import load_transport, quality, solve
-    from coordinator.compensation.job import RidgeProblem, best_scale, camera_target, inscribed_region, prepare_image
-
     _, meta = load_transport(rig.path / "compensation" / "transport.npz")
     H = np.asarray(meta["content_to_camera"])
     cam = (meta["camera_size"][1], meta["camera_size"][0])
@@ -358,12 +254,6 @@ def _oracle(rig, res: dict, truth: sp.spmatrix, truths: dict, content_size) -> d
 
 
 def run(args: argparse.Namespace) -> int:
-    import shutil
-
-    from bench.machine import machine
-    from sim.room import Room
-    from sim.scene import SUBSETS, reference_scene
-
     cw, ch = (int(v) for v in args.content_size.lower().split("x"))
     t0 = time.perf_counter()
     room = Room(reference_scene(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed,

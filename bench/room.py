@@ -40,6 +40,9 @@ import cv2
 import numpy as np
 
 from bench.machine import machine
+from sim.occluders import Hand
+from sim.room import Room
+from sim.scene import SUBSETS, reference_scene
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -73,9 +76,6 @@ def _time_captures(room, slots: list[str], repeat: int, *, fresh: bool) -> dict:
 
 
 def capture_speed(*, camera_scale: float, repeat: int, seed: int) -> dict:
-    from sim.room import Room
-    from sim.scene import SUBSETS, reference_scene
-
     t0 = time.perf_counter()
     room = Room(reference_scene(projector_scale=0.25, camera_scale=camera_scale, seed=seed), seed=seed)
     room.prepare()
@@ -135,10 +135,6 @@ def _pixel_areas(points: np.ndarray) -> np.ndarray:
 
 
 def light_drop(*, positions: int, height: float, yaw: float, seed: int, pose: str = "flat") -> dict:
-    from sim.occluders import Hand
-    from sim.room import Room
-    from sim.scene import SUBSETS, reference_scene
-
     room = Room(reference_scene(seed=seed), seed=seed)
     surf = room.truth.surface()
     on = surf.kind == 1

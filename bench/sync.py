@@ -19,6 +19,9 @@ import time
 from pathlib import Path
 
 from bench.machine import machine
+from coordinator.api import PlaySettings
+from coordinator.commands import play_dict
+from shadowless.local import LocalRig, grid_names, spread
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -35,10 +38,6 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 async def _one(n: int, args, workdir: Path) -> dict:
-    from coordinator.local import LocalRig, grid_names, spread
-    from coordinator.operator import play_dict
-    from protos import control_pb2
-
     w, h = (int(v) for v in args.size.split("x"))
     slots = grid_names(n)
     offsets = dict(zip(slots, spread(n, args.offset_ms, 1)))
@@ -52,7 +51,7 @@ async def _one(n: int, args, workdir: Path) -> dict:
             startup = time.monotonic() - t0
             await asyncio.sleep(args.warmup)
             frames = max(1, int(args.fps * args.seconds))
-            reply = await c.play(control_pb2.PlaySettings(fps=args.fps, pattern="counter", frames=frames, wait=True))
+            reply = await c.play(PlaySettings(fps=args.fps, pattern="counter", frames=frames, wait=True))
     d = play_dict(reply)
     s = d["sync"]
     return {

@@ -30,17 +30,22 @@ real rig can be replayed offline with ``folder:DIR``.
 """
 from __future__ import annotations
 
+import math
 import re
 import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 from urllib.parse import parse_qsl
 
+import grpc
 import numpy as np
 
 from coordinator.errors import CoordinatorError
 from coordinator.store import atomic_write_bytes
+from protos import codec, room_pb2, room_pb2_grpc
+from protos.version import GRPC_OPTIONS
 
 #: File names of a recorded/replayed sequence: 000001.png, 000002.png, ...
 FRAME_NAME = "{:06d}.png"
@@ -60,8 +65,12 @@ class Camera(Protocol):
     def size(self) -> tuple[int, int] | None:
         """(width, height) of the captures, once known (None before the first capture)."""
 
-    def capture(self) -> np.ndarray:
-        """One image: (H, W, 3) float32 in [0, 1]."""
+    #: whether :meth:`capture` accepts a relative ``exposure`` per capture
+    supports_exposure: bool
+
+    def capture(self, *, exposure: float | None = None) -> np.ndarray:
+        """One image: (H, W, 3) float32 in [0, 1]. ``exposure``: relative to the camera's own
+        (only where :attr:`supports_exposure`; others raise :class:`CameraError`)."""
 
     def close(self) -> None:
         """Release the device or channel."""
@@ -174,6 +183,12 @@ class _SizeCheck:
 
     spec: str
     _size: tuple[int, int] | None = None
+    supports_exposure = False
+
+    def _no_exposure(self, exposure: float | None) -> None:
+        if exposure is not None and exposure != 1.0:
+            raise CameraError(f"camera {self.spec} cannot change its exposure per capture; use a camera that can "
+                              "(the virtual room's) or leave the exposure to the camera's settings")
 
     @property
     def size(self) -> tuple[int, int] | None:
@@ -193,12 +208,9 @@ class _SizeCheck:
 class RoomCamera(_SizeCheck):
     """A camera of the virtual room: calls its Capture RPC (gRPC, blocking; use from a worker thread)."""
 
+    supports_exposure = True
+
     def __init__(self, spec: CameraSpec, *, timeout_s: float | None = None):
-        import grpc
-
-        from protos import room_pb2_grpc
-        from protos.version import GRPC_OPTIONS
-
         self.spec = spec.text
         self.target = spec.target
         self.index = int(spec.options.get("camera", 0))
@@ -213,15 +225,11 @@ class RoomCamera(_SizeCheck):
         """The next capture must see frames swapped at or after ``rig_ns`` (the last pattern's time)."""
         self._last_ns = max(self._last_ns, int(rig_ns))
 
-    def capture(self) -> np.ndarray:
-        import time
-
-        import grpc
-
-        from protos import codec, room_pb2
-
+    def capture(self, *, exposure: float | None = None) -> np.ndarray:
+        if exposure is not None and not (math.isfinite(exposure) and exposure > 0):
+            raise CameraError(f"camera {self.spec}: exposure must be a positive factor, got {exposure}")
         req = room_pb2.CaptureRequest(camera=self.index, not_before_rig_ns=self._last_ns if self.wait else 0,
-                                      timeout_ms=int(min(self.timeout_s, 30.0) * 1000))
+                                      timeout_ms=int(min(self.timeout_s, 30.0) * 1000), exposure=exposure or 0.0)
         try:
             with self._lock:
                 reply = self._stub.Capture(req, timeout=self.timeout_s + 5.0)
@@ -292,7 +300,8 @@ class OpenCVCamera(_SizeCheck):
             frame = cv2.cvtColor(frame[:, :, :3], cv2.COLOR_BGR2RGB)
         return to_float_image(frame, source=f"camera {self.spec}")
 
-    def capture(self) -> np.ndarray:
+    def capture(self, *, exposure: float | None = None) -> np.ndarray:
+        self._no_exposure(exposure)
         for _ in range(self.discard):
             if not self._cap.grab():
                 raise CameraError(f"camera {self.spec}: the camera stopped delivering frames (unplugged or busy?)")
@@ -346,7 +355,8 @@ class FolderCamera(_SizeCheck):
             raise CameraError(f"camera {self.spec}: {self.dir} holds no recorded captures (000001.png, ...)")
         self.next_index = 1
 
-    def capture(self) -> np.ndarray:
+    def capture(self, *, exposure: float | None = None) -> np.ndarray:
+        self._no_exposure(exposure)
         path = self.dir / FRAME_NAME.format(self.next_index)
         if not path.exists():
             raise CameraError(f"camera {self.spec}: ran out of images after {self.next_index - 1} captures "
@@ -411,8 +421,12 @@ class RecordingCamera:
     def size(self) -> tuple[int, int] | None:
         return self.camera.size
 
-    def capture(self) -> np.ndarray:
-        return self.recorder.record(self.camera.capture())
+    @property
+    def supports_exposure(self) -> bool:
+        return self.camera.supports_exposure
+
+    def capture(self, *, exposure: float | None = None) -> np.ndarray:
+        return self.recorder.record(self.camera.capture(exposure=exposure))
 
     def close(self) -> None:
         self.camera.close()

@@ -4,11 +4,15 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 from pathlib import Path
 
 from coordinator.errors import CoordinatorError, RigError
 from coordinator.logs import setup_logging
+from coordinator.rig import Rig
+from coordinator.server import Coordinator
+from coordinator.store import atomic_write_text
 from protos.auth import TokenError, resolve_token
 
 log = logging.getLogger("coordinator")
@@ -48,14 +52,9 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 async def serve(args: argparse.Namespace) -> int:
-    from coordinator.rig import Rig
-    from coordinator.server import Coordinator
-
     rig = Rig(args.rig)
     token_file = args.token_file
     if not token_file:
-        import os
-
         token_file = os.environ.get("SHADOWLESS_TOKEN_FILE") or str(Path(args.rig) / "token")
     token = resolve_token(token_file)
     tls = None
@@ -68,8 +67,6 @@ async def serve(args: argparse.Namespace) -> int:
                         cameras=args.camera)
     await coord.start()
     if args.port_file:
-        from coordinator.store import atomic_write_text
-
         atomic_write_text(args.port_file, f"{coord.port}\n")
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()

@@ -5,8 +5,10 @@ import argparse
 import json
 import re
 import sys
+from pathlib import Path
 
 from coordinator.errors import RigError
+from coordinator.rig import Rig, grid_slots, init_rig
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -37,10 +39,6 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from coordinator.rig import Rig, grid_slots, init_rig
-
     try:
         if args.rig_command == "init":
             cols, rows = args.grid

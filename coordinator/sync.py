@@ -15,6 +15,8 @@ from typing import Callable
 
 import numpy as np
 
+from coordinator.api import DropReason, SyncSummary
+
 
 @dataclass
 class FrameRecord:
@@ -22,9 +24,9 @@ class FrameRecord:
     pts_ns: int
     tag: str
     expected: set[str]
-    created: float = field(default_factory=time.monotonic)
+    created: float
     swaps: dict[str, tuple[int, int, bool]] = field(default_factory=dict)  # slot -> (rig_ns, host_ns, same_host)
-    drops: dict[str, int] = field(default_factory=dict)                    # slot -> DropReason
+    drops: dict[str, DropReason] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -48,10 +50,16 @@ def percentile(values, q: float) -> float:
 
 
 class SyncTracker:
-    """Collects swap reports per frame and finalises each frame once all expected nodes answered."""
+    """Collects swap reports per frame and finalises each frame once all expected nodes answered.
 
-    def __init__(self, *, window: int = 20_000, timeout_s: float = 3.0):
+    A frame is final when every expected node swapped it in or dropped it, when a node is
+    forgotten (lost), or :attr:`timeout_s` after it was expected (:meth:`sweep`). ``clock``
+    (seconds, monotonic) is injectable so tests decide when time passes.
+    """
+
+    def __init__(self, *, window: int = 20_000, timeout_s: float = 3.0, clock: Callable[[], float] = time.monotonic):
         self.timeout_s = timeout_s
+        self.clock = clock
         self._open: dict[int, FrameRecord] = {}
         self.results: deque[FrameResult] = deque(maxlen=window)
         self.out_of_order = 0
@@ -63,7 +71,7 @@ class SyncTracker:
 
     def expect(self, frame_id: int, pts_ns: int, tag: str, slots: set[str]) -> None:
         if slots:
-            self._open[frame_id] = FrameRecord(frame_id, pts_ns, tag, set(slots))
+            self._open[frame_id] = FrameRecord(frame_id, pts_ns, tag, set(slots), created=self.clock())
 
     def on_swap(self, slot: str, frame_id: int, rig_ns: int, host_ns: int, same_host: bool) -> None:
         rec = self._open.get(frame_id)
@@ -72,7 +80,7 @@ class SyncTracker:
         rec.swaps[slot] = (rig_ns, host_ns, same_host)
         self._maybe_finish(rec)
 
-    def on_drop(self, slot: str, frame_id: int, reason: int) -> None:
+    def on_drop(self, slot: str, frame_id: int, reason: DropReason) -> None:
         rec = self._open.get(frame_id)
         if rec is None or slot not in rec.expected:
             return
@@ -87,7 +95,7 @@ class SyncTracker:
                 self._maybe_finish(rec)
 
     def sweep(self) -> None:
-        now = time.monotonic()
+        now = self.clock()
         for rec in list(self._open.values()):
             if now - rec.created > self.timeout_s:
                 self._finish(rec)
@@ -97,15 +105,13 @@ class SyncTracker:
             self._finish(rec)
 
     def _finish(self, rec: FrameRecord) -> None:
-        from protos import node_pb2
-
         self._open.pop(rec.frame_id, None)
         swaps = list(rec.swaps.values())
         same_host = bool(swaps) and all(s[2] for s in swaps)
         instants = [s[1] if same_host else s[0] for s in swaps]
         skew = (max(instants) - min(instants)) / 1e6 if len(instants) >= 2 else math.nan
         errors = tuple((s[0] - s[1]) / 1e6 for s in swaps if s[2])
-        late = sum(1 for r in rec.drops.values() if r == node_pb2.DROP_REASON_LATE)
+        late = sum(1 for r in rec.drops.values() if r == DropReason.LATE)
         result = FrameResult(
             frame_id=rec.frame_id, tag=rec.tag, shown_by_all=bool(rec.expected) and set(rec.swaps) >= rec.expected,
             nodes=len(swaps), skew_ms=skew, source="host-clock" if same_host else "estimates",
@@ -117,18 +123,19 @@ class SyncTracker:
             fn(result)
 
 
-def summarize(results: list[FrameResult], out_of_order: int = 0) -> dict:
+def summarize(results: list[FrameResult], out_of_order: int = 0) -> SyncSummary:
+    """Skew percentiles over frames swapped by two or more nodes, clock errors, late/dropped counts."""
     skews = [r.skew_ms for r in results]
     errors = [abs(e) for r in results for e in r.clock_errors_ms]
     sources = {r.source for r in results if r.nodes >= 2}
-    return {
-        "frames": sum(1 for r in results if r.shown_by_all),
-        "skew_p50_ms": percentile(skews, 50),
-        "skew_p99_ms": percentile(skews, 99),
-        "skew_max_ms": percentile(skews, 100),
-        "skew_source": "host-clock" if sources == {"host-clock"} else ("estimates" if sources else ""),
-        "clock_error_p99_ms": percentile(errors, 99),
-        "frames_late": sum(r.late for r in results),
-        "frames_dropped": sum(r.dropped for r in results),
-        "out_of_order": out_of_order,
-    }
+    return SyncSummary(
+        frames=sum(1 for r in results if r.shown_by_all),
+        skew_p50_ms=percentile(skews, 50),
+        skew_p99_ms=percentile(skews, 99),
+        skew_max_ms=percentile(skews, 100),
+        skew_source="host-clock" if sources == {"host-clock"} else ("estimates" if sources else ""),
+        clock_error_p99_ms=percentile(errors, 99),
+        frames_late=sum(r.late for r in results),
+        frames_dropped=sum(r.dropped for r in results),
+        out_of_order=out_of_order,
+    )

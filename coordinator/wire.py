@@ -1,12 +1,49 @@
-"""The one place the coordinator converts between protobuf messages and its own types."""
+"""The one place the coordinator converts between protobuf messages and its own types.
+
+The coordinator's state, its jobs and the operator client's callers speak the plain types
+of :mod:`coordinator.api`, :mod:`coordinator.sessions`, :mod:`coordinator.fanout` and
+:mod:`coordinator.rig`; the gRPC services (:mod:`coordinator.services`) and the operator
+client (:mod:`coordinator.client`) call these functions at the edge.
+"""
 from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from coordinator.api import (DropReason, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal, RigStatus, ShowResult,
+                             Space, SyncSummary)
+from coordinator.fanout import Frame
+from coordinator.jobs.context import Event, Progress
 from coordinator.rig import Content, HomographyPose, ProjectionPose, SlotState, validate_lut
-from protos import codec, node_pb2
+from coordinator.sessions import Heartbeat, NodeInfo, Report, Swap
+from protos import codec, control_pb2, node_pb2
+
+# ---------------------------------------------------------------------- enums
+_SPACE = {Space.CONTENT: node_pb2.SPACE_CONTENT, Space.PROJECTOR: node_pb2.SPACE_PROJECTOR}
+_SPACE_BACK = {v: k for k, v in _SPACE.items()}
+_STATE = {NodeState.EXPECTED: control_pb2.NODE_STATE_EXPECTED, NodeState.JOINED: control_pb2.NODE_STATE_JOINED,
+          NodeState.LIVE: control_pb2.NODE_STATE_LIVE, NodeState.LOST: control_pb2.NODE_STATE_LOST}
+_STATE_BACK = {v: k for k, v in _STATE.items()}
+_DROP = {node_pb2.DROP_REASON_LATE: DropReason.LATE, node_pb2.DROP_REASON_SUPERSEDED: DropReason.SUPERSEDED,
+         node_pb2.DROP_REASON_MISSING_CONTENT: DropReason.MISSING_CONTENT,
+         node_pb2.DROP_REASON_UNRENDERABLE: DropReason.UNRENDERABLE}
 
 
+def space_from_message(value: int) -> Space:
+    """A request's space (unspecified means content)."""
+    return _SPACE_BACK.get(value, Space.CONTENT)
+
+
+def space_message(space: Space) -> int:
+    return _SPACE[space]
+
+
+# ---------------------------------------------------------------------- nodes
 def assignment_message(st: SlotState, *, content_size: tuple[int, int]) -> node_pb2.Assignment:
     msg = node_pb2.Assignment(
         revision=st.revision, slot=st.name, output_width=st.width, output_height=st.height,
@@ -47,6 +84,207 @@ def homography_from_message(msg: node_pb2.Homography) -> HomographyPose:
     return HomographyPose(np.array(msg.m, dtype=np.float64).reshape(3, 3))
 
 
+def node_info_from_message(msg: node_pb2.NodeInfo) -> NodeInfo:
+    return NodeInfo(hostname=msg.hostname, pid=msg.pid, host_boot_id=msg.host_boot_id,
+                    native_size=(msg.native_width, msg.native_height))
+
+
+def report_from_message(msg: node_pb2.NodeReport) -> Report:
+    hb = None
+    if msg.HasField("heartbeat"):
+        h = msg.heartbeat
+        hb = Heartbeat(assignment_revision=h.assignment_revision, clock_offset_ns=h.clock_offset_ns,
+                       clock_drift_ppm=h.clock_drift_ppm, clock_rtt_ns=h.clock_rtt_ns,
+                       host_monotonic_ns=h.host_monotonic_ns, rig_estimate_ns=h.rig_estimate_ns)
+    swaps = tuple(Swap(s.frame_id, s.swap_rig_ns, s.host_monotonic_ns) for s in msg.swaps)
+    drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
+    return Report(heartbeat=hb, swaps=swaps, drops=drops)
+
+
 def content_message(content: Content, *, compress: bool = False) -> node_pb2.Content:
     """The wire form of ``content`` (encode once, reuse for every packet)."""
     return node_pb2.Content(content_id=content.content_id, image=codec.encode_image(content.image, compress=compress))
+
+
+class PacketEncoder:
+    """Serializes Frames packets; each content is encoded once per encoder, whatever the packet count."""
+
+    def __init__(self) -> None:
+        self._contents: dict[str, node_pb2.Content] = {}
+
+    def packet(self, *, frame: Frame | None, contents: Sequence[Content], evict: Sequence[str] = ()) -> bytes:
+        pkt = node_pb2.FramePacket()
+        for c in contents:
+            if c.content_id not in self._contents:
+                self._contents[c.content_id] = content_message(c)
+            pkt.contents.append(self._contents[c.content_id])
+        if frame is not None:
+            pkt.frame.CopyFrom(node_pb2.Frame(frame_id=frame.frame_id, pts_ns=frame.pts_ns, content_id=frame.content_id,
+                                              space=_SPACE[frame.space], apply_lut=frame.apply_lut, tag=frame.tag,
+                                              slot_content=frame.slot_content))
+        if evict:
+            pkt.evict.content_ids.extend(evict)
+        return pkt.SerializeToString()
+
+
+# ---------------------------------------------------------------------- operators
+def _sync_message(s: SyncSummary) -> control_pb2.SyncStats:
+    return control_pb2.SyncStats(**asdict(s))
+
+
+def _sync_from_message(m: control_pb2.SyncStats) -> SyncSummary:
+    return SyncSummary(frames=m.frames, skew_p50_ms=m.skew_p50_ms, skew_p99_ms=m.skew_p99_ms, skew_max_ms=m.skew_max_ms,
+                       skew_source=m.skew_source, clock_error_p99_ms=m.clock_error_p99_ms, frames_late=m.frames_late,
+                       frames_dropped=m.frames_dropped, out_of_order=m.out_of_order)
+
+
+def _node_status_message(n: NodeStatus) -> control_pb2.NodeStatus:
+    d = asdict(n)
+    d["state"] = _STATE[n.state]
+    return control_pb2.NodeStatus(**d)
+
+
+def _node_status_from_message(m: control_pb2.NodeStatus) -> NodeStatus:
+    return NodeStatus(slot=m.slot, state=_STATE_BACK.get(m.state, NodeState.EXPECTED), hostname=m.hostname, pid=m.pid,
+                      clock_offset_ms=m.clock_offset_ms, clock_drift_ppm=m.clock_drift_ppm, clock_rtt_ms=m.clock_rtt_ms,
+                      clock_error_ms=m.clock_error_ms, last_swap_frame=m.last_swap_frame,
+                      last_swap_age_ms=m.last_swap_age_ms, last_seen_age_ms=m.last_seen_age_ms,
+                      frames_shown=m.frames_shown, frames_late=m.frames_late, frames_dropped=m.frames_dropped,
+                      assignment_revision=m.assignment_revision, pose_kind=m.pose_kind, joins=m.joins)
+
+
+def status_message(st: RigStatus) -> control_pb2.RigStatus:
+    msg = control_pb2.RigStatus(
+        rig_id=st.rig_id, rig_name=st.rig_name, instance_id=st.instance_id, rig_dir=st.rig_dir,
+        protocol_version=st.protocol_version, uptime_s=st.uptime_s, showing=st.showing,
+        latency_budget_ms=st.latency_budget_ms, cpu_s=st.cpu_s, sync=_sync_message(st.sync),
+    )
+    msg.nodes.extend(_node_status_message(n) for n in st.nodes)
+    msg.refusals.extend(control_pb2.Refusal(peer=r.peer, slot=r.slot, reason=r.reason, age_s=r.age_s) for r in st.refusals)
+    return msg
+
+
+def status_from_message(m: control_pb2.RigStatus) -> RigStatus:
+    return RigStatus(rig_id=m.rig_id, rig_name=m.rig_name, instance_id=m.instance_id, rig_dir=m.rig_dir,
+                     protocol_version=m.protocol_version, uptime_s=m.uptime_s, showing=m.showing,
+                     latency_budget_ms=m.latency_budget_ms, cpu_s=m.cpu_s,
+                     nodes=tuple(_node_status_from_message(n) for n in m.nodes), sync=_sync_from_message(m.sync),
+                     refusals=tuple(Refusal(r.peer, r.slot, r.reason, r.age_s) for r in m.refusals))
+
+
+def nodes_message(nodes: Iterable[NodeStatus]) -> control_pb2.NodeList:
+    return control_pb2.NodeList(nodes=[_node_status_message(n) for n in nodes])
+
+
+def play_settings_message(s: PlaySettings) -> control_pb2.PlaySettings:
+    return control_pb2.PlaySettings(fps=s.fps, loops=s.loops, wait=s.wait, pattern=s.pattern, frames=s.frames,
+                                    latency_ms=s.latency_ms, settle_s=s.settle_s)
+
+
+def play_settings_from_message(m: control_pb2.PlaySettings) -> PlaySettings:
+    return PlaySettings(fps=m.fps or 30.0, loops=m.loops, wait=m.wait, pattern=m.pattern, frames=m.frames,
+                        latency_ms=m.latency_ms, settle_s=m.settle_s)
+
+
+def play_result_message(r: PlayResult) -> control_pb2.PlayReply:
+    return control_pb2.PlayReply(
+        frames_sent=r.frames_sent, frames_shown=r.frames_shown, frames_late=r.frames_late,
+        frames_dropped=r.frames_dropped, coordinator_cpu_s=r.coordinator_cpu_s, nodes=r.nodes, wall_s=r.wall_s,
+        skews_ms=list(r.skews_ms), clock_errors_ms=list(r.clock_errors_ms), encode_cpu_s=r.encode_cpu_s,
+        sync=_sync_message(r.sync))
+
+
+def play_result_from_message(m: control_pb2.PlayReply) -> PlayResult:
+    return PlayResult(frames_sent=m.frames_sent, frames_shown=m.frames_shown, frames_late=m.frames_late,
+                      frames_dropped=m.frames_dropped, nodes=m.nodes, wall_s=m.wall_s,
+                      coordinator_cpu_s=m.coordinator_cpu_s, encode_cpu_s=m.encode_cpu_s, skews_ms=tuple(m.skews_ms),
+                      clock_errors_ms=tuple(m.clock_errors_ms), sync=_sync_from_message(m.sync))
+
+
+def show_result_message(r: ShowResult) -> control_pb2.ShowReply:
+    return control_pb2.ShowReply(frame_id=r.frame_id, content_id=r.content_id, pts_ns=r.pts_ns)
+
+
+def show_result_from_message(m: control_pb2.ShowReply) -> ShowResult:
+    return ShowResult(frame_id=m.frame_id, content_id=m.content_id, pts_ns=m.pts_ns)
+
+
+def show_request(image: np.ndarray, *, name: str, persist: bool, space: Space, apply_lut: bool) -> control_pb2.ShowRequest:
+    return control_pb2.ShowRequest(image=codec.encode_image(image, compress=True), name=name, persist=persist,
+                                   space=_SPACE[space], apply_lut=apply_lut)
+
+
+def configure_request(slot: str, *, homography: np.ndarray | None = None, lut: np.ndarray | None = None,
+                      gain: float | None = None, size: tuple[int, int] | None = None,
+                      clear_pose: bool = False) -> control_pb2.ConfigureRequest:
+    req = control_pb2.ConfigureRequest(slot=slot, clear_pose=clear_pose)
+    if homography is not None:
+        req.homography.m.extend(np.asarray(homography, np.float64).ravel().tolist())
+    if lut is not None:
+        req.lut.CopyFrom(lut_message(np.asarray(lut, np.float32)))
+    if gain is not None:
+        req.gain = gain
+    if size is not None:
+        req.output_width, req.output_height = size
+    return req
+
+
+def slot_changes_from_message(req: control_pb2.ConfigureRequest) -> dict[str, Any]:
+    """A Configure request as ``update_slot`` keyword arguments."""
+    changes: dict[str, Any] = {}
+    if req.HasField("homography"):
+        changes["pose"] = homography_from_message(req.homography)
+    elif req.clear_pose:
+        changes["pose"] = None
+    if req.HasField("lut"):
+        changes["lut"] = lut_from_message(req.lut)
+    if req.gain > 0:
+        changes["gain"] = req.gain
+    if req.output_width or req.output_height:
+        changes["size"] = (req.output_width, req.output_height)
+    return changes
+
+
+# ---------------------------------------------------------------------- jobs
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+
+
+def job_request(kind: str, params: dict) -> control_pb2.JobRequest:
+    return control_pb2.JobRequest(kind=kind, params_json=json.dumps(params))
+
+
+def job_params_from_request(req: control_pb2.JobRequest) -> dict:
+    """A job request's parameters; ValueError when they are not a JSON object."""
+    params = json.loads(req.params_json or "{}")
+    if not isinstance(params, dict):
+        raise ValueError("job parameters must be a JSON object")
+    return params
+
+
+def job_event_message(ev: Event) -> control_pb2.JobEvent:
+    if isinstance(ev, Progress):
+        return control_pb2.JobEvent(progress=control_pb2.JobProgress(
+            stage=ev.stage, item=ev.item, done=ev.done, total=ev.total, message=ev.message, value=ev.value))
+    return control_pb2.JobEvent(log=str(ev))
+
+
+def job_result_message(result: dict) -> control_pb2.JobEvent:
+    return control_pb2.JobEvent(result_json=json.dumps(result, default=_json_default))
+
+
+def job_event_from_message(m: control_pb2.JobEvent) -> Event | dict:
+    """A job's event: a :class:`Progress`, a log line (``str``) or, last, its result (``dict``)."""
+    which = m.WhichOneof("event")
+    if which == "progress":
+        p = m.progress
+        return Progress(p.stage, p.item, p.done, p.total, p.message, p.value if not math.isnan(p.value) else math.nan)
+    if which == "log":
+        return m.log
+    return json.loads(m.result_json or "{}")

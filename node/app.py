@@ -1,15 +1,19 @@
 """A node: find the coordinator, prove the rig token, join, keep the clock in
 step, feed the presenter, report swaps, and come back by itself after anything.
 
-The network side runs on one asyncio loop (grpc.aio + AsyncZeroconf); the GL
-side runs on the presenter thread. A session lives from a successful Join to
+The network side runs on one asyncio loop (the coordinator link and mDNS); the GL
+side runs in the presenter process. A session lives from a successful Join to
 the first broken stream; then the node backs off (exponentially, with jitter,
 never busy-looping) and starts over with discovery, while the projector keeps
 showing the last frame.
+
+This module is the node's life cycle only: it speaks :mod:`node.records`
+dataclasses; the gRPC client is :mod:`node.link`.
 """
 from __future__ import annotations
 
 import asyncio
+import importlib.metadata
 import logging
 import os
 import random
@@ -18,20 +22,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import grpc
-
 from node.clock import ClockEstimator, ClockSample, LocalClock
-from node.discovery import Discovery
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
-from node.presenter import PresenterProcess, PresenterSettings
-from node.wire import assignment_from_message
-from protos import auth, common_pb2, node_pb2, node_pb2_grpc
-from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
+from node.link import CoordinatorLink, LinkError
+from node.presenter_process import PresenterProcess, PresenterSettings
+from node.records import ClockStatus, DropRecord, HeartbeatRecord, JoinRequest, NodeInfo, ReportBatch, SwapRecord
+from protos import auth
+from protos.discovery import Discovery
+from protos.version import PROTOCOL_VERSION
 
 log = logging.getLogger("node")
-
-REFUSAL_CODES = {grpc.StatusCode.FAILED_PRECONDITION, grpc.StatusCode.UNAUTHENTICATED, grpc.StatusCode.NOT_FOUND,
-                 grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.PERMISSION_DENIED}
 
 
 @dataclass
@@ -62,6 +62,14 @@ def _boot_id() -> str:
         return ""
 
 
+def _version() -> str:
+    """The installed shadowless distribution's version (the node does not import the CLI package)."""
+    try:
+        return importlib.metadata.version("shadowless")
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - running from an uninstalled tree
+        return "unknown"
+
+
 class Node:
     def __init__(self, config: NodeConfig):
         self.cfg = config
@@ -75,7 +83,7 @@ class Node:
         self.joins = 0
 
     # ---------------------------------------------------------------- reports
-    def _report(self, rep: node_pb2.SwapReport | node_pb2.FrameDrop) -> None:
+    def _report(self, rep: SwapRecord | DropRecord) -> None:
         if self._reports is not None:
             self._reports.put_nowait(rep)
 
@@ -133,8 +141,8 @@ class Node:
                     delay = self.cfg.refusal_backoff_s
                 except DiscoveryError as exc:
                     log.warning("%s", exc)
-                except grpc.aio.AioRpcError as exc:
-                    log.warning("coordinator unreachable (%s: %s)", exc.code().name, exc.details())
+                except LinkError as exc:
+                    log.warning("coordinator unreachable (%s: %s)", exc.code, exc.details)
                 backoff = min(self.cfg.backoff_max_s, backoff * 2)
                 try:
                     await asyncio.wait_for(self._stopping.wait(), delay * random.uniform(0.8, 1.2))
@@ -166,28 +174,16 @@ class Node:
                 log.warning("rig %s advertises protocol %s, this node speaks %d", a.name, a.protocol, self.cfg.protocol_version)
         return [a.target for a in ads]
 
-    def _channel(self, target: str) -> grpc.aio.Channel:
-        options = list(GRPC_OPTIONS)
-        if self.cfg.tls_ca is not None:
-            if self.cfg.tls_server_name:
-                options.append(("grpc.ssl_target_name_override", self.cfg.tls_server_name))
-            return grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(root_certificates=self.cfg.tls_ca), options=options)
-        return grpc.aio.insecure_channel(target, options=options)
-
     # ---------------------------------------------------------------- one session
     async def _session(self, target: str) -> bool:
         """Join ``target`` and serve until a stream breaks. True if the join succeeded."""
-        async with self._channel(target) as channel:
-            stub = node_pb2_grpc.NodeLinkStub(channel)
-            stub._frames_raw = channel.unary_stream(   # Frames, delivered as serialized FramePackets
-                "/shadowless.v1.NodeLink/Frames", request_serializer=node_pb2.StreamRequest.SerializeToString,
-                response_deserializer=None)
+        async with CoordinatorLink(target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
             try:
-                session, instance, hb_ms = await self._handshake(stub, target)
-            except grpc.aio.AioRpcError as exc:
-                if exc.code() in REFUSAL_CODES:
-                    raise Refused(f"coordinator at {target}: {exc.details()}") from exc
-                log.debug("cannot join %s: %s", target, exc.code())
+                session, instance, hb_ms = await self._handshake(link, target)
+            except LinkError as exc:
+                if exc.refused:
+                    raise Refused(f"coordinator at {target}: {exc.details}") from exc
+                log.debug("cannot join %s: %s", target, exc.code)
                 return False
             self.joins += 1
             if instance != self._instance:
@@ -198,14 +194,13 @@ class Node:
                 self.presenter.submit("clock", None)
                 self.presenter.submit("reset")
             log.info("joined rig at %s as %s (session %s…)", target, self.cfg.slot, session[:6])
-            md = ((SESSION_KEY, session),)
             # a first clock estimate before any frame can be scheduled
-            await self._ping_burst(stub, md, count=8)
+            await self._ping_burst(link, count=8)
             tasks = [
-                asyncio.create_task(self._assignments(stub, md), name="assignments"),
-                asyncio.create_task(self._frames(stub, md), name="frames"),
-                asyncio.create_task(self._report_stream(stub, md, hb_ms / 1000.0), name="report"),
-                asyncio.create_task(self._pings(stub, md), name="pings"),
+                asyncio.create_task(self._assignments(link), name="assignments"),
+                asyncio.create_task(self._frames(link), name="frames"),
+                asyncio.create_task(self._report_stream(link, hb_ms / 1000.0), name="report"),
+                asyncio.create_task(self._pings(link), name="pings"),
                 asyncio.create_task(self._stopping.wait(), name="stopping"),
                 asyncio.create_task(self._watch_presenter(), name="presenter"),
             ]
@@ -215,8 +210,8 @@ class Node:
             await asyncio.gather(*pending, return_exceptions=True)
             for t in done:
                 exc = t.exception() if not t.cancelled() else None
-                if isinstance(exc, grpc.aio.AioRpcError):
-                    log.warning("lost the coordinator (%s: %s); will rejoin", exc.code().name, exc.details())
+                if isinstance(exc, LinkError):
+                    log.warning("lost the coordinator (%s: %s); will rejoin", exc.code, exc.details)
                 elif exc is not None and not isinstance(exc, asyncio.CancelledError):
                     log.error("session ended by %s: %r", t.get_name(), exc)
             return True
@@ -225,11 +220,11 @@ class Node:
         while self.presenter.is_alive():
             await asyncio.sleep(0.5)
 
-    async def _handshake(self, stub, target: str) -> tuple[str, str, int]:
+    async def _handshake(self, link: CoordinatorLink, target: str) -> tuple[str, str, int]:
+        """Prove the token both ways and join: (session, coordinator instance, heartbeat interval in ms)."""
         client_nonce = auth.new_nonce()
-        hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=self.cfg.protocol_version,
-                                                         client_nonce=client_nonce, role="node", slot=self.cfg.slot),
-                                 timeout=5)
+        hello = await link.hello(protocol_version=self.cfg.protocol_version, client_nonce=client_nonce,
+                                 slot=self.cfg.slot)
         expected = auth.coordinator_proof(self.cfg.token, hello.rig_id, client_nonce, hello.server_nonce)
         if not auth.verify(expected, hello.server_proof):
             raise CoordinatorNotTrusted(
@@ -237,89 +232,74 @@ class Node:
                 "this node has the wrong token file, or that advertiser is not our coordinator")
         proof = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
         size = self.presenter.native_size or (0, 0)
-        info = node_pb2.NodeInfo(hostname=socket.gethostname(), host_boot_id=_boot_id(), pid=os.getpid(),
-                                 software_version=_version(), output=self.cfg.output.split("?")[0],
-                                 native_width=size[0], native_height=size[1])
-        login = common_pb2.LoginRequest(protocol_version=self.cfg.protocol_version, role="node", slot=self.cfg.slot,
-                                        client_nonce=client_nonce, server_nonce=hello.server_nonce, client_proof=proof)
-        reply = await stub.Join(node_pb2.JoinRequest(login=login, info=info), timeout=5)
-        return reply.session, reply.instance_id, reply.heartbeat_interval_ms or 500
+        info = NodeInfo(hostname=socket.gethostname(), host_boot_id=_boot_id(), pid=os.getpid(),
+                        software_version=_version(), output=self.cfg.output.split("?")[0],
+                        native_width=size[0], native_height=size[1])
+        reply = await link.join(JoinRequest(protocol_version=self.cfg.protocol_version, slot=self.cfg.slot,
+                                            client_nonce=client_nonce, server_nonce=hello.server_nonce,
+                                            client_proof=proof, info=info))
+        return reply.session, reply.instance_id, reply.heartbeat_interval_ms
 
-    async def _ping_once(self, stub, md) -> None:
+    async def _ping_once(self, link: CoordinatorLink) -> None:
         t0 = self.clock.now()
-        rep = await stub.Ping(node_pb2.PingRequest(t0_local_ns=t0), metadata=md, timeout=2)
+        rep = await link.ping(t0)
         t3 = self.clock.now()
         self._clock_sample(ClockSample(t0, rep.t1_rig_ns, rep.t2_rig_ns, t3))
 
-    async def _ping_burst(self, stub, md, *, count: int) -> None:
+    async def _ping_burst(self, link: CoordinatorLink, *, count: int) -> None:
         for _ in range(count):
-            await self._ping_once(stub, md)
+            await self._ping_once(link)
             await asyncio.sleep(0.01)
 
-    async def _pings(self, stub, md) -> None:
+    async def _pings(self, link: CoordinatorLink) -> None:
         period = 1.0 / max(0.1, self.cfg.ping_hz)
         while True:
             await asyncio.sleep(period * random.uniform(0.8, 1.2))
-            await self._ping_once(stub, md)
+            await self._ping_once(link)
 
-    async def _assignments(self, stub, md) -> None:
-        async for msg in stub.Assignments(node_pb2.StreamRequest(), metadata=md):
-            try:
-                self.presenter.submit("assignment", assignment_from_message(msg))
-            except ValueError as exc:
-                log.error("ignoring a malformed assignment r%d: %s", msg.revision, exc)
+    async def _assignments(self, link: CoordinatorLink) -> None:
+        async for assignment in link.assignments():
+            self.presenter.submit("assignment", assignment)
 
-    async def _frames(self, stub, md) -> None:
+    async def _frames(self, link: CoordinatorLink) -> None:
         # The packets go to the presenter as received bytes: parsing (and copying the images)
         # happens once, in the process that uses them.
-        call = stub._frames_raw(node_pb2.StreamRequest(), metadata=md)
-        async for data in call:
+        async for data in link.frame_packets():
             self.presenter.submit("packet", data)
 
-    async def _report_stream(self, stub, md, heartbeat_s: float, *, batch_s: float = 0.05) -> None:
+    async def _report_stream(self, link: CoordinatorLink, heartbeat_s: float, *, batch_s: float = 0.05) -> None:
         q = self._reports
         while not q.empty():  # reports from a previous session are stale
             q.get_nowait()
 
-        async def items():
+        async def batches():
             next_hb = 0.0
             while True:
                 now = time.monotonic()
-                rep = node_pb2.NodeReport()
                 if now >= next_hb:
                     next_hb = now + heartbeat_s
-                    rep.heartbeat.CopyFrom(self._heartbeat())
-                else:
-                    try:
-                        first = await asyncio.wait_for(q.get(), max(0.01, next_hb - now))
-                    except asyncio.TimeoutError:
-                        continue
-                    await asyncio.sleep(batch_s)   # gather what follows into the same message
-                    for item in [first] + [q.get_nowait() for _ in range(q.qsize())]:
-                        (rep.swaps if isinstance(item, node_pb2.SwapReport) else rep.drops).append(item)
-                yield rep
+                    yield ReportBatch(heartbeat=self._heartbeat())
+                    continue
+                try:
+                    first = await asyncio.wait_for(q.get(), max(0.01, next_hb - now))
+                except asyncio.TimeoutError:
+                    continue
+                await asyncio.sleep(batch_s)   # gather what follows into the same message
+                items = [first] + [q.get_nowait() for _ in range(q.qsize())]
+                yield ReportBatch(swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
+                                  drops=tuple(i for i in items if isinstance(i, DropRecord)))
 
-        await stub.Report(items(), metadata=md)
+        await link.report(batches())
 
-    def _heartbeat(self) -> node_pb2.Heartbeat:
+    def _heartbeat(self) -> HeartbeatRecord:
         est = self.estimator.estimate
         host = self.clock.host_now()
         local = self.clock.from_host(host)
         st = self.presenter.stats
-        hb = node_pb2.Heartbeat(
-            assignment_revision=st["revision"], frames_shown=st["shown"], frames_late=st["late"],
-            frames_dropped=st["dropped"], render_ms_p50=st["render_ms_p50"], host_monotonic_ns=host,
-        )
+        clock = None
         if est is not None:
-            hb.clock_offset_ns = int(est.rig_time(local) - local)
-            hb.clock_drift_ppm = est.drift * 1e6
-            hb.clock_rtt_ns = est.best_rtt_ns
-            hb.clock_samples = est.samples
-            hb.rig_estimate_ns = est.rig_time(local)
-        return hb
-
-
-def _version() -> str:
-    from shadowless import __version__
-
-    return __version__
+            clock = ClockStatus(offset_ns=int(est.rig_time(local) - local), drift_ppm=est.drift * 1e6,
+                                rtt_ns=est.best_rtt_ns, samples=est.samples, rig_estimate_ns=est.rig_time(local))
+        return HeartbeatRecord(assignment_revision=st.revision, frames_shown=st.shown, frames_late=st.late,
+                               frames_dropped=st.dropped, render_ms_p50=st.render_ms_p50, host_monotonic_ns=host,
+                               clock=clock)

@@ -8,6 +8,8 @@ import signal
 import sys
 from pathlib import Path
 
+from node.app import Node, NodeConfig
+from protos.auth import TokenError, resolve_token
 from protos.version import PROTOCOL_VERSION
 
 
@@ -48,9 +50,6 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.app import Node, NodeConfig
-    from protos.auth import TokenError, resolve_token
-
     logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr, force=True,
                         format=f"%(asctime)s %(levelname)-7s node {args.slot}: %(message)s")
     log = logging.getLogger("node")

@@ -9,6 +9,7 @@ to a round trip, so the fastest exchanges carry the least error).
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import threading
 import time
@@ -24,11 +25,15 @@ class LocalClock:
 
     ``local = host + offset_ns + (host - anchor) * drift_ppm * 1e-6`` where
     ``host`` is ``CLOCK_MONOTONIC``. With no hooks, local time *is* host time.
+
+    ``source`` (host time in ns) and ``sleep`` (seconds) are injectable: a test passes
+    a clock it moves itself, whose ``sleep`` advances it, and nothing waits for real.
     """
 
     def __init__(self, *, offset_ns: int = 0, drift_ppm: float = 0.0, source: Callable[[], int] = time.monotonic_ns,
-                 anchor_ns: int | None = None):
+                 anchor_ns: int | None = None, sleep: Callable[[float], None] = time.sleep):
         self._source = source
+        self._sleep = sleep
         self.offset_ns = int(offset_ns)
         self.drift_ppm = float(drift_ppm)
         self.drift = self.drift_ppm * 1e-6
@@ -69,14 +74,12 @@ class LocalClock:
             remaining = deadline - now
             if remaining <= 0:
                 return now
-            time.sleep(remaining / 1e9)
+            self._sleep(remaining / 1e9)
 
 
 def precise_timers() -> None:
     """Ask Linux for 1 µs timer slack (default 50 µs) so sleeps end on time. Best effort."""
     try:
-        import ctypes
-
         libc = ctypes.CDLL(None, use_errno=True)
         PR_SET_TIMERSLACK = 29
         libc.prctl(PR_SET_TIMERSLACK, 1000, 0, 0, 0)

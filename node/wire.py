@@ -1,49 +1,48 @@
-"""The one place a node converts protobuf messages into its own plain types."""
+"""The one place a node converts protobuf messages to and from its own plain types.
+
+Everything the coordinator sends becomes a :mod:`node.records` dataclass (numpy arrays
+inside) here, and every report the node sends is built here from one. Only this module,
+:mod:`node.link` (the gRPC client) and :mod:`node.outputs.room` (the virtual room's
+client) touch protobuf.
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
-from protos import node_pb2
+from node.records import (
+    ContentBlob,
+    DropReason,
+    DropRecord,
+    FrameOrder,
+    FramePacketData,
+    HeartbeatRecord,
+    HelloReply,
+    JoinReply,
+    JoinRequest,
+    MeshData,
+    NodeAssignment,
+    PingReply,
+    ReportBatch,
+    SwapRecord,
+)
+from protos import codec, common_pb2, node_pb2
+
+#: DropReason <-> the wire's enum
+_DROP_REASONS = {
+    DropReason.LATE: node_pb2.DROP_REASON_LATE,
+    DropReason.SUPERSEDED: node_pb2.DROP_REASON_SUPERSEDED,
+    DropReason.MISSING_CONTENT: node_pb2.DROP_REASON_MISSING_CONTENT,
+    DropReason.UNRENDERABLE: node_pb2.DROP_REASON_UNRENDERABLE,
+}
 
 
-@dataclass(frozen=True)
-class MeshData:
-    mesh_id: str
-    vertices: np.ndarray   # (V, 3) float32, world mm
-    uvs: np.ndarray        # (V, 2) float32 in [0, 1]
-    faces: np.ndarray      # (F, 3) uint32
-
-
-@dataclass(frozen=True)
-class NodeAssignment:
-    revision: int
-    slot: str
-    width: int
-    height: int
-    pose_kind: str                       # "homography", "projection" or "none"
-    homography: np.ndarray | None        # (3, 3) float64, content px -> projector px
-    projection: np.ndarray | None        # (3, 4) float64, world mm -> projector px
-    mesh: MeshData | None
-    near_mm: float
-    far_mm: float
-    lut: np.ndarray | None               # (C, E) float32
-    gain: float
-    content_size: tuple[int, int]
-
-
-@dataclass(frozen=True)
-class FrameOrder:
-    frame_id: int
-    pts_ns: int
-    content_id: str                      # "" = black
-    space: str                           # "content" or "projector"
-    apply_lut: bool
-    tag: str
+# ------------------------------------------------------------------ coordinator -> node
 
 
 def assignment_from_message(msg: node_pb2.Assignment) -> NodeAssignment:
+    """ValueError if the message is inconsistent (wrong matrix sizes, mesh or LUT arrays)."""
     kind = msg.WhichOneof("pose") or "none"
     homography = projection = None
     mesh = None
@@ -82,3 +81,99 @@ def frame_for_slot(msg: node_pb2.Frame, slot: str) -> FrameOrder:
     space = "projector" if msg.space == node_pb2.SPACE_PROJECTOR else "content"
     return FrameOrder(frame_id=msg.frame_id, pts_ns=msg.pts_ns, content_id=cid, space=space,
                       apply_lut=msg.apply_lut, tag=msg.tag)
+
+
+def packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], bool] = lambda cid: False) -> FramePacketData:
+    """A serialized ``FramePacket`` as ``slot`` sees it.
+
+    Contents for which ``known(content_id)`` is true (already cached), or that appeared
+    earlier in the same packet, are left out without being decoded. A content that
+    cannot be decoded is kept with ``image=None`` and the reason in ``error``.
+    """
+    pkt = node_pb2.FramePacket.FromString(data)
+    contents = []
+    seen: set[str] = set()
+    for content in pkt.contents:
+        cid = content.content_id
+        if cid in seen or known(cid):
+            continue
+        seen.add(cid)
+        try:
+            contents.append(ContentBlob(cid, codec.decode_image(content.image)))
+        except codec.ImageCodecError as exc:
+            contents.append(ContentBlob(cid, None, str(exc)))
+    frame = frame_for_slot(pkt.frame, slot) if pkt.HasField("frame") else None
+    evict = tuple(pkt.evict.content_ids) if pkt.HasField("evict") else None
+    return FramePacketData(tuple(contents), frame, evict)
+
+
+def hello_reply_from_message(msg: common_pb2.HelloReply) -> HelloReply:
+    return HelloReply(rig_id=msg.rig_id, rig_name=msg.rig_name, server_nonce=msg.server_nonce,
+                      server_proof=msg.server_proof)
+
+
+def join_reply_from_message(msg: node_pb2.JoinReply) -> JoinReply:
+    return JoinReply(session=msg.session, instance_id=msg.instance_id,
+                     heartbeat_interval_ms=msg.heartbeat_interval_ms or 500)
+
+
+def ping_reply_from_message(msg: node_pb2.PingReply) -> PingReply:
+    return PingReply(t1_rig_ns=msg.t1_rig_ns, t2_rig_ns=msg.t2_rig_ns)
+
+
+# ------------------------------------------------------------------ node -> coordinator
+
+
+def hello_request(*, protocol_version: int, client_nonce: bytes, slot: str) -> common_pb2.HelloRequest:
+    return common_pb2.HelloRequest(protocol_version=protocol_version, client_nonce=client_nonce, role="node", slot=slot)
+
+
+def join_request(req: JoinRequest) -> node_pb2.JoinRequest:
+    i = req.info
+    info = node_pb2.NodeInfo(hostname=i.hostname, host_boot_id=i.host_boot_id, pid=i.pid,
+                             software_version=i.software_version, output=i.output,
+                             native_width=i.native_width, native_height=i.native_height)
+    login = common_pb2.LoginRequest(protocol_version=req.protocol_version, role="node", slot=req.slot,
+                                    client_nonce=req.client_nonce, server_nonce=req.server_nonce,
+                                    client_proof=req.client_proof)
+    return node_pb2.JoinRequest(login=login, info=info)
+
+
+def ping_request(t0_local_ns: int) -> node_pb2.PingRequest:
+    return node_pb2.PingRequest(t0_local_ns=t0_local_ns)
+
+
+def stream_request() -> node_pb2.StreamRequest:
+    return node_pb2.StreamRequest()
+
+
+def swap_message(rec: SwapRecord) -> node_pb2.SwapReport:
+    return node_pb2.SwapReport(frame_id=rec.frame_id, pts_ns=rec.pts_ns, swap_rig_ns=rec.swap_rig_ns,
+                               host_monotonic_ns=rec.host_monotonic_ns)
+
+
+def drop_message(rec: DropRecord) -> node_pb2.FrameDrop:
+    return node_pb2.FrameDrop(frame_id=rec.frame_id, reason=_DROP_REASONS[rec.reason], late_by_ns=rec.late_by_ns)
+
+
+def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
+    msg = node_pb2.Heartbeat(
+        assignment_revision=hb.assignment_revision, frames_shown=hb.frames_shown, frames_late=hb.frames_late,
+        frames_dropped=hb.frames_dropped, render_ms_p50=hb.render_ms_p50, host_monotonic_ns=hb.host_monotonic_ns,
+    )
+    if hb.clock is not None:
+        msg.clock_offset_ns = hb.clock.offset_ns
+        msg.clock_drift_ppm = hb.clock.drift_ppm
+        msg.clock_rtt_ns = hb.clock.rtt_ns
+        msg.clock_samples = hb.clock.samples
+        msg.rig_estimate_ns = hb.clock.rig_estimate_ns
+    return msg
+
+
+def report_message(batch: ReportBatch) -> node_pb2.NodeReport:
+    msg = node_pb2.NodeReport()
+    if batch.heartbeat is not None:
+        msg.heartbeat.CopyFrom(heartbeat_message(batch.heartbeat))
+    msg.swaps.extend(swap_message(s) for s in batch.swaps)
+    msg.drops.extend(drop_message(d) for d in batch.drops)
+    return msg

@@ -10,23 +10,25 @@ import argparse
 import importlib
 import sys
 
+from shadowless import __version__
+
 #: name -> (module, one-line summary). Order is the order of `--help`.
 COMMANDS: dict[str, tuple[str, str]] = {
     "coordinator": ("coordinator.cli", "run the coordinator: holds the rig, serves nodes and operators"),
     "node": ("node.cli", "run one node (one per projector, on its edge computer)"),
     "rig": ("coordinator.rigcli", "create or inspect a rig directory (slots, token)"),
-    "status": ("coordinator.operator", "show the rig's nodes and sync figures (--json for scripts)"),
-    "show": ("coordinator.operator", "show an image on every projector"),
-    "play": ("coordinator.operator", "play a sequence of images, or a generated test sequence"),
-    "configure": ("coordinator.operator", "set a slot's pose, LUT, gain or output size by hand"),
-    "local": ("coordinator.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
+    "status": ("coordinator.commands", "show the rig's nodes and sync figures (--json for scripts)"),
+    "show": ("coordinator.commands", "show an image on every projector"),
+    "play": ("coordinator.commands", "play a sequence of images, or a generated test sequence"),
+    "configure": ("coordinator.commands", "set a slot's pose, LUT, gain or output size by hand"),
+    "local": ("shadowless.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
     "calibrate": ("coordinator.calibration.cli", "calibrate the projectors with the camera (poses pushed to the nodes)"),
     "alignment": ("coordinator.calibration.cli", "measure each projector's residual misalignment; heat map over the table"),
     "response": ("coordinator.compensation.cli", "measure each projector's luminance response; LUTs, brightness match"),
     "transport": ("coordinator.compensation.cli", "measure the rig's light transport (dot grids, all projectors at once)"),
     "compensate": ("coordinator.compensation.cli", "compensate the rig's blur for an image; store and show the result"),
     "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
-    "demo": ("sim.demo", "the whole rig in the virtual room: what `make demo` runs"),
+    "demo": ("shadowless.demo", "the whole rig in the virtual room: what `make demo` runs"),
     "bench": ("bench.cli", "benchmarks that print JSON (sync, room, calibration, compensation)"),
 }
 
@@ -51,8 +53,6 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    from shadowless import __version__
-
     parser.add_argument("--version", action="version", version=f"shadowless {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, summary) in COMMANDS.items():

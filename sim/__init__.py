@@ -12,7 +12,9 @@ mesh       OBJ/PLY reading and writing, the procedural bust
 occluders  analytic solids with exact ray tests, the hand with forearm, hand paths
 scene      projectors, cameras, table, mesh; the paper's 5x5 rig; subsets P1 ... P25; layout files
 raster     moderngl (EGL) rasterisation: camera G-buffers and projector depth maps of meshes
-room       the Room: precomputation per camera and projector, fast linear captures
+precompute views and plans per camera and projector, mesh maps (the static precomputation)
+occlusion  occluder visibility and sampling in a precomputed view
+room       the Room: facade, light fields, fast linear captures
 truth      ground truth: poses, homographies, correspondences, light transport, light drop
 service    the Room and RoomTruth gRPC services; client: a synchronous client; wire: messages
 cli        ``shadowless room``

@@ -2,20 +2,52 @@
 
 For tests and benchmarks only: the coordinator never reads these, it has to
 measure them through captures. ``room.truth`` is a :class:`Truth`.
+
+:class:`Truth` reads the room only through the public methods listed in
+:class:`RoomState` (which :class:`sim.room.Room` implements); this module does
+not import :mod:`sim.room`.
 """
 from __future__ import annotations
 
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse
 
+from protos.spaces import content_to_table
 from sim.geometry import plane_homography
+from sim.occlusion import DynamicState, OccluderSamples
 from sim.optics import Sensor, remap_fractions, sample_weights_1d
+from sim.precompute import NOTHING, View
+from sim.scene import ProjectorSpec, Scene
 
-if TYPE_CHECKING:  # pragma: no cover
-    from sim.room import Room
+
+class RoomState(Protocol):
+    """What :class:`Truth` reads of a room; :class:`sim.room.Room` provides it."""
+
+    scene: Scene
+
+    @property
+    def active(self) -> list[str]:
+        """The powered projectors."""
+
+    @property
+    def lock(self) -> AbstractContextManager:
+        """Held while reading several pieces of state that must agree."""
+
+    def projector(self, slot: str) -> ProjectorSpec:
+        """The specification of projector ``slot``."""
+
+    def view(self, camera: int = 0) -> View:
+        """The static precomputation of ``camera``."""
+
+    def dynamic_state(self, view: View, *, time: float | None = None) -> DynamicState:
+        """What the current occluders hide in ``view``."""
+
+    def occluder_samples(self, view: View, dyn: DynamicState, slot: str) -> OccluderSamples:
+        """How ``slot`` lights the occluder surface the camera of ``view`` sees."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,9 +111,15 @@ class SurfaceTruth:
 
 
 class Truth:
-    """Ground-truth queries on a :class:`~sim.room.Room` (always its current state)."""
+    """Ground-truth queries on a :class:`~sim.room.Room` (always its current state).
 
-    def __init__(self, room: "Room") -> None:
+    Parameters
+    ----------
+    room : RoomState
+        The room (a :class:`sim.room.Room`).
+    """
+
+    def __init__(self, room: RoomState) -> None:
         self._room = room
 
     # ------------------------------------------------------------ optics
@@ -113,14 +151,13 @@ class Truth:
         """(3, 3) float64: content pixels -> table mm for a content image covering the table.
 
         Content x runs along world +x, content y along world -y (the table seen
-        from above), pixel centres at integers: ``x_mm = W_mm (x + 0.5) / w - W_mm / 2``.
+        from above), pixel centres at integers: ``x_mm = W_mm (x + 0.5) / w - W_mm / 2``
+        (the shared convention, :func:`protos.spaces.content_to_table`).
         """
         table = self._room.scene.table
         if table is None:
             raise ValueError("this room has no table")
-        w, h = content_size
-        tw, th = table.size
-        return np.array([[tw / w, 0.0, tw / w * 0.5 - tw / 2], [0.0, -th / h, th / 2 - th / h * 0.5], [0.0, 0.0, 1.0]])
+        return content_to_table(content_size, table.size)
 
     def content_to_projector_homography(self, slot: str, content_size: tuple[int, int]) -> np.ndarray:
         """(3, 3) float64: the planar pose of ``slot`` for content covering the table."""
@@ -129,8 +166,8 @@ class Truth:
 
     # ------------------------------------------------------------ per-pixel truth
 
-    def _view(self, camera: int):
-        return self._room._view(camera)
+    def _view(self, camera: int) -> View:
+        return self._room.view(camera)
 
     def _full(self, camera: int, roi_array: np.ndarray, fill) -> np.ndarray:
         W, H = self._room.scene.camera(camera).size
@@ -141,9 +178,9 @@ class Truth:
 
     def surface(self, camera: int = 0) -> SurfaceTruth:
         """Static surface seen by each camera pixel."""
-        with self._room._lock:
+        with self._room.lock:
             v = self._view(camera)
-            none = v.kind == 0
+            none = v.kind == NOTHING
             pts = v.points.astype(np.float32)
             pts[none] = np.nan
             nrm = v.normals.astype(np.float32)
@@ -159,7 +196,7 @@ class Truth:
         (outside its image, facing away, or hidden by the mesh). Occluders are
         ignored here; see :meth:`shadow_mask`.
         """
-        with self._room._lock:
+        with self._room.lock:
             w, h = self._room.projector(slot).size
             view = self._view(camera)
             plan = view.plans[slot]
@@ -175,11 +212,11 @@ class Truth:
         -------
         (H, W) float32, in the units of :meth:`transport` before the camera gain.
         """
-        with self._room._lock:
+        with self._room.lock:
             view = self._view(camera)
             w = view.plans[slot].weight.copy()
             if occluders:
-                dyn = self._room._dynamic_state(view)
+                dyn = self._room.dynamic_state(view)
                 b = dyn.blocked.get(slot)
                 if b is not None and len(b):
                     w.reshape(-1)[b] = 0.0
@@ -187,9 +224,9 @@ class Truth:
 
     def shadow_mask(self, slot: str, camera: int = 0) -> np.ndarray:
         """(H, W) bool: occluders block ``slot``'s light at the pixel's surface point."""
-        with self._room._lock:
+        with self._room.lock:
             view = self._view(camera)
-            dyn = self._room._dynamic_state(view)
+            dyn = self._room.dynamic_state(view)
             m = np.zeros(view.shape, bool)
             b = dyn.blocked.get(slot)
             if b is not None and len(b):
@@ -199,9 +236,9 @@ class Truth:
 
     def occluder_mask(self, camera: int = 0) -> np.ndarray:
         """(H, W) bool: the camera sees an occluder (hand) at the pixel."""
-        with self._room._lock:
+        with self._room.lock:
             view = self._view(camera)
-            dyn = self._room._dynamic_state(view)
+            dyn = self._room.dynamic_state(view)
             W, H = self._room.scene.camera(camera).size
             m = np.zeros(H * W, bool)
             m[dyn.hand_index] = True
@@ -221,9 +258,9 @@ class Truth:
         -------
         (H, W) float32 in [0, 1]
         """
-        with self._room._lock:
+        with self._room.lock:
             view = self._view(camera)
-            dyn = self._room._dynamic_state(view)
+            dyn = self._room.dynamic_state(view)
             total = np.zeros(view.shape, np.float64)
             kept = np.zeros(view.shape, np.float64)
             for slot in self._room.active:
@@ -244,10 +281,10 @@ class Truth:
         A projector counts where the point is inside its image, faces it and
         is not hidden by the mesh (and, with ``occluders``, not shadowed).
         """
-        with self._room._lock:
+        with self._room.lock:
             view = self._view(camera)
             count = np.zeros(view.shape, np.int32)
-            dyn = self._room._dynamic_state(view) if occluders else None
+            dyn = self._room.dynamic_state(view) if occluders else None
             for slot in self._room.active:
                 lit = np.isfinite(self.projector_coordinates(slot, camera)[..., 0])
                 x0, y0, x1, y1 = view.roi
@@ -277,13 +314,13 @@ class Truth:
         scipy.sparse.csr_matrix (H*W, w*h) float32
         """
         room = self._room
-        with room._lock:
+        with room.lock:
             spec = room.projector(slot)
             cam = room.scene.camera(camera)
             W, H = cam.size
             w, h = spec.size
             view = self._view(camera)
-            dyn = room._dynamic_state(view)
+            dyn = room.dynamic_state(view)
             plan = view.plans[slot]
             x0, y0, x1, y1 = view.roi
             wr = x1 - x0
@@ -302,7 +339,7 @@ class Truth:
                 cols_all.append(cidx)
                 vals_all.append(v)
             if len(dyn.hand_index):
-                hs = room._samples(view, dyn, slot)
+                hs = room.occluder_samples(view, dyn, slot)
                 for level, c in hs.coef.items():
                     r, cidx, v = _entries(hs.mapx.reshape(-1), hs.mapy.reshape(-1), c, plan.sigmas[level], plan.upsample, plan.pad, (w, h))
                     rows_all.append(dyn.hand_index[r])

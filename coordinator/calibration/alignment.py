@@ -1,4 +1,6 @@
-"""The alignment check: how far each projector's image lands from where its pose says.
+"""The alignment check's numerics: how far each projector's image lands from where its pose says.
+
+The job that runs it on a rig is :mod:`coordinator.calibration.alignment_job`.
 
 Every projector shows, at the same time, a lattice of small dots drawn
 *through its current pose* at table sites shared out between the projectors
@@ -24,23 +26,17 @@ for planar poses, over the camera image for 3D poses
 """
 from __future__ import annotations
 
-import json
-import time
-from pathlib import Path
-
+import cv2
 import numpy as np
+from scipy import ndimage
+from scipy.interpolate import LinearNDInterpolator
+from scipy.spatial import QhullError, cKDTree
 
 from coordinator.calibration import multiplex, planar, threed
 from coordinator.calibration.errors import CalibrationError
-from coordinator.camera import CameraError, CaptureRecorder
-from coordinator.jobs import JobError
-from coordinator.rig import HomographyPose, ProjectionPose
-from coordinator.store import atomic_write_bytes, atomic_write_json
 
 #: Heat-map colour scale: residuals at or above this many projector pixels are full red.
 HEATMAP_FULL_SCALE_PX = 1.0
-
-_KNOWN = {"slots", "rounds", "settle_s", "camera", "record", "heatmap_width"}
 
 
 def residuals(table_to_projector: np.ndarray, table_to_camera: np.ndarray, measured: np.ndarray,
@@ -87,10 +83,6 @@ def heatmap(points: dict[str, np.ndarray], values: dict[str, np.ndarray], *,
     -------
     (h, width) float32; NaN where no projector has dots.
     """
-    import cv2
-    from scipy.interpolate import LinearNDInterpolator
-    from scipy.spatial import QhullError, cKDTree
-
     left, right, top, bottom = (float(v) for v in extent)
     height = max(2, int(round(width * abs(bottom - top) / abs(right - left))))
     cw, ch = max(2, width // step), max(2, height // step)
@@ -149,8 +141,6 @@ def plan_surface_lattice(projectors: dict[str, threed.Pinhole], camera: threed.P
         spacing_px = max(12.0, 2 * radius + 4.0)
     edge = radius + 3
     # a dot's whole footprint must sit on usable surface (no silhouette or depth step under it)
-    from scipy import ndimage
-
     usable = ndimage.binary_erosion(usable, iterations=radius)
     n = len(slots)
     q = multiplex._lattice_multiplier(n)
@@ -223,8 +213,6 @@ def sample_points(points: np.ndarray, usable: np.ndarray, xy: np.ndarray) -> np.
 
 def render_heatmap(values: np.ndarray, *, full_scale: float = HEATMAP_FULL_SCALE_PX) -> bytes:
     """PNG bytes of a heat map: 0 px dark blue ... ``full_scale`` px and more red (OpenCV's TURBO map), NaN grey."""
-    import cv2
-
     v = np.asarray(values, np.float32)
     scaled = np.clip(np.nan_to_num(v, nan=0.0) / full_scale, 0.0, 1.0)
     img = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
@@ -233,184 +221,3 @@ def render_heatmap(values: np.ndarray, *, full_scale: float = HEATMAP_FULL_SCALE
     if not ok:  # pragma: no cover
         raise CalibrationError("cannot encode the heat map")
     return buf.tobytes()
-
-
-def _load_cameras(rig_dir: Path) -> dict:
-    f = rig_dir / "calibration" / "cameras.json"
-    try:
-        return json.loads(f.read_text())
-    except FileNotFoundError:
-        raise JobError("no camera calibration in this rig yet (calibration/cameras.json): run `shadowless calibrate` first") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise JobError(f"{f}: cannot read the camera calibration ({exc}); run `shadowless calibrate` again") from exc
-
-
-def _slot_stats(res: np.ndarray, where: np.ndarray, planned: int, *, where_key: str) -> dict:
-    mag = np.linalg.norm(res, axis=1)
-    k = int(np.argmax(mag))
-    return {"dots": int(len(mag)), "planned": planned, "rms_px": round(float(np.sqrt(np.mean(mag ** 2))), 4),
-            "p95_px": round(float(np.percentile(mag, 95)), 4), "max_px": round(float(mag.max()), 4),
-            "mean_offset_px": [round(float(v), 4) for v in res.mean(axis=0)],
-            where_key: [round(float(v), 1) for v in where[k]]}
-
-
-async def run_alignment(ctx, params: dict) -> dict:
-    """The ``alignment`` job: parameters ``slots``, ``rounds`` (2), ``settle_s`` (0.1), ``camera`` (0),
-    ``record`` (folder for the captures), ``heatmap_width`` (600)."""
-    unknown = sorted(set(params) - _KNOWN)
-    if unknown:
-        raise JobError(f"unknown alignment parameter(s) {', '.join(unknown)} (known: {', '.join(sorted(_KNOWN))})")
-    t0 = time.monotonic()
-    rig = ctx.rig
-    rig_dir = Path(rig.path)
-    cams = _load_cameras(rig_dir)
-    cam = int(params.get("camera", 0))
-    entry = next((c for c in cams.get("cameras", []) if c.get("camera") == cam), None)
-    if entry is None:
-        raise JobError(f"camera {cam} is not in calibration/cameras.json: calibrate with it first")
-    table_mm = tuple(cams.get("table_mm", (1200.0, 600.0)))
-    content_size = (rig.config.content_width, rig.config.content_height)
-    live = ctx.live_slots()
-    slots = list(params.get("slots") or live)
-    missing = [s for s in slots if s not in live]
-    if missing:
-        raise JobError(f"projector(s) {', '.join(missing)} not connected: start their nodes (see `shadowless status`)")
-    flat = {s: rig.slot(s).pose for s in slots if isinstance(rig.slot(s).pose, HomographyPose)}
-    solid = {s: rig.slot(s).pose for s in slots if isinstance(rig.slot(s).pose, ProjectionPose)}
-    skipped = [s for s in slots if s not in flat and s not in solid]
-    if skipped:
-        ctx.log(f"skipped {', '.join(skipped)}: no pose yet (calibrate them first)")
-    if not flat and not solid:
-        raise JobError("no calibrated projector to check")
-    rounds = int(params.get("rounds", 2))
-    settle = float(params.get("settle_s", 0.1))
-    if not 1 <= rounds <= 16 or not 0 <= settle <= 30:
-        raise JobError("rounds must be in 1..16 and settle_s in 0..30")
-    camera_size = tuple(entry["size"])
-    width = int(params.get("heatmap_width", 600))
-    recorder = CaptureRecorder(params["record"]) if params.get("record") else None
-    captures = 0
-
-    async def shoot(images, require):
-        nonlocal captures
-        await ctx.show(images, settle_s=settle, require=require)
-        try:
-            img = await ctx.capture(cam)
-        except CameraError as exc:
-            raise JobError(str(exc)) from exc
-        captures += 1
-        img = np.asarray(img, np.float32)
-        if (img.shape[1], img.shape[0]) != camera_size:
-            raise JobError(f"camera {cam} delivers {img.shape[1]}x{img.shape[0]} images but was calibrated at "
-                           f"{camera_size[0]}x{camera_size[1]}: recalibrate")
-        return await ctx.compute(recorder.record, img) if recorder else img
-
-    async def measure(lattice: multiplex.Lattice, stage: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Dark + one capture per round, every checked projector at once; camera centroids and drawn centres."""
-        sizes = lattice.sizes
-        ctx.progress(stage, "", 0, len(lattice.rounds) + 1, "every projector black")
-        dark = await shoot({s: np.zeros((sizes[s][1], sizes[s][0]), np.uint8) for s in lattice.slots}, list(lattice.slots))
-        found = {s: ([], []) for s in lattice.slots}
-        for r in range(len(lattice.rounds)):
-            ctx.progress(stage, "", r + 1, len(lattice.rounds) + 1, f"{len(lattice.slots)} projectors at once")
-            ms = await ctx.compute(multiplex.measure_lattice, await shoot(lattice.frames(r), list(lattice.slots)), dark, lattice, r)
-            for s in lattice.slots:
-                found[s][0].append(ms[s].camera)
-                found[s][1].append(ms[s].projector)
-        return {s: (np.vstack(found[s][0]), np.vstack(found[s][1])) for s in lattice.slots}
-
-    per_slot: dict[str, dict] = {}
-    maps: list[tuple[str, np.ndarray, tuple]] = []
-    if flat:
-        if "table_to_camera" not in entry:
-            raise JobError(f"camera {cam} has no table mapping in calibration/cameras.json: calibrate the table first")
-        H_t2c = np.array(entry["table_to_camera"], np.float64)
-        c2t = planar.content_to_table(content_size, table_mm)
-        t2p = {s: p.matrix @ np.linalg.inv(c2t) for s, p in flat.items()}
-        try:
-            lattice = multiplex.plan_lattice(t2p, H_t2c, sizes={s: ctx.projector_size(s) for s in flat},
-                                             camera_size=camera_size, table_mm=table_mm, rounds=rounds)
-        except ValueError as exc:
-            raise JobError(f"cannot plan the alignment pattern: {exc}") from exc
-        found = await measure(lattice, "alignment")
-        pts, mags = {}, {}
-        for s in flat:
-            camxy, drawn = found[s]
-            planned = sum(len(r.centres[s]) for r in lattice.rounds)
-            if len(camxy) == 0:
-                per_slot[s] = _not_found(planned)
-                continue
-            res = residuals(t2p[s], H_t2c, camxy, drawn)
-            at = planar.apply_homography(np.linalg.inv(H_t2c), camxy)
-            per_slot[s] = _slot_stats(res, at, planned, where_key="worst_at_mm")
-            pts[s], mags[s] = at, np.linalg.norm(res, axis=1)
-        tw, th = table_mm
-        extent = (-tw / 2, tw / 2, th / 2, -th / 2)
-        maps.append(("alignment.png", await ctx.compute(heatmap, pts, mags, extent=extent, width=width), extent))
-    if solid:
-        if "pinhole" not in entry:
-            raise JobError(f"camera {cam} was not posed in 3D (calibration/cameras.json): calibrate the mesh first")
-        meshes = {p.mesh.mesh_id for p in solid.values()}
-        if len(meshes) > 1:
-            raise JobError(f"projectors render different meshes ({', '.join(sorted(meshes))}); calibrate them together")
-        mesh = next(iter(solid.values())).mesh
-        camera = threed.Pinhole.from_dict(entry["pinhole"])
-        devices = {}
-        for s, p in solid.items():
-            K, R, t = threed.decompose(p.matrix)
-            devices[s] = threed.Pinhole(K, R, t, ctx.projector_size(s))
-
-        def cast():
-            with threed.SurfaceCaster(threed.MeshData(mesh.vertices, mesh.faces, mesh.uvs)) as caster:
-                cp, kind = caster.cast(camera)
-                usable = (kind == threed.MESH) & ~threed.edge_mask(cp, kind)
-                return cp, usable, {s: caster.cast(d)[0] for s, d in devices.items()}
-
-        try:
-            cam_pts, usable, proj_pts = await ctx.compute(cast)
-            lattice = await ctx.compute(plan_surface_lattice, devices, camera, cam_pts, usable, proj_pts, rounds=rounds)
-        except (CalibrationError, ValueError) as exc:
-            raise JobError(f"cannot plan the alignment pattern on the mesh: {exc}") from exc
-        found = await measure(lattice, "alignment (mesh)")
-        pts, mags = {}, {}
-        for s in solid:
-            camxy, drawn = found[s]
-            planned = sum(len(r.centres[s]) for r in lattice.rounds)
-            X = sample_points(cam_pts, usable, camxy) if len(camxy) else np.zeros((0, 3))
-            ok = np.isfinite(X).all(axis=1)
-            if not ok.any():
-                per_slot[s] = _not_found(planned)
-                continue
-            res = devices[s].project(X[ok])[0] - drawn[ok]
-            per_slot[s] = _slot_stats(res, camxy[ok], planned, where_key="worst_at_camera_px")
-            pts[s], mags[s] = camxy[ok], np.linalg.norm(res, axis=1)
-        W, H = camera_size
-        extent = (-0.5, W - 0.5, -0.5, H - 0.5)
-        maps.append(("alignment-mesh.png" if flat else "alignment.png",
-                     await ctx.compute(heatmap, pts, mags, extent=extent, width=min(width, W)), extent))
-    cdir = rig_dir / "calibration"
-    worst_slot = max((s for s in per_slot if per_slot[s]["rms_px"] is not None), key=lambda s: per_slot[s]["rms_px"], default=None)
-    result = {
-        "slots": per_slot, "skipped": skipped, "worst_slot": worst_slot,
-        "worst_rms_px": per_slot[worst_slot]["rms_px"] if worst_slot else None,
-        "heatmap_full_scale_px": HEATMAP_FULL_SCALE_PX, "captures": captures, "wall_s": round(time.monotonic() - t0, 3),
-        "checked_at": time.time(), "heatmaps": [],
-    }
-    for name, hm, extent in maps:
-        atomic_write_bytes(cdir / name, render_heatmap(hm))
-        entry_map = {"file": str(cdir / name), "frame": "table mm" if name == "alignment.png" and flat else "camera px"}
-        if np.isfinite(hm).any():
-            iy, ix = np.unravel_index(int(np.nanargmax(hm)), hm.shape)
-            left, right, top, bottom = extent
-            entry_map["peak_at"] = [round(left + (ix + 0.5) / hm.shape[1] * (right - left), 1),
-                                    round(top + (iy + 0.5) / hm.shape[0] * (bottom - top), 1)]
-        result["heatmaps"].append(entry_map)
-    result["heatmap"] = result["heatmaps"][0]["file"]
-    ctx.progress("alignment", "", 1, 1, "done")
-    atomic_write_json(cdir / "alignment.json", result)
-    return result
-
-
-def _not_found(planned: int) -> dict:
-    return {"dots": 0, "planned": planned, "rms_px": None, "p95_px": None, "max_px": None,
-            "note": "no dot found: projector off, blocked, or misaligned by more than half a lattice step"}

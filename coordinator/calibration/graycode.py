@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Sequence
 
+import cv2
 import numpy as np
 
 
@@ -53,8 +54,6 @@ class GrayCodeLayout:
 
 
 def _opencv_generator(size: tuple[int, int]):
-    import cv2
-
     w, h = size
     return cv2.structured_light.GrayCodePattern.create(int(w), int(h))
 

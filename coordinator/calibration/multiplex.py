@@ -50,6 +50,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from coordinator.calibration.graycode import luminance
 from coordinator.calibration.planar import apply_homography
@@ -211,8 +212,6 @@ def _noise_sigma(img: np.ndarray) -> float:
 
 def _peaks(img: np.ndarray, *, threshold: float, spacing: int) -> np.ndarray:
     """(P, 2) int64 (x, y) local maxima above ``threshold`` at least ``spacing`` apart, away from the border."""
-    from scipy import ndimage
-
     mx = ndimage.maximum_filter(img, size=2 * spacing + 1, mode="constant", cval=np.inf)
     ys, xs = np.nonzero((img >= mx) & (img > threshold))
     b = spacing + 2
@@ -296,8 +295,6 @@ def decode_coded_dots(captures: list[np.ndarray], dark: np.ndarray, plan: CodedD
     threshold_sigma : float
         Blob detection threshold in noise standard deviations.
     """
-    from scipy import ndimage
-
     if len(captures) != plan.captures:
         raise ValueError(f"expected {plan.captures} captures, got {len(captures)}")
     d = luminance(dark)
@@ -496,8 +493,6 @@ def measure_lattice(capture: np.ndarray, dark: np.ndarray, lattice: Lattice, ind
     -------
     dict slot -> DotMatches (camera centroid, projector centre) of the dots found
     """
-    from scipy import ndimage
-
     img = luminance(capture) - luminance(dark)
     smooth = ndimage.gaussian_filter(img, 1.0)
     sigma = _noise_sigma(smooth)

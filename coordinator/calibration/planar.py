@@ -1,7 +1,7 @@
 """Planar calibration numerics: the table <-> camera mapping, robust homographies,
 and the composition into each node's content -> projector pose.
 
-Spaces (DESIGN.md section 2): ``content`` pixels, ``table`` millimetres (the
+Spaces (docs/architecture.md, "Coordinate spaces"): ``content`` pixels, ``table`` millimetres (the
 world plane z = 0), ``camera`` and ``projector`` pixels. All homographies are
 (3, 3) float64 mapping source pixel coordinates to destination coordinates as
 ``cv2.warpPerspective`` uses them, normalised so ``H[2, 2] = 1``.
@@ -12,6 +12,8 @@ world +x and content y along world -y (the table seen from above, row 0 at
 the +y edge), pixel centres at integers::
 
     x_mm = W (x + 0.5) / w - W / 2        y_mm = H / 2 - H (y + 0.5) / h
+
+(:func:`protos.spaces.content_to_table`, the convention every process shares; re-exported here.)
 
 A node's pose is then ``H_content->projector = H_camera->projector @
 H_table->camera @ H_content->table`` (the paper's ``H_w2c H_c2p`` composed with
@@ -24,6 +26,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coordinator.calibration.errors import CalibrationError
+from protos.spaces import content_to_table
+
+# OpenCV is imported inside the functions that use it: the operator's command line imports
+# CharucoSpec (through coordinator.calibration.options) and must run without the coordinator
+# extra's heavy libraries.
+
+__all__ = ["normalise", "apply_homography", "content_to_table", "compose_pose", "HomographyFit", "fit_homography",
+           "pixel_centroids", "table_to_camera_from_points", "homography_difference", "CharucoSpec", "detect_charuco"]
 
 
 def _points(a, name: str) -> np.ndarray:
@@ -61,15 +71,6 @@ def apply_homography(H: np.ndarray, points: np.ndarray) -> np.ndarray:
         out = q[:, :2] / q[:, 2:3]
     out[~np.isfinite(out).all(axis=1)] = np.nan
     return out
-
-
-def content_to_table(content_size: tuple[int, int], table_mm: tuple[float, float]) -> np.ndarray:
-    """(3, 3) float64: content pixels -> table mm, the content spanning the table (see the module docstring)."""
-    w, h = (int(v) for v in content_size)
-    tw, th = (float(v) for v in table_mm)
-    if w <= 0 or h <= 0 or tw <= 0 or th <= 0:
-        raise ValueError(f"content size and table size must be positive, got {content_size}, {table_mm}")
-    return np.array([[tw / w, 0.0, tw / (2 * w) - tw / 2], [0.0, -th / h, th / 2 - th / (2 * h)], [0.0, 0.0, 1.0]])
 
 
 def compose_pose(camera_to_projector: np.ndarray, table_to_camera: np.ndarray, *, content_size: tuple[int, int],

@@ -30,9 +30,13 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+from scipy import ndimage
+from scipy.optimize import least_squares
 
 from coordinator.calibration.errors import CalibrationError
+from coordinator.calibration.planar import fit_homography
 from coordinator.calibration.points import PointSet
 
 SHADERS = Path(__file__).resolve().parent / "shaders"
@@ -351,8 +355,6 @@ def decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     Uses ``cv2.decomposeProjectionMatrix`` (RQ decomposition).
     """
-    import cv2
-
     P = np.asarray(P, np.float64)
     if np.linalg.det(P[:, :3]) < 0:
         P = -P
@@ -372,8 +374,6 @@ def decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _calib_flags(*, principal: bool = True, aspect: bool = True) -> int:
-    import cv2
-
     f = (cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2
          | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_K4 | cv2.CALIB_FIX_K5 | cv2.CALIB_FIX_K6)
     if not principal:
@@ -386,8 +386,6 @@ def _calib_flags(*, principal: bool = True, aspect: bool = True) -> int:
 def _refine(X: np.ndarray, x: np.ndarray, size: tuple[int, int], K0: np.ndarray, *, principal: bool = True,
             aspect: bool = True) -> Pinhole:
     """cv2.calibrateCamera from a guess (pinhole, no distortion) -> Pinhole."""
-    import cv2
-
     obj = [np.ascontiguousarray(X, np.float32).reshape(-1, 1, 3)]
     img = [np.ascontiguousarray(x, np.float32).reshape(-1, 1, 2)]
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
@@ -492,8 +490,6 @@ def pose_camera(sets: list[PointSet], size: tuple[int, int], *, K: np.ndarray | 
         pixels (Zhang's constraints for a single view), which needs an oblique
         view (at least :data:`MIN_TILT_DEG`), else :class:`CalibrationError`.
     """
-    import cv2
-
     X = np.vstack([s.xyz for s in sets]) if sets else np.zeros((0, 3))
     x = np.vstack([s.pixels for s in sets]) if sets else np.zeros((0, 2))
     if len(X) < 4:
@@ -529,8 +525,6 @@ def pose_camera(sets: list[PointSet], size: tuple[int, int], *, K: np.ndarray | 
 
 def _focal_from_plane(xy: np.ndarray, px: np.ndarray, size: tuple[int, int]) -> float:
     """Focal length (px) from a plane's homography, principal point at the image centre, square pixels."""
-    from coordinator.calibration.planar import fit_homography
-
     w, h = size
     H = fit_homography(xy, px, threshold=5.0).H
     c = np.array([[1, 0, -(w - 1) / 2], [0, 1, -(h - 1) / 2], [0, 0, 1.0]])
@@ -560,9 +554,6 @@ def register_mesh(sets: list[PointSet], cameras: dict[int, Pinhole], *, threshol
     -------
     R : (3, 3) float64, t : (3,) float64 with ``world = R model + t``; rms reprojection error (px)
     """
-    import cv2
-    from scipy.optimize import least_squares
-
     use = [s for s in sets if s.camera in cameras]
     missing = sorted({s.camera for s in sets} - set(cameras))
     if not use:
@@ -610,9 +601,6 @@ def refine_scene(cameras: dict[int, Pinhole], world: list[PointSet], model: list
     -------
     cameras (refined), R (3, 3), t (3,) with ``world = R model + t``, and the rms reprojection error (px)
     """
-    import cv2
-    from scipy.optimize import least_squares
-
     ids = sorted(cameras)
     free = [i for i in ids if i not in fixed_intrinsics]
 
@@ -692,6 +680,8 @@ class SurfaceCaster:
         if mesh is None and table_mm is None:
             raise ValueError("nothing to cast onto: give a mesh, a table or both")
         try:
+            # imported here, not at the top: OpenGL is needed only by 3D calibration, and loading it
+            # (and its EGL driver) is heavy; a planar rig's coordinator never does
             import moderngl
         except ImportError as exc:  # pragma: no cover - dependency missing
             raise CalibrationError("3D calibration needs moderngl (install shadowless with the 'node' extra)") from exc
@@ -773,8 +763,6 @@ class SurfaceCaster:
 
 def edge_mask(points: np.ndarray, kind: np.ndarray, *, jump_mm: float = 8.0, grow: int = 1) -> np.ndarray:
     """(H, W) bool: pixels on or next to a depth discontinuity or a surface boundary (unreliable rays)."""
-    from scipy import ndimage
-
     p = np.nan_to_num(points, nan=1e9)
     bad = np.zeros(kind.shape, bool)
     for axis in (0, 1):

@@ -1,4 +1,4 @@
-"""Blur compensation numerics for a synthetic-aperture projector rig.
+"""Blur compensation for a synthetic-aperture projector rig.
 
 Every projector shows the same image, so the rig's light transport is one matrix
 ``L = sum_i L_i`` (content pixels -> camera pixels): it is measured with ``S*S`` dot-grid
@@ -6,80 +6,77 @@ captures whatever the number of projectors, and compensated with one bounded lea
 solve ``p' = argmin ||L p - c'||^2, 0 <= p <= 1``. The conventional per-projector method
 (``N`` measurements and ``N`` solves) is kept as the baseline.
 
-Modules: :mod:`.response` (luminance response, inverse LUTs, brightness matching),
-:mod:`.transport` (dot grids, measurement, storage), :mod:`.solver` (bounded least squares),
-:mod:`.quality` (PSNR/SSIM, side-by-side pictures), :mod:`.synthetic` (a synthetic rig for
-tests and benchmarks). Functions are pure; long ones take ``progress(iteration, objective)``.
+Numerics (pure functions; long ones take ``progress(iteration, objective)``):
+:mod:`.response` (luminance response, inverse LUTs, brightness matching), :mod:`.transport`
+(dot grids, recovery from captures, storage format), :mod:`.solver` (bounded least squares),
+:mod:`.ridge` (the ridge-regularised problem the jobs solve, warm starts for sequences),
+:mod:`.geometry` (content -> camera mapping, PSF radius, dot spacing, target),
+:mod:`.patches` (grey patches of the response measurement), :mod:`.quality` (PSNR/SSIM,
+side-by-side pictures), :mod:`.synthetic` (a synthetic rig for tests and benchmarks).
+
+Jobs (each ``OPTIONS`` + ``async run(ctx, opts)``, see :mod:`coordinator.jobs`):
+:mod:`.response_job`, :mod:`.transport_job`, :mod:`.compensate_job`, :mod:`.sequence_job`;
+their options in :mod:`.options`, what they store in :mod:`.store`, images as job parameters
+in :mod:`.image_param`, the command line in :mod:`.cli`.
+
+The names below are loaded on first use, so importing a light submodule (``options``,
+``image_param``) does not load SciPy, OpenCV or scikit-image. (The function ``quality``
+is not among them: it shares its name with its module; import it from :mod:`.quality`.)
 """
 from __future__ import annotations
 
-from .errors import CompensationError, TransportFileError
-from .quality import Quality, linear_to_srgb, quality, side_by_side, srgb_to_linear
-from .response import (
-    BrightnessMatch,
-    Linearity,
-    Response,
-    apply_lut,
-    brightness_scale,
-    fit_response,
-    grey_levels,
-    inverse_lut,
-    measure_response,
-    response_mask,
-    verify_linearity,
-)
-from .solver import (
-    FrameCompensator,
-    PerProjectorResult,
-    SolveResult,
-    TransportOperator,
-    objective,
-    operator_for,
-    solve,
-    solve_per_projector,
-)
-from .transport import (
-    DotGrid,
-    load_transport,
-    measure_per_projector,
-    measure_transport,
-    save_transport,
-    transport_error,
-    transport_windows,
-)
+import importlib
+from typing import Any
 
-__all__ = [
-    "CompensationError",
-    "TransportFileError",
-    "Quality",
-    "quality",
-    "side_by_side",
-    "srgb_to_linear",
-    "linear_to_srgb",
-    "Response",
-    "Linearity",
-    "BrightnessMatch",
-    "grey_levels",
-    "response_mask",
-    "measure_response",
-    "fit_response",
-    "inverse_lut",
-    "apply_lut",
-    "verify_linearity",
-    "brightness_scale",
-    "TransportOperator",
-    "FrameCompensator",
-    "SolveResult",
-    "PerProjectorResult",
-    "solve",
-    "solve_per_projector",
-    "objective",
-    "operator_for",
-    "DotGrid",
-    "measure_transport",
-    "measure_per_projector",
-    "transport_error",
-    "transport_windows",
-    "save_transport",
-    "load_transport",
-]
+#: exported name -> submodule defining it
+_EXPORTS = {
+    "CompensationError": "errors",
+    "TransportFileError": "errors",
+    "Quality": "quality",
+    "side_by_side": "quality",
+    "srgb_to_linear": "quality",
+    "linear_to_srgb": "quality",
+    "FittedResponse": "response",
+    "Linearity": "response",
+    "BrightnessMatch": "response",
+    "grey_levels": "response",
+    "response_mask": "response",
+    "capture_means": "response",
+    "fit_response": "response",
+    "inverse_lut": "response",
+    "verify_linearity": "response",
+    "brightness_scale": "response",
+    "TransportOperator": "solver",
+    "FrameCompensator": "solver",
+    "SolveResult": "solver",
+    "PerProjectorResult": "solver",
+    "solve": "solver",
+    "solve_per_projector": "solver",
+    "objective": "solver",
+    "operator_for": "solver",
+    "DotGrid": "transport",
+    "transport_from_captures": "transport",
+    "transports_per_projector": "transport",
+    "transport_error": "transport",
+    "transport_windows": "transport",
+    "save_transport": "transport",
+    "load_transport": "transport",
+    "RidgeProblem": "ridge",
+    "ContentWarmStart": "ridge",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    # lazy re-exports (PEP 562): the submodules import SciPy, OpenCV and scikit-image
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

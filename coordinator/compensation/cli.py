@@ -1,9 +1,11 @@
 """`shadowless response`, `shadowless transport` and `shadowless compensate`: the blur-compensation
 jobs, run on the coordinator with a progress bar per stage.
 
-Images named on the command line are read here and sent with the job, so the coordinator may
-run on another machine; results (LUTs, the light transport, the compensated content, the
-quality picture) are stored in the rig directory on the coordinator's machine.
+Every job option's flag comes from the job's options dataclass (:mod:`.options`); only what
+the operator gives is sent, the defaults apply on the coordinator. Images named on the command
+line are read here and sent with the job, so the coordinator may run on another machine;
+results (LUTs, the light transport, the compensated content, the quality picture) are stored
+in the rig directory on the coordinator's machine.
 """
 from __future__ import annotations
 
@@ -11,8 +13,11 @@ import argparse
 import math
 from pathlib import Path
 
-from coordinator.jobclient import run_job_command
-from coordinator.operator import add_connection_args
+from coordinator.client import add_connection_args
+from coordinator.compensation.image_param import encode_image_param
+from coordinator.compensation.options import CAMERA, CompensateOptions, ResponseOptions, TransportOptions
+from coordinator.job_command import run_job_command
+from coordinator.jobs.options import add_arguments, params_from_args
 
 EXAMPLES = """\
 a planar rig, after `shadowless calibrate`:
@@ -30,69 +35,28 @@ while the poses, LUTs and gains it was measured with are unchanged); --force mea
 """
 
 
-def _slots(text: str) -> list[str]:
-    out = [s.strip() for s in text.split(",") if s.strip()]
-    if not out:
-        raise argparse.ArgumentTypeError("expected slot names, e.g. r0c0,r0c1")
-    return out
+def _group(p: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
+    """The parser's argument group ``title`` (created by :func:`add_arguments` or here)."""
+    for g in p._action_groups:
+        if g.title == title:
+            return g
+    return p.add_argument_group(title)
 
 
-def _grid(text: str) -> list[int]:
-    try:
-        r, c = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected ROWSxCOLS, e.g. 4x4, got {text!r}") from None
-    return [r, c]
-
-
-def _reference(text: str) -> str | float:
-    try:
-        return float(text)
-    except ValueError:
-        return text
-
-
-def _common(p: argparse.ArgumentParser) -> None:
+def _common(p: argparse.ArgumentParser, options: type) -> None:
+    """Connection, the job's option flags, and the command-line-only --camera and --json."""
     add_connection_args(p)
-    c = p.add_argument_group("camera and captures")
-    c.add_argument("--camera", action="append", metavar="SPEC",
-                   help="camera(s) for this run: room://HOST:PORT, opencv:INDEX, ... (default: the coordinator's)")
-    c.add_argument("--camera-index", type=int, metavar="I", help="which calibrated camera to use (default 0)")
-    c.add_argument("--settle", type=float, metavar="S", help="wait after every swap before capturing (default 0.05 s)")
-    p.add_argument("--force", action="store_true", help="measure again instead of reusing stored results")
+    add_arguments(p, options)
+    _group(p, CAMERA).add_argument(
+        "--camera", dest="cameras", action="append", metavar="SPEC",
+        help="camera(s) for this run: room://HOST:PORT, opencv:INDEX, ... (default: the coordinator's)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
-def _common_params(args: argparse.Namespace) -> dict:
-    params: dict = {}
-    if args.camera:
-        params["cameras"] = list(args.camera)
-    if args.camera_index is not None:
-        params["camera"] = args.camera_index
-    if args.settle is not None:
-        params["settle_s"] = args.settle
-    if args.force:
-        params["force"] = True
-    return params
-
-
-def _transport_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("light transport")
-    g.add_argument("--radius", type=int, metavar="R", help="PSF recovery radius in camera pixels (default 2)")
-    g.add_argument("--spacing", type=int, metavar="S", help="dot-grid spacing in content pixels (default: the "
-                   "smallest that separates the windows; S*S captures)")
-    g.add_argument("--frames", type=int, metavar="F", help="captures averaged per pattern (default 1)")
-    g.add_argument("--baseline-frames", type=int, metavar="F", help="captures averaged per pattern for the per-projector "
-                   "baseline (default: --frames)")
-
-
-def _transport_params(args: argparse.Namespace) -> dict:
-    params: dict = {}
-    for key, attr in (("radius", "radius"), ("spacing", "spacing"), ("frames", "frames"),
-                      ("baseline_frames", "baseline_frames")):
-        value = getattr(args, attr, None)
-        if value is not None:
-            params[key] = value
+def _params(args: argparse.Namespace, options: type) -> dict:
+    params = params_from_args(options, args)
+    if args.cameras:
+        params["cameras"] = list(args.cameras)
     return params
 
 
@@ -108,28 +72,11 @@ def configure_response(p: argparse.ArgumentParser) -> None:
         "reference with one uniform gain, and check that the rig's light after the LUTs is linear."
     )
     p.epilog = EXAMPLES
-    _common(p)
-    g = p.add_argument_group("what to measure")
-    g.add_argument("--slots", type=_slots, metavar="A,B,...", help="only these projectors (default: every connected one)")
-    g.add_argument("--mode", choices=["patches", "full"], help="patches (default: several grey levels per capture, "
-                   "needs the calibration) or full (one uniform level per capture)")
-    g.add_argument("--levels", type=int, metavar="K", help="grey levels from 0 to 1 (default 17)")
-    g.add_argument("--grid", type=_grid, metavar="RxC", help="patches per frame (default 4x4)")
-    g.add_argument("--reference", type=_reference, metavar="SLOT|LUMINANCE",
-                   help="match the rig's white to this projector's (measured) or to a camera luminance above black")
-    g.add_argument("--lut-entries", type=int, metavar="E", help="LUT entries (default 1024)")
-    g.add_argument("--frames", type=int, metavar="F", help="captures averaged per pattern (default 1; raise it "
-                   "when a projector alone is dim in the camera: its fitted curve carries the camera's noise)")
+    _common(p, ResponseOptions)
 
 
 def response_params(args: argparse.Namespace) -> dict:
-    params = _common_params(args)
-    for key, attr in (("slots", "slots"), ("mode", "mode"), ("levels", "levels"), ("grid", "grid"),
-                      ("reference", "reference"), ("lut_entries", "lut_entries"), ("frames", "frames")):
-        value = getattr(args, attr, None)
-        if value is not None:
-            params[key] = value
-    return params
+    return _params(args, ResponseOptions)
 
 
 def response_report(result: dict) -> str:
@@ -166,20 +113,11 @@ def configure_transport(p: argparse.ArgumentParser) -> None:
         "measures each projector alone (N*S*S captures), for the per-projector comparison only."
     )
     p.epilog = EXAMPLES
-    _common(p)
-    _transport_args(p)
-    p.add_argument("--baseline", action="store_true", help="also measure each projector's L_i, one at a time")
-    p.add_argument("--slots", type=_slots, metavar="A,B,...", help="projectors that must take part (default: every "
-                   "connected one with a pose)")
+    _common(p, TransportOptions)
 
 
 def transport_params(args: argparse.Namespace) -> dict:
-    params = {**_common_params(args), **_transport_params(args)}
-    if args.baseline:
-        params["baseline"] = True
-    if args.slots:
-        params["slots"] = args.slots
-    return params
+    return _params(args, TransportOptions)
 
 
 def transport_report(result: dict) -> str:
@@ -212,54 +150,16 @@ def configure_compensate(p: argparse.ArgumentParser) -> None:
     )
     p.epilog = EXAMPLES
     p.add_argument("image", help="image file (PNG/TIFF/JPEG, 8 or 16 bit, or .npy float32 in [0, 1])")
-    _common(p)
-    g = p.add_argument_group("solve")
-    g.add_argument("--srgb", action="store_true", help="the image is sRGB-encoded (default: values are linear "
-                   "luminance, as `shadowless show` shows them)")
-    g.add_argument("--level", type=float, metavar="F", help="target white as a fraction of the rig's white "
-                   "(2nd percentile over the content; default 0.9)")
-    g.add_argument("--max-iter", type=int, metavar="N", help="iteration budget (default 300)")
-    g.add_argument("--tol", type=float, metavar="T", help="relative objective decrease that stops (default 1e-5)")
-    g.add_argument("--method", choices=["apg", "steepest", "lbfgsb"], help="solver (default apg)")
-    g.add_argument("--regularization", type=float, metavar="MU", help="ridge weight towards the uncompensated image, "
-                   "relative to ||L||^2 (default 0.02; 0 fits the measured L exactly, noise included)")
-    g.add_argument("--no-show", action="store_true", help="solve and store figures only; leave the content as it is")
-    g.add_argument("--no-measure", action="store_true", help="fail instead of measuring L when none is valid")
-    e = p.add_argument_group("evaluation")
-    e.add_argument("--evaluate", action="store_true", help="capture none / ours (/ baseline): PSNR, SSIM, "
-                   "compensation/quality.png in the rig directory")
-    e.add_argument("--baseline", action="store_true", help="also solve and show the per-projector baseline "
-                   "(its L_i are measured when missing: N times the captures)")
-    e.add_argument("--eval-frames", type=int, metavar="F", help="captures averaged per evaluated result (default 4)")
-    _transport_args(p)
+    _common(p, CompensateOptions)
 
 
 def compensate_params(args: argparse.Namespace) -> dict:
-    from coordinator.compensation.job import encode_image_param
-
     f = Path(args.image)
     try:
-        params: dict = {"image": encode_image_param(f)}
+        image = encode_image_param(f)
     except OSError as exc:
         raise SystemExit(f"shadowless compensate: cannot read {f}: {exc.strerror or exc}") from None
-    params.update(_common_params(args))
-    params.update(_transport_params(args))
-    for key, attr in (("level", "level"), ("max_iter", "max_iter"), ("tol", "tol"), ("method", "method"),
-                      ("eval_frames", "eval_frames"), ("regularization", "regularization")):
-        value = getattr(args, attr, None)
-        if value is not None:
-            params[key] = value
-    if args.srgb:
-        params["srgb"] = True
-    if args.evaluate:
-        params["evaluate"] = True
-    if args.baseline:
-        params["baseline"] = True
-    if args.no_show:
-        params["persist"] = False
-    if args.no_measure:
-        params["measure"] = False
-    return params
+    return {"image": image, **_params(args, CompensateOptions)}
 
 
 def compensate_report(result: dict) -> str:

@@ -10,9 +10,10 @@ projector's light above black is ``peak * y``: linear, and the rig's sum is line
 Procedure (the coordinator drives the captures; these functions are the numerics):
 
 1. :func:`grey_levels` -- the input values to show, one projector at a time;
-2. :func:`response_mask` + :func:`measure_response` -- reduce each capture to a mean;
+2. :func:`response_mask` + :func:`capture_means` -- reduce each capture to a mean;
 3. :func:`fit_response` -- a monotone curve per channel (isotonic regression + PCHIP);
-4. :func:`inverse_lut` -- the ``(C, E)`` float32 table the node's shader applies;
+4. :func:`inverse_lut` -- the ``(C, E)`` float32 table the node's shader applies (what a node
+   then outputs is :func:`protos.spaces.lut_lookup`);
 5. :func:`verify_linearity` -- show linear levels through the LUTs, check the straight line;
 6. :func:`brightness_scale` -- one uniform gain so the rig matches a reference brightness.
 """
@@ -24,25 +25,24 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from .errors import CompensationError
+from coordinator.compensation.errors import CompensationError
 
 __all__ = [
-    "Response",
+    "FittedResponse",
     "Linearity",
     "BrightnessMatch",
     "grey_levels",
     "response_mask",
-    "measure_response",
+    "capture_means",
     "fit_response",
     "inverse_lut",
-    "apply_lut",
     "verify_linearity",
     "brightness_scale",
 ]
 
 
 @dataclass(frozen=True)
-class Response:
+class FittedResponse:
     """A fitted projector response.
 
     Attributes
@@ -150,7 +150,7 @@ def response_mask(white: np.ndarray, black: np.ndarray, *, fraction: float = 0.5
     return d > fraction * top
 
 
-def measure_response(captures: Sequence[np.ndarray], *, mask: np.ndarray | None = None) -> np.ndarray:
+def capture_means(captures: Sequence[np.ndarray], *, mask: np.ndarray | None = None) -> np.ndarray:
     """Mean of each capture inside ``mask``: ``(K, C) float64`` (C = 1 for grey captures).
 
     ``captures``: K linear camera images, (H, W) or (H, W, C), one per grey level.
@@ -201,7 +201,7 @@ def fit_response(
     measured: np.ndarray,
     *,
     channels: int | None = None,
-) -> Response:
+) -> FittedResponse:
     """Fit a monotone response curve per channel from grey-level measurements.
 
     Parameters
@@ -209,14 +209,14 @@ def fit_response(
     levels : (K,) float
         Input values shown, in [0, 1]; must include 0 and 1; repeats are averaged.
     measured : (K,) or (K, C) float
-        Camera luminance for each level (e.g. from :func:`measure_response`).
+        Camera luminance for each level (e.g. from :func:`capture_means`).
     channels : int, optional
         Number of channels of the result. A single measured channel is replicated to
         ``channels``; otherwise it must match ``C``.
 
     Returns
     -------
-    Response
+    FittedResponse
         Samples are averaged per level, normalised between the black and white levels, made
         non-decreasing by isotonic regression and interpolated by a monotone PCHIP.
 
@@ -270,10 +270,10 @@ def fit_response(
         if ok.sum() >= 1:
             lx, ly = np.log(uniq[ok]), np.log(curve[ch, ok])
             gamma[ch] = float(np.dot(lx, ly) / np.dot(lx, lx))
-    return Response(levels=uniq, curve=curve, black=black, peak=peak, gamma=gamma)
+    return FittedResponse(levels=uniq, curve=curve, black=black, peak=peak, gamma=gamma)
 
 
-def inverse_lut(response: Response, entries: int = 1024) -> np.ndarray:
+def inverse_lut(response: FittedResponse, entries: int = 1024) -> np.ndarray:
     """The inverse-response lookup table a node applies: ``(C, E) float32``.
 
     Entry ``k`` of channel ``c`` is the input value in [0, 1] whose normalised light equals
@@ -295,32 +295,6 @@ def inverse_lut(response: Response, entries: int = 1024) -> np.ndarray:
     lut[:, 0] = 0.0
     lut[:, -1] = 1.0
     return lut
-
-
-def apply_lut(lut: np.ndarray, values: np.ndarray, *, gain: float = 1.0) -> np.ndarray:
-    """What a node outputs for linear content: ``round(255 * LUT(clip(gain * values)))`` as uint8.
-
-    Parameters
-    ----------
-    lut : (C, E) float32
-    values : (H, W), (H, W, C) or (n,) / (n, C) float
-        Linear luminance; a 2-D array is treated as one channel when ``C == 1``.
-    """
-    table = np.asarray(lut, dtype=np.float64)
-    if table.ndim != 2 or table.shape[1] < 2:
-        raise ValueError(f"lut must be (C, E) with E >= 2, got {table.shape}")
-    c, e = table.shape
-    vals = np.clip(np.asarray(values, dtype=np.float64) * gain, 0.0, 1.0)
-    grid = np.linspace(0.0, 1.0, e)
-    if c == 1 and (vals.ndim < 3 or vals.shape[-1] != 1):
-        out = np.interp(vals, grid, table[0])
-    else:
-        if vals.shape[-1] != c:
-            raise ValueError(f"values have {vals.shape[-1]} channels, the LUT {c}")
-        out = np.empty_like(vals)
-        for ch in range(c):
-            out[..., ch] = np.interp(vals[..., ch], grid, table[ch])
-    return np.rint(out * 255.0).astype(np.uint8)
 
 
 def verify_linearity(
@@ -359,8 +333,8 @@ def verify_linearity(
 
 
 def brightness_scale(
-    responses: Sequence[Response],
-    reference: Response | float | np.ndarray,
+    responses: Sequence[FittedResponse],
+    reference: FittedResponse | float | np.ndarray,
     *,
     channel_weights: Sequence[float] | None = None,
 ) -> BrightnessMatch:
@@ -368,9 +342,9 @@ def brightness_scale(
 
     Parameters
     ----------
-    responses : sequence of Response
+    responses : sequence of FittedResponse
         Every projector of the rig (their ``peak`` add up on the surface they share).
-    reference : Response, float or (C,) array
+    reference : FittedResponse, float or (C,) array
         Reference white above black: a response (its ``peak``), a luminance, or one per channel.
     channel_weights : sequence of C floats, optional
         How channels combine into one luminance (default: equal weights).
@@ -378,7 +352,7 @@ def brightness_scale(
     if not responses:
         raise ValueError("no responses")
     rig = np.sum([np.asarray(r.peak, dtype=np.float64) for r in responses], axis=0)
-    ref = np.asarray(reference.peak if isinstance(reference, Response) else reference, dtype=np.float64)
+    ref = np.asarray(reference.peak if isinstance(reference, FittedResponse) else reference, dtype=np.float64)
     ref = np.broadcast_to(ref, rig.shape).astype(np.float64)
     if np.any(ref <= 0):
         raise ValueError("the reference brightness must be positive")

@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -204,8 +205,6 @@ def operator_for(L: sp.spmatrix | TransportOperator, *, threads: int | None = No
     """The cached :class:`TransportOperator` of ``L`` (built on first use, dropped with ``L``)."""
     if isinstance(L, TransportOperator):
         return L
-    import weakref
-
     key = id(L)
     hit = _OPERATORS.get(key)
     if hit is not None and hit[0]() is L and (threads is None or hit[1].threads == threads):
@@ -606,7 +605,7 @@ def _lbfgsb(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, tol: float, 
             time_limit: float | None, progress: Progress | None, clock: Callable[[], float], start: float,
             pool: Executor | None) -> SolveResult:
     """SciPy's L-BFGS-B on ``||Lx - c||^2`` (float64 iterates, float32 products)."""
-    from scipy.optimize import minimize
+    from scipy.optimize import minimize  # lazy: scipy.optimize is slow to import and only this method needs it
 
     shape = x.shape
     history: list[float] = []

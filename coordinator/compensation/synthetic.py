@@ -28,7 +28,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.special import ndtr
 
-from .transport import DotGrid, apply_homography, assemble_transport, transport_windows
+from coordinator.calibration.planar import apply_homography
+from coordinator.compensation.transport import DotGrid, assemble_transport, transport_windows
 
 __all__ = [
     "ProjectorOptics",
@@ -199,7 +200,8 @@ def _projector_block(
     idx = np.arange(start, stop, dtype=np.int64)
     x = (idx % wid).astype(np.float64)
     y = (idx // wid).astype(np.float64)
-    cx, cy = apply_homography(rig.homography, x, y)
+    centres = apply_homography(rig.homography, np.stack([x, y], axis=1))
+    cx, cy = centres[:, 0], centres[:, 1]
     hm = rig.homography
     wgt = hm[2, 0] * x + hm[2, 1] * y + hm[2, 2]
     pitch = np.sqrt(np.abs(np.linalg.det(hm)) / wgt**3)  # sqrt(|det J|) of the homography
@@ -346,7 +348,7 @@ def sample_image(height: int, width: int, *, channels: int = 3, seed: int = 0) -
     1; grey is the Rec. 709 luma). Tiles are cropped at random (``seed``) so every size gets
     full-resolution detail: edges, text, texture and smooth areas.
     """
-    import skimage.data
+    import skimage.data  # lazy: scikit-image's sample data is heavy and only test pictures need it
 
     if channels not in (1, 3):
         raise ValueError(f"channels must be 1 or 3, got {channels}")

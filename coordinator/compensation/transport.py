@@ -8,7 +8,7 @@ recovered within a ``(2R+1) x (2R+1)`` camera window centred on the rounded came
 of that pixel (the *window structure*, :func:`transport_windows`). The same structure is
 used for the rig's summed ``L`` and for each projector's ``L_i``.
 
-Measurement (:func:`measure_transport`): every projector shows the same dot-grid pattern at
+Measurement (:func:`transport_from_captures`): every projector shows the same dot-grid pattern at
 the same time; a dot grid with spacing ``S`` needs ``S*S`` shifted patterns (plus one black
 capture), whatever the number of projectors. Dots of one pattern are ``S`` content pixels
 apart, so their camera windows never overlap as long as ``S * pitch >= 2R+1``.
@@ -26,16 +26,16 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from coordinator.calibration.planar import apply_homography
+from coordinator.compensation.errors import TransportFileError
 from coordinator.store import atomic_file
-
-from .errors import TransportFileError
 
 __all__ = [
     "DotGrid",
-    "apply_homography",
     "transport_windows",
-    "measure_transport",
-    "measure_per_projector",
+    "dot_gap",
+    "transport_from_captures",
+    "transports_per_projector",
     "transport_error",
     "save_transport",
     "load_transport",
@@ -93,18 +93,26 @@ class DotGrid:
         return img.reshape(self.height, self.width)
 
 
-def apply_homography(homography: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Map points with a ``(3, 3) float64`` homography (OpenCV convention).
+def _map_points(homography: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map pixel coordinates ``(x, y)`` (any equal shapes) through a homography (None: identity).
 
-    Returns the mapped ``(x', y')`` as float64 arrays of the broadcast shape of ``x`` and ``y``.
+    :func:`coordinator.calibration.planar.apply_homography` on the stacked points, with the
+    check that every point lies in front of the destination (``w > 0``).
+
+    Raises
+    ------
+    ValueError
+        If the homography is not (3, 3), finite and invertible, or maps a point behind the
+        camera.
     """
     h = _check_homography(homography)
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
-    w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
-    if np.any(w <= 0):
+    x, y = np.broadcast_arrays(x, y)
+    if np.any(h[2, 0] * x + h[2, 1] * y + h[2, 2] <= 0):
         raise ValueError("homography maps some content pixels behind the camera (w <= 0)")
-    return (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w, (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+    out = apply_homography(h, np.stack([x.ravel(), y.ravel()], axis=1))
+    return out[:, 0].reshape(x.shape), out[:, 1].reshape(x.shape)
 
 
 def _check_homography(homography: np.ndarray | None) -> np.ndarray:
@@ -161,7 +169,7 @@ def transport_windows(
         raise ValueError(f"radius must be >= 0, got {radius}")
     stop = h * w if stop is None else stop
     idx = np.arange(start, stop, dtype=np.int64)
-    cx, cy = apply_homography(_check_homography(homography), idx % w, idx // w)
+    cx, cy = _map_points(homography, idx % w, idx // w)
     bx = np.rint(cx).astype(np.int64)
     by = np.rint(cy).astype(np.int64)
     k = (2 * radius + 1) ** 2
@@ -212,7 +220,7 @@ def assemble_transport(
     return csr
 
 
-def measure_transport(
+def transport_from_captures(
     captures: Iterable[np.ndarray],
     black: np.ndarray,
     *,
@@ -289,7 +297,7 @@ def measure_transport(
     return assemble_transport(values, rows, valid, camera_shape)
 
 
-def measure_per_projector(
+def transports_per_projector(
     captures: Sequence[Iterable[np.ndarray]],
     black: np.ndarray | Sequence[np.ndarray],
     **options: Any,
@@ -298,13 +306,13 @@ def measure_per_projector(
 
     ``captures[i]`` are projector ``i``'s dot-grid captures (the others black); ``black`` is
     one black capture shared by all, or one per projector. ``options`` are those of
-    :func:`measure_transport`. Returns the list of ``L_i``, each with the same window
+    :func:`transport_from_captures`. Returns the list of ``L_i``, each with the same window
     structure as the rig's ``L``. Needs ``N * spacing**2`` captures in total.
     """
     blacks = list(black) if isinstance(black, (list, tuple)) else [black] * len(captures)
     if len(blacks) != len(captures):
         raise ValueError(f"{len(captures)} projectors' captures but {len(blacks)} black captures")
-    return [measure_transport(c, b, **options) for c, b in zip(captures, blacks)]
+    return [transport_from_captures(c, b, **options) for c, b in zip(captures, blacks)]
 
 
 def _luminance(img: np.ndarray, weights: Sequence[float] | None, what: str) -> np.ndarray:
@@ -321,14 +329,18 @@ def _luminance(img: np.ndarray, weights: Sequence[float] | None, what: str) -> n
     return np.tensordot(img.astype(np.float32, copy=False), w / w.sum(), axes=([2], [0]))
 
 
-def _check_separation(base: np.ndarray, grid: DotGrid, radius: int) -> None:
-    """Raise if two dots of one pattern would share camera pixels in their windows."""
-    s = grid.spacing
-    h, w = grid.shape
+def dot_gap(base: np.ndarray, content_shape: Sequence[int], spacing: int) -> float:
+    """The smallest camera distance (Chebyshev, px) between two dots of one pattern of spacing ``spacing``.
+
+    ``base``: the rounded camera position of every content pixel (:func:`transport_windows`);
+    dots are ``spacing`` content pixels apart along rows, columns and both diagonals. Infinite
+    when no two dots of a pattern exist.
+    """
+    s = int(spacing)
+    h, w = int(content_shape[0]), int(content_shape[1])
     bx = base[:, 0].reshape(h, w)
     by = base[:, 1].reshape(h, w)
-    need = 2 * radius + 1
-    gaps = []
+    gaps = [np.inf]
     if w > s:
         gaps.append(np.maximum(np.abs(bx[:, s:] - bx[:, :-s]), np.abs(by[:, s:] - by[:, :-s])).min())
     if h > s:
@@ -336,10 +348,17 @@ def _check_separation(base: np.ndarray, grid: DotGrid, radius: int) -> None:
     if h > s and w > s:
         gaps.append(np.maximum(np.abs(bx[s:, s:] - bx[:-s, :-s]), np.abs(by[s:, s:] - by[:-s, :-s])).min())
         gaps.append(np.maximum(np.abs(bx[s:, :-s] - bx[:-s, s:]), np.abs(by[s:, :-s] - by[:-s, s:])).min())
-    if gaps and min(gaps) < need:
+    return float(min(gaps))
+
+
+def _check_separation(base: np.ndarray, grid: DotGrid, radius: int) -> None:
+    """Raise if two dots of one pattern would share camera pixels in their windows."""
+    need = 2 * radius + 1
+    gap = dot_gap(base, grid.shape, grid.spacing)
+    if gap < need:
         raise ValueError(
-            f"dot spacing {s} is too small for recovery radius {radius}: neighbouring dots are "
-            f"{int(min(gaps))} camera px apart but windows need {need}; increase the spacing"
+            f"dot spacing {grid.spacing} is too small for recovery radius {radius}: neighbouring dots are "
+            f"{int(gap)} camera px apart but windows need {need}; increase the spacing"
         )
 
 

@@ -191,7 +191,7 @@ class Renderer:
     @classmethod
     def standalone(cls, width: int, height: int) -> "Renderer":
         """A renderer on its own headless EGL context (released by :meth:`release`)."""
-        import moderngl
+        import moderngl  # lazy, as in __init__: only a process that renders loads GL
 
         try:
             ctx = moderngl.create_standalone_context(backend="egl", require=330)

@@ -7,8 +7,9 @@ import asyncio
 import numpy as np
 
 from coordinator.rig import Content, Rig, grid_slots, init_rig
-from coordinator.server import Coordinator, NodeSession
-from protos import node_pb2
+from coordinator.server import Coordinator
+from coordinator.sessions import NodeInfo, NodeSession, Report, Swap
+from protos import common_pb2, node_pb2
 
 
 def make(tmp_path, n=3):
@@ -19,7 +20,8 @@ def make(tmp_path, n=3):
         coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False)
         sessions = []
         for slot in rig.slots:
-            s = NodeSession(session=slot, slot=slot, peer="test", info=node_pb2.NodeInfo(), instance_joins=1)
+            s = NodeSession(session=slot, slot=slot, peer="test", info=NodeInfo(), instance_joins=1, joined=0.0,
+                            last_seen=0.0)
             s.frames_open = True
             coord.by_slot[slot] = coord.sessions[slot] = s
             sessions.append(s)
@@ -43,8 +45,6 @@ def test_one_serialization_for_every_node_and_a_still_is_sent_once(tmp_path):
     assert len({id(p[0]) for p in first}) == 1, "the same bytes object is queued for every node"
     pkt = node_pb2.FramePacket.FromString(first[0][0])
     assert len(pkt.contents) == 1 and pkt.frame.content_id == pkt.contents[0].content_id
-    from protos import common_pb2
-
     assert pkt.contents[0].image.dtype == common_pb2.DTYPE_UINT16, "a 16-bit still stays 16-bit on the wire"
 
     coord.show(Content(img))   # the same still again: only a reference travels
@@ -71,7 +71,7 @@ def test_per_slot_patterns_carry_only_each_nodes_own_image(tmp_path):
     images = {s.slot: np.full((32, 32), 10 * i, np.uint8) for i, s in enumerate(sessions)}
 
     async def go():
-        task = asyncio.ensure_future(coord.show_patterns(images, settle_s=0))
+        task = asyncio.ensure_future(coord.playback.show_patterns(images, settle_s=0))
         await asyncio.sleep(0.01)
         got = {s.slot: node_pb2.FramePacket.FromString(packets(s)[0]) for s in sessions}
         task.cancel()
@@ -82,3 +82,31 @@ def test_per_slot_patterns_carry_only_each_nodes_own_image(tmp_path):
         assert len(pkt.contents) == 1
         assert pkt.frame.slot_content[slot] == pkt.contents[0].content_id
         assert pkt.frame.space == node_pb2.SPACE_PROJECTOR
+
+
+def test_a_silent_node_is_marked_lost_on_the_injected_clock(tmp_path):
+    rig = Rig(init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 2), width=32, height=32,
+                       content_width=32, content_height=32))
+    now = [5_000_000_000]
+
+    async def go():
+        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False, clock_ns=lambda: now[0])
+        a = coord.join(slot="r0c0", info=NodeInfo(), peer="test")
+        b = coord.join(slot="r0c1", info=NodeInfo(), peer="test")
+        for s in (a, b):
+            coord.on_frames_open(s)
+        coord.fanout.sync.expect(1, 0, "t", {"r0c0", "r0c1"})
+        lost_after_ns = rig.config.lost_after_ms * 1_000_000
+        now[0] += lost_after_ns // 2
+        coord.on_report(b, Report())
+        now[0] += lost_after_ns // 2 + 1_000_000
+        coord.sweep()
+        status = {n.slot: n.state.value for n in coord.status().nodes}
+        assert status == {"r0c0": "lost", "r0c1": "live"}
+        assert coord.live_slots() == ["r0c1"]
+        assert not coord.sync.results
+        coord.on_report(b, Report(swaps=(Swap(1, now[0], now[0]),)))
+        (result,) = coord.sync.results           # the lost node is no longer waited for
+        assert result.shown_by_all and result.nodes == 1 and result.missing == ()
+
+    asyncio.run(go())

@@ -3,54 +3,72 @@ the job goes on, progress streamed to the client, errors named, cancellation."""
 from __future__ import annotations
 
 import asyncio
+import io
 import sys
+import types
+from dataclasses import dataclass
 
 import grpc
 import numpy as np
 import pytest
 
-from coordinator import jobs
-from coordinator.jobclient import ProgressView, run_job
-from coordinator.local import LocalRig
+from coordinator.jobs import JobContext, JobError, Progress, option, registry
+from coordinator.job_command import ProgressView, run_job
 from coordinator.rig import Rig
 from coordinator.server import Coordinator
+from shadowless.local import LocalRig
 
 SLOTS = ["r0c0", "r0c1", "r0c2"]
 SIZE = (40, 24)
 
 
-async def pattern_job(ctx: jobs.JobContext, params: dict) -> dict:
-    shown = []
+@dataclass(frozen=True)
+class CountOptions:
+    count: int = option(1, lo=1, hi=100, help="patterns to show")
+
+
+@dataclass(frozen=True)
+class NoOptions:
+    pass
+
+
+async def pattern_job(ctx: JobContext, opts: CountOptions) -> dict:
     slots = ctx.live_slots()
-    for i in range(params["count"]):
+    for i in range(opts.count):
         images = {s: np.full((SIZE[1], SIZE[0], 3), (40 * i + 10 * k) % 256, np.uint8) for k, s in enumerate(slots)}
         images[slots[-1]] = None   # one projector dark
-        result = await ctx.coordinator.show_patterns(images, settle_s=0.01)
-        shown.append(sorted(result.missing))
-        ctx.progress("patterns", "all", i + 1, params["count"])
+        await ctx.show(images, settle_s=0.01, require=slots)   # returns once every node swapped it in
+        ctx.progress("patterns", "all", i + 1, opts.count)
     ctx.log("done")
-    return {"shown": shown, "slots": slots}
+    return {"shown": opts.count, "slots": slots}
 
 
-async def failing_job(ctx, params):
-    raise jobs.JobError("projector r0c9 not seen by the camera")
+async def failing_job(ctx: JobContext, opts: NoOptions) -> dict:
+    raise JobError("projector r0c9 not seen by the camera")
 
 
-async def slow_job(ctx, params):
+async def slow_job(ctx: JobContext, opts: NoOptions) -> dict:
     ctx.progress("waiting", "", 0, 1)
     await asyncio.sleep(60)
     return {}
+
+
+def _job_module(name: str, options: type, run) -> str:
+    mod = types.ModuleType(name)
+    mod.OPTIONS, mod.run = options, run
+    sys.modules[name] = mod
+    return name
 
 
 class Capture:
     def __init__(self):
         self.events = []
 
-    def progress(self, p):
-        self.events.append(("progress", p.stage, p.done, p.total))
-
-    def log(self, text):
-        self.events.append(("log", text))
+    def event(self, ev):
+        if isinstance(ev, Progress):
+            self.events.append(("progress", ev.stage, ev.done, ev.total))
+        else:
+            self.events.append(("log", ev))
 
     def close(self):
         pass
@@ -58,13 +76,14 @@ class Capture:
 
 @pytest.fixture
 def nodes_rig(tmp_path, monkeypatch):
-    monkeypatch.setitem(jobs.JOBS, "test-patterns", f"{__name__}:pattern_job")
-    monkeypatch.setitem(jobs.JOBS, "test-fail", f"{__name__}:failing_job")
-    monkeypatch.setitem(jobs.JOBS, "test-slow", f"{__name__}:slow_job")
-    sys.modules.setdefault(__name__, sys.modules[__name__])
+    monkeypatch.setitem(registry.JOBS, "test-patterns", _job_module("_test_jobs_patterns", CountOptions, pattern_job))
+    monkeypatch.setitem(registry.JOBS, "test-fail", _job_module("_test_jobs_fail", NoOptions, failing_job))
+    monkeypatch.setitem(registry.JOBS, "test-slow", _job_module("_test_jobs_slow", NoOptions, slow_job))
     r = LocalRig(SLOTS, tmp_path, output_size=SIZE, content_size=SIZE, mdns=False).create()
     yield r
     r.close()
+    for name in ("_test_jobs_patterns", "_test_jobs_fail", "_test_jobs_slow"):
+        sys.modules.pop(name, None)
 
 
 def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
@@ -78,8 +97,7 @@ def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
                 await nodes_rig.wait_live(c, timeout=120)
                 view = Capture()
                 result = await run_job(c, "test-patterns", {"count": 4}, view=view)
-                assert result["slots"] == SLOTS
-                assert result["shown"] == [[], [], [], []], "every node swapped every pattern in"
+                assert result == {"shown": 4, "slots": SLOTS}
                 assert ("progress", "patterns", 4, 4) in view.events and ("log", "done") in view.events
 
                 with pytest.raises(grpc.aio.AioRpcError) as err:
@@ -89,6 +107,10 @@ def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
                 with pytest.raises(grpc.aio.AioRpcError) as err:
                     await run_job(c, "no-such-job", {}, view=Capture())
                 assert "unknown job" in err.value.details()
+
+                with pytest.raises(grpc.aio.AioRpcError) as err:   # options are checked before the job runs
+                    await run_job(c, "test-patterns", {"count": 0, "colour": 1}, view=Capture())
+                assert "unknown test-patterns parameter(s) colour" in err.value.details()
 
                 # cancelling the call cancels the job and frees the rig for the next one
                 slow = asyncio.ensure_future(run_job(c, "test-slow", {}, view=Capture()))
@@ -100,7 +122,7 @@ def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
                         break
                     await asyncio.sleep(0.1)
                 assert not coord._job_lock.locked()
-                assert (await run_job(c, "test-patterns", {"count": 1}, view=Capture()))["shown"] == [[]]
+                assert (await run_job(c, "test-patterns", {"count": 1}, view=Capture()))["shown"] == 1
         finally:
             nodes_rig.close()
             await coord.stop()
@@ -109,14 +131,10 @@ def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
 
 
 def test_progress_view_draws_bars_without_a_terminal():
-    import io
-
     out = io.StringIO()
     v = ProgressView(out)
-    from protos import control_pb2
-
-    v.progress(control_pb2.JobProgress(stage="gray codes", item="r0c0", done=3, total=12))
-    v.progress(control_pb2.JobProgress(stage="gray codes", item="r0c1", done=12, total=12, message="ok"))
-    v.log("camera exposure fine")
+    v.event(Progress(stage="gray codes", item="r0c0", done=3, total=12))
+    v.event(Progress(stage="gray codes", item="r0c1", done=12, total=12, message="ok"))
+    v.event("camera exposure fine")
     text = out.getvalue()
     assert "gray codes r0c0 [#######....................." in text and "12/12" in text and "camera exposure fine" in text

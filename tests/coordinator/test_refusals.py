@@ -8,7 +8,8 @@ import time
 import grpc
 import pytest
 
-from coordinator.local import LocalRig
+from shadowless.local import LocalRig
+from coordinator.api import NodeState
 from protos import auth, common_pb2, node_pb2, node_pb2_grpc
 from protos.version import PROTOCOL_VERSION
 
@@ -69,9 +70,7 @@ def test_rogue_coordinator_cannot_capture_a_node(small_rig, tmp_path):
             async with await rogue.client() as c:
                 return [n.state for n in (await c.status()).nodes]
 
-        from protos import control_pb2
-
-        assert run(rogue_nodes()) == [control_pb2.NODE_STATE_EXPECTED]
+        assert run(rogue_nodes()) == [NodeState.EXPECTED]
     finally:
         rogue.close()
 
@@ -169,7 +168,7 @@ def test_tls_channel(tmp_path):
         rig.start_node("r0c0")
 
         async def go():
-            from coordinator.operator import Client
+            from coordinator.client import Client
 
             deadline = time.monotonic() + 60
             while True:

@@ -31,7 +31,8 @@ class Block(importlib.abc.MetaPathFinder):
         if name.split('.')[0] in {sorted(FORBIDDEN)!r}:
             raise ImportError('blocked for this test: ' + name)
 sys.meta_path.insert(0, Block())
-import node.app, node.cli, node.presenter, node.outputs, node.render.renderer, node.discovery, node.png
+import node.app, node.cli, node.link, node.wire, node.presenter, node.presenter_process, node.outputs
+import node.outputs.room, node.render.renderer, node.png, protos.discovery
 from shadowless.cli import main
 sys.argv = ['shadowless', 'node', '--help']
 try:

@@ -1,4 +1,4 @@
-"""node/outputs.py: the offscreen output (snapshots), the fullscreen window (under Xvfb) and the factory."""
+"""node/outputs/: the offscreen output (snapshots), the fullscreen window (under Xvfb) and the factory."""
 from __future__ import annotations
 
 import json
@@ -150,13 +150,13 @@ def test_unusable_slot_names_are_refused(slot, tmp_path):
 
 
 def test_room_output_is_imported_lazily(monkeypatch):
-    code = "import sys, node.outputs as o; o.open_output('offscreen', slot='r0c0').close(); print('node.room_output' in sys.modules)"
+    code = "import sys, node.outputs as o; o.open_output('offscreen', slot='r0c0').close(); print('node.outputs.room' in sys.modules, 'grpc' in sys.modules)"
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "False"
+    assert done.stdout.strip() == "False False"
 
     calls = []
-    fake = types.ModuleType("node.room_output")
+    fake = types.ModuleType("node.outputs.room")
 
     class RoomOutput(outputs.Output):
         def __init__(self, *args, **kwargs):
@@ -166,7 +166,7 @@ def test_room_output_is_imported_lazily(monkeypatch):
             raise AssertionError
 
     fake.RoomOutput = RoomOutput
-    monkeypatch.setitem(sys.modules, "node.room_output", fake)
+    monkeypatch.setitem(sys.modules, "node.outputs.room", fake)
     out = open_output("room://127.0.0.1:50071", slot="r3c4", snapshot_dir=Path("/tmp/x"))
     assert isinstance(out, RoomOutput)
     assert calls == [(("room://127.0.0.1:50071",), {"slot": "r3c4", "snapshot_dir": Path("/tmp/x")})]

@@ -1,15 +1,19 @@
-"""The node renderer on a real GL context (EGL, Mesa llvmpipe here), against independent references.
+"""The node renderer on a real GL context (EGL, Mesa llvmpipe here), against the project's
+definition of the warp and an independent cross-check.
 
 References:
+* :func:`protos.spaces.warp_content` (with :func:`~protos.spaces.lut_lookup`): the node's warp
+  convention, defined once for every process, in float64 numpy. The shader must compute
+  exactly this, so it is compared everywhere, on sharp random content too: max |diff| <= 1
+  level (float32 on the GPU against float64 at rounding ties) on a small share of the values.
+  :func:`~protos.spaces.projector_samples` says where each projector pixel samples the content
+  (for the masks below).
 * ``cv2.warpPerspective(content, H, size, INTER_LINEAR, BORDER_CONSTANT, 0)`` on float32
-  content, then a numpy LUT (``np.interp``) and ``round(255 * v)``. OpenCV quantises source
-  coordinates to 1/32 px, so it is compared on smooth content, away from the 1-px band
-  around the content's edge (a hard step there): max |diff| <= 1 level (2 with a LUT),
-  mean <= 0.1 level. On sharp random content its grid costs up to 6 levels (mean <= 0.3).
-* ``scipy.ndimage.map_coordinates(order=1, mode="grid-constant", cval=0)`` in float64:
-  the same bilinear zero-border sampling without quantisation, so it is compared
-  everywhere, on sharp random content too: max |diff| <= 1 level (float32 on the GPU
-  against float64 at exact rounding ties), mean <= 0.02 level.
+  content, then :func:`~protos.spaces.lut_lookup`: an independent implementation of the same
+  convention. OpenCV quantises source coordinates to 1/32 px, so it is compared on smooth
+  content, away from the 1-px band around the content's edge (a hard step there): max
+  |diff| <= 1 level (2 with a LUT), mean <= 0.1 level. On sharp random content its grid costs
+  up to 6 levels (mean <= 0.3).
 * For meshes, the vertices are projected with P in numpy: a flat mesh must render the
   homography of its plane, a two-layer mesh the nearer layer where it covers.
 """
@@ -18,9 +22,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from scipy.ndimage import map_coordinates
 
 from node.render import Mesh, Renderer
+from protos.spaces import lut_lookup, projector_samples, warp_content
 
 PW, PH = 160, 120  # projector pixels
 CW, CH = 120, 80  # content pixels
@@ -98,25 +102,20 @@ def rgb(x: np.ndarray) -> np.ndarray:
 
 
 def content_coords(hm: np.ndarray, size=(PW, PH)):
-    """Content coordinates (float64) of every projector pixel centre, and whether it is on the content's side of the horizon."""
-    w, h = size
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    cx, cy = (CW - 1) / 2, (CH - 1) / 2
-    hm = hm if (hm @ [cx, cy, 1.0])[2] > 0 else -hm  # the content's side of the horizon has w > 0
-    q = np.linalg.inv(hm) @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sx, sy = (q[0] / q[2]).reshape(h, w), (q[1] / q[2]).reshape(h, w)
-    return sx, sy, (q[2] > 0).reshape(h, w)
+    """Content coordinates of every projector pixel (:func:`protos.spaces.projector_samples`), and
+    whether its ray meets the content's plane (the samples mark the others with -10)."""
+    sx, sy = projector_samples(hm, size)
+    return sx, sy, ~((sx == -10.0) & (sy == -10.0))
 
 
-def exact_warp(content: np.ndarray, hm: np.ndarray, size=(PW, PH)) -> np.ndarray:
-    """Float64 bilinear warp with zero border (scipy), (H, W, 3); 0 beyond the horizon."""
-    x = rgb(normalised(content))
-    sx, sy, front = content_coords(hm, size)
-    sx, sy = np.where(front, sx, -10.0), np.where(front, sy, -10.0)
-    return np.stack(
-        [map_coordinates(x[:, :, c], [sy, sx], order=1, mode="grid-constant", cval=0.0) for c in range(3)], axis=-1
-    )
+def spaces_warp(content: np.ndarray, hm: np.ndarray, size=(PW, PH), **kwargs) -> np.ndarray:
+    """What the node must output, per :func:`protos.spaces.warp_content`, as int levels (H, W, 3)."""
+    return warp_content(content, hm, size, **kwargs).astype(int)
+
+
+def projector_space(image: np.ndarray, **kwargs) -> np.ndarray:
+    """:func:`spaces_warp` of content that already is in projector pixels (identity pose)."""
+    return spaces_warp(image, np.eye(3), (image.shape[1], image.shape[0]), **kwargs)
 
 
 def cv2_warp(content: np.ndarray, hm: np.ndarray, size=(PW, PH)) -> np.ndarray:
@@ -136,14 +135,8 @@ def edge_band(hm: np.ndarray, size=(PW, PH), *, content_size=(CW, CH)) -> np.nda
 
 
 def levels(v: np.ndarray, *, lut: np.ndarray | None = None, gain: float = 1.0) -> np.ndarray:
-    """round(255 * LUT(clamp(gain * v))) per channel as int (no LUT: round(255 * clamp(v)))."""
-    v = np.asarray(v, np.float64)
-    if lut is not None:
-        table = np.repeat(lut, 3, axis=0) if lut.shape[0] == 1 else lut
-        grid = np.linspace(0.0, 1.0, table.shape[1])
-        v = np.clip(v * gain, 0.0, 1.0)
-        v = np.stack([np.interp(v[..., c], grid, table[c]) for c in range(3)], axis=-1)
-    return np.floor(np.clip(v, 0.0, 1.0) * 255.0 + 0.5).astype(int)
+    """The node's luminance pipeline on linear values (:func:`protos.spaces.lut_lookup`), as int."""
+    return lut_lookup(lut, v, gain=gain).astype(int)
 
 
 def smooth_content(dtype=np.uint8, channels=3, *, lo=0.0, hi=1.0, shape=(CH, CW)) -> np.ndarray:
@@ -169,6 +162,16 @@ def assert_levels_close(got: np.ndarray, want: np.ndarray, *, mask=None, max_dif
         diff = diff[mask]
     assert diff.max() <= max_diff, f"max |diff| {diff.max()} levels > {max_diff} ({(diff > max_diff).sum()} values)"
     assert diff.mean() <= mean_diff, f"mean |diff| {diff.mean():.4f} levels > {mean_diff}"
+
+
+def assert_matches_spaces(got: np.ndarray, want: np.ndarray, *, mask=None, share: float = 0.001):
+    """The shader computes :func:`protos.spaces.warp_content`: equal, but for 1 level on a few values
+    (rounding ties, float32 against float64): at most ``share`` of them."""
+    diff = np.abs(got.astype(int) - want.astype(int))
+    if mask is not None:
+        diff = diff[mask]
+    assert diff.max() <= 1, f"max |diff| {diff.max()} levels > 1 ({(diff > 1).sum()} values)"
+    assert (diff > 0).mean() <= share, f"{(diff > 0).sum()} of {diff.size} values differ (> {share:.2%})"
 
 
 # ----------------------------------------------------------------------------- fixtures
@@ -223,7 +226,7 @@ def test_homography_warp_matches_cv2_warp_perspective(renderer, kind):
     band = edge_band(H_TILTED)
     assert (~band).sum() > 0.9 * band.size and (got.max(axis=2) > 0).mean() > 0.3  # a real, partly covered warp
     assert_levels_close(got, levels(cv2_warp(content, H_TILTED)), mask=~band, max_diff=1, mean_diff=0.1)
-    assert_levels_close(got, levels(exact_warp(content, H_TILTED)), max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(content, H_TILTED, apply_lut=False))
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
@@ -231,7 +234,7 @@ def test_homography_warp_is_exact_on_sharp_content(renderer, dtype):
     content = sharp_content(dtype)
     renderer.set_homography(H_TILTED, (CW, CH))
     got = render_image(renderer, content, apply_lut=False)
-    assert_levels_close(got, levels(exact_warp(content, H_TILTED)), max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(content, H_TILTED, apply_lut=False))
 
 
 def test_magnifying_rotating_homography(renderer):
@@ -243,13 +246,7 @@ def test_magnifying_rotating_homography(renderer):
     renderer.set_homography(hm, (cw, ch))
     got = render_image(renderer, content, apply_lut=False)
     ref = cv2.warpPerspective(content.astype(np.float32) / 255, hm, (PW, PH), flags=cv2.INTER_LINEAR)
-    x = content.astype(np.float64) / 255
-    ys, xs = np.mgrid[0:PH, 0:PW].astype(np.float64)
-    q = np.linalg.inv(hm) @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
-    exact = np.stack(
-        [map_coordinates(x[:, :, c], [q[1] / q[2], q[0] / q[2]], order=1, mode="grid-constant").reshape(PH, PW)
-         for c in range(3)], axis=-1)  # fmt: skip
-    assert_levels_close(got, levels(exact), max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(content, hm, apply_lut=False))
     # sharp content: cv2's 1/32-px coordinate grid costs up to a few levels, but only a few
     assert_levels_close(got, levels(ref), max_diff=6, mean_diff=0.3)
 
@@ -263,7 +260,7 @@ def test_horizon_inside_the_image_is_black_beyond_it(renderer):
     content = smooth_content(np.uint8, lo=0.3, hi=1.0)
     renderer.set_homography(hm, (CW, CH))
     got = render_image(renderer, content, apply_lut=False)
-    assert_levels_close(got, levels(exact_warp(content, hm)), max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(content, hm, apply_lut=False))
     assert got[~front].max() == 0
     # a homography is defined up to scale, sign included
     renderer.set_homography(-2.5 * hm, (CW, CH))
@@ -282,7 +279,7 @@ def test_lut_and_gain_match_numpy(renderer):
     band = edge_band(H_TILTED)
     assert_levels_close(got, levels(cv2_warp(content, H_TILTED), lut=lut, gain=0.8), mask=~band, max_diff=2,
                         mean_diff=0.1)
-    assert_levels_close(got, levels(exact_warp(content, H_TILTED), lut=lut, gain=0.8), max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(content, H_TILTED, lut=lut, gain=0.8))
     # outside the content the value is 0, so the pixel shows LUT(0) per channel
     sx, sy, _ = content_coords(H_TILTED)
     far_outside = (sx < -2) | (sx > CW + 1) | (sy < -2) | (sy > CH + 1)
@@ -296,10 +293,10 @@ def test_sixteen_bit_content_keeps_its_precision_through_gain(renderer):
     renderer.set_homography(H_TILTED, (CW, CH))
     renderer.set_gain(18.0)
     got = render_image(renderer, content)
-    want = levels(exact_warp(content, H_TILTED), lut=np.array([[0.0, 1.0]]), gain=18.0)
+    want = spaces_warp(content, H_TILTED, gain=18.0)
     assert want.max() > 200
-    assert_levels_close(got, want, max_diff=1, mean_diff=0.05)
-    eight_bit = levels(exact_warp((content // 257).astype(np.uint8), H_TILTED), lut=np.array([[0.0, 1.0]]), gain=18.0)
+    assert_matches_spaces(got, want)
+    eight_bit = spaces_warp((content // 257).astype(np.uint8), H_TILTED, gain=18.0)
     assert np.abs(eight_bit - want).max() >= 4  # the test would notice an 8-bit texture
 
 
@@ -321,7 +318,7 @@ def test_lut_interpolates_between_its_samples(renderer, samples, rows):
     renderer.set_lut(lut)
     image = ramp()
     got = render_image(renderer, image, space="projector")
-    want = levels(image / 255.0, lut=lut)
+    want = projector_space(image, lut=lut)
     assert_levels_close(got, want, max_diff=1, mean_diff=0.03)
 
 
@@ -351,7 +348,7 @@ def test_float_content_outside_unit_range_is_clamped(renderer):
     image = np.linspace(-0.5, 1.5, PW * PH * 3, dtype=np.float32).reshape(PH, PW, 3)
     for dtype in (np.float32, np.float16):
         got = render_image(renderer, image.astype(dtype), space="projector", apply_lut=False)
-        assert_levels_close(got, levels(image.astype(dtype)), max_diff=1, mean_diff=0.01)
+        assert_matches_spaces(got, projector_space(image.astype(dtype), apply_lut=False))
         assert got.min() == 0 and got.max() == 255
 
 
@@ -366,7 +363,7 @@ def test_projector_space_is_pixel_exact_at_odd_sizes(renderer):
         np.testing.assert_array_equal(render_image(renderer, image, space="projector", apply_lut=False), image)
         grey16 = sharp_content(np.uint16, 1, shape=(h, w))
         got = render_image(renderer, grey16, space="projector", apply_lut=False)
-        np.testing.assert_array_equal(got, levels(rgb(normalised(grey16))))
+        np.testing.assert_array_equal(got, projector_space(grey16, apply_lut=False))
 
 
 def test_projector_space_size_mismatch_names_both_sizes(renderer):
@@ -443,7 +440,7 @@ def test_resize_keeps_the_pose(renderer):
     renderer.render("c", apply_lut=False)
     got = renderer.read()
     assert got.shape == (150, 200, 3)
-    assert_levels_close(got, levels(exact_warp(content, H_TILTED, (200, 150))), max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(content, H_TILTED, (200, 150), apply_lut=False))
 
 
 # ----------------------------------------------------------------------------- mesh (projection pose)
@@ -460,7 +457,7 @@ def test_flat_mesh_renders_the_homography_of_its_plane(renderer):
     assert outside.any() and (~outside & ~band).mean() > 0.3
     assert got[outside].max() == 0  # no mesh there
     inside = ~outside & ~band
-    assert_levels_close(got, levels(exact_warp(content, H_TILTED)), mask=inside, max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(content, H_TILTED, apply_lut=False), mask=inside)
     assert_levels_close(got, levels(cv2_warp(content, H_TILTED)), mask=inside, max_diff=1, mean_diff=0.1)
     # the same through the homography pose, in the same renderer
     renderer.set_homography(H_TILTED, (CW, CH))
@@ -501,8 +498,8 @@ def test_two_layer_mesh_shows_the_nearer_layer(renderer):
     on_top = (sx > lo_x + 1) & (sx < hi_x - 1) & (sy > lo_y + 1) & (sy < hi_y - 1)
     near_edge = (sx > lo_x - 1.5) & (sx < hi_x + 1.5) & (sy > lo_y - 1.5) & (sy < hi_y + 1.5) & ~on_top
     assert on_top.mean() > 0.1
-    top = levels(exact_warp(content, h_up))
-    bottom = levels(exact_warp(content, h_low))
+    top = spaces_warp(content, h_up, apply_lut=False)
+    bottom = spaces_warp(content, h_low, apply_lut=False)
     assert np.abs(top - bottom)[on_top].mean() > 40  # the layers really differ there
     low_sx, low_sy, _ = content_coords(h_low)
     on_bottom = ~on_top & ~near_edge & ~edge_band(h_low) & (low_sx > 0) & (low_sx < CW - 1)
@@ -531,7 +528,7 @@ def test_mesh_pose_accepts_any_content_size_and_grey(renderer):
     sx, sy, _ = content_coords(h_small)
     inside = (sx > 0.5) & (sx < CW // 2 - 1.5) & (sy > 0.5) & (sy < CH // 2 - 1.5)
     assert inside.mean() > 0.2
-    assert_levels_close(got, levels(exact_warp(small, h_small)), mask=inside, max_diff=1, mean_diff=0.02)
+    assert_matches_spaces(got, spaces_warp(small, h_small, apply_lut=False), mask=inside)
 
 
 # ----------------------------------------------------------------------------- validation

@@ -53,7 +53,7 @@ def test_missing_rig_directory_is_a_clear_error(tmp_path):
 def test_operator_commands_against_a_running_rig(tmp_path):
     import cv2
 
-    from coordinator.local import LocalRig
+    from shadowless.local import LocalRig
 
     rig = LocalRig(["r0c0", "r0c1"], tmp_path, output_size=(48, 32), content_size=(48, 32), snapshots=True, mdns=False)
     with rig:

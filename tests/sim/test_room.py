@@ -136,7 +136,7 @@ def test_total_light_is_conserved_when_footprint_and_blur_change():
         upsample = 4 if name == "sharp s=4" else (1 if name == "sharp s=1" else None)
         room = Room(reference_scene(projector_scale=scale, camera_scale=0.125, seed=5, **kwargs), upsample=upsample)
         totals[name] = _dot_total(room, slot, block)
-        sig = room._view(0).plans[slot].sigmas
+        sig = room.view(0).plans[slot].sigmas
         if name == "very blurred":
             assert max(sig) > 1.0  # the blur really changed
     ref = totals["sharp s=1"]
@@ -251,3 +251,28 @@ def test_drop_and_shadow_truth_follow_occluders(room):
     count = room.truth.illumination_count()
     assert count[y, x] == 25
     assert room.truth.illumination_count(occluders=True)[y, x] < 25
+
+
+def test_precomputed_state_is_public_and_cached(room):
+    view = room.view(0)
+    assert view is room.view(0) and set(view.plans) == set(room.all_slots)
+    x0, y0, x1, y1 = view.roi
+    assert view.shape == (y1 - y0, x1 - x0)
+    with room.lock, room.lock:  # re-entrant: truth queries nest inside it
+        dyn = room.dynamic_state(view)
+        assert dyn is room.dynamic_state(view) and len(dyn.hand_index) == 0
+    room.set_occluders([Hand(position=(0.0, 0.0), height=200.0)])
+    dyn = room.dynamic_state(view)
+    assert len(dyn.hand_index) > 0 and any(len(b) for b in dyn.blocked.values())
+    samples = room.occluder_samples(view, dyn, "r2c2")
+    assert samples is room.occluder_samples(view, dyn, "r2c2")
+    assert samples.weight.shape == (len(dyn.hand_index),) and samples.weight.max() > 0
+
+
+def test_truth_reads_the_room_through_its_public_methods():
+    """Truth gets what it needs from the Room's public methods (no cycle, no private state;
+    tests/test_imports.py checks the cycle for the whole project)."""
+    from pathlib import Path
+
+    source = (Path(__file__).resolve().parents[2] / "sim" / "truth.py").read_text()
+    assert "from sim.room" not in source and "import sim.room" not in source and "room._" not in source

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from node.outputs import OutputError, SwapInfo, open_output
-from node.room_output import RoomOutput
+from node.outputs.room import RoomOutput
 from sim.client import RoomClient
 from sim.room import Room
 from sim.scene import reference_scene

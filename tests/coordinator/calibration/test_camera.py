@@ -17,6 +17,9 @@ from coordinator.camera import (
     read_png,
     to_float_image,
 )
+from sim.room import Room
+from sim.scene import reference_scene
+from sim.service import RoomServerThread
 
 
 def test_specs_parse_with_their_options_and_bad_ones_are_named():
@@ -52,11 +55,12 @@ def test_recording_then_folder_replay_gives_the_same_pixels(tmp_path):
     class Source:   # a stand-in for any Camera: returns prepared frames
         spec = "test"
         size = (40, 30)
+        supports_exposure = False
 
         def __init__(self):
             self.i = 0
 
-        def capture(self):
+        def capture(self, *, exposure=None):
             self.i += 1
             return frames[self.i - 1]
 
@@ -116,10 +120,6 @@ def test_opencv_camera_without_a_device_says_so():
 
 
 def test_room_camera_captures_over_grpc_and_names_an_absent_room():
-    from sim.room import Room
-    from sim.scene import reference_scene
-    from sim.service import RoomServerThread
-
     room = Room(reference_scene(projector_scale=0.1, camera_scale=0.1), noise=False)
     room.set_active(["r2c2"])
     w, h = room.projector_size("r2c2")

@@ -9,19 +9,17 @@ import json
 import numpy as np
 
 from bench.calibration import planar_errors, table_points_from_truth
-from coordinator.local import LocalRig
 from coordinator.rig import HomographyPose, Rig
-from protos import control_pb2
 from shadowless.cli import main
+from shadowless.local import LocalRig
+from sim.room import Room
+from sim.scene import reference_scene
+from sim.service import RoomServerThread
 
 SLOTS = ["r1c1", "r3c3"]
 
 
 def test_calibrate_and_check_alignment_through_nodes_and_the_room_service(tmp_path, capsys):
-    from sim.room import Room
-    from sim.scene import reference_scene
-    from sim.service import RoomServerThread
-
     room = Room(reference_scene(projector_scale=0.1, camera_scale=0.15), seed=3)
     room.set_active(SLOTS)
     points = tmp_path / "marks.json"

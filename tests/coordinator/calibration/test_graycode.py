@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from coordinator.calibration.graycode import decode_gray, gray_layout, gray_patterns, luminance
+from sim.room import Room
+from sim.scene import reference_scene
 
 
 def ideal_captures(layout, projector_xy):
@@ -65,9 +67,6 @@ def test_decoder_recovers_projector_pixels_exactly_from_ideal_captures():
 
 
 def test_decoder_agrees_with_opencvs_decoder_on_room_captures():
-    from sim.room import Room
-    from sim.scene import reference_scene
-
     room = Room(reference_scene(projector_scale=0.1, camera_scale=0.12))
     slot = "r1c2"
     room.set_active([slot])

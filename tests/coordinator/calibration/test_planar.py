@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.calibration import board_albedo
 from coordinator.calibration.errors import CalibrationError
 from coordinator.calibration.planar import (
     CharucoSpec,
@@ -18,12 +19,11 @@ from coordinator.calibration.planar import (
     pixel_centroids,
     table_to_camera_from_points,
 )
+from sim.room import Room
+from sim.scene import reference_scene
 
 
 def test_content_to_table_matches_the_rooms_independent_formula():
-    from sim.room import Room
-    from sim.scene import reference_scene
-
     room = Room(reference_scene(projector_scale=0.05, camera_scale=0.05))
     for size in [(1200, 600), (640, 320), (333, 200)]:
         np.testing.assert_allclose(content_to_table(size, (1200, 600)), room.truth.content_to_table_homography(size), atol=1e-12)
@@ -90,9 +90,6 @@ def test_charuco_board_on_the_table_gives_the_table_mapping():
     """A board lying on the table, photographed by the room's camera: the board's albedo pattern
     rendered into the camera through the true table -> camera homography (supersampled 4x4 per camera
     pixel, as a sensor integrates), times the table lit by a projector, plus noise."""
-    from sim.room import Room
-    from sim.scene import reference_scene
-
     room = Room(reference_scene(projector_scale=0.1))
     room.set_active(["r2c2"])
     w, h = room.projector_size("r2c2")
@@ -100,8 +97,6 @@ def test_charuco_board_on_the_table_gives_the_table_mapping():
     lit = room.capture(noise=False)
     spec = CharucoSpec(squares_x=11, squares_y=7, square_mm=80.0, marker_mm=60.0, dictionary="DICT_5X5_100",
                        origin_mm=(-440.0, 280.0))
-    from bench.calibration import board_albedo
-
     H_true = room.truth.table_to_camera_homography()
     albedo = board_albedo(room, spec)           # supersampled 4x4 per camera pixel
     photo = lit * albedo[:, :, None]

@@ -7,6 +7,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from coordinator.calibration.errors import CalibrationError
 from coordinator.calibration.points import PointSet
@@ -27,6 +28,9 @@ from coordinator.calibration.threed import (
     project,
     register_mesh,
 )
+from sim.mesh import bust, save_mesh
+from sim.room import Room
+from sim.scene import reference_scene
 
 
 def look_down(center, target=(0, 0, 0), *, f=600.0, size=(640, 400), principal=None, roll=0.0) -> Pinhole:
@@ -48,8 +52,6 @@ def look_down(center, target=(0, 0, 0), *, f=600.0, size=(640, 400), principal=N
 
 def same_triangles(va, fa, vb, fb, tol=1e-3) -> bool:
     """Both meshes hold the same triangles (as corner coordinates, any corner order), within ``tol`` mm."""
-    from scipy.spatial import cKDTree
-
     ta, tb = va.astype(float)[fa], vb.astype(float)[fb]
     if len(ta) != len(tb):
         return False
@@ -61,15 +63,11 @@ def same_triangles(va, fa, vb, fb, tol=1e-3) -> bool:
 
 @pytest.mark.parametrize("name,binary", [("m.obj", True), ("m.ply", True), ("m.ply", False)])
 def test_meshes_read_what_the_rooms_writer_wrote(tmp_path, name, binary):
-    from sim.mesh import bust, save_mesh
-
     ref = bust(segments=16, rings=24)
     save_mesh(ref, tmp_path / name, binary=binary)
     got = load_mesh(tmp_path / name)
     assert same_triangles(got.vertices, got.faces, ref.vertices, ref.faces)
     # uvs follow their vertices (v flipped back to the project's top-left convention)
-    from scipy.spatial import cKDTree
-
     a = np.column_stack([got.vertices, 1000 * got.uvs])
     b = np.column_stack([ref.vertices, 1000 * ref.uvs])
     d, _ = cKDTree(b).query(a)
@@ -194,10 +192,6 @@ def test_rays_cast_onto_the_table_match_the_analytic_intersection():
 
 
 def test_rays_cast_onto_the_bust_match_the_rooms_truth():
-    from sim.mesh import bust
-    from sim.room import Room
-    from sim.scene import reference_scene
-
     room = Room(reference_scene(projector_scale=0.05, camera_scale=0.15, surface="bust"))
     t = room.truth.camera(0)
     cam = Pinhole(t.K, t.R, t.t, t.size)

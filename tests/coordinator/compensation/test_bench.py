@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from bench import compensation
+from bench import compensation, compensation_room
 
 
 def run_bench(capsys, argv):
@@ -39,8 +39,6 @@ def test_quick_bench_reports_every_figure(capsys, tmp_path):
 
 def test_room_bench_runs_the_jobs_and_reports_the_comparison(capsys, tmp_path):
     """`shadowless bench compensation_room` on a small room: the coordinator's jobs end to end, in-process."""
-    from bench import compensation_room
-
     parser = argparse.ArgumentParser()
     compensation_room.configure(parser)
     args = parser.parse_args(["--projector-scale", "0.25", "--camera-scale", "0.15", "--content-size", "150x75",

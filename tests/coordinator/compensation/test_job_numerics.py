@@ -3,52 +3,73 @@ independent references (matrix products, cv2 warps, closed forms, brute force)."
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
+import zlib
 
 import cv2
 import numpy as np
 import pytest
+import scipy.sparse as sp
+from scipy.optimize import lsq_linear
 
-from bench.compensation_room import bilinear_warp_matrix, image_param
-from coordinator.calibration.planar import content_to_table
-from coordinator.compensation import DotGrid, apply_lut, measure_transport, transport_error
+from bench.compensation_room import bilinear_warp_matrix
+from coordinator.calibration.planar import apply_homography, content_to_table
+from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.job import (
-    _feed_measure,
-    _patch_layouts,
-    best_scale,
+from coordinator.compensation.geometry import (
     camera_target,
     choose_spacing,
     content_to_camera,
-    decode_image_param,
-    encode_image_param,
+    edge_energy,
     inscribed_region,
-    patch_labels,
-    patch_response,
-    prepare_image,
-    projector_frame,
+    psf_profile,
+    psf_radius,
 )
+from coordinator.compensation.image_param import (
+    decode_image_param,
+    encode_image_array,
+    encode_image_param,
+    prepare_image,
+)
+from coordinator.compensation.patches import camera_patch_labels, patch_labels, patch_layouts, patch_response
+from coordinator.compensation.ridge import RidgeProblem, best_scale
+from coordinator.compensation.solver import solve
 from coordinator.compensation.synthetic import simulate_captures, synthetic_rig, synthetic_transport
-from coordinator.compensation.transport import apply_homography
+from coordinator.compensation.transport import DotGrid, transport_error, transport_from_captures, transport_windows
+from coordinator.jobs import JobError
+from protos.spaces import lut_lookup, warp_content
+
+
+def _map(H: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y)`` arrays through ``H`` (planar's apply_homography takes (N, 2) points)."""
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    out = apply_homography(H, np.stack([x.ravel(), y.ravel()], axis=1))
+    return out[:, 0].reshape(x.shape), out[:, 1].reshape(x.shape)
 
 POSE = np.array([[0.52, 0.03, 12.0], [-0.02, 0.55, 9.0], [1e-5, 2e-5, 1.0]])
 
 
-def test_projector_frame_is_the_nodes_bilinear_lookup_then_gain_and_lut():
+def test_the_nodes_output_is_its_bilinear_lookup_then_gain_and_lut():
+    """What the jobs render for a projector (:func:`protos.spaces.warp_content`, e.g. the baseline's frames)
+    against the lookup matrix of the ground-truth transport followed by the LUT."""
     rng = np.random.default_rng(1)
     content = rng.random((40, 60, 3)).astype(np.float32)
     size = (48, 36)
     B = bilinear_warp_matrix(POSE, size, (60, 40))
     warped = (B @ content.reshape(-1, 3)).reshape(36, 48, 3)
     lut = np.stack([np.linspace(0, 1, 1024) ** (1 / g) for g in (2.0, 2.2, 2.4)]).astype(np.float32)
-    out = projector_frame(content, POSE, size, lut=lut, gain=0.8)
-    ref = apply_lut(lut, warped, gain=0.8)
+    out = warp_content(content, POSE, size, lut=lut, gain=0.8)
+    ref = lut_lookup(lut, warped, gain=0.8)
     assert out.shape == (36, 48, 3) and out.dtype == np.uint8
-    # cv2 interpolates with 1/32-pixel weights, the matrix (and the node) exactly: a level at most apart
+    # the same float lookup; warp_content rounds the warped values to float32 before the LUT: a level at most apart
     assert np.abs(out.astype(int) - ref.astype(int)).max() <= 1
-    assert np.mean(out != ref) < 0.05
+    assert np.mean(out != ref) < 0.001
+    # cv2's INTER_LINEAR interpolates with 1/32-pixel weights: within a level of the exact lookup
+    cv = cv2.warpPerspective(content, POSE, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    assert np.abs(out.astype(int) - lut_lookup(lut, cv, gain=0.8).astype(int)).max() <= 1
     # LUT off: the warped values themselves; grey content is replicated to three channels
-    plain = projector_frame(content[:, :, 0], POSE, size, apply=False)
+    plain = warp_content(content[:, :, 0], POSE, size, apply_lut=False)
     assert np.array_equal(plain[:, :, 0], plain[:, :, 2])
     assert np.abs(plain[:, :, 0].astype(int) - np.rint(255 * warped[:, :, 0]).astype(int)).max() <= 1
 
@@ -62,7 +83,7 @@ def test_bilinear_matrix_matches_cv2_warp_and_rows_sum_to_one_inside():
     assert np.abs(mine - ref).max() < 0.02
     rows = np.asarray(B.sum(axis=1)).ravel().reshape(30, 40)
     v, u = np.mgrid[0:30, 0:40]
-    x, y = apply_homography(np.linalg.inv(POSE), u, v)
+    x, y = _map(np.linalg.inv(POSE), u, v)
     inside = (x >= 0) & (x <= 49) & (y >= 0) & (y <= 29)
     assert np.allclose(rows[inside], 1.0)
 
@@ -79,10 +100,10 @@ def test_choose_spacing_is_the_smallest_the_transport_accepts():
             grid = DotGrid(content[1], content[0], spacing)
             caps = (np.zeros(camera, np.float32) for _ in range(len(grid)))
             if ok:
-                measure_transport(caps, black, grid=grid, homography=H, radius=radius)
+                transport_from_captures(caps, black, grid=grid, homography=H, radius=radius)
             else:
                 with pytest.raises(ValueError, match="too small"):
-                    measure_transport(caps, black, grid=grid, homography=H, radius=radius)
+                    transport_from_captures(caps, black, grid=grid, homography=H, radius=radius)
     assert choose_spacing(H, content, camera, 2, guard=3) > choose_spacing(H, content, camera, 2)
 
 
@@ -93,11 +114,11 @@ def test_inscribed_region_lies_inside_the_content_and_fills_most_of_it():
     rows, cols = inscribed_region(H, size, camera, margin=0)
     Hi = np.linalg.inv(H)
     ys, xs = np.mgrid[rows, cols]
-    x, y = apply_homography(Hi, xs.ravel(), ys.ravel())
+    x, y = _map(Hi, xs.ravel(), ys.ravel())
     assert x.min() >= -0.5 and y.min() >= -0.5 and x.max() <= 299.5 and y.max() <= 149.5
     # brute force: camera pixels whose centre maps inside the content
     ys, xs = np.mgrid[0:camera[0], 0:camera[1]]
-    x, y = apply_homography(Hi, xs.ravel(), ys.ravel())
+    x, y = _map(Hi, xs.ravel(), ys.ravel())
     inside = np.sum((x >= -0.5) & (y >= -0.5) & (x <= 299.5) & (y <= 149.5))
     area = (rows.stop - rows.start) * (cols.stop - cols.start)
     assert 0.93 * inside < area <= inside
@@ -128,7 +149,7 @@ def test_patch_labels_cut_the_frame_and_mark_edge_bands():
 
 def test_patch_layouts_show_every_level_repeatedly():
     levels = np.linspace(0.05, 0.95, 15)
-    layouts = _patch_layouts(levels, 16, 2, seed=3)
+    layouts = patch_layouts(levels, 16, 2, seed=3)
     shown = np.concatenate(layouts)
     assert len(layouts) == 2 and all(len(x) == 16 for x in layouts)
     for v in levels:
@@ -153,12 +174,13 @@ def test_patch_response_recovers_a_response_through_a_homography_and_fall_off():
     shown = patch_labels(size, grid, border=0)
     labels = patch_labels(size, grid, border=3)
     interior = np.linspace(0.1, 0.9, 9)
-    layouts = _patch_layouts(interior, 12, 2, seed=0)
+    layouts = patch_layouts(interior, 12, 2, seed=0)
     caps = [capture(layout[shown]) for layout in layouts]
     black = capture(np.zeros(size[::-1]))
     white = capture(np.ones(size[::-1]))
-    cam_labels = cv2.warpPerspective(labels.astype(np.float32), H, cam[::-1], flags=cv2.INTER_NEAREST,
-                                     borderValue=-1).astype(np.int32)
+    cam_labels = camera_patch_labels(labels, H, cam)
+    assert np.array_equal(cam_labels, cv2.warpPerspective(labels.astype(np.float32), H, cam[::-1], flags=cv2.INTER_NEAREST,
+                                                          borderValue=-1).astype(np.int32))
     valid = (white - black).mean(axis=2) > 0.05
     lv, rho = patch_response(caps, layouts, white=white, black=black, camera_labels=cam_labels, valid=valid)
     assert len(lv) >= 18
@@ -183,14 +205,13 @@ def test_image_parameters_round_trip(tmp_path):
     for f, ref in (("a.png", rgb8), ("b.png", rgb16), ("c.npy", grey[:, :, None])):
         img, name = decode_image_param(json.loads(json.dumps(encode_image_param(tmp_path / f))))
         assert name == f and img.dtype == ref.dtype and np.array_equal(img, ref)
-    img, _ = decode_image_param(image_param(rgb8))
+    img, _ = decode_image_param(encode_image_array(rgb8))
     assert np.array_equal(img, rgb8)
+    img, name = decode_image_param(json.loads(json.dumps(encode_image_array(grey, "g.png"))))
+    assert name == "g.npy" and img.dtype == np.float32 and np.array_equal(img, grey[:, :, None])
     with pytest.raises(CompensationError, match="corrupt"):
         decode_image_param({"name": "x.png", "data": "not base64!"})
     bad = encode_image_param(tmp_path / "a.png")
-    import base64
-    import zlib
-
     bad["data"] = base64.b64encode(zlib.compress(b"not an image")).decode()
     with pytest.raises(CompensationError, match="cannot read"):
         decode_image_param(bad)
@@ -212,7 +233,7 @@ def test_camera_target_and_best_scale():
     img[5:15, 10:20] = 1.0
     t = camera_target(img, H, (50, 70))
     assert t.shape == (50, 70, 1)
-    x, y = apply_homography(H, np.array([15.0]), np.array([10.0]))
+    x, y = _map(H, np.array([15.0]), np.array([10.0]))
     assert t[int(round(y[0])), int(round(x[0])), 0] == pytest.approx(1.0)
     assert t[0, 0, 0] == 0.0
     rng = np.random.default_rng(5)
@@ -240,13 +261,13 @@ def test_content_to_camera_reads_the_calibration(tmp_path):
         content_to_camera(tmp_path / "nowhere", (300, 150))
 
 
-def test_feeding_captures_from_the_loop_equals_measuring_directly():
+def test_recovering_while_capturing_equals_recovering_afterwards():
     rig = synthetic_rig(4, content_shape=(24, 32), radius=2, seed=1)
     L = synthetic_transport(rig)
     grid = DotGrid(32, 24, 5)
     black = np.full((24, 32), 0.01, np.float32)
     caps = list(simulate_captures(L, grid, (24, 32), black=0.01, read_noise=1e-3, rng=np.random.default_rng(0)))
-    direct = measure_transport(iter(caps), black, grid=grid, radius=2)
+    direct = transport_from_captures(iter(caps), black, grid=grid, radius=2)
 
     class Ctx:
         async def compute(self, fn, *a, **k):
@@ -257,7 +278,7 @@ def test_feeding_captures_from_the_loop_equals_measuring_directly():
             await asyncio.sleep(0)
             yield c
 
-    fed = asyncio.run(_feed_measure(Ctx(), shots(), black, grid=grid, radius=2))
+    fed = asyncio.run(transport_while_capturing(Ctx(), shots(), black, grid=grid, radius=2))
     assert transport_error(fed, direct) == 0.0
     assert transport_error(direct, L) < 0.05
 
@@ -265,10 +286,8 @@ def test_feeding_captures_from_the_loop_equals_measuring_directly():
         for c in caps[:3]:
             yield c
 
-    from coordinator.jobs import JobError
-
     with pytest.raises(JobError, match="needs 25 captures"):
-        asyncio.run(_feed_measure(Ctx(), short(), black, grid=grid, radius=2))
+        asyncio.run(transport_while_capturing(Ctx(), short(), black, grid=grid, radius=2))
 
 
 def _brute_force_missing(c: float, p: float, r: int, *, trials: int = 12, projectors: int = 25, sub: int = 20,
@@ -310,8 +329,6 @@ def _brute_force_missing(c: float, p: float, r: int, *, trials: int = 12, projec
 
 
 def test_psf_radius_holds_the_light_of_explicit_projector_pixels():
-    from coordinator.compensation.job import psf_profile, psf_radius
-
     x, f = psf_profile(1.2, 2.0, blur=0.5)
     assert f.sum() == pytest.approx(1.0) and f.min() >= 0 and abs(float(np.sum(x * f))) < 1e-6
     for c, q in ((0.95, 0.40), (1.7, 0.9), (0.5, 1.0)):
@@ -330,11 +347,6 @@ def test_psf_radius_holds_the_light_of_explicit_projector_pixels():
 
 
 def test_edge_energy_is_the_light_on_the_windows_outer_ring():
-    import scipy.sparse as sp
-
-    from coordinator.compensation.job import edge_energy
-    from coordinator.compensation.transport import transport_windows
-
     H = np.array([[1.4, 0.02, 6.0], [0.01, 1.35, 5.0], [0.0, 0.0, 1.0]])
     content, camera, R = (20, 30), (45, 60), 2
     _, rows, valid = transport_windows(H, content, camera, R)
@@ -354,12 +366,6 @@ def test_edge_energy_is_the_light_on_the_windows_outer_ring():
 
 
 def test_ridge_problem_solves_the_penalised_bounded_least_squares():
-    import scipy.sparse as sp
-    from scipy.optimize import lsq_linear
-
-    from coordinator.compensation import solve
-    from coordinator.compensation.job import RidgeProblem
-
     rng = np.random.default_rng(8)
     L = sp.random(60, 40, density=0.15, random_state=9, dtype=np.float64).tocsr().astype(np.float32)
     target = rng.random((60, 1)).astype(np.float32) * 1.5

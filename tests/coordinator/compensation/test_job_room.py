@@ -1,6 +1,7 @@
-"""The compensation jobs in the virtual room (in-process, through bench.compensation_room's kit):
-responses against the room's gamma, the measured L against its ground-truth transport, resume and
-fingerprints, the quality ordering of none / baseline / ours, sequences, brightness matching, refusals.
+"""The compensation jobs in the virtual room (in-process, through shadowless.room_driver.RoomDriver
+and bench.compensation_room's kit): responses against the room's gamma, the measured L against its
+ground-truth transport, resume and fingerprints, the quality ordering of none / baseline / ours,
+sequences, brightness matching, refusals.
 
 The tests of this module share one calibrated 4-projector rig and run in file order."""
 from __future__ import annotations
@@ -13,18 +14,19 @@ import pytest
 import scipy.sparse as sp
 
 from bench.calibration import make_rig, table_points_from_truth
-from bench.compensation_room import RoomCompensationContext, demo_image, image_param, points_doc, truth_transport
-from coordinator.compensation import brightness_scale, load_transport, transport_error
-from coordinator.compensation.job import (
-    EDGE_WARNING,
-    _load_stored_response,
-    compensate,
-    compensate_sequence,
-    measure_response,
-    measure_transport,
-    psf_radius,
-)
+from bench.compensation_room import demo_image, points_doc, truth_transport
+from coordinator.compensation.geometry import EDGE_WARNING, camera_target, inscribed_region, psf_radius
+from coordinator.compensation.image_param import encode_image_array, prepare_image
+from coordinator.compensation.quality import quality
+from coordinator.compensation.response import brightness_scale
+from coordinator.compensation.solver import objective, solve
+from coordinator.compensation.store import load_stored_response, response_path
+from coordinator.compensation.transport import load_transport, transport_error
 from coordinator.jobs import JobError
+from coordinator.rig import HomographyPose, Mesh, ProjectionPose
+from shadowless.room_driver import RoomCamera, RoomDriver
+from sim.room import Room
+from sim.scene import reference_scene
 
 SLOTS = ["r1c1", "r1c3", "r3c1", "r3c3"]
 CONTENT = (300, 150)
@@ -32,30 +34,30 @@ CONTENT = (300, 150)
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    from coordinator.calibration.job import calibrate
-    from sim.room import Room
-    from sim.scene import reference_scene
-
     room = Room(reference_scene(projector_scale=0.125, camera_scale=0.125), seed=1)
     rig = make_rig(tmp_path_factory.mktemp("comp") / "rig", room, SLOTS, content_size=CONTENT)
-    ctx = RoomCompensationContext(room, rig)
-    asyncio.run(calibrate(ctx, {"mode": "multiplexed", "table_points": points_doc(table_points_from_truth(room)),
-                                "settle_s": 0.0}))
-    return room, rig, ctx
+    driver = RoomDriver(room, rig)
+    asyncio.run(driver.run("calibrate", {"mode": "multiplexed", "settle_s": 0.0,
+                                         "table_points": points_doc(table_points_from_truth(room))}))
+    return room, rig, driver
 
 
-def run(coro):
-    return asyncio.run(coro)
+def run(driver: RoomDriver, kind: str, params: dict) -> dict:
+    return asyncio.run(driver.run(kind, params))
+
+
+def stored_response(rig, slot: str):
+    return load_stored_response(response_path(rig, slot), None)
 
 
 def test_response_fits_each_projector_and_linearises_the_rig(setup):
-    room, rig, ctx = setup
-    c0 = ctx.captures
-    out = run(measure_response(ctx, {"settle_s": 0.0}))
+    room, rig, driver = setup
+    c0 = driver.captures
+    out = run(driver, "response", {"settle_s": 0.0})
     # one shared black, per projector a white and two frames of 4x4 patches, then 6 linearity levels
-    assert ctx.captures - c0 == 1 + len(SLOTS) * 3 + 6 == out["captures"]
+    assert driver.captures - c0 == 1 + len(SLOTS) * 3 + 6 == out["captures"]
     for s in SLOTS:
-        resp, doc = _load_stored_response(rig.path / "compensation" / "responses" / f"{s}.json", None)
+        resp, doc = stored_response(rig, s)
         truth = room.truth.projector(s)
         curve_err = np.abs(resp.curve - resp.levels[None, :] ** truth.gamma[:, None]).max()
         assert curve_err < 0.02, (s, curve_err)
@@ -67,22 +69,22 @@ def test_response_fits_each_projector_and_linearises_the_rig(setup):
     assert lin["linear"] and lin["max_error"] < 0.01, lin
     assert out["brightness"]["gain"] == 1.0 and out["brightness"]["headroom"] > 3.5
     # a second run keeps the measured responses (only the linearity check captures)
-    c0 = ctx.captures
-    again = run(measure_response(ctx, {"settle_s": 0.0}))
-    assert ctx.captures - c0 == 6 and all(d["resumed"] for d in again["slots"].values())
+    c0 = driver.captures
+    again = run(driver, "response", {"settle_s": 0.0})
+    assert driver.captures - c0 == 6 and all(d["resumed"] for d in again["slots"].values())
     # frames: every pattern captured and averaged that many times (a changed option measures again)
-    c0 = ctx.captures
-    avg = run(measure_response(ctx, {"settle_s": 0.0, "slots": SLOTS[:1], "frames": 2}))
-    assert ctx.captures - c0 == 2 * (1 + 3 + 6) == avg["captures"] and not avg["slots"][SLOTS[0]]["resumed"]
-    resp, _ = _load_stored_response(rig.path / "compensation" / "responses" / f"{SLOTS[0]}.json", None)
+    c0 = driver.captures
+    avg = run(driver, "response", {"settle_s": 0.0, "slots": SLOTS[:1], "frames": 2})
+    assert driver.captures - c0 == 2 * (1 + 3 + 6) == avg["captures"] and not avg["slots"][SLOTS[0]]["resumed"]
+    resp, _ = stored_response(rig, SLOTS[0])
     assert np.allclose(resp.gamma, room.truth.projector(SLOTS[0]).gamma, atol=0.03)
 
 
 def test_transport_matches_the_rooms_truth_and_is_reused(setup):
-    room, rig, ctx = setup
-    c0 = ctx.captures
-    out = run(measure_transport(ctx, {"settle_s": 0.0}))
-    assert not out["reused"] and out["captures"] == out["patterns"] + 1 == ctx.captures - c0
+    room, rig, driver = setup
+    c0 = driver.captures
+    out = run(driver, "transport", {"settle_s": 0.0})
+    assert not out["reused"] and out["captures"] == out["patterns"] + 1 == driver.captures - c0
     L, meta = load_transport(rig.path / "compensation" / "transport.npz")
     H = np.asarray(meta["content_to_camera"])
     assert out["patterns"] == out["spacing"] ** 2
@@ -97,33 +99,34 @@ def test_transport_matches_the_rooms_truth_and_is_reused(setup):
     assert inside > 0.999, inside
     assert out["edge_energy"] < EDGE_WARNING
     # unchanged rig: reused without a capture
-    c0 = ctx.captures
-    assert run(measure_transport(ctx, {"settle_s": 0.0}))["reused"] and ctx.captures == c0
+    c0 = driver.captures
+    assert run(driver, "transport", {"settle_s": 0.0})["reused"] and driver.captures == c0
     # a changed gain changes what L describes: measured again (and force always measures)
-    ctx.set_slot(SLOTS[0], gain=0.99)
-    assert not run(measure_transport(ctx, {"settle_s": 0.0}))["reused"]
-    ctx.set_slot(SLOTS[0], gain=1.0)
-    assert not run(measure_transport(ctx, {"settle_s": 0.0, "force": True}))["reused"]
+    rig.update_slot(SLOTS[0], gain=0.99)
+    assert not run(driver, "transport", {"settle_s": 0.0})["reused"]
+    rig.update_slot(SLOTS[0], gain=1.0)
+    assert not run(driver, "transport", {"settle_s": 0.0, "force": True})["reused"]
     _, meta = load_transport(rig.path / "compensation" / "transport.npz")
     assert [p.name for p in (rig.path / "compensation").glob("black-*.npy")] == [meta["black_file"]]
     # options: only those the caller sets must match the stored measurement
     r, sp_ = meta["radius"], meta["spacing"]
-    assert run(measure_transport(ctx, {"settle_s": 0.0, "radius": r, "spacing": sp_, "frames": 1}))["reused"]
-    wider = run(measure_transport(ctx, {"settle_s": 0.0, "radius": r + 1}))
+    assert run(driver, "transport", {"settle_s": 0.0, "radius": r, "spacing": sp_, "frames": 1})["reused"]
+    wider = run(driver, "transport", {"settle_s": 0.0, "radius": r + 1})
     assert not wider["reused"] and wider["radius"] == r + 1
-    c0 = ctx.captures
-    assert run(measure_transport(ctx, {"settle_s": 0.0}))["radius"] == r + 1 and ctx.captures == c0
+    c0 = driver.captures
+    assert run(driver, "transport", {"settle_s": 0.0})["radius"] == r + 1 and driver.captures == c0
     with pytest.raises(JobError, match="another radius"):
-        run(compensate(ctx, {"image": image_param(demo_image(CONTENT)), "radius": r, "measure": False, "persist": False}))
-    assert run(measure_transport(ctx, {"settle_s": 0.0, "force": True}))["radius"] == r
+        run(driver, "compensate", {"image": encode_image_array(demo_image(CONTENT)), "radius": r, "measure": False,
+                                   "persist": False})
+    assert run(driver, "transport", {"settle_s": 0.0, "force": True})["radius"] == r
 
 
 def test_compensation_orders_none_baseline_ours_and_persists_the_result(setup):
-    room, rig, ctx = setup
+    room, rig, driver = setup
     image = demo_image(CONTENT)
-    out = run(compensate(ctx, {"image": image_param(image, "astronaut.png"), "evaluate": True, "baseline": True,
-                               "baseline_exposure": float(len(SLOTS)), "settle_s": 0.0, "max_iter": 120,
-                               "eval_frames": 8}))
+    out = run(driver, "compensate", {"image": encode_image_array(image, "astronaut.png"), "evaluate": True,
+                                     "baseline": True, "baseline_exposure": float(len(SLOTS)), "settle_s": 0.0,
+                                     "max_iter": 120, "eval_frames": 8})
     q = out["quality"]
     assert out["transport"]["reused"]
     assert q["ours"]["psnr"] > q["none"]["psnr"] + 1.0, q
@@ -140,7 +143,7 @@ def test_compensation_orders_none_baseline_ours_and_persists_the_result(setup):
     assert rig.content is not None and rig.content.image.dtype == np.float32
     assert rig.content.image.shape == (CONTENT[1], CONTENT[0], 3)
     assert 0.0 <= rig.content.image.min() and rig.content.image.max() <= 1.0
-    assert ctx.coordinator.shown is rig.content
+    assert driver.shown is rig.content
     d = rig.path / "compensation"
     assert json.loads((d / "result.json").read_text())["solve"]["iterations"] == out["solve"]["iterations"]
     assert (d / "quality.png").stat().st_size > 1000
@@ -148,19 +151,16 @@ def test_compensation_orders_none_baseline_ours_and_persists_the_result(setup):
 
 
 def test_sequence_is_compensated_with_warm_starts_and_played(setup):
-    room, rig, ctx = setup
+    room, rig, driver = setup
     wide = demo_image((CONTENT[0] + 8, CONTENT[1]))
-    frames = [image_param(np.ascontiguousarray(wide[:, k:k + CONTENT[0]]), f"f{k}.png") for k in range(0, 8, 2)]
-    out = run(compensate_sequence(ctx, {"frames": frames, "iterations": 3, "first_iterations": 40, "fps": 30}))
+    frames = [encode_image_array(np.ascontiguousarray(wide[:, k:k + CONTENT[0]]), f"f{k}.png") for k in range(0, 8, 2)]
+    out = run(driver, "compensate_sequence", {"frames": frames, "iterations": 3, "first_iterations": 40, "fps": 30})
     assert out["frames"] == 4 and out["play"]["frames_sent"] == 4
     assert out["ms_per_frame_mean"] < out["ms_first_frame"]
-    played = ctx.coordinator.played
-    assert len(played) == 4 and played[0].image.dtype == np.uint16
+    played = driver.played
+    assert len(played) == 4 and played[0].dtype == np.uint16
     # the last frame, warm-started, beats the same 3 iterations from the uncompensated start and the
     # uncompensated image itself (predicted through the measured L)
-    from coordinator.compensation import objective, quality, solve
-    from coordinator.compensation.job import camera_target, inscribed_region, prepare_image
-
     L, meta = load_transport(rig.path / "compensation" / "transport.npz")
     H = np.asarray(meta["content_to_camera"])
     cam = (meta["camera_size"][1], meta["camera_size"][0])
@@ -173,7 +173,7 @@ def test_sequence_is_compensated_with_warm_starts_and_played(setup):
         c = (L @ np.asarray(x, np.float32).reshape(-1, 3)).reshape(target.shape)
         return quality(target[region] / s, c[region] / s).psnr
 
-    last = played[-1].image.astype(np.float32) / 65535
+    last = played[-1].astype(np.float32) / 65535
     start = np.clip(content * np.float32(out["scale"]), 0, 1)
     cold = solve(L, target, x0=start, content_shape=(CONTENT[1], CONTENT[0]), max_iter=3, gap_tol=0, pg_tol=0)
     assert objective(L, last, target) < cold.objective
@@ -181,9 +181,9 @@ def test_sequence_is_compensated_with_warm_starts_and_played(setup):
 
 
 def test_brightness_matches_a_reference_projector(setup):
-    room, rig, ctx = setup
-    out = run(measure_response(ctx, {"settle_s": 0.0, "slots": SLOTS[1:], "reference": SLOTS[0]}))
-    responses = [_load_stored_response(rig.path / "compensation" / "responses" / f"{s}.json", None)[0] for s in SLOTS]
+    room, rig, driver = setup
+    out = run(driver, "response", {"settle_s": 0.0, "slots": SLOTS[1:], "reference": SLOTS[0]})
+    responses = [stored_response(rig, s)[0] for s in SLOTS]
     ref = brightness_scale(responses[1:], responses[0])
     b = out["brightness"]
     assert b["gain"] == pytest.approx(ref.gain, rel=1e-5) and b["headroom"] == pytest.approx(ref.headroom, rel=1e-3)
@@ -191,40 +191,45 @@ def test_brightness_matches_a_reference_projector(setup):
     assert all(rig.slot(s).gain == pytest.approx(ref.gain, rel=1e-5) for s in SLOTS[1:])
     assert out["linearity"]["linear"]
     # and a luminance the rig cannot reach leaves the gains at 1
-    out = run(measure_response(ctx, {"settle_s": 0.0, "reference": 10.0}))
+    out = run(driver, "response", {"settle_s": 0.0, "reference": 10.0})
     assert out["brightness"]["gain"] == 1.0 and not out["brightness"]["reachable"]
     assert all(rig.slot(s).gain == 1.0 for s in SLOTS)
 
 
 def test_refusals_name_what_to_do(setup, tmp_path):
-    room, rig, ctx = setup
+    room, rig, driver = setup
     with pytest.raises(JobError, match="unknown transport parameter"):
-        run(measure_transport(ctx, {"radios": 3}))
+        run(driver, "transport", {"radios": 3})
     with pytest.raises(JobError, match="give an image"):
-        run(compensate(ctx, {}))
-    with pytest.raises(JobError, match="radius must be an integer"):
-        run(measure_transport(ctx, {"radius": 0}))
+        run(driver, "compensate", {})
+    with pytest.raises(JobError, match="radius must be in 1..16"):
+        run(driver, "transport", {"radius": 0})
     bare = make_rig(tmp_path / "bare", room, SLOTS, content_size=CONTENT)
-    bctx = RoomCompensationContext(room, bare)
+    bdriver = RoomDriver(room, bare)
     with pytest.raises(JobError, match="has no pose: calibrate"):
-        run(measure_transport(bctx, {"slots": SLOTS[:1]}))
-    from coordinator.rig import HomographyPose, Mesh, ProjectionPose
-
+        run(bdriver, "transport", {"slots": SLOTS[:1]})
     bare.update_slot(SLOTS[0], pose=HomographyPose(rig.slot(SLOTS[0]).pose.matrix))
     with pytest.raises(JobError, match="run `shadowless calibrate` first"):
-        run(measure_transport(bctx, {"slots": SLOTS[:1]}))
+        run(bdriver, "transport", {"slots": SLOTS[:1]})
     mesh = Mesh("m", np.zeros((3, 3), np.float32), np.zeros((3, 2), np.float32), np.array([[0, 1, 2]], np.uint32))
     bare.update_slot(SLOTS[1], pose=ProjectionPose(np.hstack([np.eye(3), np.ones((3, 1))]), mesh))
     with pytest.raises(JobError, match="planar rigs"):
-        run(measure_transport(bctx, {"slots": SLOTS[:2]}))
-    # a camera that cannot change its exposure (like the coordinator's): the baseline must average frames instead
-    class FixedExposure(RoomCompensationContext):
-        async def capture(self, index: int = 0):
-            return await super().capture(index)
+        run(bdriver, "transport", {"slots": SLOTS[:2]})
+    with pytest.raises(JobError, match="not connected"):
+        run(RoomDriver(room, rig, offline=SLOTS[:1]), "transport", {"slots": SLOTS[:2]})
+
+    # a camera that cannot change its exposure (like most real ones): the baseline must average frames instead
+    class FixedExposure(RoomDriver):
+        def open_camera(self, spec: str) -> RoomCamera:
+            camera = super().open_camera(spec)
+            camera.supports_exposure = False
+            return camera
 
     fixed = FixedExposure(room, rig)
     with pytest.raises(JobError, match="cannot change exposure"):
-        run(measure_transport(fixed, {"baseline": True, "baseline_exposure": 4.0, "settle_s": 0.0}))
+        run(fixed, "transport", {"baseline": True, "baseline_exposure": 4.0, "settle_s": 0.0})
+    assert fixed.captures == 0
     # another set of projectors than the stored L was measured with, and no measuring allowed
     with pytest.raises(JobError, match="run `shadowless transport`"):
-        run(compensate(ctx, {"image": image_param(demo_image(CONTENT)), "measure": False, "slots": SLOTS[:2]}))
+        run(driver, "compensate", {"image": encode_image_array(demo_image(CONTENT)), "measure": False,
+                                   "slots": SLOTS[:2]})

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from skimage.metrics import structural_similarity
 
-from coordinator.compensation import linear_to_srgb, quality, side_by_side, srgb_to_linear
+from coordinator.compensation.quality import linear_to_srgb, quality, side_by_side, srgb_to_linear
 
 
 def test_psnr_matches_closed_form_and_ssim_matches_skimage():

@@ -7,17 +7,17 @@ from scipy.optimize import isotonic_regression
 
 from coordinator.compensation import (
     CompensationError,
-    Response,
-    apply_lut,
+    FittedResponse,
     brightness_scale,
+    capture_means,
     fit_response,
     grey_levels,
     inverse_lut,
-    measure_response,
     response_mask,
     verify_linearity,
 )
 from coordinator.compensation.response import _isotonic
+from protos.spaces import lut_lookup
 
 
 def gamma_projector(gamma: float, black: float, peak: float = 1.0):
@@ -52,7 +52,7 @@ def test_rig_is_linear_after_luts_with_8bit_quantisation():
         noisy = unit(np.repeat(levels, 3)) * (1 + 0.001 * rng.standard_normal(levels.size * 3))
         luts.append(inverse_lut(fit_response(np.repeat(levels, 3), noisy), entries=1024))
     y = np.linspace(0, 1, 65)
-    light = sum(unit(apply_lut(lut, y) / 255.0) for unit, lut in zip(units, luts))
+    light = sum(unit(lut_lookup(lut, y) / 255.0) for unit, lut in zip(units, luts))
     report = verify_linearity(y, light, tolerance=0.01)
     assert report.linear, report
     # 8-bit steps: one unit's error is at most slope * half a code, gamma_max / 510
@@ -62,17 +62,17 @@ def test_rig_is_linear_after_luts_with_8bit_quantisation():
     assert not verify_linearity(y, raw, tolerance=0.01).linear
 
 
-def test_apply_lut_gain_and_channels():
+def test_node_lut_lookup_gain_and_channels():
     lut = np.stack([np.linspace(0, 1, 5), np.linspace(0, 1, 5) ** 0.5]).astype(np.float32)
     img = np.full((2, 3, 2), 0.25, dtype=np.float32)
-    out = apply_lut(lut, img, gain=2.0)
+    out = lut_lookup(lut, img, gain=2.0)
     assert out.dtype == np.uint8 and out.shape == (2, 3, 2)
     # gain 2 -> 0.5; channel 0 identity -> 128, channel 1 interpolates sqrt samples at 0.5 -> sqrt(0.5)
     assert out[0, 0, 0] == 128
     assert out[0, 0, 1] == round(255 * np.sqrt(0.5))
-    assert apply_lut(lut[:1], np.array([2.0]))[0] == 255  # clipped to full output
+    assert lut_lookup(lut[:1], np.array([2.0]))[0] == 255  # clipped to full output
     with pytest.raises(ValueError):
-        apply_lut(lut, np.zeros((2, 2, 3)))
+        lut_lookup(lut, np.zeros((2, 2, 3)))
 
 
 def test_isotonic_matches_scipy():
@@ -129,14 +129,14 @@ def test_brightness_scale_matches_reference_and_reports_headroom():
     assert colour.gain == pytest.approx(3 / 4)
 
 
-def test_measure_response_in_mask():
+def test_capture_means_in_mask():
     black = np.full((20, 30, 3), 0.01, dtype=np.float32)
     white = black.copy()
     white[5:15, 10:25] += 0.8
     mask = response_mask(white, black)
     assert mask.sum() == 10 * 15
     caps = [black + (white - black) * v for v in (0.0, 0.5, 1.0)]
-    m = measure_response(caps, mask=mask)
+    m = capture_means(caps, mask=mask)
     assert m.shape == (3, 3)
     assert np.allclose(m[:, 0], [0.01, 0.41, 0.81], atol=1e-6)
     with pytest.raises(CompensationError):
@@ -153,6 +153,6 @@ def test_verify_linearity_detects_curvature():
 
 def test_response_dataclass_is_consistent():
     resp = fit_response(grey_levels(5), np.array([0.0, 0.1, 0.3, 0.6, 1.0]))
-    assert isinstance(resp, Response)
+    assert isinstance(resp, FittedResponse)
     assert resp.levels[0] == 0 and resp.levels[-1] == 1
     assert np.allclose(resp.normalised(resp.levels)[0], resp.curve[0])

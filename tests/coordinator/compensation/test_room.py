@@ -7,19 +7,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from coordinator.compensation import (
     DotGrid,
-    apply_lut,
+    capture_means,
     fit_response,
     grey_levels,
     inverse_lut,
-    measure_response,
-    measure_transport,
     response_mask,
     transport_error,
+    transport_from_captures,
     verify_linearity,
 )
+from protos.spaces import lut_lookup
 
 from sim import room as sim_room
 from sim import scene as sim_scene
@@ -46,16 +47,16 @@ def test_response_lut_and_linearity_in_the_room(room):
     caps = [show(room, np.full((h, w, 3), round(255 * v), np.uint8), exposure) for v in levels]
     mask = response_mask(caps[-1], caps[0])
     assert mask.mean() > 0.05
-    resp = fit_response(levels, measure_response(caps, mask=mask))
+    resp = fit_response(levels, capture_means(caps, mask=mask))
     truth = room.truth.projector(SLOT)
     assert np.allclose(resp.gamma, truth.gamma, atol=0.01)
     lut = inverse_lut(resp, entries=1024)
     y = np.linspace(0, 1, 11)
-    frames = [np.broadcast_to(apply_lut(lut, np.full((1, 1, 3), v)), (h, w, 3)).copy() for v in y]
-    after = measure_response([show(room, f, exposure) for f in frames], mask=mask)
+    frames = [np.broadcast_to(lut_lookup(lut, np.full((1, 1, 3), v)), (h, w, 3)).copy() for v in y]
+    after = capture_means([show(room, f, exposure) for f in frames], mask=mask)
     report = verify_linearity(y, after, tolerance=0.01)
     assert report.linear, report
-    before = measure_response([show(room, np.full((h, w, 3), round(255 * v), np.uint8), exposure) for v in y], mask=mask)
+    before = capture_means([show(room, np.full((h, w, 3), round(255 * v), np.uint8), exposure) for v in y], mask=mask)
     assert not verify_linearity(y, before, tolerance=0.01).linear
 
 
@@ -69,7 +70,7 @@ def test_transport_measured_in_the_room_matches_its_truth(room):
     black = show(room, np.zeros((h, w, 3), np.uint8), exposure)
     caps = (show(room, np.repeat(grid.pattern(k, value=255, dtype=np.uint8)[:, :, None], 3, axis=2), exposure)
             for k in range(len(grid)))
-    measured = measure_transport(caps, black, grid=grid, homography=h_pc, radius=2)
+    measured = transport_from_captures(caps, black, grid=grid, homography=h_pc, radius=2)
     truth = room.truth.projector(SLOT)
     # the truth maps emitted luminance; the dots emit 1 - black above the black frame
     expected = room.truth.transport(SLOT) * (exposure / room.truth.camera().exposure) * float(np.mean(1 - truth.black))
@@ -80,8 +81,6 @@ def test_transport_measured_in_the_room_matches_its_truth(room):
 
 def test_rig_transport_measured_with_all_projectors_at_once():
     """25 projectors show the same dot grid (each warped by its pose): S*S + 1 captures give L = sum L_i."""
-    import scipy.sparse as sp
-
     full = sim_room.Room(sim_scene.reference_scene(projector_scale=0.25, camera_scale=0.125), noise=False)
     truth = full.truth
     wc, hc = 200, 100  # content covering the table, 6 mm per pixel
@@ -109,7 +108,7 @@ def test_rig_transport_measured_with_all_projectors_at_once():
 
     grid = DotGrid(wc, hc, 5)
     black = show_all(np.zeros((hc, wc), np.float32))
-    measured = measure_transport((show_all(grid.pattern(k)) for k in range(len(grid))), black, grid=grid,
+    measured = transport_from_captures((show_all(grid.pattern(k)) for k in range(len(grid))), black, grid=grid,
                                  homography=h_cc, radius=2)
     expected = sum(truth.transport(s) @ warps[s] * float(np.mean(1 - truth.projector(s).black)) for s in full.slots)
     err = transport_error(measured, sp.csr_matrix(expected))

@@ -11,6 +11,7 @@ from scipy.optimize import lsq_linear
 from scipy.sparse.linalg import svds
 
 from coordinator.compensation import (
+    FrameCompensator,
     TransportOperator,
     objective,
     operator_for,
@@ -18,6 +19,7 @@ from coordinator.compensation import (
     solve_per_projector,
     srgb_to_linear,
 )
+from coordinator.compensation import solver
 from coordinator.compensation.synthetic import sample_image, synthetic_rig, synthetic_transport
 
 SHAPE = (20, 24)
@@ -194,8 +196,6 @@ def test_operator_cache_follows_the_matrix(problem):
     op = operator_for(M)
     assert operator_for(M) is op
     assert operator_for(op) is op
-    from coordinator.compensation import solver
-
     key = id(M)
     del M, op
     gc.collect()
@@ -212,8 +212,6 @@ def test_objective_value_is_float64_accurate():
 
 
 def test_frame_compensator_warm_starts_and_keeps_deadlines(problem):
-    from coordinator.compensation import FrameCompensator
-
     L, _, target = problem
     frames = [target[:, :, 1].copy() for _ in range(3)]
     for k, f in enumerate(frames):

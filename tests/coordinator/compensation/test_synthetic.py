@@ -15,7 +15,7 @@ from coordinator.compensation.synthetic import (
     synthetic_transport,
     sample_image,
 )
-from coordinator.compensation.transport import apply_homography
+from coordinator.calibration.planar import apply_homography
 
 
 def test_tabulated_antiderivative_matches_closed_form():
@@ -30,7 +30,7 @@ def brute_force_psf(rig, optics, j, n=160):
     """Rotated square footprint convolved with the Gaussian, integrated over camera pixels by sampling."""
     h, w = rig.content_shape
     x, y = j % w, j // w
-    cx, cy = apply_homography(rig.homography, np.array([x]), np.array([y]))
+    cx, cy = apply_homography(rig.homography, np.array([[x, y]], np.float64)).T
     u = (x - (w - 1) / 2) / ((w - 1) / 2)
     v = (y - (h - 1) / 2) / ((h - 1) / 2)
     o = optics

@@ -11,11 +11,11 @@ from coordinator.compensation import (
     DotGrid,
     TransportFileError,
     load_transport,
-    measure_per_projector,
-    measure_transport,
     save_transport,
     transport_error,
+    transport_from_captures,
     transport_windows,
+    transports_per_projector,
 )
 from coordinator.compensation.synthetic import camera_noise, simulate_captures, synthetic_rig, synthetic_transport
 
@@ -75,7 +75,7 @@ def test_exact_recovery_without_noise(rig, truths):
     black = np.full(CAMERA, 0.013, dtype=np.float32)
     # colour captures with equal channels, plus the black level
     caps = (np.repeat(c[:, :, None], 3, axis=2) for c in simulate_captures(L, grid, CAMERA, black=black))
-    est = measure_transport(caps, np.repeat(black[:, :, None], 3, axis=2), grid=grid, homography=H_CC, radius=2)
+    est = transport_from_captures(caps, np.repeat(black[:, :, None], 3, axis=2), grid=grid, homography=H_CC, radius=2)
     assert est.shape == L.shape and est.dtype == np.float32
     assert transport_error(est, L) < 1e-6
     # the recovered PSF of every column sits inside its window
@@ -89,12 +89,12 @@ def test_recovery_with_noise_has_the_expected_error(rig, truths):
     rng = np.random.default_rng(7)
     caps = simulate_captures(L, grid, CAMERA, read_noise=sigma, rng=rng)
     black = camera_noise(np.zeros(CAMERA), read_noise=sigma, rng=rng)
-    est = measure_transport(caps, black, grid=grid, homography=H_CC, radius=2, clip_negative=False)
+    est = transport_from_captures(caps, black, grid=grid, homography=H_CC, radius=2, clip_negative=False)
     err = transport_error(est, L)
     # each entry gets the difference of two captures' noise: std sigma * sqrt(2)
     expected = sigma * np.sqrt(2 * L.nnz) / np.sqrt(np.dot(L.data, L.data))
     assert 0.7 * expected < err < 1.3 * expected
-    clipped = measure_transport(simulate_captures(L, grid, CAMERA, read_noise=sigma, rng=rng), black, grid=grid,
+    clipped = transport_from_captures(simulate_captures(L, grid, CAMERA, read_noise=sigma, rng=rng), black, grid=grid,
                                 homography=H_CC, radius=2)
     assert clipped.data.min() >= 0
     assert transport_error(clipped, L) < 1.3 * expected
@@ -104,18 +104,18 @@ def test_capture_count_does_not_depend_on_projectors(rig, truths):
     per, total = truths
     grid = DotGrid(CONTENT[1], CONTENT[0], 5)
     black = np.zeros(CAMERA, dtype=np.float32)
-    one = measure_transport(simulate_captures(per[0], grid, CAMERA), black, grid=grid, homography=H_CC)
-    four = measure_transport(simulate_captures(total, grid, CAMERA), black, grid=grid, homography=H_CC)
+    one = transport_from_captures(simulate_captures(per[0], grid, CAMERA), black, grid=grid, homography=H_CC)
+    four = transport_from_captures(simulate_captures(total, grid, CAMERA), black, grid=grid, homography=H_CC)
     assert transport_error(one, per[0]) < 1e-6 and transport_error(four, total) < 1e-6
     with pytest.raises(ValueError, match="needs 25 captures"):
-        measure_transport(list(simulate_captures(total, grid, CAMERA))[:-1], black, grid=grid, homography=H_CC)
+        transport_from_captures(list(simulate_captures(total, grid, CAMERA))[:-1], black, grid=grid, homography=H_CC)
 
 
 def test_per_projector_measurement_sums_to_rig(truths):
     per, total = truths
     grid = DotGrid(CONTENT[1], CONTENT[0], 5)
     black = np.zeros(CAMERA, dtype=np.float32)
-    measured = measure_per_projector([simulate_captures(Li, grid, CAMERA) for Li in per], black,
+    measured = transports_per_projector([simulate_captures(Li, grid, CAMERA) for Li in per], black,
                                      grid=grid, homography=H_CC, radius=2)
     assert len(measured) == 4
     for est, Li in zip(measured, per):
@@ -128,22 +128,22 @@ def test_spacing_too_small_for_radius_is_refused(truths):
     _, L = truths
     grid = DotGrid(CONTENT[1], CONTENT[0], 3)
     with pytest.raises(ValueError, match="increase the spacing"):
-        measure_transport(simulate_captures(L, grid, CAMERA), np.zeros(CAMERA, np.float32), grid=grid,
+        transport_from_captures(simulate_captures(L, grid, CAMERA), np.zeros(CAMERA, np.float32), grid=grid,
                           homography=H_CC, radius=2)
 
 
 def test_shape_errors():
     grid = DotGrid(4, 3, 3)
     with pytest.raises(ValueError):
-        measure_transport([np.zeros((3, 4))] * 9, np.zeros((3, 4, 2, 1)), grid=grid, radius=0)
+        transport_from_captures([np.zeros((3, 4))] * 9, np.zeros((3, 4, 2, 1)), grid=grid, radius=0)
     with pytest.raises(ValueError, match="shape"):
-        measure_transport([np.zeros((5, 4))] * 9, np.zeros((3, 4)), grid=grid, radius=0)
+        transport_from_captures([np.zeros((5, 4))] * 9, np.zeros((3, 4)), grid=grid, radius=0)
 
 
 def test_threshold_drops_small_entries(truths):
     _, L = truths
     grid = DotGrid(CONTENT[1], CONTENT[0], 5)
-    est = measure_transport(simulate_captures(L, grid, CAMERA), np.zeros(CAMERA, np.float32), grid=grid,
+    est = transport_from_captures(simulate_captures(L, grid, CAMERA), np.zeros(CAMERA, np.float32), grid=grid,
                             homography=H_CC, radius=2, threshold=0.05)
     assert est.nnz < L.nnz
     assert transport_error(est, L) < 0.05

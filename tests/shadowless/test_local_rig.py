@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
-from coordinator.local import LocalRig, grid_names, spread, card_image
-from protos import control_pb2
+from shadowless.local import LocalRig, grid_names, spread, card_image
+from coordinator.api import NodeState, PlaySettings
 
 N_NODES = 16
 SIZE = (96, 64)          # projector output, kept small: 16 llvmpipe nodes share two cores
@@ -51,7 +51,7 @@ def test_every_node_discovers_and_joins(rig):
         return st
 
     st = run(go())
-    assert {n.slot for n in st.nodes if n.state == control_pb2.NODE_STATE_LIVE} == set(rig.slots)
+    assert {n.slot for n in st.nodes if n.state == NodeState.LIVE} == set(rig.slots)
     for slot in rig.slots:
         assert "--mdns-interface" in rig.node_args(slot) and "--coordinator" not in rig.node_args(slot)
     # the injected offsets were found by the nodes (rig - local = -(offset + drift * elapsed)) ...
@@ -96,12 +96,7 @@ def test_rendered_output_matches_reference_warp(rig):
         async with await rig.client() as c:
             await rig.wait_live(c, timeout=180)
             for i, slot in enumerate(rig.slots):
-                req = control_pb2.ConfigureRequest(slot=slot, gain=gain)
-                req.homography.m.extend(homography_for(i).ravel().tolist())
-                from coordinator.wire import lut_message
-
-                req.lut.CopyFrom(lut_message(lut_for(i)))
-                await c.configure(req)
+                await c.configure(slot, gain=gain, homography=homography_for(i), lut=lut_for(i))
             await asyncio.sleep(0.5)
             return await c.show(img, name="card")
 
@@ -129,7 +124,7 @@ def test_swaps_align_despite_wrong_clocks(rig):
         async with await rig.client() as c:
             await rig.wait_live(c, timeout=180)
             await asyncio.sleep(3.0)   # let every estimator see a few seconds of drift
-            return await c.play(control_pb2.PlaySettings(fps=10, pattern="counter", frames=40, wait=True, latency_ms=150))
+            return await c.play(PlaySettings(fps=10, pattern="counter", frames=40, wait=True, latency_ms=150))
 
     r = run(go())
     assert r.nodes == N_NODES
@@ -155,13 +150,13 @@ def test_killed_node_is_lost_others_keep_running_and_it_rejoins(rig):
             while True:
                 st = await c.status()
                 states = {n.slot: n.state for n in st.nodes}
-                if states[victim] == control_pb2.NODE_STATE_LOST:
+                if states[victim] == NodeState.LOST:
                     break
                 assert time.monotonic() < deadline, "killed node never reported lost"
                 await asyncio.sleep(0.2)
             others = [s for s in rig.slots if s != victim]
-            assert all(states[s] == control_pb2.NODE_STATE_LIVE for s in others)
-            r = await c.play(control_pb2.PlaySettings(fps=10, pattern="counter", frames=10,
+            assert all(states[s] == NodeState.LIVE for s in others)
+            r = await c.play(PlaySettings(fps=10, pattern="counter", frames=10,
                                                       wait=True, latency_ms=150))
             assert r.nodes == N_NODES - 1 and r.frames_sent == 10
             joins_before = {n.slot: n.joins for n in st.nodes}[victim]
@@ -233,7 +228,7 @@ def test_coordinator_restart_brings_every_node_back_with_the_same_rig(rig):
 
     async def play_after():
         async with await rig.client() as c:
-            return await c.play(control_pb2.PlaySettings(fps=10, pattern="counter", frames=10, wait=True, latency_ms=150))
+            return await c.play(PlaySettings(fps=10, pattern="counter", frames=10, wait=True, latency_ms=150))
 
     r = run(play_after())
     assert r.nodes == N_NODES and r.sync.out_of_order == 0

@@ -1,7 +1,7 @@
 """Operator commands: `shadowless status`, `show`, `play`, `configure`.
 
-They talk to a running coordinator over gRPC (RigControl), after the same
-rig-token handshake the nodes use.
+They talk to a running coordinator through :class:`coordinator.client.Client`, after the
+same rig-token handshake the nodes use, and print tables (or JSON for scripts).
 """
 from __future__ import annotations
 
@@ -9,143 +9,48 @@ import argparse
 import asyncio
 import json
 import math
-import os
 import sys
 from pathlib import Path
 
 import grpc
 import numpy as np
 
-from protos import auth, codec, common_pb2, control_pb2, control_pb2_grpc, node_pb2
-from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
-
-
-class OperatorError(Exception):
-    pass
-
-
-# ---------------------------------------------------------------- connection
-def add_connection_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("which coordinator")
-    g.add_argument("--coordinator", metavar="HOST:PORT", help="address of the coordinator (default: find it over mDNS)")
-    g.add_argument("--rig-dir", metavar="DIR", help="a rig directory on this machine: its token is used")
-    g.add_argument("--rig", metavar="NAME", help="with mDNS: the rig's name or id")
-    g.add_argument("--token-file", metavar="FILE", help="rig token (default: $SHADOWLESS_TOKEN_FILE or RIG_DIR/token)")
-    g.add_argument("--mdns-interface", action="append", metavar="IP", help="browse mDNS on this IPv4 address only")
-    g.add_argument("--tls-ca", metavar="PEM", help="use TLS, trusting this CA certificate")
-    g.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
-
-
-class Client:
-    """An authenticated RigControl client. ``async with Client.connect(...) as c: await c.status()``."""
-
-    def __init__(self, channel: grpc.aio.Channel, stub, session: str):
-        self.channel, self.stub, self.session = channel, stub, session
-        self.md = ((SESSION_KEY, session),)
-
-    @classmethod
-    async def connect(cls, target: str, token: bytes, *, tls_ca: bytes | None = None, tls_server_name: str | None = None) -> "Client":
-        options = list(GRPC_OPTIONS)
-        if tls_ca is not None:
-            if tls_server_name:
-                options.append(("grpc.ssl_target_name_override", tls_server_name))
-            channel = grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(tls_ca), options=options)
-        else:
-            channel = grpc.aio.insecure_channel(target, options=options)
-        stub = control_pb2_grpc.RigControlStub(channel)
-        try:
-            cn = auth.new_nonce()
-            hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=cn, role="operator"), timeout=10)
-            if not auth.verify(auth.coordinator_proof(token, hello.rig_id, cn, hello.server_nonce), hello.server_proof):
-                raise OperatorError(f"the coordinator at {target} could not prove it knows the rig token (wrong token file?)")
-            proof = auth.client_proof(token, "operator", hello.rig_id, "", cn, hello.server_nonce)
-            reply = await stub.Login(common_pb2.LoginRequest(protocol_version=PROTOCOL_VERSION, role="operator", client_nonce=cn,
-                                                             server_nonce=hello.server_nonce, client_proof=proof), timeout=10)
-        except grpc.aio.AioRpcError as exc:
-            await channel.close()
-            raise OperatorError(f"coordinator at {target}: {exc.details() or exc.code().name}") from exc
-        except BaseException:
-            await channel.close()
-            raise
-        return cls(channel, stub, reply.session)
-
-    async def __aenter__(self) -> "Client":
-        return self
-
-    async def __aexit__(self, *exc) -> None:
-        await self.channel.close()
-
-    async def status(self) -> control_pb2.RigStatus:
-        return await self.stub.Status(control_pb2.StatusRequest(), metadata=self.md, timeout=10)
-
-    async def show(self, image: np.ndarray, *, name: str = "", persist: bool = False, space: int = node_pb2.SPACE_CONTENT,
-                   apply_lut: bool = True) -> control_pb2.ShowReply:
-        req = control_pb2.ShowRequest(image=codec.encode_image(image, compress=True), name=name, persist=persist,
-                                      space=space, apply_lut=apply_lut)
-        return await self.stub.Show(req, metadata=self.md, timeout=60)
-
-    async def play(self, settings: control_pb2.PlaySettings, frames: list[np.ndarray] = ()) -> control_pb2.PlayReply:
-        async def items():
-            yield control_pb2.PlayItem(settings=settings)
-            for f in frames:
-                yield control_pb2.PlayItem(frame=codec.encode_image(f, compress=True))
-
-        return await self.stub.Play(items(), metadata=self.md)
-
-    async def configure(self, req: control_pb2.ConfigureRequest) -> control_pb2.ConfigureReply:
-        return await self.stub.Configure(req, metadata=self.md, timeout=10)
-
-
-async def open_client(args: argparse.Namespace) -> Client:
-    token_file = args.token_file or os.environ.get("SHADOWLESS_TOKEN_FILE")
-    if not token_file and args.rig_dir:
-        token_file = str(Path(args.rig_dir) / "token")
-    if not token_file:
-        raise OperatorError("no rig token: pass --rig-dir DIR, --token-file FILE or set SHADOWLESS_TOKEN_FILE")
-    token = auth.read_token(token_file)
-    target = args.coordinator
-    if not target:
-        from node.discovery import Discovery
-
-        disc = Discovery(interfaces=args.mdns_interface)
-        await disc.start()
-        try:
-            ads = await disc.find(rig=args.rig, timeout=3.0)
-        finally:
-            await disc.close()
-        if not ads:
-            raise OperatorError("no coordinator found over mDNS; pass --coordinator HOST:PORT")
-        if len({a.rig_id for a in ads}) > 1:
-            raise OperatorError("several rigs found: " + ", ".join(a.name for a in ads) + "; pick one with --rig")
-        target = ads[0].target
-    tls_ca = Path(args.tls_ca).read_bytes() if getattr(args, "tls_ca", None) else None
-    return await Client.connect(target, token, tls_ca=tls_ca, tls_server_name=getattr(args, "tls_server_name", None))
+from coordinator.api import PlayResult, PlaySettings, RigStatus, SyncSummary
+from coordinator.client import OperatorError, add_connection_args, open_client
+from coordinator.job_command import run_job
+from protos import auth
 
 
 # ---------------------------------------------------------------- formatting
-STATE_NAMES = {v: k.removeprefix("NODE_STATE_").lower() for k, v in control_pb2.NodeState.items()}
+def _num(x: float) -> float | None:
+    return None if math.isnan(x) else round(x, 4)
 
 
-def status_dict(st: control_pb2.RigStatus) -> dict:
-    def num(x: float) -> float | None:
-        return None if math.isnan(x) else round(x, 4)
+def sync_dict(s: SyncSummary) -> dict:
+    """Swap figures as JSON (NaN as null)."""
+    return {"frames": s.frames, "skew_p50_ms": _num(s.skew_p50_ms), "skew_p99_ms": _num(s.skew_p99_ms),
+            "skew_max_ms": _num(s.skew_max_ms), "skew_source": s.skew_source,
+            "clock_error_p99_ms": _num(s.clock_error_p99_ms), "late": s.frames_late, "dropped": s.frames_dropped,
+            "out_of_order": s.out_of_order}
+
+
+def status_dict(st: RigStatus) -> dict:
+    """The rig's status as JSON (what `shadowless status --json` prints)."""
+    num = _num
 
     return {
         "rig": {"name": st.rig_name, "id": st.rig_id, "instance": st.instance_id, "dir": st.rig_dir,
                 "protocol": st.protocol_version, "uptime_s": round(st.uptime_s, 1), "showing": st.showing,
                 "latency_budget_ms": st.latency_budget_ms, "coordinator_cpu_s": round(st.cpu_s, 3)},
         "nodes": [{
-            "slot": n.slot, "state": STATE_NAMES.get(n.state, "?"), "host": n.hostname, "pid": n.pid,
+            "slot": n.slot, "state": n.state.value, "host": n.hostname, "pid": n.pid,
             "clock_offset_ms": round(n.clock_offset_ms, 3), "drift_ppm": round(n.clock_drift_ppm, 2),
             "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": num(n.clock_error_ms),
             "last_swap_frame": n.last_swap_frame, "last_swap_age_ms": num(n.last_swap_age_ms),
             "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins,
         } for n in st.nodes],
-        "sync": {"frames": st.sync.frames, "skew_p50_ms": num(st.sync.skew_p50_ms), "skew_p99_ms": num(st.sync.skew_p99_ms),
-                 "skew_max_ms": num(st.sync.skew_max_ms), "skew_source": st.sync.skew_source,
-                 "clock_error_p99_ms": num(st.sync.clock_error_p99_ms), "late": st.sync.frames_late,
-                 "dropped": st.sync.frames_dropped, "out_of_order": st.sync.out_of_order},
+        "sync": sync_dict(st.sync),
         "refusals": [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1)} for r in st.refusals],
     }
 
@@ -173,7 +78,7 @@ def read_image(path: str) -> np.ndarray:
     p = Path(path)
     if p.suffix == ".npy":
         return np.load(p, allow_pickle=False)
-    import cv2
+    import cv2  # the coordinator's stack; an operator reading image files has it
 
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
     if img is None:
@@ -242,8 +147,9 @@ async def _show(args) -> int:
     return 0
 
 
-def play_dict(r: control_pb2.PlayReply) -> dict:
-    s = status_dict(control_pb2.RigStatus(sync=r.sync))["sync"]
+def play_dict(r: PlayResult) -> dict:
+    """A played sequence's figures as JSON."""
+    s = sync_dict(r.sync)
     return {"frames_sent": r.frames_sent, "frames_shown": r.frames_shown, "frames_late": r.frames_late,
             "frames_dropped": r.frames_dropped, "nodes": r.nodes, "wall_s": round(r.wall_s, 3),
             "coordinator_cpu_s": round(r.coordinator_cpu_s, 4), "encode_cpu_s": round(r.encode_cpu_s, 4), "sync": s}
@@ -251,11 +157,11 @@ def play_dict(r: control_pb2.PlayReply) -> dict:
 
 async def _play(args) -> int:
     frames: list[np.ndarray] = []
-    st = control_pb2.PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait)
+    st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait)
     if args.compensate:
         return await _play_compensated(args)
     if args.pattern:
-        st.pattern, st.frames = args.pattern, args.frames
+        st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, pattern=args.pattern, frames=args.frames)
     elif args.source:
         files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
         if not files:
@@ -274,8 +180,8 @@ async def _play(args) -> int:
 
 async def _play_compensated(args) -> int:
     """`play --compensate`: the coordinator's compensate_sequence job (progress on stderr)."""
-    from coordinator.compensation.job import encode_image_param
-    from coordinator.jobclient import run_job
+    # only this command needs the compensation package (SciPy, OpenCV); status/show/play stay light
+    from coordinator.compensation.image_param import encode_image_param
 
     if args.pattern or not args.source:
         raise OperatorError("--compensate plays a folder of images (not a generated pattern)")
@@ -294,26 +200,28 @@ async def _play_compensated(args) -> int:
 
 
 async def _configure(args) -> int:
-    req = control_pb2.ConfigureRequest(slot=args.slot, clear_pose=args.clear_pose)
+    h = lut = size = None
     if args.homography:
-        if Path(args.homography).exists():
-            h = np.load(args.homography).astype(np.float64)
-        else:
-            h = np.array([float(v) for v in args.homography.split(",")], dtype=np.float64)
+        try:
+            if Path(args.homography).exists():
+                h = np.load(args.homography).astype(np.float64)
+            else:
+                h = np.array([float(v) for v in args.homography.split(",")], dtype=np.float64)
+        except ValueError:
+            raise OperatorError(f"--homography: not a .npy file nor 9 comma-separated numbers: {args.homography!r}") from None
         if h.size != 9:
             raise OperatorError("a homography needs 9 numbers")
-        req.homography.m.extend(h.ravel().tolist())
     if args.lut:
-        from coordinator.wire import lut_message
-
-        req.lut.CopyFrom(lut_message(np.load(args.lut).astype(np.float32)))
-    if args.gain is not None:
-        req.gain = args.gain
+        lut = np.load(args.lut).astype(np.float32)
     if args.resolution:
-        req.output_width, req.output_height = (int(v) for v in args.resolution.split("x"))
+        try:
+            size = tuple(int(v) for v in args.resolution.lower().split("x"))
+        except ValueError:
+            raise OperatorError(f"--resolution must be WxH, e.g. 1920x1080, got {args.resolution!r}") from None
     async with await open_client(args) as c:
-        r = await c.configure(req)
-    print(f"slot {args.slot} now at revision {r.revision}")
+        revision = await c.configure(args.slot, homography=h, lut=lut, gain=args.gain, size=size,
+                                     clear_pose=args.clear_pose)
+    print(f"slot {args.slot} now at revision {revision}")
     return 0
 
 

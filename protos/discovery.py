@@ -1,4 +1,9 @@
-"""Find coordinators on the local network over mDNS (``_shadowless._tcp.local.``)."""
+"""Find coordinators on the local network over mDNS (``_shadowless._tcp.local.``).
+
+The browsing side of the rig's advertisement (the coordinator advertises, see
+:data:`protos.version.SERVICE_TYPE`). It lives beside the wire definitions so that
+every client of a rig may use it: the node and the operator's tools alike.
+"""
 from __future__ import annotations
 
 import asyncio
@@ -8,10 +13,15 @@ from dataclasses import dataclass
 from zeroconf import InterfaceChoice, IPVersion, ServiceStateChange
 from zeroconf.asyncio import AsyncServiceBrowser, AsyncServiceInfo, AsyncZeroconf
 
-from node.errors import DiscoveryError
 from protos.version import SERVICE_TYPE
 
+__all__ = ["Advertisement", "Discovery", "DiscoveryError"]
+
 log = logging.getLogger(__name__)
+
+
+class DiscoveryError(RuntimeError):
+    """mDNS cannot be used (e.g. no such interface); the message says where it was tried."""
 
 
 @dataclass(frozen=True)
@@ -29,7 +39,10 @@ class Advertisement:
 
 
 class Discovery:
-    """A long-lived mDNS browser; :meth:`find` returns the rigs currently advertised."""
+    """A long-lived mDNS browser; :meth:`find` returns the rigs currently advertised.
+
+    ``interfaces``: IPv4 addresses to browse on (e.g. ``["127.0.0.1"]``); None = every interface.
+    """
 
     def __init__(self, *, interfaces: list[str] | None = None):
         self.interfaces = interfaces

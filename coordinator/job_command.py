@@ -17,12 +17,13 @@ from typing import Callable, TextIO
 
 import grpc
 
-from coordinator.operator import OperatorError, open_client
-from protos import auth, control_pb2
+from coordinator.client import Client, OperatorError, open_client
+from coordinator.jobs.context import Event, Progress
+from protos import auth
 
 
 class ProgressView:
-    """Draws JobProgress events: one bar per (stage, item) on a TTY, throttled lines elsewhere."""
+    """Draws job events: one bar per (stage, item) on a TTY, throttled lines elsewhere."""
 
     def __init__(self, stream: TextIO = sys.stderr, *, width: int = 28):
         self.stream = stream
@@ -39,7 +40,14 @@ class ProgressView:
         full = int(frac * self.width)
         return "[" + "#" * full + "." * (self.width - full) + f"] {done}/{total}"
 
-    def progress(self, p: control_pb2.JobProgress) -> None:
+    def event(self, ev: Event) -> None:
+        """Show a :class:`Progress` event or a log line."""
+        if isinstance(ev, Progress):
+            self.progress(ev)
+        else:
+            self.log(str(ev))
+
+    def progress(self, p: Progress) -> None:
         key = (p.stage, p.item)
         value = "" if math.isnan(p.value) or p.value == 0 else f" {p.value:.6g}"
         line = f"{p.stage}{' ' + p.item if p.item else ''} {self._bar(p.done, p.total)}{value} {p.message}".rstrip()
@@ -68,27 +76,17 @@ class ProgressView:
             self.stream.flush()
 
 
-async def run_job(client, kind: str, params: dict, *, view: ProgressView | None = None) -> dict:
-    """Run job ``kind`` on the coordinator behind ``client``; return its result."""
+async def run_job(client: Client, kind: str, params: dict, *, view: ProgressView | None = None) -> dict:
+    """Run job ``kind`` on the coordinator behind ``client``, drawing its progress; its result."""
     view = view or ProgressView()
-    result: dict = {}
     try:
-        call = client.stub.RunJob(control_pb2.JobRequest(kind=kind, params_json=json.dumps(params)), metadata=client.md)
-        async for ev in call:
-            which = ev.WhichOneof("event")
-            if which == "progress":
-                view.progress(ev.progress)
-            elif which == "log":
-                view.log(ev.log)
-            elif which == "result_json":
-                result = json.loads(ev.result_json)
+        return await client.run_job(kind, params, on_event=view.event)
     finally:
         view.close()
-    return result
 
 
 def run_job_command(args, kind: str, params: dict, *, report: Callable[[dict], str] | None = None) -> int:
-    """The body of a job command: run, print the result (``--json`` or ``report``), exit code."""
+    """The body of a job command: run, print the result (``--json`` or ``report``); the exit code."""
 
     async def go() -> dict:
         async with await open_client(args) as c:

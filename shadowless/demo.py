@@ -26,7 +26,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from coordinator.local import LocalRig, free_port
+from bench.room import drop_statistics
+from coordinator.compensation.image_param import encode_image_param
+from coordinator.job_command import ProgressView, run_job
+from protos.spaces import content_to_table
+from shadowless.local import LocalRig, free_port
+from sim.client import RoomClient
+from sim.occluders import Hand
+from sim.scene import SUBSETS
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -48,13 +55,6 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def _say(msg: str) -> None:
     print(f"[demo {time.strftime('%H:%M:%S')}] {msg}", flush=True)
-
-
-def content_to_table(size: tuple[int, int], table_mm=(1200.0, 600.0)) -> np.ndarray:
-    """(3, 3): content px -> table mm; content spans the table, x along +x, rows along -y."""
-    w, h = size
-    tw, th = table_mm
-    return np.array([[tw / w, 0.0, tw / (2 * w) - tw / 2], [0.0, -th / h, th / 2 - th / (2 * h)], [0.0, 0.0, 1.0]])
 
 
 def table_region(camera_p: np.ndarray, cam_size: tuple[int, int], table_mm=(1200.0, 600.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -142,11 +142,6 @@ def _heat(drop: np.ndarray, on: np.ndarray) -> np.ndarray:
 
 
 async def _demo(args) -> int:
-    from coordinator.jobclient import ProgressView, run_job
-    from protos import control_pb2
-    from sim.client import RoomClient
-    from sim.occluders import Hand
-    from sim.scene import SUBSETS
 
     t_start = time.monotonic()
     out = Path(args.out)
@@ -188,13 +183,11 @@ async def _demo(args) -> int:
                 t0 = time.monotonic()
                 if args.poses == "truth":
                     _say("NOTE: poses are taken from the room's ground truth, not calibrated (--poses truth)")
-                    c2t = content_to_table((cw, ch))
+                    c2t = content_to_table((cw, ch), (1200.0, 600.0))
                     for slot in slots:
                         p = np.array(room.projector_truth(slot).p).reshape(3, 4)
                         h = p[:, [0, 1, 3]] @ c2t
-                        req = control_pb2.ConfigureRequest(slot=slot)
-                        req.homography.m.extend((h / h[2, 2]).ravel().tolist())
-                        await c.configure(req)
+                        await c.configure(slot, homography=h / h[2, 2])
                     if args.compensate:   # compensation needs the table -> camera mapping (no projector patterns)
                         await run_job(c, "calibrate", {"table_only": True, "table_points": table_points(cam_p)})
                 else:
@@ -218,8 +211,6 @@ async def _demo(args) -> int:
                     return cap.image
 
                 on, px_area = table_region(cam_p, cam_size)
-                from bench.room import drop_statistics
-
                 shots, drops = {}, {}
                 for name in ("P1", "P25"):
                     room.set_active(SUBSETS[name])
@@ -278,9 +269,6 @@ async def _demo(args) -> int:
 
 async def _compensate(c, img: np.ndarray, work: Path, slots: list[str]) -> dict:
     """Blur compensation of the 25-projector rig: responses, summed light transport, one solve, evaluated."""
-    from coordinator.compensation.job import encode_image_param
-    from coordinator.jobclient import ProgressView, run_job
-
     t0 = time.monotonic()
     view = ProgressView(sys.stdout)
     _say(f"blur compensation of {len(slots)} projectors: luminance responses (grey patches, one projector at a time)")

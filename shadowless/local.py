@@ -19,9 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.operator import Client, play_dict, status_dict
+from coordinator.api import NodeState, PlaySettings, RigStatus
+from coordinator.client import Client
+from coordinator.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
-from protos import auth, control_pb2
+from protos import auth
 
 
 def free_port() -> int:
@@ -193,13 +195,13 @@ class LocalRig:
         asyncio.run(go())
 
     async def wait_live(self, client: Client, slots: list[str] | None = None, *, timeout: float = 120.0,
-                        min_joins: dict[str, int] | None = None) -> control_pb2.RigStatus:
+                        min_joins: dict[str, int] | None = None) -> RigStatus:
         """Wait until every slot in ``slots`` is live (and has joined at least ``min_joins`` times)."""
         want = set(self.slots if slots is None else slots)
         deadline = time.monotonic() + timeout
         while True:
             st = await client.status()
-            live = {n.slot for n in st.nodes if n.state == control_pb2.NODE_STATE_LIVE
+            live = {n.slot for n in st.nodes if n.state == NodeState.LIVE
                     and n.joins >= (min_joins or {}).get(n.slot, 0)}
             if want <= live:
                 return st
@@ -257,13 +259,11 @@ async def _local(args) -> int:
         print(f"rig {rig.rig_name}: coordinator on 127.0.0.1:{rig.port}, {len(slots)} nodes; logs in {rig.log_dir}", file=sys.stderr)
         async with await rig.client() as c:
             await rig.wait_live(c)
-            from coordinator.operator import read_image
-
             img = read_image(args.image) if args.image else card_image(w, h)
             await c.show(img, name=args.image or "test card")
             await asyncio.sleep(1.0)
             frames = max(1, int(args.fps * args.seconds))
-            reply = await c.play(control_pb2.PlaySettings(fps=args.fps, pattern="counter", frames=frames, wait=True))
+            reply = await c.play(PlaySettings(fps=args.fps, pattern="counter", frames=frames, wait=True))
             status = status_dict(await c.status())
     result = {"nodes": len(slots), "fps": args.fps, **play_dict(reply), "node_table": status["nodes"],
               "workdir": str(workdir)}

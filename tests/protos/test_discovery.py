@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import asyncio
 
-from coordinator.local import LocalRig
-from node.discovery import Discovery
+from shadowless.local import LocalRig
+from protos.discovery import Discovery
 from protos.version import PROTOCOL_VERSION
 
 

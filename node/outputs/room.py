@@ -7,6 +7,9 @@ and a background thread streams it to the room (``Room.Display``) with its swap
 instants. The presenter is never held up: the queue is bounded and, if the room
 is slow or away, the oldest frames are dropped and counted. The stream is
 reopened whenever the room restarts.
+
+This output is a gRPC client of the room's service, so it is one of the node's
+three modules that use protobuf messages (with :mod:`node.wire` and :mod:`node.link`).
 """
 from __future__ import annotations
 
@@ -17,9 +20,21 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import grpc
 import numpy as np
 
-from node.outputs import Output, OutputError, SwapInfo, _check_slot, headless_context, wants_snapshot, write_snapshot
+from node.outputs.base import (
+    Output,
+    OutputError,
+    SwapInfo,
+    check_slot,
+    headless_context,
+    parse_room_spec,
+    wants_snapshot,
+    write_snapshot,
+)
+from protos import codec, room_pb2, room_pb2_grpc
+from protos.version import GRPC_OPTIONS
 
 if TYPE_CHECKING:  # pragma: no cover
     import moderngl
@@ -28,15 +43,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-
-def parse_room_spec(spec: str) -> str:
-    """``room://HOST:PORT`` (or ``HOST:PORT``) -> ``HOST:PORT``; OutputError if malformed."""
-    text = spec.strip()
-    address = text[len("room://") :] if text.startswith("room://") else text
-    host, sep, port = address.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise OutputError(f"output {spec!r}: expected room://HOST:PORT, e.g. room://127.0.0.1:50070")
-    return address
+__all__ = ["RoomOutput", "parse_room_spec"]
 
 
 class RoomOutput(Output):
@@ -59,7 +66,7 @@ class RoomOutput(Output):
     kind = "room"
 
     def __init__(self, spec: str, *, slot: str, snapshot_dir: Path | None = None, queue_size: int = 4, connect_timeout: float = 10.0) -> None:
-        self.slot = _check_slot(slot)
+        self.slot = check_slot(slot)
         self.address = parse_room_spec(spec)
         self.snapshot_dir = Path(snapshot_dir) if snapshot_dir is not None else None
         self.connect_timeout = connect_timeout
@@ -84,11 +91,6 @@ class RoomOutput(Output):
 
     def _ensure_channel(self):
         if self._stub is None:
-            import grpc
-
-            from protos import room_pb2_grpc
-            from protos.version import GRPC_OPTIONS
-
             options = [*GRPC_OPTIONS, ("grpc.initial_reconnect_backoff_ms", 100), ("grpc.max_reconnect_backoff_ms", 1000)]
             self._channel = grpc.insecure_channel(self.address, options=options)
             self._stub = room_pb2_grpc.RoomStub(self._channel)
@@ -103,10 +105,6 @@ class RoomOutput(Output):
 
     def native_size(self) -> tuple[int, int]:
         """The room's resolution for this slot (asks the room; retries while it starts up)."""
-        import grpc
-
-        from protos import room_pb2
-
         stub = self._ensure_channel()
         deadline = time.monotonic() + self.connect_timeout
         while True:
@@ -180,8 +178,6 @@ class RoomOutput(Output):
         self._thread.start()
 
     def _messages(self, done: threading.Event):
-        from protos import codec, room_pb2
-
         while True:
             with self._cond:
                 while not self._queue and not self._stop and not done.is_set():
@@ -203,8 +199,6 @@ class RoomOutput(Output):
             yield msg
 
     def _run(self) -> None:
-        import grpc
-
         backoff = 0.1
         while True:
             with self._cond:

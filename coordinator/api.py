@@ -1,0 +1,142 @@
+"""The plain types the coordinator speaks to its callers: the operator client, jobs,
+commands and benchmarks. Only ``coordinator/wire.py`` turns them into messages.
+
+Every figure is a float or int; NaN means "not measured" (e.g. a clock error for a node on
+another host). :func:`dataclasses.asdict` gives their JSON form.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+
+class NodeState(str, Enum):
+    """Where a slot's node is in its life."""
+
+    EXPECTED = "expected"   # a slot in the rig with no node yet
+    JOINED = "joined"       # authenticated, streams opening
+    LIVE = "live"           # reports arriving
+    LOST = "lost"           # was live, reports stopped
+
+
+class Space(str, Enum):
+    """What a frame's pixels are."""
+
+    CONTENT = "content"       # the shared image; each node warps it through its pose
+    PROJECTOR = "projector"   # already in one projector's pixels (calibration patterns)
+
+
+class DropReason(str, Enum):
+    """Why a node did not show a frame."""
+
+    LATE = "late"                      # arrived or rendered after its presentation time
+    SUPERSEDED = "superseded"          # a newer frame was due first
+    MISSING_CONTENT = "missing content"
+    UNRENDERABLE = "unrenderable"      # e.g. content of the wrong size for the pose
+    OTHER = "other"
+
+
+@dataclass(frozen=True)
+class SyncSummary:
+    """Swap figures over a set of frames (see :func:`coordinator.sync.summarize`)."""
+
+    frames: int = 0                       # frames swapped by every node expected to
+    skew_p50_ms: float = math.nan
+    skew_p99_ms: float = math.nan
+    skew_max_ms: float = math.nan
+    skew_source: str = ""                 # "host-clock" (same host: the truth), "estimates" or ""
+    clock_error_p99_ms: float = math.nan  # NaN unless nodes share the coordinator's host
+    frames_late: int = 0
+    frames_dropped: int = 0
+    out_of_order: int = 0
+
+
+@dataclass(frozen=True)
+class PlaySettings:
+    """How to play a sequence."""
+
+    fps: float = 30.0
+    loops: int = 0                 # 0 = once
+    wait: bool = True              # return when playback ends, with its figures
+    pattern: str = ""              # "counter": generated on the coordinator; "": the given frames
+    frames: int = 0                # with a pattern: how many (0: 5 s worth)
+    latency_ms: float = 0.0        # 0: the coordinator's budget
+    settle_s: float = 0.0          # extra wait for the last swap reports (0: 1 s)
+
+
+@dataclass(frozen=True)
+class PlayResult:
+    """What a played sequence did. ``frames_shown`` counts frames every live node swapped in."""
+
+    frames_sent: int = 0
+    frames_shown: int = 0
+    frames_late: int = 0
+    frames_dropped: int = 0
+    nodes: int = 0
+    wall_s: float = 0.0
+    coordinator_cpu_s: float = 0.0
+    encode_cpu_s: float = 0.0
+    skews_ms: tuple[float, ...] = ()          # per frame, in frame order
+    clock_errors_ms: tuple[float, ...] = ()
+    sync: SyncSummary = field(default_factory=SyncSummary)
+
+
+@dataclass(frozen=True)
+class NodeStatus:
+    """One slot of the rig and its node, as the coordinator sees it."""
+
+    slot: str
+    state: NodeState = NodeState.EXPECTED
+    hostname: str = ""
+    pid: int = 0
+    clock_offset_ms: float = 0.0
+    clock_drift_ppm: float = 0.0
+    clock_rtt_ms: float = 0.0
+    clock_error_ms: float = math.nan
+    last_swap_frame: int = 0
+    last_swap_age_ms: float = math.nan
+    last_seen_age_ms: float = 0.0
+    frames_shown: int = 0
+    frames_late: int = 0
+    frames_dropped: int = 0
+    assignment_revision: int = 0
+    pose_kind: str = "none"       # "homography", "projection" or "none"
+    joins: int = 0
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """A join or call the coordinator refused, and why."""
+
+    peer: str
+    slot: str
+    reason: str
+    age_s: float
+
+
+@dataclass(frozen=True)
+class RigStatus:
+    """The whole rig at one instant."""
+
+    rig_id: str
+    rig_name: str
+    instance_id: str = ""
+    rig_dir: str = ""
+    protocol_version: int = 0
+    uptime_s: float = 0.0
+    showing: str = ""
+    latency_budget_ms: float = 0.0
+    cpu_s: float = 0.0
+    nodes: tuple[NodeStatus, ...] = ()
+    sync: SyncSummary = field(default_factory=SyncSummary)
+    refusals: tuple[Refusal, ...] = ()
+
+
+@dataclass(frozen=True)
+class ShowResult:
+    """A still sent to every node."""
+
+    frame_id: int
+    content_id: str
+    pts_ns: int

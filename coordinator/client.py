@@ -1,0 +1,155 @@
+"""The operator's client of a running coordinator (RigControl over gRPC).
+
+It proves knowledge of the rig token (the same handshake the nodes use), then speaks the
+plain types of :mod:`coordinator.api`: callers never see a protobuf message.
+
+    async with await Client.connect("127.0.0.1:7600", token) as c:
+        status = await c.status()          # a RigStatus dataclass
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Callable, Sequence
+
+import grpc
+import numpy as np
+
+from coordinator import wire
+from coordinator.api import PlayResult, PlaySettings, RigStatus, ShowResult, Space
+from coordinator.errors import CoordinatorError
+from coordinator.jobs.context import Event
+from protos import auth, codec, common_pb2, control_pb2, control_pb2_grpc
+from protos.discovery import Discovery
+from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
+
+
+class OperatorError(CoordinatorError):
+    """The operator's command cannot go on: no token, no coordinator found, a refused call."""
+
+
+def add_connection_args(p: argparse.ArgumentParser) -> None:
+    """The options every operator command shares: which coordinator, and its token."""
+    g = p.add_argument_group("which coordinator")
+    g.add_argument("--coordinator", metavar="HOST:PORT", help="address of the coordinator (default: find it over mDNS)")
+    g.add_argument("--rig-dir", metavar="DIR", help="a rig directory on this machine: its token is used")
+    g.add_argument("--rig", metavar="NAME", help="with mDNS: the rig's name or id")
+    g.add_argument("--token-file", metavar="FILE", help="rig token (default: $SHADOWLESS_TOKEN_FILE or RIG_DIR/token)")
+    g.add_argument("--mdns-interface", action="append", metavar="IP", help="browse mDNS on this IPv4 address only")
+    g.add_argument("--tls-ca", metavar="PEM", help="use TLS, trusting this CA certificate")
+    g.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
+
+
+class Client:
+    """An authenticated RigControl client. ``async with await Client.connect(...) as c: await c.status()``."""
+
+    def __init__(self, channel: grpc.aio.Channel, stub: control_pb2_grpc.RigControlStub, session: str):
+        self.channel, self.stub, self.session = channel, stub, session
+        self.md = ((SESSION_KEY, session),)
+
+    @classmethod
+    async def connect(cls, target: str, token: bytes, *, tls_ca: bytes | None = None,
+                      tls_server_name: str | None = None) -> "Client":
+        options = list(GRPC_OPTIONS)
+        if tls_ca is not None:
+            if tls_server_name:
+                options.append(("grpc.ssl_target_name_override", tls_server_name))
+            channel = grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(tls_ca), options=options)
+        else:
+            channel = grpc.aio.insecure_channel(target, options=options)
+        stub = control_pb2_grpc.RigControlStub(channel)
+        try:
+            cn = auth.new_nonce()
+            hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=cn,
+                                                             role="operator"), timeout=10)
+            if not auth.verify(auth.coordinator_proof(token, hello.rig_id, cn, hello.server_nonce), hello.server_proof):
+                raise OperatorError(f"the coordinator at {target} could not prove it knows the rig token "
+                                    "(wrong token file?)")
+            proof = auth.client_proof(token, "operator", hello.rig_id, "", cn, hello.server_nonce)
+            reply = await stub.Login(common_pb2.LoginRequest(protocol_version=PROTOCOL_VERSION, role="operator",
+                                                             client_nonce=cn, server_nonce=hello.server_nonce,
+                                                             client_proof=proof), timeout=10)
+        except grpc.aio.AioRpcError as exc:
+            await channel.close()
+            raise OperatorError(f"coordinator at {target}: {exc.details() or exc.code().name}") from exc
+        except BaseException:
+            await channel.close()
+            raise
+        return cls(channel, stub, reply.session)
+
+    async def __aenter__(self) -> "Client":
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    async def close(self) -> None:
+        await self.channel.close()
+
+    async def status(self) -> RigStatus:
+        return wire.status_from_message(await self.stub.Status(control_pb2.StatusRequest(), metadata=self.md, timeout=10))
+
+    async def show(self, image: np.ndarray, *, name: str = "", persist: bool = False, space: Space = Space.CONTENT,
+                   apply_lut: bool = True) -> ShowResult:
+        req = wire.show_request(image, name=name, persist=persist, space=space, apply_lut=apply_lut)
+        return wire.show_result_from_message(await self.stub.Show(req, metadata=self.md, timeout=60))
+
+    async def play(self, settings: PlaySettings, frames: Sequence[np.ndarray] = ()) -> PlayResult:
+        """Play ``frames`` (or the settings' pattern); with ``settings.wait`` the figures once played."""
+        async def items():
+            yield control_pb2.PlayItem(settings=wire.play_settings_message(settings))
+            for f in frames:
+                yield control_pb2.PlayItem(frame=codec.encode_image(f, compress=True))
+
+        return wire.play_result_from_message(await self.stub.Play(items(), metadata=self.md))
+
+    async def stop(self) -> None:
+        await self.stub.Stop(control_pb2.StopRequest(), metadata=self.md, timeout=10)
+
+    async def configure(self, slot: str, *, homography: np.ndarray | None = None, lut: np.ndarray | None = None,
+                        gain: float | None = None, size: tuple[int, int] | None = None,
+                        clear_pose: bool = False) -> int:
+        """Set a slot's pose/LUT/gain/size by hand; returns the slot's new revision."""
+        req = wire.configure_request(slot, homography=homography, lut=lut, gain=gain, size=size, clear_pose=clear_pose)
+        return (await self.stub.Configure(req, metadata=self.md, timeout=10)).revision
+
+    async def run_job(self, kind: str, params: dict, *, on_event: Callable[[Event], None] | None = None) -> dict:
+        """Run job ``kind`` on the coordinator; progress and log lines go to ``on_event``; its result."""
+        result: dict = {}
+        call = self.stub.RunJob(wire.job_request(kind, params), metadata=self.md)
+        async for msg in call:
+            ev = wire.job_event_from_message(msg)
+            if isinstance(ev, dict):
+                result = ev
+            elif on_event is not None:
+                on_event(ev)
+        return result
+
+
+async def find_coordinator(*, rig: str | None, interfaces: list[str] | None, timeout: float = 3.0) -> str:
+    """The ``host:port`` of the one coordinator advertised over mDNS (of rig ``rig`` when given)."""
+    disc = Discovery(interfaces=interfaces)
+    await disc.start()
+    try:
+        ads = await disc.find(rig=rig, timeout=timeout)
+    finally:
+        await disc.close()
+    if not ads:
+        raise OperatorError("no coordinator found over mDNS; pass --coordinator HOST:PORT")
+    if len({a.rig_id for a in ads}) > 1:
+        raise OperatorError("several rigs found: " + ", ".join(a.name for a in ads) + "; pick one with --rig")
+    return ads[0].target
+
+
+async def open_client(args: argparse.Namespace) -> Client:
+    """A client from the connection options of :func:`add_connection_args`."""
+    token_file = args.token_file or os.environ.get("SHADOWLESS_TOKEN_FILE")
+    if not token_file and args.rig_dir:
+        token_file = str(Path(args.rig_dir) / "token")
+    if not token_file:
+        raise OperatorError("no rig token: pass --rig-dir DIR, --token-file FILE or set SHADOWLESS_TOKEN_FILE")
+    token = auth.read_token(token_file)
+    target = args.coordinator or await find_coordinator(rig=args.rig, interfaces=args.mdns_interface)
+    tls_ca = Path(args.tls_ca).read_bytes() if getattr(args, "tls_ca", None) else None
+    return await Client.connect(target, token, tls_ca=tls_ca, tls_server_name=getattr(args, "tls_server_name", None))

@@ -1,0 +1,91 @@
+"""Light transport recovered while the captures are still being taken.
+
+:func:`~coordinator.compensation.transport.transport_from_captures` consumes an iterator of
+captures; the job takes them on its event loop. :func:`transport_while_capturing` runs the
+recovery on a worker thread fed through a bounded :class:`CaptureFeed`, so each capture is
+used and dropped as it arrives (memory stays at a few captures whatever the dot grid) and
+the recovery overlaps the next pattern's capture.
+"""
+from __future__ import annotations
+
+import asyncio
+import queue
+from collections.abc import AsyncIterator, Iterator
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.transport import transport_from_captures
+from coordinator.jobs.errors import JobError
+
+__all__ = ["CaptureFeed", "transport_while_capturing"]
+
+
+class CaptureFeed:
+    """A blocking iterator over captures, fed from the job's loop and consumed on a worker thread."""
+
+    _END = object()
+
+    def __init__(self, size: int = 4) -> None:
+        self._q: queue.Queue = queue.Queue(maxsize=size)
+        self._error: BaseException | None = None
+
+    def offer(self, item: object) -> bool:
+        """Queue ``item`` if there is room (the queue is bounded: the consumer sets the pace)."""
+        try:
+            self._q.put_nowait(item)
+            return True
+        except queue.Full:
+            return False
+
+    def offer_end(self) -> bool:
+        """Queue the end of the captures if there is room."""
+        return self.offer(self._END)
+
+    def abort(self, exc: BaseException) -> None:
+        """Stop the consumer: it raises :class:`CompensationError` naming ``exc``."""
+        self._error = exc
+        try:
+            while True:
+                self._q.get_nowait()
+        except queue.Empty:
+            pass
+        self._q.put(self._END)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        while True:
+            item = self._q.get()
+            if item is self._END:
+                if self._error is not None:
+                    raise CompensationError(f"captures stopped: {self._error}")
+                return
+            yield item
+
+
+async def transport_while_capturing(ctx: Any, captures: AsyncIterator[np.ndarray], black: np.ndarray,
+                                    **options: Any) -> sp.csr_matrix:
+    """:func:`transport_from_captures` on a worker thread (``ctx.compute``) while ``captures`` are taken.
+
+    ``options`` are those of :func:`transport_from_captures` (``grid``, ``homography``,
+    ``radius``, ...). A capture count or shape the dot grid does not accept raises
+    :class:`JobError`; an error while capturing stops the recovery and propagates.
+    """
+    feed = CaptureFeed()
+    task = asyncio.ensure_future(ctx.compute(transport_from_captures, feed, black, **options))
+    try:
+        async for img in captures:
+            while not task.done() and not feed.offer(img):
+                await asyncio.sleep(0.005)
+            if task.done():
+                break
+        while not task.done() and not feed.offer_end():
+            await asyncio.sleep(0.005)
+        return await task
+    except BaseException as exc:
+        feed.abort(exc)
+        await asyncio.gather(task, return_exceptions=True)
+        if isinstance(exc, ValueError):
+            raise JobError(f"light transport: {exc}") from exc
+        raise

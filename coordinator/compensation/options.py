@@ -1,0 +1,187 @@
+"""The options of the four blur-compensation jobs, each defined once: the dataclass the job
+receives, its validation, its command-line flag and its documentation all come from the
+field (:mod:`coordinator.jobs.options`).
+
+Only the standard library and :mod:`coordinator.jobs.options` are imported here, so the
+commands that build their flags from these classes start quickly.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from coordinator.jobs.errors import JobError
+from coordinator.jobs.options import option
+
+__all__ = ["ResponseOptions", "TransportOptions", "CompensateOptions", "SequenceOptions", "METHODS"]
+
+#: the solver's methods (as :data:`coordinator.compensation.solver.METHODS`, without importing SciPy)
+METHODS = ("apg", "steepest", "lbfgsb")
+#: default ridge weight of the solves, relative to ||L||^2 (:data:`coordinator.compensation.ridge.DEFAULT_REGULARIZATION`)
+REGULARIZATION = 0.02
+
+CAMERA = "camera and captures"
+MEASURE = "what to measure"
+TRANSPORT = "light transport"
+SOLVE = "solve"
+EVALUATION = "evaluation"
+
+
+def _reference(value: Any) -> str | float:
+    if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+        raise JobError("reference must be a slot name or a luminance (camera units above black)")
+    if isinstance(value, str):
+        return value
+    if not (math.isfinite(value) and value > 0):
+        raise JobError("a reference luminance must be positive")
+    return float(value)
+
+
+def _reference_text(text: str) -> str | float:
+    """``--reference``: a number is a luminance, anything else a slot name."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _image(value: Any) -> dict:
+    if not isinstance(value, dict) or not isinstance(value.get("data"), str):
+        raise JobError("image parameter must be {\"name\": ..., \"data\": base64}")
+    return value
+
+
+def _images(value: Any) -> list[dict]:
+    if not isinstance(value, list) or not value:
+        raise JobError("frames must be a non-empty list of images")
+    return [_image(v) for v in value]
+
+
+@dataclass(frozen=True, kw_only=True)
+class _CaptureOptions:
+    camera: int = option(0, lo=0, hi=64, flag="--camera-index", metavar="I", group=CAMERA,
+                         help="which calibrated camera to use")
+    settle_s: float = option(0.05, lo=0.0, hi=30.0, flag="--settle", metavar="S", group=CAMERA,
+                             help="wait after every swap before capturing, seconds")
+    force: bool = option(False, help="measure again instead of reusing stored results")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ResponseOptions(_CaptureOptions):
+    """Each projector's luminance response, its inverse LUT, the rig's brightness match and a linearity check."""
+
+    slots: list[str] | None = option(None, group=MEASURE, help="only these projectors (default: every connected one)")
+    mode: str = option("patches", choices=("patches", "full"), group=MEASURE,
+                       help="patches: several grey levels per capture (needs the calibration); full: one uniform "
+                            "level per capture")
+    levels: int = option(17, lo=3, hi=256, metavar="K", group=MEASURE, help="grey levels from 0 to 1")
+    grid: tuple[int, int] = option((4, 4), lo=1, hi=16, metavar="RxC", group=MEASURE, help="patches per frame")
+    repeats: int = option(2, lo=1, hi=8, metavar="N", group=MEASURE, help="positions each grey level is shown at")
+    reference: str | float | None = option(
+        None, parse=_reference, cli_type=_reference_text, metavar="SLOT|LUMINANCE", group=MEASURE,
+        help="match the rig's white to this projector's (measured) or to a camera luminance above black "
+             "(default: gains 1, the headroom over the dimmest projector reported)")
+    lut_entries: int = option(1024, lo=1024, hi=65536, metavar="E", group=MEASURE, help="LUT entries")
+    frames: int = option(1, lo=1, hi=64, metavar="F", group=CAMERA,
+                         help="captures averaged per pattern (raise it when a projector alone is dim in the camera: "
+                              "its fitted curve carries the camera's noise)")
+    verify_levels: int = option(6, lo=3, hi=64, metavar="K", group=MEASURE,
+                                help="linear levels shown through the LUTs to check linearity")
+    tolerance: float = option(0.01, lo=1e-4, hi=0.5, metavar="T", group=MEASURE,
+                              help="largest deviation from a straight line, fraction of full scale")
+    seed: int = option(0, lo=0, hi=2**31, metavar="N", group=MEASURE, help="seed of the patch layout")
+    keep_going: bool = option(True, help="measure the other projectors when one fails")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TransportOptions(_CaptureOptions):
+    """The rig's light transport ``L`` from dot-grid captures, every projector at once (+ the baseline's ``L_i``)."""
+
+    slots: list[str] | None = option(None, help="projectors that must take part (default: every connected one with "
+                                                "a pose)")
+    radius: int | None = option(None, lo=1, hi=16, metavar="R", group=TRANSPORT,
+                                help="PSF recovery radius in camera pixels (default: from the geometry)")
+    spacing: int | None = option(None, lo=2, hi=64, metavar="S", group=TRANSPORT,
+                                 help="dot-grid spacing in content pixels (default: the smallest that separates the "
+                                      "windows; S*S captures)")
+    frames: int | None = option(None, lo=1, hi=256, metavar="F", group=TRANSPORT,
+                                help="captures averaged per pattern (default 1)")
+    baseline: bool = option(False, help="also measure each projector's L_i, one at a time (N times the captures)")
+    baseline_frames: int | None = option(None, lo=1, hi=4096, metavar="F", group=TRANSPORT,
+                                         help="captures averaged per pattern for the per-projector baseline "
+                                              "(default: frames)")
+    baseline_exposure: float = option(1.0, lo=1e-3, hi=1e4, metavar="X", group=TRANSPORT,
+                                      help="camera exposure of the baseline's captures relative to the camera's own "
+                                           "(cameras that can set it; e.g. N, as one projector gives 1/N of the light)")
+
+    @property
+    def frame_count(self) -> int:
+        """Captures averaged per dot pattern."""
+        return self.frames or 1
+
+    @property
+    def baseline_frame_count(self) -> int:
+        """Captures averaged per dot pattern of the baseline."""
+        return self.baseline_frames or self.frame_count
+
+    @property
+    def given(self) -> dict[str, int]:
+        """The measurement options the caller set (radius, spacing, frames): a stored ``L`` must match only these."""
+        return {k: getattr(self, k) for k in ("radius", "spacing", "frames") if getattr(self, k) is not None}
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompensateOptions(TransportOptions):
+    """One bounded least-squares solve for an image; the result stored as the rig's content and shown."""
+
+    image: dict | None = option(None, parse=_image, cli=False,
+                                help="the image: {\"name\", \"data\"} with the file's bytes, zlib + base64 "
+                                     "(coordinator.compensation.image_param.encode_image_param)")
+    image_path: str | None = option(None, cli=False, help="an image file on the coordinator's machine, instead of image")
+    srgb: bool = option(False, group=SOLVE, help="the image is sRGB-encoded (default: values are linear luminance, as "
+                                                "`shadowless show` shows them)")
+    level: float = option(0.9, lo=0.01, hi=1.0, metavar="F", group=SOLVE,
+                          help="target white as a fraction of the rig's white (2nd percentile over the content); with "
+                               "--baseline at most what the dimmest projector's share allows")
+    max_iter: int = option(300, lo=1, hi=100_000, metavar="N", group=SOLVE, help="iteration budget")
+    tol: float = option(1e-5, lo=0.0, hi=1.0, metavar="T", group=SOLVE, help="relative objective decrease that stops")
+    method: str = option("apg", choices=METHODS, group=SOLVE, help="solver")
+    regularization: float = option(REGULARIZATION, lo=0.0, hi=100.0, metavar="MU", group=SOLVE,
+                                   help="ridge weight towards the uncompensated image, relative to ||L||^2 (0 fits the "
+                                        "measured L exactly, noise included)")
+    persist: bool = option(True, flag="--show", group=SOLVE,
+                           help="make the result the rig's content and show it (--no-show: solve and store figures "
+                                "only)")
+    measure: bool = option(True, group=SOLVE, help="measure L when no valid one is stored (--no-measure: fail instead)")
+    evaluate: bool = option(False, group=EVALUATION,
+                            help="capture none / ours (/ baseline): PSNR, SSIM, compensation/quality.png in the rig "
+                                 "directory")
+    baseline: bool = option(False, group=EVALUATION,
+                            help="also solve and show the per-projector baseline (its L_i are measured when missing: "
+                                 "N times the captures)")
+    eval_frames: int = option(4, lo=1, hi=256, metavar="F", group=EVALUATION,
+                              help="captures averaged per evaluated result")
+
+    def validate(self) -> None:
+        if self.image is None and not self.image_path:
+            raise JobError("give an image (the `image` parameter, or `image_path` on the coordinator's machine)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SequenceOptions:
+    """Frames compensated one after the other (warm starts), then played in sync."""
+
+    frames: list = option(parse=_images, cli=False,
+                          help="the images, in order ({\"name\", \"data\"} each, as CompensateOptions.image)")
+    iterations: int = option(4, lo=1, hi=10_000, metavar="N", help="APG iterations per frame after the first")
+    first_iterations: int = option(60, lo=1, hi=100_000, metavar="N", help="APG iterations of the first frame")
+    level: float = option(0.9, lo=0.01, hi=1.0, metavar="F", help="target white, as CompensateOptions.level")
+    srgb: bool = option(False, help="the frames are sRGB-encoded")
+    regularization: float = option(REGULARIZATION, lo=0.0, hi=100.0, metavar="MU",
+                                   help="ridge weight, as CompensateOptions.regularization")
+    fps: float = option(30.0, lo=0.1, hi=1000.0, metavar="FPS", help="playback rate")
+    loops: int = option(0, lo=0, hi=10_000, metavar="N", help="extra loops of the playback")
+    play: bool = option(True, help="play the compensated frames (--no-play: only compensate)")
+    measure: bool = option(False, help="measure L when no valid one is stored (default: run `shadowless transport`)")
+    camera: int = option(0, lo=0, hi=64, metavar="I", help="which calibrated camera L was measured with")

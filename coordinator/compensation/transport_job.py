@@ -1,0 +1,208 @@
+"""The ``transport`` job: the rig's light transport ``L`` from dot-grid captures.
+
+``S*S`` dot-grid captures with every projector showing the same content pattern through its
+pose (plus one black capture) give the summed light transport ``L`` (camera pixels x content
+pixels), stored in ``compensation/transport.npz``. The PSF radius follows the geometry
+(:func:`~coordinator.compensation.geometry.psf_radius`) and the spacing is the smallest that
+keeps the dots' windows apart (:func:`~coordinator.compensation.geometry.choose_spacing`); a
+measured ``L`` whose windows cut light is reported
+(:func:`~coordinator.compensation.geometry.edge_energy`). With ``baseline``, each projector's
+``L_i`` is measured too, one projector at a time (``N*S*S`` captures), for the conventional
+method only.
+
+A stored ``L`` is reused while the rig is as it was measured (poses, LUTs, gains, content
+size, camera, table mapping) and its dot grid matches whatever radius, spacing or frames the
+caller sets; ``force`` measures again. :func:`ensure_transport` and :func:`ensure_baseline`
+are what the ``compensate`` and ``compensate_sequence`` jobs use too.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from coordinator.compensation.capture_feed import transport_while_capturing
+from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.geometry import (
+    EDGE_WARNING,
+    choose_spacing,
+    edge_energy,
+    inscribed_region,
+    psf_radius,
+    row_white,
+)
+from coordinator.compensation.jobkit import content_size, rig_geometry, rounded
+from coordinator.compensation.options import TransportOptions
+from coordinator.compensation.store import (
+    StoredTransport,
+    baseline_fingerprint,
+    load_baseline_transport,
+    load_valid_transport,
+    rig_state_fingerprint,
+    save_baseline_transport,
+    save_measured_transport,
+    transport_fingerprint,
+    transport_summary,
+)
+from coordinator.compensation.transport import DotGrid
+from coordinator.jobs import JobContext, JobError
+from protos.spaces import warp_content
+
+__all__ = ["OPTIONS", "run", "ensure_transport", "ensure_baseline", "baseline_exposure"]
+
+OPTIONS = TransportOptions
+
+
+async def run(ctx: JobContext, opts: TransportOptions) -> dict:
+    """Measure (or reuse) ``L``, and with ``baseline`` each projector's ``L_i``; their figures."""
+    t0 = time.monotonic()
+    slots = ctx.select_slots(opts.slots, need_pose=True, planar=True)
+    if opts.baseline:
+        baseline_exposure(ctx, opts)  # refused before any capture
+    tr = await ensure_transport(ctx, opts, slots)
+    white = row_white(tr.L, tr.camera_shape)
+    rows, cols = inscribed_region(tr.H, content_size(ctx), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)
+    region = white[rows, cols]
+    summary = {**transport_summary(tr), "white": {"p2": rounded(float(np.percentile(region, 2)), 5),
+                                                  "median": rounded(float(np.median(region)), 5),
+                                                  "max": rounded(float(region.max()), 5)}}
+    if opts.baseline:
+        _, summary["baseline"] = await ensure_baseline(ctx, tr, opts)
+    summary["wall_s"] = round(time.monotonic() - t0, 3)
+    return summary
+
+
+async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[str], *,
+                           measure: bool = True) -> StoredTransport:
+    """The stored ``L`` when its fingerprint matches (and not ``force``), else a new measurement
+    (``measure=False``: a :class:`JobError` instead)."""
+    rig = ctx.rig
+    H, cal_size = rig_geometry(ctx, opts.camera)
+    cw, ch = content_size(ctx)
+    radius = opts.radius
+    if radius is None:
+        radius = psf_radius(H, [rig.slot(s).pose.matrix for s in slots], (cw, ch))
+    state = rig_state_fingerprint(rig, slots, H, opts.camera)
+    fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count)
+    if not opts.force:
+        found = load_valid_transport(rig, state, opts.given, H, slots, log=ctx.log)
+        if found is not None:
+            ctx.log(f"light transport: reusing the stored measurement of {found.meta.get('date', '?')} "
+                    f"({found.meta.get('captures')} captures)")
+            return found
+    if not measure:
+        asked = ", ".join(f"{k} {v}" for k, v in sorted(opts.given.items()))
+        raise JobError("no valid light-transport measurement for the rig as it is now (poses, LUTs or gains changed, "
+                       f"or none was made{'; or it was measured with another ' + asked if asked else ''}): "
+                       "run `shadowless transport`")
+    spec = ctx.camera_spec(opts.camera)
+    missing = [s for s in slots if rig.slot(s).lut is None]
+    if missing:
+        ctx.log(f"warning: {', '.join(missing)} have no inverse-response LUT: the light transport assumes linear "
+                "projectors; run `shadowless response` first")
+    t0 = time.monotonic()
+    c0 = ctx.captures
+    frames = opts.frame_count
+    ctx.progress("transport", "", 0, 1, "every projector black")
+    await ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s)
+    black = await ctx.capture(opts.camera, frames=frames)
+    cam = black.shape[:2]
+    if cal_size != (0, 0) and tuple(cal_size) != (cam[1], cam[0]):
+        raise JobError(f"camera {opts.camera} delivers {cam[1]}x{cam[0]} images but was calibrated at "
+                       f"{cal_size[0]}x{cal_size[1]}: calibrate again")
+    spacing = opts.spacing
+    if spacing is None:
+        try:
+            spacing = choose_spacing(H, (ch, cw), cam, radius, guard=1)
+        except CompensationError as exc:
+            raise JobError(str(exc)) from exc
+    grid = DotGrid(cw, ch, spacing)
+    ctx.log(f"light transport: {len(grid)} dot patterns (spacing {spacing}, radius {radius}, "
+            f"{frames} frame(s) each), every projector at once")
+
+    async def patterns():
+        for k in range(len(grid)):
+            await ctx.show_content(grid.pattern(k, value=255, dtype=np.uint8), settle_s=opts.settle_s)
+            yield await ctx.capture(opts.camera, frames=frames)
+            ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
+
+    L = await transport_while_capturing(ctx, patterns(), black, grid=grid, homography=H, radius=radius)
+    seconds = time.monotonic() - t0
+    edge = await ctx.compute(edge_energy, L, H, (ch, cw), cam, radius)
+    if edge > EDGE_WARNING:
+        ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * radius + 1}-pixel "
+                f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")
+    meta = {"fingerprint": fp, "rig_state": state, "radius": radius, "spacing": spacing, "frames": frames,
+            "captures": ctx.captures - c0, "patterns": len(grid), "content_size": [cw, ch],
+            "camera_size": [cam[1], cam[0]], "content_to_camera": np.asarray(H).tolist(), "camera": opts.camera,
+            "camera_spec": spec, "slots": sorted(slots), "measured_at": time.time(),
+            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": round(seconds, 3), "nnz": int(L.nnz),
+            "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5)}
+    await ctx.compute(save_measured_transport, rig, L, meta, black)
+    return StoredTransport(L, meta, black, H, cam, slots, False)
+
+
+def baseline_exposure(ctx: JobContext, opts: TransportOptions) -> float | None:
+    """The exposure of the baseline's captures (None: the camera's own); refused for a camera that cannot
+    change it per capture."""
+    if opts.baseline_exposure == 1.0:
+        return None
+    if not ctx.supports_exposure(opts.camera):
+        raise JobError(f"camera {opts.camera} ({ctx.camera_spec(opts.camera)}) cannot change exposure per capture; "
+                       "average frames instead (baseline_frames)")
+    return opts.baseline_exposure
+
+
+async def ensure_baseline(ctx: JobContext, tr: StoredTransport,
+                          opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], dict]:
+    """The per-projector ``L_i`` (baseline only): stored ones with a matching fingerprint, the rest measured
+    one projector at a time; projectors that add no light are left out. Returns them and their figures."""
+    rig = ctx.rig
+    exposure = baseline_exposure(ctx, opts)
+    frames = opts.baseline_frame_count
+    fp = baseline_fingerprint(tr.meta["fingerprint"], frames, opts.baseline_exposure)
+    cw, ch = content_size(ctx)
+    grid = DotGrid(cw, ch, int(tr.meta["spacing"]))
+    radius = int(tr.meta["radius"])
+    out: dict[str, sp.csr_matrix] = {}
+    todo = []
+    for s in tr.slots:
+        Li = load_baseline_transport(rig, s, fp, tr.L.shape)
+        if Li is None:
+            todo.append(s)
+        else:
+            out[s] = Li
+    t0 = time.monotonic()
+    c0 = ctx.captures
+    if todo:
+        ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
+                f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
+        await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])
+        black = await ctx.capture(opts.camera, frames=frames, exposure=exposure)
+        for n, s in enumerate(todo):
+            st = rig.slot(s)
+
+            async def patterns(s=s, st=st):
+                for k in range(len(grid)):
+                    frame = await ctx.compute(warp_content, grid.pattern(k, value=255, dtype=np.uint8), st.pose.matrix,
+                                              (st.width, st.height), lut=st.lut, gain=st.gain)
+                    await ctx.show({s: frame}, settle_s=opts.settle_s, require=[s])
+                    yield await ctx.capture(opts.camera, frames=frames, exposure=exposure)
+                    ctx.progress("baseline transport", s, k + 1, len(grid), f"projector {n + 1}/{len(todo)}")
+
+            Li = await transport_while_capturing(ctx, patterns(), black, grid=grid, homography=tr.H, radius=radius,
+                                                 dot_value=opts.baseline_exposure)
+            await ctx.compute(save_baseline_transport, rig, s, Li,
+                              {"fingerprint": fp, "slot": s, "frames": frames, "exposure": opts.baseline_exposure,
+                               "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+            out[s] = Li
+    total = float(tr.L.sum())
+    excluded = [s for s in tr.slots if float(out[s].sum()) < 1e-3 * total / max(len(tr.slots), 1)]
+    for s in excluded:
+        ctx.log(f"baseline: {s} adds no light to the camera image (powered off?); left out")
+        out.pop(s)
+    summary = {"slots": sorted(out), "excluded": excluded, "measured": todo, "captures": ctx.captures - c0,
+               "captures_per_projector": len(grid) * frames, "frames": frames,
+               "exposure": opts.baseline_exposure, "seconds": round(time.monotonic() - t0, 3)}
+    return out, summary

@@ -1,0 +1,73 @@
+"""Frame fan-out: one serialized packet per group of nodes that lack the same contents.
+
+Contents are encoded once per send and each distinct packet is serialized once; the same
+bytes go to every node of its group, so the coordinator's cost per frame does not grow with
+the node count beyond the queue appends. A node is sent only the content its own slot
+shows, and only once until it is evicted.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Mapping, Protocol, Sequence
+
+from coordinator.api import Space
+from coordinator.rig import Content
+from coordinator.sessions import NodeSession
+from coordinator.sync import SyncTracker
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame for every node: content ``content_id`` (or a per-slot override) at ``pts_ns``."""
+
+    frame_id: int
+    pts_ns: int                         # presentation time on the rig clock
+    content_id: str                     # "" shows black
+    space: Space
+    apply_lut: bool
+    tag: str                            # what it belongs to: "show", "play:…", "pattern"
+    slot_content: Mapping[str, str] = field(default_factory=dict)   # slot -> content id ("" = black)
+
+    def content_for(self, slot: str) -> str:
+        return self.slot_content[slot] if slot in self.slot_content else self.content_id
+
+
+class PacketEncoder(Protocol):
+    def packet(self, *, frame: Frame | None, contents: Sequence[Content], evict: Sequence[str] = ()) -> bytes: ...
+
+
+class FanOut:
+    """Queues frames and their contents for node sessions and tells the sync tracker what to expect.
+
+    ``encoder`` makes a packet encoder per send (the wire's), so contents are encoded once per send.
+    """
+
+    def __init__(self, sync: SyncTracker, encoder: Callable[[], PacketEncoder]):
+        self.sync = sync
+        self._encoder = encoder
+        #: CPU seconds spent building and serializing packets
+        self.encode_cpu_s = 0.0
+
+    def send(self, sessions: Iterable[NodeSession], *, frame: Frame | None = None,
+             contents: Mapping[str, Content] | None = None, evict: Sequence[str] = ()) -> None:
+        t0 = time.thread_time()
+        sessions = list(sessions)
+        contents = contents or {}
+        groups: dict[frozenset[str], list[NodeSession]] = {}
+        for s in sessions:
+            needed = ({frame.content_for(s.slot)} & contents.keys()) if frame is not None else set(contents)
+            missing = frozenset(cid for cid in needed if cid not in s.sent_content)
+            groups.setdefault(missing, []).append(s)
+        encoder = self._encoder()
+        for missing, members in groups.items():
+            data = encoder.packet(frame=frame, contents=[contents[cid] for cid in sorted(missing)], evict=evict)
+            self.encode_cpu_s += time.thread_time() - t0
+            for s in members:
+                s.push(data)
+                s.sent_content |= missing
+                if evict:
+                    s.sent_content.difference_update(evict)
+            t0 = time.thread_time()
+        if frame is not None:
+            self.sync.expect(frame.frame_id, frame.pts_ns, frame.tag, {s.slot for s in sessions})

@@ -1,0 +1,300 @@
+"""The coordinator's gRPC services: NodeLink for nodes, RigControl for operators, plus the
+standard health and reflection services.
+
+This is the wire edge: requests are turned into plain types (:mod:`coordinator.wire`),
+the :class:`~coordinator.server.Coordinator` acts, and results go back as messages.
+Refusals and validation errors become gRPC statuses with messages an operator can act on.
+The Frames RPC yields bytes serialized once for every node (an identity serializer).
+"""
+from __future__ import annotations
+
+import asyncio
+import functools
+import logging
+from typing import TYPE_CHECKING, Any
+
+import grpc
+import numpy as np
+from grpc_health.v1 import health, health_pb2, health_pb2_grpc
+from grpc_reflection.v1alpha import reflection
+
+from coordinator import wire
+from coordinator.api import Space
+from coordinator.errors import CoordinatorError
+from coordinator.rig import Content
+from coordinator.sessions import RpcRefusal
+from protos import codec, common_pb2, control_pb2, control_pb2_grpc, node_pb2
+from protos.version import PROTOCOL_VERSION, SERVER_GRPC_OPTIONS, SESSION_KEY
+
+if TYPE_CHECKING:  # pragma: no cover - types only
+    from coordinator.server import Coordinator
+
+log = logging.getLogger(__name__)
+
+SERVER_OPTIONS = SERVER_GRPC_OPTIONS + [("grpc.so_reuseport", 0)]
+
+
+def _peer(context: Any) -> str:
+    return context.peer() or "unknown"
+
+
+def _session_id(context: Any) -> str:
+    return dict(context.invocation_metadata() or ()).get(SESSION_KEY, "")
+
+
+def _guard(fn):
+    """Turn refusals and validation errors into gRPC statuses with clear messages."""
+
+    @functools.wraps(fn)
+    async def wrapper(self, request, context):
+        try:
+            return await fn(self, request, context)
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        except (ValueError, codec.ImageCodecError) as exc:
+            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
+        except CoordinatorError as exc:
+            await context.abort(grpc.StatusCode.FAILED_PRECONDITION, str(exc))
+
+    return wrapper
+
+
+def _decoded(image: Any) -> np.ndarray:
+    img = codec.decode_image(image)
+    return img.astype(np.float32) if img.dtype == np.float16 else img
+
+
+class _Handshake:
+    """The first half of the rig-token handshake, the same on both services."""
+
+    def __init__(self, coord: "Coordinator"):
+        self.c = coord
+
+    @_guard
+    async def Hello(self, request, context):
+        r = self.c.handshake.hello(protocol_version=request.protocol_version, client_nonce=request.client_nonce,
+                                   role=request.role, slot=request.slot, peer=_peer(context))
+        return common_pb2.HelloReply(protocol_version=PROTOCOL_VERSION, rig_id=r.rig_id, rig_name=r.rig_name,
+                                     server_nonce=r.server_nonce, server_proof=r.server_proof, instance_id=r.instance_id)
+
+    def _check_login(self, login, context, role: str) -> None:
+        self.c.handshake.check_login(protocol_version=login.protocol_version, role=login.role, slot=login.slot,
+                                     client_nonce=login.client_nonce, server_nonce=login.server_nonce,
+                                     client_proof=login.client_proof, peer=_peer(context), expected_role=role)
+
+
+class NodeLinkService(_Handshake):
+
+    @_guard
+    async def Join(self, request, context):
+        self._check_login(request.login, context, "node")
+        sess = self.c.join(slot=request.login.slot, info=wire.node_info_from_message(request.info), peer=_peer(context))
+        return node_pb2.JoinReply(session=sess.session, slot=sess.slot, rig_id=self.c.rig.config.rig_id,
+                                  instance_id=self.c.instance_id, heartbeat_interval_ms=self.c.rig.config.heartbeat_ms)
+
+    async def Assignments(self, request, context):
+        try:
+            sess = self.c.node_session(_session_id(context))
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        sent = -1
+        while not sess.closed:
+            st = self.c.rig.slots[sess.slot]
+            if st.revision != sent:
+                sent = st.revision
+                yield wire.assignment_message(st, content_size=self.c.playback.content_size)
+            sess.assignment_event.clear()
+            await sess.assignment_event.wait()
+
+    async def Frames(self, request, context):
+        try:
+            sess = self.c.node_session(_session_id(context))
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        self.c.on_frames_open(sess)
+        try:
+            while not sess.closed:
+                while sess.packets:
+                    yield sess.packets.popleft()
+                    if sess.closed:
+                        return
+                sess.packet_event.clear()
+                if not sess.packets:
+                    await sess.packet_event.wait()
+        finally:
+            sess.frames_open = False
+
+    async def Report(self, request_iterator, context):
+        try:
+            sess = self.c.node_session(_session_id(context))
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        try:
+            async for rep in request_iterator:
+                if sess.closed:
+                    break
+                self.c.on_report(sess, wire.report_from_message(rep))
+        except (asyncio.CancelledError, grpc.aio.AioRpcError):
+            pass
+        finally:
+            # the report stream is the node's lifeline: when it ends, the node is gone
+            self.c.mark_lost(sess)
+        return node_pb2.ReportAck()
+
+    async def Ping(self, request, context):
+        t1 = self.c.rig_now()
+        # a session check keeps the clock service to members of the rig
+        if _session_id(context) not in self.c.sessions:
+            await context.abort(grpc.StatusCode.UNAUTHENTICATED, "join before pinging")
+        return node_pb2.PingReply(t0_local_ns=request.t0_local_ns, t1_rig_ns=t1, t2_rig_ns=self.c.rig_now(),
+                                  instance_id=self.c.instance_id)
+
+
+def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
+    """Register NodeLink; Frames yields pre-serialized bytes (identity serializer)."""
+    handlers = {
+        "Hello": grpc.unary_unary_rpc_method_handler(
+            svc.Hello, request_deserializer=common_pb2.HelloRequest.FromString,
+            response_serializer=common_pb2.HelloReply.SerializeToString),
+        "Join": grpc.unary_unary_rpc_method_handler(
+            svc.Join, request_deserializer=node_pb2.JoinRequest.FromString,
+            response_serializer=node_pb2.JoinReply.SerializeToString),
+        "Assignments": grpc.unary_stream_rpc_method_handler(
+            svc.Assignments, request_deserializer=node_pb2.StreamRequest.FromString,
+            response_serializer=node_pb2.Assignment.SerializeToString),
+        "Frames": grpc.unary_stream_rpc_method_handler(
+            svc.Frames, request_deserializer=node_pb2.StreamRequest.FromString, response_serializer=None),
+        "Report": grpc.stream_unary_rpc_method_handler(
+            svc.Report, request_deserializer=node_pb2.NodeReport.FromString,
+            response_serializer=node_pb2.ReportAck.SerializeToString),
+        "Ping": grpc.unary_unary_rpc_method_handler(
+            svc.Ping, request_deserializer=node_pb2.PingRequest.FromString,
+            response_serializer=node_pb2.PingReply.SerializeToString),
+    }
+    server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler("shadowless.v1.NodeLink", handlers),))
+
+
+class RigControlService(_Handshake):
+
+    def _operator(self, context) -> None:
+        self.c.handshake.check_operator(_session_id(context))
+
+    @_guard
+    async def Login(self, request, context):
+        self._check_login(request, context, "operator")
+        return common_pb2.LoginReply(session=self.c.handshake.open_operator_session(), rig_id=self.c.rig.config.rig_id,
+                                     instance_id=self.c.instance_id)
+
+    @_guard
+    async def Status(self, request, context):
+        self._operator(context)
+        return wire.status_message(self.c.status())
+
+    @_guard
+    async def ListNodes(self, request, context):
+        self._operator(context)
+        return wire.nodes_message(self.c.status().nodes)
+
+    @_guard
+    async def Show(self, request, context):
+        self._operator(context)
+        content = Content(_decoded(request.image), name=request.name)
+        space = wire.space_from_message(request.space)
+        apply_lut = request.apply_lut or space == Space.CONTENT
+        return wire.show_result_message(self.c.show(content, space=space, apply_lut=apply_lut, persist=request.persist))
+
+    async def Play(self, request_iterator, context):
+        try:
+            self._operator(context)
+            settings = None
+            frames: list[Content] = []
+            async for item in request_iterator:
+                kind = item.WhichOneof("item")
+                if kind == "settings":
+                    settings = wire.play_settings_from_message(item.settings)
+                elif kind == "frame":
+                    frames.append(Content(_decoded(item.frame)))
+            if settings is None:
+                raise ValueError("the first PlayItem must carry the settings")
+            result = await self.c.play_sequence(None if settings.pattern else frames, settings)
+            return wire.play_result_message(result)
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        except (ValueError, codec.ImageCodecError) as exc:
+            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
+
+    @_guard
+    async def Stop(self, request, context):
+        self._operator(context)
+        self.c.playback.stop()
+        return control_pb2.StopReply()
+
+    async def RunJob(self, request, context):
+        try:
+            self._operator(context)
+            params = wire.job_params_from_request(request)
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        except ValueError as exc:
+            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"bad job parameters: {exc}")
+        events: asyncio.Queue = asyncio.Queue()
+        task = asyncio.create_task(self.c.run_job(request.kind, params, events.put_nowait), name=f"job:{request.kind}")
+        try:
+            while True:
+                getter = asyncio.ensure_future(events.get())
+                done, _ = await asyncio.wait({getter, task}, return_when=asyncio.FIRST_COMPLETED)
+                if getter in done:
+                    yield wire.job_event_message(getter.result())
+                    continue
+                getter.cancel()
+                while not events.empty():
+                    yield wire.job_event_message(events.get_nowait())
+                break
+            try:
+                result = task.result()
+            except (CoordinatorError, ValueError, OSError) as exc:
+                log.error("job %s failed: %s", request.kind, exc)
+                await context.abort(grpc.StatusCode.FAILED_PRECONDITION, f"{request.kind}: {exc}")
+            yield wire.job_result_message(result)
+        finally:
+            if not task.done():
+                log.warning("job %s cancelled by its client", request.kind)
+                task.cancel()
+                await asyncio.gather(task, return_exceptions=True)
+
+    @_guard
+    async def Configure(self, request, context):
+        self._operator(context)
+        st = self.c.update_slot(request.slot, **wire.slot_changes_from_message(request))
+        return control_pb2.ConfigureReply(revision=st.revision)
+
+
+async def serve(coordinator: "Coordinator", listen: str, *, tls: tuple[bytes, bytes] | None = None):
+    """Start the gRPC server for ``coordinator``; returns ``(server, health servicer, port)``."""
+    server = grpc.aio.server(options=SERVER_OPTIONS)
+    _add_node_link(server, NodeLinkService(coordinator))
+    control_pb2_grpc.add_RigControlServicer_to_server(RigControlService(coordinator), server)
+    health_servicer = health.aio.HealthServicer()
+    health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)
+    names = (
+        node_pb2.DESCRIPTOR.services_by_name["NodeLink"].full_name,
+        control_pb2.DESCRIPTOR.services_by_name["RigControl"].full_name,
+        health_pb2.DESCRIPTOR.services_by_name["Health"].full_name,
+        reflection.SERVICE_NAME,
+    )
+    reflection.enable_server_reflection(names, server)
+    try:
+        if tls:
+            creds = grpc.ssl_server_credentials([(tls[1], tls[0])])
+            port = server.add_secure_port(listen, creds)
+        else:
+            port = server.add_insecure_port(listen)
+    except RuntimeError as exc:
+        raise CoordinatorError(f"cannot listen on {listen}: {exc}") from exc
+    if not port:
+        raise CoordinatorError(f"cannot listen on {listen} (address in use or not on this host?)")
+    await server.start()
+    for name in names[:3]:
+        await health_servicer.set(name, health_pb2.HealthCheckResponse.SERVING)
+    await health_servicer.set("", health_pb2.HealthCheckResponse.SERVING)
+    return server, health_servicer, port

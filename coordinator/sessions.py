@@ -1,0 +1,227 @@
+"""Who is talking to the coordinator: the rig-token handshake, node sessions and operator
+sessions.
+
+Both nodes and operators first prove they know the rig's token (Hello, then Join or
+Login; nonces are single use and expire), then carry a session id in their calls' metadata.
+A node's session holds its outgoing packet queue and what it reported last.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import secrets
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import grpc
+
+from coordinator.api import NodeState
+from protos import auth
+from protos.version import PROTOCOL_VERSION
+
+log = logging.getLogger(__name__)
+
+NONCE_TTL_S = 30.0
+MAX_PENDING_NONCES = 4096
+MAX_OPERATOR_SESSIONS = 256
+OPERATOR_SESSION_TTL_S = 12 * 3600.0
+MAX_PENDING_PACKETS = 512
+HOST_BOOT_ID = ""
+try:
+    HOST_BOOT_ID = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+except OSError:  # pragma: no cover - non-Linux
+    pass
+
+
+class RpcRefusal(Exception):
+    """A call the coordinator refuses: the gRPC status and a message the caller can act on."""
+
+    def __init__(self, code: grpc.StatusCode, message: str):
+        super().__init__(message)
+        self.code, self.message = code, message
+
+
+@dataclass(frozen=True)
+class NodeInfo:
+    """What a node says about itself when it joins."""
+
+    hostname: str = ""
+    pid: int = 0
+    host_boot_id: str = ""
+    native_size: tuple[int, int] = (0, 0)   # its display's resolution, (0, 0) when unknown
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """A node's periodic state: its clock estimate and the assignment it renders with."""
+
+    assignment_revision: int = 0
+    clock_offset_ns: int = 0
+    clock_drift_ppm: float = 0.0
+    clock_rtt_ns: int = 0
+    host_monotonic_ns: int = 0
+    rig_estimate_ns: int = 0
+
+
+@dataclass(frozen=True)
+class Swap:
+    frame_id: int
+    swap_rig_ns: int          # the node's estimate of the rig clock at the swap
+    host_monotonic_ns: int    # the node host's own monotonic clock at the swap
+
+
+@dataclass(frozen=True)
+class Report:
+    """One batch of what a node did: heartbeat, swaps, drops ``(frame_id, DropReason)``."""
+
+    heartbeat: Heartbeat | None = None
+    swaps: tuple[Swap, ...] = ()
+    drops: tuple = ()
+
+
+@dataclass(frozen=True)
+class HelloResult:
+    rig_id: str
+    rig_name: str
+    server_nonce: bytes
+    server_proof: bytes
+    instance_id: str
+
+
+@dataclass
+class NodeSession:
+    """One joined node: its outgoing packets and what it reported."""
+
+    session: str
+    slot: str
+    peer: str
+    info: NodeInfo
+    instance_joins: int
+    joined: float
+    last_seen: float
+    state: NodeState = NodeState.JOINED
+    closed: bool = False
+    frames_open: bool = False
+    packets: deque = field(default_factory=deque)
+    packet_event: asyncio.Event = field(default_factory=asyncio.Event)
+    assignment_event: asyncio.Event = field(default_factory=asyncio.Event)
+    sent_content: set[str] = field(default_factory=set)
+    heartbeat: Heartbeat | None = None
+    last_swap_frame: int = 0
+    last_swap_at: float = 0.0
+    shown: int = 0
+    late: int = 0
+    dropped: int = 0
+    still_frames: set[int] = field(default_factory=set)   # ids of still frames sent to this node
+    still_retries: int = 0
+
+    @property
+    def same_host(self) -> bool:
+        """Whether the node runs on the coordinator's host (its monotonic clock is the rig clock)."""
+        return bool(HOST_BOOT_ID) and self.info.host_boot_id == HOST_BOOT_ID
+
+    def push(self, packet: bytes) -> None:
+        """Queue a serialized packet; a node that stopped draining loses its backlog (and gets contents again)."""
+        if self.closed:
+            return
+        if len(self.packets) >= MAX_PENDING_PACKETS:
+            log.warning("node %s is not keeping up; dropping %d queued packets", self.slot, len(self.packets))
+            self.packets.clear()
+            self.sent_content.clear()
+        self.packets.append(packet)
+        self.packet_event.set()
+
+    def close(self) -> None:
+        self.closed = True
+        self.packet_event.set()
+        self.assignment_event.set()
+
+
+class Handshake:
+    """The rig-token handshake and the operator sessions it opens.
+
+    Parameters
+    ----------
+    token : bytes
+        The rig's secret.
+    rig_id, rig_name, instance_id : str
+    clock : callable
+        Seconds, monotonic (injectable for tests).
+    on_refusal : callable
+        ``(peer, slot, message)``, called for every refusal (the status lists them).
+    """
+
+    def __init__(self, token: bytes, *, rig_id: str, rig_name: str, instance_id: str, clock: Callable[[], float],
+                 on_refusal: Callable[[str, str, str], None]):
+        self.token = token
+        self.rig_id, self.rig_name, self.instance_id = rig_id, rig_name, instance_id
+        self.clock = clock
+        self._on_refusal = on_refusal
+        self.pending: dict[bytes, tuple[bytes, float]] = {}   # server nonce -> (client nonce, expiry)
+        self.operators: dict[str, float] = {}                 # operator session -> last use
+
+    def refuse(self, peer: str, slot: str, code: grpc.StatusCode, message: str) -> RpcRefusal:
+        self._on_refusal(peer, slot, message)
+        log.warning("refused %s (slot %s): %s", peer, slot or "-", message)
+        return RpcRefusal(code, message)
+
+    def hello(self, *, protocol_version: int, client_nonce: bytes, role: str, slot: str, peer: str) -> HelloResult:
+        """The first half: prove the coordinator knows the token and hand out a server nonce."""
+        if protocol_version != PROTOCOL_VERSION:
+            raise self.refuse(peer, slot, grpc.StatusCode.FAILED_PRECONDITION,
+                              f"protocol version mismatch: {role or 'client'} {slot} speaks shadowless protocol "
+                              f"{protocol_version}, coordinator of rig {self.rig_name!r} speaks {PROTOCOL_VERSION}; "
+                              f"install the same shadowless release on both")
+        if len(client_nonce) != auth.NONCE_BYTES:
+            raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT, "client nonce must be 32 bytes")
+        now = self.clock()
+        for n, (_, exp) in list(self.pending.items()):
+            if exp < now:
+                del self.pending[n]
+        if len(self.pending) > MAX_PENDING_NONCES:
+            raise self.refuse(peer, slot, grpc.StatusCode.RESOURCE_EXHAUSTED, "too many handshakes in flight")
+        server_nonce = auth.new_nonce()
+        self.pending[server_nonce] = (client_nonce, now + NONCE_TTL_S)
+        return HelloResult(rig_id=self.rig_id, rig_name=self.rig_name, server_nonce=server_nonce,
+                           server_proof=auth.coordinator_proof(self.token, self.rig_id, client_nonce, server_nonce),
+                           instance_id=self.instance_id)
+
+    def check_login(self, *, protocol_version: int, role: str, slot: str, client_nonce: bytes, server_nonce: bytes,
+                    client_proof: bytes, peer: str, expected_role: str) -> None:
+        """The second half: the client proves it knows the token (each nonce once)."""
+        if protocol_version != PROTOCOL_VERSION:
+            raise self.refuse(peer, slot, grpc.StatusCode.FAILED_PRECONDITION,
+                              f"protocol version mismatch: {expected_role} speaks {protocol_version}, "
+                              f"coordinator speaks {PROTOCOL_VERSION}")
+        if role != expected_role:
+            raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT,
+                              f"this call is for role {expected_role!r}, not {role!r}")
+        entry = self.pending.pop(server_nonce, None)
+        if entry is None or entry[0] != client_nonce or entry[1] < self.clock():
+            raise self.refuse(peer, slot, grpc.StatusCode.UNAUTHENTICATED,
+                              "handshake expired or unknown: call Hello again (nonces are single use)")
+        expected = auth.client_proof(self.token, expected_role, self.rig_id, slot, client_nonce, server_nonce)
+        if not auth.verify(expected, client_proof):
+            who = f"node {slot}" if expected_role == "node" else "operator"
+            raise self.refuse(peer, slot, grpc.StatusCode.UNAUTHENTICATED,
+                              f"rig token mismatch: {who} at {peer} does not know the token of rig "
+                              f"{self.rig_name!r} (id {self.rig_id}); give it this rig's token file")
+
+    def open_operator_session(self) -> str:
+        """A new operator session id (the oldest are forgotten beyond MAX_OPERATOR_SESSIONS)."""
+        session = secrets.token_hex(16)
+        self.operators[session] = self.clock()
+        if len(self.operators) > MAX_OPERATOR_SESSIONS:   # every CLI call logs in: forget the oldest
+            for old in sorted(self.operators, key=self.operators.get)[: len(self.operators) - MAX_OPERATOR_SESSIONS]:
+                del self.operators[old]
+        return session
+
+    def check_operator(self, session: str) -> None:
+        """Refuse a call without a live operator session (idle sessions expire)."""
+        now = self.clock()
+        if session not in self.operators or now - self.operators[session] > OPERATOR_SESSION_TTL_S:
+            self.operators.pop(session, None)
+            raise RpcRefusal(grpc.StatusCode.UNAUTHENTICATED, "not logged in: call Hello and Login with the rig token")
+        self.operators[session] = now

@@ -1,0 +1,133 @@
+"""The node's gRPC client of the coordinator's ``NodeLink`` service.
+
+:class:`CoordinatorLink` wraps one channel and speaks :mod:`node.records` dataclasses:
+the messages are built and parsed by :mod:`node.wire`, and every failed call raises
+:class:`LinkError` (never a gRPC exception), so the rest of the node knows nothing of
+gRPC or protobuf.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterable, AsyncIterator
+from contextlib import contextmanager
+
+import grpc
+
+from node import wire
+from node.errors import NodeError
+from node.records import HelloReply, JoinReply, JoinRequest, NodeAssignment, PingReply, ReportBatch
+from protos import node_pb2, node_pb2_grpc
+from protos.version import GRPC_OPTIONS, SESSION_KEY
+
+log = logging.getLogger("node")
+
+#: status codes by which a coordinator refuses a node (it will not change its mind on a retry)
+REFUSAL_CODES = frozenset({grpc.StatusCode.FAILED_PRECONDITION, grpc.StatusCode.UNAUTHENTICATED,
+                           grpc.StatusCode.NOT_FOUND, grpc.StatusCode.INVALID_ARGUMENT,
+                           grpc.StatusCode.PERMISSION_DENIED})
+
+
+class LinkError(NodeError):
+    """A call to the coordinator failed: ``code`` (a gRPC status name) and ``details``."""
+
+    def __init__(self, code: str, details: str, *, refused: bool = False):
+        super().__init__(f"{code}: {details}")
+        self.code = code
+        self.details = details
+        #: the coordinator refused (protocol, token, slot): retrying soon will not help
+        self.refused = refused
+
+
+@contextmanager
+def _translated():
+    try:
+        yield
+    except grpc.aio.AioRpcError as exc:
+        code = exc.code()
+        raise LinkError(code.name, exc.details() or "", refused=code in REFUSAL_CODES) from exc
+
+
+class CoordinatorLink:
+    """One connection to a coordinator (``async with``): handshake, streams and pings.
+
+    Parameters
+    ----------
+    target : str
+        ``HOST:PORT``.
+    tls_ca : bytes, optional
+        PEM of the CA to trust; None connects without TLS.
+    tls_server_name : str, optional
+        The name expected in the coordinator's certificate (if not the host).
+    """
+
+    def __init__(self, target: str, *, tls_ca: bytes | None = None, tls_server_name: str | None = None):
+        self.target = target
+        options = list(GRPC_OPTIONS)
+        if tls_ca is not None:
+            if tls_server_name:
+                options.append(("grpc.ssl_target_name_override", tls_server_name))
+            self._channel = grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(root_certificates=tls_ca),
+                                                    options=options)
+        else:
+            self._channel = grpc.aio.insecure_channel(target, options=options)
+        self._stub = node_pb2_grpc.NodeLinkStub(self._channel)
+        # Frames, delivered as serialized FramePackets: the presenter process parses them
+        self._frames_raw = self._channel.unary_stream(
+            "/shadowless.v1.NodeLink/Frames", request_serializer=node_pb2.StreamRequest.SerializeToString,
+            response_deserializer=None)
+        self._md: tuple = ()
+
+    async def __aenter__(self) -> "CoordinatorLink":
+        await self._channel.__aenter__()
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self._channel.__aexit__(*exc)
+
+    # ---------------------------------------------------------------- handshake
+    async def hello(self, *, protocol_version: int, client_nonce: bytes, slot: str) -> HelloReply:
+        with _translated():
+            reply = await self._stub.Hello(wire.hello_request(protocol_version=protocol_version,
+                                                              client_nonce=client_nonce, slot=slot), timeout=5)
+        return wire.hello_reply_from_message(reply)
+
+    async def join(self, request: JoinRequest) -> JoinReply:
+        """Join; every later call carries the session this returns."""
+        with _translated():
+            reply = await self._stub.Join(wire.join_request(request), timeout=5)
+        joined = wire.join_reply_from_message(reply)
+        self._md = ((SESSION_KEY, joined.session),)
+        return joined
+
+    # ---------------------------------------------------------------- session calls
+    async def ping(self, t0_local_ns: int) -> PingReply:
+        with _translated():
+            reply = await self._stub.Ping(wire.ping_request(t0_local_ns), metadata=self._md, timeout=2)
+        return wire.ping_reply_from_message(reply)
+
+    async def assignments(self) -> AsyncIterator[NodeAssignment]:
+        """The node's assignments as they change (malformed ones are logged and skipped)."""
+        with _translated():
+            async for msg in self._stub.Assignments(wire.stream_request(), metadata=self._md):
+                try:
+                    assignment = wire.assignment_from_message(msg)
+                except ValueError as exc:
+                    log.error("ignoring a malformed assignment r%d: %s", msg.revision, exc)
+                    continue
+                yield assignment
+
+    async def frame_packets(self) -> AsyncIterator[bytes]:
+        """The Frames stream as received bytes (see :func:`node.wire.packet_from_bytes`)."""
+        with _translated():
+            async for data in self._frames_raw(wire.stream_request(), metadata=self._md):
+                yield data
+
+    async def report(self, batches: AsyncIterable[ReportBatch]) -> None:
+        """Stream reports until ``batches`` ends or the call breaks."""
+
+        async def messages():
+            async for batch in batches:
+                yield wire.report_message(batch)
+
+        with _translated():
+            await self._stub.Report(messages(), metadata=self._md)

@@ -1,0 +1,195 @@
+"""The presenter's own process, and the node process's handle on it.
+
+Why a process: the swap is a real-time deadline, and a Python thread that
+wakes on time still needs the GIL. If the network thread held it and was then
+descheduled on a busy machine, the swap would wait for it (tens of ms were
+measured with 16 nodes on 2 cores). Alone in its process, the presenter's
+single thread never waits for anyone's GIL.
+
+Both directions are pipes of ``(kind, payload)`` tuples of plain data: in, what
+:meth:`node.presenter.Presenter.handle` takes; out, ``("ready", size)``,
+``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)`` and
+``("drop", DropRecord)``.
+"""
+from __future__ import annotations
+
+import fcntl
+import logging
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from node.clock import LocalClock, precise_timers
+from node.outputs import open_output
+from node.presenter import Presenter
+from node.records import DropRecord, PresenterStatus, SwapRecord
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PresenterSettings:
+    slot: str
+    output_spec: str
+    clock_offset_ns: int
+    clock_drift_ppm: float
+    clock_anchor_ns: int
+    snapshot_dir: Path | None = None
+    realtime: bool = True
+    log_level: int = logging.INFO
+    log_format: str = "%(asctime)s %(levelname)-7s %(message)s"
+
+
+def tune_process() -> None:
+    """Let sleeps end close to their deadline (1 µs timer slack)."""
+    precise_timers()
+
+
+def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
+    """Entry point of the presenter process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)   # the node process decides when we stop
+    logging.basicConfig(level=settings.log_level, format=settings.log_format, stream=sys.stderr, force=True)
+    tune_process()
+    clock = LocalClock(offset_ns=settings.clock_offset_ns, drift_ppm=settings.clock_drift_ppm,
+                       anchor_ns=settings.clock_anchor_ns)
+
+    def report(kind: str, payload) -> None:
+        conn_out.send((kind, payload))
+
+    try:
+        out = open_output(settings.output_spec, slot=settings.slot, snapshot_dir=settings.snapshot_dir)
+        p = Presenter(slot=settings.slot, output=out, clock=clock, report=report, realtime=settings.realtime)
+        p.open()
+    except Exception as exc:
+        log.exception("cannot open output %r", settings.output_spec)
+        conn_out.send(("failed", f"{type(exc).__name__}: {exc}"))
+        return
+    conn_out.send(("ready", p.native_size))
+    try:
+        while True:
+            if not conn_in.poll(0.5):
+                p.idle()
+                continue
+            try:
+                kind, payload = conn_in.recv()
+            except EOFError:   # the node process is gone
+                break
+            if kind == "stop":
+                break
+            p.handle(kind, payload)
+    except Exception as exc:
+        log.exception("presenter failed")
+        try:
+            conn_out.send(("failed", f"{type(exc).__name__}: {exc}"))
+        except OSError:
+            pass
+    finally:
+        p.close()
+
+
+def _grow_pipe(fd: int, want: int = 8 * 2**20) -> None:
+    """Make a pipe's kernel buffer as large as allowed (default 64 KiB holds one small frame)."""
+    try:
+        limit = int(Path("/proc/sys/fs/pipe-max-size").read_text())
+        F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)
+        fcntl.fcntl(fd, F_SETPIPE_SZ, min(want, limit) if os.geteuid() else want)
+    except (OSError, ValueError):  # pragma: no cover - not Linux, or not permitted
+        pass
+
+
+class PresenterProcess:
+    """The node process's handle on its presenter process.
+
+    :meth:`submit` writes to a pipe with a large kernel buffer (no thread, so no
+    GIL contention in the node process); reports arrive on the event loop
+    through :meth:`attach`.
+    """
+
+    def __init__(self, settings: PresenterSettings):
+        ctx = multiprocessing.get_context("spawn")
+        child_in, self._to_child = ctx.Pipe(duplex=False)      # (reader, writer)
+        self._from_child, child_out = ctx.Pipe(duplex=False)
+        self._process = ctx.Process(target=presenter_main, args=(child_in, child_out, settings),
+                                    name=f"presenter-{settings.slot}", daemon=True)
+        self._child_ends = (child_in, child_out)
+        _grow_pipe(self._to_child.fileno())
+        self.native_size: tuple[int, int] | None = None
+        self.failed: str | None = None
+        self.stats = PresenterStatus()
+        self._ready = threading.Event()
+        self._on_report: Callable[[SwapRecord | DropRecord], None] | None = None
+
+    def start(self) -> None:
+        self._process.start()
+        for end in self._child_ends:
+            end.close()
+
+    def submit(self, kind: str, payload=None) -> None:
+        """Send to the presenter. The pipe is grown to megabytes so this does not block
+        for frames; a very large still may wait while the presenter reads it."""
+        try:
+            self._to_child.send((kind, payload))
+        except (OSError, ValueError):   # the presenter is gone; the node notices and exits
+            self.failed = self.failed or "the presenter process exited"
+
+    def attach(self, loop, on_report: Callable[[SwapRecord | DropRecord], None]) -> None:
+        """Deliver swap and drop records to ``on_report`` on ``loop``."""
+        self._on_report = on_report
+        loop.add_reader(self._from_child.fileno(), self._readable)
+
+    def detach(self, loop) -> None:
+        try:
+            loop.remove_reader(self._from_child.fileno())
+        except (ValueError, OSError):
+            pass
+
+    def _readable(self) -> None:
+        while self._from_child.poll():
+            try:
+                kind, payload = self._from_child.recv()
+            except (EOFError, OSError):
+                self.failed = self.failed or "the presenter process exited"
+                self._ready.set()
+                return
+            self._dispatch(kind, payload)
+
+    def _dispatch(self, kind: str, payload) -> None:
+        if kind == "ready":
+            self.native_size = tuple(payload) if payload else None
+            self._ready.set()
+        elif kind == "failed":
+            self.failed = payload
+            self._ready.set()
+        elif kind == "stats":
+            self.stats = payload
+        elif kind in ("swap", "drop") and self._on_report:
+            self._on_report(payload)
+
+    def wait_ready(self, timeout: float = 60.0) -> bool:
+        """Block until the presenter reports ready or failed (reads the pipe itself)."""
+        deadline = time.monotonic() + timeout
+        while not self._ready.is_set() and time.monotonic() < deadline:
+            if self._from_child.poll(0.1):
+                self._readable()
+            elif not self._process.is_alive():
+                self.failed = self.failed or f"the presenter process exited with {self._process.exitcode}"
+                break
+        return self._ready.is_set() and self.failed is None
+
+    def is_alive(self) -> bool:
+        return self._process.is_alive() and self.failed is None
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self.submit("stop")
+        self._process.join(timeout)
+        if self._process.is_alive():
+            self._process.terminate()
+            self._process.join(2.0)
+        self._to_child.close()
+        self._from_child.close()

@@ -1,0 +1,188 @@
+"""The node's own plain data: what travels between its parts, without protobuf.
+
+:mod:`node.wire` turns the coordinator's messages into these and back; every other
+module of the node speaks only these (dataclasses, numpy arrays, plain values).
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+
+# ------------------------------------------------------------------ coordinator -> node
+
+
+@dataclass(frozen=True)
+class MeshData:
+    mesh_id: str
+    vertices: np.ndarray   # (V, 3) float32, world mm
+    uvs: np.ndarray        # (V, 2) float32 in [0, 1]
+    faces: np.ndarray      # (F, 3) uint32
+
+
+@dataclass(frozen=True)
+class NodeAssignment:
+    revision: int
+    slot: str
+    width: int
+    height: int
+    pose_kind: str                       # "homography", "projection" or "none"
+    homography: np.ndarray | None        # (3, 3) float64, content px -> projector px
+    projection: np.ndarray | None        # (3, 4) float64, world mm -> projector px
+    mesh: MeshData | None
+    near_mm: float
+    far_mm: float
+    lut: np.ndarray | None               # (C, E) float32
+    gain: float
+    content_size: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class FrameOrder:
+    frame_id: int
+    pts_ns: int
+    content_id: str                      # "" = black
+    space: str                           # "content" or "projector"
+    apply_lut: bool
+    tag: str
+
+
+@dataclass(frozen=True)
+class ContentBlob:
+    """One content of a frame packet, decoded; ``image`` is None when it could not be."""
+
+    content_id: str
+    image: np.ndarray | None
+    error: str = ""
+
+
+@dataclass(frozen=True)
+class FramePacketData:
+    """A frame packet, for one slot, in the order a node handles it: contents, frame, evictions."""
+
+    contents: tuple[ContentBlob, ...] = ()
+    frame: FrameOrder | None = None
+    evict: tuple[str, ...] | None = None     # None: the packet has no eviction part
+
+
+# ------------------------------------------------------------------ node -> coordinator
+
+
+class DropReason(enum.Enum):
+    """Why a frame was not shown (the wire's ``DropReason``)."""
+
+    LATE = "late"                        # arrived, or was rendered, after its presentation time
+    SUPERSEDED = "superseded"            # a newer frame was shown first
+    MISSING_CONTENT = "missing_content"  # its content never arrived (or was malformed)
+    UNRENDERABLE = "unrenderable"        # the renderer refused it (e.g. content of the wrong size)
+
+
+@dataclass(frozen=True)
+class SwapRecord:
+    """A frame that was shown."""
+
+    frame_id: int
+    pts_ns: int
+    swap_rig_ns: int          # the node's estimate of the rig clock at the swap
+    host_monotonic_ns: int    # the host's CLOCK_MONOTONIC at the swap
+
+
+@dataclass(frozen=True)
+class DropRecord:
+    """A frame that was not shown."""
+
+    frame_id: int
+    reason: DropReason
+    late_by_ns: int = 0
+
+
+@dataclass(frozen=True)
+class ClockStatus:
+    """The node's clock estimate, as a heartbeat carries it."""
+
+    offset_ns: int            # rig - local at the node's current local time
+    drift_ppm: float
+    rtt_ns: int
+    samples: int
+    rig_estimate_ns: int      # the rig clock at ``HeartbeatRecord.host_monotonic_ns``
+
+
+@dataclass(frozen=True)
+class HeartbeatRecord:
+    assignment_revision: int
+    frames_shown: int
+    frames_late: int
+    frames_dropped: int
+    render_ms_p50: float
+    host_monotonic_ns: int
+    clock: ClockStatus | None = None      # None until the node has a clock estimate
+
+
+@dataclass(frozen=True)
+class ReportBatch:
+    """One message of the report stream: a heartbeat, or the swaps and drops of a few ms."""
+
+    heartbeat: HeartbeatRecord | None = None
+    swaps: tuple[SwapRecord, ...] = ()
+    drops: tuple[DropRecord, ...] = ()
+
+
+# ------------------------------------------------------------------ handshake
+
+
+@dataclass(frozen=True)
+class HelloReply:
+    rig_id: str
+    rig_name: str
+    server_nonce: bytes
+    server_proof: bytes
+
+
+@dataclass(frozen=True)
+class NodeInfo:
+    hostname: str
+    host_boot_id: str
+    pid: int
+    software_version: str
+    output: str
+    native_width: int = 0
+    native_height: int = 0
+
+
+@dataclass(frozen=True)
+class JoinRequest:
+    protocol_version: int
+    slot: str
+    client_nonce: bytes
+    server_nonce: bytes
+    client_proof: bytes
+    info: NodeInfo
+
+
+@dataclass(frozen=True)
+class JoinReply:
+    session: str
+    instance_id: str
+    heartbeat_interval_ms: int
+
+
+@dataclass(frozen=True)
+class PingReply:
+    t1_rig_ns: int
+    t2_rig_ns: int
+
+
+# ------------------------------------------------------------------ presenter -> node process
+
+
+@dataclass(frozen=True)
+class PresenterStatus:
+    """The presenter's counters, as its heartbeat reports them."""
+
+    shown: int = 0
+    late: int = 0
+    dropped: int = 0
+    render_ms_p50: float = 0.0
+    revision: int = 0          # of the assignment in use (0: none yet)

@@ -1,0 +1,192 @@
+"""The coordinate-space conventions every process shares, defined once.
+
+A pose travels on the wire as a matrix; what a node does with it is part of the
+contract between coordinator and node, so it is defined here, beside the wire,
+where the coordinator, the node, the room and the benchmarks may all read it:
+
+* :func:`content_to_table`: where content pixels lie on the table (content spans the
+  table, centred on the world origin, content x along world +x, content rows along
+  world -y, texel centres at integer coordinates).
+* :func:`projector_samples` and :func:`bilinear_taps`: the node's content lookup. Projector
+  pixel ``(u, v)`` shows the content at ``pose^-1 (u, v, 1)``, interpolated bilinearly
+  between the four texels around it (OpenCV's convention: texel ``(x, y)`` has its centre at
+  integer ``(x, y)``), texels outside the content counting as 0. This is
+  ``cv2.warpPerspective(..., INTER_LINEAR, BORDER_CONSTANT, 0)``; the node's shader
+  (``node/render/pipeline.glsl``) computes exactly this, and the node's tests check it
+  against :func:`warp_content`.
+* :func:`lut_lookup`: the node's luminance pipeline, ``LUT(clip(gain * value))`` per channel
+  with linear interpolation between the ``E`` LUT samples at ``k / (E - 1)``, output
+  quantised to ``round(255 * value)``.
+
+Only numpy: this module is part of every install, the edge node's included.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["content_to_table", "projector_samples", "bilinear_taps", "warp_content", "lut_lookup", "quantise",
+           "as_linear"]
+
+
+def content_to_table(content_size: Sequence[int], table_mm: Sequence[float]) -> np.ndarray:
+    """(3, 3) float64: content pixels -> table millimetres, the content spanning the table.
+
+    ``x_mm = W_mm (x + 0.5) / w - W_mm / 2`` and ``y_mm = H_mm / 2 - H_mm (y + 0.5) / h``.
+
+    Parameters
+    ----------
+    content_size : (w, h)
+        Content size in pixels.
+    table_mm : (W_mm, H_mm)
+        Table size in millimetres.
+    """
+    w, h = (int(v) for v in content_size)
+    tw, th = (float(v) for v in table_mm)
+    if w <= 0 or h <= 0 or tw <= 0 or th <= 0:
+        raise ValueError(f"content size and table size must be positive, got {tuple(content_size)}, {tuple(table_mm)}")
+    return np.array([[tw / w, 0.0, tw / (2 * w) - tw / 2], [0.0, -th / h, th / 2 - th / (2 * h)], [0.0, 0.0, 1.0]])
+
+
+def projector_samples(pose: np.ndarray, projector_size: Sequence[int], *,
+                      content_size: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where each projector pixel samples the content: ``(x, y)``, each ``(h, w) float64``.
+
+    Pixels whose ray misses the content plane (beyond the horizon, or not finite) get
+    ``-10``, which :func:`bilinear_taps` treats as outside. A homography is defined up to
+    scale, sign included: with ``content_size`` the side of the horizon where the content
+    lies is the one where the pose sends the content's centre (as the node's shader does);
+    without it, where the pose's third row is positive.
+
+    Parameters
+    ----------
+    pose : (3, 3) float
+        Content px -> projector px.
+    projector_size : (w, h)
+    content_size : (W, H), optional
+    """
+    H = np.asarray(pose, np.float64)
+    if H.shape != (3, 3):
+        raise ValueError(f"pose must be (3, 3), got {H.shape}")
+    w, h = (int(v) for v in projector_size)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"projector size must be positive, got {tuple(projector_size)}")
+    inv = np.linalg.inv(H)
+    if content_size is not None:
+        cw, ch = (float(v) for v in content_size)
+        if (H @ np.array([(cw - 1) / 2.0, (ch - 1) / 2.0, 1.0]))[2] < 0:
+            inv = -inv
+    v, u = np.mgrid[0:h, 0:w]
+    q = inv @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = q[0] / q[2], q[1] / q[2]
+    ok = (q[2] > 0) & np.isfinite(x) & np.isfinite(y)
+    return np.where(ok, x, -10.0).reshape(h, w), np.where(ok, y, -10.0).reshape(h, w)
+
+
+def bilinear_taps(x: np.ndarray, y: np.ndarray, content_size: Sequence[int]):
+    """The four texels and weights of a bilinear lookup at content coordinates ``(x, y)``.
+
+    Returns a list of four ``(index, weight)`` pairs, each ``(n,) int64`` flat texel index
+    ``Y * w + X`` and ``(n,) float64`` weight, for the ``n = x.size`` lookups in order;
+    a texel outside the content has weight 0 (and index 0).
+    """
+    cw, ch = (int(v) for v in content_size)
+    x = np.asarray(x, np.float64).ravel()
+    y = np.asarray(y, np.float64).ravel()
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    taps = []
+    for dx, dy, wt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        X, Y = x0 + dx, y0 + dy
+        inside = (X >= 0) & (X < cw) & (Y >= 0) & (Y < ch)
+        taps.append((np.where(inside, Y * cw + X, 0), np.where(inside, wt, 0.0)))
+    return taps
+
+
+def as_linear(image: np.ndarray) -> np.ndarray:
+    """Content as linear float32: uint8 / 255, uint16 / 65535, floats unchanged."""
+    a = np.asarray(image)
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / np.float32(255)
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / np.float32(65535)
+    return a.astype(np.float32, copy=False)
+
+
+def lut_lookup(lut: np.ndarray | None, values: np.ndarray, *, gain: float = 1.0) -> np.ndarray:
+    """The node's luminance pipeline: ``round(255 * clip(LUT(clip(gain * values))))`` as uint8,
+    halves rounded up (as the shader quantises).
+
+    Parameters
+    ----------
+    lut : (C, E) float, or None for the identity
+        Inverse-response LUT: row ``c`` samples channel ``c`` at ``k / (E - 1)``.
+    values : (H, W), (H, W, C) or (n,) / (n, C) float
+        Linear luminance; a 2-D array is treated as one channel when ``C == 1``.
+    """
+    table = np.array([[0.0, 1.0]], np.float64) if lut is None else np.asarray(lut, dtype=np.float64)
+    if table.ndim != 2 or table.shape[1] < 2:
+        raise ValueError(f"lut must be (C, E) with E >= 2, got {table.shape}")
+    c, e = table.shape
+    vals = np.clip(np.asarray(values, dtype=np.float64) * gain, 0.0, 1.0)
+    grid = np.linspace(0.0, 1.0, e)
+    if c == 1 and (vals.ndim < 3 or vals.shape[-1] != 1):
+        out = np.interp(vals, grid, table[0])
+    else:
+        if vals.shape[-1] != c:
+            raise ValueError(f"values have {vals.shape[-1]} channels, the LUT {c}")
+        out = np.empty_like(vals)
+        for ch in range(c):
+            out[..., ch] = np.interp(vals[..., ch], grid, table[ch])
+    return quantise(out)
+
+
+def quantise(values: np.ndarray) -> np.ndarray:
+    """Linear values to 8-bit output levels as the node does: ``floor(255 * clip(v) + 0.5)``, uint8."""
+    return np.floor(np.clip(np.asarray(values, np.float64), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def warp_content(content: np.ndarray, pose: np.ndarray, projector_size: Sequence[int], *,
+                 lut: np.ndarray | None = None, gain: float = 1.0, apply_lut: bool = True) -> np.ndarray:
+    """What a node outputs for ``content``, computed with numpy: ``(h, w, 3) uint8``.
+
+    The content lookup of :func:`projector_samples` / :func:`bilinear_taps`, then, when
+    ``apply_lut``, ``gain`` and the inverse-response LUT (:func:`lut_lookup`); otherwise just
+    ``round(255 * clip(value))``. Grey content (1 or 2 channels) is replicated to RGB.
+
+    Parameters
+    ----------
+    content : (H, W) or (H, W, C) float32/uint8/uint16
+        Linear content (integers are normalised by their maximum value).
+    pose : (3, 3) float64
+        Content px -> projector px.
+    projector_size : (w, h)
+    lut : (C, E) float, optional
+        Inverse-response LUT (None: identity).
+    """
+    img = as_linear(content)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    if img.ndim != 3:
+        raise ValueError(f"content must be (H, W) or (H, W, C), got {img.shape}")
+    ch, cw = img.shape[:2]
+    img = img[:, :, :1] if img.shape[2] < 3 else img[:, :, :3]
+    w, h = (int(v) for v in projector_size)
+    x, y = projector_samples(pose, (w, h), content_size=(cw, ch))
+    flat = img.reshape(ch * cw, -1)
+    out = np.zeros((h * w, flat.shape[1]), np.float64)
+    for index, weight in bilinear_taps(x, y, (cw, ch)):
+        out += weight[:, None] * flat[index]
+    warped = out.reshape(h, w, -1).astype(np.float32)
+    if warped.shape[2] == 1:
+        warped = np.repeat(warped, 3, axis=2)
+    if not apply_lut:
+        return quantise(warped)
+    table = None if lut is None else np.asarray(lut, np.float32)
+    if table is not None and table.shape[0] == 1:
+        table = np.repeat(table, 3, axis=0)
+    if table is None:
+        table = np.array([[0.0, 1.0]] * 3, np.float32)
+    return lut_lookup(table, warped, gain=gain)

@@ -1,0 +1,60 @@
+"""Atomic writes: a reader sees the old file or the new one, never half of one, even when
+the writer is killed mid-write."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from coordinator.store import atomic_file, atomic_save_npz, atomic_write_json, atomic_write_text
+
+
+def test_a_write_replaces_the_file_with_the_requested_mode(tmp_path):
+    f = tmp_path / "sub" / "token"
+    atomic_write_text(f, "old", mode=0o600)
+    atomic_write_text(f, "new", mode=0o600)
+    assert f.read_text() == "new" and (f.stat().st_mode & 0o777) == 0o600
+    assert sorted(p.name for p in f.parent.iterdir()) == ["token"], "no temp file left behind"
+
+
+def test_a_failing_write_keeps_the_old_content_and_removes_its_temp_file(tmp_path):
+    f = tmp_path / "rig.json"
+    atomic_write_json(f, {"a": 1})
+    with pytest.raises(RuntimeError):
+        with atomic_file(f) as out:
+            out.write(b"{half")
+            raise RuntimeError("disk on fire")
+    assert f.read_text() == '{\n  "a": 1\n}\n'
+    assert [p.name for p in tmp_path.iterdir()] == ["rig.json"]
+
+
+def test_arrays_round_trip(tmp_path):
+    a = np.arange(12, dtype=np.float32).reshape(3, 4)
+    atomic_save_npz(tmp_path / "t.npz", a=a, b=a.astype(np.uint16))
+    with np.load(tmp_path / "t.npz") as z:
+        np.testing.assert_array_equal(z["a"], a)
+        assert z["b"].dtype == np.uint16
+
+
+def test_a_writer_killed_mid_write_leaves_the_old_file_whole(tmp_path):
+    f = tmp_path / "transport.npz"
+    atomic_write_text(f, "the old, complete file")
+    script = textwrap.dedent(f"""
+        import os, signal, sys
+        from coordinator.store import atomic_file
+        with atomic_file({str(f)!r}) as out:
+            out.write(b"x" * 1_000_000)
+            out.flush()
+            sys.stdout.write("writing\\n"); sys.stdout.flush()
+            os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=os.getcwd(), timeout=60)
+    assert p.returncode == -signal.SIGKILL and "writing" in p.stdout
+    assert f.read_text() == "the old, complete file"
+    leftovers = [q for q in tmp_path.iterdir() if q.name != f.name]
+    assert len(leftovers) == 1 and leftovers[0].name.startswith(".transport.npz.") and leftovers[0].stat().st_size > 0

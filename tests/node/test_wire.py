@@ -1,0 +1,114 @@
+"""node/wire.py: the node's records to and from the coordinator's protobuf messages (the wire format)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from node import wire
+from node.records import (
+    ClockStatus,
+    DropReason,
+    DropRecord,
+    HeartbeatRecord,
+    JoinRequest,
+    NodeInfo,
+    ReportBatch,
+    SwapRecord,
+)
+from protos import codec, common_pb2, node_pb2
+
+
+def test_reports_keep_the_wire_format():
+    swap = SwapRecord(frame_id=7, pts_ns=-5, swap_rig_ns=1_000_000_123, host_monotonic_ns=42)
+    assert wire.swap_message(swap) == node_pb2.SwapReport(frame_id=7, pts_ns=-5, swap_rig_ns=1_000_000_123,
+                                                          host_monotonic_ns=42)
+    expected = {DropReason.LATE: node_pb2.DROP_REASON_LATE, DropReason.SUPERSEDED: node_pb2.DROP_REASON_SUPERSEDED,
+                DropReason.MISSING_CONTENT: node_pb2.DROP_REASON_MISSING_CONTENT,
+                DropReason.UNRENDERABLE: node_pb2.DROP_REASON_UNRENDERABLE}
+    assert set(expected) == set(DropReason)
+    for reason, number in expected.items():
+        assert wire.drop_message(DropRecord(3, reason, 9)) == node_pb2.FrameDrop(frame_id=3, reason=number, late_by_ns=9)
+
+    batch = ReportBatch(swaps=(swap, SwapRecord(8, 1, 2, 3)), drops=(DropRecord(9, DropReason.LATE, 4),))
+    msg = wire.report_message(batch)
+    assert not msg.HasField("heartbeat")
+    assert [s.frame_id for s in msg.swaps] == [7, 8] and [d.frame_id for d in msg.drops] == [9]
+    assert node_pb2.NodeReport.FromString(msg.SerializeToString()) == msg
+
+
+def test_heartbeats_carry_the_clock_only_once_there_is_an_estimate():
+    base = dict(assignment_revision=4, frames_shown=10, frames_late=2, frames_dropped=1, render_ms_p50=1.5,
+                host_monotonic_ns=123)
+    msg = wire.report_message(ReportBatch(heartbeat=HeartbeatRecord(**base)))
+    assert msg.heartbeat == node_pb2.Heartbeat(**base)
+    clock = ClockStatus(offset_ns=-77, drift_ppm=12.5, rtt_ns=300_000, samples=6, rig_estimate_ns=456)
+    hb = wire.heartbeat_message(HeartbeatRecord(**base, clock=clock))
+    assert hb == node_pb2.Heartbeat(**base, clock_offset_ns=-77, clock_drift_ppm=12.5, clock_rtt_ns=300_000,
+                                    clock_samples=6, rig_estimate_ns=456)
+
+
+def test_handshake_messages():
+    hello = wire.hello_request(protocol_version=3, client_nonce=b"n" * 32, slot="r1c1")
+    assert hello == common_pb2.HelloRequest(protocol_version=3, client_nonce=b"n" * 32, role="node", slot="r1c1")
+    info = NodeInfo(hostname="h", host_boot_id="b", pid=9, software_version="0.1.0", output="offscreen",
+                    native_width=640, native_height=480)
+    req = wire.join_request(JoinRequest(protocol_version=3, slot="r1c1", client_nonce=b"c", server_nonce=b"s",
+                                        client_proof=b"p", info=info))
+    assert req.login == common_pb2.LoginRequest(protocol_version=3, role="node", slot="r1c1", client_nonce=b"c",
+                                                server_nonce=b"s", client_proof=b"p")
+    assert req.info == node_pb2.NodeInfo(hostname="h", host_boot_id="b", pid=9, software_version="0.1.0",
+                                         output="offscreen", native_width=640, native_height=480)
+    reply = wire.join_reply_from_message(node_pb2.JoinReply(session="s1", instance_id="i1"))
+    assert (reply.session, reply.instance_id, reply.heartbeat_interval_ms) == ("s1", "i1", 500)   # default interval
+    pong = wire.ping_reply_from_message(node_pb2.PingReply(t0_local_ns=1, t1_rig_ns=2, t2_rig_ns=3))
+    assert (pong.t1_rig_ns, pong.t2_rig_ns) == (2, 3)
+    h = wire.hello_reply_from_message(common_pb2.HelloReply(rig_id="r", rig_name="n", server_nonce=b"x",
+                                                            server_proof=b"y"))
+    assert (h.rig_id, h.rig_name, h.server_nonce, h.server_proof) == ("r", "n", b"x", b"y")
+
+
+def test_packets_become_plain_data_for_one_slot():
+    pkt = node_pb2.FramePacket()
+    a = np.arange(24, dtype=np.uint16).reshape(2, 4, 3)
+    pkt.contents.add(content_id="a", image=codec.encode_image(a))
+    pkt.contents.add(content_id="known", image=codec.encode_image(a))
+    pkt.contents.add(content_id="a", image=codec.encode_image(a[:1]))     # a repeat: ignored
+    bad = pkt.contents.add(content_id="bad", image=codec.encode_image(a))
+    bad.image.data = b"\x00"
+    pkt.frame.frame_id = 5
+    pkt.frame.pts_ns = 99
+    pkt.frame.content_id = "a"
+    pkt.frame.slot_content["r0c1"] = ""
+    pkt.frame.space = node_pb2.SPACE_PROJECTOR
+    pkt.frame.apply_lut = True
+    pkt.frame.tag = "play:1"
+    pkt.evict.content_ids.extend(["old"])
+    data = pkt.SerializeToString()
+
+    mine = wire.packet_from_bytes(data, "r0c0", known={"known"}.__contains__)
+    assert [c.content_id for c in mine.contents] == ["a", "bad"]
+    np.testing.assert_array_equal(mine.contents[0].image, a)
+    assert mine.contents[1].image is None and "bytes" in mine.contents[1].error
+    assert (mine.frame.frame_id, mine.frame.pts_ns, mine.frame.content_id, mine.frame.space, mine.frame.apply_lut,
+            mine.frame.tag) == (5, 99, "a", "projector", True, "play:1")
+    assert mine.evict == ("old",)
+    other = wire.packet_from_bytes(data, "r0c1")
+    assert other.frame.content_id == "" and len(other.contents) == 3   # its override: black
+
+    empty = wire.packet_from_bytes(node_pb2.FramePacket().SerializeToString(), "r0c0")
+    assert empty.contents == () and empty.frame is None and empty.evict is None
+
+
+def test_assignments_become_plain_data():
+    msg = node_pb2.Assignment(revision=3, slot="r0c0", output_width=64, output_height=48, gain=0.0,
+                              content_width=32, content_height=24)
+    msg.homography.m.extend(np.eye(3).ravel().tolist())
+    msg.lut.channels, msg.lut.entries = 1, 4
+    msg.lut.values = np.linspace(0, 1, 4, dtype="<f4").tobytes()
+    a = wire.assignment_from_message(msg)
+    assert (a.pose_kind, a.width, a.height, a.gain, a.content_size) == ("homography", 64, 48, 1.0, (32, 24))
+    np.testing.assert_array_equal(a.homography, np.eye(3))
+    assert a.lut.shape == (1, 4) and a.mesh is None
+    msg.homography.m.append(1.0)
+    with pytest.raises(ValueError, match="9 values"):
+        wire.assignment_from_message(msg)

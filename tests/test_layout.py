@@ -1,0 +1,44 @@
+"""The repository's shape: files that hold one concern, and documents that never point
+outside the repository."""
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("coordinator", "node", "sim", "protos", "bench", "shadowless")
+
+#: numerical kernels allowed past the general limit, with theirs
+LIMITS = {"coordinator/compensation/solver.py": 800, "coordinator/calibration/threed.py": 800}
+GENERAL_LIMIT = 600
+
+
+def _tracked(*patterns: str) -> list[Path]:
+    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", *patterns], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    return [ROOT / line for line in out.splitlines() if (ROOT / line).exists()]
+
+
+def test_no_module_holds_two_concerns_by_size():
+    too_long = []
+    for pkg in PACKAGES:
+        for f in (ROOT / pkg).rglob("*.py"):
+            rel = f.relative_to(ROOT).as_posix()
+            if rel.endswith(("_pb2.py", "_pb2_grpc.py")):
+                continue
+            n = len(f.read_text().splitlines())
+            if n > LIMITS.get(rel, GENERAL_LIMIT):
+                too_long.append(f"{rel}: {n} lines")
+    assert too_long == []
+
+
+def test_the_architecture_document_is_in_the_repository_and_nothing_points_outside():
+    assert (ROOT / "docs" / "architecture.md").exists()
+    offenders = []
+    for f in _tracked("*.py", "*.md", "*.toml", "*.glsl", "*.proto", "Makefile", "*.sh", "*.service", "*.env"):
+        if f.resolve() == Path(__file__).resolve():
+            continue
+        text = f.read_text(errors="replace")
+        for needle in ("DESIGN.md", "../shared", "shared/reference"):
+            if needle in text:
+                offenders.append(f"{f.relative_to(ROOT)}: {needle}")
+    assert offenders == []
