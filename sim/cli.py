@@ -8,6 +8,10 @@ import sys
 import time
 
 from sim.errors import SimError
+from sim.occluders import Hand, HandPath
+from sim.room import Room
+from sim.scene import SUBSETS, load_layout, reference_scene, write_layout
+from sim.service import DEFAULT_PORT, serve
 
 EPILOG = """\
 what it serves (one port, 127.0.0.1 by default):
@@ -92,10 +96,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def build_room(args: argparse.Namespace):
     """The Room the arguments describe (shared with the demo wiring)."""
-    from sim.occluders import Hand, HandPath
-    from sim.room import Room
-    from sim.scene import SUBSETS, load_layout, reference_scene
-
     ps, cs = (1.0, 1.0) if args.full_resolution else (args.projector_scale, args.camera_scale)
     if args.layout:
         scene = load_layout(args.layout, projector_scale=ps, camera_scale=cs, seed=args.seed)
@@ -118,13 +118,9 @@ def build_room(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim.service import DEFAULT_PORT, serve
-
     try:
         room = build_room(args)
         if args.write_layout:
-            from sim.scene import write_layout
-
             write_layout(room.scene, args.write_layout)
             print(f"wrote {args.write_layout}")
             return 0

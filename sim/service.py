@@ -20,11 +20,14 @@ from typing import Callable
 
 import grpc
 import numpy as np
+from grpc_health.v1 import health, health_pb2, health_pb2_grpc
+from grpc_reflection.v1alpha import reflection
 
 from protos import codec, room_pb2, room_pb2_grpc
 from protos.version import SERVER_GRPC_OPTIONS
 from sim import wire
 from sim.errors import FrameError, SimError, UnknownSlotError
+from sim.occluders import flatten
 from sim.room import Room
 
 log = logging.getLogger(__name__)
@@ -256,8 +259,6 @@ class TruthService(room_pb2_grpc.RoomTruthServicer):
         def job():
             occ = wire.occluders_from_msg(request)
             self.room.set_occluders(occ)
-            from sim.occluders import flatten
-
             return room_pb2.SetOccludersReply(primitives=len(flatten(self.room.occluders())))
 
         return await self._call(context, job)
@@ -305,9 +306,6 @@ class RoomServer:
         return f"{self.host}:{self.port}"
 
     async def start(self) -> int:
-        from grpc_health.v1 import health, health_pb2, health_pb2_grpc
-        from grpc_reflection.v1alpha import reflection
-
         self._worker = _Worker()
         self._server = grpc.aio.server(options=SERVER_GRPC_OPTIONS)
         self.service = RoomService(self.room, self._worker)
