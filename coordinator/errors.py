@@ -7,3 +7,7 @@ class CoordinatorError(Exception):
 
 class RigError(CoordinatorError):
     """The rig directory or one of its files is missing or invalid."""
+
+
+class AssetError(CoordinatorError):
+    """An asset cannot be added, found, read or removed; the message names the file or id."""

@@ -9,6 +9,9 @@ Layout of a rig directory::
     luts/<slot>.npy       (C, E) float32 inverse-response LUT
     meshes/<id>.npz       meshes that projection poses render
     content/current.*     what the rig shows (image + metadata)
+    calibration/          calibration runs, camera mappings, per-slot results
+    compensation/         responses, the light transport, compensated results
+    assets/               content assets by SHA-256 (see coordinator/assets.py)
 
 A coordinator restarted on the same directory serves the same rig.
 """

@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "show": ("coordinator.commands", "show an image on every projector"),
     "play": ("coordinator.commands", "play a sequence of images, or a generated test sequence"),
     "configure": ("coordinator.commands", "set a slot's pose, LUT, gain or output size by hand"),
+    "content": ("coordinator.content_commands", "add, list, remove and verify content assets (stills, sequences, videos)"),
     "local": ("shadowless.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
     "calibrate": ("coordinator.calibration.cli", "calibrate the projectors with the camera (poses pushed to the nodes)"),
     "alignment": ("coordinator.calibration.cli", "measure each projector's residual misalignment; heat map over the table"),

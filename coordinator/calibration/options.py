@@ -31,7 +31,7 @@ import numpy as np
 from coordinator.calibration.errors import CalibrationError
 from coordinator.calibration.planar import CharucoSpec
 from coordinator.calibration.points import PointSet, inline_table_points, parse_points, read_points
-from coordinator.jobs import JobError, option, parse_options
+from coordinator.jobs import JobError, option
 
 __all__ = ["CalibrateOptions", "AlignmentOptions", "Inputs", "rig_defaults", "decide", "resolve"]
 

@@ -160,7 +160,6 @@ def test_tls_channel(tmp_path):
                    check=True, capture_output=True)
     rig = LocalRig(["r0c0"], tmp_path / "tls", output_size=(32, 32), content_size=(32, 32), mdns=False,
                    extra_node_args={"r0c0": ["--tls-ca", str(cert), "--tls-server-name", "shadowless-test"]}).create()
-    import sys
 
     rig.coordinator = rig._spawn("coordinator", ["coordinator", "--rig", str(rig.rig_dir), "--listen", f"127.0.0.1:{rig.port}",
                                                  "--no-mdns", "--tls-cert", str(cert), "--tls-key", str(key)])

@@ -23,7 +23,7 @@ def test_top_level_help_lists_every_command_and_a_workflow():
     assert "rig init" in out and "shadowless local" in out
 
 
-@pytest.mark.parametrize("command", ["coordinator", "node", "rig", "status", "show", "play", "configure", "local", "bench"])
+@pytest.mark.parametrize("command", ["coordinator", "node", "rig", "status", "show", "play", "configure", "local", "content", "bench"])
 def test_each_command_explains_itself(command):
     r = sh(command, "--help")
     assert r.returncode == 0, r.stderr

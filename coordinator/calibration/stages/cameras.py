@@ -106,7 +106,7 @@ def check_points_inside(px: np.ndarray, size: tuple[int, int], camera: int) -> N
 
 
 async def _pose_cameras_and_mesh(st: State, world_sets: dict[int, list[PointSet]]) -> None:
-    ctx, opts, inputs, setup = st.ctx, st.opts, st.inputs, st.setup
+    ctx, inputs, setup = st.ctx, st.inputs, st.setup
     try:
         mesh = threed.load_mesh(inputs.mesh_path)
     except CalibrationError as exc:
