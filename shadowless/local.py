@@ -1,6 +1,15 @@
 """A whole rig on this machine: one coordinator process and N node processes on
 127.0.0.1, with mDNS bound to the loopback interface. Used by `shadowless local`,
 `shadowless bench sync`, the demo and the tests.
+
+With a venue (``LocalRig(..., netns=True)`` or ``venue=Venue(...)``, see :mod:`shadowless.netns`)
+the same processes run in network namespaces joined by a rate-limited bridge: the coordinator
+listens on its venue address and advertises there, each node discovers it by real multicast
+mDNS over the bridge. The process that owns the rig stays in the host's namespace, which has no
+route into the venue; :meth:`LocalRig.client` reaches the coordinator through a relay that the
+venue starts inside the coordinator's namespace on a Unix socket path (filesystem sockets cross
+namespaces, and no interface of the host is touched). :meth:`LocalRig.run_cli` runs an operator
+command inside any namespace of the venue, over the venue network.
 """
 from __future__ import annotations
 
@@ -24,6 +33,7 @@ from coordinator.client import Client
 from coordinator.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
 from protos import auth
+from shadowless.netns import COORDINATOR, Venue, VenueError, available, parse_rate
 
 
 def free_port() -> int:
@@ -52,13 +62,22 @@ class LocalRig:
         Per-slot test hooks that make node clocks wrong on purpose.
     node_output:
         Output spec for every node (``offscreen`` or ``room://HOST:PORT``).
+    venue:
+        Run every process in this :class:`~shadowless.netns.Venue` (its nodes must include every
+        slot); created here if it was not yet, closed by its owner, not by the rig. Inside a venue
+        the host's 127.0.0.1 is out of reach: ``room://127.0.0.1:…`` outputs do not work there.
+    netns, link, coordinator_link:
+        ``netns=True`` builds a venue of its own for the slots, with these link rates, and closes
+        it with the rig.
     """
 
     def __init__(self, slots: list[str], workdir: Path, *, output_size=(160, 90), content_size=(160, 90),
                  clock_offsets_ms: dict[str, float] | None = None, clock_drifts_ppm: dict[str, float] | None = None,
                  node_output: str = "offscreen", snapshots: bool = False, latency_ms: float = 50.0,
                  rig_name: str | None = None, extra_node_args: dict[str, list[str]] | None = None, mdns: bool = True,
-                 coordinator_args: list[str] | None = None, env: dict[str, str] | None = None):
+                 coordinator_args: list[str] | None = None, env: dict[str, str] | None = None,
+                 venue: Venue | None = None, netns: bool = False, link: str = "1gbit",
+                 coordinator_link: str | None = None):
         self.slots = list(slots)
         self.workdir = Path(workdir)
         self.rig_dir = self.workdir / "rig"
@@ -74,13 +93,40 @@ class LocalRig:
         self.mdns = mdns
         self.coordinator_args = list(coordinator_args or [])
         self.extra_env = dict(env or {})
-        self.port = free_port()
+        self.venue = venue
+        self._own_venue = venue is None and netns
+        if self._own_venue:
+            self.venue = Venue(self.slots, link=link, coordinator_link=coordinator_link)
+        if self.venue is not None:
+            missing = [s for s in self.slots if s not in self.venue.nodes]
+            if missing:
+                raise ValueError(f"the venue has no host for slots {missing}")
+        # a venue's coordinator namespace is a fresh network stack: the usual port is free there
+        self.port = 7600 if self.venue is not None else free_port()
+        self.target = f"127.0.0.1:{self.port}"     # where this process reaches the coordinator
         self.coordinator: subprocess.Popen | None = None
         self.nodes: dict[str, subprocess.Popen] = {}
         self._logs: list = []
 
     # ---------------------------------------------------------------- lifecycle
+    @property
+    def coordinator_address(self) -> str:
+        """The coordinator's IPv4 address as nodes see it (its venue address, or 127.0.0.1)."""
+        return self.venue.address(COORDINATOR) if self.venue is not None else "127.0.0.1"
+
+    @property
+    def coordinator_target(self) -> str:
+        """``HOST:PORT`` of the coordinator for processes beside the nodes."""
+        return f"{self.coordinator_address}:{self.port}"
+
+    def node_address(self, slot: str) -> str:
+        return self.venue.address(slot) if self.venue is not None else "127.0.0.1"
+
     def create(self) -> "LocalRig":
+        if self.venue is not None and self.venue.prefix is None:
+            self.venue.create()
+        if self.venue is not None and self.target.startswith("127.0.0.1:"):
+            self.target = "unix:" + self.venue.unix_relay(COORDINATOR, self.port)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         if not (self.rig_dir / "rig.toml").exists():
             init_rig(self.rig_dir, name=self.rig_name, slots=self.slots, width=self.output_size[0],
@@ -90,11 +136,15 @@ class LocalRig:
         return self
 
     def __enter__(self) -> "LocalRig":
-        self.create()
-        self.started = time.monotonic()
-        self.start_coordinator()
-        for s in self.slots:
-            self.start_node(s)
+        try:
+            self.create()
+            self.started = time.monotonic()
+            self.start_coordinator()
+            for s in self.slots:
+                self.start_node(s)
+        except BaseException:
+            self.close()
+            raise
         return self
 
     def __exit__(self, *exc) -> None:
@@ -107,16 +157,21 @@ class LocalRig:
         env.update(self.extra_env)
         return env
 
-    def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
+    def _spawn(self, name: str, args: list[str], host: str = COORDINATOR) -> subprocess.Popen:
+        """Start ``shadowless ARGS`` (in ``host``'s namespace with a venue), logging to ``name``.log."""
         log = open(self.log_dir / f"{name}.log", "ab")
         self._logs.append(log)
-        return subprocess.Popen([sys.executable, "-m", "shadowless", *args], stdout=log, stderr=subprocess.STDOUT,
-                                env=self._env(), start_new_session=True)
+        argv = [sys.executable, "-m", "shadowless", *args]
+        kw = dict(stdout=log, stderr=subprocess.STDOUT, env=self._env(), start_new_session=True)
+        if self.venue is not None:
+            return self.venue.run(host, argv, **kw)
+        return subprocess.Popen(argv, **kw)
 
     def start_coordinator(self) -> None:
         assert self.coordinator is None or self.coordinator.poll() is not None, "coordinator already running"
-        args = ["coordinator", "--rig", str(self.rig_dir), "--listen", f"127.0.0.1:{self.port}"]
-        args += ["--mdns-interface", "127.0.0.1"] if self.mdns else ["--no-mdns"]
+        addr = self.coordinator_address
+        args = ["coordinator", "--rig", str(self.rig_dir), "--listen", f"{addr}:{self.port}"]
+        args += ["--mdns-interface", addr] if self.mdns else ["--no-mdns"]
         self.coordinator = self._spawn("coordinator", args + self.coordinator_args)
 
     def stop_coordinator(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
@@ -131,9 +186,9 @@ class LocalRig:
     def node_args(self, slot: str) -> list[str]:
         args = ["node", "--slot", slot, "--token-file", str(self.rig_dir / "token"), "--output", self.node_output]
         if self.mdns:
-            args += ["--mdns-interface", "127.0.0.1", "--rig", self.rig_name]
+            args += ["--mdns-interface", self.node_address(slot), "--rig", self.rig_name]
         else:
-            args += ["--coordinator", f"127.0.0.1:{self.port}"]
+            args += ["--coordinator", self.coordinator_target]
         if self.snapshot_dir is not None:
             args += ["--snapshot-dir", str(self.snapshot_dir)]
         if slot in self.offsets:
@@ -143,7 +198,7 @@ class LocalRig:
         return args + self.extra_node_args.get(slot, [])
 
     def start_node(self, slot: str, extra: list[str] | None = None) -> subprocess.Popen:
-        proc = self._spawn(f"node-{slot}", self.node_args(slot) + (extra or []))
+        proc = self._spawn(f"node-{slot}", self.node_args(slot) + (extra or []), host=slot)
         self.nodes[slot] = proc
         return proc
 
@@ -167,6 +222,8 @@ class LocalRig:
         for f in self._logs:
             f.close()
         self._logs.clear()
+        if self._own_venue and self.venue is not None:
+            self.venue.close()
 
     def log(self, name: str) -> str:
         f = self.log_dir / f"{name}.log"
@@ -177,13 +234,29 @@ class LocalRig:
         deadline = time.monotonic() + timeout
         while True:
             try:
-                return await Client.connect(f"127.0.0.1:{self.port}", self.token)
+                return await Client.connect(self.target, self.token)
             except Exception:
                 if time.monotonic() > deadline:
                     raise
                 if self.coordinator is not None and self.coordinator.poll() is not None:
                     raise RuntimeError("coordinator exited:\n" + self.log("coordinator")[-3000:])
                 await asyncio.sleep(0.2)
+
+    def run_cli(self, args: list[str], *, host: str | None = None, timeout: float = 60.0) -> str:
+        """Run the operator command ``shadowless ARGS --coordinator ... --rig-dir ...`` to completion and
+        return its stdout. With a venue it runs inside ``host``'s namespace (default: the
+        coordinator's) and talks to the coordinator over the venue network."""
+        argv = [sys.executable, "-m", "shadowless", *args, "--coordinator", self.coordinator_target,
+                "--rig-dir", str(self.rig_dir)]
+        if self.venue is not None:
+            try:
+                return self.venue.check_output(host or COORDINATOR, argv, timeout=timeout, env=self._env())
+            except VenueError as exc:
+                raise RuntimeError(str(exc)) from None
+        r = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env=self._env())
+        if r.returncode != 0:
+            raise RuntimeError(f"shadowless {' '.join(args)} exited with {r.returncode}: {r.stderr[-2000:]}")
+        return r.stdout
 
     def wait_ready(self, timeout: float = 30.0) -> None:
         """Block until the coordinator answers an authenticated call."""
@@ -230,7 +303,15 @@ def card_image(width: int, height: int) -> np.ndarray:
 # ---------------------------------------------------------------- `shadowless local`
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = ("Start a coordinator and N offscreen nodes on 127.0.0.1 (mDNS on loopback), show an image on all "
-                     "of them, play a counter sequence, print the sync figures, and stop everything.")
+                     "of them, play a counter sequence, print the sync figures, and stop everything.\n"
+                     "With --netns the processes run on a virtual venue network instead: one network namespace per "
+                     "process, joined by a rate-limited bridge, discovery by real multicast mDNS (needs root and "
+                     "iproute2; see shadowless/netns.py).")
+    p.epilog = ("examples:\n"
+                "  shadowless local --nodes 4\n"
+                "  sudo shadowless local --nodes 4 --netns                  # 1 Gbit/s links\n"
+                "  sudo shadowless local --nodes 9 --netns --link 100mbit   # a Wi-Fi-class venue\n"
+                "  python -m shadowless.netns cleanup                       # remove what a crashed run left")
     p.add_argument("--nodes", type=int, default=4, help="how many node processes (default 4)")
     p.add_argument("--fps", type=float, default=30.0, help="sequence frame rate (default 30)")
     p.add_argument("--seconds", type=float, default=5.0, help="sequence length (default 5 s)")
@@ -241,6 +322,11 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clock-drift-ppm", type=float, default=0.0, help="inject drifts spread over ±this many ppm")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory, logs and snapshots in DIR")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    v = p.add_argument_group("virtual venue network")
+    v.add_argument("--netns", action="store_true",
+                   help="run every process in its own network namespace on a rate-limited bridge (root)")
+    v.add_argument("--link", default="1gbit", metavar="RATE", help="with --netns: every link's rate (default 1gbit)")
+    v.add_argument("--coordinator-link", metavar="RATE", help="with --netns: the coordinator's link rate (default --link)")
 
 
 def spread(n: int, amplitude: float, seed: int) -> list[float]:
@@ -255,8 +341,12 @@ async def _local(args) -> int:
     offsets = dict(zip(slots, spread(len(slots), args.clock_offset_ms, 1)))
     drifts = dict(zip(slots, spread(len(slots), args.clock_drift_ppm, 2)))
     with LocalRig(slots, workdir, output_size=(w, h), content_size=(w, h), clock_offsets_ms=offsets,
-                  clock_drifts_ppm=drifts, snapshots=True) as rig:
-        print(f"rig {rig.rig_name}: coordinator on 127.0.0.1:{rig.port}, {len(slots)} nodes; logs in {rig.log_dir}", file=sys.stderr)
+                  clock_drifts_ppm=drifts, snapshots=True, netns=args.netns, link=args.link,
+                  coordinator_link=args.coordinator_link) as rig:
+        if rig.venue is not None:
+            print(rig.venue.describe(), file=sys.stderr)
+        print(f"rig {rig.rig_name}: coordinator on {rig.coordinator_target}, {len(slots)} nodes; logs in {rig.log_dir}",
+              file=sys.stderr)
         async with await rig.client() as c:
             await rig.wait_live(c)
             img = read_image(args.image) if args.image else card_image(w, h)
@@ -267,6 +357,8 @@ async def _local(args) -> int:
             status = status_dict(await c.status())
     result = {"nodes": len(slots), "fps": args.fps, **play_dict(reply), "node_table": status["nodes"],
               "workdir": str(workdir)}
+    if args.netns:
+        result["venue"] = {"link": args.link, "coordinator_link": args.coordinator_link or args.link}
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -280,4 +372,19 @@ async def _local(args) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    return asyncio.run(_local(args))
+    if args.netns:
+        try:
+            for rate in (args.link, args.coordinator_link or args.link):
+                parse_rate(rate)
+        except ValueError as exc:
+            print(f"shadowless local: {exc}", file=sys.stderr)
+            return 2
+        ok, reason = available()
+        if not ok:
+            print(f"shadowless local --netns: {reason}", file=sys.stderr)
+            return 2
+    try:
+        return asyncio.run(_local(args))
+    except VenueError as exc:
+        print(f"shadowless local: {exc}", file=sys.stderr)
+        return 2

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -51,11 +52,24 @@ def _is_runtime_thread(t: threading.Thread) -> bool:
     return t.name.startswith(("asyncio_", "ThreadPoolExecutor")) or "_poll_wrapper" in t.name
 
 
+def _owned_namespaces() -> set[str]:
+    """Network namespaces of venues this process owns (shadowless.netns); only looked up once
+    that module is loaded, since nothing else creates them."""
+    mod = sys.modules.get("shadowless.netns")
+    if mod is None:
+        return set()
+    try:
+        return set(mod.owned_namespaces())
+    except Exception:   # noqa: BLE001 - no `ip`, no state directory: nothing of ours can exist
+        return set()
+
+
 @pytest.fixture(autouse=True)
 def no_leaks(request):
-    """Fail a test that leaves processes or threads behind (after a short grace)."""
+    """Fail a test that leaves processes, threads or venue namespaces behind (after a short grace)."""
     before_pids = child_pids()
     before_threads = _live_threads()
+    before_ns = _owned_namespaces()
     yield
     if request.node.get_closest_marker("allow_leaks"):
         return
@@ -64,16 +78,26 @@ def no_leaks(request):
         pids = child_pids(exclude=before_pids)
         threads = {t for t in _live_threads() - before_threads if not _is_runtime_thread(t)}
         if not pids and not threads:
-            return
+            break
         if time.monotonic() > deadline:
             break
         time.sleep(0.1)
+    namespaces = _owned_namespaces() - before_ns
+    if namespaces:
+        try:   # close the venues still open (their processes and namespaces) before failing
+            sys.modules["shadowless.netns"].close_owned(namespaces)
+        except Exception:   # noqa: BLE001
+            pass
+    if not pids and not threads and not namespaces:
+        return
     for pid in pids:
         try:
             os.kill(pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
     problems = []
+    if namespaces:
+        problems.append(f"leaked network namespaces {sorted(namespaces)}")
     if pids:
         problems.append(f"leaked processes {sorted(pids)}")
     if threads:
