@@ -83,6 +83,18 @@ class PlayResult:
 
 
 @dataclass(frozen=True)
+class AssetProgress:
+    """How far a node is with one asset it must hold (fetched ahead of use)."""
+
+    asset_id: str
+    have_bytes: int = 0         # on the node's disk, complete and partial blobs
+    total_bytes: int = 0        # the asset's bytes (0 when nobody knows yet)
+    ready: bool = False         # every blob complete and verified on the node
+    error: str = ""             # why the node gave up on it; "" = none
+    name: str = ""
+
+
+@dataclass(frozen=True)
 class NodeStatus:
     """One slot of the rig and its node, as the coordinator sees it."""
 
@@ -103,6 +115,11 @@ class NodeStatus:
     assignment_revision: int = 0
     pose_kind: str = "none"       # "homography", "projection" or "none"
     joins: int = 0
+    assets_wanted: int = 0        # assets the node must hold (every asset of the rig's store, for now)
+    assets_ready: int = 0         # of those, complete and verified on the node
+    asset_bytes_have: int = 0     # over the wanted assets, from the node's last heartbeat
+    asset_bytes_total: int = 0
+    assets: tuple[AssetProgress, ...] = ()   # one per wanted asset, in fetch order
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from pathlib import Path
 import grpc
 import numpy as np
 
-from coordinator.api import PlayResult, PlaySettings, RigStatus, SyncSummary
+from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, SyncSummary
 from coordinator.client import OperatorError, add_connection_args, open_client
 from coordinator.job_command import run_job
 from protos import auth
@@ -34,6 +34,28 @@ def sync_dict(s: SyncSummary) -> dict:
             "out_of_order": s.out_of_order}
 
 
+def assets_dict(n: NodeStatus) -> dict:
+    """A node's readiness as JSON: counts, bytes, the percentage of the bytes it holds (null when
+    nothing is wanted) and one item per wanted asset."""
+    pct = None if not n.asset_bytes_total else round(100.0 * n.asset_bytes_have / n.asset_bytes_total, 1)
+    if n.assets_wanted and not n.asset_bytes_total:
+        pct = 100.0 if n.assets_ready == n.assets_wanted else 0.0
+    return {"wanted": n.assets_wanted, "ready": n.assets_ready, "bytes_have": n.asset_bytes_have,
+            "bytes_total": n.asset_bytes_total, "percent": pct,
+            "items": [{"id": a.asset_id, "name": a.name, "ready": a.ready, "have": a.have_bytes, "total": a.total_bytes,
+                       **({"error": a.error} if a.error else {})} for a in n.assets]}
+
+
+def assets_cell(a: dict) -> str:
+    """The status table's readiness column: ``2/3 41%`` (``-`` when nothing is wanted; ``!`` when
+    the node gave up on an asset)."""
+    if not a["wanted"]:
+        return "-"
+    failed = "!" if any("error" in i for i in a["items"]) else ""
+    pct = 100 if a["ready"] == a["wanted"] else min(99, int(a["percent"] or 0))   # 100 % only when all are ready
+    return f"{a['ready']}/{a['wanted']} {pct}%{failed}"
+
+
 def status_dict(st: RigStatus) -> dict:
     """The rig's status as JSON (what `shadowless status --json` prints)."""
     num = _num
@@ -48,7 +70,7 @@ def status_dict(st: RigStatus) -> dict:
             "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": num(n.clock_error_ms),
             "last_swap_frame": n.last_swap_frame, "last_swap_age_ms": num(n.last_swap_age_ms),
             "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
-            "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins,
+            "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
         } for n in st.nodes],
         "sync": sync_dict(st.sync),
         "refusals": [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1)} for r in st.refusals],
@@ -58,11 +80,17 @@ def status_dict(st: RigStatus) -> dict:
 def status_table(d: dict) -> str:
     r = d["rig"]
     lines = [f"rig {r['name']} ({r['id']})  instance {r['instance']}  up {r['uptime_s']:.0f} s  showing: {r['showing']}"]
-    hdr = f"{'slot':<8}{'state':<10}{'host':<16}{'offset ms':>11}{'drift ppm':>10}{'rtt ms':>8}{'last frame':>18}{'shown':>8}{'late':>6}{'drop':>6}  pose"
+    hdr = (f"{'slot':<8}{'state':<10}{'host':<16}{'offset ms':>11}{'drift ppm':>10}{'rtt ms':>8}{'last frame':>18}"
+           f"{'shown':>8}{'late':>6}{'drop':>6}  {'pose':<11}assets")
     lines.append(hdr)
     for n in d["nodes"]:
         lines.append(f"{n['slot']:<8}{n['state']:<10}{(n['host'] or '-')[:15]:<16}{n['clock_offset_ms']:>11.3f}{n['drift_ppm']:>10.1f}"
-                     f"{n['rtt_ms']:>8.3f}{n['last_swap_frame'] or '-':>18}{n['shown']:>8}{n['late']:>6}{n['dropped']:>6}  {n['pose']}")
+                     f"{n['rtt_ms']:>8.3f}{n['last_swap_frame'] or '-':>18}{n['shown']:>8}{n['late']:>6}{n['dropped']:>6}  "
+                     f"{n['pose']:<11}{assets_cell(n['assets'])}")
+    for n in d["nodes"]:
+        for item in n["assets"]["items"]:
+            if "error" in item:
+                lines.append(f"{n['slot']}: asset {item['id'][:12]} ({item['name']}): {item['error']}")
     s = d["sync"]
     fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
     lines.append(f"sync: {s['frames']} frames, skew p50 {fmt(s['skew_p50_ms'])} ms, p99 {fmt(s['skew_p99_ms'])} ms, "
@@ -92,7 +120,8 @@ def read_image(path: str) -> np.ndarray:
 
 # ---------------------------------------------------------------- commands
 def configure_status(p: argparse.ArgumentParser) -> None:
-    p.description = "Show the rig: every slot's node state, clock offset, drift, last swap, late/dropped frames, and the swap skew."
+    p.description = ("Show the rig: every slot's node state, clock offset, drift, last swap, late/dropped frames, its "
+                     "readiness (assets ready/wanted and the share of their bytes it holds), and the swap skew.")
     p.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
     add_connection_args(p)
 

@@ -2,8 +2,9 @@
 
 :class:`Coordinator` owns the rig state and composes the parts: the handshake and sessions
 (:mod:`coordinator.sessions`), the frame fan-out (:mod:`coordinator.fanout`), what the rig
-shows (:mod:`coordinator.playback`), the swap bookkeeping (:mod:`coordinator.sync`) and
-the gRPC services (:mod:`coordinator.services`). It implements
+shows (:mod:`coordinator.playback`), the swap bookkeeping (:mod:`coordinator.sync`), the
+assets nodes fetch ahead (:mod:`coordinator.distribution`) and the gRPC services
+(:mod:`coordinator.services`). It implements
 :class:`coordinator.jobs.driver.RigDriver`, so jobs run on it through a
 :class:`~coordinator.jobs.context.JobContext` and never see it.
 
@@ -26,7 +27,9 @@ import numpy as np
 
 from coordinator import services, wire
 from coordinator.api import DropReason, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal, RigStatus, ShowResult
+from coordinator.assets import AssetStore
 from coordinator.camera import Camera, RoomCamera, open_camera
+from coordinator.distribution import Distribution
 from coordinator.errors import CoordinatorError
 from coordinator.fanout import FanOut
 from coordinator.jobs.context import Event
@@ -39,6 +42,9 @@ from coordinator.sync import SyncTracker, summarize
 from protos.version import PROTOCOL_VERSION
 
 log = logging.getLogger(__name__)
+
+#: how often the watchdog looks for assets added or removed by `shadowless content`
+STORE_POLL_S = 1.0
 
 
 class _AfterLastPattern:
@@ -110,6 +116,7 @@ class Coordinator:
         self.fanout = FanOut(self.sync, wire.PacketEncoder)
         self.playback = Playback(rig, self.fanout, self.sync, live_sessions=self.live_sessions, clock_ns=self.clock_ns,
                                  latency_ns=self.latency_ns)
+        self.distribution = Distribution(AssetStore(rig.path))
         self._camera_specs: list[str] = list(cameras if cameras is not None else rig.config.cameras)
         self._job_lock = asyncio.Lock()
         self._server: grpc.aio.Server | None = None
@@ -120,6 +127,7 @@ class Coordinator:
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
         """Listen, register the services (health and reflection too), advertise, watch the nodes."""
+        self.distribution.load()
         self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
         if self.advertise:
             self._advertiser = Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
@@ -216,9 +224,26 @@ class Coordinator:
         self.sync.sweep()
 
     async def _watchdog(self) -> None:
+        next_poll = 0.0
         while True:
             await asyncio.sleep(0.25)
             self.sweep()
+            if time.monotonic() >= next_poll:   # host time: an injected rig clock may stand still
+                next_poll = time.monotonic() + STORE_POLL_S
+                await self.refresh_assets()
+
+    async def refresh_assets(self) -> bool:
+        """Look for assets added or removed in the rig's store; push a changed wanted list to every
+        node. Whether it changed (a store that cannot be read is logged, and tried again)."""
+        try:
+            changed = await self.distribution.refresh()
+        except OSError as exc:
+            log.warning("cannot read the asset store in %s: %s", self.rig.path, exc)
+            return False
+        if changed:
+            for sess in self.by_slot.values():
+                sess.wanted_event.set()
+        return changed
 
     def on_frames_open(self, sess: NodeSession) -> None:
         sess.frames_open = True
@@ -306,6 +331,9 @@ class Coordinator:
             base = dict(slot=name, assignment_revision=st.revision, joins=self.joins.get(name, 0),
                         pose_kind=st.pose.kind if st.pose is not None else "none")
             sess = self.by_slot.get(name)
+            ready = self.distribution.readiness(sess.heartbeat.assets if sess and sess.heartbeat else ())
+            base.update(assets_wanted=ready.wanted, assets_ready=ready.ready, asset_bytes_have=ready.bytes_have,
+                        asset_bytes_total=ready.bytes_total, assets=ready.assets)
             if sess is None:
                 nodes.append(NodeStatus(**base))
                 continue

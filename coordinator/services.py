@@ -9,6 +9,7 @@ The Frames RPC yields bytes serialized once for every node (an identity serializ
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import logging
 from typing import TYPE_CHECKING, Any
@@ -149,6 +150,43 @@ class NodeLinkService(_Handshake):
         return node_pb2.PingReply(t0_local_ns=request.t0_local_ns, t1_rig_ns=t1, t2_rig_ns=self.c.rig_now(),
                                   instance_id=self.c.instance_id)
 
+    # ---------------------------------------------------------------- assets fetched ahead
+    async def Wanted(self, request, context):
+        try:
+            sess = self.c.node_session(_session_id(context))
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        sent = -1
+        while not sess.closed:
+            wanted = self.c.distribution.wanted
+            if wanted.revision != sent:
+                sent = wanted.revision
+                yield wire.wanted_message(wanted)
+            sess.wanted_event.clear()
+            if self.c.distribution.wanted.revision == sent:
+                await sess.wanted_event.wait()
+
+    @_guard
+    async def GetManifest(self, request, context):
+        self.c.node_session(_session_id(context))
+        return wire.manifest_reply(await self.c.distribution.manifest_bytes(request.asset_id))
+
+    async def FetchBlob(self, request, context):
+        # written with context.write (not yielded): a node that goes away mid-blob (killed, link
+        # lost) ends the call quietly instead of as a servicer error
+        try:
+            sess = self.c.node_session(_session_id(context))
+            async with contextlib.aclosing(self.c.distribution.blob_chunks(request.sha256, request.offset)) as chunks:
+                async for offset, data in chunks:
+                    try:
+                        await context.write(wire.blob_chunk_message(offset, data))
+                    except Exception as exc:  # noqa: BLE001 - whatever the transport raises once the peer is gone
+                        log.info("node %s stopped fetching blob %s… at byte %d (%s)", sess.slot, request.sha256[:12],
+                                 offset, type(exc).__name__)
+                        return
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+
 
 def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
     """Register NodeLink; Frames yields pre-serialized bytes (identity serializer)."""
@@ -170,6 +208,15 @@ def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
         "Ping": grpc.unary_unary_rpc_method_handler(
             svc.Ping, request_deserializer=node_pb2.PingRequest.FromString,
             response_serializer=node_pb2.PingReply.SerializeToString),
+        "Wanted": grpc.unary_stream_rpc_method_handler(
+            svc.Wanted, request_deserializer=node_pb2.StreamRequest.FromString,
+            response_serializer=node_pb2.WantedAssets.SerializeToString),
+        "GetManifest": grpc.unary_unary_rpc_method_handler(
+            svc.GetManifest, request_deserializer=node_pb2.ManifestRequest.FromString,
+            response_serializer=node_pb2.ManifestReply.SerializeToString),
+        "FetchBlob": grpc.unary_stream_rpc_method_handler(
+            svc.FetchBlob, request_deserializer=node_pb2.BlobRequest.FromString,
+            response_serializer=node_pb2.BlobChunk.SerializeToString),
     }
     server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler("shadowless.v1.NodeLink", handlers),))
 

@@ -17,7 +17,7 @@ from typing import Callable
 
 import grpc
 
-from coordinator.api import NodeState
+from coordinator.api import AssetProgress, NodeState
 from protos import auth
 from protos.version import PROTOCOL_VERSION
 
@@ -63,6 +63,7 @@ class Heartbeat:
     clock_rtt_ns: int = 0
     host_monotonic_ns: int = 0
     rig_estimate_ns: int = 0
+    assets: tuple[AssetProgress, ...] = ()   # the node's progress with the assets it was told it wants
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,7 @@ class NodeSession:
     packets: deque = field(default_factory=deque)
     packet_event: asyncio.Event = field(default_factory=asyncio.Event)
     assignment_event: asyncio.Event = field(default_factory=asyncio.Event)
+    wanted_event: asyncio.Event = field(default_factory=asyncio.Event)   # the wanted assets changed
     sent_content: set[str] = field(default_factory=set)
     heartbeat: Heartbeat | None = None
     last_swap_frame: int = 0
@@ -137,6 +139,7 @@ class NodeSession:
         self.closed = True
         self.packet_event.set()
         self.assignment_event.set()
+        self.wanted_event.set()
 
 
 class Handshake:

@@ -15,8 +15,9 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from coordinator.api import (DropReason, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal, RigStatus, ShowResult,
-                             Space, SyncSummary)
+from coordinator.api import (AssetProgress, DropReason, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal,
+                             RigStatus, ShowResult, Space, SyncSummary)
+from coordinator.distribution import WantedList
 from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
 from coordinator.rig import Content, HomographyPose, ProjectionPose, SlotState, validate_lut
@@ -89,16 +90,39 @@ def node_info_from_message(msg: node_pb2.NodeInfo) -> NodeInfo:
                     native_size=(msg.native_width, msg.native_height))
 
 
+def asset_progress_message(p: AssetProgress) -> node_pb2.AssetProgress:
+    return node_pb2.AssetProgress(asset_id=p.asset_id, have_bytes=p.have_bytes, total_bytes=p.total_bytes,
+                                  ready=p.ready, error=p.error, name=p.name)
+
+
+def asset_progress_from_message(m: node_pb2.AssetProgress) -> AssetProgress:
+    return AssetProgress(asset_id=m.asset_id, have_bytes=m.have_bytes, total_bytes=m.total_bytes, ready=m.ready,
+                         error=m.error, name=m.name)
+
+
 def report_from_message(msg: node_pb2.NodeReport) -> Report:
     hb = None
     if msg.HasField("heartbeat"):
         h = msg.heartbeat
         hb = Heartbeat(assignment_revision=h.assignment_revision, clock_offset_ns=h.clock_offset_ns,
                        clock_drift_ppm=h.clock_drift_ppm, clock_rtt_ns=h.clock_rtt_ns,
-                       host_monotonic_ns=h.host_monotonic_ns, rig_estimate_ns=h.rig_estimate_ns)
+                       host_monotonic_ns=h.host_monotonic_ns, rig_estimate_ns=h.rig_estimate_ns,
+                       assets=tuple(asset_progress_from_message(a) for a in h.assets))
     swaps = tuple(Swap(s.frame_id, s.swap_rig_ns, s.host_monotonic_ns) for s in msg.swaps)
     drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
     return Report(heartbeat=hb, swaps=swaps, drops=drops)
+
+
+def wanted_message(w: WantedList) -> node_pb2.WantedAssets:
+    return node_pb2.WantedAssets(revision=w.revision, asset_ids=list(w.asset_ids), pinned_ids=list(w.pinned_ids))
+
+
+def manifest_reply(data: bytes) -> node_pb2.ManifestReply:
+    return node_pb2.ManifestReply(manifest=data)
+
+
+def blob_chunk_message(offset: int, data: bytes) -> node_pb2.BlobChunk:
+    return node_pb2.BlobChunk(offset=offset, data=data)
 
 
 def content_message(content: Content, *, compress: bool = False) -> node_pb2.Content:
@@ -141,6 +165,7 @@ def _sync_from_message(m: control_pb2.SyncStats) -> SyncSummary:
 def _node_status_message(n: NodeStatus) -> control_pb2.NodeStatus:
     d = asdict(n)
     d["state"] = _STATE[n.state]
+    d["assets"] = [asset_progress_message(a) for a in n.assets]
     return control_pb2.NodeStatus(**d)
 
 
@@ -150,7 +175,10 @@ def _node_status_from_message(m: control_pb2.NodeStatus) -> NodeStatus:
                       clock_error_ms=m.clock_error_ms, last_swap_frame=m.last_swap_frame,
                       last_swap_age_ms=m.last_swap_age_ms, last_seen_age_ms=m.last_seen_age_ms,
                       frames_shown=m.frames_shown, frames_late=m.frames_late, frames_dropped=m.frames_dropped,
-                      assignment_revision=m.assignment_revision, pose_kind=m.pose_kind, joins=m.joins)
+                      assignment_revision=m.assignment_revision, pose_kind=m.pose_kind, joins=m.joins,
+                      assets_wanted=m.assets_wanted, assets_ready=m.assets_ready, asset_bytes_have=m.asset_bytes_have,
+                      asset_bytes_total=m.asset_bytes_total,
+                      assets=tuple(asset_progress_from_message(a) for a in m.assets))
 
 
 def status_message(st: RigStatus) -> control_pb2.RigStatus:

@@ -7,6 +7,9 @@ the first broken stream; then the node backs off (exponentially, with jitter,
 never busy-looping) and starts over with discovery, while the projector keeps
 showing the last frame.
 
+After each join the node also follows the rig's wanted assets and fetches them into
+its on-disk cache (:mod:`node.asset_fetch`), reporting its progress in every heartbeat.
+
 This module is the node's life cycle only: it speaks :mod:`node.records`
 dataclasses; the gRPC client is :mod:`node.link`.
 """
@@ -22,6 +25,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from node.asset_cache import default_cache_dir
+from node.asset_fetch import AssetFetcher
 from node.clock import ClockEstimator, ClockSample, LocalClock
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.link import CoordinatorLink, LinkError
@@ -53,6 +58,9 @@ class NodeConfig:
     backoff_min_s: float = 0.2
     backoff_max_s: float = 5.0
     refusal_backoff_s: float = 10.0
+    cache_dir: Path | None = None           # None: default_cache_dir() / slot
+    cache_max_bytes: int = 8 << 30
+    fetch_rate: float | None = None         # bytes per second; None: unlimited
 
 
 def _boot_id() -> str:
@@ -81,6 +89,8 @@ class Node:
         self._instance = ""
         self._stopping = asyncio.Event()
         self.joins = 0
+        self.fetcher = AssetFetcher(config.cache_dir or default_cache_dir() / config.slot, config.cache_max_bytes,
+                                    rate=config.fetch_rate)
 
     # ---------------------------------------------------------------- reports
     def _report(self, rep: SwapRecord | DropRecord) -> None:
@@ -153,6 +163,7 @@ class Node:
                 await discovery.close()
             self.presenter.detach(self._loop)
             await asyncio.get_running_loop().run_in_executor(None, self.presenter.stop)
+            self.fetcher.close()
         return 0
 
     def stop(self) -> None:
@@ -203,6 +214,7 @@ class Node:
                 asyncio.create_task(self._pings(link), name="pings"),
                 asyncio.create_task(self._stopping.wait(), name="stopping"),
                 asyncio.create_task(self._watch_presenter(), name="presenter"),
+                asyncio.create_task(self.fetcher.run(link), name="assets"),
             ]
             done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
             for t in pending:
@@ -302,4 +314,4 @@ class Node:
                                 rtt_ns=est.best_rtt_ns, samples=est.samples, rig_estimate_ns=est.rig_time(local))
         return HeartbeatRecord(assignment_revision=st.revision, frames_shown=st.shown, frames_late=st.late,
                                frames_dropped=st.dropped, render_ms_p50=st.render_ms_p50, host_monotonic_ns=host,
-                               clock=clock)
+                               clock=clock, assets=self.fetcher.progress())

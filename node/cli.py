@@ -4,13 +4,33 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import math
+import re
 import signal
 import sys
 from pathlib import Path
 
 from node.app import Node, NodeConfig
+from node.asset_cache import default_cache_dir
 from protos.auth import TokenError, resolve_token
 from protos.version import PROTOCOL_VERSION
+
+
+_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*([KMGT]?)(?:I?B)?\s*$", re.IGNORECASE)
+
+
+def parse_size(text: str) -> int:
+    """``'20G'`` -> 21474836480: a number of bytes with an optional unit K, M, G or T (powers of
+    1024; ``B``/``iB`` after it allowed, case ignored). ``argparse.ArgumentTypeError`` for
+    anything else, zero included."""
+    m = _SIZE.match(str(text))
+    value = float(m.group(1)) * _UNITS[m.group(2).upper()] if m else math.nan
+    if not (math.isfinite(value) and value >= 1):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a size: give a positive number of bytes with an optional unit K, M, G or T "
+            "(powers of 1024), e.g. 20G or 500M")
+    return int(value)
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -19,13 +39,15 @@ def configure(p: argparse.ArgumentParser) -> None:
         "proves the rig token, joins with its slot name, keeps its clock in step with the rig,\n"
         "renders every frame with its pose and LUT, swaps at the scheduled instant and reports it.\n"
         "It survives coordinator restarts and network loss by itself; the projector keeps the\n"
-        "last image meanwhile."
+        "last image meanwhile. It fetches the rig's content assets ahead of use into its cache\n"
+        "(resuming partial downloads) and reports its readiness (see `shadowless status`)."
     )
     p.epilog = (
         "examples:\n"
         "  shadowless node --slot r0c0 --token-file /etc/shadowless/token --output window\n"
         "  shadowless node --slot r2c2 --coordinator 10.0.0.2:7600 --token-file token\n"
-        "  shadowless node --slot r0c0 --output room://127.0.0.1:7700   # the virtual room"
+        "  shadowless node --slot r0c0 --output room://127.0.0.1:7700   # the virtual room\n"
+        "  shadowless node --slot r0c0 --cache-dir /var/cache/shadowless --cache-max 20G"
     )
     p.add_argument("--slot", required=True, help="this projector's slot in the rig (e.g. r0c0)")
     p.add_argument("--token-file", metavar="FILE", help="rig token file (default: $SHADOWLESS_TOKEN_FILE)")
@@ -43,10 +65,31 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-realtime", action="store_true",
                    help="do not raise the swap to real-time priority (SCHED_FIFO needs CAP_SYS_NICE)")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    cache = p.add_argument_group("assets fetched ahead of use")
+    cache.add_argument("--cache-dir", type=Path, metavar="DIR",
+                       help=f"where fetched assets are kept (default: {default_cache_dir()}/SLOT; one node per "
+                            "directory)")
+    cache.add_argument("--cache-max", type=parse_size, default="8G", metavar="SIZE",
+                       help="cap on the cache's size, e.g. 20G or 500M (powers of 1024; default 8G); the least "
+                            "recently used assets the rig no longer wants are evicted to stay under it")
+    cache.add_argument("--fetch-rate", type=parse_size, metavar="BYTES_PER_S",
+                       help="fetch assets at most this fast, e.g. 20M for 20 MiB/s (default: as fast as the "
+                            "network goes)")
     test = p.add_argument_group("test hooks (make this node deliberately wrong)")
     test.add_argument("--clock-offset-ms", type=float, default=0.0, help="offset this node's clock by this much")
     test.add_argument("--clock-drift-ppm", type=float, default=0.0, help="make this node's clock run fast/slow")
     test.add_argument("--protocol-version", type=int, default=PROTOCOL_VERSION, help=argparse.SUPPRESS)
+
+
+def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) -> NodeConfig:
+    """The node's configuration from its parsed options (the cache directory defaults per slot)."""
+    return NodeConfig(slot=args.slot, token=token, coordinator=args.coordinator, rig=args.rig,
+                      mdns_interfaces=args.mdns_interface, output=args.output, snapshot_dir=args.snapshot_dir,
+                      clock_offset_ms=args.clock_offset_ms, clock_drift_ppm=args.clock_drift_ppm,
+                      protocol_version=args.protocol_version, tls_ca=tls_ca, tls_server_name=args.tls_server_name,
+                      ping_hz=args.ping_hz, realtime=not args.no_realtime,
+                      cache_dir=args.cache_dir or default_cache_dir() / args.slot, cache_max_bytes=args.cache_max,
+                      fetch_rate=float(args.fetch_rate) if args.fetch_rate else None)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,11 +102,7 @@ def run(args: argparse.Namespace) -> int:
     except (TokenError, OSError) as exc:
         log.error("%s", exc)
         return 2
-    cfg = NodeConfig(slot=args.slot, token=token, coordinator=args.coordinator, rig=args.rig,
-                     mdns_interfaces=args.mdns_interface, output=args.output, snapshot_dir=args.snapshot_dir,
-                     clock_offset_ms=args.clock_offset_ms, clock_drift_ppm=args.clock_drift_ppm,
-                     protocol_version=args.protocol_version, tls_ca=tls_ca, tls_server_name=args.tls_server_name,
-                     ping_hz=args.ping_hz, realtime=not args.no_realtime)
+    cfg = node_config(args, token, tls_ca)
 
     async def main() -> int:
         node = Node(cfg)

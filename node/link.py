@@ -15,7 +15,8 @@ import grpc
 
 from node import wire
 from node.errors import NodeError
-from node.records import HelloReply, JoinReply, JoinRequest, NodeAssignment, PingReply, ReportBatch
+from node.records import (BlobChunkData, HelloReply, JoinReply, JoinRequest, NodeAssignment, PingReply, ReportBatch,
+                          WantedAssets)
 from protos import node_pb2, node_pb2_grpc
 from protos.version import GRPC_OPTIONS, SESSION_KEY
 
@@ -63,14 +64,20 @@ class CoordinatorLink:
     def __init__(self, target: str, *, tls_ca: bytes | None = None, tls_server_name: str | None = None):
         self.target = target
         options = list(GRPC_OPTIONS)
-        if tls_ca is not None:
-            if tls_server_name:
-                options.append(("grpc.ssl_target_name_override", tls_server_name))
-            self._channel = grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(root_certificates=tls_ca),
-                                                    options=options)
-        else:
-            self._channel = grpc.aio.insecure_channel(target, options=options)
+        if tls_ca is not None and tls_server_name:
+            options.append(("grpc.ssl_target_name_override", tls_server_name))
+
+        def channel(opts: list) -> grpc.aio.Channel:
+            if tls_ca is not None:
+                return grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(root_certificates=tls_ca), options=opts)
+            return grpc.aio.insecure_channel(target, options=opts)
+
+        self._channel = channel(options)
         self._stub = node_pb2_grpc.NodeLinkStub(self._channel)
+        # Asset downloads travel on a connection of their own (a channel connects on first use):
+        # megabytes of blob chunks never queue in front of a frame packet on the frames' connection.
+        self._bulk_channel = channel(options + [("grpc.use_local_subchannel_pool", 1)])
+        self._bulk = node_pb2_grpc.NodeLinkStub(self._bulk_channel)
         # Frames, delivered as serialized FramePackets: the presenter process parses them
         self._frames_raw = self._channel.unary_stream(
             "/shadowless.v1.NodeLink/Frames", request_serializer=node_pb2.StreamRequest.SerializeToString,
@@ -82,7 +89,10 @@ class CoordinatorLink:
         return self
 
     async def __aexit__(self, *exc) -> None:
-        await self._channel.__aexit__(*exc)
+        try:
+            await self._bulk_channel.close()
+        finally:
+            await self._channel.__aexit__(*exc)
 
     # ---------------------------------------------------------------- handshake
     async def hello(self, *, protocol_version: int, client_nonce: bytes, slot: str) -> HelloReply:
@@ -131,3 +141,30 @@ class CoordinatorLink:
 
         with _translated():
             await self._stub.Report(messages(), metadata=self._md)
+
+    # ---------------------------------------------------------------- assets fetched ahead
+    async def wanted(self) -> AsyncIterator[WantedAssets]:
+        """The assets this node must hold: the list at once, then again on every change."""
+        call = self._stub.Wanted(wire.stream_request(), metadata=self._md)
+        try:
+            with _translated():
+                async for msg in call:
+                    yield wire.wanted_from_message(msg)
+        finally:
+            call.cancel()
+
+    async def get_manifest(self, asset_id: str, *, timeout: float = 30.0) -> bytes:
+        """An asset's canonical manifest bytes (the caller checks they hash to ``asset_id``)."""
+        with _translated():
+            reply = await self._bulk.GetManifest(wire.manifest_request(asset_id), metadata=self._md, timeout=timeout)
+        return reply.manifest
+
+    async def fetch_blob(self, sha256: str, offset: int) -> AsyncIterator[BlobChunkData]:
+        """A blob's bytes from ``offset`` to its end, chunk by chunk (on the bulk connection)."""
+        call = self._bulk.FetchBlob(wire.blob_request(sha256, offset), metadata=self._md)
+        try:
+            with _translated():
+                async for msg in call:
+                    yield wire.blob_chunk_from_message(msg)
+        finally:
+            call.cancel()   # the caller stopped early: the coordinator stops reading

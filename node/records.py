@@ -59,6 +59,23 @@ class ContentBlob:
 
 
 @dataclass(frozen=True)
+class WantedAssets:
+    """The assets this node must hold (the coordinator's ``Wanted`` stream)."""
+
+    revision: int
+    asset_ids: tuple[str, ...]           # in the order to fetch them
+    pinned_ids: tuple[str, ...] = ()     # scheduled to play: never evicted
+
+
+@dataclass(frozen=True)
+class BlobChunkData:
+    """A piece of a blob: ``data`` starts at byte ``offset``."""
+
+    offset: int
+    data: bytes
+
+
+@dataclass(frozen=True)
 class FramePacketData:
     """A frame packet, for one slot, in the order a node handles it: contents, frame, evictions."""
 
@@ -110,6 +127,18 @@ class ClockStatus:
 
 
 @dataclass(frozen=True)
+class AssetProgressRecord:
+    """How far the node is with one asset it must hold."""
+
+    asset_id: str
+    have_bytes: int = 0       # on disk, complete and partial blobs
+    total_bytes: int = 0      # 0 until the manifest is fetched
+    ready: bool = False       # every blob complete and verified
+    error: str = ""           # why the node gave up on it ("" = it did not)
+    name: str = ""
+
+
+@dataclass(frozen=True)
 class HeartbeatRecord:
     assignment_revision: int
     frames_shown: int
@@ -118,6 +147,7 @@ class HeartbeatRecord:
     render_ms_p50: float
     host_monotonic_ns: int
     clock: ClockStatus | None = None      # None until the node has a clock estimate
+    assets: tuple[AssetProgressRecord, ...] = ()
 
 
 @dataclass(frozen=True)

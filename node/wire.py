@@ -12,6 +12,8 @@ from typing import Callable
 import numpy as np
 
 from node.records import (
+    AssetProgressRecord,
+    BlobChunkData,
     ContentBlob,
     DropReason,
     DropRecord,
@@ -26,6 +28,7 @@ from node.records import (
     PingReply,
     ReportBatch,
     SwapRecord,
+    WantedAssets,
 )
 from protos import codec, common_pb2, node_pb2
 
@@ -107,6 +110,14 @@ def packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], bool] = 
     return FramePacketData(tuple(contents), frame, evict)
 
 
+def wanted_from_message(msg: node_pb2.WantedAssets) -> WantedAssets:
+    return WantedAssets(revision=msg.revision, asset_ids=tuple(msg.asset_ids), pinned_ids=tuple(msg.pinned_ids))
+
+
+def blob_chunk_from_message(msg: node_pb2.BlobChunk) -> BlobChunkData:
+    return BlobChunkData(offset=msg.offset, data=msg.data)
+
+
 def hello_reply_from_message(msg: common_pb2.HelloReply) -> HelloReply:
     return HelloReply(rig_id=msg.rig_id, rig_name=msg.rig_name, server_nonce=msg.server_nonce,
                       server_proof=msg.server_proof)
@@ -147,6 +158,19 @@ def stream_request() -> node_pb2.StreamRequest:
     return node_pb2.StreamRequest()
 
 
+def manifest_request(asset_id: str) -> node_pb2.ManifestRequest:
+    return node_pb2.ManifestRequest(asset_id=asset_id)
+
+
+def blob_request(sha256: str, offset: int) -> node_pb2.BlobRequest:
+    return node_pb2.BlobRequest(sha256=sha256, offset=offset)
+
+
+def asset_progress_message(p: AssetProgressRecord) -> node_pb2.AssetProgress:
+    return node_pb2.AssetProgress(asset_id=p.asset_id, have_bytes=p.have_bytes, total_bytes=p.total_bytes,
+                                  ready=p.ready, error=p.error, name=p.name)
+
+
 def swap_message(rec: SwapRecord) -> node_pb2.SwapReport:
     return node_pb2.SwapReport(frame_id=rec.frame_id, pts_ns=rec.pts_ns, swap_rig_ns=rec.swap_rig_ns,
                                host_monotonic_ns=rec.host_monotonic_ns)
@@ -167,6 +191,7 @@ def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
         msg.clock_rtt_ns = hb.clock.rtt_ns
         msg.clock_samples = hb.clock.samples
         msg.rig_estimate_ns = hb.clock.rig_estimate_ns
+    msg.assets.extend(asset_progress_message(a) for a in hb.assets)
     return msg
 
 

@@ -26,51 +26,51 @@ from protos import common_pb2 as protos_dot_common__pb2
 from protos import node_pb2 as protos_dot_node__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x14protos/control.proto\x12\rshadowless.v1\x1a\x13protos/common.proto\x1a\x11protos/node.proto\"\x0f\n\rStatusRequest\"\x91\x03\n\nNodeStatus\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\'\n\x05state\x18\x02 \x01(\x0e\x32\x18.shadowless.v1.NodeState\x12\x10\n\x08hostname\x18\x03 \x01(\t\x12\x0b\n\x03pid\x18\x04 \x01(\r\x12\x17\n\x0f\x63lock_offset_ms\x18\x05 \x01(\x01\x12\x17\n\x0f\x63lock_drift_ppm\x18\x06 \x01(\x01\x12\x14\n\x0c\x63lock_rtt_ms\x18\x07 \x01(\x01\x12\x17\n\x0flast_swap_frame\x18\x08 \x01(\x04\x12\x18\n\x10last_swap_age_ms\x18\t \x01(\x01\x12\x14\n\x0c\x66rames_shown\x18\n \x01(\x04\x12\x13\n\x0b\x66rames_late\x18\x0b \x01(\x04\x12\x16\n\x0e\x66rames_dropped\x18\x0c \x01(\x04\x12\x1b\n\x13\x61ssignment_revision\x18\r \x01(\x04\x12\x11\n\tpose_kind\x18\x0e \x01(\t\x12\x18\n\x10last_seen_age_ms\x18\x0f \x01(\x01\x12\x16\n\x0e\x63lock_error_ms\x18\x10 \x01(\x01\x12\r\n\x05joins\x18\x11 \x01(\r\"\xce\x01\n\tSyncStats\x12\x0e\n\x06\x66rames\x18\x01 \x01(\x04\x12\x13\n\x0bskew_p50_ms\x18\x02 \x01(\x01\x12\x13\n\x0bskew_p99_ms\x18\x03 \x01(\x01\x12\x13\n\x0bskew_max_ms\x18\x04 \x01(\x01\x12\x13\n\x0bskew_source\x18\x05 \x01(\t\x12\x1a\n\x12\x63lock_error_p99_ms\x18\x06 \x01(\x01\x12\x13\n\x0b\x66rames_late\x18\x07 \x01(\x04\x12\x16\n\x0e\x66rames_dropped\x18\x08 \x01(\x04\x12\x14\n\x0cout_of_order\x18\t \x01(\x04\"D\n\x07Refusal\x12\x0c\n\x04peer\x18\x01 \x01(\t\x12\x0c\n\x04slot\x18\x02 \x01(\t\x12\x0e\n\x06reason\x18\x03 \x01(\t\x12\r\n\x05\x61ge_s\x18\x04 \x01(\x01\"\xb6\x02\n\tRigStatus\x12\x0e\n\x06rig_id\x18\x01 \x01(\t\x12\x10\n\x08rig_name\x18\x02 \x01(\t\x12\x13\n\x0binstance_id\x18\x03 \x01(\t\x12\x0f\n\x07rig_dir\x18\x04 \x01(\t\x12\x18\n\x10protocol_version\x18\x05 \x01(\r\x12\x10\n\x08uptime_s\x18\x06 \x01(\x01\x12(\n\x05nodes\x18\x07 \x03(\x0b\x32\x19.shadowless.v1.NodeStatus\x12&\n\x04sync\x18\x08 \x01(\x0b\x32\x18.shadowless.v1.SyncStats\x12\x0f\n\x07showing\x18\t \x01(\t\x12(\n\x08refusals\x18\n \x03(\x0b\x32\x16.shadowless.v1.Refusal\x12\x19\n\x11latency_budget_ms\x18\x0b \x01(\x01\x12\r\n\x05\x63pu_s\x18\x0c \x01(\x01\"4\n\x08NodeList\x12(\n\x05nodes\x18\x01 \x03(\x0b\x32\x19.shadowless.v1.NodeStatus\"\x89\x01\n\x0bShowRequest\x12#\n\x05image\x18\x01 \x01(\x0b\x32\x14.shadowless.v1.Image\x12#\n\x05space\x18\x02 \x01(\x0e\x32\x14.shadowless.v1.Space\x12\x11\n\tapply_lut\x18\x03 \x01(\x08\x12\x0f\n\x07persist\x18\x04 \x01(\x08\x12\x0c\n\x04name\x18\x05 \x01(\t\"A\n\tShowReply\x12\x10\n\x08\x66rame_id\x18\x01 \x01(\x04\x12\x12\n\ncontent_id\x18\x02 \x01(\t\x12\x0e\n\x06pts_ns\x18\x03 \x01(\x03\"\x8b\x01\n\x0cPlaySettings\x12\x0b\n\x03\x66ps\x18\x01 \x01(\x01\x12\r\n\x05loops\x18\x02 \x01(\r\x12\x0c\n\x04wait\x18\x03 \x01(\x08\x12\x0f\n\x07pattern\x18\x04 \x01(\t\x12\x0e\n\x06\x66rames\x18\x05 \x01(\r\x12\x12\n\nlatency_ms\x18\x08 \x01(\x01\x12\x10\n\x08settle_s\x18\t \x01(\x01J\x04\x08\x06\x10\x07J\x04\x08\x07\x10\x08\"j\n\x08PlayItem\x12/\n\x08settings\x18\x01 \x01(\x0b\x32\x1b.shadowless.v1.PlaySettingsH\x00\x12%\n\x05\x66rame\x18\x02 \x01(\x0b\x32\x14.shadowless.v1.ImageH\x00\x42\x06\n\x04item\"\x86\x02\n\tPlayReply\x12\x13\n\x0b\x66rames_sent\x18\x01 \x01(\x04\x12\x14\n\x0c\x66rames_shown\x18\x02 \x01(\x04\x12\x13\n\x0b\x66rames_late\x18\x03 \x01(\x04\x12\x16\n\x0e\x66rames_dropped\x18\x04 \x01(\x04\x12&\n\x04sync\x18\x05 \x01(\x0b\x32\x18.shadowless.v1.SyncStats\x12\x19\n\x11\x63oordinator_cpu_s\x18\x06 \x01(\x01\x12\r\n\x05nodes\x18\x07 \x01(\r\x12\x0e\n\x06wall_s\x18\x08 \x01(\x01\x12\x10\n\x08skews_ms\x18\t \x03(\x01\x12\x17\n\x0f\x63lock_errors_ms\x18\n \x03(\x01\x12\x14\n\x0c\x65ncode_cpu_s\x18\x0b \x01(\x01\"\r\n\x0bStopRequest\"\x0b\n\tStopReply\"\xbf\x01\n\x10\x43onfigureRequest\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12-\n\nhomography\x18\x02 \x01(\x0b\x32\x19.shadowless.v1.Homography\x12\x1f\n\x03lut\x18\x03 \x01(\x0b\x32\x12.shadowless.v1.Lut\x12\x0c\n\x04gain\x18\x04 \x01(\x02\x12\x14\n\x0coutput_width\x18\x05 \x01(\r\x12\x15\n\routput_height\x18\x06 \x01(\r\x12\x12\n\nclear_pose\x18\x07 \x01(\x08\"\"\n\x0e\x43onfigureReply\x12\x10\n\x08revision\x18\x01 \x01(\x04\"/\n\nJobRequest\x12\x0c\n\x04kind\x18\x01 \x01(\t\x12\x13\n\x0bparams_json\x18\x02 \x01(\t\"g\n\x0bJobProgress\x12\r\n\x05stage\x18\x01 \x01(\t\x12\x0c\n\x04item\x18\x02 \x01(\t\x12\x0c\n\x04\x64one\x18\x03 \x01(\r\x12\r\n\x05total\x18\x04 \x01(\r\x12\x0f\n\x07message\x18\x05 \x01(\t\x12\r\n\x05value\x18\x06 \x01(\x01\"i\n\x08JobEvent\x12.\n\x08progress\x18\x01 \x01(\x0b\x32\x1a.shadowless.v1.JobProgressH\x00\x12\r\n\x03log\x18\x02 \x01(\tH\x00\x12\x15\n\x0bresult_json\x18\x03 \x01(\tH\x00\x42\x07\n\x05\x65vent*\x81\x01\n\tNodeState\x12\x1a\n\x16NODE_STATE_UNSPECIFIED\x10\x00\x12\x17\n\x13NODE_STATE_EXPECTED\x10\x01\x12\x15\n\x11NODE_STATE_JOINED\x10\x02\x12\x13\n\x0fNODE_STATE_LIVE\x10\x03\x12\x13\n\x0fNODE_STATE_LOST\x10\x04\x32\xda\x04\n\nRigControl\x12?\n\x05Hello\x12\x1b.shadowless.v1.HelloRequest\x1a\x19.shadowless.v1.HelloReply\x12?\n\x05Login\x12\x1b.shadowless.v1.LoginRequest\x1a\x19.shadowless.v1.LoginReply\x12@\n\x06Status\x12\x1c.shadowless.v1.StatusRequest\x1a\x18.shadowless.v1.RigStatus\x12\x42\n\tListNodes\x12\x1c.shadowless.v1.StatusRequest\x1a\x17.shadowless.v1.NodeList\x12<\n\x04Show\x12\x1a.shadowless.v1.ShowRequest\x1a\x18.shadowless.v1.ShowReply\x12;\n\x04Play\x12\x17.shadowless.v1.PlayItem\x1a\x18.shadowless.v1.PlayReply(\x01\x12<\n\x04Stop\x12\x1a.shadowless.v1.StopRequest\x1a\x18.shadowless.v1.StopReply\x12K\n\tConfigure\x12\x1f.shadowless.v1.ConfigureRequest\x1a\x1d.shadowless.v1.ConfigureReply\x12>\n\x06RunJob\x12\x19.shadowless.v1.JobRequest\x1a\x17.shadowless.v1.JobEvent0\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x14protos/control.proto\x12\rshadowless.v1\x1a\x13protos/common.proto\x1a\x11protos/node.proto\"\x0f\n\rStatusRequest\"\xa1\x04\n\nNodeStatus\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12\'\n\x05state\x18\x02 \x01(\x0e\x32\x18.shadowless.v1.NodeState\x12\x10\n\x08hostname\x18\x03 \x01(\t\x12\x0b\n\x03pid\x18\x04 \x01(\r\x12\x17\n\x0f\x63lock_offset_ms\x18\x05 \x01(\x01\x12\x17\n\x0f\x63lock_drift_ppm\x18\x06 \x01(\x01\x12\x14\n\x0c\x63lock_rtt_ms\x18\x07 \x01(\x01\x12\x17\n\x0flast_swap_frame\x18\x08 \x01(\x04\x12\x18\n\x10last_swap_age_ms\x18\t \x01(\x01\x12\x14\n\x0c\x66rames_shown\x18\n \x01(\x04\x12\x13\n\x0b\x66rames_late\x18\x0b \x01(\x04\x12\x16\n\x0e\x66rames_dropped\x18\x0c \x01(\x04\x12\x1b\n\x13\x61ssignment_revision\x18\r \x01(\x04\x12\x11\n\tpose_kind\x18\x0e \x01(\t\x12\x18\n\x10last_seen_age_ms\x18\x0f \x01(\x01\x12\x16\n\x0e\x63lock_error_ms\x18\x10 \x01(\x01\x12\r\n\x05joins\x18\x11 \x01(\r\x12\x15\n\rassets_wanted\x18\x12 \x01(\r\x12\x14\n\x0c\x61ssets_ready\x18\x13 \x01(\r\x12\x18\n\x10\x61sset_bytes_have\x18\x14 \x01(\x04\x12\x19\n\x11\x61sset_bytes_total\x18\x15 \x01(\x04\x12,\n\x06\x61ssets\x18\x16 \x03(\x0b\x32\x1c.shadowless.v1.AssetProgress\"\xce\x01\n\tSyncStats\x12\x0e\n\x06\x66rames\x18\x01 \x01(\x04\x12\x13\n\x0bskew_p50_ms\x18\x02 \x01(\x01\x12\x13\n\x0bskew_p99_ms\x18\x03 \x01(\x01\x12\x13\n\x0bskew_max_ms\x18\x04 \x01(\x01\x12\x13\n\x0bskew_source\x18\x05 \x01(\t\x12\x1a\n\x12\x63lock_error_p99_ms\x18\x06 \x01(\x01\x12\x13\n\x0b\x66rames_late\x18\x07 \x01(\x04\x12\x16\n\x0e\x66rames_dropped\x18\x08 \x01(\x04\x12\x14\n\x0cout_of_order\x18\t \x01(\x04\"D\n\x07Refusal\x12\x0c\n\x04peer\x18\x01 \x01(\t\x12\x0c\n\x04slot\x18\x02 \x01(\t\x12\x0e\n\x06reason\x18\x03 \x01(\t\x12\r\n\x05\x61ge_s\x18\x04 \x01(\x01\"\xb6\x02\n\tRigStatus\x12\x0e\n\x06rig_id\x18\x01 \x01(\t\x12\x10\n\x08rig_name\x18\x02 \x01(\t\x12\x13\n\x0binstance_id\x18\x03 \x01(\t\x12\x0f\n\x07rig_dir\x18\x04 \x01(\t\x12\x18\n\x10protocol_version\x18\x05 \x01(\r\x12\x10\n\x08uptime_s\x18\x06 \x01(\x01\x12(\n\x05nodes\x18\x07 \x03(\x0b\x32\x19.shadowless.v1.NodeStatus\x12&\n\x04sync\x18\x08 \x01(\x0b\x32\x18.shadowless.v1.SyncStats\x12\x0f\n\x07showing\x18\t \x01(\t\x12(\n\x08refusals\x18\n \x03(\x0b\x32\x16.shadowless.v1.Refusal\x12\x19\n\x11latency_budget_ms\x18\x0b \x01(\x01\x12\r\n\x05\x63pu_s\x18\x0c \x01(\x01\"4\n\x08NodeList\x12(\n\x05nodes\x18\x01 \x03(\x0b\x32\x19.shadowless.v1.NodeStatus\"\x89\x01\n\x0bShowRequest\x12#\n\x05image\x18\x01 \x01(\x0b\x32\x14.shadowless.v1.Image\x12#\n\x05space\x18\x02 \x01(\x0e\x32\x14.shadowless.v1.Space\x12\x11\n\tapply_lut\x18\x03 \x01(\x08\x12\x0f\n\x07persist\x18\x04 \x01(\x08\x12\x0c\n\x04name\x18\x05 \x01(\t\"A\n\tShowReply\x12\x10\n\x08\x66rame_id\x18\x01 \x01(\x04\x12\x12\n\ncontent_id\x18\x02 \x01(\t\x12\x0e\n\x06pts_ns\x18\x03 \x01(\x03\"\x8b\x01\n\x0cPlaySettings\x12\x0b\n\x03\x66ps\x18\x01 \x01(\x01\x12\r\n\x05loops\x18\x02 \x01(\r\x12\x0c\n\x04wait\x18\x03 \x01(\x08\x12\x0f\n\x07pattern\x18\x04 \x01(\t\x12\x0e\n\x06\x66rames\x18\x05 \x01(\r\x12\x12\n\nlatency_ms\x18\x08 \x01(\x01\x12\x10\n\x08settle_s\x18\t \x01(\x01J\x04\x08\x06\x10\x07J\x04\x08\x07\x10\x08\"j\n\x08PlayItem\x12/\n\x08settings\x18\x01 \x01(\x0b\x32\x1b.shadowless.v1.PlaySettingsH\x00\x12%\n\x05\x66rame\x18\x02 \x01(\x0b\x32\x14.shadowless.v1.ImageH\x00\x42\x06\n\x04item\"\x86\x02\n\tPlayReply\x12\x13\n\x0b\x66rames_sent\x18\x01 \x01(\x04\x12\x14\n\x0c\x66rames_shown\x18\x02 \x01(\x04\x12\x13\n\x0b\x66rames_late\x18\x03 \x01(\x04\x12\x16\n\x0e\x66rames_dropped\x18\x04 \x01(\x04\x12&\n\x04sync\x18\x05 \x01(\x0b\x32\x18.shadowless.v1.SyncStats\x12\x19\n\x11\x63oordinator_cpu_s\x18\x06 \x01(\x01\x12\r\n\x05nodes\x18\x07 \x01(\r\x12\x0e\n\x06wall_s\x18\x08 \x01(\x01\x12\x10\n\x08skews_ms\x18\t \x03(\x01\x12\x17\n\x0f\x63lock_errors_ms\x18\n \x03(\x01\x12\x14\n\x0c\x65ncode_cpu_s\x18\x0b \x01(\x01\"\r\n\x0bStopRequest\"\x0b\n\tStopReply\"\xbf\x01\n\x10\x43onfigureRequest\x12\x0c\n\x04slot\x18\x01 \x01(\t\x12-\n\nhomography\x18\x02 \x01(\x0b\x32\x19.shadowless.v1.Homography\x12\x1f\n\x03lut\x18\x03 \x01(\x0b\x32\x12.shadowless.v1.Lut\x12\x0c\n\x04gain\x18\x04 \x01(\x02\x12\x14\n\x0coutput_width\x18\x05 \x01(\r\x12\x15\n\routput_height\x18\x06 \x01(\r\x12\x12\n\nclear_pose\x18\x07 \x01(\x08\"\"\n\x0e\x43onfigureReply\x12\x10\n\x08revision\x18\x01 \x01(\x04\"/\n\nJobRequest\x12\x0c\n\x04kind\x18\x01 \x01(\t\x12\x13\n\x0bparams_json\x18\x02 \x01(\t\"g\n\x0bJobProgress\x12\r\n\x05stage\x18\x01 \x01(\t\x12\x0c\n\x04item\x18\x02 \x01(\t\x12\x0c\n\x04\x64one\x18\x03 \x01(\r\x12\r\n\x05total\x18\x04 \x01(\r\x12\x0f\n\x07message\x18\x05 \x01(\t\x12\r\n\x05value\x18\x06 \x01(\x01\"i\n\x08JobEvent\x12.\n\x08progress\x18\x01 \x01(\x0b\x32\x1a.shadowless.v1.JobProgressH\x00\x12\r\n\x03log\x18\x02 \x01(\tH\x00\x12\x15\n\x0bresult_json\x18\x03 \x01(\tH\x00\x42\x07\n\x05\x65vent*\x81\x01\n\tNodeState\x12\x1a\n\x16NODE_STATE_UNSPECIFIED\x10\x00\x12\x17\n\x13NODE_STATE_EXPECTED\x10\x01\x12\x15\n\x11NODE_STATE_JOINED\x10\x02\x12\x13\n\x0fNODE_STATE_LIVE\x10\x03\x12\x13\n\x0fNODE_STATE_LOST\x10\x04\x32\xda\x04\n\nRigControl\x12?\n\x05Hello\x12\x1b.shadowless.v1.HelloRequest\x1a\x19.shadowless.v1.HelloReply\x12?\n\x05Login\x12\x1b.shadowless.v1.LoginRequest\x1a\x19.shadowless.v1.LoginReply\x12@\n\x06Status\x12\x1c.shadowless.v1.StatusRequest\x1a\x18.shadowless.v1.RigStatus\x12\x42\n\tListNodes\x12\x1c.shadowless.v1.StatusRequest\x1a\x17.shadowless.v1.NodeList\x12<\n\x04Show\x12\x1a.shadowless.v1.ShowRequest\x1a\x18.shadowless.v1.ShowReply\x12;\n\x04Play\x12\x17.shadowless.v1.PlayItem\x1a\x18.shadowless.v1.PlayReply(\x01\x12<\n\x04Stop\x12\x1a.shadowless.v1.StopRequest\x1a\x18.shadowless.v1.StopReply\x12K\n\tConfigure\x12\x1f.shadowless.v1.ConfigureRequest\x1a\x1d.shadowless.v1.ConfigureReply\x12>\n\x06RunJob\x12\x19.shadowless.v1.JobRequest\x1a\x17.shadowless.v1.JobEvent0\x01\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'protos.control_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_NODESTATE']._serialized_start=2388
-  _globals['_NODESTATE']._serialized_end=2517
+  _globals['_NODESTATE']._serialized_start=2532
+  _globals['_NODESTATE']._serialized_end=2661
   _globals['_STATUSREQUEST']._serialized_start=79
   _globals['_STATUSREQUEST']._serialized_end=94
   _globals['_NODESTATUS']._serialized_start=97
-  _globals['_NODESTATUS']._serialized_end=498
-  _globals['_SYNCSTATS']._serialized_start=501
-  _globals['_SYNCSTATS']._serialized_end=707
-  _globals['_REFUSAL']._serialized_start=709
-  _globals['_REFUSAL']._serialized_end=777
-  _globals['_RIGSTATUS']._serialized_start=780
-  _globals['_RIGSTATUS']._serialized_end=1090
-  _globals['_NODELIST']._serialized_start=1092
-  _globals['_NODELIST']._serialized_end=1144
-  _globals['_SHOWREQUEST']._serialized_start=1147
-  _globals['_SHOWREQUEST']._serialized_end=1284
-  _globals['_SHOWREPLY']._serialized_start=1286
-  _globals['_SHOWREPLY']._serialized_end=1351
-  _globals['_PLAYSETTINGS']._serialized_start=1354
-  _globals['_PLAYSETTINGS']._serialized_end=1493
-  _globals['_PLAYITEM']._serialized_start=1495
-  _globals['_PLAYITEM']._serialized_end=1601
-  _globals['_PLAYREPLY']._serialized_start=1604
-  _globals['_PLAYREPLY']._serialized_end=1866
-  _globals['_STOPREQUEST']._serialized_start=1868
-  _globals['_STOPREQUEST']._serialized_end=1881
-  _globals['_STOPREPLY']._serialized_start=1883
-  _globals['_STOPREPLY']._serialized_end=1894
-  _globals['_CONFIGUREREQUEST']._serialized_start=1897
-  _globals['_CONFIGUREREQUEST']._serialized_end=2088
-  _globals['_CONFIGUREREPLY']._serialized_start=2090
-  _globals['_CONFIGUREREPLY']._serialized_end=2124
-  _globals['_JOBREQUEST']._serialized_start=2126
-  _globals['_JOBREQUEST']._serialized_end=2173
-  _globals['_JOBPROGRESS']._serialized_start=2175
-  _globals['_JOBPROGRESS']._serialized_end=2278
-  _globals['_JOBEVENT']._serialized_start=2280
-  _globals['_JOBEVENT']._serialized_end=2385
-  _globals['_RIGCONTROL']._serialized_start=2520
-  _globals['_RIGCONTROL']._serialized_end=3122
+  _globals['_NODESTATUS']._serialized_end=642
+  _globals['_SYNCSTATS']._serialized_start=645
+  _globals['_SYNCSTATS']._serialized_end=851
+  _globals['_REFUSAL']._serialized_start=853
+  _globals['_REFUSAL']._serialized_end=921
+  _globals['_RIGSTATUS']._serialized_start=924
+  _globals['_RIGSTATUS']._serialized_end=1234
+  _globals['_NODELIST']._serialized_start=1236
+  _globals['_NODELIST']._serialized_end=1288
+  _globals['_SHOWREQUEST']._serialized_start=1291
+  _globals['_SHOWREQUEST']._serialized_end=1428
+  _globals['_SHOWREPLY']._serialized_start=1430
+  _globals['_SHOWREPLY']._serialized_end=1495
+  _globals['_PLAYSETTINGS']._serialized_start=1498
+  _globals['_PLAYSETTINGS']._serialized_end=1637
+  _globals['_PLAYITEM']._serialized_start=1639
+  _globals['_PLAYITEM']._serialized_end=1745
+  _globals['_PLAYREPLY']._serialized_start=1748
+  _globals['_PLAYREPLY']._serialized_end=2010
+  _globals['_STOPREQUEST']._serialized_start=2012
+  _globals['_STOPREQUEST']._serialized_end=2025
+  _globals['_STOPREPLY']._serialized_start=2027
+  _globals['_STOPREPLY']._serialized_end=2038
+  _globals['_CONFIGUREREQUEST']._serialized_start=2041
+  _globals['_CONFIGUREREQUEST']._serialized_end=2232
+  _globals['_CONFIGUREREPLY']._serialized_start=2234
+  _globals['_CONFIGUREREPLY']._serialized_end=2268
+  _globals['_JOBREQUEST']._serialized_start=2270
+  _globals['_JOBREQUEST']._serialized_end=2317
+  _globals['_JOBPROGRESS']._serialized_start=2319
+  _globals['_JOBPROGRESS']._serialized_end=2422
+  _globals['_JOBEVENT']._serialized_start=2424
+  _globals['_JOBEVENT']._serialized_end=2529
+  _globals['_RIGCONTROL']._serialized_start=2664
+  _globals['_RIGCONTROL']._serialized_end=3266
 # @@protoc_insertion_point(module_scope)

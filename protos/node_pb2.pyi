@@ -210,7 +210,7 @@ class FrameDrop(_message.Message):
     def __init__(self, frame_id: _Optional[int] = ..., reason: _Optional[_Union[DropReason, str]] = ..., late_by_ns: _Optional[int] = ...) -> None: ...
 
 class Heartbeat(_message.Message):
-    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns")
+    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets")
     ASSIGNMENT_REVISION_FIELD_NUMBER: _ClassVar[int]
     CLOCK_OFFSET_NS_FIELD_NUMBER: _ClassVar[int]
     CLOCK_DRIFT_PPM_FIELD_NUMBER: _ClassVar[int]
@@ -222,6 +222,7 @@ class Heartbeat(_message.Message):
     RENDER_MS_P50_FIELD_NUMBER: _ClassVar[int]
     HOST_MONOTONIC_NS_FIELD_NUMBER: _ClassVar[int]
     RIG_ESTIMATE_NS_FIELD_NUMBER: _ClassVar[int]
+    ASSETS_FIELD_NUMBER: _ClassVar[int]
     assignment_revision: int
     clock_offset_ns: int
     clock_drift_ppm: float
@@ -233,7 +234,8 @@ class Heartbeat(_message.Message):
     render_ms_p50: float
     host_monotonic_ns: int
     rig_estimate_ns: int
-    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ...) -> None: ...
+    assets: _containers.RepeatedCompositeFieldContainer[AssetProgress]
+    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ...) -> None: ...
 
 class NodeReport(_message.Message):
     __slots__ = ("heartbeat", "swaps", "drops")
@@ -266,3 +268,57 @@ class PingReply(_message.Message):
     t2_rig_ns: int
     instance_id: str
     def __init__(self, t0_local_ns: _Optional[int] = ..., t1_rig_ns: _Optional[int] = ..., t2_rig_ns: _Optional[int] = ..., instance_id: _Optional[str] = ...) -> None: ...
+
+class WantedAssets(_message.Message):
+    __slots__ = ("revision", "asset_ids", "pinned_ids")
+    REVISION_FIELD_NUMBER: _ClassVar[int]
+    ASSET_IDS_FIELD_NUMBER: _ClassVar[int]
+    PINNED_IDS_FIELD_NUMBER: _ClassVar[int]
+    revision: int
+    asset_ids: _containers.RepeatedScalarFieldContainer[str]
+    pinned_ids: _containers.RepeatedScalarFieldContainer[str]
+    def __init__(self, revision: _Optional[int] = ..., asset_ids: _Optional[_Iterable[str]] = ..., pinned_ids: _Optional[_Iterable[str]] = ...) -> None: ...
+
+class ManifestRequest(_message.Message):
+    __slots__ = ("asset_id",)
+    ASSET_ID_FIELD_NUMBER: _ClassVar[int]
+    asset_id: str
+    def __init__(self, asset_id: _Optional[str] = ...) -> None: ...
+
+class ManifestReply(_message.Message):
+    __slots__ = ("manifest",)
+    MANIFEST_FIELD_NUMBER: _ClassVar[int]
+    manifest: bytes
+    def __init__(self, manifest: _Optional[bytes] = ...) -> None: ...
+
+class BlobRequest(_message.Message):
+    __slots__ = ("sha256", "offset")
+    SHA256_FIELD_NUMBER: _ClassVar[int]
+    OFFSET_FIELD_NUMBER: _ClassVar[int]
+    sha256: str
+    offset: int
+    def __init__(self, sha256: _Optional[str] = ..., offset: _Optional[int] = ...) -> None: ...
+
+class BlobChunk(_message.Message):
+    __slots__ = ("offset", "data")
+    OFFSET_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    offset: int
+    data: bytes
+    def __init__(self, offset: _Optional[int] = ..., data: _Optional[bytes] = ...) -> None: ...
+
+class AssetProgress(_message.Message):
+    __slots__ = ("asset_id", "have_bytes", "total_bytes", "ready", "error", "name")
+    ASSET_ID_FIELD_NUMBER: _ClassVar[int]
+    HAVE_BYTES_FIELD_NUMBER: _ClassVar[int]
+    TOTAL_BYTES_FIELD_NUMBER: _ClassVar[int]
+    READY_FIELD_NUMBER: _ClassVar[int]
+    ERROR_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    asset_id: str
+    have_bytes: int
+    total_bytes: int
+    ready: bool
+    error: str
+    name: str
+    def __init__(self, asset_id: _Optional[str] = ..., have_bytes: _Optional[int] = ..., total_bytes: _Optional[int] = ..., ready: _Optional[bool] = ..., error: _Optional[str] = ..., name: _Optional[str] = ...) -> None: ...

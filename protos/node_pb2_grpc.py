@@ -65,6 +65,21 @@ class NodeLinkStub:
                 request_serializer=protos_dot_node__pb2.PingRequest.SerializeToString,
                 response_deserializer=protos_dot_node__pb2.PingReply.FromString,
                 _registered_method=True)
+        self.Wanted = channel.unary_stream(
+                '/shadowless.v1.NodeLink/Wanted',
+                request_serializer=protos_dot_node__pb2.StreamRequest.SerializeToString,
+                response_deserializer=protos_dot_node__pb2.WantedAssets.FromString,
+                _registered_method=True)
+        self.GetManifest = channel.unary_unary(
+                '/shadowless.v1.NodeLink/GetManifest',
+                request_serializer=protos_dot_node__pb2.ManifestRequest.SerializeToString,
+                response_deserializer=protos_dot_node__pb2.ManifestReply.FromString,
+                _registered_method=True)
+        self.FetchBlob = channel.unary_stream(
+                '/shadowless.v1.NodeLink/FetchBlob',
+                request_serializer=protos_dot_node__pb2.BlobRequest.SerializeToString,
+                response_deserializer=protos_dot_node__pb2.BlobChunk.FromString,
+                _registered_method=True)
 
 
 class NodeLinkServicer:
@@ -111,6 +126,29 @@ class NodeLinkServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def Wanted(self, request, context):
+        """Assets this node must hold ahead of use: the whole list at once, then again whenever it changes.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetManifest(self, request, context):
+        """An asset's manifest: its canonical bytes, which hash to the asset id.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def FetchBlob(self, request, context):
+        """A blob's bytes from an offset to its end, in chunks of at most 1 MiB (a node resumes
+        a partial blob by asking from its length). NOT_FOUND: no such blob in the rig's store;
+        INVALID_ARGUMENT: not a SHA-256, or an offset past the blob's end.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_NodeLinkServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -143,6 +181,21 @@ def add_NodeLinkServicer_to_server(servicer, server):
                     servicer.Ping,
                     request_deserializer=protos_dot_node__pb2.PingRequest.FromString,
                     response_serializer=protos_dot_node__pb2.PingReply.SerializeToString,
+            ),
+            'Wanted': grpc.unary_stream_rpc_method_handler(
+                    servicer.Wanted,
+                    request_deserializer=protos_dot_node__pb2.StreamRequest.FromString,
+                    response_serializer=protos_dot_node__pb2.WantedAssets.SerializeToString,
+            ),
+            'GetManifest': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetManifest,
+                    request_deserializer=protos_dot_node__pb2.ManifestRequest.FromString,
+                    response_serializer=protos_dot_node__pb2.ManifestReply.SerializeToString,
+            ),
+            'FetchBlob': grpc.unary_stream_rpc_method_handler(
+                    servicer.FetchBlob,
+                    request_deserializer=protos_dot_node__pb2.BlobRequest.FromString,
+                    response_serializer=protos_dot_node__pb2.BlobChunk.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -307,6 +360,87 @@ class NodeLink:
             '/shadowless.v1.NodeLink/Ping',
             protos_dot_node__pb2.PingRequest.SerializeToString,
             protos_dot_node__pb2.PingReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def Wanted(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(
+            request,
+            target,
+            '/shadowless.v1.NodeLink/Wanted',
+            protos_dot_node__pb2.StreamRequest.SerializeToString,
+            protos_dot_node__pb2.WantedAssets.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetManifest(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.NodeLink/GetManifest',
+            protos_dot_node__pb2.ManifestRequest.SerializeToString,
+            protos_dot_node__pb2.ManifestReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def FetchBlob(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(
+            request,
+            target,
+            '/shadowless.v1.NodeLink/FetchBlob',
+            protos_dot_node__pb2.BlobRequest.SerializeToString,
+            protos_dot_node__pb2.BlobChunk.FromString,
             options,
             channel_credentials,
             insecure,

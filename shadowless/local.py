@@ -195,7 +195,10 @@ class LocalRig:
             args += ["--clock-offset-ms", str(self.offsets[slot])]
         if slot in self.drifts:
             args += ["--clock-drift-ppm", str(self.drifts[slot])]
-        return args + self.extra_node_args.get(slot, [])
+        extra = self.extra_node_args.get(slot, [])
+        if "--cache-dir" not in extra:   # each node its own asset cache, inside the rig's work directory
+            args += ["--cache-dir", str(self.workdir / "caches" / slot)]
+        return args + extra
 
     def start_node(self, slot: str, extra: list[str] | None = None) -> subprocess.Popen:
         proc = self._spawn(f"node-{slot}", self.node_args(slot) + (extra or []), host=slot)

@@ -112,3 +112,23 @@ def test_assignments_become_plain_data():
     msg.homography.m.append(1.0)
     with pytest.raises(ValueError, match="9 values"):
         wire.assignment_from_message(msg)
+
+
+def test_asset_calls_and_progress_keep_the_wire_format():
+    from node.records import AssetProgressRecord
+
+    a, b = "a" * 64, "b" * 64
+    wanted = wire.wanted_from_message(node_pb2.WantedAssets(revision=3, asset_ids=[a, b], pinned_ids=[b]))
+    assert (wanted.revision, wanted.asset_ids, wanted.pinned_ids) == (3, (a, b), (b,))
+    assert wire.manifest_request(a) == node_pb2.ManifestRequest(asset_id=a)
+    assert wire.blob_request(b, 1 << 20) == node_pb2.BlobRequest(sha256=b, offset=1 << 20)
+    chunk = wire.blob_chunk_from_message(node_pb2.BlobChunk(offset=7, data=b"xyz"))
+    assert (chunk.offset, chunk.data) == (7, b"xyz")
+    progress = (AssetProgressRecord(a, 10, 20, False, "", "clip"), AssetProgressRecord(b, 5, 5, True, "", ""),
+                AssetProgressRecord("c" * 64, error="failed its hash check 3 times"))
+    hb = HeartbeatRecord(assignment_revision=1, frames_shown=0, frames_late=0, frames_dropped=0, render_ms_p50=0.0,
+                         host_monotonic_ns=1, assets=progress)
+    msg = wire.report_message(ReportBatch(heartbeat=hb))
+    assert [(p.asset_id, p.have_bytes, p.total_bytes, p.ready, p.error, p.name) for p in msg.heartbeat.assets] == [
+        (p.asset_id, p.have_bytes, p.total_bytes, p.ready, p.error, p.name) for p in progress]
+    assert node_pb2.NodeReport.FromString(msg.SerializeToString()) == msg
