@@ -1,0 +1,451 @@
+"""The node's frame source: frame ``k`` of a cached asset, decoded ahead of its time.
+
+Timeline playback asks, for each upcoming frame period, for frame ``k`` of asset ``A``, ready
+to upload. :func:`open_frames` gives a :class:`FrameSource` for an asset whose blobs are all in
+the node's :class:`~node.asset_cache.AssetCache`; :meth:`FrameSource.frame` returns frame ``k``
+as ``(H, W, C)`` in the dtype :meth:`node.render.renderer.Renderer.upload` takes as it is: uint8
+for 8-bit content, uint16 for 10/12/16-bit (scaled to the full 16-bit range), float32 for float;
+``C`` the manifest's channel count (1 grey, 3 RGB; 2 and 4 carry alpha), RGB order. Arrays are
+C-contiguous and read-only (one frame may be handed out more than once).
+
+* ``still``: decoded once, on the first request (PNG with :mod:`node.png`, ``.npy`` with numpy,
+  JPEG/TIFF and what ``node.png`` refuses with PyAV).
+* ``sequence``: frame ``k`` decoded from blob ``k`` (PNG with PyAV: ~20x faster than
+  ``node.png`` on Paeth-filtered files, same pixels; see :mod:`node.asset_decode`).
+* ``video``: :class:`node.asset_decode.VideoDecoder`: sequential decoding, seeking for jumps,
+  frame index from each frame's timestamp.
+
+:class:`DecodeAhead` runs a source on a background thread that keeps the next ``depth`` frames
+of the expected order decoded. **Memory**: it holds at most ``depth`` decoded frames (the
+current one included) plus the one being decoded, ``(depth + 1) * frame_bytes``: a 1080p RGB
+uint8 frame is 1920 * 1080 * 3 = 6.2 MB (depth 8: ~56 MB), 10/12/16-bit content doubles that;
+a video decoder adds its own reference frames (H.264/HEVC: up to 16 YUV frames of 3.1 MB at
+1080p 8-bit, plus one in flight per frame thread).
+
+Failures are :class:`FrameError` (a :class:`~node.errors.NodeError`) naming the asset and the
+frame, with the decoder's reason.
+"""
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from fractions import Fraction
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from node.asset_cache import AssetCache
+from node.asset_decode import DecodeError, VideoDecoder, content_dtype, decode_image, match_channels, video_demuxer
+from node.errors import NodeError
+from protos.asset_manifest import Manifest
+
+__all__ = ["DecodeAhead", "DecodeError", "DecodeStats", "FrameError", "FrameNotReady", "FrameSource", "open_frames"]
+
+_TIMINGS_KEPT = 512
+
+
+class FrameError(NodeError):
+    """A frame of an asset could not be produced; the message names the asset and the frame."""
+
+
+class FrameNotReady(FrameError, TimeoutError):
+    """:meth:`DecodeAhead.get` ran out of time before the frame was decoded (it still will be)."""
+
+
+def _what(asset_id: str, m: Manifest) -> str:
+    return f"asset {asset_id[:12]} ({m.name!r}, {m.kind})" if m.name else f"asset {asset_id[:12]} ({m.kind})"
+
+
+class FrameSource:
+    """The frames of one cached asset, by index (see the module docstring).
+
+    Properties come from the manifest: ``kind``, ``width``, ``height``, ``channels``,
+    ``bit_depth``, ``frames``, ``fps``; ``dtype``, ``shape`` (H, W, C) and ``frame_bytes`` describe
+    what :meth:`frame` returns. Not thread-safe: one thread calls :meth:`frame` (give the source
+    to a :class:`DecodeAhead` to decode on its thread). Use as a context manager or :meth:`close`.
+    """
+
+    def __init__(self, cache: AssetCache, asset_id: str, manifest: Manifest) -> None:
+        self.asset_id = asset_id
+        self.manifest = manifest
+        self.dtype = content_dtype(manifest.bit_depth)
+        self.shape = (manifest.height, manifest.width, manifest.channels)
+        self._cache = cache
+        self._closed = False
+
+    kind = property(lambda self: self.manifest.kind)
+    width = property(lambda self: self.manifest.width)
+    height = property(lambda self: self.manifest.height)
+    channels = property(lambda self: self.manifest.channels)
+    bit_depth = property(lambda self: self.manifest.bit_depth)
+    frames = property(lambda self: self.manifest.frames)
+    fps = property(lambda self: self.manifest.fps)
+
+    @property
+    def frame_bytes(self) -> int:
+        """Bytes of one decoded frame."""
+        return int(np.prod(self.shape)) * self.dtype.itemsize
+
+    def describe(self, k: int | None = None) -> str:
+        """``asset 1a2b3c4d5e6f ('name', video)`` [``frame k``]: how errors name the frame."""
+        text = _what(self.asset_id, self.manifest)
+        return text if k is None else f"{text} frame {k}"
+
+    def check_index(self, k: int) -> int:
+        """``k`` as an int in ``0..frames-1``; ``ValueError`` otherwise."""
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < self.frames:
+            raise ValueError(f"{self.describe()} has frames 0..{self.frames - 1}, not {k!r}")
+        return int(k)
+
+    def frame(self, k: int) -> np.ndarray:
+        """Frame ``k`` as ``(H, W, C)`` ``dtype``, C-contiguous, read-only.
+
+        Raises
+        ------
+        ValueError
+            ``k`` is not a frame index of the asset.
+        FrameError
+            The source is closed, or the frame's blob is missing, unreadable, corrupt or of
+            another size, channel count or depth than the manifest says.
+        """
+        if self._closed:
+            raise FrameError(f"{self.describe(k)}: the frame source is closed")
+        k = self.check_index(k)
+        try:
+            arr = self._decode(k)
+            arr = match_channels(arr, self.channels)
+        except Exception as exc:   # every decoder failure becomes one clear error
+            raise FrameError(f"{self.describe(k)}: {exc}") from exc
+        if arr.shape != self.shape or arr.dtype != self.dtype:
+            raise FrameError(f"{self.describe(k)} decodes to {arr.shape} {arr.dtype}, but its manifest says "
+                             f"{self.shape} {self.dtype} ({self.bit_depth}-bit)")
+        if arr.flags.writeable:
+            arr.flags.writeable = False
+        return arr
+
+    def _decode(self, k: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def _image(self, index: int, *, png: str) -> np.ndarray:
+        blob = self.manifest.blobs[index]
+        return decode_image(self._cache.blob_path(blob.sha256), name=blob.name, channels=self.channels,
+                            bit_depth=self.bit_depth, png=png)
+
+    def close(self) -> None:
+        """Release files and decoded data. Idempotent."""
+        self._closed = True
+
+    def __enter__(self) -> "FrameSource":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class _StillFrames(FrameSource):
+    _image_cache: np.ndarray | None = None
+
+    def _decode(self, k: int) -> np.ndarray:
+        if self._image_cache is None:
+            self._image_cache = self._image(0, png="node")
+        return self._image_cache
+
+    def frame(self, k: int) -> np.ndarray:
+        arr = super().frame(k)
+        self._image_cache = arr      # conformed and read-only: handed out as it is from now on
+        return arr
+
+    def close(self) -> None:
+        self._image_cache = None
+        super().close()
+
+
+class _SequenceFrames(FrameSource):
+    def _decode(self, k: int) -> np.ndarray:
+        return self._image(k, png="av")
+
+
+class _VideoFrames(FrameSource):
+    def __init__(self, cache: AssetCache, asset_id: str, manifest: Manifest, *, threads: int = 0) -> None:
+        super().__init__(cache, asset_id, manifest)
+        self._threads = threads
+        self.decoder: VideoDecoder | None = None
+
+    def _rate(self) -> Fraction:
+        text = str(self.manifest.extra.get("rate", ""))
+        try:
+            num, _, den = text.partition("/")
+            rate = Fraction(int(num), int(den or 1))
+            if rate > 0:
+                return rate
+        except (ValueError, ZeroDivisionError):
+            pass
+        return Fraction(self.manifest.fps).limit_denominator(1001000)
+
+    def _decode(self, k: int) -> np.ndarray:
+        if self.decoder is None:
+            blob = self.manifest.blobs[0]
+            self.decoder = VideoDecoder(self._cache.blob_path(blob.sha256), frames=self.frames,
+                                        channels=self.channels, bit_depth=self.bit_depth, rate=self._rate(),
+                                        demuxer=video_demuxer(blob.name, self.manifest.extra.get("container")),
+                                        threads=self._threads)
+        return self.decoder.read(k)
+
+    def close(self) -> None:
+        if self.decoder is not None:
+            self.decoder.close()
+        super().close()
+
+
+def open_frames(cache: AssetCache, asset_id: str, *, threads: int = 0) -> FrameSource:
+    """The frame source of a cached asset whose blobs are all complete.
+
+    Parameters
+    ----------
+    cache : AssetCache
+        The node's cache holding the asset.
+    asset_id : str
+        The asset.
+    threads : int
+        Decoder threads for a video (0: FFmpeg picks, one per core).
+
+    Raises
+    ------
+    FrameError
+        The asset is not in the cache, or not all of its blobs are there yet. Nothing is
+        decoded here: decoding errors surface on :meth:`FrameSource.frame`.
+    """
+    try:
+        m = cache.manifest(asset_id)
+    except NodeError as exc:
+        raise FrameError(f"cannot play asset {str(asset_id)[:12]}: {exc}") from exc
+    if not cache.ready(asset_id):
+        missing = cache.missing(asset_id)
+        raise FrameError(f"cannot play {_what(asset_id, m)} yet: {len(missing)} of its {len(m.blobs)} blob(s) "
+                         "are still to fetch")
+    if m.kind == "still":
+        return _StillFrames(cache, asset_id, m)
+    if m.kind == "sequence":
+        return _SequenceFrames(cache, asset_id, m)
+    return _VideoFrames(cache, asset_id, m, threads=threads)
+
+
+@dataclass(frozen=True)
+class DecodeStats:
+    """What a :class:`DecodeAhead` did: ``hits`` (``get`` found the frame decoded), ``misses``
+    (it had to wait for it), ``jumps`` (misses outside the expected order, which restart it at
+    the frame asked for), ``decoded`` frames and ``errors``, decode time per frame over the last
+    512 decodes, and the frames ``buffered`` now (at most ``depth``)."""
+
+    hits: int
+    misses: int
+    jumps: int
+    decoded: int
+    errors: int
+    decode_ms_p50: float
+    decode_ms_p99: float
+    buffered: int
+    depth: int
+
+
+class DecodeAhead:
+    """Decode a :class:`FrameSource`'s frames ahead of use on a background thread.
+
+    The expected order is a stream of frame indices (:meth:`expect`, or :meth:`want` for
+    ``k, k+1, ...``, wrapping with ``loop``); the thread keeps the first ``depth`` of them
+    decoded (repeated indices are decoded once: a paused show costs one frame). :meth:`get`
+    consumes the order up to the frame asked for: a frame in the order that is decoded is a
+    hit; one not decoded yet is a miss (the call waits for it); one outside the order is a miss
+    and a jump (the order restarts at it, ``k, k+1, ...``, and the call waits, the thread
+    decoding it first). The iterable given to :meth:`expect` is only read on the callers'
+    threads, when they call :meth:`expect` or :meth:`get`.
+
+    The source belongs to the object from then on (it is not thread-safe): :meth:`close`
+    stops and joins the thread, then closes the source. Memory: see the module docstring.
+    """
+
+    def __init__(self, source: FrameSource, *, depth: int = 8, loop: bool = False) -> None:
+        if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
+            raise ValueError(f"depth must be a positive integer, got {depth!r}")
+        self.source = source
+        self.depth = depth
+        self.loop = loop
+        self._cond = threading.Condition()
+        self._window: deque[int] = deque()      # the next frames of the order; [0] is the current one
+        self._plan: Iterator[int] = iter(())    # the rest of the order
+        self._ready: dict[int, np.ndarray | FrameError] = {}
+        self._closed = False
+        self._fatal: BaseException | None = None
+        self._hits = self._misses = self._jumps = self._decoded = self._errors = 0
+        self._ms: deque[float] = deque(maxlen=_TIMINGS_KEPT)
+        self._thread = threading.Thread(target=self._run, name=f"decode-ahead-{source.asset_id[:8]}", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ the order (caller side)
+    def _sequential(self, k: int, loop: bool) -> Iterator[int]:
+        n = self.source.frames
+        return (i % n for i in itertools.count(k)) if loop else iter(range(k, n))
+
+    def _fill(self) -> None:
+        """Top the window up from the plan and drop decoded frames that left it (lock held)."""
+        while len(self._window) < self.depth:
+            k = next(self._plan, None)
+            if k is None:
+                break
+            self._window.append(self.source.check_index(k))
+        wanted = set(self._window)
+        for k in [k for k in self._ready if k not in wanted]:
+            del self._ready[k]
+        self._cond.notify_all()
+
+    def expect(self, ticks: Iterable[int]) -> None:
+        """Set the expected order: the frame indices upcoming, in order (finite or not).
+        Frames already decoded that are still expected are kept. ``ValueError`` on an index
+        outside the asset (raised when it is reached)."""
+        with self._cond:
+            self._check_open()
+            self._window.clear()
+            self._plan = iter(ticks)
+            self._fill()
+
+    def want(self, k: int, *, loop: bool | None = None) -> None:
+        """Expect ``k, k+1, ...`` (after the last frame: frame 0 again with ``loop``, else the end)."""
+        if loop is not None:
+            self.loop = loop
+        self.expect(self._sequential(self.source.check_index(k), self.loop))
+
+    # ------------------------------------------------------------------ getting frames
+    def get(self, k: int, timeout: float) -> np.ndarray:
+        """Frame ``k``, waiting at most ``timeout`` seconds for it.
+
+        Returns
+        -------
+        (H, W, C) ndarray
+            As :meth:`FrameSource.frame` returns it (read-only).
+
+        Raises
+        ------
+        FrameNotReady
+            Not decoded within ``timeout`` (it stays first in line: ask again).
+        FrameError
+            Decoding it failed (the message names the asset and the frame), or the object is
+            closed, or its thread died.
+        ValueError
+            ``k`` is not a frame index of the asset.
+        """
+        k = self.source.check_index(k)
+        deadline = time.monotonic() + max(0.0, timeout)
+        with self._cond:
+            self._check_open()
+            if k in self._window:
+                while self._window[0] != k:
+                    self._window.popleft()
+            else:
+                self._jumps += 1
+                self._window.clear()
+                self._plan = self._sequential(k, self.loop)
+            self._fill()
+            if k in self._ready:
+                self._hits += 1
+            else:
+                self._misses += 1
+                while k not in self._ready and not self._closed and self._fatal is None:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        raise FrameNotReady(f"{self.source.describe(k)} was not decoded within {timeout * 1000:.0f} ms")
+                    self._cond.wait(left)
+                self._check_open()
+            out = self._ready[k]
+        if isinstance(out, FrameError):
+            raise FrameError(str(out)) from out
+        return out
+
+    def ready(self, k: int) -> bool:
+        """Whether frame ``k`` is decoded and buffered now (never blocks on decoding)."""
+        with self._cond:
+            return k in self._ready
+
+    def wait_ahead(self, timeout: float) -> bool:
+        """Wait until every expected frame in the window is decoded; whether it happened in time."""
+        deadline = time.monotonic() + max(0.0, timeout)
+        with self._cond:
+            while not self._closed and self._fatal is None and any(k not in self._ready for k in self._window):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+            return not self._closed and self._fatal is None
+
+    def stats(self) -> DecodeStats:
+        """Counters and decode times so far (see :class:`DecodeStats`)."""
+        with self._cond:
+            ms = np.array(self._ms) if self._ms else np.zeros(1)
+            return DecodeStats(hits=self._hits, misses=self._misses, jumps=self._jumps, decoded=self._decoded,
+                               errors=self._errors, decode_ms_p50=float(np.percentile(ms, 50)),
+                               decode_ms_p99=float(np.percentile(ms, 99)), buffered=len(self._ready),
+                               depth=self.depth)
+
+    def _check_open(self) -> None:
+        if self._fatal is not None:
+            raise FrameError(f"the decode-ahead thread of {self.source.describe()} died: {self._fatal!r}") \
+                from self._fatal
+        if self._closed:
+            raise FrameError(f"the decode-ahead of {self.source.describe()} is closed")
+
+    # ------------------------------------------------------------------ the thread
+    def _next_job(self) -> int | None:
+        for k in self._window:
+            if k not in self._ready:
+                return k
+        return None
+
+    def _run(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    while not self._closed and (k := self._next_job()) is None:
+                        self._cond.wait()
+                    if self._closed:
+                        return
+                t0 = time.perf_counter()
+                try:
+                    out: np.ndarray | FrameError = self.source.frame(k)
+                except FrameError as exc:
+                    out = exc
+                except ValueError as exc:     # an index the source refuses: keep it with the frame
+                    out = FrameError(f"{self.source.describe(k)}: {exc}")
+                ms = (time.perf_counter() - t0) * 1000.0
+                with self._cond:
+                    self._decoded += 1
+                    if isinstance(out, FrameError):
+                        self._errors += 1
+                    else:
+                        self._ms.append(ms)
+                    if k in self._window:
+                        self._ready[k] = out
+                    self._cond.notify_all()
+        except BaseException as exc:   # noqa: BLE001 - surfaces on the callers' next get
+            with self._cond:
+                self._fatal = exc
+                self._cond.notify_all()
+
+    def close(self) -> None:
+        """Stop the thread (it finishes the frame it is decoding), join it, close the source.
+        Idempotent."""
+        with self._cond:
+            self._closed = True
+            self._window.clear()
+            self._ready.clear()
+            self._cond.notify_all()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join()
+        self.source.close()
+
+    def __enter__(self) -> "DecodeAhead":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
