@@ -14,6 +14,7 @@ BENCHMARKS: dict[str, str] = {
     "calibration": "captures, time and error of sequential vs multiplexed calibration",
     "compensation": "blur-compensation solve time and quality, ours vs the per-projector baseline",
     "compensation_room": "blur compensation through the coordinator's jobs in the virtual room: captures, L error, quality",
+    "venue": "a rig on a virtual venue network (namespaces, rate-limited links): discovery and asset distribution",
 }
 
 
