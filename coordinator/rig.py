@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.errors import RigError
-from coordinator.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text
+from coordinator.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
 from protos.auth import new_token
 
 SLOT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$")
@@ -263,6 +263,7 @@ class Rig:
         cfg_file = self.path / "rig.toml"
         if not cfg_file.exists():
             raise RigError(f"{self.path} is not a rig directory (no rig.toml); create one with `shadowless rig init {self.path}`")
+        remove_stale_temps(self.path)
         self.config = parse_config(cfg_file.read_text(), source=str(cfg_file))
         self.slots: dict[str, SlotState] = {}
         self.meshes: dict[str, Mesh] = {}

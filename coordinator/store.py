@@ -2,13 +2,20 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import tempfile
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO, Iterator
 
 import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: a temp file untouched this long was left by a writer that died (a live one writes continuously)
+STALE_TEMP_S = 600.0
 
 
 @contextmanager
@@ -62,3 +69,32 @@ def atomic_save_npy(path: str | os.PathLike[str], array: np.ndarray) -> None:
 def atomic_save_npz(path: str | os.PathLike[str], **arrays: np.ndarray) -> None:
     with atomic_file(path) as f:
         np.savez(f, **{k: np.asarray(v) for k, v in arrays.items()})
+
+
+def remove_stale_temps(root: str | os.PathLike[str], *, older_than_s: float = STALE_TEMP_S,
+                       skip: tuple[str, ...] = ("assets",)) -> list[Path]:
+    """Delete the temp files :func:`atomic_file` left under ``root`` when its writer was killed.
+
+    Only files named like its temp files (``.NAME.XXXXXXXX.tmp``) and untouched for
+    ``older_than_s`` go; top-level folders in ``skip`` keep their own rules (the asset store sweeps
+    its staging folder itself). Returns what was removed.
+    """
+    root = Path(root)
+    now = time.time()
+    removed = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        if Path(dirpath) == root:
+            dirnames[:] = [d for d in dirnames if d not in skip]
+        for name in filenames:
+            if not (name.startswith(".") and name.endswith(".tmp")):
+                continue
+            f = Path(dirpath) / name
+            try:
+                if now - f.stat().st_mtime >= older_than_s:
+                    f.unlink()
+                    removed.append(f)
+            except FileNotFoundError:
+                pass
+    if removed:
+        log.info("removed %d temp file(s) left by interrupted writes under %s", len(removed), root)
+    return removed

@@ -11,7 +11,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from coordinator.store import atomic_file, atomic_save_npz, atomic_write_json, atomic_write_text
+from coordinator.rig import Rig, grid_slots, init_rig
+from coordinator.store import STALE_TEMP_S, atomic_file, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
 
 
 def test_a_write_replaces_the_file_with_the_requested_mode(tmp_path):
@@ -58,3 +59,21 @@ def test_a_writer_killed_mid_write_leaves_the_old_file_whole(tmp_path):
     assert f.read_text() == "the old, complete file"
     leftovers = [q for q in tmp_path.iterdir() if q.name != f.name]
     assert len(leftovers) == 1 and leftovers[0].name.startswith(".transport.npz.") and leftovers[0].stat().st_size > 0
+    # a fresh temp file may belong to a live writer: kept; an old one is a leftover: removed
+    assert remove_stale_temps(tmp_path) == []
+    old = leftovers[0].stat().st_mtime - STALE_TEMP_S - 1
+    os.utime(leftovers[0], (old, old))
+    assert remove_stale_temps(tmp_path) == leftovers
+    assert [q.name for q in tmp_path.iterdir()] == [f.name]
+
+
+def test_loading_a_rig_sweeps_what_killed_writers_left_but_not_the_asset_staging(tmp_path):
+    rig_dir = init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 1), width=32, height=32,
+                       content_width=32, content_height=32)
+    stale = [rig_dir / "slots" / ".r0c0.json.abc123.tmp", rig_dir / "assets" / "tmp" / ".x.tmp"]
+    for p in stale:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"half")
+        os.utime(p, (0, 0))
+    Rig(rig_dir)
+    assert not stale[0].exists() and stale[1].exists()
