@@ -133,6 +133,37 @@ class Refusal:
 
 
 @dataclass(frozen=True)
+class ShowState:
+    """The timeline show (see :mod:`coordinator.show`): which asset plays, from where, how.
+
+    ``state`` is ``none`` (never a show), ``scheduled`` (starts at ``anchor_ns``), ``playing``,
+    ``paused``, ``ended`` (a show that does not loop showed its last frame) or ``stopped``.
+    ``frame`` is the asset frame on the projectors at ``now_ns`` (-1: none); ``change_at_ns`` the
+    rig instant the last change takes (took) effect. Rates are exact: ``rate_num / rate_den`` fps.
+    """
+
+    state: str = "none"
+    asset_id: str = ""
+    name: str = ""
+    frames: int = 0
+    rate_num: int = 0
+    rate_den: int = 1
+    anchor_ns: int = 0
+    anchor_frame: int = 0
+    loop: bool = False
+    paused: bool = False
+    revision: int = 0
+    frame_id_base: int = 0
+    frame: int = -1
+    now_ns: int = 0
+    change_at_ns: int = 0
+
+    @property
+    def fps(self) -> float:
+        return self.rate_num / self.rate_den if self.rate_den else 0.0
+
+
+@dataclass(frozen=True)
 class RigStatus:
     """The whole rig at one instant."""
 
@@ -148,6 +179,11 @@ class RigStatus:
     nodes: tuple[NodeStatus, ...] = ()
     sync: SyncSummary = field(default_factory=SyncSummary)
     refusals: tuple[Refusal, ...] = ()
+    show: ShowState = field(default_factory=ShowState)
+    frame_packets_sent: int = 0     # FramePackets handed to the nodes' Frames streams since start
+    frame_bytes_sent: int = 0
+    show_updates_sent: int = 0      # Show stream messages (timelines, stops, beacons) since start
+    show_bytes_sent: int = 0
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import grpc
 import numpy as np
 
 from coordinator import wire
-from coordinator.api import PlayResult, PlaySettings, RigStatus, ShowResult, Space
+from coordinator.api import PlayResult, PlaySettings, RigStatus, ShowResult, ShowState, Space
 from coordinator.errors import CoordinatorError
 from coordinator.jobs.context import Event
 from protos import auth, codec, common_pb2, control_pb2, control_pb2_grpc
@@ -106,6 +106,31 @@ class Client:
 
     async def stop(self) -> None:
         await self.stub.Stop(control_pb2.StopRequest(), metadata=self.md, timeout=10)
+
+    # ---------------------------------------------------------------- timeline shows
+    async def play_asset(self, asset: str, *, delay_s: float = 0.0, at_ns: int = 0, loop: bool = False,
+                         fps: float = 0.0, start_without: bool = False) -> ShowState:
+        """Play asset ``asset`` (id, prefix or name) from the rig's store on every node, ``delay_s``
+        from now (0: the coordinator's lead) or at rig time ``at_ns``; the resulting show state."""
+        req = wire.play_asset_request(asset, at_ns=at_ns, delay_ms=delay_s * 1e3, loop=loop, fps=fps,
+                                      start_without=start_without)
+        return wire.show_state_from_message(await self.stub.PlayAsset(req, metadata=self.md, timeout=10))
+
+    async def _show_control(self, rpc, *, delay_s: float = 0.0, at_ns: int = 0, frame: int = 0) -> ShowState:
+        req = wire.show_control_request(at_ns=at_ns, delay_ms=delay_s * 1e3, frame=frame)
+        return wire.show_state_from_message(await rpc(req, metadata=self.md, timeout=10))
+
+    async def pause_show(self, *, delay_s: float = 0.0, at_ns: int = 0) -> ShowState:
+        return await self._show_control(self.stub.PauseShow, delay_s=delay_s, at_ns=at_ns)
+
+    async def resume_show(self, *, delay_s: float = 0.0, at_ns: int = 0) -> ShowState:
+        return await self._show_control(self.stub.ResumeShow, delay_s=delay_s, at_ns=at_ns)
+
+    async def seek_show(self, frame: int, *, delay_s: float = 0.0, at_ns: int = 0) -> ShowState:
+        return await self._show_control(self.stub.SeekShow, delay_s=delay_s, at_ns=at_ns, frame=frame)
+
+    async def stop_show(self, *, delay_s: float = 0.0, at_ns: int = 0) -> ShowState:
+        return await self._show_control(self.stub.StopShow, delay_s=delay_s, at_ns=at_ns)
 
     async def configure(self, slot: str, *, homography: np.ndarray | None = None, lut: np.ndarray | None = None,
                         gain: float | None = None, size: tuple[int, int] | None = None,

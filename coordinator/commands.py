@@ -1,4 +1,5 @@
-"""Operator commands: `shadowless status`, `show`, `play`, `configure`.
+"""Operator commands: `shadowless status`, `show`, `play`, `configure`, and the timeline show
+(`shadowless play ASSET`, `shadowless show pause|resume|seek FRAME|stop`).
 
 They talk to a running coordinator through :class:`coordinator.client.Client`, after the
 same rig-token handshake the nodes use, and print tables (or JSON for scripts).
@@ -10,12 +11,13 @@ import asyncio
 import json
 import math
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import grpc
 import numpy as np
 
-from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, SyncSummary
+from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, ShowState, SyncSummary
 from coordinator.client import OperatorError, add_connection_args, open_client
 from coordinator.job_command import run_job
 from protos import auth
@@ -73,8 +75,27 @@ def status_dict(st: RigStatus) -> dict:
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
         } for n in st.nodes],
         "sync": sync_dict(st.sync),
+        "show": show_dict(st.show),
+        "sent": {"frame_packets": st.frame_packets_sent, "frame_bytes": st.frame_bytes_sent,
+                 "show_updates": st.show_updates_sent, "show_bytes": st.show_bytes_sent},
         "refusals": [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1)} for r in st.refusals],
     }
+
+
+def show_dict(s: ShowState) -> dict:
+    """The timeline show as JSON."""
+    d = asdict(s)
+    d["fps"] = round(s.fps, 6)
+    return d
+
+
+def show_line(s: ShowState) -> str:
+    """One line about the timeline show."""
+    if s.state == "none":
+        return "no show"
+    what = f"asset {s.name or s.asset_id[:12]} ({s.asset_id[:12]})"
+    frame = f" frame {s.frame}/{s.frames}" if s.frame >= 0 else ""
+    return (f"show: {what} {s.state}{frame} at {s.fps:.3f} fps{', looping' if s.loop else ''}, revision {s.revision}")
 
 
 def status_table(d: dict) -> str:
@@ -126,20 +147,37 @@ def configure_status(p: argparse.ArgumentParser) -> None:
     add_connection_args(p)
 
 
+SHOW_ACTIONS = ("pause", "resume", "seek", "stop")
+
+
 def configure_show(p: argparse.ArgumentParser) -> None:
     p.description = ("Show an image on every projector (warped by each one's pose). 16-bit PNGs and float32 .npy "
-                     "files keep their precision.")
-    p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1])")
+                     "files keep their precision. `shadowless show pause|resume|seek FRAME|stop` controls the "
+                     "timeline show started by `shadowless play ASSET` (each change takes effect on every node at "
+                     "the same instant, the coordinator's lead from now, or --in SECONDS).")
+    p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1]), or pause, resume, seek, stop")
+    p.add_argument("frame", nargs="?", type=int, help="with seek: the asset frame to show")
     p.add_argument("--persist", action="store_true", help="make it the rig's content (shown again after a restart)")
+    p.add_argument("--in", dest="in_s", type=float, default=0.0, metavar="SECONDS",
+                   help="with pause/resume/seek/stop: take effect this long from now (default: the coordinator's lead)")
+    p.add_argument("--json", action="store_true", help="with pause/resume/seek/stop: print the show state as JSON")
     add_connection_args(p)
 
 
 def configure_play(p: argparse.ArgumentParser) -> None:
-    p.description = "Play a sequence of images (a folder, sorted by name) or a generated counter pattern, with synchronized swaps."
-    p.add_argument("source", nargs="?", help="a folder of images (omit with --pattern)")
+    p.description = ("Play an asset of the rig's store on a timeline (each node decodes it from its own cache and "
+                     "swaps every frame at its time; the coordinator sends only start, pause, seek, stop), or a "
+                     "sequence of images (a folder, sorted by name) or a generated counter pattern, frame by frame.")
+    p.add_argument("source", nargs="?", help="an asset (id, id prefix or name; see `shadowless content list`) or a "
+                   "folder of images (omit with --pattern)")
     p.add_argument("--pattern", choices=["counter"], help="generate frames on the coordinator instead")
     p.add_argument("--frames", type=int, default=150, help="with --pattern: how many frames (default 150)")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
+    p.add_argument("--fps", type=float, default=None, help="frame rate (default: an asset's own, else 30)")
+    p.add_argument("--in", dest="in_s", type=float, default=0.0, metavar="SECONDS",
+                   help="an asset starts this long from now (default: the coordinator's lead)")
+    p.add_argument("--loop", action="store_true", help="an asset plays in a loop until stopped")
+    p.add_argument("--start-without", action="store_true",
+                   help="start an asset even if some live node does not hold it yet (it joins once it does)")
     p.add_argument("--loops", type=int, default=0, help="extra loops (default 0: once)")
     p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
@@ -168,7 +206,22 @@ async def _status(args) -> int:
     return 0
 
 
+async def _show_control(args) -> int:
+    action = args.image
+    if action == "seek" and args.frame is None:
+        raise OperatorError("seek needs the frame: shadowless show seek FRAME")
+    async with await open_client(args) as c:
+        if action == "seek":
+            st = await c.seek_show(args.frame, delay_s=args.in_s)
+        else:
+            st = await getattr(c, f"{action}_show")(delay_s=args.in_s)
+    print(json.dumps(show_dict(st), indent=2) if args.json else show_line(st))
+    return 0
+
+
 async def _show(args) -> int:
+    if args.image in SHOW_ACTIONS and not Path(args.image).exists():
+        return await _show_control(args)
     img = read_image(args.image)
     async with await open_client(args) as c:
         r = await c.show(img, name=Path(args.image).name, persist=args.persist)
@@ -184,8 +237,20 @@ def play_dict(r: PlayResult) -> dict:
             "coordinator_cpu_s": round(r.coordinator_cpu_s, 4), "encode_cpu_s": round(r.encode_cpu_s, 4), "sync": s}
 
 
+async def _play_asset(args) -> int:
+    async with await open_client(args) as c:
+        st = await c.play_asset(args.source, delay_s=args.in_s, loop=args.loop, fps=args.fps or 0.0,
+                                start_without=args.start_without)
+    print(json.dumps(show_dict(st), indent=2) if args.json else
+          f"{show_line(st)}; starts in {max(0, st.anchor_ns - st.now_ns) / 1e9:.3f} s")
+    return 0
+
+
 async def _play(args) -> int:
     frames: list[np.ndarray] = []
+    if args.source and not args.pattern and not args.compensate and not Path(args.source).is_dir():
+        return await _play_asset(args)
+    args.fps = args.fps or 30.0
     st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait)
     if args.compensate:
         return await _play_compensated(args)

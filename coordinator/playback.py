@@ -101,6 +101,10 @@ class Playback:
         self._pattern_ids: set[str] = set()
         self._play_task: asyncio.Task | None = None
         self._waiters: dict[int, asyncio.Future] = {}
+        #: a still, pattern or sequence is about to be sent: the timeline show stops (set by the coordinator)
+        self.takeover: Callable[[], None] = lambda: None
+        #: whether a timeline show holds the projectors (then joining nodes are not sent the still)
+        self.show_active: Callable[[], bool] = lambda: False
         sync.add_listener(self._resolve_waiter)
         if rig.content is not None:
             self._set_still(rig.content, tag="show:restored", space=Space.CONTENT, apply_lut=True, publish=False)
@@ -113,6 +117,10 @@ class Playback:
     def new_frame_id(self) -> int:
         self._next_frame_id += 1
         return self._next_frame_id
+
+    def reserve_ids_through(self, last_id: int) -> None:
+        """Frame ids up to ``last_id`` are taken (by a timeline show's ticks): never issue them."""
+        self._next_frame_id = max(self._next_frame_id, int(last_id))
 
     def _frame(self, content_id: str, *, tag: str, space: Space, apply_lut: bool, pts_ns: int | None = None,
                slot_content: Mapping[str, str] | None = None) -> Frame:
@@ -127,7 +135,7 @@ class Playback:
     def on_frames_open(self, sess: NodeSession) -> None:
         """A node opened its frame stream: it gets what the rig shows (unless a sequence plays)."""
         sess.sent_content.clear()
-        if self.current_frame is not None and not self.playing:
+        if self.current_frame is not None and not self.playing and not self.show_active():
             self._send_still_to(sess)
 
     def _send_still_to(self, sess: NodeSession, *, budget_ns: int | None = None) -> None:
@@ -141,12 +149,16 @@ class Playback:
         """A still must end up on every projector: a node that dropped it gets it again, with more time."""
         if frame_id not in sess.still_frames or self.current_frame is None or not self.current_frame.tag.startswith("show"):
             return
+        if self.show_active():
+            return
         sess.still_retries += 1
         budget = min(MAX_BUDGET_NS, self.latency_ns * 2 ** min(sess.still_retries, 6))
         log.info("node %s dropped still frame %d; resending with %.0f ms budget", sess.slot, frame_id, budget / 1e6)
         self._send_still_to(sess, budget_ns=budget)
 
     def _set_still(self, content: Content, *, tag: str, space: Space, apply_lut: bool, publish: bool = True) -> Frame:
+        if publish:
+            self.takeover()
         self.current_contents = {content.content_id: content}
         frame = self._frame(content.content_id, tag=tag, space=space, apply_lut=apply_lut)
         self.current_frame = frame
@@ -195,6 +207,7 @@ class Playback:
         the call fails and names the nodes that never showed it.
         """
         self.stop()
+        self.takeover()
         sessions = self.live_sessions()
         contents: dict[str, Content] = {}
         slot_content: dict[str, str] = {}
@@ -264,6 +277,7 @@ class Playback:
         if frames is not None and not frames:
             raise ValueError("nothing to play: send frames or set a pattern")
         self.stop()
+        self.takeover()
         task = asyncio.create_task(self._play(frames, settings), name="play")
         self._play_task = task
         if not settings.wait:

@@ -26,7 +26,18 @@ import grpc
 import numpy as np
 
 from coordinator import services, wire
-from coordinator.api import DropReason, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal, RigStatus, ShowResult
+from coordinator.api import (
+    AssetProgress,
+    DropReason,
+    NodeState,
+    NodeStatus,
+    PlayResult,
+    PlaySettings,
+    Refusal,
+    RigStatus,
+    ShowResult,
+    ShowState,
+)
 from coordinator.assets import AssetStore
 from coordinator.camera import Camera, RoomCamera, open_camera
 from coordinator.distribution import Distribution
@@ -38,6 +49,7 @@ from coordinator.mdns import Advertiser
 from coordinator.playback import Playback, cpu_seconds
 from coordinator.rig import Content, Rig
 from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
+from coordinator.show import MIN_LEAD_NS, Show
 from coordinator.sync import SyncTracker, summarize
 from protos.version import PROTOCOL_VERSION
 
@@ -117,6 +129,14 @@ class Coordinator:
         self.playback = Playback(rig, self.fanout, self.sync, live_sessions=self.live_sessions, clock_ns=self.clock_ns,
                                  latency_ns=self.latency_ns)
         self.distribution = Distribution(AssetStore(rig.path))
+        self.show_state = Show(rig.path, resolve=self.distribution.store.resolve, manifest=self._manifest,
+                               ids=self.playback, progress=self._asset_progress, clock_ns=self.clock_ns,
+                               lead_ns=max(self.latency_ns, MIN_LEAD_NS))
+        self.playback.takeover = self.show_state.takeover
+        self.playback.show_active = lambda: self.show_state.active
+        # what the coordinator sent the nodes: frame packets (Frames) and show messages (Show)
+        self.frame_packets_sent = self.frame_bytes_sent = 0
+        self.show_updates_sent = self.show_bytes_sent = 0
         self._camera_specs: list[str] = list(cameras if cameras is not None else rig.config.cameras)
         self._job_lock = asyncio.Lock()
         self._server: grpc.aio.Server | None = None
@@ -134,6 +154,7 @@ class Coordinator:
                                           instance_id=self.instance_id, port=self.port, interfaces=self.mdns_interfaces)
             await self._advertiser.start()
         self._tasks.append(asyncio.create_task(self._watchdog(), name="watchdog"))
+        self._tasks.append(asyncio.create_task(self._follow_show(), name="show"))
         log.info("coordinator for rig %r (%s) listening on port %d, instance %s",
                  self.rig.config.name, self.rig.config.rig_id, self.port, self.instance_id)
 
@@ -245,6 +266,53 @@ class Coordinator:
                 sess.wanted_event.set()
         return changed
 
+    # ------------------------------------------------------------------ the timeline show
+    def _manifest(self, asset_id: str):
+        m = self.distribution.manifests.get(asset_id)
+        return m if m is not None else self.distribution.store.get(asset_id)
+
+    def _asset_progress(self, asset_id: str) -> dict[str, AssetProgress | None]:
+        """Each live node's progress with ``asset_id`` (None: it reported nothing about it)."""
+        out: dict[str, AssetProgress | None] = {}
+        for sess in self.live_sessions():
+            reported = sess.heartbeat.assets if sess.heartbeat is not None else ()
+            out[sess.slot] = next((p for p in reported if p.asset_id == asset_id), None)
+        return out
+
+    async def _follow_show(self, period_s: float = 0.05) -> None:
+        """Tell the sync tracker which tick ids the nodes holding the asset will swap in, ahead of time."""
+        while True:
+            await asyncio.sleep(period_s)
+            ticks = self.show_state.upcoming_ticks()
+            if not ticks:
+                continue
+            slots = self.show_state.ready_slots(s.slot for s in self.live_sessions())
+            tag = f"timeline:{self.show_state.timeline.asset_id[:8]}" if self.show_state.timeline else "timeline"
+            for frame_id, pts in ticks:
+                self.sync.expect(frame_id, pts, tag, slots)
+
+    def _before_show(self) -> None:
+        if self._job_lock.locked():
+            raise CoordinatorError("a job is running on this rig (its patterns hold the projectors); wait for it "
+                                   "or cancel it before playing an asset")
+        self.playback.stop()    # a played sequence ends; its frames already sent are shown or dropped
+
+    def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
+                   fps: float | None = None, start_without: bool = False) -> ShowState:
+        self._before_show()
+        return self.show_state.play(key, at_ns=at_ns, delay_ns=delay_ns, loop=loop, fps=fps,
+                                    start_without=start_without)
+
+    def show_control(self, action: str, *, at_ns: int | None = None, delay_ns: int | None = None,
+                     frame: int = 0) -> ShowState:
+        """``pause``, ``resume``, ``seek`` (to ``frame``) or ``stop`` the timeline show."""
+        s = self.show_state
+        if action == "seek":
+            return s.seek(frame, at_ns=at_ns, delay_ns=delay_ns)
+        if action in ("pause", "resume", "stop"):
+            return getattr(s, action)(at_ns=at_ns, delay_ns=delay_ns)
+        raise ValueError(f"unknown show action {action!r}")
+
     def on_frames_open(self, sess: NodeSession) -> None:
         sess.frames_open = True
         self.playback.on_frames_open(sess)
@@ -351,6 +419,9 @@ class Coordinator:
         return RigStatus(
             rig_id=self.rig.config.rig_id, rig_name=self.rig.config.name, instance_id=self.instance_id,
             rig_dir=str(self.rig.path), protocol_version=PROTOCOL_VERSION, uptime_s=now - self.started,
-            showing=self.playback.showing, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
+            showing=self.show_state.describe() if self.show_state.active else self.playback.showing,
+            show=self.show_state.state(), frame_packets_sent=self.frame_packets_sent,
+            frame_bytes_sent=self.frame_bytes_sent, show_updates_sent=self.show_updates_sent,
+            show_bytes_sent=self.show_bytes_sent, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
             refusals=tuple(Refusal(peer, slot, reason, now - at) for peer, slot, reason, at in self.refusals))

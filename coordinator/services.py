@@ -24,6 +24,7 @@ from coordinator.api import Space
 from coordinator.errors import CoordinatorError
 from coordinator.rig import Content
 from coordinator.sessions import RpcRefusal
+from coordinator.show import BEACON_S
 from protos import codec, common_pb2, control_pb2, control_pb2_grpc, node_pb2
 from protos.version import PROTOCOL_VERSION, SERVER_GRPC_OPTIONS, SESSION_KEY
 
@@ -116,7 +117,10 @@ class NodeLinkService(_Handshake):
         try:
             while not sess.closed:
                 while sess.packets:
-                    yield sess.packets.popleft()
+                    data = sess.packets.popleft()
+                    self.c.frame_packets_sent += 1
+                    self.c.frame_bytes_sent += len(data)
+                    yield data
                     if sess.closed:
                         return
                 sess.packet_event.clear()
@@ -188,6 +192,35 @@ class NodeLinkService(_Handshake):
             await context.abort(exc.code, exc.message)
 
 
+    async def Show(self, request, context):
+        """The show's timeline: the state at once, every change, a beacon every ~second."""
+        try:
+            sess = self.c.node_session(_session_id(context))
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        changed = asyncio.Event()
+        unsubscribe = self.c.show_state.subscribe(changed)
+        sent = -1
+        try:
+            while not sess.closed:
+                update = self.c.show_state.update(beacon=False)
+                if update is not None:
+                    if update.revision == sent:
+                        update = self.c.show_state.update(beacon=True)
+                    sent = update.revision
+                    msg = wire.show_update_message(update)
+                    self.c.show_updates_sent += 1
+                    self.c.show_bytes_sent += msg.ByteSize()
+                    yield msg
+                changed.clear()
+                try:
+                    await asyncio.wait_for(changed.wait(), BEACON_S)
+                except asyncio.TimeoutError:
+                    pass
+        finally:
+            unsubscribe()
+
+
 def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
     """Register NodeLink; Frames yields pre-serialized bytes (identity serializer)."""
     handlers = {
@@ -217,6 +250,9 @@ def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
         "FetchBlob": grpc.unary_stream_rpc_method_handler(
             svc.FetchBlob, request_deserializer=node_pb2.BlobRequest.FromString,
             response_serializer=node_pb2.BlobChunk.SerializeToString),
+        "Show": grpc.unary_stream_rpc_method_handler(
+            svc.Show, request_deserializer=node_pb2.StreamRequest.FromString,
+            response_serializer=node_pb2.ShowUpdate.SerializeToString),
     }
     server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler("shadowless.v1.NodeLink", handlers),))
 
@@ -314,6 +350,38 @@ class RigControlService(_Handshake):
         self._operator(context)
         st = self.c.update_slot(request.slot, **wire.slot_changes_from_message(request))
         return control_pb2.ConfigureReply(revision=st.revision)
+
+
+    # ---------------------------------------------------------------- timeline shows
+    @_guard
+    async def PlayAsset(self, request, context):
+        self._operator(context)
+        state = self.c.play_asset(request.asset, at_ns=request.at_ns or None,
+                                  delay_ns=int(request.delay_ms * 1e6) or None, loop=request.loop,
+                                  fps=request.fps or None, start_without=request.start_without)
+        return wire.show_state_message(state)
+
+    async def _control(self, action: str, request, context):
+        self._operator(context)
+        state = self.c.show_control(action, at_ns=request.at_ns or None, delay_ns=int(request.delay_ms * 1e6) or None,
+                                    frame=request.frame)
+        return wire.show_state_message(state)
+
+    @_guard
+    async def PauseShow(self, request, context):
+        return await self._control("pause", request, context)
+
+    @_guard
+    async def ResumeShow(self, request, context):
+        return await self._control("resume", request, context)
+
+    @_guard
+    async def SeekShow(self, request, context):
+        return await self._control("seek", request, context)
+
+    @_guard
+    async def StopShow(self, request, context):
+        return await self._control("stop", request, context)
 
 
 async def serve(coordinator: "Coordinator", listen: str, *, tls: tuple[bytes, bytes] | None = None):

@@ -16,12 +16,13 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from coordinator.api import (AssetProgress, DropReason, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal,
-                             RigStatus, ShowResult, Space, SyncSummary)
+                             RigStatus, ShowResult, ShowState, Space, SyncSummary)
 from coordinator.distribution import WantedList
 from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
 from coordinator.rig import Content, HomographyPose, ProjectionPose, SlotState, validate_lut
 from coordinator.sessions import Heartbeat, NodeInfo, Report, Swap
+from coordinator.show import ShowUpdate
 from protos import codec, control_pb2, node_pb2
 
 # ---------------------------------------------------------------------- enums
@@ -186,6 +187,9 @@ def status_message(st: RigStatus) -> control_pb2.RigStatus:
         rig_id=st.rig_id, rig_name=st.rig_name, instance_id=st.instance_id, rig_dir=st.rig_dir,
         protocol_version=st.protocol_version, uptime_s=st.uptime_s, showing=st.showing,
         latency_budget_ms=st.latency_budget_ms, cpu_s=st.cpu_s, sync=_sync_message(st.sync),
+        show=show_state_message(st.show), frame_packets_sent=st.frame_packets_sent,
+        frame_bytes_sent=st.frame_bytes_sent, show_updates_sent=st.show_updates_sent,
+        show_bytes_sent=st.show_bytes_sent,
     )
     msg.nodes.extend(_node_status_message(n) for n in st.nodes)
     msg.refusals.extend(control_pb2.Refusal(peer=r.peer, slot=r.slot, reason=r.reason, age_s=r.age_s) for r in st.refusals)
@@ -197,7 +201,46 @@ def status_from_message(m: control_pb2.RigStatus) -> RigStatus:
                      protocol_version=m.protocol_version, uptime_s=m.uptime_s, showing=m.showing,
                      latency_budget_ms=m.latency_budget_ms, cpu_s=m.cpu_s,
                      nodes=tuple(_node_status_from_message(n) for n in m.nodes), sync=_sync_from_message(m.sync),
-                     refusals=tuple(Refusal(r.peer, r.slot, r.reason, r.age_s) for r in m.refusals))
+                     refusals=tuple(Refusal(r.peer, r.slot, r.reason, r.age_s) for r in m.refusals),
+                     show=show_state_from_message(m.show) if m.HasField("show") else ShowState(),
+                     frame_packets_sent=m.frame_packets_sent, frame_bytes_sent=m.frame_bytes_sent,
+                     show_updates_sent=m.show_updates_sent, show_bytes_sent=m.show_bytes_sent)
+
+
+# ---------------------------------------------------------------------- the timeline show
+def show_update_message(u: ShowUpdate) -> node_pb2.ShowUpdate:
+    msg = node_pb2.ShowUpdate(beacon=u.beacon)
+    tl = u.timeline
+    if tl is None:
+        msg.stop, msg.stop_at_ns, msg.stop_revision = True, u.stop_at_ns, u.stop_revision
+    else:
+        msg.timeline.CopyFrom(node_pb2.Timeline(
+            asset_id=tl.asset_id, frames=tl.frames, rate_num=tl.rate.numerator, rate_den=tl.rate.denominator,
+            anchor_ns=tl.anchor_ns, anchor_frame=tl.anchor_frame, loop=tl.loop, paused=tl.paused,
+            revision=tl.revision, frame_id_base=u.frame_id_base))
+    return msg
+
+
+_SHOW_FIELDS = ("state", "asset_id", "name", "frames", "rate_num", "rate_den", "anchor_ns", "anchor_frame", "loop",
+                "paused", "revision", "frame_id_base", "frame", "now_ns", "change_at_ns")
+
+
+def show_state_message(s: ShowState) -> control_pb2.ShowState:
+    return control_pb2.ShowState(**{f: getattr(s, f) for f in _SHOW_FIELDS})
+
+
+def show_state_from_message(m: control_pb2.ShowState) -> ShowState:
+    return ShowState(**{f: getattr(m, f) for f in _SHOW_FIELDS})
+
+
+def play_asset_request(asset: str, *, at_ns: int = 0, delay_ms: float = 0.0, loop: bool = False, fps: float = 0.0,
+                       start_without: bool = False) -> control_pb2.PlayAssetRequest:
+    return control_pb2.PlayAssetRequest(asset=asset, at_ns=at_ns, delay_ms=delay_ms, loop=loop, fps=fps,
+                                        start_without=start_without)
+
+
+def show_control_request(*, at_ns: int = 0, delay_ms: float = 0.0, frame: int = 0) -> control_pb2.ShowControlRequest:
+    return control_pb2.ShowControlRequest(at_ns=at_ns, delay_ms=delay_ms, frame=frame)
 
 
 def nodes_message(nodes: Iterable[NodeStatus]) -> control_pb2.NodeList:

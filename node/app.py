@@ -31,7 +31,16 @@ from node.clock import ClockEstimator, ClockSample, LocalClock
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.link import CoordinatorLink, LinkError
 from node.presenter_process import PresenterProcess, PresenterSettings
-from node.records import ClockStatus, DropRecord, HeartbeatRecord, JoinRequest, NodeInfo, ReportBatch, SwapRecord
+from node.records import (
+    AssetFiles,
+    ClockStatus,
+    DropRecord,
+    HeartbeatRecord,
+    JoinRequest,
+    NodeInfo,
+    ReportBatch,
+    SwapRecord,
+)
 from protos import auth
 from protos.discovery import Discovery
 from protos.version import PROTOCOL_VERSION
@@ -89,6 +98,7 @@ class Node:
         self._instance = ""
         self._stopping = asyncio.Event()
         self.joins = 0
+        self._assets_passed: set[str] = set()    # assets whose files the presenter has
         self.fetcher = AssetFetcher(config.cache_dir or default_cache_dir() / config.slot, config.cache_max_bytes,
                                     rate=config.fetch_rate)
 
@@ -215,6 +225,7 @@ class Node:
                 asyncio.create_task(self._stopping.wait(), name="stopping"),
                 asyncio.create_task(self._watch_presenter(), name="presenter"),
                 asyncio.create_task(self.fetcher.run(link), name="assets"),
+                asyncio.create_task(self._show(link), name="show"),
             ]
             done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
             for t in pending:
@@ -278,6 +289,30 @@ class Node:
         # happens once, in the process that uses them.
         async for data in link.frame_packets():
             self.presenter.submit("packet", data)
+
+    async def _show(self, link: CoordinatorLink) -> None:
+        """Forward the show's timeline to the presenter, with the asset's files once they are cached
+        (checked again at every beacon, about once a second)."""
+        try:
+            async for update in link.show():
+                if update.timeline is not None:
+                    self._pass_asset(update.timeline.asset_id)
+                self.presenter.submit("show", update)
+        except LinkError as exc:
+            if exc.code != "UNIMPLEMENTED":
+                raise
+            log.warning("this coordinator plays no timeline shows (an older version); stills and sequences only")
+            await asyncio.Event().wait()    # the session goes on without
+
+    def _pass_asset(self, asset_id: str) -> None:
+        cache = self.fetcher.cache
+        if asset_id in self._assets_passed or cache is None or not cache.ready(asset_id):
+            return
+        m = cache.manifest(asset_id)
+        paths = {b.sha256: str(cache.blob_path(b.sha256)) for b in m.blobs}
+        self.presenter.submit("asset", AssetFiles(asset_id=asset_id, manifest=m.canonical(), blob_paths=paths))
+        self._assets_passed.add(asset_id)
+        log.info("asset %s (%s) passed to the presenter for the show", asset_id[:12], m.name)
 
     async def _report_stream(self, link: CoordinatorLink, heartbeat_s: float, *, batch_s: float = 0.05) -> None:
         q = self._reports

@@ -16,7 +16,7 @@ import grpc
 from node import wire
 from node.errors import NodeError
 from node.records import (BlobChunkData, HelloReply, JoinReply, JoinRequest, NodeAssignment, PingReply, ReportBatch,
-                          WantedAssets)
+                          ShowUpdateData, WantedAssets)
 from protos import node_pb2, node_pb2_grpc
 from protos.version import GRPC_OPTIONS, SESSION_KEY
 
@@ -131,6 +131,22 @@ class CoordinatorLink:
         with _translated():
             async for data in self._frames_raw(wire.stream_request(), metadata=self._md):
                 yield data
+
+    async def show(self) -> AsyncIterator[ShowUpdateData]:
+        """The show's timeline: the current state at once, every change, and beacons (malformed
+        updates are logged and skipped)."""
+        call = self._stub.Show(wire.stream_request(), metadata=self._md)
+        try:
+            with _translated():
+                async for msg in call:
+                    try:
+                        update = wire.show_update_from_message(msg)
+                    except ValueError as exc:
+                        log.error("ignoring a malformed show update: %s", exc)
+                        continue
+                    yield update
+        finally:
+            call.cancel()
 
     async def report(self, batches: AsyncIterable[ReportBatch]) -> None:
         """Stream reports until ``batches`` ends or the call breaks."""

@@ -17,16 +17,19 @@ import os
 import statistics
 import time
 from collections import deque
+from dataclasses import replace
 from typing import Callable, Protocol
 
 import numpy as np
 
+from node.asset_frames import FrameError, FrameNotReady
 from node.clock import ClockEstimate
 from node.outputs.base import Output, SwapInfo
 from node.pacing import FramePacer
 from node.realtime import RealtimeWindow
-from node.records import DropReason, DropRecord, FrameOrder, NodeAssignment, PresenterStatus
+from node.records import AssetFiles, DropReason, DropRecord, FrameOrder, NodeAssignment, PresenterStatus, ShowUpdateData
 from node.render.renderer import Mesh, Renderer
+from node.timeline_player import TimelineEvent, TimelinePlayer, fit_frame
 from node.wire import packet_from_bytes
 
 log = logging.getLogger(__name__)
@@ -68,9 +71,19 @@ class Presenter:
 
     :meth:`handle` takes ``(kind, payload)``: ``("clock", ClockEstimate | None)``,
     ``("assignment", NodeAssignment)``, ``("packet", bytes)`` (a serialized FramePacket),
-    ``("content", (content_id, image))``, ``("frame", FrameOrder)``, ``("evict", [content_id])``
-    and ``("reset", None)``.
+    ``("content", (content_id, image))``, ``("frame", FrameOrder)``, ``("evict", [content_id])``,
+    ``("show", ShowUpdateData)``, ``("asset", AssetFiles)`` and ``("reset", None)``.
+
+    The show's timeline (:mod:`node.timeline_player`) is followed between messages: the loop
+    asks :meth:`timeline_wait` how long it may wait for a message, and calls
+    :meth:`timeline_step` when that time has come. **Precedence**: a coordinator frame (a still,
+    a pattern, a sequence) suspends the timeline until a newer revision of it arrives; the
+    newest swap always wins, in frame id order (timeline ids and coordinator ids share one
+    increasing sequence, see :mod:`coordinator.show`).
     """
+
+    #: start preparing a timeline frame this long before its presentation time (at the latest)
+    PREPARE_NS = 50_000_000
 
     def __init__(self, *, slot: str, output: Output, clock: PresenterClock,
                  report: Callable[[str, object], None], realtime: bool = True):
@@ -88,6 +101,9 @@ class Presenter:
         self._render_ms: deque[float] = deque(maxlen=120)
         self._current: FrameOrder | None = None
         self._evicted: set[str] = set()
+        self.player = TimelinePlayer()
+        self._timeline_cid: str | None = None
+        self._last_event_pts: int | None = None
 
     @property
     def estimate(self) -> ClockEstimate | None:
@@ -132,6 +148,7 @@ class Presenter:
         r.clear_pose()
 
     def close(self) -> None:
+        self.player.close()
         self.renderer.release()
         self.out.close()
 
@@ -207,8 +224,91 @@ class Presenter:
                 renderer.forget(cid)
 
     def _on_reset(self, renderer, out, _payload) -> None:
-        """A new coordinator instance: frame ids restart their ordering."""
+        """A new coordinator instance: frame ids restart their ordering, the timeline is sent again."""
         self.pacer.reset()
+        self.player.reset()
+        self._last_event_pts = None
+
+    # ---------------------------------------------------------------- the show's timeline
+    def _on_show(self, renderer, out, update: ShowUpdateData) -> None:
+        if self.player.offer(update):
+            if update.timeline is not None:
+                tl = update.timeline
+                log.info("timeline r%d: asset %s frame %d at %d%s%s", tl.revision, tl.asset_id[:12], tl.anchor_frame,
+                         tl.anchor_ns, " paused" if tl.paused else "", " loop" if tl.loop else "")
+            else:
+                log.info("timeline r%d: stop at %d", update.stop_revision, update.stop_at_ns)
+
+    def _on_asset(self, renderer, out, files: AssetFiles) -> None:
+        self.player.add_asset(files)
+
+    def _next_event(self) -> TimelineEvent | None:
+        est = self.pacer.estimate
+        if est is None or not self.player.active:
+            return None
+        after = est.rig_time(self.clock.now())
+        if self._last_event_pts is not None:
+            after = max(after, self._last_event_pts + 1)
+        ev = self.player.next_event(after)
+        if ev is not None and ev.kind == "frame" and not self.player.has_asset(ev.asset_id):
+            return None
+        return ev
+
+    def timeline_wait(self) -> float | None:
+        """Seconds the loop may wait for messages before :meth:`timeline_step` (None: no timeline work)."""
+        ev = self._next_event()
+        if ev is None:
+            return None
+        until = self.pacer.estimate.local_time(ev.pts_ns) - self.clock.now()
+        return max(0.0, (until - self.PREPARE_NS) / 1e9)
+
+    def timeline_step(self) -> None:
+        """Prepare the next timeline frame (or the stop), swap it in at its time, report it."""
+        ev = self._next_event()
+        if ev is None:
+            return
+        renderer, out, pacer = self.renderer, self.out, self.pacer
+        for frame_id in self.player.skipped_ids(ev):
+            self._drop(DropRecord(frame_id, DropReason.LATE))
+        self.player.mark_done(ev)
+        self._last_event_pts = ev.pts_ns
+        if ev.kind == "stop":
+            renderer.render(None)
+            out.prepare(renderer)
+            self._ctx.finish()
+            with self._rt:
+                self.clock.sleep_until(pacer.estimate.local_time(ev.pts_ns))
+                out.swap()
+            self._current = None
+            self._forget_timeline_content()
+            return
+        order = FrameOrder(frame_id=ev.frame_id, pts_ns=ev.pts_ns, content_id=f"timeline:{ev.frame_id}",
+                           space="content", apply_lut=True, tag=f"timeline:{ev.revision}")
+        drop = pacer.admit(replace(order, content_id=""), renderer.has)
+        if drop is not None:
+            self._drop(drop)
+            return
+        try:
+            image = self.player.frame(ev, (-pacer.late_by(order) - 2_000_000) / 1e9)
+        except FrameNotReady:
+            self._drop(DropRecord(ev.frame_id, DropReason.LATE, pacer.late_by(order)))
+            return
+        except FrameError as exc:
+            log.error("cannot show frame %d of asset %s: %s", ev.frame, ev.asset_id[:12], exc)
+            self._drop(DropRecord(ev.frame_id, DropReason.UNRENDERABLE))
+            return
+        a = self.assignment
+        if a is not None and a.pose_kind == "homography" and all(a.content_size):
+            image = fit_frame(image, a.content_size)
+        try:
+            renderer.upload(order.content_id, image)
+            self._render(renderer, order)
+        except ValueError as exc:
+            log.error("cannot show frame %d of asset %s: %s", ev.frame, ev.asset_id[:12], exc)
+            renderer.forget(order.content_id)
+            self._drop(DropRecord(ev.frame_id, DropReason.UNRENDERABLE))
+            return
+        self._swap_at_pts(renderer, out, order)
 
     def _drop(self, drop: DropRecord) -> None:
         if _DEBUG_TIMING:
@@ -228,6 +328,7 @@ class Presenter:
 
     def _on_frame(self, renderer, out: Output, frame: FrameOrder) -> None:
         pacer = self.pacer
+        self.player.suspend()    # a coordinator frame takes the output from the timeline
         drop = pacer.admit(frame, renderer.has)
         if drop is not None:
             self._drop(drop)
@@ -241,10 +342,22 @@ class Presenter:
             log.error("cannot show frame %d: %s", frame.frame_id, exc)
             self._drop(DropRecord(frame.frame_id, DropReason.UNRENDERABLE))
             return
+        self._swap_at_pts(renderer, out, frame)
+
+    def _forget_timeline_content(self, keep: str | None = None) -> None:
+        if self._timeline_cid is not None and self._timeline_cid != keep:
+            self.renderer.forget(self._timeline_cid)
+        self._timeline_cid = keep
+
+    def _swap_at_pts(self, renderer, out: Output, frame: FrameOrder) -> None:
+        """Finish the rendered frame, wait for its time, swap, report (or drop it as late)."""
+        pacer = self.pacer
         out.prepare(renderer)
         self._ctx.finish()   # the frame must be complete in the back buffer before its time comes
         drop = pacer.ready(frame)
         if drop is not None:
+            if frame.content_id == f"timeline:{frame.frame_id}":
+                renderer.forget(frame.content_id)
             self._drop(drop)
             return
         deadline = pacer.deadline(frame)
@@ -258,6 +371,7 @@ class Presenter:
         swap = pacer.shown(frame, host)
         previous = self._current
         self._current = frame
+        self._forget_timeline_content(keep=frame.content_id if frame.content_id.startswith("timeline:") else None)
         self.shown += 1
         self.report("swap", swap)
         out.after_swap(renderer, SwapInfo(slot=self.slot, frame_id=frame.frame_id, tag=frame.tag, pts_ns=frame.pts_ns,

@@ -7,7 +7,9 @@ measured with 16 nodes on 2 cores). Alone in its process, the presenter's
 single thread never waits for anyone's GIL.
 
 Both directions are pipes of ``(kind, payload)`` tuples of plain data: in, what
-:meth:`node.presenter.Presenter.handle` takes; out, ``("ready", size)``,
+:meth:`node.presenter.Presenter.handle` takes (the show's timeline and an asset's file
+paths included: the presenter decodes the asset's frames itself, so decoded frames never
+cross the pipe); out, ``("ready", size)``,
 ``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)`` and
 ``("drop", DropRecord)``.
 """
@@ -73,8 +75,13 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
     conn_out.send(("ready", p.native_size))
     try:
         while True:
-            if not conn_in.poll(0.5):
-                p.idle()
+            # messages first; the show's timeline is followed between them (see Presenter.timeline_wait)
+            wait = p.timeline_wait()
+            if not conn_in.poll(0.5 if wait is None else min(wait, 0.5)):
+                if wait is not None:
+                    p.timeline_step()
+                else:
+                    p.idle()
                 continue
             try:
                 kind, payload = conn_in.recv()

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from protos.timeline import Timeline
+
 
 # ------------------------------------------------------------------ coordinator -> node
 
@@ -82,6 +84,36 @@ class FramePacketData:
     contents: tuple[ContentBlob, ...] = ()
     frame: FrameOrder | None = None
     evict: tuple[str, ...] | None = None     # None: the packet has no eviction part
+
+
+@dataclass(frozen=True)
+class ShowUpdateData:
+    """One message of the coordinator's Show stream: a timeline (start, change, beacon), or a stop.
+
+    Tick ``k`` of ``timeline`` (its ``k``-th frame period from the anchor) is frame id
+    ``frame_id_base + k`` in swap and drop reports.
+    """
+
+    timeline: Timeline | None = None
+    frame_id_base: int = 0
+    stop_at_ns: int = 0          # with no timeline: the show stops at this rig instant
+    stop_revision: int = 0
+    beacon: bool = False
+
+    @property
+    def revision(self) -> int:
+        return self.timeline.revision if self.timeline is not None else self.stop_revision
+
+
+@dataclass(frozen=True)
+class AssetFiles:
+    """What the presenter process needs to read a cached asset without opening the cache:
+    the manifest's canonical bytes and the path of every complete blob (the node process owns
+    the cache and its lock; the files are only read)."""
+
+    asset_id: str
+    manifest: bytes
+    blob_paths: dict[str, str]
 
 
 # ------------------------------------------------------------------ node -> coordinator

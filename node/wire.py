@@ -7,6 +7,7 @@ client) touch protobuf.
 """
 from __future__ import annotations
 
+from fractions import Fraction
 from typing import Callable
 
 import numpy as np
@@ -27,10 +28,12 @@ from node.records import (
     NodeAssignment,
     PingReply,
     ReportBatch,
+    ShowUpdateData,
     SwapRecord,
     WantedAssets,
 )
 from protos import codec, common_pb2, node_pb2
+from protos.timeline import Timeline
 
 #: DropReason <-> the wire's enum
 _DROP_REASONS = {
@@ -112,6 +115,18 @@ def packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], bool] = 
 
 def wanted_from_message(msg: node_pb2.WantedAssets) -> WantedAssets:
     return WantedAssets(revision=msg.revision, asset_ids=tuple(msg.asset_ids), pinned_ids=tuple(msg.pinned_ids))
+
+
+def show_update_from_message(msg: node_pb2.ShowUpdate) -> ShowUpdateData:
+    """ValueError (a TimelineError) if the timeline is impossible (bad rate, frame out of range)."""
+    if msg.stop or not msg.HasField("timeline"):
+        return ShowUpdateData(stop_at_ns=msg.stop_at_ns, stop_revision=msg.stop_revision, beacon=msg.beacon)
+    t = msg.timeline
+    if not t.rate_den:
+        raise ValueError("timeline without a rate")
+    tl = Timeline(asset_id=t.asset_id, frames=t.frames, rate=Fraction(t.rate_num, t.rate_den), anchor_ns=t.anchor_ns,
+                  anchor_frame=t.anchor_frame, loop=t.loop, paused=t.paused, revision=t.revision)
+    return ShowUpdateData(timeline=tl, frame_id_base=t.frame_id_base, beacon=msg.beacon)
 
 
 def blob_chunk_from_message(msg: node_pb2.BlobChunk) -> BlobChunkData:

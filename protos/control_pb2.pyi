@@ -109,7 +109,7 @@ class Refusal(_message.Message):
     def __init__(self, peer: _Optional[str] = ..., slot: _Optional[str] = ..., reason: _Optional[str] = ..., age_s: _Optional[float] = ...) -> None: ...
 
 class RigStatus(_message.Message):
-    __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s")
+    __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s", "show", "frame_packets_sent", "frame_bytes_sent", "show_updates_sent", "show_bytes_sent")
     RIG_ID_FIELD_NUMBER: _ClassVar[int]
     RIG_NAME_FIELD_NUMBER: _ClassVar[int]
     INSTANCE_ID_FIELD_NUMBER: _ClassVar[int]
@@ -122,6 +122,11 @@ class RigStatus(_message.Message):
     REFUSALS_FIELD_NUMBER: _ClassVar[int]
     LATENCY_BUDGET_MS_FIELD_NUMBER: _ClassVar[int]
     CPU_S_FIELD_NUMBER: _ClassVar[int]
+    SHOW_FIELD_NUMBER: _ClassVar[int]
+    FRAME_PACKETS_SENT_FIELD_NUMBER: _ClassVar[int]
+    FRAME_BYTES_SENT_FIELD_NUMBER: _ClassVar[int]
+    SHOW_UPDATES_SENT_FIELD_NUMBER: _ClassVar[int]
+    SHOW_BYTES_SENT_FIELD_NUMBER: _ClassVar[int]
     rig_id: str
     rig_name: str
     instance_id: str
@@ -134,7 +139,12 @@ class RigStatus(_message.Message):
     refusals: _containers.RepeatedCompositeFieldContainer[Refusal]
     latency_budget_ms: float
     cpu_s: float
-    def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ...) -> None: ...
+    show: ShowState
+    frame_packets_sent: int
+    frame_bytes_sent: int
+    show_updates_sent: int
+    show_bytes_sent: int
+    def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ..., show: _Optional[_Union[ShowState, _Mapping]] = ..., frame_packets_sent: _Optional[int] = ..., frame_bytes_sent: _Optional[int] = ..., show_updates_sent: _Optional[int] = ..., show_bytes_sent: _Optional[int] = ...) -> None: ...
 
 class NodeList(_message.Message):
     __slots__ = ("nodes",)
@@ -283,3 +293,63 @@ class JobEvent(_message.Message):
     log: str
     result_json: str
     def __init__(self, progress: _Optional[_Union[JobProgress, _Mapping]] = ..., log: _Optional[str] = ..., result_json: _Optional[str] = ...) -> None: ...
+
+class PlayAssetRequest(_message.Message):
+    __slots__ = ("asset", "at_ns", "delay_ms", "loop", "fps", "start_without")
+    ASSET_FIELD_NUMBER: _ClassVar[int]
+    AT_NS_FIELD_NUMBER: _ClassVar[int]
+    DELAY_MS_FIELD_NUMBER: _ClassVar[int]
+    LOOP_FIELD_NUMBER: _ClassVar[int]
+    FPS_FIELD_NUMBER: _ClassVar[int]
+    START_WITHOUT_FIELD_NUMBER: _ClassVar[int]
+    asset: str
+    at_ns: int
+    delay_ms: float
+    loop: bool
+    fps: float
+    start_without: bool
+    def __init__(self, asset: _Optional[str] = ..., at_ns: _Optional[int] = ..., delay_ms: _Optional[float] = ..., loop: _Optional[bool] = ..., fps: _Optional[float] = ..., start_without: _Optional[bool] = ...) -> None: ...
+
+class ShowControlRequest(_message.Message):
+    __slots__ = ("at_ns", "delay_ms", "frame")
+    AT_NS_FIELD_NUMBER: _ClassVar[int]
+    DELAY_MS_FIELD_NUMBER: _ClassVar[int]
+    FRAME_FIELD_NUMBER: _ClassVar[int]
+    at_ns: int
+    delay_ms: float
+    frame: int
+    def __init__(self, at_ns: _Optional[int] = ..., delay_ms: _Optional[float] = ..., frame: _Optional[int] = ...) -> None: ...
+
+class ShowState(_message.Message):
+    __slots__ = ("state", "asset_id", "name", "frames", "rate_num", "rate_den", "anchor_ns", "anchor_frame", "loop", "paused", "revision", "frame_id_base", "frame", "now_ns", "change_at_ns")
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    ASSET_ID_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    RATE_NUM_FIELD_NUMBER: _ClassVar[int]
+    RATE_DEN_FIELD_NUMBER: _ClassVar[int]
+    ANCHOR_NS_FIELD_NUMBER: _ClassVar[int]
+    ANCHOR_FRAME_FIELD_NUMBER: _ClassVar[int]
+    LOOP_FIELD_NUMBER: _ClassVar[int]
+    PAUSED_FIELD_NUMBER: _ClassVar[int]
+    REVISION_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ID_BASE_FIELD_NUMBER: _ClassVar[int]
+    FRAME_FIELD_NUMBER: _ClassVar[int]
+    NOW_NS_FIELD_NUMBER: _ClassVar[int]
+    CHANGE_AT_NS_FIELD_NUMBER: _ClassVar[int]
+    state: str
+    asset_id: str
+    name: str
+    frames: int
+    rate_num: int
+    rate_den: int
+    anchor_ns: int
+    anchor_frame: int
+    loop: bool
+    paused: bool
+    revision: int
+    frame_id_base: int
+    frame: int
+    now_ns: int
+    change_at_ns: int
+    def __init__(self, state: _Optional[str] = ..., asset_id: _Optional[str] = ..., name: _Optional[str] = ..., frames: _Optional[int] = ..., rate_num: _Optional[int] = ..., rate_den: _Optional[int] = ..., anchor_ns: _Optional[int] = ..., anchor_frame: _Optional[int] = ..., loop: _Optional[bool] = ..., paused: _Optional[bool] = ..., revision: _Optional[int] = ..., frame_id_base: _Optional[int] = ..., frame: _Optional[int] = ..., now_ns: _Optional[int] = ..., change_at_ns: _Optional[int] = ...) -> None: ...

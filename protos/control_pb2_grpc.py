@@ -80,6 +80,31 @@ class RigControlStub:
                 request_serializer=protos_dot_control__pb2.JobRequest.SerializeToString,
                 response_deserializer=protos_dot_control__pb2.JobEvent.FromString,
                 _registered_method=True)
+        self.PlayAsset = channel.unary_unary(
+                '/shadowless.v1.RigControl/PlayAsset',
+                request_serializer=protos_dot_control__pb2.PlayAssetRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.ShowState.FromString,
+                _registered_method=True)
+        self.PauseShow = channel.unary_unary(
+                '/shadowless.v1.RigControl/PauseShow',
+                request_serializer=protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.ShowState.FromString,
+                _registered_method=True)
+        self.ResumeShow = channel.unary_unary(
+                '/shadowless.v1.RigControl/ResumeShow',
+                request_serializer=protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.ShowState.FromString,
+                _registered_method=True)
+        self.SeekShow = channel.unary_unary(
+                '/shadowless.v1.RigControl/SeekShow',
+                request_serializer=protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.ShowState.FromString,
+                _registered_method=True)
+        self.StopShow = channel.unary_unary(
+                '/shadowless.v1.RigControl/StopShow',
+                request_serializer=protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.ShowState.FromString,
+                _registered_method=True)
 
 
 class RigControlServicer:
@@ -145,6 +170,38 @@ class RigControlServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def PlayAsset(self, request, context):
+        """Timeline playback of an asset of the rig's store: nodes decode it themselves and swap each
+        frame at its time; the coordinator sends only the timeline and its changes.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def PauseShow(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def ResumeShow(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SeekShow(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def StopShow(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_RigControlServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -192,6 +249,31 @@ def add_RigControlServicer_to_server(servicer, server):
                     servicer.RunJob,
                     request_deserializer=protos_dot_control__pb2.JobRequest.FromString,
                     response_serializer=protos_dot_control__pb2.JobEvent.SerializeToString,
+            ),
+            'PlayAsset': grpc.unary_unary_rpc_method_handler(
+                    servicer.PlayAsset,
+                    request_deserializer=protos_dot_control__pb2.PlayAssetRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.ShowState.SerializeToString,
+            ),
+            'PauseShow': grpc.unary_unary_rpc_method_handler(
+                    servicer.PauseShow,
+                    request_deserializer=protos_dot_control__pb2.ShowControlRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.ShowState.SerializeToString,
+            ),
+            'ResumeShow': grpc.unary_unary_rpc_method_handler(
+                    servicer.ResumeShow,
+                    request_deserializer=protos_dot_control__pb2.ShowControlRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.ShowState.SerializeToString,
+            ),
+            'SeekShow': grpc.unary_unary_rpc_method_handler(
+                    servicer.SeekShow,
+                    request_deserializer=protos_dot_control__pb2.ShowControlRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.ShowState.SerializeToString,
+            ),
+            'StopShow': grpc.unary_unary_rpc_method_handler(
+                    servicer.StopShow,
+                    request_deserializer=protos_dot_control__pb2.ShowControlRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.ShowState.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -437,6 +519,141 @@ class RigControl:
             '/shadowless.v1.RigControl/RunJob',
             protos_dot_control__pb2.JobRequest.SerializeToString,
             protos_dot_control__pb2.JobEvent.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def PlayAsset(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/PlayAsset',
+            protos_dot_control__pb2.PlayAssetRequest.SerializeToString,
+            protos_dot_control__pb2.ShowState.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def PauseShow(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/PauseShow',
+            protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+            protos_dot_control__pb2.ShowState.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ResumeShow(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/ResumeShow',
+            protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+            protos_dot_control__pb2.ShowState.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SeekShow(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/SeekShow',
+            protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+            protos_dot_control__pb2.ShowState.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def StopShow(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/StopShow',
+            protos_dot_control__pb2.ShowControlRequest.SerializeToString,
+            protos_dot_control__pb2.ShowState.FromString,
             options,
             channel_credentials,
             insecure,

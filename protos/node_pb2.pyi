@@ -322,3 +322,41 @@ class AssetProgress(_message.Message):
     error: str
     name: str
     def __init__(self, asset_id: _Optional[str] = ..., have_bytes: _Optional[int] = ..., total_bytes: _Optional[int] = ..., ready: _Optional[bool] = ..., error: _Optional[str] = ..., name: _Optional[str] = ...) -> None: ...
+
+class Timeline(_message.Message):
+    __slots__ = ("asset_id", "frames", "rate_num", "rate_den", "anchor_ns", "anchor_frame", "loop", "paused", "revision", "frame_id_base")
+    ASSET_ID_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    RATE_NUM_FIELD_NUMBER: _ClassVar[int]
+    RATE_DEN_FIELD_NUMBER: _ClassVar[int]
+    ANCHOR_NS_FIELD_NUMBER: _ClassVar[int]
+    ANCHOR_FRAME_FIELD_NUMBER: _ClassVar[int]
+    LOOP_FIELD_NUMBER: _ClassVar[int]
+    PAUSED_FIELD_NUMBER: _ClassVar[int]
+    REVISION_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ID_BASE_FIELD_NUMBER: _ClassVar[int]
+    asset_id: str
+    frames: int
+    rate_num: int
+    rate_den: int
+    anchor_ns: int
+    anchor_frame: int
+    loop: bool
+    paused: bool
+    revision: int
+    frame_id_base: int
+    def __init__(self, asset_id: _Optional[str] = ..., frames: _Optional[int] = ..., rate_num: _Optional[int] = ..., rate_den: _Optional[int] = ..., anchor_ns: _Optional[int] = ..., anchor_frame: _Optional[int] = ..., loop: _Optional[bool] = ..., paused: _Optional[bool] = ..., revision: _Optional[int] = ..., frame_id_base: _Optional[int] = ...) -> None: ...
+
+class ShowUpdate(_message.Message):
+    __slots__ = ("timeline", "stop", "stop_at_ns", "stop_revision", "beacon")
+    TIMELINE_FIELD_NUMBER: _ClassVar[int]
+    STOP_FIELD_NUMBER: _ClassVar[int]
+    STOP_AT_NS_FIELD_NUMBER: _ClassVar[int]
+    STOP_REVISION_FIELD_NUMBER: _ClassVar[int]
+    BEACON_FIELD_NUMBER: _ClassVar[int]
+    timeline: Timeline
+    stop: bool
+    stop_at_ns: int
+    stop_revision: int
+    beacon: bool
+    def __init__(self, timeline: _Optional[_Union[Timeline, _Mapping]] = ..., stop: _Optional[bool] = ..., stop_at_ns: _Optional[int] = ..., stop_revision: _Optional[int] = ..., beacon: _Optional[bool] = ...) -> None: ...

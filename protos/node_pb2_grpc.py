@@ -80,6 +80,11 @@ class NodeLinkStub:
                 request_serializer=protos_dot_node__pb2.BlobRequest.SerializeToString,
                 response_deserializer=protos_dot_node__pb2.BlobChunk.FromString,
                 _registered_method=True)
+        self.Show = channel.unary_stream(
+                '/shadowless.v1.NodeLink/Show',
+                request_serializer=protos_dot_node__pb2.StreamRequest.SerializeToString,
+                response_deserializer=protos_dot_node__pb2.ShowUpdate.FromString,
+                _registered_method=True)
 
 
 class NodeLinkServicer:
@@ -149,6 +154,15 @@ class NodeLinkServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def Show(self, request, context):
+        """The show's timeline: the current state at once, every change, and a beacon about every
+        second repeating the current state (a node applies a timeline only if its revision is new).
+        No per-frame data ever travels here: each node computes its frames from the timeline.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_NodeLinkServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -196,6 +210,11 @@ def add_NodeLinkServicer_to_server(servicer, server):
                     servicer.FetchBlob,
                     request_deserializer=protos_dot_node__pb2.BlobRequest.FromString,
                     response_serializer=protos_dot_node__pb2.BlobChunk.SerializeToString,
+            ),
+            'Show': grpc.unary_stream_rpc_method_handler(
+                    servicer.Show,
+                    request_deserializer=protos_dot_node__pb2.StreamRequest.FromString,
+                    response_serializer=protos_dot_node__pb2.ShowUpdate.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -441,6 +460,33 @@ class NodeLink:
             '/shadowless.v1.NodeLink/FetchBlob',
             protos_dot_node__pb2.BlobRequest.SerializeToString,
             protos_dot_node__pb2.BlobChunk.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def Show(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(
+            request,
+            target,
+            '/shadowless.v1.NodeLink/Show',
+            protos_dot_node__pb2.StreamRequest.SerializeToString,
+            protos_dot_node__pb2.ShowUpdate.FromString,
             options,
             channel_credentials,
             insecure,

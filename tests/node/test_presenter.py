@@ -289,3 +289,73 @@ def test_pacer_follows_the_clock_hooks():
     woke = clock.sleep_until(deadline)
     assert clock.from_host(woke) >= deadline and pacer.ready(frame) is None
     assert sum(host.slept_ns) == woke - START_NS
+
+
+# ----------------------------------------------------------------------------- the show's timeline
+def _still_asset(tmp_path):
+    from node.records import AssetFiles
+    from protos.asset_manifest import Blob, Manifest, sha256_hex
+
+    path = tmp_path / "grey.npy"
+    np.save(path, np.full((H, W, 3), 0.5, np.float32))
+    data = path.read_bytes()
+    m = Manifest(kind="still", name="grey", width=W, height=H, channels=3, bit_depth=32, frames=1,
+                 blobs=(Blob(sha256=sha256_hex(data), size=len(data), name="grey.npy"),))
+    return AssetFiles(asset_id=m.asset_id, manifest=m.canonical(), blob_paths={sha256_hex(data): str(path)})
+
+
+def _timeline_update(files, anchor_ns: int, *, revision: int = 1, base: int = 500):
+    from fractions import Fraction
+
+    from node.records import ShowUpdateData
+    from protos.timeline import Timeline
+
+    tl = Timeline(asset_id=files.asset_id, frames=1, rate=Fraction(10), anchor_ns=anchor_ns, loop=True,
+                  revision=revision)
+    return ShowUpdateData(timeline=tl, frame_id_base=base)
+
+
+def test_timeline_ticks_are_swapped_at_their_time_with_ids_from_the_base(rig, tmp_path):
+    files = _still_asset(tmp_path)
+    p = rig.presenter
+    anchor = rig.rig_now() + 100 * MS
+    p.handle("asset", files)
+    p.handle("show", _timeline_update(files, anchor))
+    assert p.timeline_wait() == pytest.approx(0.05)      # prepared 50 ms ahead of the first tick
+    for _ in range(3):
+        p.timeline_step()
+    assert [s.frame_id for s in rig.swaps] == [500, 501, 502]
+    assert [s.pts_ns for s in rig.swaps] == [anchor, anchor + 100 * MS, anchor + 200 * MS]
+    assert [s.swap_rig_ns for s in rig.swaps] == [s.pts_ns for s in rig.swaps]
+
+
+def test_a_coordinator_frame_suspends_the_timeline_until_a_newer_revision(rig, tmp_path):
+    files = _still_asset(tmp_path)
+    p = rig.presenter
+    anchor = rig.rig_now() + 10 * MS
+    p.handle("asset", files)
+    p.handle("show", _timeline_update(files, anchor))
+    p.timeline_step()
+    rig.show(rig.frame(10_000, in_ms=5, content="c10"))          # a still: it takes the output
+    assert p.timeline_wait() is None
+    p.handle("show", _timeline_update(files, anchor))            # a beacon of the same revision
+    assert p.timeline_wait() is None
+    p.handle("show", _timeline_update(files, rig.rig_now() + 100 * MS, revision=2, base=20_000))
+    p.timeline_step()
+    assert [s.frame_id for s in rig.swaps] == [500, 10_000, 20_000]
+
+
+def test_a_stop_blacks_the_output_without_a_report(rig, tmp_path):
+    from node.records import ShowUpdateData
+
+    files = _still_asset(tmp_path)
+    p = rig.presenter
+    anchor = rig.rig_now() + 10 * MS
+    p.handle("asset", files)
+    p.handle("show", _timeline_update(files, anchor))
+    p.timeline_step()
+    p.handle("show", ShowUpdateData(stop_at_ns=anchor + 50 * MS, stop_revision=2))
+    swaps_before = rig.out.swaps
+    p.timeline_step()
+    assert rig.out.swaps == swaps_before + 1 and [s.frame_id for s in rig.swaps] == [500]
+    assert p.timeline_wait() is None

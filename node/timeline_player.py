@@ -1,0 +1,249 @@
+"""The show's timeline as the presenter follows it: which frame to swap in next, and when.
+
+The presenter process keeps one :class:`TimelinePlayer`. The node process forwards every
+message of the coordinator's Show stream (:class:`~node.records.ShowUpdateData`, a few dozen
+bytes) and, once the show's asset is complete in its cache, the asset's files
+(:class:`~node.records.AssetFiles`: the manifest and blob paths; the cache itself, and its
+lock, stay with the node process). Frames are decoded here, ahead of their time
+(:class:`~node.asset_frames.DecodeAhead`), so decoded frames never cross the pipe.
+
+For each frame period ``tick`` of the timeline in force, the frame ``k =
+timeline.frame_of_tick(tick)`` is swapped in at ``timeline.pts(tick)`` and reported as frame id
+``frame_id_base + tick`` (:meth:`TimelinePlayer.next_event`). Rules, as built:
+
+* **Changes** (a newer revision) take effect at their anchor (:class:`protos.timeline.Schedule`);
+  a stop blacks the output at its instant; a show that does not loop holds its last frame.
+* **Joining mid-show**: the first tick considered is the next one to begin; a node that joins a
+  paused show shows the held frame as soon as it can (with the same frame id as the others).
+* **Never late, never out of order**: ticks whose time passed before the presenter got to them
+  are reported dropped (late); the presenter's :class:`~node.pacing.FramePacer` checks every
+  timeline frame as it checks the coordinator's.
+* **Precedence**: a coordinator frame (a still, a pattern, a played sequence) reaching the
+  presenter suspends the timeline (:meth:`TimelinePlayer.suspend`) until a newer revision
+  arrives; repeated beacons of the same revision do not resume it.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from node.asset_frames import DecodeAhead, FrameError, open_frames
+from node.records import AssetFiles, ShowUpdateData
+from protos.asset_manifest import Manifest, ManifestError
+from protos.timeline import Schedule, Timeline
+
+log = logging.getLogger(__name__)
+
+#: a node that catches up with a held (paused) frame shows it this far ahead of now
+CATCH_UP_NS = 30_000_000
+#: ticks reported late at most at once (after a long stall)
+MAX_SKIPPED_REPORTS = 120
+
+
+class AssetFilesView:
+    """The part of :class:`node.asset_cache.AssetCache` that :func:`node.asset_frames.open_frames`
+    reads, over the files the node process passed (no lock, no writes)."""
+
+    def __init__(self, files: AssetFiles):
+        self.files = files
+        try:
+            self._manifest = Manifest.from_bytes(files.manifest, asset_id=files.asset_id)
+        except ManifestError as exc:
+            raise FrameError(f"asset {files.asset_id[:12]}: bad manifest: {exc}") from exc
+
+    def manifest(self, asset_id: str) -> Manifest:
+        if asset_id != self.files.asset_id:
+            raise FrameError(f"asset {asset_id[:12]} was not passed to the presenter")
+        return self._manifest
+
+    def missing(self, asset_id: str) -> list[tuple[str, int, int]]:
+        out, seen = [], set()
+        for b in self.manifest(asset_id).blobs:
+            path = self.files.blob_paths.get(b.sha256)
+            if b.sha256 not in seen and (path is None or not Path(path).is_file()):
+                seen.add(b.sha256)
+                out.append((b.sha256, b.size, 0))
+        return out
+
+    def ready(self, asset_id: str) -> bool:
+        return not self.missing(asset_id)
+
+    def blob_path(self, sha256: str) -> Path:
+        path = self.files.blob_paths.get(sha256)
+        if path is None:
+            raise FrameError(f"blob {sha256[:12]} was not passed to the presenter")
+        return Path(path)
+
+
+def fit_frame(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``image`` (H, W, C) at ``size`` (w, h): itself if it has that size, else nearest-neighbour
+    resampled (texel centres aligned)."""
+    w, h = size
+    if image.shape[1] == w and image.shape[0] == h:
+        return image
+    ys = ((np.arange(h) + 0.5) * image.shape[0] / h).astype(np.intp)
+    xs = ((np.arange(w) + 0.5) * image.shape[1] / w).astype(np.intp)
+    return np.ascontiguousarray(image[ys[:, None], xs[None, :]])
+
+
+@dataclass(frozen=True)
+class TimelineEvent:
+    """What the presenter does next: swap in ``frame`` of ``asset_id`` at ``pts_ns`` (rig clock),
+    reported as ``frame_id`` (tick ``tick`` of ``revision``), or black the output (``stop``)."""
+
+    kind: str                # "frame" or "stop"
+    pts_ns: int
+    revision: int
+    tick: int = 0
+    frame: int = 0
+    frame_id: int = 0
+    asset_id: str = ""
+    loop: bool = False
+
+
+class TimelinePlayer:
+    """The presenter's timeline state (see the module docstring). Not thread-safe: the
+    presenter's thread calls it."""
+
+    def __init__(self, *, depth: int = 8):
+        self.depth = depth
+        self.schedule = Schedule()
+        self._bases: dict[int, int] = {}
+        self._stops: dict[int, int] = {}             # stop instant -> revision
+        self._files: dict[str, AssetFiles] = {}
+        self._decoder: DecodeAhead | None = None
+        self._decoder_revision = -1
+        self.suspended_revision = -1
+        self.done: tuple[int, int] | None = None     # (revision, tick) of the last event handled
+        self._failed: set[str] = set()
+
+    # ------------------------------------------------------------------ input
+    def offer(self, update: ShowUpdateData) -> bool:
+        """Take a Show stream message; whether it was a new revision."""
+        if update.timeline is not None:
+            new = self.schedule.offer(update.timeline)
+            if new:
+                self._bases[update.timeline.revision] = update.frame_id_base
+        else:
+            new = self.schedule.offer_stop(update.stop_at_ns, update.stop_revision)
+            if new:
+                self._stops[update.stop_at_ns] = update.stop_revision
+        return new
+
+    def add_asset(self, files: AssetFiles) -> None:
+        self._files[files.asset_id] = files
+        self._failed.discard(files.asset_id)
+
+    def has_asset(self, asset_id: str) -> bool:
+        return asset_id in self._files and asset_id not in self._failed
+
+    def suspend(self) -> None:
+        """A coordinator frame takes the output: ignore the timeline until a newer revision."""
+        self.suspended_revision = self.schedule.revision
+
+    def reset(self) -> None:
+        """A new coordinator instance: forget the schedule (its Show stream sends it again)."""
+        self.schedule = Schedule()
+        self._bases.clear()
+        self._stops.clear()
+        self.suspended_revision = -1
+        self.done = None
+
+    @property
+    def active(self) -> bool:
+        return bool(self.schedule.pending) and self.schedule.revision > self.suspended_revision
+
+    # ------------------------------------------------------------------ what next
+    def _revision_of(self, at_ns: int, tl: Timeline | None) -> int:
+        return tl.revision if tl is not None else self._stops.get(at_ns, -1)
+
+    def next_event(self, after_ns: int) -> TimelineEvent | None:
+        """The first thing to do at or after rig time ``after_ns`` that was not done yet."""
+        if not self.active:
+            return None
+        self.schedule.forget_before(after_ns - 1_000_000_000)
+        entries = [(a, tl) for a, tl in self.schedule.pending if self._revision_of(a, tl) > self.suspended_revision]
+        current = [e for e in entries if e[0] <= after_ns]
+        later = [e for e in entries if e[0] > after_ns]
+        event = None
+        if current:
+            a, tl = current[-1]
+            event = self._tick_event(tl, after_ns) if tl is not None else self._stop_event(a, after_ns)
+        if later:
+            a, tl = later[0]
+            nxt = self._tick_event(tl, a) if tl is not None else self._stop_event(a, a)
+            if nxt is not None and (event is None or nxt.pts_ns <= event.pts_ns):
+                event = nxt
+        return event
+
+    def _stop_event(self, at_ns: int, after_ns: int) -> TimelineEvent | None:
+        rev = self._stops.get(at_ns, -1)
+        if self.done is not None and self.done[0] >= rev:
+            return None
+        return TimelineEvent("stop", max(at_ns, after_ns), rev)
+
+    def _tick_event(self, tl: Timeline, after_ns: int) -> TimelineEvent | None:
+        base = self._bases.get(tl.revision)
+        if base is None:
+            return None
+        done_tick = self.done[1] if self.done is not None and self.done[0] == tl.revision else None
+        if self.done is not None and self.done[0] > tl.revision:
+            return None
+        if tl.paused:
+            if done_tick is not None:
+                return None
+            pts = tl.anchor_ns if tl.anchor_ns >= after_ns else after_ns + CATCH_UP_NS
+            return TimelineEvent("frame", pts, tl.revision, 0, tl.anchor_frame, base, tl.asset_id, tl.loop)
+        if after_ns <= tl.anchor_ns:
+            k = 0
+        else:
+            k = tl.tick_at(after_ns)
+            if tl.pts(k) < after_ns:
+                k += 1
+        if done_tick is not None and k <= done_tick:
+            k = done_tick + 1
+        frame = tl.frame_of_tick(k)
+        if frame is None:
+            return None
+        return TimelineEvent("frame", tl.pts(k), tl.revision, k, frame, base + k, tl.asset_id, tl.loop)
+
+    def skipped_ids(self, event: TimelineEvent) -> list[int]:
+        """Frame ids of the ticks of ``event``'s revision passed over since the last one handled."""
+        if event.kind != "frame" or self.done is None or self.done[0] != event.revision:
+            return []
+        first = self.done[1] + 1
+        ids = [event.frame_id - event.tick + t for t in range(first, event.tick)]
+        return ids[-MAX_SKIPPED_REPORTS:]
+
+    def mark_done(self, event: TimelineEvent) -> None:
+        self.done = (event.revision, event.tick)
+
+    # ------------------------------------------------------------------ frames
+    def frame(self, event: TimelineEvent, timeout_s: float) -> np.ndarray:
+        """The decoded frame of ``event`` (waiting at most ``timeout_s``); FrameError (or
+        FrameNotReady) when it cannot be had."""
+        dec = self._decoder
+        if dec is None or dec.source.asset_id != event.asset_id:
+            self.close()
+            files = self._files.get(event.asset_id)
+            if files is None:
+                raise FrameError(f"asset {event.asset_id[:12]} is not in the node's cache yet")
+            try:
+                dec = DecodeAhead(open_frames(AssetFilesView(files), event.asset_id), depth=self.depth,
+                                  loop=event.loop)
+            except FrameError:
+                self._failed.add(event.asset_id)
+                raise
+            self._decoder, self._decoder_revision = dec, -1
+        if self._decoder_revision != event.revision:
+            dec.want(event.frame, loop=event.loop)
+            self._decoder_revision = event.revision
+        return dec.get(event.frame, max(0.0, timeout_s))
+
+    def close(self) -> None:
+        if self._decoder is not None:
+            self._decoder.close()
+            self._decoder = None
