@@ -92,6 +92,8 @@ class AssetProgress:
     ready: bool = False         # every blob complete and verified on the node
     error: str = ""             # why the node gave up on it; "" = none
     name: str = ""
+    ready_age_ms: float = math.nan   # status only: since the coordinator first saw it ready on the node
+                                     # (its own clock; NaN: not ready, or not yet seen ready)
 
 
 @dataclass(frozen=True)
@@ -120,6 +122,7 @@ class NodeStatus:
     asset_bytes_have: int = 0     # over the wanted assets, from the node's last heartbeat
     asset_bytes_total: int = 0
     assets: tuple[AssetProgress, ...] = ()   # one per wanted asset, in fetch order
+    live_age_ms: float = math.nan   # since the node's session turned live (the coordinator's clock; NaN: not live)
 
 
 @dataclass(frozen=True)

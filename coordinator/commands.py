@@ -45,7 +45,8 @@ def assets_dict(n: NodeStatus) -> dict:
     return {"wanted": n.assets_wanted, "ready": n.assets_ready, "bytes_have": n.asset_bytes_have,
             "bytes_total": n.asset_bytes_total, "percent": pct,
             "items": [{"id": a.asset_id, "name": a.name, "ready": a.ready, "have": a.have_bytes, "total": a.total_bytes,
-                       **({"error": a.error} if a.error else {})} for a in n.assets]}
+                       "ready_age_ms": _num(a.ready_age_ms), **({"error": a.error} if a.error else {})}
+                      for a in n.assets]}
 
 
 def assets_cell(a: dict) -> str:
@@ -71,6 +72,7 @@ def status_dict(st: RigStatus) -> dict:
             "clock_offset_ms": round(n.clock_offset_ms, 3), "drift_ppm": round(n.clock_drift_ppm, 2),
             "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": num(n.clock_error_ms),
             "last_swap_frame": n.last_swap_frame, "last_swap_age_ms": num(n.last_swap_age_ms),
+            "live_age_ms": num(n.live_age_ms),
             "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
         } for n in st.nodes],

@@ -11,7 +11,9 @@ manifest, so a manifest never changes under its name).
 :class:`Distribution` turns the store's manifests into the **wanted list** every node follows
 (every asset of the store, sorted by name then id, which is the order nodes fetch them in;
 none pinned beyond that until the timeline schedules assets), and a node's reported
-:class:`~coordinator.api.AssetProgress` into its readiness (:meth:`Distribution.readiness`).
+:class:`~coordinator.api.AssetProgress` into its readiness (:meth:`Distribution.readiness`),
+with the age of each asset's readiness: :func:`note_ready` keeps the instant (the
+coordinator's clock) each asset was first reported ready.
 
 :func:`blob_chunks` reads a blob for the FetchBlob call: from an offset to its end, chunk by
 chunk, each read in a worker thread (the event loop never waits for the disk, and a blob
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import os
 import threading
 from dataclasses import dataclass
@@ -58,6 +61,20 @@ class Readiness:
     bytes_have: int = 0
     bytes_total: int = 0
     assets: tuple[AssetProgress, ...] = ()
+
+
+def note_ready(since: dict[str, int], reported: Iterable[AssetProgress], now: int) -> bool:
+    """Keep in ``since`` (asset id -> instant, e.g. rig-clock nanoseconds) when each asset was first reported ready
+    on one node: a newly ready asset takes ``now``, one ready before keeps its instant, one no longer
+    reported ready is forgotten (ready again later counts from then). Whether one turned ready."""
+    ready = {p.asset_id for p in reported if p.ready}
+    new = ready - since.keys()
+    for aid in list(since):
+        if aid not in ready:
+            del since[aid]
+    for aid in new:
+        since[aid] = now
+    return bool(new)
 
 
 class ManifestWatcher:
@@ -152,10 +169,13 @@ class Distribution:
         return True
 
     # ------------------------------------------------------------ readiness
-    def readiness(self, reported: Iterable[AssetProgress]) -> Readiness:
+    def readiness(self, reported: Iterable[AssetProgress], *, ready_since: Mapping[str, int] | None = None,
+                  now_ns: int = 0) -> Readiness:
         """A node's readiness from what it reported (its last heartbeat's assets): one entry per
         wanted asset, totals from the store's manifests (a node's own figures are only trusted for
-        the bytes it has, clipped to the total)."""
+        the bytes it has, clipped to the total). ``ready_since`` (see :func:`note_ready`, in
+        nanoseconds) and ``now_ns`` (the same clock) give each ready asset's ``ready_age_ms``."""
+        since = ready_since or {}
         by_id = {p.asset_id: p for p in reported}
         items = []
         for aid in self.wanted.asset_ids:
@@ -164,9 +184,11 @@ class Distribution:
             r = by_id.get(aid)
             ready = bool(r is not None and r.ready)
             have = total if ready else min(total, r.have_bytes) if r is not None else 0
+            at = since.get(aid) if ready else None
             items.append(AssetProgress(asset_id=aid, have_bytes=have, total_bytes=total, ready=ready,
                                        error="" if r is None or ready else r.error,
-                                       name=m.name if m is not None else ""))
+                                       name=m.name if m is not None else "",
+                                       ready_age_ms=(now_ns - at) / 1e6 if at is not None else math.nan))
         return Readiness(wanted=len(items), ready=sum(p.ready for p in items),
                          bytes_have=sum(p.have_bytes for p in items), bytes_total=sum(p.total_bytes for p in items),
                          assets=tuple(items))

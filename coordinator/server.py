@@ -40,7 +40,7 @@ from coordinator.api import (
 )
 from coordinator.assets import AssetStore
 from coordinator.camera import Camera, RoomCamera, open_camera
-from coordinator.distribution import Distribution
+from coordinator.distribution import Distribution, note_ready
 from coordinator.errors import CoordinatorError
 from coordinator.fanout import FanOut
 from coordinator.jobs.context import Event
@@ -120,6 +120,9 @@ class Coordinator:
         self.sessions: dict[str, NodeSession] = {}      # session id -> node session
         self.by_slot: dict[str, NodeSession] = {}
         self.joins: dict[str, int] = {}
+        # rig-clock instants (ns) by session id: when it turned live; when each asset was first seen ready
+        self.live_at: dict[str, int] = {}
+        self.ready_at: dict[str, dict[str, int]] = {}
         self.refusals: deque[tuple[str, str, str, float]] = deque(maxlen=64)
         self.handshake = Handshake(token, rig_id=rig.config.rig_id, rig_name=rig.config.name,
                                    instance_id=self.instance_id, clock=self.now,
@@ -197,6 +200,9 @@ class Coordinator:
         if old is not None and not old.closed:
             log.info("node %s rejoined from %s; closing its previous session", slot, peer)
             self._drop_session(old, lost=False)
+        if old is not None:
+            self.live_at.pop(old.session, None)
+            self.ready_at.pop(old.session, None)
         st = self.rig.slot(slot)
         native = info.native_size
         if all(native) and native != (st.width, st.height):
@@ -319,11 +325,14 @@ class Coordinator:
 
     def on_report(self, sess: NodeSession, rep: Report) -> None:
         """A node's batch of heartbeat, swaps and drops."""
-        sess.last_seen = self.now()
+        now_ns = self.clock_ns()
+        sess.last_seen = now_ns / 1e9
         if sess.state == NodeState.JOINED:
             sess.state = NodeState.LIVE
+            self.live_at[sess.session] = now_ns
         if rep.heartbeat is not None:
             sess.heartbeat = rep.heartbeat
+            note_ready(self.ready_at.setdefault(sess.session, {}), rep.heartbeat.assets, now_ns)
         for sw in rep.swaps:
             if sw.frame_id < sess.last_swap_frame:
                 self.sync.out_of_order += 1
@@ -393,13 +402,16 @@ class Coordinator:
                 self.playback.restore_content()
 
     def status(self) -> RigStatus:
-        now = self.now()
+        now_ns = self.clock_ns()
+        now = now_ns / 1e9
         nodes = []
         for name, st in self.rig.slots.items():
             base = dict(slot=name, assignment_revision=st.revision, joins=self.joins.get(name, 0),
                         pose_kind=st.pose.kind if st.pose is not None else "none")
             sess = self.by_slot.get(name)
-            ready = self.distribution.readiness(sess.heartbeat.assets if sess and sess.heartbeat else ())
+            ready = self.distribution.readiness(sess.heartbeat.assets if sess and sess.heartbeat else (),
+                                                ready_since=self.ready_at.get(sess.session) if sess else None,
+                                                now_ns=now_ns)
             base.update(assets_wanted=ready.wanted, assets_ready=ready.ready, asset_bytes_have=ready.bytes_have,
                         asset_bytes_total=ready.bytes_total, assets=ready.assets)
             if sess is None:
@@ -411,8 +423,10 @@ class Coordinator:
                             clock_rtt_ms=hb.clock_rtt_ns / 1e6, assignment_revision=hb.assignment_revision)
                 if sess.same_host and hb.host_monotonic_ns:
                     base["clock_error_ms"] = (hb.rig_estimate_ns - hb.host_monotonic_ns) / 1e6
+            live_at = self.live_at.get(sess.session) if sess.state == NodeState.LIVE else None
             nodes.append(NodeStatus(
                 **base, state=sess.state, hostname=sess.info.hostname, pid=sess.info.pid,
+                live_age_ms=(now_ns - live_at) / 1e6 if live_at is not None else math.nan,
                 last_seen_age_ms=(now - sess.last_seen) * 1e3, last_swap_frame=sess.last_swap_frame,
                 last_swap_age_ms=(now - sess.last_swap_at) * 1e3 if sess.last_swap_at else math.nan,
                 frames_late=sess.late, frames_dropped=sess.dropped, frames_shown=sess.shown))

@@ -92,13 +92,17 @@ def node_info_from_message(msg: node_pb2.NodeInfo) -> NodeInfo:
 
 
 def asset_progress_message(p: AssetProgress) -> node_pb2.AssetProgress:
-    return node_pb2.AssetProgress(asset_id=p.asset_id, have_bytes=p.have_bytes, total_bytes=p.total_bytes,
-                                  ready=p.ready, error=p.error, name=p.name)
+    msg = node_pb2.AssetProgress(asset_id=p.asset_id, have_bytes=p.have_bytes, total_bytes=p.total_bytes,
+                                 ready=p.ready, error=p.error, name=p.name)
+    if not math.isnan(p.ready_age_ms):
+        msg.ready_age_ms = p.ready_age_ms
+    return msg
 
 
 def asset_progress_from_message(m: node_pb2.AssetProgress) -> AssetProgress:
     return AssetProgress(asset_id=m.asset_id, have_bytes=m.have_bytes, total_bytes=m.total_bytes, ready=m.ready,
-                         error=m.error, name=m.name)
+                         error=m.error, name=m.name,
+                         ready_age_ms=m.ready_age_ms if m.HasField("ready_age_ms") else math.nan)
 
 
 def report_from_message(msg: node_pb2.NodeReport) -> Report:
@@ -167,6 +171,8 @@ def _node_status_message(n: NodeStatus) -> control_pb2.NodeStatus:
     d = asdict(n)
     d["state"] = _STATE[n.state]
     d["assets"] = [asset_progress_message(a) for a in n.assets]
+    if math.isnan(n.live_age_ms):
+        del d["live_age_ms"]   # unset: not live
     return control_pb2.NodeStatus(**d)
 
 
@@ -179,7 +185,8 @@ def _node_status_from_message(m: control_pb2.NodeStatus) -> NodeStatus:
                       assignment_revision=m.assignment_revision, pose_kind=m.pose_kind, joins=m.joins,
                       assets_wanted=m.assets_wanted, assets_ready=m.assets_ready, asset_bytes_have=m.asset_bytes_have,
                       asset_bytes_total=m.asset_bytes_total,
-                      assets=tuple(asset_progress_from_message(a) for a in m.assets))
+                      assets=tuple(asset_progress_from_message(a) for a in m.assets),
+                      live_age_ms=m.live_age_ms if m.HasField("live_age_ms") else math.nan)
 
 
 def status_message(st: RigStatus) -> control_pb2.RigStatus:

@@ -8,7 +8,8 @@ never busy-looping) and starts over with discovery, while the projector keeps
 showing the last frame.
 
 After each join the node also follows the rig's wanted assets and fetches them into
-its on-disk cache (:mod:`node.asset_fetch`), reporting its progress in every heartbeat.
+its on-disk cache (:mod:`node.asset_fetch`), reporting its progress in every heartbeat; an asset
+turning ready (or given up on) sends a heartbeat at once instead of waiting for the next one.
 
 This module is the node's life cycle only: it speaks :mod:`node.records`
 dataclasses; the gRPC client is :mod:`node.link`.
@@ -99,8 +100,9 @@ class Node:
         self._stopping = asyncio.Event()
         self.joins = 0
         self._assets_passed: set[str] = set()    # assets whose files the presenter has
+        self._heartbeat_now = asyncio.Event()    # the fetcher has news for the operator: heartbeat at once
         self.fetcher = AssetFetcher(config.cache_dir or default_cache_dir() / config.slot, config.cache_max_bytes,
-                                    rate=config.fetch_rate)
+                                    rate=config.fetch_rate, on_change=self._heartbeat_now.set)
 
     # ---------------------------------------------------------------- reports
     def _report(self, rep: SwapRecord | DropRecord) -> None:
@@ -315,26 +317,44 @@ class Node:
         log.info("asset %s (%s) passed to the presenter for the show", asset_id[:12], m.name)
 
     async def _report_stream(self, link: CoordinatorLink, heartbeat_s: float, *, batch_s: float = 0.05) -> None:
+        """Heartbeats every ``heartbeat_s`` and at once when the fetcher has news (an asset ready or
+        given up on; the next regular one then follows a full period later); swaps and drops batched
+        over ``batch_s``."""
         q = self._reports
         while not q.empty():  # reports from a previous session are stale
             q.get_nowait()
+        now_event = self._heartbeat_now
+        now_event.clear()     # the session's first heartbeat goes at once anyway
 
         async def batches():
             next_hb = 0.0
-            while True:
-                now = time.monotonic()
-                if now >= next_hb:
-                    next_hb = now + heartbeat_s
-                    yield ReportBatch(heartbeat=self._heartbeat())
-                    continue
-                try:
-                    first = await asyncio.wait_for(q.get(), max(0.01, next_hb - now))
-                except asyncio.TimeoutError:
-                    continue
-                await asyncio.sleep(batch_s)   # gather what follows into the same message
-                items = [first] + [q.get_nowait() for _ in range(q.qsize())]
-                yield ReportBatch(swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
-                                  drops=tuple(i for i in items if isinstance(i, DropRecord)))
+            getter: asyncio.Future | None = None
+            try:
+                while True:
+                    now = time.monotonic()
+                    if now >= next_hb or now_event.is_set():
+                        now_event.clear()
+                        next_hb = now + heartbeat_s
+                        yield ReportBatch(heartbeat=self._heartbeat())
+                        continue
+                    if getter is None:
+                        getter = asyncio.ensure_future(q.get())
+                    news = asyncio.ensure_future(now_event.wait())
+                    try:
+                        await asyncio.wait((getter, news), timeout=max(0.01, next_hb - now),
+                                           return_when=asyncio.FIRST_COMPLETED)
+                    finally:
+                        news.cancel()
+                    if not getter.done():
+                        continue   # a heartbeat is due (or wanted at once)
+                    first, getter = getter.result(), None
+                    await asyncio.sleep(batch_s)   # gather what follows into the same message
+                    items = [first] + [q.get_nowait() for _ in range(q.qsize())]
+                    yield ReportBatch(swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
+                                      drops=tuple(i for i in items if isinstance(i, DropRecord)))
+            finally:
+                if getter is not None:
+                    getter.cancel()
 
         await link.report(batches())
 

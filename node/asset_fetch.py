@@ -7,7 +7,9 @@ missing blob from where its partial file ends, one blob at a time, in chunks. A 
 is hashed (``finish_blob``); one whose bytes do not hash to its name is deleted and fetched
 again, up to ``attempts`` times, then the fetcher gives up on that asset with a message the
 heartbeat carries to ``shadowless status`` (and tries again after the next rejoin or change of
-the wanted list).
+the wanted list). An asset turning ready or given up on calls ``on_change`` (the node's app
+sends a heartbeat at once, so the operator sees it without waiting for the next regular one);
+progress bytes never do.
 
 It survives link loss: :meth:`AssetFetcher.run` ends with the link (the node's app rejoins and
 calls it again), and every fetch resumes from the partial blobs on disk, also after the node
@@ -82,10 +84,14 @@ class AssetFetcher:
         Fetches of one blob that fail their hash check before the fetcher gives up on its asset.
     open_cache : callable
         ``(directory, max_bytes) -> AssetCache`` (tests may inject one).
+    on_change : callable, optional
+        Called (no arguments, on the event loop) when an asset turns ready or is given up on, or the
+        cache cannot be opened: what the operator must learn at once. Never for progress bytes.
     """
 
     def __init__(self, cache_dir: Path, max_bytes: int, *, rate: float | None = None, attempts: int = 3,
-                 open_cache: Callable[[Path, int], AssetCache] | None = None):
+                 open_cache: Callable[[Path, int], AssetCache] | None = None,
+                 on_change: Callable[[], None] | None = None):
         self.cache_dir = Path(cache_dir)
         self.max_bytes = max_bytes
         self.rate = rate
@@ -98,6 +104,11 @@ class AssetFetcher:
         self._failed: dict[str, str] = {}
         self._current = ""   # the asset being fetched
         self._kick = asyncio.Event()
+        self.on_change = on_change
+
+    def _changed(self) -> None:
+        if self.on_change is not None:
+            self.on_change()
 
     # ---------------------------------------------------------------- what the heartbeat carries
     def progress(self) -> tuple[AssetProgressRecord, ...]:
@@ -165,7 +176,10 @@ class AssetFetcher:
         snapshot = await asyncio.to_thread(self._snapshot, cache, wanted.asset_ids)
         if self._wanted is wanted:   # the asset being fetched keeps its running count
             current = self._progress.get(self._current) if self._current in snapshot else None
+            before = {aid for aid, p in self._progress.items() if p.ready}
             self._progress = {**snapshot, **({self._current: current} if current else {})}
+            if any(p.ready and aid not in before for aid, p in self._progress.items()):
+                self._changed()   # e.g. held in the cache from an earlier session
         ready = sum(p.ready for p in snapshot.values())
         total = sum(p.total_bytes for p in snapshot.values())
         log.info("the rig wants %d asset(s) on this node: %d ready in the cache%s", len(wanted.asset_ids), ready,
@@ -181,7 +195,8 @@ class AssetFetcher:
                 msg = f"asset cache {self.cache_dir} unavailable: {exc}"
                 if msg != self._cache_error:
                     log.error("%s; nothing is fetched until it opens (tried again on the next change)", msg)
-                self._cache_error = msg
+                    self._cache_error = msg
+                    self._changed()
         return self.cache
 
     @staticmethod
@@ -216,6 +231,7 @@ class AssetFetcher:
                         await self._reread(cache, aid)
                         log.error("asset %s: %s; giving up on it for now (tried again after the next rejoin or "
                                   "change of the rig's assets)", short(aid), exc)
+                        self._changed()
                     finally:
                         self._current = ""
             if not self._kick.is_set():
@@ -340,8 +356,11 @@ class AssetFetcher:
             AssetProgressRecord(asset_id=aid, have_bytes=have, total_bytes=total)
 
     def _set(self, aid: str, m: Manifest, have: int, total: int, *, ready: bool = False) -> None:
+        was = self._progress.get(aid)
         self._progress[aid] = AssetProgressRecord(asset_id=aid, have_bytes=have, total_bytes=total, ready=ready,
                                                   name=m.name)
+        if ready and (was is None or not was.ready):
+            self._changed()
 
     def _add(self, aid: str, n: int) -> None:
         p = self._progress.get(aid)

@@ -308,20 +308,22 @@ class BlobChunk(_message.Message):
     def __init__(self, offset: _Optional[int] = ..., data: _Optional[bytes] = ...) -> None: ...
 
 class AssetProgress(_message.Message):
-    __slots__ = ("asset_id", "have_bytes", "total_bytes", "ready", "error", "name")
+    __slots__ = ("asset_id", "have_bytes", "total_bytes", "ready", "error", "name", "ready_age_ms")
     ASSET_ID_FIELD_NUMBER: _ClassVar[int]
     HAVE_BYTES_FIELD_NUMBER: _ClassVar[int]
     TOTAL_BYTES_FIELD_NUMBER: _ClassVar[int]
     READY_FIELD_NUMBER: _ClassVar[int]
     ERROR_FIELD_NUMBER: _ClassVar[int]
     NAME_FIELD_NUMBER: _ClassVar[int]
+    READY_AGE_MS_FIELD_NUMBER: _ClassVar[int]
     asset_id: str
     have_bytes: int
     total_bytes: int
     ready: bool
     error: str
     name: str
-    def __init__(self, asset_id: _Optional[str] = ..., have_bytes: _Optional[int] = ..., total_bytes: _Optional[int] = ..., ready: _Optional[bool] = ..., error: _Optional[str] = ..., name: _Optional[str] = ...) -> None: ...
+    ready_age_ms: float
+    def __init__(self, asset_id: _Optional[str] = ..., have_bytes: _Optional[int] = ..., total_bytes: _Optional[int] = ..., ready: _Optional[bool] = ..., error: _Optional[str] = ..., name: _Optional[str] = ..., ready_age_ms: _Optional[float] = ...) -> None: ...
 
 class Timeline(_message.Message):
     __slots__ = ("asset_id", "frames", "rate_num", "rate_den", "anchor_ns", "anchor_frame", "loop", "paused", "revision", "frame_id_base")

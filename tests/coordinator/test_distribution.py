@@ -2,13 +2,16 @@
 
 First the bookkeeping with plain objects: the manifest watcher, the wanted list, readiness from
 reported progress, chunked blob reads and their refusals. Then real processes and sockets: a rig
-of two nodes that fetch a still added before the start and a video added while running, a node
-killed in the middle of a 30 MB blob that resumes after its restart, and the raw calls' statuses.
+of two nodes that fetch a still added before the start and a video added while running, readiness
+reaching the status at once (not with the next heartbeat), a node killed in the middle of a 30 MB
+blob that resumes after its restart, and the raw calls' statuses.
 """
 from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
+import math
 import os
 import re
 import signal
@@ -232,6 +235,48 @@ def test_two_nodes_fetch_a_still_added_before_and_a_video_added_while_running(tm
         for s in slots:
             assert re.search(rf"asset {clip.asset_id[:12]}… \(clip\) ready", rig.log(f"node-{s}")), rig.log(f"node-{s}")
         assert "every node now wants 2 asset(s)" in rig.log("coordinator")
+    finally:
+        rig.close()
+
+
+def test_readiness_reaches_the_status_at_once_not_with_the_next_heartbeat(tmp_path):
+    """Heartbeats 8 s apart: an asset added once the nodes are live is reported ready by the status
+    well before a second regular heartbeat could have carried it, as the ages on the coordinator's
+    clock show (the node sends a heartbeat as soon as the asset is ready)."""
+    hb_ms = 8000
+    slots = ["r0c0", "r0c1"]
+    rig = make_rig(tmp_path, slots)
+    toml = rig.rig_dir / "rig.toml"
+    text = toml.read_text()
+    assert "heartbeat_ms = 500" in text and "lost_after_ms = 2500" in text
+    toml.write_text(text.replace("heartbeat_ms = 500", f"heartbeat_ms = {hb_ms}")
+                    .replace("lost_after_ms = 2500", f"lost_after_ms = {6 * hb_ms}"))
+    store = AssetStore(rig.rig_dir)
+    try:
+        rig.start_coordinator()
+        for s in slots:
+            rig.start_node(s)
+
+        async def go():
+            async with await rig.client() as c:
+                live = await rig.wait_live(c)
+                assert all(n.assets_wanted == 0 and not math.isnan(n.live_age_ms) for n in live.nodes)
+                m = store.add(npy_still(tmp_path / "src" / "late.npy", (60, 80, 3), 11))
+                return m, await wait_ready(rig, c, 1)
+
+        m, st = asyncio.run(go())
+        for n in st.nodes:
+            (a,) = n.assets
+            assert a.asset_id == m.asset_id and a.ready, n
+            assert 0.0 <= a.ready_age_ms <= n.live_age_ms, n
+            # Live = the node's first heartbeat, before the asset existed; the next regular one was due
+            # a full period later. The ready report came well within that period, so not with it.
+            assert n.live_age_ms - a.ready_age_ms < hb_ms / 2, n
+        d = json.loads(rig.run_cli(["status", "--json"]))
+        for n in d["nodes"]:
+            (item,) = n["assets"]["items"]
+            assert item["ready"] and item["ready_age_ms"] is not None and n["live_age_ms"] is not None
+            assert n["live_age_ms"] - item["ready_age_ms"] < hb_ms / 2, n
     finally:
         rig.close()
 
