@@ -10,21 +10,25 @@ bridge, join, and fetch the asset from the coordinator (``FetchBlob``).
 
 The benchmark polls the coordinator's status (every ``--poll-s``, and every 0.05 s until the
 first node is live; through the venue's Unix socket relay, whose connection stays inside the
-coordinator's namespace, so polling never crosses a rate-limited link) and reads every time on
-this host's monotonic clock, when the poll that first shows it returns:
+coordinator's namespace, so polling never crosses a rate-limited link). Instants are read on this
+host's monotonic clock as the reply's arrival minus the ages the status reports (how long ago the
+coordinator saw each node go live and each asset turn ready; nodes report readiness at once), so
+they do not depend on the poll interval:
 
 * ``discovery_s``: from starting the node processes until every node is live (``live_s``: each);
 * ``distribution_s``: from the first node live until every node reports the asset ready (each
-  node's ``ready_s``, from the same origin). A node's readiness travels in its heartbeats, so
-  the end is read late by up to one heartbeat (``--heartbeat-ms``, written into the rig's
-  ``rig.toml``) plus one poll, the origin by up to 0.05 s: size the asset so that this is small
-  against the distribution (at 1 Gbit/s, tens of MB per node);
+  node's ``ready_s``, from the same origin);
 * ``distribution_ideal_s``: every node's copy through the coordinator's link at its full rate,
   N × asset_bytes × 8 / coordinator link rate (or one copy through a node's link, if that is
   slower), and ``distribution_ratio`` = distribution_s / ideal;
 * ``coordinator_cpu_s``, ``node_cpu_s``: CPU time the coordinator used over the distribution,
   and each node from when it was seen live to when it was seen ready;
 * ``throughput_mbit_s``: N × asset_bytes × 8 / distribution_s, the aggregate payload rate.
+
+Then the asset is played by timeline (``timeline``: swap skew, late frames, the coordinator's
+traffic against streaming raw frames) and one node is killed and restarted mid-show (``rejoin``:
+how long until it is back in step, how well it agrees with its peers); see :mod:`bench.venue_show`.
+``decode_ms_per_frame`` is a reference: one software decode of the video on this host.
 """
 from __future__ import annotations
 
@@ -43,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import venue_show
 from bench.machine import machine
 from coordinator.api import NodeState
 from coordinator.assets import AssetStore
@@ -76,7 +81,9 @@ def _rate(text: str) -> str:
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = ("A rig on a virtual venue network (one network namespace per process, a bridge, tc-rate-limited "
                      "links; needs root and iproute2): time to discover the coordinator by multicast mDNS, and time "
-                     "to distribute a generated test video to every node, against the link's ideal.")
+                     "to distribute a generated test video to every node, against the link's ideal; then the video "
+                     "played by timeline (swap skew, late frames, the coordinator's traffic) and one node killed and "
+                     "restarted mid-show (time until it is back in step, frame agreement).")
     p.epilog = ("examples (root; iproute2):\n"
                 "  shadowless bench venue --nodes 4 --link 1gbit --seconds 8\n"
                 "  shadowless bench venue --nodes 4 --link 100mbit --seconds 8\n"
@@ -209,19 +216,27 @@ class _Watch:
         self.coordinator_cpu: list[float] = []     # at the first node live, at the last node ready
 
     def see(self, nodes) -> None:
+        """Record what a status reply shows. The instants are the reply's arrival minus the ages the
+        coordinator reports (``live_age_ms``, ``ready_age_ms``, on its clock), so they do not depend
+        on the poll interval; the CPU readings are taken at the poll."""
         now = time.monotonic() - self.t_start
         pids = {s: p.pid for s, p in self.rig.nodes.items()}
+
+        def at(age_ms: float) -> float:
+            return now - age_ms / 1e3 if math.isfinite(age_ms) else now
+
         for n in nodes:
             if n.slot not in pids:
                 continue
             if n.state == NodeState.LIVE and n.slot not in self.live:
-                self.live[n.slot] = now
+                self.live[n.slot] = at(n.live_age_ms)
                 self.cpu_live[n.slot] = cpu_seconds(pids[n.slot])
-            if n.slot not in self.ready and any(a.asset_id == self.asset_id and a.ready for a in n.assets):
+            ready = [a for a in n.assets if a.asset_id == self.asset_id and a.ready]
+            if n.slot not in self.ready and ready:
                 if n.slot not in self.live:
-                    self.live[n.slot] = now
+                    self.live[n.slot] = at(n.live_age_ms)
                     self.cpu_live[n.slot] = cpu_seconds(pids[n.slot])
-                self.ready[n.slot] = now
+                self.ready[n.slot] = at(ready[0].ready_age_ms)
                 self.cpu_ready[n.slot] = cpu_seconds(pids[n.slot])
         coordinator = self.rig.coordinator.pid if self.rig.coordinator is not None else 0
         if self.live and not self.coordinator_cpu:
@@ -265,7 +280,7 @@ async def _measure(args, workdir: Path, video: Path) -> dict:
     slots = grid_names(n)
     ow, oh = args.output_size
     rig = LocalRig(slots, workdir, output_size=(ow, oh), content_size=(ow, oh), netns=True, link=args.link,
-                   coordinator_link=args.coordinator_link)
+                   coordinator_link=args.coordinator_link, env=venue_show.ENV)
     try:
         rig.create()                       # the venue, the relay to the coordinator, the rig directory
         print(rig.venue.describe(), file=sys.stderr, flush=True)
@@ -279,6 +294,8 @@ async def _measure(args, workdir: Path, video: Path) -> dict:
         for s in slots:
             rig.start_node(s)
         watch = await _poll(rig, manifest.asset_id, args, t_start)
+        print("bench venue: playing the asset by timeline, then a node rejoins mid-show …", file=sys.stderr, flush=True)
+        show = await venue_show.measure(rig, manifest.asset_id, size=args.size, fps=args.fps, cpu=cpu_seconds)
         coordinator_bps = rig.venue.coordinator_link_bps
         link_bps = rig.venue.link_bps
     finally:
@@ -302,6 +319,8 @@ async def _measure(args, workdir: Path, video: Path) -> dict:
         # node's (from when it was seen live to when it was seen ready)
         "coordinator_cpu_s": round(c1 - c0, 3),
         "node_cpu_s": {s: round(watch.cpu_ready[s] - watch.cpu_live[s], 3) for s in slots},
+        "decode_ms_per_frame": round(venue_show.decode_ms_per_frame(video), 2),
+        **show,
     }
 
 

@@ -101,13 +101,21 @@ class Node:
         self.joins = 0
         self._assets_passed: set[str] = set()    # assets whose files the presenter has
         self._heartbeat_now = asyncio.Event()    # the fetcher has news for the operator: heartbeat at once
+        self._show_asset: str | None = None      # the asset the current show plays
         self.fetcher = AssetFetcher(config.cache_dir or default_cache_dir() / config.slot, config.cache_max_bytes,
-                                    rate=config.fetch_rate, on_change=self._heartbeat_now.set)
+                                    rate=config.fetch_rate, on_change=self._fetch_news)
 
     # ---------------------------------------------------------------- reports
     def _report(self, rep: SwapRecord | DropRecord) -> None:
         if self._reports is not None:
             self._reports.put_nowait(rep)
+
+    def _fetch_news(self) -> None:
+        """An asset turned ready (or was given up on): tell the coordinator at once, and hand the show's
+        asset to the presenter as soon as it is there (not at the next beacon, a second later)."""
+        self._heartbeat_now.set()
+        if self._show_asset is not None and self.presenter is not None:
+            self._pass_asset(self._show_asset)
 
     def _clock_sample(self, sample: ClockSample) -> None:
         est = self.estimator.add(sample)
@@ -298,6 +306,7 @@ class Node:
         try:
             async for update in link.show():
                 if update.timeline is not None:
+                    self._show_asset = update.timeline.asset_id
                     self._pass_asset(update.timeline.asset_id)
                 self.presenter.submit("show", update)
         except LinkError as exc:

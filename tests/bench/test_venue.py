@@ -1,8 +1,10 @@
-"""`shadowless bench venue` on a tiny venue: 2 nodes on 100 Mbit/s links, a 1-second 320x180 video.
+"""`shadowless bench venue` on a tiny venue: 2 nodes on 100 Mbit/s links, a 1-second 320x180 video,
+played by timeline, then looped while one node is killed and restarted.
 
 Checks that the JSON document has every figure and that they agree with each other (every node
-live and ready, times measured from the right origins, the ideal from the link rate), never an
-upper bound on time (a busy machine is slower, never faster), and that no namespace of the
+live and ready, times measured from the right origins, the ideal from the link rate, the show's
+counts within their bounds, the coordinator's traffic far below raw frames), never an upper bound
+on time or skew (a busy machine is slower, never faster), and that no namespace of the
 benchmark's venue is left. With ``CI=true`` it must run (namespaces can be built as root);
 elsewhere it skips only when :func:`shadowless.netns.available` says venues cannot be built.
 """
@@ -55,7 +57,7 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert (p["nodes"], p["link"], p["coordinator_link"], p["size"], p["output_size"]) == \
         (2, "100mbit", "100mbit", "320x180", "160x90")
     assert p["fps"] == 30 and p["seconds"] == 1 and p["codec"]
-    for absent in ("timeline", "live_frames", "rejoin"):     # later steps add these
+    for absent in ("live_frames", "coordinator_restart"):     # later steps add these
         assert absent not in doc
 
     slots = set(doc["ready_s"])
@@ -64,16 +66,18 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert all(t > 0 for t in doc["live_s"].values())
     assert doc["discovery_s"] == max(doc["live_s"].values())
     # every node got the asset, after the first node was live; distribution ends with the last one
-    assert all(t > 0 for t in doc["ready_s"].values())
+    assert all(t >= 0 for t in doc["ready_s"].values())   # a node may be seen live and ready in one poll
     assert doc["distribution_s"] > 0 and doc["distribution_s"] == max(doc["ready_s"].values())
 
     size = doc["asset_bytes"]
     assert size > 1000
     ideal = 2 * size * 8 / parse_rate("100mbit")
     assert doc["distribution_ideal_s"] == pytest.approx(ideal, abs=1e-4)
-    assert doc["distribution_ratio"] == pytest.approx(doc["distribution_s"] / ideal, rel=0.01)
+    # distribution_s is rounded to the millisecond, the ratio computed before rounding
+    assert abs(doc["distribution_ratio"] - doc["distribution_s"] / ideal) <= 0.0006 / ideal + 0.001
     assert doc["distribution_ratio"] > 0.5          # never faster than the links allow
-    assert doc["throughput_mbit_s"] == pytest.approx(2 * size * 8 / doc["distribution_s"] / 1e6, rel=0.02)
+    assert doc["throughput_mbit_s"] == pytest.approx(2 * size * 8 / doc["distribution_s"] / 1e6,
+                                                     rel=0.02 + 0.0006 / doc["distribution_s"])
     assert doc["coordinator_cpu_s"] >= 0 and all(v >= 0 for v in doc["node_cpu_s"].values())
 
     # the work directory is kept: the rig's store and every node's cache hold the video's bytes
@@ -82,3 +86,30 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert len(blobs) == 1 and blobs[0].stat().st_size == size
     for slot in slots:
         assert any(f.stat().st_size == size for f in (keep / "caches" / slot).rglob("*") if f.is_file()), slot
+
+    # the timeline show: every tick accounted for, nothing out of order, no frame data sent
+    tl = doc["timeline"]
+    assert tl["nodes"] == 2 and tl["frames_expected"] == 30       # 1 s at 30 fps, not looped
+    assert tl["tracked_before_show"] == 0                          # the tracker's figures are the show's
+    assert 0 <= tl["late_fraction"] <= 1
+    assert tl["late_fraction"] == pytest.approx(tl["late"] / (2 * 30), abs=1e-4)
+    assert 0 <= tl["frames_shown_by_all"] <= tl["frames_expected"]
+    assert tl["out_of_order"] == 0
+    if tl["frames_shown_by_all"] > 0:
+        assert tl["skew_source"] == "host-clock"
+        assert 0 <= tl["skew_p50_ms"] <= tl["skew_p99_ms"] <= tl["skew_max_ms"]
+    assert tl["frame_bytes_sent"] == 0 and tl["coordinator_bytes_sent"] > 0
+    assert tl["raw_bytes_per_s_per_node"] == 320 * 180 * 3 * 30
+    assert 0 < tl["coordinator_bytes_per_s_per_node"] < tl["raw_bytes_per_s_per_node"] / 100
+    assert tl["coordinator_bytes_per_s_per_node"] == pytest.approx(
+        tl["coordinator_bytes_sent"] / tl["interval_s"] / 2, rel=0.01)
+    assert set(tl["node_cpu_share"]) == slots and doc["decode_ms_per_frame"] > 0
+
+    # the rejoin: the restarted node came back on the show's ticks, after its restart
+    rj = doc["rejoin"]
+    assert rj["node"] in slots and rj["s"] > 0
+    assert rj["ticks_compared"] > 0 and 0 <= rj["ticks_missed"] <= rj["ticks_compared"]
+    assert 0 <= rj["frame_agreement"] <= 1 and 0 <= rj["peer_agreement"] <= 1
+    assert 0 < rj["joined_s"] <= rj["asset_passed_s"]     # the log's steps of the rejoin, in order
+    assert rj["frame_agreement"] == pytest.approx(1 - rj["ticks_missed"] / rj["ticks_compared"], abs=1e-4)
+    assert rj["show_s"] >= 10 and rj["out_of_order"] == 0

@@ -1,0 +1,271 @@
+"""`shadowless bench venue`, part 2: the distributed asset played by timeline, and a node rejoining.
+
+Two shows, one after the other, on the venue :mod:`bench.venue` built and distributed to:
+
+* **timeline**: the asset played once (not looped) for its duration. The coordinator's sync
+  tracker gives the skew (``status().sync``: over every tick it finalised; the benchmark checks
+  that nothing had been tracked before the show, so these are the show's ticks), the late and
+  other drops and the out-of-order count; ``frames_expected`` is the asset's frame count (the
+  ticks of a show that does not loop), ``late_fraction`` = late node-frames / (ticks × nodes).
+  ``coordinator_bytes_per_s_per_node`` comes from the coordinator's ``show_bytes_sent`` and
+  ``frame_bytes_sent`` counters from just before the play to just after the last tick was
+  settled, over that interval and the nodes (gRPC/HTTP2 framing, clock pings and the node's own
+  reports are not in these counters); ``raw_bytes_per_s_per_node`` = W × H × 3 × fps of the
+  video, what streaming its raw frames to each node would take.
+* **rejoin**: the asset looped; after ``KILL_AFTER_S`` one node is killed (SIGKILL to its process
+  group: the node process and its presenter) and started again at once. Which ticks each node swapped in is read from its log (the nodes run with
+  ``SHADOWLESS_DEBUG_TIMING``, the presenter logs every swap's frame id). ``rejoin.s`` = the rig
+  instant of the first tick the restarted node swapped in (``anchor_ns + k / rate``; the rig
+  clock is this host's monotonic clock) minus the instant it was started. ``frame_agreement``:
+  over the ticks from that first swap to the last tick a peer swapped before the stop, among the
+  ticks some peer swapped, the fraction the rejoined node swapped too (a tick id fixes its frame
+  index, ``anchor_frame + k`` modulo the asset's frames, so an equal id is an equal frame; a tick
+  it dropped or missed counts as disagreement). ``peer_agreement`` is the same measure, over the
+  same ticks, for a node that was never killed (late drops under load lower both alike).
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import re
+import signal
+import time
+from datetime import datetime
+from pathlib import Path
+
+from shadowless.local import LocalRig
+
+#: the rejoin show: the node is killed this long after the show starts ...
+KILL_AFTER_S = 3.0
+#: ... and the show plays at least this long in all, and this long after the node is back in step
+REJOIN_SHOW_S = 10.0
+AFTER_REJOIN_S = 4.0
+#: give up on the restarted node after this long
+REJOIN_TIMEOUT_S = 60.0
+#: a show's ticks are settled (every node reported, or the tracker's 3 s timeout) this long after the last
+SETTLE_S = 3.5
+#: how far ahead of now a show starts
+START_DELAY_S = 0.5
+SWAP = re.compile(r"timing frame (\d+): swap")
+LATE = re.compile(r"timing frame (\d+): dropped \(late\)")
+ENV = {"SHADOWLESS_DEBUG_TIMING": "1"}
+
+
+def swapped(rig: LocalRig, slot: str, since: int, base: int, ticks: int = 10**9) -> list[int]:
+    """Tick ids of the revision at ``base`` that node ``slot`` swapped in, from byte ``since`` of its log."""
+    text = rig.log("node-" + slot)[since:]
+    return [i for i in (int(m.group(1)) for m in SWAP.finditer(text)) if base <= i < base + ticks]
+
+
+def log_sizes(rig: LocalRig) -> dict[str, int]:
+    return {s: len(rig.log("node-" + s)) for s in rig.slots}
+
+
+def tick_ns(state, k: int) -> int:
+    """Rig instant of tick ``k`` of a show state (``anchor_ns + k / rate``, exact)."""
+    return state.anchor_ns + k * state.rate_den * 1_000_000_000 // state.rate_num
+
+
+def _r(x: float, nd: int = 3):
+    return None if x is None or not math.isfinite(x) else round(x, nd)
+
+
+def decode_ms_per_frame(video: Path, frames: int = 60) -> float:
+    """Software decode of the test video to RGB on this host, one thread: ms per frame (a reference
+    for the nodes, which decode the asset the same way while the others compete for the cores)."""
+    import av
+
+    with av.open(str(video)) as c:
+        s = c.streams.video[0]
+        s.thread_type = "NONE"
+        n, t = 0, time.perf_counter()
+        for f in c.decode(s):
+            f.to_ndarray(format="rgb24")
+            n += 1
+            if n >= frames:
+                break
+        return (time.perf_counter() - t) * 1e3 / max(1, n)
+
+
+def tree_cpu(cpu, pid: int) -> float:
+    """CPU seconds of ``pid`` and its descendants (a node's presenter is a child process)."""
+    children: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            children.setdefault(int(stat[stat.rfind(")") + 2:].split()[1]), []).append(int(d.name))
+    total, todo = 0.0, [pid]
+    while todo:
+        p = todo.pop()
+        c = cpu(p)
+        total += 0.0 if math.isnan(c) else c
+        todo += children.get(p, [])
+    return total
+
+
+def host_busy_s() -> float:
+    """CPU seconds this host's cores have been busy (every process, from /proc/stat)."""
+    f = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    idle = f[3] + (f[4] if len(f) > 4 else 0)
+    return (sum(f[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
+def late_per_second(rig: LocalRig, since: dict[str, int], base: int, ticks: int, fps: float) -> list[int]:
+    """Late drops (node-frames) in each second of the show, from the nodes' logs."""
+    late = [0] * max(1, math.ceil(ticks / fps))
+    for s in rig.slots:
+        for m in LATE.finditer(rig.log("node-" + s)[since[s]:]):
+            k = int(m.group(1)) - base
+            if 0 <= k < ticks:
+                late[int(k / fps)] += 1
+    return late
+
+
+def _alive(rig: LocalRig) -> None:
+    for s, p in rig.nodes.items():
+        if p.poll() is not None:
+            raise RuntimeError(f"node {s} exited with {p.returncode}:\n{rig.log('node-' + s)[-3000:]}")
+    if rig.coordinator is not None and rig.coordinator.poll() is not None:
+        raise RuntimeError("the coordinator exited:\n" + rig.log("coordinator")[-3000:])
+
+
+async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fps: float, cpu) -> dict:
+    """Play the asset once; the sync tracker's figures over its ticks, the coordinator's traffic."""
+    n = len(rig.slots)
+    before = await c.status()
+    tracked_before = before.sync.frames + before.sync.frames_late + before.sync.frames_dropped
+    pids = {s: p.pid for s, p in rig.nodes.items()}
+    logs = log_sizes(rig)
+    cpu0 = {s: tree_cpu(cpu, pid) for s, pid in pids.items()} | {"coordinator": cpu(rig.coordinator.pid)}
+    host0 = host_busy_s()
+    t0 = time.monotonic()
+    play = await c.play_asset(asset_id, delay_s=START_DELAY_S)
+    duration = play.frames * play.rate_den / play.rate_num
+    end_ns = tick_ns(play, play.frames)             # after the last tick
+    await asyncio.sleep(max(0.0, (end_ns - time.monotonic_ns()) / 1e9))
+    cpu1 = {s: tree_cpu(cpu, pid) for s, pid in pids.items()} | {"coordinator": cpu(rig.coordinator.pid)}
+    host1 = host_busy_s()
+    busy = duration + START_DELAY_S
+    await asyncio.sleep(SETTLE_S)                   # the last ticks' reports (or the tracker's timeout)
+    _alive(rig)
+    after = await c.status()
+    t1 = time.monotonic()
+    sync = after.sync
+    expected = play.frames
+    sent = (after.show_bytes_sent + after.frame_bytes_sent) - (before.show_bytes_sent + before.frame_bytes_sent)
+    w, h = size
+    return {
+        "frames_expected": expected,
+        "nodes": n,
+        "skew_p50_ms": _r(sync.skew_p50_ms), "skew_p99_ms": _r(sync.skew_p99_ms), "skew_max_ms": _r(sync.skew_max_ms),
+        "skew_source": sync.skew_source,
+        "clock_error_p99_ms": _r(sync.clock_error_p99_ms),
+        "frames_shown_by_all": sync.frames,
+        "late": sync.frames_late,
+        "late_fraction": _r(sync.frames_late / (expected * n), 4),
+        "late_per_s": late_per_second(rig, logs, play.frame_id_base, expected, play.rate_num / play.rate_den),
+        "dropped_other": sync.frames_dropped,
+        "out_of_order": sync.out_of_order,
+        "tracked_before_show": tracked_before,      # 0: the figures above are the show's ticks only
+        "coordinator_bytes_sent": sent,
+        "frame_bytes_sent": after.frame_bytes_sent - before.frame_bytes_sent,
+        "interval_s": round(t1 - t0, 3),
+        "coordinator_bytes_per_s_per_node": round(sent / (t1 - t0) / n, 1),
+        "raw_bytes_per_s_per_node": round(w * h * 3 * fps),
+        # CPU over the show (start delay + duration), as a share of one core (a node: with its presenter)
+        "node_cpu_share": {s: _r((cpu1[s] - cpu0[s]) / busy, 2) for s in pids},
+        "coordinator_cpu_share": _r((cpu1["coordinator"] - cpu0["coordinator"]) / busy, 2),
+        # every core of the host (os.cpu_count()), busy on anything: the rig's processes and any other load
+        "host_cpu_busy_cores": _r((host1 - host0) / busy, 2),
+        "host_cpu_other_cores": _r((host1 - host0 - sum(cpu1[k] - cpu0[k] for k in cpu1)) / busy, 2),
+    }
+
+
+async def rejoin(rig: LocalRig, c, asset_id: str) -> dict:
+    """Loop the asset; kill one node mid-show and start it again; when it is back, how well it agrees."""
+    victim, peers = rig.slots[-1], rig.slots[:-1]
+    logs = log_sizes(rig)
+    play = await c.play_asset(asset_id, loop=True, delay_s=START_DELAY_S)
+    base = play.frame_id_base
+    t_show = play.anchor_ns / 1e9                   # rig clock = this host's monotonic clock
+    await asyncio.sleep(max(0.0, t_show + KILL_AFTER_S - time.monotonic()))
+    _alive(rig)
+    proc = rig.nodes[victim]
+    # the node's whole process group (it leads its own session): the node and its presenter process,
+    # as when the node's computer dies (a presenter whose node process is gone may go on swapping)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    since = len(rig.log("node-" + victim))
+    t_restart, wall_restart = time.monotonic_ns(), time.time()
+    rig.start_node(victim)
+    first = None
+    while first is None:
+        ids = swapped(rig, victim, since, base)
+        if ids:
+            first = ids[0]
+            break
+        _alive(rig)
+        if (time.monotonic_ns() - t_restart) / 1e9 > REJOIN_TIMEOUT_S:
+            raise TimeoutError(f"node {victim} swapped no tick of the show {REJOIN_TIMEOUT_S:.0f} s after its "
+                               f"restart:\n{rig.log('node-' + victim)[since:][-3000:]}")
+        await asyncio.sleep(0.1)
+    back_ns = tick_ns(play, first - base)
+    end = max(t_show + REJOIN_SHOW_S, back_ns / 1e9 + AFTER_REJOIN_S)
+    await asyncio.sleep(max(0.0, end - time.monotonic()))
+    _alive(rig)
+    stopped = await c.stop_show()
+    await asyncio.sleep(max(0.0, (stopped.change_at_ns - time.monotonic_ns()) / 1e9) + 1.0)
+    st = await c.status()
+    mine = set(swapped(rig, victim, since, base))
+    theirs: set[int] = set()
+    for s in peers:
+        theirs |= set(swapped(rig, s, logs[s], base))
+    last = max(theirs) if theirs else first
+    window = [t for t in range(first, last + 1) if t in theirs]
+    agree = sum(1 for t in window if t in mine)
+    # the same measure for a node that was never killed, over the same ticks: the baseline
+    ref_window, own = [], set()
+    if peers:                                       # (a lone node has no peers to agree with)
+        ref, others = peers[0], set(swapped(rig, victim, since, base))
+        for s in peers[1:]:
+            others |= set(swapped(rig, s, logs[s], base))
+        own = set(swapped(rig, ref, logs[ref], base))
+        ref_window = [t for t in range(first, last + 1) if t in others]
+    text = rig.log("node-" + victim)[since:]
+    return {
+        "node": victim,
+        "s": round((back_ns - t_restart) / 1e9, 3),
+        # from the restart, on the node's log (wall clock, ms): joined the coordinator, asset passed
+        # to its presenter for the show
+        "joined_s": _logged_after(text, "joined rig", wall_restart),
+        "asset_passed_s": _logged_after(text, "passed to the presenter", wall_restart),
+        "frame_agreement": _r(agree / len(window), 4) if window else None,
+        "peer_agreement": _r(sum(1 for t in ref_window if t in own) / len(ref_window), 4) if ref_window else None,
+        "ticks_compared": len(window),
+        "ticks_missed": len(window) - agree,
+        "show_s": round((stopped.change_at_ns - play.anchor_ns) / 1e9, 2),
+        "out_of_order": st.sync.out_of_order,
+    }
+
+
+def _logged_after(text: str, what: str, wall0: float):
+    """Seconds from ``wall0`` (time.time()) to the first log line containing ``what`` (None: none)."""
+    for line in text.splitlines():
+        if what in line:
+            try:
+                at = datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f").timestamp()
+            except ValueError:
+                return None
+            return round(at - wall0, 3)
+    return None
+
+
+async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu) -> dict:
+    async with await rig.client(timeout=60.0) as c:
+        tl = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu)
+        rj = await rejoin(rig, c, asset_id)
+    return {"timeline": tl, "rejoin": rj}
