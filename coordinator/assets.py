@@ -32,7 +32,7 @@ from typing import BinaryIO, Callable, Iterator
 from coordinator.asset_probe import (DEFAULT_SEQUENCE_FPS, STILL_SUFFIXES, VIDEO_SUFFIXES, Note, probe_sequence,
                                      probe_still, probe_video, sequence_files)
 from coordinator.errors import AssetError
-from coordinator.store import atomic_file, atomic_write_bytes
+from coordinator.store import atomic_file, atomic_write_bytes, fsync_dir
 from protos.asset_manifest import Blob, Manifest, ManifestError, is_sha256
 
 log = logging.getLogger(__name__)
@@ -58,14 +58,6 @@ def copy_hashing(src: BinaryIO, dst: BinaryIO | None, *, on_chunk: Callable[[int
         if on_chunk:
             on_chunk(len(chunk))
     return h.hexdigest(), n
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 # ---------------------------------------------------------------- the store
@@ -234,7 +226,7 @@ class AssetStore:
                     final.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(tmp, final)
                     created.append(final)
-                    _fsync_dir(final.parent)
+                    fsync_dir(final.parent)
                 if not mpath.exists():
                     atomic_write_bytes(mpath, manifest.canonical(), mode=0o444)
             except BaseException:
@@ -312,7 +304,7 @@ class AssetStore:
                 mine = set()  # a damaged manifest: remove it, its blobs stay (unknown)
             others = self._referenced(exclude=asset_id)
             mpath.unlink()
-            _fsync_dir(mpath.parent)
+            fsync_dir(mpath.parent)
             for sha in sorted(mine - others):
                 p = self.blob_path(sha)
                 p.unlink(missing_ok=True)
