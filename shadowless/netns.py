@@ -116,9 +116,10 @@ def _cmd(argv: Sequence[str], *, check: bool = True, timeout: float = CMD_TIMEOU
     return r
 
 
-def _netns_list() -> list[str]:
+def namespaces() -> set[str]:
+    """Every network namespace on this host (``ip netns list``), the venues' and others'."""
     r = _cmd(["ip", "netns", "list"], check=False)
-    return [line.split()[0] for line in r.stdout.splitlines() if line.strip()]
+    return {line.split()[0] for line in r.stdout.splitlines() if line.strip()}
 
 
 def _kill_and_wait(pids: Iterable[tuple[int, int | None]], timeout: float = 5.0) -> None:
@@ -197,7 +198,7 @@ def _probe() -> tuple[bool, str]:
 
 
 def _new_prefix() -> str:
-    existing = {m.group(1) for n in _netns_list() if (m := NAME_RE.match(n))}
+    existing = {m.group(1) for n in namespaces() if (m := NAME_RE.match(n))}
     while True:
         prefix = "sl" + secrets.token_hex(3)
         if prefix not in existing and not (STATE_DIR / f"{prefix}.json").exists():
@@ -236,7 +237,7 @@ def cleanup_leftovers() -> list[str]:
     a namespace matching :data:`NAME_RE` without any marker is a leftover too. Venues of live
     processes are never touched.
     """
-    names = _netns_list()       # before the markers: a venue's marker is written before its namespaces
+    names = namespaces()        # before the markers: a venue's marker is written before its namespaces
     removed: list[str] = []
     live: set[str] = set()
     for path in sorted(STATE_DIR.glob("sl*.json")) if STATE_DIR.is_dir() else []:
@@ -250,7 +251,7 @@ def cleanup_leftovers() -> list[str]:
         mine = [n for n in names if n.startswith(prefix + "-")]
         removed += _remove_venue_state(prefix, marker, mine)
     orphans: dict[str, list[str]] = {}
-    for n in names:
+    for n in sorted(names):
         m = NAME_RE.match(n)
         if m and m.group(1) not in live and not (STATE_DIR / f"{m.group(1)}.json").exists():
             orphans.setdefault(m.group(1), []).append(n)
@@ -271,7 +272,7 @@ def owned_namespaces(pid: int | None = None) -> list[str]:
             recorded += marker.get("namespaces", [])
     if not recorded:
         return []
-    names = set(_netns_list())
+    names = namespaces()
     return sorted(n for n in recorded if n in names)
 
 

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from shadowless.netns import available as venue_available
+
 os.environ.setdefault("SHADOWLESS_TEST", "1")
 
 
@@ -107,3 +109,27 @@ def no_leaks(request):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "allow_leaks: a module-scoped rig fixture owns processes across tests")
+
+
+CI = os.environ.get("CI", "").lower() == "true"
+
+
+@pytest.fixture
+def ns():
+    """Network namespaces for a virtual venue can be built here (else the test skips, with the
+    reason; under CI=true a skip is a failure, see below)."""
+    ok, reason = venue_available()
+    if not ok:
+        pytest.skip(f"no virtual venue network here: {reason}")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Under CI=true nothing may skip: GL, mDNS, namespaces and the pinned codecs are all there,
+    so a skip means something is missing, and it fails the run with its reason."""
+    outcome = yield
+    rep = outcome.get_result()
+    if CI and rep.skipped and not hasattr(rep, "wasxfail"):
+        reason = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
+        rep.outcome = "failed"
+        rep.longrepr = f"skipped under CI=true, where nothing may skip: {reason}"

@@ -12,28 +12,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
-import subprocess
 
 import pytest
 
 from bench import cli as bench_cli
-from shadowless.netns import available, parse_rate
+from shadowless.netns import namespaces as netns_names, parse_rate
 
 
-@pytest.fixture
-def ns():
-    ok, reason = available()
-    if not ok:
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(f"CI must be able to build venue networks: {reason}")
-        pytest.skip(reason)
-
-
-def netns_names() -> set[str]:
-    out = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=True).stdout
-    return {line.split()[0] for line in out.splitlines() if line.strip()}
 
 
 @pytest.mark.slow

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -22,12 +21,12 @@ from pathlib import Path
 import pytest
 
 from shadowless import netns
+from shadowless.netns import namespaces as netns_names
 from shadowless.netns import (
     COORDINATOR,
     STATE_DIR,
     Venue,
     VenueError,
-    available,
     cleanup_leftovers,
     parse_rate,
 )
@@ -35,19 +34,6 @@ from shadowless.netns import (
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture
-def ns():
-    """Namespaces can be built here: else fail under CI=true, skip (with the reason) elsewhere."""
-    ok, reason = available()
-    if not ok:
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(f"CI must be able to build venue networks: {reason}")
-        pytest.skip(reason)
-
-
-def netns_names() -> set[str]:
-    out = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=True).stdout
-    return {line.split()[0] for line in out.splitlines() if line.strip()}
 
 
 def host_links() -> set[str]:
