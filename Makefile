@@ -22,8 +22,16 @@ protos/.generated: $(PROTOS) protos/generate.py
 	$(PY) protos/generate.py
 	@touch $@
 
-# Xvfb lets the fullscreen-window output be tested on a machine with no screen.
+# Xvfb lets the fullscreen-window output be tested on a machine with no screen; iproute2
+# (ip, tc) builds the virtual venue networks the network tests run on.
 system-deps:
+	@command -v tc >/dev/null 2>&1 && command -v ip >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing iproute2 (virtual venue network tests)"; \
+	    (apt-get install -y -q iproute2 >/dev/null 2>&1 || \
+	     (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q iproute2 >/dev/null 2>&1)) || \
+	     echo "warning: could not install iproute2; network tests will fail"; \
+	  else echo "warning: ip/tc missing (apt-get install iproute2); network tests will fail"; fi; }
 	@command -v Xvfb >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing xvfb (window-output tests)"; \
