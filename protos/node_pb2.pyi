@@ -21,6 +21,15 @@ class DropReason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DROP_REASON_SUPERSEDED: _ClassVar[DropReason]
     DROP_REASON_MISSING_CONTENT: _ClassVar[DropReason]
     DROP_REASON_UNRENDERABLE: _ClassVar[DropReason]
+
+class NodeShowState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    NODE_SHOW_UNSPECIFIED: _ClassVar[NodeShowState]
+    NODE_SHOW_NONE: _ClassVar[NodeShowState]
+    NODE_SHOW_WAITING: _ClassVar[NodeShowState]
+    NODE_SHOW_PLAYING: _ClassVar[NodeShowState]
+    NODE_SHOW_PAUSED: _ClassVar[NodeShowState]
+    NODE_SHOW_SUSPENDED: _ClassVar[NodeShowState]
 SPACE_UNSPECIFIED: Space
 SPACE_CONTENT: Space
 SPACE_PROJECTOR: Space
@@ -29,6 +38,12 @@ DROP_REASON_LATE: DropReason
 DROP_REASON_SUPERSEDED: DropReason
 DROP_REASON_MISSING_CONTENT: DropReason
 DROP_REASON_UNRENDERABLE: DropReason
+NODE_SHOW_UNSPECIFIED: NodeShowState
+NODE_SHOW_NONE: NodeShowState
+NODE_SHOW_WAITING: NodeShowState
+NODE_SHOW_PLAYING: NodeShowState
+NODE_SHOW_PAUSED: NodeShowState
+NODE_SHOW_SUSPENDED: NodeShowState
 
 class NodeInfo(_message.Message):
     __slots__ = ("hostname", "host_boot_id", "pid", "software_version", "output", "native_width", "native_height")
@@ -57,18 +72,20 @@ class JoinRequest(_message.Message):
     def __init__(self, login: _Optional[_Union[_common_pb2.LoginRequest, _Mapping]] = ..., info: _Optional[_Union[NodeInfo, _Mapping]] = ...) -> None: ...
 
 class JoinReply(_message.Message):
-    __slots__ = ("session", "slot", "rig_id", "instance_id", "heartbeat_interval_ms")
+    __slots__ = ("session", "slot", "rig_id", "instance_id", "heartbeat_interval_ms", "clock_id")
     SESSION_FIELD_NUMBER: _ClassVar[int]
     SLOT_FIELD_NUMBER: _ClassVar[int]
     RIG_ID_FIELD_NUMBER: _ClassVar[int]
     INSTANCE_ID_FIELD_NUMBER: _ClassVar[int]
     HEARTBEAT_INTERVAL_MS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_ID_FIELD_NUMBER: _ClassVar[int]
     session: str
     slot: str
     rig_id: str
     instance_id: str
     heartbeat_interval_ms: int
-    def __init__(self, session: _Optional[str] = ..., slot: _Optional[str] = ..., rig_id: _Optional[str] = ..., instance_id: _Optional[str] = ..., heartbeat_interval_ms: _Optional[int] = ...) -> None: ...
+    clock_id: str
+    def __init__(self, session: _Optional[str] = ..., slot: _Optional[str] = ..., rig_id: _Optional[str] = ..., instance_id: _Optional[str] = ..., heartbeat_interval_ms: _Optional[int] = ..., clock_id: _Optional[str] = ...) -> None: ...
 
 class StreamRequest(_message.Message):
     __slots__ = ()
@@ -210,7 +227,7 @@ class FrameDrop(_message.Message):
     def __init__(self, frame_id: _Optional[int] = ..., reason: _Optional[_Union[DropReason, str]] = ..., late_by_ns: _Optional[int] = ...) -> None: ...
 
 class Heartbeat(_message.Message):
-    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets")
+    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets", "show")
     ASSIGNMENT_REVISION_FIELD_NUMBER: _ClassVar[int]
     CLOCK_OFFSET_NS_FIELD_NUMBER: _ClassVar[int]
     CLOCK_DRIFT_PPM_FIELD_NUMBER: _ClassVar[int]
@@ -223,6 +240,7 @@ class Heartbeat(_message.Message):
     HOST_MONOTONIC_NS_FIELD_NUMBER: _ClassVar[int]
     RIG_ESTIMATE_NS_FIELD_NUMBER: _ClassVar[int]
     ASSETS_FIELD_NUMBER: _ClassVar[int]
+    SHOW_FIELD_NUMBER: _ClassVar[int]
     assignment_revision: int
     clock_offset_ns: int
     clock_drift_ppm: float
@@ -235,7 +253,24 @@ class Heartbeat(_message.Message):
     host_monotonic_ns: int
     rig_estimate_ns: int
     assets: _containers.RepeatedCompositeFieldContainer[AssetProgress]
-    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ...) -> None: ...
+    show: NodeShow
+    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ..., show: _Optional[_Union[NodeShow, _Mapping]] = ...) -> None: ...
+
+class NodeShow(_message.Message):
+    __slots__ = ("revision", "state", "last_frame", "frames_shown", "frames_late", "alone_ms")
+    REVISION_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    LAST_FRAME_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_SHOWN_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_LATE_FIELD_NUMBER: _ClassVar[int]
+    ALONE_MS_FIELD_NUMBER: _ClassVar[int]
+    revision: int
+    state: NodeShowState
+    last_frame: int
+    frames_shown: int
+    frames_late: int
+    alone_ms: int
+    def __init__(self, revision: _Optional[int] = ..., state: _Optional[_Union[NodeShowState, str]] = ..., last_frame: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., alone_ms: _Optional[int] = ...) -> None: ...
 
 class NodeReport(_message.Message):
     __slots__ = ("heartbeat", "swaps", "drops")
