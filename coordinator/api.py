@@ -20,6 +20,28 @@ class NodeState(str, Enum):
     LOST = "lost"           # was live, reports stopped
 
 
+class NodeShowState(str, Enum):
+    """Where a node is with the show's timeline, by its own account."""
+
+    NONE = "none"              # no show, or stopped
+    WAITING = "waiting"        # a show is scheduled but its asset is not ready on the node
+    PLAYING = "playing"
+    PAUSED = "paused"
+    SUSPENDED = "suspended"    # a coordinator frame (a still, a pattern) took the output
+
+
+@dataclass(frozen=True)
+class NodeShow:
+    """The show as one node follows it (from its heartbeats)."""
+
+    revision: int = 0          # newest show revision the node holds (0: none)
+    state: NodeShowState = NodeShowState.NONE
+    last_frame: int = -1       # the asset's frame index last swapped in (-1: none yet)
+    frames_shown: int = 0      # timeline frames swapped in since the node started
+    frames_late: int = 0       # timeline ticks the node missed since it started
+    alone_ms: float = 0.0      # how long the node last went on without its coordinator (0: never)
+
+
 class Space(str, Enum):
     """What a frame's pixels are."""
 
@@ -123,6 +145,7 @@ class NodeStatus:
     asset_bytes_total: int = 0
     assets: tuple[AssetProgress, ...] = ()   # one per wanted asset, in fetch order
     live_age_ms: float = math.nan   # since the node's session turned live (the coordinator's clock; NaN: not live)
+    show: NodeShow = field(default_factory=NodeShow)   # the show as the node follows it (its last heartbeat)
 
 
 @dataclass(frozen=True)

@@ -75,6 +75,8 @@ def status_dict(st: RigStatus) -> dict:
             "live_age_ms": num(n.live_age_ms),
             "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
+            "show": {"state": n.show.state.value, "revision": n.show.revision, "last_frame": n.show.last_frame,
+                     "shown": n.show.frames_shown, "missed": n.show.frames_late, "alone_ms": round(n.show.alone_ms)},
         } for n in st.nodes],
         "sync": sync_dict(st.sync),
         "show": show_dict(st.show),
@@ -100,17 +102,27 @@ def show_line(s: ShowState) -> str:
     return (f"show: {what} {s.state}{frame} at {s.fps:.3f} fps{', looping' if s.loop else ''}, revision {s.revision}")
 
 
+def show_cell(s: dict) -> str:
+    """A node's own account of the show, in a few characters: its state and its last frame."""
+    if s["state"] == "none":
+        return "-"
+    return f"{s['state']} {s['last_frame']}" if s["last_frame"] >= 0 else s["state"]
+
+
 def status_table(d: dict) -> str:
     r = d["rig"]
     lines = [f"rig {r['name']} ({r['id']})  instance {r['instance']}  up {r['uptime_s']:.0f} s  showing: {r['showing']}"]
     hdr = (f"{'slot':<8}{'state':<10}{'host':<16}{'offset ms':>11}{'drift ppm':>10}{'rtt ms':>8}{'last frame':>18}"
-           f"{'shown':>8}{'late':>6}{'drop':>6}  {'pose':<11}assets")
+           f"{'shown':>8}{'late':>6}{'drop':>6}  {'pose':<11}{'show':<16}assets")
     lines.append(hdr)
     for n in d["nodes"]:
         lines.append(f"{n['slot']:<8}{n['state']:<10}{(n['host'] or '-')[:15]:<16}{n['clock_offset_ms']:>11.3f}{n['drift_ppm']:>10.1f}"
                      f"{n['rtt_ms']:>8.3f}{n['last_swap_frame'] or '-':>18}{n['shown']:>8}{n['late']:>6}{n['dropped']:>6}  "
-                     f"{n['pose']:<11}{assets_cell(n['assets'])}")
+                     f"{n['pose']:<11}{show_cell(n['show']):<16}{assets_cell(n['assets'])}")
     for n in d["nodes"]:
+        if n["show"]["alone_ms"]:
+            lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "
+                         "(its last outage)")
         for item in n["assets"]["items"]:
             if "error" in item:
                 lines.append(f"{n['slot']}: asset {item['id'][:12]} ({item['name']}): {item['error']}")

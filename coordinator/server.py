@@ -51,6 +51,7 @@ from coordinator.rig import Content, Rig
 from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
 from coordinator.show import MIN_LEAD_NS, Show
 from coordinator.sync import SyncTracker, summarize
+from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION
 
 log = logging.getLogger(__name__)
@@ -115,6 +116,10 @@ class Coordinator:
         self.clock_ns = clock_ns
         self.latency_ns = int((latency_ms if latency_ms is not None else rig.config.latency_ms) * 1e6)
         self.instance_id = uuid.uuid4().hex[:12]
+        # The rig clock's identity. The default clock is this boot's CLOCK_MONOTONIC, which a
+        # coordinator restarted on this host shares; an injected clock is its instance's own.
+        self.clock_id = (f"monotonic:{boot_id()}" if clock_ns is time.monotonic_ns and boot_id()
+                         else f"instance:{self.instance_id}")
         self.started = self.now()
         self.port = 0
         self.sessions: dict[str, NodeSession] = {}      # session id -> node session
@@ -419,7 +424,7 @@ class Coordinator:
                 continue
             hb = sess.heartbeat
             if hb is not None:
-                base.update(clock_offset_ms=hb.clock_offset_ns / 1e6, clock_drift_ppm=hb.clock_drift_ppm,
+                base.update(clock_offset_ms=hb.clock_offset_ns / 1e6, clock_drift_ppm=hb.clock_drift_ppm, show=hb.show,
                             clock_rtt_ms=hb.clock_rtt_ns / 1e6, assignment_revision=hb.assignment_revision)
                 if sess.same_host and hb.host_monotonic_ns:
                     base["clock_error_ms"] = (hb.rig_estimate_ns - hb.host_monotonic_ns) / 1e6

@@ -92,7 +92,8 @@ class NodeLinkService(_Handshake):
         self._check_login(request.login, context, "node")
         sess = self.c.join(slot=request.login.slot, info=wire.node_info_from_message(request.info), peer=_peer(context))
         return node_pb2.JoinReply(session=sess.session, slot=sess.slot, rig_id=self.c.rig.config.rig_id,
-                                  instance_id=self.c.instance_id, heartbeat_interval_ms=self.c.rig.config.heartbeat_ms)
+                                  instance_id=self.c.instance_id, heartbeat_interval_ms=self.c.rig.config.heartbeat_ms,
+                                  clock_id=self.c.clock_id)
 
     async def Assignments(self, request, context):
         try:

@@ -17,7 +17,7 @@ from typing import Callable
 
 import grpc
 
-from coordinator.api import AssetProgress, NodeState
+from coordinator.api import AssetProgress, NodeShow, NodeState
 from protos import auth
 from protos.version import PROTOCOL_VERSION
 
@@ -64,6 +64,7 @@ class Heartbeat:
     host_monotonic_ns: int = 0
     rig_estimate_ns: int = 0
     assets: tuple[AssetProgress, ...] = ()   # the node's progress with the assets it was told it wants
+    show: NodeShow = NodeShow()              # the show as the node follows it
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from coordinator.api import (AssetProgress, DropReason, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal,
-                             RigStatus, ShowResult, ShowState, Space, SyncSummary)
+from coordinator.api import (AssetProgress, DropReason, NodeShow, NodeShowState, NodeState, NodeStatus, PlayResult,
+                             PlaySettings, Refusal, RigStatus, ShowResult, ShowState, Space, SyncSummary)
 from coordinator.distribution import WantedList
 from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
@@ -105,6 +105,23 @@ def asset_progress_from_message(m: node_pb2.AssetProgress) -> AssetProgress:
                          ready_age_ms=m.ready_age_ms if m.HasField("ready_age_ms") else math.nan)
 
 
+_SHOW_STATE = {NodeShowState.NONE: node_pb2.NODE_SHOW_NONE, NodeShowState.WAITING: node_pb2.NODE_SHOW_WAITING,
+               NodeShowState.PLAYING: node_pb2.NODE_SHOW_PLAYING, NodeShowState.PAUSED: node_pb2.NODE_SHOW_PAUSED,
+               NodeShowState.SUSPENDED: node_pb2.NODE_SHOW_SUSPENDED}
+_SHOW_STATE_BACK = {v: k for k, v in _SHOW_STATE.items()}
+
+
+def node_show_message(s: NodeShow) -> node_pb2.NodeShow:
+    return node_pb2.NodeShow(revision=s.revision, state=_SHOW_STATE[s.state], last_frame=s.last_frame,
+                             frames_shown=s.frames_shown, frames_late=s.frames_late, alone_ms=int(s.alone_ms))
+
+
+def node_show_from_message(m: node_pb2.NodeShow) -> NodeShow:
+    return NodeShow(revision=m.revision, state=_SHOW_STATE_BACK.get(m.state, NodeShowState.NONE),
+                    last_frame=m.last_frame if m.state else -1, frames_shown=m.frames_shown,
+                    frames_late=m.frames_late, alone_ms=float(m.alone_ms))
+
+
 def report_from_message(msg: node_pb2.NodeReport) -> Report:
     hb = None
     if msg.HasField("heartbeat"):
@@ -112,7 +129,8 @@ def report_from_message(msg: node_pb2.NodeReport) -> Report:
         hb = Heartbeat(assignment_revision=h.assignment_revision, clock_offset_ns=h.clock_offset_ns,
                        clock_drift_ppm=h.clock_drift_ppm, clock_rtt_ns=h.clock_rtt_ns,
                        host_monotonic_ns=h.host_monotonic_ns, rig_estimate_ns=h.rig_estimate_ns,
-                       assets=tuple(asset_progress_from_message(a) for a in h.assets))
+                       assets=tuple(asset_progress_from_message(a) for a in h.assets),
+                       show=node_show_from_message(h.show))
     swaps = tuple(Swap(s.frame_id, s.swap_rig_ns, s.host_monotonic_ns) for s in msg.swaps)
     drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
     return Report(heartbeat=hb, swaps=swaps, drops=drops)
@@ -171,6 +189,7 @@ def _node_status_message(n: NodeStatus) -> control_pb2.NodeStatus:
     d = asdict(n)
     d["state"] = _STATE[n.state]
     d["assets"] = [asset_progress_message(a) for a in n.assets]
+    d["show"] = node_show_message(n.show)
     if math.isnan(n.live_age_ms):
         del d["live_age_ms"]   # unset: not live
     return control_pb2.NodeStatus(**d)
@@ -186,7 +205,8 @@ def _node_status_from_message(m: control_pb2.NodeStatus) -> NodeStatus:
                       assets_wanted=m.assets_wanted, assets_ready=m.assets_ready, asset_bytes_have=m.asset_bytes_have,
                       asset_bytes_total=m.asset_bytes_total,
                       assets=tuple(asset_progress_from_message(a) for a in m.assets),
-                      live_age_ms=m.live_age_ms if m.HasField("live_age_ms") else math.nan)
+                      live_age_ms=m.live_age_ms if m.HasField("live_age_ms") else math.nan,
+                      show=node_show_from_message(m.show))
 
 
 def status_message(st: RigStatus) -> control_pb2.RigStatus:

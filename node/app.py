@@ -23,7 +23,7 @@ import os
 import random
 import socket
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from node.asset_cache import default_cache_dir
@@ -37,6 +37,7 @@ from node.records import (
     ClockStatus,
     DropRecord,
     HeartbeatRecord,
+    JoinReply,
     JoinRequest,
     NodeInfo,
     ReportBatch,
@@ -44,6 +45,7 @@ from node.records import (
 )
 from protos import auth
 from protos.discovery import Discovery
+from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION
 
 log = logging.getLogger("node")
@@ -73,13 +75,6 @@ class NodeConfig:
     fetch_rate: float | None = None         # bytes per second; None: unlimited
 
 
-def _boot_id() -> str:
-    try:
-        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
-    except OSError:  # pragma: no cover - non-Linux
-        return ""
-
-
 def _version() -> str:
     """The installed shadowless distribution's version (the node does not import the CLI package)."""
     try:
@@ -97,6 +92,9 @@ class Node:
         self._reports: asyncio.Queue | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._instance = ""
+        self._clock_id = ""
+        self._alone_since: float | None = None   # time.monotonic() when the coordinator was lost
+        self._alone_ms = 0.0                       # how long the last time without it lasted
         self._stopping = asyncio.Event()
         self.joins = 0
         self._assets_passed: set[str] = set()    # assets whose files the presenter has
@@ -210,20 +208,19 @@ class Node:
         """Join ``target`` and serve until a stream breaks. True if the join succeeded."""
         async with CoordinatorLink(target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
             try:
-                session, instance, hb_ms = await self._handshake(link, target)
+                joined = await self._handshake(link, target)
             except LinkError as exc:
                 if exc.refused:
                     raise Refused(f"coordinator at {target}: {exc.details}") from exc
                 log.debug("cannot join %s: %s", target, exc.code)
                 return False
             self.joins += 1
-            if instance != self._instance:
-                if self._instance:
-                    log.info("coordinator instance changed (%s -> %s): resyncing clock", self._instance, instance)
-                self._instance = instance
-                self.estimator.reset()
-                self.presenter.submit("clock", None)
-                self.presenter.submit("reset")
+            session, hb_ms = joined.session, joined.heartbeat_interval_ms
+            self._new_instance(joined)
+            if self._alone_since is not None:
+                self._alone_ms = (time.monotonic() - self._alone_since) * 1e3
+                self._alone_since = None
+                log.info("coordinator back after %.1f s alone", self._alone_ms / 1e3)
             log.info("joined rig at %s as %s (session %s…)", target, self.cfg.slot, session[:6])
             # a first clock estimate before any frame can be scheduled
             await self._ping_burst(link, count=8)
@@ -241,20 +238,44 @@ class Node:
             for t in pending:
                 t.cancel()
             await asyncio.gather(*pending, return_exceptions=True)
+            lost = False
             for t in done:
                 exc = t.exception() if not t.cancelled() else None
                 if isinstance(exc, LinkError):
+                    lost = True
                     log.warning("lost the coordinator (%s: %s); will rejoin", exc.code, exc.details)
                 elif exc is not None and not isinstance(exc, asyncio.CancelledError):
                     log.error("session ended by %s: %r", t.get_name(), exc)
+            if lost and not self._stopping.is_set():
+                self._alone_since = time.monotonic()
+                show = self.presenter.stats.show
+                if show.state in ("playing", "paused"):
+                    log.warning("the show (r%d, %s) goes on without the coordinator, on this node's clock estimate",
+                                show.revision, show.state)
             return True
+
+    def _new_instance(self, joined: JoinReply) -> None:
+        """A join's coordinator instance: the same rig clock keeps the clock estimate and the show
+        (a coordinator restarted on its host); another clock starts both afresh."""
+        if joined.instance_id == self._instance:
+            return
+        same_clock = bool(joined.clock_id) and joined.clock_id == self._clock_id
+        if self._instance:
+            log.info("coordinator instance changed (%s -> %s): %s", self._instance, joined.instance_id,
+                     "same rig clock, keeping the clock estimate and the show" if same_clock
+                     else "a new rig clock, resyncing the clock and the show")
+        self._instance, self._clock_id = joined.instance_id, joined.clock_id
+        if not same_clock:
+            self.estimator.reset()
+            self.presenter.submit("clock", None)
+            self.presenter.submit("reset")
 
     async def _watch_presenter(self) -> None:
         while self.presenter.is_alive():
             await asyncio.sleep(0.5)
 
-    async def _handshake(self, link: CoordinatorLink, target: str) -> tuple[str, str, int]:
-        """Prove the token both ways and join: (session, coordinator instance, heartbeat interval in ms)."""
+    async def _handshake(self, link: CoordinatorLink, target: str) -> JoinReply:
+        """Prove the token both ways and join."""
         client_nonce = auth.new_nonce()
         hello = await link.hello(protocol_version=self.cfg.protocol_version, client_nonce=client_nonce,
                                  slot=self.cfg.slot)
@@ -265,13 +286,13 @@ class Node:
                 "this node has the wrong token file, or that advertiser is not our coordinator")
         proof = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
         size = self.presenter.native_size or (0, 0)
-        info = NodeInfo(hostname=socket.gethostname(), host_boot_id=_boot_id(), pid=os.getpid(),
+        info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
                         software_version=_version(), output=self.cfg.output.split("?")[0],
                         native_width=size[0], native_height=size[1])
         reply = await link.join(JoinRequest(protocol_version=self.cfg.protocol_version, slot=self.cfg.slot,
                                             client_nonce=client_nonce, server_nonce=hello.server_nonce,
                                             client_proof=proof, info=info))
-        return reply.session, reply.instance_id, reply.heartbeat_interval_ms
+        return reply
 
     async def _ping_once(self, link: CoordinatorLink) -> None:
         t0 = self.clock.now()
@@ -378,4 +399,5 @@ class Node:
                                 rtt_ns=est.best_rtt_ns, samples=est.samples, rig_estimate_ns=est.rig_time(local))
         return HeartbeatRecord(assignment_revision=st.revision, frames_shown=st.shown, frames_late=st.late,
                                frames_dropped=st.dropped, render_ms_p50=st.render_ms_p50, host_monotonic_ns=host,
-                               clock=clock, assets=self.fetcher.progress())
+                               clock=clock, assets=self.fetcher.progress(),
+                               show=replace(st.show, alone_ms=self._alone_ms))

@@ -27,7 +27,8 @@ from node.clock import ClockEstimate
 from node.outputs.base import Output, SwapInfo
 from node.pacing import FramePacer
 from node.realtime import RealtimeWindow
-from node.records import AssetFiles, DropReason, DropRecord, FrameOrder, NodeAssignment, PresenterStatus, ShowUpdateData
+from node.records import (AssetFiles, DropReason, DropRecord, FrameOrder, NodeAssignment, PresenterStatus, ShowStatus,
+                          ShowUpdateData)
 from node.render.renderer import Mesh, Renderer
 from node.timeline_player import TimelineEvent, TimelinePlayer, fit_frame
 from node.wire import packet_from_bytes
@@ -102,6 +103,9 @@ class Presenter:
         self._current: FrameOrder | None = None
         self._evicted: set[str] = set()
         self.player = TimelinePlayer()
+        self.timeline_shown = 0          # timeline frames swapped in
+        self.timeline_missed = 0         # timeline ticks not shown (late, undecodable, unrenderable)
+        self.timeline_last_frame = -1    # the asset frame index last swapped in
         self._timeline_cid: str | None = None
         self._last_event_pts: int | None = None
 
@@ -114,9 +118,13 @@ class Presenter:
         return statistics.median(self._render_ms) if self._render_ms else 0.0
 
     def status(self) -> PresenterStatus:
+        est = self.pacer.estimate
+        now = est.rig_time(self.clock.now()) if est is not None else None
+        show = ShowStatus(revision=max(0, self.player.schedule.revision), state=self.player.state(now),
+                          last_frame=self.timeline_last_frame, shown=self.timeline_shown, late=self.timeline_missed)
         return PresenterStatus(shown=self.shown, late=self.late, dropped=self.dropped,
                                render_ms_p50=self.render_ms_p50(),
-                               revision=self.assignment.revision if self.assignment else 0)
+                               revision=self.assignment.revision if self.assignment else 0, show=show)
 
     def open(self) -> None:
         ctx = self.out.make_context()
@@ -238,9 +246,11 @@ class Presenter:
                          tl.anchor_ns, " paused" if tl.paused else "", " loop" if tl.loop else "")
             else:
                 log.info("timeline r%d: stop at %d", update.stop_revision, update.stop_at_ns)
+            self._send_stats()
 
     def _on_asset(self, renderer, out, files: AssetFiles) -> None:
         self.player.add_asset(files)
+        self._send_stats()
 
     def _next_event(self) -> TimelineEvent | None:
         est = self.pacer.estimate
@@ -269,6 +279,7 @@ class Presenter:
             return
         renderer, out, pacer = self.renderer, self.out, self.pacer
         for frame_id in self.player.skipped_ids(ev):
+            self.timeline_missed += 1
             self._drop(DropRecord(frame_id, DropReason.LATE))
         self.player.mark_done(ev)
         self._last_event_pts = ev.pts_ns
@@ -282,21 +293,29 @@ class Presenter:
             self._current = None
             self._forget_timeline_content()
             return
+        if not self._timeline_frame(ev):
+            self.timeline_missed += 1
+            self._send_stats()
+
+    def _timeline_frame(self, ev: TimelineEvent) -> bool:
+        """Decode, render and swap in timeline frame ``ev`` at its time; whether it was shown (a
+        frame that cannot be is reported dropped)."""
+        renderer, out, pacer = self.renderer, self.out, self.pacer
         order = FrameOrder(frame_id=ev.frame_id, pts_ns=ev.pts_ns, content_id=f"timeline:{ev.frame_id}",
                            space="content", apply_lut=True, tag=f"timeline:{ev.revision}")
         drop = pacer.admit(replace(order, content_id=""), renderer.has)
         if drop is not None:
             self._drop(drop)
-            return
+            return False
         try:
             image = self.player.frame(ev, (-pacer.late_by(order) - 2_000_000) / 1e9)
         except FrameNotReady:
             self._drop(DropRecord(ev.frame_id, DropReason.LATE, pacer.late_by(order)))
-            return
+            return False
         except FrameError as exc:
             log.error("cannot show frame %d of asset %s: %s", ev.frame, ev.asset_id[:12], exc)
             self._drop(DropRecord(ev.frame_id, DropReason.UNRENDERABLE))
-            return
+            return False
         a = self.assignment
         if a is not None and a.pose_kind == "homography" and all(a.content_size):
             image = fit_frame(image, a.content_size)
@@ -307,8 +326,17 @@ class Presenter:
             log.error("cannot show frame %d of asset %s: %s", ev.frame, ev.asset_id[:12], exc)
             renderer.forget(order.content_id)
             self._drop(DropRecord(ev.frame_id, DropReason.UNRENDERABLE))
-            return
+            return False
+        # counted before the swap, so the stats sent with it say so; taken back if it was dropped
+        before = self.timeline_last_frame
+        self.timeline_shown += 1
+        self.timeline_last_frame = ev.frame
         self._swap_at_pts(renderer, out, order)
+        if self._current is not order:
+            self.timeline_shown -= 1
+            self.timeline_last_frame = before
+            return False
+        return True
 
     def _drop(self, drop: DropRecord) -> None:
         if _DEBUG_TIMING:

@@ -180,6 +180,7 @@ class HeartbeatRecord:
     host_monotonic_ns: int
     clock: ClockStatus | None = None      # None until the node has a clock estimate
     assets: tuple[AssetProgressRecord, ...] = ()
+    show: ShowStatus | None = None
 
 
 @dataclass(frozen=True)
@@ -228,6 +229,8 @@ class JoinReply:
     session: str
     instance_id: str
     heartbeat_interval_ms: int
+    #: the rig clock's identity; "" (an older coordinator) counts as a new clock at every instance
+    clock_id: str = ""
 
 
 @dataclass(frozen=True)
@@ -240,6 +243,18 @@ class PingReply:
 
 
 @dataclass(frozen=True)
+class ShowStatus:
+    """The show as this node follows it (its heartbeat's ``show``)."""
+
+    revision: int = 0          # newest show revision the presenter holds (0: none)
+    state: str = "none"        # "none", "waiting" (asset not ready here), "playing", "paused", "suspended"
+    last_frame: int = -1       # the asset's frame index last swapped in (-1: none yet)
+    shown: int = 0             # timeline frames swapped in since the node started
+    late: int = 0              # timeline ticks missed (reported late) since the node started
+    alone_ms: float = 0.0      # how long the node last went on without its coordinator (0: never)
+
+
+@dataclass(frozen=True)
 class PresenterStatus:
     """The presenter's counters, as its heartbeat reports them."""
 
@@ -248,3 +263,4 @@ class PresenterStatus:
     dropped: int = 0
     render_ms_p50: float = 0.0
     revision: int = 0          # of the assignment in use (0: none yet)
+    show: ShowStatus = ShowStatus()

@@ -152,6 +152,20 @@ class TimelinePlayer:
         self.suspended_revision = -1
         self.done = None
 
+    def state(self, now_ns: int | None) -> str:
+        """Where the show is at rig time ``now_ns`` (None: no clock yet): "none", "waiting",
+        "playing", "paused" or "suspended" (see :class:`node.records.ShowStatus`)."""
+        if self.schedule.revision <= 0:
+            return "none"
+        if self.schedule.revision <= self.suspended_revision:
+            return "suspended"
+        tl = self.schedule.at(now_ns) if now_ns is not None else None
+        if tl is None:
+            return "none"
+        if not self.has_asset(tl.asset_id):
+            return "waiting"
+        return "paused" if tl.paused else "playing"
+
     @property
     def active(self) -> bool:
         return bool(self.schedule.pending) and self.schedule.revision > self.suspended_revision

@@ -140,7 +140,7 @@ def hello_reply_from_message(msg: common_pb2.HelloReply) -> HelloReply:
 
 def join_reply_from_message(msg: node_pb2.JoinReply) -> JoinReply:
     return JoinReply(session=msg.session, instance_id=msg.instance_id,
-                     heartbeat_interval_ms=msg.heartbeat_interval_ms or 500)
+                     heartbeat_interval_ms=msg.heartbeat_interval_ms or 500, clock_id=msg.clock_id)
 
 
 def ping_reply_from_message(msg: node_pb2.PingReply) -> PingReply:
@@ -195,6 +195,11 @@ def drop_message(rec: DropRecord) -> node_pb2.FrameDrop:
     return node_pb2.FrameDrop(frame_id=rec.frame_id, reason=_DROP_REASONS[rec.reason], late_by_ns=rec.late_by_ns)
 
 
+_SHOW_STATES = {"none": node_pb2.NODE_SHOW_NONE, "waiting": node_pb2.NODE_SHOW_WAITING,
+                "playing": node_pb2.NODE_SHOW_PLAYING, "paused": node_pb2.NODE_SHOW_PAUSED,
+                "suspended": node_pb2.NODE_SHOW_SUSPENDED}
+
+
 def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
     msg = node_pb2.Heartbeat(
         assignment_revision=hb.assignment_revision, frames_shown=hb.frames_shown, frames_late=hb.frames_late,
@@ -207,6 +212,10 @@ def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
         msg.clock_samples = hb.clock.samples
         msg.rig_estimate_ns = hb.clock.rig_estimate_ns
     msg.assets.extend(asset_progress_message(a) for a in hb.assets)
+    if hb.show is not None:
+        s = hb.show
+        msg.show.CopyFrom(node_pb2.NodeShow(revision=s.revision, state=_SHOW_STATES[s.state], last_frame=s.last_frame,
+                                            frames_shown=s.shown, frames_late=s.late, alone_ms=int(s.alone_ms)))
     return msg
 
 

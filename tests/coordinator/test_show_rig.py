@@ -236,6 +236,64 @@ def test_cli_a_still_takes_over_and_a_restarted_coordinator_takes_the_show_back(
     run(after_restart())
 
 
+@pytest.mark.allow_leaks     # the restarted coordinator belongs to the module's rig
+def test_a_show_goes_on_through_a_five_second_coordinator_outage_and_is_taken_back(rig):
+    """Killed mid-show and restarted 5 s later on the same rig directory (and host: the same rig
+    clock): every node goes on playing alone, keeps its clock estimate and the show, and swaps
+    ticks in order throughout. The count of ticks missed is printed; on a loaded machine a few
+    may be late, so the test holds the structure (no reset, no gap of the restart's making)."""
+    async def start():
+        async with await rig.client() as c:
+            await wait_ready(rig, c, SLOTS)
+            return await c.play_asset("clip", loop=True, delay_s=0.3)
+
+    play = run(start())
+    time.sleep(1.0)
+    logs = log_sizes(rig)
+    kill_ns = time.monotonic_ns()          # the rig clock: the coordinator's monotonic clock, this host's
+    rig.stop_coordinator(signal.SIGKILL)
+    time.sleep(5.0)
+    back_ns = time.monotonic_ns()
+    rig.start_coordinator()
+
+    async def after():
+        async with await rig.client() as c:
+            await rig.wait_live(c, SLOTS, min_joins={s: 1 for s in SLOTS})
+            await asyncio.sleep(2.0)
+            return await c.status()
+
+    st = run(after())
+    end_ns = time.monotonic_ns()
+    assert st.show.state == "playing" and st.show.revision == play.revision
+    period_ns = 1e9 / FPS
+    tick = lambda t: int((t - play.anchor_ns) // period_ns)  # noqa: E731
+    outage = range(play.frame_id_base + tick(kill_ns) + 1, play.frame_id_base + tick(back_ns))
+    nodes = {n.slot: n for n in st.nodes}
+    for s in SLOTS:
+        text = rig.log("node-" + s)[logs[s]:]
+        assert "same rig clock, keeping the clock estimate and the show" in text, text[-3000:]
+        assert "resyncing" not in text
+        assert "goes on without the coordinator" in text
+        ids = in_revision(swaps(rig, s, logs[s]), play.frame_id_base, tick(end_ns) + 1)
+        assert ids == sorted(set(ids)), "swaps out of order or repeated"
+        during = [i for i in ids if i in outage]
+        window = range(ids[0], ids[-1] + 1)
+        missed = len(window) - len(ids)
+        print(f"\n{s}: {len(during)}/{len(outage)} ticks swapped while alone; {missed} of {len(window)} missed"
+              " from just before the kill to 2 s after the restart")
+        assert len(during) >= len(outage) // 2, (s, len(during), len(outage))   # it kept playing alone
+        n = nodes[s]
+        assert n.show.state.value == "playing" and n.show.revision == play.revision
+        assert n.show.alone_ms >= 4_000, n.show
+    assert st.sync.out_of_order == 0
+    run(_stop_show(rig))
+
+
+async def _stop_show(rig):
+    async with await rig.client() as c:
+        await c.stop_show()
+
+
 def test_a_show_started_without_the_asset_everywhere_is_joined_once_nodes_hold_it(rig, tmp_path):
     clip = tmp_path / "second.mp4"
     write_clip(clip, shift=7)

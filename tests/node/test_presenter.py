@@ -329,6 +329,25 @@ def test_timeline_ticks_are_swapped_at_their_time_with_ids_from_the_base(rig, tm
     assert [s.swap_rig_ns for s in rig.swaps] == [s.pts_ns for s in rig.swaps]
 
 
+def test_the_presenter_reports_the_show_as_it_follows_it(rig, tmp_path):
+    files = _still_asset(tmp_path)
+    p = rig.presenter
+    anchor = rig.rig_now() + 20 * MS
+    p.handle("show", _timeline_update(files, anchor, revision=4))
+    assert p.status().show.state == "none" and p.status().show.revision == 4   # not begun yet
+    p.handle("asset", files)
+    for _ in range(2):
+        p.timeline_step()
+    st = p.status().show
+    assert (st.state, st.revision, st.last_frame, st.shown, st.late) == ("playing", 4, 0, 2, 0)
+    rig.host.advance(350 * MS)                # at tick 1 + 3.5 ticks: ticks 2, 3, 4 pass unseen
+    p.timeline_step()
+    st = p.status().show
+    assert (st.shown, st.late, st.last_frame) == (3, 3, 0), st
+    rig.show(rig.frame(10_000, in_ms=5, content="c10"))
+    assert p.status().show.state == "suspended"
+
+
 def test_a_coordinator_frame_suspends_the_timeline_until_a_newer_revision(rig, tmp_path):
     files = _still_asset(tmp_path)
     p = rig.presenter

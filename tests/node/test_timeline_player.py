@@ -110,6 +110,22 @@ def test_reset_forgets_the_schedule():
     assert p.next_event(T0) is None and p.offer(ShowUpdateData(timeline=timeline(), frame_id_base=BASE))
 
 
+def test_the_state_the_node_reports_follows_the_schedule_its_asset_and_suspension():
+    p = TimelinePlayer()
+    assert p.state(T0) == "none"
+    p.offer(ShowUpdateData(timeline=timeline(), frame_id_base=BASE))
+    assert p.state(T0 - MS) == "none"             # scheduled, not begun
+    assert p.state(T0) == "waiting"               # begun, but the asset is not here
+    p.add_asset(AssetFiles(asset_id=AID, manifest=b"{}", blob_paths={}))
+    assert p.state(T0) == "playing" and p.state(None) == "none"
+    p.offer(ShowUpdateData(timeline=timeline(revision=2, paused=True, anchor_ns=T0 + 100 * MS), frame_id_base=BASE))
+    assert p.state(T0 + 50 * MS) == "playing" and p.state(T0 + 100 * MS) == "paused"
+    p.suspend()
+    assert p.state(T0 + 100 * MS) == "suspended"
+    p.offer(ShowUpdateData(stop_at_ns=T0 + 200 * MS, stop_revision=3))
+    assert p.state(T0 + 150 * MS) == "paused" and p.state(T0 + 200 * MS) == "none"
+
+
 def test_frames_are_decoded_from_the_files_passed_without_a_cache(tmp_path):
     img = (np.arange(4 * 6 * 3, dtype=np.float32) / 100).reshape(4, 6, 3)
     path = tmp_path / "f.npy"
