@@ -91,16 +91,26 @@ def match_channels(image: np.ndarray, channels: int) -> np.ndarray:
     raise DecodeError(f"it decodes to {have} channel(s), not the {channels} its manifest says")
 
 
-def frame_to_array(frame: av.VideoFrame, channels: int, bit_depth: int) -> np.ndarray:
+def frame_to_array(frame: av.VideoFrame, channels: int, bit_depth: int,
+                   size: tuple[int, int] | None = None) -> np.ndarray:
     """Convert a decoded PyAV frame to ``(H, W, channels)`` C-contiguous in
-    :func:`content_dtype` of ``bit_depth`` (see the module docstring for the conversions)."""
+    :func:`content_dtype` of ``bit_depth`` (see the module docstring for the conversions).
+
+    ``size`` ``(w, h)``: resample to it in the same swscale pass (area averaging when shrinking,
+    bilinear when enlarging; pixel centres aligned), which costs less than converting at the
+    frame's own size and leaves the renderer a smaller texture to upload. None: the frame's size.
+    """
     depth = 8 if bit_depth == 8 else 32 if bit_depth == 32 else 16
     want = 4 if channels == 2 else channels   # swscale has no grey+alpha output PyAV can read
     fmt = _TARGET_FORMATS.get((want, depth))
     if fmt is None:
         raise DecodeError(f"no conversion to {channels} channel(s) at {bit_depth} bits")
+    scale = {}
+    if size is not None and tuple(size) != (frame.width, frame.height):
+        w, h = size
+        scale = dict(width=w, height=h, interpolation="AREA" if w * h < frame.width * frame.height else "BILINEAR")
     try:
-        arr = frame.to_ndarray(format=fmt)
+        arr = frame.to_ndarray(format=fmt, **scale)
     except (av.FFmpegError, ValueError) as exc:
         raise DecodeError(f"cannot convert its {frame.format.name} pixels to {fmt} ({exc})") from exc
     if arr.ndim == 2:
@@ -207,8 +217,9 @@ class VideoDecoder:
 
     def __init__(self, path: str | os.PathLike[str], *, frames: int, channels: int, bit_depth: int,
                  rate: Fraction | None = None, demuxer: str | None = None, threads: int = 0,
-                 max_forward: int | None = None) -> None:
+                 max_forward: int | None = None, size: tuple[int, int] | None = None) -> None:
         self.path = str(path)
+        self.size = size          # (w, h) frames are resampled to (None: the video's own)
         self.frames = frames
         self.channels = channels
         self.bit_depth = bit_depth
@@ -383,7 +394,8 @@ class VideoDecoder:
             back = 2 * back if back else max(1, round(self._rate))
 
     def read(self, k: int) -> np.ndarray:
-        """Frame ``k`` (0-based), ``(H, W, channels)`` in :func:`content_dtype` of the bit depth.
+        """Frame ``k`` (0-based), ``(H, W, channels)`` in :func:`content_dtype` of the bit depth
+        (``H, W`` from :attr:`size` when set).
 
         Reading the same ``k`` twice in a row returns the same array. Raises
         :class:`DecodeError` when the file cannot be opened or decoded.
@@ -398,6 +410,6 @@ class VideoDecoder:
             frame = self._forward(k)
         if frame is None:
             frame = self._seek(k)
-        arr = frame_to_array(frame, self.channels, self.bit_depth)
+        arr = frame_to_array(frame, self.channels, self.bit_depth, self.size)
         self._last = (k, arr)
         return arr

@@ -169,9 +169,13 @@ class _SequenceFrames(FrameSource):
 
 
 class _VideoFrames(FrameSource):
-    def __init__(self, cache: AssetCache, asset_id: str, manifest: Manifest, *, threads: int = 0) -> None:
+    def __init__(self, cache: AssetCache, asset_id: str, manifest: Manifest, *, threads: int = 0,
+                 size: tuple[int, int] | None = None) -> None:
         super().__init__(cache, asset_id, manifest)
         self._threads = threads
+        self.size = size
+        if size is not None:
+            self.shape = (size[1], size[0], manifest.channels)
         self.decoder: VideoDecoder | None = None
 
     def _rate(self) -> Fraction:
@@ -191,7 +195,7 @@ class _VideoFrames(FrameSource):
             self.decoder = VideoDecoder(self._cache.blob_path(blob.sha256), frames=self.frames,
                                         channels=self.channels, bit_depth=self.bit_depth, rate=self._rate(),
                                         demuxer=video_demuxer(blob.name, self.manifest.extra.get("container")),
-                                        threads=self._threads)
+                                        threads=self._threads, size=self.size)
         return self.decoder.read(k)
 
     def close(self) -> None:
@@ -200,7 +204,8 @@ class _VideoFrames(FrameSource):
         super().close()
 
 
-def open_frames(cache: AssetCache, asset_id: str, *, threads: int = 0) -> FrameSource:
+def open_frames(cache: AssetCache, asset_id: str, *, threads: int = 0,
+                size: tuple[int, int] | None = None) -> FrameSource:
     """The frame source of a cached asset whose blobs are all complete.
 
     Parameters
@@ -211,6 +216,10 @@ def open_frames(cache: AssetCache, asset_id: str, *, threads: int = 0) -> FrameS
         The asset.
     threads : int
         Decoder threads for a video (0: FFmpeg picks, one per core).
+    size : (w, h), optional
+        A video's frames come resampled to this size, in the decoder's conversion (the content
+        size the node warps from: cheaper than converting and uploading a larger frame). Stills
+        and image sequences come at their own size.
 
     Raises
     ------
@@ -230,7 +239,7 @@ def open_frames(cache: AssetCache, asset_id: str, *, threads: int = 0) -> FrameS
         return _StillFrames(cache, asset_id, m)
     if m.kind == "sequence":
         return _SequenceFrames(cache, asset_id, m)
-    return _VideoFrames(cache, asset_id, m, threads=threads)
+    return _VideoFrames(cache, asset_id, m, threads=threads, size=size)
 
 
 @dataclass(frozen=True)

@@ -206,6 +206,9 @@ class Presenter:
         renderer.set_lut(a.lut)
         renderer.set_gain(a.gain)
         self.assignment = a
+        # a video asset decodes straight to the content size the homography maps (see fit_frame)
+        self.player.content_size = (tuple(a.content_size) if a.pose_kind == "homography" and all(a.content_size)
+                                    else None)
         log.info("assignment r%d: %s pose, %dx%d, gain %.3f, LUT %s", a.revision, a.pose_kind, *size, a.gain,
                  "yes" if a.lut is not None else "identity")
         self._send_stats()

@@ -115,6 +115,10 @@ class TimelinePlayer:
         self._stops: dict[int, int] = {}             # stop instant -> revision
         self._files: dict[str, AssetFiles] = {}
         self._decoder: DecodeAhead | None = None
+        self._decoder_size: tuple[int, int] | None = None
+        #: (w, h) a video's frames are decoded to (the content size the node warps from; None: the
+        #: video's own). The presenter sets it from its assignment; a change reopens the decoder.
+        self.content_size: tuple[int, int] | None = None
         self._decoder_revision = -1
         self.suspended_revision = -1
         self.done: tuple[int, int] | None = None     # (revision, tick) of the last event handled
@@ -240,18 +244,18 @@ class TimelinePlayer:
         """The decoded frame of ``event`` (waiting at most ``timeout_s``); FrameError (or
         FrameNotReady) when it cannot be had."""
         dec = self._decoder
-        if dec is None or dec.source.asset_id != event.asset_id:
+        if dec is None or dec.source.asset_id != event.asset_id or self._decoder_size != self.content_size:
             self.close()
             files = self._files.get(event.asset_id)
             if files is None:
                 raise FrameError(f"asset {event.asset_id[:12]} is not in the node's cache yet")
             try:
-                dec = DecodeAhead(open_frames(AssetFilesView(files), event.asset_id), depth=self.depth,
-                                  loop=event.loop)
+                dec = DecodeAhead(open_frames(AssetFilesView(files), event.asset_id, size=self.content_size),
+                                  depth=self.depth, loop=event.loop)
             except FrameError:
                 self._failed.add(event.asset_id)
                 raise
-            self._decoder, self._decoder_revision = dec, -1
+            self._decoder, self._decoder_revision, self._decoder_size = dec, -1, self.content_size
         if self._decoder_revision != event.revision:
             dec.want(event.frame, loop=event.loop)
             self._decoder_revision = event.revision

@@ -140,6 +140,9 @@ class Renderer:
         Output size in projector pixels.
     """
 
+    #: textures forgotten and kept for reuse (one per size and type, the most recent ones)
+    SPARE_TEXTURES = 2
+
     def __init__(self, ctx: Any, width: int, height: int):
         import moderngl  # the node extra; imported here so `import node.render` stays light
 
@@ -169,6 +172,8 @@ class Renderer:
             prog["content"].value = 0
             prog["lut"].value = 1
         self._contents: dict[str, _Content] = {}
+        # forgotten textures kept for reuse, by ((H, W, C), dtype); at most SPARE_TEXTURES
+        self._spare: dict[tuple[tuple[int, ...], np.dtype], Any] = {}
         self._lut_tex: Any = None
         self._lut_shape: tuple[int, int] | None = None
         self.set_lut(None)
@@ -446,16 +451,32 @@ class Renderer:
                 f"content {content_id!r} is already uploaded as {existing.shape} {existing.dtype}, "
                 f"not {arr.shape} {arr.dtype}; content ids are immutable (forget() it first)"
             )
-        tex = self.ctx.texture((w, h), c, np.ascontiguousarray(arr), dtype=_TEXTURE_DTYPES[arr.dtype], alignment=1)
-        tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
-        tex.repeat_x = tex.repeat_y = False
+        data = np.ascontiguousarray(arr)
+        spare = self._spare.pop((arr.shape, arr.dtype), None)
+        if spare is not None:      # a forgotten texture of this size and type: write into it
+            tex = spare
+            tex.write(data, alignment=1)
+        else:
+            tex = self.ctx.texture((w, h), c, data, dtype=_TEXTURE_DTYPES[arr.dtype], alignment=1)
+            tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+            tex.repeat_x = tex.repeat_y = False
         self._contents[content_id] = _Content(tex, arr.shape, arr.dtype, c <= 2)
 
     def forget(self, content_id: str) -> None:
-        """Release the content uploaded under ``content_id`` (no error if unknown)."""
+        """Release the content uploaded under ``content_id`` (no error if unknown).
+
+        The last texture forgotten of each size and type is kept for the next upload of that
+        size and type (a video's frames, one after the other, reuse one texture instead of
+        allocating one per frame); the others are released.
+        """
         entry = self._contents.pop(content_id, None)
         if entry is not None:
-            entry.texture.release()
+            old = self._spare.pop((entry.shape, entry.dtype), None)
+            if old is not None:
+                old.release()
+            if len(self._spare) >= self.SPARE_TEXTURES:
+                self._spare.pop(next(iter(self._spare))).release()
+            self._spare[(entry.shape, entry.dtype)] = entry.texture
 
     def has(self, content_id: str) -> bool:
         return content_id in self._contents
@@ -555,6 +576,9 @@ class Renderer:
         for entry in self._contents.values():
             entry.texture.release()
         self._contents.clear()
+        for tex in self._spare.values():
+            tex.release()
+        self._spare.clear()
         for obj in (
             self._mesh_vao, self._mesh_vbo, self._mesh_ibo, self._warp_vao, self._warp, self._mesh_prog,
             self._lut_tex, self._fbo, self._color, self._depth,

@@ -263,6 +263,33 @@ def test_lossless_ffv1_mkv_rgb_and_grey_exact(cache, tmp_path):
         _check_every_access(src, lambda a, k: np.testing.assert_array_equal(a[:, :, 0], g16[k]), n)
 
 
+def test_a_video_decodes_straight_to_the_content_size_by_area_averaging(cache, tmp_path):
+    """Asked for a 4x smaller size, the decoder's conversion averages each 4x4 block: checked
+    against the block means (an independent reference), 8-bit and 16-bit."""
+    n, h, w = 6, 48, 64
+    yy, xx = np.mgrid[0:h, 0:w]
+    imgs = [np.stack([(xx * 3 + k * 5) % 256, (yy * 4 + k) % 256, (xx + yy * 2) % 256], -1).astype(np.uint8)
+            for k in range(n)]
+    data = encode_video(tmp_path / "s.mkv", imgs, codec="ffv1", pix_fmt="bgr0", fmt_in="rgb24")
+    aid = put_video(cache, data, "s.mkv", frames=n, width=w, height=h, channels=3, bit_depth=8,
+                    container="matroska", pix_fmt="bgr0")
+    blocks = lambda a: a.reshape(h // 4, 4, w // 4, 4, -1).astype(np.float64).mean(axis=(1, 3))  # noqa: E731
+    with open_frames(cache, aid, size=(w // 4, h // 4)) as src:
+        assert src.shape == (h // 4, w // 4, 3)
+        for k in (0, 3, 5):
+            got = src.frame(k)
+            assert got.shape == (h // 4, w // 4, 3) and got.dtype == np.uint8
+            assert np.abs(got - blocks(imgs[k])).max() <= 2.0, k
+    g16 = [((xx * 700 + yy * 300 + k * 999) % 65536).astype(np.uint16) for k in range(n)]
+    data = encode_video(tmp_path / "g16.mkv", g16, codec="ffv1", pix_fmt="gray16le", fmt_in="gray16le")
+    aid = put_video(cache, data, "g16.mkv", frames=n, width=w, height=h, channels=1, bit_depth=16,
+                    container="matroska", pix_fmt="gray16le")
+    with open_frames(cache, aid, size=(w // 4, h // 4)) as src:
+        got = src.frame(2)
+        assert got.shape == (h // 4, w // 4, 1) and got.dtype == np.uint16
+        assert np.abs(got[:, :, 0] - blocks(g16[2][:, :, None])[:, :, 0]).max() <= 2 * 257
+
+
 def test_lossy_h264_yuv420p_every_index_decodes_to_its_frame(cache, tmp_path):
     n = 36
     data = encode_video(tmp_path / "v.mp4", grey_frames(n, 48, 64), codec="libx264", pix_fmt="yuv420p",

@@ -430,6 +430,32 @@ def test_upload_of_a_known_id_is_not_repeated(renderer):
     assert (renderer.read() == 20).all()
 
 
+def test_a_forgotten_texture_is_reused_for_the_next_content_of_its_size_and_type(renderer):
+    """A video's frames, one uploaded as the previous is forgotten, write into one texture:
+    each renders its own pixels (bit-exact in projector space), grey and 16-bit alike."""
+    frames = [sharp_content(np.uint8, shape=(PH, PW)) ^ np.uint8(k * 37) for k in range(3)]
+    seen = []
+    for k, img in enumerate(frames):
+        renderer.upload(f"f{k}", img)
+        seen.append(renderer._contents[f"f{k}"].texture)
+        np.testing.assert_array_equal(render_image_id(renderer, f"f{k}"), img)
+        if k:
+            renderer.forget(f"f{k - 1}")
+    assert seen[2] is seen[0]                      # f0's texture came back for f2
+    grey16 = sharp_content(np.uint16, 1, shape=(PH, PW))
+    renderer.upload("g", grey16)                   # another type: a texture of its own
+    got = render_image_id(renderer, "g")
+    np.testing.assert_array_equal(got, projector_space(grey16, apply_lut=False))
+    renderer.forget("g")
+    renderer.upload("g2", grey16[::-1].copy())
+    np.testing.assert_array_equal(render_image_id(renderer, "g2"), projector_space(grey16[::-1], apply_lut=False))
+
+
+def render_image_id(renderer, cid: str) -> np.ndarray:
+    renderer.render(cid, space="projector", apply_lut=False)
+    return renderer.read()
+
+
 def test_resize_keeps_the_pose(renderer):
     content = smooth_content(np.uint8)
     renderer.set_homography(H_TILTED, (CW, CH))
