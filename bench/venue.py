@@ -156,6 +156,9 @@ def make_video(path: Path, *, size: tuple[int, int], fps: float, seconds: float,
         s = c.add_stream(codec, rate=rate)
         s.width, s.height, s.pix_fmt = w, h, "yuv420p"
         s.bit_rate = int(bit_rate)
+        # a keyframe every second, as show content is encoded: a node joining mid-show decodes from
+        # the keyframe before its first frame (x264's default, 250 frames, makes that up to 8 s of video)
+        s.codec_context.gop_size = max(1, round(fps))
         if codec == "libx264":
             s.options = {"preset": "ultrafast"}     # the content is what it is; encode it quickly
         img = np.empty((h, w, 3), np.uint8)

@@ -132,16 +132,22 @@ class Node:
             snapshot_dir=self.cfg.snapshot_dir, realtime=self.cfg.realtime, log_level=root.level,
             **({"log_format": fmt} if fmt else {})))
         self.presenter.start()
-        ok = await asyncio.get_running_loop().run_in_executor(None, self.presenter.wait_ready, 120.0)
-        if not ok:
-            log.error("cannot open output %r: %s", self.cfg.output, self.presenter.failed)
-            self.presenter.stop()
-            return 3
-        self.presenter.attach(self._loop, self._report)
-        discovery = None
+        # the coordinator is looked for while the presenter starts (a new interpreter, the GL context)
+        discovery, early = None, None
         if self.cfg.coordinator is None:
             discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
             await discovery.start()
+            early = asyncio.ensure_future(self._targets(discovery))
+        ok = await asyncio.get_running_loop().run_in_executor(None, self.presenter.wait_ready, 120.0)
+        if not ok:
+            log.error("cannot open output %r: %s", self.cfg.output, self.presenter.failed)
+            if early is not None:
+                early.cancel()
+                await asyncio.gather(early, return_exceptions=True)
+                await discovery.close()
+            self.presenter.stop()
+            return 3
+        self.presenter.attach(self._loop, self._report)
         backoff = self.cfg.backoff_min_s
         try:
             while not self._stopping.is_set():
@@ -151,7 +157,11 @@ class Node:
                     return 3
                 delay = backoff
                 try:
-                    targets = await self._targets(discovery)
+                    if early is not None:
+                        found, early = early, None
+                        targets = await found
+                    else:
+                        targets = await self._targets(discovery)
                     for target in targets:
                         joined = await self._session(target)
                         if joined:
@@ -177,6 +187,9 @@ class Node:
                 except asyncio.TimeoutError:
                     pass
         finally:
+            if early is not None:
+                early.cancel()
+                await asyncio.gather(early, return_exceptions=True)
             if discovery is not None:
                 await discovery.close()
             self.presenter.detach(self._loop)
