@@ -1,4 +1,4 @@
-"""The operator's client of a running coordinator (RigControl over gRPC).
+"""The operator's client of a running coordinator (RigControl and ContentStore over gRPC).
 
 It proves knowledge of the rig token (the same handshake the nodes use), then speaks the
 plain types of :mod:`coordinator.api`: callers never see a protobuf message.
@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import AsyncIterator, Callable, Sequence
 
 import grpc
 import numpy as np
@@ -21,6 +21,7 @@ from coordinator.api import PlayResult, PlaySettings, RigStatus, ShowResult, Sho
 from coordinator.errors import CoordinatorError
 from coordinator.jobs.context import Event
 from protos import auth, codec, common_pb2, control_pb2, control_pb2_grpc
+from protos.asset_manifest import Manifest
 from protos.discovery import Discovery
 from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
 
@@ -150,6 +151,52 @@ class Client:
             elif on_event is not None:
                 on_event(ev)
         return result
+
+    # ---------------------------------------------------------------- the rig's content assets
+    @property
+    def content(self) -> control_pb2_grpc.ContentStoreStub:
+        return control_pb2_grpc.ContentStoreStub(self.channel)
+
+    async def list_assets(self) -> list[tuple[str, Manifest]]:
+        reply = await self.content.ListAssets(control_pb2.StatusRequest(), metadata=self.md, timeout=30)
+        return [(a.asset_id, Manifest.from_bytes(a.manifest, asset_id=a.asset_id)) for a in reply.assets]
+
+    async def begin_upload(self, files: Sequence[tuple[str, int, str]]) -> tuple[str, list[int]]:
+        """Announce an upload of ``files`` ``(name, size, sha256)``: its id and the bytes of each
+        the coordinator already holds (resume from there)."""
+        spec = control_pb2.UploadSpec(files=[control_pb2.UploadFileSpec(name=n, size=s, sha256=h) for n, s, h in files])
+        reply = await self.content.BeginUpload(spec, metadata=self.md, timeout=60)
+        return reply.upload_id, list(reply.have)
+
+    async def upload_file(self, upload_id: str, index: int, offset: int, chunks: AsyncIterator[bytes]) -> list[int]:
+        """Send file ``index`` of an upload from ``offset``, ``chunks`` of at most 1 MiB; bytes held after."""
+        async def items():
+            first = True
+            async for data in chunks:
+                if first:
+                    yield control_pb2.UploadChunk(upload_id=upload_id, file=index, offset=offset, data=data)
+                    first = False
+                else:
+                    yield control_pb2.UploadChunk(data=data)
+            if first:
+                yield control_pb2.UploadChunk(upload_id=upload_id, file=index, offset=offset)
+
+        return list((await self.content.UploadFile(items(), metadata=self.md)).have)
+
+    async def finish_upload(self, upload_id: str, *, name: str = "", fps: float = 0.0
+                            ) -> tuple[Manifest, bool, list[str]]:
+        """Add a complete upload as an asset: its manifest, whether the store had it, notes."""
+        req = control_pb2.FinishUploadRequest(upload_id=upload_id, name=name, fps=fps)
+        a = await self.content.FinishUpload(req, metadata=self.md, timeout=3600)
+        return Manifest.from_bytes(a.manifest, asset_id=a.asset_id), a.existed, list(a.notes)
+
+    async def remove_asset(self, key: str) -> tuple[str, Manifest | None]:
+        """Remove asset ``key`` (id, unique prefix or name): its id and manifest (None if damaged)."""
+        a = await self.content.RemoveAsset(control_pb2.AssetRef(asset=key), metadata=self.md, timeout=60)
+        try:
+            return a.asset_id, Manifest.from_bytes(a.manifest, asset_id=a.asset_id)
+        except ValueError:
+            return a.asset_id, None
 
 
 async def find_coordinator(*, rig: str | None, interfaces: list[str] | None, timeout: float = 3.0) -> str:

@@ -1,32 +1,32 @@
-"""`shadowless content`: add, list, remove and verify the content assets of a rig directory.
+"""`shadowless content`: add, list, remove and verify the content assets of a rig.
 
-It works on the rig directory of this machine (where the coordinator runs), through
-:class:`coordinator.assets.AssetStore`; uploading from a remote operator's machine over gRPC
-comes in a later step.
+On the coordinator's machine it works on the rig directory (``--rig-dir``) through
+:class:`coordinator.assets.AssetStore`. From any other machine (``--coordinator HOST:PORT`` or
+``--rig NAME``) it talks to the running coordinator's ContentStore service: ``add`` hashes the
+files here, announces them, sends only the bytes the coordinator does not hold yet (so running
+it again after a cut resumes the upload) and has the coordinator check and add them.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 from coordinator.assets import AssetStore
+from coordinator.content_format import Progress, added_line, asset_dict, assets_table, human_bytes
 from coordinator.errors import AssetError
-from protos.asset_manifest import Manifest
-
-#: `add` shows progress on stderr when the input is at least this large
-PROGRESS_MIN_BYTES = 64 << 20
 
 DESCRIPTION = """\
 Manage the content assets (stills, image sequences, videos) kept in a rig directory under
 assets/: every file stored once by its SHA-256, every asset named by the SHA-256 of its manifest.
 Nodes fetch assets by id ahead of playback.
 
-This command works on the rig directory of THIS machine (--rig-dir, where the coordinator runs).
-Uploading from a remote operator's machine over gRPC comes in a later step; until then, run it
-on the coordinator's machine.
+With --rig-dir DIR it works on the rig directory of THIS machine (where the coordinator runs).
+With --coordinator HOST:PORT (or --rig NAME, found over mDNS) it works on a running coordinator
+from any machine with the rig token (--token-file): `add` uploads the files, checked by SHA-256
+on arrival; an interrupted upload resumes where it stopped when the same command runs again.
+`verify` runs on the coordinator's machine only.
 """
 
 EPILOG = """\
@@ -37,63 +37,9 @@ examples:
   shadowless content list --rig-dir rigs/table
   shadowless content verify intro --rig-dir rigs/table     # id, id prefix (4+ hex) or name
   shadowless content rm 3fa2c1 --rig-dir rigs/table
+  shadowless content add show.mp4 --coordinator 10.0.0.2:7600 --token-file table.token
+  shadowless content list --rig table --token-file table.token      # the coordinator found over mDNS
 """
-
-
-# ---------------------------------------------------------------- formatting
-def human_bytes(n: int) -> str:
-    """``1536`` -> ``'1.5 kB'`` (decimal units)."""
-    for unit in ("B", "kB", "MB", "GB", "TB"):
-        if n < 1000 or unit == "TB":
-            return f"{n} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1000
-    return f"{n:.1f} TB"
-
-
-def asset_dict(asset_id: str, m: Manifest) -> dict:
-    """One asset as JSON (what `content list --json` prints per asset)."""
-    return {"id": asset_id, "kind": m.kind, "name": m.name, "frames": m.frames, "width": m.width,
-            "height": m.height, "channels": m.channels, "bit_depth": m.bit_depth, "fps": m.fps,
-            "duration_s": round(m.duration_s, 6), "bytes": m.total_bytes, "blobs": len(m.blobs), "extra": m.extra}
-
-
-def assets_table(rows: list[tuple[str, Manifest]]) -> str:
-    """The `content list` table: id prefix, kind, name, frames, size, channels x depth, fps,
-    duration, bytes."""
-    lines = [f"{'id':<14}{'kind':<10}{'name':<24}{'frames':>8}{'size':>12}{'depth':>8}{'fps':>9}{'duration':>10}{'bytes':>11}"]
-    for aid, m in rows:
-        name = m.name if len(m.name) <= 22 else m.name[:21] + "…"
-        depth = f"{m.channels}x{m.bit_depth}{'f' if m.bit_depth == 32 else ''}"
-        fps = "-" if m.kind == "still" else f"{m.fps:.3f}".rstrip("0").rstrip(".")
-        dur = "-" if m.kind == "still" else f"{m.duration_s:.2f} s"
-        lines.append(f"{aid[:12]:<14}{m.kind:<10}{name:<24}{m.frames:>8}{f'{m.width}x{m.height}':>12}{depth:>8}"
-                     f"{fps:>9}{dur:>10}{human_bytes(m.total_bytes):>11}")
-    if not rows:
-        lines.append("(no assets; add one with `shadowless content add PATH`)")
-    return "\n".join(lines)
-
-
-class _Progress:
-    """Prints `hashed X / Y (P%)` on stderr at most 5 times a second, for inputs >= PROGRESS_MIN_BYTES."""
-
-    def __init__(self) -> None:
-        self.last, self.shown = 0.0, False
-
-    def __call__(self, done: int, total: int) -> None:
-        if total < PROGRESS_MIN_BYTES:
-            return
-        now = time.monotonic()
-        if now - self.last < 0.2 and done < total:
-            return
-        self.last, self.shown = now, True
-        pct = 100.0 * done / total if total else 100.0
-        sys.stderr.write(f"\rhashed {human_bytes(done)} / {human_bytes(total)} ({pct:.0f}%)")
-        sys.stderr.flush()
-
-    def end(self) -> None:
-        if self.shown:
-            sys.stderr.write("\n")
-            self.shown = False
 
 
 # ---------------------------------------------------------------- the command
@@ -104,6 +50,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     rig = argparse.ArgumentParser(add_help=False)
     rig.add_argument("--rig-dir", metavar="DIR", default=argparse.SUPPRESS,
                      help="the rig directory on this machine (with rig.toml; see `shadowless rig init`)")
+    net = rig.add_argument_group("a coordinator on another machine")
+    net.add_argument("--coordinator", metavar="HOST:PORT", help="work on this running coordinator's store")
+    net.add_argument("--rig", metavar="NAME", help="find the running coordinator of this rig over mDNS")
+    net.add_argument("--token-file", metavar="FILE", help="rig token (default: $SHADOWLESS_TOKEN_FILE)")
+    net.add_argument("--mdns-interface", action="append", metavar="IP", help="browse mDNS on this IPv4 address only")
+    net.add_argument("--tls-ca", metavar="PEM", help="use TLS, trusting this CA certificate")
+    net.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
     p.add_argument("--rig-dir", metavar="DIR", help="the rig directory on this machine (also accepted after ACTION)")
     sub = p.add_subparsers(dest="content_command", metavar="ACTION", required=True)
     add = sub.add_parser("add", parents=[rig], help="add a still, a video or a folder of images (a sequence); print its id",
@@ -137,22 +90,22 @@ def _note(text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "coordinator", None) or getattr(args, "rig", None):
+        from coordinator.content_remote import run_remote   # lazy: gRPC, only for a remote store
+
+        return run_remote(args)
     try:
         store = open_store(getattr(args, "rig_dir", None))
         action = args.content_command
         if action == "add":
             before = {aid for aid, _ in store.list()}
-            progress = _Progress()
+            progress = Progress()
             try:
                 m = store.add(args.path, name=args.name, fps=args.fps, progress=progress, note=_note)
             finally:
                 progress.end()
-            aid = m.asset_id
-            what = f"{m.kind} {m.name!r}: {m.frames} frame(s), {m.width}x{m.height}, {m.channels} ch, {m.bit_depth}-bit"
-            what += f", {m.fps:g} fps" if m.kind != "still" else ""
-            state = "already stored" if aid in before else f"added ({len(m.blobs)} file(s), {human_bytes(m.total_bytes)})"
-            print(f"{state}: {what}", file=sys.stderr)
-            print(aid)
+            print(added_line(m, m.asset_id in before), file=sys.stderr)
+            print(m.asset_id)
         elif action == "list":
             rows = store.list()
             if args.json:

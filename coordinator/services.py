@@ -19,7 +19,7 @@ import numpy as np
 from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 from grpc_reflection.v1alpha import reflection
 
-from coordinator import wire
+from coordinator import content_service, wire
 from coordinator.api import Space
 from coordinator.errors import CoordinatorError
 from coordinator.rig import Content
@@ -390,11 +390,13 @@ async def serve(coordinator: "Coordinator", listen: str, *, tls: tuple[bytes, by
     server = grpc.aio.server(options=SERVER_OPTIONS)
     _add_node_link(server, NodeLinkService(coordinator))
     control_pb2_grpc.add_RigControlServicer_to_server(RigControlService(coordinator), server)
+    content_service.add_to_server(server, coordinator.distribution.store, coordinator.handshake)
     health_servicer = health.aio.HealthServicer()
     health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)
     names = (
         node_pb2.DESCRIPTOR.services_by_name["NodeLink"].full_name,
         control_pb2.DESCRIPTOR.services_by_name["RigControl"].full_name,
+        control_pb2.DESCRIPTOR.services_by_name["ContentStore"].full_name,
         health_pb2.DESCRIPTOR.services_by_name["Health"].full_name,
         reflection.SERVICE_NAME,
     )
@@ -410,7 +412,7 @@ async def serve(coordinator: "Coordinator", listen: str, *, tls: tuple[bytes, by
     if not port:
         raise CoordinatorError(f"cannot listen on {listen} (address in use or not on this host?)")
     await server.start()
-    for name in names[:3]:
+    for name in names[:4]:
         await health_servicer.set(name, health_pb2.HealthCheckResponse.SERVING)
     await health_servicer.set("", health_pb2.HealthCheckResponse.SERVING)
     return server, health_servicer, port

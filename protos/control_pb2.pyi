@@ -22,6 +22,76 @@ NODE_STATE_JOINED: NodeState
 NODE_STATE_LIVE: NodeState
 NODE_STATE_LOST: NodeState
 
+class UploadFileSpec(_message.Message):
+    __slots__ = ("name", "size", "sha256")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    SIZE_FIELD_NUMBER: _ClassVar[int]
+    SHA256_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    size: int
+    sha256: str
+    def __init__(self, name: _Optional[str] = ..., size: _Optional[int] = ..., sha256: _Optional[str] = ...) -> None: ...
+
+class UploadSpec(_message.Message):
+    __slots__ = ("files",)
+    FILES_FIELD_NUMBER: _ClassVar[int]
+    files: _containers.RepeatedCompositeFieldContainer[UploadFileSpec]
+    def __init__(self, files: _Optional[_Iterable[_Union[UploadFileSpec, _Mapping]]] = ...) -> None: ...
+
+class UploadState(_message.Message):
+    __slots__ = ("upload_id", "have")
+    UPLOAD_ID_FIELD_NUMBER: _ClassVar[int]
+    HAVE_FIELD_NUMBER: _ClassVar[int]
+    upload_id: str
+    have: _containers.RepeatedScalarFieldContainer[int]
+    def __init__(self, upload_id: _Optional[str] = ..., have: _Optional[_Iterable[int]] = ...) -> None: ...
+
+class UploadChunk(_message.Message):
+    __slots__ = ("upload_id", "file", "offset", "data")
+    UPLOAD_ID_FIELD_NUMBER: _ClassVar[int]
+    FILE_FIELD_NUMBER: _ClassVar[int]
+    OFFSET_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    upload_id: str
+    file: int
+    offset: int
+    data: bytes
+    def __init__(self, upload_id: _Optional[str] = ..., file: _Optional[int] = ..., offset: _Optional[int] = ..., data: _Optional[bytes] = ...) -> None: ...
+
+class FinishUploadRequest(_message.Message):
+    __slots__ = ("upload_id", "name", "fps")
+    UPLOAD_ID_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    FPS_FIELD_NUMBER: _ClassVar[int]
+    upload_id: str
+    name: str
+    fps: float
+    def __init__(self, upload_id: _Optional[str] = ..., name: _Optional[str] = ..., fps: _Optional[float] = ...) -> None: ...
+
+class AssetInfo(_message.Message):
+    __slots__ = ("asset_id", "manifest", "existed", "notes")
+    ASSET_ID_FIELD_NUMBER: _ClassVar[int]
+    MANIFEST_FIELD_NUMBER: _ClassVar[int]
+    EXISTED_FIELD_NUMBER: _ClassVar[int]
+    NOTES_FIELD_NUMBER: _ClassVar[int]
+    asset_id: str
+    manifest: bytes
+    existed: bool
+    notes: _containers.RepeatedScalarFieldContainer[str]
+    def __init__(self, asset_id: _Optional[str] = ..., manifest: _Optional[bytes] = ..., existed: _Optional[bool] = ..., notes: _Optional[_Iterable[str]] = ...) -> None: ...
+
+class AssetList(_message.Message):
+    __slots__ = ("assets",)
+    ASSETS_FIELD_NUMBER: _ClassVar[int]
+    assets: _containers.RepeatedCompositeFieldContainer[AssetInfo]
+    def __init__(self, assets: _Optional[_Iterable[_Union[AssetInfo, _Mapping]]] = ...) -> None: ...
+
+class AssetRef(_message.Message):
+    __slots__ = ("asset",)
+    ASSET_FIELD_NUMBER: _ClassVar[int]
+    asset: str
+    def __init__(self, asset: _Optional[str] = ...) -> None: ...
+
 class StatusRequest(_message.Message):
     __slots__ = ()
     def __init__(self) -> None: ...

@@ -663,3 +663,260 @@ class RigControl:
             timeout,
             metadata,
             _registered_method=True)
+
+
+class ContentStoreStub:
+    """The rig's content assets, managed from an operator's machine: `shadowless content add|list|rm
+    --coordinator HOST:PORT`. Every call carries the operator session of RigControl.Login.
+    """
+
+    def __init__(self, channel):
+        """Constructor.
+
+        Args:
+            channel: A grpc.Channel.
+        """
+        self.ListAssets = channel.unary_unary(
+                '/shadowless.v1.ContentStore/ListAssets',
+                request_serializer=protos_dot_control__pb2.StatusRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.AssetList.FromString,
+                _registered_method=True)
+        self.BeginUpload = channel.unary_unary(
+                '/shadowless.v1.ContentStore/BeginUpload',
+                request_serializer=protos_dot_control__pb2.UploadSpec.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.UploadState.FromString,
+                _registered_method=True)
+        self.UploadFile = channel.stream_unary(
+                '/shadowless.v1.ContentStore/UploadFile',
+                request_serializer=protos_dot_control__pb2.UploadChunk.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.UploadState.FromString,
+                _registered_method=True)
+        self.FinishUpload = channel.unary_unary(
+                '/shadowless.v1.ContentStore/FinishUpload',
+                request_serializer=protos_dot_control__pb2.FinishUploadRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.AssetInfo.FromString,
+                _registered_method=True)
+        self.RemoveAsset = channel.unary_unary(
+                '/shadowless.v1.ContentStore/RemoveAsset',
+                request_serializer=protos_dot_control__pb2.AssetRef.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.AssetInfo.FromString,
+                _registered_method=True)
+
+
+class ContentStoreServicer:
+    """The rig's content assets, managed from an operator's machine: `shadowless content add|list|rm
+    --coordinator HOST:PORT`. Every call carries the operator session of RigControl.Login.
+    """
+
+    def ListAssets(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def BeginUpload(self, request, context):
+        """Announce an upload (its files' names, sizes and SHA-256s); the reply says how many bytes of
+        each file the coordinator already holds, so an interrupted upload resumes where it stopped.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def UploadFile(self, request_iterator, context):
+        """Bytes of one file of an upload, appended from `offset` (which must be what the coordinator
+        holds); the first message names the upload and the file, the others carry data only.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def FinishUpload(self, request, context):
+        """The upload's files are complete: check their hashes and add them as one asset (a file: a
+        still or a video; several: an image sequence of the files sorted by name).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def RemoveAsset(self, request, context):
+        """Remove an asset (id, unique id prefix or unique name) and the files no other asset uses.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+
+def add_ContentStoreServicer_to_server(servicer, server):
+    rpc_method_handlers = {
+            'ListAssets': grpc.unary_unary_rpc_method_handler(
+                    servicer.ListAssets,
+                    request_deserializer=protos_dot_control__pb2.StatusRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.AssetList.SerializeToString,
+            ),
+            'BeginUpload': grpc.unary_unary_rpc_method_handler(
+                    servicer.BeginUpload,
+                    request_deserializer=protos_dot_control__pb2.UploadSpec.FromString,
+                    response_serializer=protos_dot_control__pb2.UploadState.SerializeToString,
+            ),
+            'UploadFile': grpc.stream_unary_rpc_method_handler(
+                    servicer.UploadFile,
+                    request_deserializer=protos_dot_control__pb2.UploadChunk.FromString,
+                    response_serializer=protos_dot_control__pb2.UploadState.SerializeToString,
+            ),
+            'FinishUpload': grpc.unary_unary_rpc_method_handler(
+                    servicer.FinishUpload,
+                    request_deserializer=protos_dot_control__pb2.FinishUploadRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.AssetInfo.SerializeToString,
+            ),
+            'RemoveAsset': grpc.unary_unary_rpc_method_handler(
+                    servicer.RemoveAsset,
+                    request_deserializer=protos_dot_control__pb2.AssetRef.FromString,
+                    response_serializer=protos_dot_control__pb2.AssetInfo.SerializeToString,
+            ),
+    }
+    generic_handler = grpc.method_handlers_generic_handler(
+            'shadowless.v1.ContentStore', rpc_method_handlers)
+    server.add_generic_rpc_handlers((generic_handler,))
+    server.add_registered_method_handlers('shadowless.v1.ContentStore', rpc_method_handlers)
+
+
+ # This class is part of an EXPERIMENTAL API.
+class ContentStore:
+    """The rig's content assets, managed from an operator's machine: `shadowless content add|list|rm
+    --coordinator HOST:PORT`. Every call carries the operator session of RigControl.Login.
+    """
+
+    @staticmethod
+    def ListAssets(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.ContentStore/ListAssets',
+            protos_dot_control__pb2.StatusRequest.SerializeToString,
+            protos_dot_control__pb2.AssetList.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def BeginUpload(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.ContentStore/BeginUpload',
+            protos_dot_control__pb2.UploadSpec.SerializeToString,
+            protos_dot_control__pb2.UploadState.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def UploadFile(request_iterator,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.stream_unary(
+            request_iterator,
+            target,
+            '/shadowless.v1.ContentStore/UploadFile',
+            protos_dot_control__pb2.UploadChunk.SerializeToString,
+            protos_dot_control__pb2.UploadState.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def FinishUpload(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.ContentStore/FinishUpload',
+            protos_dot_control__pb2.FinishUploadRequest.SerializeToString,
+            protos_dot_control__pb2.AssetInfo.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def RemoveAsset(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.ContentStore/RemoveAsset',
+            protos_dot_control__pb2.AssetRef.SerializeToString,
+            protos_dot_control__pb2.AssetInfo.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)

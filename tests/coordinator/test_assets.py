@@ -20,7 +20,7 @@ import pytest
 av = pytest.importorskip("av")
 
 from coordinator import assets as assets_mod  # noqa: E402
-from coordinator import content_commands  # noqa: E402
+from coordinator import content_commands, content_format  # noqa: E402
 from coordinator.asset_probe import pixel_format_layout, probe_video  # noqa: E402
 from coordinator.assets import AssetStore  # noqa: E402
 from coordinator.errors import AssetError  # noqa: E402
@@ -379,7 +379,7 @@ def test_the_content_command_end_to_end(tmp_path, capsys, monkeypatch):
     for i in range(3):
         png(seq / f"{i:03d}.png", gradient(seed=i))
 
-    monkeypatch.setattr(content_commands, "PROGRESS_MIN_BYTES", 0)
+    monkeypatch.setattr(content_format, "PROGRESS_MIN_BYTES", 0)
     assert cli("--rig-dir", str(rig), "add", str(still)) == 0
     out, err = capsys.readouterr()
     still_id = out.strip()
@@ -421,8 +421,10 @@ def test_the_content_command_end_to_end(tmp_path, capsys, monkeypatch):
     assert "nope.png" in capsys.readouterr().err
 
 
-def test_the_help_says_it_works_on_this_machine_and_upload_comes_later():
+def test_the_help_says_where_it_works_and_how_an_upload_resumes():
     p = argparse.ArgumentParser(prog="shadowless content")
     content_commands.configure(p)
     text = p.format_help()
-    assert "--rig-dir" in text and "over gRPC comes in a later step" in text
+    assert "--rig-dir" in text and "--coordinator HOST:PORT" in text and "resumes where it stopped" in text
+    add_help = p._subparsers._group_actions[0].choices["add"].format_help()
+    assert "--coordinator" in add_help and "--token-file" in add_help
