@@ -75,6 +75,10 @@ class NodeConfig:
     fetch_rate: float | None = None         # bytes per second; None: unlimited
 
 
+#: the longest wait between attempts to rejoin a lost coordinator (the regular cap is backoff_max_s)
+ALONE_BACKOFF_S = 1.0
+
+
 def _version() -> str:
     """The installed shadowless distribution's version (the node does not import the CLI package)."""
     try:
@@ -181,7 +185,12 @@ class Node:
                     log.warning("%s", exc)
                 except LinkError as exc:
                     log.warning("coordinator unreachable (%s: %s)", exc.code, exc.details)
-                backoff = min(self.cfg.backoff_max_s, backoff * 2)
+                # a node that lost its coordinator (and plays on alone) looks for it again at least
+                # every ALONE_BACKOFF_S: the show's changes (pause, stop) wait for it to rejoin
+                cap = self.cfg.backoff_max_s
+                if self._alone_since is not None:
+                    cap = min(cap, ALONE_BACKOFF_S)
+                backoff = min(cap, backoff * 2)
                 try:
                     await asyncio.wait_for(self._stopping.wait(), delay * random.uniform(0.8, 1.2))
                 except asyncio.TimeoutError:
