@@ -28,6 +28,9 @@ they do not depend on the poll interval:
 Then the asset is played by timeline (``timeline``: swap skew, late frames, the coordinator's
 traffic against streaming raw frames) and one node is killed and restarted mid-show (``rejoin``:
 how long until it is back in step, how well it agrees with its peers); see :mod:`bench.venue_show`.
+Last, ``live``: a natural-looking sequence at the video's size played as live frames (encoded once
+as H.264 by the coordinator, streamed to every node): bytes per node-frame against raw, PSNR,
+encode cost; see :mod:`bench.venue_live`.
 ``decode_ms_per_frame`` is a reference: one software decode of the video on this host.
 """
 from __future__ import annotations
@@ -47,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import venue_show
+from bench import venue_live, venue_show
 from bench.machine import machine
 from coordinator.api import NodeState
 from coordinator.assets import AssetStore
@@ -98,6 +101,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="every node's offscreen output (default 640x360)")
     p.add_argument("--fps", type=float, default=30.0, help="test video frame rate (default 30)")
     p.add_argument("--seconds", type=float, default=5.0, help="test video length (default 5 s)")
+    p.add_argument("--live-seconds", type=float, default=2.0,
+                   help="length of the live sequence played at --size and --fps (default 2 s; 0: skip it)")
     p.add_argument("--bit-rate", type=float, metavar="BITS_PER_S",
                    help=f"test video bit rate (default {REFERENCE_BIT_RATE / 1e6:g} Mbit/s at 1080p30, "
                         "scaled with pixels per second)")
@@ -299,6 +304,9 @@ async def _measure(args, workdir: Path, video: Path) -> dict:
         watch = await _poll(rig, manifest.asset_id, args, t_start)
         print("bench venue: playing the asset by timeline, then a node rejoins mid-show …", file=sys.stderr, flush=True)
         show = await venue_show.measure(rig, manifest.asset_id, size=args.size, fps=args.fps, cpu=cpu_seconds)
+        if args.live_seconds > 0:
+            print("bench venue: live frames, encoded once and streamed to every node …", file=sys.stderr, flush=True)
+            show["live"] = await venue_live.measure(rig, size=args.size, fps=args.fps, seconds=args.live_seconds)
         coordinator_bps = rig.venue.coordinator_link_bps
         link_bps = rig.venue.link_bps
     finally:
@@ -332,6 +340,8 @@ def _check(args) -> str | None:
         return "--nodes must be at least 1"
     if not (args.fps > 0 and args.seconds > 0 and args.poll_s > 0):
         return "--fps, --seconds and --poll-s must be > 0"
+    if not 0 <= args.live_seconds <= 60:
+        return "--live-seconds must be 0..60"
     if not 50 <= args.heartbeat_ms <= 60_000:
         return "--heartbeat-ms must be 50..60000"
     if any(v % 2 for v in args.size):
@@ -377,7 +387,7 @@ def run(args: argparse.Namespace) -> int:
                 "size": f"{w}x{h}", "output_size": "{}x{}".format(*args.output_size), "fps": args.fps,
                 "seconds": args.seconds, "bit_rate": bit_rate, "codec": info["codec"],
                 "video_bit_rate_mbit_s": info["bit_rate_mbit_s"], "heartbeat_ms": args.heartbeat_ms,
-                "poll_s": args.poll_s,
+                "poll_s": args.poll_s, "live_seconds": args.live_seconds,
             },
             **figures,
         }

@@ -1,6 +1,7 @@
-"""`shadowless bench venue`, part 2: the distributed asset played by timeline, and a node rejoining.
+"""`shadowless bench venue`, part 2: the distributed asset played by timeline, a node rejoining,
+and the coordinator restarted mid-show.
 
-Two shows, one after the other, on the venue :mod:`bench.venue` built and distributed to:
+Three shows, one after the other, on the venue :mod:`bench.venue` built and distributed to:
 
 * **timeline**: the asset played once (not looped) for its duration. The coordinator's sync
   tracker gives the skew (``status().sync``: over every tick it finalised; the benchmark checks
@@ -22,6 +23,15 @@ Two shows, one after the other, on the venue :mod:`bench.venue` built and distri
   index, ``anchor_frame + k`` modulo the asset's frames, so an equal id is an equal frame; a tick
   it dropped or missed counts as disagreement). ``peer_agreement`` is the same measure, over the
   same ticks, for a node that was never killed (late drops under load lower both alike).
+* **coordinator_restart**: the asset looped; after ``KILL_AFTER_S`` the coordinator is killed
+  (SIGKILL) and started again on the same rig directory ``OUTAGE_S`` later. ``frames_missed``:
+  over every node, the ticks from 1 s before the kill to ``AFTER_REJOIN_S`` after every node was
+  live again that the node did not swap in (from the nodes' logs: whatever the cause, a late drop
+  under load included); ``ticks_swapped_alone``: the ticks each node swapped while no coordinator
+  ran; ``out_of_order``: swaps whose id was not above the node's previous one; ``alone_ms``: how
+  long each node says it went on alone (its heartbeat); ``skew_p99_ms_after``: the restarted
+  coordinator's skew over the ticks after it started, beside the first show's
+  (``skew_p99_ms_before``).
 """
 from __future__ import annotations
 
@@ -41,6 +51,8 @@ KILL_AFTER_S = 3.0
 #: ... and the show plays at least this long in all, and this long after the node is back in step
 REJOIN_SHOW_S = 10.0
 AFTER_REJOIN_S = 4.0
+#: the coordinator is away this long mid-show
+OUTAGE_S = 5.0
 #: give up on the restarted node after this long
 REJOIN_TIMEOUT_S = 60.0
 #: a show's ticks are settled (every node reported, or the tracker's 3 s timeout) this long after the last
@@ -264,8 +276,65 @@ def _logged_after(text: str, what: str, wall0: float):
     return None
 
 
+async def coordinator_restart(rig: LocalRig, asset_id: str) -> dict:
+    """Loop the asset; kill the coordinator (SIGKILL) mid-show and start it again ``OUTAGE_S`` later
+    on the same rig directory; which ticks each node swapped in, before, during and after."""
+    logs = log_sizes(rig)
+    async with await rig.client(timeout=60.0) as c:
+        play = await c.play_asset(asset_id, loop=True, delay_s=START_DELAY_S)
+    base, t_show = play.frame_id_base, play.anchor_ns / 1e9
+    await asyncio.sleep(max(0.0, t_show + KILL_AFTER_S - time.monotonic()))
+    _alive(rig)
+    kill_ns = time.monotonic_ns()
+    rig.stop_coordinator(signal.SIGKILL)
+    await asyncio.sleep(OUTAGE_S)
+    back_ns = time.monotonic_ns()
+    rig.start_coordinator()
+    async with await rig.client(timeout=60.0) as c:
+        st = await rig.wait_live(c, timeout=REJOIN_TIMEOUT_S)
+        live_ns = time.monotonic_ns()
+        resumed = st.show.state == "playing" and st.show.revision == play.revision
+        await asyncio.sleep(AFTER_REJOIN_S)
+        _alive(rig)
+        st = await c.status()                       # the restarted coordinator's tracker: ticks after its start
+        stopped = await c.stop_show()
+        await asyncio.sleep(max(0.0, (stopped.change_at_ns - time.monotonic_ns()) / 1e9) + 0.5)
+    # every tick from 1 s before the kill to AFTER_REJOIN_S after every node was live again
+    first = math.ceil((kill_ns - 1_000_000_000 - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9))
+    last = math.floor((live_ns + AFTER_REJOIN_S * 1e9 - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9))
+    window = range(base + first, base + last + 1)
+    missed, out_of_order, alone_ticks = {}, 0, {}
+    outage = range(base + math.ceil((kill_ns - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9)),
+                   base + math.floor((back_ns - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9)) + 1)
+    for s in rig.slots:
+        text = rig.log("node-" + s)[logs[s]:]
+        ids = [int(m.group(1)) for m in SWAP.finditer(text)]
+        out_of_order += sum(1 for a, b in zip(ids, ids[1:]) if b <= a)
+        got = set(ids)
+        missed[s] = sum(1 for t in window if t not in got)
+        alone_ticks[s] = sum(1 for t in outage if t in got)
+    nodes = {n.slot: n for n in st.nodes}
+    return {
+        "outage_s": round((back_ns - kill_ns) / 1e9, 3),
+        "back_s": round((live_ns - back_ns) / 1e9, 3),   # from the restart until every node was live again
+        "show_taken_back": resumed,
+        "ticks_in_window": len(window),
+        "frames_missed": sum(missed.values()),
+        "frames_missed_by_node": missed,
+        "ticks_during_outage": len(outage),
+        "ticks_swapped_alone": alone_ticks,
+        "out_of_order": out_of_order,
+        "alone_ms": {s: round(nodes[s].show.alone_ms) for s in rig.slots},
+        # the restarted coordinator's sync figures, over the ticks after it started
+        "skew_p99_ms_after": _r(st.sync.skew_p99_ms), "skew_max_ms_after": _r(st.sync.skew_max_ms),
+        "frames_after": st.sync.frames,
+    }
+
+
 async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu) -> dict:
     async with await rig.client(timeout=60.0) as c:
         tl = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu)
         rj = await rejoin(rig, c, asset_id)
-    return {"timeline": tl, "rejoin": rj}
+    restart = await coordinator_restart(rig, asset_id)
+    restart["skew_p99_ms_before"] = tl["skew_p99_ms"]
+    return {"timeline": tl, "rejoin": rj, "coordinator_restart": restart}

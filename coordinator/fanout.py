@@ -3,7 +3,9 @@
 Contents are encoded once per send and each distinct packet is serialized once; the same
 bytes go to every node of its group, so the coordinator's cost per frame does not grow with
 the node count beyond the queue appends. A node is sent only the content its own slot
-shows, and only once until it is evicted.
+shows, and only once until it is evicted. A live video picture
+(:class:`coordinator.live_video.EncodedPicture`) goes to every node of the send: each node needs
+every picture of its stream to decode the next.
 """
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable, Mapping, Protocol, Sequence
 
 from coordinator.api import Space
+from coordinator.live_video import EncodedPicture
 from coordinator.rig import Content
 from coordinator.sessions import NodeSession
 from coordinator.sync import SyncTracker
@@ -34,7 +37,10 @@ class Frame:
 
 
 class PacketEncoder(Protocol):
-    def packet(self, *, frame: Frame | None, contents: Sequence[Content], evict: Sequence[str] = ()) -> bytes: ...
+    def prepare(self, contents: Iterable[Content]) -> None: ...
+
+    def packet(self, *, frame: Frame | None, contents: Sequence[Content], evict: Sequence[str] = (),
+               video: EncodedPicture | None = None) -> bytes: ...
 
 
 class FanOut:
@@ -49,8 +55,15 @@ class FanOut:
         #: CPU seconds spent building and serializing packets
         self.encode_cpu_s = 0.0
 
+    def prepare(self, contents: Iterable[Content]) -> None:
+        """Encode ``contents`` for the wire ahead of their send (thread-safe: run it on a worker
+        thread, so a large still or pattern is not encoded on the event loop after its frame's
+        presentation time was fixed)."""
+        self._encoder().prepare(contents)
+
     def send(self, sessions: Iterable[NodeSession], *, frame: Frame | None = None,
-             contents: Mapping[str, Content] | None = None, evict: Sequence[str] = ()) -> None:
+             contents: Mapping[str, Content] | None = None, evict: Sequence[str] = (),
+             video: EncodedPicture | None = None) -> None:
         t0 = time.thread_time()
         sessions = list(sessions)
         contents = contents or {}
@@ -61,7 +74,8 @@ class FanOut:
             groups.setdefault(missing, []).append(s)
         encoder = self._encoder()
         for missing, members in groups.items():
-            data = encoder.packet(frame=frame, contents=[contents[cid] for cid in sorted(missing)], evict=evict)
+            data = encoder.packet(frame=frame, contents=[contents[cid] for cid in sorted(missing)], evict=evict,
+                                  video=video)
             self.encode_cpu_s += time.thread_time() - t0
             for s in members:
                 s.push(data)

@@ -4,7 +4,10 @@ A **still** (the rig's content, or what an operator showed) is sent once and res
 nodes that join later or dropped it (with a growing time budget). A **pattern** (a job's
 projector-space images, or content through the poses) returns only once every live node
 swapped it in. A **sequence** is sent frame by frame, each a latency budget ahead of its
-presentation time, and reports its swap figures.
+presentation time, and reports its swap figures. A sequence of given frames (1 or 3 channels)
+travels as live video (:mod:`coordinator.live_video`): encoded once for every node on a
+worker thread, a frame ahead, a keyframe every second and one more whenever a node opens its
+frame stream mid-sequence; generated patterns and RGBA frames travel as lossless images.
 
 Time is the rig clock (``clock_ns``, injectable); nothing here assumes the machine is idle:
 a frame that reaches a node late is dropped by the node and counted, never shown late.
@@ -24,6 +27,7 @@ import numpy as np
 from coordinator.api import PlayResult, PlaySettings, ShowResult, Space
 from coordinator.errors import CoordinatorError
 from coordinator.fanout import FanOut, Frame
+from coordinator.live_video import LiveStream, bit_depth_for, video_eligible
 from coordinator.rig import Content, Rig
 from coordinator.sessions import NodeSession
 from coordinator.sync import FrameResult, SyncTracker, summarize
@@ -101,6 +105,11 @@ class Playback:
         self._pattern_ids: set[str] = set()
         self._play_task: asyncio.Task | None = None
         self._waiters: dict[int, asyncio.Future] = {}
+        #: played sequences of given frames go as live video (False: as lossless images, frame by frame)
+        self.live_video = True
+        self._live: LiveStream | None = None          # the live video stream being played
+        #: what the last live video sequence cost: frames, bytes of encoded pictures, raw bytes, encode CPU s
+        self.live_stats: dict[str, float] = {}
         #: a still, pattern or sequence is about to be sent: the timeline show stops (set by the coordinator)
         self.takeover: Callable[[], None] = lambda: None
         #: whether a timeline show holds the projectors (then joining nodes are not sent the still)
@@ -135,6 +144,8 @@ class Playback:
     def on_frames_open(self, sess: NodeSession) -> None:
         """A node opened its frame stream: it gets what the rig shows (unless a sequence plays)."""
         sess.sent_content.clear()
+        if self._live is not None:
+            self._live.request_keyframe()     # it cannot decode the stream before the next keyframe
         if self.current_frame is not None and not self.playing and not self.show_active():
             self._send_still_to(sess)
 
@@ -230,6 +241,8 @@ class Playback:
         evict = sorted(self._pattern_ids - contents.keys())
         budget = self.latency_ns
         loop = asyncio.get_running_loop()
+        # encode them for the wire off the event loop, before the frame's time is fixed
+        await asyncio.to_thread(self.fanout.prepare, list(contents.values()))
         result: FrameResult | None = None
         for _ in range(attempts):
             frame = self._frame(default, tag="pattern", space=space, apply_lut=apply_lut, slot_content=slot_content,
@@ -297,6 +310,12 @@ class Playback:
             fitted = [fit_content(f, self.content_size) for f in frames]
             make = lambda i: fitted[i % len(fitted)]  # noqa: E731
         tag = f"play:{uuid.uuid4().hex[:8]}"
+        live = None
+        if frames is not None and self.live_video and video_eligible([f.image for f in fitted]):
+            first = fitted[0].image
+            live = LiveStream(width=first.shape[1], height=first.shape[0], channels=first.shape[2],
+                              bit_depth=bit_depth_for([f.image for f in fitted]), fps=fps)
+            self._live = live
         results: list[FrameResult] = []
         remove = self.sync.add_listener(lambda r: results.append(r) if r.tag == tag else None)
         oo_before = self.sync.out_of_order
@@ -305,37 +324,66 @@ class Playback:
         nodes_seen: set[str] = set()
         prev_content: str | None = None
         cache_all = frames is not None and st.loops > 0 and sum(f.image.nbytes for f in frames) < 256 * 2**20
-        self.showing = f"{tag} ({count} frames at {fps:g} fps)"
+        self.showing = f"{tag} ({count} frames at {fps:g} fps{', live video' if live else ''})"
+        pending = None
+        video_bytes = raw_bytes = 0
         try:
             t0 = self.clock_ns() + latency_ns
             for i in range(count):
                 tick = t0 + int(i * 1e9 / fps)
+                content = make(i)
+                if live is not None and pending is None:
+                    pending = live.submit(content.image)
+                elif live is None:     # lossless contents: encoded on a worker thread while we wait
+                    pending = asyncio.ensure_future(asyncio.to_thread(self.fanout.prepare, [content]))
                 wait = (tick - latency_ns - self.clock_ns()) / 1e9
                 if wait > 0:
                     await asyncio.sleep(wait)
-                content = make(i)
+                pic = None
+                if live is None:
+                    await pending
+                else:
+                    pic = await pending
+                    pending = live.submit(make(i + 1).image) if i + 1 < count else None   # encode ahead
+                    video_bytes += len(pic.data)
+                    raw_bytes += content.image.nbytes
                 sessions = self.live_sessions()
                 nodes_seen.update(s.slot for s in sessions)
-                frame = self._frame(content.content_id, tag=tag, space=Space.CONTENT, apply_lut=True,
+                cid = pic.content_id if pic is not None else content.content_id
+                frame = self._frame(cid, tag=tag, space=Space.CONTENT, apply_lut=True,
                                     pts_ns=max(tick, self.clock_ns() + latency_ns // 2))
-                evict = [prev_content] if prev_content and prev_content != content.content_id and not cache_all else []
-                self.fanout.send(sessions, frame=frame, contents={content.content_id: content}, evict=evict)
+                if pic is not None:
+                    self.fanout.send(sessions, frame=frame, video=pic, evict=[prev_content] if prev_content else [])
+                else:
+                    evict = [prev_content] if prev_content and prev_content != cid and not cache_all else []
+                    self.fanout.send(sessions, frame=frame, contents={cid: content}, evict=evict)
                 sent.append(frame.frame_id)
-                self.current_frame, self.current_contents = frame, {content.content_id: content}
-                prev_content = content.content_id
+                # a node that joins later is sent the last frame as a still: the source image, losslessly
+                self.current_frame = replace(frame, content_id=content.content_id)
+                self.current_contents = {content.content_id: content}
+                prev_content = cid
             # wait for the last swap reports
             deadline = time.monotonic() + (latency_ns / 1e9) + (st.settle_s or 1.0) + self.sync.timeout_s
             while time.monotonic() < deadline and len(results) < len(sent):
                 await asyncio.sleep(0.05)
         finally:
             remove()
+            if pending is not None:
+                pending.cancel()
+            if live is not None:
+                live.close()
+                if self._live is live:
+                    self._live = None
+                self.live_stats = {"frames": live.frames, "keyframes": live.keyframes, "bytes": video_bytes,
+                                   "raw_bytes": raw_bytes, "encode_cpu_s": live.cpu_s,
+                                   "bit_depth": live.bit_depth}
         summary = summarize(results, self.sync.out_of_order - oo_before)
         self.showing = f"{tag} finished"
         return PlayResult(
             frames_sent=len(sent), frames_shown=summary.frames, frames_late=summary.frames_late,
             frames_dropped=summary.frames_dropped + (len(sent) - len(results)), nodes=len(nodes_seen),
             wall_s=time.monotonic() - wall0, coordinator_cpu_s=cpu_seconds() - cpu0,
-            encode_cpu_s=self.fanout.encode_cpu_s - enc0,
+            encode_cpu_s=self.fanout.encode_cpu_s - enc0 + (live.cpu_s if live is not None else 0.0),
             skews_ms=tuple(r.skew_ms for r in sorted(results, key=lambda r: r.frame_id)),
             clock_errors_ms=tuple(e for r in results for e in r.clock_errors_ms), sync=summary,
         )

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -20,6 +22,7 @@ from coordinator.api import (AssetProgress, DropReason, NodeShow, NodeShowState,
 from coordinator.distribution import WantedList
 from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
+from coordinator.live_video import EncodedPicture
 from coordinator.rig import Content, HomographyPose, ProjectionPose, SlotState, validate_lut
 from coordinator.sessions import Heartbeat, NodeInfo, Report, Swap
 from coordinator.show import ShowUpdate
@@ -148,23 +151,88 @@ def blob_chunk_message(offset: int, data: bytes) -> node_pb2.BlobChunk:
     return node_pb2.BlobChunk(offset=offset, data=data)
 
 
-def content_message(content: Content, *, compress: bool = False) -> node_pb2.Content:
-    """The wire form of ``content`` (encode once, reuse for every packet)."""
+def content_message(content: Content, *, compress: bool = True) -> node_pb2.Content:
+    """The wire form of ``content`` (encode once, reuse for every packet); lossless, compressed
+    (protos/codec.py's gradient + zstd) unless ``compress`` is false."""
     return node_pb2.Content(content_id=content.content_id, image=codec.encode_image(content.image, compress=compress))
 
 
+_VIDEO_CODECS = {"h264": node_pb2.VIDEO_CODEC_H264, "hevc": node_pb2.VIDEO_CODEC_HEVC}
+
+
+def video_message(pic: EncodedPicture) -> node_pb2.VideoPacket:
+    """The wire form of one encoded live picture (:mod:`coordinator.live_video`)."""
+    return node_pb2.VideoPacket(stream_id=pic.stream_id, sequence=pic.sequence, keyframe=pic.keyframe, data=pic.data,
+                                width=pic.width, height=pic.height, channels=pic.channels, bit_depth=pic.bit_depth,
+                                codec=_VIDEO_CODECS[pic.codec], content_id=pic.content_id)
+
+
+class _EncodedContents:
+    """Wire forms of contents by id, shared by every :class:`PacketEncoder` of the process.
+
+    A content id is a hash of its pixels (:func:`coordinator.rig.content_id_of`), so an entry never
+    goes stale; the least recently used go beyond ``max_bytes``. Filled from worker threads too
+    (:meth:`PacketEncoder.prepare`), hence the lock.
+    """
+
+    def __init__(self, max_bytes: int):
+        self.max_bytes = max_bytes
+        self._items: OrderedDict[str, node_pb2.Content] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, cid: str) -> node_pb2.Content | None:
+        with self._lock:
+            msg = self._items.get(cid)
+            if msg is not None:
+                self._items.move_to_end(cid)
+            return msg
+
+    def put(self, cid: str, msg: node_pb2.Content) -> None:
+        with self._lock:
+            if cid in self._items:
+                return
+            self._items[cid] = msg
+            self._bytes += len(msg.image.data)
+            while self._bytes > self.max_bytes and len(self._items) > 1:
+                _, old = self._items.popitem(last=False)
+                self._bytes -= len(old.image.data)
+
+
+#: contents encoded for the Frames stream, kept for resends, late joiners and retries
+ENCODED_CONTENTS = _EncodedContents(max_bytes=256 * 2**20)
+
+
 class PacketEncoder:
-    """Serializes Frames packets; each content is encoded once per encoder, whatever the packet count."""
+    """Serializes Frames packets; each content is encoded once (then kept in :data:`ENCODED_CONTENTS`),
+    whatever the packet count."""
 
     def __init__(self) -> None:
         self._contents: dict[str, node_pb2.Content] = {}
+        self._video: tuple[EncodedPicture, node_pb2.VideoPacket] | None = None
 
-    def packet(self, *, frame: Frame | None, contents: Sequence[Content], evict: Sequence[str] = ()) -> bytes:
+    def prepare(self, contents: Iterable[Content]) -> None:
+        """Encode ``contents`` now (callable from a worker thread), so sends find them encoded."""
+        for c in contents:
+            self._content(c)
+
+    def _content(self, c: Content) -> node_pb2.Content:
+        msg = self._contents.get(c.content_id) or ENCODED_CONTENTS.get(c.content_id)
+        if msg is None:
+            msg = content_message(c)
+            ENCODED_CONTENTS.put(c.content_id, msg)
+        self._contents[c.content_id] = msg
+        return msg
+
+    def packet(self, *, frame: Frame | None, contents: Sequence[Content], evict: Sequence[str] = (),
+               video: EncodedPicture | None = None) -> bytes:
         pkt = node_pb2.FramePacket()
         for c in contents:
-            if c.content_id not in self._contents:
-                self._contents[c.content_id] = content_message(c)
-            pkt.contents.append(self._contents[c.content_id])
+            pkt.contents.append(self._content(c))
+        if video is not None:
+            if self._video is None or self._video[0] is not video:
+                self._video = (video, video_message(video))
+            pkt.video.CopyFrom(self._video[1])
         if frame is not None:
             pkt.frame.CopyFrom(node_pb2.Frame(frame_id=frame.frame_id, pts_ns=frame.pts_ns, content_id=frame.content_id,
                                               space=_SPACE[frame.space], apply_lut=frame.apply_lut, tag=frame.tag,

@@ -24,6 +24,7 @@ import numpy as np
 
 from node.asset_frames import FrameError, FrameNotReady
 from node.clock import ClockEstimate
+from node.live_video import LiveDecoder
 from node.outputs.base import Output, SwapInfo
 from node.pacing import FramePacer
 from node.realtime import RealtimeWindow
@@ -31,7 +32,7 @@ from node.records import (AssetFiles, DropReason, DropRecord, FrameOrder, NodeAs
                           ShowUpdateData)
 from node.render.renderer import Mesh, Renderer
 from node.timeline_player import TimelineEvent, TimelinePlayer, fit_frame
-from node.wire import packet_from_bytes
+from node.wire import live_packet_from_bytes
 
 log = logging.getLogger(__name__)
 
@@ -108,6 +109,7 @@ class Presenter:
         self.timeline_last_frame = -1    # the asset frame index last swapped in
         self._timeline_cid: str | None = None
         self._last_event_pts: int | None = None
+        self.live = LiveDecoder()        # live video pictures (coordinator/live_video.py)
 
     @property
     def estimate(self) -> ClockEstimate | None:
@@ -177,13 +179,19 @@ class Presenter:
         self.pacer.estimate = estimate
 
     def _on_packet(self, renderer, out, data: bytes) -> None:
-        """A FramePacket as received: cache its contents, show its frame, forget evicted contents."""
-        pkt = packet_from_bytes(data, self.slot, known=renderer.has)
+        """A FramePacket as received: cache its contents, decode its live video picture, show its
+        frame, forget evicted contents. A picture that cannot be decoded correctly (no keyframe
+        yet) is not uploaded: the frame naming it is dropped as missing content."""
+        pkt, video = live_packet_from_bytes(data, self.slot, known=renderer.has)
         for content in pkt.contents:
             if content.image is None:
                 log.error("content %s is malformed: %s", content.content_id, content.error)
             else:
                 self._on_content(renderer, out, (content.content_id, content.image))
+        if video is not None and not renderer.has(video.content_id):
+            image = self.live.feed(video)
+            if image is not None:
+                self._on_content(renderer, out, (video.content_id, image))
         if pkt.frame is not None:
             self._on_frame(renderer, out, pkt.frame)
         if pkt.evict is not None:
@@ -238,6 +246,7 @@ class Presenter:
         """A new coordinator instance: frame ids restart their ordering, the timeline is sent again."""
         self.pacer.reset()
         self.player.reset()
+        self.live.reset()
         self._last_event_pts = None
 
     # ---------------------------------------------------------------- the show's timeline

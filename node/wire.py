@@ -32,10 +32,13 @@ from node.records import (
     SwapRecord,
     WantedAssets,
 )
+from node.live_video import VideoChunk
 from protos import codec, common_pb2, node_pb2
 from protos.timeline import Timeline
 
 #: DropReason <-> the wire's enum
+_VIDEO_CODECS = {node_pb2.VIDEO_CODEC_H264: "h264", node_pb2.VIDEO_CODEC_HEVC: "hevc"}
+
 _DROP_REASONS = {
     DropReason.LATE: node_pb2.DROP_REASON_LATE,
     DropReason.SUPERSEDED: node_pb2.DROP_REASON_SUPERSEDED,
@@ -90,11 +93,21 @@ def frame_for_slot(msg: node_pb2.Frame, slot: str) -> FrameOrder:
 
 
 def packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], bool] = lambda cid: False) -> FramePacketData:
-    """A serialized ``FramePacket`` as ``slot`` sees it.
+    """A serialized ``FramePacket`` as ``slot`` sees it (its live video picture left out: see
+    :func:`live_packet_from_bytes`).
 
     Contents for which ``known(content_id)`` is true (already cached), or that appeared
     earlier in the same packet, are left out without being decoded. A content that
     cannot be decoded is kept with ``image=None`` and the reason in ``error``.
+    """
+    return live_packet_from_bytes(data, slot, known=known)[0]
+
+
+def live_packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], bool] = lambda cid: False
+                           ) -> tuple[FramePacketData, VideoChunk | None]:
+    """:func:`packet_from_bytes`, and the packet's encoded live video picture (None: none).
+
+    ValueError (a protobuf DecodeError) if ``data`` is not a FramePacket.
     """
     pkt = node_pb2.FramePacket.FromString(data)
     contents = []
@@ -110,7 +123,13 @@ def packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], bool] = 
             contents.append(ContentBlob(cid, None, str(exc)))
     frame = frame_for_slot(pkt.frame, slot) if pkt.HasField("frame") else None
     evict = tuple(pkt.evict.content_ids) if pkt.HasField("evict") else None
-    return FramePacketData(tuple(contents), frame, evict)
+    video = None
+    if pkt.HasField("video"):
+        v = pkt.video
+        video = VideoChunk(stream_id=v.stream_id, sequence=v.sequence, keyframe=v.keyframe, data=v.data,
+                           width=v.width, height=v.height, channels=v.channels, bit_depth=v.bit_depth,
+                           codec=_VIDEO_CODECS.get(v.codec, "unknown"), content_id=v.content_id)
+    return FramePacketData(tuple(contents), frame, evict), video
 
 
 def wanted_from_message(msg: node_pb2.WantedAssets) -> WantedAssets:

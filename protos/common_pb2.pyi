@@ -18,6 +18,7 @@ class Encoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     ENCODING_UNSPECIFIED: _ClassVar[Encoding]
     ENCODING_RAW: _ClassVar[Encoding]
     ENCODING_ZLIB: _ClassVar[Encoding]
+    ENCODING_ZSTD_GRADIENT: _ClassVar[Encoding]
 DTYPE_UNSPECIFIED: DType
 DTYPE_UINT8: DType
 DTYPE_UINT16: DType
@@ -26,6 +27,7 @@ DTYPE_FLOAT32: DType
 ENCODING_UNSPECIFIED: Encoding
 ENCODING_RAW: Encoding
 ENCODING_ZLIB: Encoding
+ENCODING_ZSTD_GRADIENT: Encoding
 
 class Image(_message.Message):
     __slots__ = ("width", "height", "channels", "dtype", "encoding", "data")

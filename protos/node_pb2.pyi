@@ -14,6 +14,12 @@ class Space(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     SPACE_CONTENT: _ClassVar[Space]
     SPACE_PROJECTOR: _ClassVar[Space]
 
+class VideoCodec(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    VIDEO_CODEC_UNSPECIFIED: _ClassVar[VideoCodec]
+    VIDEO_CODEC_H264: _ClassVar[VideoCodec]
+    VIDEO_CODEC_HEVC: _ClassVar[VideoCodec]
+
 class DropReason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     DROP_REASON_UNSPECIFIED: _ClassVar[DropReason]
@@ -33,6 +39,9 @@ class NodeShowState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
 SPACE_UNSPECIFIED: Space
 SPACE_CONTENT: Space
 SPACE_PROJECTOR: Space
+VIDEO_CODEC_UNSPECIFIED: VideoCodec
+VIDEO_CODEC_H264: VideoCodec
+VIDEO_CODEC_HEVC: VideoCodec
 DROP_REASON_UNSPECIFIED: DropReason
 DROP_REASON_LATE: DropReason
 DROP_REASON_SUPERSEDED: DropReason
@@ -194,15 +203,41 @@ class Evict(_message.Message):
     content_ids: _containers.RepeatedScalarFieldContainer[str]
     def __init__(self, content_ids: _Optional[_Iterable[str]] = ...) -> None: ...
 
+class VideoPacket(_message.Message):
+    __slots__ = ("stream_id", "sequence", "keyframe", "data", "width", "height", "channels", "bit_depth", "codec", "content_id")
+    STREAM_ID_FIELD_NUMBER: _ClassVar[int]
+    SEQUENCE_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAME_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    CHANNELS_FIELD_NUMBER: _ClassVar[int]
+    BIT_DEPTH_FIELD_NUMBER: _ClassVar[int]
+    CODEC_FIELD_NUMBER: _ClassVar[int]
+    CONTENT_ID_FIELD_NUMBER: _ClassVar[int]
+    stream_id: str
+    sequence: int
+    keyframe: bool
+    data: bytes
+    width: int
+    height: int
+    channels: int
+    bit_depth: int
+    codec: VideoCodec
+    content_id: str
+    def __init__(self, stream_id: _Optional[str] = ..., sequence: _Optional[int] = ..., keyframe: _Optional[bool] = ..., data: _Optional[bytes] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., channels: _Optional[int] = ..., bit_depth: _Optional[int] = ..., codec: _Optional[_Union[VideoCodec, str]] = ..., content_id: _Optional[str] = ...) -> None: ...
+
 class FramePacket(_message.Message):
-    __slots__ = ("contents", "frame", "evict")
+    __slots__ = ("contents", "frame", "evict", "video")
     CONTENTS_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
     EVICT_FIELD_NUMBER: _ClassVar[int]
+    VIDEO_FIELD_NUMBER: _ClassVar[int]
     contents: _containers.RepeatedCompositeFieldContainer[Content]
     frame: Frame
     evict: Evict
-    def __init__(self, contents: _Optional[_Iterable[_Union[Content, _Mapping]]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., evict: _Optional[_Union[Evict, _Mapping]] = ...) -> None: ...
+    video: VideoPacket
+    def __init__(self, contents: _Optional[_Iterable[_Union[Content, _Mapping]]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., evict: _Optional[_Union[Evict, _Mapping]] = ..., video: _Optional[_Union[VideoPacket, _Mapping]] = ...) -> None: ...
 
 class SwapReport(_message.Message):
     __slots__ = ("frame_id", "pts_ns", "swap_rig_ns", "host_monotonic_ns")

@@ -1,6 +1,8 @@
 """Wire protocol version. Every Hello/Join carries it; a mismatch is refused."""
 
-PROTOCOL_VERSION = 1
+#: 2: frame contents may be packed ENCODING_ZSTD_GRADIENT and sequences travel as live video
+#: (FramePacket.video), which a version-1 node could not show.
+PROTOCOL_VERSION = 2
 
 #: mDNS service type the coordinator advertises.
 SERVICE_TYPE = "_shadowless._tcp.local."
