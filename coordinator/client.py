@@ -30,11 +30,13 @@ class OperatorError(CoordinatorError):
     """The operator's command cannot go on: no token, no coordinator found, a refused call."""
 
 
-def add_connection_args(p: argparse.ArgumentParser) -> None:
-    """The options every operator command shares: which coordinator, and its token."""
+def add_connection_args(p: argparse.ArgumentParser, *, rig_dir: bool = True) -> None:
+    """The options every operator command shares: which coordinator, and its token (``rig_dir``:
+    with ``--rig-dir``, for commands that do not define it themselves)."""
     g = p.add_argument_group("which coordinator")
     g.add_argument("--coordinator", metavar="HOST:PORT", help="address of the coordinator (default: find it over mDNS)")
-    g.add_argument("--rig-dir", metavar="DIR", help="a rig directory on this machine: its token is used")
+    if rig_dir:
+        g.add_argument("--rig-dir", metavar="DIR", help="a rig directory on this machine: its token is used")
     g.add_argument("--rig", metavar="NAME", help="with mDNS: the rig's name or id")
     g.add_argument("--token-file", metavar="FILE", help="rig token (default: $SHADOWLESS_TOKEN_FILE or RIG_DIR/token)")
     g.add_argument("--mdns-interface", action="append", metavar="IP", help="browse mDNS on this IPv4 address only")

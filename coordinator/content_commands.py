@@ -9,12 +9,12 @@ it again after a cut resumes the upload) and has the coordinator check and add t
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from coordinator.assets import AssetStore
-from coordinator.content_format import Progress, added_line, asset_dict, assets_table, human_bytes
+from coordinator.client import add_connection_args
+from coordinator.content_format import Progress, added_line, human_bytes, print_assets
 from coordinator.errors import AssetError
 
 DESCRIPTION = """\
@@ -50,13 +50,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     rig = argparse.ArgumentParser(add_help=False)
     rig.add_argument("--rig-dir", metavar="DIR", default=argparse.SUPPRESS,
                      help="the rig directory on this machine (with rig.toml; see `shadowless rig init`)")
-    net = rig.add_argument_group("a coordinator on another machine")
-    net.add_argument("--coordinator", metavar="HOST:PORT", help="work on this running coordinator's store")
-    net.add_argument("--rig", metavar="NAME", help="find the running coordinator of this rig over mDNS")
-    net.add_argument("--token-file", metavar="FILE", help="rig token (default: $SHADOWLESS_TOKEN_FILE)")
-    net.add_argument("--mdns-interface", action="append", metavar="IP", help="browse mDNS on this IPv4 address only")
-    net.add_argument("--tls-ca", metavar="PEM", help="use TLS, trusting this CA certificate")
-    net.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
+    add_connection_args(rig, rig_dir=False)   # with --coordinator or --rig: a running coordinator's store
     p.add_argument("--rig-dir", metavar="DIR", help="the rig directory on this machine (also accepted after ACTION)")
     sub = p.add_subparsers(dest="content_command", metavar="ACTION", required=True)
     add = sub.add_parser("add", parents=[rig], help="add a still, a video or a folder of images (a sequence); print its id",
@@ -107,12 +101,7 @@ def run(args: argparse.Namespace) -> int:
             print(added_line(m, m.asset_id in before), file=sys.stderr)
             print(m.asset_id)
         elif action == "list":
-            rows = store.list()
-            if args.json:
-                json.dump([asset_dict(aid, m) for aid, m in rows], sys.stdout, indent=2)
-                print()
-            else:
-                print(assets_table(rows))
+            print_assets(store.list(), as_json=args.json)
         elif action == "rm":
             aid = store.resolve(args.id)
             try:

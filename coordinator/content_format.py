@@ -3,6 +3,7 @@
 :mod:`coordinator.content_remote`)."""
 from __future__ import annotations
 
+import json
 import sys
 import time
 
@@ -78,3 +79,12 @@ class Progress:
         if self.shown:
             sys.stderr.write("\n")
             self.shown = False
+
+
+def print_assets(rows: list[tuple[str, Manifest]], *, as_json: bool) -> None:
+    """`content list`: the table, or JSON for scripts, on stdout."""
+    if as_json:
+        json.dump([asset_dict(aid, m) for aid, m in rows], sys.stdout, indent=2)
+        print()
+    else:
+        print(assets_table(rows))

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import hashlib
-import json
 import sys
 from pathlib import Path
 from typing import AsyncIterator
@@ -22,7 +21,7 @@ import grpc
 
 from coordinator.asset_probe import sequence_files
 from coordinator.client import OperatorError, open_client
-from coordinator.content_format import Progress, added_line, asset_dict, assets_table, human_bytes
+from coordinator.content_format import Progress, added_line, human_bytes, print_assets
 from coordinator.errors import AssetError, CoordinatorError
 
 #: bytes per UploadFile message (the coordinator's limit)
@@ -103,12 +102,7 @@ async def _run(args: argparse.Namespace) -> int:
             print(f"{added_line(m, existed)} (sent {human_bytes(sent)})", file=sys.stderr)
             print(m.asset_id)
         elif action == "list":
-            rows = await c.list_assets()
-            if args.json:
-                json.dump([asset_dict(aid, m) for aid, m in rows], sys.stdout, indent=2)
-                print()
-            else:
-                print(assets_table(rows))
+            print_assets(await c.list_assets(), as_json=args.json)
         elif action == "rm":
             aid, m = await c.remove_asset(args.id)
             label = f"{m.kind} {m.name!r}" if m is not None else "damaged manifest"
