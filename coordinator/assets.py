@@ -16,6 +16,7 @@ killed) leaves no manifest behind.
 """
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import hashlib
 import logging
@@ -25,11 +26,12 @@ import re
 import time
 import uuid
 from contextlib import contextmanager
+from fractions import Fraction
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterator
 
 
-from coordinator.asset_probe import (DEFAULT_SEQUENCE_FPS, STILL_SUFFIXES, VIDEO_SUFFIXES, Note, probe_sequence,
+from coordinator.asset_probe import (DEFAULT_SEQUENCE_FPS, STILL_SUFFIXES, VIDEO_SUFFIXES, Note, Probe, probe_sequence,
                                      probe_still, probe_video, sequence_files)
 from coordinator.errors import AssetError
 from coordinator.store import atomic_file, atomic_write_bytes, fsync_dir
@@ -58,6 +60,13 @@ def copy_hashing(src: BinaryIO, dst: BinaryIO | None, *, on_chunk: Callable[[int
         if on_chunk:
             on_chunk(len(chunk))
     return h.hexdigest(), n
+
+
+def _exact_rate(src: Path, probe: Probe, rate: Fraction) -> Probe:
+    """``probe`` with the exact ``rate`` (its fps and ``extra.rate``) when the container's rate agrees."""
+    if rate <= 0 or not math.isclose(float(rate), probe.fps, rel_tol=1e-4):
+        raise AssetError(f"{src}: the video runs at {probe.fps:g} fps, not {float(rate):g}")
+    return dataclasses.replace(probe, fps=float(rate), extra={**probe.extra, "rate": f"{rate.numerator}/{rate.denominator}"})
 
 
 # ---------------------------------------------------------------- the store
@@ -121,7 +130,7 @@ class AssetStore:
 
     # ------------------------------------------------------------ adding
     def add(self, path: str | os.PathLike[str], *, name: str | None = None, fps: float | None = None,
-            progress: Progress | None = None, note: Note | None = None) -> Manifest:
+            progress: Progress | None = None, note: Note | None = None, rate: Fraction | None = None) -> Manifest:
         """Add a still or video file, or a folder of images as a sequence; return its manifest.
 
         Parameters
@@ -138,6 +147,10 @@ class AssetStore:
             Called with (bytes hashed, total bytes) after every chunk.
         note
             Called with notes for the operator (default: logged as warnings).
+        rate
+            A video's exact frame rate, for a file this program wrote (e.g. a compensated video):
+            recorded as the asset's rate when the container's agrees within 1e-4 (Matroska keeps
+            millisecond timestamps, so its rate may be an approximation); refused otherwise.
 
         Raises
         ------
@@ -164,6 +177,8 @@ class AssetStore:
                 kind, probe = "still", probe_still(src)
             elif suffix in VIDEO_SUFFIXES:
                 kind, probe = "video", probe_video(src, fps=fps)
+                if rate is not None:
+                    probe = _exact_rate(src, probe, Fraction(rate))
             else:
                 raise AssetError(f"{src}: unsupported file type {src.suffix or '(no suffix)'!r} (stills: "
                                  f"{', '.join(STILL_SUFFIXES)}; videos: {', '.join(VIDEO_SUFFIXES)}; or a folder of stills)")

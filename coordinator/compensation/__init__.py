@@ -15,9 +15,11 @@ Numerics (pure functions; long ones take ``progress(iteration, objective)``):
 side-by-side pictures), :mod:`.synthetic` (a synthetic rig for tests and benchmarks).
 
 Jobs (each ``OPTIONS`` + ``async run(ctx, opts)``, see :mod:`coordinator.jobs`):
-:mod:`.response_job`, :mod:`.transport_job`, :mod:`.compensate_job`, :mod:`.sequence_job`;
-their options in :mod:`.options`, what they store in :mod:`.store`, images as job parameters
-in :mod:`.image_param`, the command line in :mod:`.cli`.
+:mod:`.response_job`, :mod:`.transport_job`, :mod:`.compensate_job`, :mod:`.sequence_job` (frames
+played live) and :mod:`.video_job` (a video asset into a compensated 16-bit asset), the last two
+over :mod:`.frames` (warm-started frame by frame); their options in :mod:`.options`, what they
+store in :mod:`.store`, images as job parameters in :mod:`.image_param`, video assets decoded and
+FFV1 written in :mod:`.video_io`, the command line in :mod:`.cli`.
 
 The names below are loaded on first use, so importing a light submodule (``options``,
 ``image_param``) does not load SciPy, OpenCV or scikit-image. (The function ``quality``

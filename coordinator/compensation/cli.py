@@ -1,5 +1,6 @@
-"""`shadowless response`, `shadowless transport` and `shadowless compensate`: the blur-compensation
-jobs, run on the coordinator with a progress bar per stage.
+"""`shadowless response`, `shadowless transport` and `shadowless compensate` (an image, or a video
+into a compensated asset): the blur-compensation jobs, run on the coordinator with a progress bar
+per stage.
 
 Every job option's flag comes from the job's options dataclass (:mod:`.options`); only what
 the operator gives is sent, the defaults apply on the coordinator. Images named on the command
@@ -10,12 +11,14 @@ in the rig directory on the coordinator's machine.
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 from pathlib import Path
 
 from coordinator.client import add_connection_args
 from coordinator.compensation.image_param import encode_image_param
-from coordinator.compensation.options import CAMERA, CompensateOptions, ResponseOptions, TransportOptions
+from coordinator.compensation.options import CAMERA, CompensateOptions, ResponseOptions, TransportOptions, VideoOptions
 from coordinator.job_command import run_job_command
 from coordinator.jobs.options import add_arguments, params_from_args
 
@@ -141,25 +144,135 @@ def run_transport(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------- compensate
+#: options both compensate jobs take, with the same flag and meaning
+SHARED = ("level", "srgb", "regularization", "measure", "camera")
+
+LOCAL_STORE = (
+    "a video file is first added to the rig's asset store, which this command reaches only on the coordinator's "
+    "machine (--rig-dir DIR, as `shadowless content add --rig-dir DIR`); from another machine, add the video first "
+    "(`shadowless content add VIDEO --coordinator HOST:PORT`) and give --asset NAME")
+
+
 def configure_compensate(p: argparse.ArgumentParser) -> None:
     p.description = (
-        "Compensate the rig's blur for an image: one bounded least-squares solve over the summed light\n"
-        "transport (progress: iteration and objective); the result is stored as the rig's content and shown\n"
-        "on every projector. --evaluate captures the image without compensation, with ours (and with\n"
-        "--baseline, the per-projector method) and scores each against the target (PSNR, SSIM)."
+        "Compensate the rig's blur for an image or a video.\n\n"
+        "An IMAGE: one bounded least-squares solve over the summed light transport (progress: iteration and\n"
+        "objective); the result is stored as the rig's content and shown on every projector. --evaluate\n"
+        "captures the image without compensation, with ours (and with --baseline, the per-projector method)\n"
+        "and scores each against the target (PSNR, SSIM).\n\n"
+        "A VIDEO (.mp4 .mov .mkv .avi, or a folder of images as a sequence) or --asset NAME (a video asset\n"
+        "already in the rig's store): every frame is solved warm-started from the previous one (--iterations\n"
+        "per frame, --first-iterations for the first; progress with ETA), and the result is written as a new\n"
+        "asset, '<name> (compensated)': lossless 16-bit FFV1 in Matroska, at the content size and the source's\n"
+        "exact frame rate. Nodes fetch it like any asset; play it by timeline with `shadowless play NAME`.\n"
+        "Nothing partial enters the store; a stopped run (Ctrl-C, a crash) keeps its frames up to the last\n"
+        "checkpoint (--checkpoint S) in the rig directory, and the same command run again resumes there.\n"
+        "A video FILE is added to the store first, as `shadowless content add` does: on the coordinator's\n"
+        "machine only (--rig-dir); from another machine, add it with `shadowless content add` and give --asset."
     )
-    p.epilog = EXAMPLES
-    p.add_argument("image", help="image file (PNG/TIFF/JPEG, 8 or 16 bit, or .npy float32 in [0, 1])")
+    p.epilog = EXAMPLES + """
+videos:
+  shadowless compensate --rig-dir rigs/table show.mp4            # add, compensate -> 'show (compensated)'
+  shadowless compensate --rig-dir rigs/table --asset show --max-frames 30   # a trial on 30 frames
+  shadowless play --rig-dir rigs/table "show (compensated)"      # by timeline, like any asset
+"""
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.add_argument("source", nargs="?", metavar="IMAGE|VIDEO",
+                   help="image file (PNG/TIFF/JPEG, 8 or 16 bit, or .npy float32 in [0, 1]), or a video file "
+                        "(.mp4 .mov .mkv .avi) or folder of images, added to the rig's store on this machine first")
+    p.add_argument("--asset", metavar="NAME|ID",
+                   help="compensate a video (or image-sequence) asset already in the rig's store: its name, id or id "
+                        "prefix (see `shadowless content list`)")
     _common(p, CompensateOptions)
+    add_arguments(p, VideoOptions, exclude=SHARED)
+
+
+def _is_video(path: Path) -> bool:
+    from coordinator.asset_probe import VIDEO_SUFFIXES
+
+    return path.is_dir() or path.suffix.lower() in VIDEO_SUFFIXES
+
+
+def compensate_request(args: argparse.Namespace) -> tuple[str, dict]:
+    """The job to run for ``shadowless compensate``: ``("compensate", params)`` for an image,
+    ``("compensate_video", params)`` for a video file (added to the local store first) or ``--asset``."""
+    if args.asset and args.source:
+        raise SystemExit("shadowless compensate: give a file or --asset, not both")
+    if args.asset:
+        return "compensate_video", video_params(args, args.asset)
+    if not args.source:
+        raise SystemExit("shadowless compensate: give an image or video file, or --asset NAME (a video in the rig's "
+                         "store)")
+    f = Path(args.source)
+    if _is_video(f):
+        return "compensate_video", video_params(args, add_local_video(args, f))
+    return "compensate", compensate_params(args)
 
 
 def compensate_params(args: argparse.Namespace) -> dict:
-    f = Path(args.image)
+    """An image's job parameters: the file's bytes and the flags given."""
+    f = Path(args.source)
+    video_only = sorted(set(params_from_args(VideoOptions, args, exclude=SHARED)))
+    if video_only:
+        raise SystemExit(f"shadowless compensate: {', '.join('--' + k.replace('_', '-') for k in video_only)} "
+                         "appl(ies) to a video only")
     try:
         image = encode_image_param(f)
     except OSError as exc:
         raise SystemExit(f"shadowless compensate: cannot read {f}: {exc.strerror or exc}") from None
     return {"image": image, **_params(args, CompensateOptions)}
+
+
+def video_params(args: argparse.Namespace, asset: str) -> dict:
+    """A video's job parameters: the asset (name or id) and the flags given; image-only flags refused."""
+    image_only = sorted(set(params_from_args(CompensateOptions, args)) - set(SHARED))
+    if image_only:
+        raise SystemExit(f"shadowless compensate: {', '.join('--' + k.replace('_', '-') for k in image_only)} "
+                         "appl(ies) to an image only (for a video, measure L first: `shadowless transport`)")
+    return {"asset": asset, **_params(args, VideoOptions)}
+
+
+def add_local_video(args: argparse.Namespace, path: Path) -> str:
+    """Add a video file (or folder of images) to the rig's store on this machine; its asset id."""
+    from coordinator.content_commands import open_store  # only this path needs the store
+    from coordinator.errors import AssetError
+
+    if not path.exists():
+        raise SystemExit(f"shadowless compensate: {path}: no such file or folder (a video already in the rig's store: "
+                         "--asset NAME)")
+    if not args.rig_dir:
+        raise SystemExit(f"shadowless compensate: {LOCAL_STORE}")
+    try:
+        store = open_store(args.rig_dir)
+        known = {aid for aid, _ in store.list()}
+        m = store.add(path, note=lambda text: print(f"note: {text}", file=sys.stderr))
+    except AssetError as exc:
+        raise SystemExit(f"shadowless compensate: {exc}") from None
+    if m.kind == "still":
+        raise SystemExit(f"shadowless compensate: {path} is a still image")
+    state = "already in the store" if m.asset_id in known else f"added to the store ({m.total_bytes / 1e6:.1f} MB)"
+    print(f"{m.kind} {m.name!r} ({m.asset_id[:12]}): {m.frames} frames, {m.width}x{m.height}, {m.fps:g} fps, {state}",
+          file=sys.stderr)
+    return m.asset_id
+
+
+def video_report(result: dict) -> str:
+    src, a = result.get("source", {}), result.get("asset", {})
+    lines = [f"compensated {result.get('frames')} frame(s) of {src.get('name')!r} at {a.get('rate')} fps: "
+             f"{_fmt(result.get('seconds_per_frame'), 3)} s per frame (solve: first {_fmt(result.get('ms_first_frame'), 0)} "
+             f"ms, then {_fmt(result.get('ms_per_frame_mean'), 0)} ms mean at {result.get('iterations_per_frame')} "
+             "iterations)",
+             f"asset {a.get('name')!r} {a.get('id', '')[:12]}: {a.get('size', ['?', '?'])[0]}x{a.get('size', ['?', '?'])[1]}, "
+             f"{a.get('channels')} x {a.get('bit_depth')}-bit {a.get('codec')}, {a.get('bytes', 0) / 1e6:.1f} MB"
+             + (" (already stored: the same result as before)" if a.get("already_stored") else "")]
+    p = result.get("predicted_psnr")
+    if p:
+        lines.append(f"predicted PSNR through the measured L (mean): none {p['none_mean']:.2f} dB -> ours "
+                     f"{p['ours_mean']:.2f} dB (worst frame {p['ours_min']:.2f} dB)")
+    if result.get("note"):
+        lines.append(result["note"])
+    lines.append(f"play it by timeline: shadowless play {json.dumps(a.get('name') or a.get('id'))}")
+    return "\n".join(lines)
 
 
 def compensate_report(result: dict) -> str:
@@ -188,7 +301,8 @@ def compensate_report(result: dict) -> str:
 
 
 def run_compensate(args: argparse.Namespace) -> int:
-    return run_job_command(args, "compensate", compensate_params(args), report=compensate_report)
+    kind, params = compensate_request(args)
+    return run_job_command(args, kind, params, report=video_report if kind == "compensate_video" else compensate_report)
 
 
 configure = configure_compensate

@@ -22,7 +22,8 @@ import numpy as np
 from coordinator.compensation.errors import CompensationError
 from protos.spaces import as_linear
 
-__all__ = ["encode_image_param", "encode_image_array", "decode_image_param", "load_image_param", "prepare_image"]
+__all__ = ["encode_image_param", "encode_image_array", "decode_image_param", "decode_image_bytes", "load_image_param",
+           "prepare_image"]
 
 
 def _param(name: str, raw: bytes) -> dict:
@@ -71,6 +72,19 @@ def decode_image_param(value: dict) -> tuple[np.ndarray, str]:
         raw = zlib.decompress(base64.b64decode(value["data"], validate=True))
     except (ValueError, zlib.error) as exc:
         raise CompensationError(f"image {name}: corrupt image parameter ({exc})") from exc
+    return decode_image_bytes(raw, name)
+
+
+def decode_image_bytes(raw: bytes, name: str) -> tuple[np.ndarray, str]:
+    """An image file's bytes as ``(image, name)``; image (H, W, C) uint8/uint16/float32, RGB, C 1 or 3.
+
+    ``name`` says what the bytes are (``.npy``, else anything OpenCV reads: PNG, TIFF, JPEG).
+
+    Raises
+    ------
+    CompensationError
+        If the bytes are not an image OpenCV or numpy can read.
+    """
     if name.lower().endswith(".npy") or raw[:6] == b"\x93NUMPY":
         try:
             img = np.load(io.BytesIO(raw), allow_pickle=False)

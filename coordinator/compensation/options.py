@@ -1,4 +1,4 @@
-"""The options of the four blur-compensation jobs, each defined once: the dataclass the job
+"""The options of the blur-compensation jobs, each defined once: the dataclass the job
 receives, its validation, its command-line flag and its documentation all come from the
 field (:mod:`coordinator.jobs.options`).
 
@@ -14,7 +14,8 @@ from typing import Any
 from coordinator.jobs.errors import JobError
 from coordinator.jobs.options import option
 
-__all__ = ["ResponseOptions", "TransportOptions", "CompensateOptions", "SequenceOptions", "METHODS"]
+__all__ = ["ResponseOptions", "TransportOptions", "CompensateOptions", "SequenceOptions", "VideoOptions",
+           "METHODS"]
 
 #: the solver's methods (as :data:`coordinator.compensation.solver.METHODS`, without importing SciPy)
 METHODS = ("apg", "steepest", "lbfgsb")
@@ -26,6 +27,7 @@ MEASURE = "what to measure"
 TRANSPORT = "light transport"
 SOLVE = "solve"
 EVALUATION = "evaluation"
+VIDEO = "video (a video file, a folder of images or --asset)"
 
 
 def _reference(value: Any) -> str | float:
@@ -168,20 +170,64 @@ class CompensateOptions(TransportOptions):
             raise JobError("give an image (the `image` parameter, or `image_path` on the coordinator's machine)")
 
 
+def _asset_key(value: Any) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise JobError("asset must be the name, id or id prefix of a video asset in the rig's store")
+    return value.strip()
+
+
+def _asset_name(value: Any) -> str:
+    if not isinstance(value, str) or not value.strip() or len(value.strip()) > 200:
+        raise JobError("name must be 1-200 characters")
+    return value.strip()
+
+
 @dataclass(frozen=True, kw_only=True)
-class SequenceOptions:
+class _FrameOptions:
+    """What a frame-by-frame (warm-started) compensation needs: budgets, target level, ridge, transport."""
+
+    iterations: int = option(4, lo=1, hi=10_000, metavar="N", group=VIDEO,
+                             help="APG iterations per frame after the first")
+    first_iterations: int = option(60, lo=1, hi=100_000, metavar="N", group=VIDEO,
+                                   help="APG iterations of the first frame")
+    level: float = option(0.9, lo=0.01, hi=1.0, metavar="F", group=SOLVE,
+                          help="target white, as a fraction of the rig's white (as for an image)")
+    srgb: bool = option(False, group=SOLVE, help="the frames are sRGB-encoded (default: values are linear luminance)")
+    regularization: float = option(REGULARIZATION, lo=0.0, hi=100.0, metavar="MU", group=SOLVE,
+                                   help="ridge weight towards the uncompensated frame, relative to ||L||^2")
+    measure: bool = option(False, group=SOLVE,
+                           help="measure L when no valid one is stored (default: fail; run `shadowless transport`)")
+    camera: int = option(0, lo=0, hi=64, metavar="I", flag="--camera-index", group=CAMERA,
+                         help="which calibrated camera L was measured with")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SequenceOptions(_FrameOptions):
     """Frames compensated one after the other (warm starts), then played in sync."""
 
     frames: list = option(parse=_images, cli=False,
                           help="the images, in order ({\"name\", \"data\"} each, as CompensateOptions.image)")
-    iterations: int = option(4, lo=1, hi=10_000, metavar="N", help="APG iterations per frame after the first")
-    first_iterations: int = option(60, lo=1, hi=100_000, metavar="N", help="APG iterations of the first frame")
-    level: float = option(0.9, lo=0.01, hi=1.0, metavar="F", help="target white, as CompensateOptions.level")
-    srgb: bool = option(False, help="the frames are sRGB-encoded")
-    regularization: float = option(REGULARIZATION, lo=0.0, hi=100.0, metavar="MU",
-                                   help="ridge weight, as CompensateOptions.regularization")
     fps: float = option(30.0, lo=0.1, hi=1000.0, metavar="FPS", help="playback rate")
     loops: int = option(0, lo=0, hi=10_000, metavar="N", help="extra loops of the playback")
     play: bool = option(True, help="play the compensated frames (--no-play: only compensate)")
-    measure: bool = option(False, help="measure L when no valid one is stored (default: run `shadowless transport`)")
-    camera: int = option(0, lo=0, hi=64, metavar="I", help="which calibrated camera L was measured with")
+
+
+@dataclass(frozen=True, kw_only=True)
+class VideoOptions(_FrameOptions):
+    """A video asset compensated frame by frame (warm starts) into a new 16-bit FFV1 asset."""
+
+    measure: bool = option(True, group=SOLVE, help="measure L when no valid one is stored (--no-measure: fail instead)")
+    asset: str = option(parse=_asset_key, cli=False,
+                        help="the source: name, id or id prefix of a video (or image-sequence) asset in the rig's store")
+    name: str | None = option(None, parse=_asset_name, metavar="NAME", group=VIDEO,
+                              help="name of the compensated asset (default: the source's name + ' (compensated)')")
+    max_frames: int | None = option(None, lo=1, hi=10_000_000, metavar="N", group=VIDEO,
+                                    help="compensate only the first N frames (a trial run)")
+    resume: bool = option(True, group=VIDEO,
+                          help="continue a stopped run of the same source and solve options from its last checkpoint "
+                               "(--no-resume: start over)")
+    checkpoint_s: float = option(10.0, lo=0.0, hi=3600.0, flag="--checkpoint", metavar="S", group=VIDEO,
+                                 help="seconds between checkpoints a stopped run resumes from (0: after every frame)")
+    psnr: bool = option(True, group=VIDEO,
+                        help="predict each frame's PSNR through the measured L, uncompensated and ours (2 products "
+                             "with L per frame)")

@@ -122,6 +122,22 @@ class ContentWarmStart:
         """Forget the previous frame (e.g. after a cut)."""
         self._x = self._content = self._scale = None
 
+    def state(self) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """What the next frame starts from: the previous solution ``(n_content, C) float32``, the
+        previous content ``(H, W, C) float32`` and the scale; None before the first frame. With
+        :meth:`restore`, a run resumed from a checkpoint solves exactly as one never stopped."""
+        if self._x is None or self._content is None or self._scale is None:
+            return None
+        return self._x.copy(), self._content.copy(), float(self._scale)
+
+    def restore(self, x: np.ndarray, content: np.ndarray, scale: float) -> None:
+        """Continue from :meth:`state`'s values (``ValueError`` when they do not fit this problem)."""
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        content = np.ascontiguousarray(content, dtype=np.float32)
+        if content.ndim != 3 or content.shape[:2] != self.content_shape or x.size != content.size:
+            raise ValueError(f"state of shape {x.shape} / {content.shape} does not fit content {self.content_shape}")
+        self._x, self._content, self._scale = x, content, float(scale)
+
     def __call__(self, target: np.ndarray, content: np.ndarray) -> SolveResult:
         """Compensate one frame: ``target`` (Hc, Wc, C) camera signal, ``content`` (H, W, C) linear."""
         content = np.asarray(content, np.float32)

@@ -27,6 +27,7 @@ JOBS: dict[str, str] = {
     "transport": "coordinator.compensation.transport_job",
     "compensate": "coordinator.compensation.compensate_job",
     "compensate_sequence": "coordinator.compensation.sequence_job",
+    "compensate_video": "coordinator.compensation.video_job",
 }
 
 
