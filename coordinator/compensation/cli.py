@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from coordinator.client import add_connection_args
+from coordinator.errors import CoordinatorError
 from coordinator.compensation.image_param import encode_image_param
 from coordinator.compensation.options import CAMERA, CompensateOptions, ResponseOptions, TransportOptions, VideoOptions
 from coordinator.job_command import run_job_command
@@ -147,12 +148,6 @@ def run_transport(args: argparse.Namespace) -> int:
 #: options both compensate jobs take, with the same flag and meaning
 SHARED = ("level", "srgb", "regularization", "measure", "camera")
 
-LOCAL_STORE = (
-    "a video file is first added to the rig's asset store, which this command reaches only on the coordinator's "
-    "machine (--rig-dir DIR, as `shadowless content add --rig-dir DIR`); from another machine, add the video first "
-    "(`shadowless content add VIDEO --coordinator HOST:PORT`) and give --asset NAME")
-
-
 def configure_compensate(p: argparse.ArgumentParser) -> None:
     p.description = (
         "Compensate the rig's blur for an image or a video.\n\n"
@@ -167,14 +162,16 @@ def configure_compensate(p: argparse.ArgumentParser) -> None:
         "exact frame rate. Nodes fetch it like any asset; play it by timeline with `shadowless play NAME`.\n"
         "Nothing partial enters the store; a stopped run (Ctrl-C, a crash) keeps its frames up to the last\n"
         "checkpoint (--checkpoint S) in the rig directory, and the same command run again resumes there.\n"
-        "A video FILE is added to the store first, as `shadowless content add` does: on the coordinator's\n"
-        "machine only (--rig-dir); from another machine, add it with `shadowless content add` and give --asset."
+        "A video FILE is added to the store first, as `shadowless content add` does: straight into the rig\n"
+        "directory on the coordinator's machine (--rig-dir), uploaded from any other machine (--coordinator\n"
+        "HOST:PORT or --rig NAME, with --token-file; resumable, checked by SHA-256)."
     )
     p.epilog = EXAMPLES + """
 videos:
   shadowless compensate --rig-dir rigs/table show.mp4            # add, compensate -> 'show (compensated)'
   shadowless compensate --rig-dir rigs/table --asset show --max-frames 30   # a trial on 30 frames
   shadowless play --rig-dir rigs/table "show (compensated)"      # by timeline, like any asset
+  shadowless compensate show.mp4 --coordinator 10.0.0.2:7600 --token-file table.token   # from a laptop
 """
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("source", nargs="?", metavar="IMAGE|VIDEO",
@@ -240,8 +237,8 @@ def add_local_video(args: argparse.Namespace, path: Path) -> str:
     if not path.exists():
         raise SystemExit(f"shadowless compensate: {path}: no such file or folder (a video already in the rig's store: "
                          "--asset NAME)")
-    if not args.rig_dir:
-        raise SystemExit(f"shadowless compensate: {LOCAL_STORE}")
+    if not (args.rig_dir and (Path(args.rig_dir) / "rig.toml").is_file()):
+        return upload_video(args, path)
     try:
         store = open_store(args.rig_dir)
         known = {aid for aid, _ in store.list()}
@@ -254,6 +251,36 @@ def add_local_video(args: argparse.Namespace, path: Path) -> str:
     print(f"{m.kind} {m.name!r} ({m.asset_id[:12]}): {m.frames} frames, {m.width}x{m.height}, {m.fps:g} fps, {state}",
           file=sys.stderr)
     return m.asset_id
+
+
+def upload_video(args: argparse.Namespace, path: Path) -> str:
+    """Upload a video file (or folder of images) to the running coordinator's store (as `content
+    add --coordinator`: resumable, checked by hash); its asset id."""
+    import asyncio
+
+    import grpc
+
+    from coordinator.client import open_client
+    from coordinator.content_remote import upload
+
+    async def go() -> str:
+        async with await open_client(args) as c:
+            m, existed, notes, sent = await upload(c, path, name=None, fps=None)
+        for text in notes:
+            print(f"note: {text}", file=sys.stderr)
+        if m.kind == "still":
+            raise SystemExit(f"shadowless compensate: {path} is a still image")
+        state = "already in the store" if existed else f"uploaded to the store ({sent / 1e6:.1f} MB sent)"
+        print(f"{m.kind} {m.name!r} ({m.asset_id[:12]}): {m.frames} frames, {m.width}x{m.height}, {m.fps:g} fps, "
+              f"{state}", file=sys.stderr)
+        return m.asset_id
+
+    try:
+        return asyncio.run(go())
+    except grpc.aio.AioRpcError as exc:
+        raise SystemExit(f"shadowless compensate: the coordinator refused the upload: {exc.details()}") from None
+    except (CoordinatorError, OSError) as exc:
+        raise SystemExit(f"shadowless compensate: {exc}") from None
 
 
 def video_report(result: dict) -> str:

@@ -125,6 +125,24 @@ def test_a_folder_uploads_as_an_image_sequence_at_its_rate(rig, tmp_path):
     assert (m.kind, m.name, m.frames, m.bit_depth, m.fps) == ("sequence", "intro", 4, 16, 12.0)
 
 
+def test_compensate_uploads_a_video_file_from_another_machine(rig, tmp_path, capsys):
+    import argparse
+
+    from coordinator.compensation import cli as compensate_cli
+
+    clip = tmp_path / "scene.mp4"
+    write_clip(clip, frames=10)
+    p = argparse.ArgumentParser()
+    compensate_cli.configure(p)
+    args = p.parse_args([str(clip), "--coordinator", rig.coordinator_target, "--token-file", str(rig.rig_dir / "token"),
+                         "--max-frames", "2"])
+    kind, params = compensate_cli.compensate_request(args)
+    assert kind == "compensate_video" and params["max_frames"] == 2
+    m = AssetStore(rig.rig_dir).get(params["asset"])
+    assert (m.kind, m.name, m.frames) == ("video", "scene", 10)
+    assert "uploaded to the store" in capsys.readouterr().err
+
+
 def test_damaged_bytes_are_refused_and_dropped_and_bad_names_and_strangers_too(rig, tmp_path):
     good = b"\x89PNG not really" * 100
 
