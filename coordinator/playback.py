@@ -194,6 +194,14 @@ class Playback:
         frame = self._set_still(content, tag=tag, space=space, apply_lut=apply_lut)
         return ShowResult(frame_id=frame.frame_id, content_id=content.content_id, pts_ns=frame.pts_ns)
 
+    def prepare_still(self, content: Content, space: Space = Space.CONTENT) -> Content:
+        """What :meth:`show` will send for ``content``, fitted and encoded for the wire (blocking:
+        run it in a worker thread, so a large still is not packed on the event loop)."""
+        if space == Space.CONTENT:
+            content = fit_content(content, self.content_size)
+        self.fanout.prepare([content])
+        return content
+
     def restore_content(self) -> None:
         """After a job: show the rig's content again (or black)."""
         if self.rig.content is not None:

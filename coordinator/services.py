@@ -282,8 +282,10 @@ class RigControlService(_Handshake):
     @_guard
     async def Show(self, request, context):
         self._operator(context)
-        content = Content(_decoded(request.image), name=request.name)
         space = wire.space_from_message(request.space)
+        # decoded, fitted and packed for the nodes in a worker thread: the event loop serves the nodes
+        content = await asyncio.to_thread(
+            lambda: self.c.playback.prepare_still(Content(_decoded(request.image), name=request.name), space))
         apply_lut = request.apply_lut or space == Space.CONTENT
         return wire.show_result_message(self.c.show(content, space=space, apply_lut=apply_lut, persist=request.persist))
 
