@@ -258,11 +258,22 @@ class Presenter:
                          tl.anchor_ns, " paused" if tl.paused else "", " loop" if tl.loop else "")
             else:
                 log.info("timeline r%d: stop at %d", update.stop_revision, update.stop_at_ns)
+            self._prepare_timeline()
             self._send_stats()
 
     def _on_asset(self, renderer, out, files: AssetFiles) -> None:
         self.player.add_asset(files)
+        self._prepare_timeline()
         self._send_stats()
+
+    def _prepare_timeline(self) -> None:
+        """Decoding starts as soon as the show and its asset are known, ahead of the first tick."""
+        est = self.pacer.estimate
+        if est is not None:
+            after = est.rig_time(self.clock.now())
+            if self._last_event_pts is not None:
+                after = max(after, self._last_event_pts + 1)
+            self.player.prepare(after)
 
     def _next_event(self) -> TimelineEvent | None:
         est = self.pacer.estimate

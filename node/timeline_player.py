@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from node.asset_frames import DecodeAhead, FrameError, open_frames
+from node.asset_frames import DecodeAhead, DecodeStats, FrameError, open_frames
 from node.records import AssetFiles, ShowUpdateData
 from protos.asset_manifest import Manifest, ManifestError
 from protos.timeline import Schedule, Timeline
@@ -243,6 +243,27 @@ class TimelinePlayer:
     def frame(self, event: TimelineEvent, timeout_s: float) -> np.ndarray:
         """The decoded frame of ``event`` (waiting at most ``timeout_s``); FrameError (or
         FrameNotReady) when it cannot be had."""
+        return self._decoder_for(event).get(event.frame, max(0.0, timeout_s))
+
+    def prepare(self, after_ns: int) -> None:
+        """Start decoding the next frame event's asset now (a show scheduled or changed, an asset
+        arrived), so its first frames are ready when their time comes instead of being decoded
+        in the last moment before it. A decoder that cannot open says so at :meth:`frame`."""
+        ev = self.next_event(after_ns)
+        if ev is None or ev.kind != "frame" or not self.has_asset(ev.asset_id):
+            return
+        try:
+            self._decoder_for(ev)
+        except FrameError:
+            pass
+
+    def decode_stats(self) -> DecodeStats | None:
+        """The open decoder's counters (None: no decoder open)."""
+        return self._decoder.stats() if self._decoder is not None else None
+
+    def _decoder_for(self, event: TimelineEvent) -> DecodeAhead:
+        """The decoder of ``event``'s asset, opened if need be, its order starting at ``event``'s
+        frame when the revision changed."""
         dec = self._decoder
         if dec is None or dec.source.asset_id != event.asset_id or self._decoder_size != self.content_size:
             self.close()
@@ -259,7 +280,7 @@ class TimelinePlayer:
         if self._decoder_revision != event.revision:
             dec.want(event.frame, loop=event.loop)
             self._decoder_revision = event.revision
-        return dec.get(event.frame, max(0.0, timeout_s))
+        return dec
 
     def close(self) -> None:
         if self._decoder is not None:

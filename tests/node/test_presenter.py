@@ -6,6 +6,8 @@ test says so, or when the presenter sleeps until a frame's presentation time.
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -327,6 +329,23 @@ def test_timeline_ticks_are_swapped_at_their_time_with_ids_from_the_base(rig, tm
     assert [s.frame_id for s in rig.swaps] == [500, 501, 502]
     assert [s.pts_ns for s in rig.swaps] == [anchor, anchor + 100 * MS, anchor + 200 * MS]
     assert [s.swap_rig_ns for s in rig.swaps] == [s.pts_ns for s in rig.swaps]
+
+
+def test_decoding_starts_when_the_show_and_its_asset_are_known_not_at_the_first_tick(rig, tmp_path):
+    files = _still_asset(tmp_path)
+    p = rig.presenter
+    p.handle("show", _timeline_update(files, rig.rig_now() + 500 * MS))
+    assert p.player.decode_stats() is None                # no asset yet: nothing to decode
+    p.handle("asset", files)
+    for _ in range(500):                                  # the decoder thread, before any tick is due
+        st = p.player.decode_stats()
+        if st is not None and st.decoded >= 1:
+            break
+        time.sleep(0.01)
+    assert st is not None and st.decoded >= 1 and st.hits == st.misses == 0
+    p.timeline_step()
+    st = p.player.decode_stats()
+    assert [s.frame_id for s in rig.swaps] == [500] and st.hits == 1 and st.misses == 0
 
 
 def test_the_presenter_reports_the_show_as_it_follows_it(rig, tmp_path):
