@@ -28,8 +28,6 @@ from pathlib import Path
 from typing import Callable
 
 from node.clock import LocalClock, precise_timers
-from node.outputs import open_output
-from node.presenter import Presenter
 from node.records import DropRecord, PresenterStatus, SwapRecord
 
 log = logging.getLogger(__name__)
@@ -55,6 +53,11 @@ def tune_process() -> None:
 
 def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
     """Entry point of the presenter process."""
+    # only this process renders and decodes: the node process, which imports this module to
+    # start it, does not pay for the renderer, the outputs and PyAV at its start
+    from node.outputs import open_output
+    from node.presenter import Presenter
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # the node process decides when we stop
     logging.basicConfig(level=settings.log_level, format=settings.log_format, stream=sys.stderr, force=True)
     tune_process()
