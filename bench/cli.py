@@ -10,6 +10,7 @@ import importlib
 
 BENCHMARKS: dict[str, str] = {
     "sync": "swap synchronisation of N real node processes on loopback",
+    "swarm": "coordinator CPU per node and per frame under a swarm of protocol-level nodes (timeline, live)",
     "room": "virtual-room capture speed and light-drop statistics per projector subset",
     "calibration": "captures, time and error of sequential vs multiplexed calibration",
     "compensation": "blur-compensation solve time and quality, ours vs the per-projector baseline",

@@ -27,6 +27,9 @@ class FrameRecord:
     created: float
     swaps: dict[str, tuple[int, int, bool]] = field(default_factory=dict)  # slot -> (rig_ns, host_ns, same_host)
     drops: dict[str, DropReason] = field(default_factory=dict)
+    #: expected slots that neither swapped nor dropped it yet (a frame is final once empty: checking
+    #: it costs O(1) per report, where comparing the sets cost O(nodes), O(nodes²) per frame)
+    waiting: set[str] = field(default_factory=set)
 
 
 @dataclass(frozen=True)
@@ -71,38 +74,42 @@ class SyncTracker:
 
     def expect(self, frame_id: int, pts_ns: int, tag: str, slots: set[str]) -> None:
         if slots:
-            self._open[frame_id] = FrameRecord(frame_id, pts_ns, tag, set(slots), created=self.clock())
+            expected = set(slots)
+            self._open[frame_id] = FrameRecord(frame_id, pts_ns, tag, expected, created=self.clock(),
+                                               waiting=set(expected))
 
     def on_swap(self, slot: str, frame_id: int, rig_ns: int, host_ns: int, same_host: bool) -> None:
         rec = self._open.get(frame_id)
         if rec is None or slot not in rec.expected:
             return
         rec.swaps[slot] = (rig_ns, host_ns, same_host)
-        self._maybe_finish(rec)
+        rec.waiting.discard(slot)
+        if not rec.waiting:
+            self._finish(rec)
 
     def on_drop(self, slot: str, frame_id: int, reason: DropReason) -> None:
         rec = self._open.get(frame_id)
         if rec is None or slot not in rec.expected:
             return
         rec.drops[slot] = reason
-        self._maybe_finish(rec)
+        rec.waiting.discard(slot)
+        if not rec.waiting:
+            self._finish(rec)
 
     def forget_slot(self, slot: str) -> None:
         """A node was lost: stop waiting for it."""
         for rec in list(self._open.values()):
-            if slot in rec.expected and slot not in rec.swaps and slot not in rec.drops:
+            if slot in rec.waiting:
                 rec.expected.discard(slot)
-                self._maybe_finish(rec)
+                rec.waiting.discard(slot)
+                if not rec.waiting:
+                    self._finish(rec)
 
     def sweep(self) -> None:
         now = self.clock()
         for rec in list(self._open.values()):
             if now - rec.created > self.timeout_s:
                 self._finish(rec)
-
-    def _maybe_finish(self, rec: FrameRecord) -> None:
-        if rec.expected <= (set(rec.swaps) | set(rec.drops)):
-            self._finish(rec)
 
     def _finish(self, rec: FrameRecord) -> None:
         self._open.pop(rec.frame_id, None)

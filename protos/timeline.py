@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from fractions import Fraction
+from typing import Iterator, Mapping
 
 __all__ = ["Timeline", "Schedule", "TimelineError", "as_rate"]
 
@@ -204,3 +205,31 @@ class Schedule:
     def pending(self) -> list[tuple[int, Timeline | None]]:
         """Every entry (anchor, timeline or None), in order."""
         return [(a, tl) for a, _, tl in self._entries]
+
+    def ticks(self, bases: Mapping[int, int], lo_ns: int, hi_ns: int | None = None) -> Iterator[tuple[int, int]]:
+        """``(frame_id, pts_ns)`` of the ticks at rig times in ``[lo_ns, hi_ns)`` (no end: None), in
+        order, across the changes; tick k of a revision is frame ``bases[revision] + k`` (revisions
+        without a base are skipped). A paused timeline has one tick, its held frame at its anchor; a
+        timeline that does not loop ends after its last frame; a stop has none."""
+        entries = self.pending
+        for i, (start, tl) in enumerate(entries):
+            end = entries[i + 1][0] if i + 1 < len(entries) else None
+            if hi_ns is not None:
+                end = hi_ns if end is None else min(end, hi_ns)
+            if tl is None or tl.revision not in bases:
+                continue
+            base, a = bases[tl.revision], max(lo_ns, start)
+            if end is not None and a >= end:
+                continue
+            if tl.paused:
+                if a <= tl.anchor_ns and (end is None or tl.anchor_ns < end):
+                    yield base, tl.anchor_ns
+                continue
+            k = tl.tick_at(a)
+            if k is None:
+                continue
+            if tl.pts(k) < a:
+                k += 1
+            while (end is None or tl.pts(k) < end) and tl.frame_of_tick(k) is not None:
+                yield base + k, tl.pts(k)
+                k += 1

@@ -23,14 +23,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "configure": ("coordinator.commands", "set a slot's pose, LUT, gain or output size by hand"),
     "content": ("coordinator.content_commands", "add, list, remove and verify content assets (stills, sequences, videos)"),
     "local": ("shadowless.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
+    "swarm": ("shadowless.swarm", "load-test a coordinator: N protocol-level nodes in one process (no rendering)"),
     "calibrate": ("coordinator.calibration.cli", "calibrate the projectors with the camera (poses pushed to the nodes)"),
     "alignment": ("coordinator.calibration.cli", "measure each projector's residual misalignment; heat map over the table"),
     "response": ("coordinator.compensation.cli", "measure each projector's luminance response; LUTs, brightness match"),
     "transport": ("coordinator.compensation.cli", "measure the rig's light transport (dot grids, all projectors at once)"),
-    "compensate": ("coordinator.compensation.cli", "compensate the rig's blur for an image; store and show the result"),
+    "compensate": ("coordinator.compensation.cli", "compensate the rig's blur for an image (shown) or a video (a new 16-bit asset)"),
     "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
     "demo": ("shadowless.demo", "the whole rig in the virtual room: what `make demo` runs"),
-    "bench": ("bench.cli", "benchmarks that print JSON (sync, room, calibration, compensation)"),
+    "bench": ("bench.cli", "benchmarks that print JSON (sync, swarm, venue, room, calibration, compensation)"),
 }
 
 EPILOG = """\

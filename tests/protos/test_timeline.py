@@ -83,3 +83,22 @@ def test_schedule_switches_every_node_at_the_same_instant_and_keeps_the_newest()
     assert sch.at(31 * NS) == pause, "the stop at 30 s was cancelled by the newer pause at 25 s"
     sch.forget_before(40 * NS)
     assert sch.pending == [(25 * NS, pause)]
+
+
+def test_schedule_ticks_walk_every_change_in_order():
+    """Ticks across a play, a pause, a stop and a short show that does not loop, checked against
+    the instants written out by hand."""
+    t0, ms = 10 * NS, NS // 1000
+    s = Schedule()
+    s.offer(Timeline(asset_id="a", frames=100, rate=Fraction(10), anchor_ns=t0, loop=True, revision=1))
+    s.offer(Timeline(asset_id="a", frames=100, rate=Fraction(10), anchor_ns=t0 + 1000 * ms, anchor_frame=10,
+                     paused=True, revision=2))
+    s.offer_stop(t0 + 2000 * ms, 3)
+    s.offer(Timeline(asset_id="b", frames=5, rate=Fraction(10), anchor_ns=t0 + 3000 * ms, revision=4))
+    bases = {1: 100, 2: 200, 4: 400}
+    expect = ([(100 + k, t0 + k * 100 * ms) for k in range(10)] + [(200, t0 + 1000 * ms)]
+              + [(400 + k, t0 + 3000 * ms + k * 100 * ms) for k in range(5)])
+    assert list(s.ticks(bases, t0 - 5 * ms, t0 + 10_000 * ms)) == expect
+    assert list(s.ticks(bases, t0 - 5 * ms)) == expect                      # no end: the show's own end
+    assert list(s.ticks(bases, t0 + 250 * ms, t0 + 450 * ms)) == expect[3:5]
+    assert list(s.ticks({1: 100, 4: 400}, t0 + 950 * ms, t0 + 3050 * ms)) == [expect[11]]   # no base for r2

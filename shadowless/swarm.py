@@ -1,0 +1,378 @@
+"""`shadowless swarm`: many protocol-level nodes in one process, to load a coordinator before a show.
+
+Each swarm node is a real client of the rig (:mod:`shadowless.swarm_node`): it finds the
+coordinator (mDNS or ``--coordinator``), proves the rig token, joins its slot, keeps a clock
+estimate from pings, follows its assignments, fetches its share of the wanted assets, follows the
+show's timeline and receives live frames, and reports heartbeats, swaps and drops as a node does;
+it only does not render. So a coordinator can be loaded with hundreds of nodes from one machine
+and watched with ``shadowless status`` (the swarm's slots show ``live``, their swaps feed the
+sync figures) or measured with ``shadowless bench swarm``.
+
+All nodes share one asyncio loop and one timer (swaps are due at the same instants), each with a
+session, streams, clock estimate and TCP connection of its own (``--share-connection`` multiplexes
+them on one, which costs the coordinator less than real nodes do). Assets: fetching a 2 GB show 256 times from one
+machine tests the disk, not the coordinator, so by default each node fetches the manifest of every
+wanted asset and one of its blobs (node *i* takes blob *i* mod the blob count, so the swarm as a
+whole fetches every blob), checks it against its SHA-256 and keeps nothing; it then reports the
+asset ready. ``--fetch all`` fetches every blob on every node (a distribution test),
+``--fetch manifest`` none.
+
+The swarm reports what it did (``--json``, ``--stats-file``): joins, swaps reported and how many
+were on time (a swap the swarm wakes up for later than ``--late-ms`` after its instant is reported
+as a late drop, as a real node would drop it), its own CPU time.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import os
+import resource
+import signal
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from protos.auth import TokenError, read_token, resolve_token
+from protos.discovery import Discovery, DiscoveryError
+from shadowless.swarm_node import SwarmNode, Ticker
+
+log = logging.getLogger("shadowless.swarm")
+
+FETCH_MODES = ("one", "all", "manifest")
+
+
+@dataclass
+class SwarmConfig:
+    """What every node of the swarm does (see ``shadowless swarm --help``)."""
+
+    slots: list[str]
+    token: bytes
+    coordinator: str | None = None          # HOST:PORT; None = mDNS
+    rig: str | None = None                  # rig name or id among advertisements
+    mdns_interfaces: list[str] | None = None
+    fetch: str = "one"
+    ping_hz: float = 4.0                    # as node.app's default
+    settled_ping_hz: float | None = None    # once a node's estimate has a drift fitted (None: ping_hz always)
+    report_batch_ms: float = 50.0           # as node.app's batching of swaps and drops
+    late_ms: float = 10.0
+    heartbeat_ms: float | None = None       # None: the interval the coordinator asks for when joining
+    merge_heartbeats: bool = False          # a due heartbeat rides in the next swap batch
+    clock_offset_ms: float = 0.0
+    clock_drift_ppm: float = 0.0
+    own_connections: bool = True            # a TCP connection per node, as real nodes have
+    join_concurrency: int = 16
+    fetch_concurrency: int = 8
+    backoff_min_s: float = 0.2
+    backoff_max_s: float = 5.0
+    refusal_backoff_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not self.slots:
+            raise ValueError("a swarm needs at least one slot")
+        if len(set(self.slots)) != len(self.slots):
+            raise ValueError("every swarm node needs a slot of its own (duplicate slot names)")
+        if self.fetch not in FETCH_MODES:
+            raise ValueError(f"--fetch must be one of {', '.join(FETCH_MODES)}, got {self.fetch!r}")
+        if not self.ping_hz > 0 or (self.settled_ping_hz is not None and not self.settled_ping_hz > 0):
+            raise ValueError("ping rates must be > 0 per second")
+        if not 0 <= self.report_batch_ms <= 10_000:
+            raise ValueError(f"--report-batch-ms must be within 0..10000, got {self.report_batch_ms:g}")
+
+
+@dataclass
+class SwarmStats:
+    """Counters over the whole swarm (since it started)."""
+
+    joins: int = 0
+    sessions_lost: int = 0
+    errors: int = 0
+    pings: int = 0
+    heartbeats: int = 0
+    reports: int = 0
+    assignments: int = 0
+    show_updates: int = 0
+    packets: int = 0
+    live_frames: int = 0
+    ticks: int = 0
+    swaps: int = 0
+    late: int = 0                # late drops reported: woke_late + arrived_late
+    woke_late: int = 0           # the swarm woke up for it more than late_ms after its instant
+    arrived_late: int = 0        # a live frame that arrived after its pts
+    superseded: int = 0
+    assets_ready: int = 0
+    blobs_verified: int = 0
+    bytes_fetched: int = 0
+    late_hist: list[int] = field(default_factory=lambda: [0] * 8)   # wake-up lateness of swaps: <0.5,1,2,4,8,16,32,more ms
+
+    def lateness(self, late_ns: int) -> None:
+        ms, i = late_ns / 1e6, 0
+        while i < 7 and ms >= 0.5 * (1 << i):
+            i += 1
+        self.late_hist[i] += 1
+
+
+class Swarm:
+    """N swarm nodes on this process's event loop: ``await run(seconds)`` or ``start()``/``stop()``."""
+
+    def __init__(self, cfg: SwarmConfig):
+        self.cfg = cfg
+        self.stats = SwarmStats()
+        self.nodes: list[SwarmNode] = []
+        self._stopping: asyncio.Event | None = None
+        self._tasks: list[asyncio.Task] = []
+        self._discovery: Discovery | None = None
+        self._found: list[str] = []
+        self._found_at = -1e9
+        self._find_lock: asyncio.Lock | None = None
+        self._ticker: Ticker | None = None
+        self._cpu0 = 0.0
+        self._t0 = 0.0
+
+    async def _targets(self) -> list[str]:
+        """Where the coordinator is: --coordinator, or mDNS (one lookup shared by every node that asks
+        within a few seconds, so hundreds of nodes do not flood the network with queries)."""
+        if self.cfg.coordinator is not None:
+            return [self.cfg.coordinator]
+        async with self._find_lock:
+            if self._found and time.monotonic() - self._found_at < 5.0:
+                return list(self._found)
+            self._found = await self._discover()
+            self._found_at = time.monotonic()
+            return list(self._found)
+
+    async def _discover(self) -> list[str]:
+        if self._discovery is None:
+            self._discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
+            await self._discovery.start()
+        ads = await self._discovery.find(rig=self.cfg.rig, timeout=3.0)
+        if len({a.rig_id for a in ads}) > 1:
+            names = ", ".join(sorted(f"{a.name} ({a.rig_id})" for a in ads))
+            raise DiscoveryError(f"several rigs are advertised ({names}); pick one with --rig NAME")
+        if not ads:
+            raise DiscoveryError("no coordinator advertised over mDNS yet; still looking (or pass --coordinator)")
+        return [a.target for a in ads]
+
+    async def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        self._stopping = asyncio.Event()
+        self._find_lock = asyncio.Lock()
+        self._ticker = Ticker(loop)
+        self._cpu0, self._t0 = _cpu_s(), time.monotonic()
+        join_gate = asyncio.Semaphore(self.cfg.join_concurrency)
+        fetch_gate = asyncio.Semaphore(self.cfg.fetch_concurrency)
+        self.nodes = [SwarmNode(slot, i, self.cfg, self.stats, self._ticker, self._targets, join_gate, fetch_gate)
+                      for i, slot in enumerate(self.cfg.slots)]
+        self._tasks = [asyncio.create_task(n.run(self._stopping), name=f"swarm:{n.slot}") for n in self.nodes]
+
+    async def stop(self) -> None:
+        if self._stopping is not None:
+            self._stopping.set()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self._ticker is not None:
+            self._ticker.close()
+        if self._discovery is not None:
+            await self._discovery.close()
+            self._discovery = None
+
+    @property
+    def live(self) -> int:
+        return sum(1 for n in self.nodes if n.joined)
+
+    def summary(self) -> dict:
+        """The swarm's figures: counters, how many swaps were on time, its own CPU and memory."""
+        s = asdict(self.stats)
+        hist = s.pop("late_hist")
+        wall = max(1e-9, time.monotonic() - self._t0)
+        cpu = _cpu_s() - self._cpu0
+        due = self.stats.swaps + self.stats.woke_late
+        return {
+            "nodes": len(self.nodes), "live": self.live, **s,
+            "on_time_fraction": round(self.stats.swaps / due, 5) if due else None,
+            "swap_wake_late_ms_hist": dict(zip(["<0.5", "<1", "<2", "<4", "<8", "<16", "<32", ">=32"], hist)),
+            "late_ms": self.cfg.late_ms, "fetch": self.cfg.fetch, "ping_hz": self.cfg.ping_hz,
+            "settled_ping_hz": self.cfg.settled_ping_hz, "report_batch_ms": self.cfg.report_batch_ms,
+            "heartbeat_ms": self.cfg.heartbeat_ms, "merge_heartbeats": self.cfg.merge_heartbeats,
+            "own_connections": self.cfg.own_connections,
+            "wall_s": round(wall, 3), "cpu_s": round(cpu, 3), "cpu_fraction_of_core": round(cpu / wall, 4),
+            "rss_mb": round(_rss_mb(), 1), "pid": os.getpid(),
+        }
+
+    async def run(self, seconds: float | None = None, *, stats_file: Path | None = None,
+                  stop: asyncio.Event | None = None) -> dict:
+        """Run until ``seconds`` passed or ``stop`` is set; the summary (written to ``stats_file``
+        about every second on the way)."""
+        await self.start()
+        stop = stop or asyncio.Event()
+        deadline = None if seconds is None else time.monotonic() + seconds
+        try:
+            while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                if stats_file is not None:
+                    _write_json(stats_file, self.summary())
+                try:
+                    await asyncio.wait_for(stop.wait(), 1.0 if deadline is None else
+                                           max(0.01, min(1.0, deadline - time.monotonic())))
+                except TimeoutError:
+                    pass
+        finally:
+            await self.stop()
+        out = self.summary()
+        if stats_file is not None:
+            _write_json(stats_file, out)
+        return out
+
+
+def _cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _rss_mb() -> float:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:  # pragma: no cover - not Linux
+        pass
+    return 0.0
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc))
+    os.replace(tmp, path)
+
+
+def default_slots(n: int) -> list[str]:
+    """``r{row}c{col}`` names of a square-ish grid of ``n`` slots, as ``rig init --grid`` names them."""
+    cols = 1
+    while cols * cols < n:
+        cols += 1
+    return [f"r{i // cols}c{i % cols}" for i in range(n)]
+
+
+# ---------------------------------------------------------------- `shadowless swarm`
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Load-test a coordinator before a show: run N protocol-level nodes in this one process. Each discovers the "
+        "coordinator, proves the rig token, joins its slot, keeps a clock estimate, fetches its share of the wanted "
+        "assets, follows the timeline and live frames and reports heartbeats and swaps like a real node, without "
+        "rendering anything. Watch the coordinator meanwhile (`shadowless status`, its CPU), or let "
+        "`shadowless bench swarm` measure it.\n\n"
+        "The rig must have a slot for every swarm node: make a test rig (`shadowless rig init DIR --grid 16x16`), "
+        "run a coordinator on it, and point the swarm at it with --rig-dir DIR (token and slots from there). Run "
+        "the swarm on another machine than the coordinator when you can: hundreds of swarm nodes use a core or more.")
+    p.epilog = (
+        "examples:\n"
+        "  shadowless rig init /tmp/loadtest --grid 16x16 --resolution 1920x1080\n"
+        "  shadowless coordinator --rig /tmp/loadtest &\n"
+        "  shadowless swarm --nodes 256 --rig-dir /tmp/loadtest --seconds 120 --json\n"
+        "  shadowless swarm --nodes 64 --token-file token --coordinator 10.0.0.2:7600 --slot-prefix s   # slots s0..s63\n"
+        "\nwhat it prints (at the end, or in --stats-file every second): joins, swaps reported, on_time_fraction "
+        "(swaps\nthe swarm woke up for within --late-ms; the others are reported as late drops), its own CPU time.")
+    p.add_argument("--nodes", type=int, required=True, help="how many swarm nodes")
+    where = p.add_argument_group("which rig")
+    where.add_argument("--rig-dir", type=Path, metavar="DIR",
+                       help="the rig directory: its token, and its first N slots for the nodes")
+    where.add_argument("--token-file", metavar="FILE", help="rig token file (default: $SHADOWLESS_TOKEN_FILE)")
+    where.add_argument("--slots", metavar="A,B,...", help="slot names for the nodes (default: the rig's, or r0c0…)")
+    where.add_argument("--slot-prefix", metavar="P", help="slots P0 … P{N-1}")
+    where.add_argument("--coordinator", metavar="HOST:PORT", help="skip mDNS and use this coordinator")
+    where.add_argument("--rig", metavar="NAME", help="with several rigs advertised, join this one (name or id)")
+    where.add_argument("--mdns-interface", action="append", metavar="IP",
+                       help="browse mDNS on this IPv4 address only (repeatable; default all)")
+    how = p.add_argument_group("what each node does")
+    how.add_argument("--fetch", choices=FETCH_MODES, default="one",
+                     help="assets: the manifest and one blob per node (default), every blob, or the manifest only")
+    how.add_argument("--ping-hz", type=float, default=4.0, help="clock pings per second per node (default 4, as a node)")
+    how.add_argument("--settled-ping-hz", type=float, metavar="HZ",
+                     help="ping at this rate once a node's clock estimate has a drift (default: --ping-hz always)")
+    how.add_argument("--report-batch-ms", type=float, default=50.0,
+                     help="swaps and drops are batched over this long (default 50, as a node)")
+    how.add_argument("--heartbeat-ms", type=float, metavar="MS",
+                     help="heartbeat interval (default: what the coordinator asks for, rig.toml's heartbeat_ms)")
+    how.add_argument("--merge-heartbeats", action="store_true",
+                     help="send a due heartbeat inside the next batch of swaps instead of as a message of its own")
+    how.add_argument("--share-connection", action="store_true",
+                     help="multiplex every node on one TCP connection (default: one connection per node, as real "
+                          "nodes have; sharing costs the coordinator less)")
+    how.add_argument("--late-ms", type=float, default=10.0,
+                     help="a swap the swarm wakes up for later than this is reported as a late drop (default 10)")
+    how.add_argument("--clock-offset-ms", type=float, default=0.0, help="give node clocks random offsets within ±this")
+    how.add_argument("--clock-drift-ppm", type=float, default=0.0, help="give node clocks random drifts within ±this")
+    out = p.add_argument_group("how long and what to print")
+    out.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C or SIGTERM)")
+    out.add_argument("--stats-file", type=Path, metavar="FILE", help="write the figures here as JSON about every second")
+    out.add_argument("--json", action="store_true", help="print the final figures as JSON")
+    out.add_argument("--log-level", default="warning", choices=["debug", "info", "warning", "error"])
+
+
+def config_from_args(args: argparse.Namespace) -> SwarmConfig:
+    """The swarm's configuration from the command line; ValueError/TokenError say what is wrong."""
+    n = args.nodes
+    if n < 1:
+        raise ValueError(f"--nodes must be at least 1, got {n}")
+    rig_slots: list[str] | None = None
+    rig_name = args.rig
+    if args.rig_dir is not None:
+        from coordinator.rig import RigError, parse_config
+        toml = args.rig_dir / "rig.toml"
+        try:
+            conf = parse_config(toml.read_text(), source=str(toml))
+        except FileNotFoundError:
+            raise ValueError(f"{args.rig_dir} is not a rig directory (no rig.toml; create one with "
+                             "`shadowless rig init DIR --grid 16x16`)") from None
+        except RigError as exc:
+            raise ValueError(str(exc)) from None
+        rig_slots = list(conf.slots)
+        rig_name = rig_name or conf.name
+    token = read_token(args.rig_dir / "token") if args.rig_dir is not None and not args.token_file \
+        else resolve_token(args.token_file)
+    if args.slots:
+        slots = [s.strip() for s in args.slots.split(",") if s.strip()]
+    elif args.slot_prefix:
+        slots = [f"{args.slot_prefix}{i}" for i in range(n)]
+    elif rig_slots is not None:
+        slots = rig_slots
+    else:
+        slots = default_slots(n)
+    if len(slots) < n:
+        raise ValueError(f"{n} swarm nodes need {n} slots, the rig has {len(slots)}; make a test rig with enough "
+                         f"(`shadowless rig init DIR --grid 16x16`)")
+    return SwarmConfig(slots=slots[:n], token=token, coordinator=args.coordinator, rig=rig_name,
+                       mdns_interfaces=args.mdns_interface, fetch=args.fetch, ping_hz=args.ping_hz,
+                       settled_ping_hz=args.settled_ping_hz, report_batch_ms=args.report_batch_ms,
+                       late_ms=args.late_ms, heartbeat_ms=args.heartbeat_ms, merge_heartbeats=args.merge_heartbeats,
+                       own_connections=not args.share_connection,
+                       clock_offset_ms=args.clock_offset_ms,
+                       clock_drift_ppm=args.clock_drift_ppm)
+
+
+async def _main(cfg: SwarmConfig, args: argparse.Namespace) -> dict:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    swarm = Swarm(cfg)
+    print(f"swarm: {len(cfg.slots)} nodes ({cfg.slots[0]} … {cfg.slots[-1]}) joining "
+          f"{cfg.coordinator or 'the coordinator found over mDNS'}", file=sys.stderr, flush=True)
+    return await swarm.run(args.seconds, stats_file=args.stats_file, stop=stop)
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        cfg = config_from_args(args)
+    except (ValueError, TokenError) as exc:
+        print(f"shadowless swarm: {exc}", file=sys.stderr)
+        return 2
+    summary = asyncio.run(_main(cfg, args))
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{summary['nodes']} swarm nodes, {summary['joins']} joins: {summary['swaps']} swaps reported, "
+              f"{summary['late']} late, on time {summary['on_time_fraction']}; swarm CPU {summary['cpu_s']} s "
+              f"over {summary['wall_s']} s")
+    return 0
