@@ -43,8 +43,9 @@ TICK_S = os.sysconf("SC_CLK_TCK")
 #: swarm arguments per --rates preset
 RATES = {
     "node": [],
-    "proposed": ["--settled-ping-hz", "0.25", "--report-batch-ms", "1000", "--heartbeat-ms", "1000",
-                 "--merge-heartbeats"],
+    # what a node did before it settled its clock exchanges and sent a show's reports with its
+    # heartbeat: pings at 4 Hz always, every swap batch within 50 ms, a heartbeat every 500 ms
+    "dense": ["--ping-settled-s", "0", "--timeline-batch-ms", "50", "--heartbeat-ms", "500"],
 }
 
 
@@ -53,16 +54,18 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", default="30,60", help="timeline frame rates, comma-separated (default 30,60)")
     p.add_argument("--size", default="1920x1080", help="the large asset's frame size WxH (default 1920x1080)")
     p.add_argument("--seconds", type=float, default=10.0, help="length of each measured window (default 10)")
-    p.add_argument("--warmup", type=float, default=5.0, help="seconds for the clocks to settle after joining (default 5)")
+    p.add_argument("--warmup", type=float, default=25.0,
+                   help="seconds after joining before measuring: a node's clock settles in ~20 s (default 25)")
     p.add_argument("--live-fps", type=float, default=30.0, help="frame rate of the live sequence (default 30)")
     p.add_argument("--live-size", default="320x180",
                    help="the rig's content size WxH, which the live sequence's generated frames have (default 320x180)")
     p.add_argument("--join-timeout", type=float, default=300.0, help="seconds for every node to join (default 300)")
     p.add_argument("--rates", choices=sorted(RATES), default="node",
-                   help="message rates of the swarm nodes: 'node' as a node does today (default), 'proposed' with "
-                        "settled pings at 0.25 Hz and timeline swaps batched over 1 s carrying the heartbeat")
+                   help="message rates of the swarm nodes: 'node' as a node does (default: pings at 4 Hz until its "
+                        "clock is settled, then every 5 s; a show's swap reports with the heartbeat, once a second), "
+                        "'dense' as nodes did before (pings at 4 Hz, reports within 50 ms, heartbeats every 500 ms)")
     p.add_argument("--swarm-arg", action="append", default=[], metavar="ARG",
-                   help="pass ARG to `shadowless swarm` (repeatable), e.g. --swarm-arg=--settled-ping-hz=1")
+                   help="pass ARG to `shadowless swarm` (repeatable), e.g. --swarm-arg=--ping-settled-s=10")
     p.add_argument("--keep", metavar="DIR", help="keep rig directories and logs here")
 
 

@@ -148,8 +148,8 @@ class RigConfig:
     content_width: int = 1200
     content_height: int = 600
     latency_ms: float = 50.0
-    heartbeat_ms: int = 500
-    lost_after_ms: int = 2500
+    heartbeat_ms: int = 1000
+    lost_after_ms: int = 5000
     cameras: tuple[str, ...] = ()
 
 
@@ -184,8 +184,8 @@ def parse_config(text: str, *, source: str = "rig.toml") -> RigConfig:
     latency = doc.get("latency_ms", 50.0)
     if not isinstance(latency, (int, float)) or not 1 <= latency <= 5000:
         raise RigError(f"{source}: latency_ms must be a number in 1..5000, got {latency!r}")
-    hb = doc.get("heartbeat_ms", 500)
-    lost = doc.get("lost_after_ms", max(2500, 5 * hb if isinstance(hb, int) else 2500))
+    hb = doc.get("heartbeat_ms", 1000)
+    lost = doc.get("lost_after_ms", max(5000, 5 * hb if isinstance(hb, int) else 5000))
     if not isinstance(hb, int) or not 50 <= hb <= 60_000 or not isinstance(lost, int) or lost < 2 * hb:
         raise RigError(f"{source}: heartbeat_ms must be 50..60000 and lost_after_ms at least twice it")
     cameras = doc.get("cameras", [])
@@ -213,8 +213,9 @@ def render_config(name: str, rig_id: str, slots: list[str], *, width: int, heigh
         f"content_height = {content_height}",
         "# how far ahead of now frames are scheduled; covers network + render time",
         f"latency_ms = {latency_ms:g}",
-        "heartbeat_ms = 500",
-        "lost_after_ms = 2500",
+        "# a node's heartbeat (a show's swap reports travel with it), and its silence that marks it lost",
+        "heartbeat_ms = 1000",
+        "lost_after_ms = 5000",
         "# cameras for calibration: room://HOST:PORT (virtual room), opencv:INDEX or a device path, folder:DIR",
         f"cameras = [{', '.join(json.dumps(c) for c in cameras)}]",
         "",

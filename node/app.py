@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import importlib.metadata
 import logging
+import math
 import os
 import random
 import socket
@@ -28,7 +29,7 @@ from pathlib import Path
 
 from node.asset_cache import default_cache_dir
 from node.asset_fetch import AssetFetcher
-from node.clock import ClockEstimator, ClockSample, LocalClock
+from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimator, ClockSample, LocalClock
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.link import CoordinatorLink, LinkError
 from node.presenter_process import PresenterProcess, PresenterSettings
@@ -65,7 +66,8 @@ class NodeConfig:
     protocol_version: int = PROTOCOL_VERSION
     tls_ca: bytes | None = None
     tls_server_name: str | None = None
-    ping_hz: float = 4.0
+    ping_hz: float = 4.0                    # clock exchanges per second until the clock is settled ...
+    ping_settled_s: float = 5.0             # ... then one every this many seconds
     realtime: bool = True
     backoff_min_s: float = 0.2
     backoff_max_s: float = 5.0
@@ -91,7 +93,8 @@ class Node:
     def __init__(self, config: NodeConfig):
         self.cfg = config
         self.clock = LocalClock(offset_ns=int(config.clock_offset_ms * 1e6), drift_ppm=config.clock_drift_ppm)
-        self.estimator = ClockEstimator()
+        self.estimator = ClockEstimator(window_ns=CLOCK_WINDOW_NS)
+        self._clock_settled = False      # the estimate is good enough for sparse exchanges
         self.presenter: PresenterProcess | None = None
         self._reports: asyncio.Queue | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -289,6 +292,7 @@ class Node:
         self._instance, self._clock_id = joined.instance_id, joined.clock_id
         if not same_clock:
             self.estimator.reset()
+            self._clock_settled = False
             self.presenter.submit("clock", None)
             self.presenter.submit("reset")
 
@@ -328,10 +332,24 @@ class Node:
             await asyncio.sleep(0.01)
 
     async def _pings(self, link: CoordinatorLink) -> None:
-        period = 1.0 / max(0.1, self.cfg.ping_hz)
+        """Clock exchanges: ``ping_hz`` until the estimate's drift is fitted over SETTLE_SPAN_NS, then
+        one every ``ping_settled_s`` (each exchange costs the coordinator about half a millisecond;
+        a settled drift carries the estimate between them)."""
         while True:
-            await asyncio.sleep(period * random.uniform(0.8, 1.2))
+            await asyncio.sleep(self.ping_period() * random.uniform(0.8, 1.2))
             await self._ping_once(link)
+
+    def ping_period(self) -> float:
+        """Seconds to the next clock exchange; the clock turns settled (for good, until the rig
+        clock changes) once the estimate's drift is fitted over SETTLE_SPAN_NS."""
+        est = self.estimator.estimate
+        if not self._clock_settled and est is not None and est.drift_fitted and est.span_ns >= SETTLE_SPAN_NS:
+            self._clock_settled = True
+            log.info("clock settled (drift %.2f ppm, best round trip %.2f ms): exchanges every %.0f s",
+                     est.drift * 1e6, est.best_rtt_ns / 1e6, self.cfg.ping_settled_s)
+        if self._clock_settled:
+            return min(60.0, max(1.0, self.cfg.ping_settled_s))
+        return 1.0 / max(0.1, self.cfg.ping_hz)
 
     async def _assignments(self, link: CoordinatorLink) -> None:
         async for assignment in link.assignments():
@@ -368,10 +386,14 @@ class Node:
         self._assets_passed.add(asset_id)
         log.info("asset %s (%s) passed to the presenter for the show", asset_id[:12], m.name)
 
-    async def _report_stream(self, link: CoordinatorLink, heartbeat_s: float, *, batch_s: float = 0.05) -> None:
+    async def _report_stream(self, link: CoordinatorLink, heartbeat_s: float, *, batch_s: float = 0.05,
+                             timeline_batch_s: float = 1.0) -> None:
         """Heartbeats every ``heartbeat_s`` and at once when the fetcher has news (an asset ready or
-        given up on; the next regular one then follows a full period later); swaps and drops batched
-        over ``batch_s``."""
+        given up on; the next regular one then follows a full period later). Swaps and drops of
+        streamed frames (stills, patterns, sequences: callers wait for them) go within ``batch_s``;
+        those of the show's timeline ticks wait up to ``timeline_batch_s`` and travel with the next
+        heartbeat when it is due by then, so a node playing a show sends about one message a
+        second (the coordinator's cost per node is mostly per message)."""
         q = self._reports
         while not q.empty():  # reports from a previous session are stale
             q.get_nowait()
@@ -380,30 +402,45 @@ class Node:
 
         async def batches():
             next_hb = 0.0
+            pending: list[SwapRecord | DropRecord] = []
+            flush_at = math.inf
             getter: asyncio.Future | None = None
             try:
                 while True:
                     now = time.monotonic()
-                    if now >= next_hb or now_event.is_set():
-                        now_event.clear()
-                        next_hb = now + heartbeat_s
-                        yield ReportBatch(heartbeat=self._heartbeat())
+                    hb_due = now >= next_hb or now_event.is_set()
+                    if hb_due or now >= flush_at:
+                        heartbeat = None
+                        if hb_due:
+                            now_event.clear()
+                            next_hb = now + heartbeat_s
+                            heartbeat = self._heartbeat()
+                        pending += [q.get_nowait() for _ in range(q.qsize())]
+                        if getter is not None and getter.done():
+                            pending.append(getter.result())
+                            getter = None
+                        items, pending, flush_at = pending, [], math.inf
+                        yield ReportBatch(heartbeat=heartbeat,
+                                          swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
+                                          drops=tuple(i for i in items if isinstance(i, DropRecord)))
                         continue
                     if getter is None:
                         getter = asyncio.ensure_future(q.get())
                     news = asyncio.ensure_future(now_event.wait())
                     try:
-                        await asyncio.wait((getter, news), timeout=max(0.01, next_hb - now),
+                        await asyncio.wait((getter, news), timeout=max(0.005, min(next_hb, flush_at) - now),
                                            return_when=asyncio.FIRST_COMPLETED)
                     finally:
                         news.cancel()
                     if not getter.done():
-                        continue   # a heartbeat is due (or wanted at once)
-                    first, getter = getter.result(), None
-                    await asyncio.sleep(batch_s)   # gather what follows into the same message
-                    items = [first] + [q.get_nowait() for _ in range(q.qsize())]
-                    yield ReportBatch(swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
-                                      drops=tuple(i for i in items if isinstance(i, DropRecord)))
+                        continue   # a heartbeat or a batch is due (or a heartbeat wanted at once)
+                    item, getter = getter.result(), None
+                    pending.append(item)
+                    if item.timeline:       # with the heartbeat if it comes within the batch's wait
+                        due = next_hb if next_hb <= now + timeline_batch_s else now + timeline_batch_s
+                    else:                   # gather what follows into the same message
+                        due = now + batch_s
+                    flush_at = min(flush_at, due)
             finally:
                 if getter is not None:
                     getter.cancel()

@@ -61,7 +61,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="write every shown still to DIR/<slot>.png (for inspection)")
     p.add_argument("--tls-ca", metavar="PEM", help="connect with TLS, trusting this CA certificate")
     p.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
-    p.add_argument("--ping-hz", type=float, default=4.0, help="clock exchanges per second (default 4)")
+    p.add_argument("--ping-hz", type=float, default=4.0,
+                   help="clock exchanges per second until the clock estimate is settled, about 20 s (default 4)")
+    p.add_argument("--ping-settled-s", type=float, default=5.0, metavar="S",
+                   help="then one clock exchange every S seconds (1..60, default 5; each costs the coordinator ~0.5 ms)")
     p.add_argument("--no-realtime", action="store_true",
                    help="do not raise the swap to real-time priority (SCHED_FIFO needs CAP_SYS_NICE)")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
@@ -87,7 +90,7 @@ def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) ->
                       mdns_interfaces=args.mdns_interface, output=args.output, snapshot_dir=args.snapshot_dir,
                       clock_offset_ms=args.clock_offset_ms, clock_drift_ppm=args.clock_drift_ppm,
                       protocol_version=args.protocol_version, tls_ca=tls_ca, tls_server_name=args.tls_server_name,
-                      ping_hz=args.ping_hz, realtime=not args.no_realtime,
+                      ping_hz=args.ping_hz, ping_settled_s=args.ping_settled_s, realtime=not args.no_realtime,
                       cache_dir=args.cache_dir or default_cache_dir() / args.slot, cache_max_bytes=args.cache_max,
                       fetch_rate=float(args.fetch_rate) if args.fetch_rate else None)
 

@@ -109,6 +109,12 @@ class ClockSample:
         return (self.t0 + self.t3) / 2.0
 
 
+#: a node fits its clock estimate over this window (at the settled rate, two dozen exchanges) ...
+CLOCK_WINDOW_NS = 120_000_000_000
+#: ... and exchanges at its settled rate once the fitted drift spans this long (at 4 Hz: 80 exchanges)
+SETTLE_SPAN_NS = 20_000_000_000
+
+
 @dataclass(frozen=True)
 class ClockEstimate:
     offset_ns: float      # rig - local at ``ref_local_ns``
@@ -116,6 +122,8 @@ class ClockEstimate:
     ref_local_ns: float
     best_rtt_ns: int
     samples: int
+    span_ns: float = 0.0          # how long the exchanges used span (local clock)
+    drift_fitted: bool = False    # False: too few or too close exchanges, drift taken as 0
 
     def rig_time(self, local_ns: int) -> int:
         return int(round(local_ns + self.offset_ns + self.drift * (local_ns - self.ref_local_ns)))
@@ -190,7 +198,8 @@ class ClockEstimator:
         w = 1.0 / (r - best + max(best, 100_000.0))   # an exchange's error bound grows with its excess round trip
         ref = float(mids[-1])
         span = float(m.max() - m.min()) if len(m) else 0.0
-        if len(m) >= 4 and span >= self.min_drift_span_ns:
+        fitted = len(m) >= 4 and span >= self.min_drift_span_ns
+        if fitted:
             x = m - ref
             sw = w.sum()
             xm = (w * x).sum() / sw
@@ -204,4 +213,5 @@ class ClockEstimator:
             drift, offset, ref = 0.0, float(offs[i]), float(mids[i])
         if not math.isfinite(offset) or not math.isfinite(drift):
             return self._estimate
-        return ClockEstimate(offset_ns=offset, drift=drift, ref_local_ns=ref, best_rtt_ns=int(best), samples=int(len(keep)))
+        return ClockEstimate(offset_ns=offset, drift=drift, ref_local_ns=ref, best_rtt_ns=int(best), samples=int(len(keep)),
+                             span_ns=span, drift_fitted=fitted)

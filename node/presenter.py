@@ -107,6 +107,7 @@ class Presenter:
         self.timeline_shown = 0          # timeline frames swapped in
         self.timeline_missed = 0         # timeline ticks not shown (late, undecodable, unrenderable)
         self.timeline_last_frame = -1    # the asset frame index last swapped in
+        self._timeline_reports = False   # reports made now are of timeline ticks
         self._timeline_cid: str | None = None
         self._last_event_pts: int | None = None
         self.live = LiveDecoder()        # live video pictures (coordinator/live_video.py)
@@ -296,7 +297,15 @@ class Presenter:
         return max(0.0, (until - self.PREPARE_NS) / 1e9)
 
     def timeline_step(self) -> None:
-        """Prepare the next timeline frame (or the stop), swap it in at its time, report it."""
+        """Prepare the next timeline frame (or the stop), swap it in at its time, report it (its
+        swap and drop records marked ``timeline``)."""
+        self._timeline_reports = True
+        try:
+            self._timeline_step()
+        finally:
+            self._timeline_reports = False
+
+    def _timeline_step(self) -> None:
         ev = self._next_event()
         if ev is None:
             return
@@ -369,7 +378,7 @@ class Presenter:
             self.late += 1
         else:
             self.dropped += 1
-        self.report("drop", drop)
+        self.report("drop", replace(drop, timeline=True) if self._timeline_reports else drop)
         self._send_stats()
 
     def _render(self, renderer, frame: FrameOrder) -> None:
@@ -420,6 +429,8 @@ class Presenter:
             log.info("timing frame %d: swap %.3f ms after deadline", frame.frame_id,
                      (host - self.clock.to_host(deadline)) / 1e6)
         swap = pacer.shown(frame, host)
+        if self._timeline_reports:
+            swap = replace(swap, timeline=True)
         previous = self._current
         self._current = frame
         self._forget_timeline_content(keep=frame.content_id if frame.content_id.startswith("timeline:") else None)

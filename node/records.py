@@ -136,6 +136,7 @@ class SwapRecord:
     pts_ns: int
     swap_rig_ns: int          # the node's estimate of the rig clock at the swap
     host_monotonic_ns: int    # the host's CLOCK_MONOTONIC at the swap
+    timeline: bool = False    # a tick of the show's timeline (its report may wait, see node.app)
 
 
 @dataclass(frozen=True)
@@ -145,6 +146,7 @@ class DropRecord:
     frame_id: int
     reason: DropReason
     late_by_ns: int = 0
+    timeline: bool = False    # a tick of the show's timeline
 
 
 @dataclass(frozen=True)

@@ -54,12 +54,12 @@ class SwarmConfig:
     rig: str | None = None                  # rig name or id among advertisements
     mdns_interfaces: list[str] | None = None
     fetch: str = "one"
-    ping_hz: float = 4.0                    # as node.app's default
-    settled_ping_hz: float | None = None    # once a node's estimate has a drift fitted (None: ping_hz always)
-    report_batch_ms: float = 50.0           # as node.app's batching of swaps and drops
+    ping_hz: float = 4.0                    # as node.app: until the clock is settled ...
+    ping_settled_s: float | None = 5.0      # ... then one exchange every this long (None: ping_hz always)
+    report_batch_ms: float = 50.0           # as node.app: streamed frames' swaps and drops
+    timeline_batch_ms: float = 1000.0       # as node.app: timeline ticks' reports wait (with the heartbeat)
     late_ms: float = 10.0
     heartbeat_ms: float | None = None       # None: the interval the coordinator asks for when joining
-    merge_heartbeats: bool = False          # a due heartbeat rides in the next swap batch
     clock_offset_ms: float = 0.0
     clock_drift_ppm: float = 0.0
     own_connections: bool = True            # a TCP connection per node, as real nodes have
@@ -76,10 +76,11 @@ class SwarmConfig:
             raise ValueError("every swarm node needs a slot of its own (duplicate slot names)")
         if self.fetch not in FETCH_MODES:
             raise ValueError(f"--fetch must be one of {', '.join(FETCH_MODES)}, got {self.fetch!r}")
-        if not self.ping_hz > 0 or (self.settled_ping_hz is not None and not self.settled_ping_hz > 0):
+        if not self.ping_hz > 0 or (self.ping_settled_s is not None and not self.ping_settled_s > 0):
             raise ValueError("ping rates must be > 0 per second")
-        if not 0 <= self.report_batch_ms <= 10_000:
-            raise ValueError(f"--report-batch-ms must be within 0..10000, got {self.report_batch_ms:g}")
+        for name in ("report_batch_ms", "timeline_batch_ms"):
+            if not 0 <= getattr(self, name) <= 10_000:
+                raise ValueError(f"--{name.replace('_', '-')} must be within 0..10000, got {getattr(self, name):g}")
 
 
 @dataclass
@@ -193,8 +194,8 @@ class Swarm:
             "on_time_fraction": round(self.stats.swaps / due, 5) if due else None,
             "swap_wake_late_ms_hist": dict(zip(["<0.5", "<1", "<2", "<4", "<8", "<16", "<32", ">=32"], hist)),
             "late_ms": self.cfg.late_ms, "fetch": self.cfg.fetch, "ping_hz": self.cfg.ping_hz,
-            "settled_ping_hz": self.cfg.settled_ping_hz, "report_batch_ms": self.cfg.report_batch_ms,
-            "heartbeat_ms": self.cfg.heartbeat_ms, "merge_heartbeats": self.cfg.merge_heartbeats,
+            "ping_settled_s": self.cfg.ping_settled_s, "report_batch_ms": self.cfg.report_batch_ms,
+            "timeline_batch_ms": self.cfg.timeline_batch_ms, "heartbeat_ms": self.cfg.heartbeat_ms,
             "own_connections": self.cfg.own_connections,
             "wall_s": round(wall, 3), "cpu_s": round(cpu, 3), "cpu_fraction_of_core": round(cpu / wall, 4),
             "rss_mb": round(_rss_mb(), 1), "pid": os.getpid(),
@@ -286,15 +287,17 @@ def configure(p: argparse.ArgumentParser) -> None:
     how = p.add_argument_group("what each node does")
     how.add_argument("--fetch", choices=FETCH_MODES, default="one",
                      help="assets: the manifest and one blob per node (default), every blob, or the manifest only")
-    how.add_argument("--ping-hz", type=float, default=4.0, help="clock pings per second per node (default 4, as a node)")
-    how.add_argument("--settled-ping-hz", type=float, metavar="HZ",
-                     help="ping at this rate once a node's clock estimate has a drift (default: --ping-hz always)")
+    how.add_argument("--ping-hz", type=float, default=4.0,
+                     help="clock pings per second per node until its clock is settled (default 4, as a node)")
+    how.add_argument("--ping-settled-s", type=float, default=5.0, metavar="S",
+                     help="then one ping every S seconds (default 5, as a node; 0: --ping-hz always)")
     how.add_argument("--report-batch-ms", type=float, default=50.0,
-                     help="swaps and drops are batched over this long (default 50, as a node)")
+                     help="swaps and drops of streamed frames are batched over this long (default 50, as a node)")
+    how.add_argument("--timeline-batch-ms", type=float, default=1000.0,
+                     help="those of timeline ticks wait up to this long, going with the heartbeat when it is due "
+                          "by then (default 1000, as a node; 50 sends them as streamed frames' are)")
     how.add_argument("--heartbeat-ms", type=float, metavar="MS",
                      help="heartbeat interval (default: what the coordinator asks for, rig.toml's heartbeat_ms)")
-    how.add_argument("--merge-heartbeats", action="store_true",
-                     help="send a due heartbeat inside the next batch of swaps instead of as a message of its own")
     how.add_argument("--share-connection", action="store_true",
                      help="multiplex every node on one TCP connection (default: one connection per node, as real "
                           "nodes have; sharing costs the coordinator less)")
@@ -343,8 +346,8 @@ def config_from_args(args: argparse.Namespace) -> SwarmConfig:
                          f"(`shadowless rig init DIR --grid 16x16`)")
     return SwarmConfig(slots=slots[:n], token=token, coordinator=args.coordinator, rig=rig_name,
                        mdns_interfaces=args.mdns_interface, fetch=args.fetch, ping_hz=args.ping_hz,
-                       settled_ping_hz=args.settled_ping_hz, report_batch_ms=args.report_batch_ms,
-                       late_ms=args.late_ms, heartbeat_ms=args.heartbeat_ms, merge_heartbeats=args.merge_heartbeats,
+                       ping_settled_s=args.ping_settled_s or None, report_batch_ms=args.report_batch_ms,
+                       timeline_batch_ms=args.timeline_batch_ms, late_ms=args.late_ms, heartbeat_ms=args.heartbeat_ms,
                        own_connections=not args.share_connection,
                        clock_offset_ms=args.clock_offset_ms,
                        clock_drift_ppm=args.clock_drift_ppm)

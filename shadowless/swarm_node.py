@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import grpc
 
-from node.clock import ClockEstimator, ClockSample, LocalClock
+from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimator, ClockSample, LocalClock
 from node.link import CoordinatorLink, LinkError
 from node.records import (
     AssetProgressRecord,
@@ -144,7 +144,7 @@ class SwarmNode:
         offset = cfg.clock_offset_ms * (2.0 * random.random() - 1.0) if cfg.clock_offset_ms else 0.0
         drift = cfg.clock_drift_ppm * (2.0 * random.random() - 1.0) if cfg.clock_drift_ppm else 0.0
         self.clock = LocalClock(offset_ns=int(offset * 1e6), drift_ppm=drift)
-        self.estimator = ClockEstimator()
+        self.estimator = ClockEstimator(window_ns=CLOCK_WINDOW_NS)
         self.loop = ticker.loop
         self.joined = False
         self._instance = ""
@@ -164,6 +164,8 @@ class SwarmNode:
         self._pending: list = []      # swaps and drops not yet batched
         self._outbox: list[ReportBatch] = []
         self._flush_handle: asyncio.TimerHandle | None = None
+        self._flush_at = 0.0
+        self._next_hb = 0.0
         self._wake = asyncio.Event()
         self._hb_now = False
 
@@ -250,12 +252,13 @@ class SwarmNode:
 
     async def _pings(self, link: CoordinatorLink) -> None:
         cfg = self.cfg
-        settled = False     # once a drift was fitted in this session (sticky: a sparse window may lose it)
+        settled = False     # as node.app: once the drift is fitted over SETTLE_SPAN_NS (sticky)
         while True:
             est = self.estimator.estimate
-            settled = settled or (cfg.settled_ping_hz is not None and est is not None and est.drift != 0.0)
-            hz = cfg.settled_ping_hz if settled else cfg.ping_hz
-            await asyncio.sleep(random.uniform(0.8, 1.2) / max(0.01, hz))
+            settled = settled or (cfg.ping_settled_s is not None and est is not None and est.drift_fitted
+                                  and est.span_ns >= SETTLE_SPAN_NS)
+            period = cfg.ping_settled_s if settled else 1.0 / cfg.ping_hz
+            await asyncio.sleep(random.uniform(0.8, 1.2) * period)
             await self._ping(link)
 
     def _host_of_rig(self, rig_ns: int) -> int | None:
@@ -341,10 +344,11 @@ class SwarmNode:
             self._pending.append(DropRecord(frame_id, DropReason.SUPERSEDED))
             self.dropped += 1
             self.stats.superseded += 1
+            self._schedule_flush(kind == TICK)
         elif late_ns > self.cfg.late_ms * 1e6:   # the swarm woke up too late: it did not keep up
             self.last_frame = frame_id
             self.stats.woke_late += 1
-            self._drop(frame_id, late_ns)
+            self._drop(frame_id, late_ns, kind == TICK)
         else:
             self.last_frame = frame_id
             est = self.estimator.estimate
@@ -355,19 +359,31 @@ class SwarmNode:
             self.shown += 1
             self.stats.swaps += 1
             self.stats.lateness(late_ns)
-            self._schedule_flush()
+            self._schedule_flush(kind == TICK)
         if kind == TICK:
             self._reschedule()
 
-    def _drop(self, frame_id: int, late_ns: int) -> None:
+    def _drop(self, frame_id: int, late_ns: int, timeline: bool) -> None:
         self._pending.append(DropRecord(frame_id, DropReason.LATE, late_by_ns=int(late_ns)))
         self.late += 1
         self.stats.late += 1
-        self._schedule_flush()
+        self._schedule_flush(timeline)
 
-    def _schedule_flush(self) -> None:
-        if self._flush_handle is None:
-            self._flush_handle = self.loop.call_later(self.cfg.report_batch_ms / 1000.0, self._flush)
+    def _schedule_flush(self, timeline: bool) -> None:
+        """As node.app: a streamed frame's report goes within report_batch_ms (with what waits), a
+        timeline tick's waits up to timeline_batch_ms, or until the heartbeat if that is due first."""
+        now = self.loop.time()
+        if timeline:
+            wait = self.cfg.timeline_batch_ms / 1000.0
+            due = self._next_hb if self._next_hb <= now + wait else now + wait
+        else:
+            due = now + self.cfg.report_batch_ms / 1000.0
+        if self._flush_handle is not None and self._flush_at <= due:
+            return
+        if self._flush_handle is not None:
+            self._flush_handle.cancel()
+        self._flush_at = due
+        self._flush_handle = self.loop.call_at(due, self._flush)
 
     def _flush(self) -> None:
         self._flush_handle = None
@@ -380,27 +396,35 @@ class SwarmNode:
     # ---------------------------------------------------------------- reports
     async def _report(self, link: CoordinatorLink, heartbeat_s: float) -> None:
         async def batches():
-            next_hb = 0.0
+            self._next_hb = 0.0
             while True:
                 now = self.loop.time()
-                if now >= next_hb or self._hb_now:
-                    self._hb_now = False
-                    next_hb = now + heartbeat_s
-                    self.stats.heartbeats += 1
-                    yield ReportBatch(heartbeat=self._heartbeat())
-                    continue
                 if self._outbox:
                     self.stats.reports += 1
                     batch = self._outbox.pop(0)
-                    if self.cfg.merge_heartbeats and now >= next_hb - self.cfg.report_batch_ms / 1000.0:
-                        next_hb = now + heartbeat_s      # the heartbeat rides along with the swaps
+                    if now >= self._next_hb - 0.005:     # a due heartbeat rides along with the swaps
+                        self._next_hb = now + heartbeat_s
                         self.stats.heartbeats += 1
                         batch = ReportBatch(heartbeat=self._heartbeat(), swaps=batch.swaps, drops=batch.drops)
                     yield batch
                     continue
+                if now >= self._next_hb or self._hb_now:
+                    self._hb_now = False
+                    self._next_hb = now + heartbeat_s
+                    self.stats.heartbeats += 1
+                    items, self._pending = self._pending, []      # what waited for the heartbeat goes with it
+                    if self._flush_handle is not None:
+                        self._flush_handle.cancel()
+                        self._flush_handle = None
+                    if items:
+                        self.stats.reports += 1
+                    yield ReportBatch(heartbeat=self._heartbeat(),
+                                      swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
+                                      drops=tuple(i for i in items if isinstance(i, DropRecord)))
+                    continue
                 self._wake.clear()
                 try:
-                    async with asyncio.timeout(next_hb - now):
+                    async with asyncio.timeout(self._next_hb - now):
                         await self._wake.wait()
                 except TimeoutError:
                     pass

@@ -248,9 +248,9 @@ def test_readiness_reaches_the_status_at_once_not_with_the_next_heartbeat(tmp_pa
     rig = make_rig(tmp_path, slots)
     toml = rig.rig_dir / "rig.toml"
     text = toml.read_text()
-    assert "heartbeat_ms = 500" in text and "lost_after_ms = 2500" in text
-    toml.write_text(text.replace("heartbeat_ms = 500", f"heartbeat_ms = {hb_ms}")
-                    .replace("lost_after_ms = 2500", f"lost_after_ms = {6 * hb_ms}"))
+    assert "heartbeat_ms = 1000" in text and "lost_after_ms = 5000" in text
+    toml.write_text(text.replace("heartbeat_ms = 1000", f"heartbeat_ms = {hb_ms}")
+                    .replace("lost_after_ms = 5000", f"lost_after_ms = {6 * hb_ms}"))
     store = AssetStore(rig.rig_dir)
     try:
         rig.start_coordinator()

@@ -94,3 +94,49 @@ def test_sleep_until_lands_on_the_deadline():
     deadline = clk.now() + 20_000_000
     woke_host = clk.sleep_until(deadline)
     assert clk.from_host(woke_host) >= deadline
+
+
+def test_sparse_exchanges_after_settling_keep_the_drift_and_a_sub_millisecond_error():
+    """20 s at 4 Hz, then one exchange every 5 s (the node's settled rate) for five minutes, over the
+    node's 120 s window, with the queueing above (2 ms mean, asymmetric: a congested network): the
+    drift stays fitted and the rig time extrapolated to the next exchange stays within 1 ms (the
+    dense exchanges: ~0.2 ms; on a quiet network both are tens of microseconds)."""
+    from node.app import NodeConfig
+    from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS
+
+    period_s = NodeConfig(slot="x", token=b"").ping_settled_s
+    drift, offset = 57e-6, 123.4e6
+    dense, truth = simulate(offset, drift, seconds=20, hz=4, seed=5)
+    est = ClockEstimator(window_ns=CLOCK_WINDOW_NS)
+    for s in dense:
+        e = est.add(s)
+    assert e.drift_fitted and e.span_ns >= SETTLE_SPAN_NS * 0.9
+    rng = np.random.default_rng(6)
+    t, worst = dense[-1].t3, 0.0
+    for _ in range(int(300 / period_s)):
+        t += period_s * 1e9
+        d1 = 150_000 + rng.exponential(2_000_000 * (0.3 if rng.random() < 0.5 else 1))
+        d2 = 150_000 + rng.exponential(2_000_000)
+        h0 = (t - offset) / (1 + drift)                          # host time of the exchange's start
+        e = est.add(ClockSample(int(t), int(h0 + d1), int(h0 + d1 + 30_000),
+                                int((h0 + d1 + 30_000 + d2) * (1 + drift) + offset)))
+        assert e.drift_fitted                                    # never falls back to a drift of 0
+        probe = t + period_s * 1e9
+        worst = max(worst, abs(e.rig_time(int(probe)) - truth(probe)))
+    assert worst < 1_000_000, worst
+
+
+def test_a_node_exchanges_at_its_settled_rate_once_the_drift_spans_twenty_seconds(tmp_path):
+    from node.app import Node, NodeConfig
+
+    node = Node(NodeConfig(slot="r0c0", token=b"x" * 32, cache_dir=tmp_path / "cache"))
+    samples, _ = simulate(0.0, 20e-6, seconds=30, hz=4, seed=9)
+    periods = []
+    for s in samples:
+        node.estimator.add(s)
+        periods.append(node.ping_period())
+    first_settled = periods.index(5.0)
+    assert set(periods[:first_settled]) == {0.25} and set(periods[first_settled:]) == {5.0}
+    assert 19 * 4 <= first_settled <= 22 * 4                     # after ~20 s of exchanges at 4 Hz
+    node.estimator.reset()
+    assert node.ping_period() == 5.0          # settled stays settled (the app clears it with the clock)

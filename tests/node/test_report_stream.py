@@ -11,7 +11,7 @@ import time
 from node.app import Node, NodeConfig
 from node.asset_fetch import AssetFetcher
 from node.link import LinkError
-from node.records import BlobChunkData, SwapRecord, WantedAssets
+from node.records import BlobChunkData, DropReason, DropRecord, SwapRecord, WantedAssets
 from protos.asset_manifest import Blob, Manifest, sha256_hex
 
 
@@ -153,3 +153,36 @@ def test_the_fetcher_calls_on_change_once_per_ready_or_given_up_asset(tmp_path):
     asyncio.run(go(link()))
     assert len(calls) == 1 and calls[0][0].ready
     fetcher.close()
+
+
+def test_timeline_ticks_wait_for_the_heartbeat_and_streamed_frames_do_not(tmp_path):
+    """A show's ticks travel with the next heartbeat (one message), a streamed frame's swap within
+    the short batch, carrying the ticks waiting with it; nothing is lost or reordered."""
+    node = Node(NodeConfig(slot="r0c0", token=b"x" * 32, cache_dir=tmp_path / "cache"))
+    node._heartbeat = lambda: object()
+
+    async def go():
+        node._reports = asyncio.Queue()
+        link = ReportLink()
+        task = asyncio.create_task(node._report_stream(link, 0.6, batch_s=0.01, timeline_batch_s=5.0))
+        try:
+            await until(lambda: link.heartbeats() == 1)
+            for k in range(5):
+                node._report(SwapRecord(100 + k, 0, 0, 0, timeline=True))
+                await asyncio.sleep(0.02)
+            assert len(link.batches) == 1                  # the ticks wait ...
+            await until(lambda: link.heartbeats() == 2)    # ... for the heartbeat, and go with it
+            hb = link.batches[-1]
+            assert len(link.batches) == 2 and [s.frame_id for s in hb.swaps] == [100, 101, 102, 103, 104]
+            node._report(SwapRecord(105, 0, 0, 0, timeline=True))
+            node._report(DropRecord(106, DropReason.LATE, timeline=True))
+            node._report(SwapRecord(900, 0, 0, 0))         # a still: it goes at once, with the ticks before it
+            await until(lambda: len(link.batches) == 3)
+            b = link.batches[2]
+            assert b.heartbeat is None and [s.frame_id for s in b.swaps] == [105, 900]
+            assert [d.frame_id for d in b.drops] == [106]
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    asyncio.run(go())
