@@ -290,7 +290,7 @@ class Coordinator:
             out[sess.slot] = next((p for p in reported if p.asset_id == asset_id), None)
         return out
 
-    async def _follow_show(self, period_s: float = 0.05) -> None:
+    async def _follow_show(self, period_s: float = 0.2) -> None:
         """Tell the sync tracker which tick ids the nodes holding the asset will swap in, ahead of time."""
         while True:
             await asyncio.sleep(period_s)
@@ -338,14 +338,17 @@ class Coordinator:
         if rep.heartbeat is not None:
             sess.heartbeat = rep.heartbeat
             note_ready(self.ready_at.setdefault(sess.session, {}), rep.heartbeat.assets, now_ns)
-        for sw in rep.swaps:
-            if sw.frame_id < sess.last_swap_frame:
-                self.sync.out_of_order += 1
-                log.error("node %s reported frame %d after frame %d", sess.slot, sw.frame_id, sess.last_swap_frame)
-            sess.last_swap_frame = sw.frame_id
-            sess.last_swap_at = self.now()
-            sess.shown += 1
-            self.sync.on_swap(sess.slot, sw.frame_id, sw.swap_rig_ns, sw.host_monotonic_ns, sess.same_host)
+        if rep.swaps:       # per batch what can be: a show's ticks come a second's worth at a time
+            last, slot, same_host, on_swap = sess.last_swap_frame, sess.slot, sess.same_host, self.sync.on_swap
+            for sw in rep.swaps:
+                if sw.frame_id < last:
+                    self.sync.out_of_order += 1
+                    log.error("node %s reported frame %d after frame %d", slot, sw.frame_id, last)
+                last = sw.frame_id
+                on_swap(slot, last, sw.swap_rig_ns, sw.host_monotonic_ns, same_host)
+            sess.last_swap_frame = last
+            sess.last_swap_at = now_ns / 1e9
+            sess.shown += len(rep.swaps)
         for frame_id, reason in rep.drops:
             if reason == DropReason.LATE:
                 sess.late += 1

@@ -55,7 +55,7 @@ MIN_LEAD_NS = 150_000_000
 #: and second a timeline show may cost (measured with `shadowless bench swarm`)
 BEACON_S = 5.0
 #: how far ahead of their time tick ids are given to the sync tracker
-EXPECT_AHEAD_NS = 250_000_000
+EXPECT_AHEAD_NS = 600_000_000
 #: ids reserved past a takeover (ticks a node may still swap in before it hears of it)
 TAKEOVER_MARGIN_NS = 2_000_000_000
 

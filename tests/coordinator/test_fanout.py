@@ -85,8 +85,12 @@ def test_per_slot_patterns_carry_only_each_nodes_own_image(tmp_path):
 
 
 def test_a_silent_node_is_marked_lost_on_the_injected_clock(tmp_path):
-    rig = Rig(init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 2), width=32, height=32,
-                       content_width=32, content_height=32))
+    path = init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 2), width=32, height=32,
+                    content_width=32, content_height=32)
+    toml = path / "rig.toml"      # lost before the sync tracker gives up on a frame (3 s)
+    toml.write_text(toml.read_text().replace("heartbeat_ms = 1000", "heartbeat_ms = 500")
+                    .replace("lost_after_ms = 5000", "lost_after_ms = 2500"))
+    rig = Rig(path)
     now = [5_000_000_000]
 
     async def go():
