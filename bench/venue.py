@@ -5,7 +5,8 @@ One namespace per process (the coordinator and N nodes with offscreen outputs), 
 bridge over ``tc tbf`` rate-limited links (``--link``; the coordinator's ``--coordinator-link``).
 A test video (a moving gradient plus noise, so that it does not compress to nothing, at a
 realistic bit rate) is generated with PyAV and added to the rig's asset store before any node
-starts; then the node processes start, discover the coordinator by multicast mDNS over the
+starts, and every slot gets the identity homography as its pose (as a calibrated rig has one:
+nodes warp the frames they show); then the node processes start, discover the coordinator by multicast mDNS over the
 bridge, join, and fetch the asset from the coordinator (``FetchBlob``).
 
 The benchmark polls the coordinator's status (every ``--poll-s``, and every 0.05 s until the
@@ -183,6 +184,19 @@ def make_video(path: Path, *, size: tuple[int, int], fps: float, seconds: float,
 
 
 # ---------------------------------------------------------------- the run
+def calibrate_identity(rig_dir: Path, slots: list[str]) -> None:
+    """Give every slot the identity homography (content px = projector px), as calibration would
+    a pose: nodes then warp the show's frames as a calibrated rig's do (without a pose, content
+    renders black) and decode a larger video straight to the content size."""
+    import numpy as np
+
+    from coordinator.rig import HomographyPose, Rig
+
+    rig = Rig(rig_dir)
+    for s in slots:
+        rig.update_slot(s, pose=HomographyPose(np.eye(3)))
+
+
 def set_heartbeat(rig_dir: Path, heartbeat_ms: int) -> None:
     """Write ``heartbeat_ms`` (and a matching ``lost_after_ms``) into the rig's rig.toml."""
     path = rig_dir / "rig.toml"
@@ -293,6 +307,7 @@ async def _measure(args, workdir: Path, video: Path) -> dict:
         rig.create()                       # the venue, the relay to the coordinator, the rig directory
         print(rig.venue.describe(), file=sys.stderr, flush=True)
         set_heartbeat(rig.rig_dir, args.heartbeat_ms)
+        calibrate_identity(rig.rig_dir, slots)
         manifest = AssetStore(rig.rig_dir).add(video)
         rig.start_coordinator()
         async with await rig.client(timeout=60.0) as c:

@@ -415,10 +415,10 @@ class Node:
                             now_event.clear()
                             next_hb = now + heartbeat_s
                             heartbeat = self._heartbeat()
-                        pending += [q.get_nowait() for _ in range(q.qsize())]
-                        if getter is not None and getter.done():
+                        if getter is not None and getter.done():   # taken off the queue before the rest
                             pending.append(getter.result())
                             getter = None
+                        pending += [q.get_nowait() for _ in range(q.qsize())]
                         items, pending, flush_at = pending, [], math.inf
                         yield ReportBatch(heartbeat=heartbeat,
                                           swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
