@@ -141,6 +141,12 @@ class Playback:
         return self._play_task is not None and not self._play_task.done()
 
     # ------------------------------------------------------------------ stills
+    def request_keyframe(self) -> None:
+        """A node lost pictures of the live video playing (its backlog was dropped): the next
+        picture is a keyframe, so it can decode again at once, not at the next regular one."""
+        if self._live is not None:
+            self._live.request_keyframe()
+
     def on_frames_open(self, sess: NodeSession) -> None:
         """A node opened its frame stream: it gets what the rig shows (unless a sequence plays)."""
         sess.sent_content.clear()

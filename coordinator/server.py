@@ -218,7 +218,8 @@ class Coordinator:
         self.joins[slot] = self.joins.get(slot, 0) + 1
         now = self.now()
         sess = NodeSession(session=secrets.token_hex(16), slot=slot, peer=peer, info=info,
-                           instance_joins=self.joins[slot], joined=now, last_seen=now)
+                           instance_joins=self.joins[slot], joined=now, last_seen=now,
+                           on_backlog_dropped=self.playback.request_keyframe)
         self.sessions[sess.session] = sess
         self.by_slot[slot] = sess
         log.info("node %s joined from %s (%s, pid %d)", slot, peer, info.hostname, info.pid)

@@ -119,6 +119,8 @@ class NodeSession:
     dropped: int = 0
     still_frames: set[int] = field(default_factory=set)   # ids of still frames sent to this node
     still_retries: int = 0
+    #: called when the node's backlog was dropped (it lost pictures of a live video: it needs a keyframe)
+    on_backlog_dropped: Callable[[], None] = field(default=lambda: None, repr=False)
 
     @property
     def same_host(self) -> bool:
@@ -133,6 +135,7 @@ class NodeSession:
             log.warning("node %s is not keeping up; dropping %d queued packets", self.slot, len(self.packets))
             self.packets.clear()
             self.sent_content.clear()
+            self.on_backlog_dropped()
         self.packets.append(packet)
         self.packet_event.set()
 

@@ -114,3 +114,32 @@ def test_a_silent_node_is_marked_lost_on_the_injected_clock(tmp_path):
         assert result.shown_by_all and result.nodes == 1 and result.missing == ()
 
     asyncio.run(go())
+
+
+def test_a_node_that_lost_its_backlog_asks_the_live_video_for_a_keyframe(tmp_path):
+    """A node whose queue overflowed lost pictures of the live stream: the coordinator's next
+    picture is a keyframe (it could not decode again until the next regular one otherwise)."""
+    from coordinator.live_video import LiveStream
+    from coordinator.sessions import MAX_PENDING_PACKETS
+
+    rig = Rig(init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 1), width=32, height=32,
+                       content_width=32, content_height=32))
+
+    async def go():
+        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False)
+        sess = coord.join(slot="r0c0", info=NodeInfo(), peer="test")
+        live = LiveStream(width=32, height=32, channels=3, bit_depth=8, fps=30)
+        coord.playback._live = live
+        try:
+            frame = np.zeros((32, 32, 3), np.uint8)
+            first = await live.submit(frame)
+            second = await live.submit(frame)
+            assert first.keyframe and not second.keyframe
+            for _ in range(MAX_PENDING_PACKETS + 1):        # the node stops draining its queue
+                sess.push(b"packet")
+            assert len(sess.packets) == 1                   # its backlog was dropped ...
+            assert (await live.submit(frame)).keyframe      # ... so the next picture is a keyframe
+        finally:
+            live.close()
+
+    asyncio.run(go())
