@@ -167,6 +167,30 @@ def pixel_format_layout(pix_fmt: str) -> tuple[int, int]:
     return len(comps), next(d for d in (8, 10, 12, 16) if bits <= d)
 
 
+#: `content add` notes a video whose keyframes are further apart than this
+LONG_GOP_S = 2.0
+
+
+def keyframe_gap_s(path: str | os.PathLike[str], fps: float) -> float | None:
+    """The longest stretch of a video without a keyframe, in seconds at ``fps`` (its packets
+    demuxed, nothing decoded; None when it cannot be read). A node joining a show mid-way decodes
+    from the keyframe before its first frame: up to this much video before it can show one."""
+    import av
+
+    try:
+        with av.open(str(path), mode="r") as container:
+            stream = container.streams.video[0]
+            gap = longest = 0
+            for packet in container.demux(stream):
+                if packet.size == 0:
+                    continue
+                gap = 0 if packet.is_keyframe else gap + 1
+                longest = max(longest, gap)
+    except (av.FFmpegError, OSError, ValueError, IndexError):
+        return None
+    return (longest + 1) / fps if fps > 0 else None
+
+
 def probe_video(path: str | os.PathLike[str], *, fps: float | None = None) -> Probe:
     """Probe a video file with PyAV without decoding more than its first frame.
 

@@ -31,8 +31,8 @@ from pathlib import Path
 from typing import BinaryIO, Callable, Iterator
 
 
-from coordinator.asset_probe import (DEFAULT_SEQUENCE_FPS, STILL_SUFFIXES, VIDEO_SUFFIXES, Note, Probe, probe_sequence,
-                                     probe_still, probe_video, sequence_files)
+from coordinator.asset_probe import (DEFAULT_SEQUENCE_FPS, LONG_GOP_S, STILL_SUFFIXES, VIDEO_SUFFIXES, Note, Probe,
+                                     keyframe_gap_s, probe_sequence, probe_still, probe_video, sequence_files)
 from coordinator.errors import AssetError
 from coordinator.store import atomic_file, atomic_write_bytes, fsync_dir
 from protos.asset_manifest import Blob, Manifest, ManifestError, is_sha256
@@ -179,6 +179,11 @@ class AssetStore:
                 kind, probe = "video", probe_video(src, fps=fps)
                 if rate is not None:
                     probe = _exact_rate(src, probe, Fraction(rate))
+                gap = keyframe_gap_s(src, probe.fps)
+                if gap is not None and gap > LONG_GOP_S:
+                    note(f"{src.name}: keyframes up to {gap:.1f} s apart; a node that joins mid-show decodes up to "
+                         f"that much video before it shows a frame (re-encode with a keyframe every second or two, "
+                         f"e.g. ffmpeg -g {max(1, round(probe.fps))})")
             else:
                 raise AssetError(f"{src}: unsupported file type {src.suffix or '(no suffix)'!r} (stills: "
                                  f"{', '.join(STILL_SUFFIXES)}; videos: {', '.join(VIDEO_SUFFIXES)}; or a folder of stills)")

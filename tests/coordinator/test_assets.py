@@ -46,11 +46,16 @@ def gradient(h: int = 48, w: int = 64, c: int = 3, dtype=np.uint8, seed: int = 0
 
 
 def write_video(path: Path, *, codec: str, frames: int, w: int, h: int, fps: int, pix_fmt: str,
-                src_format: str = "rgb24") -> Path:
-    """Encode ``frames`` frames with PyAV; the source is (h, w, 3) uint8 RGB or (h, w) uint16 gray."""
+                src_format: str = "rgb24", gop: int | None = None) -> Path:
+    """Encode ``frames`` frames with PyAV; the source is (h, w, 3) uint8 RGB or (h, w) uint16 gray;
+    ``gop``: a keyframe every that many frames (None: the encoder's default)."""
     with av.open(str(path), "w") as c:
         s = c.add_stream(codec, rate=fps)
         s.width, s.height, s.pix_fmt = w, h, pix_fmt
+        if gop is not None:
+            s.codec_context.gop_size = gop
+            if codec == "libx264":      # and no keyframes of x264's own choosing (scene cuts)
+                s.options = {"x264-params": f"keyint={gop}:min-keyint={gop}:scenecut=0"}
         for i in range(frames):
             if src_format == "gray16le":
                 arr = np.full((h, w), i * 1000, np.uint16)
@@ -213,6 +218,21 @@ def test_a_video_is_probed_for_frames_rate_size_and_codec(store, tmp_path):
     with pytest.raises(AssetError, match="keeps its own frame rate"):
         store.add(f, fps=25)
     assert store.add(f, fps=30.0) == m
+
+
+def test_a_video_with_keyframes_far_apart_is_added_with_a_note(store, tmp_path):
+    """250 frames between keyframes (x264's own default): 3 s of a 25 fps clip has one keyframe,
+    so a node joining mid-show would decode up to 3 s of video; a 1 s GOP is worth no note."""
+    if "libx264" not in av.codecs_available:
+        pytest.skip("no libx264")
+    notes: list[str] = []
+    store.add(write_video(tmp_path / "long.mp4", codec="libx264", frames=75, w=64, h=48, fps=25, pix_fmt="yuv420p",
+                          gop=250), note=notes.append)
+    assert len(notes) == 1 and "keyframes up to 3.0 s apart" in notes[0] and "ffmpeg -g 25" in notes[0]
+    notes.clear()
+    store.add(write_video(tmp_path / "short.mp4", codec="libx264", frames=75, w=64, h=48, fps=25, pix_fmt="yuv420p",
+                          gop=25), note=notes.append)
+    assert notes == []
 
 
 def test_a_container_without_a_frame_count_is_counted_by_demuxing(tmp_path):
