@@ -194,7 +194,7 @@ class NodeLinkService(_Handshake):
 
 
     async def Show(self, request, context):
-        """The show's timeline: the state at once, every change, a beacon every ~second."""
+        """The show's timeline: the state at once, every change, a beacon every BEACON_S."""
         try:
             sess = self.c.node_session(_session_id(context))
         except RpcRefusal as exc:

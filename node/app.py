@@ -363,7 +363,7 @@ class Node:
 
     async def _show(self, link: CoordinatorLink) -> None:
         """Forward the show's timeline to the presenter, with the asset's files once they are cached
-        (checked again at every beacon, about once a second)."""
+        (and as soon as the fetcher completes it, see _fetch_news)."""
         try:
             async for update in link.show():
                 if update.timeline is not None:

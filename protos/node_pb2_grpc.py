@@ -155,8 +155,8 @@ class NodeLinkServicer:
         raise NotImplementedError('Method not implemented!')
 
     def Show(self, request, context):
-        """The show's timeline: the current state at once, every change, and a beacon about every
-        second repeating the current state (a node applies a timeline only if its revision is new).
+        """The show's timeline: the current state at once, every change, and a beacon every few seconds
+        repeating the current state (a node applies a timeline only if its revision is new).
         No per-frame data ever travels here: each node computes its frames from the timeline.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
