@@ -244,7 +244,8 @@ class Presenter:
                 renderer.forget(cid)
 
     def _on_reset(self, renderer, out, _payload) -> None:
-        """A new coordinator instance: frame ids restart their ordering, the timeline is sent again."""
+        """A coordinator on a new rig clock (another host, a reboot): its frame ids and timeline
+        times are not comparable with the old ones; the timeline is sent again."""
         self.pacer.reset()
         self.player.reset()
         self.live.reset()
