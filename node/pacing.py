@@ -53,7 +53,7 @@ class FramePacer:
         self.last_shown_id = 0
 
     def reset(self) -> None:
-        """A new coordinator instance: frame ids restart their ordering."""
+        """A coordinator on a new rig clock: frame ids restart their ordering."""
         self.last_shown_id = 0
 
     def deadline(self, frame: FrameOrder) -> int:

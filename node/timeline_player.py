@@ -149,7 +149,7 @@ class TimelinePlayer:
         self.suspended_revision = self.schedule.revision
 
     def reset(self) -> None:
-        """A new coordinator instance: forget the schedule (its Show stream sends it again)."""
+        """A coordinator on a new rig clock: forget the schedule (its Show stream sends it again)."""
         self.schedule = Schedule()
         self._bases.clear()
         self._stops.clear()
