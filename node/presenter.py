@@ -108,6 +108,8 @@ class Presenter:
         self.timeline_missed = 0         # timeline ticks not shown (late, undecodable, unrenderable)
         self.timeline_last_frame = -1    # the asset frame index last swapped in
         self._timeline_reports = False   # reports made now are of timeline ticks
+        self._holding = False            # a paused show's frame is being shown (a late one is retried)
+        self._held_late = False
         self._timeline_cid: str | None = None
         self._last_event_pts: int | None = None
         self.live = LiveDecoder()        # live video pictures (coordinator/live_video.py)
@@ -314,8 +316,23 @@ class Presenter:
         for frame_id in self.player.skipped_ids(ev):
             self.timeline_missed += 1
             self._drop(DropRecord(frame_id, DropReason.LATE))
-        self.player.mark_done(ev)
         self._last_event_pts = ev.pts_ns
+        if ev.held:
+            # A paused show's frame stays on the projectors for the whole pause: one that misses
+            # its instant is shown a moment later (CATCH_UP_NS), never left out (that node would
+            # show another frame than its peers until the show resumes).
+            self._holding, self._held_late = True, False
+            try:
+                shown = self._timeline_frame(ev)
+            finally:
+                self._holding = False
+            if shown or not self._held_late:
+                self.player.mark_done(ev)
+            if not shown and not self._held_late:
+                self.timeline_missed += 1
+                self._send_stats()
+            return
+        self.player.mark_done(ev)
         if ev.kind == "stop":
             renderer.render(None)
             out.prepare(renderer)
@@ -372,6 +389,12 @@ class Presenter:
         return True
 
     def _drop(self, drop: DropRecord) -> None:
+        if self._holding and drop.reason is DropReason.LATE:
+            self._held_late = True      # tried again a moment later (see _timeline_step)
+            if _DEBUG_TIMING:
+                log.info("timing frame %d: held frame %.3f ms late, shown a moment later", drop.frame_id,
+                         drop.late_by_ns / 1e6)
+            return
         if _DEBUG_TIMING:
             log.info("timing frame %d: dropped (%s) %.3f ms late", drop.frame_id, drop.reason.value,
                      drop.late_by_ns / 1e6)

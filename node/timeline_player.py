@@ -102,6 +102,7 @@ class TimelineEvent:
     frame_id: int = 0
     asset_id: str = ""
     loop: bool = False
+    held: bool = False       # a paused timeline's one frame: held for as long as the pause lasts
 
 
 class TimelinePlayer:
@@ -214,7 +215,7 @@ class TimelinePlayer:
             if done_tick is not None:
                 return None
             pts = tl.anchor_ns if tl.anchor_ns >= after_ns else after_ns + CATCH_UP_NS
-            return TimelineEvent("frame", pts, tl.revision, 0, tl.anchor_frame, base, tl.asset_id, tl.loop)
+            return TimelineEvent("frame", pts, tl.revision, 0, tl.anchor_frame, base, tl.asset_id, tl.loop, held=True)
         if after_ns <= tl.anchor_ns:
             k = 0
         else:
@@ -246,11 +247,15 @@ class TimelinePlayer:
         return self._decoder_for(event).get(event.frame, max(0.0, timeout_s))
 
     def prepare(self, after_ns: int) -> None:
-        """Start decoding the next frame event's asset now (a show scheduled or changed, an asset
-        arrived), so its first frames are ready when their time comes instead of being decoded
-        in the last moment before it. A decoder that cannot open says so at :meth:`frame`."""
+        """Start decoding the next frame event's asset now (a show scheduled, an asset arrived), so
+        its first frames are ready when their time comes instead of being decoded in the last
+        moment before it. A decoder already open on that asset is left alone: re-planning it for a
+        change (a pause, a seek) while the ticks before the change still play would make it jump
+        back and forth. A decoder that cannot open says so at :meth:`frame`."""
         ev = self.next_event(after_ns)
         if ev is None or ev.kind != "frame" or not self.has_asset(ev.asset_id):
+            return
+        if self._decoder is not None and self._decoder.source.asset_id == ev.asset_id:
             return
         try:
             self._decoder_for(ev)

@@ -7,6 +7,7 @@ test says so, or when the presenter sleeps until a frame's presentation time.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -381,6 +382,31 @@ def test_a_coordinator_frame_suspends_the_timeline_until_a_newer_revision(rig, t
     p.handle("show", _timeline_update(files, rig.rig_now() + 100 * MS, revision=2, base=20_000))
     p.timeline_step()
     assert [s.frame_id for s in rig.swaps] == [500, 10_000, 20_000]
+
+
+def test_a_paused_shows_frame_that_misses_its_instant_is_shown_a_moment_later(rig, tmp_path):
+    """Every node must hold the paused frame for the whole pause: one rendered too late for its
+    instant is tried again CATCH_UP_NS later (no drop reported), not left out."""
+    from node.timeline_player import CATCH_UP_NS
+
+    files = _still_asset(tmp_path)
+    p = rig.presenter
+    p.handle("asset", files)
+    anchor = rig.rig_now() + 60 * MS
+    update = _timeline_update(files, anchor, revision=3, base=700)
+    p.handle("show", replace(update, timeline=replace(update.timeline, paused=True)))
+    rig.out.prepare_ns = 70 * MS          # the first attempt finishes 10 ms after the frame's instant
+    p.timeline_step()
+    assert rig.swaps == [] and rig.drops == []
+    rig.out.prepare_ns = 1 * MS
+    assert p.timeline_wait() is not None       # the held frame is due again, CATCH_UP_NS from now
+    p.timeline_step()
+    assert [s.frame_id for s in rig.swaps] == [700] and rig.drops == []
+    sw = rig.swaps[0]
+    assert sw.pts_ns >= anchor + CATCH_UP_NS and sw.swap_rig_ns == sw.pts_ns     # re-timed, then on time
+    p.timeline_step()                     # held: nothing more to do until the show changes
+    assert len(rig.swaps) == 1 and p.timeline_wait() is None
+    assert p.status().show.state == "paused"
 
 
 def test_a_stop_blacks_the_output_without_a_report(rig, tmp_path):
