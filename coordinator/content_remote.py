@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import hashlib
 import sys
 from pathlib import Path
 from typing import AsyncIterator
@@ -20,6 +19,7 @@ from typing import AsyncIterator
 import grpc
 
 from coordinator.asset_probe import sequence_files
+from coordinator.assets import copy_hashing
 from coordinator.client import OperatorError, open_client
 from coordinator.content_format import Progress, added_line, human_bytes, print_assets
 from coordinator.errors import AssetError, CoordinatorError
@@ -44,13 +44,14 @@ def hash_files(files: list[Path]) -> list[tuple[str, int, str]]:
     progress, done, out = Progress("hashed"), 0, []
     try:
         for f in files:
-            h = hashlib.sha256()
+            def on_chunk(n: int) -> None:
+                nonlocal done
+                done += n
+                progress(done, total)
+
             with open(f, "rb") as src:
-                while chunk := src.read(CHUNK_BYTES):
-                    h.update(chunk)
-                    done += len(chunk)
-                    progress(done, total)
-            out.append((f.name, f.stat().st_size, h.hexdigest()))
+                digest, size = copy_hashing(src, None, on_chunk=on_chunk)
+            out.append((f.name, size, digest))
     finally:
         progress.end()
     return out

@@ -12,13 +12,13 @@ import logging
 import secrets
 from collections import deque
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import grpc
 
 from coordinator.api import AssetProgress, NodeShow, NodeState
 from protos import auth
+from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION
 
 log = logging.getLogger(__name__)
@@ -28,11 +28,6 @@ MAX_PENDING_NONCES = 4096
 MAX_OPERATOR_SESSIONS = 256
 OPERATOR_SESSION_TTL_S = 12 * 3600.0
 MAX_PENDING_PACKETS = 512
-HOST_BOOT_ID = ""
-try:
-    HOST_BOOT_ID = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
-except OSError:  # pragma: no cover - non-Linux
-    pass
 
 
 class RpcRefusal(Exception):
@@ -125,7 +120,7 @@ class NodeSession:
     @property
     def same_host(self) -> bool:
         """Whether the node runs on the coordinator's host (its monotonic clock is the rig clock)."""
-        return bool(HOST_BOOT_ID) and self.info.host_boot_id == HOST_BOOT_ID
+        return bool(boot_id()) and self.info.host_boot_id == boot_id()
 
     def push(self, packet: bytes) -> None:
         """Queue a serialized packet; a node that stopped draining loses its backlog (and gets contents again)."""

@@ -43,6 +43,7 @@ from coordinator.api import AssetProgress, ShowState
 from coordinator.errors import CoordinatorError
 from coordinator.store import atomic_write_json
 from protos.asset_manifest import Manifest
+from protos.host import boot_id
 from protos.timeline import Schedule, Timeline, TimelineError, as_rate
 
 log = logging.getLogger(__name__)
@@ -107,13 +108,6 @@ def manifest_rate(m: Manifest) -> Fraction:
     except (ValueError, ZeroDivisionError):
         pass
     return as_rate(m.fps if m.fps > 0 else 1)
-
-
-def _boot_id() -> str:
-    try:
-        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
-    except OSError:  # pragma: no cover - non-Linux
-        return ""
 
 
 class Show:
@@ -361,7 +355,7 @@ class Show:
         doc = {"version": 1, "revision": self.revision, "name": self.name, "frame_id_base": self.frame_id_base,
                "timeline": self.timeline.to_json() if self.timeline is not None else None,
                "stop_at_ns": self.stop_at_ns, "stop_revision": self.stop_revision,
-               "mono_ns": self.clock_ns(), "wall_ns": time.time_ns(), "boot_id": _boot_id()}
+               "mono_ns": self.clock_ns(), "wall_ns": time.time_ns(), "boot_id": boot_id()}
         try:
             atomic_write_json(self.path, doc)
         except OSError as exc:
@@ -380,7 +374,7 @@ class Show:
             self.revision = int(doc.get("revision", 0))
             self.name = str(doc.get("name", ""))
             shift = 0
-            if doc.get("boot_id") != _boot_id():   # another boot: the monotonic clock restarted
+            if doc.get("boot_id") != boot_id():   # another boot: the monotonic clock restarted
                 shift = (self.clock_ns() - time.time_ns()) - (int(doc["mono_ns"]) - int(doc["wall_ns"]))
             if doc.get("timeline") is not None:
                 tl = Timeline.from_json(doc["timeline"])
