@@ -289,7 +289,7 @@ class SwarmNode:
             now = time.monotonic_ns()
             if host is None or host < now:   # arrived after its time: the coordinator or the link was late
                 self.stats.arrived_late += 1
-                self._drop(f.frame_id, now - (host or now))
+                self._drop(f.frame_id, now - (host or now), False)
                 continue
             self.ticker.at(host, self, self.session_no, FRAME, f.frame_id, f.pts_ns)
 

@@ -85,6 +85,11 @@ def test_swarm_joins_follows_timeline_and_live_frames(tmp_path):
                 assert swarm.stats.live_frames >= N * frames       # every node received every frame
                 answered = swarm.stats.swaps + swarm.stats.late + swarm.stats.superseded - before
                 assert answered >= N * frames                      # and reported each as swapped or dropped
+
+                # frames sent too close to their instant arrive late: reported as late drops, the sessions go on
+                reply = await c.play(PlaySettings(fps=30, pattern="counter", frames=10, latency_ms=0.001, wait=True))
+                assert reply.frames_late > 0 and swarm.stats.arrived_late > 0
+                assert swarm.stats.joins == N
         finally:
             await swarm.stop()
         out = swarm.summary()
