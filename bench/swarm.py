@@ -25,13 +25,13 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from bench.machine import machine
+from bench.workdir import run_dir
 from coordinator.api import NodeState, PlaySettings
 from coordinator.assets import AssetStore
 from coordinator.commands import play_dict
@@ -226,9 +226,9 @@ async def _all(args) -> dict:
     counts = [int(v) for v in str(args.nodes).split(",") if v.strip()]
     runs = []
     for n in counts:
-        base = Path(args.keep) / f"n{n}" if args.keep else Path(tempfile.mkdtemp(prefix=f"shadowless-swarm-{n}-"))
         print(f"bench swarm: {n} swarm nodes …", file=sys.stderr, flush=True)
-        runs.append(await _one(n, args, base))
+        with run_dir(args.keep, f"swarm-n{n}") as base:
+            runs.append(await _one(n, args, base))
     doc = {
         "benchmark": "swarm",
         "machine": machine(),

@@ -14,11 +14,11 @@ import argparse
 import asyncio
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 from bench.machine import machine
+from bench.workdir import run_dir
 from coordinator.api import PlaySettings
 from coordinator.commands import play_dict
 from shadowless.local import LocalRig, grid_names, spread
@@ -78,9 +78,9 @@ async def _all(args) -> dict:
     counts = [int(v) for v in str(args.nodes).split(",") if v.strip()]
     runs = []
     for n in counts:
-        base = Path(args.keep) / f"n{n}" if args.keep else Path(tempfile.mkdtemp(prefix=f"shadowless-sync-{n}-"))
         print(f"bench sync: {n} nodes at {args.fps:g} fps for {args.seconds:g} s …", file=sys.stderr, flush=True)
-        runs.append(await _one(n, args, base))
+        with run_dir(args.keep, f"sync-n{n}") as base:
+            runs.append(await _one(n, args, base))
     doc = {
         "benchmark": "sync",
         "machine": machine(),
