@@ -399,7 +399,8 @@ class Playback:
             wall_s=time.monotonic() - wall0, coordinator_cpu_s=cpu_seconds() - cpu0,
             encode_cpu_s=self.fanout.encode_cpu_s - enc0 + (live.cpu_s if live is not None else 0.0),
             skews_ms=tuple(r.skew_ms for r in sorted(results, key=lambda r: r.frame_id)),
-            clock_errors_ms=tuple(e for r in results for e in r.clock_errors_ms), sync=summary,
+            clock_errors_ms=tuple(np.concatenate([r.clock_errors_ms for r in results]).tolist()) if results else (),
+            sync=summary,
         )
 
     async def close(self) -> None:

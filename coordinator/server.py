@@ -132,7 +132,8 @@ class Coordinator:
         self.handshake = Handshake(token, rig_id=rig.config.rig_id, rig_name=rig.config.name,
                                    instance_id=self.instance_id, clock=self.now,
                                    on_refusal=lambda peer, slot, msg: self.refusals.append((peer, slot, msg, self.now())))
-        self.sync = SyncTracker(clock=self.now)
+        # a show's ticks are reported with the node's next heartbeat: wait at least two intervals and a second
+        self.sync = SyncTracker(clock=self.now, timeout_s=max(3.0, 1.0 + 2.0 * rig.config.heartbeat_ms / 1000.0))
         self.fanout = FanOut(self.sync, wire.PacketEncoder)
         self.playback = Playback(rig, self.fanout, self.sync, live_sessions=self.live_sessions, clock_ns=self.clock_ns,
                                  latency_ns=self.latency_ns)
@@ -339,17 +340,17 @@ class Coordinator:
         if rep.heartbeat is not None:
             sess.heartbeat = rep.heartbeat
             note_ready(self.ready_at.setdefault(sess.session, {}), rep.heartbeat.assets, now_ns)
-        if rep.swaps:       # per batch what can be: a show's ticks come a second's worth at a time
-            last, slot, same_host, on_swap = sess.last_swap_frame, sess.slot, sess.same_host, self.sync.on_swap
-            for sw in rep.swaps:
-                if sw.frame_id < last:
-                    self.sync.out_of_order += 1
-                    log.error("node %s reported frame %d after frame %d", slot, sw.frame_id, last)
-                last = sw.frame_id
-                on_swap(slot, last, sw.swap_rig_ns, sw.host_monotonic_ns, same_host)
-            sess.last_swap_frame = last
+        n = len(rep.swaps)
+        if n:       # as arrays: a show's ticks come a second's worth at a time
+            ids = rep.swaps.frame_id
+            before = np.concatenate(([sess.last_swap_frame], ids[:-1]))
+            for k in np.flatnonzero(ids < before).tolist():
+                self.sync.out_of_order += 1
+                log.error("node %s reported frame %d after frame %d", sess.slot, ids[k], before[k])
+            self.sync.on_swaps(sess.slot, ids, rep.swaps.swap_rig_ns, rep.swaps.host_monotonic_ns, sess.same_host)
+            sess.last_swap_frame = int(ids[-1])
             sess.last_swap_at = now_ns / 1e9
-            sess.shown += len(rep.swaps)
+            sess.shown += n
         for frame_id, reason in rep.drops:
             if reason == DropReason.LATE:
                 sess.late += 1

@@ -142,6 +142,9 @@ class NodeLinkService(_Handshake):
                 self.c.on_report(sess, wire.report_from_message(rep))
         except (asyncio.CancelledError, grpc.aio.AioRpcError):
             pass
+        except ValueError as exc:
+            log.warning("node %s sent a malformed report (%s): its session ends", sess.slot, exc)
+            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"malformed report: {exc}")
         finally:
             # the report stream is the node's lifeline: when it ends, the node is gone
             self.c.mark_lost(sess)

@@ -12,9 +12,10 @@ import logging
 import secrets
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterable
 
 import grpc
+import numpy as np
 
 from coordinator.api import AssetProgress, NodeShow, NodeState
 from protos import auth
@@ -62,11 +63,27 @@ class Heartbeat:
     show: NodeShow = NodeShow()              # the show as the node follows it
 
 
-@dataclass(frozen=True)
-class Swap:
-    frame_id: int
-    swap_rig_ns: int          # the node's estimate of the rig clock at the swap
-    host_monotonic_ns: int    # the node host's own monotonic clock at the swap
+@dataclass(frozen=True, eq=False)
+class Swaps:
+    """A node's swaps in one report, as columns of the same length n (int64, shape (n,)):
+    ``frame_id``, ``swap_rig_ns`` (the node's estimate of the rig clock at the swap) and
+    ``host_monotonic_ns`` (the node host's own monotonic clock at the swap)."""
+
+    frame_id: np.ndarray
+    swap_rig_ns: np.ndarray
+    host_monotonic_ns: np.ndarray
+
+    @classmethod
+    def of(cls, rows: Iterable[tuple[int, int, int]] = ()) -> "Swaps":
+        """From ``(frame_id, swap_rig_ns, host_monotonic_ns)`` rows."""
+        cols = np.array(list(rows), dtype=np.int64).reshape(-1, 3)
+        return cls(cols[:, 0].copy(), cols[:, 1].copy(), cols[:, 2].copy())
+
+    def __len__(self) -> int:
+        return int(self.frame_id.shape[0])
+
+
+NO_SWAPS = Swaps.of()
 
 
 @dataclass(frozen=True)
@@ -74,7 +91,7 @@ class Report:
     """One batch of what a node did: heartbeat, swaps, drops ``(frame_id, DropReason)``."""
 
     heartbeat: Heartbeat | None = None
-    swaps: tuple[Swap, ...] = ()
+    swaps: Swaps = NO_SWAPS
     drops: tuple = ()
 
 

@@ -7,6 +7,7 @@ client (:mod:`coordinator.client`) call these functions at the edge.
 """
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import threading
@@ -24,7 +25,7 @@ from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
 from coordinator.live_video import EncodedPicture
 from coordinator.rig import Content, HomographyPose, ProjectionPose, SlotState, validate_lut
-from coordinator.sessions import Heartbeat, NodeInfo, Report, Swap
+from coordinator.sessions import NO_SWAPS, Heartbeat, NodeInfo, Report, Swaps
 from coordinator.show import ShowUpdate
 from protos import codec, control_pb2, node_pb2
 
@@ -125,6 +126,16 @@ def node_show_from_message(m: node_pb2.NodeShow) -> NodeShow:
                     frames_late=m.frames_late, alone_ms=float(m.alone_ms))
 
 
+def swaps_from_message(m: node_pb2.Swaps) -> Swaps:
+    """Undo the columns' delta coding (protos/node.proto, ``Swaps``); columns of unequal length are refused."""
+    n = len(m.frame_id)
+    if len(m.swap_rig_ns) != n or len(m.host_monotonic_ns) != n:
+        raise ValueError(f"a report's swap columns differ in length ({n}, {len(m.swap_rig_ns)}, "
+                         f"{len(m.host_monotonic_ns)})")
+    cols = np.fromiter(itertools.chain(m.frame_id, m.swap_rig_ns, m.host_monotonic_ns), dtype=np.int64, count=3 * n)
+    return Swaps(*np.cumsum(cols.reshape(3, n), axis=1))
+
+
 def report_from_message(msg: node_pb2.NodeReport) -> Report:
     hb = None
     if msg.HasField("heartbeat"):
@@ -134,7 +145,7 @@ def report_from_message(msg: node_pb2.NodeReport) -> Report:
                        host_monotonic_ns=h.host_monotonic_ns, rig_estimate_ns=h.rig_estimate_ns,
                        assets=tuple(asset_progress_from_message(a) for a in h.assets),
                        show=node_show_from_message(h.show))
-    swaps = tuple(Swap(s.frame_id, s.swap_rig_ns, s.host_monotonic_ns) for s in msg.swaps)
+    swaps = swaps_from_message(msg.swaps) if msg.HasField("swaps") else NO_SWAPS
     drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
     return Report(heartbeat=hb, swaps=swaps, drops=drops)
 

@@ -8,7 +8,7 @@ client) touch protobuf.
 from __future__ import annotations
 
 from fractions import Fraction
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -205,9 +205,12 @@ def asset_progress_message(p: AssetProgressRecord) -> node_pb2.AssetProgress:
                                   ready=p.ready, error=p.error, name=p.name)
 
 
-def swap_message(rec: SwapRecord) -> node_pb2.SwapReport:
-    return node_pb2.SwapReport(frame_id=rec.frame_id, pts_ns=rec.pts_ns, swap_rig_ns=rec.swap_rig_ns,
-                               host_monotonic_ns=rec.host_monotonic_ns)
+def swaps_message(swaps: Sequence[SwapRecord]) -> node_pb2.Swaps:
+    """``swaps`` as delta-coded columns (protos/node.proto, ``Swaps``): each value after a
+    column's first is the difference to the value before it."""
+    cols = np.array([(s.frame_id, s.swap_rig_ns, s.host_monotonic_ns) for s in swaps], dtype=np.int64).reshape(-1, 3)
+    d = np.diff(cols, axis=0, prepend=np.zeros((1, 3), dtype=np.int64))
+    return node_pb2.Swaps(frame_id=d[:, 0].tolist(), swap_rig_ns=d[:, 1].tolist(), host_monotonic_ns=d[:, 2].tolist())
 
 
 def drop_message(rec: DropRecord) -> node_pb2.FrameDrop:
@@ -242,6 +245,7 @@ def report_message(batch: ReportBatch) -> node_pb2.NodeReport:
     msg = node_pb2.NodeReport()
     if batch.heartbeat is not None:
         msg.heartbeat.CopyFrom(heartbeat_message(batch.heartbeat))
-    msg.swaps.extend(swap_message(s) for s in batch.swaps)
+    if batch.swaps:
+        msg.swaps.CopyFrom(swaps_message(batch.swaps))
     msg.drops.extend(drop_message(d) for d in batch.drops)
     return msg

@@ -239,17 +239,15 @@ class FramePacket(_message.Message):
     video: VideoPacket
     def __init__(self, contents: _Optional[_Iterable[_Union[Content, _Mapping]]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., evict: _Optional[_Union[Evict, _Mapping]] = ..., video: _Optional[_Union[VideoPacket, _Mapping]] = ...) -> None: ...
 
-class SwapReport(_message.Message):
-    __slots__ = ("frame_id", "pts_ns", "swap_rig_ns", "host_monotonic_ns")
+class Swaps(_message.Message):
+    __slots__ = ("frame_id", "swap_rig_ns", "host_monotonic_ns")
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
-    PTS_NS_FIELD_NUMBER: _ClassVar[int]
     SWAP_RIG_NS_FIELD_NUMBER: _ClassVar[int]
     HOST_MONOTONIC_NS_FIELD_NUMBER: _ClassVar[int]
-    frame_id: int
-    pts_ns: int
-    swap_rig_ns: int
-    host_monotonic_ns: int
-    def __init__(self, frame_id: _Optional[int] = ..., pts_ns: _Optional[int] = ..., swap_rig_ns: _Optional[int] = ..., host_monotonic_ns: _Optional[int] = ...) -> None: ...
+    frame_id: _containers.RepeatedScalarFieldContainer[int]
+    swap_rig_ns: _containers.RepeatedScalarFieldContainer[int]
+    host_monotonic_ns: _containers.RepeatedScalarFieldContainer[int]
+    def __init__(self, frame_id: _Optional[_Iterable[int]] = ..., swap_rig_ns: _Optional[_Iterable[int]] = ..., host_monotonic_ns: _Optional[_Iterable[int]] = ...) -> None: ...
 
 class FrameDrop(_message.Message):
     __slots__ = ("frame_id", "reason", "late_by_ns")
@@ -308,14 +306,14 @@ class NodeShow(_message.Message):
     def __init__(self, revision: _Optional[int] = ..., state: _Optional[_Union[NodeShowState, str]] = ..., last_frame: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., alone_ms: _Optional[int] = ...) -> None: ...
 
 class NodeReport(_message.Message):
-    __slots__ = ("heartbeat", "swaps", "drops")
+    __slots__ = ("heartbeat", "drops", "swaps")
     HEARTBEAT_FIELD_NUMBER: _ClassVar[int]
-    SWAPS_FIELD_NUMBER: _ClassVar[int]
     DROPS_FIELD_NUMBER: _ClassVar[int]
+    SWAPS_FIELD_NUMBER: _ClassVar[int]
     heartbeat: Heartbeat
-    swaps: _containers.RepeatedCompositeFieldContainer[SwapReport]
     drops: _containers.RepeatedCompositeFieldContainer[FrameDrop]
-    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., swaps: _Optional[_Iterable[_Union[SwapReport, _Mapping]]] = ..., drops: _Optional[_Iterable[_Union[FrameDrop, _Mapping]]] = ...) -> None: ...
+    swaps: Swaps
+    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., drops: _Optional[_Iterable[_Union[FrameDrop, _Mapping]]] = ..., swaps: _Optional[_Union[Swaps, _Mapping]] = ...) -> None: ...
 
 class ReportAck(_message.Message):
     __slots__ = ()

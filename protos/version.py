@@ -2,7 +2,8 @@
 
 #: 2: frame contents may be packed ENCODING_ZSTD_GRADIENT and sequences travel as live video
 #: (FramePacket.video), which a version-1 node could not show.
-PROTOCOL_VERSION = 2
+#: 3: a report's swaps travel as delta-coded columns (NodeReport.swaps, a Swaps message).
+PROTOCOL_VERSION = 3
 
 #: mDNS service type the coordinator advertises.
 SERVICE_TYPE = "_shadowless._tcp.local."

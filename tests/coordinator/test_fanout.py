@@ -8,7 +8,7 @@ import numpy as np
 
 from coordinator.rig import Content, Rig, grid_slots, init_rig
 from coordinator.server import Coordinator
-from coordinator.sessions import NodeInfo, NodeSession, Report, Swap
+from coordinator.sessions import NodeInfo, NodeSession, Report, Swaps
 from protos import common_pb2, node_pb2
 
 
@@ -109,7 +109,7 @@ def test_a_silent_node_is_marked_lost_on_the_injected_clock(tmp_path):
         assert status == {"r0c0": "lost", "r0c1": "live"}
         assert coord.live_slots() == ["r0c1"]
         assert not coord.sync.results
-        coord.on_report(b, Report(swaps=(Swap(1, now[0], now[0]),)))
+        coord.on_report(b, Report(swaps=Swaps.of([(1, now[0], now[0])])))
         (result,) = coord.sync.results           # the lost node is no longer waited for
         assert result.shown_by_all and result.nodes == 1 and result.missing == ()
 

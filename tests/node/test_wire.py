@@ -20,8 +20,11 @@ from protos import codec, common_pb2, node_pb2
 
 def test_reports_keep_the_wire_format():
     swap = SwapRecord(frame_id=7, pts_ns=-5, swap_rig_ns=1_000_000_123, host_monotonic_ns=42)
-    assert wire.swap_message(swap) == node_pb2.SwapReport(frame_id=7, pts_ns=-5, swap_rig_ns=1_000_000_123,
-                                                          host_monotonic_ns=42)
+    # columns, each value after the first the difference to the one before (a frame reported out of order too)
+    swaps = [swap, SwapRecord(8, 1, 1_033_333_456, 33_333_375), SwapRecord(6, 1, 1_066_666_789, 66_666_708)]
+    assert wire.swaps_message(swaps) == node_pb2.Swaps(frame_id=[7, 1, -2],
+                                                       swap_rig_ns=[1_000_000_123, 33_333_333, 33_333_333],
+                                                       host_monotonic_ns=[42, 33_333_333, 33_333_333])
     expected = {DropReason.LATE: node_pb2.DROP_REASON_LATE, DropReason.SUPERSEDED: node_pb2.DROP_REASON_SUPERSEDED,
                 DropReason.MISSING_CONTENT: node_pb2.DROP_REASON_MISSING_CONTENT,
                 DropReason.UNRENDERABLE: node_pb2.DROP_REASON_UNRENDERABLE}
@@ -32,7 +35,7 @@ def test_reports_keep_the_wire_format():
     batch = ReportBatch(swaps=(swap, SwapRecord(8, 1, 2, 3)), drops=(DropRecord(9, DropReason.LATE, 4),))
     msg = wire.report_message(batch)
     assert not msg.HasField("heartbeat")
-    assert [s.frame_id for s in msg.swaps] == [7, 8] and [d.frame_id for d in msg.drops] == [9]
+    assert list(msg.swaps.frame_id) == [7, 1] and [d.frame_id for d in msg.drops] == [9]
     assert node_pb2.NodeReport.FromString(msg.SerializeToString()) == msg
 
 
