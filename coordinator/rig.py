@@ -153,6 +153,17 @@ class RigConfig:
     cameras: tuple[str, ...] = ()
 
 
+#: rigs with more projectors than this default to a heartbeat every 2 s instead of every second
+LARGE_RIG_SLOTS = 64
+
+
+def default_heartbeat_ms(n_slots: int) -> int:
+    """A node's heartbeat interval when rig.toml does not set one: 1 s, 2 s for rigs of more than
+    LARGE_RIG_SLOTS projectors (each heartbeat costs the coordinator about a quarter of a
+    millisecond of CPU, `bench swarm`; a node counts as lost after five missed)."""
+    return 1000 if n_slots <= LARGE_RIG_SLOTS else 2000
+
+
 def _check_size(what: str, w: object, h: object) -> tuple[int, int]:
     if not (isinstance(w, int) and isinstance(h, int) and MIN_SIDE <= w <= MAX_SIDE and MIN_SIDE <= h <= MAX_SIDE):
         raise RigError(f"{what}: size must be integers in {MIN_SIDE}..{MAX_SIDE}, got {w}x{h}")
@@ -184,7 +195,7 @@ def parse_config(text: str, *, source: str = "rig.toml") -> RigConfig:
     latency = doc.get("latency_ms", 50.0)
     if not isinstance(latency, (int, float)) or not 1 <= latency <= 5000:
         raise RigError(f"{source}: latency_ms must be a number in 1..5000, got {latency!r}")
-    hb = doc.get("heartbeat_ms", 1000)
+    hb = doc.get("heartbeat_ms", default_heartbeat_ms(len(slots)))
     lost = doc.get("lost_after_ms", max(5000, 5 * hb if isinstance(hb, int) else 5000))
     if not isinstance(hb, int) or not 50 <= hb <= 60_000 or not isinstance(lost, int) or lost < 2 * hb:
         raise RigError(f"{source}: heartbeat_ms must be 50..60000 and lost_after_ms at least twice it")
@@ -214,8 +225,8 @@ def render_config(name: str, rig_id: str, slots: list[str], *, width: int, heigh
         "# how far ahead of now frames are scheduled; covers network + render time",
         f"latency_ms = {latency_ms:g}",
         "# a node's heartbeat (a show's swap reports travel with it), and its silence that marks it lost",
-        "heartbeat_ms = 1000",
-        "lost_after_ms = 5000",
+        f"heartbeat_ms = {default_heartbeat_ms(len(slots))}",
+        f"lost_after_ms = {5 * default_heartbeat_ms(len(slots))}",
         "# cameras for calibration: room://HOST:PORT (virtual room), opencv:INDEX or a device path, folder:DIR",
         f"cameras = [{', '.join(json.dumps(c) for c in cameras)}]",
         "",

@@ -67,7 +67,7 @@ class NodeConfig:
     tls_ca: bytes | None = None
     tls_server_name: str | None = None
     ping_hz: float = 4.0                    # clock exchanges per second until the clock is settled ...
-    ping_settled_s: float = 5.0             # ... then one every this many seconds
+    ping_settled_s: float = 10.0            # ... then one every this many seconds
     realtime: bool = True
     backoff_min_s: float = 0.2
     backoff_max_s: float = 5.0
@@ -387,13 +387,16 @@ class Node:
         log.info("asset %s (%s) passed to the presenter for the show", asset_id[:12], m.name)
 
     async def _report_stream(self, link: CoordinatorLink, heartbeat_s: float, *, batch_s: float = 0.05,
-                             timeline_batch_s: float = 1.0) -> None:
+                             timeline_batch_s: float | None = None) -> None:
         """Heartbeats every ``heartbeat_s`` and at once when the fetcher has news (an asset ready or
         given up on; the next regular one then follows a full period later). Swaps and drops of
         streamed frames (stills, patterns, sequences: callers wait for them) go within ``batch_s``;
-        those of the show's timeline ticks wait up to ``timeline_batch_s`` and travel with the next
-        heartbeat when it is due by then, so a node playing a show sends about one message a
-        second (the coordinator's cost per node is mostly per message)."""
+        those of the show's timeline ticks wait up to ``timeline_batch_s`` (default: the heartbeat
+        interval) and travel with the next heartbeat when it is due by then, so a node playing a
+        show sends one message per heartbeat (the coordinator's cost per node is mostly per
+        message)."""
+        if timeline_batch_s is None:
+            timeline_batch_s = heartbeat_s
         q = self._reports
         while not q.empty():  # reports from a previous session are stale
             q.get_nowait()

@@ -63,8 +63,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
     p.add_argument("--ping-hz", type=float, default=4.0,
                    help="clock exchanges per second until the clock estimate is settled, about 20 s (default 4)")
-    p.add_argument("--ping-settled-s", type=float, default=5.0, metavar="S",
-                   help="then one clock exchange every S seconds (1..60, default 5; each costs the coordinator ~0.5 ms)")
+    p.add_argument("--ping-settled-s", type=float, default=10.0, metavar="S",
+                   help="then one clock exchange every S seconds (1..60, default 10; each costs the coordinator ~0.5 ms)")
     p.add_argument("--no-realtime", action="store_true",
                    help="do not raise the swap to real-time priority (SCHED_FIFO needs CAP_SYS_NICE)")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])

@@ -110,7 +110,7 @@ class ClockSample:
 
 
 #: a node fits its clock estimate over this window (at the settled rate, two dozen exchanges) ...
-CLOCK_WINDOW_NS = 120_000_000_000
+CLOCK_WINDOW_NS = 240_000_000_000
 #: ... and exchanges at its settled rate once the fitted drift spans this long (at 4 Hz: 80 exchanges)
 SETTLE_SPAN_NS = 20_000_000_000
 

@@ -55,9 +55,9 @@ class SwarmConfig:
     mdns_interfaces: list[str] | None = None
     fetch: str = "one"
     ping_hz: float = 4.0                    # as node.app: until the clock is settled ...
-    ping_settled_s: float | None = 5.0      # ... then one exchange every this long (None: ping_hz always)
+    ping_settled_s: float | None = 10.0     # ... then one exchange every this long (None: ping_hz always)
     report_batch_ms: float = 50.0           # as node.app: streamed frames' swaps and drops
-    timeline_batch_ms: float = 1000.0       # as node.app: timeline ticks' reports wait (with the heartbeat)
+    timeline_batch_ms: float | None = None  # as node.app: timeline ticks' reports wait (None: for the heartbeat)
     late_ms: float = 10.0
     heartbeat_ms: float | None = None       # None: the interval the coordinator asks for when joining
     clock_offset_ms: float = 0.0
@@ -79,7 +79,7 @@ class SwarmConfig:
         if not self.ping_hz > 0 or (self.ping_settled_s is not None and not self.ping_settled_s > 0):
             raise ValueError("ping rates must be > 0 per second")
         for name in ("report_batch_ms", "timeline_batch_ms"):
-            if not 0 <= getattr(self, name) <= 10_000:
+            if getattr(self, name) is not None and not 0 <= getattr(self, name) <= 10_000:
                 raise ValueError(f"--{name.replace('_', '-')} must be within 0..10000, got {getattr(self, name):g}")
 
 
@@ -289,13 +289,13 @@ def configure(p: argparse.ArgumentParser) -> None:
                      help="assets: the manifest and one blob per node (default), every blob, or the manifest only")
     how.add_argument("--ping-hz", type=float, default=4.0,
                      help="clock pings per second per node until its clock is settled (default 4, as a node)")
-    how.add_argument("--ping-settled-s", type=float, default=5.0, metavar="S",
-                     help="then one ping every S seconds (default 5, as a node; 0: --ping-hz always)")
+    how.add_argument("--ping-settled-s", type=float, default=10.0, metavar="S",
+                     help="then one ping every S seconds (default 10, as a node; 0: --ping-hz always)")
     how.add_argument("--report-batch-ms", type=float, default=50.0,
                      help="swaps and drops of streamed frames are batched over this long (default 50, as a node)")
-    how.add_argument("--timeline-batch-ms", type=float, default=1000.0,
+    how.add_argument("--timeline-batch-ms", type=float, metavar="MS",
                      help="those of timeline ticks wait up to this long, going with the heartbeat when it is due "
-                          "by then (default 1000, as a node; 50 sends them as streamed frames' are)")
+                          "by then (default: the heartbeat interval, as a node; 50 sends them as streamed frames' are)")
     how.add_argument("--heartbeat-ms", type=float, metavar="MS",
                      help="heartbeat interval (default: what the coordinator asks for, rig.toml's heartbeat_ms)")
     how.add_argument("--share-connection", action="store_true",

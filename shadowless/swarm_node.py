@@ -166,6 +166,7 @@ class SwarmNode:
         self._flush_handle: asyncio.TimerHandle | None = None
         self._flush_at = 0.0
         self._next_hb = 0.0
+        self._heartbeat_s = 1.0
         self._wake = asyncio.Event()
         self._hb_now = False
 
@@ -371,10 +372,11 @@ class SwarmNode:
 
     def _schedule_flush(self, timeline: bool) -> None:
         """As node.app: a streamed frame's report goes within report_batch_ms (with what waits), a
-        timeline tick's waits up to timeline_batch_ms, or until the heartbeat if that is due first."""
+        timeline tick's waits up to timeline_batch_ms (default: the heartbeat interval), or until
+        the heartbeat if that is due first."""
         now = self.loop.time()
         if timeline:
-            wait = self.cfg.timeline_batch_ms / 1000.0
+            wait = self._heartbeat_s if self.cfg.timeline_batch_ms is None else self.cfg.timeline_batch_ms / 1000.0
             due = self._next_hb if self._next_hb <= now + wait else now + wait
         else:
             due = now + self.cfg.report_batch_ms / 1000.0
@@ -395,6 +397,8 @@ class SwarmNode:
 
     # ---------------------------------------------------------------- reports
     async def _report(self, link: CoordinatorLink, heartbeat_s: float) -> None:
+        self._heartbeat_s = heartbeat_s
+
         async def batches():
             self._next_hb = 0.0
             while True:

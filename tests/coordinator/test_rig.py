@@ -20,6 +20,17 @@ def test_init_creates_config_and_private_token(tmp_path):
         init_rig(rig.path, name="t", slots=["a"])
 
 
+def test_large_rigs_default_to_sparser_heartbeats(tmp_path):
+    small = Rig(init_rig(tmp_path / "small", name="s", slots=grid_slots(8, 8)))
+    large = Rig(init_rig(tmp_path / "large", name="l", slots=grid_slots(5, 13)))
+    assert (small.config.heartbeat_ms, small.config.lost_after_ms) == (1000, 5000)
+    assert (large.config.heartbeat_ms, large.config.lost_after_ms) == (2000, 10000)
+    assert "heartbeat_ms = 2000" in (large.path / "rig.toml").read_text()     # written out, for the operator to see
+    bare = 'name = "b"\nid = "x"\n[slots]\n' + "".join(f"s{k} = {{}}\n" for k in range(65))
+    assert (parse_config(bare).heartbeat_ms, parse_config(bare).lost_after_ms) == (2000, 10000)
+    assert parse_config(bare.replace("[slots]", "heartbeat_ms = 700\n[slots]")).heartbeat_ms == 700   # set: kept
+
+
 def test_state_survives_a_reload(tmp_path):
     rig = make_rig(tmp_path)
     h = np.array([[1.1, 0.01, 3], [0.02, 0.9, -4], [1e-5, 2e-5, 1]])
