@@ -289,6 +289,7 @@ class DecodeAhead:
         self._closed = False
         self._fatal: BaseException | None = None
         self._hits = self._misses = self._jumps = self._decoded = self._errors = 0
+        self._quiet: tuple[int, int] = (0, 0)   # host ns: start no decode within [start, end)
         self._ms: deque[float] = deque(maxlen=_TIMINGS_KEPT)
         self._thread = threading.Thread(target=self._run, name=f"decode-ahead-{source.asset_id[:8]}", daemon=True)
         self._thread.start()
@@ -404,6 +405,21 @@ class DecodeAhead:
         if self._closed:
             raise FrameError(f"the decode-ahead of {self.source.describe()} is closed")
 
+    def quiet(self, start_host_ns: int, end_host_ns: int) -> None:
+        """Start no decode between these instants of the host's monotonic clock (a swap's).
+
+        The thread holds the interpreter lock for parts of each decode (a few milliseconds);
+        a swap whose thread wakes at real-time priority and then waits for that lock is late
+        by as much, more when other processes hold the CPU the decode thread needs to let go
+        of it (measured: swaps up to 20 ms late, a few per thousand, four nodes on two cores)."""
+        self._quiet = (int(start_host_ns), int(end_host_ns))
+
+    def _keep_quiet(self) -> None:
+        start, end = self._quiet
+        now = time.monotonic_ns()
+        if start <= now < end:
+            time.sleep((end - now) / 1e9)
+
     # ------------------------------------------------------------------ the thread
     def _next_job(self) -> int | None:
         for k in self._window:
@@ -419,6 +435,7 @@ class DecodeAhead:
                         self._cond.wait()
                     if self._closed:
                         return
+                self._keep_quiet()
                 t0 = time.perf_counter()
                 try:
                     out: np.ndarray | FrameError = self.source.frame(k)

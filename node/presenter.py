@@ -366,6 +366,7 @@ class Presenter:
             log.error("cannot show frame %d of asset %s: %s", ev.frame, ev.asset_id[:12], exc)
             self._drop(DropRecord(ev.frame_id, DropReason.UNRENDERABLE))
             return False
+        self.player.quiet_around(ev, self.clock.to_host(pacer.deadline(order)))
         a = self.assignment
         if a is not None and a.pose_kind == "homography" and all(a.content_size):
             image = fit_frame(image, a.content_size)

@@ -39,6 +39,11 @@ log = logging.getLogger(__name__)
 
 #: a node that catches up with a held (paused) frame shows it this far ahead of now
 CATCH_UP_NS = 30_000_000
+#: the decode-ahead thread starts nothing from this long before a swap (or a third of a frame
+#: period, if shorter) to this long after it: the swap never waits for the interpreter lock
+QUIET_BEFORE_NS = 8_000_000
+QUIET_AFTER_NS = 1_000_000
+NS = 1_000_000_000
 #: ticks reported late at most at once (after a long stall)
 MAX_SKIPPED_REPORTS = 120
 
@@ -286,6 +291,16 @@ class TimelinePlayer:
             dec.want(event.frame, loop=event.loop)
             self._decoder_revision = event.revision
         return dec
+
+    def quiet_around(self, event: TimelineEvent, swap_host_ns: int) -> None:
+        """``event`` swaps in at ``swap_host_ns`` (the host's clock): its decoder starts no work
+        from QUIET_BEFORE_NS (at most a third of a frame period) before it to QUIET_AFTER_NS
+        after it (:meth:`node.asset_frames.DecodeAhead.quiet`)."""
+        if self._decoder is None:
+            return
+        tl = self.schedule.at(event.pts_ns)
+        before = QUIET_BEFORE_NS if tl is None else min(QUIET_BEFORE_NS, int(NS / tl.rate / 3))
+        self._decoder.quiet(swap_host_ns - before, swap_host_ns + QUIET_AFTER_NS)
 
     def close(self) -> None:
         if self._decoder is not None:

@@ -543,3 +543,33 @@ def test_decode_speed_1080p_printed(cache, tmp_path):
                           "decode_ahead_p99_ms": round(st.decode_ms_p99, 2)}
     print("\n1080p decode:", json.dumps(results, indent=1))
     assert results
+
+
+class _StartTimes(_SlowStill):
+    """Records the host's monotonic clock each time a frame's decode starts."""
+
+    def __init__(self, cache):
+        super().__init__(cache, 0.0)
+        self.starts: list[int] = []
+
+    def _decode(self, k):
+        self.starts.append(time.monotonic_ns())
+        return super()._decode(k)
+
+
+def test_decode_ahead_starts_no_decode_while_a_swap_is_due(cache):
+    """Inside a quiet window (a swap's instant, announced by the presenter) the thread starts no
+    decode; it decodes the frames after the window."""
+    src = _StartTimes(cache)
+    with DecodeAhead(src, depth=5) as ahead:
+        start = time.monotonic_ns()
+        end = start + 200_000_000
+        ahead.quiet(start, end)
+        ahead.want(0)
+        assert [int(ahead.get(k, timeout=30)[0, 0, 0]) for k in range(5)] == [0, 1, 2, 3, 4]
+        assert len(src.starts) == 5 and min(src.starts) >= end
+        ahead.quiet(0, 1)                               # a window long past holds nothing back
+        before = len(src.starts)
+        ahead.want(2)
+        assert ahead.get(2, timeout=30)[0, 0, 0] == 2
+        assert len(src.starts) > before
