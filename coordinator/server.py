@@ -196,14 +196,30 @@ class Coordinator:
 
     # ------------------------------------------------------------------ nodes
     def join(self, *, slot: str, info: NodeInfo, peer: str) -> NodeSession:
-        """A node that passed the handshake takes its slot (a previous session of the slot is closed)."""
+        """A node that passed the handshake takes its slot.
+
+        A slot held by a live node (heard from within ``lost_after_ms``) is not given to a node
+        on another machine, nor to the process on the same machine that the holder took it
+        over from: two nodes started for one slot would otherwise take it from each other
+        forever. The newcomer is refused with the holder named; the holder keeps the slot. A
+        node rejoining (the same process, or a new process on the holder's machine: a restart)
+        takes over, and so does anyone once the holder went silent."""
         if slot not in self.rig.slots:
             raise self.handshake.refuse(peer, slot, grpc.StatusCode.NOT_FOUND,
                                         f"slot {slot!r} is not in rig {self.rig.config.name!r} "
                                         f"(slots: {', '.join(self.rig.slots)}); add it to rig.toml or start the node "
                                         "with one of these")
         old = self.by_slot.get(slot)
+        replaced_pid = 0
         if old is not None and not old.closed:
+            if self._holds_slot(old, info):
+                h = old.info
+                raise self.handshake.refuse(
+                    peer, slot, grpc.StatusCode.ALREADY_EXISTS,
+                    f"slot {slot!r} is taken by the live node at {old.peer} ({h.hostname or 'unknown host'}, pid {h.pid}); "
+                    "stop one of the two, or start this one with another --slot")
+            if _same_machine(old.info, info) and old.info.pid != info.pid:
+                replaced_pid = old.info.pid
             log.info("node %s rejoined from %s; closing its previous session", slot, peer)
             self._drop_session(old, lost=False)
         if old is not None:
@@ -219,12 +235,20 @@ class Coordinator:
         self.joins[slot] = self.joins.get(slot, 0) + 1
         now = self.now()
         sess = NodeSession(session=secrets.token_hex(16), slot=slot, peer=peer, info=info,
-                           instance_joins=self.joins[slot], joined=now, last_seen=now,
+                           instance_joins=self.joins[slot], joined=now, last_seen=now, replaced_pid=replaced_pid,
                            on_backlog_dropped=self.playback.request_keyframe)
         self.sessions[sess.session] = sess
         self.by_slot[slot] = sess
         log.info("node %s joined from %s (%s, pid %d)", slot, peer, info.hostname, info.pid)
         return sess
+
+    def _holds_slot(self, holder: NodeSession, newcomer: NodeInfo) -> bool:
+        """Whether the live ``holder`` keeps its slot against ``newcomer`` (see :meth:`join`)."""
+        if self.now() - holder.last_seen > self.rig.config.lost_after_ms / 1000.0:
+            return False
+        if not _same_machine(holder.info, newcomer):
+            return True
+        return newcomer.pid != holder.info.pid and newcomer.pid == holder.replaced_pid
 
     def node_session(self, session_id: str) -> NodeSession:
         sess = self.sessions.get(session_id)
@@ -449,3 +473,8 @@ class Coordinator:
             show_bytes_sent=self.show_bytes_sent, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
             refusals=tuple(Refusal(peer, slot, reason, now - at) for peer, slot, reason, at in self.refusals))
+
+
+def _same_machine(a: NodeInfo, b: NodeInfo) -> bool:
+    """Whether two joins come from one machine (its boot id and host name; both unknown: the same)."""
+    return (a.host_boot_id, a.hostname) == (b.host_boot_id, b.hostname)

@@ -129,6 +129,8 @@ class NodeSession:
     shown: int = 0
     late: int = 0
     dropped: int = 0
+    #: the pid of the node process on the same machine whose session this one took over (0: none)
+    replaced_pid: int = 0
     still_frames: set[int] = field(default_factory=set)   # ids of still frames sent to this node
     still_retries: int = 0
     #: called when the node's backlog was dropped (it lost pictures of a live video: it needs a keyframe)

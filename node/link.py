@@ -25,7 +25,7 @@ log = logging.getLogger("node")
 #: status codes by which a coordinator refuses a node (it will not change its mind on a retry)
 REFUSAL_CODES = frozenset({grpc.StatusCode.FAILED_PRECONDITION, grpc.StatusCode.UNAUTHENTICATED,
                            grpc.StatusCode.NOT_FOUND, grpc.StatusCode.INVALID_ARGUMENT,
-                           grpc.StatusCode.PERMISSION_DENIED})
+                           grpc.StatusCode.PERMISSION_DENIED, grpc.StatusCode.ALREADY_EXISTS})
 
 
 class LinkError(NodeError):

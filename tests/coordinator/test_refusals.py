@@ -187,3 +187,72 @@ def test_tls_channel(tmp_path):
             run(asyncio.wait_for(_join(rig.port, rig.token, "r0c0"), 10))
     finally:
         rig.close()
+
+
+def test_a_second_node_for_a_taken_slot_is_refused_and_the_first_keeps_it(small_rig):
+    """Two node processes started for one slot on one machine: the second takes the slot once
+    (it could be a restart), the first is then refused when it comes back for it, and the slot
+    stays with the second instead of changing hands forever."""
+    first = small_rig.start_node("r0c0")
+    wait_for_log(small_rig, "node-r0c0", "joined rig")
+    twin = small_rig._spawn("node-r0c0-twin", small_rig.node_args("r0c0"))
+    try:
+        wait_for_log(small_rig, "node-r0c0-twin", "joined rig")
+        log = wait_for_log(small_rig, "node-r0c0", "is taken by the live node")
+        assert f"pid {twin.pid}" in log and "another --slot" in log
+
+        async def holder():
+            async with await small_rig.client() as c:
+                st = await c.status()
+                (n,) = [n for n in st.nodes if n.slot == "r0c0"]
+                return n, [r.reason for r in st.refusals]
+
+        node, reasons = run(holder())
+        assert node.pid == twin.pid and any("is taken by the live node" in r for r in reasons)
+        joins = node.joins
+        time.sleep(3.0)                           # the refused node retries slowly; nothing changes hands
+        node, _ = run(holder())
+        assert (node.pid, node.joins) == (twin.pid, joins)
+        assert first.poll() is None and twin.poll() is None
+    finally:
+        twin.terminate()
+        twin.wait(30)
+
+
+def test_a_live_slot_is_not_given_to_another_machine_until_its_node_goes_silent(tmp_path):
+    """Coordinator rules, on an injected clock: another machine is refused while the holder is
+    heard from; a restart on the holder's machine takes over; the process it replaced is refused;
+    anyone takes a silent slot."""
+    from coordinator.rig import Rig, grid_slots, init_rig
+    from coordinator.server import Coordinator
+    from coordinator.sessions import NodeInfo, Report, RpcRefusal
+
+    rig = Rig(init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 1), width=32, height=32))
+    now = [1_000_000_000]
+
+    async def go():
+        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False, clock_ns=lambda: now[0])
+        a = NodeInfo(hostname="pi-a", pid=10, host_boot_id="boot-a")
+        held = coord.join(slot="r0c0", info=a, peer="10.0.0.2:5000")
+        with pytest.raises(RpcRefusal) as refused:
+            coord.join(slot="r0c0", info=NodeInfo(hostname="pi-b", pid=10, host_boot_id="boot-b"), peer="10.0.0.3:5000")
+        assert refused.value.code == grpc.StatusCode.ALREADY_EXISTS
+        assert "10.0.0.2:5000 (pi-a, pid 10)" in refused.value.message
+        assert not held.closed and coord.by_slot["r0c0"] is held
+        assert any("is taken" in r.reason for r in coord.status().refusals)
+
+        again = coord.join(slot="r0c0", info=a, peer="10.0.0.2:5001")           # the same process rejoins
+        restart = coord.join(slot="r0c0", info=NodeInfo("pi-a", 11, "boot-a"), peer="10.0.0.2:5002")
+        assert again.closed and coord.by_slot["r0c0"] is restart
+        with pytest.raises(RpcRefusal):                                         # the replaced process
+            coord.join(slot="r0c0", info=a, peer="10.0.0.2:5003")
+
+        now[0] += rig.config.lost_after_ms * 1_000_000 // 2
+        coord.on_report(restart, Report())                                       # heard from: still held
+        with pytest.raises(RpcRefusal):
+            coord.join(slot="r0c0", info=NodeInfo("pi-b", 10, "boot-b"), peer="10.0.0.3:5001")
+        now[0] += rig.config.lost_after_ms * 1_000_000 + 1
+        taken = coord.join(slot="r0c0", info=NodeInfo("pi-b", 10, "boot-b"), peer="10.0.0.3:5002")
+        assert restart.closed and coord.by_slot["r0c0"] is taken
+
+    run(go())
