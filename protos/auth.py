@@ -66,6 +66,11 @@ def read_token(path: str | os.PathLike[str]) -> bytes:
         raise TokenError(f"rig token file {p} is not text (is it the right file?)") from exc
     if len(text.encode()) < MIN_TOKEN_BYTES:
         raise TokenError(f"rig token in {p} is shorter than {MIN_TOKEN_BYTES} bytes")
+    mode = p.stat().st_mode & 0o777
+    if mode & 0o077:
+        who = " and ".join(w for w, bits in (("its group", 0o070), ("every user", 0o007)) if mode & bits)
+        raise TokenError(f"rig token file {p} can be read by {who} (mode {mode:04o}): anyone who reads it can join "
+                         f"or drive the rig; fix it with: chmod 600 {p}")
     return text.encode()
 
 

@@ -53,6 +53,7 @@ def test_wrong_protocol_version_gets_a_clear_refusal(small_rig):
 def test_node_with_wrong_token_does_not_trust_the_coordinator(small_rig, tmp_path):
     bad = tmp_path / "bad-token"
     bad.write_text(auth.new_token())
+    bad.chmod(0o600)
     small_rig.start_node("r0c0", ["--token-file", str(bad)])
     log = wait_for_log(small_rig, "node-r0c0", "could not prove it knows the rig token")
     assert "wrong token file" in log

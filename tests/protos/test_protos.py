@@ -77,4 +77,9 @@ def test_token_file_errors_name_the_file(tmp_path):
         auth.read_token(short)
     good = tmp_path / "token"
     good.write_text(auth.new_token() + "\n")
+    for mode, who in ((0o644, "its group and every user"), (0o640, "its group"), (0o604, "every user")):
+        good.chmod(mode)
+        with pytest.raises(auth.TokenError, match=f"read by {who} \\(mode 0{mode:o}\\).*chmod 600 {good}"):
+            auth.read_token(good)
+    good.chmod(0o600)
     assert len(auth.read_token(good)) >= 32
