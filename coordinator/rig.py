@@ -314,8 +314,12 @@ class Rig:
                 validate_lut(lut)
             w, h = doc.get("width", width), doc.get("height", height)
             _check_size(str(f), w, h)
+            gain = doc.get("gain", 1.0)
+            if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (np.isfinite(gain) and 0.0 <= gain <= 16.0):
+                raise RigError(f"{f}: gain must be a number in 0..16, got {gain!r}; fix or delete the file to "
+                               "recalibrate this slot")
             return SlotState(name=name, width=w, height=h, revision=int(doc.get("revision", 0)),
-                             gain=float(doc.get("gain", 1.0)), pose=pose, lut=lut, source=str(doc.get("source", "")),
+                             gain=float(gain), pose=pose, lut=lut, source=str(doc.get("source", "")),
                              updated_at=float(doc.get("updated_at", 0.0)))
         except RigError:
             raise

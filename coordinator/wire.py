@@ -415,7 +415,7 @@ def slot_changes_from_message(req: control_pb2.ConfigureRequest) -> dict[str, An
         changes["pose"] = None
     if req.HasField("lut"):
         changes["lut"] = lut_from_message(req.lut)
-    if req.gain > 0:
+    if req.HasField("gain"):
         changes["gain"] = req.gain
     if req.output_width or req.output_height:
         changes["size"] = (req.output_width, req.output_height)

@@ -90,6 +90,12 @@ def test_bad_inputs_are_refused_and_nothing_stored_is_lost(tmp_path):
 def test_corrupt_slot_file_is_reported_with_its_path(tmp_path):
     rig = make_rig(tmp_path)
     rig.update_slot("r0c0", gain=0.5)
-    (rig.path / "slots" / "r0c0.json").write_text("{not json")
+    path = rig.path / "slots" / "r0c0.json"
+    good = path.read_text()
+    path.write_text("{not json")
     with pytest.raises(RigError, match="r0c0.json"):
         Rig(rig.path)
+    for bad in ("NaN", "-0.5", "17", '"1.0"', "true"):
+        path.write_text(good.replace('"gain": 0.5', f'"gain": {bad}'))
+        with pytest.raises(RigError, match=r"r0c0.json: gain must be a number in 0..16"):
+            Rig(rig.path)

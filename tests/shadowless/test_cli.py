@@ -74,6 +74,16 @@ def test_operator_commands_against_a_running_rig(tmp_path):
         np.save(tmp_path / "h.npy", h)
         r = sh("configure", "--slot", "r0c1", "--homography", str(tmp_path / "h.npy"), "--gain", "0.5", *conn)
         assert r.returncode == 0 and "revision" in r.stdout, r.stderr
+        r = sh("configure", "--slot", "r0c1", "--gain", "0", *conn)            # 0 is a gain (light off), not "unchanged"
+        assert r.returncode == 0, r.stderr
+        assert json.loads((rig.rig_dir / "slots" / "r0c1.json").read_text())["gain"] == 0.0
+        for bad_args, says in ((["--gain", "-1"], "gain must be in 0..16"), (["--gain", "nan"], "gain must be in 0..16"),
+                               ([], "nothing to change on slot 'r0c1'")):
+            before = (rig.rig_dir / "slots" / "r0c1.json").read_bytes()
+            r = sh("configure", "--slot", "r0c1", *bad_args, *conn)
+            assert r.returncode != 0 and says in r.stderr and "Traceback" not in r.stderr, (bad_args, r.stderr)
+            assert (rig.rig_dir / "slots" / "r0c1.json").read_bytes() == before, "a refusal changes nothing stored"
+        sh("configure", "--slot", "r0c1", "--gain", "1", *conn)
 
         img = np.full((32, 48, 3), 40000, np.uint16)
         cv2.imwrite(str(tmp_path / "grey.png"), img)
