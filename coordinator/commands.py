@@ -194,6 +194,12 @@ def configure_play(p: argparse.ArgumentParser) -> None:
                    help="start an asset even if some live node does not hold it yet (it joins once it does)")
     p.add_argument("--loops", type=int, default=0, help="extra loops (default 0: once)")
     p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="exit 0 even if not every live node showed every frame of a played sequence (default: "
+                        "exit 1 and say what was missed)")
+    p.add_argument("--latency-ms", type=float, default=0.0, metavar="MS",
+                   help="a played sequence's frames are sent this far ahead of their time (default: rig.toml's "
+                        "latency_ms)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--compensate", action="store_true", help="compensate the rig's blur frame by frame (warm-started "
                    "solves over the measured light transport, see `shadowless compensate`), then play")
@@ -265,11 +271,14 @@ async def _play(args) -> int:
     if args.source and not args.pattern and not args.compensate and not Path(args.source).is_dir():
         return await _play_asset(args)
     args.fps = args.fps or 30.0
-    st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait)
+    if not (args.latency_ms >= 0 and math.isfinite(args.latency_ms)):
+        raise OperatorError(f"--latency-ms must be a positive number of milliseconds, got {args.latency_ms:g}")
+    st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, latency_ms=args.latency_ms)
     if args.compensate:
         return await _play_compensated(args)
     if args.pattern:
-        st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, pattern=args.pattern, frames=args.frames)
+        st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, pattern=args.pattern, frames=args.frames,
+                          latency_ms=args.latency_ms)
     elif args.source:
         files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
         if not files:
@@ -283,7 +292,15 @@ async def _play(args) -> int:
     print(json.dumps(d, indent=2) if args.json else
           f"played {d['frames_sent']} frames on {d['nodes']} nodes: shown by all {d['frames_shown']}, late {d['frames_late']}, "
           f"dropped {d['frames_dropped']}; skew p99 {d['sync']['skew_p99_ms']} ms")
-    return 0
+    if args.no_wait or (r.nodes and r.frames_shown >= r.frames_sent):
+        return 0
+    missed = (f"{r.frames_sent - r.frames_shown} of {r.frames_sent} frames were not shown by every live node "
+              f"({r.frames_late} late, {r.frames_dropped} dropped)" if r.nodes else "no live node showed the sequence")
+    if args.allow_partial:
+        print(f"note: {missed}", file=sys.stderr)
+        return 0
+    print(f"error: {missed}; pass --allow-partial to accept that", file=sys.stderr)
+    return 1
 
 
 async def _play_compensated(args) -> int:

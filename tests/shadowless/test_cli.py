@@ -89,10 +89,18 @@ def test_operator_commands_against_a_running_rig(tmp_path):
         cv2.imwrite(str(tmp_path / "grey.png"), img)
         r = sh("show", str(tmp_path / "grey.png"), "--persist", *conn)
         assert r.returncode == 0, r.stderr
-        r = sh("play", "--pattern", "counter", "--frames", "15", "--fps", "15", "--json", *conn)
+        r = sh("play", "--pattern", "counter", "--frames", "15", "--fps", "15", "--json", "--allow-partial", *conn)
         assert r.returncode == 0, r.stderr
         played = json.loads(r.stdout)
         assert played["frames_sent"] == 15 and played["nodes"] == 2
+        # frames sent a microsecond ahead of their time arrive late: the goal was not reached, exit 1
+        late = ["play", "--pattern", "counter", "--frames", "10", "--fps", "30", "--latency-ms", "0.001", *conn]
+        r = sh(*late)
+        assert r.returncode == 1 and "were not shown by every live node" in r.stderr and "--allow-partial" in r.stderr
+        r = sh(*late, "--allow-partial")
+        assert r.returncode == 0 and "note:" in r.stderr, r.stderr
+        r = sh("play", "--pattern", "counter", "--latency-ms", "-5", *conn)
+        assert r.returncode == 2 and "--latency-ms" in r.stderr and "Traceback" not in r.stderr
 
         bad = sh("status", "--coordinator", f"127.0.0.1:{rig.port}", "--token-file", str(tmp_path / "h.npy"))
         assert bad.returncode == 2 and "token" in bad.stderr
