@@ -239,12 +239,22 @@ async def _show_control(args) -> int:
     return 0
 
 
+async def warn_unposed(c) -> None:
+    """Say on stderr which slots have no pose: content is warped by each slot's pose, so they show black."""
+    unposed = [n.slot for n in (await c.status()).nodes if n.pose_kind == "none"]
+    if unposed:
+        print(f"warning: {len(unposed)} slot(s) have no pose and show black: {', '.join(unposed)} (calibrate them "
+              "with `shadowless calibrate`, or set one with `shadowless configure --slot S --homography H`)",
+              file=sys.stderr)
+
+
 async def _show(args) -> int:
     if args.image in SHOW_ACTIONS and not Path(args.image).exists():
         return await _show_control(args)
     img = read_image(args.image)
     async with await open_client(args) as c:
         r = await c.show(img, name=Path(args.image).name, persist=args.persist)
+        await warn_unposed(c)
     print(f"showing {args.image} ({img.shape[1]}x{img.shape[0]} {img.dtype}) as frame {r.frame_id}, content {r.content_id}")
     return 0
 
@@ -261,6 +271,7 @@ async def _play_asset(args) -> int:
     async with await open_client(args) as c:
         st = await c.play_asset(args.source, delay_s=args.in_s, loop=args.loop, fps=args.fps or 0.0,
                                 start_without=args.start_without)
+        await warn_unposed(c)
     print(json.dumps(show_dict(st), indent=2) if args.json else
           f"{show_line(st)}; starts in {max(0, st.anchor_ns - st.now_ns) / 1e9:.3f} s")
     return 0
@@ -287,6 +298,7 @@ async def _play(args) -> int:
     else:
         raise OperatorError("give a folder of images or --pattern counter")
     async with await open_client(args) as c:
+        await warn_unposed(c)
         r = await c.play(st, frames)
     d = play_dict(r)
     print(json.dumps(d, indent=2) if args.json else

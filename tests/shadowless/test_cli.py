@@ -89,6 +89,8 @@ def test_operator_commands_against_a_running_rig(tmp_path):
         cv2.imwrite(str(tmp_path / "grey.png"), img)
         r = sh("show", str(tmp_path / "grey.png"), "--persist", *conn)
         assert r.returncode == 0, r.stderr
+        # r0c0 was never calibrated: it shows black, and the operator is told so
+        assert "warning: 1 slot(s) have no pose and show black: r0c0" in r.stderr and "shadowless calibrate" in r.stderr
         r = sh("play", "--pattern", "counter", "--frames", "15", "--fps", "15", "--json", "--allow-partial", *conn)
         assert r.returncode == 0, r.stderr
         played = json.loads(r.stdout)
