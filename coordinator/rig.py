@@ -164,6 +164,16 @@ def default_heartbeat_ms(n_slots: int) -> int:
     return 1000 if n_slots <= LARGE_RIG_SLOTS else 2000
 
 
+#: a slot's linear gain lies in 0..MAX_GAIN (0: its light off)
+MAX_GAIN = 16.0
+
+
+def valid_gain(gain: object) -> bool:
+    """Whether ``gain`` is a number (not a bool) in 0..MAX_GAIN."""
+    return (not isinstance(gain, bool) and isinstance(gain, (int, float, np.floating)) and bool(np.isfinite(gain))
+            and 0.0 <= gain <= MAX_GAIN)
+
+
 def _check_size(what: str, w: object, h: object) -> tuple[int, int]:
     if not (isinstance(w, int) and isinstance(h, int) and MIN_SIDE <= w <= MAX_SIDE and MIN_SIDE <= h <= MAX_SIDE):
         raise RigError(f"{what}: size must be integers in {MIN_SIDE}..{MAX_SIDE}, got {w}x{h}")
@@ -214,6 +224,7 @@ def grid_slots(rows: int, cols: int) -> list[str]:
 
 def render_config(name: str, rig_id: str, slots: list[str], *, width: int, height: int,
                   content_width: int, content_height: int, latency_ms: float, cameras: list[str] = ()) -> str:
+    hb_ms = default_heartbeat_ms(len(slots))
     lines = [
         "# A shadowless rig. Edit by hand; the coordinator reads this file when it starts.",
         "# Calibration results, LUTs and content live beside it (slots/, luts/, content/).",
@@ -225,8 +236,8 @@ def render_config(name: str, rig_id: str, slots: list[str], *, width: int, heigh
         "# how far ahead of now frames are scheduled; covers network + render time",
         f"latency_ms = {latency_ms:g}",
         "# a node's heartbeat (a show's swap reports travel with it), and its silence that marks it lost",
-        f"heartbeat_ms = {default_heartbeat_ms(len(slots))}",
-        f"lost_after_ms = {5 * default_heartbeat_ms(len(slots))}",
+        f"heartbeat_ms = {hb_ms}",
+        f"lost_after_ms = {5 * hb_ms}",
         "# cameras for calibration: room://HOST:PORT (virtual room), opencv:INDEX or a device path, folder:DIR",
         f"cameras = [{', '.join(json.dumps(c) for c in cameras)}]",
         "",
@@ -315,8 +326,8 @@ class Rig:
             w, h = doc.get("width", width), doc.get("height", height)
             _check_size(str(f), w, h)
             gain = doc.get("gain", 1.0)
-            if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (np.isfinite(gain) and 0.0 <= gain <= 16.0):
-                raise RigError(f"{f}: gain must be a number in 0..16, got {gain!r}; fix or delete the file to "
+            if not valid_gain(gain):
+                raise RigError(f"{f}: gain must be a number in 0..{MAX_GAIN:g}, got {gain!r}; fix or delete the file to "
                                "recalibrate this slot")
             return SlotState(name=name, width=w, height=h, revision=int(doc.get("revision", 0)),
                              gain=float(gain), pose=pose, lut=lut, source=str(doc.get("source", "")),
@@ -379,8 +390,8 @@ class Rig:
         if pose is not Rig._UNSET:
             changes["pose"] = pose
         if gain is not None:
-            if not (np.isfinite(gain) and 0.0 <= gain <= 16.0):
-                raise ValueError(f"gain must be in 0..16, got {gain}")
+            if not valid_gain(gain):
+                raise ValueError(f"gain must be in 0..{MAX_GAIN:g}, got {gain}")
             changes["gain"] = float(gain)
         if lut is not Rig._UNSET:
             if lut is not None:

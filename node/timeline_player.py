@@ -33,7 +33,7 @@ import numpy as np
 from node.asset_frames import DecodeAhead, DecodeStats, FrameError, open_frames
 from node.records import AssetFiles, ShowUpdateData
 from protos.asset_manifest import Manifest, ManifestError
-from protos.timeline import Schedule, Timeline
+from protos.timeline import NS, Schedule, Timeline
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +43,6 @@ CATCH_UP_NS = 30_000_000
 #: period, if shorter) to this long after it: the swap never waits for the interpreter lock
 QUIET_BEFORE_NS = 8_000_000
 QUIET_AFTER_NS = 1_000_000
-NS = 1_000_000_000
 #: ticks reported late at most at once (after a long stall)
 MAX_SKIPPED_REPORTS = 120
 
