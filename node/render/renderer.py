@@ -49,9 +49,19 @@ class RenderError(NodeError, RuntimeError):
     """OpenGL is unusable or refused a request; the message says what to check."""
 
 
-def _load_shader(name: str) -> str:
-    """Read a shader file that lives beside this module."""
-    return resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
+#: the oldest OpenGL the renderer runs on: 3.1 (GLSL 1.40), e.g. a Raspberry Pi's V3D driver
+MIN_GL_VERSION = 310
+
+
+def glsl_header(version_code: int) -> str:
+    """The ``#version`` line for a context of ``version_code`` (e.g. 310, 330, 460): the shaders
+    are written in GLSL 1.40 (no layout qualifiers), which is also valid 3.30 core."""
+    return "#version 330 core\n" if version_code >= 330 else "#version 140\n"
+
+
+def _load_shader(name: str, header: str = "") -> str:
+    """Read a shader file that lives beside this module, after ``header`` (its #version line)."""
+    return header + resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
 
 
 @dataclass(frozen=True)
@@ -135,7 +145,7 @@ class Renderer:
     Parameters
     ----------
     ctx : moderngl.Context
-        The GL context (OpenGL >= 3.3) the calling thread owns.
+        The GL context (OpenGL >= 3.1) the calling thread owns.
     width, height : int
         Output size in projector pixels.
     """
@@ -147,9 +157,9 @@ class Renderer:
         import moderngl  # the node extra; imported here so `import node.render` stays light
 
         self._mgl = moderngl
-        if ctx.version_code < 330:
+        if ctx.version_code < MIN_GL_VERSION:
             raise RenderError(
-                f"OpenGL 3.3 or newer is needed, this context offers {ctx.version_code // 100}."
+                f"OpenGL 3.1 or newer is needed, this context offers {ctx.version_code // 100}."
                 f"{ctx.version_code // 10 % 10} ({ctx.info.get('GL_RENDERER', '?')}); update the GPU driver or Mesa"
             )
         self.ctx = ctx
@@ -159,12 +169,12 @@ class Renderer:
         self._width, self._height = _check_size(width, height, self._max_texture)
         try:
             # moderngl resolves `#include "pipeline.glsl"` from ctx.includes
+            header = glsl_header(ctx.version_code)
             ctx.includes["pipeline.glsl"] = _load_shader("pipeline.glsl")
-            fullscreen = _load_shader("fullscreen.vert.glsl")
-            self._warp = ctx.program(vertex_shader=fullscreen, fragment_shader=_load_shader("warp.frag.glsl"))
-            self._mesh_prog = ctx.program(
-                vertex_shader=_load_shader("mesh.vert.glsl"), fragment_shader=_load_shader("mesh.frag.glsl")
-            )
+            fullscreen = _load_shader("fullscreen.vert.glsl", header)
+            self._warp = ctx.program(vertex_shader=fullscreen, fragment_shader=_load_shader("warp.frag.glsl", header))
+            self._mesh_prog = ctx.program(vertex_shader=_load_shader("mesh.vert.glsl", header),
+                                          fragment_shader=_load_shader("mesh.frag.glsl", header))
         except moderngl.Error as exc:
             raise RenderError(f"the renderer's shaders do not compile on this driver: {exc}") from exc
         self._warp_vao = ctx.vertex_array(self._warp, [])
@@ -199,10 +209,10 @@ class Renderer:
         import moderngl  # lazy, as in __init__: only a process that renders loads GL
 
         try:
-            ctx = moderngl.create_standalone_context(backend="egl", require=330)
+            ctx = moderngl.create_standalone_context(backend="egl", require=MIN_GL_VERSION)
         except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
             raise RenderError(
-                "cannot create a headless OpenGL 3.3 context through EGL "
+                "cannot create a headless OpenGL 3.1+ context through EGL "
                 f"({exc}); install Mesa's EGL and DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri)"
             ) from exc
         try:
@@ -243,6 +253,13 @@ class Renderer:
     @property
     def height(self) -> int:
         return self._height
+
+    @property
+    def gl_profile(self) -> str:
+        """What the renderer runs on, e.g. ``OpenGL 3.1, GLSL 1.40 (V3D 4.2)``."""
+        v = self.ctx.version_code
+        glsl = "3.30" if v >= 330 else "1.40"
+        return f"OpenGL {v // 100}.{v // 10 % 10}, GLSL {glsl} ({self.ctx.info.get('GL_RENDERER', '?')})"
 
     @property
     def framebuffer(self) -> Any:

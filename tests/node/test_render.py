@@ -19,6 +19,8 @@ References:
 """
 from __future__ import annotations
 
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -180,6 +182,10 @@ def assert_matches_spaces(got: np.ndarray, want: np.ndarray, *, mask=None, share
 @pytest.fixture(scope="module")
 def shared_renderer():
     r = Renderer.standalone(PW, PH)
+    # tests/node/test_render_gl31.py runs this module again on an emulated OpenGL 3.1 (a Pi's V3D)
+    expected = os.environ.get("SHADOWLESS_TEST_GL_VERSION")
+    if expected:
+        assert r.ctx.version_code == int(expected), r.gl_profile
     yield r
     r.release()
 
@@ -635,7 +641,7 @@ def test_unusable_gl_is_reported_with_what_to_do(monkeypatch):
     from node.render import RenderError
 
     old = SimpleNamespace(version_code=210, info={"GL_RENDERER": "ancient"})
-    with pytest.raises(RenderError, match=r"3\.3 or newer.*2\.1 \(ancient\)"):
+    with pytest.raises(RenderError, match=r"3\.1 or newer.*2\.1 \(ancient\)"):
         Renderer(old, 8, 8)
 
     def no_egl(**kwargs):
