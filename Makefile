@@ -22,23 +22,24 @@ protos/.generated: $(PROTOS) protos/generate.py
 	$(PY) protos/generate.py
 	@touch $@
 
-# Xvfb lets the fullscreen-window output be tested on a machine with no screen; iproute2
-# (ip, tc) builds the virtual venue networks the network tests run on.
+# Debian packages the tests need, installed when missing (as root, through apt-get; CI runs as
+# root): $(call need,CHECK,PACKAGES,WHAT NEEDS THEM).
+define need
+	@$(1) || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing $(2) ($(3))"; \
+	    (apt-get install -y -q $(2) >/dev/null 2>&1 || \
+	     (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q $(2) >/dev/null 2>&1)) || \
+	     echo "warning: could not install $(2); $(3) will fail"; \
+	  else echo "warning: $(2) missing (apt-get install $(2)); $(3) will fail"; fi; }
+endef
+
+# iproute2 (ip, tc) builds the virtual venue networks the network tests run on; Xvfb lets the
+# fullscreen outputs be tested on a machine with no screen; libSDL2 drives the output without X.
 system-deps:
-	@command -v tc >/dev/null 2>&1 && command -v ip >/dev/null 2>&1 || { \
-	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing iproute2 (virtual venue network tests)"; \
-	    (apt-get install -y -q iproute2 >/dev/null 2>&1 || \
-	     (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q iproute2 >/dev/null 2>&1)) || \
-	     echo "warning: could not install iproute2; network tests will fail"; \
-	  else echo "warning: ip/tc missing (apt-get install iproute2); network tests will fail"; fi; }
-	@command -v Xvfb >/dev/null 2>&1 || { \
-	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing xvfb (window-output tests)"; \
-	    (apt-get install -y -q xvfb >/dev/null 2>&1 || \
-	     (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q xvfb >/dev/null 2>&1)) || \
-	     echo "warning: could not install xvfb; window-output tests will fail"; \
-	  else echo "warning: Xvfb missing (apt-get install xvfb); window-output tests will fail"; fi; }
+	$(call need,command -v tc >/dev/null 2>&1 && command -v ip >/dev/null 2>&1,iproute2,virtual venue network tests)
+	$(call need,command -v Xvfb >/dev/null 2>&1,xvfb,window-output tests)
+	$(call need,ldconfig -p | grep -q libSDL2-2.0.so.0,libsdl2-2.0-0,kms-output tests)
 
 demo: setup
 	$(VENV)/bin/shadowless demo --out results/demo

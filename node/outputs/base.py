@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from node.errors import NodeError
+from node.render.shaders import MIN_GL_VERSION
 from node.png import atomic_write_bytes, encode_png
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -34,7 +35,8 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger(__name__)
 
 #: the forms :func:`node.outputs.open_output` accepts, for error messages and ``--help``
-SPEC_FORMS = ("offscreen", "window", "window:MONITOR (0-based monitor index)", "room://HOST:PORT")
+SPEC_FORMS = ("offscreen", "window", "window:MONITOR (0-based monitor index)", "kms",
+              "kms:DISPLAY (0-based index or connector, e.g. kms:HDMI-A-1)", "room://HOST:PORT")
 _SLOT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
@@ -173,15 +175,15 @@ class Snapshots:
 
 
 def headless_context() -> "moderngl.Context":
-    """A standalone OpenGL 3.3 context through EGL (Mesa's llvmpipe where there is no GPU)."""
+    """A standalone OpenGL 3.1+ context through EGL (Mesa's llvmpipe where there is no GPU)."""
     # Lazy: moderngl (and its GL libraries) is only needed in the presenter process; the node
     # process imports the outputs package (for open_output's names) but never opens a context.
     import moderngl
 
     try:
-        return moderngl.create_standalone_context(backend="egl", require=330)
+        return moderngl.create_standalone_context(backend="egl", require=MIN_GL_VERSION)
     except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
         raise OutputError(
-            f"cannot create a headless OpenGL 3.3 context through EGL ({exc}); install Mesa's EGL and "
+            f"cannot create a headless OpenGL 3.1+ context through EGL ({exc}); install Mesa's EGL and "
             "DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri) or the GPU vendor's EGL"
         ) from exc

@@ -12,8 +12,9 @@ def open_output(spec: str, *, slot: str, snapshot_dir: Path | None = None) -> Ou
     """Open the output named by ``spec`` for node ``slot``.
 
     ``spec`` is one of :data:`SPEC_FORMS`: ``offscreen`` (headless; the default when
-    empty), ``window`` or ``window:MONITOR`` (fullscreen on monitor MONITOR, 0-based),
-    or ``room://HOST:PORT`` (frames go to the virtual room).
+    empty), ``window`` or ``window:MONITOR`` (fullscreen on monitor MONITOR, 0-based, through
+    X), ``kms`` or ``kms:DISPLAY`` (fullscreen without X, SDL2 on KMS/DRM; a display index or
+    connector name), or ``room://HOST:PORT`` (frames go to the virtual room).
 
     ``snapshot_dir``: if given, every frame whose tag starts with ``show`` is
     also written to ``snapshot_dir/<slot>.png`` (atomically) for inspection.
@@ -35,6 +36,15 @@ def open_output(spec: str, *, slot: str, snapshot_dir: Path | None = None) -> Ou
         if not index_text.isdigit():
             raise OutputError(f"output {spec!r}: the monitor must be a 0-based index like window:1 (accepted: {forms})")
         return WindowOutput(slot=slot, monitor=int(index_text), snapshot_dir=snapshot_dir)
+    if text == "kms" or text.startswith("kms:"):
+        display = text.partition(":")[2]
+        if text.endswith(":"):
+            raise OutputError(f"output {spec!r}: name the display after kms:, an index or a connector like "
+                              f"kms:HDMI-A-1 (accepted: {forms})")
+        # Lazy: SDL2 is loaded only by a node that drives a display without X.
+        from node.outputs.kms import KmsOutput
+
+        return KmsOutput(slot=slot, display=display, snapshot_dir=snapshot_dir)
     if text.startswith("room://"):
         check_slot(slot)
         parse_room_spec(spec)

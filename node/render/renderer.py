@@ -24,12 +24,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from importlib import resources
 from typing import Any
 
 import numpy as np
 
 from node.errors import NodeError
+from node.render.shaders import MIN_GL_VERSION, glsl_header, load_shader
 
 __all__ = ["Mesh", "RenderError", "Renderer", "SPACES"]
 
@@ -47,21 +47,6 @@ _TEXTURE_DTYPES = {
 
 class RenderError(NodeError, RuntimeError):
     """OpenGL is unusable or refused a request; the message says what to check."""
-
-
-#: the oldest OpenGL the renderer runs on: 3.1 (GLSL 1.40), e.g. a Raspberry Pi's V3D driver
-MIN_GL_VERSION = 310
-
-
-def glsl_header(version_code: int) -> str:
-    """The ``#version`` line for a context of ``version_code`` (e.g. 310, 330, 460): the shaders
-    are written in GLSL 1.40 (no layout qualifiers), which is also valid 3.30 core."""
-    return "#version 330 core\n" if version_code >= 330 else "#version 140\n"
-
-
-def _load_shader(name: str, header: str = "") -> str:
-    """Read a shader file that lives beside this module, after ``header`` (its #version line)."""
-    return header + resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
 
 
 @dataclass(frozen=True)
@@ -170,11 +155,11 @@ class Renderer:
         try:
             # moderngl resolves `#include "pipeline.glsl"` from ctx.includes
             header = glsl_header(ctx.version_code)
-            ctx.includes["pipeline.glsl"] = _load_shader("pipeline.glsl")
-            fullscreen = _load_shader("fullscreen.vert.glsl", header)
-            self._warp = ctx.program(vertex_shader=fullscreen, fragment_shader=_load_shader("warp.frag.glsl", header))
-            self._mesh_prog = ctx.program(vertex_shader=_load_shader("mesh.vert.glsl", header),
-                                          fragment_shader=_load_shader("mesh.frag.glsl", header))
+            ctx.includes["pipeline.glsl"] = load_shader("pipeline.glsl")
+            fullscreen = load_shader("fullscreen.vert.glsl", header)
+            self._warp = ctx.program(vertex_shader=fullscreen, fragment_shader=load_shader("warp.frag.glsl", header))
+            self._mesh_prog = ctx.program(vertex_shader=load_shader("mesh.vert.glsl", header),
+                                          fragment_shader=load_shader("mesh.frag.glsl", header))
         except moderngl.Error as exc:
             raise RenderError(f"the renderer's shaders do not compile on this driver: {exc}") from exc
         self._warp_vao = ctx.vertex_array(self._warp, [])

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import moderngl
 
-from node.render.renderer import glsl_header
+from node.render.shaders import glsl_header
 
 GL31 = {"MESA_GL_VERSION_OVERRIDE": "3.1", "MESA_GLSL_VERSION_OVERRIDE": "140", "GLCONTEXT_GLVERSION": "310"}
 HERE = Path(__file__).resolve().parent
