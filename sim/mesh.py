@@ -1,4 +1,4 @@
-"""Triangle meshes: OBJ/PLY reading and writing, normals, and the procedural bust.
+"""Triangle meshes: normals, the procedural bust, OBJ/PLY files (through protos.mesh_files).
 
 A :class:`Mesh` holds ``vertices (V, 3) float32`` in world millimetres,
 ``faces (F, 3) uint32`` (counter-clockwise seen from outside), and optionally
@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from protos.mesh_files import MeshFileError, format_obj, format_ply, read_mesh
 from sim.errors import MeshError
 
 
@@ -86,27 +87,13 @@ class Mesh:
 
 
 def load_mesh(path: str | Path) -> Mesh:
-    """Read a triangle mesh from ``.obj`` or ``.ply`` (ASCII or binary).
-
-    Polygons are triangulated as fans. Texture coordinates are kept when every
-    vertex has one. Raises :class:`MeshError` naming the problem.
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
+    """Read a triangle mesh from ``.obj`` or ``.ply`` (ASCII or binary), through
+    :mod:`protos.mesh_files`. Raises :class:`MeshError` naming the file and the problem."""
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise MeshError(f"cannot read mesh {path}: {exc.strerror or exc}") from exc
-    try:
-        if suffix == ".obj":
-            return _parse_obj(data.decode("utf-8", errors="replace"))
-        if suffix == ".ply":
-            return _parse_ply(data)
-    except MeshError as exc:
-        raise MeshError(f"{path}: {exc}") from None
-    except (ValueError, IndexError, UnicodeDecodeError) as exc:
-        raise MeshError(f"{path}: malformed {suffix[1:].upper()} file ({exc})") from exc
-    raise MeshError(f"{path}: unknown mesh format {suffix!r}; use .obj or .ply")
+        m = read_mesh(path)
+    except MeshFileError as exc:
+        raise MeshError(str(exc)) from None
+    return Mesh(m.vertices, m.faces, m.uvs)
 
 
 def save_mesh(mesh: Mesh, path: str | Path, *, binary: bool = True) -> None:
@@ -114,198 +101,12 @@ def save_mesh(mesh: Mesh, path: str | Path, *, binary: bool = True) -> None:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".obj":
-        path.write_text(_format_obj(mesh))
+        path.write_text(format_obj(mesh.vertices, mesh.faces, mesh.uvs, comment="shadowless sim mesh (millimetres)"))
     elif suffix == ".ply":
-        path.write_bytes(_format_ply(mesh, binary=binary))
+        path.write_bytes(format_ply(mesh.vertices, mesh.faces, mesh.uvs, binary=binary,
+                                   comment="shadowless sim mesh (millimetres)"))
     else:
         raise MeshError(f"{path}: unknown mesh format {suffix!r}; use .obj or .ply")
-
-
-def _parse_obj(text: str) -> Mesh:
-    positions: list[list[float]] = []
-    texcoords: list[list[float]] = []
-    corners: list[tuple[int, int]] = []  # (position index, texcoord index or -1), 3 per triangle
-    for lineno, raw in enumerate(text.splitlines(), 1):
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        parts = line.split()
-        tag = parts[0]
-        if tag == "v":
-            positions.append([float(x) for x in parts[1:4]])
-        elif tag == "vt":
-            texcoords.append([float(x) for x in parts[1:3]] + [0.0] * max(0, 3 - len(parts)))
-        elif tag == "f":
-            refs = []
-            for item in parts[1:]:
-                fields = item.split("/")
-                vi = int(fields[0])
-                vi = vi - 1 if vi > 0 else len(positions) + vi
-                ti = -1
-                if len(fields) > 1 and fields[1]:
-                    ti = int(fields[1])
-                    ti = ti - 1 if ti > 0 else len(texcoords) + ti
-                refs.append((vi, ti))
-            if len(refs) < 3:
-                raise MeshError(f"line {lineno}: a face needs at least 3 vertices")
-            for k in range(1, len(refs) - 1):
-                corners.extend([refs[0], refs[k], refs[k + 1]])
-    if not positions or not corners:
-        raise MeshError("no vertices or no faces")
-    pos = np.asarray(positions, dtype=np.float64)
-    keys = np.asarray(corners, dtype=np.int64)
-    if keys[:, 0].min() < 0 or keys[:, 0].max() >= len(pos):
-        raise MeshError("a face references a vertex that does not exist")
-    has_uv = bool(texcoords) and bool(np.all(keys[:, 1] >= 0))
-    if has_uv:
-        if keys[:, 1].max() >= len(texcoords):
-            raise MeshError("a face references a texture coordinate that does not exist")
-        unique, inverse = np.unique(keys, axis=0, return_inverse=True)
-        tex = np.asarray(texcoords, dtype=np.float64)[unique[:, 1], :2]
-        uvs = np.column_stack([tex[:, 0], 1.0 - tex[:, 1]])
-        return Mesh(pos[unique[:, 0]], inverse.reshape(-1, 3), uvs)
-    return Mesh(pos, keys[:, 0].reshape(-1, 3))
-
-
-def _format_obj(mesh: Mesh) -> str:
-    lines = ["# shadowless sim mesh (millimetres)"]
-    lines += [f"v {x:.6g} {y:.6g} {z:.6g}" for x, y, z in mesh.vertices.astype(np.float64)]
-    if mesh.uvs is not None:
-        lines += [f"vt {u:.7g} {1.0 - v:.7g}" for u, v in mesh.uvs.astype(np.float64)]
-        lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in (mesh.faces.astype(np.int64) + 1)]
-    else:
-        lines += [f"f {a} {b} {c}" for a, b, c in (mesh.faces.astype(np.int64) + 1)]
-    return "\n".join(lines) + "\n"
-
-
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
-
-
-def _parse_ply(data: bytes) -> Mesh:
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        raise MeshError("not a PLY file (missing 'ply' magic or 'end_header')")
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    body_start = data.index(b"\n", end) + 1
-    fmt = None
-    elements: list[dict] = []
-    for line in header[1:]:
-        parts = line.split()
-        if not parts or parts[0] in ("comment", "obj_info"):
-            continue
-        if parts[0] == "format":
-            fmt = parts[1]
-        elif parts[0] == "element":
-            elements.append({"name": parts[1], "count": int(parts[2]), "props": []})
-        elif parts[0] == "property":
-            if not elements:
-                raise MeshError("property before any element")
-            if parts[1] == "list":
-                elements[-1]["props"].append((parts[4], "list", _PLY_TYPES[parts[2]], _PLY_TYPES[parts[3]]))
-            else:
-                elements[-1]["props"].append((parts[2], _PLY_TYPES[parts[1]], None, None))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise MeshError(f"unsupported PLY format {fmt!r}")
-    order = "<" if fmt != "binary_big_endian" else ">"
-    values: dict[str, dict[str, np.ndarray]] = {}
-    if fmt == "ascii":
-        tokens = data[body_start:].split()
-        pos = 0
-        for el in elements:
-            cols: dict[str, list] = {p[0]: [] for p in el["props"]}
-            for _ in range(el["count"]):
-                for name, kind, count_t, _item_t in el["props"]:
-                    if kind == "list":
-                        n = int(tokens[pos])
-                        cols[name].append([float(x) for x in tokens[pos + 1 : pos + 1 + n]])
-                        pos += 1 + n
-                    else:
-                        cols[name].append(float(tokens[pos]))
-                        pos += 1
-            values[el["name"]] = {k: (v if any(p[0] == k and p[1] == "list" for p in el["props"]) else np.asarray(v)) for k, v in cols.items()}
-    else:
-        pos = body_start
-        for el in elements:
-            props = el["props"]
-            if all(p[1] != "list" for p in props):
-                dt = np.dtype([(p[0], order + p[1]) for p in props])
-                arr = np.frombuffer(data, dtype=dt, count=el["count"], offset=pos)
-                pos += dt.itemsize * el["count"]
-                values[el["name"]] = {p[0]: arr[p[0]].astype(np.float64) for p in props}
-            else:
-                values[el["name"]], pos = _read_binary_lists(data, pos, el, order)
-    if "vertex" not in values or "face" not in values:
-        raise MeshError("PLY needs 'vertex' and 'face' elements")
-    vert = values["vertex"]
-    try:
-        positions = np.column_stack([vert["x"], vert["y"], vert["z"]])
-    except KeyError as exc:
-        raise MeshError(f"PLY vertices lack property {exc.args[0]!r}") from None
-    uvs = None
-    for un, vn in (("u", "v"), ("s", "t"), ("texture_u", "texture_v")):
-        if un in vert and vn in vert:
-            uvs = np.column_stack([vert[un], 1.0 - np.asarray(vert[vn])])
-            break
-    face = values["face"]
-    lists = face.get("vertex_indices", face.get("vertex_index"))
-    if lists is None:
-        raise MeshError("PLY faces lack 'vertex_indices'")
-    tris = []
-    for poly in lists:
-        poly = [int(i) for i in poly]
-        for k in range(1, len(poly) - 1):
-            tris.append((poly[0], poly[k], poly[k + 1]))
-    if not tris:
-        raise MeshError("PLY has no faces")
-    return Mesh(positions, np.asarray(tris, dtype=np.int64), uvs)
-
-
-def _read_binary_lists(data: bytes, pos: int, el: dict, order: str) -> tuple[dict, int]:
-    props = el["props"]
-    # Fast path: one list property of triangles after fixed scalar properties.
-    out: dict[str, list] = {p[0]: [] for p in props}
-    for _ in range(el["count"]):
-        for name, kind, count_t, item_t in props:
-            if kind == "list":
-                ct = np.dtype(order + count_t)
-                n = int(np.frombuffer(data, ct, 1, pos)[0])
-                pos += ct.itemsize
-                it = np.dtype(order + item_t)
-                out[name].append(np.frombuffer(data, it, n, pos).tolist())
-                pos += it.itemsize * n
-            else:
-                dt = np.dtype(order + kind)
-                out[name].append(float(np.frombuffer(data, dt, 1, pos)[0]))
-                pos += dt.itemsize
-    return out, pos
-
-
-def _format_ply(mesh: Mesh, *, binary: bool) -> bytes:
-    has_uv = mesh.uvs is not None
-    header = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "comment shadowless sim mesh (millimetres)",
-              f"element vertex {len(mesh.vertices)}", "property float x", "property float y", "property float z"]
-    if has_uv:
-        header += ["property float u", "property float v"]
-    header += [f"element face {len(mesh.faces)}", "property list uchar uint vertex_indices", "end_header"]
-    head = ("\n".join(header) + "\n").encode("ascii")
-    cols = [mesh.vertices]
-    if has_uv:
-        cols.append(np.column_stack([mesh.uvs[:, 0], 1.0 - mesh.uvs[:, 1]]).astype(np.float32))
-    vert = np.hstack(cols).astype("<f4")
-    if binary:
-        fdt = np.dtype([("n", "u1"), ("i", "<u4", (3,))])
-        faces = np.empty(len(mesh.faces), dtype=fdt)
-        faces["n"] = 3
-        faces["i"] = mesh.faces
-        return head + vert.tobytes() + faces.tobytes()
-    body = "\n".join(" ".join(f"{x:.7g}" for x in row) for row in vert)
-    body += "\n" + "\n".join(f"3 {a} {b} {c}" for a, b, c in mesh.faces)
-    return head + body.encode("ascii") + b"\n"
 
 
 # ---------------------------------------------------------------- primitives

@@ -26,7 +26,6 @@ top-left corner. OBJ and PLY store texture v growing upwards; reading flips it.
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +37,7 @@ from scipy.optimize import least_squares
 from coordinator.calibration.errors import CalibrationError
 from coordinator.calibration.planar import fit_homography
 from coordinator.calibration.points import PointSet
+from protos.mesh_files import MeshFileError, read_mesh
 
 SHADERS = Path(__file__).resolve().parent / "shaders"
 TABLE, MESH = 1, 2
@@ -79,168 +79,14 @@ class MeshData:
 
 
 def load_mesh(path: str | Path) -> MeshData:
-    """Read a triangle mesh from ``.obj`` or ``.ply`` (ASCII or binary); polygons become fans.
-
-    Texture coordinates are kept when every vertex has one (an OBJ vertex used
-    with several texture coordinates is split).
-    """
-    path = Path(path)
+    """Read a triangle mesh from ``.obj`` or ``.ply`` (ASCII or binary) through
+    :mod:`protos.mesh_files`: polygons become fans, texture coordinates are kept when every
+    vertex has one (an OBJ vertex used with several texture coordinates is split)."""
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise CalibrationError(f"cannot read mesh {path}: {exc.strerror or exc}") from exc
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".obj":
-            mesh = _parse_obj(data.decode("utf-8", errors="replace"))
-        elif suffix == ".ply":
-            mesh = _parse_ply(data)
-        else:
-            raise CalibrationError(f"unknown mesh format {suffix!r}; use .obj or .ply")
-    except CalibrationError as exc:
-        raise CalibrationError(f"mesh {path}: {exc}") from None
-    except (ValueError, IndexError, struct.error, KeyError) as exc:
-        raise CalibrationError(f"mesh {path}: malformed {suffix[1:].upper()} file ({exc})") from exc
-    if len(mesh.faces) == 0:
-        raise CalibrationError(f"mesh {path} has no faces")
-    return mesh
-
-
-def _obj_index(token: str, count: int) -> int:
-    i = int(token)
-    return i - 1 if i > 0 else count + i
-
-
-def _parse_obj(text: str) -> MeshData:
-    verts: list[list[float]] = []
-    texs: list[list[float]] = []
-    corners: list[tuple[int, int]] = []   # (vertex, texcoord or -1) per triangle corner
-    for line in text.splitlines():
-        parts = line.split()
-        if not parts:
-            continue
-        tag = parts[0]
-        if tag == "v":
-            verts.append([float(x) for x in parts[1:4]])
-        elif tag == "vt":
-            texs.append([float(x) for x in parts[1:3]])
-        elif tag == "f":
-            poly = []
-            for tok in parts[1:]:
-                fields = tok.split("/")
-                vi = _obj_index(fields[0], len(verts))
-                ti = _obj_index(fields[1], len(texs)) if len(fields) > 1 and fields[1] else -1
-                if not 0 <= vi < len(verts) or ti >= len(texs):
-                    raise CalibrationError(f"face refers to a missing vertex or texture coordinate: {line.strip()!r}")
-                poly.append((vi, ti))
-            if len(poly) < 3:
-                raise CalibrationError(f"face with fewer than 3 corners: {line.strip()!r}")
-            for k in range(1, len(poly) - 1):
-                corners += [poly[0], poly[k], poly[k + 1]]
-    if not verts:
-        raise CalibrationError("no vertices")
-    V = np.array(verts, np.float64)
-    if not corners:
-        return MeshData(V, np.zeros((0, 3), np.int64))
-    pairs = np.array(corners, np.int64)
-    if np.all(pairs[:, 1] >= 0):
-        uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
-        T = np.array(texs, np.float64)
-        uv = T[uniq[:, 1]]
-        uv[:, 1] = 1.0 - uv[:, 1]
-        return MeshData(V[uniq[:, 0]], inv.reshape(-1, 3), uv)
-    return MeshData(V, pairs[:, 0].reshape(-1, 3))
-
-
-_PLY_TYPES = {"char": "b", "int8": "b", "uchar": "B", "uint8": "B", "short": "h", "int16": "h", "ushort": "H",
-              "uint16": "H", "int": "i", "int32": "i", "uint": "I", "uint32": "I", "float": "f", "float32": "f",
-              "double": "d", "float64": "d"}
-
-
-def _parse_ply(data: bytes) -> MeshData:
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        raise CalibrationError("not a PLY file (no 'ply' magic or 'end_header')")
-    nl = data.find(b"\n", end)
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    body = data[nl + 1:]
-    fmt = None
-    elements: list[dict] = []
-    for line in header:
-        p = line.split()
-        if not p:
-            continue
-        if p[0] == "format":
-            fmt = p[1]
-        elif p[0] == "element":
-            elements.append({"name": p[1], "count": int(p[2]), "props": []})
-        elif p[0] == "property":
-            if p[1] == "list":
-                elements[-1]["props"].append((p[4], "list", _PLY_TYPES[p[2]], _PLY_TYPES[p[3]]))
-            else:
-                elements[-1]["props"].append((p[2], _PLY_TYPES[p[1]], None, None))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise CalibrationError(f"unsupported PLY format {fmt!r}")
-    order = "<" if fmt == "binary_little_endian" else ">"
-    values: dict[str, dict[str, list]] = {}
-    if fmt == "ascii":
-        tokens = body.decode("ascii", errors="replace").split()
-        pos = 0
-        for el in elements:
-            cols: dict[str, list] = {name: [] for name, *_ in el["props"]}
-            for _ in range(el["count"]):
-                for name, kind, ctype, itype in el["props"]:
-                    if kind == "list":
-                        n = int(float(tokens[pos]))
-                        cols[name].append([float(x) for x in tokens[pos + 1: pos + 1 + n]])
-                        pos += 1 + n
-                    else:
-                        cols[name].append(float(tokens[pos]))
-                        pos += 1
-            values[el["name"]] = cols
-    else:
-        pos = 0
-        for el in elements:
-            props = el["props"]
-            cols = {name: [] for name, *_ in props}
-            if all(kind != "list" for _, kind, _, _ in props):
-                dt = np.dtype([(name, order + kind) for name, kind, _, _ in props])
-                arr = np.frombuffer(body, dt, count=el["count"], offset=pos)
-                pos += dt.itemsize * el["count"]
-                values[el["name"]] = {name: arr[name].astype(np.float64) for name, *_ in props}
-                continue
-            for _ in range(el["count"]):
-                for name, kind, ctype, itype in props:
-                    if kind == "list":
-                        (n,) = struct.unpack_from(order + ctype, body, pos)
-                        pos += struct.calcsize(ctype)
-                        cols[name].append(struct.unpack_from(order + itype * n, body, pos))
-                        pos += struct.calcsize(itype) * n
-                    else:
-                        (v,) = struct.unpack_from(order + kind, body, pos)
-                        pos += struct.calcsize(kind)
-                        cols[name].append(v)
-            values[el["name"]] = cols
-    vert = values.get("vertex")
-    if not vert or not all(k in vert for k in "xyz"):
-        raise CalibrationError("PLY has no vertex element with x, y, z")
-    V = np.column_stack([np.asarray(vert[k], np.float64) for k in "xyz"])
-    uv = None
-    for u_name, v_name in (("u", "v"), ("s", "t"), ("texture_u", "texture_v")):
-        if u_name in vert and v_name in vert:
-            uv = np.column_stack([np.asarray(vert[u_name], np.float64), 1.0 - np.asarray(vert[v_name], np.float64)])
-            break
-    face = values.get("face", {})
-    lists = face.get("vertex_indices", face.get("vertex_index"))
-    if lists is None:
-        raise CalibrationError("PLY has no face element with vertex_indices")
-    tris = []
-    for poly in lists:
-        poly = [int(i) for i in poly]
-        if len(poly) < 3:
-            raise CalibrationError("PLY face with fewer than 3 corners")
-        tris += [[poly[0], poly[k], poly[k + 1]] for k in range(1, len(poly) - 1)]
-    return MeshData(V, np.array(tris, np.int64).reshape(-1, 3), uv)
+        m = read_mesh(path)
+    except MeshFileError as exc:
+        raise CalibrationError(str(exc)) from None
+    return MeshData(m.vertices, m.faces, m.uvs)
 
 
 # ---------------------------------------------------------------------- pinhole devices
