@@ -16,6 +16,7 @@ BENCHMARKS: dict[str, str] = {
     "compensation": "blur-compensation solve time and quality, ours vs the per-projector baseline",
     "compensation_room": "blur compensation through the coordinator's jobs in the virtual room: captures, L error, quality",
     "venue": "a rig on a virtual venue network (namespaces, rate-limited links): discovery and asset distribution",
+    "node": "what a node costs its edge computer: render/upload time, CPU, memory, install size (GL 3.3+ and 3.1)",
 }
 
 
