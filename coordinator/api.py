@@ -85,6 +85,7 @@ class PlaySettings:
     frames: int = 0                # with a pattern: how many (0: 5 s worth)
     latency_ms: float = 0.0        # 0: the coordinator's budget
     settle_s: float = 0.0          # extra wait for the last swap reports (0: 1 s)
+    fit: str = ""                  # frames of another aspect: "stretch", "contain", "cover"; "": refused
 
 
 @dataclass(frozen=True)
@@ -150,12 +151,14 @@ class NodeStatus:
 
 @dataclass(frozen=True)
 class Refusal:
-    """A join or call the coordinator refused, and why."""
+    """Joins or calls the coordinator refused, and why: ``count`` of them from ``peer`` (an
+    address) for ``slot`` with ``reason``, the last ``age_s`` seconds ago."""
 
     peer: str
     slot: str
     reason: str
     age_s: float
+    count: int = 1
 
 
 @dataclass(frozen=True)

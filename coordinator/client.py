@@ -20,7 +20,7 @@ from coordinator import wire
 from coordinator.api import PlayResult, PlaySettings, RigStatus, ShowResult, ShowState, Space
 from coordinator.errors import CoordinatorError
 from coordinator.jobs.context import Event
-from protos import auth, codec, common_pb2, control_pb2, control_pb2_grpc
+from protos import auth, common_pb2, control_pb2, control_pb2_grpc
 from protos.asset_manifest import Manifest
 from protos.discovery import Discovery
 from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
@@ -94,21 +94,34 @@ class Client:
         return wire.status_from_message(await self.stub.Status(control_pb2.StatusRequest(), metadata=self.md, timeout=10))
 
     async def show(self, image: np.ndarray, *, name: str = "", persist: bool = False, space: Space = Space.CONTENT,
-                   apply_lut: bool = True) -> ShowResult:
-        req = wire.show_request(image, name=name, persist=persist, space=space, apply_lut=apply_lut)
-        return wire.show_result_from_message(await self.stub.Show(req, metadata=self.md, timeout=60))
+                   apply_lut: bool = True, fit: str = "") -> ShowResult:
+        """Show ``image`` on every node and hold it. ``fit``: how an image of another aspect than
+        the content area is fitted ("stretch", "contain", "cover"); "" refuses it (OperatorError
+        from the coordinator's INVALID_ARGUMENT)."""
+        parts = wire.show_request_parts(image, name=name, persist=persist, space=space, apply_lut=apply_lut, fit=fit)
+
+        async def items():
+            for part in parts:
+                yield part
+
+        return wire.show_result_from_message(await self.stub.Show(items(), metadata=self.md, timeout=120))
 
     async def play(self, settings: PlaySettings, frames: Sequence[np.ndarray] = ()) -> PlayResult:
-        """Play ``frames`` (or the settings' pattern); with ``settings.wait`` the figures once played."""
+        """Play ``frames`` (or the settings' pattern); with ``settings.wait`` the figures once played.
+        Cancelling the call (Ctrl-C) stops the sequence on the rig."""
         async def items():
             yield control_pb2.PlayItem(settings=wire.play_settings_message(settings))
             for f in frames:
-                yield control_pb2.PlayItem(frame=codec.encode_image(f, compress=True))
+                for part in wire.play_frame_items(f):
+                    yield part
 
         return wire.play_result_from_message(await self.stub.Play(items(), metadata=self.md))
 
-    async def stop(self) -> None:
-        await self.stub.Stop(control_pb2.StopRequest(), metadata=self.md, timeout=10)
+    async def stop(self, *, blackout: bool = False) -> str:
+        """Stop a sequence or a timeline show: the rig's content comes back (black with
+        ``blackout``). Returns what the rig shows now."""
+        reply = await self.stub.Stop(control_pb2.StopRequest(blackout=blackout), metadata=self.md, timeout=10)
+        return reply.showing
 
     # ---------------------------------------------------------------- timeline shows
     async def play_asset(self, asset: str, *, delay_s: float = 0.0, at_ns: int = 0, loop: bool = False,

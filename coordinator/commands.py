@@ -82,7 +82,8 @@ def status_dict(st: RigStatus) -> dict:
         "show": show_dict(st.show),
         "sent": {"frame_packets": st.frame_packets_sent, "frame_bytes": st.frame_bytes_sent,
                  "show_updates": st.show_updates_sent, "show_bytes": st.show_bytes_sent},
-        "refusals": [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1)} for r in st.refusals],
+        "refusals": [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1), "count": r.count}
+                     for r in st.refusals],
     }
 
 
@@ -131,8 +132,9 @@ def status_table(d: dict) -> str:
     lines.append(f"sync: {s['frames']} frames, skew p50 {fmt(s['skew_p50_ms'])} ms, p99 {fmt(s['skew_p99_ms'])} ms, "
                  f"max {fmt(s['skew_max_ms'])} ms ({s['skew_source'] or 'no data'}); late {s['late']}, dropped {s['dropped']}, "
                  f"out of order {s['out_of_order']}")
-    for ref in d["refusals"][-5:]:
-        lines.append(f"refused {ref['peer']} {ref['slot']}: {ref['reason']} ({ref['age_s']:.0f} s ago)")
+    for ref in d["refusals"][:5]:            # newest first, counted per address, slot and reason
+        times = f"{ref['count']}x, last " if ref.get("count", 1) > 1 else ""
+        lines.append(f"refused {ref['peer']} {ref['slot'] or '-'}: {ref['reason']} ({times}{ref['age_s']:.0f} s ago)")
     return "\n".join(lines)
 
 
@@ -172,6 +174,9 @@ def configure_show(p: argparse.ArgumentParser) -> None:
     p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1]), or pause, resume, seek, stop")
     p.add_argument("frame", nargs="?", type=int, help="with seek: the asset frame to show")
     p.add_argument("--persist", action="store_true", help="make it the rig's content (shown again after a restart)")
+    p.add_argument("--fit", choices=["contain", "cover", "stretch"],
+                   help="an image of another aspect than the rig's content area: contain (whole, black bars), cover "
+                        "(fills it, cropped) or stretch (distorted); without --fit it is refused")
     p.add_argument("--in", dest="in_s", type=float, default=0.0, metavar="SECONDS",
                    help="with pause/resume/seek/stop: take effect this long from now (default: the coordinator's lead)")
     p.add_argument("--json", action="store_true", help="with pause/resume/seek/stop: print the show state as JSON")
@@ -193,6 +198,9 @@ def configure_play(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start-without", action="store_true",
                    help="start an asset even if some live node does not hold it yet (it joins once it does)")
     p.add_argument("--loops", type=int, default=0, help="extra loops (default 0: once)")
+    p.add_argument("--fit", choices=["contain", "cover", "stretch"],
+                   help="a folder's images of another aspect than the rig's content area: contain (whole, black bars), cover "
+                        "(fills it, cropped) or stretch (distorted); without --fit it is refused")
     p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
     p.add_argument("--allow-partial", action="store_true",
                    help="exit 0 even if not every live node showed every frame of a played sequence (default: "
@@ -217,6 +225,25 @@ def configure_configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resolution", metavar="WxH", help="output size")
     p.add_argument("--clear-pose", action="store_true", help="remove the pose (the projector shows black)")
     add_connection_args(p)
+
+
+def configure_stop(p: argparse.ArgumentParser) -> None:
+    p.description = ("Stop what plays (a played sequence or a timeline show): every projector shows the rig's "
+                     "content again, or black when it has none.")
+    add_connection_args(p)
+
+
+def configure_blackout(p: argparse.ArgumentParser) -> None:
+    p.description = ("Black on every projector at once, until the next show or `shadowless stop` (the rig's content "
+                     "is kept, and shown again after a coordinator restart).")
+    add_connection_args(p)
+
+
+async def _stop(args) -> int:
+    async with await open_client(args) as c:
+        showing = await c.stop(blackout=args.command == "blackout")
+    print(f"the rig shows {showing}")
+    return 0
 
 
 async def _status(args) -> int:
@@ -253,7 +280,7 @@ async def _show(args) -> int:
         return await _show_control(args)
     img = read_image(args.image)
     async with await open_client(args) as c:
-        r = await c.show(img, name=Path(args.image).name, persist=args.persist)
+        r = await c.show(img, name=Path(args.image).name, persist=args.persist, fit=args.fit or "")
         await warn_unposed(c)
     print(f"showing {args.image} ({img.shape[1]}x{img.shape[0]} {img.dtype}) as frame {r.frame_id}, content {r.content_id}")
     return 0
@@ -284,7 +311,8 @@ async def _play(args) -> int:
     args.fps = args.fps or 30.0
     if not (args.latency_ms >= 0 and math.isfinite(args.latency_ms)):
         raise OperatorError(f"--latency-ms must be a positive number of milliseconds, got {args.latency_ms:g}")
-    st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, latency_ms=args.latency_ms)
+    st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, latency_ms=args.latency_ms,
+                      fit=args.fit or "")
     if args.compensate:
         return await _play_compensated(args)
     if args.pattern:
@@ -299,7 +327,15 @@ async def _play(args) -> int:
         raise OperatorError("give a folder of images or --pattern counter")
     async with await open_client(args) as c:
         await warn_unposed(c)
-        r = await c.play(st, frames)
+        try:
+            r = await c.play(st, frames)
+        except asyncio.CancelledError:       # Ctrl-C: the sequence stops on the rig, not only here
+            try:
+                showing = await asyncio.wait_for(c.stop(), 10)
+                print(f"stopped on the rig; it shows {showing}", file=sys.stderr)
+            except (asyncio.TimeoutError, grpc.aio.AioRpcError) as exc:
+                print(f"could not stop the sequence on the rig ({exc}); run `shadowless stop`", file=sys.stderr)
+            raise
     d = play_dict(r)
     print(json.dumps(d, indent=2) if args.json else
           f"played {d['frames_sent']} frames on {d['nodes']} nodes: shown by all {d['frames_shown']}, late {d['frames_late']}, "
@@ -380,3 +416,5 @@ run_status = _runner(_status)
 run_show = _runner(_show)
 run_play = _runner(_play)
 run_configure = _runner(_configure)
+run_stop = _runner(_stop)
+run_blackout = _runner(_stop)

@@ -27,6 +27,7 @@ import numpy as np
 from coordinator.api import PlayResult, PlaySettings, ShowResult, Space
 from coordinator.errors import CoordinatorError
 from coordinator.fanout import FanOut, Frame
+from coordinator.fit import check_fit, fit_image
 from coordinator.live_video import LiveStream, bit_depth_for, video_eligible
 from coordinator.rig import Content, Rig
 from coordinator.sessions import NodeSession
@@ -57,19 +58,14 @@ def counter_pattern(i: int, width: int, height: int) -> Content:
     return Content(img, name=f"counter {i}")
 
 
-def fit_content(content: Content, size: tuple[int, int]) -> Content:
-    """Scale an image to the rig's content size ``(w, h)`` (the poses map content px); same dtype."""
-    w, h = size
+def fit_content(content: Content, size: tuple[int, int], fit: str = "stretch") -> Content:
+    """``content`` at the rig's content size ``(w, h)`` (the poses map content px), fitted as
+    :func:`coordinator.fit.fit_image` says; the same Content when it has that size already."""
+    check_fit(fit)
     img = content.image
-    if img.shape[1] == w and img.shape[0] == h:
+    if img.shape[1] == size[0] and img.shape[0] == size[1]:
         return content
-    import cv2  # the coordinator's stack; only needed when content arrives at another size
-
-    interp = cv2.INTER_AREA if img.shape[1] > w else cv2.INTER_LINEAR
-    scaled = cv2.resize(img, (w, h), interpolation=interp)
-    if scaled.ndim == 2:
-        scaled = scaled[:, :, None]
-    return Content(scaled, name=content.name)
+    return Content(fit_image(img, size, fit), name=content.name)
 
 
 class Playback:
@@ -200,13 +196,21 @@ class Playback:
         frame = self._set_still(content, tag=tag, space=space, apply_lut=apply_lut)
         return ShowResult(frame_id=frame.frame_id, content_id=content.content_id, pts_ns=frame.pts_ns)
 
-    def prepare_still(self, content: Content, space: Space = Space.CONTENT) -> Content:
-        """What :meth:`show` will send for ``content``, fitted and encoded for the wire (blocking:
-        run it in a worker thread, so a large still is not packed on the event loop)."""
+    def prepare_still(self, content: Content, space: Space = Space.CONTENT, *, fit: str = "") -> Content:
+        """What :meth:`show` will send for ``content``, fitted (``fit``: see :mod:`coordinator.fit`;
+        ValueError for an image of another aspect and no choice) and encoded for the wire
+        (blocking: run it in a worker thread, so a large still is not packed on the event loop)."""
         if space == Space.CONTENT:
-            content = fit_content(content, self.content_size)
+            content = fit_content(content, self.content_size, fit)
         self.fanout.prepare([content])
         return content
+
+    def blackout(self) -> None:
+        """Black on every projector (held until the next show; the rig's content is kept)."""
+        w, h = self.content_size
+        self._set_still(Content(np.zeros((h, w, 1), np.uint8), name="black"), tag="blackout", space=Space.CONTENT,
+                        apply_lut=False)
+        self.showing = "black (blackout)"
 
     def restore_content(self) -> None:
         """After a job: show the rig's content again (or black)."""
@@ -303,6 +307,8 @@ class Playback:
             raise ValueError(f"unknown pattern {settings.pattern!r} (known: counter)")
         if frames is not None and not frames:
             raise ValueError("nothing to play: send frames or set a pattern")
+        if frames is not None:   # fitted before anything stops: an image of another aspect is refused here
+            frames = [fit_content(f, self.content_size, settings.fit) for f in frames]
         self.stop()
         self.takeover()
         task = asyncio.create_task(self._play(frames, settings), name="play")
@@ -321,7 +327,7 @@ class Playback:
             make = lambda i: counter_pattern(i, w, h)  # noqa: E731
         else:
             count = len(frames) * (st.loops + 1)
-            fitted = [fit_content(f, self.content_size) for f in frames]
+            fitted = list(frames)
             make = lambda i: fitted[i % len(fitted)]  # noqa: E731
         tag = f"play:{uuid.uuid4().hex[:8]}"
         live = None

@@ -19,7 +19,6 @@ import math
 import secrets
 import time
 import uuid
-from collections import deque
 from typing import Any, Callable, Mapping, Sequence
 
 import grpc
@@ -33,7 +32,6 @@ from coordinator.api import (
     NodeStatus,
     PlayResult,
     PlaySettings,
-    Refusal,
     RigStatus,
     ShowResult,
     ShowState,
@@ -47,6 +45,7 @@ from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
 from coordinator.mdns import Advertiser
 from coordinator.playback import Playback, cpu_seconds
+from coordinator.refusals import Refusals
 from coordinator.rig import Content, Rig
 from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
 from coordinator.show import MIN_LEAD_NS, Show
@@ -128,10 +127,10 @@ class Coordinator:
         # rig-clock instants (ns) by session id: when it turned live; when each asset was first seen ready
         self.live_at: dict[str, int] = {}
         self.ready_at: dict[str, dict[str, int]] = {}
-        self.refusals: deque[tuple[str, str, str, float]] = deque(maxlen=64)
+        self.refusals = Refusals()
         self.handshake = Handshake(token, rig_id=rig.config.rig_id, rig_name=rig.config.name,
                                    instance_id=self.instance_id, clock=self.now,
-                                   on_refusal=lambda peer, slot, msg: self.refusals.append((peer, slot, msg, self.now())))
+                                   on_refusal=lambda peer, slot, msg: self.refusals.record(peer, slot, msg, self.now()))
         # a show's ticks are reported with the node's next heartbeat: wait at least two intervals and a second
         self.sync = SyncTracker(clock=self.now, timeout_s=max(3.0, 1.0 + 2.0 * rig.config.heartbeat_ms / 1000.0))
         self.fanout = FanOut(self.sync, wire.PacketEncoder)
@@ -334,6 +333,20 @@ class Coordinator:
                                    "or cancel it before playing an asset")
         self.playback.stop()    # a played sequence ends; its frames already sent are shown or dropped
 
+    def stop_all(self, *, blackout: bool = False) -> str:
+        """Stop a played sequence or a timeline show: the rig's content is shown again (black when
+        there is none, or with ``blackout``). Returns what the rig shows now."""
+        if self._job_lock.locked():
+            raise CoordinatorError("a job is running on this rig (its patterns hold the projectors); cancel it "
+                                   "(Ctrl-C on its command) before stopping or blacking out")
+        self.playback.stop()
+        if blackout or self.rig.content is None:
+            self.playback.blackout()     # its still takes over from a timeline show
+        else:
+            self.playback.show(self.rig.content, tag="show:restored")
+        log.info("stopped by an operator: showing %s", self.playback.showing)
+        return self.playback.showing
+
     def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
                    fps: float | None = None, start_without: bool = False) -> ShowState:
         self._before_show()
@@ -472,7 +485,7 @@ class Coordinator:
             frame_bytes_sent=self.frame_bytes_sent, show_updates_sent=self.show_updates_sent,
             show_bytes_sent=self.show_bytes_sent, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
-            refusals=tuple(Refusal(peer, slot, reason, now - at) for peer, slot, reason, at in self.refusals))
+            refusals=self.refusals.summary(now))
 
 
 def _same_machine(a: NodeInfo, b: NodeInfo) -> bool:

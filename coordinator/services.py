@@ -26,14 +26,14 @@ from coordinator.rig import Content
 from coordinator.sessions import RpcRefusal
 from coordinator.show import BEACON_S
 from protos import codec, common_pb2, control_pb2, control_pb2_grpc, node_pb2
-from protos.version import PROTOCOL_VERSION, SERVER_GRPC_OPTIONS, SESSION_KEY
+from protos.version import COORDINATOR_GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.server import Coordinator
 
 log = logging.getLogger(__name__)
 
-SERVER_OPTIONS = SERVER_GRPC_OPTIONS + [("grpc.so_reuseport", 0)]
+SERVER_OPTIONS = COORDINATOR_GRPC_OPTIONS + [("grpc.so_reuseport", 0)]
 
 
 def _peer(context: Any) -> str:
@@ -282,41 +282,76 @@ class RigControlService(_Handshake):
         self._operator(context)
         return wire.nodes_message(self.c.status().nodes)
 
-    @_guard
-    async def Show(self, request, context):
-        self._operator(context)
-        space = wire.space_from_message(request.space)
-        # decoded, fitted and packed for the nodes in a worker thread: the event loop serves the nodes
-        content = await asyncio.to_thread(
-            lambda: self.c.playback.prepare_still(Content(_decoded(request.image), name=request.name), space))
-        apply_lut = request.apply_lut or space == Space.CONTENT
-        return wire.show_result_message(self.c.show(content, space=space, apply_lut=apply_lut, persist=request.persist))
+    async def Show(self, request_iterator, context):
+        try:
+            self._operator(context)   # from the call's metadata, before any image byte is read
+            first, image = None, wire.ImageParts()
+            async for part in request_iterator:
+                if first is None:
+                    first = part
+                    image.start(part.image)
+                else:
+                    image.add(part.more)
+            if first is None:
+                raise ValueError("a Show call sent no image")
+            space = wire.space_from_message(first.space)
+            img = image.finish()
+            # decoded, fitted and packed for the nodes in a worker thread: the event loop serves the nodes
+            content = await asyncio.to_thread(
+                lambda: self.c.playback.prepare_still(Content(_decoded(img), name=first.name), space, fit=first.fit))
+            apply_lut = first.apply_lut or space == Space.CONTENT
+            return wire.show_result_message(self.c.show(content, space=space, apply_lut=apply_lut,
+                                                        persist=first.persist))
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        except (ValueError, codec.ImageCodecError) as exc:
+            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
+        except CoordinatorError as exc:
+            await context.abort(grpc.StatusCode.FAILED_PRECONDITION, str(exc))
 
     async def Play(self, request_iterator, context):
         try:
-            self._operator(context)
+            self._operator(context)   # from the call's metadata, before any frame is read
             settings = None
             frames: list[Content] = []
+            image = wire.ImageParts()
+
+            def take_frame() -> None:
+                if image.started:
+                    frames.append(Content(_decoded(image.finish())))
+
             async for item in request_iterator:
                 kind = item.WhichOneof("item")
                 if kind == "settings":
                     settings = wire.play_settings_from_message(item.settings)
                 elif kind == "frame":
-                    frames.append(Content(_decoded(item.frame)))
+                    take_frame()
+                    image.start(item.frame)
+                elif kind == "more":
+                    image.add(item.more)
+            take_frame()
             if settings is None:
                 raise ValueError("the first PlayItem must carry the settings")
-            result = await self.c.play_sequence(None if settings.pattern else frames, settings)
+            try:
+                result = await self.c.play_sequence(None if settings.pattern else frames, settings)
+            except asyncio.CancelledError:
+                # the operator went away (Ctrl-C): the sequence stops on the rig too
+                log.info("play cancelled by its client: stopping the sequence")
+                with contextlib.suppress(CoordinatorError):
+                    self.c.stop_all()
+                raise
             return wire.play_result_message(result)
         except RpcRefusal as exc:
             await context.abort(exc.code, exc.message)
         except (ValueError, codec.ImageCodecError) as exc:
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
+        except CoordinatorError as exc:
+            await context.abort(grpc.StatusCode.FAILED_PRECONDITION, str(exc))
 
     @_guard
     async def Stop(self, request, context):
         self._operator(context)
-        self.c.playback.stop()
-        return control_pb2.StopReply()
+        return control_pb2.StopReply(showing=self.c.stop_all(blackout=request.blackout))
 
     async def RunJob(self, request, context):
         try:

@@ -8,6 +8,8 @@ A node's session holds its outgoing packet queue and what it reported last.
 from __future__ import annotations
 
 import asyncio
+import hashlib
+import hmac
 import logging
 import secrets
 from collections import deque
@@ -18,6 +20,7 @@ import grpc
 import numpy as np
 
 from coordinator.api import AssetProgress, NodeShow, NodeState
+from coordinator.refusals import peer_address
 from protos import auth
 from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION
@@ -25,7 +28,8 @@ from protos.version import PROTOCOL_VERSION
 log = logging.getLogger(__name__)
 
 NONCE_TTL_S = 30.0
-MAX_PENDING_NONCES = 4096
+#: used nonces kept before the expired ones are swept (only logins that proved the token add one)
+MAX_USED_NONCES = 1024
 MAX_OPERATOR_SESSIONS = 256
 OPERATOR_SESSION_TTL_S = 12 * 3600.0
 MAX_PENDING_PACKETS = 512
@@ -163,6 +167,11 @@ class NodeSession:
 class Handshake:
     """The rig-token handshake and the operator sessions it opens.
 
+    Hello keeps no state: the server nonce carries its own expiry and a MAC (under a secret of
+    this coordinator instance) over the client's nonce, so a flood of Hello calls fills no
+    table and cannot push out the handshake of a node that is joining. Only nonces used in a
+    login that proved the token are remembered (until they expire), so each is used once.
+
     Parameters
     ----------
     token : bytes
@@ -171,22 +180,42 @@ class Handshake:
     clock : callable
         Seconds, monotonic (injectable for tests).
     on_refusal : callable
-        ``(peer, slot, message)``, called for every refusal (the status lists them).
+        ``(peer, slot, message) -> line or None``, called for every refusal (the status counts
+        them); a returned line is logged as a warning.
     """
 
     def __init__(self, token: bytes, *, rig_id: str, rig_name: str, instance_id: str, clock: Callable[[], float],
-                 on_refusal: Callable[[str, str, str], None]):
+                 on_refusal: Callable[[str, str, str], str | None]):
         self.token = token
         self.rig_id, self.rig_name, self.instance_id = rig_id, rig_name, instance_id
         self.clock = clock
         self._on_refusal = on_refusal
-        self.pending: dict[bytes, tuple[bytes, float]] = {}   # server nonce -> (client nonce, expiry)
+        self._secret = secrets.token_bytes(32)
+        self.used: dict[bytes, float] = {}                    # server nonces of proven logins -> expiry
         self.operators: dict[str, float] = {}                 # operator session -> last use
 
     def refuse(self, peer: str, slot: str, code: grpc.StatusCode, message: str) -> RpcRefusal:
-        self._on_refusal(peer, slot, message)
-        log.warning("refused %s (slot %s): %s", peer, slot or "-", message)
+        line = self._on_refusal(peer, slot, message)
+        if line:
+            log.warning("%s", line)
         return RpcRefusal(code, message)
+
+    def _nonce_mac(self, client_nonce: bytes, head: bytes) -> bytes:
+        return hmac.new(self._secret, head + client_nonce, hashlib.sha256).digest()[:16]
+
+    def _server_nonce(self, client_nonce: bytes, now: float) -> bytes:
+        """32 bytes: expiry (ms, 8), random (8), MAC over them and the client's nonce (16)."""
+        head = int((now + NONCE_TTL_S) * 1000).to_bytes(8, "big") + secrets.token_bytes(8)
+        return head + self._nonce_mac(client_nonce, head)
+
+    def _nonce_expiry(self, server_nonce: bytes, client_nonce: bytes) -> float | None:
+        """The expiry (s) of a server nonce this instance issued for ``client_nonce``, else None."""
+        if len(server_nonce) != auth.NONCE_BYTES:
+            return None
+        head, mac = server_nonce[:16], server_nonce[16:]
+        if not hmac.compare_digest(mac, self._nonce_mac(client_nonce, head)):
+            return None
+        return int.from_bytes(head[:8], "big") / 1000.0
 
     def hello(self, *, protocol_version: int, client_nonce: bytes, role: str, slot: str, peer: str) -> HelloResult:
         """The first half: prove the coordinator knows the token and hand out a server nonce."""
@@ -197,14 +226,7 @@ class Handshake:
                               f"install the same shadowless release on both")
         if len(client_nonce) != auth.NONCE_BYTES:
             raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT, "client nonce must be 32 bytes")
-        now = self.clock()
-        for n, (_, exp) in list(self.pending.items()):
-            if exp < now:
-                del self.pending[n]
-        if len(self.pending) > MAX_PENDING_NONCES:
-            raise self.refuse(peer, slot, grpc.StatusCode.RESOURCE_EXHAUSTED, "too many handshakes in flight")
-        server_nonce = auth.new_nonce()
-        self.pending[server_nonce] = (client_nonce, now + NONCE_TTL_S)
+        server_nonce = self._server_nonce(client_nonce, self.clock())
         return HelloResult(rig_id=self.rig_id, rig_name=self.rig_name, server_nonce=server_nonce,
                            server_proof=auth.coordinator_proof(self.token, self.rig_id, client_nonce, server_nonce),
                            instance_id=self.instance_id)
@@ -219,16 +241,22 @@ class Handshake:
         if role != expected_role:
             raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT,
                               f"this call is for role {expected_role!r}, not {role!r}")
-        entry = self.pending.pop(server_nonce, None)
-        if entry is None or entry[0] != client_nonce or entry[1] < self.clock():
+        now = self.clock()
+        expiry = self._nonce_expiry(server_nonce, client_nonce)
+        if expiry is None or expiry < now or server_nonce in self.used:
             raise self.refuse(peer, slot, grpc.StatusCode.UNAUTHENTICATED,
                               "handshake expired or unknown: call Hello again (nonces are single use)")
         expected = auth.client_proof(self.token, expected_role, self.rig_id, slot, client_nonce, server_nonce)
         if not auth.verify(expected, client_proof):
             who = f"node {slot}" if expected_role == "node" else "operator"
             raise self.refuse(peer, slot, grpc.StatusCode.UNAUTHENTICATED,
-                              f"rig token mismatch: {who} at {peer} does not know the token of rig "
+                              f"rig token mismatch: {who} at {peer_address(peer)} does not know the token of rig "
                               f"{self.rig_name!r} (id {self.rig_id}); give it this rig's token file")
+        if len(self.used) >= MAX_USED_NONCES:   # only proven logins get here: forget the expired ones
+            for n, exp in list(self.used.items()):
+                if exp < now:
+                    del self.used[n]
+        self.used[server_nonce] = expiry
 
     def open_operator_session(self) -> str:
         """A new operator session id (the oldest are forgotten beyond MAX_OPERATOR_SESSIONS)."""

@@ -27,7 +27,7 @@ from coordinator.live_video import EncodedPicture
 from coordinator.rig import Content, HomographyPose, ProjectionPose, SlotState, validate_lut
 from coordinator.sessions import NO_SWAPS, Heartbeat, NodeInfo, Report, Swaps
 from coordinator.show import ShowUpdate
-from protos import codec, control_pb2, node_pb2
+from protos import codec, common_pb2, control_pb2, node_pb2
 
 # ---------------------------------------------------------------------- enums
 _SPACE = {Space.CONTENT: node_pb2.SPACE_CONTENT, Space.PROJECTOR: node_pb2.SPACE_PROJECTOR}
@@ -298,7 +298,8 @@ def status_message(st: RigStatus) -> control_pb2.RigStatus:
         show_bytes_sent=st.show_bytes_sent,
     )
     msg.nodes.extend(_node_status_message(n) for n in st.nodes)
-    msg.refusals.extend(control_pb2.Refusal(peer=r.peer, slot=r.slot, reason=r.reason, age_s=r.age_s) for r in st.refusals)
+    msg.refusals.extend(control_pb2.Refusal(peer=r.peer, slot=r.slot, reason=r.reason, age_s=r.age_s,
+                                                    count=r.count) for r in st.refusals)
     return msg
 
 
@@ -307,7 +308,7 @@ def status_from_message(m: control_pb2.RigStatus) -> RigStatus:
                      protocol_version=m.protocol_version, uptime_s=m.uptime_s, showing=m.showing,
                      latency_budget_ms=m.latency_budget_ms, cpu_s=m.cpu_s,
                      nodes=tuple(_node_status_from_message(n) for n in m.nodes), sync=_sync_from_message(m.sync),
-                     refusals=tuple(Refusal(r.peer, r.slot, r.reason, r.age_s) for r in m.refusals),
+                     refusals=tuple(Refusal(r.peer, r.slot, r.reason, r.age_s, r.count) for r in m.refusals),
                      show=show_state_from_message(m.show) if m.HasField("show") else ShowState(),
                      frame_packets_sent=m.frame_packets_sent, frame_bytes_sent=m.frame_bytes_sent,
                      show_updates_sent=m.show_updates_sent, show_bytes_sent=m.show_bytes_sent)
@@ -355,12 +356,12 @@ def nodes_message(nodes: Iterable[NodeStatus]) -> control_pb2.NodeList:
 
 def play_settings_message(s: PlaySettings) -> control_pb2.PlaySettings:
     return control_pb2.PlaySettings(fps=s.fps, loops=s.loops, wait=s.wait, pattern=s.pattern, frames=s.frames,
-                                    latency_ms=s.latency_ms, settle_s=s.settle_s)
+                                    latency_ms=s.latency_ms, settle_s=s.settle_s, fit=s.fit)
 
 
 def play_settings_from_message(m: control_pb2.PlaySettings) -> PlaySettings:
     return PlaySettings(fps=m.fps or 30.0, loops=m.loops, wait=m.wait, pattern=m.pattern, frames=m.frames,
-                        latency_ms=m.latency_ms, settle_s=m.settle_s)
+                        latency_ms=m.latency_ms, settle_s=m.settle_s, fit=m.fit)
 
 
 def play_result_message(r: PlayResult) -> control_pb2.PlayReply:
@@ -386,9 +387,79 @@ def show_result_from_message(m: control_pb2.ShowReply) -> ShowResult:
     return ShowResult(frame_id=m.frame_id, content_id=m.content_id, pts_ns=m.pts_ns)
 
 
-def show_request(image: np.ndarray, *, name: str, persist: bool, space: Space, apply_lut: bool) -> control_pb2.ShowRequest:
-    return control_pb2.ShowRequest(image=codec.encode_image(image, compress=True), name=name, persist=persist,
-                                   space=_SPACE[space], apply_lut=apply_lut)
+#: Image bytes per message from an operator (the coordinator accepts MAX_REQUEST_BYTES a message).
+IMAGE_PART_BYTES = 1 << 20
+
+
+def _image_parts(image: np.ndarray) -> tuple[common_pb2.Image, list[bytes]]:
+    """``image`` packed for the wire: the message with its first part, and the rest."""
+    msg = codec.encode_image(image, compress=True)
+    data = msg.data
+    msg.data = data[:IMAGE_PART_BYTES]
+    return msg, [data[i:i + IMAGE_PART_BYTES] for i in range(IMAGE_PART_BYTES, len(data), IMAGE_PART_BYTES)]
+
+
+def show_request_parts(image: np.ndarray, *, name: str, persist: bool, space: Space, apply_lut: bool,
+                       fit: str = "") -> list[control_pb2.ShowRequest]:
+    """The messages of one Show call: settings and the image's first part, then the rest."""
+    msg, rest = _image_parts(image)
+    first = control_pb2.ShowRequest(image=msg, name=name, persist=persist, space=_SPACE[space], apply_lut=apply_lut,
+                                    fit=fit)
+    return [first, *(control_pb2.ShowRequest(more=part) for part in rest)]
+
+
+def play_frame_items(image: np.ndarray) -> list[control_pb2.PlayItem]:
+    """One frame of a Play call: the frame with its first part, then ``more`` items."""
+    msg, rest = _image_parts(image)
+    return [control_pb2.PlayItem(frame=msg), *(control_pb2.PlayItem(more=part) for part in rest)]
+
+
+class ImageParts:
+    """Reassembles an image sent in parts, refusing more bytes than its size can hold.
+
+    ``start(msg)`` with the Image message of the first part, ``add(bytes)`` for each further
+    part, ``finish()`` returns the whole Image message. The bound is the raw size of the
+    declared (height, width, channels, dtype) plus a margin for the packing's headers: an
+    image never takes more memory than it could need, whatever a client sends.
+    """
+
+    MARGIN = 1 << 16
+
+    def __init__(self) -> None:
+        self._msg: common_pb2.Image | None = None
+        self._parts: list[bytes] = []
+        self._size = 0
+        self._limit = 0
+
+    @property
+    def started(self) -> bool:
+        return self._msg is not None
+
+    def start(self, msg: common_pb2.Image) -> None:
+        codec.check_header(msg)
+        self._msg, self._parts, self._size = msg, [msg.data], len(msg.data)
+        self._limit = msg.width * msg.height * msg.channels * codec.dtype_size(msg.dtype) + self.MARGIN
+        self._check()
+
+    def add(self, data: bytes) -> None:
+        if self._msg is None:
+            raise ValueError("image bytes arrived before the image they belong to")
+        self._parts.append(data)
+        self._size += len(data)
+        self._check()
+
+    def _check(self) -> None:
+        if self._size > self._limit:
+            m = self._msg
+            raise ValueError(f"image of {m.width}x{m.height}x{m.channels} sent more than {self._limit} bytes")
+
+    def finish(self) -> common_pb2.Image:
+        if self._msg is None:
+            raise ValueError("no image was sent")
+        msg = self._msg
+        msg.data = b"".join(self._parts)
+        self._msg, self._parts, self._size = None, [], 0
+        return msg
 
 
 def configure_request(slot: str, *, homography: np.ndarray | None = None, lut: np.ndarray | None = None,

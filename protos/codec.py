@@ -160,14 +160,24 @@ def _gradient_unzstd(data: bytes, shape: tuple[int, int, int], dtype: np.dtype) 
     return np.ascontiguousarray(np.moveaxis(r, 0, 2)).view(dtype.newbyteorder("="))
 
 
-def decode_image(msg: common_pb2.Image) -> np.ndarray:
-    """Unpack an Image message into an ``(H, W, C)`` array (a fresh, writable copy)."""
+def check_header(msg: common_pb2.Image) -> None:
+    """Refuse an Image message whose dtype or size is unknown or out of bounds (ImageCodecError)."""
     if msg.dtype not in _NUMPY:
         raise ImageCodecError(f"image has unknown dtype {msg.dtype}")
     if not (0 < msg.width <= MAX_SIDE and 0 < msg.height <= MAX_SIDE and 0 < msg.channels <= MAX_CHANNELS):
         raise ImageCodecError(
             f"image size {msg.width}x{msg.height}x{msg.channels} is outside 1..{MAX_SIDE} px, 1..{MAX_CHANNELS} channels"
         )
+
+
+def dtype_size(dtype: int) -> int:
+    """Bytes per sample of a DType value (after :func:`check_header`)."""
+    return _NUMPY[dtype].itemsize
+
+
+def decode_image(msg: common_pb2.Image) -> np.ndarray:
+    """Unpack an Image message into an ``(H, W, C)`` array (a fresh, writable copy)."""
+    check_header(msg)
     dtype = _NUMPY[msg.dtype]
     expected = msg.width * msg.height * msg.channels * dtype.itemsize
     if msg.encoding == common_pb2.ENCODING_RAW:

@@ -171,16 +171,18 @@ class SyncStats(_message.Message):
     def __init__(self, frames: _Optional[int] = ..., skew_p50_ms: _Optional[float] = ..., skew_p99_ms: _Optional[float] = ..., skew_max_ms: _Optional[float] = ..., skew_source: _Optional[str] = ..., clock_error_p99_ms: _Optional[float] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., out_of_order: _Optional[int] = ...) -> None: ...
 
 class Refusal(_message.Message):
-    __slots__ = ("peer", "slot", "reason", "age_s")
+    __slots__ = ("peer", "slot", "reason", "age_s", "count")
     PEER_FIELD_NUMBER: _ClassVar[int]
     SLOT_FIELD_NUMBER: _ClassVar[int]
     REASON_FIELD_NUMBER: _ClassVar[int]
     AGE_S_FIELD_NUMBER: _ClassVar[int]
+    COUNT_FIELD_NUMBER: _ClassVar[int]
     peer: str
     slot: str
     reason: str
     age_s: float
-    def __init__(self, peer: _Optional[str] = ..., slot: _Optional[str] = ..., reason: _Optional[str] = ..., age_s: _Optional[float] = ...) -> None: ...
+    count: int
+    def __init__(self, peer: _Optional[str] = ..., slot: _Optional[str] = ..., reason: _Optional[str] = ..., age_s: _Optional[float] = ..., count: _Optional[int] = ...) -> None: ...
 
 class RigStatus(_message.Message):
     __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s", "show", "frame_packets_sent", "frame_bytes_sent", "show_updates_sent", "show_bytes_sent")
@@ -227,18 +229,22 @@ class NodeList(_message.Message):
     def __init__(self, nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ...) -> None: ...
 
 class ShowRequest(_message.Message):
-    __slots__ = ("image", "space", "apply_lut", "persist", "name")
+    __slots__ = ("image", "space", "apply_lut", "persist", "name", "fit", "more")
     IMAGE_FIELD_NUMBER: _ClassVar[int]
     SPACE_FIELD_NUMBER: _ClassVar[int]
     APPLY_LUT_FIELD_NUMBER: _ClassVar[int]
     PERSIST_FIELD_NUMBER: _ClassVar[int]
     NAME_FIELD_NUMBER: _ClassVar[int]
+    FIT_FIELD_NUMBER: _ClassVar[int]
+    MORE_FIELD_NUMBER: _ClassVar[int]
     image: _common_pb2.Image
     space: _node_pb2.Space
     apply_lut: bool
     persist: bool
     name: str
-    def __init__(self, image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., space: _Optional[_Union[_node_pb2.Space, str]] = ..., apply_lut: _Optional[bool] = ..., persist: _Optional[bool] = ..., name: _Optional[str] = ...) -> None: ...
+    fit: str
+    more: bytes
+    def __init__(self, image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., space: _Optional[_Union[_node_pb2.Space, str]] = ..., apply_lut: _Optional[bool] = ..., persist: _Optional[bool] = ..., name: _Optional[str] = ..., fit: _Optional[str] = ..., more: _Optional[bytes] = ...) -> None: ...
 
 class ShowReply(_message.Message):
     __slots__ = ("frame_id", "content_id", "pts_ns")
@@ -251,7 +257,7 @@ class ShowReply(_message.Message):
     def __init__(self, frame_id: _Optional[int] = ..., content_id: _Optional[str] = ..., pts_ns: _Optional[int] = ...) -> None: ...
 
 class PlaySettings(_message.Message):
-    __slots__ = ("fps", "loops", "wait", "pattern", "frames", "latency_ms", "settle_s")
+    __slots__ = ("fps", "loops", "wait", "pattern", "frames", "latency_ms", "settle_s", "fit")
     FPS_FIELD_NUMBER: _ClassVar[int]
     LOOPS_FIELD_NUMBER: _ClassVar[int]
     WAIT_FIELD_NUMBER: _ClassVar[int]
@@ -259,6 +265,7 @@ class PlaySettings(_message.Message):
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
     SETTLE_S_FIELD_NUMBER: _ClassVar[int]
+    FIT_FIELD_NUMBER: _ClassVar[int]
     fps: float
     loops: int
     wait: bool
@@ -266,15 +273,18 @@ class PlaySettings(_message.Message):
     frames: int
     latency_ms: float
     settle_s: float
-    def __init__(self, fps: _Optional[float] = ..., loops: _Optional[int] = ..., wait: _Optional[bool] = ..., pattern: _Optional[str] = ..., frames: _Optional[int] = ..., latency_ms: _Optional[float] = ..., settle_s: _Optional[float] = ...) -> None: ...
+    fit: str
+    def __init__(self, fps: _Optional[float] = ..., loops: _Optional[int] = ..., wait: _Optional[bool] = ..., pattern: _Optional[str] = ..., frames: _Optional[int] = ..., latency_ms: _Optional[float] = ..., settle_s: _Optional[float] = ..., fit: _Optional[str] = ...) -> None: ...
 
 class PlayItem(_message.Message):
-    __slots__ = ("settings", "frame")
+    __slots__ = ("settings", "frame", "more")
     SETTINGS_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
+    MORE_FIELD_NUMBER: _ClassVar[int]
     settings: PlaySettings
     frame: _common_pb2.Image
-    def __init__(self, settings: _Optional[_Union[PlaySettings, _Mapping]] = ..., frame: _Optional[_Union[_common_pb2.Image, _Mapping]] = ...) -> None: ...
+    more: bytes
+    def __init__(self, settings: _Optional[_Union[PlaySettings, _Mapping]] = ..., frame: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., more: _Optional[bytes] = ...) -> None: ...
 
 class PlayReply(_message.Message):
     __slots__ = ("frames_sent", "frames_shown", "frames_late", "frames_dropped", "sync", "coordinator_cpu_s", "nodes", "wall_s", "skews_ms", "clock_errors_ms", "encode_cpu_s")
@@ -303,12 +313,16 @@ class PlayReply(_message.Message):
     def __init__(self, frames_sent: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., coordinator_cpu_s: _Optional[float] = ..., nodes: _Optional[int] = ..., wall_s: _Optional[float] = ..., skews_ms: _Optional[_Iterable[float]] = ..., clock_errors_ms: _Optional[_Iterable[float]] = ..., encode_cpu_s: _Optional[float] = ...) -> None: ...
 
 class StopRequest(_message.Message):
-    __slots__ = ()
-    def __init__(self) -> None: ...
+    __slots__ = ("blackout",)
+    BLACKOUT_FIELD_NUMBER: _ClassVar[int]
+    blackout: bool
+    def __init__(self, blackout: _Optional[bool] = ...) -> None: ...
 
 class StopReply(_message.Message):
-    __slots__ = ()
-    def __init__(self) -> None: ...
+    __slots__ = ("showing",)
+    SHOWING_FIELD_NUMBER: _ClassVar[int]
+    showing: str
+    def __init__(self, showing: _Optional[str] = ...) -> None: ...
 
 class ConfigureRequest(_message.Message):
     __slots__ = ("slot", "homography", "lut", "gain", "output_width", "output_height", "clear_pose")

@@ -55,7 +55,7 @@ class RigControlStub:
                 request_serializer=protos_dot_control__pb2.StatusRequest.SerializeToString,
                 response_deserializer=protos_dot_control__pb2.NodeList.FromString,
                 _registered_method=True)
-        self.Show = channel.unary_unary(
+        self.Show = channel.stream_unary(
                 '/shadowless.v1.RigControl/Show',
                 request_serializer=protos_dot_control__pb2.ShowRequest.SerializeToString,
                 response_deserializer=protos_dot_control__pb2.ShowReply.FromString,
@@ -134,22 +134,26 @@ class RigControlServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
-    def Show(self, request, context):
-        """Show one image on every node and hold it.
+    def Show(self, request_iterator, context):
+        """Show one image on every node and hold it. The first message carries the settings and the
+        image's first bytes; an image larger than one message (the coordinator accepts 4 MiB per
+        message) continues in the `more` of the following ones.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
     def Play(self, request_iterator, context):
-        """Play a sequence: the first item carries the settings, the rest are frames.
+        """Play a sequence: the first item carries the settings, the rest are frames (each frame's
+        bytes beyond one message continue in `more` items).
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
     def Stop(self, request, context):
-        """Missing associated documentation comment in .proto file."""
+        """Stop a sequence or a timeline show; the rig's content comes back, or black with blackout.
+        """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
@@ -225,7 +229,7 @@ def add_RigControlServicer_to_server(servicer, server):
                     request_deserializer=protos_dot_control__pb2.StatusRequest.FromString,
                     response_serializer=protos_dot_control__pb2.NodeList.SerializeToString,
             ),
-            'Show': grpc.unary_unary_rpc_method_handler(
+            'Show': grpc.stream_unary_rpc_method_handler(
                     servicer.Show,
                     request_deserializer=protos_dot_control__pb2.ShowRequest.FromString,
                     response_serializer=protos_dot_control__pb2.ShowReply.SerializeToString,
@@ -395,7 +399,7 @@ class RigControl:
             _registered_method=True)
 
     @staticmethod
-    def Show(request,
+    def Show(request_iterator,
             target,
             options=(),
             channel_credentials=None,
@@ -405,8 +409,8 @@ class RigControl:
             wait_for_ready=None,
             timeout=None,
             metadata=None):
-        return grpc.experimental.unary_unary(
-            request,
+        return grpc.experimental.stream_unary(
+            request_iterator,
             target,
             '/shadowless.v1.RigControl/Show',
             protos_dot_control__pb2.ShowRequest.SerializeToString,

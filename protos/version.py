@@ -3,7 +3,9 @@
 #: 2: frame contents may be packed ENCODING_ZSTD_GRADIENT and sequences travel as live video
 #: (FramePacket.video), which a version-1 node could not show.
 #: 3: a report's swaps travel as delta-coded columns (NodeReport.swaps, a Swaps message).
-PROTOCOL_VERSION = 3
+#: 4: Show is a client stream and images travel in parts of at most 1 MiB, so the coordinator
+#: accepts small messages only (MAX_REQUEST_BYTES); Stop can black out; fit modes.
+PROTOCOL_VERSION = 4
 
 #: mDNS service type the coordinator advertises.
 SERVICE_TYPE = "_shadowless._tcp.local."
@@ -23,6 +25,12 @@ GRPC_OPTIONS = [
     ("grpc.http2.max_pings_without_data", 0),
 ]
 
+#: Largest message the coordinator accepts. Everything that reaches it is small (handshakes,
+#: reports, 1 MiB upload chunks, images in 1 MiB parts), so an unauthenticated peer cannot make it
+#: buffer more than this per call: gRPC refuses a larger message from its length prefix, before
+#: reading it.
+MAX_REQUEST_BYTES = 4 * 1024 * 1024
+
 #: Servers accept the clients' keepalive pings (every 10 s, also between calls): gRPC's
 #: default refuses pings more often than every 5 minutes and closes idle channels with
 #: GOAWAY "too_many_pings".
@@ -30,3 +38,7 @@ SERVER_GRPC_OPTIONS = GRPC_OPTIONS + [
     ("grpc.http2.min_ping_interval_without_data_ms", 5_000),
     ("grpc.http2.max_ping_strikes", 0),
 ]
+
+#: The coordinator's server: small messages in (MAX_REQUEST_BYTES), large frames out.
+COORDINATOR_GRPC_OPTIONS = [(k, MAX_REQUEST_BYTES if k == "grpc.max_receive_message_length" else v)
+                            for k, v in SERVER_GRPC_OPTIONS]

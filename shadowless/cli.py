@@ -20,6 +20,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "status": ("coordinator.commands", "show the rig's nodes and sync figures (--json for scripts)"),
     "show": ("coordinator.commands", "show an image on every projector"),
     "play": ("coordinator.commands", "play a sequence of images, or a generated test sequence"),
+    "stop": ("coordinator.commands", "stop what plays: the rig's content (or black) comes back"),
+    "blackout": ("coordinator.commands", "black on every projector until the next show"),
     "configure": ("coordinator.commands", "set a slot's pose, LUT, gain or output size by hand"),
     "content": ("coordinator.content_commands", "add, list, remove and verify content assets (stills, sequences, videos)"),
     "local": ("shadowless.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),

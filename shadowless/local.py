@@ -353,7 +353,7 @@ async def _local(args) -> int:
         async with await rig.client() as c:
             await rig.wait_live(c)
             img = read_image(args.image) if args.image else card_image(w, h)
-            await c.show(img, name=args.image or "test card")
+            await c.show(img, name=args.image or "test card", fit="contain")   # an image of any aspect, whole
             await asyncio.sleep(1.0)
             frames = max(1, int(args.fps * args.seconds))
             reply = await c.play(PlaySettings(fps=args.fps, pattern="counter", frames=frames, wait=True))

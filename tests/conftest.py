@@ -133,3 +133,19 @@ def pytest_runtest_makereport(item, call):
         reason = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
         rep.outcome = "failed"
         rep.longrepr = f"skipped under CI=true, where nothing may skip: {reason}"
+
+
+@pytest.fixture
+def corpus_table():
+    """``add(kind, input, message, exit_status)``: a row of the bad-input corpus, appended as a
+    markdown table row to the file named by ``SHADOWLESS_CORPUS_TABLE`` when it is set (to list
+    every bad input tried, what it printed and the exit status); a no-op otherwise."""
+    path = os.environ.get("SHADOWLESS_CORPUS_TABLE")
+
+    def add(kind: str, what: str, message: str, status: object) -> None:
+        if path:
+            cell = lambda s: str(s).replace("|", "\\|").replace("\n", " ")  # noqa: E731
+            with open(path, "a") as f:
+                f.write(f"| {cell(kind)} | {cell(what)} | {cell(message)} | {cell(status)} |\n")
+
+    return add
