@@ -50,6 +50,7 @@ from coordinator.rig import Content, Rig
 from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
 from coordinator.show import MIN_LEAD_NS, Show
 from coordinator.sync import SyncTracker, summarize
+from protos import sd_notify
 from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION
 
@@ -128,6 +129,7 @@ class Coordinator:
         self.live_at: dict[str, int] = {}
         self.ready_at: dict[str, dict[str, int]] = {}
         self.refusals = Refusals()
+        self._systemd = sd_notify.Watchdog()
         self.handshake = Handshake(token, rig_id=rig.config.rig_id, rig_name=rig.config.name,
                                    instance_id=self.instance_id, clock=self.now,
                                    on_refusal=lambda peer, slot, msg: self.refusals.record(peer, slot, msg, self.now()))
@@ -165,9 +167,13 @@ class Coordinator:
         self._tasks.append(asyncio.create_task(self._follow_show(), name="show"))
         log.info("coordinator for rig %r (%s) listening on port %d, instance %s",
                  self.rig.config.name, self.rig.config.rig_id, self.port, self.instance_id)
+        # under systemd (Type=notify): ready now; keep-alives from the loop that serves everything
+        self._systemd.expect("loop")
+        sd_notify.notify("READY=1", f"STATUS=rig {self.rig.config.name} on port {self.port}")
 
     async def stop(self, grace: float = 2.0) -> None:
         """Graceful shutdown: health NOT_SERVING, mDNS unregister, streams closed, server stopped."""
+        sd_notify.notify("STOPPING=1")
         if self._health is not None:
             await self._health.enter_graceful_shutdown()
         if self._advertiser is not None:
@@ -284,6 +290,8 @@ class Coordinator:
         next_poll = 0.0
         while True:
             await asyncio.sleep(0.25)
+            self._systemd.beat("loop")     # a frozen event loop stops systemd's keep-alives
+            self._systemd.tick()
             self.sweep()
             if time.monotonic() >= next_poll:   # host time: an injected rig clock may stand still
                 next_poll = time.monotonic() + STORE_POLL_S
