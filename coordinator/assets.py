@@ -112,10 +112,12 @@ class AssetStore:
             data = path.read_bytes()
         except FileNotFoundError:
             raise AssetError(f"no asset {asset_id}") from None
+        except OSError as exc:   # e.g. a directory where the manifest should be
+            raise AssetError(f"{path}: cannot read asset {asset_id[:12]}'s manifest ({exc.strerror})") from None
         try:
             return Manifest.from_bytes(data, asset_id=asset_id)
         except ManifestError as exc:
-            raise AssetError(f"asset {asset_id[:12]}: its manifest is damaged ({exc})") from exc
+            raise AssetError(" ".join(f"{path}: asset {asset_id[:12]}: its manifest is damaged ({exc})".split())) from exc
 
     def _referenced(self, *, exclude: str | None = None) -> set[str]:
         refs: set[str] = set()

@@ -19,9 +19,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
+import logging
 import time
-import tomllib
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -29,11 +28,14 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.errors import RigError
+from coordinator.schema import (MAX_GAIN, MAX_SIDE, MIN_SIDE, SLOT_RE, ContentMeta, RigToml, SizeDoc, SlotFile, check_homography,
+                                parse_toml, read_bytes, read_json, read_npy, read_text, valid_gain, validate, validate_lut)
 from coordinator.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
 from protos.auth import new_token
 
-SLOT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$")
-MIN_SIDE, MAX_SIDE = 16, 16384
+__all__ = ["MAX_GAIN", "MAX_SIDE", "MIN_SIDE", "SLOT_RE", "Content", "HomographyPose", "Mesh", "ProjectionPose", "Rig",
+           "RigConfig", "SlotState", "grid_slots", "init_rig", "parse_config", "valid_gain", "validate_lut"]
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -45,10 +47,7 @@ class HomographyPose:
     kind = "homography"
 
     def __post_init__(self):
-        m = np.asarray(self.matrix, dtype=np.float64)
-        if m.shape != (3, 3) or not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-12:
-            raise ValueError(f"a homography must be a finite, invertible (3, 3) matrix, got shape {m.shape}")
-        object.__setattr__(self, "matrix", m)
+        object.__setattr__(self, "matrix", check_homography(self.matrix))
 
 
 @dataclass(frozen=True)
@@ -164,57 +163,25 @@ def default_heartbeat_ms(n_slots: int) -> int:
     return 1000 if n_slots <= LARGE_RIG_SLOTS else 2000
 
 
-#: a slot's linear gain lies in 0..MAX_GAIN (0: its light off)
-MAX_GAIN = 16.0
-
-
-def valid_gain(gain: object) -> bool:
-    """Whether ``gain`` is a number (not a bool) in 0..MAX_GAIN."""
-    return (not isinstance(gain, bool) and isinstance(gain, (int, float, np.floating)) and bool(np.isfinite(gain))
-            and 0.0 <= gain <= MAX_GAIN)
-
-
 def _check_size(what: str, w: object, h: object) -> tuple[int, int]:
-    if not (isinstance(w, int) and isinstance(h, int) and MIN_SIDE <= w <= MAX_SIDE and MIN_SIDE <= h <= MAX_SIDE):
-        raise RigError(f"{what}: size must be integers in {MIN_SIDE}..{MAX_SIDE}, got {w}x{h}")
+    """(w, h) as a slot/content resolution (ints in MIN_SIDE..MAX_SIDE), checked by the schema."""
+    validate(SizeDoc, {"width": w, "height": h}, what)
     return w, h
 
 
 def parse_config(text: str, *, source: str = "rig.toml") -> RigConfig:
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise RigError(f"{source}: not valid TOML: {exc}") from exc
-    for key in ("name", "id"):
-        if not isinstance(doc.get(key), str) or not doc[key]:
-            raise RigError(f"{source}: `{key}` must be a non-empty string")
-    defaults = doc.get("defaults", {})
-    dw, dh = defaults.get("width", 1920), defaults.get("height", 1080)
-    _check_size(f"{source} [defaults]", dw, dh)
-    slots_doc = doc.get("slots")
-    if not isinstance(slots_doc, dict) or not slots_doc:
-        raise RigError(f"{source}: needs a [slots] table with at least one slot (e.g. r0c0 = {{}})")
-    slots: dict[str, tuple[int, int]] = {}
-    for name, spec in slots_doc.items():
-        if not SLOT_RE.match(name):
-            raise RigError(f"{source}: slot name {name!r} must be 1-32 letters, digits, '_', '-' or '.'")
-        if not isinstance(spec, dict):
-            raise RigError(f"{source}: slot {name} must be a table, e.g. {name} = {{ width = 1920, height = 1080 }}")
-        slots[name] = _check_size(f"{source} slot {name}", spec.get("width", dw), spec.get("height", dh))
-    cw, ch = _check_size(f"{source} content", doc.get("content_width", 1200), doc.get("content_height", 600))
-    latency = doc.get("latency_ms", 50.0)
-    if not isinstance(latency, (int, float)) or not 1 <= latency <= 5000:
-        raise RigError(f"{source}: latency_ms must be a number in 1..5000, got {latency!r}")
-    hb = doc.get("heartbeat_ms", default_heartbeat_ms(len(slots)))
-    lost = doc.get("lost_after_ms", max(5000, 5 * hb if isinstance(hb, int) else 5000))
-    if not isinstance(hb, int) or not 50 <= hb <= 60_000 or not isinstance(lost, int) or lost < 2 * hb:
+    """``rig.toml``'s text as a RigConfig, checked by :class:`coordinator.schema.RigToml`; refusals
+    are one-line RigErrors naming ``source``."""
+    doc = validate(RigToml, parse_toml(text, source), source)
+    dw, dh = doc.defaults.width or 1920, doc.defaults.height or 1080
+    slots = {name: (spec.width or dw, spec.height or dh) for name, spec in doc.slots.items()}
+    hb = doc.heartbeat_ms or default_heartbeat_ms(len(slots))
+    lost = doc.lost_after_ms or max(5000, 5 * hb)
+    if lost < 2 * hb:
         raise RigError(f"{source}: heartbeat_ms must be 50..60000 and lost_after_ms at least twice it")
-    cameras = doc.get("cameras", [])
-    if not isinstance(cameras, list) or not all(isinstance(c, str) and c for c in cameras):
-        raise RigError(f'{source}: cameras must be a list of sources, e.g. cameras = ["room://127.0.0.1:7700", "opencv:0"]')
     return RigConfig(
-        name=doc["name"], rig_id=doc["id"], slots=slots, content_width=cw, content_height=ch,
-        latency_ms=float(latency), heartbeat_ms=hb, lost_after_ms=lost, cameras=tuple(cameras),
+        name=doc.name, rig_id=doc.id, slots=slots, content_width=doc.content_width, content_height=doc.content_height,
+        latency_ms=doc.latency_ms, heartbeat_ms=hb, lost_after_ms=lost, cameras=tuple(doc.cameras),
     )
 
 
@@ -282,72 +249,79 @@ class Rig:
     """A rig directory loaded in memory. Every mutation is persisted before it returns."""
 
     def __init__(self, path: str | Path):
+        """Load and check every file of the rig at ``path``; any refusal is a one-line RigError naming
+        the file and changes nothing on disk. Afterwards temp files of interrupted writes are removed."""
         self.path = Path(path)
         cfg_file = self.path / "rig.toml"
-        if not cfg_file.exists():
+        if not self.path.is_dir():
+            what = "no such directory" if not self.path.exists() else "a file, not a directory"
+            raise RigError(f"{self.path} is not a rig directory ({what}); create one with `shadowless rig init {self.path}`")
+        if not cfg_file.exists() and not cfg_file.is_symlink():
             raise RigError(f"{self.path} is not a rig directory (no rig.toml); create one with `shadowless rig init {self.path}`")
-        remove_stale_temps(self.path)
-        self.config = parse_config(cfg_file.read_text(), source=str(cfg_file))
+        self.config = parse_config(read_text(cfg_file), source=str(cfg_file))
         self.slots: dict[str, SlotState] = {}
         self.meshes: dict[str, Mesh] = {}
         for name, (w, h) in self.config.slots.items():
             self.slots[name] = self._load_slot(name, w, h)
         self.content: Content | None = self._load_content()
+        remove_stale_temps(self.path)
 
     # ---- loading -------------------------------------------------------
     def _load_mesh(self, mesh_id: str) -> Mesh:
         if mesh_id not in self.meshes:
             f = self.path / "meshes" / f"{mesh_id}.npz"
+            read_bytes(f)   # missing / a directory: one line
             try:
                 with np.load(f) as z:
                     self.meshes[mesh_id] = Mesh(mesh_id, z["vertices"], z["uvs"], z["faces"])
-            except (OSError, KeyError, ValueError) as exc:
-                raise RigError(f"{f}: cannot load mesh {mesh_id!r}: {exc}") from exc
+            except (OSError, KeyError, ValueError, EOFError) as exc:
+                raise RigError(" ".join(f"{f}: cannot load mesh {mesh_id!r}: {exc}".split())) from None
         return self.meshes[mesh_id]
 
     def _load_slot(self, name: str, width: int, height: int) -> SlotState:
+        """``slots/<name>.json`` (checked by :class:`coordinator.schema.SlotFile`) with its pose, mesh
+        and LUT ((C, E) float32 .npy; other dtypes are refused)."""
         f = self.path / "slots" / f"{name}.json"
-        if not f.exists():
+        if not f.exists() and not f.is_symlink():
             return SlotState(name=name, width=width, height=height)
-
+        hint = "; fix or delete the file to recalibrate this slot"
         try:
-            doc = json.loads(f.read_text())
-            pose_doc = doc.get("pose")
-            pose: Pose | None = None
-            if pose_doc and pose_doc["kind"] == "homography":
-                pose = HomographyPose(np.array(pose_doc["matrix"], dtype=np.float64))
-            elif pose_doc and pose_doc["kind"] == "projection":
-                pose = ProjectionPose(np.array(pose_doc["matrix"], dtype=np.float64), self._load_mesh(pose_doc["mesh"]),
-                                      float(pose_doc.get("near_mm", 100.0)), float(pose_doc.get("far_mm", 10_000.0)))
-            lut = None
-            if doc.get("lut"):
-                lut = np.load(self.path / doc["lut"], allow_pickle=False).astype(np.float32)
+            doc: SlotFile = validate(SlotFile, read_json(f), str(f))
+        except RigError as exc:
+            raise RigError(f"{exc}{hint}") from None
+        pose: Pose | None = None
+        if doc.pose is not None and doc.pose.kind == "homography":
+            pose = HomographyPose(np.array(doc.pose.matrix, dtype=np.float64))
+        elif doc.pose is not None:
+            try:
+                pose = ProjectionPose(np.array(doc.pose.matrix, dtype=np.float64), self._load_mesh(doc.pose.mesh),
+                                      doc.pose.near_mm, doc.pose.far_mm)
+            except ValueError as exc:
+                raise RigError(f"{f}: {exc}{hint}") from None
+        lut = None
+        if doc.lut:
+            lut_f = self.path / doc.lut
+            lut = read_npy(lut_f, ("float32",), "LUT")
+            try:
                 validate_lut(lut)
-            w, h = doc.get("width", width), doc.get("height", height)
-            _check_size(str(f), w, h)
-            gain = doc.get("gain", 1.0)
-            if not valid_gain(gain):
-                raise RigError(f"{f}: gain must be a number in 0..{MAX_GAIN:g}, got {gain!r}; fix or delete the file to "
-                               "recalibrate this slot")
-            return SlotState(name=name, width=w, height=h, revision=int(doc.get("revision", 0)),
-                             gain=float(gain), pose=pose, lut=lut, source=str(doc.get("source", "")),
-                             updated_at=float(doc.get("updated_at", 0.0)))
-        except RigError:
-            raise
-        except (ValueError, KeyError, TypeError, OSError) as exc:
-            raise RigError(f"{f}: invalid slot state ({exc}); fix or delete the file to recalibrate this slot") from exc
+            except ValueError as exc:
+                raise RigError(f"{lut_f}: {exc} (named by {f})") from None
+        return SlotState(name=name, width=doc.width or width, height=doc.height or height, revision=doc.revision,
+                         gain=doc.gain, pose=pose, lut=lut, source=doc.source, updated_at=doc.updated_at)
 
     def _load_content(self) -> Content | None:
+        """``content/current.json`` (checked by :class:`coordinator.schema.ContentMeta`) and the image
+        it names: (H, W) or (H, W, C<=4) uint8/uint16/float32 .npy."""
         meta_f = self.path / "content" / "current.json"
-        if not meta_f.exists():
+        if not meta_f.exists() and not meta_f.is_symlink():
             return None
-
+        meta: ContentMeta = validate(ContentMeta, read_json(meta_f), str(meta_f))
+        img_f = self.path / "content" / meta.file
+        img = read_npy(img_f, ("uint8", "uint16", "float32"), "content image")
         try:
-            meta = json.loads(meta_f.read_text())
-            img = np.load(self.path / "content" / meta["file"], allow_pickle=False)
-            return Content(img, name=meta.get("name", ""))
-        except (OSError, KeyError, ValueError) as exc:
-            raise RigError(f"{meta_f}: cannot load the rig's content ({exc})") from exc
+            return Content(img, name=meta.name)
+        except ValueError as exc:
+            raise RigError(f"{img_f}: {exc}") from None
 
     # ---- mutation (persisted) -----------------------------------------
     def _save_slot(self, st: SlotState) -> None:
@@ -417,10 +391,3 @@ class Rig:
                 old.unlink(missing_ok=True)
         self.content = content
 
-
-def validate_lut(lut: np.ndarray) -> None:
-    """A LUT is (C, E) float32 with C in {1, 3}, 2 <= E <= 65536, values in [0, 1], finite."""
-    if lut.ndim != 2 or lut.shape[0] not in (1, 3) or not 2 <= lut.shape[1] <= 65536:
-        raise ValueError(f"a LUT must be (C, E) with C in {{1, 3}} and 2 <= E <= 65536, got {lut.shape}")
-    if not np.all(np.isfinite(lut)) or lut.min() < 0.0 or lut.max() > 1.0:
-        raise ValueError("LUT values must be finite and within [0, 1]")

@@ -59,6 +59,6 @@ def run(args: argparse.Namespace) -> int:
         json.dump(doc, sys.stdout, indent=2)
         print()
         return 0
-    except (RigError, ValueError) as exc:
-        print(f"shadowless rig: {exc}", file=sys.stderr)
+    except (RigError, ValueError, OSError) as exc:
+        print(" ".join(f"shadowless rig: {exc}".split()), file=sys.stderr)   # one line, no traceback
         return 2

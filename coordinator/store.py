@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import stat
 import tempfile
 import time
 from contextlib import contextmanager
@@ -82,11 +83,13 @@ def remove_stale_temps(root: str | os.PathLike[str], *, older_than_s: float = ST
 
     Only files named like its temp files (``.NAME.XXXXXXXX.tmp``) and untouched for
     ``older_than_s`` go; top-level folders in ``skip`` keep their own rules (the asset store sweeps
-    its staging folder itself). Returns what was removed.
+    its staging folder itself). Symlinked folders are not followed: nothing outside ``root`` goes.
+    Logs the count and bytes removed once, at INFO. Returns what was removed.
     """
     root = Path(root)
     now = time.time()
     removed = []
+    freed = 0
     for dirpath, dirnames, filenames in os.walk(root):
         if Path(dirpath) == root:
             dirnames[:] = [d for d in dirnames if d not in skip]
@@ -95,11 +98,13 @@ def remove_stale_temps(root: str | os.PathLike[str], *, older_than_s: float = ST
                 continue
             f = Path(dirpath) / name
             try:
-                if now - f.stat().st_mtime >= older_than_s:
+                st = f.lstat()
+                if stat.S_ISREG(st.st_mode) and now - st.st_mtime >= older_than_s:
                     f.unlink()
                     removed.append(f)
+                    freed += st.st_size
             except FileNotFoundError:
                 pass
     if removed:
-        log.info("removed %d temp file(s) left by interrupted writes under %s", len(removed), root)
+        log.info("removed %d temp file(s) (%d bytes) left by interrupted writes under %s", len(removed), freed, root)
     return removed

@@ -45,6 +45,7 @@ import errno
 import fcntl
 import hashlib
 import json
+import logging
 import os
 import shutil
 import threading
@@ -55,6 +56,7 @@ from node.errors import NodeError
 from protos.asset_manifest import Manifest, ManifestError, is_sha256
 
 __all__ = ["AssetCache", "AssetCacheError", "default_cache_dir"]
+log = logging.getLogger(__name__)
 
 _INDEX = "index.json"
 _LOCK = "LOCK"
@@ -184,8 +186,17 @@ class AssetCache:
 
     def _recover(self) -> None:
         """Re-read the directory after a restart or a crash (see the module docstring)."""
+        count = freed = 0
         for tmp in self.directory.rglob("*" + _TMP):
-            tmp.unlink(missing_ok=True)
+            try:
+                size = tmp.lstat().st_size
+                tmp.unlink()
+            except OSError:
+                continue
+            count, freed = count + 1, freed + size
+        if count:
+            log.info("asset cache %s: removed %d temp file(s) (%d bytes) left by interrupted writes",
+                     self.directory, count, freed)
         mtimes: dict[str, float] = {}
         for path in sorted(self._manifest_dir.iterdir()):
             asset_id = path.name.removesuffix(".json")

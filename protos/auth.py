@@ -56,17 +56,24 @@ def verify(expected: bytes, given: bytes) -> bool:
 def read_token(path: str | os.PathLike[str]) -> bytes:
     """Read a rig token from ``path`` (whitespace stripped); refuse short or world-readable files."""
     p = Path(path)
+    if p.is_dir():
+        raise TokenError(f"rig token file {p} is a directory, not a file (pass the token file inside it?)")
     try:
-        text = p.read_text().strip()
-    except FileNotFoundError as exc:
-        raise TokenError(f"rig token file {p} does not exist (create one with `shadowless rig init`)") from exc
+        raw = p.read_bytes()
+        mode = p.stat().st_mode & 0o777
+        text = raw.decode("utf-8").strip()
+    except FileNotFoundError:
+        raise TokenError(f"rig token file {p} does not exist (create one with `shadowless rig init`)") from None
     except OSError as exc:
-        raise TokenError(f"cannot read rig token file {p}: {exc.strerror}") from exc
-    except UnicodeDecodeError as exc:
-        raise TokenError(f"rig token file {p} is not text (is it the right file?)") from exc
+        raise TokenError(f"cannot read rig token file {p}: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise TokenError(f"rig token file {p} is not text (is it the right file?)") from None
+    if not text:
+        raise TokenError(f"rig token file {p} is empty (copy the rig's token into it, or run `shadowless rig init`)")
+    if "\x00" in text or not text.isprintable() or len(text.split()) != 1:
+        raise TokenError(f"rig token file {p} is not a token (binary data or several words; is it the right file?)")
     if len(text.encode()) < MIN_TOKEN_BYTES:
         raise TokenError(f"rig token in {p} is shorter than {MIN_TOKEN_BYTES} bytes")
-    mode = p.stat().st_mode & 0o777
     if mode & 0o077:
         who = " and ".join(w for w, bits in (("its group", 0o070), ("every user", 0o007)) if mode & bits)
         raise TokenError(f"rig token file {p} can be read by {who} (mode {mode:04o}): anyone who reads it can join "

@@ -69,6 +69,9 @@ def test_old_lut_files_are_cleaned_and_no_temp_files_remain(tmp_path):
     ("name = 'a'\nid = 'b'\n[slots]\nr0 = { width = 5, height = 5 }\n", "16..16384"),
     ("name = 'a'\nid = 'b'\nlatency_ms = -1\n[slots]\nr0 = {}\n", "latency_ms"),
     ("name = [\n", "not valid TOML"),
+    ("name = 'a'\nid = 'b'\nlatancy_ms = 5\n[slots]\nr0 = {}\n", r"unknown key 'latancy_ms' \(did you mean 'latency_ms'\?\)"),
+    ("name = 'a'\nid = 'b'\nlatency_ms = nan\n[slots]\nr0 = {}\n", "latency_ms must be a finite number"),
+    ("name = 'a'\nid = 'b'\n[slots]\nr0 = { width = 64, hieght = 64 }\n", r"unknown key 'hieght' in \[slots.r0\]"),
 ])
 def test_invalid_config_names_the_problem(text, msg):
     with pytest.raises(RigError, match=msg):

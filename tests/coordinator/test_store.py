@@ -77,3 +77,20 @@ def test_loading_a_rig_sweeps_what_killed_writers_left_but_not_the_asset_staging
         os.utime(p, (0, 0))
     Rig(rig_dir)
     assert not stale[0].exists() and stale[1].exists()
+
+
+def test_sweep_logs_count_and_bytes_once_and_stays_inside_the_tree(tmp_path, caplog):
+    root, outside = tmp_path / "rig", tmp_path / "elsewhere"
+    (root / "slots").mkdir(parents=True)
+    outside.mkdir()
+    stale = [root / ".rig.toml.aaaaaa.tmp", root / "slots" / ".r0.json.bbbbbb.tmp"]
+    far = outside / ".x.json.cccccc.tmp"
+    for i, p in enumerate(stale + [far]):
+        p.write_bytes(b"x" * (5 + i))
+        os.utime(p, (0, 0))
+    (root / "link").symlink_to(outside, target_is_directory=True)   # a symlinked folder is not followed
+    (root / ".dangling.json.dddddd.tmp").symlink_to(far)           # nor is a symlink removed as a temp file
+    caplog.set_level("INFO", logger="coordinator.store")
+    assert sorted(remove_stale_temps(root)) == sorted(stale)
+    assert far.exists()
+    assert [r.getMessage() for r in caplog.records] == [f"removed 2 temp file(s) (11 bytes) left by interrupted writes under {root}"]

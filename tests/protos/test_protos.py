@@ -83,3 +83,14 @@ def test_token_file_errors_name_the_file(tmp_path):
             auth.read_token(good)
     good.chmod(0o600)
     assert len(auth.read_token(good)) >= 32
+    for name, data, says in (("empty", b"", "is empty"), ("blank", b" \n\n", "is empty"),
+                             ("binary", b"\xff\xd8\xff\xe0", "is not text"), ("nul", b"a" * 20 + b"\x00" * 4, "not a token"),
+                             ("words", b"two words-of-a-token-here", "not a token")):
+        f = tmp_path / name
+        f.write_bytes(data)
+        f.chmod(0o600)
+        with pytest.raises(auth.TokenError, match=f"{f} .*{says}") as exc:
+            auth.read_token(f)
+        assert "\n" not in str(exc.value)
+    with pytest.raises(auth.TokenError, match="is a directory"):
+        auth.read_token(tmp_path)
