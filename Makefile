@@ -35,11 +35,13 @@ define need
 endef
 
 # iproute2 (ip, tc) builds the virtual venue networks the network tests run on; Xvfb lets the
-# fullscreen outputs be tested on a machine with no screen; libSDL2 drives the output without X.
+# fullscreen outputs be tested on a machine with no screen; libSDL2 drives the output without X;
+# Debian's chromium and its driver load the operator console in a real browser.
 system-deps:
 	$(call need,command -v tc >/dev/null 2>&1 && command -v ip >/dev/null 2>&1,iproute2,virtual venue network tests)
 	$(call need,command -v Xvfb >/dev/null 2>&1,xvfb,window-output tests)
 	$(call need,ldconfig -p | grep -q libSDL2-2.0.so.0,libsdl2-2.0-0,kms-output tests)
+	$(call need,command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1,chromium chromium-driver,console browser tests)
 
 demo: setup
 	$(VENV)/bin/shadowless demo --out results/demo

@@ -31,7 +31,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         "  shadowless rig init rigs/table --grid 5x5\n"
         "  shadowless coordinator --rig rigs/table\n"
         "  shadowless coordinator --rig rigs/table --listen 10.0.0.2:7600 --mdns-interface 10.0.0.2\n"
-        "  shadowless coordinator --rig rigs/table --tls-cert cert.pem --tls-key key.pem"
+        "  shadowless coordinator --rig rigs/table --tls-cert cert.pem --tls-key key.pem\n"
+        "  shadowless coordinator --rig rigs/table --console 0.0.0.0:7680 --tls-cert cert.pem --tls-key key.pem"
     )
     p.add_argument("--rig", required=True, metavar="DIR", help="rig directory (with rig.toml; see `shadowless rig init`)")
     p.add_argument("--listen", default="0.0.0.0:7600", metavar="HOST:PORT",
@@ -48,6 +49,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="camera for calibration jobs: room://HOST:PORT, opencv:INDEX, a device path or folder:DIR "
                         "(repeatable; default: rig.toml's cameras)")
     p.add_argument("--port-file", metavar="FILE", help="write the bound port here once listening (for scripts)")
+    p.add_argument("--console", default="127.0.0.1:7680", metavar="HOST:PORT",
+                   help="serve the operator console (a web page) here (default 127.0.0.1:7680, this machine only; "
+                        "0.0.0.0:7680 opens it to the network, with TLS when --tls-cert is given; port 0 picks one)")
+    p.add_argument("--no-console", action="store_true", help="do not serve the operator console")
+    p.add_argument("--console-port-file", metavar="FILE", help="write the console's bound port here (for scripts)")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -64,10 +70,12 @@ async def serve(args: argparse.Namespace) -> int:
         tls = (Path(args.tls_cert).read_bytes(), Path(args.tls_key).read_bytes())
     coord = Coordinator(rig, token, listen=args.listen, mdns_interfaces=args.mdns_interface,
                         advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms,
-                        cameras=args.camera)
+                        cameras=args.camera, console=None if args.no_console else args.console)
     await coord.start()
     if args.port_file:
         atomic_write_text(args.port_file, f"{coord.port}\n")
+    if args.console_port_file and coord.console_port:
+        atomic_write_text(args.console_port_file, f"{coord.console_port}\n")
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):

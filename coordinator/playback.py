@@ -177,12 +177,29 @@ class Playback:
         self.current_frame = frame
         self.showing = f"{tag} {content.name or content.content_id}"
         if publish:
-            sessions = self.live_sessions()
-            for sess in sessions:
-                sess.still_frames = {frame.frame_id}
-                sess.still_retries = 0
-            self.fanout.send(sessions, frame=frame, contents=self.current_contents)
+            self._publish_still(frame)
         return frame
+
+    def _publish_still(self, frame: Frame) -> None:
+        sessions = self.live_sessions()
+        for sess in sessions:
+            sess.still_frames = {frame.frame_id}
+            sess.still_retries = 0
+        self.fanout.send(sessions, frame=frame, contents=self.current_contents)
+
+    def show_per_slot(self, contents: Mapping[str, Content], *, tag: str, showing: str) -> ShowResult:
+        """A still of projector-space images, one per slot (other slots black), held as any still
+        (late joiners get it, a node that dropped it gets it again). Encode ``contents`` with
+        :meth:`FanOut.prepare` first (off the event loop)."""
+        self.stop()
+        self.takeover()
+        self.current_contents = {c.content_id: c for c in contents.values()}
+        frame = self._frame("", tag=tag, space=Space.PROJECTOR, apply_lut=False,
+                            slot_content={slot: c.content_id for slot, c in contents.items()})
+        self.current_frame = frame
+        self.showing = showing
+        self._publish_still(frame)
+        return ShowResult(frame_id=frame.frame_id, content_id="", pts_ns=frame.pts_ns)
 
     def show(self, content: Content, *, space: Space = Space.CONTENT, apply_lut: bool = True, persist: bool = False,
              tag: str = "show") -> ShowResult:

@@ -43,6 +43,8 @@ from coordinator.errors import CoordinatorError
 from coordinator.fanout import FanOut
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
+from coordinator.identify import name_card
+from coordinator.jobs.tracker import JobTracker
 from coordinator.mdns import Advertiser
 from coordinator.playback import Playback, cpu_seconds
 from coordinator.refusals import Refusals
@@ -103,12 +105,16 @@ class Coordinator:
         Camera specs for jobs (default: rig.toml's).
     clock_ns : callable
         The rig clock, monotonic nanoseconds (injectable for tests).
+    console : str, optional
+        Serve the operator console (a web page) on this ``HOST:PORT`` (see :attr:`console_port`).
     """
 
     def __init__(self, rig: Rig, token: bytes, *, listen: str = "0.0.0.0:7600", mdns_interfaces: list[str] | None = None,
                  advertise: bool = True, tls: tuple[bytes, bytes] | None = None, latency_ms: float | None = None,
-                 cameras: list[str] | None = None, clock_ns: Callable[[], int] = time.monotonic_ns):
+                 cameras: list[str] | None = None, clock_ns: Callable[[], int] = time.monotonic_ns,
+                 console: str | None = None):
         self._rig = rig
+        self.console_listen, self.console_port, self._console = console, 0, None   # the operator console (web)
         self.listen = listen
         self.mdns_interfaces = mdns_interfaces
         self.advertise = advertise
@@ -129,6 +135,8 @@ class Coordinator:
         self.live_at: dict[str, int] = {}
         self.ready_at: dict[str, dict[str, int]] = {}
         self.refusals = Refusals()
+        self.jobs = JobTracker()
+        self._job_task: asyncio.Task | None = None
         self._systemd = sd_notify.Watchdog()
         self.handshake = Handshake(token, rig_id=rig.config.rig_id, rig_name=rig.config.name,
                                    instance_id=self.instance_id, clock=self.now,
@@ -159,6 +167,15 @@ class Coordinator:
         """Listen, register the services (health and reflection too), advertise, watch the nodes."""
         self.distribution.load()
         self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
+        if self.console_listen is not None:
+            from coordinator.console import Console   # aiohttp only when the console is wanted
+            console = Console(self, self.console_listen)
+            try:
+                await console.start()
+            except CoordinatorError as exc:      # the rig runs on without its page; say why, loudly
+                log.error("the operator console is not served: %s (choose another --console HOST:PORT)", exc)
+            else:
+                self._console, self.console_port = console, console.port
         if self.advertise:
             self._advertiser = Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
                                           instance_id=self.instance_id, port=self.port, interfaces=self.mdns_interfaces)
@@ -174,6 +191,8 @@ class Coordinator:
     async def stop(self, grace: float = 2.0) -> None:
         """Graceful shutdown: health NOT_SERVING, mDNS unregister, streams closed, server stopped."""
         sd_notify.notify("STOPPING=1")
+        if self._console is not None:
+            await self._console.stop()
         if self._health is not None:
             await self._health.enter_graceful_shutdown()
         if self._advertiser is not None:
@@ -355,6 +374,22 @@ class Coordinator:
         log.info("stopped by an operator: showing %s", self.playback.showing)
         return self.playback.showing
 
+    async def identify(self) -> str:
+        """Every projector shows its slot name, large, until the next show, stop or blackout."""
+        if self._job_lock.locked():
+            raise CoordinatorError("a job is running on this rig (its patterns hold the projectors); cancel it first")
+
+        def cards() -> dict[str, Content]:
+            out = {name: Content(name_card(name, st.width, st.height), name=f"identify {name}")
+                   for name, st in self.rig.slots.items()}
+            self.fanout.prepare(list(out.values()))
+            return out
+
+        contents = await asyncio.to_thread(cards)
+        self.playback.show_per_slot(contents, tag="show:identify", showing="slot names (identify)")
+        log.info("identify: every projector shows its slot name")
+        return self.playback.showing
+
     def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
                    fps: float | None = None, start_without: bool = False) -> ShowState:
         self._before_show()
@@ -447,14 +482,40 @@ class Coordinator:
         return await self.playback.play(frames, settings)
 
     async def run_job(self, kind: str, params: dict, emit: Callable[[Event], None]) -> dict:
-        """Run one job at a time; the rig's content is shown again afterwards."""
+        """Run one job at a time; the rig's content is shown again afterwards. :attr:`jobs`
+        follows it (stage, progress, time left, log) for the console and status."""
         if self._job_lock.locked():
             raise CoordinatorError("another job is running on this rig; wait for it or cancel it")
         async with self._job_lock:
+            self._job_task = asyncio.current_task()
+            self.jobs.begin(kind, params)
+
+            def both(ev: Event) -> None:
+                self.jobs.event(ev)
+                emit(ev)
+
             try:
-                return await run_job(self, kind, params, emit=emit)
+                result = await run_job(self, kind, params, emit=both)
+            except asyncio.CancelledError:
+                self.jobs.end(cancelled=True)
+                raise
+            except Exception as exc:
+                self.jobs.end(error=str(exc))
+                raise
+            else:
+                self.jobs.end(result=result)
+                return result
             finally:
+                self._job_task = None
                 self.playback.restore_content()
+
+    def cancel_job(self) -> str:
+        """Cancel the running job, whoever started it (its own call ends as cancelled)."""
+        task = self._job_task
+        if task is None or task.done():
+            raise CoordinatorError("no job is running")
+        task.cancel()
+        return self.jobs.current.kind if self.jobs.current else "job"
 
     def status(self) -> RigStatus:
         now_ns = self.clock_ns()

@@ -171,10 +171,11 @@ async def _demo(args) -> int:
 
         size = room.projector_size(slots[0])
         rig = LocalRig(slots, work, output_size=size, content_size=(cw, ch), node_output=f"room://127.0.0.1:{room_port}",
-                       mdns=True, rig_name="demo", latency_ms=80.0,
+                       mdns=True, rig_name="demo", latency_ms=80.0, console=True,
                        coordinator_args=["--camera", f"room://127.0.0.1:{room_port}"])
         with rig:
             _say(f"coordinator on 127.0.0.1:{rig.port}; starting {len(slots)} node processes (one per projector)")
+            _say(f"operator console: {rig.console_url()} (log in with the token in {rig.rig_dir / 'token'})")
             async with await rig.client(timeout=60) as c:
                 await rig.wait_live(c, timeout=300)
                 report["startup_s"] = round(time.monotonic() - t_start, 1)

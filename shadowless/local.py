@@ -77,7 +77,7 @@ class LocalRig:
                  rig_name: str | None = None, extra_node_args: dict[str, list[str]] | None = None, mdns: bool = True,
                  coordinator_args: list[str] | None = None, env: dict[str, str] | None = None,
                  venue: Venue | None = None, netns: bool = False, link: str = "1gbit",
-                 coordinator_link: str | None = None):
+                 coordinator_link: str | None = None, console: bool = False):
         self.slots = list(slots)
         self.workdir = Path(workdir)
         self.rig_dir = self.workdir / "rig"
@@ -92,6 +92,7 @@ class LocalRig:
         self.extra_node_args = extra_node_args or {}
         self.mdns = mdns
         self.coordinator_args = list(coordinator_args or [])
+        self.console = console
         self.extra_env = dict(env or {})
         self.venue = venue
         self._own_venue = venue is None and netns
@@ -172,7 +173,22 @@ class LocalRig:
         addr = self.coordinator_address
         args = ["coordinator", "--rig", str(self.rig_dir), "--listen", f"{addr}:{self.port}"]
         args += ["--mdns-interface", addr] if self.mdns else ["--no-mdns"]
+        if self.console:     # on a free port, read back by console_url
+            (self.workdir / "console.port").unlink(missing_ok=True)
+            args += ["--console", "127.0.0.1:0", "--console-port-file", str(self.workdir / "console.port")]
+        else:
+            args += ["--no-console"]
         self.coordinator = self._spawn("coordinator", args + self.coordinator_args)
+
+    def console_url(self, timeout: float = 30.0) -> str:
+        """The operator console's address once the coordinator serves it (``console=True``)."""
+        f = self.workdir / "console.port"
+        deadline = time.monotonic() + timeout
+        while not f.exists():
+            if time.monotonic() > deadline or (self.coordinator is not None and self.coordinator.poll() is not None):
+                raise RuntimeError("the coordinator serves no console:\n" + self.log("coordinator")[-2000:])
+            time.sleep(0.1)
+        return f"http://127.0.0.1:{int(f.read_text())}/"
 
     def stop_coordinator(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
         if self.coordinator is not None and self.coordinator.poll() is None:
@@ -345,11 +361,14 @@ async def _local(args) -> int:
     drifts = dict(zip(slots, spread(len(slots), args.clock_drift_ppm, 2)))
     with LocalRig(slots, workdir, output_size=(w, h), content_size=(w, h), clock_offsets_ms=offsets,
                   clock_drifts_ppm=drifts, snapshots=True, netns=args.netns, link=args.link,
-                  coordinator_link=args.coordinator_link) as rig:
+                  coordinator_link=args.coordinator_link, console=not args.netns) as rig:
         if rig.venue is not None:
             print(rig.venue.describe(), file=sys.stderr)
         print(f"rig {rig.rig_name}: coordinator on {rig.coordinator_target}, {len(slots)} nodes; logs in {rig.log_dir}",
               file=sys.stderr)
+        if rig.console:
+            print(f"operator console: {rig.console_url()} (log in with the token in {rig.rig_dir / 'token'})",
+                  file=sys.stderr)
         async with await rig.client() as c:
             await rig.wait_live(c)
             img = read_image(args.image) if args.image else card_image(w, h)

@@ -34,7 +34,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from coordinator.jobs.errors import JobError
 
-__all__ = ["option", "parse_options", "add_arguments", "params_from_args", "describe", "OptionInfo"]
+__all__ = ["option", "parse_options", "add_arguments", "params_from_args", "describe", "form_fields", "OptionInfo"]
 
 _META = "shadowless.option"
 
@@ -329,6 +329,42 @@ def params_from_args(cls: type, args: argparse.Namespace, *, exclude: Sequence[s
     for f, info, _ in _fields(cls):
         if info.cli and f.name not in exclude and hasattr(args, f.name):
             out[f.name] = getattr(args, f.name)
+    return out
+
+
+def _json_default(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        d = f.default
+    elif f.default_factory is not dataclasses.MISSING:
+        d = f.default_factory()
+    else:
+        return None
+    if isinstance(d, tuple):
+        return list(d)
+    return d if isinstance(d, (bool, int, float, str, list)) or d is None else str(d)
+
+
+def form_fields(cls: type) -> list[dict[str, Any]]:
+    """One entry per option, for a form (the operator console): name, ``kind`` (``bool``,
+    ``int``, ``float``, ``str``, ``choice``, ``list``, ``pair`` or ``json``), the default as
+    JSON, the choices, the bounds, whether it may be null, its group and help."""
+    out = []
+    for f, info, tp in _fields(cls):
+        base, optional = _split_optional(tp)
+        origin = typing.get_origin(base)
+        if info.choices is not None:
+            kind = "choice"
+        elif base in (bool, int, float, str):
+            kind = base.__name__
+        elif origin is list:
+            kind = "list"
+        elif origin is tuple and len(typing.get_args(base)) == 2:
+            kind = "pair"
+        else:
+            kind = "json"
+        out.append({"name": f.name, "kind": kind, "default": _json_default(f), "optional": optional,
+                    "choices": list(info.choices) if info.choices is not None else None, "lo": info.lo,
+                    "hi": info.hi, "group": info.group or "", "help": info.help})
     return out
 
 

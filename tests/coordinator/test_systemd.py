@@ -39,7 +39,7 @@ def test_ready_keepalives_freeze_and_stopping(tmp_path):
     sock.bind(str(tmp_path / "notify"))
     env = {**os.environ, "NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "2000000"}
     proc = subprocess.Popen([sys.executable, "-m", "shadowless", "coordinator", "--rig", str(rig), "--listen",
-                             "127.0.0.1:0", "--no-mdns"], env=env, stdout=subprocess.DEVNULL,
+                             "127.0.0.1:0", "--no-mdns", "--no-console"], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60

@@ -1,0 +1,225 @@
+"""The console's web application: routes, the login and session checks every request passes,
+and the security headers every response carries.
+
+* ``GET /`` and ``/static/*``: the page (plain files shipped with the package; the HTML embeds
+  no rig data, everything arrives as JSON and is put on the page with ``textContent``).
+* ``POST /login`` (the rig token), ``POST /logout``, ``GET /api/session`` (the CSRF token of
+  the browser's session, for a reloaded page).
+* ``GET /api/status`` (the snapshot, JSON), ``GET /api/events`` (server-sent events) and
+  ``GET /api/job/options`` (every job's options, for the job form).
+* ``POST /api/stop``, ``/api/blackout``, ``/api/identify``, ``/api/gain``, ``/api/show``, ``/api/play``,
+  ``/api/job`` (start one) and ``/api/job/cancel``.
+
+Every POST must come from the console's own origin (``Origin`` header) and, but the login,
+carry the session's CSRF token in ``X-CSRF-Token``; everything under ``/api/`` needs a session.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from importlib import resources
+from typing import TYPE_CHECKING, Awaitable, Callable
+
+from aiohttp import web
+
+from coordinator.console import auth
+from coordinator.console.actions import MAX_UPLOAD_BYTES, Actions
+from coordinator.jobs.errors import JobError
+from coordinator.jobs.options import form_fields
+from coordinator.jobs.registry import JOBS, resolve
+
+if TYPE_CHECKING:  # pragma: no cover - types only
+    from coordinator.console.audit import ActionLog
+    from coordinator.console.live import Live
+    from coordinator.server import Coordinator
+
+log = logging.getLogger(__name__)
+
+#: no inline script or style, nothing from elsewhere, never framed
+CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; "
+       "form-action 'self'; frame-ancestors 'none'; base-uri 'none'")
+SECURITY_HEADERS = {
+    "Content-Security-Policy": CSP,
+    "X-Content-Type-Options": "nosniff",
+    "X-Frame-Options": "DENY",
+    "Referrer-Policy": "no-referrer",
+    "Cross-Origin-Opener-Policy": "same-origin",
+    "Cross-Origin-Resource-Policy": "same-origin",
+}
+STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
+MAX_LOGIN_BYTES = 4096
+
+KEY = web.AppKey("console", object)
+
+
+def _load_static() -> dict[str, bytes]:
+    root = resources.files("coordinator.console") / "static"
+    return {name: (root / name).read_bytes() for name in STATIC}
+
+
+def client_address(request: web.Request) -> str:
+    """The peer's address (no proxy is trusted: forwarded headers are ignored)."""
+    return request.remote or "unknown"
+
+
+def _error(cls: type[web.HTTPException], message: str, **kw) -> web.HTTPException:
+    return cls(text=json.dumps({"ok": False, "error": message}), content_type="application/json", **kw)
+
+
+class ConsoleApp:
+    """The handlers, sharing the console's sessions, limiter, live view, actions and log."""
+
+    def __init__(self, coord: "Coordinator", audit: "ActionLog", live: "Live", *, secure: bool,
+                 idle_s: float = auth.IDLE_S):
+        self.coord, self.audit, self.live, self.secure = coord, audit, live, secure
+        self.sessions = auth.Sessions(idle_s=idle_s)
+        self.limiter = auth.LoginLimiter()
+        self.actions = Actions(coord, audit, live)
+        self.static = _load_static()
+        self._job_options: str | None = None
+
+    # ------------------------------------------------------------------ checks
+    def origin_ok(self, request: web.Request) -> bool:
+        """Whether a POST comes from this console's own page (its Origin is this origin)."""
+        origin = request.headers.get("Origin")
+        if not origin:
+            return False
+        return origin.lower() == f"{request.scheme}://{request.host}".lower()
+
+    def session_of(self, request: web.Request, *, touch: bool = True) -> auth.Session | None:
+        return self.sessions.get(request.cookies.get(auth.COOKIE), touch=touch)
+
+    def guard(self, handler: Callable[[web.Request, auth.Session], Awaitable[web.StreamResponse]]):
+        """A handler that needs a session; for POST also the Origin and the CSRF token."""
+
+        async def wrapped(request: web.Request) -> web.StreamResponse:
+            if request.method == "POST" and not self.origin_ok(request):
+                raise _error(web.HTTPForbidden, "refused: the request does not come from the console's own page "
+                                                "(Origin missing or foreign)")
+            session = self.session_of(request)
+            if session is None:
+                raise _error(web.HTTPUnauthorized, "log in first (no session, or it expired)")
+            if request.method == "POST" and not auth.csrf_ok(session, request.headers.get(auth.CSRF_HEADER)):
+                raise _error(web.HTTPForbidden, f"refused: missing or wrong {auth.CSRF_HEADER} header; reload the page")
+            return await handler(request, session)
+
+        return wrapped
+
+    # ------------------------------------------------------------------ pages
+    def _static(self, name: str) -> web.Response:
+        return web.Response(body=self.static[name], content_type=STATIC[name], charset="utf-8",
+                            headers={"Cache-Control": "no-cache"})
+
+    async def index(self, request: web.Request) -> web.Response:
+        return self._static("index.html")
+
+    async def static_file(self, request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        if name not in STATIC or name == "index.html":
+            raise web.HTTPNotFound()
+        return self._static(name)
+
+    # ------------------------------------------------------------------ login
+    async def login(self, request: web.Request) -> web.Response:
+        address = client_address(request)
+        if not self.origin_ok(request):
+            raise _error(web.HTTPForbidden, "refused: the login does not come from the console's own page")
+        wait = self.limiter.retry_after(address)
+        if wait:
+            raise _error(web.HTTPTooManyRequests, f"too many failed logins from {address}: try again in {wait} s",
+                         headers={"Retry-After": str(wait)})
+        raw = await request.content.read(MAX_LOGIN_BYTES + 1)
+        token = ""
+        try:
+            doc = json.loads(raw) if len(raw) <= MAX_LOGIN_BYTES else None
+            if isinstance(doc, dict) and isinstance(doc.get("token"), str):
+                token = doc["token"]
+        except ValueError:
+            pass
+        if not token or not auth.token_matches(token, self.coord.handshake.token):
+            self.limiter.failed(address)
+            await self.audit.record(who="-", address=address, action="login", ok=False, result="wrong token")
+            self.live.poke()
+            raise _error(web.HTTPUnauthorized, "wrong token: paste the rig's token (the file `token` in the rig "
+                                               "directory)")
+        session = self.sessions.open(address)
+        await self.audit.record(who=session.who, address=address, action="login", ok=True, result="logged in")
+        self.live.poke()
+        resp = web.json_response({"ok": True, "csrf": session.csrf, "who": session.who})
+        resp.set_cookie(auth.COOKIE, session.sid, httponly=True, samesite="Strict", secure=self.secure, path="/")
+        return resp
+
+    async def logout(self, request: web.Request, session: auth.Session) -> web.Response:
+        self.sessions.close(session.sid)
+        await self.audit.record(who=session.who, address=client_address(request), action="logout", ok=True,
+                                result="logged out")
+        self.live.poke()
+        resp = web.json_response({"ok": True})
+        resp.del_cookie(auth.COOKIE, path="/", samesite="Strict", secure=self.secure, httponly=True)
+        return resp
+
+    async def session_info(self, request: web.Request, session: auth.Session) -> web.Response:
+        return web.json_response({"ok": True, "csrf": session.csrf, "who": session.who})
+
+    # ------------------------------------------------------------------ the rig
+    async def status(self, request: web.Request, session: auth.Session) -> web.Response:
+        return web.Response(text=self.live.current(), content_type="application/json")
+
+    async def job_options(self, request: web.Request, session: auth.Session) -> web.Response:
+        """Every job's options (name, kind, default, choices, bounds, group, help), for its form."""
+        if self._job_options is None:
+            def build() -> dict:
+                out = {}
+                for kind in JOBS:
+                    try:
+                        out[kind] = form_fields(resolve(kind).options)
+                    except JobError as exc:      # a job whose libraries this install lacks
+                        out[kind] = {"unavailable": str(exc)}
+                return out
+            self._job_options = json.dumps(await asyncio.to_thread(build), allow_nan=False)
+        return web.Response(text=self._job_options, content_type="application/json")
+
+    async def events(self, request: web.Request, session: auth.Session) -> web.StreamResponse:
+        sid = session.sid
+        return await self.live.stream(request, lambda: self.sessions.get(sid, touch=False) is not None,
+                                      headers=SECURITY_HEADERS)
+
+
+@web.middleware
+async def security_headers(request: web.Request, handler) -> web.StreamResponse:
+    """The security headers on every answer, errors included; nothing under /api/ is cached."""
+    try:
+        resp = await handler(request)
+    except web.HTTPException as exc:
+        exc.headers.update(SECURITY_HEADERS)
+        exc.headers.setdefault("Cache-Control", "no-store")
+        raise
+    if not resp.prepared:       # an event stream set its own before it started
+        resp.headers.update(SECURITY_HEADERS)
+        if request.path.startswith(("/api/", "/login", "/logout")):
+            resp.headers["Cache-Control"] = "no-store"
+    return resp
+
+
+def make_app(console: ConsoleApp) -> web.Application:
+    app = web.Application(middlewares=[security_headers], client_max_size=MAX_UPLOAD_BYTES + (1 << 20))
+    app[KEY] = console
+    c, a = console, console.actions
+    app.router.add_get("/", c.index)
+    app.router.add_get("/static/{name}", c.static_file)
+    app.router.add_post("/login", c.login)
+    app.router.add_post("/logout", c.guard(c.logout))
+    app.router.add_get("/api/session", c.guard(c.session_info))
+    app.router.add_get("/api/status", c.guard(c.status))
+    app.router.add_get("/api/events", c.guard(c.events))
+    app.router.add_get("/api/job/options", c.guard(c.job_options))
+    app.router.add_post("/api/stop", c.guard(a.stop))
+    app.router.add_post("/api/blackout", c.guard(a.blackout))
+    app.router.add_post("/api/identify", c.guard(a.identify))
+    app.router.add_post("/api/gain", c.guard(a.gain))
+    app.router.add_post("/api/show", c.guard(a.show))
+    app.router.add_post("/api/play", c.guard(a.play))
+    app.router.add_post("/api/job", c.guard(a.job))
+    app.router.add_post("/api/job/cancel", c.guard(a.cancel_job))
+    return app

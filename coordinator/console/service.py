@@ -1,0 +1,119 @@
+"""The operator console's web server, in the coordinator's event loop.
+
+``Console(coordinator, "127.0.0.1:7680")``, ``await start()``, ``await stop()``; :attr:`port`
+is the port it listens on (port 0 picks a free one). It serves HTTPS with the coordinator's
+certificate when the coordinator has one (``Coordinator.tls``), plain HTTP otherwise.
+"""
+from __future__ import annotations
+
+import ipaddress
+import logging
+import os
+import ssl
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from aiohttp import web
+
+from coordinator.console import auth
+from coordinator.console.app import ConsoleApp, make_app
+from coordinator.console.audit import ActionLog
+from coordinator.console.live import Live
+from coordinator.errors import CoordinatorError
+
+if TYPE_CHECKING:  # pragma: no cover - types only
+    from coordinator.server import Coordinator
+
+log = logging.getLogger(__name__)
+
+#: where the console listens unless the operator says otherwise
+DEFAULT_LISTEN = "127.0.0.1:7680"
+
+
+def parse_listen(listen: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``[v6]:PORT`` for IPv6) -> (host, port); CoordinatorError naming the form."""
+    host, sep, port = str(listen).strip().rpartition(":")
+    host = host.strip("[]")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise CoordinatorError(f"console address {listen!r} must be HOST:PORT, e.g. {DEFAULT_LISTEN} "
+                               "(port 0: any free port; [::1]:7680 for IPv6)")
+    return host, int(port)
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def ssl_context(tls: tuple[bytes, bytes]) -> ssl.SSLContext:
+    """A server context for the PEM certificate (chain) and key (loaded from private temp files)."""
+    cert, key = tls
+    ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    with tempfile.TemporaryDirectory(prefix="shadowless-console-") as d:
+        paths = []
+        for name, data in (("cert.pem", cert), ("key.pem", key)):
+            p = Path(d) / name
+            fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            paths.append(p)
+        try:
+            ctx.load_cert_chain(paths[0], paths[1])
+        except ssl.SSLError as exc:
+            raise CoordinatorError(f"the console cannot use the coordinator's TLS certificate and key: {exc}") from exc
+    return ctx
+
+
+class Console:
+    """The operator console of ``coordinator``, listening on ``listen`` (``HOST:PORT``)."""
+
+    def __init__(self, coordinator: "Coordinator", listen: str = DEFAULT_LISTEN, *, idle_s: float = auth.IDLE_S):
+        self.coord = coordinator
+        self.listen = listen
+        self.host, self._port = parse_listen(listen)
+        self.idle_s = idle_s
+        self.port = 0
+        self.secure = coordinator.tls is not None
+        self.app: ConsoleApp | None = None
+        self._runner: web.AppRunner | None = None
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{'https' if self.secure else 'http'}://{host}:{self.port}/"
+
+    async def start(self) -> None:
+        ctx = ssl_context(self.coord.tls) if self.coord.tls is not None else None
+        audit = ActionLog(self.coord.rig.path)
+        live = Live(self.coord, audit)
+        self.app = ConsoleApp(self.coord, audit, live, secure=self.secure, idle_s=self.idle_s)
+        runner = web.AppRunner(make_app(self.app), access_log=None, handle_signals=False, shutdown_timeout=2.0)
+        await runner.setup()
+        try:
+            site = web.TCPSite(runner, self.host, self._port, ssl_context=ctx)
+            await site.start()
+        except OSError as exc:
+            await runner.cleanup()
+            raise CoordinatorError(f"the console cannot listen on {self.listen}: {exc}") from exc
+        self._runner = runner
+        self.port = int(runner.addresses[0][1])
+        live.start()
+        self.coord.jobs.on_change = live.poke      # a job's progress reaches the page as it happens
+        if not is_loopback(self.host):
+            log.warning("the operator console at %s is reachable from other machines%s", self.url,
+                        "" if self.secure else " WITHOUT TLS: the token and the session travel in clear; give the "
+                                               "coordinator a certificate")
+        log.info("operator console at %s", self.url)
+
+    async def stop(self) -> None:
+        self.coord.jobs.on_change = lambda: None
+        if self.app is not None:
+            await self.app.live.stop()      # the open event streams end
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None

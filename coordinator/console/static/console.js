@@ -1,0 +1,480 @@
+// The shadowless operator console. No build step, no libraries.
+// Every piece of rig data is put on the page with textContent or setAttribute, never as HTML.
+"use strict";
+
+const SVG = "http://www.w3.org/2000/svg";
+const HISTORY_S = 600;
+let csrf = "";
+let events = null;
+let history = [];
+let snap = null;
+const rows = new Map();          // slot -> {tr, cells, gainInput, gainError}
+
+const $ = (id) => document.getElementById(id);
+
+function el(tag, attrs, text) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  return e;
+}
+
+function svgEl(tag, attrs, text) {
+  const e = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, String(v));
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  return e;
+}
+
+function clear(node) { while (node.firstChild) node.removeChild(node.firstChild); }
+
+function fmt(x, digits) {
+  if (x === null || x === undefined || Number.isNaN(x)) return "–";
+  return typeof x === "number" ? x.toFixed(digits === undefined ? 1 : digits) : String(x);
+}
+
+function ago(unix) {
+  const s = Math.max(0, Date.now() / 1000 - unix);
+  if (s < 90) return `${Math.round(s)} s ago`;
+  if (s < 5400) return `${Math.round(s / 60)} min ago`;
+  return `${(s / 3600).toFixed(1)} h ago`;
+}
+
+// ------------------------------------------------------------------ talking to the coordinator
+async function api(path, options) {
+  const opts = Object.assign({ credentials: "same-origin", headers: {} }, options || {});
+  if ((opts.method || "GET") === "POST") opts.headers["X-CSRF-Token"] = csrf;
+  const resp = await fetch(path, opts);
+  let body = {};
+  try { body = await resp.json(); } catch (e) { body = { ok: false, error: `HTTP ${resp.status}` }; }
+  if (!resp.ok || body.ok === false) {
+    const err = new Error(body.error || `HTTP ${resp.status}`);
+    err.status = resp.status;
+    err.retryAfter = resp.headers.get("Retry-After");
+    throw err;
+  }
+  return body;
+}
+
+function postJSON(path, doc) {
+  return api(path, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(doc) });
+}
+
+// Run an action: disable its button, show its error beside it (the log shows it too).
+async function act(button, errorEl, fn) {
+  errorEl.textContent = "";
+  button.disabled = true;
+  try {
+    await fn();
+  } catch (e) {
+    errorEl.textContent = e.message;
+    if (e.status === 401) showLogin("Your session ended: log in again.");
+  } finally {
+    button.disabled = false;
+  }
+}
+
+// ------------------------------------------------------------------ login
+function showLogin(message) {
+  if (events) { events.close(); events = null; }
+  csrf = "";
+  $("main-view").hidden = true;
+  $("logout").hidden = true;
+  $("who").textContent = "";
+  $("conn").textContent = "not connected";
+  $("conn").classList.remove("ok");
+  $("login-view").hidden = false;
+  $("login-error").textContent = message || "";
+  $("token").focus();
+}
+
+function showMain(who) {
+  $("login-view").hidden = true;
+  $("main-view").hidden = false;
+  $("logout").hidden = false;
+  $("who").textContent = `session ${who}`;
+  connect();
+}
+
+async function login(ev) {
+  ev.preventDefault();
+  const button = $("login-button");
+  button.disabled = true;
+  $("login-error").textContent = "";
+  try {
+    const r = await postJSON("/login", { token: $("token").value });
+    $("token").value = "";
+    csrf = r.csrf;
+    showMain(r.who);
+  } catch (e) {
+    let msg = e.message;
+    if (e.status === 429 && e.retryAfter) msg += ` (retry after ${e.retryAfter} s)`;
+    $("login-error").textContent = msg;
+  } finally {
+    button.disabled = false;
+  }
+}
+
+async function logout() {
+  try { await api("/logout", { method: "POST" }); } catch (e) { /* ended anyway */ }
+  showLogin("Logged out.");
+}
+
+// ------------------------------------------------------------------ the event stream
+function connect() {
+  if (events) events.close();
+  events = new EventSource("/api/events");
+  events.addEventListener("open", () => { $("conn").textContent = "live"; $("conn").classList.add("ok"); });
+  events.addEventListener("error", async () => {
+    $("conn").textContent = "reconnecting…";
+    $("conn").classList.remove("ok");
+    if (events && events.readyState === EventSource.CLOSED) {
+      try { await api("/api/session"); setTimeout(connect, 1000); }
+      catch (e) { showLogin("Your session ended: log in again."); }
+    }
+  });
+  events.addEventListener("snapshot", (e) => { snap = JSON.parse(e.data); render(snap); });
+  events.addEventListener("history", (e) => { history = JSON.parse(e.data); drawPlots(); });
+  events.addEventListener("sample", (e) => {
+    history.push(JSON.parse(e.data));
+    if (history.length > HISTORY_S) history.splice(0, history.length - HISTORY_S);
+    drawPlots();
+  });
+}
+
+// ------------------------------------------------------------------ rendering
+function render(s) {
+  $("rig-name").textContent = `${s.rig.name} (${s.rig.id})`;
+  $("showing").textContent = s.showing || "nothing";
+  const sh = s.show;
+  $("show-state").textContent = sh.state !== "none" ? `show ${sh.state}: ${sh.name || sh.asset_id.slice(0, 12)}` : "";
+  const y = s.sync;
+  $("sync-line").textContent = `skew p50 ${fmt(y.skew_p50_ms, 2)} ms, p99 ${fmt(y.skew_p99_ms, 2)} ms over ` +
+    `${y.frames} frames (${y.skew_source || "no frames yet"}); late ${y.frames_late}, dropped ${y.frames_dropped}`;
+  drawLayout(s);
+  renderNodes(s.slots);
+  renderRefusals(s.refusals);
+  renderAssets(s.assets);
+  renderActions(s.actions);
+  renderJob(s.job);
+}
+
+function drawLayout(s) {
+  const svg = $("layout");
+  const [w, h] = s.rig.content_size;
+  const m = 0.08 * Math.max(w, h);
+  let x0 = -m, y0 = -m, x1 = w + m, y1 = h + m;
+  for (const n of s.slots) {
+    if (!n.footprint) continue;
+    for (const [x, y] of n.footprint) {
+      x0 = Math.min(x0, x - m / 2); y0 = Math.min(y0, y - m / 2);
+      x1 = Math.max(x1, x + m / 2); y1 = Math.max(y1, y + m / 2);
+    }
+  }
+  svg.setAttribute("viewBox", `${x0} ${y0} ${x1 - x0} ${y1 - y0}`);
+  clear(svg);
+  svg.appendChild(svgEl("rect", { class: "table-area", x: -0.5, y: -0.5, width: w, height: h }));
+  const fontSize = 0.045 * Math.max(w, h);
+  svg.appendChild(svgEl("text", { class: "fp-label", x: w / 2, y: h + m / 2, "font-size": fontSize * 0.8 },
+                        `table: content ${w}×${h} px`));
+  const unposed = $("unposed");
+  clear(unposed);
+  for (const n of s.slots) {
+    if (n.footprint) {
+      const g = svgEl("g", { "data-slot": n.slot, class: `fp state-${n.state}` });
+      g.appendChild(svgEl("polygon", { class: `footprint state-${n.state}`,
+        points: n.footprint.map(([x, y]) => `${x},${y}`).join(" ") }));
+      const cx = n.footprint.reduce((a, p) => a + p[0], 0) / 4;
+      const cy = n.footprint.reduce((a, p) => a + p[1], 0) / 4;
+      const label = svgEl("text", { class: "fp-label", x: cx, y: cy, "font-size": fontSize }, `${n.slot}: ${n.state}`);
+      g.appendChild(label);
+      g.appendChild(svgEl("title", {}, `${n.slot}: ${n.state}`));
+      svg.appendChild(g);
+    } else {
+      const tile = el("div", { class: `tile state-${n.state}`, "data-slot": n.slot, title: n.state }, n.slot);
+      unposed.appendChild(tile);
+    }
+  }
+}
+
+function renderNodes(slots) {
+  const tbody = $("nodes").tBodies[0];
+  const seen = new Set();
+  for (const n of slots) {
+    seen.add(n.slot);
+    let r = rows.get(n.slot);
+    if (!r) { r = makeRow(n.slot); rows.set(n.slot, r); }
+    tbody.appendChild(r.tr);          // keeps the coordinator's order
+    const c = r.cells;
+    c.state.textContent = n.state;
+    c.state.className = `state state-${n.state}`;
+    r.tr.setAttribute("data-state", n.state);
+    c.host.textContent = n.host ? `${n.host} (pid ${n.pid})` : "–";
+    c.offset.textContent = fmt(n.clock_offset_ms, 1);
+    c.drift.textContent = fmt(n.clock_drift_ppm, 1);
+    c.rtt.textContent = fmt(n.clock_rtt_ms, 1);
+    c.shown.textContent = n.frames_shown;
+    c.late.textContent = n.frames_late;
+    c.dropped.textContent = n.frames_dropped;
+    c.assets.textContent = `${n.assets_ready}/${n.assets_wanted}`;
+    if (document.activeElement !== r.gainInput && !r.gainInput.dataset.dirty && n.gain !== null) {
+      r.gainInput.value = String(n.gain);
+    }
+    c.refusal.textContent = n.refusal ? `${n.refusal.reason} (${n.refusal.count}×, ${ago(n.refusal.at)})` : "";
+  }
+  for (const [slot, r] of rows) {
+    if (!seen.has(slot)) { r.tr.remove(); rows.delete(slot); }
+  }
+}
+
+function makeRow(slot) {
+  const tr = el("tr", { "data-slot": slot });
+  const cells = {};
+  const add = (name, cls) => { const td = el("td", cls ? { class: cls } : {}); tr.appendChild(td); cells[name] = td; return td; };
+  add("slot").textContent = slot;
+  add("state", "state");
+  add("host");
+  for (const k of ["offset", "drift", "rtt", "shown", "late", "dropped"]) add(k, "num");
+  add("assets", "num");
+  const gainTd = add("gain");
+  const input = el("input", { class: "gain", type: "number", min: "0", max: "16", step: "0.05",
+                              "aria-label": `gain of ${slot}` });
+  input.addEventListener("input", () => { input.dataset.dirty = "1"; });
+  const button = el("button", { type: "button", class: "gain-set" }, "Set");
+  const err = el("span", { class: "error", role: "alert" });
+  button.addEventListener("click", () => act(button, err, async () => {
+    await postJSON("/api/gain", { slot, gain: input.value === "" ? null : Number(input.value) });
+    delete input.dataset.dirty;
+  }));
+  gainTd.append(input, button, err);
+  add("refusal", "reason");
+  return { tr, cells, gainInput: input, gainError: err };
+}
+
+function renderRefusals(list) {
+  const tbody = $("refusals").tBodies[0];
+  clear(tbody);
+  if (!list.length) { tbody.appendChild(el("tr")).appendChild(el("td", { colspan: "5", class: "muted" }, "none")); return; }
+  for (const r of list) {
+    const tr = el("tr");
+    tr.append(el("td", {}, r.peer), el("td", {}, r.slot || "–"), el("td", { class: "num" }, r.count),
+              el("td", {}, ago(r.at)), el("td", { class: "reason" }, r.reason));
+    tbody.appendChild(tr);
+  }
+}
+
+function renderAssets(list) {
+  const sel = $("asset");
+  const keep = sel.value;
+  const key = JSON.stringify(list.map((a) => a.id));
+  if (sel.dataset.key === key) return;
+  sel.dataset.key = key;
+  clear(sel);
+  if (!list.length) sel.appendChild(el("option", { value: "" }, "no assets (shadowless content add)"));
+  for (const a of list) {
+    sel.appendChild(el("option", { value: a.id }, `${a.name || "(unnamed)"} — ${a.kind}, ${a.frames} frames, ${a.id.slice(0, 12)}`));
+  }
+  if (list.some((a) => a.id === keep)) sel.value = keep;
+}
+
+function renderActions(list) {
+  const tbody = $("actions").tBodies[0];
+  clear(tbody);
+  for (const a of list) {
+    const tr = el("tr", a.ok ? {} : { class: "failed" });
+    const params = Object.keys(a.params || {}).length ? JSON.stringify(a.params) : "";
+    tr.append(el("td", {}, a.time.replace("T", " ").replace("+00:00", " UTC")), el("td", {}, a.who),
+              el("td", {}, a.address), el("td", {}, a.action), el("td", { class: "reason" }, params),
+              el("td", { class: "reason" }, `${a.ok ? "ok" : "refused"}: ${a.result}`));
+    tbody.appendChild(tr);
+  }
+}
+
+// ------------------------------------------------------------------ jobs
+let jobOptions = null;
+
+function fieldInput(f) {
+  // One form control per job option; only what the operator changes is sent (defaults live in the job).
+  const id = `job-opt-${f.name}`;
+  let input;
+  if (f.kind === "bool") {
+    input = el("input", { id, type: "checkbox" });
+    input.checked = !!f.default;
+  } else if (f.kind === "choice") {
+    input = el("select", { id });
+    input.appendChild(el("option", { value: "" }, f.default === null ? "(default)" : `(default: ${f.default})`));
+    for (const c of f.choices) input.appendChild(el("option", { value: String(c) }, String(c)));
+  } else if (f.kind === "int" || f.kind === "float") {
+    input = el("input", { id, type: "number", step: f.kind === "int" ? "1" : "any",
+                          placeholder: f.default === null ? "" : String(f.default) });
+    if (f.lo !== null) input.setAttribute("min", String(f.lo));
+    if (f.hi !== null) input.setAttribute("max", String(f.hi));
+  } else {
+    const ph = f.default === null ? "" : (Array.isArray(f.default) ? f.default.join(f.kind === "pair" ? "x" : ",") : String(f.default));
+    input = el("input", { id, type: "text", spellcheck: "false", placeholder: ph });
+  }
+  input.dataset.kind = f.kind;
+  input.dataset.name = f.name;
+  input.dataset.initial = f.kind === "bool" ? String(!!f.default) : "";
+  const label = el("label", { for: id, title: f.help }, f.name);
+  const wrap = el("div", {});
+  wrap.append(label, input);
+  return wrap;
+}
+
+function renderJobFields() {
+  const box = $("job-fields");
+  clear(box);
+  const fields = jobOptions && jobOptions[$("job-kind").value];
+  if (!fields) return;
+  if (fields.unavailable) { box.appendChild(el("p", { class: "error" }, fields.unavailable)); return; }
+  const groups = new Map();
+  for (const f of fields) {
+    if (!groups.has(f.group)) groups.set(f.group, []);
+    groups.get(f.group).push(f);
+  }
+  for (const [g, list] of groups) {
+    const fs = el("fieldset", {});
+    fs.appendChild(el("legend", {}, g || "options"));
+    for (const f of list) fs.appendChild(fieldInput(f));
+    box.appendChild(fs);
+  }
+}
+
+function jobParams() {
+  // The options the operator set, as JSON values; a value that does not parse is refused here.
+  const params = {};
+  for (const input of $("job-fields").querySelectorAll("[data-name]")) {
+    const k = input.dataset.kind, name = input.dataset.name;
+    if (k === "bool") { if (String(input.checked) !== input.dataset.initial) params[name] = input.checked; continue; }
+    const v = input.value.trim();
+    if (v === "") continue;
+    if (k === "int" || k === "float") params[name] = Number(v);
+    else if (k === "list") params[name] = v.split(",").map((s) => s.trim()).filter((s) => s);
+    else if (k === "pair") params[name] = v.split(/[x,]/).map((s) => Number(s.trim()));
+    else if (k === "json") {
+      try { params[name] = JSON.parse(v); } catch (e) { params[name] = v; }   // a path or a name stays text
+    } else params[name] = v;
+  }
+  return params;
+}
+
+async function loadJobOptions(kinds) {
+  const sel = $("job-kind");
+  if (sel.options.length === 0) for (const k of kinds) sel.appendChild(el("option", { value: k }, k));
+  if (jobOptions === null) {
+    jobOptions = {};
+    try { jobOptions = await api("/api/job/options"); } catch (e) { $("job-error").textContent = e.message; }
+    renderJobFields();
+  }
+}
+
+function renderJob(job) {
+  if (snap && snap.job_kinds) loadJobOptions(snap.job_kinds);
+  const line = $("job-line"), bar = $("job-progress"), logEl = $("job-log");
+  if (!job) { line.textContent = "no job has run since the coordinator started"; bar.hidden = true; logEl.textContent = ""; return; }
+  const eta = job.eta_s === null ? "" : `, about ${Math.round(job.eta_s)} s left in this stage`;
+  const stage = job.stage ? `${job.stage}${job.item ? " (" + job.item + ")" : ""}: ${job.done}/${job.total}` : "starting";
+  if (job.state === "running") {
+    line.textContent = `${job.kind} running, ${Math.round(job.elapsed_s)} s — ${stage}${eta}`;
+  } else {
+    const how = job.state === "failed" ? `failed: ${job.error}` : job.state;
+    line.textContent = `${job.kind} ${how} after ${Math.round(job.elapsed_s)} s`;
+  }
+  line.className = `job-line job-${job.state}`;
+  bar.hidden = !(job.state === "running" && job.total > 0);
+  if (job.total > 0) { bar.max = job.total; bar.value = job.done; }
+  logEl.textContent = (job.message ? job.message + "\n" : "") + job.log.join("\n");
+  $("job-cancel").disabled = job.state !== "running";
+}
+
+// ------------------------------------------------------------------ plots
+function niceMax(v) {
+  if (!(v > 0)) return 1;
+  const p = Math.pow(10, Math.floor(Math.log10(v)));
+  for (const k of [1, 2, 2.5, 5, 10]) if (v <= k * p) return k * p;
+  return 10 * p;
+}
+
+function drawChart(svg, series, yLabel) {
+  clear(svg);
+  const W = 640, H = 200, L = 56, R = 12, T = 22, B = 36;
+  const now = history.length ? history[history.length - 1].t : Date.now() / 1000;   // the coordinator's clock
+  const span = Math.max(60, Math.min(HISTORY_S, history.length ? now - history[0].t : 60));
+  let ymax = 0;
+  for (const s of series) for (const p of history) { const v = p[s.key]; if (v !== null && v > ymax) ymax = v; }
+  ymax = niceMax(ymax);
+  const X = (t) => L + (W - L - R) * (1 - (now - t) / span);
+  const Y = (v) => T + (H - T - B) * (1 - v / ymax);
+  for (let i = 0; i <= 4; i++) {
+    const v = (ymax * i) / 4;
+    svg.appendChild(svgEl("line", { class: "grid", x1: L, x2: W - R, y1: Y(v), y2: Y(v) }));
+    svg.appendChild(svgEl("text", { x: L - 6, y: Y(v) + 4, "text-anchor": "end" }, +v.toPrecision(3)));
+  }
+  for (let i = 0; i <= 5; i++) {
+    const t = now - (span * i) / 5;
+    svg.appendChild(svgEl("text", { x: X(t), y: H - B + 14, "text-anchor": "middle" },
+                          i === 0 ? "now" : `−${Math.round(span * i / 5)}`));
+  }
+  svg.appendChild(svgEl("line", { class: "axis", x1: L, x2: L, y1: T, y2: H - B }));
+  svg.appendChild(svgEl("line", { class: "axis", x1: L, x2: W - R, y1: H - B, y2: H - B }));
+  svg.appendChild(svgEl("text", { x: (L + W - R) / 2, y: H - 4, "text-anchor": "middle" }, "time (s before now)"));
+  svg.appendChild(svgEl("text", { x: 14, y: (T + H - B) / 2, "text-anchor": "middle",
+                                  transform: `rotate(-90 14 ${(T + H - B) / 2})` }, yLabel));
+  series.forEach((s, i) => {
+    let pts = [];
+    const flush = () => {
+      if (pts.length > 1) svg.appendChild(svgEl("polyline", { class: `line s${i}`, points: pts.join(" ") }));
+      pts = [];
+    };
+    for (const p of history) {
+      const v = p[s.key];
+      if (v === null || v === undefined || now - p.t > span) { flush(); continue; }
+      pts.push(`${X(p.t).toFixed(1)},${Y(v).toFixed(1)}`);
+    }
+    flush();
+    svg.appendChild(svgEl("rect", { class: `s${i}`, x: L + 10 + i * 120, y: 6, width: 10, height: 10 }));
+    svg.appendChild(svgEl("text", { x: L + 24 + i * 120, y: 15 }, s.label));
+  });
+}
+
+function drawPlots() {
+  drawChart($("plot-skew"), [{ key: "skew_p50_ms", label: "skew p50" }, { key: "skew_p99_ms", label: "skew p99" },
+                             { key: "clock_error_ms", label: "clock error" }], "ms");
+  drawChart($("plot-late"), [{ key: "late", label: "late frames" }], "late frames per s");
+}
+
+// ------------------------------------------------------------------ wiring
+document.addEventListener("DOMContentLoaded", async () => {
+  $("login-form").addEventListener("submit", login);
+  $("logout").addEventListener("click", logout);
+  $("stop").addEventListener("click", () => act($("stop"), $("stop-error"), () => api("/api/stop", { method: "POST" })));
+  $("blackout").addEventListener("click",
+    () => act($("blackout"), $("stop-error"), () => api("/api/blackout", { method: "POST" })));
+  $("identify").addEventListener("click",
+    () => act($("identify"), $("stop-error"), () => api("/api/identify", { method: "POST" })));
+  $("show-form").addEventListener("submit", (ev) => {
+    ev.preventDefault();
+    const form = new FormData($("show-form"));
+    act($("show-button"), $("show-error"), () => api("/api/show", { method: "POST", body: form }));
+  });
+  $("play-form").addEventListener("submit", (ev) => {
+    ev.preventDefault();
+    act($("play-button"), $("play-error"),
+        () => postJSON("/api/play", { asset: $("asset").value, loop: $("loop").checked }));
+  });
+  $("job-kind").addEventListener("change", renderJobFields);
+  $("job-form").addEventListener("submit", (ev) => {
+    ev.preventDefault();
+    act($("job-start"), $("job-error"), () => postJSON("/api/job", { kind: $("job-kind").value, params: jobParams() }));
+  });
+  $("job-cancel").addEventListener("click",
+    () => act($("job-cancel"), $("job-error"), () => api("/api/job/cancel", { method: "POST" })));
+  try {
+    const r = await api("/api/session");
+    csrf = r.csrf;
+    showMain(r.who);
+  } catch (e) {
+    showLogin("");
+  }
+});
