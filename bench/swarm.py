@@ -35,7 +35,7 @@ from bench.workdir import run_dir
 from coordinator.api import NodeState, PlaySettings
 from coordinator.assets import AssetStore
 from coordinator.commands import play_dict
-from node.png import write_png
+from node.image_files import write_png
 from shadowless.local import LocalRig, grid_names
 
 TICK_S = os.sysconf("SC_CLK_TCK")

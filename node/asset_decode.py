@@ -5,11 +5,12 @@ What comes out is ``(H, W, C)`` in the content dtype of the asset's bit depth
 (:func:`content_dtype`: uint8 for 8-bit, uint16 for 10/12/16-bit, float32 for float), channels in
 RGB(A) order. How each kind of file is read:
 
-* **PNG** -- :mod:`node.png` (:func:`decode_image` with ``png="node"``), or FFmpeg's PNG decoder
-  through PyAV (``png="av"``). Both are lossless and give the same pixels; PyAV is the fallback
-  for what ``node.png`` refuses (palette, interlaced, 1/2/4-bit) and the fast path for sequences:
-  on a 1080p RGB PNG written with adaptive (Paeth) row filters, as most tools write them,
-  ``node.png`` takes ~550 ms and PyAV ~27 ms (x86 desktop core).
+* **PNG** -- FFmpeg's PNG decoder through PyAV, either :func:`node.image_files.decode_png`
+  (:func:`decode_image` with ``png="node"``: the decoder alone, packed planes read as they are)
+  or the ``png_pipe`` demuxer and :func:`frame_to_array` (``png="av"``). Both are lossless and
+  give the same pixels for 8/16-bit grey, grey+alpha, RGB(A), palette, interlaced and 1/2/4-bit
+  files; ``png_pipe`` is the fallback for what the strict decoder refuses. A 1080p RGB 8-bit PNG
+  decodes in ~50 ms whatever its row filters (x86 desktop core).
 * **JPEG, TIFF** -- PyAV, through FFmpeg's ``jpeg_pipe`` / ``tiff_pipe`` demuxers (a cached blob
   has no file suffix, so the demuxer is named from the blob's original name).
 * **.npy** -- ``numpy.load(mmap_mode="r")`` then a copy: float32 ``(H, W)`` or ``(H, W, C)``.
@@ -40,7 +41,7 @@ import av
 import numpy as np
 
 from node.errors import NodeError
-from node.png import PngError, decode_png
+from node.image_files import PngError, decode_png
 
 __all__ = ["DecodeError", "VideoDecoder", "content_dtype", "decode_image", "frame_to_array", "match_channels"]
 
@@ -158,7 +159,8 @@ def decode_image(path: str | os.PathLike[str], *, name: str, channels: int, bit_
     channels, bit_depth : int
         What the manifest says, for the conversion (PyAV) and the channel count.
     png : {"node", "av"}
-        PNG decoder: :mod:`node.png` first (PyAV for what it refuses) or PyAV only.
+        PNG path: :func:`node.image_files.decode_png` first (``png_pipe`` for what it refuses)
+        or the ``png_pipe`` demuxer only; both are FFmpeg's PNG decoder.
 
     Returns
     -------

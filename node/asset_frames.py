@@ -8,10 +8,10 @@ for 8-bit content, uint16 for 10/12/16-bit (scaled to the full 16-bit range), fl
 ``C`` the manifest's channel count (1 grey, 3 RGB; 2 and 4 carry alpha), RGB order. Arrays are
 C-contiguous and read-only (one frame may be handed out more than once).
 
-* ``still``: decoded once, on the first request (PNG with :mod:`node.png`, ``.npy`` with numpy,
-  JPEG/TIFF and what ``node.png`` refuses with PyAV).
-* ``sequence``: frame ``k`` decoded from blob ``k`` (PNG with PyAV: ~20x faster than
-  ``node.png`` on Paeth-filtered files, same pixels; see :mod:`node.asset_decode`).
+* ``still``: decoded once, on the first request (PNG with :mod:`node.image_files`, ``.npy`` with numpy,
+  JPEG/TIFF with PyAV).
+* ``sequence``: frame ``k`` decoded from blob ``k`` (PNG with PyAV's ``png_pipe``, same
+  pixels as :mod:`node.image_files`; see :mod:`node.asset_decode`).
 * ``video``: :class:`node.asset_decode.VideoDecoder`: sequential decoding, seeking for jumps,
   frame index from each frame's timestamp.
 

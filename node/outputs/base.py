@@ -25,7 +25,7 @@ import numpy as np
 
 from node.errors import NodeError
 from node.render.shaders import MIN_GL_VERSION
-from node.png import atomic_write_bytes, encode_png
+from node.image_files import atomic_write_bytes, encode_png
 
 if TYPE_CHECKING:  # pragma: no cover
     import moderngl

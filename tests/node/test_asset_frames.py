@@ -16,7 +16,7 @@ import pytest
 from node.asset_cache import AssetCache
 from node.asset_frames import DecodeAhead, FrameError, FrameNotReady, FrameSource, open_frames
 from node.errors import NodeError
-from node.png import encode_png
+from node.image_files import encode_png
 from protos.asset_manifest import Blob, Manifest, sha256_hex
 
 RATE = Fraction(24)
@@ -164,7 +164,7 @@ def test_tiff_and_jpeg_stills_decode_with_pyav(cache, tmp_path):
 
 
 def test_png_that_node_png_refuses_falls_back_to_pyav(cache, tmp_path):
-    """A 1-bit PNG (node.png reads 8/16-bit only) decodes with FFmpeg's PNG decoder."""
+    """A 1-bit PNG decodes with FFmpeg's PNG decoder."""
     img = np.where(np.random.default_rng(5).random((8, 16)) < 0.5, 0, 255).astype(np.uint8)
     png = _image_file(tmp_path / "b.png", img, "png", "monob", "gray")
     assert png[24] == 1   # IHDR bit depth

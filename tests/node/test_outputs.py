@@ -17,7 +17,7 @@ import pytest
 
 import node.outputs as outputs
 from node.outputs import OffscreenOutput, OutputError, SwapInfo, WindowOutput, open_output
-from node.png import decode_png_text, read_png
+from node.image_files import decode_png_text, read_png
 from node.render import Renderer
 
 REPO = Path(__file__).resolve().parents[2]

@@ -17,7 +17,7 @@ import pytest
 
 from coordinator.api import NodeState, PlaySettings
 from coordinator.assets import AssetStore
-from node.png import write_png
+from node.image_files import write_png
 from protos.timeline import Schedule, Timeline, as_rate
 from shadowless.local import LocalRig
 from shadowless.swarm import Swarm, SwarmConfig, default_slots
