@@ -1,0 +1,2 @@
+"""Analysis of the perception studies: Scheffé's paired comparison (Nakaya's modification) and
+paired tests of task times."""

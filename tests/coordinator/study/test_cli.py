@@ -1,0 +1,50 @@
+"""`shadowless study`: the analyses through the real CLI (registered in shadowless/cli.py)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+
+def study(*args):
+    return subprocess.run([sys.executable, "-m", "shadowless", "study", *map(str, args)], capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_scheffe_and_paired_from_csv(tmp_path):
+    rng = np.random.default_rng(0)
+    effects = {"P1": -1.0, "P9D": 0.3, "P9W": 0.0, "P25": 0.7}
+    names = list(effects)
+    lines = ["participant,first,second,score"]
+    for person in range(10):
+        for i in range(4):
+            for j in range(i + 1, 4):
+                v = np.clip(np.round(effects[names[i]] - effects[names[j]] + rng.normal(0, 0.7)), -2, 2)
+                lines.append(f"s{person},{names[i]},{names[j]},{v:g}")
+    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+    done = study("scheffe", tmp_path / "r.csv", "--json", "--chart", tmp_path / "c.svg")
+    assert done.returncode == 0, done.stderr
+    d = json.loads(done.stdout)
+    assert max(d["scale"], key=d["scale"].get) == "P25" and min(d["scale"], key=d["scale"].get) == "P1"
+    assert (tmp_path / "c.svg").read_text().startswith("<svg")
+    table = study("scheffe", tmp_path / "r.csv")
+    assert "yardstick Y(.05)" in table.stdout and "main effect" in table.stdout
+
+    times = ["participant,condition,time_s"] + [f"p{i},P1,{2.0 + 0.1 * i}" for i in range(8)] + \
+        [f"p{i},P25,{1.5 + 0.11 * i + 0.02 * (i % 3)}" for i in range(8)]
+    (tmp_path / "t.csv").write_text("\n".join(times) + "\n")
+    done = study("paired", tmp_path / "t.csv", "--json")
+    assert done.returncode == 0, done.stderr
+    d = json.loads(done.stdout)
+    assert d["conditions"] == ["P1", "P25"] and d["p"] < 0.01 and d["ratio"] < 1
+
+
+def test_bad_study_files_are_one_line_and_status_2(tmp_path):
+    (tmp_path / "bad.csv").write_text("who,what\n")
+    for args in (("scheffe", tmp_path / "bad.csv"), ("paired", tmp_path / "bad.csv"),
+                 ("scheffe", tmp_path / "missing.csv")):
+        done = study(*args)
+        assert done.returncode == 2 and "Traceback" not in done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1, done.stderr
