@@ -19,6 +19,24 @@ from coordinator.jobs.context import Event, Progress
 LOG_LINES = 200
 
 
+def summarize_params(params: dict[str, Any], *, max_text: int = 200, max_items: int = 16) -> dict[str, Any]:
+    """A job's parameters as shown to people: small values as they are; long text, long lists and
+    nested documents (e.g. a sequence's encoded frames) replaced by what they are and their size."""
+    out: dict[str, Any] = {}
+    for k, v in params.items():
+        if isinstance(v, (bool, int, float)) or v is None:
+            out[k] = v
+        elif isinstance(v, str):
+            out[k] = v if len(v) <= max_text else f"({len(v)} characters)"
+        elif isinstance(v, (list, tuple)):
+            small = len(v) <= max_items and all(isinstance(x, (bool, int, float, str)) and len(str(x)) <= max_text
+                                                or isinstance(x, (list, tuple)) and len(x) <= 8 for x in v)
+            out[k] = list(v) if small else f"({len(v)} items)"
+        else:
+            out[k] = f"({type(v).__name__})"
+    return out
+
+
 @dataclass
 class JobState:
     kind: str
@@ -56,7 +74,7 @@ class JobTracker:
         self.current: JobState | None = None
 
     def begin(self, kind: str, params: dict[str, Any]) -> JobState:
-        self.current = JobState(kind, dict(params), self.clock())
+        self.current = JobState(kind, summarize_params(params), self.clock())
         self.on_change()
         return self.current
 

@@ -467,6 +467,12 @@ def test_the_tracker_estimates_time_left_per_stage():
     t.end(result={"psnr_db": 40.1, "maps": [1, 2]})
     snap = t.snapshot()
     assert snap["state"] == "done" and snap["result"] == {"psnr_db": 40.1} and snap["log"][-1].endswith("a log line")
+    # what a page shows of the parameters stays small, whatever a job was given
+    t.begin("compensate_sequence", {"frames": ["x" * 100_000] * 300, "fps": 30.0, "slots": ["a", "b"],
+                                    "table_points": [[0, 0, 1, 1]] * 4, "note": "y" * 5000, "extra": {"k": 1}})
+    assert t.snapshot()["params"] == {"frames": "(300 items)", "fps": 30.0, "slots": ["a", "b"],
+                                      "table_points": [[0, 0, 1, 1]] * 4, "note": "(5000 characters)",
+                                      "extra": "(dict)"}
 
 
 def test_a_taken_console_port_leaves_the_rig_running(tmp_path):
