@@ -12,6 +12,7 @@ import pytest
 from bench.console import (ConsoleRig, all_shown, browser_missing, chromium, log_in, page_gains, page_states, text_of,
                            visible, wait_for)
 from coordinator.rig import Content
+from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import Select
 
 CI = os.environ.get("CI", "").lower() == "true"
@@ -26,6 +27,14 @@ def browser_ready():
         if CI:
             pytest.fail(f"the console's browser test needs a headless Chromium: {missing}")
         pytest.skip(missing)
+
+
+def type_into(field, text: str) -> None:
+    """Replace a field's text as a person does: focused first (the page leaves a focused field alone
+    when a snapshot arrives), then select all and type."""
+    field.click()
+    field.send_keys(Keys.CONTROL, "a")
+    field.send_keys(text)
 
 
 @pytest.fixture
@@ -79,15 +88,13 @@ def test_the_console_in_a_browser(tmp_path, browser_ready, silent_camera):
 
             # a slot's gain set on the page reaches the rig; a bad one is refused beside its field
             gain = driver.find_element("css selector", '#nodes tr[data-slot="r0c1"] input.gain')
-            gain.clear()
-            gain.send_keys("0.75")
+            type_into(gain, "0.75")
             driver.find_element("css selector", '#nodes tr[data-slot="r0c1"] button.gain-set').click()
             wait_for(lambda: rig.call(lambda: rig.coord.rig.slots["r0c1"].gain) == 0.75, 60, "gain 0.75 on the rig")
             # the button is disabled until the page has the answer, which may come after the rig changed
             set_button = driver.find_element("css selector", '#nodes tr[data-slot="r0c1"] button.gain-set')
             wait_for(set_button.is_enabled, 60, "the Set button enabled again")
-            gain.clear()
-            gain.send_keys("99")
+            type_into(gain, "99")
             driver.find_element("css selector", '#nodes tr[data-slot="r0c1"] button.gain-set').click()
             err = lambda: driver.execute_script(  # noqa: E731
                 "return document.querySelector('#nodes tr[data-slot=\"r0c1\"] .error').textContent;")
