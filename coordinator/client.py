@@ -96,8 +96,8 @@ class Client:
     async def show(self, image: np.ndarray, *, name: str = "", persist: bool = False, space: Space = Space.CONTENT,
                    apply_lut: bool = True, fit: str = "") -> ShowResult:
         """Show ``image`` on every node and hold it. ``fit``: how an image of another aspect than
-        the content area is fitted ("stretch", "contain", "cover"); "" refuses it (OperatorError
-        from the coordinator's INVALID_ARGUMENT)."""
+        the content area is fitted ("stretch", "contain", "cover"); "" refuses it (grpc.aio.AioRpcError,
+        INVALID_ARGUMENT, naming both sizes and the choices)."""
         parts = wire.show_request_parts(image, name=name, persist=persist, space=space, apply_lut=apply_lut, fit=fit)
 
         async def items():
