@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import json
 import os
-import select
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -189,38 +187,28 @@ def test_window_on_an_unreachable_display_says_so(monkeypatch):
         WindowOutput(slot="r0c0")
 
 
+def _xserver():
+    """tests/node/xserver.py (test modules cannot import their siblings by name)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("xserver", Path(__file__).with_name("xserver.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 @pytest.fixture(scope="module")
 def xvfb():
     """A private Xvfb (640x480, 24-bit) on a free display number; yields its DISPLAY string."""
-    exe = shutil.which("Xvfb") or ("/usr/bin/Xvfb" if os.access("/usr/bin/Xvfb", os.X_OK) else None)
-    if exe is None:
-        pytest.fail("Xvfb is not installed: install xvfb (apt-get install xvfb, or `make system-deps`) "
-                    "to test the window output")
-    read_fd, write_fd = os.pipe()
-    proc = subprocess.Popen(
-        [exe, "-displayfd", str(write_fd), "-screen", "0", "640x480x24", "-nolisten", "tcp"],
-        pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-    )
-    os.close(write_fd)
     try:
-        ready, _, _ = select.select([read_fd], [], [], 20.0)
-        number = os.read(read_fd, 64).decode().strip() if ready else ""
-        if not number.isdigit():
-            proc.kill()
-            err = proc.communicate(timeout=10)[1].decode(errors="replace")
-            pytest.fail(f"Xvfb did not start: {err[-2000:]}")
-        yield f":{number}"
+        server = _xserver().xvfb()
+        display = server.__enter__()
+    except RuntimeError as exc:
+        pytest.fail(f"{exc} (needed to test the window output)")
+    try:
+        yield display
     finally:
-        os.close(read_fd)
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
-        if proc.stderr:
-            proc.stderr.close()
+        server.__exit__(None, None, None)
 
 
 WINDOW_SCRIPT = textwrap.dedent(
