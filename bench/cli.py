@@ -17,6 +17,7 @@ BENCHMARKS: dict[str, str] = {
     "compensation_room": "blur compensation through the coordinator's jobs in the virtual room: captures, L error, quality",
     "venue": "a rig on a virtual venue network (namespaces, rate-limited links): discovery and asset distribution",
     "node": "what a node costs its edge computer: render/upload time, CPU, memory, install size (GL 3.3+ and 3.1)",
+    "discovery": "real nodes join their rig while a twin (same id, other token) and another rig advertise",
     "console": "the operator console in headless Chromium: page load, time to all live, update latency, CPU",
 }
 

@@ -9,8 +9,6 @@ plain types of :mod:`coordinator.api`: callers never see a protobuf message.
 from __future__ import annotations
 
 import argparse
-import os
-from pathlib import Path
 from typing import AsyncIterator, Callable, Sequence
 
 import grpc
@@ -22,7 +20,6 @@ from coordinator.errors import CoordinatorError
 from coordinator.jobs.context import Event
 from protos import auth, common_pb2, control_pb2, control_pb2_grpc
 from protos.asset_manifest import Manifest
-from protos.discovery import Discovery
 from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION, SESSION_KEY
 
 
@@ -36,8 +33,9 @@ def add_connection_args(p: argparse.ArgumentParser, *, rig_dir: bool = True) -> 
     g = p.add_argument_group("which coordinator")
     g.add_argument("--coordinator", metavar="HOST:PORT", help="address of the coordinator (default: find it over mDNS)")
     if rig_dir:
-        g.add_argument("--rig-dir", metavar="DIR", help="a rig directory on this machine: its token is used")
-    g.add_argument("--rig", metavar="NAME", help="with mDNS: the rig's name or id")
+        g.add_argument("--rig-dir", metavar="DIR", help="a rig directory on this machine: its token is used, and only "
+                                                        "a coordinator of that rig (its id in rig.toml) is talked to")
+    g.add_argument("--rig", metavar="NAME", help="the rig's name or id (with mDNS, only its coordinators are tried)")
     g.add_argument("--token-file", metavar="FILE", help="rig token (default: $SHADOWLESS_TOKEN_FILE or RIG_DIR/token)")
     g.add_argument("--mdns-interface", action="append", metavar="IP", help="browse mDNS on this IPv4 address only")
     g.add_argument("--tls-ca", metavar="PEM", help="use TLS, trusting this CA certificate")
@@ -53,7 +51,10 @@ class Client:
 
     @classmethod
     async def connect(cls, target: str, token: bytes, *, tls_ca: bytes | None = None,
-                      tls_server_name: str | None = None) -> "Client":
+                      tls_server_name: str | None = None, rig_id: str = "", token_source: str = "") -> "Client":
+        """Prove the token to the coordinator at ``target`` (and it to us) and log in. With
+        ``rig_id``, a coordinator of another rig is refused before anything is sent to it
+        (OperatorError naming both ids); ``token_source`` names the token file in errors."""
         options = list(GRPC_OPTIONS)
         if tls_ca is not None:
             if tls_server_name:
@@ -66,9 +67,13 @@ class Client:
             cn = auth.new_nonce()
             hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=cn,
                                                              role="operator"), timeout=10)
+            if rig_id and hello.rig_id != rig_id:
+                raise OperatorError(f"the coordinator at {target} serves rig {hello.rig_name!r} (id {hello.rig_id}), "
+                                    f"not rig id {rig_id}: another rig's coordinator")
             if not auth.verify(auth.coordinator_proof(token, hello.rig_id, cn, hello.server_nonce), hello.server_proof):
-                raise OperatorError(f"the coordinator at {target} could not prove it knows the rig token "
-                                    "(wrong token file?)")
+                raise OperatorError(f"the coordinator at {target} (rig {hello.rig_name!r}) could not prove it knows "
+                                    f"the token{' in ' + token_source if token_source else ''}: another rig's "
+                                    "coordinator with the same id, or the wrong token file")
             proof = auth.client_proof(token, "operator", hello.rig_id, "", cn, hello.server_nonce)
             reply = await stub.Login(common_pb2.LoginRequest(protocol_version=PROTOCOL_VERSION, role="operator",
                                                              client_nonce=cn, server_nonce=hello.server_nonce,
@@ -212,31 +217,3 @@ class Client:
             return a.asset_id, Manifest.from_bytes(a.manifest, asset_id=a.asset_id)
         except ValueError:
             return a.asset_id, None
-
-
-async def find_coordinator(*, rig: str | None, interfaces: list[str] | None, timeout: float = 3.0) -> str:
-    """The ``host:port`` of the one coordinator advertised over mDNS (of rig ``rig`` when given)."""
-    disc = Discovery(interfaces=interfaces)
-    await disc.start()
-    try:
-        ads = await disc.find(rig=rig, timeout=timeout)
-    finally:
-        await disc.close()
-    if not ads:
-        raise OperatorError("no coordinator found over mDNS; pass --coordinator HOST:PORT")
-    if len({a.rig_id for a in ads}) > 1:
-        raise OperatorError("several rigs found: " + ", ".join(a.name for a in ads) + "; pick one with --rig")
-    return ads[0].target
-
-
-async def open_client(args: argparse.Namespace) -> Client:
-    """A client from the connection options of :func:`add_connection_args`."""
-    token_file = args.token_file or os.environ.get("SHADOWLESS_TOKEN_FILE")
-    if not token_file and args.rig_dir:
-        token_file = str(Path(args.rig_dir) / "token")
-    if not token_file:
-        raise OperatorError("no rig token: pass --rig-dir DIR, --token-file FILE or set SHADOWLESS_TOKEN_FILE")
-    token = auth.read_token(token_file)
-    target = args.coordinator or await find_coordinator(rig=args.rig, interfaces=args.mdns_interface)
-    tls_ca = Path(args.tls_ca).read_bytes() if getattr(args, "tls_ca", None) else None
-    return await Client.connect(target, token, tls_ca=tls_ca, tls_server_name=getattr(args, "tls_server_name", None))

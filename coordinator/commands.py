@@ -18,7 +18,8 @@ import grpc
 import numpy as np
 
 from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, ShowState, SyncSummary
-from coordinator.client import OperatorError, add_connection_args, open_client
+from coordinator.client import OperatorError, add_connection_args
+from coordinator.rig_target import open_client
 from coordinator.job_command import run_job
 from protos import auth
 

@@ -20,7 +20,8 @@ import grpc
 
 from coordinator.asset_probe import sequence_files
 from coordinator.assets import copy_hashing
-from coordinator.client import OperatorError, open_client
+from coordinator.client import OperatorError
+from coordinator.rig_target import open_client
 from coordinator.content_format import Progress, added_line, human_bytes, print_assets
 from coordinator.errors import AssetError, CoordinatorError
 

@@ -17,7 +17,8 @@ from typing import Callable, TextIO
 
 import grpc
 
-from coordinator.client import Client, OperatorError, open_client
+from coordinator.client import Client, OperatorError
+from coordinator.rig_target import open_client
 from coordinator.jobs.context import Event, Progress
 from protos import auth
 

@@ -46,7 +46,9 @@ def run(args: argparse.Namespace) -> int:
             path = init_rig(args.dir, name=args.name or Path(args.dir).resolve().name, slots=slots,
                             width=args.resolution[0], height=args.resolution[1], content_width=args.content_size[0],
                             content_height=args.content_size[1], latency_ms=args.latency_ms, force=args.force)
-            print(f"created rig in {path}: {len(slots)} slots; token in {path / 'token'} (copy it to every node)")
+            rig_id = Rig(path).config.rig_id
+            print(f"created rig in {path}: {len(slots)} slots, id {rig_id}; token in {path / 'token'}\n"
+                  f"on every node: copy the token to /etc/shadowless/token and set RIG={rig_id} in node.env")
             return 0
         rig = Rig(args.dir)
         doc = {

@@ -33,11 +33,13 @@ from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimator, ClockSam
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.link import CoordinatorLink, LinkError
 from node.presenter_process import PresenterProcess, PresenterSettings
+from node.targets import Candidate, TargetBook, read_known_rig, write_known_rig
 from node.records import (
     AssetFiles,
     ClockStatus,
     DropRecord,
     HeartbeatRecord,
+    HelloReply,
     JoinReply,
     JoinRequest,
     NodeInfo,
@@ -77,6 +79,10 @@ class NodeConfig:
     fetch_rate: float | None = None         # bytes per second; None: unlimited
 
 
+#: after the first advertisement, how long the node waits for the others before choosing among
+#: them (so that the rig it joined before goes first even when a rogue answers quicker)
+DISCOVERY_SETTLE_S = 0.3
+
 #: the longest wait between attempts to rejoin a lost coordinator (the regular cap is backoff_max_s)
 ALONE_BACKOFF_S = 1.0
 
@@ -107,8 +113,14 @@ class Node:
         self._assets_passed: set[str] = set()    # assets whose files the presenter has
         self._heartbeat_now = asyncio.Event()    # the fetcher has news for the operator: heartbeat at once
         self._show_asset: str | None = None      # the asset the current show plays
-        self.fetcher = AssetFetcher(config.cache_dir or default_cache_dir() / config.slot, config.cache_max_bytes,
-                                    rate=config.fetch_rate, on_change=self._fetch_news)
+        cache_dir = config.cache_dir or default_cache_dir() / config.slot
+        self.fetcher = AssetFetcher(cache_dir, config.cache_max_bytes, rate=config.fetch_rate,
+                                    on_change=self._fetch_news)
+        # the rig this node joined last is tried first (kept beside the asset cache, across restarts)
+        self._rig_file = cache_dir / "joined-rig"
+        self.book = TargetBook(known_rig=read_known_rig(self._rig_file), unreachable_min_s=config.backoff_min_s,
+                               unreachable_max_s=config.backoff_max_s, refusal_s=config.refusal_backoff_s)
+        self._advertised: set[tuple[str, str]] = set()
 
     # ---------------------------------------------------------------- reports
     def _report(self, rep: SwapRecord | DropRecord) -> None:
@@ -144,7 +156,7 @@ class Node:
         if self.cfg.coordinator is None:
             discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
             await discovery.start()
-            early = asyncio.ensure_future(self._targets(discovery))
+            early = asyncio.ensure_future(self._candidates(discovery))
         ok = await asyncio.get_running_loop().run_in_executor(None, self.presenter.wait_ready, 120.0)
         if not ok:
             log.error("cannot open output %r: %s", self.cfg.output, self.presenter.failed)
@@ -163,41 +175,29 @@ class Node:
                               self.presenter.failed)
                     return 3
                 delay = backoff
+                generation = discovery.generation if discovery is not None else 0
                 try:
                     if early is not None:
                         found, early = early, None
-                        targets = await found
+                        candidates = await found
                     else:
-                        targets = await self._targets(discovery)
-                    for target in targets:
-                        joined = await self._session(target)
-                        if joined:
-                            backoff = self.cfg.backoff_min_s
-                            delay = backoff
-                            break
-                    else:
-                        if targets:
-                            log.warning("could not reach the coordinator at %s", ", ".join(targets))
-                except Refused as exc:
-                    log.error("refused: %s (retrying in %.0f s)", exc, self.cfg.refusal_backoff_s)
-                    delay = self.cfg.refusal_backoff_s
-                except CoordinatorNotTrusted as exc:
-                    log.error("%s (retrying in %.0f s)", exc, self.cfg.refusal_backoff_s)
-                    delay = self.cfg.refusal_backoff_s
+                        candidates = await self._candidates(discovery)
+                    self.book.forget_absent(candidates)
+                    tried, joined = await self._pass(candidates)
+                    if joined:
+                        backoff = self.cfg.backoff_min_s
+                        delay = backoff
+                    elif not tried:     # every target is backing off: wait for the first one due
+                        delay = max(0.05, min(backoff, self.book.next_due(candidates, time.monotonic())))
                 except DiscoveryError as exc:
                     log.warning("%s", exc)
-                except LinkError as exc:
-                    log.warning("coordinator unreachable (%s: %s)", exc.code, exc.details)
                 # a node that lost its coordinator (and plays on alone) looks for it again at least
                 # every ALONE_BACKOFF_S: the show's changes (pause, stop) wait for it to rejoin
                 cap = self.cfg.backoff_max_s
                 if self._alone_since is not None:
                     cap = min(cap, ALONE_BACKOFF_S)
                 backoff = min(cap, backoff * 2)
-                try:
-                    await asyncio.wait_for(self._stopping.wait(), delay * random.uniform(0.8, 1.2))
-                except asyncio.TimeoutError:
-                    pass
+                await self._pause(delay * random.uniform(0.8, 1.2), discovery, generation)
         finally:
             if early is not None:
                 early.cancel()
@@ -209,44 +209,99 @@ class Node:
             self.fetcher.close()
         return 0
 
+    async def _pause(self, seconds: float, discovery: Discovery | None, generation: int) -> None:
+        """Wait ``seconds`` between passes, or less: until the node is stopped or, with mDNS, until an
+        advertisement comes or goes (a coordinator that starts is tried at once, whatever the backoff)."""
+        waits = [asyncio.ensure_future(self._stopping.wait())]
+        if discovery is not None:
+            waits.append(asyncio.ensure_future(discovery.wait_change(generation, seconds)))
+        try:
+            await asyncio.wait(waits, timeout=seconds, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for w in waits:
+                w.cancel()
+            await asyncio.gather(*waits, return_exceptions=True)
+
+    async def _pass(self, candidates: list[Candidate]) -> tuple[int, bool]:
+        """Try the due candidates in the book's order until one takes this node and its session
+        ends. A refusal or an unreachable target never ends the pass: the next one is tried.
+        Returns (targets tried, whether one was joined)."""
+        tried = 0
+        for cand in self.book.order(candidates, time.monotonic()):
+            if self._stopping.is_set():
+                break
+            tried += 1
+            try:
+                if await self._session(cand):
+                    return tried, True
+                self._unreachable(cand, "no answer to the handshake")
+            except Refused as exc:
+                news = self.book.refused(cand, str(exc), time.monotonic())
+                log.log(logging.ERROR if news else logging.INFO, "refused by %s: %s (asking it again in %.0f s%s)",
+                        cand.label(), exc, self.cfg.refusal_backoff_s,
+                        ", trying the other coordinators meanwhile" if len(candidates) > 1 else "")
+            except CoordinatorNotTrusted as exc:
+                news = self.book.refused(cand, "not trusted", time.monotonic())
+                if news:
+                    log.warning("%s; not joining it (trying the other coordinators; again there in %.0f s)",
+                                exc, self.cfg.refusal_backoff_s)
+                else:
+                    log.info("%s still cannot prove the rig token; skipped", cand.label())
+            except LinkError as exc:
+                self._unreachable(cand, f"{exc.code}: {exc.details}")
+        return tried, False
+
+    def _unreachable(self, cand: Candidate, reason: str) -> None:
+        self.book.unreachable(cand, reason, time.monotonic())
+        log.warning("could not reach the coordinator at %s (%s)", cand.label(), reason)
+
     def stop(self) -> None:
         self._stopping.set()
 
-    async def _targets(self, discovery: Discovery | None) -> list[str]:
+    async def _candidates(self, discovery: Discovery | None) -> list[Candidate]:
+        """The coordinators to try: the one given by --coordinator, or every advertised one (of the
+        rig named by --rig when given). Several rigs on one network are fine: only a coordinator
+        that proves it knows this node's token is joined."""
         if discovery is None:
-            return [self.cfg.coordinator]
-        ads = await discovery.find(rig=self.cfg.rig, timeout=3.0)
+            return [Candidate(self.cfg.coordinator)]
+        ads = await discovery.find(rig=self.cfg.rig, timeout=3.0, settle=DISCOVERY_SETTLE_S)
         if not ads:
             raise DiscoveryError(f"no coordinator advertised over mDNS{' for rig ' + repr(self.cfg.rig) if self.cfg.rig else ''}"
                                  " yet; still looking (or pass --coordinator HOST:PORT)")
-        rigs = {a.rig_id for a in ads}
-        if len(rigs) > 1:
-            names = ", ".join(sorted(f"{a.name} ({a.rig_id})" for a in ads))
-            raise DiscoveryError(f"several rigs are advertised ({names}); pick one with --rig NAME")
-        for a in ads:
-            if a.protocol and a.protocol != str(self.cfg.protocol_version):
-                log.warning("rig %s advertises protocol %s, this node speaks %d", a.name, a.protocol, self.cfg.protocol_version)
-        return [a.target for a in ads]
+        seen = {(a.target, a.rig_id) for a in ads}
+        if seen != self._advertised:
+            self._advertised = seen
+            log.info("advertised coordinators: %s", ", ".join(sorted(f"{a.name} ({a.rig_id}) at {a.target}"
+                                                                    for a in ads)))
+            for a in ads:
+                if a.protocol and a.protocol != str(self.cfg.protocol_version):
+                    log.warning("rig %s at %s advertises protocol %s, this node speaks %d", a.name, a.target,
+                                a.protocol, self.cfg.protocol_version)
+        return [Candidate(a.target, a.rig_id, a.name) for a in ads]
 
     # ---------------------------------------------------------------- one session
-    async def _session(self, target: str) -> bool:
-        """Join ``target`` and serve until a stream breaks. True if the join succeeded."""
+    async def _session(self, cand: Candidate) -> bool:
+        """Join ``cand`` and serve until a stream breaks. True if the join succeeded."""
+        target = cand.target
         async with CoordinatorLink(target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
             try:
-                joined = await self._handshake(link, target)
+                joined, hello = await self._handshake(link, target)
             except LinkError as exc:
                 if exc.refused:
-                    raise Refused(f"coordinator at {target}: {exc.details}") from exc
+                    raise Refused(exc.details) from exc
                 log.debug("cannot join %s: %s", target, exc.code)
                 return False
             self.joins += 1
+            if self.book.joined(cand, hello.rig_id):
+                write_known_rig(self._rig_file, hello.rig_id)
             session, hb_ms = joined.session, joined.heartbeat_interval_ms
             self._new_instance(joined)
             if self._alone_since is not None:
                 self._alone_ms = (time.monotonic() - self._alone_since) * 1e3
                 self._alone_since = None
                 log.info("coordinator back after %.1f s alone", self._alone_ms / 1e3)
-            log.info("joined rig at %s as %s (session %s…)", target, self.cfg.slot, session[:6])
+            log.info("joined rig %r (id %s) at %s as %s (session %s…)", hello.rig_name, hello.rig_id, target,
+                     self.cfg.slot, session[:6])
             # a first clock estimate before any frame can be scheduled
             await self._ping_burst(link, count=8)
             tasks = [
@@ -300,8 +355,8 @@ class Node:
         while self.presenter.is_alive():
             await asyncio.sleep(0.5)
 
-    async def _handshake(self, link: CoordinatorLink, target: str) -> JoinReply:
-        """Prove the token both ways and join."""
+    async def _handshake(self, link: CoordinatorLink, target: str) -> tuple[JoinReply, HelloReply]:
+        """Prove the token both ways and join; the join's reply and the (now verified) hello."""
         client_nonce = auth.new_nonce()
         hello = await link.hello(protocol_version=self.cfg.protocol_version, client_nonce=client_nonce,
                                  slot=self.cfg.slot)
@@ -318,7 +373,7 @@ class Node:
         reply = await link.join(JoinRequest(protocol_version=self.cfg.protocol_version, slot=self.cfg.slot,
                                             client_nonce=client_nonce, server_nonce=hello.server_nonce,
                                             client_proof=proof, info=info))
-        return reply
+        return reply, hello
 
     async def _ping_once(self, link: CoordinatorLink) -> None:
         t0 = self.clock.now()

@@ -52,7 +52,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slot", required=True, help="this projector's slot in the rig (e.g. r0c0)")
     p.add_argument("--token-file", metavar="FILE", help="rig token file (default: $SHADOWLESS_TOKEN_FILE)")
     p.add_argument("--coordinator", metavar="HOST:PORT", help="skip mDNS and use this coordinator")
-    p.add_argument("--rig", metavar="NAME", help="with several rigs on the network, join this one (name or id)")
+    p.add_argument("--rig", metavar="ID", help="join only a coordinator advertising this rig (its id in rig.toml, or "
+                                               "its name); empty or absent: any coordinator that proves the token")
     p.add_argument("--mdns-interface", action="append", metavar="IP",
                    help="browse mDNS only on this IPv4 address (repeatable; default: every interface)")
     p.add_argument("--output", default="offscreen", metavar="SPEC",
@@ -86,7 +87,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) -> NodeConfig:
     """The node's configuration from its parsed options (the cache directory defaults per slot)."""
-    return NodeConfig(slot=args.slot, token=token, coordinator=args.coordinator, rig=args.rig,
+    return NodeConfig(slot=args.slot, token=token, coordinator=args.coordinator, rig=args.rig or None,
                       mdns_interfaces=args.mdns_interface, output=args.output, snapshot_dir=args.snapshot_dir,
                       clock_offset_ms=args.clock_offset_ms, clock_drift_ppm=args.clock_drift_ppm,
                       protocol_version=args.protocol_version, tls_ca=tls_ca, tls_server_name=args.tls_server_name,

@@ -50,6 +50,8 @@ class Discovery:
         self._browser: AsyncServiceBrowser | None = None
         self._names: set[str] = set()
         self._changed = asyncio.Event()
+        #: counts the advertisements' comings and goings (see :meth:`wait_change`)
+        self.generation = 0
 
     async def start(self) -> None:
         try:
@@ -63,7 +65,24 @@ class Discovery:
             self._names.discard(name)
         else:
             self._names.add(name)
+        self.generation += 1
         self._changed.set()
+
+    async def wait_change(self, since: int, timeout: float) -> bool:
+        """Wait up to ``timeout`` seconds for an advertisement to come or go after ``generation``
+        was ``since``; True if one did."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while self.generation == since:
+            left = deadline - loop.time()
+            if left <= 0:
+                return False
+            self._changed.clear()
+            try:
+                await asyncio.wait_for(self._changed.wait(), left)
+            except asyncio.TimeoutError:
+                return self.generation != since
+        return True
 
     async def close(self) -> None:
         if self._browser is not None:
@@ -84,21 +103,26 @@ class Discovery:
                              host=addrs[0], port=info.port, protocol=props.get("proto", ""),
                              instance=props.get("instance", ""))
 
-    async def find(self, *, rig: str | None = None, timeout: float = 3.0) -> list[Advertisement]:
-        """Advertised rigs matching ``rig`` (name or id), waiting up to ``timeout`` for a first one."""
+    async def find(self, *, rig: str | None = None, timeout: float = 3.0, settle: float = 0.0) -> list[Advertisement]:
+        """Advertised rigs matching ``rig`` (name or id), waiting up to ``timeout`` for a first one,
+        then ``settle`` seconds more for the others to answer (so a caller choosing among them sees
+        them all, not just the quickest)."""
         assert self._azc is not None, "call start() first"
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout
+        settled_at: float | None = None
         while True:
-            found = []
-            for name in list(self._names):
-                ad = await self._resolve(name)
-                if ad is not None and (rig is None or rig in (ad.name, ad.rig_id)):
-                    found.append(ad)
-            if found or loop.time() >= deadline:
+            # resolved at once: an advertiser that never answers costs one resolve timeout, not one each
+            ads = await asyncio.gather(*(self._resolve(name) for name in sorted(self._names)))
+            found = [ad for ad in ads if ad is not None and (rig is None or rig in (ad.name, ad.rig_id))]
+            if found and settled_at is None:
+                settled_at = loop.time() + settle
+            now = loop.time()
+            if (found and now >= settled_at) or now >= deadline:
                 return found
             self._changed.clear()
+            until = min(deadline, settled_at) if settled_at is not None else deadline
             try:
-                await asyncio.wait_for(self._changed.wait(), max(0.05, deadline - loop.time()))
+                await asyncio.wait_for(self._changed.wait(), max(0.05, until - now))
             except asyncio.TimeoutError:
                 pass

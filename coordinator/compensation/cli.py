@@ -260,7 +260,7 @@ def upload_video(args: argparse.Namespace, path: Path) -> str:
 
     import grpc
 
-    from coordinator.client import open_client
+    from coordinator.rig_target import open_client
     from coordinator.content_remote import upload
 
     async def go() -> str:

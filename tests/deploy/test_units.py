@@ -62,3 +62,10 @@ def test_node_unit_grants_only_what_the_realtime_swap_needs():
     svc = unit("shadowless-node.service")["Service"]
     assert svc["AmbientCapabilities"] == "CAP_SYS_NICE"
     assert svc["User"] != "root"
+
+
+def test_the_node_unit_pins_its_rig_by_id():
+    values = env("node.env")
+    assert "RIG" in values, "node.env names the rig the node joins"
+    argv = expand(unit("shadowless-node.service")["Service"]["ExecStart"], {**values, "RIG": "3730d2948b80"})
+    assert argv[argv.index("--rig") + 1] == "3730d2948b80"

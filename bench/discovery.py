@@ -1,0 +1,194 @@
+"""`shadowless bench discovery`: real nodes find their rig while rogue coordinators advertise.
+
+In each run, two rogue coordinators advertise over mDNS (on 127.0.0.1) from the start: a
+*twin*, with this rig's name and id but another token (an impersonator, or a rig restored
+from a backup with a fresh token), and an *other* rig. Then the rig's own coordinator
+starts, and N real node processes (offscreen outputs) start as the shipped deployment
+files run them: unpinned (``--rig`` empty; ``--pin id`` pins them to the rig's id). A
+node joins only a coordinator that proves it knows the node's token, so both rogues must
+be passed over.
+
+Measured per run, on this host's monotonic clock, polling the right coordinator's status
+every 0.1 s: ``all_live_s`` (from starting the node processes until every node is live
+on the right coordinator) and each node's ``live_s``; ``within_15s`` (nodes live within
+15 s); ``tried_rogue`` (nodes whose log shows they asked a rogue, which could not prove the
+token); ``captured`` (nodes live on a rogue at the end: must be 0). With ``--control``
+(default), the same N nodes also join with no rogue advertising, in the same run, and
+``rogue_cost`` is the ratio of the two times: what the rogues cost, free of this machine's
+start-up time for N interpreters and GL contexts.
+
+``--prime-other K``: K nodes start believing they last joined the *other* rig (its id in
+their cache), so they try it first: a deterministic rogue attempt.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import shutil
+import statistics
+import sys
+import time
+from pathlib import Path
+
+from bench.machine import machine
+from bench.workdir import run_dir
+from coordinator.api import NodeState
+from coordinator.rig import parse_config
+from protos import auth
+from shadowless.local import LocalRig, grid_names
+
+SIZE = (32, 18)
+NOT_TRUSTED_MARK = "could not prove it knows the rig token"
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--nodes", type=int, default=16, help="node processes per run (default 16)")
+    p.add_argument("--runs", type=int, default=5, help="runs (default 5)")
+    p.add_argument("--pin", choices=("none", "id"), default="none",
+                   help="run the nodes unpinned (none, default) or with --rig RIG_ID")
+    p.add_argument("--prime-other", type=int, default=0, metavar="K",
+                   help="K nodes start believing they last joined the other rig (default 0)")
+    p.add_argument("--control", action=argparse.BooleanOptionalAction, default=True,
+                   help="also time the same nodes joining with no rogue (default on)")
+    p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for every node (default 120)")
+    p.add_argument("--workdir", help="keep the rigs and logs here (default: a temporary folder, removed)")
+
+
+def _rig(workdir: Path, slots: list[str]) -> LocalRig:
+    return LocalRig(slots, workdir, output_size=SIZE, content_size=SIZE, mdns=True)
+
+
+async def _wait_all_live(rig: LocalRig, t0: float, timeout: float) -> dict[str, float]:
+    """Seconds from ``t0`` at which each slot was first seen live (polled every 0.1 s)."""
+    live: dict[str, float] = {}
+    deadline = t0 + timeout
+    async with await rig.client(timeout=60) as c:
+        while len(live) < len(rig.slots) and time.monotonic() < deadline:
+            st = await c.status()
+            now = time.monotonic() - t0
+            for n in st.nodes:
+                if n.state is NodeState.LIVE and n.slot not in live:
+                    live[n.slot] = now
+            await asyncio.sleep(0.1)
+    return live
+
+
+async def _live_slots(rig: LocalRig) -> list[str]:
+    async with await rig.client(timeout=30) as c:
+        return [n.slot for n in (await c.status()).nodes if n.state is NodeState.LIVE]
+
+
+def _wait_logs(rig: LocalRig, slots: list[str], mark: str, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while not all(mark in rig.log("node-" + s) for s in slots):
+        dead = [s for s in slots if rig.nodes[s].poll() is not None]
+        if dead or time.monotonic() > deadline:
+            raise RuntimeError(f"nodes {dead or slots} never logged {mark!r}: "
+                               + rig.log("node-" + (dead or slots)[0])[-2000:])
+        time.sleep(0.1)
+
+
+def trial(workdir: Path, n: int, *, rogues: bool, pin: str = "none", prime_other: int = 0,
+          timeout: float = 120.0, real_late: bool = False) -> dict:
+    """One run: N nodes join their rig's coordinator (with the two rogues advertising when
+    ``rogues``). Returns the figures described in the module docstring. ``real_late``: the rig's
+    own coordinator starts only once every node has asked a rogue (and been turned away), the
+    worst case of a rogue answering first."""
+    slots = grid_names(n)
+    real = _rig(workdir / "real", slots).create()
+    twin = other = None
+    started: list[LocalRig] = []
+    try:
+        cfg = parse_config((real.rig_dir / "rig.toml").read_text())
+        if rogues:
+            twin = _rig(workdir / "twin", slots)
+            twin.rig_dir.mkdir(parents=True)
+            shutil.copy(real.rig_dir / "rig.toml", twin.rig_dir / "rig.toml")
+            (twin.rig_dir / "token").write_text(auth.new_token() + "\n")    # the same rig, another token
+            (twin.rig_dir / "token").chmod(0o600)
+            twin.create()
+            twin.rig_name = cfg.name
+            other = _rig(workdir / "other", slots).create()
+            for r in (twin, other):
+                r.start_coordinator()
+                started.append(r)
+            for r in (twin, other):
+                r.wait_ready()
+        if not real_late:
+            real.start_coordinator()
+            started.append(real)
+            real.wait_ready()
+        other_id = parse_config((other.rig_dir / "rig.toml").read_text()).rig_id if other else ""
+        extra = ["--rig", cfg.rig_id if pin == "id" else ""]
+        for i, s in enumerate(slots):
+            if other_id and i < prime_other:
+                cache = real.workdir / "caches" / s
+                cache.mkdir(parents=True, exist_ok=True)
+                (cache / "joined-rig").write_text(other_id + "\n")
+        t0 = time.monotonic()
+        for s in slots:
+            real.start_node(s, extra)
+        if real_late:
+            _wait_logs(real, slots, NOT_TRUSTED_MARK, timeout)
+            real.start_coordinator()
+            started.append(real)
+        live = asyncio.run(_wait_all_live(real, t0, timeout))
+        captured = []
+        for r in (twin, other):
+            if r is not None:
+                captured += asyncio.run(_live_slots(r))
+        tried = [s for s in slots if NOT_TRUSTED_MARK in real.log("node-" + s)]
+        known = {s: (real.workdir / "caches" / s / "joined-rig").read_text().strip()
+                 if (real.workdir / "caches" / s / "joined-rig").exists() else "" for s in slots}
+        return {
+            "nodes": n,
+            "joined": len(live),
+            "all_live_s": round(max(live.values()), 3) if len(live) == n else None,
+            "live_s": {s: round(v, 3) for s, v in sorted(live.items())},
+            "within_15s": sum(1 for v in live.values() if v <= 15.0),
+            "tried_rogue": len(tried),
+            "tried_rogue_slots": tried,
+            "captured": len(captured),
+            "remembered_rig": sum(1 for v in known.values() if v == cfg.rig_id),
+        }
+    finally:
+        for r in [real, *started]:
+            r.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.nodes < 1 or args.runs < 1:
+        print("shadowless bench discovery: --nodes and --runs must be at least 1", file=sys.stderr)
+        return 2
+    runs = []
+    with run_dir(args.workdir, "discovery") as work:
+        for k in range(args.runs):
+            rec = {"run": k + 1}
+            rec["rogues"] = trial(Path(work) / f"run{k + 1}" / "rogues", args.nodes, rogues=True, pin=args.pin,
+                                  prime_other=args.prime_other, timeout=args.timeout)
+            if args.control:
+                rec["control"] = trial(Path(work) / f"run{k + 1}" / "control", args.nodes, rogues=False,
+                                       pin=args.pin, timeout=args.timeout)
+                a, b = rec["rogues"]["all_live_s"], rec["control"]["all_live_s"]
+                rec["rogue_cost"] = round(a / b, 3) if a and b else None
+            print(f"run {k + 1}: {rec['rogues']['joined']}/{args.nodes} joined, all live in "
+                  f"{rec['rogues']['all_live_s']} s (control {rec.get('control', {}).get('all_live_s')} s), "
+                  f"{rec['rogues']['tried_rogue']} tried a rogue, {rec['rogues']['captured']} captured",
+                  file=sys.stderr)
+            runs.append(rec)
+    times = [r["rogues"]["all_live_s"] for r in runs if r["rogues"]["all_live_s"] is not None]
+    costs = [r["rogue_cost"] for r in runs if r.get("rogue_cost")]
+    out = {
+        "benchmark": "discovery",
+        "params": {"nodes": args.nodes, "runs": args.runs, "pin": args.pin, "prime_other": args.prime_other,
+                   "control": args.control},
+        "machine": machine(),
+        "runs_all_joined_within_15s": sum(1 for r in runs if r["rogues"]["within_15s"] == args.nodes),
+        "all_live_s": {"median": round(statistics.median(times), 3), "max": round(max(times), 3)} if times else None,
+        "rogue_cost_median": round(statistics.median(costs), 3) if costs else None,
+        "captured_total": sum(r["rogues"]["captured"] for r in runs),
+        "runs": runs,
+    }
+    print(json.dumps(out, indent=2))
+    return 0 if all(r["rogues"]["joined"] == args.nodes and r["rogues"]["captured"] == 0 for r in runs) else 1
