@@ -22,6 +22,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from protos import cli_types
 from scipy.spatial import cKDTree
 
 from bench.machine import machine
@@ -184,8 +185,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "and multiplexed (every projector at once), and print one JSON document: captures, wall time and the\n"
         "RMS / max error of the poses against the room's truth (projector pixels, over the table)."
     )
-    parser.add_argument("--projectors", default="1,9,25", help="rig sizes, comma separated (default 1,9,25)")
-    parser.add_argument("--modes", default="sequential,multiplexed", help="modes to run (default both)")
+    parser.add_argument("--projectors", type=cli_types.int_list(1, 25), default="1,9,25", help="rig sizes, comma separated (default 1,9,25)")
+    parser.add_argument("--modes", type=cli_types.names, default="sequential,multiplexed", help="modes to run (default both)")
     parser.add_argument("--projector-scale", type=float, default=0.25, help="room projector resolution scale (default 0.25)")
     parser.add_argument("--camera-scale", type=float, default=0.25, help="room camera resolution scale (default 0.25)")
     parser.add_argument("--seed", type=int, default=0, help="room seed (unit variation, noise)")
@@ -221,8 +222,7 @@ async def _run_one(room, slots: list[str], mode: str, table_points, workdir: Pat
 
 
 def run(args: argparse.Namespace) -> int:
-    sizes = [int(v) for v in str(args.projectors).split(",") if v.strip()]
-    modes = [m.strip() for m in str(args.modes).split(",") if m.strip()]
+    sizes, modes = list(args.projectors), list(args.modes)
     for m in modes:
         if m not in ("sequential", "multiplexed"):
             raise SystemExit(f"unknown mode {m!r}: sequential or multiplexed")

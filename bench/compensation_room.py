@@ -30,6 +30,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from protos import cli_types
 from typing import Callable
 
 import cv2
@@ -121,7 +122,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--projector-scale", type=float, default=0.5,
                         help="room projector resolution (default 0.5: 640x400, about 2.5 mm per pixel on the table)")
     parser.add_argument("--camera-scale", type=float, default=0.25, help="room camera resolution (default 0.25: 648x486)")
-    parser.add_argument("--content-size", default="300x150", metavar="WxH",
+    parser.add_argument("--content-size", type=cli_types.size, default="300x150", metavar="WxH",
                         help="rig content size (default 300x150: 4 mm/px, coarser than a projector pixel, so each projector "
                              "alone can render the content and the per-projector baseline has blur to undo; at 600x300 "
                              "a projector pixel spans about 1.2 content px and the baseline's L_i amplify camera noise)")
@@ -254,7 +255,7 @@ def _oracle(rig, res: dict, truth: sp.spmatrix, truths: dict, content_size) -> d
 
 
 def run(args: argparse.Namespace) -> int:
-    cw, ch = (int(v) for v in args.content_size.lower().split("x"))
+    cw, ch = args.content_size
     t0 = time.perf_counter()
     room = Room(reference_scene(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed,
                                 aperture=args.aperture), seed=args.seed, noise=not args.no_noise)

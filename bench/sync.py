@@ -21,14 +21,15 @@ from bench.machine import machine
 from bench.workdir import run_dir
 from coordinator.api import PlaySettings
 from coordinator.commands import play_dict
+from protos import cli_types
 from shadowless.local import LocalRig, grid_names, spread
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--nodes", default="16", help="node counts, comma-separated (default 16; e.g. 8,16,32)")
+    p.add_argument("--nodes", type=cli_types.int_list(1, 256), default="16", help="node counts, comma-separated (default 16; e.g. 8,16,32)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
     p.add_argument("--seconds", type=float, default=10.0, help="sequence length per run (default 10)")
-    p.add_argument("--size", default="160x90", help="projector output and content size WxH (default 160x90)")
+    p.add_argument("--size", type=cli_types.size, default="160x90", help="projector output and content size WxH (default 160x90)")
     p.add_argument("--offset-ms", type=float, default=500.0, help="inject clock offsets within ±this (default 500)")
     p.add_argument("--drift-ppm", type=float, default=200.0, help="inject clock drifts within ±this (default 200)")
     p.add_argument("--warmup", type=float, default=8.0, help="seconds for the clock estimators to settle (default 8)")
@@ -38,7 +39,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 async def _one(n: int, args, workdir: Path) -> dict:
-    w, h = (int(v) for v in args.size.split("x"))
+    w, h = args.size
     slots = grid_names(n)
     offsets = dict(zip(slots, spread(n, args.offset_ms, 1)))
     drifts = dict(zip(slots, spread(n, args.drift_ppm, 2)))
@@ -75,7 +76,7 @@ async def _one(n: int, args, workdir: Path) -> dict:
 
 
 async def _all(args) -> dict:
-    counts = [int(v) for v in str(args.nodes).split(",") if v.strip()]
+    counts = list(args.nodes)
     runs = []
     for n in counts:
         print(f"bench sync: {n} nodes at {args.fps:g} fps for {args.seconds:g} s …", file=sys.stderr, flush=True)

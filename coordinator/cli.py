@@ -9,7 +9,6 @@ import signal
 from pathlib import Path
 
 from coordinator.errors import CoordinatorError, RigError
-from coordinator.logs import setup_logging
 from coordinator.rig import Rig
 from coordinator.server import Coordinator
 from coordinator.store import atomic_write_text
@@ -54,7 +53,6 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "0.0.0.0:7680 opens it to the network, with TLS when --tls-cert is given; port 0 picks one)")
     p.add_argument("--no-console", action="store_true", help="do not serve the operator console")
     p.add_argument("--console-port-file", metavar="FILE", help="write the console's bound port here (for scripts)")
-    p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
 async def serve(args: argparse.Namespace) -> int:
@@ -87,7 +85,6 @@ async def serve(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    setup_logging(args.log_level, name="coordinator")
     try:
         return asyncio.run(serve(args))
     except (CoordinatorError, RigError, TokenError, OSError) as exc:

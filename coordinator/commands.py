@@ -16,12 +16,16 @@ from pathlib import Path
 
 import grpc
 import numpy as np
+from rich.text import Text
 
 from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, ShowState, SyncSummary
 from coordinator.client import OperatorError, add_connection_args
-from coordinator.rig_target import open_client
+from coordinator.content_format import operator_table, rendered
+from coordinator.errors import RigError
 from coordinator.job_command import run_job
-from protos import auth
+from coordinator.rig_target import open_client
+from coordinator.schema import read_npy
+from protos import auth, cli_types
 
 
 # ---------------------------------------------------------------- formatting
@@ -111,16 +115,23 @@ def show_cell(s: dict) -> str:
     return f"{s['state']} {s['last_frame']}" if s["last_frame"] >= 0 else s["state"]
 
 
-def status_table(d: dict) -> str:
+#: the colour of a node's state on a terminal (others: yellow)
+STATE_STYLES = {"live": "green", "lost": "red", "refused": "red"}
+
+
+def status_table(d: dict, *, tty: bool = False) -> str:
+    """`shadowless status` as text: the rig, a table of its nodes (their states coloured for a
+    terminal, ``tty``), then outages, failed assets, sync figures and refusals."""
     r = d["rig"]
     lines = [f"rig {r['name']} ({r['id']})  instance {r['instance']}  up {r['uptime_s']:.0f} s  showing: {r['showing']}"]
-    hdr = (f"{'slot':<8}{'state':<10}{'host':<16}{'offset ms':>11}{'drift ppm':>10}{'rtt ms':>8}{'last frame':>18}"
-           f"{'shown':>8}{'late':>6}{'drop':>6}  {'pose':<11}{'show':<16}assets")
-    lines.append(hdr)
+    t = operator_table("slot", "state", "host", ">offset ms", ">drift ppm", ">rtt ms", ">last frame", ">shown", ">late",
+                       ">drop", "pose", "show", "assets")
     for n in d["nodes"]:
-        lines.append(f"{n['slot']:<8}{n['state']:<10}{(n['host'] or '-')[:15]:<16}{n['clock_offset_ms']:>11.3f}{n['drift_ppm']:>10.1f}"
-                     f"{n['rtt_ms']:>8.3f}{n['last_swap_frame'] or '-':>18}{n['shown']:>8}{n['late']:>6}{n['dropped']:>6}  "
-                     f"{n['pose']:<11}{show_cell(n['show']):<16}{assets_cell(n['assets'])}")
+        t.add_row(n["slot"], Text(n["state"], style=STATE_STYLES.get(n["state"], "yellow")), n["host"] or "-",
+                  f"{n['clock_offset_ms']:.3f}", f"{n['drift_ppm']:.1f}", f"{n['rtt_ms']:.3f}",
+                  str(n["last_swap_frame"] or "-"), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
+                  show_cell(n["show"]), assets_cell(n["assets"]))
+    lines.append(rendered(t, tty=tty))
     for n in d["nodes"]:
         if n["show"]["alone_ms"]:
             lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "
@@ -139,11 +150,21 @@ def status_table(d: dict) -> str:
     return "\n".join(lines)
 
 
+def _npy(path: Path, dtypes: tuple[str, ...], what: str) -> np.ndarray:
+    try:
+        return read_npy(path, dtypes, what)
+    except RigError as exc:
+        raise OperatorError(str(exc)) from None
+
+
 def read_image(path: str) -> np.ndarray:
     """Read an image file as (H, W, C) RGB: 8/16-bit PNG/TIFF/JPEG via OpenCV, or float32 .npy."""
     p = Path(path)
+    if not p.is_file():
+        raise OperatorError(f"{p}: {'not a file' if p.exists() else 'no such file'}")
     if p.suffix == ".npy":
-        return np.load(p, allow_pickle=False)
+        img = _npy(p, ("float32", "float64", "uint8", "uint16"), "image")
+        return img.astype(np.float32) if img.dtype == np.float64 else img
     import cv2  # the coordinator's stack; an operator reading image files has it
 
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
@@ -173,12 +194,12 @@ def configure_show(p: argparse.ArgumentParser) -> None:
                      "timeline show started by `shadowless play ASSET` (each change takes effect on every node at "
                      "the same instant, the coordinator's lead from now, or --in SECONDS).")
     p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1]), or pause, resume, seek, stop")
-    p.add_argument("frame", nargs="?", type=int, help="with seek: the asset frame to show")
+    p.add_argument("frame", nargs="?", type=cli_types.int_range(0), help="with seek: the asset frame to show")
     p.add_argument("--persist", action="store_true", help="make it the rig's content (shown again after a restart)")
     p.add_argument("--fit", choices=["contain", "cover", "stretch"],
                    help="an image of another aspect than the rig's content area: contain (whole, black bars), cover "
                         "(fills it, cropped) or stretch (distorted); without --fit it is refused")
-    p.add_argument("--in", dest="in_s", type=float, default=0.0, metavar="SECONDS",
+    p.add_argument("--in", dest="in_s", type=cli_types.number(0, 86400), default=0.0, metavar="SECONDS",
                    help="with pause/resume/seek/stop: take effect this long from now (default: the coordinator's lead)")
     p.add_argument("--json", action="store_true", help="with pause/resume/seek/stop: print the show state as JSON")
     add_connection_args(p)
@@ -191,14 +212,14 @@ def configure_play(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", nargs="?", help="an asset (id, id prefix or name; see `shadowless content list`) or a "
                    "folder of images (omit with --pattern)")
     p.add_argument("--pattern", choices=["counter"], help="generate frames on the coordinator instead")
-    p.add_argument("--frames", type=int, default=150, help="with --pattern: how many frames (default 150)")
-    p.add_argument("--fps", type=float, default=None, help="frame rate (default: an asset's own, else 30)")
-    p.add_argument("--in", dest="in_s", type=float, default=0.0, metavar="SECONDS",
+    p.add_argument("--frames", type=cli_types.int_range(1, 1_000_000), default=150, help="with --pattern: how many frames (default 150)")
+    p.add_argument("--fps", type=cli_types.number(0, 1000, lo_open=True), default=None, help="frame rate (default: an asset's own, else 30)")
+    p.add_argument("--in", dest="in_s", type=cli_types.number(0, 86400), default=0.0, metavar="SECONDS",
                    help="an asset starts this long from now (default: the coordinator's lead)")
     p.add_argument("--loop", action="store_true", help="an asset plays in a loop until stopped")
     p.add_argument("--start-without", action="store_true",
                    help="start an asset even if some live node does not hold it yet (it joins once it does)")
-    p.add_argument("--loops", type=int, default=0, help="extra loops (default 0: once)")
+    p.add_argument("--loops", type=cli_types.int_range(0, 100_000), default=0, help="extra loops (default 0: once)")
     p.add_argument("--fit", choices=["contain", "cover", "stretch"],
                    help="a folder's images of another aspect than the rig's content area: contain (whole, black bars), cover "
                         "(fills it, cropped) or stretch (distorted); without --fit it is refused")
@@ -206,13 +227,13 @@ def configure_play(p: argparse.ArgumentParser) -> None:
     p.add_argument("--allow-partial", action="store_true",
                    help="exit 0 even if not every live node showed every frame of a played sequence (default: "
                         "exit 1 and say what was missed)")
-    p.add_argument("--latency-ms", type=float, default=0.0, metavar="MS",
+    p.add_argument("--latency-ms", type=cli_types.number(0, 10000), default=0.0, metavar="MS",
                    help="a played sequence's frames are sent this far ahead of their time (default: rig.toml's "
                         "latency_ms)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--compensate", action="store_true", help="compensate the rig's blur frame by frame (warm-started "
                    "solves over the measured light transport, see `shadowless compensate`), then play")
-    p.add_argument("--iterations", type=int, default=4, help="with --compensate: solver iterations per frame (default 4)")
+    p.add_argument("--iterations", type=cli_types.int_range(1, 1000), default=4, help="with --compensate: solver iterations per frame (default 4)")
     add_connection_args(p)
 
 
@@ -221,9 +242,9 @@ def configure_configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slot", required=True)
     p.add_argument("--homography", metavar="FILE_OR_9_NUMBERS",
                    help="content px -> projector px: a .npy (3,3) file or 9 comma-separated numbers, row-major")
-    p.add_argument("--lut", metavar="NPY", help="(C, E) float32 inverse-response LUT")
-    p.add_argument("--gain", type=float, help="linear gain (0..16)")
-    p.add_argument("--resolution", metavar="WxH", help="output size")
+    p.add_argument("--lut", type=cli_types.existing_file, metavar="NPY", help="(C, E) float32 inverse-response LUT")
+    p.add_argument("--gain", type=cli_types.number(0, 16), help="linear gain, 0..16 (0 switches the projector's light off)")
+    p.add_argument("--resolution", type=cli_types.size, metavar="WxH", help="output size, e.g. 1920x1080")
     p.add_argument("--clear-pose", action="store_true", help="remove the pose (the projector shows black)")
     add_connection_args(p)
 
@@ -250,7 +271,7 @@ async def _stop(args) -> int:
 async def _status(args) -> int:
     async with await open_client(args) as c:
         d = status_dict(await c.status())
-    print(json.dumps(d, indent=2) if args.json else status_table(d))
+    print(json.dumps(d, indent=2) if args.json else status_table(d, tty=sys.stdout.isatty()))
     return 0
 
 
@@ -308,6 +329,9 @@ async def _play_asset(args) -> int:
 async def _play(args) -> int:
     frames: list[np.ndarray] = []
     if args.source and not args.pattern and not args.compensate and not Path(args.source).is_dir():
+        if "/" in args.source or Path(args.source).exists():   # a path, not an asset's name
+            raise OperatorError(f"{args.source}: {'not a folder' if Path(args.source).exists() else 'no such folder'}"
+                                " (play takes a folder of images, or an asset's name or id)")
         return await _play_asset(args)
     args.fps = args.fps or 30.0
     if not (args.latency_ms >= 0 and math.isfinite(args.latency_ms)):
@@ -373,27 +397,28 @@ async def _play_compensated(args) -> int:
     return 0
 
 
+def _matrix(text: str, rows: int, cols: int, what: str) -> np.ndarray:
+    """``--homography``/``--projection``: a .npy file of shape (rows, cols) or rows*cols numbers."""
+    n = rows * cols
+    if Path(text).exists():
+        m = _npy(Path(text), ("float32", "float64"), what).astype(np.float64)
+    else:
+        try:
+            m = np.array([float(v) for v in text.split(",")], dtype=np.float64)
+        except ValueError:
+            raise OperatorError(f"--{what}: not a .npy file nor {n} comma-separated numbers: {text!r}") from None
+    if m.size != n:
+        raise OperatorError(f"a {what} needs {n} numbers ({rows}x{cols}, row-major), got {m.size}")
+    if not np.all(np.isfinite(m)):
+        raise OperatorError(f"--{what}: every number must be finite")
+    return m.reshape(rows, cols)
+
+
 async def _configure(args) -> int:
-    h = lut = size = None
-    if args.homography:
-        try:
-            if Path(args.homography).exists():
-                h = np.load(args.homography).astype(np.float64)
-            else:
-                h = np.array([float(v) for v in args.homography.split(",")], dtype=np.float64)
-        except ValueError:
-            raise OperatorError(f"--homography: not a .npy file nor 9 comma-separated numbers: {args.homography!r}") from None
-        if h.size != 9:
-            raise OperatorError("a homography needs 9 numbers")
-    if args.lut:
-        lut = np.load(args.lut).astype(np.float32)
-    if args.resolution:
-        try:
-            size = tuple(int(v) for v in args.resolution.lower().split("x"))
-        except ValueError:
-            raise OperatorError(f"--resolution must be WxH, e.g. 1920x1080, got {args.resolution!r}") from None
+    h = _matrix(args.homography, 3, 3, "homography") if args.homography else None
+    lut = _npy(args.lut, ("float32", "float64"), "LUT").astype(np.float32) if args.lut else None
     async with await open_client(args) as c:
-        revision = await c.configure(args.slot, homography=h, lut=lut, gain=args.gain, size=size,
+        revision = await c.configure(args.slot, homography=h, lut=lut, gain=args.gain, size=args.resolution,
                                      clear_pose=args.clear_pose)
     print(f"slot {args.slot} now at revision {revision}")
     return 0

@@ -225,6 +225,8 @@ def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920
              cameras: list[str] = (), force: bool = False) -> Path:
     """Create a rig directory with ``rig.toml`` and a fresh token; refuse to overwrite one."""
     path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise RigError(f"{path} is a file; give a folder for the rig (it is created if missing)")
     if (path / "rig.toml").exists() and not force:
         raise RigError(f"{path} already holds a rig (rig.toml); pass --force to replace its configuration")
     for s in slots:

@@ -3,19 +3,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from pathlib import Path
 
 from coordinator.errors import RigError
 from coordinator.rig import Rig, grid_slots, init_rig
+from protos import cli_types
 
-
-def _size(text: str) -> tuple[int, int]:
-    m = re.fullmatch(r"(\d+)x(\d+)", text)
-    if not m:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}")
-    return int(m.group(1)), int(m.group(2))
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -26,13 +20,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     init.add_argument("dir", help="the rig directory to create")
     init.add_argument("--name", help="rig name, advertised over mDNS (default: the directory's name)")
     g = init.add_mutually_exclusive_group()
-    g.add_argument("--grid", type=_size, metavar="COLSxROWS", default=(5, 5),
+    g.add_argument("--grid", type=cli_types.grid, metavar="COLSxROWS", default=(5, 5),
                    help="slots r0c0… for a projector array (default 5x5)")
-    g.add_argument("--slots", help="explicit comma-separated slot names instead of a grid")
-    init.add_argument("--resolution", type=_size, default=(1920, 1080), metavar="WxH", help="projector output size (default 1920x1080)")
-    init.add_argument("--content-size", type=_size, default=(1200, 600), metavar="WxH",
+    g.add_argument("--slots", type=cli_types.names, metavar="A,B,...", help="explicit comma-separated slot names instead of a grid")
+    init.add_argument("--resolution", type=cli_types.size, default=(1920, 1080), metavar="WxH", help="projector output size (default 1920x1080)")
+    init.add_argument("--content-size", type=cli_types.size, default=(1200, 600), metavar="WxH",
                       help="shared image size in content px (default 1200x600: 1 px per mm on a 1200x600 mm table)")
-    init.add_argument("--latency-ms", type=float, default=50.0, help="frame scheduling budget (default 50)")
+    init.add_argument("--latency-ms", type=cli_types.number(0, 10000, lo_open=True), default=50.0, help="frame scheduling budget (default 50)")
     init.add_argument("--force", action="store_true", help="replace an existing rig.toml (keeps the token and state)")
     show = sub.add_parser("show", help="print a rig directory's configuration and per-slot state as JSON")
     show.add_argument("dir")
@@ -42,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.rig_command == "init":
             cols, rows = args.grid
-            slots = [s.strip() for s in args.slots.split(",") if s.strip()] if args.slots else grid_slots(rows, cols)
+            slots = args.slots or grid_slots(rows, cols)
             path = init_rig(args.dir, name=args.name or Path(args.dir).resolve().name, slots=slots,
                             width=args.resolution[0], height=args.resolution[1], content_width=args.content_size[0],
                             content_height=args.content_size[1], latency_ms=args.latency_ms, force=args.force)

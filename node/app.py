@@ -143,13 +143,11 @@ class Node:
     async def run(self) -> int:
         self._loop = asyncio.get_running_loop()
         self._reports = asyncio.Queue()
-        root = logging.getLogger()
-        fmt = root.handlers[0].formatter._fmt if root.handlers and root.handlers[0].formatter else None
         self.presenter = PresenterProcess(PresenterSettings(
             slot=self.cfg.slot, output_spec=self.cfg.output, clock_offset_ns=self.clock.offset_ns,
             clock_drift_ppm=self.clock.drift_ppm, clock_anchor_ns=self.clock.anchor_ns,
-            snapshot_dir=self.cfg.snapshot_dir, realtime=self.cfg.realtime, log_level=root.level,
-            **({"log_format": fmt} if fmt else {})))
+            snapshot_dir=self.cfg.snapshot_dir, realtime=self.cfg.realtime,
+            log_level=logging.getLogger().getEffectiveLevel(), log_name=f"node {self.cfg.slot}"))
         self.presenter.start()
         # the coordinator is looked for while the presenter starts (a new interpreter, the GL context)
         discovery, early = None, None

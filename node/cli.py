@@ -4,33 +4,24 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import math
-import re
 import signal
-import sys
 from pathlib import Path
 
 from node.app import Node, NodeConfig
 from node.asset_cache import default_cache_dir
+from node.output_spec import parse_output_spec
 from protos.auth import TokenError, resolve_token
+from protos import cli_types
 from protos.version import PROTOCOL_VERSION
 
 
-_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
-_SIZE = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*([KMGT]?)(?:I?B)?\s*$", re.IGNORECASE)
-
-
-def parse_size(text: str) -> int:
-    """``'20G'`` -> 21474836480: a number of bytes with an optional unit K, M, G or T (powers of
-    1024; ``B``/``iB`` after it allowed, case ignored). ``argparse.ArgumentTypeError`` for
-    anything else, zero included."""
-    m = _SIZE.match(str(text))
-    value = float(m.group(1)) * _UNITS[m.group(2).upper()] if m else math.nan
-    if not (math.isfinite(value) and value >= 1):
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not a size: give a positive number of bytes with an optional unit K, M, G or T "
-            "(powers of 1024), e.g. 20G or 500M")
-    return int(value)
+def output_spec(text: str) -> str:
+    """An ``--output`` spec, checked (not opened) here: a typo costs one line, not a renderer start."""
+    try:
+        parse_output_spec(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -56,32 +47,33 @@ def configure(p: argparse.ArgumentParser) -> None:
                                                "its name); empty or absent: any coordinator that proves the token")
     p.add_argument("--mdns-interface", action="append", metavar="IP",
                    help="browse mDNS only on this IPv4 address (repeatable; default: every interface)")
-    p.add_argument("--output", default="offscreen", metavar="SPEC",
-                   help="offscreen (default), window[:MONITOR] (fullscreen on a display), or room://HOST:PORT")
+    p.add_argument("--output", type=output_spec, default="offscreen", metavar="SPEC",
+                   help="offscreen (default), window[:MONITOR] (fullscreen on a display through X), kms[:DISPLAY] "
+                        "(fullscreen without X, KMS/DRM: a display index or connector such as kms:HDMI-A-1), or "
+                        "room://HOST:PORT (the virtual room)")
     p.add_argument("--snapshot-dir", type=Path, metavar="DIR",
                    help="write every shown still to DIR/<slot>.png (for inspection)")
     p.add_argument("--tls-ca", metavar="PEM", help="connect with TLS, trusting this CA certificate")
     p.add_argument("--tls-server-name", metavar="NAME", help="expected name in the coordinator's certificate")
-    p.add_argument("--ping-hz", type=float, default=4.0,
+    p.add_argument("--ping-hz", type=cli_types.number(0.1, 100), default=4.0,
                    help="clock exchanges per second until the clock estimate is settled, about 20 s (default 4)")
-    p.add_argument("--ping-settled-s", type=float, default=10.0, metavar="S",
+    p.add_argument("--ping-settled-s", type=cli_types.number(1, 60), default=10.0, metavar="S",
                    help="then one clock exchange every S seconds (1..60, default 10; each costs the coordinator ~0.5 ms)")
     p.add_argument("--no-realtime", action="store_true",
                    help="do not raise the swap to real-time priority (SCHED_FIFO needs CAP_SYS_NICE)")
-    p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     cache = p.add_argument_group("assets fetched ahead of use")
-    cache.add_argument("--cache-dir", type=Path, metavar="DIR",
+    cache.add_argument("--cache-dir", metavar="DIR",
                        help=f"where fetched assets are kept (default: {default_cache_dir()}/SLOT; one node per "
                             "directory)")
-    cache.add_argument("--cache-max", type=parse_size, default="8G", metavar="SIZE",
+    cache.add_argument("--cache-max", type=cli_types.byte_size, default="8G", metavar="SIZE",
                        help="cap on the cache's size, e.g. 20G or 500M (powers of 1024; default 8G); the least "
                             "recently used assets the rig no longer wants are evicted to stay under it")
-    cache.add_argument("--fetch-rate", type=parse_size, metavar="BYTES_PER_S",
+    cache.add_argument("--fetch-rate", type=cli_types.byte_size, metavar="BYTES_PER_S",
                        help="fetch assets at most this fast, e.g. 20M for 20 MiB/s (default: as fast as the "
                             "network goes)")
     test = p.add_argument_group("test hooks (make this node deliberately wrong)")
-    test.add_argument("--clock-offset-ms", type=float, default=0.0, help="offset this node's clock by this much")
-    test.add_argument("--clock-drift-ppm", type=float, default=0.0, help="make this node's clock run fast/slow")
+    test.add_argument("--clock-offset-ms", type=cli_types.number(-1e9, 1e9), default=0.0, help="offset this node's clock by this much")
+    test.add_argument("--clock-drift-ppm", type=cli_types.number(-10000, 10000), default=0.0, help="make this node's clock run fast/slow")
     test.add_argument("--protocol-version", type=int, default=PROTOCOL_VERSION, help=argparse.SUPPRESS)
 
 
@@ -92,13 +84,17 @@ def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) ->
                       clock_offset_ms=args.clock_offset_ms, clock_drift_ppm=args.clock_drift_ppm,
                       protocol_version=args.protocol_version, tls_ca=tls_ca, tls_server_name=args.tls_server_name,
                       ping_hz=args.ping_hz, ping_settled_s=args.ping_settled_s, realtime=not args.no_realtime,
-                      cache_dir=args.cache_dir or default_cache_dir() / args.slot, cache_max_bytes=args.cache_max,
+                      cache_dir=Path(args.cache_dir) if args.cache_dir else default_cache_dir() / args.slot,
+                      cache_max_bytes=args.cache_max,
                       fetch_rate=float(args.fetch_rate) if args.fetch_rate else None)
 
 
+def log_name(args: argparse.Namespace) -> str:
+    """How this node's log lines are tagged (the presenter's too)."""
+    return f"node {args.slot}"
+
+
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr, force=True,
-                        format=f"%(asctime)s %(levelname)-7s node {args.slot}: %(message)s")
     log = logging.getLogger("node")
     try:
         token = resolve_token(args.token_file)

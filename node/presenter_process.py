@@ -20,7 +20,6 @@ import logging
 import multiprocessing
 import os
 import signal
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -29,6 +28,7 @@ from typing import Callable
 
 from node.clock import LocalClock, precise_timers
 from node.records import DropRecord, PresenterStatus, SwapRecord
+from protos import logging_setup
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +43,7 @@ class PresenterSettings:
     snapshot_dir: Path | None = None
     realtime: bool = True
     log_level: int = logging.INFO
-    log_format: str = "%(asctime)s %(levelname)-7s %(message)s"
+    log_name: str = "node"
 
 
 def tune_process() -> None:
@@ -59,7 +59,7 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
     from node.presenter import Presenter
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # the node process decides when we stop
-    logging.basicConfig(level=settings.log_level, format=settings.log_format, stream=sys.stderr, force=True)
+    logging_setup.setup(settings.log_level, name=settings.log_name)
     tune_process()
     clock = LocalClock(offset_ns=settings.clock_offset_ns, drift_ppm=settings.clock_drift_ppm,
                        anchor_ns=settings.clock_anchor_ns)

@@ -8,9 +8,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
+from protos.logging_setup import add_verbosity_args, level_from_args, setup
 from shadowless import __version__
+
+#: commands that run for long and say what they do at INFO by default (the others: warnings only)
+INFO_BY_DEFAULT = {"coordinator", "node"}
 
 #: name -> (module, one-line summary). Order is the order of `--help`.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -47,12 +52,21 @@ try it on one machine:
   shadowless local --nodes 4          # coordinator + 4 offscreen nodes, prints sync figures
   shadowless demo                     # the full virtual room (what `make demo` runs)
 
-`shadowless COMMAND --help` explains each command.
+`shadowless COMMAND --help` explains each command; -v/-q (any command) say more or less.
+shell completion (bash, zsh): eval "$(register-python-argcomplete shadowless)"
 """
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse's parser whose mistakes cost one line (not the usage block) and exit status 2.
+    Every subcommand's parser is one too (argparse makes subparsers of the parent's class)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="shadowless",
         description="Shadowless projection mapping with a synthetic-aperture projector rig.",
         epilog=EPILOG,
@@ -63,6 +77,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     for name, (module, summary) in COMMANDS.items():
         p = sub.add_parser(name, help=summary, description=summary, formatter_class=argparse.RawDescriptionHelpFormatter)
         if name == command:
+            add_verbosity_args(p, default="info" if name in INFO_BY_DEFAULT else "warning")
             try:
                 mod = importlib.import_module(module)
             except ImportError as exc:
@@ -72,22 +87,64 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                 ) from exc
             configure = getattr(mod, "configure_" + name, None) or mod.configure
             configure(p)
+            _verbosity_everywhere(p)
             p.set_defaults(_module=mod)
+            parser.command_parser = p
     return parser
 
 
+def _verbosity_everywhere(p: argparse.ArgumentParser) -> None:
+    """-v/-q/--log-level also after a sub-action (``shadowless content list -v``)."""
+    for action in p._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sp in action.choices.values():
+                if "--verbose" not in sp._option_string_actions:
+                    add_verbosity_args(sp, nested=True)
+                _verbosity_everywhere(sp)
+
+
+def _command_of(words: list[str]) -> str | None:
+    return next((a for a in words if not a.startswith("-")), None)
+
+
+def _complete() -> None:
+    """Shell completion (argcomplete): only when the shell asks (``$_ARGCOMPLETE``); exits."""
+    import shlex
+
+    import argcomplete
+
+    try:
+        words = shlex.split(os.environ.get("COMP_LINE", ""))[1:]
+    except ValueError:
+        words = []
+    command = _command_of(words)
+    argcomplete.autocomplete(build_parser(command if command in COMMANDS else None))
+
+
 def main(argv: list[str] | None = None) -> int:
+    if "_ARGCOMPLETE" in os.environ:
+        _complete()
     argv = list(sys.argv[1:] if argv is None else argv)
-    command = next((a for a in argv if not a.startswith("-")), None)
+    command = _command_of(argv)
     parser = build_parser(command if command in COMMANDS else None)
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        getattr(parser, "command_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if not args.command:
         parser.print_help()
         return 2
     mod = args._module
+    log_name = getattr(mod, "log_name", None)
+    setup(level_from_args(args), name=log_name(args) if log_name else args.command)
     run = getattr(mod, "run_" + args.command, None) or mod.run
     try:
         return int(run(args) or 0)
+    except SystemExit as exc:
+        if isinstance(exc.code, str):      # a command's refusal of what it was given: one line, status 2
+            print(exc.code if exc.code.startswith("shadowless") else f"shadowless {args.command}: {exc.code}",
+                  file=sys.stderr)
+            return 2
+        raise
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -29,6 +29,7 @@ import numpy as np
 from bench.room import drop_statistics
 from coordinator.compensation.image_param import encode_image_param
 from coordinator.job_command import ProgressView, run_job
+from protos import cli_types
 from protos.spaces import content_to_table
 from shadowless.local import LocalRig, free_port
 from sim.client import RoomClient
@@ -45,9 +46,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image", help="image to project (default: scikit-image's astronaut)")
     p.add_argument("--poses", choices=["calibrate", "truth"], default="calibrate",
                    help="align by calibrating through the camera (default) or take the room's ground truth")
-    p.add_argument("--hand", default="320,120", metavar="X,Y", help="hand position on the table in mm (default 320,120)")
-    p.add_argument("--hand-height", type=float, default=200.0, help="height of the hand above the table (default 200 mm)")
-    p.add_argument("--content-size", default="600x300", metavar="WxH",
+    p.add_argument("--hand", type=cli_types.pair, default="320,120", metavar="X,Y", help="hand position on the table in mm (default 320,120)")
+    p.add_argument("--hand-height", type=cli_types.number(0, 2000), default=200.0, help="height of the hand above the table (default 200 mm)")
+    p.add_argument("--content-size", type=cli_types.size, default="600x300", metavar="WxH",
                    help="shared image size in content px over the 1200x600 mm table (default 600x300: 2 mm/px)")
     p.add_argument("--no-compensate", dest="compensate", action="store_false",
                    help="skip the blur-compensation stage (responses, light transport, solve; about a minute)")
@@ -150,8 +151,8 @@ async def _demo(args) -> int:
         shutil.rmtree(work)
     out.mkdir(parents=True, exist_ok=True)
     (work / "logs").mkdir(parents=True, exist_ok=True)
-    cw, ch = (int(v) for v in args.content_size.split("x"))
-    hx, hy = (float(v) for v in args.hand.split(","))
+    cw, ch = args.content_size
+    hx, hy = args.hand
 
     room_port = free_port()
     room_log = open(work / "logs" / "room.log", "wb")

@@ -33,6 +33,7 @@ from coordinator.client import Client
 from coordinator.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
 from protos import auth
+from protos import cli_types
 from shadowless.netns import COORDINATOR, Venue, VenueError, available, parse_rate
 
 
@@ -331,14 +332,14 @@ def configure(p: argparse.ArgumentParser) -> None:
                 "  sudo shadowless local --nodes 4 --netns                  # 1 Gbit/s links\n"
                 "  sudo shadowless local --nodes 9 --netns --link 100mbit   # a Wi-Fi-class venue\n"
                 "  python -m shadowless.netns cleanup                       # remove what a crashed run left")
-    p.add_argument("--nodes", type=int, default=4, help="how many node processes (default 4)")
-    p.add_argument("--fps", type=float, default=30.0, help="sequence frame rate (default 30)")
-    p.add_argument("--seconds", type=float, default=5.0, help="sequence length (default 5 s)")
+    p.add_argument("--nodes", type=cli_types.int_range(1, 256), default=4, help="how many node processes (default 4)")
+    p.add_argument("--fps", type=cli_types.number(0, 1000, lo_open=True), default=30.0, help="sequence frame rate (default 30)")
+    p.add_argument("--seconds", type=cli_types.number(0, 86400, lo_open=True), default=5.0, help="sequence length (default 5 s)")
     p.add_argument("--image", help="still to show first (default: a generated test card)")
-    p.add_argument("--size", default="160x90", help="projector output and content size WxH (default 160x90)")
-    p.add_argument("--clock-offset-ms", type=float, default=0.0,
+    p.add_argument("--size", type=cli_types.size, default="160x90", help="projector output and content size WxH (default 160x90)")
+    p.add_argument("--clock-offset-ms", type=cli_types.number(0, 1e9), default=0.0,
                    help="inject clock offsets spread over ±this many ms across the nodes (test hook)")
-    p.add_argument("--clock-drift-ppm", type=float, default=0.0, help="inject drifts spread over ±this many ppm")
+    p.add_argument("--clock-drift-ppm", type=cli_types.number(0, 10000), default=0.0, help="inject drifts spread over ±this many ppm")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory, logs and snapshots in DIR")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     v = p.add_argument_group("virtual venue network")
@@ -354,7 +355,7 @@ def spread(n: int, amplitude: float, seed: int) -> list[float]:
 
 
 async def _local(args) -> int:
-    w, h = (int(v) for v in args.size.split("x"))
+    w, h = args.size
     slots = grid_names(args.nodes)
     workdir = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="shadowless-local-"))
     offsets = dict(zip(slots, spread(len(slots), args.clock_offset_ms, 1)))

@@ -35,6 +35,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from protos import cli_types
 from protos.auth import TokenError, read_token, resolve_token
 from protos.discovery import Discovery, DiscoveryError
 from shadowless.swarm_node import SwarmNode, Ticker
@@ -273,12 +274,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         "  shadowless swarm --nodes 64 --token-file token --coordinator 10.0.0.2:7600 --slot-prefix s   # slots s0..s63\n"
         "\nwhat it prints (at the end, or in --stats-file every second): joins, swaps reported, on_time_fraction "
         "(swaps\nthe swarm woke up for within --late-ms; the others are reported as late drops), its own CPU time.")
-    p.add_argument("--nodes", type=int, required=True, help="how many swarm nodes")
+    p.add_argument("--nodes", type=cli_types.int_range(1, 100_000), required=True, help="how many swarm nodes")
     where = p.add_argument_group("which rig")
     where.add_argument("--rig-dir", type=Path, metavar="DIR",
                        help="the rig directory: its token, and its first N slots for the nodes")
     where.add_argument("--token-file", metavar="FILE", help="rig token file (default: $SHADOWLESS_TOKEN_FILE)")
-    where.add_argument("--slots", metavar="A,B,...", help="slot names for the nodes (default: the rig's, or r0c0…)")
+    where.add_argument("--slots", type=cli_types.names, metavar="A,B,...", help="slot names for the nodes (default: the rig's, or r0c0…)")
     where.add_argument("--slot-prefix", metavar="P", help="slots P0 … P{N-1}")
     where.add_argument("--coordinator", metavar="HOST:PORT", help="skip mDNS and use this coordinator")
     where.add_argument("--rig", metavar="NAME", help="with several rigs advertised, join this one (name or id)")
@@ -287,29 +288,28 @@ def configure(p: argparse.ArgumentParser) -> None:
     how = p.add_argument_group("what each node does")
     how.add_argument("--fetch", choices=FETCH_MODES, default="one",
                      help="assets: the manifest and one blob per node (default), every blob, or the manifest only")
-    how.add_argument("--ping-hz", type=float, default=4.0,
+    how.add_argument("--ping-hz", type=cli_types.number(0.1, 100), default=4.0,
                      help="clock pings per second per node until its clock is settled (default 4, as a node)")
-    how.add_argument("--ping-settled-s", type=float, default=10.0, metavar="S",
+    how.add_argument("--ping-settled-s", type=cli_types.number(1, 60), default=10.0, metavar="S",
                      help="then one ping every S seconds (default 10, as a node; 0: --ping-hz always)")
-    how.add_argument("--report-batch-ms", type=float, default=50.0,
+    how.add_argument("--report-batch-ms", type=cli_types.number(0, 10000), default=50.0,
                      help="swaps and drops of streamed frames are batched over this long (default 50, as a node)")
-    how.add_argument("--timeline-batch-ms", type=float, metavar="MS",
+    how.add_argument("--timeline-batch-ms", type=cli_types.number(0, 60000), metavar="MS",
                      help="those of timeline ticks wait up to this long, going with the heartbeat when it is due "
                           "by then (default: the heartbeat interval, as a node; 50 sends them as streamed frames' are)")
-    how.add_argument("--heartbeat-ms", type=float, metavar="MS",
+    how.add_argument("--heartbeat-ms", type=cli_types.number(50, 60000), metavar="MS",
                      help="heartbeat interval (default: what the coordinator asks for, rig.toml's heartbeat_ms)")
     how.add_argument("--share-connection", action="store_true",
                      help="multiplex every node on one TCP connection (default: one connection per node, as real "
                           "nodes have; sharing costs the coordinator less)")
-    how.add_argument("--late-ms", type=float, default=10.0,
+    how.add_argument("--late-ms", type=cli_types.number(0, 10000), default=10.0,
                      help="a swap the swarm wakes up for later than this is reported as a late drop (default 10)")
-    how.add_argument("--clock-offset-ms", type=float, default=0.0, help="give node clocks random offsets within ±this")
-    how.add_argument("--clock-drift-ppm", type=float, default=0.0, help="give node clocks random drifts within ±this")
+    how.add_argument("--clock-offset-ms", type=cli_types.number(0, 1e9), default=0.0, help="give node clocks random offsets within ±this")
+    how.add_argument("--clock-drift-ppm", type=cli_types.number(0, 10000), default=0.0, help="give node clocks random drifts within ±this")
     out = p.add_argument_group("how long and what to print")
-    out.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C or SIGTERM)")
+    out.add_argument("--seconds", type=cli_types.number(0, 1e7, lo_open=True), help="stop after this long (default: until Ctrl-C or SIGTERM)")
     out.add_argument("--stats-file", type=Path, metavar="FILE", help="write the figures here as JSON about every second")
     out.add_argument("--json", action="store_true", help="print the final figures as JSON")
-    out.add_argument("--log-level", default="warning", choices=["debug", "info", "warning", "error"])
 
 
 def config_from_args(args: argparse.Namespace) -> SwarmConfig:
@@ -334,7 +334,7 @@ def config_from_args(args: argparse.Namespace) -> SwarmConfig:
     token = read_token(args.rig_dir / "token") if args.rig_dir is not None and not args.token_file \
         else resolve_token(args.token_file)
     if args.slots:
-        slots = [s.strip() for s in args.slots.split(",") if s.strip()]
+        slots = list(args.slots)
     elif args.slot_prefix:
         slots = [f"{args.slot_prefix}{i}" for i in range(n)]
     elif rig_slots is not None:
@@ -365,7 +365,6 @@ async def _main(cfg: SwarmConfig, args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         cfg = config_from_args(args)
     except (ValueError, TokenError) as exc:

@@ -7,6 +7,7 @@ import signal
 import sys
 import time
 
+from protos import cli_types
 from sim.errors import SimError
 from sim.occluders import Hand, HandPath
 from sim.room import Room
@@ -35,29 +36,8 @@ see `python -c "import sim.scene; help(sim.scene)"` for the pictures.
 """
 
 
-def _pair(text: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y in millimetres (e.g. 0,0 or -250.5,120), got {text!r}") from None
-    return x, y
-
-
-def _path(text: str) -> list[tuple[float, float]]:
-    points = [_pair(p) for p in text.split(":")]
-    if len(points) < 2:
-        raise argparse.ArgumentTypeError(f"a hand path needs at least two points X0,Y0:X1,Y1, got {text!r}")
-    return points
-
-
-def _scale(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}") from None
-    if not 0 < v <= 1:
-        raise argparse.ArgumentTypeError(f"a scale is a fraction of the native resolution in (0, 1], got {v}")
-    return v
+#: a fraction of the native resolution
+_scale = cli_types.number(0, 1, lo_open=True)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -75,22 +55,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--camera-scale", type=_scale, default=0.25, metavar="S",
                    help="camera resolution relative to native 2592x1944 (default 0.25: 648x486)")
     g.add_argument("--full-resolution", action="store_true", help="native resolutions (same as both scales 1; slow)")
-    g.add_argument("--pitch", type=float, default=250.0, metavar="MM", help="spacing of the reference 5x5 array (default 250 mm)")
-    g.add_argument("--aperture", type=float, default=10.0, metavar="MM", help="projector lens aperture: more is more defocus blur (default 10)")
+    g.add_argument("--pitch", type=cli_types.number(0, 10000, lo_open=True), default=250.0, metavar="MM", help="spacing of the reference 5x5 array (default 250 mm)")
+    g.add_argument("--aperture", type=cli_types.number(0, 1000), default=10.0, metavar="MM", help="projector lens aperture: more is more defocus blur (default 10)")
     g.add_argument("--seed", type=int, default=0, help="unit-to-unit variation and sensor noise (default 0)")
     g.add_argument("--no-noise", action="store_true", help="captures without shot and read noise (still quantised)")
     g.add_argument("--subset", metavar="NAME", help="power only a named subset: P1, P9D, P9W, P13, P17, P20 or P25")
     g.add_argument("--write-layout", metavar="FILE", help="write the room's layout as TOML and exit (a starting point for --layout)")
     h = parser.add_argument_group("a hand over the table")
-    h.add_argument("--hand", type=_pair, metavar="X,Y", help="place a hand (palm centre, or fingertip with --hand-pose point) at table mm X,Y")
-    h.add_argument("--hand-height", type=float, default=200.0, metavar="MM", help="height of the hand's lowest point (default 200; 0 touches)")
+    h.add_argument("--hand", type=cli_types.pair, metavar="X,Y", help="place a hand (palm centre, or fingertip with --hand-pose point) at table mm X,Y")
+    h.add_argument("--hand-height", type=cli_types.number(0, 2000), default=200.0, metavar="MM", help="height of the hand's lowest point (default 200; 0 touches)")
     h.add_argument("--hand-pose", choices=["flat", "point"], default="flat", help="flat: palm parallel to the table; point: index finger down")
-    h.add_argument("--hand-yaw", type=float, default=0.0, metavar="DEG", help="direction the fingers point, counter-clockwise from +y")
-    h.add_argument("--hand-path", type=_path, metavar="X0,Y0:X1,Y1[:...]", help="move the hand along these points and back, repeatedly")
-    h.add_argument("--hand-period", type=float, default=4.0, metavar="S", help="seconds for one round trip of --hand-path (default 4)")
+    h.add_argument("--hand-yaw", type=cli_types.number(-360, 360), default=0.0, metavar="DEG", help="direction the fingers point, counter-clockwise from +y")
+    h.add_argument("--hand-path", type=cli_types.points_path, metavar="X0,Y0:X1,Y1[:...]", help="move the hand along these points and back, repeatedly")
+    h.add_argument("--hand-period", type=cli_types.number(0, 3600, lo_open=True), default=4.0, metavar="S", help="seconds for one round trip of --hand-path (default 4)")
     n = parser.add_argument_group("network")
     n.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
-    n.add_argument("--port", type=int, default=None, help="port (default 50070; 0 picks a free one, printed at start)")
+    n.add_argument("--port", type=cli_types.int_range(0, 65535), default=None, help="port (default 50070; 0 picks a free one, printed at start)")
     n.add_argument("--no-truth", action="store_true", help="do not serve the RoomTruth service")
 
 

@@ -33,6 +33,7 @@ import typing
 from typing import Any, Callable, Mapping, Sequence
 
 from coordinator.jobs.errors import JobError
+from protos import cli_types
 
 __all__ = ["option", "parse_options", "add_arguments", "params_from_args", "describe", "form_fields", "OptionInfo"]
 
@@ -254,21 +255,19 @@ def _cli_type(tp: Any, info: OptionInfo) -> tuple[Callable[[str], Any] | None, s
         return info.cli_type, info.metavar
     base, _ = _split_optional(tp)
     origin = typing.get_origin(base)
-    if base in (int, float, str):
-        return base, info.metavar or ({int: "N", float: "X", str: "TEXT"}[base])
+    if base is int:      # the option's range is checked here too: a mistake costs no round trip
+        return cli_types.int_range(-(1 << 62) if info.lo is None else int(math.ceil(info.lo)),
+                                   None if info.hi is None else int(math.floor(info.hi))), info.metavar or "N"
+    if base is float:
+        return cli_types.number(info.lo, info.hi), info.metavar or "X"
+    if base is str:
+        return str, info.metavar or "TEXT"
     if origin is list:
-        return _comma_list, info.metavar or "A,B,..."
+        return cli_types.names, info.metavar or "A,B,..."
     if origin is tuple:
         kinds = typing.get_args(base)
         return _x_tuple(kinds), info.metavar or "x".join("N" if k is int else "X" for k in kinds)
     return None, info.metavar
-
-
-def _comma_list(text: str) -> list[str]:
-    out = [s.strip() for s in text.split(",") if s.strip()]
-    if not out:
-        raise argparse.ArgumentTypeError("expected a comma-separated list, e.g. r0c0,r0c1")
-    return out
 
 
 def _x_tuple(kinds: tuple[type, ...]) -> Callable[[str], list]:

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from node.errors import NodeError
+from node.output_spec import SPEC_FORMS, parse_room_address  # noqa: F401 (SPEC_FORMS: re-exported)
 from node.render.shaders import MIN_GL_VERSION
 from node.image_files import atomic_write_bytes, encode_png
 
@@ -34,9 +35,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-#: the forms :func:`node.outputs.open_output` accepts, for error messages and ``--help``
-SPEC_FORMS = ("offscreen", "window", "window:MONITOR (0-based monitor index)", "kms",
-              "kms:DISPLAY (0-based index or connector, e.g. kms:HDMI-A-1)", "room://HOST:PORT")
 _SLOT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
@@ -97,12 +95,10 @@ def check_slot(slot: str) -> str:
 
 def parse_room_spec(spec: str) -> str:
     """``room://HOST:PORT`` (or ``HOST:PORT``) -> ``HOST:PORT``; OutputError if malformed."""
-    text = spec.strip()
-    address = text[len("room://") :] if text.startswith("room://") else text
-    host, sep, port = address.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise OutputError(f"output {spec!r}: expected room://HOST:PORT, e.g. room://127.0.0.1:50070")
-    return address
+    try:
+        return parse_room_address(spec)
+    except ValueError as exc:
+        raise OutputError(str(exc)) from None
 
 
 # ------------------------------------------------------------------------- snapshots

@@ -1,4 +1,5 @@
-"""`shadowless node`'s asset options: --cache-max sizes and the per-slot default cache directory."""
+"""`shadowless node`'s asset options: --cache-max sizes and the per-slot default cache directory
+(the size type itself: tests/protos/test_cli_types.py)."""
 from __future__ import annotations
 
 import argparse
@@ -7,20 +8,6 @@ import pytest
 
 from node import cli
 from node.asset_cache import default_cache_dir
-
-
-@pytest.mark.parametrize("text, value", [
-    ("20G", 20 << 30), ("500M", 500 << 20), ("8g", 8 << 30), ("1.5G", 3 << 29), ("64k", 64 << 10),
-    ("1048576", 1 << 20), ("20GB", 20 << 30), ("20GiB", 20 << 30), (" 2T ", 2 << 40),
-])
-def test_sizes_parse_in_powers_of_1024(text, value):
-    assert cli.parse_size(text) == value
-
-
-@pytest.mark.parametrize("text", ["", "0", "0M", "-1G", "abc", "20X", "G", "1e9", "0.5", "20 G B", "NaN"])
-def test_bad_sizes_are_refused_with_an_example(text):
-    with pytest.raises(argparse.ArgumentTypeError, match=r"is not a size.*e\.g\. 20G or 500M"):
-        cli.parse_size(text)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -48,3 +35,10 @@ def test_each_slot_gets_its_own_default_cache_directory(tmp_path, monkeypatch):
     cfg = cli.node_config(parser().parse_args(["--slot", "r0c0", "--cache-dir", str(tmp_path / "c"), "--cache-max",
                                                "1G"]), b"t" * 32, None)
     assert (cfg.cache_dir, cfg.cache_max_bytes, cfg.fetch_rate) == (tmp_path / "c", 1 << 30, None)
+
+
+def test_an_empty_cache_dir_from_an_env_file_means_the_default(tmp_path, monkeypatch):
+    """A unit's ``--cache-dir ${CACHE_DIR}`` with CACHE_DIR empty must not put the cache in the cwd."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    cfg = cli.node_config(parser().parse_args(["--slot", "r0c0", "--cache-dir", ""]), b"t" * 32, None)
+    assert cfg.cache_dir == tmp_path / "shadowless" / "assets" / "r0c0"

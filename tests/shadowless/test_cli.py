@@ -77,7 +77,8 @@ def test_operator_commands_against_a_running_rig(tmp_path):
         r = sh("configure", "--slot", "r0c1", "--gain", "0", *conn)            # 0 is a gain (light off), not "unchanged"
         assert r.returncode == 0, r.stderr
         assert json.loads((rig.rig_dir / "slots" / "r0c1.json").read_text())["gain"] == 0.0
-        for bad_args, says in ((["--gain", "-1"], "gain must be in 0..16"), (["--gain", "nan"], "gain must be in 0..16"),
+        for bad_args, says in ((["--gain", "-1"], "--gain: '-1' is not a number from 0 to 16"),
+                               (["--gain", "nan"], "--gain: 'nan' is not a number from 0 to 16"),
                                ([], "nothing to change on slot 'r0c1'")):
             before = (rig.rig_dir / "slots" / "r0c1.json").read_bytes()
             r = sh("configure", "--slot", "r0c1", *bad_args, *conn)

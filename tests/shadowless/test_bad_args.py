@@ -1,0 +1,134 @@
+"""Every CLI mistake costs one line naming what is wrong, exit status 2, and no traceback; a rig
+directory named in the mistake is left exactly as it was (checksums before and after).
+
+The corpus runs as real `python -m shadowless` processes, a few at a time, none of which reaches
+a coordinator: each mistake is caught before anything is sent (the token, the files and the
+arguments are checked first). Each row goes to the closing note's table (SHADOWLESS_CORPUS_TABLE).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coordinator.rig import init_rig
+from protos import auth
+
+NOWHERE = "127.0.0.1:1"          # a port nothing listens on: a case that got this far would fail differently
+
+# (name, argv with {rig} {dir} {ok} {loose} {pickle} {f64img} placeholders, what the one line must say)
+CASES = [
+    ("unknown command", ["projectt"], "invalid choice: 'projectt'"),
+    ("unknown option", ["status", "--bogus"], "shadowless status: unrecognized arguments: --bogus"),
+    ("local: no nodes", ["local", "--nodes", "0"], "--nodes: '0' is not a whole number 1..256"),
+    ("local: size without height", ["local", "--size", "160"], "--size: '160' is not a size WxH"),
+    ("local: zero frame rate", ["local", "--fps", "0"], "--fps: '0' is not a number above 0"),
+    ("rig init: grid typo", ["rig", "init", "{dir}/new", "--grid", "5y5"], "'5y5' is not a grid COLSxROWS"),
+    ("rig init: zero height", ["rig", "init", "{dir}/new", "--resolution", "1920x0"], "each side must be 1..16384"),
+    ("rig init: negative latency", ["rig", "init", "{dir}/new", "--latency-ms", "-5"], "--latency-ms: '-5' is not a number"),
+    ("rig init: empty slot list", ["rig", "init", "{dir}/new", "--slots", " , "], "a list of names"),
+    ("rig init: onto a rig", ["rig", "init", "{rig}"], "already holds a rig"),
+    ("rig init: onto a file", ["rig", "init", "{ok}"], "is a file; give a folder"),
+    ("rig show: missing", ["rig", "show", "{dir}/none"], "is not a rig directory"),
+    ("node: no slot", ["node"], "the following arguments are required: --slot"),
+    ("node: zero cache", ["node", "--slot", "r0c0", "--cache-max", "0"], "--cache-max: '0' is not a size"),
+    ("node: rate in words", ["node", "--slot", "r0c0", "--fetch-rate", "fast"], "--fetch-rate: 'fast' is not a size"),
+    ("node: missing token file", ["node", "--slot", "r0c0", "--token-file", "{dir}/missing"], "does not exist"),
+    ("node: unknown output", ["node", "--slot", "r0c0", "--output", "hdmi", "--token-file", "{ok}"], "unknown output 'hdmi'; accepted"),
+    ("play: negative fps", ["play", "--pattern", "counter", "--fps", "-1"], "--fps: '-1' is not a number above 0"),
+    ("play: no frames", ["play", "--pattern", "counter", "--frames", "0"], "--frames: '0' is not a whole number"),
+    ("play: negative loops", ["play", "--pattern", "counter", "--loops", "-1"], "--loops: '-1' is not a whole number"),
+    ("play: missing folder", ["play", "{dir}/nothing-here", "--coordinator", NOWHERE, "--token-file", "{ok}"],
+     "no such folder"),
+    ("play: a pickle among the frames", ["play", "{dir}/frames", "--coordinator", NOWHERE, "--token-file", "{ok}"],
+     "pickle"),
+    ("show: unknown fit", ["show", "x.png", "--fit", "squash"], "--fit: invalid choice: 'squash'"),
+    ("show: missing image", ["show", "{dir}/missing.png", "--coordinator", NOWHERE, "--token-file", "{ok}"],
+     "no such file"),
+    ("show: a pickled .npy", ["show", "{pickle}", "--coordinator", NOWHERE, "--token-file", "{ok}"], "pickle"),
+    ("show: seek without frame", ["show", "seek", "--coordinator", NOWHERE, "--token-file", "{ok}"], "seek needs the frame"),
+    ("configure: NaN gain", ["configure", "--slot", "r0c0", "--gain", "nan"], "--gain: 'nan' is not a number from 0 to 16"),
+    ("configure: negative gain", ["configure", "--slot", "r0c0", "--gain", "-1"], "--gain: '-1' is not a number from 0 to 16"),
+    ("configure: resolution with *", ["configure", "--slot", "r0c0", "--resolution", "1920*1080"],
+     "'1920*1080' is not a size WxH"),
+    ("configure: missing LUT", ["configure", "--slot", "r0c0", "--lut", "{dir}/missing.npy"], "no such file"),
+    ("configure: 3 numbers for a homography", ["configure", "--slot", "r0c0", "--homography", "1,2,3",
+                                               "--coordinator", NOWHERE, "--token-file", "{ok}"], "needs 9 numbers"),
+    ("configure: a pickled homography", ["configure", "--slot", "r0c0", "--homography", "{pickle}",
+                                         "--coordinator", NOWHERE, "--token-file", "{ok}"], "not a readable .npy homography"),
+    ("status: readable token", ["status", "--coordinator", NOWHERE, "--token-file", "{loose}"], "chmod 600"),
+    ("status: missing rig dir", ["status", "--rig-dir", "{dir}/none", "--coordinator", NOWHERE], "no such directory"),
+    ("status: two rigs named", ["status", "--rig-dir", "{rig}", "--rig", "another"], "is not the rig in"),
+    ("room: three numbers for a point", ["room", "--hand", "1,2,3"], "'1,2,3' is not a point X,Y"),
+    ("room: a path of one point", ["room", "--hand-path", "1,2"], "two or more points"),
+    ("room: scale above 1", ["room", "--projector-scale", "2"], "--projector-scale: '2' is not a number"),
+    ("room: port out of range", ["room", "--port", "70000"], "--port: '70000' is not a whole number 0..65535"),
+    ("demo: size without height", ["demo", "--content-size", "600"], "--content-size: '600' is not a size"),
+    ("bench sync: a word in a list", ["bench", "sync", "--nodes", "1,x"], "'1,x' is not a list of whole numbers"),
+    ("swarm: no nodes", ["swarm", "--nodes", "0"], "--nodes: '0' is not a whole number"),
+    ("calibrate: unknown mode", ["calibrate", "--mode", "wrong"], "--mode: invalid choice: 'wrong'"),
+    ("calibrate: NaN contrast", ["calibrate", "--min-contrast", "nan"], "--min-contrast: 'nan' is not a number"),
+    ("transport: negative dot radius", ["transport", "--radius", "-1"], "--radius: '-1' is not a whole number 1..16"),
+    ("compensate: nothing to compensate", ["compensate", "--coordinator", NOWHERE, "--token-file", "{ok}"],
+     "give an image or video file"),
+    ("content add: not a rig", ["content", "add", "{ok}", "--rig-dir", "{dir}"], "is not a rig directory"),
+    ("study: missing ratings", ["study", "scheffe", "{dir}/missing.csv"], "missing.csv"),
+]
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bad-args")
+    rig = d / "rig"
+    init_rig(rig, name="bad-args", slots=["r0c0"], width=32, height=18, content_width=32, content_height=18)
+    ok, loose = d / "ok.token", d / "loose.token"
+    for path, mode in ((ok, 0o600), (loose, 0o644)):
+        path.write_text(auth.new_token() + "\n")
+        path.chmod(mode)
+    pickle = d / "pickled.npy"
+    np.save(pickle, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    (d / "frames").mkdir()
+    np.save(d / "frames" / "0001.npy", np.zeros((18, 32, 3), np.float32))
+    np.save(d / "frames" / "0002.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    values = {"rig": str(rig), "dir": str(d), "ok": str(ok), "loose": str(loose), "pickle": str(pickle)}
+    before = digest(rig)
+    env = {k: v for k, v in os.environ.items() if k != "SHADOWLESS_TOKEN_FILE"}
+
+    def one(case):
+        argv = [a.format(**values) for a in case[1]]
+        r = subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True,
+                           timeout=120, env=env, cwd=d)
+        return case[0], argv, r
+
+    with ThreadPoolExecutor(3) as pool:
+        out = {name: (argv, r) for name, argv, r in pool.map(one, CASES)}
+    return out, before, digest(rig)
+
+
+@pytest.mark.parametrize("name, argv, expected", CASES, ids=[c[0] for c in CASES])
+def test_a_mistake_is_one_line_and_status_2(results, corpus_table, name, argv, expected):
+    out, _, _ = results
+    args, r = out[name]
+    err = r.stderr.strip()
+    corpus_table("CLI", "shadowless " + " ".join(Path(a).name if "/" in a else a for a in args), err, r.returncode)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert len(err.splitlines()) == 1, err
+    assert expected in err, err
+
+
+def test_the_corpus_is_large_enough_and_nothing_stored_changed(results):
+    out, before, after = results
+    assert len(CASES) >= 25 and len(out) == len(CASES)
+    assert before == after, "a refused command changed the rig directory"
