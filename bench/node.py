@@ -23,34 +23,19 @@ from importlib import metadata
 import numpy as np
 
 from bench.machine import machine
+from protos import cli_types
 
 GL31_ENV = {"MESA_GL_VERSION_OVERRIDE": "3.1", "MESA_GLSL_VERSION_OVERRIDE": "140", "GLCONTEXT_GLVERSION": "310"}
 FORBIDDEN = ("scipy", "opencv-python", "opencv-contrib-python", "opencv-contrib-python-headless",
              "opencv-python-headless", "scikit-image")
 
 
-def _size(text: str) -> tuple[int, int]:
-    m = re.fullmatch(r"(\d+)x(\d+)", text)
-    if not m or not all(16 <= int(v) <= 16384 for v in m.groups()):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a size like 1920x1080 (16..16384 px a side)")
-    return int(m.group(1)), int(m.group(2))
-
-
-def _frames(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if not 2 <= n <= 100_000:
-        raise argparse.ArgumentTypeError(f"{text!r}: give 2..100000 frames")
-    return n
-
-
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--size", type=_size, default=(1920, 1080), metavar="WxH", help="output size (default 1920x1080)")
-    p.add_argument("--content", type=_size, default=(1920, 1080), metavar="WxH",
+    p.add_argument("--size", type=cli_types.size, default="1920x1080", metavar="WxH", help="output size (default 1920x1080)")
+    p.add_argument("--content", type=cli_types.size, default="1920x1080", metavar="WxH",
                    help="content size (default 1920x1080)")
-    p.add_argument("--frames", type=_frames, default=120, help="frames per profile (default 120)")
+    p.add_argument("--frames", type=cli_types.int_range(2, 100_000), default=120,
+                   help="frames per profile (default 120)")
     p.add_argument("--dtype", choices=["uint8", "uint16", "float32"], default="uint8", help="content samples")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
 
@@ -108,6 +93,9 @@ def _worker(args: argparse.Namespace) -> dict:
                 "rss_interpreter_mb": round(rss_start, 1), "rss_context_mb": round(rss_context - rss_start, 1),
                 "rss_content_mb": round(sum(i.nbytes for i in images) / 2**20, 1),
                 "rss_gl_growth_mb": round(_rss_mb() - rss_before, 1), "peak_rss_mb": round(_rss_mb("VmHWM"), 1),
+                # a node holds the frame it shows, not the bench's rotating set of content images
+                "node_rss_mb": round(_rss_mb() - sum(i.nbytes for i in images[1:]) / 2**20, 1),
+                "renderer": str(r.ctx.info.get("GL_RENDERER", "")),
                 "frame_mean_level": round(float(image.mean()), 2)}
     finally:
         r.release()
@@ -150,9 +138,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     profiles = {}
     for name, env in (("default", {}), ("gl31", GL31_ENV)):
+        frames = args.frames
         # the worker imports what a node's presenter imports, and nothing of the CLI's other commands
         cmd = [sys.executable, "-m", "bench.node", "--worker", "--size", "x".join(map(str, args.size)),
-               "--content", "x".join(map(str, args.content)), "--frames", str(args.frames), "--dtype", args.dtype]
+               "--content", "x".join(map(str, args.content)), "--frames", str(frames), "--dtype", args.dtype]
         done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **env}, timeout=1800)
         if done.returncode != 0:
             print(f"bench node: the {name} profile failed:\n{done.stderr[-3000:]}", file=sys.stderr)

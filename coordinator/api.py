@@ -147,6 +147,9 @@ class NodeStatus:
     assets: tuple[AssetProgress, ...] = ()   # one per wanted asset, in fetch order
     live_age_ms: float = math.nan   # since the node's session turned live (the coordinator's clock; NaN: not live)
     show: NodeShow = field(default_factory=NodeShow)   # the show as the node follows it (its last heartbeat)
+    software_version: str = ""    # the node's shadowless version
+    output: str = ""              # its output kind (offscreen, window, kms, room://…)
+    gl: str = ""                  # the GL it renders with, e.g. "OpenGL 3.1, GLSL 1.40, V3D 4.2"
 
 
 @dataclass(frozen=True)

@@ -80,6 +80,7 @@ def status_dict(st: RigStatus) -> dict:
             "live_age_ms": num(n.live_age_ms),
             "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
+            "software": n.software_version, "output": n.output, "gl": n.gl,
             "show": {"state": n.show.state.value, "revision": n.show.revision, "last_frame": n.show.last_frame,
                      "shown": n.show.frames_shown, "missed": n.show.frames_late, "alone_ms": round(n.show.alone_ms)},
         } for n in st.nodes],
@@ -119,6 +120,22 @@ def show_cell(s: dict) -> str:
 STATE_STYLES = {"live": "green", "lost": "red", "refused": "red"}
 
 
+def _grouped(nodes: list[dict], key: str, verb: str) -> list[str]:
+    """One line per distinct value of ``key`` among the nodes that reported one: which slots
+    render with which GL, run which version (a rig should show one line of each)."""
+    groups: dict[str, list[str]] = {}
+    for n in nodes:
+        if n.get(key):
+            groups.setdefault(n[key], []).append(n["slot"])
+    out = []
+    for value, slots in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        if len(slots) == len(nodes):
+            out.append(f"every node {verb} {value}")
+        else:
+            out.append(f"{verb} {value}: {', '.join(slots[:8])}{' …' if len(slots) > 8 else ''} ({len(slots)})")
+    return out
+
+
 def status_table(d: dict, *, tty: bool = False) -> str:
     """`shadowless status` as text: the rig, a table of its nodes (their states coloured for a
     terminal, ``tty``), then outages, failed assets, sync figures and refusals."""
@@ -132,6 +149,7 @@ def status_table(d: dict, *, tty: bool = False) -> str:
                   str(n["last_swap_frame"] or "-"), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
                   show_cell(n["show"]), assets_cell(n["assets"]))
     lines.append(rendered(t, tty=tty))
+    lines += _grouped(d["nodes"], "gl", "renders with") + _grouped(d["nodes"], "software", "runs shadowless")
     for n in d["nodes"]:
         if n["show"]["alone_ms"]:
             lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "

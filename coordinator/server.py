@@ -542,6 +542,7 @@ class Coordinator:
             live_at = self.live_at.get(sess.session) if sess.state == NodeState.LIVE else None
             nodes.append(NodeStatus(
                 **base, state=sess.state, hostname=sess.info.hostname, pid=sess.info.pid,
+                software_version=sess.info.software_version, output=sess.info.output, gl=sess.info.gl,
                 live_age_ms=(now_ns - live_at) / 1e6 if live_at is not None else math.nan,
                 last_seen_age_ms=(now - sess.last_seen) * 1e3, last_swap_frame=sess.last_swap_frame,
                 last_swap_age_ms=(now - sess.last_swap_at) * 1e3 if sess.last_swap_at else math.nan,

@@ -51,6 +51,9 @@ class NodeInfo:
     pid: int = 0
     host_boot_id: str = ""
     native_size: tuple[int, int] = (0, 0)   # its display's resolution, (0, 0) when unknown
+    software_version: str = ""
+    output: str = ""
+    gl: str = ""                             # the GL it renders with
 
 
 @dataclass(frozen=True)

@@ -92,7 +92,8 @@ def homography_from_message(msg: node_pb2.Homography) -> HomographyPose:
 
 def node_info_from_message(msg: node_pb2.NodeInfo) -> NodeInfo:
     return NodeInfo(hostname=msg.hostname, pid=msg.pid, host_boot_id=msg.host_boot_id,
-                    native_size=(msg.native_width, msg.native_height))
+                    native_size=(msg.native_width, msg.native_height), software_version=msg.software_version[:64],
+                    output=msg.output[:64], gl=msg.gl[:160])
 
 
 def asset_progress_message(p: AssetProgress) -> node_pb2.AssetProgress:
@@ -285,7 +286,8 @@ def _node_status_from_message(m: control_pb2.NodeStatus) -> NodeStatus:
                       asset_bytes_total=m.asset_bytes_total,
                       assets=tuple(asset_progress_from_message(a) for a in m.assets),
                       live_age_ms=m.live_age_ms if m.HasField("live_age_ms") else math.nan,
-                      show=node_show_from_message(m.show))
+                      show=node_show_from_message(m.show), software_version=m.software_version, output=m.output,
+                      gl=m.gl)
 
 
 def status_message(st: RigStatus) -> control_pb2.RigStatus:

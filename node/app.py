@@ -33,6 +33,7 @@ from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimator, ClockSam
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.link import CoordinatorLink, LinkError
 from node.presenter_process import PresenterProcess, PresenterSettings
+from node.systemd import NodeNotifier
 from node.targets import Candidate, TargetBook, read_known_rig, write_known_rig
 from node.records import (
     AssetFiles,
@@ -102,6 +103,8 @@ class Node:
         self.estimator = ClockEstimator(window_ns=CLOCK_WINDOW_NS)
         self._clock_settled = False      # the estimate is good enough for sparse exchanges
         self.presenter: PresenterProcess | None = None
+        # systemd: readiness, status, and a watchdog fed by the network loop and the presenter
+        self.notifier = NodeNotifier(lambda: self.presenter.seconds_since_alive() if self.presenter else math.inf)
         self._reports: asyncio.Queue | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._instance = ""
@@ -165,6 +168,8 @@ class Node:
             self.presenter.stop()
             return 3
         self.presenter.attach(self._loop, self._report)
+        self.notifier.ready(f"{self.cfg.slot}: output {self.cfg.output} open, looking for the coordinator")
+        watchdog = asyncio.create_task(self.notifier.run(), name="watchdog")
         backoff = self.cfg.backoff_min_s
         try:
             while not self._stopping.is_set():
@@ -197,6 +202,9 @@ class Node:
                 backoff = min(cap, backoff * 2)
                 await self._pause(delay * random.uniform(0.8, 1.2), discovery, generation)
         finally:
+            self.notifier.stopping()
+            watchdog.cancel()
+            await asyncio.gather(watchdog, return_exceptions=True)
             if early is not None:
                 early.cancel()
                 await asyncio.gather(early, return_exceptions=True)
@@ -300,6 +308,7 @@ class Node:
                 log.info("coordinator back after %.1f s alone", self._alone_ms / 1e3)
             log.info("joined rig %r (id %s) at %s as %s (session %s…)", hello.rig_name, hello.rig_id, target,
                      self.cfg.slot, session[:6])
+            self.notifier.status(f"{self.cfg.slot}: joined rig {hello.rig_name} at {target}")
             # a first clock estimate before any frame can be scheduled
             await self._ping_burst(link, count=8)
             tasks = [
@@ -326,6 +335,7 @@ class Node:
                     log.error("session ended by %s: %r", t.get_name(), exc)
             if lost and not self._stopping.is_set():
                 self._alone_since = time.monotonic()
+                self.notifier.status(f"{self.cfg.slot}: lost the coordinator at {target}; rejoining")
                 show = self.presenter.stats.show
                 if show.state in ("playing", "paused"):
                     log.warning("the show (r%d, %s) goes on without the coordinator, on this node's clock estimate",
@@ -367,7 +377,7 @@ class Node:
         size = self.presenter.native_size or (0, 0)
         info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
                         software_version=_version(), output=self.cfg.output.split("?")[0],
-                        native_width=size[0], native_height=size[1])
+                        native_width=size[0], native_height=size[1], gl=self.presenter.gl_info)
         reply = await link.join(JoinRequest(protocol_version=self.cfg.protocol_version, slot=self.cfg.slot,
                                             client_nonce=client_nonce, server_nonce=hello.server_nonce,
                                             client_proof=proof, info=info))

@@ -31,6 +31,7 @@ from node.realtime import RealtimeWindow
 from node.records import (AssetFiles, DropReason, DropRecord, FrameOrder, NodeAssignment, PresenterStatus, ShowStatus,
                           ShowUpdateData)
 from node.render.renderer import Mesh, Renderer
+from node.render.shaders import gl_description
 from node.timeline_player import TimelineEvent, TimelinePlayer, fit_frame
 from node.wire import live_packet_from_bytes
 
@@ -99,6 +100,7 @@ class Presenter:
         self.dropped = 0
         self.assignment: NodeAssignment | None = None
         self.native_size: tuple[int, int] | None = None
+        self.gl_info = ""
         self._realtime_wanted = realtime
         self._render_ms: deque[float] = deque(maxlen=120)
         self._current: FrameOrder | None = None
@@ -137,6 +139,8 @@ class Presenter:
         self.native_size = self.out.native_size()
         w, h = self.native_size or (640, 360)
         self.renderer = Renderer(ctx, w, h)
+        self.gl_info = gl_description(ctx)
+        log.info("rendering with %s", self.gl_info)
         self._rt = RealtimeWindow(self._realtime_wanted)
         self._warm_up()
         self.renderer.render(None)
@@ -207,15 +211,20 @@ class Presenter:
                         a.width, a.height, *self.native_size)
         if (renderer.width, renderer.height) != size:
             renderer.resize(*size)
-        if a.pose_kind == "homography":
-            renderer.set_homography(a.homography, a.content_size)
-        elif a.pose_kind == "projection":
-            renderer.set_projection(a.projection, Mesh(a.mesh.vertices, a.mesh.uvs, a.mesh.faces),
-                                    near=a.near_mm, far=a.far_mm)
-        else:
+        try:
+            if a.pose_kind == "homography":
+                renderer.set_homography(a.homography, a.content_size)
+            elif a.pose_kind == "projection":
+                renderer.set_projection(a.projection, Mesh(a.mesh.vertices, a.mesh.uvs, a.mesh.faces),
+                                        near=a.near_mm, far=a.far_mm)
+            else:
+                renderer.clear_pose()
+            renderer.set_lut(a.lut)
+            renderer.set_gain(a.gain)
+        except ValueError as exc:   # one bad assignment must not take the projector down: black until the next
+            log.error("assignment r%d cannot be rendered (%s); this projector shows black until the next one",
+                      a.revision, exc)
             renderer.clear_pose()
-        renderer.set_lut(a.lut)
-        renderer.set_gain(a.gain)
         self.assignment = a
         # a video asset decodes straight to the content size the homography maps (see fit_frame)
         self.player.content_size = (tuple(a.content_size) if a.pose_kind == "homography" and all(a.content_size)

@@ -9,9 +9,9 @@ single thread never waits for anyone's GIL.
 Both directions are pipes of ``(kind, payload)`` tuples of plain data: in, what
 :meth:`node.presenter.Presenter.handle` takes (the show's timeline and an asset's file
 paths included: the presenter decodes the asset's frames itself, so decoded frames never
-cross the pipe); out, ``("ready", size)``,
-``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)`` and
-``("drop", DropRecord)``.
+cross the pipe); out, ``("ready", (size, gl_info))``,
+``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)``,
+``("drop", DropRecord)`` and ``("alive", None)`` (every second while its loop runs).
 """
 from __future__ import annotations
 
@@ -46,6 +46,10 @@ class PresenterSettings:
     log_name: str = "node"
 
 
+#: how often the presenter's loop says it is alive (whatever else it sends)
+ALIVE_EVERY_S = 1.0
+
+
 def tune_process() -> None:
     """Let sleeps end close to their deadline (1 µs timer slack)."""
     precise_timers()
@@ -75,9 +79,14 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
         log.exception("cannot open output %r", settings.output_spec)
         conn_out.send(("failed", f"{type(exc).__name__}: {exc}"))
         return
-    conn_out.send(("ready", p.native_size))
+    conn_out.send(("ready", (p.native_size, p.gl_info)))
+    alive_at = time.monotonic()
     try:
         while True:
+            now = time.monotonic()
+            if now - alive_at >= ALIVE_EVERY_S:     # for the node's systemd watchdog (node.systemd)
+                conn_out.send(("alive", None))
+                alive_at = now
             # messages first; the show's timeline is followed between them (see Presenter.timeline_wait)
             wait = p.timeline_wait()
             if not conn_in.poll(0.5 if wait is None else min(wait, 0.5)):
@@ -130,10 +139,12 @@ class PresenterProcess:
         self._child_ends = (child_in, child_out)
         _grow_pipe(self._to_child.fileno())
         self.native_size: tuple[int, int] | None = None
+        self.gl_info = ""            # what the presenter renders with, once ready
         self.failed: str | None = None
         self.stats = PresenterStatus()
         self._ready = threading.Event()
         self._on_report: Callable[[SwapRecord | DropRecord], None] | None = None
+        self._alive_at = time.monotonic()
 
     def start(self) -> None:
         self._process.start()
@@ -169,9 +180,16 @@ class PresenterProcess:
                 return
             self._dispatch(kind, payload)
 
+    def seconds_since_alive(self) -> float:
+        """Seconds since the presenter process last sent anything (it says "alive" every
+        ALIVE_EVERY_S while its loop runs)."""
+        return time.monotonic() - self._alive_at
+
     def _dispatch(self, kind: str, payload) -> None:
+        self._alive_at = time.monotonic()
         if kind == "ready":
-            self.native_size = tuple(payload) if payload else None
+            size, self.gl_info = payload
+            self.native_size = tuple(size) if size else None
             self._ready.set()
         elif kind == "failed":
             self.failed = payload

@@ -214,6 +214,7 @@ class NodeInfo:
     output: str
     native_width: int = 0
     native_height: int = 0
+    gl: str = ""              # what the presenter renders with (see node.presenter.Presenter.gl_info)
 
 
 @dataclass(frozen=True)

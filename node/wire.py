@@ -177,7 +177,7 @@ def join_request(req: JoinRequest) -> node_pb2.JoinRequest:
     i = req.info
     info = node_pb2.NodeInfo(hostname=i.hostname, host_boot_id=i.host_boot_id, pid=i.pid,
                              software_version=i.software_version, output=i.output,
-                             native_width=i.native_width, native_height=i.native_height)
+                             native_width=i.native_width, native_height=i.native_height, gl=i.gl)
     login = common_pb2.LoginRequest(protocol_version=req.protocol_version, role="node", slot=req.slot,
                                     client_nonce=req.client_nonce, server_nonce=req.server_nonce,
                                     client_proof=req.client_proof)

@@ -55,7 +55,7 @@ NODE_SHOW_PAUSED: NodeShowState
 NODE_SHOW_SUSPENDED: NodeShowState
 
 class NodeInfo(_message.Message):
-    __slots__ = ("hostname", "host_boot_id", "pid", "software_version", "output", "native_width", "native_height")
+    __slots__ = ("hostname", "host_boot_id", "pid", "software_version", "output", "native_width", "native_height", "gl")
     HOSTNAME_FIELD_NUMBER: _ClassVar[int]
     HOST_BOOT_ID_FIELD_NUMBER: _ClassVar[int]
     PID_FIELD_NUMBER: _ClassVar[int]
@@ -63,6 +63,7 @@ class NodeInfo(_message.Message):
     OUTPUT_FIELD_NUMBER: _ClassVar[int]
     NATIVE_WIDTH_FIELD_NUMBER: _ClassVar[int]
     NATIVE_HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    GL_FIELD_NUMBER: _ClassVar[int]
     hostname: str
     host_boot_id: str
     pid: int
@@ -70,7 +71,8 @@ class NodeInfo(_message.Message):
     output: str
     native_width: int
     native_height: int
-    def __init__(self, hostname: _Optional[str] = ..., host_boot_id: _Optional[str] = ..., pid: _Optional[int] = ..., software_version: _Optional[str] = ..., output: _Optional[str] = ..., native_width: _Optional[int] = ..., native_height: _Optional[int] = ...) -> None: ...
+    gl: str
+    def __init__(self, hostname: _Optional[str] = ..., host_boot_id: _Optional[str] = ..., pid: _Optional[int] = ..., software_version: _Optional[str] = ..., output: _Optional[str] = ..., native_width: _Optional[int] = ..., native_height: _Optional[int] = ..., gl: _Optional[str] = ...) -> None: ...
 
 class JoinRequest(_message.Message):
     __slots__ = ("login", "info")

@@ -25,8 +25,8 @@ examples:
   shadowless calibrate --rig-dir rigs/table --charuco board.json --table-only   # then remove the board:
   shadowless calibrate --rig-dir rigs/table                                      # reuses the saved table mapping
   shadowless calibrate --rig-dir rigs/table --mode sequential --slots r0c0,r0c1
-  shadowless calibrate --rig-dir rigs/table --table-points marks.json --record /tmp/cal-run1
-  shadowless calibrate --rig-dir rigs/table --camera folder:/tmp/cal-run1/camera0 --force   # replay offline
+  shadowless calibrate --rig-dir rigs/table --table-points marks.json --record /var/lib/shadowless/records/cal-run1
+  shadowless calibrate --rig-dir rigs/table --camera folder:/var/lib/shadowless/records/cal-run1/camera0 --force   # replay offline
   shadowless calibrate --rig-dir rigs/bust --mesh bust.obj --landmarks clicks.json --table-points marks.json
   shadowless alignment --rig-dir rigs/table
 

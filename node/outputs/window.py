@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from node.outputs.base import Output, OutputError, Snapshots, SwapInfo, check_slot
+from node.render.shaders import MIN_GL_VERSION
 
 if TYPE_CHECKING:  # pragma: no cover
     import moderngl
@@ -140,22 +141,29 @@ class WindowOutput(Output):
             raise OutputError("the window output is closed")
         glfw = self._glfw
         mode = self._mode
-        glfw.default_window_hints()
-        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
-        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
-        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
-        glfw.window_hint(glfw.DOUBLEBUFFER, True)
-        glfw.window_hint(glfw.AUTO_ICONIFY, False)  # a projector must not go dark when focus moves
-        glfw.window_hint(glfw.RED_BITS, mode.bits.red)
-        glfw.window_hint(glfw.GREEN_BITS, mode.bits.green)
-        glfw.window_hint(glfw.BLUE_BITS, mode.bits.blue)
-        glfw.window_hint(glfw.REFRESH_RATE, mode.refresh_rate)
-        window = glfw.create_window(self._size[0], self._size[1], f"shadowless {self.slot}", self._monitor, None)
+        window = None
+        # OpenGL 3.3 core where the driver offers it, else 3.1 (a Raspberry Pi's V3D): the renderer
+        # runs on both (node.render.shaders); 3.1 has no core profile to ask for
+        for minor, core in ((3, True), (1, False)):
+            glfw.default_window_hints()
+            glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+            glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, minor)
+            if core:
+                glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+                glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+            glfw.window_hint(glfw.DOUBLEBUFFER, True)
+            glfw.window_hint(glfw.AUTO_ICONIFY, False)  # a projector must not go dark when focus moves
+            glfw.window_hint(glfw.RED_BITS, mode.bits.red)
+            glfw.window_hint(glfw.GREEN_BITS, mode.bits.green)
+            glfw.window_hint(glfw.BLUE_BITS, mode.bits.blue)
+            glfw.window_hint(glfw.REFRESH_RATE, mode.refresh_rate)
+            window = glfw.create_window(self._size[0], self._size[1], f"shadowless {self.slot}", self._monitor, None)
+            if window:
+                break
         if not window:
             raise OutputError(
-                f"cannot open a fullscreen OpenGL 3.3 window on monitor {self.monitor_index} ({self._last_error()}); "
-                "the display's GL driver must offer OpenGL 3.3 core"
+                f"cannot open a fullscreen OpenGL window on monitor {self.monitor_index} ({self._last_error()}); "
+                "the display's GL driver must offer OpenGL 3.1 or newer"
             )
         self.window = window
         try:
@@ -165,7 +173,7 @@ class WindowOutput(Output):
             # Lazy: moderngl is loaded only by the process that renders (see base.headless_context).
             import moderngl
 
-            self._ctx = moderngl.create_context(require=330)
+            self._ctx = moderngl.create_context(require=MIN_GL_VERSION)
             fb = tuple(int(v) for v in glfw.get_framebuffer_size(window))
             if fb != self._size:  # e.g. a scaled desktop: projector pixels are framebuffer pixels
                 log.info("window framebuffer is %dx%d (monitor mode %dx%d)", *fb, *self._size)

@@ -20,3 +20,13 @@ def glsl_header(version_code: int) -> str:
 def load_shader(name: str, header: str = "") -> str:
     """Read a shader file that lives beside this module, after ``header`` (its #version line)."""
     return header + resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
+
+
+def gl_description(ctx) -> str:
+    """What a context offers, for the operator's status: e.g. "OpenGL 3.1, GLSL 1.40, V3D 4.2"
+    (the version the node asked for and got, the shading language its shaders use, the driver)."""
+    v = ctx.version_code
+    glsl = glsl_header(v).split()[1]
+    renderer = str(ctx.info.get("GL_RENDERER", "")).strip()
+    text = f"OpenGL {v // 100}.{v % 100 // 10}, GLSL {glsl[0]}.{glsl[1:]}"
+    return f"{text}, {renderer}" if renderer else text

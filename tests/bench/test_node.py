@@ -18,6 +18,7 @@ def test_bench_node_measures_both_profiles():
     assert d["same_picture"] and default["frame_mean_level"] > 0
     for p in (default, gl31):
         assert p["render_ms_p50"] > 0 and p["upload_ms_p50"] > 0 and p["rss_mb"] > p["rss_interpreter_mb"] > 0
+        assert 0 < p["node_rss_mb"] <= p["rss_mb"]
     install = d["node_install"]
     assert install["forbidden_present"] == []
     assert {"numpy", "grpcio", "moderngl", "av"} <= set(install["distributions"])

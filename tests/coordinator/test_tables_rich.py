@@ -95,3 +95,19 @@ def test_an_empty_store_says_how_to_add_an_asset(tty):
     text = assets_table([], tty=tty)
     assert "id" in text and text.endswith("(no assets; add one with `shadowless content add PATH`)")
 
+
+def test_the_status_says_what_each_node_renders_with_and_runs():
+    from dataclasses import replace
+
+    st = rig_status()
+    gl31, gl45 = "OpenGL 3.1, GLSL 1.40, V3D 4.2", "OpenGL 4.5, GLSL 3.30, llvmpipe"
+    nodes = (replace(st.nodes[0], gl=gl31, software_version="0.2.0", output="kms"),
+             replace(st.nodes[1], gl=gl45, software_version="0.2.0", output="window"), st.nodes[2])
+    d = status_dict(replace(st, nodes=nodes))
+    assert [(n["gl"], n["software"], n["output"]) for n in d["nodes"]] == [
+        (gl31, "0.2.0", "kms"), (gl45, "0.2.0", "window"), ("", "", "")]
+    lines = status_table(d).splitlines()
+    assert f"renders with {gl31}: r0c0 (1)" in lines and f"renders with {gl45}: r0c1 (1)" in lines
+    assert "runs shadowless 0.2.0: r0c0, r0c1 (2)" in lines
+    same = status_table(status_dict(replace(st, nodes=tuple(replace(n, gl=gl31) for n in st.nodes)))).splitlines()
+    assert f"every node renders with {gl31}" in same

@@ -287,6 +287,7 @@ WINDOW_SCRIPT = textwrap.dedent(
     w, h = out.native_size()
     r = Renderer(ctx, w, h)
     result["cursor_hidden"] = glfw.get_input_mode(out.window, glfw.CURSOR) == glfw.CURSOR_HIDDEN
+    result["gl"] = ctx.version_code
 
     known = np.random.default_rng(11).integers(0, 256, (h, w, 3), dtype=np.uint8)
     r.upload("known", known)
@@ -351,9 +352,16 @@ WINDOW_SCRIPT = textwrap.dedent(
 )
 
 
-def test_fullscreen_window_under_xvfb(xvfb, tmp_path):
+#: a Raspberry Pi's V3D offers OpenGL 3.1 (GLSL 1.40) and no 3.3 core: Mesa restricted to that
+GL31 = {"MESA_GL_VERSION_OVERRIDE": "3.1", "MESA_GLSL_VERSION_OVERRIDE": "140"}
+
+
+@pytest.mark.parametrize("gl", ["default", "gl31"])
+def test_fullscreen_window_under_xvfb(xvfb, tmp_path, gl):
     env = {k: v for k, v in os.environ.items() if k != "WAYLAND_DISPLAY"}
     env["DISPLAY"] = xvfb
+    if gl == "gl31":
+        env.update(GL31)
     done = subprocess.run([sys.executable, "-c", WINDOW_SCRIPT, str(tmp_path)], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, f"window script failed:\n{done.stdout}\n{done.stderr}"
@@ -362,6 +370,7 @@ def test_fullscreen_window_under_xvfb(xvfb, tmp_path):
 
     assert result["native_size"] == [640, 480]
     assert result["cursor_hidden"]
+    assert (result["gl"] == 310) if gl == "gl31" else (result["gl"] >= 330), result["gl"]
     # the back buffer after prepare(), and what the X server shows after swap(), are the frame exactly
     np.testing.assert_array_equal(images["back"], images["known"])
     np.testing.assert_array_equal(images["shown_known"], images["known"])

@@ -423,3 +423,22 @@ def test_a_stop_blacks_the_output_without_a_report(rig, tmp_path):
     p.timeline_step()
     assert rig.out.swaps == swaps_before + 1 and [s.frame_id for s in rig.swaps] == [500]
     assert p.timeline_wait() is None
+
+
+def test_an_assignment_the_renderer_refuses_blacks_the_projector_and_the_presenter_lives_on(rig, caplog):
+    from dataclasses import replace
+
+    from node.records import MeshData
+
+    quad = MeshData(mesh_id="tri", vertices=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32),
+                    uvs=np.array([[0, 0], [1, 0], [0, 1]], np.float32), faces=np.array([[0, 1, 2]], np.uint32))
+    affine = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])     # no depth axis
+    bad = replace(assignment(revision=2), pose_kind="projection", projection=affine, mesh=quad)
+    with caplog.at_level("ERROR"):
+        rig.presenter.handle("assignment", bad)
+    assert "assignment r2 cannot be rendered" in caplog.text
+    assert rig.presenter.assignment.revision == 2
+    good = replace(assignment(revision=3), pose_kind="homography", homography=np.eye(3))
+    rig.presenter.handle("assignment", good)          # the next good one renders again
+    rig.show(rig.frame(1, in_ms=20, content="c10"))
+    assert rig.presenter.assignment.revision == 3 and [s.frame_id for s in rig.swaps] == [1]

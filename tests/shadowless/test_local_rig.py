@@ -54,6 +54,10 @@ def test_every_node_discovers_and_joins(rig):
     assert {n.slot for n in st.nodes if n.state == NodeState.LIVE} == set(rig.slots)
     for slot in rig.slots:
         assert "--mdns-interface" in rig.node_args(slot) and "--coordinator" not in rig.node_args(slot)
+    # each node says what it runs: its version, its output, and the GL capability it chose at start
+    for n in st.nodes:
+        assert n.output == "offscreen" and n.software_version, n
+        assert n.gl.startswith("OpenGL ") and "GLSL " in n.gl, n.gl
     # the injected offsets were found by the nodes (rig - local = -(offset + drift * elapsed)) ...
     elapsed_s = time.monotonic() - rig.started
     for n in st.nodes:
