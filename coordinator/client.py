@@ -155,9 +155,12 @@ class Client:
 
     async def configure(self, slot: str, *, homography: np.ndarray | None = None, lut: np.ndarray | None = None,
                         gain: float | None = None, size: tuple[int, int] | None = None,
-                        clear_pose: bool = False) -> int:
-        """Set a slot's pose/LUT/gain/size by hand; returns the slot's new revision."""
-        req = wire.configure_request(slot, homography=homography, lut=lut, gain=gain, size=size, clear_pose=clear_pose)
+                        clear_pose: bool = False, projection: np.ndarray | None = None,
+                        mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, mesh_id: str = "") -> int:
+        """Set a slot's pose/LUT/gain/size by hand; returns the slot's new revision. ``projection``:
+        a (3, 4) pose on ``mesh`` (vertices, uvs, faces) or on the rig's mesh ``mesh_id``."""
+        req = wire.configure_request(slot, homography=homography, lut=lut, gain=gain, size=size, clear_pose=clear_pose,
+                                     projection=projection, mesh=mesh, mesh_id=mesh_id)
         return (await self.stub.Configure(req, metadata=self.md, timeout=10)).revision
 
     async def run_job(self, kind: str, params: dict, *, on_event: Callable[[Event], None] | None = None) -> dict:

@@ -26,6 +26,8 @@ from coordinator.job_command import run_job
 from coordinator.rig_target import open_client
 from coordinator.schema import read_npy
 from protos import auth, cli_types
+from protos.mesh_files import MeshFileError, read_mesh
+from protos.version import MAX_REQUEST_BYTES
 
 
 # ---------------------------------------------------------------- formatting
@@ -258,8 +260,16 @@ def configure_play(p: argparse.ArgumentParser) -> None:
 def configure_configure(p: argparse.ArgumentParser) -> None:
     p.description = "Set a slot's pose, LUT, gain or output size by hand (calibration normally does this)."
     p.add_argument("--slot", required=True)
-    p.add_argument("--homography", metavar="FILE_OR_9_NUMBERS",
-                   help="content px -> projector px: a .npy (3,3) file or 9 comma-separated numbers, row-major")
+    pose = p.add_mutually_exclusive_group()
+    pose.add_argument("--homography", metavar="FILE_OR_9_NUMBERS",
+                      help="a table's pose, content px -> projector px: a .npy (3,3) file or 9 comma-separated "
+                           "numbers, row-major")
+    pose.add_argument("--projection", metavar="FILE_OR_12_NUMBERS",
+                      help="an object's pose, world mm -> projector px: a .npy (3,4) file or 12 comma-separated "
+                           "numbers, row-major; with --mesh or --mesh-id")
+    p.add_argument("--mesh", type=cli_types.existing_file, metavar="OBJ_OR_PLY",
+                   help="with --projection: the object's mesh, with texture coordinates (sent with the pose)")
+    p.add_argument("--mesh-id", metavar="ID", help="with --projection: a mesh the rig already holds (RIG/meshes/ID.npz)")
     p.add_argument("--lut", type=cli_types.existing_file, metavar="NPY", help="(C, E) float32 inverse-response LUT")
     p.add_argument("--gain", type=cli_types.number(0, 16), help="linear gain, 0..16 (0 switches the projector's light off)")
     p.add_argument("--resolution", type=cli_types.size, metavar="WxH", help="output size, e.g. 1920x1080")
@@ -432,12 +442,40 @@ def _matrix(text: str, rows: int, cols: int, what: str) -> np.ndarray:
     return m.reshape(rows, cols)
 
 
+def _mesh_arrays(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """--mesh FILE (.obj/.ply with texture coordinates) as (vertices, uvs, faces), refused before
+    sending when it would not fit in one request."""
+    try:
+        m = read_mesh(path)
+    except MeshFileError as exc:
+        raise OperatorError(str(exc)) from None
+    if m.uvs is None:
+        raise OperatorError(f"mesh {path} has no texture coordinates: content is mapped through them (UV space)")
+    size = m.vertices.shape[0] * 20 + m.faces.shape[0] * 12
+    if size > MAX_REQUEST_BYTES - (64 << 10):
+        raise OperatorError(f"mesh {path} is {size / 2**20:.1f} MiB as sent ({m.vertices.shape[0]} vertices, "
+                            f"{m.faces.shape[0]} faces), more than one request may carry ({MAX_REQUEST_BYTES >> 20} MiB): "
+                            "decimate it, or name a mesh the rig already holds with --mesh-id")
+    return m.vertices, m.uvs, m.faces
+
+
 async def _configure(args) -> int:
-    h = _matrix(args.homography, 3, 3, "homography") if args.homography else None
+    h = proj = mesh = None
+    if args.homography:
+        h = _matrix(args.homography, 3, 3, "homography")
+    if args.projection is not None:
+        proj = _matrix(args.projection, 3, 4, "projection")
+        if bool(args.mesh) == bool(args.mesh_id):
+            raise OperatorError("a --projection pose needs its mesh: --mesh FILE (.obj/.ply) or --mesh-id ID "
+                                "(a mesh the rig holds)")
+        mesh = _mesh_arrays(args.mesh) if args.mesh else None
+    elif args.mesh or args.mesh_id:
+        raise OperatorError("--mesh and --mesh-id go with --projection")
     lut = _npy(args.lut, ("float32", "float64"), "LUT").astype(np.float32) if args.lut else None
     async with await open_client(args) as c:
         revision = await c.configure(args.slot, homography=h, lut=lut, gain=args.gain, size=args.resolution,
-                                     clear_pose=args.clear_pose)
+                                     clear_pose=args.clear_pose, projection=proj, mesh=mesh,
+                                     mesh_id=args.mesh_id or "")
     print(f"slot {args.slot} now at revision {revision}")
     return 0
 

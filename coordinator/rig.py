@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import re
 import time
 import uuid
 from dataclasses import dataclass, replace
@@ -87,12 +88,25 @@ class ProjectionPose:
         m = np.asarray(self.matrix, dtype=np.float64)
         if m.shape != (3, 4) or not np.all(np.isfinite(m)):
             raise ValueError(f"a projection pose must be a finite (3, 4) matrix, got shape {m.shape}")
+        if not np.any(m[2, :3]):   # what the nodes' renderer needs (node.render.renderer.set_projection)
+            raise ValueError("a projection pose needs a depth axis: its third row must not start with three zeros "
+                             "(an affine matrix is not a projector's pose)")
         if not 0 < self.near_mm < self.far_mm:
             raise ValueError("projection pose needs 0 < near_mm < far_mm")
         object.__setattr__(self, "matrix", m)
 
 
 Pose = HomographyPose | ProjectionPose
+
+
+def mesh_with_id(vertices: np.ndarray, uvs: np.ndarray, faces: np.ndarray) -> Mesh:
+    """A :class:`Mesh` whose id is a digest of its arrays (the same mesh, the same id)."""
+    v, uv, f = (np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(uvs, np.float32),
+                np.ascontiguousarray(faces, np.uint32))
+    h = hashlib.blake2b(digest_size=8)
+    for a in (v, uv, f):
+        h.update(a.tobytes())
+    return Mesh(h.hexdigest(), v, uv, f)
 
 
 @dataclass(frozen=True)
@@ -269,6 +283,15 @@ class Rig:
         remove_stale_temps(self.path)
 
     # ---- loading -------------------------------------------------------
+    def mesh(self, mesh_id: str) -> Mesh:
+        """A mesh the rig holds (``meshes/<id>.npz``); RigError if there is none of that id."""
+        if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", mesh_id or "") or mesh_id.startswith("."):
+            raise RigError(f"mesh id {mesh_id!r} is not a mesh of this rig (ids are letters, digits, '_', '-', '.')")
+        if mesh_id not in self.meshes and not (self.path / "meshes" / f"{mesh_id}.npz").exists():
+            have = sorted(p.stem for p in (self.path / "meshes").glob("*.npz")) if (self.path / "meshes").is_dir() else []
+            raise RigError(f"the rig holds no mesh {mesh_id!r} (it has: {', '.join(have) or 'none'})")
+        return self._load_mesh(mesh_id)
+
     def _load_mesh(self, mesh_id: str) -> Mesh:
         if mesh_id not in self.meshes:
             f = self.path / "meshes" / f"{mesh_id}.npz"

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from coordinator.errors import RigError
+from coordinator.mpcdi import cli as mpcdi_cli
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos import cli_types
 
@@ -30,6 +31,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     init.add_argument("--force", action="store_true", help="replace an existing rig.toml (keeps the token and state)")
     show = sub.add_parser("show", help="print a rig directory's configuration and per-slot state as JSON")
     show.add_argument("dir")
+    mpcdi_cli.configure_export(sub.add_parser("export", help="write a rig directory's calibration to an MPCDI archive"))
+    mpcdi_cli.configure_import(sub.add_parser("import", help="read an MPCDI archive's calibration into a rig directory"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"created rig in {path}: {len(slots)} slots, id {rig_id}; token in {path / 'token'}\n"
                   f"on every node: copy the token to /etc/shadowless/token and set RIG={rig_id} in node.env")
             return 0
+        if args.rig_command in ("export", "import"):
+            return (mpcdi_cli.run_export if args.rig_command == "export" else mpcdi_cli.run_import)(args)
         rig = Rig(args.dir)
         doc = {
             "name": rig.config.name, "id": rig.config.rig_id, "dir": str(rig.path),

@@ -49,6 +49,7 @@ from coordinator.mdns import Advertiser
 from coordinator.playback import Playback, cpu_seconds
 from coordinator.refusals import Refusals
 from coordinator.rig import Content, Rig
+from coordinator.rig_lock import RigLock
 from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
 from coordinator.show import MIN_LEAD_NS, Show
 from coordinator.sync import SyncTracker, summarize
@@ -161,10 +162,13 @@ class Coordinator:
         self._health: Any = None
         self._advertiser: Advertiser | None = None
         self._tasks: list[asyncio.Task] = []
+        self._rig_lock = RigLock(rig.path)   # one coordinator (or `rig import`) per rig directory
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
-        """Listen, register the services (health and reflection too), advertise, watch the nodes."""
+        """Listen, register the services (health and reflection too), advertise, watch the nodes.
+        Takes the rig directory's lock first: RigLockError if another coordinator serves it."""
+        self._rig_lock.acquire()
         self.distribution.load()
         self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
         if self.console_listen is not None:
@@ -208,6 +212,7 @@ class Coordinator:
             await self._server.stop(grace)
         await self.playback.close()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._rig_lock.release()
 
     # ------------------------------------------------------------------ clocks
     def now(self) -> float:

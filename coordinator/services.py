@@ -389,10 +389,10 @@ class RigControlService(_Handshake):
     @_guard
     async def Configure(self, request, context):
         self._operator(context)
-        changes = wire.slot_changes_from_message(request)
+        changes = wire.slot_changes_from_message(request, mesh_lookup=self.c.rig.mesh)
         if not changes:
-            raise ValueError(f"nothing to change on slot {request.slot!r}: give a homography, a LUT, a gain, an "
-                             "output size or clear the pose")
+            raise ValueError(f"nothing to change on slot {request.slot!r}: give a homography or a projection pose, "
+                             "a LUT, a gain, an output size or clear the pose")
         st = self.c.update_slot(request.slot, **changes)
         return control_pb2.ConfigureReply(revision=st.revision)
 

@@ -14,7 +14,7 @@ import threading
 from collections import OrderedDict
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from coordinator.distribution import WantedList
 from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
 from coordinator.live_video import EncodedPicture
-from coordinator.rig import Content, HomographyPose, ProjectionPose, SlotState, validate_lut
+from coordinator.rig import Content, HomographyPose, Mesh, ProjectionPose, SlotState, mesh_with_id, validate_lut
 from coordinator.sessions import NO_SWAPS, Heartbeat, NodeInfo, Report, Swaps
 from coordinator.show import ShowUpdate
 from protos import codec, common_pb2, control_pb2, node_pb2
@@ -466,10 +466,22 @@ class ImageParts:
 
 def configure_request(slot: str, *, homography: np.ndarray | None = None, lut: np.ndarray | None = None,
                       gain: float | None = None, size: tuple[int, int] | None = None,
-                      clear_pose: bool = False) -> control_pb2.ConfigureRequest:
-    req = control_pb2.ConfigureRequest(slot=slot, clear_pose=clear_pose)
+                      clear_pose: bool = False, projection: np.ndarray | None = None,
+                      mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, mesh_id: str = "",
+                      near_far_mm: tuple[float, float] = (100.0, 10_000.0)) -> control_pb2.ConfigureRequest:
+    """``projection``: (3, 4) float64 world mm -> projector px, rendering ``mesh`` (vertices (V, 3)
+    float32 mm, uvs (V, 2) float32, faces (F, 3) uint32) or the rig's mesh ``mesh_id``."""
+    req = control_pb2.ConfigureRequest(slot=slot, clear_pose=clear_pose, mesh_id=mesh_id)
     if homography is not None:
         req.homography.m.extend(np.asarray(homography, np.float64).ravel().tolist())
+    if projection is not None:
+        req.projection.p.extend(np.asarray(projection, np.float64).ravel().tolist())
+        req.projection.near_mm, req.projection.far_mm = near_far_mm
+        if mesh is not None:
+            v, uv, f = mesh
+            req.projection.mesh.vertices = np.ascontiguousarray(v, "<f4").tobytes()
+            req.projection.mesh.uvs = np.ascontiguousarray(uv, "<f4").tobytes()
+            req.projection.mesh.faces = np.ascontiguousarray(f, "<u4").tobytes()
     if lut is not None:
         req.lut.CopyFrom(lut_message(np.asarray(lut, np.float32)))
     if gain is not None:
@@ -479,10 +491,49 @@ def configure_request(slot: str, *, homography: np.ndarray | None = None, lut: n
     return req
 
 
-def slot_changes_from_message(req: control_pb2.ConfigureRequest) -> dict[str, Any]:
-    """A Configure request as ``update_slot`` keyword arguments."""
+def _no_meshes(mesh_id: str) -> Mesh:
+    raise ValueError(f"no mesh {mesh_id!r} here")
+
+
+def mesh_from_message(msg: node_pb2.Mesh) -> Mesh:
+    """A mesh sent inline; ValueError naming what is malformed. Its id is a digest of its arrays."""
+    if len(msg.vertices) % 12 or len(msg.uvs) % 8 or len(msg.faces) % 12:
+        raise ValueError("a mesh's vertices, uvs and faces must be (V, 3) float32, (V, 2) float32 and (F, 3) uint32")
+    v = np.frombuffer(msg.vertices, "<f4").reshape(-1, 3)
+    uv = np.frombuffer(msg.uvs, "<f4").reshape(-1, 2)
+    f = np.frombuffer(msg.faces, "<u4").reshape(-1, 3)
+    if not (len(v) >= 3 and len(f) >= 1 and len(uv) == len(v)):
+        raise ValueError(f"a mesh needs at least 3 vertices, a uv per vertex and a face; got {len(v)} vertices, "
+                         f"{len(uv)} uvs, {len(f)} faces")
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(uv))):
+        raise ValueError("a mesh's vertices and uvs must be finite numbers")
+    return mesh_with_id(v, uv, f)
+
+
+def projection_from_message(req: control_pb2.ConfigureRequest, mesh_lookup: Callable[[str], Mesh]) -> ProjectionPose:
+    """A Configure request's 3x4 pose, its mesh inline or the rig's ``mesh_id`` (``mesh_lookup``)."""
+    p = req.projection
+    if len(p.p) != 12:
+        raise ValueError(f"a projection pose has 12 values (3x4, row-major), got {len(p.p)}")
+    if p.mesh.vertices:
+        mesh = mesh_from_message(p.mesh)
+    elif req.mesh_id:
+        mesh = mesh_lookup(req.mesh_id)
+    else:
+        raise ValueError("a projection pose needs its mesh: send it, or name one of the rig's meshes")
+    near, far = (p.near_mm or 100.0), (p.far_mm or 10_000.0)
+    return ProjectionPose(np.array(p.p, dtype=np.float64).reshape(3, 4), mesh, near, far)
+
+
+def slot_changes_from_message(req: control_pb2.ConfigureRequest,
+                              mesh_lookup: Callable[[str], Mesh] | None = None) -> dict[str, Any]:
+    """A Configure request as ``update_slot`` keyword arguments (``mesh_lookup``: the rig's meshes by id)."""
     changes: dict[str, Any] = {}
-    if req.HasField("homography"):
+    if req.HasField("homography") and req.HasField("projection"):
+        raise ValueError("give a homography or a projection pose, not both")
+    if req.HasField("projection"):
+        changes["pose"] = projection_from_message(req, mesh_lookup or _no_meshes)
+    elif req.HasField("homography"):
         changes["pose"] = homography_from_message(req.homography)
     elif req.clear_pose:
         changes["pose"] = None

@@ -331,7 +331,7 @@ class StopReply(_message.Message):
     def __init__(self, showing: _Optional[str] = ...) -> None: ...
 
 class ConfigureRequest(_message.Message):
-    __slots__ = ("slot", "homography", "lut", "gain", "output_width", "output_height", "clear_pose")
+    __slots__ = ("slot", "homography", "lut", "gain", "output_width", "output_height", "clear_pose", "projection", "mesh_id")
     SLOT_FIELD_NUMBER: _ClassVar[int]
     HOMOGRAPHY_FIELD_NUMBER: _ClassVar[int]
     LUT_FIELD_NUMBER: _ClassVar[int]
@@ -339,6 +339,8 @@ class ConfigureRequest(_message.Message):
     OUTPUT_WIDTH_FIELD_NUMBER: _ClassVar[int]
     OUTPUT_HEIGHT_FIELD_NUMBER: _ClassVar[int]
     CLEAR_POSE_FIELD_NUMBER: _ClassVar[int]
+    PROJECTION_FIELD_NUMBER: _ClassVar[int]
+    MESH_ID_FIELD_NUMBER: _ClassVar[int]
     slot: str
     homography: _node_pb2.Homography
     lut: _node_pb2.Lut
@@ -346,7 +348,9 @@ class ConfigureRequest(_message.Message):
     output_width: int
     output_height: int
     clear_pose: bool
-    def __init__(self, slot: _Optional[str] = ..., homography: _Optional[_Union[_node_pb2.Homography, _Mapping]] = ..., lut: _Optional[_Union[_node_pb2.Lut, _Mapping]] = ..., gain: _Optional[float] = ..., output_width: _Optional[int] = ..., output_height: _Optional[int] = ..., clear_pose: _Optional[bool] = ...) -> None: ...
+    projection: _node_pb2.ProjectionPose
+    mesh_id: str
+    def __init__(self, slot: _Optional[str] = ..., homography: _Optional[_Union[_node_pb2.Homography, _Mapping]] = ..., lut: _Optional[_Union[_node_pb2.Lut, _Mapping]] = ..., gain: _Optional[float] = ..., output_width: _Optional[int] = ..., output_height: _Optional[int] = ..., clear_pose: _Optional[bool] = ..., projection: _Optional[_Union[_node_pb2.ProjectionPose, _Mapping]] = ..., mesh_id: _Optional[str] = ...) -> None: ...
 
 class ConfigureReply(_message.Message):
     __slots__ = ("revision",)

@@ -114,8 +114,9 @@ def _operator_cases():
         ("Show of a 0-pixel-wide image", lambda st, md: st.Show(_stream(control_pb2.ShowRequest(
             image=common_pb2.Image(width=0, height=4, channels=1, dtype=common_pb2.DTYPE_UINT8))), metadata=md),
          S.INVALID_ARGUMENT, ["outside"]),
+        # one surplus part: the client has sent everything before the refusal can race its next write
         ("Show sending more bytes than its size holds", lambda st, md: st.Show(_stream(
-            _show_parts()[0], *[control_pb2.ShowRequest(more=b"\0" * (1 << 20))] * 2), metadata=md),
+            _show_parts()[0], control_pb2.ShowRequest(more=b"\0" * (1 << 20))), metadata=md),
          S.INVALID_ARGUMENT, ["sent more than"]),
         ("Show of damaged image data", lambda st, md: st.Show(_stream(control_pb2.ShowRequest(
             image=_corrupt_image())), metadata=md), S.INVALID_ARGUMENT, ["image"]),

@@ -8,7 +8,6 @@ and the mesh is registered from landmarks given in its own frame. The result goe
 """
 from __future__ import annotations
 
-import hashlib
 import math
 import time
 from typing import Any
@@ -21,7 +20,7 @@ from coordinator.calibration.points import PointSet
 from coordinator.calibration.runs import rounded, save_cameras
 from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobError
-from coordinator.rig import Mesh
+from coordinator.rig import mesh_with_id
 
 
 async def map_cameras(st: State) -> None:
@@ -152,7 +151,4 @@ async def _pose_cameras_and_mesh(st: State, world_sets: dict[int, list[PointSet]
         setup.mesh_rms = rms
         ctx.log(f"mesh registered from {sum(len(s) for s in model_sets)} landmarks (rms {rms:.2f} px)")
     setup.mesh = mesh
-    h = hashlib.blake2b(digest_size=8)
-    for a in (mesh.vertices, mesh.uvs, mesh.faces):
-        h.update(np.ascontiguousarray(a).tobytes())
-    setup.rig_mesh = Mesh(h.hexdigest(), mesh.vertices, mesh.uvs, mesh.faces)
+    setup.rig_mesh = mesh_with_id(mesh.vertices, mesh.uvs, mesh.faces)
