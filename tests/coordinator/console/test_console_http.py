@@ -7,8 +7,10 @@ import asyncio
 import contextlib
 import json
 import ssl
+import struct
 import subprocess
 import time
+import zlib
 from pathlib import Path
 
 import aiohttp
@@ -271,6 +273,15 @@ def test_stop_and_blackout_act_on_the_rig_and_are_logged(tmp_path):
     asyncio.run(go())
 
 
+def declared_png(width: int, height: int) -> bytes:
+    """A valid PNG header declaring ``width`` x ``height`` grey pixels, with almost no pixel data."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\0" * 1000)) + chunk(b"IEND", b""))
+
+
 def test_gain_upload_and_play_go_through_the_coordinators_validation(tmp_path):
     async def go():
         async with console(tmp_path) as (coord, base), client() as s:
@@ -297,10 +308,17 @@ def test_gain_upload_and_play_go_through_the_coordinators_validation(tmp_path):
             assert "square.png" in coord.status().showing
             r = await s.post(base + "/api/show", data=form(png(40, 40), "square.png", "sideways"), headers=headers)
             assert r.status == 400
+            for w, h in ((20000, 20000), (9000, 8000)):     # a few hundred bytes declaring gigabytes of pixels
+                r = await s.post(base + "/api/show", data=form(declared_png(w, h), "bomb.png", "contain"),
+                                 headers=headers)
+                error = (await r.json())["error"]
+                assert r.status == 400 and "at most 67 megapixels" in error, error
+                assert (f"bomb.png is {w}x{h} pixels" if w <= 16384 else "bomb.png declares a larger image") in error
             r = await s.post(base + "/api/play", json={"asset": "nothing-like-it"}, headers=headers)
             assert r.status == 409 and "no asset matches" in (await r.json())["error"]
             ok = [(e["action"], e["ok"]) for e in log_lines(coord)]
             assert ok.count(("show", True)) == 1 and ok[-1] == ("play", False)
+            assert "square.png" in coord.status().showing, "a refused upload changes nothing on the rig"
 
     asyncio.run(go())
 
