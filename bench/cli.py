@@ -18,7 +18,7 @@ BENCHMARKS: dict[str, str] = {
     "venue": "a rig on a virtual venue network (namespaces, rate-limited links): discovery and asset distribution",
     "node": "what a node costs its edge computer: render/upload time, CPU, memory, install size (GL 3.3+ and 3.1)",
     "discovery": "real nodes join their rig while a twin (same id, other token) and another rig advertise",
-    "console": "the operator console in headless Chromium: page load, time to all live, update latency, CPU",
+    "console": "the operator console in headless Chromium: page load, time to all live, update latency, CPU, thumbnails",
 }
 
 

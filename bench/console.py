@@ -4,8 +4,10 @@ A coordinator with its console runs in a thread of this process, N offscreen nod
 join it over loopback, and a headless Chromium (Debian's ``chromium`` and ``chromedriver``,
 driven by Selenium) opens the page. Measured: the page's load time, the time from the login
 to every node shown live, how long a change takes to show on the page (a slot's gain set on
-the coordinator; a node killed until it is shown lost), and the coordinator's CPU time per
-second with the page open and closed. A screenshot of the page is saved.
+the coordinator; a node killed until it is shown lost), the coordinator's CPU time per
+second with the page open and closed, and the thumbnails of what each projector shows: how
+many arrive per second per node, and the late frames of sequences played without them (the node
+rows scrolled off screen: no node is asked) and with them. A screenshot of the page is saved.
 
 :class:`ConsoleRig` and the page helpers are shared with the browser tests.
 """
@@ -30,6 +32,7 @@ import numpy as np
 from bench.machine import machine
 from bench.workdir import run_dir
 from coordinator.api import NodeState, PlaySettings
+from coordinator.previews import WANTED_FOR_S
 from coordinator.rig import HomographyPose, Rig
 from coordinator.server import Coordinator
 from shadowless.local import LocalRig, grid_names
@@ -220,6 +223,27 @@ def page_gains(driver) -> dict[str, str]:
         ".map(tr => [tr.getAttribute('data-slot'), tr.querySelector('input.gain').value]);"))
 
 
+def page_thumbnails(driver) -> dict[str, dict[str, Any]]:
+    """Each node row's thumbnail as the page shows it: ``src`` (a data: URL, "" before the first),
+    ``frame`` (the frame id it shows) and ``age`` (its age in ms when fetched, text as on the page)."""
+    return dict(driver.execute_script(
+        "return Array.from(document.querySelectorAll('#nodes tbody tr')).map(tr => {"
+        " const img = tr.querySelector('img.thumb-img');"
+        " return [tr.getAttribute('data-slot'), {src: img && !img.hidden ? img.src : '',"
+        " frame: img ? (img.dataset.frame || '') : '', age: img ? (img.dataset.age || '') : '',"
+        " text: (tr.querySelector('.thumb-age') || {}).textContent || ''}]; });"))
+
+
+def thumbnail_png(src: str) -> bytes:
+    """The PNG bytes of a thumbnail's data: URL."""
+    import base64
+
+    head, _, data = src.partition(",")
+    if not head.startswith("data:image/png;base64"):
+        raise ValueError(f"not a PNG data URL: {src[:40]!r}")
+    return base64.b64decode(data)
+
+
 def visible(driver, element_id: str) -> bool:
     return bool(driver.execute_script(f"const e = document.getElementById('{element_id}'); "
                                       "return !!e && !e.hidden && e.offsetParent !== null;"))
@@ -251,6 +275,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gain-changes", type=int, default=20, help="gain changes timed until shown (default 20)")
     p.add_argument("--kills", type=int, default=2, help="nodes killed, timed until shown lost (default 2)")
     p.add_argument("--cpu-seconds", type=float, default=10.0, help="each CPU measurement's length (default 10)")
+    p.add_argument("--thumbnail-seconds", type=float, default=10.0,
+                   help="length of each sequence played without and with the thumbnails (default 10)")
     p.add_argument("--warmup", type=float, default=25.0,
                    help="seconds for the nodes' clock estimates to settle before measuring CPU (default 25)")
     p.add_argument("--screenshot", metavar="PNG", help="where to save the page's screenshot "
@@ -268,6 +294,59 @@ def _cpu_ms_per_s(seconds: float) -> float:
     c0, t0 = time.process_time(), time.monotonic()
     time.sleep(seconds)
     return round(1e3 * (time.process_time() - c0) / (time.monotonic() - t0), 2)
+
+
+def _late_while_playing(rig: ConsoleRig, seconds: float) -> int:
+    """Late frames (over every node) of a 30 fps counter sequence of ``seconds`` played to its end."""
+    settings = PlaySettings(fps=30, pattern="counter", frames=max(1, round(30 * seconds)), wait=True)
+    return rig.call(lambda: rig.coord.play_sequence(None, settings), timeout=seconds + 120).frames_late
+
+
+def rows_on_screen(driver, on: bool) -> None:
+    """Scroll the node table into view, or out of it (a tall spacer at the page's end makes room):
+    the page fetches thumbnails only for the rows on screen."""
+    driver.execute_script(
+        "let s = document.getElementById('bench-spacer');"
+        "if (!s) { s = document.createElement('div'); s.id = 'bench-spacer'; s.style.height = '6000px';"
+        " document.body.appendChild(s); }"
+        "if (arguments[0]) { window.scrollTo(0, 0); document.getElementById('nodes').scrollIntoView(); }"
+        "else { window.scrollTo(0, document.body.scrollHeight); }", on)
+
+
+def thumbnail_figures(rig: ConsoleRig, driver, slots: list[str], seconds: float, rounds: int = 2) -> dict:
+    """Sequences played with the page open, alternately with the node rows scrolled off screen (the
+    page fetches no thumbnail: no node is asked) and on screen (each row refreshed about once a
+    second): the late frames of each kind, and the thumbnails that arrived per second per node
+    while the rows were on screen. The page's own cost is the same in both."""
+    def count(name: str, only: list[str] | None = None) -> int:
+        per_slot = rig.call(lambda: dict(getattr(rig.coord.previews, name)))
+        return sum(n for s, n in per_slot.items() if only is None or s in only)
+
+    late = {False: 0, True: 0}
+    asked_off, got, spent, shown = 0, 0, 0.0, slots
+    for _ in range(rounds):
+        rows_on_screen(driver, False)
+        time.sleep(WANTED_FOR_S + 1.0)      # the last thumbnail fetched is no longer wanted
+        asked = count("asked")
+        late[False] += _late_while_playing(rig, seconds)
+        asked_off += count("asked") - asked
+        rows_on_screen(driver, True)
+        shown = [s for s in driver.execute_script(
+            "return Array.from(document.querySelectorAll('#nodes tbody tr')).filter(tr => {"
+            " const r = tr.getBoundingClientRect(); return r.bottom > 0 && r.top < window.innerHeight; })"
+            ".map(tr => tr.getAttribute('data-slot'));") if s in slots]
+        wait_for(lambda: all(page_thumbnails(driver).get(s, {}).get("src") for s in shown), 60,
+                 f"the thumbnails of the rows on screen: {shown}")
+        received, t = count("received", shown), time.monotonic()
+        late[True] += _late_while_playing(rig, seconds)
+        spent += time.monotonic() - t
+        got += count("received", shown) - received
+    driver.execute_script("const s = document.getElementById('bench-spacer'); if (s) s.remove(); window.scrollTo(0, 0);")
+    return {"thumbnails_per_s_per_node": round(got / spent / max(1, len(shown)), 2),
+            "thumbnail_rows_on_screen": len(shown),
+            "late_frames_without_thumbnails": late[False], "late_frames_with_thumbnails": late[True],
+            "previews_asked_rows_off_screen": asked_off,
+            "thumbnail_sequences": {"rounds": rounds, "seconds_each": seconds, "fps": 30}}
 
 
 def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
@@ -311,6 +390,7 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
             # CPU with the page open (as before with it closed: a still shown, the nodes heartbeating),
             # then a sequence played for the plots
             out["coordinator_cpu_ms_per_s_page_open"] = _cpu_ms_per_s(args.cpu_seconds)
+            out.update(thumbnail_figures(rig, driver, slots, args.thumbnail_seconds))
             rig.call(lambda: rig.coord.play_sequence(None, PlaySettings(fps=30, pattern="counter", frames=150, wait=False)))
             time.sleep(2.5)
             driver.save_screenshot(str(screenshot))
@@ -343,7 +423,8 @@ def run(args: argparse.Namespace) -> int:
         result = measure(args, base, shot)
     doc = {"benchmark": "console", "machine": machine(),
            "parameters": {"nodes": args.nodes, "gain_changes": args.gain_changes, "kills": args.kills,
-                          "cpu_seconds": args.cpu_seconds, "warmup_s": args.warmup},
+                          "cpu_seconds": args.cpu_seconds, "warmup_s": args.warmup,
+                          "thumbnail_seconds": args.thumbnail_seconds},
            **result}
     print(json.dumps(doc, indent=2))
     return 0

@@ -47,6 +47,7 @@ from coordinator.identify import name_card
 from coordinator.jobs.tracker import JobTracker
 from coordinator.mdns import Advertiser
 from coordinator.playback import Playback, cpu_seconds
+from coordinator.previews import Previews
 from coordinator.refusals import Refusals
 from coordinator.rig import Content, Rig
 from coordinator.rig_lock import RigLock
@@ -148,6 +149,7 @@ class Coordinator:
         self.playback = Playback(rig, self.fanout, self.sync, live_sessions=self.live_sessions, clock_ns=self.clock_ns,
                                  latency_ns=self.latency_ns)
         self.distribution = Distribution(AssetStore(rig.path))
+        self.previews = Previews()      # the console's thumbnails: asked of the nodes only while someone looks
         self.show_state = Show(rig.path, resolve=self.distribution.store.resolve, manifest=self._manifest,
                                ids=self.playback, progress=self._asset_progress, clock_ns=self.clock_ns,
                                lead_ns=max(self.latency_ns, MIN_LEAD_NS))
@@ -436,6 +438,8 @@ class Coordinator:
             sess.last_swap_frame = int(ids[-1])
             sess.last_swap_at = now_ns / 1e9
             sess.shown += n
+        if rep.preview is not None:
+            self.previews.accept(sess.slot, rep.preview)
         for frame_id, reason in rep.drops:
             if reason == DropReason.LATE:
                 sess.late += 1

@@ -224,6 +224,15 @@ class NodeLinkService(_Handshake):
         finally:
             unsubscribe()
 
+    async def Previews(self, request, context):
+        """Preview requests for the node's console thumbnail, only while someone looks at it."""
+        try:
+            sess = self.c.node_session(_session_id(context))
+        except RpcRefusal as exc:
+            await context.abort(exc.code, exc.message)
+        async for request_id in self.c.previews.asks(sess.slot, sess.preview_event, lambda: sess.closed):
+            yield wire.preview_request_message(request_id)
+
 
 def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
     """Register NodeLink; Frames yields pre-serialized bytes (identity serializer)."""
@@ -257,6 +266,9 @@ def _add_node_link(server: grpc.aio.Server, svc: NodeLinkService) -> None:
         "Show": grpc.unary_stream_rpc_method_handler(
             svc.Show, request_deserializer=node_pb2.StreamRequest.FromString,
             response_serializer=node_pb2.ShowUpdate.SerializeToString),
+        "Previews": grpc.unary_stream_rpc_method_handler(
+            svc.Previews, request_deserializer=node_pb2.StreamRequest.FromString,
+            response_serializer=node_pb2.PreviewRequest.SerializeToString),
     }
     server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler("shadowless.v1.NodeLink", handlers),))
 

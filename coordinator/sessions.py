@@ -20,6 +20,7 @@ import grpc
 import numpy as np
 
 from coordinator.api import AssetProgress, NodeShow, NodeState
+from coordinator.previews import Preview
 from coordinator.refusals import peer_address
 from protos import auth
 from protos.host import boot_id
@@ -95,11 +96,13 @@ NO_SWAPS = Swaps.of()
 
 @dataclass(frozen=True)
 class Report:
-    """One batch of what a node did: heartbeat, swaps, drops ``(frame_id, DropReason)``."""
+    """One batch of what a node did: heartbeat, swaps, drops ``(frame_id, DropReason)``, and the
+    preview it was asked for (a console thumbnail)."""
 
     heartbeat: Heartbeat | None = None
     swaps: Swaps = NO_SWAPS
     drops: tuple = ()
+    preview: Preview | None = None
 
 
 @dataclass(frozen=True)
@@ -129,6 +132,7 @@ class NodeSession:
     packet_event: asyncio.Event = field(default_factory=asyncio.Event)
     assignment_event: asyncio.Event = field(default_factory=asyncio.Event)
     wanted_event: asyncio.Event = field(default_factory=asyncio.Event)   # the wanted assets changed
+    preview_event: asyncio.Event = field(default_factory=asyncio.Event)  # its thumbnail became wanted
     sent_content: set[str] = field(default_factory=set)
     heartbeat: Heartbeat | None = None
     last_swap_frame: int = 0
@@ -165,6 +169,7 @@ class NodeSession:
         self.packet_event.set()
         self.assignment_event.set()
         self.wanted_event.set()
+        self.preview_event.set()
 
 
 class Handshake:

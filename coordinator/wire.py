@@ -24,6 +24,7 @@ from coordinator.distribution import WantedList
 from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
 from coordinator.live_video import EncodedPicture
+from coordinator.previews import Preview
 from coordinator.rig import Content, HomographyPose, Mesh, ProjectionPose, SlotState, mesh_with_id, validate_lut
 from coordinator.sessions import NO_SWAPS, Heartbeat, NodeInfo, Report, Swaps
 from coordinator.show import ShowUpdate
@@ -148,7 +149,16 @@ def report_from_message(msg: node_pb2.NodeReport) -> Report:
                        show=node_show_from_message(h.show))
     swaps = swaps_from_message(msg.swaps) if msg.HasField("swaps") else NO_SWAPS
     drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
-    return Report(heartbeat=hb, swaps=swaps, drops=drops)
+    preview = None
+    if msg.HasField("preview"):      # bounded by the Previews that keeps it (coordinator.previews)
+        p = msg.preview
+        preview = Preview(request_id=p.request_id, frame_id=p.frame_id, png=p.png, width=p.width, height=p.height,
+                          output_width=p.output_width, output_height=p.output_height)
+    return Report(heartbeat=hb, swaps=swaps, drops=drops, preview=preview)
+
+
+def preview_request_message(request_id: int) -> node_pb2.PreviewRequest:
+    return node_pb2.PreviewRequest(request_id=request_id)
 
 
 def wanted_message(w: WantedList) -> node_pb2.WantedAssets:
@@ -491,10 +501,6 @@ def configure_request(slot: str, *, homography: np.ndarray | None = None, lut: n
     return req
 
 
-def _no_meshes(mesh_id: str) -> Mesh:
-    raise ValueError(f"no mesh {mesh_id!r} here")
-
-
 def mesh_from_message(msg: node_pb2.Mesh) -> Mesh:
     """A mesh sent inline; ValueError naming what is malformed. Its id is a digest of its arrays."""
     if len(msg.vertices) % 12 or len(msg.uvs) % 8 or len(msg.faces) % 12:
@@ -510,14 +516,15 @@ def mesh_from_message(msg: node_pb2.Mesh) -> Mesh:
     return mesh_with_id(v, uv, f)
 
 
-def projection_from_message(req: control_pb2.ConfigureRequest, mesh_lookup: Callable[[str], Mesh]) -> ProjectionPose:
+def projection_from_message(req: control_pb2.ConfigureRequest,
+                            mesh_lookup: Callable[[str], Mesh] | None) -> ProjectionPose:
     """A Configure request's 3x4 pose, its mesh inline or the rig's ``mesh_id`` (``mesh_lookup``)."""
     p = req.projection
     if len(p.p) != 12:
         raise ValueError(f"a projection pose has 12 values (3x4, row-major), got {len(p.p)}")
     if p.mesh.vertices:
         mesh = mesh_from_message(p.mesh)
-    elif req.mesh_id:
+    elif req.mesh_id and mesh_lookup is not None:
         mesh = mesh_lookup(req.mesh_id)
     else:
         raise ValueError("a projection pose needs its mesh: send it, or name one of the rig's meshes")
@@ -532,7 +539,7 @@ def slot_changes_from_message(req: control_pb2.ConfigureRequest,
     if req.HasField("homography") and req.HasField("projection"):
         raise ValueError("give a homography or a projection pose, not both")
     if req.HasField("projection"):
-        changes["pose"] = projection_from_message(req, mesh_lookup or _no_meshes)
+        changes["pose"] = projection_from_message(req, mesh_lookup)
     elif req.HasField("homography"):
         changes["pose"] = homography_from_message(req.homography)
     elif req.clear_pose:

@@ -44,6 +44,7 @@ from node.records import (
     JoinReply,
     JoinRequest,
     NodeInfo,
+    PreviewRecord,
     ReportBatch,
     SwapRecord,
 )
@@ -87,6 +88,9 @@ DISCOVERY_SETTLE_S = 0.3
 #: the longest wait between attempts to rejoin a lost coordinator (the regular cap is backoff_max_s)
 ALONE_BACKOFF_S = 1.0
 
+#: preview requests reach the presenter at most this often (those in between coalesce into the next)
+PREVIEW_EVERY_S = 0.5
+
 
 def _version() -> str:
     """The installed shadowless distribution's version (the node does not import the CLI package)."""
@@ -126,7 +130,7 @@ class Node:
         self._advertised: set[tuple[str, str]] = set()
 
     # ---------------------------------------------------------------- reports
-    def _report(self, rep: SwapRecord | DropRecord) -> None:
+    def _report(self, rep: SwapRecord | DropRecord | PreviewRecord) -> None:
         if self._reports is not None:
             self._reports.put_nowait(rep)
 
@@ -320,6 +324,7 @@ class Node:
                 asyncio.create_task(self._watch_presenter(), name="presenter"),
                 asyncio.create_task(self.fetcher.run(link), name="assets"),
                 asyncio.create_task(self._show(link), name="show"),
+                asyncio.create_task(self._previews(link), name="previews"),
             ]
             done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
             for t in pending:
@@ -439,6 +444,35 @@ class Node:
             log.warning("this coordinator plays no timeline shows (an older version); stills and sequences only")
             await asyncio.Event().wait()    # the session goes on without
 
+    async def _previews(self, link: CoordinatorLink) -> None:
+        """Pass the coordinator's preview requests to the presenter, at most one per PREVIEW_EVERY_S
+        whatever it asks (those in between coalesce: the presenter answers the newest)."""
+        latest, sent_at = 0, -math.inf
+        flush: asyncio.TimerHandle | None = None
+
+        def send() -> None:
+            nonlocal flush, sent_at
+            flush, sent_at = None, time.monotonic()
+            self.presenter.submit("preview", latest)
+
+        try:
+            async for request_id in link.previews():
+                latest = request_id
+                if flush is None:
+                    wait = sent_at + PREVIEW_EVERY_S - time.monotonic()
+                    if wait <= 0:
+                        send()
+                    else:
+                        flush = asyncio.get_running_loop().call_later(wait, send)
+        except LinkError as exc:
+            if exc.code != "UNIMPLEMENTED":
+                raise
+            log.info("this coordinator asks for no previews (an older version): no console thumbnail")
+            await asyncio.Event().wait()    # the session goes on without
+        finally:
+            if flush is not None:
+                flush.cancel()
+
     def _pass_asset(self, asset_id: str) -> None:
         cache = self.fetcher.cache
         if asset_id in self._assets_passed or cache is None or not cache.ready(asset_id):
@@ -457,7 +491,7 @@ class Node:
         those of the show's timeline ticks wait up to ``timeline_batch_s`` (default: the heartbeat
         interval) and travel with the next heartbeat when it is due by then, so a node playing a
         show sends one message per heartbeat (the coordinator's cost per node is mostly per
-        message)."""
+        message). A preview goes like a streamed frame's report (the newest, if several)."""
         if timeline_batch_s is None:
             timeline_batch_s = heartbeat_s
         q = self._reports
@@ -486,9 +520,11 @@ class Node:
                             getter = None
                         pending += [q.get_nowait() for _ in range(q.qsize())]
                         items, pending, flush_at = pending, [], math.inf
+                        previews = [i for i in items if isinstance(i, PreviewRecord)]
                         yield ReportBatch(heartbeat=heartbeat,
                                           swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
-                                          drops=tuple(i for i in items if isinstance(i, DropRecord)))
+                                          drops=tuple(i for i in items if isinstance(i, DropRecord)),
+                                          preview=previews[-1] if previews else None)
                         continue
                     if getter is None:
                         getter = asyncio.ensure_future(q.get())
@@ -502,7 +538,7 @@ class Node:
                         continue   # a heartbeat or a batch is due (or a heartbeat wanted at once)
                     item, getter = getter.result(), None
                     pending.append(item)
-                    if item.timeline:       # with the heartbeat if it comes within the batch's wait
+                    if getattr(item, "timeline", False):   # with the heartbeat if it comes within the batch's wait
                         due = next_hb if next_hb <= now + timeline_batch_s else now + timeline_batch_s
                     else:                   # gather what follows into the same message
                         due = now + batch_s

@@ -148,6 +148,16 @@ class CoordinatorLink:
         finally:
             call.cancel()
 
+    async def previews(self) -> AsyncIterator[int]:
+        """The coordinator's preview requests, as their ids (answered in a report's ``preview``)."""
+        call = self._stub.Previews(wire.stream_request(), metadata=self._md)
+        try:
+            with _translated():
+                async for msg in call:
+                    yield wire.preview_request_from_message(msg)
+        finally:
+            call.cancel()
+
     async def report(self, batches: AsyncIterable[ReportBatch]) -> None:
         """Stream reports until ``batches`` ends or the call breaks."""
 

@@ -7,6 +7,10 @@ clock, swaps, and reports the swap. Which frames are dropped instead (late,
 superseded, missing content) is decided by :class:`node.pacing.FramePacer`; a
 frame is never shown late and never out of order.
 
+Between frames it also makes the previews the coordinator asks for (:mod:`node.preview`):
+right after a swap, or while idle, when the renderer's framebuffer holds what the projector
+shows and the preview fits before the next frame is due; never between a render and its swap.
+
 It runs in a process of its own (:mod:`node.presenter_process`), or in a test's
 thread with a clock the test moves.
 """
@@ -27,6 +31,7 @@ from node.clock import ClockEstimate
 from node.live_video import LiveDecoder
 from node.outputs.base import Output, SwapInfo
 from node.pacing import FramePacer
+from node.preview import PreviewMaker
 from node.realtime import RealtimeWindow
 from node.records import (AssetFiles, DropReason, DropRecord, FrameOrder, NodeAssignment, PresenterStatus, ShowStatus,
                           ShowUpdateData)
@@ -67,15 +72,15 @@ class Presenter:
     clock : PresenterClock
         The node's local clock: frames are timed, and waited for, on it.
     report : callable
-        ``report(kind, payload)`` receives ``("swap", SwapRecord)``, ``("drop", DropRecord)``
-        and ``("stats", PresenterStatus)``.
+        ``report(kind, payload)`` receives ``("swap", SwapRecord)``, ``("drop", DropRecord)``,
+        ``("stats", PresenterStatus)`` and ``("preview", PreviewRecord)``.
     realtime : bool
         Swap at real-time priority if the system allows it.
 
     :meth:`handle` takes ``(kind, payload)``: ``("clock", ClockEstimate | None)``,
     ``("assignment", NodeAssignment)``, ``("packet", bytes)`` (a serialized FramePacket),
     ``("content", (content_id, image))``, ``("frame", FrameOrder)``, ``("evict", [content_id])``,
-    ``("show", ShowUpdateData)``, ``("asset", AssetFiles)`` and ``("reset", None)``.
+    ``("show", ShowUpdateData)``, ``("asset", AssetFiles)``, ``("preview", request_id)`` and ``("reset", None)``.
 
     The show's timeline (:mod:`node.timeline_player`) is followed between messages: the loop
     asks :meth:`timeline_wait` how long it may wait for a message, and calls
@@ -87,6 +92,13 @@ class Presenter:
 
     #: start preparing a timeline frame this long before its presentation time (at the latest)
     PREPARE_NS = 50_000_000
+    #: a preview is made only with this much room left before the next frame, beyond twice its cost
+    #: and the longest recent frame's work (decode, render, finish)
+    PREVIEW_MARGIN_NS = 2_000_000
+    #: streamed frames further apart than this are stills: none is expected after one
+    STREAM_GAP_NS = 1_000_000_000
+    #: a frame shown this long with no next one known is taken for a still (not a sequence's first)
+    STILL_AFTER_NS = 250_000_000
 
     def __init__(self, *, slot: str, output: Output, clock: PresenterClock,
                  report: Callable[[str, object], None], realtime: bool = True):
@@ -115,6 +127,12 @@ class Presenter:
         self._timeline_cid: str | None = None
         self._last_event_pts: int | None = None
         self.live = LiveDecoder()        # live video pictures (coordinator/live_video.py)
+        self.previews = PreviewMaker(clock.now)
+        self._fbo_shown = False          # the renderer's framebuffer holds what the projector shows
+        self._stream_next_ns: int | None = None   # when the next streamed frame is expected (local ns)
+        self._work_from_ns = 0           # when the current message's (or tick's) work began
+        self._work_ns: deque[int] = deque(maxlen=30)   # per frame shown: its work until ready to swap
+        self._swapped_at_ns = 0          # local time of the last frame swapped in
 
     @property
     def estimate(self) -> ClockEstimate | None:
@@ -146,6 +164,8 @@ class Presenter:
         self.renderer.render(None)
         self.out.prepare(self.renderer)
         self.out.swap()
+        self._fbo_shown = True
+        self.previews.time_once(self.renderer)    # the PNG encoder's first run, and what a preview costs
 
     def _warm_up(self) -> None:
         """Draw once with every shader path so the driver compiles them now (llvmpipe JITs a
@@ -171,15 +191,61 @@ class Presenter:
 
     def handle(self, kind: str, payload) -> None:
         t = time.perf_counter()
+        self._work_from_ns = self.clock.now()
         getattr(self, "_on_" + kind)(self.renderer, self.out, payload)
         if _DEBUG_TIMING and (dt := time.perf_counter() - t) > 0.005 and kind != "frame":
             log.info("timing: %s took %.1f ms", kind, dt * 1e3)
 
     def idle(self) -> None:
         self.out.poll()   # a window keeps handling its events between frames
+        self._maybe_preview()
 
     def _send_stats(self) -> None:
         self.report("stats", self.status())
+
+    # ---------------------------------------------------------------- previews
+    def _on_preview(self, renderer, out, request_id: int) -> None:
+        self.previews.request(request_id)
+        # a frame swapped a moment ago may be a sequence's first: with no next frame known yet, the
+        # preview waits for the next swap, a later request or the idle loop
+        self._maybe_preview(unknown_ok=self.clock.now() - self._swapped_at_ns > self.STILL_AFTER_NS)
+
+    def _next_due_ns(self) -> int | None:
+        """When the next frame is due (local ns), as far as the presenter can tell: the show's next
+        tick, or the last streamed frame's deadline plus its interval; None: no frame is expected."""
+        ev = self._next_event()
+        if ev is not None:
+            return self.pacer.estimate.local_time(ev.pts_ns)
+        due = self._stream_next_ns
+        return due if due is not None and due > self.clock.now() else None
+
+    def _maybe_preview(self, *, unknown_ok: bool = True) -> None:
+        """Make the preview asked for if it may be made now: the framebuffer holds what the projector
+        shows, none was made within the interval, and it fits before the next frame is due (else it
+        waits for the next swap or idle moment). ``unknown_ok``: also when no next frame is known
+        (right after a swap, that may be a sequence's first frame: the idle loop makes it instead)."""
+        pv = self.previews
+        if not (self._fbo_shown and pv.due()):
+            return
+        due = self._next_due_ns()
+        if due is None and not unknown_ok:
+            return
+        if due is not None:
+            need = 2 * pv.cost_ns + max(self._work_ns, default=0) + self.PREVIEW_MARGIN_NS
+            if due - self.clock.now() < need:
+                pv.deferred += 1
+                return
+        t = self.clock.now()
+        try:
+            rec = pv.make(self.renderer, self._current.frame_id if self._current is not None else 0)
+        except Exception:  # noqa: BLE001 - a thumbnail must never take the projector down
+            log.exception("cannot make a preview")
+            pv.pending = 0
+            return
+        self.report("preview", rec)
+        if _DEBUG_TIMING:
+            log.info("timing: preview of frame %d took %.2f ms, %s ms before the next frame", rec.frame_id,
+                     (self.clock.now() - t) / 1e6, "?" if due is None else f"{(due - t) / 1e6:.1f}")
 
     # ---------------------------------------------------------------- handlers
     def _on_clock(self, renderer, out, estimate: ClockEstimate | None) -> None:
@@ -210,7 +276,7 @@ class Presenter:
             log.warning("assignment says %dx%d but the output is %dx%d; rendering at the output's size",
                         a.width, a.height, *self.native_size)
         if (renderer.width, renderer.height) != size:
-            renderer.resize(*size)
+            renderer.resize(*size)   # cleared to black: what is shown when no frame is (re-rendered below if one is)
         try:
             if a.pose_kind == "homography":
                 renderer.set_homography(a.homography, a.content_size)
@@ -241,6 +307,7 @@ class Presenter:
                 renderer.render(None)
             out.prepare(renderer)
             out.swap()
+            self._fbo_shown = True
 
     def _on_content(self, renderer, out, content: tuple[str, np.ndarray]) -> None:
         cid, image = content
@@ -318,6 +385,7 @@ class Presenter:
             self._timeline_reports = False
 
     def _timeline_step(self) -> None:
+        self._work_from_ns = self.clock.now()
         ev = self._next_event()
         if ev is None:
             return
@@ -349,6 +417,7 @@ class Presenter:
             with self._rt:
                 self.clock.sleep_until(pacer.estimate.local_time(ev.pts_ns))
                 out.swap()
+            self._fbo_shown = True
             self._current = None
             self._forget_timeline_content()
             return
@@ -416,6 +485,7 @@ class Presenter:
         self._send_stats()
 
     def _render(self, renderer, frame: FrameOrder) -> None:
+        self._fbo_shown = False
         t = time.perf_counter()
         renderer.render(frame.content_id or None, space=frame.space, apply_lut=frame.apply_lut)
         self._render_ms.append((time.perf_counter() - t) * 1e3)
@@ -455,10 +525,13 @@ class Presenter:
             self._drop(drop)
             return
         deadline = pacer.deadline(frame)
+        self._work_ns.append(max(0, self.clock.now() - self._work_from_ns))
         with self._rt:
             self.clock.sleep_until(deadline)
             out.swap()
             host = self.clock.host_now()
+        self._fbo_shown = True
+        self._swapped_at_ns = self.clock.from_host(host)
         if _DEBUG_TIMING:
             log.info("timing frame %d: swap %.3f ms after deadline", frame.frame_id,
                      (host - self.clock.to_host(deadline)) / 1e6)
@@ -476,3 +549,7 @@ class Presenter:
             renderer.forget(previous.content_id)
             self._evicted.discard(previous.content_id)
         self._send_stats()
+        # the next streamed frame is expected one interval on (a still: none); then a preview, if it fits
+        gap = frame.pts_ns - previous.pts_ns if previous is not None and not self._timeline_reports else 0
+        self._stream_next_ns = deadline + gap if 0 < gap <= self.STREAM_GAP_NS else None
+        self._maybe_preview(unknown_ok=False)

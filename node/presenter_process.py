@@ -11,7 +11,8 @@ Both directions are pipes of ``(kind, payload)`` tuples of plain data: in, what
 paths included: the presenter decodes the asset's frames itself, so decoded frames never
 cross the pipe); out, ``("ready", (size, gl_info))``,
 ``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)``,
-``("drop", DropRecord)`` and ``("alive", None)`` (every second while its loop runs).
+``("drop", DropRecord)``, ``("preview", PreviewRecord)`` (a console thumbnail, when asked) and
+``("alive", None)`` (every second while its loop runs).
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from pathlib import Path
 from typing import Callable
 
 from node.clock import LocalClock, precise_timers
-from node.records import DropRecord, PresenterStatus, SwapRecord
+from node.records import DropRecord, PresenterStatus, PreviewRecord, SwapRecord
 from protos import logging_setup
 
 log = logging.getLogger(__name__)
@@ -143,7 +144,7 @@ class PresenterProcess:
         self.failed: str | None = None
         self.stats = PresenterStatus()
         self._ready = threading.Event()
-        self._on_report: Callable[[SwapRecord | DropRecord], None] | None = None
+        self._on_report: Callable[[SwapRecord | DropRecord | PreviewRecord], None] | None = None
         self._alive_at = time.monotonic()
 
     def start(self) -> None:
@@ -159,8 +160,8 @@ class PresenterProcess:
         except (OSError, ValueError):   # the presenter is gone; the node notices and exits
             self.failed = self.failed or "the presenter process exited"
 
-    def attach(self, loop, on_report: Callable[[SwapRecord | DropRecord], None]) -> None:
-        """Deliver swap and drop records to ``on_report`` on ``loop``."""
+    def attach(self, loop, on_report: Callable[[SwapRecord | DropRecord | PreviewRecord], None]) -> None:
+        """Deliver swap and drop records, and previews, to ``on_report`` on ``loop``."""
         self._on_report = on_report
         loop.add_reader(self._from_child.fileno(), self._readable)
 
@@ -196,7 +197,7 @@ class PresenterProcess:
             self._ready.set()
         elif kind == "stats":
             self.stats = payload
-        elif kind in ("swap", "drop") and self._on_report:
+        elif kind in ("swap", "drop", "preview") and self._on_report:
             self._on_report(payload)
 
     def wait_ready(self, timeout: float = 60.0) -> bool:

@@ -186,12 +186,27 @@ class HeartbeatRecord:
 
 
 @dataclass(frozen=True)
+class PreviewRecord:
+    """A small picture of what the projector shows (a console thumbnail, see :mod:`node.preview`)."""
+
+    request_id: int           # the newest coordinator request it answers
+    frame_id: int             # the frame on the projector when it was read back (0: none)
+    png: bytes                # 8-bit RGB PNG of width x height pixels
+    width: int
+    height: int
+    output_width: int         # the projector pixels it was area-averaged from
+    output_height: int
+
+
+@dataclass(frozen=True)
 class ReportBatch:
-    """One message of the report stream: a heartbeat, or the swaps and drops of a few ms."""
+    """One message of the report stream: a heartbeat, or the swaps and drops of a few ms (and a
+    preview when one was made)."""
 
     heartbeat: HeartbeatRecord | None = None
     swaps: tuple[SwapRecord, ...] = ()
     drops: tuple[DropRecord, ...] = ()
+    preview: PreviewRecord | None = None
 
 
 # ------------------------------------------------------------------ handshake

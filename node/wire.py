@@ -27,6 +27,7 @@ from node.records import (
     MeshData,
     NodeAssignment,
     PingReply,
+    PreviewRecord,
     ReportBatch,
     ShowUpdateData,
     SwapRecord,
@@ -148,6 +149,11 @@ def show_update_from_message(msg: node_pb2.ShowUpdate) -> ShowUpdateData:
     return ShowUpdateData(timeline=tl, frame_id_base=t.frame_id_base, beacon=msg.beacon)
 
 
+def preview_request_from_message(msg: node_pb2.PreviewRequest) -> int:
+    """The request's id (>= 1)."""
+    return max(1, msg.request_id)
+
+
 def blob_chunk_from_message(msg: node_pb2.BlobChunk) -> BlobChunkData:
     return BlobChunkData(offset=msg.offset, data=msg.data)
 
@@ -241,8 +247,15 @@ def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
     return msg
 
 
+def preview_message(p: PreviewRecord) -> node_pb2.Preview:
+    return node_pb2.Preview(request_id=p.request_id, frame_id=p.frame_id, png=p.png, width=p.width, height=p.height,
+                            output_width=p.output_width, output_height=p.output_height)
+
+
 def report_message(batch: ReportBatch) -> node_pb2.NodeReport:
     msg = node_pb2.NodeReport()
+    if batch.preview is not None:
+        msg.preview.CopyFrom(preview_message(batch.preview))
     if batch.heartbeat is not None:
         msg.heartbeat.CopyFrom(heartbeat_message(batch.heartbeat))
     if batch.swaps:

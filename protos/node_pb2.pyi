@@ -308,18 +308,44 @@ class NodeShow(_message.Message):
     def __init__(self, revision: _Optional[int] = ..., state: _Optional[_Union[NodeShowState, str]] = ..., last_frame: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., alone_ms: _Optional[int] = ...) -> None: ...
 
 class NodeReport(_message.Message):
-    __slots__ = ("heartbeat", "drops", "swaps")
+    __slots__ = ("heartbeat", "drops", "swaps", "preview")
     HEARTBEAT_FIELD_NUMBER: _ClassVar[int]
     DROPS_FIELD_NUMBER: _ClassVar[int]
     SWAPS_FIELD_NUMBER: _ClassVar[int]
+    PREVIEW_FIELD_NUMBER: _ClassVar[int]
     heartbeat: Heartbeat
     drops: _containers.RepeatedCompositeFieldContainer[FrameDrop]
     swaps: Swaps
-    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., drops: _Optional[_Iterable[_Union[FrameDrop, _Mapping]]] = ..., swaps: _Optional[_Union[Swaps, _Mapping]] = ...) -> None: ...
+    preview: Preview
+    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., drops: _Optional[_Iterable[_Union[FrameDrop, _Mapping]]] = ..., swaps: _Optional[_Union[Swaps, _Mapping]] = ..., preview: _Optional[_Union[Preview, _Mapping]] = ...) -> None: ...
 
 class ReportAck(_message.Message):
     __slots__ = ()
     def __init__(self) -> None: ...
+
+class PreviewRequest(_message.Message):
+    __slots__ = ("request_id",)
+    REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
+    request_id: int
+    def __init__(self, request_id: _Optional[int] = ...) -> None: ...
+
+class Preview(_message.Message):
+    __slots__ = ("request_id", "frame_id", "png", "width", "height", "output_width", "output_height")
+    REQUEST_ID_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    PNG_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    OUTPUT_WIDTH_FIELD_NUMBER: _ClassVar[int]
+    OUTPUT_HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    request_id: int
+    frame_id: int
+    png: bytes
+    width: int
+    height: int
+    output_width: int
+    output_height: int
+    def __init__(self, request_id: _Optional[int] = ..., frame_id: _Optional[int] = ..., png: _Optional[bytes] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., output_width: _Optional[int] = ..., output_height: _Optional[int] = ...) -> None: ...
 
 class PingRequest(_message.Message):
     __slots__ = ("t0_local_ns",)

@@ -85,6 +85,11 @@ class NodeLinkStub:
                 request_serializer=protos_dot_node__pb2.StreamRequest.SerializeToString,
                 response_deserializer=protos_dot_node__pb2.ShowUpdate.FromString,
                 _registered_method=True)
+        self.Previews = channel.unary_stream(
+                '/shadowless.v1.NodeLink/Previews',
+                request_serializer=protos_dot_node__pb2.StreamRequest.SerializeToString,
+                response_deserializer=protos_dot_node__pb2.PreviewRequest.FromString,
+                _registered_method=True)
 
 
 class NodeLinkServicer:
@@ -163,6 +168,17 @@ class NodeLinkServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def Previews(self, request, context):
+        """Requests for a small picture of what the projector shows (the operator console's thumbnails),
+        each answered by a Preview in a NodeReport. A coordinator asks only while someone looks at the
+        node's thumbnail, about once a second; a node makes at most two a second whatever it is asked,
+        between frames (never between a frame's render and its swap). A node that never calls this
+        (an older one) simply has no thumbnail; a coordinator without it answers UNIMPLEMENTED.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_NodeLinkServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -215,6 +231,11 @@ def add_NodeLinkServicer_to_server(servicer, server):
                     servicer.Show,
                     request_deserializer=protos_dot_node__pb2.StreamRequest.FromString,
                     response_serializer=protos_dot_node__pb2.ShowUpdate.SerializeToString,
+            ),
+            'Previews': grpc.unary_stream_rpc_method_handler(
+                    servicer.Previews,
+                    request_deserializer=protos_dot_node__pb2.StreamRequest.FromString,
+                    response_serializer=protos_dot_node__pb2.PreviewRequest.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -487,6 +508,33 @@ class NodeLink:
             '/shadowless.v1.NodeLink/Show',
             protos_dot_node__pb2.StreamRequest.SerializeToString,
             protos_dot_node__pb2.ShowUpdate.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def Previews(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(
+            request,
+            target,
+            '/shadowless.v1.NodeLink/Previews',
+            protos_dot_node__pb2.StreamRequest.SerializeToString,
+            protos_dot_node__pb2.PreviewRequest.FromString,
             options,
             channel_credentials,
             insecure,

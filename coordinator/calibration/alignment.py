@@ -34,6 +34,7 @@ from scipy.spatial import QhullError, cKDTree
 
 from coordinator.calibration import multiplex, planar, threed
 from coordinator.calibration.errors import CalibrationError
+from coordinator.calibration.heatmap_figure import colourise
 
 #: Heat-map colour scale: residuals at or above this many projector pixels are full red.
 HEATMAP_FULL_SCALE_PX = 1.0
@@ -213,11 +214,7 @@ def sample_points(points: np.ndarray, usable: np.ndarray, xy: np.ndarray) -> np.
 
 def render_heatmap(values: np.ndarray, *, full_scale: float = HEATMAP_FULL_SCALE_PX) -> bytes:
     """PNG bytes of a heat map: 0 px dark blue ... ``full_scale`` px and more red (OpenCV's TURBO map), NaN grey."""
-    v = np.asarray(values, np.float32)
-    scaled = np.clip(np.nan_to_num(v, nan=0.0) / full_scale, 0.0, 1.0)
-    img = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    img[~np.isfinite(v)] = (128, 128, 128)
-    ok, buf = cv2.imencode(".png", img)
+    ok, buf = cv2.imencode(".png", colourise(values, full_scale))
     if not ok:  # pragma: no cover
         raise CalibrationError("cannot encode the heat map")
     return buf.tobytes()

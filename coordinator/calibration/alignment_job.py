@@ -5,7 +5,10 @@ current pose; the camera measures where they land (the method and its numerics:
 :mod:`coordinator.calibration.alignment`). The result gives per projector the RMS, 95th
 percentile and maximum residual (projector pixels) and where the worst one is, and heat
 maps saved as ``calibration/alignment.png`` (and ``alignment-mesh.png`` when a rig has
-both planar and 3D poses) beside ``calibration/alignment.json``.
+both planar and 3D poses) beside ``calibration/alignment.json``. Each map is also drawn as a
+figure to read (``alignment-figure.png``, ``alignment-mesh-figure.png``: colour bar, axes in
+table mm or camera px, each planar projector's outline; :mod:`.heatmap_figure`), whose file,
+layout, extent, outlines (table mm) and projector pixel sizes (mm) the map's entry lists.
 
 Options: :class:`coordinator.calibration.options.AlignmentOptions`.
 """
@@ -27,6 +30,7 @@ from coordinator.calibration.alignment import (
     sample_points,
 )
 from coordinator.calibration.errors import CalibrationError
+from coordinator.calibration.heatmap_figure import footprint_mm, heatmap_figure, pixel_mm
 from coordinator.calibration.options import AlignmentOptions
 from coordinator.calibration.runs import calibration_dir
 from coordinator.jobs import JobContext, JobError
@@ -188,9 +192,18 @@ async def run(ctx: JobContext, opts: AlignmentOptions) -> dict:
         "heatmap_full_scale_px": HEATMAP_FULL_SCALE_PX, "captures": ctx.captures,
         "wall_s": round(time.monotonic() - t0, 3), "checked_at": time.time(), "heatmaps": [],
     }
+    outlines = _outlines(ctx, flat, cams)
     for name, hm, extent in maps:
         atomic_write_bytes(cdir / name, render_heatmap(hm))
-        entry_map = {"file": str(cdir / name), "frame": "table mm" if name == "alignment.png" and flat else "camera px"}
+        frame = "table mm" if name == "alignment.png" and flat else "camera px"
+        lines = outlines if frame == "table mm" else {}
+        png, layout = heatmap_figure(hm, extent, units=frame, full_scale=HEATMAP_FULL_SCALE_PX, outlines=lines)
+        figure = name.replace(".png", "-figure.png")
+        atomic_write_bytes(cdir / figure, png)
+        entry_map = {"file": str(cdir / name), "frame": frame, "extent": [float(e) for e in extent],
+                     "figure": str(cdir / figure), "figure_layout": layout,
+                     "outlines": {s: [[round(float(v), 2) for v in p] for p in o] for s, o in lines.items()},
+                     "pixel_mm": {s: round(pixel_mm(o, ctx.projector_size(s)), 4) for s, o in lines.items()}}
         if np.isfinite(hm).any():
             iy, ix = np.unravel_index(int(np.nanargmax(hm)), hm.shape)
             left, right, top, bottom = extent
@@ -201,6 +214,14 @@ async def run(ctx: JobContext, opts: AlignmentOptions) -> dict:
     ctx.progress("alignment", "", 1, 1, "done")
     atomic_write_json(cdir / "alignment.json", result)
     return result
+
+
+def _outlines(ctx: JobContext, flat: dict[str, HomographyPose], cams: dict) -> dict[str, np.ndarray]:
+    """Each planar projector's footprint on the table, (4, 2) float64 mm (those beyond the horizon left out)."""
+    table_mm = tuple(cams.get("table_mm", (1200.0, 600.0)))
+    content = (ctx.rig.config.content_width, ctx.rig.config.content_height)
+    found = {s: footprint_mm(p.matrix, ctx.projector_size(s), content, table_mm) for s, p in flat.items()}
+    return {s: o for s, o in found.items() if o is not None}
 
 
 def _slot_stats(res: np.ndarray, where: np.ndarray, planned: int, *, where_key: str) -> dict:

@@ -162,6 +162,8 @@ def alignment_report(result: dict) -> str:
     for m in result.get("heatmaps", [{"file": result.get("heatmap"), "frame": "table mm"}]):
         lines.append(f"heat map: {m['file']} over the {'table' if m['frame'] == 'table mm' else 'camera image'} "
                      f"(red = {result.get('heatmap_full_scale_px', 1)} px or more)")
+        if m.get("figure"):
+            lines.append(f"figure with colour bar, axes and outlines: {m['figure']}")
     return "\n".join(lines)
 
 

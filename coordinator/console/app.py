@@ -7,6 +7,9 @@ and the security headers every response carries.
   the browser's session, for a reloaded page).
 * ``GET /api/status`` (the snapshot, JSON), ``GET /api/events`` (server-sent events) and
   ``GET /api/job/options`` (every job's options, for the job form).
+* ``GET /api/pictures``, ``/api/pictures/{name}`` and ``/api/camera.png``: the jobs' pictures and
+  the camera's view (:mod:`coordinator.console.pictures`).
+* ``GET /api/thumbnail/{slot}``: what a slot's projector shows, small (:mod:`coordinator.console.thumbnails`).
 * ``POST /api/stop``, ``/api/blackout``, ``/api/identify``, ``/api/gain``, ``/api/show``, ``/api/play``,
   ``/api/job`` (start one) and ``/api/job/cancel``.
 
@@ -25,6 +28,8 @@ from aiohttp import web
 
 from coordinator.console import auth
 from coordinator.console.actions import MAX_UPLOAD_BYTES, Actions
+from coordinator.console.pictures import Pictures
+from coordinator.console.thumbnails import Thumbnails
 from coordinator.jobs.errors import JobError
 from coordinator.jobs.options import form_fields
 from coordinator.jobs.registry import JOBS, resolve
@@ -47,7 +52,8 @@ SECURITY_HEADERS = {
     "Cross-Origin-Opener-Policy": "same-origin",
     "Cross-Origin-Resource-Policy": "same-origin",
 }
-STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
+STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css",
+          "pictures.js": "text/javascript"}
 MAX_LOGIN_BYTES = 4096
 
 KEY = web.AppKey("console", object)
@@ -222,4 +228,9 @@ def make_app(console: ConsoleApp) -> web.Application:
     app.router.add_post("/api/play", c.guard(a.play))
     app.router.add_post("/api/job", c.guard(a.job))
     app.router.add_post("/api/job/cancel", c.guard(a.cancel_job))
+    p = Pictures(console.coord)
+    app.router.add_get("/api/pictures", c.guard(p.listing))
+    app.router.add_get("/api/pictures/{name}", c.guard(p.picture))
+    app.router.add_get("/api/camera.png", c.guard(p.camera))
+    app.router.add_get("/api/thumbnail/{slot}", c.guard(Thumbnails(console.coord).thumbnail))
     return app

@@ -8,7 +8,7 @@ let csrf = "";
 let events = null;
 let history = [];
 let snap = null;
-const rows = new Map();          // slot -> {tr, cells, gainInput, gainError}
+const rows = new Map();          // slot -> {tr, cells, gainInput, gainError, thumbImg, thumbAge, nodeState}
 
 const $ = (id) => document.getElementById(id);
 
@@ -77,6 +77,7 @@ async function act(button, errorEl, fn) {
 // ------------------------------------------------------------------ login
 function showLogin(message) {
   if (events) { events.close(); events = null; }
+  stopThumbs();
   csrf = "";
   $("main-view").hidden = true;
   $("logout").hidden = true;
@@ -94,6 +95,7 @@ function showMain(who) {
   $("logout").hidden = false;
   $("who").textContent = `session ${who}`;
   connect();
+  startThumbs();
 }
 
 async function login(ev) {
@@ -209,6 +211,7 @@ function renderNodes(slots) {
     c.state.textContent = n.state;
     c.state.className = `state state-${n.state}`;
     r.tr.setAttribute("data-state", n.state);
+    r.nodeState = n.node_state;
     c.host.textContent = n.host ? `${n.host} (pid ${n.pid})` : "–";
     c.host.title = [n.output, n.gl, n.software && `shadowless ${n.software}`].filter(Boolean).join(" · ");
     c.offset.textContent = fmt(n.clock_offset_ms, 1);
@@ -234,6 +237,10 @@ function makeRow(slot) {
   const add = (name, cls) => { const td = el("td", cls ? { class: cls } : {}); tr.appendChild(td); cells[name] = td; return td; };
   add("slot").textContent = slot;
   add("state", "state");
+  const thumbTd = add("thumb", "thumb");
+  const thumbImg = el("img", { class: "thumb-img", alt: `what ${slot} shows`, hidden: "" });
+  const thumbAge = el("span", { class: "thumb-age" }, "");
+  thumbTd.append(thumbImg, thumbAge);
   add("host");
   for (const k of ["offset", "drift", "rtt", "shown", "late", "dropped"]) add(k, "num");
   add("assets", "num");
@@ -249,7 +256,83 @@ function makeRow(slot) {
   }));
   gainTd.append(input, button, err);
   add("refusal", "reason");
-  return { tr, cells, gainInput: input, gainError: err };
+  observeThumb(slot, tr);
+  return { tr, cells, gainInput: input, gainError: err, thumbImg, thumbAge, nodeState: "", thumbBusy: false };
+}
+
+// ------------------------------------------------------------------ thumbnails
+// What each projector shows, fetched about once a second for the rows on screen while the page is
+// visible: fetching one is what makes the coordinator ask that node for pictures, so a closed or
+// hidden page costs the rig nothing. The PNG becomes a data: URL (the page's CSP allows no blob:).
+const THUMB_EVERY_MS = 1000;
+const thumbsOnScreen = new Set();
+let thumbObserver = null;
+let thumbTimer = null;
+
+function observeThumb(slot, tr) {
+  if (!("IntersectionObserver" in window)) { thumbsOnScreen.add(slot); return; }
+  if (!thumbObserver) {
+    thumbObserver = new IntersectionObserver((entries) => {
+      for (const e of entries) {
+        const s = e.target.getAttribute("data-slot");
+        if (e.isIntersecting) thumbsOnScreen.add(s); else thumbsOnScreen.delete(s);
+      }
+    });
+  }
+  thumbObserver.observe(tr);
+}
+
+function dataURL(blob) {
+  return new Promise((resolve, reject) => {
+    const reader = new FileReader();
+    reader.onload = () => resolve(reader.result);
+    reader.onerror = () => reject(reader.error);
+    reader.readAsDataURL(blob);
+  });
+}
+
+async function refreshThumb(slot, r) {
+  if (r.thumbBusy) return;
+  r.thumbBusy = true;
+  try {
+    const resp = await fetch(`/api/thumbnail/${encodeURIComponent(slot)}`, { credentials: "same-origin", cache: "no-store" });
+    if (!resp.ok) {
+      let msg = `HTTP ${resp.status}`;
+      try { msg = (await resp.json()).error || msg; } catch (e) { /* not JSON */ }
+      if (r.thumbImg.hidden) r.thumbAge.textContent = "no picture yet";
+      r.thumbAge.title = msg;
+      return;
+    }
+    const frame = resp.headers.get("X-Frame-Id") || "";
+    const age = Number(resp.headers.get("X-Age-Ms"));
+    const url = await dataURL(await resp.blob());
+    if (!rows.has(slot)) return;
+    r.thumbImg.src = url;
+    r.thumbImg.hidden = false;
+    r.thumbImg.dataset.frame = frame;
+    r.thumbImg.dataset.age = String(age);
+    r.thumbAge.textContent = `${fmt(age / 1000, 1)} s old`;
+    r.thumbAge.title = `frame ${frame}, as of ${new Date(Date.now() - age).toLocaleTimeString()}`;
+  } catch (e) {
+    r.thumbAge.textContent = "not reachable";
+  } finally {
+    r.thumbBusy = false;
+  }
+}
+
+function refreshThumbs() {
+  if (document.visibilityState !== "visible" || $("main-view").hidden) return;
+  for (const [slot, r] of rows) {
+    if (thumbsOnScreen.has(slot) && r.nodeState && r.nodeState !== "expected") refreshThumb(slot, r);
+  }
+}
+
+function startThumbs() {
+  if (!thumbTimer) thumbTimer = setInterval(refreshThumbs, THUMB_EVERY_MS);
+}
+
+function stopThumbs() {
+  if (thumbTimer) { clearInterval(thumbTimer); thumbTimer = null; }
 }
 
 function renderRefusals(list) {
@@ -465,6 +548,7 @@ document.addEventListener("DOMContentLoaded", async () => {
         () => postJSON("/api/play", { asset: $("asset").value, loop: $("loop").checked }));
   });
   $("job-kind").addEventListener("change", renderJobFields);
+  document.addEventListener("visibilitychange", refreshThumbs);
   $("job-form").addEventListener("submit", (ev) => {
     ev.preventDefault();
     act($("job-start"), $("job-error"), () => postJSON("/api/job", { kind: $("job-kind").value, params: jobParams() }));
