@@ -40,11 +40,31 @@ __all__ = ["OPTIONS", "run"]
 OPTIONS = CompensateOptions
 
 
+#: the name a compensated image is shown under (see :func:`run`)
+COMPENSATED_PREFIX = "compensated "
+
+
+def shown_content(ctx: JobContext) -> tuple[np.ndarray, str]:
+    """The image the rig shows (``(H, W, C)``, its dtype), for a job given no image: what an operator
+    shows from the console is what they compensate next. Not an already compensated one."""
+    content = ctx.rig.content
+    if content is None:
+        raise CompensationError("give an image (the `image` parameter or `image_path`), or show one first: "
+                                "with no image the rig's content is compensated, and the rig has none")
+    if content.name.startswith(COMPENSATED_PREFIX):
+        raise CompensationError(f"the rig shows {content.name!r}, already compensated: show the original again "
+                                "first, or give the image")
+    return content.image, content.name or content.content_id[:12]
+
+
 async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
     """Solve for the image, store the figures; with ``persist`` show the result as the rig's content."""
     t0 = time.monotonic()
     try:
-        image, name = load_image_param(opts.image, opts.image_path)
+        if opts.image is None and not opts.image_path:
+            image, name = shown_content(ctx)
+        else:
+            image, name = load_image_param(opts.image, opts.image_path)
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
     slots = ctx.select_slots(opts.slots, need_pose=True, planar=True)
@@ -111,7 +131,7 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
     result["wall_s"] = round(time.monotonic() - t0, 3)
     write_result(ctx.rig, "result.json", result)
     if opts.persist:
-        ctx.show_still(np.ascontiguousarray(x), name=f"compensated {name}", persist=True)
+        ctx.show_still(np.ascontiguousarray(x), name=f"{COMPENSATED_PREFIX}{name}", persist=True)
         result["content"] = "shown on every projector and stored as the rig's content"
     return result
 

@@ -139,7 +139,8 @@ class CompensateOptions(TransportOptions):
 
     image: dict | None = option(None, parse=_image, cli=False,
                                 help="the image: {\"name\", \"data\"} with the file's bytes, zlib + base64 "
-                                     "(coordinator.compensation.image_param.encode_image_param)")
+                                     "(coordinator.compensation.image_param.encode_image_param); with neither this "
+                                     "nor image_path, the image the rig shows (its content)")
     image_path: str | None = option(None, cli=False, help="an image file on the coordinator's machine, instead of image")
     srgb: bool = option(False, group=SOLVE, help="the image is sRGB-encoded (default: values are linear luminance, as "
                                                 "`shadowless show` shows them)")
@@ -164,10 +165,6 @@ class CompensateOptions(TransportOptions):
                                  "N times the captures)")
     eval_frames: int = option(4, lo=1, hi=256, metavar="F", group=EVALUATION,
                               help="captures averaged per evaluated result")
-
-    def validate(self) -> None:
-        if self.image is None and not self.image_path:
-            raise JobError("give an image (the `image` parameter, or `image_path` on the coordinator's machine)")
 
 
 def _asset_key(value: Any) -> str:

@@ -23,7 +23,7 @@ from coordinator.compensation.solver import objective, solve
 from coordinator.compensation.store import load_stored_response, response_path
 from coordinator.compensation.transport import load_transport, transport_error
 from coordinator.jobs import JobError
-from coordinator.rig import HomographyPose, Mesh, ProjectionPose
+from coordinator.rig import Content, HomographyPose, Mesh, ProjectionPose
 from shadowless.room_driver import RoomCamera, RoomDriver
 from sim.room import Room
 from sim.scene import reference_scene
@@ -150,6 +150,17 @@ def test_compensation_orders_none_baseline_ours_and_persists_the_result(setup):
     assert out["solve"]["objective"] < out["solve"]["initial_objective"]
 
 
+def test_with_no_image_the_image_the_rig_shows_is_compensated(setup):
+    """From the console: show an image, then compensate it (never an already compensated one)."""
+    room, rig, driver = setup
+    rig.set_content(Content(demo_image(CONTENT), name="compensated card.png"))
+    with pytest.raises(JobError, match="already compensated: show the original again first"):
+        run(driver, "compensate", {"measure": False})
+    rig.set_content(Content(demo_image(CONTENT), name="card.png"))
+    out = run(driver, "compensate", {"measure": False, "max_iter": 20, "persist": False})
+    assert out["image"] == "card.png" and out["solve"]["objective"] < out["solve"]["initial_objective"]
+
+
 def test_sequence_is_compensated_with_warm_starts_and_played(setup):
     room, rig, driver = setup
     wide = demo_image((CONTENT[0] + 8, CONTENT[1]))
@@ -200,12 +211,15 @@ def test_refusals_name_what_to_do(setup, tmp_path):
     room, rig, driver = setup
     with pytest.raises(JobError, match="unknown transport parameter"):
         run(driver, "transport", {"radios": 3})
-    with pytest.raises(JobError, match="give an image"):
+    rig.set_content(Content(demo_image(CONTENT), name="compensated card.png"))
+    with pytest.raises(JobError, match="already compensated"):
         run(driver, "compensate", {})
     with pytest.raises(JobError, match="radius must be in 1..16"):
         run(driver, "transport", {"radius": 0})
     bare = make_rig(tmp_path / "bare", room, SLOTS, content_size=CONTENT)
     bdriver = RoomDriver(room, bare)
+    with pytest.raises(JobError, match="or show one first"):     # no image given and nothing shown
+        run(bdriver, "compensate", {})
     with pytest.raises(JobError, match="has no pose: calibrate"):
         run(bdriver, "transport", {"slots": SLOTS[:1]})
     bare.update_slot(SLOTS[0], pose=HomographyPose(rig.slot(SLOTS[0]).pose.matrix))

@@ -49,7 +49,6 @@ def test_the_options_mirror_the_numerics_defaults():
     (ResponseOptions, {"mode": "half"}, "mode must be one of"),
     (ResponseOptions, {"reference": -1}, "a reference luminance must be positive"),
     (ResponseOptions, {"reference": [1]}, "reference must be a slot name or a luminance"),
-    (CompensateOptions, {}, "give an image"),
     (CompensateOptions, {"image": "x.png"}, "image parameter must be"),
     (CompensateOptions, {"image_path": "x.png", "method": "newton"}, "method must be one of"),
     (SequenceOptions, {}, "missing parameter"),
