@@ -138,10 +138,9 @@ def run(args: argparse.Namespace) -> int:
         return 0
     profiles = {}
     for name, env in (("default", {}), ("gl31", GL31_ENV)):
-        frames = args.frames
         # the worker imports what a node's presenter imports, and nothing of the CLI's other commands
         cmd = [sys.executable, "-m", "bench.node", "--worker", "--size", "x".join(map(str, args.size)),
-               "--content", "x".join(map(str, args.content)), "--frames", str(frames), "--dtype", args.dtype]
+               "--content", "x".join(map(str, args.content)), "--frames", str(args.frames), "--dtype", args.dtype]
         done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **env}, timeout=1800)
         if done.returncode != 0:
             print(f"bench node: the {name} profile failed:\n{done.stderr[-3000:]}", file=sys.stderr)

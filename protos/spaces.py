@@ -26,8 +26,8 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["content_to_table", "projector_samples", "bilinear_taps", "warp_content", "lut_lookup", "quantise",
-           "as_linear"]
+__all__ = ["content_to_table", "output_outline", "projector_samples", "bilinear_taps", "warp_content", "lut_lookup",
+           "quantise", "as_linear"]
 
 
 def content_to_table(content_size: Sequence[int], table_mm: Sequence[float]) -> np.ndarray:
@@ -47,6 +47,28 @@ def content_to_table(content_size: Sequence[int], table_mm: Sequence[float]) -> 
     if w <= 0 or h <= 0 or tw <= 0 or th <= 0:
         raise ValueError(f"content size and table size must be positive, got {tuple(content_size)}, {tuple(table_mm)}")
     return np.array([[tw / w, 0.0, tw / (2 * w) - tw / 2], [0.0, -th / h, th / 2 - th / (2 * h)], [0.0, 0.0, 1.0]])
+
+
+def output_outline(pose: np.ndarray, projector_size: Sequence[int], content_size: Sequence[int]) -> np.ndarray | None:
+    """Where a projector's output lands in content pixels: (4, 2) float64, the output rectangle's
+    corners (pixel edges) through the inverse of its (3, 3) content px -> projector px ``pose``;
+    None when the pose is singular or a corner lies beyond the horizon (it cannot be drawn)."""
+    H = np.asarray(pose, np.float64)
+    try:
+        inv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return None
+    cw, ch = content_size
+    # a homography is defined up to sign: the content lies where the pose sends its centre
+    if (H @ np.array([(cw - 1) / 2.0, (ch - 1) / 2.0, 1.0]))[2] < 0:
+        inv = -inv
+    w, h = projector_size
+    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]]).T
+    q = inv @ corners
+    if np.any(q[2] <= 1e-12):
+        return None
+    xy = (q[:2] / q[2]).T
+    return xy if np.all(np.isfinite(xy)) else None
 
 
 def projector_samples(pose: np.ndarray, projector_size: Sequence[int], *,

@@ -12,7 +12,7 @@ import math
 import cv2
 import numpy as np
 
-from protos.spaces import content_to_table
+from protos.spaces import content_to_table, output_outline
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 SCALE = 0.4
@@ -50,21 +50,10 @@ def footprint_mm(pose: np.ndarray, projector_size: tuple[int, int], content_size
     """Where a projector's output lands on the table: (4, 2) float64 table mm, the output rectangle's
     corners (pixel edges) through the inverse of its (3, 3) content px -> projector px pose, then
     :func:`protos.spaces.content_to_table`; None when a corner lies beyond the horizon."""
-    H = np.asarray(pose, np.float64)
-    try:
-        inv = np.linalg.inv(H)
-    except np.linalg.LinAlgError:
+    xy = output_outline(pose, projector_size, content_size)
+    if xy is None:
         return None
-    cw, ch = content_size
-    # a homography is defined up to sign: the content lies where the pose sends its centre (protos/spaces.py)
-    if (H @ np.array([(cw - 1) / 2.0, (ch - 1) / 2.0, 1.0]))[2] < 0:
-        inv = -inv
-    w, h = projector_size
-    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]]).T
-    q = inv @ corners
-    if np.any(q[2] <= 1e-12):
-        return None
-    q = content_to_table(content_size, table_mm) @ (q / q[2])
+    q = content_to_table(content_size, table_mm) @ np.vstack([xy.T, np.ones(4)])
     xy = (q[:2] / q[2]).T
     return xy if np.all(np.isfinite(xy)) and np.abs(xy).max() < 1e7 else None
 

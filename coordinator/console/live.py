@@ -25,6 +25,7 @@ from coordinator.api import NodeState, RigStatus
 from coordinator.jobs.registry import JOBS
 from coordinator.rig import HomographyPose, SlotState
 from coordinator.sync import FrameResult, percentile
+from protos.spaces import output_outline
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.audit import ActionLog
@@ -51,22 +52,8 @@ def footprint(st: SlotState, content_size: tuple[int, int]) -> list[list[float]]
     homography pose or when a corner lies beyond the horizon (it cannot be drawn)."""
     if not isinstance(st.pose, HomographyPose):
         return None
-    H = st.pose.matrix
-    try:
-        inv = np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        return None
-    cw, ch = content_size
-    # a homography is defined up to sign: the content lies where the pose sends its centre (protos/spaces.py)
-    if (H @ np.array([(cw - 1) / 2.0, (ch - 1) / 2.0, 1.0]))[2] < 0:
-        inv = -inv
-    w, h = st.width, st.height
-    corners = np.array([[-0.5, -0.5, 1.0], [w - 0.5, -0.5, 1.0], [w - 0.5, h - 0.5, 1.0], [-0.5, h - 0.5, 1.0]]).T
-    q = inv @ corners
-    if np.any(q[2] <= 1e-12):
-        return None
-    xy = (q[:2] / q[2]).T
-    if not np.all(np.isfinite(xy)) or np.abs(xy).max() > 1e6:
+    xy = output_outline(st.pose.matrix, (st.width, st.height), content_size)
+    if xy is None or np.abs(xy).max() > 1e6:
         return None
     return [[round(float(x), 1), round(float(y), 1)] for x, y in xy]
 

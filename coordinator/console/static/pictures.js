@@ -1,6 +1,7 @@
 // The console's pictures: the alignment heat map, the compensation before/after picture (with
-// their figures) and the camera's view. Self-contained (its own scope beside console.js); every
-// piece of rig data is put on the page with textContent or setAttribute, never as HTML.
+// their figures) and the camera's view. Its own scope, beside console.js (loaded first), whose
+// page helpers ($, el, clear, fmt) it uses; every piece of rig data is put on the page with
+// textContent or setAttribute, never as HTML.
 // What exists comes from GET /api/pictures, polled while the page is open and asked again soon after
 // the job line's state changes; a picture is loaded again when its file changed.
 (() => {
@@ -13,22 +14,6 @@
   let cameraTimer = null;
   let cameraLoading = false;
   let cameraOnScreen = false;
-
-  const $ = (id) => document.getElementById(id);
-
-  function el(tag, attrs, text) {
-    const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
-    if (text !== undefined && text !== null) e.textContent = String(text);
-    return e;
-  }
-
-  function clear(node) { while (node.firstChild) node.removeChild(node.firstChild); }
-
-  function fmt(x, digits) {
-    if (x === null || x === undefined || Number.isNaN(x)) return "–";
-    return typeof x === "number" ? x.toFixed(digits === undefined ? 1 : digits) : String(x);
-  }
 
   function when(unix) {
     return unix ? new Date(unix * 1000).toLocaleString() : "";

@@ -3,30 +3,19 @@ chromedriver, through Selenium) against a coordinator in this process and real n
 processes. Waits are generous failure guards, never measurements (`bench/console.py` times)."""
 from __future__ import annotations
 
-import os
 import socket
 
 import numpy as np
 import pytest
 
-from bench.console import (ConsoleRig, all_shown, browser_missing, chromium, log_in, page_gains, page_states, text_of,
+from bench.console import (ConsoleRig, all_shown, chromium, log_in, page_gains, page_states, text_of,
                            visible, wait_for)
 from coordinator.rig import Content
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import Select
 
-CI = os.environ.get("CI", "").lower() == "true"
 EVIL = "<script>document.title='pwned'</script><img src=x onerror=\"document.title='pwned'\">"
 SLOTS = ["r0c0", "r0c1"]
-
-
-@pytest.fixture
-def browser_ready():
-    missing = browser_missing()
-    if missing:
-        if CI:
-            pytest.fail(f"the console's browser test needs a headless Chromium: {missing}")
-        pytest.skip(missing)
 
 
 def type_into(field, text: str) -> None:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import os
 import time
 import urllib.error
 import urllib.request
@@ -21,7 +20,7 @@ import pytest
 
 from bench.calibration import table_points_from_truth
 from bench.compensation_room import demo_image
-from bench.console import ConsoleRig, browser_missing, chromium, log_in, visible, wait_for
+from bench.console import ConsoleRig, chromium, log_in, visible, wait_for
 from coordinator.calibration.alignment import heatmap
 from coordinator.calibration.heatmap_figure import colourise, footprint_mm, heatmap_figure, turbo_lut
 from coordinator.camera import encode_png16, open_camera
@@ -33,7 +32,6 @@ from sim.room import Room
 from sim.scene import reference_scene
 from sim.service import RoomServerThread
 
-CI = os.environ.get("CI", "").lower() == "true"
 TOKEN = b"p" * 32
 SLOTS = ["r1c1", "r3c3"]
 CONTENT = (200, 100)
@@ -199,15 +197,6 @@ def test_the_camera_view_is_rate_limited_and_scaled_down(tmp_path):
 
 
 # ---------------------------------------------------------------------- the room, the jobs, the page
-@pytest.fixture
-def browser_ready():
-    missing = browser_missing()
-    if missing:
-        if CI:
-            pytest.fail(f"the console's browser test needs a headless Chromium: {missing}")
-        pytest.skip(missing)
-
-
 class Http:
     """Blocking HTTP to the console, logged in (for code outside the coordinator's loop)."""
 

@@ -6,33 +6,22 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import time
 
 import aiohttp
 import numpy as np
 import pytest
 
-from bench.console import (ConsoleRig, all_shown, browser_missing, chromium, log_in, page_thumbnails, thumbnail_png,
+from bench.console import (ConsoleRig, all_shown, chromium, log_in, page_thumbnails, thumbnail_png,
                            visible, wait_for)
 from coordinator.previews import WANTED_FOR_S
 from coordinator.rig import Content
 from node.image_files import decode_png, read_png
 from node.preview import downscale
 
-CI = os.environ.get("CI", "").lower() == "true"
 SLOTS = ["r0c0", "r0c1"]
 OUTPUT = (320, 180)          # area-averaged by 2: 160 x 90 thumbnails
 CONTENT = (160, 90)
-
-
-@pytest.fixture
-def browser_ready():
-    missing = browser_missing()
-    if missing:
-        if CI:
-            pytest.fail(f"the console's thumbnail test needs a headless Chromium: {missing}")
-        pytest.skip(missing)
 
 
 def card(w: int, h: int) -> np.ndarray:
