@@ -264,10 +264,13 @@ def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920
 class Rig:
     """A rig directory loaded in memory. Every mutation is persisted before it returns."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, *, read_only: bool = False):
         """Load and check every file of the rig at ``path``; any refusal is a one-line RigError naming
-        the file and changes nothing on disk. Afterwards temp files of interrupted writes are removed."""
+        the file and changes nothing on disk. Afterwards temp files of interrupted writes are removed,
+        unless ``read_only``: a rig opened to be looked at (``rig show``, ``rig export``, a dry run)
+        writes nothing, and refuses every change."""
         self.path = Path(path)
+        self.read_only = read_only
         cfg_file = self.path / "rig.toml"
         if not self.path.is_dir():
             what = "no such directory" if not self.path.exists() else "a file, not a directory"
@@ -280,7 +283,12 @@ class Rig:
         for name, (w, h) in self.config.slots.items():
             self.slots[name] = self._load_slot(name, w, h)
         self.content: Content | None = self._load_content()
-        remove_stale_temps(self.path)
+        if not read_only:
+            remove_stale_temps(self.path)
+
+    def _writable(self) -> None:
+        if self.read_only:
+            raise RigError(f"rig {self.path} was opened read-only: nothing may change it here")
 
     # ---- loading -------------------------------------------------------
     def mesh(self, mesh_id: str) -> Mesh:
@@ -384,6 +392,7 @@ class Rig:
                     lut: np.ndarray | None | object = _UNSET, size: tuple[int, int] | None = None,
                     source: str = "manual") -> SlotState:
         """Change a slot's assignment; bump its revision; persist; return the new state."""
+        self._writable()
         st = self.slot(name)
         changes: dict = {}
         if pose is not Rig._UNSET:
@@ -405,6 +414,7 @@ class Rig:
         return st
 
     def set_content(self, content: Content) -> None:
+        self._writable()
         ext = "npy"
         fname = f"{content.content_id}.{ext}"
         atomic_save_npy(self.path / "content" / fname, content.image)

@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
             return 0
         if args.rig_command in ("export", "import"):
             return (mpcdi_cli.run_export if args.rig_command == "export" else mpcdi_cli.run_import)(args)
-        rig = Rig(args.dir)
+        rig = Rig(args.dir, read_only=True)
         doc = {
             "name": rig.config.name, "id": rig.config.rig_id, "dir": str(rig.path),
             "content": [rig.config.content_width, rig.config.content_height],

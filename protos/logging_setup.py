@@ -61,15 +61,32 @@ class _JournalFormatter(logging.Formatter):
         return "\n".join(f"<{prio}>{line}" for line in text.splitlines() or [""])
 
 
+class _CurrentStderr(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is when a record is emitted, not to the
+    stream that was stderr at set-up: a command run in-process (a test's capture, a redirect)
+    replaces and later closes its stderr, and lines must not go to the closed one."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value) -> None:
+        pass  # StreamHandler.__init__ assigns it; the property always answers sys.stderr
+
+
 def setup(level: int | str = logging.INFO, *, name: str = "", stream=None, journald: bool | None = None) -> None:
-    """Route the root logger to ``stream`` (default stderr) at ``level``, each line tagged with
-    ``name`` (e.g. ``"node r0c0"``). ``journald``: None detects it (see the module docstring)."""
-    stream = stream or sys.stderr
+    """Route the root logger to ``stream`` (default: the current stderr, looked up at each line)
+    at ``level``, each line tagged with ``name`` (e.g. ``"node r0c0"``). ``journald``: None
+    detects it (see the module docstring)."""
     if isinstance(level, str):
         level = getattr(logging, level.upper(), logging.INFO)
     if journald is None:
         journald = journald_stderr(stream)
-    handler = logging.StreamHandler(stream)
+    handler = logging.StreamHandler(stream) if stream is not None else _CurrentStderr()
     handler.addFilter(_Origin(name))
     line = f"{name}%(origin)s: %(message)s" if name else "%(name)s: %(message)s"
     if journald:

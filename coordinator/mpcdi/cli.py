@@ -79,7 +79,7 @@ def _publish(tmp: Path, out: Path, *, force: bool) -> None:
 
 def run_export(args: argparse.Namespace) -> int:
     """Export rig directory ``args.dir`` to ``args.out``; print one line."""
-    rig = Rig(args.dir)
+    rig = Rig(args.dir, read_only=True)
     out = Path(args.out)
     if out.is_dir():
         raise RigError(f"{out} is a folder; give the archive's file name, e.g. {out / (rig.config.name + '.mpcdi')}")
@@ -266,7 +266,7 @@ def run_import(args: argparse.Namespace) -> int:
     """Import archive ``args.archive`` into rig directory ``args.dir``; a line per slot, exit 2 if
     a slot was refused (the others are imported)."""
     archive = Path(args.archive)
-    rig = Rig(args.dir)                    # a rig directory? (before anything else, to say so plainly)
+    rig = Rig(args.dir, read_only=True)    # a rig directory? (before anything else, to say so plainly)
     imp = import_mpcdi(archive)            # the whole archive is read and checked before any write
     names = _select(rig, imp, archive, args.slots)
     _check_content(rig, imp, names)

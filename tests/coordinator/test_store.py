@@ -11,7 +11,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from coordinator.rig import Rig, grid_slots, init_rig
+from coordinator.rig import Content, Rig, RigError, grid_slots, init_rig
 from coordinator.store import STALE_TEMP_S, atomic_file, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
 
 
@@ -75,8 +75,22 @@ def test_loading_a_rig_sweeps_what_killed_writers_left_but_not_the_asset_staging
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(b"half")
         os.utime(p, (0, 0))
+    Rig(rig_dir, read_only=True)    # looking at a rig (rig show, rig export) writes nothing
+    assert stale[0].exists() and stale[1].exists()
     Rig(rig_dir)
     assert not stale[0].exists() and stale[1].exists()
+
+
+def test_a_rig_opened_read_only_refuses_every_change(tmp_path):
+    rig_dir = init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 1), width=32, height=32,
+                       content_width=32, content_height=32)
+    before = {p: p.read_bytes() for p in rig_dir.rglob("*") if p.is_file()}
+    rig = Rig(rig_dir, read_only=True)
+    with pytest.raises(RigError, match="read-only"):
+        rig.update_slot("r0c0", gain=0.5)
+    with pytest.raises(RigError, match="read-only"):
+        rig.set_content(Content(np.zeros((32, 32, 3), np.uint8), name="black"))
+    assert {p: p.read_bytes() for p in rig_dir.rglob("*") if p.is_file()} == before
 
 
 def test_sweep_logs_count_and_bytes_once_and_stays_inside_the_tree(tmp_path, caplog):

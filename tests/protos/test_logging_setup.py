@@ -104,3 +104,18 @@ def test_quiet_and_verbose_reach_a_subcommand_after_its_action(tmp_path):
     r = subprocess.run([sys.executable, "-m", "shadowless", "content", "-q", "list", "-v", "--rig-dir",
                         str(tmp_path / "none")], capture_output=True, text=True, timeout=60)
     assert "unrecognized arguments" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_lines_follow_stderr_when_it_is_replaced_after_set_up(tmp_path, restore_root, monkeypatch):
+    """A command run in-process (as tests and the demo do) sets logging up on the stderr of the
+    moment; when that stream is replaced and closed, lines go to the new one, never to the closed."""
+    first, second = tmp_path / "first", tmp_path / "second"
+    with open(first, "w") as f:
+        monkeypatch.setattr(sys, "stderr", f)
+        ls.setup("info", name="coordinator", journald=False)
+        logging.getLogger("coordinator").info("one")
+    with open(second, "w") as f:
+        monkeypatch.setattr(sys, "stderr", f)
+        logging.getLogger("coordinator").info("two")
+    assert [ln.endswith("coordinator: one") for ln in lines_of(first)] == [True]
+    assert [ln.endswith("coordinator: two") for ln in lines_of(second)] == [True]

@@ -20,10 +20,15 @@ SLOTS = ["r0c0", "r0c1"]
 
 def type_into(field, text: str) -> None:
     """Replace a field's text as a person does: focused first (the page leaves a focused field alone
-    when a snapshot arrives), then select all and type."""
-    field.click()
-    field.send_keys(Keys.CONTROL, "a")
-    field.send_keys(text)
+    when a snapshot arrives), then select all and type. Checked, and typed again (up to 3 times)
+    when a keystroke went astray: the field must hold exactly ``text`` before anything is clicked."""
+    for _ in range(3):
+        field.click()
+        field.send_keys(Keys.CONTROL, "a")
+        field.send_keys(text)
+        if field.get_attribute("value") == text:
+            return
+    raise AssertionError(f"could not type {text!r} into the field: it holds {field.get_attribute('value')!r}")
 
 
 @pytest.fixture
@@ -89,7 +94,12 @@ def test_the_console_in_a_browser(tmp_path, browser_ready, silent_camera):
             driver.find_element("css selector", '#nodes tr[data-slot="r0c1"] button.gain-set').click()
             err = lambda: driver.execute_script(  # noqa: E731
                 "return document.querySelector('#nodes tr[data-slot=\"r0c1\"] .error').textContent;")
-            wait_for(lambda: "gain must be" in err(), 60, "the refused gain explained beside its field")
+            try:
+                wait_for(lambda: "gain must be" in err(), 60, "the refused gain explained beside its field")
+            except TimeoutError as exc:  # say what the page and the rig hold instead
+                raise AssertionError(f"{exc}; beside the field: {err()!r}, field {page_gains(driver)['r0c1']!r}, "
+                                     f"rig gain {rig.call(lambda: rig.coord.rig.slots['r0c1'].gain)}, "
+                                     f"action log: {text_of(driver, 'actions')[-400:]!r}") from exc
             assert rig.call(lambda: rig.coord.rig.slots["r0c1"].gain) == 0.75
             assert page_gains(driver)["r0c1"] == "99", "the operator's input is kept while it is being corrected"
 
