@@ -5,9 +5,10 @@ join it over loopback, and a headless Chromium (Debian's ``chromium`` and ``chro
 driven by Selenium) opens the page. Measured: the page's load time, the time from the login
 to every node shown live, how long a change takes to show on the page (a slot's gain set on
 the coordinator; a node killed until it is shown lost), the coordinator's CPU time per
-second with the page open and closed, and the thumbnails of what each projector shows: how
-many arrive per second per node, and the late frames of sequences played without them (the node
-rows scrolled off screen: no node is asked) and with them. A screenshot of the page is saved.
+second with the page open and closed, the swap skew (p99) and late frames of sequences played with
+the page closed, open, and open with the thumbnails of what each projector shows (the node rows
+scrolled off screen: no node is asked; on screen: about one per second per node), and how many
+thumbnails arrive per second per node. A screenshot of the page is saved.
 
 :class:`ConsoleRig` and the page helpers are shared with the browser tests.
 """
@@ -31,7 +32,7 @@ import numpy as np
 
 from bench.machine import machine
 from bench.workdir import run_dir
-from coordinator.api import NodeState, PlaySettings
+from coordinator.api import NodeState, PlayResult, PlaySettings
 from coordinator.previews import WANTED_FOR_S
 from coordinator.rig import HomographyPose, Rig
 from coordinator.server import Coordinator
@@ -276,7 +277,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kills", type=int, default=2, help="nodes killed, timed until shown lost (default 2)")
     p.add_argument("--cpu-seconds", type=float, default=10.0, help="each CPU measurement's length (default 10)")
     p.add_argument("--thumbnail-seconds", type=float, default=10.0,
-                   help="length of each sequence played without and with the thumbnails (default 10)")
+                   help="length of each sequence played with the page closed, open, and open with thumbnails "
+                        "(default 10)")
     p.add_argument("--warmup", type=float, default=25.0,
                    help="seconds for the nodes' clock estimates to settle before measuring CPU (default 25)")
     p.add_argument("--screenshot", metavar="PNG", help="where to save the page's screenshot "
@@ -296,10 +298,11 @@ def _cpu_ms_per_s(seconds: float) -> float:
     return round(1e3 * (time.process_time() - c0) / (time.monotonic() - t0), 2)
 
 
-def _late_while_playing(rig: ConsoleRig, seconds: float) -> int:
-    """Late frames (over every node) of a 30 fps counter sequence of ``seconds`` played to its end."""
+def _play(rig: ConsoleRig, seconds: float) -> PlayResult:
+    """A 30 fps counter sequence of ``seconds`` played to its end on every node: its late frames and
+    per-frame swap skews."""
     settings = PlaySettings(fps=30, pattern="counter", frames=max(1, round(30 * seconds)), wait=True)
-    return rig.call(lambda: rig.coord.play_sequence(None, settings), timeout=seconds + 120).frames_late
+    return rig.call(lambda: rig.coord.play_sequence(None, settings), timeout=seconds + 120)
 
 
 def rows_on_screen(driver, on: bool) -> None:
@@ -313,22 +316,42 @@ def rows_on_screen(driver, on: bool) -> None:
         "else { window.scrollTo(0, document.body.scrollHeight); }", on)
 
 
-def thumbnail_figures(rig: ConsoleRig, driver, slots: list[str], seconds: float, rounds: int = 2) -> dict:
-    """Sequences played with the page open, alternately with the node rows scrolled off screen (the
-    page fetches no thumbnail: no node is asked) and on screen (each row refreshed about once a
-    second): the late frames of each kind, and the thumbnails that arrived per second per node
-    while the rows were on screen. The page's own cost is the same in both."""
+def open_page(rig: ConsoleRig, driver, slots: list[str]) -> None:
+    """Open the console again (the session cookie logs it in) and wait for every node shown live."""
+    driver.get(rig.url)
+    wait_for(lambda: all_shown(driver, slots, "live"), 120, f"every node live again: {slots}")
+
+
+def play_figures(rig: ConsoleRig, driver, slots: list[str], seconds: float, rounds: int = 2) -> dict:
+    """Sequences played in interleaved rounds of three kinds: the page closed (the browser on
+    about:blank: no event stream, no request), the page open with the node rows scrolled off screen
+    (the page fetches no thumbnail: no node is asked) and open with them on screen (each row
+    refreshed about once a second). Per kind: the late frames and the swap skew's p99 over every
+    frame of its rounds; and the thumbnails that arrived per second per node while the rows were on
+    screen. Interleaving spreads the machine's other load over the three alike."""
     def count(name: str, only: list[str] | None = None) -> int:
         per_slot = rig.call(lambda: dict(getattr(rig.coord.previews, name)))
         return sum(n for s, n in per_slot.items() if only is None or s in only)
 
-    late = {False: 0, True: 0}
+    kinds = ("closed", "open", "thumbnails")
+    late = dict.fromkeys(kinds, 0)
+    skews: dict[str, list[float]] = {k: [] for k in kinds}
     asked_off, got, spent, shown = 0, 0, 0.0, slots
+
+    def played(kind: str) -> None:
+        r = _play(rig, seconds)
+        late[kind] += r.frames_late
+        skews[kind] += [v for v in r.skews_ms if math.isfinite(v)]
+
     for _ in range(rounds):
+        driver.get("about:blank")
+        time.sleep(WANTED_FOR_S + 1.0)
+        played("closed")
+        open_page(rig, driver, slots)
         rows_on_screen(driver, False)
         time.sleep(WANTED_FOR_S + 1.0)      # the last thumbnail fetched is no longer wanted
         asked = count("asked")
-        late[False] += _late_while_playing(rig, seconds)
+        played("open")
         asked_off += count("asked") - asked
         rows_on_screen(driver, True)
         shown = [s for s in driver.execute_script(
@@ -338,15 +361,23 @@ def thumbnail_figures(rig: ConsoleRig, driver, slots: list[str], seconds: float,
         wait_for(lambda: all(page_thumbnails(driver).get(s, {}).get("src") for s in shown), 60,
                  f"the thumbnails of the rows on screen: {shown}")
         received, t = count("received", shown), time.monotonic()
-        late[True] += _late_while_playing(rig, seconds)
+        played("thumbnails")
         spent += time.monotonic() - t
         got += count("received", shown) - received
     driver.execute_script("const s = document.getElementById('bench-spacer'); if (s) s.remove(); window.scrollTo(0, 0);")
+    p99 = {k: _p99(v) for k, v in skews.items()}
+    ratio = (lambda a, b: round(a / b, 3) if a is not None and b else None)
     return {"thumbnails_per_s_per_node": round(got / spent / max(1, len(shown)), 2),
             "thumbnail_rows_on_screen": len(shown),
-            "late_frames_without_thumbnails": late[False], "late_frames_with_thumbnails": late[True],
+            "late_frames_page_closed": late["closed"], "late_frames_without_thumbnails": late["open"],
+            "late_frames_with_thumbnails": late["thumbnails"],
             "previews_asked_rows_off_screen": asked_off,
-            "thumbnail_sequences": {"rounds": rounds, "seconds_each": seconds, "fps": 30}}
+            "swap_skew_ms_p99_page_closed": p99["closed"], "swap_skew_ms_p99_page_open": p99["open"],
+            "swap_skew_ms_p99_with_thumbnails": p99["thumbnails"],
+            "swap_skew_p99_open_over_closed": ratio(p99["open"], p99["closed"]),
+            "swap_skew_p99_thumbnails_over_closed": ratio(p99["thumbnails"], p99["closed"]),
+            "played_sequences": {"rounds": rounds, "seconds_each": seconds, "fps": 30,
+                                 "frames_per_kind": {k: len(v) for k, v in skews.items()}}}
 
 
 def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
@@ -390,7 +421,9 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
             # CPU with the page open (as before with it closed: a still shown, the nodes heartbeating),
             # then a sequence played for the plots
             out["coordinator_cpu_ms_per_s_page_open"] = _cpu_ms_per_s(args.cpu_seconds)
-            out.update(thumbnail_figures(rig, driver, slots, args.thumbnail_seconds))
+            out["console_cpu_percent_of_core"] = round(
+                (out["coordinator_cpu_ms_per_s_page_open"] - out["coordinator_cpu_ms_per_s_page_closed"]) / 10.0, 2)
+            out.update(play_figures(rig, driver, slots, args.thumbnail_seconds))
             rig.call(lambda: rig.coord.play_sequence(None, PlaySettings(fps=30, pattern="counter", frames=150, wait=False)))
             time.sleep(2.5)
             driver.save_screenshot(str(screenshot))
