@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "swarm": ("shadowless.swarm", "load-test a coordinator: N protocol-level nodes in one process (no rendering)"),
     "calibrate": ("coordinator.calibration.cli", "calibrate the projectors with the camera (poses pushed to the nodes)"),
     "alignment": ("coordinator.calibration.cli", "measure each projector's residual misalignment; heat map over the table"),
+    "coverage": ("coordinator.coverage_cli", "how many projectors reach each point of the object (from the poses and mesh); heat map"),
     "response": ("coordinator.compensation.cli", "measure each projector's luminance response; LUTs, brightness match"),
     "transport": ("coordinator.compensation.cli", "measure the rig's light transport (dot grids, all projectors at once)"),
     "compensate": ("coordinator.compensation.cli", "compensate the rig's blur for an image (shown) or a video (a new 16-bit asset)"),

@@ -1,0 +1,99 @@
+"""Where a rig keeps its coverage: ``coverage/`` in the rig directory, every write atomic.
+
+* ``coverage/coverage.npz``: the per-texel arrays (``slots``, ``mask``, ``area``, ``count``,
+  ``reach`` packed one bit per slot along the first axis, ``irradiance`` as float16, ``points``,
+  ``normals``), compressed;
+* ``coverage/coverage.json``: the summary (:meth:`coordinator.coverage.Coverage.summary`), the
+  mesh it was computed for, the views of the picture and when;
+* ``coverage/coverage.png``: the picture (unless the operator named another file).
+
+Also the reading of what coverage needs from a rig: the slots posed onto one mesh
+(:func:`rig_projectors`) and a calibrated camera (:func:`rig_camera`).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from coordinator.calibration.threed import Pinhole
+from coordinator.coverage import Coverage, Projector, projector_from_pose
+from coordinator.errors import RigError
+from coordinator.rig import Mesh, ProjectionPose, Rig
+from coordinator.store import atomic_file, atomic_write_json
+
+__all__ = ["coverage_dir", "save_coverage", "load_coverage", "rig_projectors", "rig_camera"]
+
+
+def coverage_dir(rig_dir: str | Path) -> Path:
+    return Path(rig_dir) / "coverage"
+
+
+def save_coverage(rig_dir: str | Path, cov: Coverage, doc: dict) -> tuple[Path, Path]:
+    """Write ``coverage.npz`` and ``coverage.json`` (``doc``) under the rig's ``coverage/``."""
+    d = coverage_dir(rig_dir)
+    npz, js = d / "coverage.npz", d / "coverage.json"
+    with atomic_file(npz) as f:
+        np.savez_compressed(f, slots=np.array(cov.slots), mask=cov.mask, area=cov.area, count=cov.count,
+                            reach=np.packbits(cov.reach, axis=0), irradiance=cov.irradiance.astype(np.float16),
+                            points=cov.points, normals=cov.normals)
+    atomic_write_json(js, doc)
+    return npz, js
+
+
+def load_coverage(path: str | Path) -> Coverage:
+    """A :class:`Coverage` read back from ``coverage.npz`` (irradiance at float16 precision)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            slots = tuple(str(s) for s in z["slots"])
+            reach = np.unpackbits(z["reach"], axis=0, count=len(slots)).astype(bool)
+            return Coverage(slots, z["mask"].astype(bool), z["area"], z["points"], z["normals"], reach,
+                            z["irradiance"].astype(np.float32))
+    except (OSError, KeyError, ValueError, EOFError) as exc:
+        raise RigError(" ".join(f"{path}: cannot read the coverage ({exc})".split())) from None
+
+
+def rig_projectors(rig: Rig, slots: list[str] | None = None) -> tuple[Mesh, list[Projector]]:
+    """The rig's mesh and its projectors posed onto it (each slot's 3x4 pose, output size and gain).
+
+    Raises RigError (one line) when no slot has a 3D pose, when the slots render different meshes
+    or when a named slot is unknown or has no 3D pose.
+    """
+    names = list(rig.slots) if slots is None else list(slots)
+    for s in names:
+        rig.slot(s)        # unknown slot: one line naming the rig's slots
+    posed = {s: rig.slots[s] for s in names if isinstance(rig.slots[s].pose, ProjectionPose)}
+    if slots is not None and len(posed) < len(names):
+        missing = [s for s in names if s not in posed]
+        raise RigError(f"slot(s) {', '.join(missing)} have no 3D pose (a projection onto a mesh)")
+    if not posed:
+        planar = any(st.pose is not None for st in rig.slots.values())
+        raise RigError("no slot of the rig has a 3D pose (a projection onto a mesh)"
+                       + ("; its poses are planar: coverage is for rigs that project onto an object"
+                          if planar else "; calibrate the rig on its mesh first (shadowless calibrate --mesh ...)"))
+    meshes = {st.pose.mesh.mesh_id for st in posed.values()}
+    if len(meshes) > 1:
+        raise RigError(f"the slots render different meshes ({', '.join(sorted(meshes))}); give --slots that share one")
+    mesh = next(iter(posed.values())).pose.mesh
+    return mesh, [projector_from_pose(s, st.pose.matrix, (st.width, st.height), gain=st.gain) for s, st in posed.items()]
+
+
+def rig_camera(rig_dir: str | Path, index: int) -> Pinhole:
+    """Camera ``index`` as 3D calibration posed it (``calibration/cameras.json``)."""
+    f = Path(rig_dir) / "calibration" / "cameras.json"
+    try:
+        doc = json.loads(f.read_text())
+    except FileNotFoundError:
+        raise RigError(f"no calibrated camera in this rig ({f} is missing): use --view AZ,EL") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise RigError(f"{f}: cannot read it ({exc})") from None
+    for c in doc.get("cameras", []) if isinstance(doc, dict) else []:
+        if isinstance(c, dict) and c.get("camera") == index:
+            if "pinhole" not in c:
+                break
+            try:
+                return Pinhole.from_dict(c["pinhole"])
+            except (KeyError, TypeError, ValueError) as exc:
+                raise RigError(f"{f}: camera {index}'s pose is unreadable ({exc})") from None
+    raise RigError(f"camera {index} was not posed in 3D ({f}); calibrate the mesh with it, or use --view AZ,EL")
