@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from coordinator.calibration.heatmap_figure import FONT, INK, SCALE, _text
+from coordinator.calibration.heatmap_figure import FONT, INK, SCALE, put_text
 from coordinator.calibration.threed import Pinhole
 from coordinator.coverage import Coverage
 from coordinator.coverage_gl import CoverageRaster
@@ -125,10 +125,10 @@ def coverage_picture(cov: Coverage, raster: CoverageRaster, views: list[tuple[st
         h, w = img.shape[:2]
         fig[mt:mt + h, x:x + w] = img
         cv2.rectangle(fig, (x - 1, mt - 1), (x + w, mt + h), (200, 200, 200), 1)
-        _text(fig, label, (x + w / 2, mt - 10), align="centre")
+        put_text(fig, label, (x + w / 2, mt - 10), align="centre")
         boxes[label] = [x, mt, x + w, mt + h]
         x += w + GAP
-    _text(fig, title or f"projectors reaching each point of the surface ({n_max} in the rig)",
+    put_text(fig, title or f"projectors reaching each point of the surface ({n_max} in the rig)",
           (ml + pw_total / 2, mt + ph + mb / 2), align="centre")
     # the colour bar: S + 1 bands, count S at the top
     bx0 = ml + pw_total + BAR_GAP
@@ -143,9 +143,9 @@ def coverage_picture(cov: Coverage, raster: CoverageRaster, views: list[tuple[st
             continue
         py = mt + (n_max - k + 0.5) * ph / (n_max + 1)
         cv2.line(fig, (bx1, int(py)), (bx1 + 4, int(py)), INK, 1)
-        _text(fig, str(k), (bx1 + 7, py))
+        put_text(fig, str(k), (bx1 + 7, py))
     (tw, _), _ = cv2.getTextSize("projectors", FONT, SCALE, 1)
-    _text(fig, "projectors", (bx0 + BAR_WIDTH / 2 + max(0, tw / 2 - BAR_WIDTH), mt - 10), align="centre")
+    put_text(fig, "projectors", (bx0 + BAR_WIDTH / 2 + max(0, tw / 2 - BAR_WIDTH), mt - 10), align="centre")
     ok, buf = cv2.imencode(".png", fig)
     if not ok:  # pragma: no cover
         raise ValueError("cannot encode the coverage picture")

@@ -74,7 +74,7 @@ def _label(v: float) -> str:
     return f"{v:.10g}" if abs(v) >= 1 or v == 0 else f"{v:.3g}"
 
 
-def _text(img: np.ndarray, text: str, at: tuple[float, float], *, align: str = "left", colour=INK,
+def put_text(img: np.ndarray, text: str, at: tuple[float, float], *, align: str = "left", colour=INK,
           scale: float = SCALE, outline: tuple[int, int, int] | None = None) -> None:
     """Text with its left / centre / right (``align``) and vertical centre at ``at``."""
     (tw, th), _ = cv2.getTextSize(text, FONT, scale, 1)
@@ -172,7 +172,7 @@ def heatmap_figure(values: np.ndarray, extent: tuple[float, float, float, float]
         colours[slot] = "#{2:02x}{1:02x}{0:02x}".format(*colour)
         cv2.polylines(plot, [pts], True, (255, 255, 255), 5, cv2.LINE_AA, shift=4)
         cv2.polylines(plot, [pts], True, colour, 2, cv2.LINE_AA, shift=4)
-        _text(plot, slot, _label_spot(q, slot, taken, (pw, ph)), align="centre", colour=colour, scale=LABEL_SCALE,
+        put_text(plot, slot, _label_spot(q, slot, taken, (pw, ph)), align="centre", colour=colour, scale=LABEL_SCALE,
               outline=(255, 255, 255))
     x0, y0 = ml, mt
     fig[y0:y0 + ph, x0:x0 + pw] = plot
@@ -184,14 +184,14 @@ def heatmap_figure(values: np.ndarray, extent: tuple[float, float, float, float]
     for t in nice_ticks(ux0, ux1):
         px = int(round(x0 + (t - ux0) * sx - 0.5))
         cv2.line(fig, (px, y0 + ph), (px, y0 + ph + 4), INK, 1)
-        _text(fig, _label(t), (px, y0 + ph + 13), align="centre")
+        put_text(fig, _label(t), (px, y0 + ph + 13), align="centre")
     for t in nice_ticks(uy0, uy1):
         py = int(round(y0 + (t - uy0) * sy - 0.5))
         cv2.line(fig, (x0 - 5, py), (x0 - 1, py), INK, 1)
-        _text(fig, _label(t), (x0 - 8, py), align="right")
-    _text(fig, f"x ({units})", (x0 + pw / 2, y0 + ph + 34), align="centre")
+        put_text(fig, _label(t), (x0 - 8, py), align="right")
+    put_text(fig, f"x ({units})", (x0 + pw / 2, y0 + ph + 34), align="centre")
     _vertical_text(fig, f"y ({units})", (12, y0 + ph // 2))
-    _text(fig, title, (x0 + pw / 2, mt / 2), align="centre")
+    put_text(fig, title, (x0 + pw / 2, mt / 2), align="centre")
 
     # the colour bar beside the plot: full scale at the top row, 0 at the bottom row
     bx0, bx1 = x0 + pw + BAR_GAP, x0 + pw + BAR_GAP + BAR_WIDTH
@@ -201,11 +201,11 @@ def heatmap_figure(values: np.ndarray, extent: tuple[float, float, float, float]
     for k in range(5):
         py = int(round(y0 + (1 - k / 4) * (ph - 1)))
         cv2.line(fig, (bx1, py), (bx1 + 4, py), INK, 1)
-        _text(fig, _label(full_scale * k / 4) + ("+" if k == 4 else ""), (bx1 + 7, py))
-    _text(fig, "proj. px", (bx0 + BAR_WIDTH / 2, y0 - 10), align="centre")
+        put_text(fig, _label(full_scale * k / 4) + ("+" if k == 4 else ""), (bx1 + 7, py))
+    put_text(fig, "proj. px", (bx0 + BAR_WIDTH / 2, y0 - 10), align="centre")
     sy0 = y0 + ph + 18
     cv2.rectangle(fig, (bx0, sy0 - 5), (bx0 + 10, sy0 + 5), NO_DATA_BGR, -1)
-    _text(fig, "no dots", (bx0 + 14, sy0))
+    put_text(fig, "no dots", (bx0 + 14, sy0))
 
     ok, buf = cv2.imencode(".png", fig)
     if not ok:  # pragma: no cover
