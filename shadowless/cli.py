@@ -39,7 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "compensate": ("coordinator.compensation.cli", "compensate the rig's blur for an image (shown) or a video (a new 16-bit asset)"),
     "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
     "demo": ("shadowless.demo", "the whole rig in the virtual room: what `make demo` runs"),
-    "study": ("coordinator.study.cli", "analyse perception studies: Scheffé paired comparison, paired task times"),
+    "study": ("shadowless.study", "studies: Scheffé paired comparison, paired task times (perception); a moving hand in the room (motion)"),
     "bench": ("bench.cli", "benchmarks that print JSON (sync, swarm, venue, room, calibration, compensation)"),
 }
 
