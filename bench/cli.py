@@ -20,6 +20,7 @@ BENCHMARKS: dict[str, str] = {
     "discovery": "real nodes join their rig while a twin (same id, other token) and another rig advertise",
     "console": "the operator console in headless Chromium: page load, time to all live, update latency, CPU, thumbnails",
     "bust": "coverage on the bust from poses + mesh vs the room's truth; fingertip touches: shadow area vs coverage",
+    "motion": "a hand waving over the table: light drop per frame, synthetic aperture vs reactive compensation with latency",
 }
 
 
