@@ -28,6 +28,10 @@ pixels' exact footprints, :func:`table_pixel_area`):
   ``area_overbright_above_10_mm2`` (at least 10 % too bright: the ghosts),
   ``surplus_mm2`` (``sum(max(light - 1, 0) x area)``).
 
+Areas are of the table surface, also where the hand hides it from the room's camera
+(what an observer sees of a shadow depends on where they stand; under a fingertip
+touching the table every rig has a small umbra nobody sees).
+
 Each frame is shown for ``1 / fps`` s, so a figure integrated over time is its
 sum over frames divided by fps (``..._mm2_s``).
 """

@@ -56,9 +56,8 @@ def test_movie_decodes_to_the_panels_drawn(tmp_path):
 
 
 def test_movie_refuses_another_shape(tmp_path):
-    with MotionMovie(tmp_path / "m.mp4", [("A", "")], fps=10, shape=(60, 80)) as movie:
-        with pytest.raises(ValueError, match="shape"):
-            movie.add(next(_frames(1, shape=(50, 80))))
+    with MotionMovie(tmp_path / "m.mp4", [("A", "")], fps=10, shape=(60, 80)) as movie, pytest.raises(ValueError, match="shape"):
+        movie.add(next(_frames(1, shape=(50, 80))))
     with pytest.raises(ValueError):
         MotionMovie(tmp_path / "n.mp4", [], fps=10, shape=(60, 80))
 

@@ -99,6 +99,6 @@ def test_spec_names_latency_in_whole_frames_and_rigs():
     assert ReactiveSpec(0.05, subset="P2", suppress=True).name(60) == "reactive_50ms_P2_suppress"
     assert ReactiveSpec(0.03).name(60) == "reactive_33ms"  # 1.8 frames: 2 frames, 33 ms modelled
     assert rig_slots("P25") == SUBSETS["P25"] and rig_slots("P2") == PRIOR_RIGS["P2"]
-    for bad in (dict(latency_s=-0.01), dict(cap=0.5), dict(subset="P7")):
+    for bad in ({"latency_s": -0.01}, {"cap": 0.5}, {"subset": "P7"}):
         with pytest.raises(ValueError):
             ReactiveSpec(**bad)
