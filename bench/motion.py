@@ -29,7 +29,7 @@ from sim.motion_cli import add_motion_arguments, run_study
 
 def configure(parser: argparse.ArgumentParser) -> None:
     add_motion_arguments(parser, latency="0,50,100")
-    parser.add_argument("--out", type=Path, metavar="DIR", help="also write motion.json, motion.png and motion.mp4 (P1, P25, reactive_100ms) here")
+    parser.add_argument("--out", type=Path, metavar="DIR", help="also write motion.json, motion.png and motion.mp4 here (as `shadowless study motion`)")
     parser.add_argument("--quick", action="store_true", help="0.3 s at 20 fps with a 259 x 194 camera (a smoke run)")
 
 
@@ -40,10 +40,7 @@ def _ratio(a: float, b: float) -> float | None:
 def run(args: argparse.Namespace) -> int:
     if args.quick:
         args.duration, args.fps, args.camera_scale = 0.3, 20.0, 0.1
-    show = None
-    if args.out is not None:
-        show = [n for n in ("P1", "P25", "reactive_100ms") if n in args.subsets or n.startswith("reactive")]
-    doc, _ = run_study(args, out=args.out, show=show, progress=True)
+    doc, _ = run_study(args, out=args.out, show=["default"], progress=True)
     systems = doc["systems"]
     base = systems.get("P25")
     comparison = {}

@@ -43,10 +43,14 @@ examples:
   shadowless study motion                                  # 5 s of waving 0.2 m above the table
   shadowless study motion --gesture touch --duration 2.4 --out touch
   shadowless study motion --latency 50,100 --reactive-rig P25 --rule boost --json
-  shadowless study motion --show P1,P25,reactive_100ms,reactive_100ms_P2_suppress
+  shadowless study motion --show P1,P9D,P25,reactive_50ms --latency 50
 """
 
 _RULES = ("boost", "suppress")
+
+#: The movie's panels unless --show says otherwise (those of them the run has): one bright projector,
+#: the synthetic aperture, the issue's reactive system, and the one that leaves a lagging umbra.
+DEFAULT_SHOW = ("P1", "P25", "reactive_100ms", "reactive_100ms_P2_suppress")
 
 
 def _latencies(text: str) -> list[float]:
@@ -129,11 +133,15 @@ def _label(name: str, specs: dict[str, ReactiveSpec], fps: float) -> str:
 def run_study(args: argparse.Namespace, *, out: Path | None, show: list[str] | None = None, progress: bool = True) -> tuple[dict, MotionResult]:
     """Run the study ``args`` describe; with ``out``, write motion.json, motion.png and (``show``) motion.mp4 there.
 
+    ``show``: the movie's systems, left to right; ``["default"]``: those of :data:`DEFAULT_SHOW` in the run.
+
     Returns the document (parameters, per-system summary, files; no per-frame series) and the result.
     """
     specs = reactive_specs(args)
     by_name = {s.name(args.fps): s for s in specs}
     names = [*args.subsets, *by_name]
+    if show == ["default"]:
+        show = [n for n in DEFAULT_SHOW if n in names]
     if show:
         unknown = [n for n in show if n not in names]
         if unknown:
@@ -196,8 +204,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     add_motion_arguments(p)
     o = p.add_argument_group("output")
     o.add_argument("--out", type=Path, default=Path("motion"), metavar="DIR", help="folder for motion.json, motion.png, motion.mp4 (default ./motion)")
-    o.add_argument("--show", type=cli_types.names, default=["P1", "P25", "reactive_100ms"], metavar="A,B,C",
-                   help="systems side by side in the movie, left to right (default P1,P25,reactive_100ms)")
+    o.add_argument("--show", type=cli_types.names, default=["default"], metavar="A,B,C",
+                   help=f"systems side by side in the movie, left to right (default: those of {','.join(DEFAULT_SHOW)} in the run)")
     o.add_argument("--no-movie", action="store_true", help="skip the movie (faster)")
     o.add_argument("--json", action="store_true", help="print the JSON document (without the per-frame series) instead of the table")
 

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import importlib
 import json
+import subprocess
+import sys
 
 import av
 import cv2
@@ -22,6 +24,14 @@ def test_study_offers_every_analysis(capsys):
     for module, _ in ANALYSES.values():  # one line per study: a module with configure and run
         mod = importlib.import_module(module)
         assert callable(mod.configure) and callable(mod.run)
+
+
+def test_the_statistical_analyses_do_not_load_the_room():
+    code = ("import sys\nfrom shadowless.cli import main\ntry:\n    main(['study', 'paired', '--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in sys.modules if m.startswith('sim')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[]"
 
 
 def test_motion_writes_json_plot_and_movie(tmp_path, capsys):
