@@ -4,12 +4,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 from pathlib import Path
 
 from node.app import Node, NodeConfig
 from node.asset_cache import default_cache_dir
 from node.output_spec import parse_output_spec
+from node.render.context import GL_CHOICES, GL_ENV
 from protos.auth import TokenError, resolve_token
 from protos import cli_types
 from protos.version import PROTOCOL_VERSION
@@ -38,7 +40,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         "  shadowless node --slot r0c0 --token-file /etc/shadowless/token --output window\n"
         "  shadowless node --slot r2c2 --coordinator 10.0.0.2:7600 --token-file token\n"
         "  shadowless node --slot r0c0 --output room://127.0.0.1:7700   # the virtual room\n"
-        "  shadowless node --slot r0c0 --cache-dir /var/cache/shadowless --cache-max 20G"
+        "  shadowless node --slot r0c0 --cache-dir /var/cache/shadowless --cache-max 20G\n"
+        "  shadowless node --slot r0c0 --gl gles   # a Mali or Adreno board: OpenGL ES 3 even if desktop GL is offered"
     )
     p.add_argument("--slot", required=True, help="this projector's slot in the rig (e.g. r0c0)")
     p.add_argument("--token-file", metavar="FILE", help="rig token file (default: $SHADOWLESS_TOKEN_FILE)")
@@ -51,6 +54,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="offscreen (default), window[:MONITOR] (fullscreen on a display through X), kms[:DISPLAY] "
                         "(fullscreen without X, KMS/DRM: a display index or connector such as kms:HDMI-A-1), or "
                         "room://HOST:PORT (the virtual room)")
+    p.add_argument("--gl", choices=GL_CHOICES, metavar="{auto,gl,gles}",
+                   help="the OpenGL of the offscreen and room outputs: auto (default, or $SHADOWLESS_GL) takes desktop "
+                        "OpenGL 3.1+ where EGL offers it, else OpenGL ES 3.0+; gl or gles forces one. "
+                        "`shadowless status` shows what each node got")
     p.add_argument("--snapshot-dir", type=Path, metavar="DIR",
                    help="write every shown still to DIR/<slot>.png (for inspection)")
     p.add_argument("--tls-ca", metavar="PEM", help="connect with TLS, trusting this CA certificate")
@@ -103,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         return 2
     cfg = node_config(args, token, tls_ca)
+    if args.gl:  # the presenter process, which makes the context, inherits the environment
+        os.environ[GL_ENV] = args.gl
 
     async def main() -> int:
         node = Node(cfg)

@@ -25,7 +25,6 @@ import numpy as np
 
 from node.errors import NodeError
 from node.output_spec import SPEC_FORMS, parse_room_address  # noqa: F401 (SPEC_FORMS: re-exported)
-from node.render.shaders import MIN_GL_VERSION
 from node.image_files import atomic_write_bytes, encode_png
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -171,15 +170,17 @@ class Snapshots:
 
 
 def headless_context() -> "moderngl.Context":
-    """A standalone OpenGL 3.1+ context through EGL (Mesa's llvmpipe where there is no GPU)."""
+    """A standalone context through EGL (Mesa's llvmpipe where there is no GPU): desktop OpenGL
+    3.1+, else OpenGL ES 3.0+ where the driver offers only that (``shadowless node --gl`` or
+    ``$SHADOWLESS_GL`` force one; see :mod:`node.render.context`)."""
     # Lazy: moderngl (and its GL libraries) is only needed in the presenter process; the node
     # process imports the outputs package (for open_output's names) but never opens a context.
-    import moderngl
+    from node.render.context import ContextUnavailable, create_headless_context
 
     try:
-        return moderngl.create_standalone_context(backend="egl", require=MIN_GL_VERSION)
-    except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
+        return create_headless_context()
+    except ContextUnavailable as exc:
         raise OutputError(
-            f"cannot create a headless OpenGL 3.1+ context through EGL ({exc}); install Mesa's EGL and "
-            "DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri) or the GPU vendor's EGL"
+            f"cannot create a headless OpenGL 3.1+ or OpenGL ES 3.0+ context through EGL ({exc}); install Mesa's "
+            "EGL and DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri) or the GPU vendor's EGL"
         ) from exc

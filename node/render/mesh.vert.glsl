@@ -1,4 +1,4 @@
-// GLSL 1.40 (OpenGL 3.1) and later: the renderer puts the #version line first (shaders.py: glsl_header).
+// GLSL 1.40 (OpenGL 3.1), 3.30 and GLSL ES 3.00 (OpenGL ES 3): the renderer puts the #version line first (shaders.py).
 // Projection pose: world mm -> clip space. world_to_clip folds the 3x4 projection matrix P,
 // the pixel -> NDC mapping (half-pixel offset, y flipped) and the near/far depth range.
 uniform mat4 world_to_clip;

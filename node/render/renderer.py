@@ -22,6 +22,7 @@ Threading: every method must be called from the one thread that owns the GL cont
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -29,14 +30,21 @@ from typing import Any
 import numpy as np
 
 from node.errors import NodeError
-from node.render.shaders import MIN_GL_VERSION, glsl_header, load_shader
+from node.render.mesh import Mesh
+from node.render.shaders import (MIN_GL_VERSION, MIN_GLES_VERSION, glsl_header, has_norm16_textures, is_gles,
+                                  load_shader, shading_language)
 
 __all__ = ["Mesh", "RenderError", "Renderer", "SPACES"]
+
+log = logging.getLogger(__name__)
 
 SPACES = ("content", "projector")
 
 # numpy dtype -> moderngl texture dtype. 8/16-bit integers become normalised textures
-# (GL divides by 255 / 65535 when sampling); floats are sampled as stored.
+# (GL divides by 255 / 65535 when sampling); floats are sampled as stored. OpenGL ES without
+# GL_EXT_texture_norm16 has no 16-bit normalised textures: there 16-bit content is divided by
+# 65535 on the CPU and stored as float32, which holds every 16-bit level exactly as GL's unorm
+# conversion would (half floats would keep only 11 bits).
 _TEXTURE_DTYPES = {
     np.dtype(np.uint8): "f1",
     np.dtype(np.uint16): "nu2",
@@ -47,52 +55,6 @@ _TEXTURE_DTYPES = {
 
 class RenderError(NodeError, RuntimeError):
     """OpenGL is unusable or refused a request; the message says what to check."""
-
-
-@dataclass(frozen=True)
-class Mesh:
-    """A textured triangle mesh in world coordinates.
-
-    Attributes
-    ----------
-    vertices : (V, 3) float32
-        World mm.
-    uvs : (V, 2) float32
-        Texture coordinates; (0, 0) is the top-left corner of the content image and
-        (1, 1) its bottom-right corner (content pixel x = u * W - 0.5).
-    faces : (F, 3) uint32
-        Vertex indices of each triangle, all < V.
-
-    Arrays are converted to these dtypes (C-contiguous); shapes, finiteness and index
-    ranges are checked (ValueError).
-    """
-
-    vertices: np.ndarray
-    uvs: np.ndarray
-    faces: np.ndarray
-
-    def __post_init__(self) -> None:
-        vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
-        uvs = np.ascontiguousarray(self.uvs, dtype=np.float32)
-        faces_in = np.asarray(self.faces)
-        if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] < 3:
-            raise ValueError(f"mesh vertices must be (V, 3) with V >= 3, got shape {vertices.shape}")
-        if uvs.shape != (vertices.shape[0], 2):
-            raise ValueError(f"mesh uvs must be (V, 2) = ({vertices.shape[0]}, 2), got shape {uvs.shape}")
-        if faces_in.ndim != 2 or faces_in.shape[1] != 3 or faces_in.shape[0] < 1:
-            raise ValueError(f"mesh faces must be (F, 3) with F >= 1, got shape {faces_in.shape}")
-        if not np.issubdtype(faces_in.dtype, np.integer):
-            raise ValueError(f"mesh faces must hold integer vertex indices, got {faces_in.dtype}")
-        if faces_in.min() < 0 or faces_in.max() >= vertices.shape[0]:
-            raise ValueError(
-                f"mesh faces index vertices {int(faces_in.min())}..{int(faces_in.max())}, "
-                f"but there are only {vertices.shape[0]} vertices"
-            )
-        if not (np.isfinite(vertices).all() and np.isfinite(uvs).all()):
-            raise ValueError("mesh vertices and uvs must be finite")
-        object.__setattr__(self, "vertices", vertices)
-        object.__setattr__(self, "uvs", uvs)
-        object.__setattr__(self, "faces", np.ascontiguousarray(faces_in, dtype=np.uint32))
 
 
 @dataclass
@@ -130,7 +92,7 @@ class Renderer:
     Parameters
     ----------
     ctx : moderngl.Context
-        The GL context (OpenGL >= 3.1) the calling thread owns.
+        The GL context (OpenGL >= 3.1 or OpenGL ES >= 3.0) the calling thread owns.
     width, height : int
         Output size in projector pixels.
     """
@@ -142,19 +104,23 @@ class Renderer:
         import moderngl  # the node extra; imported here so `import node.render` stays light
 
         self._mgl = moderngl
-        if ctx.version_code < MIN_GL_VERSION:
+        self._gles = is_gles(ctx)
+        if ctx.version_code < (MIN_GLES_VERSION if self._gles else MIN_GL_VERSION):
             raise RenderError(
-                f"OpenGL 3.1 or newer is needed, this context offers {ctx.version_code // 100}."
-                f"{ctx.version_code // 10 % 10} ({ctx.info.get('GL_RENDERER', '?')}); update the GPU driver or Mesa"
+                f"OpenGL 3.1 or newer (or OpenGL ES 3.0) is needed, this context offers "
+                f"{'OpenGL ES ' if self._gles else ''}{ctx.version_code // 100}.{ctx.version_code // 10 % 10} "
+                f"({ctx.info.get('GL_RENDERER', '?')}); update the GPU driver or Mesa"
             )
         self.ctx = ctx
+        self._norm16 = has_norm16_textures(ctx)
+        self._norm16_note_logged = False
         self._owns_ctx = False
         self._released = False
         self._max_texture = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
         self._width, self._height = _check_size(width, height, self._max_texture)
         try:
             # moderngl resolves `#include "pipeline.glsl"` from ctx.includes
-            header = glsl_header(ctx.version_code)
+            header = glsl_header(ctx.version_code, self._gles)
             ctx.includes["pipeline.glsl"] = load_shader("pipeline.glsl")
             fullscreen = load_shader("fullscreen.vert.glsl", header)
             self._warp = ctx.program(vertex_shader=fullscreen, fragment_shader=load_shader("warp.frag.glsl", header))
@@ -189,15 +155,17 @@ class Renderer:
     # ------------------------------------------------------------------ construction
 
     @classmethod
-    def standalone(cls, width: int, height: int) -> "Renderer":
-        """A renderer on its own headless EGL context (released by :meth:`release`)."""
-        import moderngl  # lazy, as in __init__: only a process that renders loads GL
+    def standalone(cls, width: int, height: int, *, gl: str | None = None) -> "Renderer":
+        """A renderer on its own headless EGL context (released by :meth:`release`): desktop
+        OpenGL 3.1+, else OpenGL ES 3.0+ (``gl``: "auto", "gl" or "gles"; default
+        ``$SHADOWLESS_GL`` or "auto"; see :mod:`node.render.context`)."""
+        from node.render.context import ContextUnavailable, create_headless_context
 
         try:
-            ctx = moderngl.create_standalone_context(backend="egl", require=MIN_GL_VERSION)
-        except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
+            ctx = create_headless_context(gl)
+        except ContextUnavailable as exc:
             raise RenderError(
-                "cannot create a headless OpenGL 3.1+ context through EGL "
+                "cannot create a headless OpenGL 3.1+ or OpenGL ES 3.0+ context through EGL "
                 f"({exc}); install Mesa's EGL and DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri)"
             ) from exc
         try:
@@ -219,7 +187,9 @@ class Renderer:
         self._depth = self.ctx.depth_renderbuffer(size)
         self._fbo = self.ctx.framebuffer(color_attachments=[self._color], depth_attachment=self._depth)
         self._fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
-        self._raw = np.empty((self._height, self._width, 3), np.uint8)  # GL order (bottom row first)
+        # GL order (bottom row first). OpenGL ES reads an RGBA8 framebuffer as RGBA only (GL_RGB is
+        # not among the formats glReadPixels must accept there): alpha is read and dropped.
+        self._raw = np.empty((self._height, self._width, 4 if self._gles else 3), np.uint8)
         self._image = np.empty((self._height, self._width, 3), np.uint8)  # row 0 at the top
         # projector space: GL window coords -> OpenCV projector pixels (the content *is* in projector pixels)
         self._warp_identity_bytes = _mat_bytes(self._window_to_pixels())
@@ -241,10 +211,17 @@ class Renderer:
 
     @property
     def gl_profile(self) -> str:
-        """What the renderer runs on, e.g. ``OpenGL 3.1, GLSL 1.40 (V3D 4.2)``."""
+        """What the renderer runs on, e.g. ``OpenGL 3.1, GLSL 1.40 (V3D 4.2)`` or
+        ``OpenGL ES 3.2, GLSL ES 3.00 (llvmpipe (LLVM 15.0.6, 256 bits))``."""
         v = self.ctx.version_code
-        glsl = "3.30" if v >= 330 else "1.40"
-        return f"OpenGL {v // 100}.{v // 10 % 10}, GLSL {glsl} ({self.ctx.info.get('GL_RENDERER', '?')})"
+        api = "OpenGL ES" if self._gles else "OpenGL"
+        return (f"{api} {v // 100}.{v // 10 % 10}, {shading_language(v, self._gles)} "
+                f"({self.ctx.info.get('GL_RENDERER', '?')})")
+
+    @property
+    def gles(self) -> bool:
+        """Whether the context is OpenGL ES (shaders compiled as GLSL ES 3.00)."""
+        return self._gles
 
     @property
     def framebuffer(self) -> Any:
@@ -453,16 +430,28 @@ class Renderer:
                 f"content {content_id!r} is already uploaded as {existing.shape} {existing.dtype}, "
                 f"not {arr.shape} {arr.dtype}; content ids are immutable (forget() it first)"
             )
-        data = np.ascontiguousarray(arr)
+        data, gl_dtype = np.ascontiguousarray(arr), _TEXTURE_DTYPES[arr.dtype]
+        if gl_dtype == "nu2" and not self._norm16:
+            data, gl_dtype = self._norm16_as_float(data), "f4"
         spare = self._spare.pop((arr.shape, arr.dtype), None)
         if spare is not None:      # a forgotten texture of this size and type: write into it
             tex = spare
             tex.write(data, alignment=1)
         else:
-            tex = self.ctx.texture((w, h), c, data, dtype=_TEXTURE_DTYPES[arr.dtype], alignment=1)
+            tex = self.ctx.texture((w, h), c, data, dtype=gl_dtype, alignment=1)
             tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
             tex.repeat_x = tex.repeat_y = False
         self._contents[content_id] = _Content(tex, arr.shape, arr.dtype, c <= 2)
+
+    def _norm16_as_float(self, data: np.ndarray) -> np.ndarray:
+        """(H, W, C) uint16 -> float32 / 65535, for a context without 16-bit normalised textures."""
+        if not self._norm16_note_logged:
+            self._norm16_note_logged = True
+            log.info("this OpenGL ES has no 16-bit normalised textures (GL_EXT_texture_norm16): 16-bit content is "
+                     "uploaded as float32, same precision, twice the GPU memory")
+        out = data.astype(np.float32)
+        out /= np.float32(65535.0)   # correctly rounded, as GL's c / (2^16 - 1)
+        return out
 
     def forget(self, content_id: str) -> None:
         """Release the content uploaded under ``content_id`` (no error if unknown).
@@ -564,8 +553,8 @@ class Renderer:
         The returned array is the renderer's own buffer, overwritten by the next
         :meth:`read` (and reallocated by :meth:`resize`): copy it to keep it.
         """
-        self._fbo.read_into(self._raw, components=3, alignment=1)
-        np.copyto(self._image, self._raw[::-1])
+        self._fbo.read_into(self._raw, components=self._raw.shape[2], alignment=1)
+        np.copyto(self._image, self._raw[::-1, :, :3])
         return self._image
 
     # ------------------------------------------------------------------ teardown

@@ -1,20 +1,58 @@
-"""The renderer's GLSL sources, with the ``#version`` line the context speaks.
+"""The renderer's GLSL sources, with the ``#version`` line the context speaks, and what a
+context offers the renderer (its API, the shading language, the texture formats it lacks).
 
-The shaders beside this module are written in GLSL 1.40 (no layout qualifiers, ``in``/``out``,
-``texelFetch``), which OpenGL 3.1 (a Raspberry Pi's V3D) accepts as ``#version 140`` and 3.3+
-as ``#version 330 core``; the files carry no ``#version`` line of their own.
+The shaders beside this module are written in the common subset of GLSL 1.40 and GLSL ES 3.00
+(no layout qualifiers, no texture rectangles; ``in``/``out``, ``texelFetch``, ``textureSize``,
+``gl_VertexID``, integer bit operations), which OpenGL 3.1 (a Raspberry Pi's V3D) accepts as
+``#version 140``, 3.3+ as ``#version 330 core`` and OpenGL ES 3.x (Mali, Adreno) as
+``#version 300 es`` once default precisions are declared; the files carry no ``#version`` line
+of their own.
 """
 from __future__ import annotations
 
 from importlib import resources
+from typing import Any
 
-#: the oldest OpenGL the renderer runs on: 3.1 (GLSL 1.40)
+#: the oldest desktop OpenGL the renderer runs on: 3.1 (GLSL 1.40)
 MIN_GL_VERSION = 310
+#: the oldest OpenGL ES it runs on: 3.0 (GLSL ES 3.00)
+MIN_GLES_VERSION = 300
+
+# GLSL ES has no default float precision in fragment shaders and samples lowp from a sampler
+# without one: every value the renderer computes (content coordinates of a 4K projector,
+# 16-bit and float content, the LUT) needs highp, which OpenGL ES 3.0 guarantees in both stages.
+_GLES_HEADER = "#version 300 es\nprecision highp float;\nprecision highp int;\nprecision highp sampler2D;\n"
 
 
-def glsl_header(version_code: int) -> str:
-    """The ``#version`` line for a context of ``version_code`` (e.g. 310, 330, 460)."""
+def is_gles(ctx: Any) -> bool:
+    """Whether ``ctx`` is an OpenGL ES context (its GL_VERSION starts "OpenGL ES", per the spec)."""
+    return str(ctx.info.get("GL_VERSION", "")).startswith("OpenGL ES")
+
+
+def glsl_header(version_code: int, gles: bool = False) -> str:
+    """The ``#version`` line (and, for GLSL ES, the default precisions) for a context of
+    ``version_code`` (e.g. 310, 330, 460; 300..320 for OpenGL ES)."""
+    if gles:
+        return _GLES_HEADER
     return "#version 330 core\n" if version_code >= 330 else "#version 140\n"
+
+
+def shading_language(version_code: int, gles: bool = False) -> str:
+    """The GLSL the shaders are compiled as: "GLSL 1.40", "GLSL 3.30" or "GLSL ES 3.00"."""
+    if gles:
+        return "GLSL ES 3.00"
+    return "GLSL 3.30" if version_code >= 330 else "GLSL 1.40"
+
+
+def has_norm16_textures(ctx: Any) -> bool:
+    """Whether 16-bit normalised textures (R16, RGBA16) exist: always on desktop OpenGL, on
+    OpenGL ES only with GL_EXT_texture_norm16 (core GLES 3.x has none)."""
+    return not is_gles(ctx) or "GL_EXT_texture_norm16" in ctx.extensions
+
+
+def fallbacks(ctx: Any) -> tuple[str, ...]:
+    """What the renderer does differently on ``ctx`` for want of a format, in a few words each."""
+    return () if has_norm16_textures(ctx) else ("16-bit content as float32",)
 
 
 def load_shader(name: str, header: str = "") -> str:
@@ -22,11 +60,14 @@ def load_shader(name: str, header: str = "") -> str:
     return header + resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
 
 
-def gl_description(ctx) -> str:
-    """What a context offers, for the operator's status: e.g. "OpenGL 3.1, GLSL 1.40, V3D 4.2"
-    (the version the node asked for and got, the shading language its shaders use, the driver)."""
-    v = ctx.version_code
-    glsl = glsl_header(v).split()[1]
+def gl_description(ctx: Any) -> str:
+    """What a context offers, for the operator's status: e.g. "OpenGL 3.1, GLSL 1.40, V3D 4.2" or
+    "OpenGL ES 3.2, GLSL ES 3.00, llvmpipe (LLVM 15.0.6, 256 bits)" (the API and version the node
+    got, the shading language its shaders use, the driver), then any format it falls back from."""
+    v, gles = ctx.version_code, is_gles(ctx)
+    api = "OpenGL ES" if gles else "OpenGL"
     renderer = str(ctx.info.get("GL_RENDERER", "")).strip()
-    text = f"OpenGL {v // 100}.{v % 100 // 10}, GLSL {glsl[0]}.{glsl[1:]}"
-    return f"{text}, {renderer}" if renderer else text
+    text = f"{api} {v // 100}.{v % 100 // 10}, {shading_language(v, gles)}"
+    text = f"{text}, {renderer}" if renderer else text
+    notes = fallbacks(ctx)
+    return f"{text}; {', '.join(notes)}" if notes else text

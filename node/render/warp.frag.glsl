@@ -1,4 +1,4 @@
-// GLSL 1.40 (OpenGL 3.1) and later: the renderer puts the #version line first (shaders.py: glsl_header).
+// GLSL 1.40 (OpenGL 3.1), 3.30 and GLSL ES 3.00 (OpenGL ES 3): the renderer puts the #version line first (shaders.py).
 // Homography pose: each projector pixel looks up the content through H^-1.
 #include "pipeline.glsl"
 
