@@ -1,8 +1,12 @@
-"""`shadowless bench node`: what a node costs its edge computer, on the default OpenGL context and
-on the OpenGL 3.1 a Raspberry Pi's V3D offers, side by side.
+"""`shadowless bench node`: what a node costs its edge computer, side by side on the default
+desktop OpenGL context, on the OpenGL 3.1 a Raspberry Pi's V3D offers, on OpenGL ES 3 (what Mali
+and Adreno drivers offer; the node falls back to it where desktop GL 3.1+ is not offered), and on
+a bare OpenGL ES 3.0 without 16-bit normalised textures (16-bit content goes up as float32 there).
 
-Each profile runs in a process of its own (Mesa reads its version override when a process makes
-its first context), as a node's presenter does: a renderer of the output size on a headless
+Each profile runs in processes of its own (Mesa reads its overrides when a process makes its
+first context), as a node's presenter does, in ``--rounds`` rounds that take the profiles in turn
+(a 2-core machine shared with other work drifts over a minute; interleaving spreads the drift
+over every profile alike), the per-frame times pooled over the rounds: a renderer of the output size on a headless
 context, a homography pose, the inverse-response LUT and a gain, and per frame a new content
 image uploaded and rendered, then waited for (``finish``: the GPU's work counts, as before a
 swap). Printed: upload and render time per frame (p50/p99), CPU per frame, resident memory
@@ -26,6 +30,15 @@ from bench.machine import machine
 from protos import cli_types
 
 GL31_ENV = {"MESA_GL_VERSION_OVERRIDE": "3.1", "MESA_GLSL_VERSION_OVERRIDE": "140", "GLCONTEXT_GLVERSION": "310"}
+#: profile name -> environment of its worker (SHADOWLESS_GL picks the API: node/render/context.py)
+PROFILES = {
+    "default": {"SHADOWLESS_GL": "gl"},
+    "gl31": {**GL31_ENV, "SHADOWLESS_GL": "gl"},
+    "gles": {"SHADOWLESS_GL": "gles"},
+    "gles30_bare": {"SHADOWLESS_GL": "gles", "MESA_GLES_VERSION_OVERRIDE": "3.0",
+                    "MESA_EXTENSION_OVERRIDE": "-GL_EXT_texture_norm16 -GL_EXT_color_buffer_float "
+                                               "-GL_EXT_color_buffer_half_float -GL_OES_texture_float_linear"},
+}
 FORBIDDEN = ("scipy", "opencv-python", "opencv-contrib-python", "opencv-contrib-python-headless",
              "opencv-python-headless", "scikit-image")
 
@@ -36,6 +49,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="content size (default 1920x1080)")
     p.add_argument("--frames", type=cli_types.int_range(2, 100_000), default=120,
                    help="frames per profile (default 120)")
+    p.add_argument("--rounds", type=cli_types.int_range(1, 50),
+                   help="the profiles run in turn this many times, the frames split between the rounds (default: "
+                        "one round per 40 frames, at most 3)")
     p.add_argument("--dtype", choices=["uint8", "uint16", "float32"], default="uint8", help="content samples")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
 
@@ -53,6 +69,7 @@ def _worker(args: argparse.Namespace) -> dict:
     """One profile, in this process: the figures as a dict."""
     rss_start = _rss_mb()
     from node.render import Renderer
+    from node.render.shaders import fallbacks
 
     w, h = args.size
     cw, ch = args.content
@@ -85,20 +102,25 @@ def _worker(args: argparse.Namespace) -> dict:
                 render.append((t2 - t1) * 1e3)
                 cpu.append((time.process_time() - c0) * 1e3)
         image = r.read()
-        pct = lambda a, q: round(float(np.percentile(a, q)), 3)  # noqa: E731
         return {"gl": r.gl_profile, "context_version": r.ctx.version_code,
-                "upload_ms_p50": pct(upload, 50), "upload_ms_p99": pct(upload, 99),
-                "render_ms_p50": pct(render, 50), "render_ms_p99": pct(render, 99),
-                "cpu_ms_per_frame_p50": pct(cpu, 50), "rss_mb": round(_rss_mb(), 1),
+                **_percentiles(upload, render, cpu), "rss_mb": round(_rss_mb(), 1),
+                "samples_ms": {"upload": upload, "render": render, "cpu": cpu},
                 "rss_interpreter_mb": round(rss_start, 1), "rss_context_mb": round(rss_context - rss_start, 1),
                 "rss_content_mb": round(sum(i.nbytes for i in images) / 2**20, 1),
                 "rss_gl_growth_mb": round(_rss_mb() - rss_before, 1), "peak_rss_mb": round(_rss_mb("VmHWM"), 1),
                 # a node holds the frame it shows, not the bench's rotating set of content images
                 "node_rss_mb": round(_rss_mb() - sum(i.nbytes for i in images[1:]) / 2**20, 1),
-                "renderer": str(r.ctx.info.get("GL_RENDERER", "")),
+                "renderer": str(r.ctx.info.get("GL_RENDERER", "")), "fallbacks": list(fallbacks(r.ctx)),
                 "frame_mean_level": round(float(image.mean()), 2)}
     finally:
         r.release()
+
+
+def _percentiles(upload: list[float], render: list[float], cpu: list[float]) -> dict:
+    """p50/p99 of the per-frame upload and render times and the p50 of CPU per frame, ms."""
+    pct = lambda a, q: round(float(np.percentile(a, q)), 3)  # noqa: E731
+    return {"upload_ms_p50": pct(upload, 50), "upload_ms_p99": pct(upload, 99),
+            "render_ms_p50": pct(render, 50), "render_ms_p99": pct(render, 99), "cpu_ms_per_frame_p50": pct(cpu, 50)}
 
 
 def node_install() -> dict:
@@ -136,23 +158,43 @@ def run(args: argparse.Namespace) -> int:
     if args.worker:
         print(json.dumps(_worker(args)))
         return 0
-    profiles = {}
-    for name, env in (("default", {}), ("gl31", GL31_ENV)):
-        # the worker imports what a node's presenter imports, and nothing of the CLI's other commands
-        cmd = [sys.executable, "-m", "bench.node", "--worker", "--size", "x".join(map(str, args.size)),
-               "--content", "x".join(map(str, args.content)), "--frames", str(args.frames), "--dtype", args.dtype]
-        done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **env}, timeout=1800)
-        if done.returncode != 0:
-            print(f"bench node: the {name} profile failed:\n{done.stderr[-3000:]}", file=sys.stderr)
-            return 1
-        profiles[name] = json.loads(done.stdout.strip().splitlines()[-1])
-    d, g = profiles["default"], profiles["gl31"]
+    profiles: dict[str, dict] = {}
+    pooled = {name: {"upload": [], "render": [], "cpu": []} for name in PROFILES}
+    if args.rounds is None:
+        args.rounds = min(3, max(1, args.frames // 40))
+    per_round = max(2, -(-args.frames // args.rounds))
+    for k in range(args.rounds):
+        for name, env in PROFILES.items():
+            # the worker imports what a node's presenter imports, and nothing of the CLI's other commands
+            cmd = [sys.executable, "-m", "bench.node", "--worker", "--size", "x".join(map(str, args.size)),
+                   "--content", "x".join(map(str, args.content)), "--frames", str(per_round), "--dtype", args.dtype]
+            print(f"bench node: round {k + 1}/{args.rounds}, profile {name}", file=sys.stderr)
+            done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **env}, timeout=1800)
+            if done.returncode != 0:
+                print(f"bench node: the {name} profile failed:\n{done.stderr[-3000:]}", file=sys.stderr)
+                return 1
+            result = json.loads(done.stdout.strip().splitlines()[-1])
+            for key, values in result.pop("samples_ms").items():
+                pooled[name][key] += values
+            profiles[name] = result   # memory and the picture: the last round's (they do not drift)
+    for name, p in profiles.items():
+        p.update(_percentiles(pooled[name]["upload"], pooled[name]["render"], pooled[name]["cpu"]))
+        p["frames"] = len(pooled[name]["render"])
+    d = profiles["default"]
+
+    def vs_default(name: str, key: str) -> float | None:
+        return round(profiles[name][key] / d[key], 3) if d[key] else None
+
     print(json.dumps({
         "benchmark": "node", "machine": machine(),
-        "params": {"size": list(args.size), "content": list(args.content), "frames": args.frames, "dtype": args.dtype},
+        "params": {"size": list(args.size), "content": list(args.content), "frames": args.frames, "rounds": args.rounds,
+                   "dtype": args.dtype},
         "profiles": profiles,
-        "gl31_vs_default_render_p50": round(g["render_ms_p50"] / d["render_ms_p50"], 3) if d["render_ms_p50"] else None,
-        "same_picture": d["frame_mean_level"] == g["frame_mean_level"],
+        "gl31_vs_default_render_p50": vs_default("gl31", "render_ms_p50"),
+        "gles_vs_default_render_p50": vs_default("gles", "render_ms_p50"),
+        "gles_vs_default_upload_p50": vs_default("gles", "upload_ms_p50"),
+        "gles30_bare_vs_default_upload_p50": vs_default("gles30_bare", "upload_ms_p50"),
+        "same_picture": len({p["frame_mean_level"] for p in profiles.values()}) == 1,
         "node_install": node_install(),
     }, indent=2))
     return 0
