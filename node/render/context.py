@@ -37,7 +37,8 @@ def gl_choice(value: str | None = None) -> str:
     """``value``, else ``$SHADOWLESS_GL``, else ``auto``; checked against :data:`GL_CHOICES`."""
     choice = (value if value is not None else os.environ.get(GL_ENV, "")).strip().lower() or "auto"
     if choice not in GL_CHOICES:
-        raise ContextUnavailable(f"{GL_ENV} must be one of {', '.join(GL_CHOICES)}, got {choice!r}")
+        raise ContextUnavailable(f"the OpenGL choice (--gl, {GL_ENV}) must be one of {', '.join(GL_CHOICES)}, "
+                                 f"got {choice!r}")
     return choice
 
 

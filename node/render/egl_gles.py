@@ -202,7 +202,11 @@ class GlesContext:
                 raise err
         self._previous: list[tuple[Any, Any, Any, Any]] = []
         self._released = False
-        self._make_current()
+        try:
+            self._make_current()
+        except EglError:
+            self.release()
+            raise
         self._gles_lib: Any = None
         self._substitutes = self._make_substitutes()
 

@@ -161,3 +161,15 @@ def test_shadowless_node_gl_gles_renders_with_opengl_es_and_says_so(tmp_path):
             proc.kill()
             proc.wait()
         proc.stderr.close()
+
+
+def test_mistakes_in_choosing_the_gl_are_named():
+    from node.render import RenderError, Renderer
+    from node.render.egl_gles import EglError, GlesContext
+
+    with pytest.raises(RenderError, match=r"OpenGL choice \(--gl, SHADOWLESS_GL\) must be one of auto, gl, gles, "
+                                          r"got 'vulkan'"):
+        Renderer.standalone(8, 8, gl="vulkan")
+    # refused before any context is made (nothing becomes current in this process)
+    with pytest.raises(EglError, match=r"EGL device 99 was asked for \(GLCONTEXT_DEVICE_INDEX\), but there are \d"):
+        GlesContext(device_index=99)
