@@ -55,8 +55,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "(fullscreen without X, KMS/DRM: a display index or connector such as kms:HDMI-A-1), or "
                         "room://HOST:PORT (the virtual room)")
     p.add_argument("--gl", choices=GL_CHOICES, metavar="{auto,gl,gles}",
-                   help="the OpenGL of the offscreen and room outputs: auto (default, or $SHADOWLESS_GL) takes desktop "
-                        "OpenGL 3.1+ where EGL offers it, else OpenGL ES 3.0+; gl or gles forces one. "
+                   help="the OpenGL the node renders with: auto (default, or $SHADOWLESS_GL) takes desktop "
+                        "OpenGL 3.1+ where the driver offers it, else OpenGL ES 3.0+ (offscreen, room and kms "
+                        "outputs; the window output is desktop GL only); gl or gles forces one. "
                         "`shadowless status` shows what each node got")
     p.add_argument("--snapshot-dir", type=Path, metavar="DIR",
                    help="write every shown still to DIR/<slot>.png (for inspection)")

@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from node.outputs.base import Output, OutputError, Snapshots, SwapInfo, check_slot
+from node.render.context import ContextUnavailable, gl_choice
+from node.render.gles_functions import GlesFunctions
 
 if TYPE_CHECKING:  # pragma: no cover
     import moderngl
@@ -33,8 +35,17 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-#: GL versions asked of SDL, best first: 3.3 core, then 3.1 (a Raspberry Pi's V3D)
-GL_VERSIONS = ((3, 3, True), (3, 1, False))
+#: contexts asked of SDL, best first: (major, minor, profile) with profile "core" (desktop 3.3),
+#: "" (desktop 3.1: a Raspberry Pi's V3D) or "es" (OpenGL ES 3.0+: Mali and Adreno drivers)
+GL_VERSIONS = ((3, 3, "core"), (3, 1, ""), (3, 0, "es"))
+
+
+def gl_versions(choice: str) -> tuple[tuple[int, int, str], ...]:
+    """The entries of :data:`GL_VERSIONS` that the node's OpenGL choice (``auto``, ``gl``, ``gles``:
+    ``--gl`` / ``$SHADOWLESS_GL``, see :func:`node.render.context.gl_choice`) allows."""
+    if choice == "auto":
+        return GL_VERSIONS
+    return tuple(v for v in GL_VERSIONS if (v[2] == "es") == (choice == "gles"))
 
 
 def drm_connectors(root: Path = Path("/sys/class/drm")) -> list[str]:
@@ -56,11 +67,13 @@ def drm_connectors(root: Path = Path("/sys/class/drm")) -> list[str]:
 
 
 class _SdlLoader:
-    """moderngl's loader interface over ``SDL_GL_GetProcAddress`` (the current context's)."""
+    """moderngl's loader interface over ``SDL_GL_GetProcAddress`` (the current context's); on
+    OpenGL ES with the substitutes moderngl needs there (:class:`GlesFunctions`)."""
 
-    def __init__(self, sdl2: Any):
+    def __init__(self, sdl2: Any, *, gles: bool = False):
         get = sdl2.SDL_GL_GetProcAddress
-        self.load_opengl_function = lambda name: get(name.encode()) or 0
+        address = lambda name: get(name.encode()) or 0  # noqa: E731
+        self.load_opengl_function = GlesFunctions(address).load_opengl_function if gles else address
 
     def __enter__(self) -> None:
         return None
@@ -107,6 +120,7 @@ class KmsOutput(Output):
         self._gl: Any = None
         self.window: Any = None
         self.gl_version = ""
+        self.gles = False             # the context is OpenGL ES (read-backs in RGBA)
         try:
             # PySDL2 finds the system's libSDL2 (or the pysdl2-dll wheel's); only this output needs it
             import sdl2
@@ -182,32 +196,39 @@ class KmsOutput(Output):
         where = sdl2.SDL_WINDOWPOS_UNDEFINED_DISPLAY(self.display_index)
         flags = sdl2.SDL_WINDOW_OPENGL | sdl2.SDL_WINDOW_FULLSCREEN
         errors = []
-        for major, minor, core in GL_VERSIONS:
+        try:
+            choice = gl_choice()
+        except ContextUnavailable as exc:
+            raise OutputError(str(exc)) from None
+        for major, minor, profile in gl_versions(choice):
             sdl2.SDL_GL_ResetAttributes()
             sdl2.SDL_GL_SetAttribute(sdl2.SDL_GL_CONTEXT_MAJOR_VERSION, major)
             sdl2.SDL_GL_SetAttribute(sdl2.SDL_GL_CONTEXT_MINOR_VERSION, minor)
-            if core:
-                sdl2.SDL_GL_SetAttribute(sdl2.SDL_GL_CONTEXT_PROFILE_MASK, sdl2.SDL_GL_CONTEXT_PROFILE_CORE)
+            if profile:
+                mask = sdl2.SDL_GL_CONTEXT_PROFILE_CORE if profile == "core" else sdl2.SDL_GL_CONTEXT_PROFILE_ES
+                sdl2.SDL_GL_SetAttribute(sdl2.SDL_GL_CONTEXT_PROFILE_MASK, mask)
             sdl2.SDL_GL_SetAttribute(sdl2.SDL_GL_DOUBLEBUFFER, 1)
             for attr in (sdl2.SDL_GL_RED_SIZE, sdl2.SDL_GL_GREEN_SIZE, sdl2.SDL_GL_BLUE_SIZE):
                 sdl2.SDL_GL_SetAttribute(attr, 8)   # SDL's default minimum is 3 bits: a projector needs 8
             # No depth buffer on the screen: it only receives the renderer's blit, and a blit whose
             # depth formats differ (the visual's 32-bit vs the renderer's 24-bit) fails as a whole.
             sdl2.SDL_GL_SetAttribute(sdl2.SDL_GL_DEPTH_SIZE, 0)
+            name = f"{'OpenGL ES ' if profile == 'es' else ''}{major}.{minor}"
             window = sdl2.SDL_CreateWindow(f"shadowless {self.slot}".encode(), where, where, *self._size, flags)
             if not window:
-                errors.append(f"{major}.{minor}: {self._error()}")
+                errors.append(f"{name}: {self._error()}")
                 continue
             gl = sdl2.SDL_GL_CreateContext(window)
             if not gl:
-                errors.append(f"{major}.{minor}: {self._error()}")
+                errors.append(f"{name}: {self._error()}")
                 sdl2.SDL_DestroyWindow(window)
                 continue
-            self.window, self._gl, self.gl_version = window, gl, f"{major}.{minor}"
+            self.window, self._gl, self.gl_version, self.gles = window, gl, name, profile == "es"
             break
         else:
-            raise OutputError(f"cannot open a fullscreen OpenGL 3.1+ surface on display {self.display_index} "
-                              f"({'; '.join(errors)}); the GPU driver must offer OpenGL 3.1 or newer")
+            wanted = {"auto": "OpenGL 3.1+ or OpenGL ES 3.0+", "gl": "OpenGL 3.1+", "gles": "OpenGL ES 3.0+"}[choice]
+            raise OutputError(f"cannot open a fullscreen {wanted} surface on display {self.display_index} "
+                              f"({'; '.join(errors)}); the GPU driver must offer {wanted}")
         try:
             sdl2.SDL_GL_MakeCurrent(self.window, self._gl)
             if sdl2.SDL_GL_SetSwapInterval(1 if self.vsync else 0) != 0 and self.vsync:
@@ -216,7 +237,7 @@ class KmsOutput(Output):
             # Lazy: moderngl is loaded only by the process that renders (see base.headless_context).
             import moderngl
 
-            moderngl.init_context(_SdlLoader(sdl2))
+            moderngl.init_context(_SdlLoader(sdl2, gles=self.gles))
             self._ctx = moderngl.get_context()
             w, h = ctypes.c_int(), ctypes.c_int()
             sdl2.SDL_GL_GetDrawableSize(self.window, ctypes.byref(w), ctypes.byref(h))
@@ -257,8 +278,9 @@ class KmsOutput(Output):
     def read_back_buffer(self) -> np.ndarray:
         """(H, W, 3) uint8, row 0 at the top: the back buffer (what the next swap shows)."""
         w, h = self._size
-        data = self._ctx.screen.read(viewport=(0, 0, w, h), components=3, alignment=1)
-        return np.frombuffer(data, np.uint8).reshape(h, w, 3)[::-1].copy()
+        n = 4 if self.gles else 3      # GLES reads RGBA only
+        data = self._ctx.screen.read(viewport=(0, 0, w, h), components=n, alignment=1)
+        return np.frombuffer(data, np.uint8).reshape(h, w, n)[::-1, :, :3].copy()
 
     @property
     def last_image(self) -> np.ndarray | None:

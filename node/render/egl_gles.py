@@ -13,20 +13,16 @@ Only libEGL is needed (``libEGL.so.1``, Mesa's or a vendor's); function pointers
 ``eglGetProcAddress`` (EGL 1.5, or ``EGL_KHR_get_all_proc_addresses``, resolves core GL ES
 functions too), else from ``libGLESv2.so.2`` where an older EGL does not.
 
-moderngl 5.13 loads ~1270 desktop GL names and calls a few of them unconditionally where GLES has
-none (checked by tracing every call the renderer's tests make to a name ``libGLESv2`` does not
-export): ``glClearDepth`` (framebuffer clears; GLES has ``glClearDepthf``), ``glClampColor``
-(every read-back; GLES has no read clamping: unorm reads are never clamped) and, at start-up,
-``glPrimitiveRestartIndex`` (moderngl enables GLES's fixed restart index where it finds none).
-A driver may hand out a stub that raises a GL error for such a name (Mesa does) or no pointer
-at all (moderngl would then call address 0): the loader gives those names a GLES equivalent, a
-no-op, or 0 for "absent" (:meth:`GlesContext._make_substitutes`).
+moderngl loads desktop GL names and calls a few that GLES lacks; the loader gives those a GLES
+equivalent, a no-op, or "absent" (:class:`node.render.gles_functions.GlesFunctions`).
 """
 from __future__ import annotations
 
 import ctypes
 import os
 from typing import Any
+
+from node.render.gles_functions import GlesFunctions
 
 __all__ = ["EglError", "GlesContext", "create_gles_context"]
 
@@ -58,11 +54,6 @@ _EGL_ERRORS = {
 
 _vp = ctypes.c_void_p
 _i32 = ctypes.c_int32
-
-
-# moderngl calls these without checking they exist; GLES lacks them (see the module docstring)
-_CLEAR_DEPTH = ctypes.CFUNCTYPE(None, ctypes.c_double)
-_NO_OP = ctypes.CFUNCTYPE(None)
 
 
 class EglError(RuntimeError):
@@ -208,23 +199,12 @@ class GlesContext:
             self.release()
             raise
         self._gles_lib: Any = None
-        self._substitutes = self._make_substitutes()
+        self._functions = GlesFunctions(self._address)
 
     def _make_current(self) -> None:
         egl = self._egl
         if not egl.eglMakeCurrent(self._display, self._surface, self._surface, self._context):
             raise egl.error("eglMakeCurrent")
-
-    def _make_substitutes(self) -> dict[str, Any]:
-        """Callables for the desktop-only names moderngl calls anyway (None: report it absent)."""
-        clear_depthf = ctypes.CFUNCTYPE(None, ctypes.c_float)(self._address("glClearDepthf"))
-        return {
-            # void glClearDepth(GLdouble) -> glClearDepthf(GLfloat): a double arrives, a float leaves
-            "glClearDepth": _CLEAR_DEPTH(lambda depth: clear_depthf(depth)),
-            # void glClampColor(GLenum, GLenum): GLES reads unorm colour unclamped by definition
-            "glClampColor": _NO_OP(lambda: None),
-            "glPrimitiveRestartIndex": None,
-        }
 
     def _address(self, name: str) -> int:
         address = self._egl.eglGetProcAddress(name.encode())
@@ -242,10 +222,7 @@ class GlesContext:
 
     def load_opengl_function(self, name: str) -> int:
         """The address of GL function ``name`` (0 where the context lacks it)."""
-        if name in self._substitutes:
-            fn = self._substitutes[name]
-            return 0 if fn is None else int(ctypes.cast(fn, _vp).value)
-        return self._address(name)
+        return self._functions.load_opengl_function(name)
 
     load = load_opengl_function  # glcontext's name for it
 
