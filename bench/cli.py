@@ -21,6 +21,7 @@ BENCHMARKS: dict[str, str] = {
     "console": "the operator console in headless Chromium: page load, time to all live, update latency, CPU, thumbnails",
     "bust": "coverage on the bust from poses + mesh vs the room's truth; fingertip touches: shadow area vs coverage",
     "motion": "a hand waving over the table: light drop per frame, synthetic aperture vs reactive compensation with latency",
+    "plan": "the layout planner: 25 of 100 ceiling positions (time), proxy curve and knee, the paper's guidelines, bust walls",
 }
 
 

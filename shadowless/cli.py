@@ -39,7 +39,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "compensate": ("coordinator.compensation.cli", "compensate the rig's blur for an image (shown) or a video (a new 16-bit asset)"),
     "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
     "demo": ("shadowless.demo", "the whole rig in the virtual room: what `make demo` runs"),
-    "study": ("shadowless.study", "studies: Scheffé paired comparison, paired task times (perception); a moving hand in the room (motion)"),
+    "study": ("shadowless.study", "studies: Scheffé paired comparison, paired task times; in the room: a moving hand (motion), "
+                                  "shadow proxies of the layouts (proxies)"),
+    "plan": ("sim.plan.cli", "choose projector positions that keep a hand's shadow least visible (layout, picture, curve)"),
     "bench": ("bench.cli", "benchmarks that print JSON (sync, swarm, venue, room, calibration, compensation)"),
 }
 

@@ -21,6 +21,7 @@ from coordinator.study import cli as coordinator_study
 #: room studies: subcommand -> (module with configure(parser) and run(args), one-line summary)
 ANALYSES: dict[str, tuple[str, str]] = {
     "motion": ("sim.motion_cli", "a hand moving over the table: light drop per frame, synthetic aperture vs reactive compensation"),
+    "proxies": ("sim.sop_cli", "geometric proxies of the sense of projection per layout, against the paper's orderings"),
 }
 
 

@@ -1,0 +1,17 @@
+"""The layout planner: choose projector positions that keep a hand's shadow least visible.
+
+``shadowless plan`` (:mod:`sim.plan.cli`): given a surface (the table or a
+mesh), candidate mounting positions (a ceiling grid, walls, or a file), a
+projector model, a budget and a distribution of hands, pick the positions
+that minimise a sense-of-projection proxy (:mod:`sim.sop`) under the hands,
+with every surface point lit by at least ``k`` projectors; write the layout
+(TOML for :func:`sim.scene.load_layout`), a picture and the proxy against the
+budget.
+
+* :mod:`sim.plan.candidates` — mounting positions and the projector model;
+* :mod:`sim.plan.surface` — surface samples and each candidate's light on them;
+* :mod:`sim.plan.evaluate` — shadow masks per (candidate, pose), cached once,
+  and the proxy of any subset as sums over them;
+* :mod:`sim.plan.search` — greedy forward selection and swap refinement;
+* :mod:`sim.plan.output` — the layout file and the picture.
+"""
