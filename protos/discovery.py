@@ -15,13 +15,18 @@ from zeroconf.asyncio import AsyncServiceBrowser, AsyncServiceInfo, AsyncZerocon
 
 from protos.version import SERVICE_TYPE
 
-__all__ = ["Advertisement", "Discovery", "DiscoveryError"]
+__all__ = ["Advertisement", "Discovery", "DiscoveryError", "NothingAdvertised"]
 
 log = logging.getLogger(__name__)
 
 
 class DiscoveryError(RuntimeError):
     """mDNS cannot be used (e.g. no such interface); the message says where it was tried."""
+
+
+class NothingAdvertised(DiscoveryError):
+    """mDNS works but no coordinator (of the rig asked for) is advertised yet: a state to wait out,
+    not a failure (a coordinator starting, a network still settling)."""
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "study": ("shadowless.study", "studies: Scheffé paired comparison, paired task times; in the room: a moving hand (motion), "
                                   "shadow proxies of the layouts (proxies)"),
     "plan": ("sim.plan.cli", "choose projector positions that keep a hand's shadow least visible (layout, picture, curve)"),
-    "bench": ("bench.cli", "benchmarks that print JSON (sync, swarm, venue, room, calibration, compensation)"),
+    "bench": ("bench.cli", "benchmarks that print JSON (sync, venue, room, calibration, compensation, node, console, motion, plan, …)"),
 }
 
 EPILOG = """\

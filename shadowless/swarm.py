@@ -37,7 +37,7 @@ from pathlib import Path
 
 from protos import cli_types
 from protos.auth import TokenError, read_token, resolve_token
-from protos.discovery import Discovery, DiscoveryError
+from protos.discovery import Discovery, DiscoveryError, NothingAdvertised
 from shadowless.swarm_node import SwarmNode, Ticker
 
 log = logging.getLogger("shadowless.swarm")
@@ -107,6 +107,7 @@ class SwarmStats:
     assets_ready: int = 0
     blobs_verified: int = 0
     bytes_fetched: int = 0
+    discovery_waits: int = 0     # lookups that found no coordinator advertised yet (waited out, not errors)
     late_hist: list[int] = field(default_factory=lambda: [0] * 8)   # wake-up lateness of swaps: <0.5,1,2,4,8,16,32,more ms
 
     def lateness(self, late_ns: int) -> None:
@@ -154,7 +155,7 @@ class Swarm:
             names = ", ".join(sorted(f"{a.name} ({a.rig_id})" for a in ads))
             raise DiscoveryError(f"several rigs are advertised ({names}); pick one with --rig NAME")
         if not ads:
-            raise DiscoveryError("no coordinator advertised over mDNS yet; still looking (or pass --coordinator)")
+            raise NothingAdvertised("no coordinator advertised over mDNS yet; still looking (or pass --coordinator)")
         return [a.target for a in ads]
 
     async def start(self) -> None:

@@ -42,6 +42,7 @@ from node.records import (
 from node.wire import packet_from_bytes
 from protos import auth
 from protos.asset_manifest import Manifest
+from protos.discovery import NothingAdvertised
 from protos.host import boot_id
 from protos.timeline import Schedule
 from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION
@@ -179,6 +180,9 @@ class SwarmNode:
                     if await self._session(target, stopping):
                         backoff = self.cfg.backoff_min_s
                         break
+            except NothingAdvertised as exc:
+                self.stats.discovery_waits += 1
+                log.warning("%s: %s", self.slot, exc)
             except LinkError as exc:
                 self.stats.errors += 1
                 log.warning("%s: %s: %s", self.slot, exc.code, exc.details)
