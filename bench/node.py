@@ -108,8 +108,9 @@ def _worker(args: argparse.Namespace) -> dict:
                 "rss_interpreter_mb": round(rss_start, 1), "rss_context_mb": round(rss_context - rss_start, 1),
                 "rss_content_mb": round(sum(i.nbytes for i in images) / 2**20, 1),
                 "rss_gl_growth_mb": round(_rss_mb() - rss_before, 1), "peak_rss_mb": round(_rss_mb("VmHWM"), 1),
-                # a node holds the frame it shows, not the bench's rotating set of content images
-                "node_rss_mb": round(_rss_mb() - sum(i.nbytes for i in images[1:]) / 2**20, 1),
+                # a node holds the frame it shows in its texture only: the presenter drops the decoded
+                # array once uploaded (node/presenter.py), unlike the bench's rotating set of images
+                "node_rss_mb": round(_rss_mb() - sum(i.nbytes for i in images) / 2**20, 1),
                 "renderer": str(r.ctx.info.get("GL_RENDERER", "")), "fallbacks": list(fallbacks(r.ctx)),
                 "frame_mean_level": round(float(image.mean()), 2)}
     finally:

@@ -153,7 +153,6 @@ class Renderer:
         self._allocate_targets()
 
     # ------------------------------------------------------------------ construction
-
     @classmethod
     def standalone(cls, width: int, height: int, *, gl: str | None = None) -> "Renderer":
         """A renderer on its own headless EGL context (released by :meth:`release`): desktop
@@ -184,23 +183,34 @@ class Renderer:
         size = (self._width, self._height)
         self._color = self.ctx.texture(size, 4, dtype="f1")
         self._color.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
-        self._depth = self.ctx.depth_renderbuffer(size)
-        self._fbo = self.ctx.framebuffer(color_attachments=[self._color], depth_attachment=self._depth)
-        self._fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
-        # GL order (bottom row first). OpenGL ES reads an RGBA8 framebuffer as RGBA only (GL_RGB is
-        # not among the formats glReadPixels must accept there): alpha is read and dropped.
-        self._raw = np.empty((self._height, self._width, 4 if self._gles else 3), np.uint8)
+        self._depth = None
+        self._fbo = None
+        self._attach_depth(self._mesh_vao is not None)
+        # GLES reads RGBA only (GL_RGB is not a format glReadPixels must accept there): alpha dropped
+        self._raw = np.empty((self._height, self._width, 4), np.uint8) if self._gles else None
         self._image = np.empty((self._height, self._width, 3), np.uint8)  # row 0 at the top
         # projector space: GL window coords -> OpenCV projector pixels (the content *is* in projector pixels)
         self._warp_identity_bytes = _mat_bytes(self._window_to_pixels())
         self._update_pose_uniforms()
+
+    def _attach_depth(self, depth: bool) -> None:
+        """(Re)build the framebuffer, with a depth buffer only once a mesh needs one (a homography
+        never tests depth; at 1080p it is 8 MB of an edge computer's shared memory)."""
+        if self._fbo is not None and (self._depth is not None) == depth:
+            return
+        for obj in (self._fbo, self._depth):
+            if obj is not None:
+                obj.release()
+        size = (self._width, self._height)
+        self._depth = self.ctx.depth_renderbuffer(size) if depth else None
+        self._fbo = self.ctx.framebuffer(color_attachments=[self._color], depth_attachment=self._depth)
+        self._fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
 
     def _window_to_pixels(self) -> np.ndarray:
         """(3, 3) float64: GL window coords (centres at +0.5, rows bottom-up) -> OpenCV pixels."""
         return np.array([[1.0, 0.0, -0.5], [0.0, -1.0, self._height - 0.5], [0.0, 0.0, 1.0]])
 
     # ------------------------------------------------------------------ properties
-
     @property
     def width(self) -> int:
         return self._width
@@ -236,7 +246,6 @@ class Renderer:
             self._allocate_targets()
 
     # ------------------------------------------------------------------ pose
-
     def set_homography(self, h: np.ndarray, content_size: tuple[int, int]) -> None:
         """Planar pose: ``h`` (3, 3) maps content pixels to projector pixels.
 
@@ -312,6 +321,7 @@ class Renderer:
             index_buffer=self._mesh_ibo,
             index_element_size=4,
         )
+        self._attach_depth(True)
         self._pose = ("projection", pm, near, far)
         self._pose_content_size = None
         self._update_pose_uniforms()
@@ -351,7 +361,6 @@ class Renderer:
             self._mesh_prog["world_to_clip"].write(_mat_bytes(clip))
 
     # ------------------------------------------------------------------ luminance
-
     def set_lut(self, lut: np.ndarray | None) -> None:
         """Inverse-response LUT: (C, E) float32, C in {1, 3}, E >= 2; None = identity.
 
@@ -397,7 +406,6 @@ class Renderer:
         return self._gain
 
     # ------------------------------------------------------------------ content
-
     def upload(self, content_id: str, image: np.ndarray) -> None:
         """Upload content once under ``content_id`` (content ids are immutable).
 
@@ -478,7 +486,6 @@ class Renderer:
         return tuple(self._contents)
 
     # ------------------------------------------------------------------ drawing
-
     def render(self, content_id: str | None, *, space: str = "content", apply_lut: bool = True) -> None:
         """Draw one frame into :attr:`framebuffer` (one draw call).
 
@@ -553,12 +560,15 @@ class Renderer:
         The returned array is the renderer's own buffer, overwritten by the next
         :meth:`read` (and reallocated by :meth:`resize`): copy it to keep it.
         """
-        self._fbo.read_into(self._raw, components=self._raw.shape[2], alignment=1)
+        if self._raw is None:   # in place, flipped (numpy buffers the overlap): one resident copy
+            self._fbo.read_into(self._image, components=3, alignment=1)
+            self._image[...] = self._image[::-1]
+            return self._image
+        self._fbo.read_into(self._raw, components=4, alignment=1)
         np.copyto(self._image, self._raw[::-1, :, :3])
         return self._image
 
     # ------------------------------------------------------------------ teardown
-
     def release(self) -> None:
         """Release every GL object (and the context, for :meth:`standalone`). Idempotent."""
         if self._released:
