@@ -127,3 +127,46 @@ def test_chart_is_valid_svg_with_every_item_escaped():
     texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]
     assert "P<0>" in texts and "sense of projection" in texts
     assert len(list(root.iter("{http://www.w3.org/2000/svg}rect"))) == 1 + len(items)
+
+
+def test_matches_a_published_worked_example():
+    """The worked example of MARUI Atsushi (Tokyo University of the Arts), "シェッフェの一対比較法
+    (中屋の変法)" [Scheffé's paired comparison, Nakaya's modification], 2012-09-12,
+    http://marui.hatenablog.com/entry/20120912/1347435796 (program and example also at
+    https://www.geidai.ac.jp/~marui/r_program/scheffe_nakaya.html), an R program written to follow
+    chapter 20 of Sato Shin, 『統計的官能検査法』 (Statistical Methods in Sensory Tests), JUSE Press
+    (日科技連出版社), 1985. 3 stimuli, 6 subjects, -3..3 ratings of the pairs 1-2, 1-3, 2-3
+    (positive: the first preferred). Printed there to 4 decimals: the average preferences, the
+    ANOVA table (SS, df, MS, F, p) and the yardsticks Y(.05) = 0.8323, Y(.01) = 1.2617."""
+    ratings = [(-2, -1, 1), (-2, -2, 2), (-3, 0, 3), (-3, 0, 2), (-1, 1, 2), (-3, -1, 0)]
+    rows = [(f"subject {k + 1}", a, b, float(s)) for k, r in enumerate(ratings)
+            for (a, b), s in zip((("1", "2"), ("1", "3"), ("2", "3")), r)]
+    x, items, people = ratings_array(rows)
+    res = scheffe_nakaya(x, items, people)
+
+    def printed(v: float, want: float) -> None:     # equal to the printed precision (4 decimals)
+        assert round(v, 4) == want, (v, want)
+
+    for got, want in zip(res.scale, (-0.9444, 1.3333, -0.3889)):
+        printed(got, want)
+    table = {   # source: (SS, df, MS, F, p) as printed
+        "main effect": (50.7778, 2, 25.3889, 43.1132, 0.0007),
+        "individual differences": (11.2222, 10, 1.1222, 1.9057, 0.2470),
+        "combination": (0.0556, 1, 0.0556, 0.0943, 0.7711),
+        "error": (2.9444, 5, 0.5889, None, None),
+        "total": (65.0000, 18, None, None, None),
+    }
+    for source, (ss, df, ms, f, p) in table.items():
+        r = res.row(source)
+        printed(r.ss, ss)
+        assert r.df == df
+        for got, want in ((r.ms, ms), (r.f, f), (r.p, p)):
+            if want is not None:
+                printed(got, want)
+    printed(res.yardstick[0.05], 0.8323)
+    printed(res.yardstick[0.01], 1.2617)
+    # its confidence intervals a_i - a_j ± Y: 1-2 = -2.2778 [-3.1101, -1.4454] at 95 %, 2-3 = 1.7222
+    # [0.4605, 2.9840] at 99 %; 1-3 = -0.5556 is inside ±Y(.05): stimuli 1 and 3 share a letter
+    printed(res.scale[0] - res.scale[1] - res.yardstick[0.05], -3.1101)
+    printed(res.scale[1] - res.scale[2] - res.yardstick[0.01], 0.4605)
+    assert res.letters[0.05] == ("b", "a", "b") and res.letters[0.01] == ("b", "a", "b")
