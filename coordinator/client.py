@@ -9,7 +9,7 @@ plain types of :mod:`coordinator.api`: callers never see a protobuf message.
 from __future__ import annotations
 
 import argparse
-from typing import AsyncIterator, Callable, Sequence
+from typing import AsyncIterator, Callable, Mapping, Sequence
 
 import grpc
 import numpy as np
@@ -99,11 +99,15 @@ class Client:
         return wire.status_from_message(await self.stub.Status(control_pb2.StatusRequest(), metadata=self.md, timeout=10))
 
     async def show(self, image: np.ndarray, *, name: str = "", persist: bool = False, space: Space = Space.CONTENT,
-                   apply_lut: bool = True, fit: str = "") -> ShowResult:
+                   apply_lut: bool = True, fit: str = "",
+                   slot_regions: Mapping[str, Sequence[tuple[int, int, int, int]]] | None = None) -> ShowResult:
         """Show ``image`` on every node and hold it. ``fit``: how an image of another aspect than
         the content area is fitted ("stretch", "contain", "cover"); "" refuses it (grpc.aio.AioRpcError,
-        INVALID_ARGUMENT, naming both sizes and the choices)."""
-        parts = wire.show_request_parts(image, name=name, persist=persist, space=space, apply_lut=apply_lut, fit=fit)
+        INVALID_ARGUMENT, naming both sizes and the choices). ``slot_regions``: slot -> rectangles
+        ``(x, y, width, height)`` of the fitted content, the only parts that slot shows (none: black;
+        slots not named show all; see :mod:`coordinator.slot_regions`)."""
+        parts = wire.show_request_parts(image, name=name, persist=persist, space=space, apply_lut=apply_lut, fit=fit,
+                                        slot_regions=slot_regions)
 
         async def items():
             for part in parts:

@@ -30,6 +30,7 @@ from coordinator.fanout import FanOut, Frame
 from coordinator.fit import check_fit, fit_image
 from coordinator.live_video import LiveStream, bit_depth_for, video_eligible
 from coordinator.rig import Content, Rig
+from coordinator.slot_regions import check_regions, masked_contents
 from coordinator.sessions import NodeSession
 from coordinator.sync import FrameResult, SyncTracker, summarize
 
@@ -169,11 +170,14 @@ class Playback:
         log.info("node %s dropped still frame %d; resending with %.0f ms budget", sess.slot, frame_id, budget / 1e6)
         self._send_still_to(sess, budget_ns=budget)
 
-    def _set_still(self, content: Content, *, tag: str, space: Space, apply_lut: bool, publish: bool = True) -> Frame:
+    def _set_still(self, content: Content, *, tag: str, space: Space, apply_lut: bool, publish: bool = True,
+                   slot_contents: Mapping[str, Content | None] | None = None) -> Frame:
         if publish:
             self.takeover()
-        self.current_contents = {content.content_id: content}
-        frame = self._frame(content.content_id, tag=tag, space=space, apply_lut=apply_lut)
+        per_slot = slot_contents or {}
+        self.current_contents = {content.content_id: content, **{c.content_id: c for c in per_slot.values() if c}}
+        frame = self._frame(content.content_id, tag=tag, space=space, apply_lut=apply_lut,
+                            slot_content={s: c.content_id if c else "" for s, c in per_slot.items()})
         self.current_frame = frame
         self.showing = f"{tag} {content.name or content.content_id}"
         if publish:
@@ -202,15 +206,19 @@ class Playback:
         return ShowResult(frame_id=frame.frame_id, content_id="", pts_ns=frame.pts_ns)
 
     def show(self, content: Content, *, space: Space = Space.CONTENT, apply_lut: bool = True, persist: bool = False,
-             tag: str = "show") -> ShowResult:
+             tag: str = "show", slot_contents: Mapping[str, Content | None] | None = None) -> ShowResult:
         """Show a still on every node (content through the poses, or projector pixels); ``persist``
-        makes it the rig's content."""
+        makes it the rig's content. ``slot_contents``: what some slots show instead (None: black),
+        content-space images of the content's size, e.g. from :meth:`prepare_regions`."""
+        if slot_contents and (persist or space != Space.CONTENT):
+            raise ValueError("slot regions apply to a content-space show that is not persisted: the rig's content "
+                             "is one picture for every slot")
         self.stop()
         if space == Space.CONTENT:
             content = fit_content(content, self.content_size)
         if persist:
             self.rig.set_content(content)
-        frame = self._set_still(content, tag=tag, space=space, apply_lut=apply_lut)
+        frame = self._set_still(content, tag=tag, space=space, apply_lut=apply_lut, slot_contents=slot_contents)
         return ShowResult(frame_id=frame.frame_id, content_id=content.content_id, pts_ns=frame.pts_ns)
 
     def prepare_still(self, content: Content, space: Space = Space.CONTENT, *, fit: str = "") -> Content:
@@ -221,6 +229,16 @@ class Playback:
             content = fit_content(content, self.content_size, fit)
         self.fanout.prepare([content])
         return content
+
+    def prepare_regions(self, content: Content, regions: Mapping[str, Sequence[Sequence[int]]]
+                        ) -> dict[str, Content | None]:
+        """What each slot named in ``regions`` shows of the fitted ``content``: it masked to the slot's
+        rectangles (see :mod:`coordinator.slot_regions`; ValueError for a bad slot or rectangle), encoded
+        for the wire (blocking, like :meth:`prepare_still`)."""
+        checked = check_regions(regions, self.content_size, self.rig.slots)
+        out = masked_contents(content, checked)
+        self.fanout.prepare([c for c in out.values() if c is not None])
+        return out
 
     def blackout(self) -> None:
         """Black on every projector (held until the next show; the rig's content is kept)."""

@@ -66,6 +66,11 @@ def _decoded(image: Any) -> np.ndarray:
     return img.astype(np.float32) if img.dtype == np.float16 else img
 
 
+def regions_from_request(msg: control_pb2.ShowRequest) -> dict[str, list[tuple[int, int, int, int]]]:
+    """A Show's per-slot regions, slot -> rectangles (x, y, width, height); checked by the playback."""
+    return {slot: [(r.x, r.y, r.width, r.height) for r in e.rects] for slot, e in msg.slot_regions.items()}
+
+
 class _Handshake:
     """The first half of the rig-token handshake, the same on both services."""
 
@@ -308,12 +313,18 @@ class RigControlService(_Handshake):
                 raise ValueError("a Show call sent no image")
             space = wire.space_from_message(first.space)
             img = image.finish()
-            # decoded, fitted and packed for the nodes in a worker thread: the event loop serves the nodes
-            content = await asyncio.to_thread(
-                lambda: self.c.playback.prepare_still(Content(_decoded(img), name=first.name), space, fit=first.fit))
+            regions = regions_from_request(first)
+            if regions and (first.persist or space != Space.CONTENT):
+                raise ValueError("slot regions apply to a content-space show that is not persisted")
+
+            def prepare():   # decoded, fitted, masked and packed for the nodes off the event loop
+                content = self.c.playback.prepare_still(Content(_decoded(img), name=first.name), space, fit=first.fit)
+                return content, self.c.playback.prepare_regions(content, regions) if regions else None
+
+            content, slot_contents = await asyncio.to_thread(prepare)
             apply_lut = first.apply_lut or space == Space.CONTENT
             return wire.show_result_message(self.c.show(content, space=space, apply_lut=apply_lut,
-                                                        persist=first.persist))
+                                                        persist=first.persist, slot_contents=slot_contents))
         except RpcRefusal as exc:
             await context.abort(exc.code, exc.message)
         except (ValueError, codec.ImageCodecError) as exc:

@@ -412,11 +412,13 @@ def _image_parts(image: np.ndarray) -> tuple[common_pb2.Image, list[bytes]]:
 
 
 def show_request_parts(image: np.ndarray, *, name: str, persist: bool, space: Space, apply_lut: bool,
-                       fit: str = "") -> list[control_pb2.ShowRequest]:
-    """The messages of one Show call: settings and the image's first part, then the rest."""
+                       fit: str = "", slot_regions=None) -> list[control_pb2.ShowRequest]:
+    """The messages of one Show call: settings (and ``slot_regions``), the image's first part, then the rest."""
     msg, rest = _image_parts(image)
     first = control_pb2.ShowRequest(image=msg, name=name, persist=persist, space=_SPACE[space], apply_lut=apply_lut,
                                     fit=fit)
+    for slot, rects in (slot_regions or {}).items():     # a slot named with no rectangle is present: black
+        first.slot_regions[slot].rects.extend(control_pb2.ContentRect(x=x, y=y, width=w, height=h) for x, y, w, h in rects)
     return [first, *(control_pb2.ShowRequest(more=part) for part in rest)]
 
 

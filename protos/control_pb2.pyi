@@ -235,7 +235,14 @@ class NodeList(_message.Message):
     def __init__(self, nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ...) -> None: ...
 
 class ShowRequest(_message.Message):
-    __slots__ = ("image", "space", "apply_lut", "persist", "name", "fit", "more")
+    __slots__ = ("image", "space", "apply_lut", "persist", "name", "fit", "more", "slot_regions")
+    class SlotRegionsEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: SlotRegions
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[_Union[SlotRegions, _Mapping]] = ...) -> None: ...
     IMAGE_FIELD_NUMBER: _ClassVar[int]
     SPACE_FIELD_NUMBER: _ClassVar[int]
     APPLY_LUT_FIELD_NUMBER: _ClassVar[int]
@@ -243,6 +250,7 @@ class ShowRequest(_message.Message):
     NAME_FIELD_NUMBER: _ClassVar[int]
     FIT_FIELD_NUMBER: _ClassVar[int]
     MORE_FIELD_NUMBER: _ClassVar[int]
+    SLOT_REGIONS_FIELD_NUMBER: _ClassVar[int]
     image: _common_pb2.Image
     space: _node_pb2.Space
     apply_lut: bool
@@ -250,7 +258,26 @@ class ShowRequest(_message.Message):
     name: str
     fit: str
     more: bytes
-    def __init__(self, image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., space: _Optional[_Union[_node_pb2.Space, str]] = ..., apply_lut: _Optional[bool] = ..., persist: _Optional[bool] = ..., name: _Optional[str] = ..., fit: _Optional[str] = ..., more: _Optional[bytes] = ...) -> None: ...
+    slot_regions: _containers.MessageMap[str, SlotRegions]
+    def __init__(self, image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., space: _Optional[_Union[_node_pb2.Space, str]] = ..., apply_lut: _Optional[bool] = ..., persist: _Optional[bool] = ..., name: _Optional[str] = ..., fit: _Optional[str] = ..., more: _Optional[bytes] = ..., slot_regions: _Optional[_Mapping[str, SlotRegions]] = ...) -> None: ...
+
+class ContentRect(_message.Message):
+    __slots__ = ("x", "y", "width", "height")
+    X_FIELD_NUMBER: _ClassVar[int]
+    Y_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    x: int
+    y: int
+    width: int
+    height: int
+    def __init__(self, x: _Optional[int] = ..., y: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ...) -> None: ...
+
+class SlotRegions(_message.Message):
+    __slots__ = ("rects",)
+    RECTS_FIELD_NUMBER: _ClassVar[int]
+    rects: _containers.RepeatedCompositeFieldContainer[ContentRect]
+    def __init__(self, rects: _Optional[_Iterable[_Union[ContentRect, _Mapping]]] = ...) -> None: ...
 
 class ShowReply(_message.Message):
     __slots__ = ("frame_id", "content_id", "pts_ns")
