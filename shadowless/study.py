@@ -20,6 +20,8 @@ from coordinator.study import cli as coordinator_study
 
 #: room studies: subcommand -> (module with configure(parser) and run(args), one-line summary)
 ANALYSES: dict[str, tuple[str, str]] = {
+    "schedule": ("coordinator.study.schedule_cli", "a balanced, randomized pair schedule for P participants (CSV)"),
+    "run": ("coordinator.study.run_cli", "one participant's trials on the rig, side by side; answers appended to RATINGS"),
     "motion": ("sim.motion_cli", "a hand moving over the table: light drop per frame, synthetic aperture vs reactive compensation"),
     "proxies": ("sim.sop_cli", "geometric proxies of the sense of projection per layout, against the paper's orderings"),
 }

@@ -29,6 +29,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="analysis", metavar="ANALYSIS", required=True)
     s = sub.add_parser("scheffe", help="Scheffé's paired comparison (Nakaya's modification)")
     s.add_argument("ratings", type=Path, help="CSV: participant,first,second,score")
+    s.add_argument("--image", metavar="NAME", help="ratings with an image column (`study run` writes one): this "
+                   "image's only (default: every image, each participant on each image one judge)")
     s.add_argument("--chart", type=Path, metavar="SVG", help="write the scale values as a bar chart here")
     s.add_argument("--json", action="store_true", help="print JSON for scripts")
     t = sub.add_parser("paired", help="paired test of task times (log scale)")
@@ -42,7 +44,7 @@ def _num(x: float) -> float | None:
 
 
 def _scheffe(args: argparse.Namespace) -> int:
-    x, items, people = ratings_array(read_ratings(args.ratings))
+    x, items, people = ratings_array(read_ratings(args.ratings, image=args.image))
     res = scheffe_nakaya(x, items, people)
     if args.chart:
         args.chart.write_text(scale_chart_svg(res, title=f"Scale values ({args.ratings.name})"))

@@ -98,8 +98,13 @@ def ratings_array(rows: list[tuple[str, str, str, float]]) -> tuple[np.ndarray, 
     return x, tuple(items), tuple(people)
 
 
-def read_ratings(path: str | Path) -> list[tuple[str, str, str, float]]:
-    """A ratings CSV with columns ``participant,first,second,score`` (a header row)."""
+def read_ratings(path: str | Path, *, image: str | None = None) -> list[tuple[str, str, str, float]]:
+    """A ratings CSV with columns ``participant,first,second,score`` (a header row).
+
+    With an ``image`` column too (``shadowless study run`` writes one), each participant on each
+    image is one judge, ``participant/image``: Nakaya's design has every judge rate every pair
+    once, and a participant rates every pair once per image. ``image``: keep that image's rows only.
+    """
     p = Path(path)
     try:
         with p.open(newline="") as f:
@@ -110,10 +115,16 @@ def read_ratings(path: str | Path) -> list[tuple[str, str, str, float]]:
                                  f"(found: {', '.join(reader.fieldnames or []) or 'none'})")
             rows = []
             for k, r in enumerate(reader, start=2):
+                img = r.get("image") or ""
+                if image is not None and img != image:
+                    continue
                 try:
-                    rows.append((r["participant"], r["first"], r["second"], float(r["score"])))
+                    rows.append((f"{r['participant']}/{img}" if img else r["participant"], r["first"], r["second"],
+                                 float(r["score"])))
                 except (TypeError, ValueError):
                     raise ValueError(f"{p}:{k}: score {r.get('score')!r} is not a number") from None
+            if image is not None and not rows:
+                raise ValueError(f"{p}: no ratings of image {image!r}")
     except OSError as exc:
         raise ValueError(f"cannot read {p}: {exc.strerror or exc}") from None
     return rows

@@ -75,3 +75,68 @@ def test_motion_mistakes_are_one_line_and_status_2(tmp_path, capsys, argv, says)
     assert code == 2
     err = capsys.readouterr().err.strip()
     assert says in err and len(err.splitlines()) == 1 and "Traceback" not in err
+
+
+def _status_and_error(argv, capsys):
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    return code, capsys.readouterr().err.strip()
+
+
+@pytest.fixture
+def study_files(tmp_path):
+    """A rig directory (slots r0c0, r0c1), a configurations file for it and a schedule."""
+    from coordinator.rig import init_rig
+
+    init_rig(tmp_path / "rig", name="bench", slots=["r0c0", "r0c1"], width=64, height=48, content_width=80,
+             content_height=40)
+    (tmp_path / "c.toml").write_text('[configurations]\nA = ["r0c0"]\nB = ["r0c1"]\nC = ["r0c0", "r0c1"]\n')
+    (tmp_path / "s.csv").write_text("participant,trial,image,left,right\n1,1,pic.png,A,B\n2,1,pic.png,B,Q\n"
+                                    "3,1,pic.png,P25,P1\n4,1,missing.png,A,B\n")
+    return tmp_path
+
+
+@pytest.mark.parametrize(("argv", "says"), [
+    (["--only", "P1,P99"], "--only: no configuration P99"),
+    (["--only", "P1"], "need at least 2 different configurations"),
+    (["--out", "/nonexistent/s.csv"], "no such folder /nonexistent"),
+    (["--participants", "0"], "--participants"),
+])
+def test_schedule_mistakes_are_one_line_and_status_2(tmp_path, capsys, argv, says):
+    base = ["study", "schedule", "--participants", "2", "--images", "a.png", "--out", str(tmp_path / "s.csv")]
+    code, err = _status_and_error(base + argv, capsys)
+    assert code == 2 and says in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize(("participant", "extra", "says"), [
+    ("1", ["--no-rig-dir"], "--rig-dir is needed"),
+    ("9", [], "has no trials of participant 9"),
+    ("2", [], "configuration(s) Q, which"),
+    ("3", ["--default-configurations"], "slot(s) p1, r0c2, r0c3, r0c4, r1c0, r1c1, r1c2, r1c3 and 16 more are not"),
+    ("4", [], "image 'missing.png' of the schedule is not in"),
+])
+def test_run_refuses_before_it_touches_the_rig(study_files, capsys, participant, extra, says):
+    argv = ["study", "run", str(study_files / "s.csv"), "--participant", participant, "--ratings",
+            str(study_files / "r.csv"), "--coordinator", "127.0.0.1:9"]
+    if "--no-rig-dir" not in extra:
+        argv += ["--rig-dir", str(study_files / "rig")]
+    if "--default-configurations" not in extra:
+        argv += ["--configurations", str(study_files / "c.toml")]
+    code, err = _status_and_error(argv, capsys)
+    assert code == 2 and says in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith("shadowless study run: ")
+
+
+def test_scheffe_analyses_one_image_of_a_run(tmp_path, capsys):
+    rows = ["participant,first,second,score,image,trial,answer"]
+    for p in (1, 2):
+        for img in ("x", "y"):
+            rows += [f"{p},A,B,1,{img},1,-1", f"{p},C,A,-2,{img},2,2", f"{p},B,C,{p - 1},{img},3,{1 - p}"]
+    (tmp_path / "r.csv").write_text("\n".join(rows) + "\n")
+    assert main(["study", "scheffe", str(tmp_path / "r.csv"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["participants"] == 4          # each participant on each image
+    assert main(["study", "scheffe", str(tmp_path / "r.csv"), "--image", "y", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["participants"] == 2 and doc["scale"]["A"] == pytest.approx(1.0)   # (1 + 2) * 2 / (3 * 2)
