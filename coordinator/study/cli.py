@@ -20,6 +20,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         "                        participant,first,second,score (every participant rates every pair\n"
         "                        once; score > 0 prefers first, e.g. -2..2). Prints the ANOVA table,\n"
         "                        the scale values, the yardsticks at p < .05 and .01 and letter groups.\n"
+        "                        With an image column (`study run` writes one) each participant on\n"
+        "                        each image is one judge (--image NAME: that image only).\n"
         "  paired TIMES.csv      task times in two conditions: columns participant,condition,time_s.\n"
         "                        Shapiro-Wilk on the log-time differences, then a paired t test (with\n"
         "                        Cohen's d_z) or Wilcoxon's signed-rank test (with r).")

@@ -33,7 +33,10 @@ class RatingsLog:
         self.path = Path(path)
         self.repaired = 0            # bytes of a torn last line cut off on opening
         if not self.path.exists():
-            self._create()
+            try:
+                self._create()
+            except OSError as exc:
+                raise ValueError(f"cannot create {self.path}: {exc.strerror or exc}") from None
         self.answered: set[tuple[str, str, str, str]] = set()   # (participant, image, first, second)
         self._read()
 

@@ -38,7 +38,7 @@ class RunSettings:
     mirror: bool = False
     gap_s: float = 1.0
     question: str = ""
-    _composed: dict[str, np.ndarray] = field(default_factory=dict)
+    _composed: dict[str, np.ndarray] = field(default_factory=dict, init=False, repr=False)
 
     def content(self, image: str, load: Callable[[str], np.ndarray]) -> np.ndarray:
         """The trial content of ``image`` (composed once per image: only the regions change)."""
@@ -59,7 +59,7 @@ async def run_trials(client, trials: Sequence[Trial], log: RatingsLog, configura
                      say: Callable[[str], None] = print) -> tuple[int, int]:
     """Run ``trials`` (one participant's, in order) that ``log`` lacks; returns (answered now, still open).
 
-    ``ask(prompt)`` reads the operator's line (EOFError counts as ``q``); ``load(name)`` an image.
+    ``ask(prompt)`` reads the operator's line, blocking (EOFError counts as ``q``); ``load(name)`` an image.
     """
     todo = [t for t in trials if not log.has(t.participant, t.image, t.left, t.right)]
     total, done = len(trials), len(trials) - len(todo)
@@ -105,8 +105,10 @@ async def run_trials(client, trials: Sequence[Trial], log: RatingsLog, configura
 
 
 async def _ask(ask: Callable[[str], str], prompt: str) -> str:
+    """The operator's line, read on the loop's own thread (nothing else runs meanwhile), so that
+    Ctrl-C at the prompt interrupts at once; the answers given so far are on disk already."""
     try:
-        return await asyncio.to_thread(ask, prompt)
+        return ask(prompt)
     except EOFError:
         return "q"
 

@@ -116,10 +116,12 @@ def test_schedule_mistakes_are_one_line_and_status_2(tmp_path, capsys, argv, say
     ("2", [], "configuration(s) Q, which"),
     ("3", ["--default-configurations"], "slot(s) p1, r0c2, r0c3, r0c4, r1c0, r1c1, r1c2, r1c3 and 16 more are not"),
     ("4", [], "image 'missing.png' of the schedule is not in"),
+    ("1", ["--ratings-in-no-folder"], "cannot create"),
 ])
 def test_run_refuses_before_it_touches_the_rig(study_files, capsys, participant, extra, says):
-    argv = ["study", "run", str(study_files / "s.csv"), "--participant", participant, "--ratings",
-            str(study_files / "r.csv"), "--coordinator", "127.0.0.1:9"]
+    ratings = study_files / ("nowhere/r.csv" if "--ratings-in-no-folder" in extra else "r.csv")
+    argv = ["study", "run", str(study_files / "s.csv"), "--participant", participant, "--ratings", str(ratings),
+            "--coordinator", "127.0.0.1:9"]
     if "--no-rig-dir" not in extra:
         argv += ["--rig-dir", str(study_files / "rig")]
     if "--default-configurations" not in extra:
