@@ -9,7 +9,14 @@ point of a 3D object needs any orientation: :class:`TouchingHand` builds the sam
 * its fingertip (the end sphere of the index finger's capsule) touches the point from outside:
   the sphere's centre at ``point + (radius + gap) n``,
 * the back of the hand and the forearm lean towards ``towards`` (its part across the finger;
-  by default world up, or world -y where the finger itself is nearly vertical).
+  by default world up, or world -y where the finger itself is nearly vertical),
+* with ``shoulder``, an upper arm (a capsule) joins the forearm's elbow to the shoulder.
+
+A person who touches an object stands beside it and reaches in: :meth:`TouchingHand.reaching`
+builds that pose from the shoulder alone (the finger along the reach, tilted into the surface
+as far as a fingertip touch needs, the forearm leaning back towards the shoulder, the upper arm
+up to it). :meth:`TouchingHand.reaching` is what the bust's touch study uses; the finger along the
+normal is the pose of the table's tests.
 
 It is an occluder like any other: :meth:`primitives` for the room (``room.set_occluders``).
 """
@@ -21,7 +28,12 @@ import numpy as np
 
 from sim.occluders import Capsule, Hand, Primitive
 
-__all__ = ["TouchingHand", "inside"]
+__all__ = ["TouchingHand", "inside", "reach_direction"]
+
+#: A fingertip touch: the finger at least this far from the surface's tangent plane (degrees).
+MIN_INTO_DEG = 35.0
+#: The upper arm's radius at scale 1 (mm): an adult's arm is about 30 cm round.
+UPPER_ARM_RADIUS = 45.0
 
 
 def _unit(v, name: str) -> np.ndarray:
@@ -40,6 +52,26 @@ def _perpendicular(v: np.ndarray, axis: np.ndarray) -> np.ndarray | None:
     return p / n if n > 1e-6 else None
 
 
+def reach_direction(point, normal, shoulder, *, min_into_deg: float = MIN_INTO_DEG) -> np.ndarray:
+    """(3,) unit: where the index finger of a hand reaching from ``shoulder`` to ``point`` points.
+
+    Along the reach (``point - shoulder``) where that enters the surface at least ``min_into_deg``
+    from its tangent plane; otherwise the reach's part along the surface, tilted into it by exactly
+    ``min_into_deg`` (a fingertip touch on a surface the reach skims, or one facing away from the
+    shoulder). A reach straight along the normal keeps the normal.
+    """
+    p = np.asarray(point, np.float64).reshape(3)
+    n = _unit(normal, "normal")
+    r = _unit(p - np.asarray(shoulder, np.float64).reshape(3), "point - shoulder")
+    a = np.radians(min_into_deg)
+    if -float(r @ n) >= np.sin(a) - 1e-12:
+        return r
+    along = _perpendicular(r, n)
+    if along is None:
+        return -n
+    return np.cos(a) * along - np.sin(a) * n
+
+
 @dataclass(frozen=True, eq=False)
 class TouchingHand:
     """A pointing hand whose index fingertip touches ``point`` (world mm) with the finger along ``-normal``.
@@ -53,6 +85,11 @@ class TouchingHand:
         least 30 degrees from the tangent plane.
     towards : (3,), optional
         Where the back of the hand and the forearm lean (its part along the finger is ignored).
+    shoulder : (3,), optional
+        World mm: adds an upper arm, a capsule of radius ``arm_radius`` from the forearm's elbow end
+        to here (its length is whatever the pose leaves: the person leans in or stands back).
+    arm_radius : float
+        The upper arm's radius, mm at scale 1.
     gap : float
         Millimetres between the fingertip and the surface (0: touching exactly).
     scale, side : as :class:`~sim.occluders.Hand`.
@@ -62,6 +99,8 @@ class TouchingHand:
     normal: np.ndarray
     direction: np.ndarray | None = None
     towards: np.ndarray | None = None
+    shoulder: np.ndarray | None = None
+    arm_radius: float = UPPER_ARM_RADIUS
     gap: float = 0.5
     scale: float = 1.0
     side: str = "right"
@@ -98,8 +137,28 @@ class TouchingHand:
         Q = G @ E.T
         centre = p + (finger.radius + self.gap) * n
         T = centre - Q @ finger.b
-        object.__setattr__(self, "_parts", tuple(q.moved(Q, T) for q in parts))
+        moved = [q.moved(Q, T) for q in parts]
+        if self.shoulder is not None:
+            s = np.asarray(self.shoulder, np.float64).reshape(-1)
+            if s.shape != (3,) or not np.all(np.isfinite(s)):
+                raise ValueError(f"shoulder must be a finite 3-vector, got {self.shoulder!r}")
+            if self.arm_radius <= 0:
+                raise ValueError("arm_radius must be positive")
+            elbow = Q @ forearm.b + T
+            moved.append(Capsule(elbow, s, self.arm_radius * self.scale))
+            object.__setattr__(self, "shoulder", s)
+        object.__setattr__(self, "_parts", tuple(moved))
         object.__setattr__(self, "_tip", (centre, float(finger.radius)))
+
+    @classmethod
+    def reaching(cls, point, normal, shoulder, *, min_into_deg: float = MIN_INTO_DEG, **kwargs) -> TouchingHand:
+        """The hand of a person whose shoulder is at ``shoulder`` touching ``point``: the finger along
+        :func:`reach_direction`, the back of the hand up (a pointing hand, palm down; towards the
+        shoulder where the finger is nearly vertical), the upper arm from the elbow to the shoulder."""
+        g = reach_direction(point, normal, shoulder, min_into_deg=min_into_deg)
+        up = np.array([0.0, 0.0, 1.0])
+        back = up if abs(float(g @ up)) < 0.9 else np.asarray(shoulder, np.float64).reshape(3) - np.asarray(point, np.float64).reshape(3)
+        return cls(point, normal, direction=g, towards=back, shoulder=shoulder, **kwargs)
 
     @property
     def fingertip(self) -> tuple[np.ndarray, float]:

@@ -67,3 +67,43 @@ def test_a_touch_on_the_table_darkens_the_contact_and_nothing_far_away():
     assert drop[contact] > 0.95
     assert drop[d > 400].max() < 0.1 and (drop[d > 400] == 0).mean() > 0.9
     assert room.truth.occluder_mask().any()          # the camera sees the hand
+
+
+def test_a_steep_reach_is_the_finger_and_a_shallow_one_is_tilted_into_the_surface():
+    from sim.touch import MIN_INTO_DEG, reach_direction
+
+    X = np.array([0.0, 100.0, 200.0])
+    n = np.array([0.0, 1.0, 0.0])
+    steep = np.array([0.0, 600.0, 650.0])                  # 48 degrees into the surface: kept
+    r = (X - steep) / np.linalg.norm(X - steep)
+    np.testing.assert_allclose(reach_direction(X, n, steep), r, atol=1e-12)
+    top = np.array([0.0, 0.0, 1.0])                         # the top of a head, the shoulder 50 mm above it
+    shallow = np.array([0.0, 600.0, 250.0])
+    g = reach_direction(X, top, shallow)
+    a = np.radians(MIN_INTO_DEG)                           # closed form: the reach's level part, tilted down
+    np.testing.assert_allclose(g, [0.0, -np.cos(a), -np.sin(a)], atol=1e-12)
+    np.testing.assert_allclose(reach_direction(X, n, X + 500 * n), -n, atol=1e-12)   # straight along the normal
+
+
+def test_a_reaching_hand_joins_its_elbow_to_the_shoulder_and_touches_the_point():
+    from sim.touch import UPPER_ARM_RADIUS, reach_direction
+
+    X = np.array([40.0, 120.0, 250.0])
+    n = np.array([0.2, 1.0, 0.3])
+    shoulder = np.array([100.0, 650.0, 650.0])
+    hand = TouchingHand.reaching(X, n, shoulder)
+    plain = TouchingHand(X, n, direction=reach_direction(X, n, shoulder), towards=(0, 0, 1))
+    arm = hand.primitives()[-1]
+    assert len(hand.primitives()) == len(plain.primitives()) + 1
+    np.testing.assert_allclose(arm.b, shoulder)
+    assert arm.radius == pytest.approx(UPPER_ARM_RADIUS)
+    forearm = max((q for q in plain.primitives() if isinstance(q, Capsule)), key=lambda q: q.radius)
+    np.testing.assert_allclose(arm.a, forearm.b, atol=1e-9)            # from the elbow
+    for q, p in zip(hand.primitives(), plain.primitives()):             # the rest is the plain hand
+        np.testing.assert_allclose(getattr(q, "a", getattr(q, "center", None)), getattr(p, "a", getattr(p, "center", None)))
+    nu = n / np.linalg.norm(n)
+    t, _ = cast_rays(X[None], nu[None], hand.primitives())
+    assert t[0] == pytest.approx(0.5, abs=1e-6)                         # the fingertip 0.5 mm off the point
+    assert inside(hand, shoulder[None] + [0.0, 0.0, -30.0])[0]         # the arm reaches the shoulder
+    with pytest.raises(ValueError, match="shoulder"):
+        TouchingHand(X, n, shoulder=(0.0, np.nan, 0.0))
