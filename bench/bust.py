@@ -58,8 +58,11 @@ fewer projectors reach (section 5.1.2). In the virtual room with ``surface="bust
   smoke run showed that a viewer along the normal of a surface facing the ceiling looks along the
   light, so the hand hides most of its own shadow there; the primary measure stays as stated).
   Negative = fewer projectors, larger
-  shadows (the paper's observation). ``explain``: the incidence against the area, and the
-  incidence against the count, to say why when it does not reproduce; plus the areas by count.
+  shadows (the paper's observation). ``explain`` (figures to say why, not measures of the
+  shadow): the incidence against the area and against the count; the width of the cone of light
+  reaching the contact (``light_spread_deg``, the share-weighted RMS angle of the projectors'
+  directions about their mean) against the area and the count; the contact's height against the
+  area; how many contacts P1 lights; the areas by count and by region.
 """
 from __future__ import annotations
 

@@ -293,6 +293,22 @@ def incidence_deg(X: np.ndarray, n: np.ndarray, array_centre: np.ndarray) -> flo
     return math.degrees(math.acos(float(np.clip(d @ n / np.linalg.norm(d), -1.0, 1.0))))
 
 
+def light_spread_deg(X: np.ndarray, share: np.ndarray, centres: np.ndarray) -> float:
+    """How wide the cone of light reaching ``X`` is: the share-weighted RMS angle (degrees) between the
+    directions to the projectors (centres (N, 3) mm, shares (N,) summing to 1 or all 0) and their
+    share-weighted mean direction; 0 where one projector or none reaches. An explanatory figure: a
+    hand blocks a cone of directions, so the narrower the light's cone, the more of it one hand takes."""
+    w = np.asarray(share, np.float64)
+    if w.sum() <= 0:
+        return 0.0
+    D = np.asarray(centres, np.float64) - X
+    D /= np.linalg.norm(D, axis=1, keepdims=True)
+    mean = (w[:, None] * D).sum(axis=0)
+    mean /= np.linalg.norm(mean)
+    ang = np.arccos(np.clip(D @ mean, -1.0, 1.0))
+    return math.degrees(math.sqrt(float((w * ang ** 2).sum() / w.sum())))
+
+
 def touch_row(scene, subsets: dict[str, list[str]], name: str, X: np.ndarray, n: np.ndarray, *, poses: tuple[str, ...],
               px: int, half_mm: float, shoulder: np.ndarray, array_centre: np.ndarray) -> dict:
     """One touch seen along the normal: per pose, the shadow for each subset (:func:`_subset_shadow`)."""
@@ -303,7 +319,7 @@ def touch_row(scene, subsets: dict[str, list[str]], name: str, X: np.ndarray, n:
     area = pixel_areas(surf.points, surf.kind)
     dist = np.linalg.norm(surf.points.astype(np.float64) - X, axis=-1)
     dist = np.where(np.isfinite(dist), dist, np.inf)
-    row = {"name": name, "point_mm": [round(float(v), 1) for v in X], "normal": [round(float(v), 3) for v in n],
+    row = {"name": name, "point_mm": [round(float(v), 1) for v in X], "surface_normal": [round(float(v), 3) for v in n],
            "incidence_deg": round(incidence_deg(X, n, array_centre), 1),
            "shoulder_mm": [round(float(v), 1) for v in shoulder], "view_mm2": round(float(area[surface].sum()), 1)}
     near = surface & (dist <= SEED_MM)
@@ -325,7 +341,8 @@ def bust_rows(scene, model: CoverageModel, single: CoverageModel, points, subset
     """The issue's table: per touch its region, coverage and, per pose, the shadows of P1 and P25."""
     lo, hi = scene.mesh.bounds
     axis = (lo[:2] + hi[:2]) / 2
-    centre = np.mean([scene.projector(s).native.center for s in subsets["P25"]], axis=0)
+    centres = np.array([scene.projector(s).native.center for s in subsets["P25"]])
+    centre = centres.mean(axis=0)
     rows = []
     for i, (name, X, n) in enumerate(points):
         t0 = time.perf_counter()
@@ -334,7 +351,8 @@ def bust_rows(scene, model: CoverageModel, single: CoverageModel, points, subset
                         shoulder=shoulder_for(X, n, axis, distance=distance, z=z), array_centre=centre)
         row = {"name": name, "region": region(X, n),
                "coverage": {"count": int(pc.count[0]), "effective": round(float(pc.effective[0]), 2),
-                            "max_share_pct": round(100 * float(pc.share[:, 0].max()), 1) if pc.count[0] else None},
+                            "max_share_pct": round(100 * float(pc.share[:, 0].max()), 1) if pc.count[0] else None,
+                            "light_spread_deg": round(light_spread_deg(X, pc.share[:, 0], centres), 1)},
                "p1_reaches_contact": bool(single.at_points(X[None], n[None]).count[0] > 0),
                **{k: v for k, v in row.items() if k != "name"}}
         row["seconds"] = round(time.perf_counter() - t0, 2)
@@ -399,6 +417,10 @@ def summarize(rows: list[dict], planar: list[dict], pose: str) -> dict:
             "incidence_vs_area": spearman(inc, area),
             "incidence_vs_count": spearman(inc, count),
             "effective_vs_area": spearman([r["coverage"]["effective"] for r in rows], area),
+            "light_spread_vs_area": spearman([r["coverage"]["light_spread_deg"] for r in rows], area),
+            "light_spread_vs_count": spearman([r["coverage"]["light_spread_deg"] for r in rows], count),
+            "height_vs_area": spearman([r["point_mm"][2] for r in rows], area),
+            "p1_lights_contact": {"n": sum(r["p1_reaches_contact"] for r in rows), "of": len(rows)},
             "hidden_near_contact_vs_area": spearman([r[pose]["hidden_near_contact_pct"] for r in rows], area),
             "by_count": _groups(rows, bin_of, pose),
             "by_region": _groups(rows, lambda r: r["region"], pose),

@@ -13,6 +13,7 @@ from bench.bust_touch import (
     PRIMARY_DROP,
     SEED_MM,
     hand_fits,
+    light_spread_deg,
     pixel_areas,
     pose_hand,
     ray_mesh,
@@ -178,3 +179,18 @@ def test_a_reaching_touch_on_the_table_casts_the_region_a_brute_force_ray_cast_f
     assert got["area_mm2"] == pytest.approx(want_visible, rel=0.1)
     assert got["hidden_mm2"] == pytest.approx(want_hidden, rel=0.1)
     assert got["max_drop_near_contact"] == pytest.approx(float(drop[near].max()), abs=0.02)
+
+
+def test_the_light_spread_is_the_closed_form_rms_angle():
+    X = np.array([0.0, 0.0, 0.0])
+    a = np.radians(20.0)
+    pair = np.array([[np.sin(a), 0.0, np.cos(a)], [-np.sin(a), 0.0, np.cos(a)]]) * 1000.0
+    assert light_spread_deg(X, np.array([0.5, 0.5]), pair) == pytest.approx(20.0)
+    # shares 3:1 at +-20 deg: the mean direction is off the axis; the RMS angle about it by hand
+    d = pair / 1000.0
+    m = 0.75 * d[0] + 0.25 * d[1]
+    m /= np.linalg.norm(m)
+    want = np.degrees(np.sqrt(0.75 * np.arccos(d[0] @ m) ** 2 + 0.25 * np.arccos(d[1] @ m) ** 2))
+    assert light_spread_deg(X, np.array([0.75, 0.25]), pair) == pytest.approx(want)
+    assert light_spread_deg(X, np.array([1.0, 0.0]), pair) == 0.0
+    assert light_spread_deg(X, np.zeros(2), pair) == 0.0
