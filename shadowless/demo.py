@@ -31,6 +31,7 @@ from coordinator.compensation.image_param import encode_image_param
 from coordinator.job_command import ProgressView, run_job
 from protos import cli_types
 from protos.spaces import content_to_table
+from shadowless import exit_cleanup
 from shadowless.local import LocalRig, free_port
 from sim.client import RoomClient
 from sim.occluders import Hand
@@ -158,6 +159,7 @@ async def _demo(args) -> int:
     room_log = open(work / "logs" / "room.log", "wb")
     room_proc = subprocess.Popen([sys.executable, "-m", "shadowless", "room", "--host", "127.0.0.1", "--port", str(room_port)],
                                  stdout=room_log, stderr=subprocess.STDOUT, start_new_session=True)
+    exit_cleanup.register(room_proc.terminate)   # stopped even if the demo itself is terminated
     report: dict = {"poses": args.poses, "hand_mm": [hx, hy], "hand_height_mm": args.hand_height,
                     "content_size": [cw, ch]}
     try:
@@ -229,6 +231,7 @@ async def _demo(args) -> int:
                     report["compensation"] = await _compensate(c, img, work, SUBSETS["P25"])
                     shutil.copy(rig.rig_dir / "compensation" / "quality.png", out / "compensation.png")
     finally:
+        exit_cleanup.unregister(room_proc.terminate)
         room_proc.terminate()
         try:
             room_proc.wait(10)

@@ -34,6 +34,7 @@ from coordinator.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
 from protos import auth
 from protos import cli_types
+from shadowless import exit_cleanup
 from shadowless.netns import COORDINATOR, Venue, VenueError, available, parse_rate
 
 
@@ -165,6 +166,7 @@ class LocalRig:
         self._logs.append(log)
         argv = [sys.executable, "-m", "shadowless", *args]
         kw = dict(stdout=log, stderr=subprocess.STDOUT, env=self._env(), start_new_session=True)
+        exit_cleanup.register(self.close)     # stopped even if this process is terminated
         if self.venue is not None:
             return self.venue.run(host, argv, **kw)
         return subprocess.Popen(argv, **kw)
@@ -233,6 +235,7 @@ class LocalRig:
                 proc.wait()
 
     def close(self) -> None:
+        exit_cleanup.unregister(self.close)
         for slot in list(self.nodes):
             if self.nodes[slot].poll() is None:
                 self.nodes[slot].send_signal(signal.SIGTERM)
