@@ -164,7 +164,11 @@ def configure_compensate(p: argparse.ArgumentParser) -> None:
         "checkpoint (--checkpoint S) in the rig directory, and the same command run again resumes there.\n"
         "A video FILE is added to the store first, as `shadowless content add` does: straight into the rig\n"
         "directory on the coordinator's machine (--rig-dir), uploaded from any other machine (--coordinator\n"
-        "HOST:PORT or --rig NAME, with --token-file; resumable, checked by SHA-256)."
+        "HOST:PORT or --rig NAME, with --token-file; resumable, checked by SHA-256).\n\n"
+        "A long video on a Dask cluster (--cluster ADDRESS): the video is cut into segments of --segment-frames\n"
+        "frames, each solved on a worker from a cold start; L and the source are sent to each worker once, the\n"
+        "segments come back as they finish and are joined in order (a finished segment survives a restart; a\n"
+        "worker that dies has its segment solved again). --segment-frames N here gives the same bytes."
     )
     p.epilog = EXAMPLES + """
 videos:
@@ -172,6 +176,12 @@ videos:
   shadowless compensate --rig-dir rigs/table --asset show --max-frames 30   # a trial on 30 frames
   shadowless play --rig-dir rigs/table "show (compensated)"      # by timeline, like any asset
   shadowless compensate show.mp4 --coordinator 10.0.0.2:7600 --token-file table.token   # from a laptop
+  shadowless compensate --rig-dir rigs/table --asset show --cluster tcp://10.0.0.5:8786   # on Dask workers
+  shadowless compensate --rig-dir rigs/table --asset show --segment-frames 240   # the same bytes, here
+
+a cluster (pip install 'shadowless[cluster]' on the coordinator and on every worker machine):
+  dask scheduler --port 8786                       # one machine
+  dask worker tcp://10.0.0.5:8786 --nthreads 1     # every other machine (one solve per core is enough)
 """
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("source", nargs="?", metavar="IMAGE|VIDEO",

@@ -6,7 +6,8 @@ Reading (:class:`AssetFrames`): a video asset is decoded with PyAV in order, eac
 by swscale as the nodes convert it (:mod:`node.asset_decode`): 8-bit sources to ``rgb24`` /
 ``gray`` uint8, deeper ones to ``rgb48le`` / ``gray16le`` uint16 scaled to the full 16-bit range;
 alpha is dropped. An image-sequence asset's frames are read with OpenCV or numpy
-(:func:`~.image_param.decode_image_bytes`).
+(:func:`~.image_param.decode_image_bytes`). :class:`SourceFrames` reads frames ``[start, stop)``
+from the blobs' files or bytes (a cluster worker, :mod:`.cluster`), seeking to ``start``.
 
 Writing (:class:`Ffv1Writer`): ``(H, W, 1)`` uint16 frames as ``gray16le``, ``(H, W, 3)`` as
 ``gbrp16le`` (planar RGB; PyAV's ``rgb48le`` frames are repacked by swscale, a lossless
@@ -16,10 +17,13 @@ give the same bytes (the muxer's ``bitexact`` flag), hence the same asset.
 """
 from __future__ import annotations
 
+import io
+import itertools
 import os
+from collections.abc import Callable, Iterator
 from fractions import Fraction
 from pathlib import Path
-from typing import Iterator
+from typing import Any
 
 import av
 import numpy as np
@@ -29,7 +33,7 @@ from coordinator.compensation.errors import CompensationError
 from coordinator.compensation.image_param import decode_image_bytes
 from protos.asset_manifest import Manifest
 
-__all__ = ["AssetFrames", "Ffv1Writer", "FFV1_FORMATS", "join_segments"]
+__all__ = ["AssetFrames", "SourceFrames", "Ffv1Writer", "FFV1_FORMATS", "join_segments", "segment_writer"]
 
 #: channels -> FFV1 pixel format of the compensated asset
 FFV1_FORMATS = {1: "gray16le", 3: "gbrp16le"}
@@ -37,58 +41,118 @@ FFV1_FORMATS = {1: "gray16le", 3: "gbrp16le"}
 _ARRAY_FORMATS = {1: "gray16le", 3: "rgb48le"}
 
 
-class AssetFrames:
-    """The frames of a stored video or image-sequence asset, in order (blocking; one thread).
+Blob = Callable[[int], "Path | bytes"]
+
+
+def _rate_index(pts: int, pts0: int, time_base: Fraction, rate: Fraction) -> Fraction:
+    """Where a timestamp falls on the frame grid: ``(pts - pts0) * time_base * rate`` (exact)."""
+    return (pts - pts0) * time_base * rate
+
+
+class SourceFrames:
+    """Frames ``[start, stop)`` of a video or image-sequence asset, in order (blocking; one thread),
+    from its blobs as files or bytes: no store needed (a cluster worker holds only the bytes).
 
     Parameters
     ----------
-    store : AssetStore
     manifest : Manifest
         A ``video`` (one blob) or ``sequence`` asset.
-    start : int
-        Frames to skip (a resumed run): decoded in order but not converted.
+    blob : callable
+        ``blob(k)`` -> the ``k``-th blob of the manifest as a path or as its bytes.
+    rate : Fraction
+        The asset's exact frame rate (:func:`coordinator.show.manifest_rate`): frame ``k`` of a
+        video is the one at ``k / rate`` after the first frame's timestamp.
+    start, stop : int, int or None
+        The frames wanted (``stop`` None: to the end).
+
+    Frame ``k`` is the ``k``-th frame the decoder gives from the start of the file. A video read
+    from ``start > 0`` seeks to the keyframe at or before ``start``'s timestamp and decodes from
+    there, so a segment late in a long video costs its own frames, not all the ones before it;
+    frames are counted on from the first one whose timestamp is ``start``'s. When the seek lands
+    past it (an imprecise index) or the timestamps are off the ``rate`` grid, it decodes from the
+    start and counts instead. Both give the same frames wherever the timestamps follow the rate
+    (a constant-rate video: what cameras, editors and encoders write); a variable-rate video with
+    frames missing before ``start`` would differ.
 
     Iterating yields ``(H, W, C)`` arrays, C 1 or 3, uint8 (8-bit sources) or uint16 (deeper
-    ones, full 16-bit range) or float32 (float sequences). :meth:`close` closes the file.
+    ones, full 16-bit range) or float32 (float sequences). ``seeked`` says whether the last
+    iteration seeked. :meth:`close` closes the file.
     """
 
-    def __init__(self, store: AssetStore, manifest: Manifest, *, start: int = 0) -> None:
+    def __init__(self, manifest: Manifest, blob: Blob, *, rate: Fraction, start: int = 0,
+                 stop: int | None = None) -> None:
         if manifest.kind not in ("video", "sequence"):
             raise CompensationError(f"asset {manifest.name!r} is a {manifest.kind}, not a video")
-        self.store, self.manifest, self.start = store, manifest, max(0, int(start))
+        self.manifest, self.blob, self.rate = manifest, blob, Fraction(rate)
+        self.start = max(0, int(start))
+        self.stop = None if stop is None else max(self.start, int(stop))
+        self.seeked = False
         self._container = None
 
     def __iter__(self) -> Iterator[np.ndarray]:
         if self.manifest.kind == "sequence":
-            for blob in self.manifest.blobs[self.start:]:
-                path = self.store.blob_path(blob.sha256)
+            end = len(self.manifest.blobs) if self.stop is None else min(self.stop, len(self.manifest.blobs))
+            for k in range(self.start, end):
+                name = self.manifest.blobs[k].name
                 try:
-                    raw = path.read_bytes()
+                    raw = self.blob(k)
+                    raw = raw if isinstance(raw, bytes) else Path(raw).read_bytes()
                 except OSError as exc:
-                    raise CompensationError(f"frame {blob.name!r}: cannot be read from the store ({exc})") from exc
-                img, _ = decode_image_bytes(raw, blob.name)
+                    raise CompensationError(f"frame {name!r}: cannot be read ({exc})") from exc
+                img, _ = decode_image_bytes(raw, name)
                 yield img
             return
         yield from self._video()
 
-    def _video(self) -> Iterator[np.ndarray]:
+    def _open(self) -> tuple[Any, Any]:
+        """Open the video (closing one already open); its container and first video stream."""
+        self.close()
         m = self.manifest
-        blob = m.blobs[0]
-        path = self.store.blob_path(blob.sha256)
+        src = self.blob(0)
         container = str(m.extra.get("container") or "") or None
         try:
-            self._container = av.open(str(path), mode="r",
+            self._container = av.open(io.BytesIO(src) if isinstance(src, bytes) else str(src), mode="r",
                                       format=container if container in av.formats_available else None)
-        except (av.FFmpegError, OSError) as exc:
+            stream = self._container.streams.video[0]
+        except (av.FFmpegError, OSError, IndexError) as exc:
+            self.close()
             raise CompensationError(f"asset {m.name!r}: cannot open its video ({exc})") from exc
+        stream.codec_context.thread_type = "AUTO"
+        return self._container, stream
+
+    def _seek(self) -> Iterator[av.VideoFrame] | None:
+        """The decoder's frames from frame ``start`` on, after a seek; None when a seek cannot find it."""
+        c, stream = self._open()
+        tb = stream.time_base
+        first = next(c.decode(stream), None)
+        pts0 = None if first is None else first.pts
+        if pts0 is None or tb is None:
+            return None
+        c.seek(pts0 + round(self.start / (self.rate * tb)), stream=stream, backward=True, any_frame=False)
+        frames = c.decode(stream)
+        for frame in frames:
+            if frame.pts is None:
+                return None
+            at = _rate_index(frame.pts, pts0, tb, self.rate)
+            if at > self.start + Fraction(1, 4) or abs(at - round(at)) > Fraction(1, 4):
+                return None        # landed past it, or timestamps off the grid: count from the start
+            if round(at) == self.start:
+                return itertools.chain([frame], frames)
+        return None
+
+    def _video(self) -> Iterator[np.ndarray]:
+        m = self.manifest
         grey = m.channels in (1, 2)
         fmt = ("gray" if grey else "rgb24") if m.bit_depth == 8 else ("gray16le" if grey else "rgb48le")
         try:
-            stream = self._container.streams.video[0]
-            stream.codec_context.thread_type = "AUTO"
-            for k, frame in enumerate(self._container.decode(stream)):
-                if k < self.start:
-                    continue
+            found = self._seek() if self.start > 0 else None
+            self.seeked = found is not None
+            if found is None:
+                c, stream = self._open()
+                found = itertools.islice(c.decode(stream), self.start, None)
+            for k, frame in enumerate(found, start=self.start):
+                if self.stop is not None and k >= self.stop:
+                    break
                 arr = frame.to_ndarray(format=fmt)
                 yield np.ascontiguousarray(arr[:, :, None] if arr.ndim == 2 else arr)
         except (av.FFmpegError, ValueError, IndexError) as exc:
@@ -101,6 +165,18 @@ class AssetFrames:
         if self._container is not None:
             self._container.close()
             self._container = None
+
+
+class AssetFrames(SourceFrames):
+    """The frames of a stored video or image-sequence asset from frame ``start`` on (a resumed
+    run), read from the store's blob files (see :class:`SourceFrames`)."""
+
+    def __init__(self, store: AssetStore, manifest: Manifest, *, start: int = 0, stop: int | None = None) -> None:
+        from coordinator.show import manifest_rate  # lazy: the show module is the coordinator's, not a worker's
+
+        self.store = store
+        super().__init__(manifest, lambda k: store.blob_path(manifest.blobs[k].sha256), rate=manifest_rate(manifest),
+                         start=start, stop=stop)
 
 
 class Ffv1Writer:
@@ -195,6 +271,18 @@ class Ffv1Writer:
             self._out = None
 
 
+def segment_writer(first: Path, path: str | os.PathLike[str], *, rate: Fraction) -> Ffv1Writer:
+    """An :class:`Ffv1Writer` to ``path`` set up as the writer of the segment file ``first`` was
+    (its size and pixel format), to :meth:`~Ffv1Writer.copy` segments into."""
+    with av.open(str(first), mode="r", format="matroska") as f:
+        ref = f.streams.video[0].codec_context
+        size, fmt = (ref.width, ref.height), ref.format.name
+    channels = next((c for c, f in FFV1_FORMATS.items() if f == fmt), None)
+    if channels is None:
+        raise CompensationError(f"segment {first.name}: pixel format {fmt}, not one this writer writes")
+    return Ffv1Writer(path, size=size, channels=channels, rate=rate)
+
+
 def join_segments(segments: list[Path], path: str | os.PathLike[str], *, rate: Fraction) -> int:
     """Copy the frames of :class:`Ffv1Writer` segment files (same size and format) in order into
     one file at ``rate``, without decoding (every FFV1 frame is intra-coded, so its packet stands
@@ -205,13 +293,7 @@ def join_segments(segments: list[Path], path: str | os.PathLike[str], *, rate: F
     """
     if not segments:
         raise ValueError("no segments to join")
-    with av.open(str(segments[0]), mode="r", format="matroska") as first:
-        ref = first.streams.video[0].codec_context
-        size, fmt = (ref.width, ref.height), ref.format.name
-    channels = next((c for c, f in FFV1_FORMATS.items() if f == fmt), None)
-    if channels is None:
-        raise CompensationError(f"segment {segments[0].name}: pixel format {fmt}, not one this writer writes")
-    out = Ffv1Writer(path, size=size, channels=channels, rate=rate)
+    out = segment_writer(segments[0], path, rate=rate)
     try:
         for seg in segments:
             out.copy(seg)

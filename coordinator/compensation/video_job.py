@@ -18,9 +18,16 @@ open segment is closed and the solver's warm-start state saved (``state.npz``, a
 the finished segments); a cancelled, failed or killed run keeps them, and the same job run again
 continues from the last checkpoint and gives the same bytes, hence the same asset, as a run never
 stopped. Folders untouched for a week are removed. The figures go to ``compensation/video.json``.
+
+``segment_frames`` (``--segment-frames N``) cuts the video into segments of ``N`` frames solved
+independently: the warm start is reset at every multiple of ``N`` (``first_iterations`` there).
+``cluster`` (``--cluster ADDRESS``) solves those segments on the workers of a Dask cluster
+(:mod:`.cluster`; 240 frames each unless ``segment_frames`` says otherwise); the same ``N`` gives
+the same bytes on a cluster and here.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -96,13 +103,17 @@ def run_key(source_id: str, transport: dict, opts: VideoOptions, size: tuple[int
     what = {"source": source_id, "transport": [transport.get("fingerprint"), transport.get("date")],
             "size": list(size), **{k: getattr(opts, k) for k in ("iterations", "first_iterations", "level", "srgb",
                                                                  "regularization", "camera", "psnr")}}
+    if opts.segment_length:   # (absent otherwise: a run without segments keeps its key, and its checkpoints)
+        what["segment_frames"] = opts.segment_length
     return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:24]
 
 
 class _Pipeline:
     """Decode -> solve -> encode, one frame per :meth:`step`, on worker threads one at a time.
 
-    Frames go into segment files ``seg-<first frame>.mkv`` in ``folder``; every ``checkpoint_s`` the
+    With ``segment``, the warm start is reset every ``segment`` frames (``--segment-frames``: the
+    frames a cluster run gives, :mod:`.cluster`). Frames go into files ``seg-<first frame>.mkv`` in
+    ``folder``; every ``checkpoint_s`` the
     open segment is closed and ``state.npz`` saved (the solver's state, the frames done, the
     finished segments). A lock makes :meth:`finish`, :meth:`stop` and :meth:`discard` wait for the
     frame in flight, so a cancelled job (whose ``await`` returns while its worker thread still
@@ -110,8 +121,8 @@ class _Pipeline:
     """
 
     def __init__(self, store: AssetStore, manifest: Manifest, solver: FrameSolver, folder: Path, rate: Fraction, *,
-                 predict: bool, checkpoint_s: float, resume: bool, limit: int) -> None:
-        self.solver, self.folder, self.rate, self.predict = solver, folder, rate, predict
+                 predict: bool, checkpoint_s: float, resume: bool, limit: int, segment: int | None = None) -> None:
+        self.solver, self.folder, self.rate, self.predict, self.segment = solver, folder, rate, predict, segment
         self.checkpoint_s = checkpoint_s
         self.done, self.segments = 0, []
         folder.mkdir(parents=True, exist_ok=True)
@@ -163,6 +174,8 @@ class _Pipeline:
             self.decode_s += time.perf_counter() - t
             if image is None:
                 return None
+            if self.segment and self.done % self.segment == 0:
+                self.solver.warm.reset()   # a segment's first frame: a cold start, as on a cluster
             out = self.solver.solve(image, predict=self.predict)
             t = time.perf_counter()
             if self.writer is None:
@@ -228,23 +241,12 @@ def _source(store: AssetStore, key: str) -> tuple[str, Manifest]:
     return aid, m
 
 
-async def run(ctx: JobContext, opts: VideoOptions) -> dict:
-    """Compensate every frame of the source asset (warm starts) and store the result as a new asset."""
-    t0 = time.monotonic()
-    store = AssetStore(ctx.rig.path)
-    source_id, src = _source(store, opts.asset)
-    rate = manifest_rate(src)
-    total = src.frames if opts.max_frames is None else min(src.frames, opts.max_frames)
-    name = opts.name or compensated_name(src.name)
-    solver = await open_frame_solver(ctx, camera=opts.camera, measure=opts.measure, level=opts.level,
-                                     regularization=opts.regularization, iterations=opts.iterations,
-                                     first_iterations=opts.first_iterations, srgb=opts.srgb)
-    work = compensation_dir(ctx.rig) / TMP_DIR
-    folder = work / run_key(source_id, solver.transport.meta, opts, solver.size)
-    _sweep(work, folder)
+async def _here(ctx: JobContext, opts: VideoOptions, *, store: AssetStore, src: Manifest, solver: FrameSolver,
+                folder: Path, path: Path, rate: Fraction, total: int, stage: str) -> tuple[_Pipeline, int]:
+    """Solve frames ``[0, total)`` on this machine into ``path``; the pipeline (its figures) and the frame count."""
     pipe = await ctx.compute(_Pipeline, store, src, solver, folder, rate, predict=opts.psnr,
-                             checkpoint_s=opts.checkpoint_s, resume=opts.resume, limit=total)
-    stage = f"compensate {src.name}"
+                             checkpoint_s=opts.checkpoint_s, resume=opts.resume, limit=total,
+                             segment=opts.segment_length)
     if pipe.resumed_from:
         ctx.log(f"resuming {src.name!r} from frame {pipe.resumed_from} (a stopped run's checkpoint)")
     ctx.progress(stage, "", pipe.done, total, f"{float(rate):g} fps")
@@ -262,20 +264,66 @@ async def run(ctx: JobContext, opts: VideoOptions) -> dict:
                          f"{_duration(per * (total - pipe.done))}", out.objective)
         if pipe.done == 0:
             raise JobError(f"asset {src.name!r}: no frame could be decoded")
-        path = folder / _file_name(name)
         ctx.progress("store", "", 0, 1, path.name)
         await ctx.compute(pipe.finish, path)
-        try:
-            before = {aid for aid, _ in store.list()}
-            made = await ctx.compute(store.add, path, name=name, rate=rate)
-        except AssetError as exc:
-            raise JobError(f"the compensated video could not be stored: {exc}") from exc
-        ctx.progress("store", "", 1, 1, made.asset_id[:12])
     except BaseException:
         await ctx.compute(pipe.stop)   # what was checkpointed stays: the same job run again resumes
         raise
-    await ctx.compute(pipe.discard)
-    done, solved = pipe.done, pipe.done - pipe.resumed_from
+    return pipe, pipe.done
+
+
+async def run(ctx: JobContext, opts: VideoOptions) -> dict:
+    """Compensate every frame of the source asset (warm starts) and store the result as a new asset."""
+    t0 = time.monotonic()
+    store = AssetStore(ctx.rig.path)
+    source_id, src = _source(store, opts.asset)
+    if opts.cluster:
+        from coordinator.compensation.cluster import import_distributed  # lazy: the `cluster` extra is optional
+
+        import_distributed()   # before anything is measured: a missing extra is a one-line error
+    rate = manifest_rate(src)
+    total = src.frames if opts.max_frames is None else min(src.frames, opts.max_frames)
+    name = opts.name or compensated_name(src.name)
+    solver = await open_frame_solver(ctx, camera=opts.camera, measure=opts.measure, level=opts.level,
+                                     regularization=opts.regularization, iterations=opts.iterations,
+                                     first_iterations=opts.first_iterations, srgb=opts.srgb)
+    work = compensation_dir(ctx.rig) / TMP_DIR
+    key = run_key(source_id, solver.transport.meta, opts, solver.size)
+    folder = work / (f"{key}-cluster" if opts.cluster else key)   # a cluster run checkpoints per segment
+    _sweep(work, folder)
+    path = folder / _file_name(name)
+    stage = f"compensate {src.name}"
+    started = time.monotonic()
+    extra: dict[str, Any] = {}
+    if opts.cluster:
+        from coordinator.compensation.cluster import compensate_on_cluster
+
+        def report(done: int, resumed_from: int, message: str) -> None:
+            solved = done - resumed_from
+            per = (time.monotonic() - started) / solved if solved > 0 else 0.0
+            eta = f", {per:.2f} s/frame, ETA {_duration(per * (total - done))}" if per else ""
+            ctx.progress(stage, "", done, total, message + eta)
+
+        ran = await compensate_on_cluster(ctx, opts, store=store, src=src, solver=solver, key=key, folder=folder,
+                                          path=path, rate=rate, total=total, report=report)
+        if ran.frames == 0:
+            raise JobError(f"asset {src.name!r}: no frame could be decoded")
+        done, resumed_from, decode_s, encode_s = ran.frames, ran.resumed_from, ran.decode_s, ran.encode_s
+        extra = {"cluster": ran.cluster}
+        discard = functools.partial(shutil.rmtree, folder, ignore_errors=True)
+    else:
+        pipe, done = await _here(ctx, opts, store=store, src=src, solver=solver, folder=folder, path=path, rate=rate,
+                                 total=total, stage=stage)
+        resumed_from, decode_s, encode_s = pipe.resumed_from, pipe.decode_s, pipe.encode_s
+        discard = pipe.discard
+    try:
+        before = {aid for aid, _ in store.list()}
+        made = await ctx.compute(store.add, path, name=name, rate=rate)
+    except AssetError as exc:
+        raise JobError(f"the compensated video could not be stored: {exc}") from exc
+    ctx.progress("store", "", 1, 1, made.asset_id[:12])
+    await ctx.compute(discard)
+    solved = done - resumed_from
     loop_s = time.monotonic() - started
     summary: dict[str, Any] = {
         "source": {"id": source_id, "name": src.name, "kind": src.kind, "frames": src.frames,
@@ -285,11 +333,15 @@ async def run(ctx: JobContext, opts: VideoOptions) -> dict:
                   "bytes": made.total_bytes, "codec": made.extra.get("codec"), "pix_fmt": made.extra.get("pix_fmt"),
                   "already_stored": made.asset_id in before},
         **solver.summary(),
-        "resumed_from": pipe.resumed_from,
+        "segment_frames": opts.segment_length,
+        "resumed_from": resumed_from,
         "seconds_per_frame": round(loop_s / solved, 4) if solved else None,
-        "decode_s": round(pipe.decode_s, 3), "encode_s": round(pipe.encode_s, 3),
+        "decode_s": round(decode_s, 3), "encode_s": round(encode_s, 3),
         "truncated": done < total,
+        **extra,
     }
+    if opts.cluster:
+        summary["scale"] = ran.cluster["scale_last_segment"]   # the coordinator's own solver never ran
     if done < src.frames:
         summary["note"] = (f"{done} of the source's {src.frames} frames compensated"
                            + (" (max_frames)" if opts.max_frames is not None and done == opts.max_frames else
