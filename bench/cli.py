@@ -16,6 +16,7 @@ BENCHMARKS: dict[str, str] = {
     "compensation": "blur-compensation solve time and quality, ours vs the per-projector baseline",
     "compensation_room": "blur compensation through the coordinator's jobs in the virtual room: captures, L error, quality",
     "compensation_cluster": "a video compensated on a local Dask cluster of 1 and 2 workers vs the same segments here",
+    "compensation_bust": "blur compensation on the bust (a mesh rig, texture space) in the virtual room: captures, quality",
     "venue": "a rig on a virtual venue network (namespaces, rate-limited links): discovery and asset distribution",
     "node": "what a node costs its edge computer: render/upload time, CPU, memory, install size (GL 3.3+ and 3.1)",
     "discovery": "real nodes join their rig while a twin (same id, other token) and another rig advertise",

@@ -3,8 +3,9 @@ tests and benchmarks run the coordinator's jobs on, without gRPC or node process
 
 What every node would output is computed with the node's own convention
 (:func:`protos.spaces.warp_content`: the warp through the slot's stored pose, its gain and
-LUT, ``round(255 v)``) and given to the room; captures come from the room's cameras. So the
-figures measured through it are the method's, not the transport's.
+LUT, ``round(255 v)``; on a 3x4 pose the mesh's texture as the node's mesh shader samples it,
+:func:`coordinator.compensation.texture_space.mesh_warp`) and given to the room; captures come
+from the room's cameras. So the figures measured through it are the method's, not the transport's.
 
     room = Room(reference_scene(...))
     driver = RoomDriver(room, rig)
@@ -20,9 +21,10 @@ import numpy as np
 
 from coordinator.api import PlayResult
 from coordinator.camera import CameraError
+from coordinator.compensation.texture_space import DeviceView, MeshCaster, mesh_warp
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
-from coordinator.rig import Content, Rig
+from coordinator.rig import Content, ProjectionPose, Rig
 from protos.spaces import warp_content
 from sim.room import Room
 
@@ -92,6 +94,7 @@ class RoomDriver:
         #: the last still shown (content-space) and the frames of the last play
         self.shown: Content | None = None
         self.played: list[np.ndarray] = []
+        self._mesh_views: dict[str, tuple[bytes, DeviceView]] = {}
         room.set_active([s for s in rig.slots if s not in set(unpowered)])
 
     # ------------------------------------------------------------------ RigDriver
@@ -161,10 +164,30 @@ class RoomDriver:
             st = self._rig.slot(s)
             if img is None or st.pose is None:
                 frame = np.zeros((st.height, st.width, 3), np.uint8)
+            elif isinstance(st.pose, ProjectionPose):
+                frame = mesh_warp(img, self.mesh_view(s), lut=st.lut, gain=st.gain, apply_lut=apply_lut)
             else:
                 frame = warp_content(img, st.pose.matrix, (st.width, st.height), lut=st.lut, gain=st.gain,
                                      apply_lut=apply_lut)
             self.room.set_frame(s, frame)
+
+    def mesh_view(self, slot: str) -> DeviceView:
+        """The mesh as ``slot``'s 3x4 pose renders it at its projector size (uv per pixel; rendered again only
+        when the pose, its mesh or the projector size changed)."""
+        st = self._rig.slot(slot)
+        pose = st.pose
+        if not isinstance(pose, ProjectionPose):
+            raise ValueError(f"{slot} has no 3D pose")
+        key = pose.matrix.tobytes() + pose.mesh.mesh_id.encode() + repr(
+            (pose.near_mm, pose.far_mm, st.width, st.height, self._rig.config.content_width,
+             self._rig.config.content_height)).encode()
+        hit = self._mesh_views.get(slot)
+        if hit is None or hit[0] != key:
+            content = (self._rig.config.content_width, self._rig.config.content_height)
+            with MeshCaster(pose.mesh.vertices, pose.mesh.uvs, pose.mesh.faces) as caster:
+                view = caster.view(pose.matrix, (st.width, st.height), content, near=pose.near_mm, far=pose.far_mm)
+            hit = self._mesh_views[slot] = (key, view)
+        return hit[1]
 
     async def run(self, kind: str, params: Mapping[str, Any] | None = None) -> dict:
         """Run the coordinator's job ``kind`` on this rig; its events go to :attr:`events`."""

@@ -124,7 +124,8 @@ def table_mesh(size: tuple[float, float] = (1200.0, 600.0)) -> Mesh:
     return Mesh(v, np.array([[0, 2, 1], [0, 3, 2]]), uv)
 
 
-def bust(*, segments: int = 96, rings: int = 140, center=(0.0, 0.0), yaw_deg: float = 0.0) -> Mesh:
+def bust(*, segments: int = 96, rings: int = 140, center=(0.0, 0.0), yaw_deg: float = 0.0,
+         atlas: tuple[int, int] | None = None, padding: int = 3) -> Mesh:
     """A procedural bust-like object, about 300 x 250 x 600 mm (width x depth x height).
 
     Built as a closed surface of revolution with elliptical cross-sections:
@@ -135,9 +136,15 @@ def bust(*, segments: int = 96, rings: int = 140, center=(0.0, 0.0), yaw_deg: fl
     ``center`` (x, y). UVs are cylindrical: u = angle around the vertical axis
     (seam at the back), v = 1 - z / 600 (top of the head at v = 0).
 
+    With ``atlas = (W, H)`` the same surface gets an even-density uv atlas for a W x H texture
+    instead, as a scan's texture would have (:func:`_ring_atlas`): the cylindrical map stretches
+    a texel over tens of millimetres on the near-horizontal crown and shoulders (v is height)
+    and crowds texels around the crown's pole, which a texture-space measurement cannot use.
+    Charts are kept ``padding`` texels apart, so a bilinear lookup never mixes two charts.
+
     Returns
     -------
-    Mesh with uvs, outward-facing, watertight.
+    Mesh with uvs, outward-facing, watertight (positions; the uv seams duplicate vertices).
     """
     from scipy.interpolate import PchipInterpolator
 
@@ -183,6 +190,14 @@ def bust(*, segments: int = 96, rings: int = 140, center=(0.0, 0.0), yaw_deg: fl
         verts.append(np.column_stack([x, y, np.full_like(phis, z)]))
         uvs.append(np.column_stack([(phis + math.pi / 2) / (2 * math.pi), np.full_like(phis, 1.0 - z / 600.0)]))
     n_ring = segments + 1
+    yaw = math.radians(yaw_deg)
+    Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+    shift = np.array([center[0], center[1], 0.0])
+    if atlas is not None:
+        rings_xyz = np.stack(verts)
+        V, UV, F = _ring_atlas(rings_xyz, np.array([0.0, 0.0, 0.0]), np.array([0.0, head_cy, head_c + head_h]),
+                               atlas, padding=padding)
+        return _weld_seam_positions(Mesh(V @ Rz.T + shift, F, UV))
     V = np.vstack(verts)
     UV = np.vstack(uvs)
     faces = []
@@ -204,10 +219,121 @@ def bust(*, segments: int = 96, rings: int = 140, center=(0.0, 0.0), yaw_deg: fl
     last = (len(ring_defs) - 1) * n_ring + np.arange(segments)
     faces.append(np.column_stack([last, last + 1, np.full(segments, top)]))
     F = np.vstack(faces)
-    yaw = math.radians(yaw_deg)
-    Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
-    mesh = Mesh(V @ Rz.T + np.array([center[0], center[1], 0.0]), F, UV)
-    return _weld_seam_positions(mesh)
+    return _weld_seam_positions(Mesh(V @ Rz.T + shift, F, UV))
+
+
+#: a band of a surface of revolution faces up (down) when its normal's z exceeds this (is below minus it)
+_CAP_NZ = 0.6
+
+
+def _ring_atlas(rings: np.ndarray, bottom: np.ndarray, top: np.ndarray, texture: tuple[int, int], *,
+                padding: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An even-density uv atlas for a closed surface of revolution given as rings.
+
+    ``rings`` (R, S+1, 3) float: ring r's points bottom to top (the last point of a ring repeats
+    its first); ``bottom``/``top`` (3,): the poles the caps fan to. The bands between rings are
+    grouped into charts by the direction they face (their normal's z against :data:`_CAP_NZ`):
+    a run facing up (down) is projected orthographically onto the xy plane (seen from above, or
+    mirrored as from below): injective, since the radius is monotonic wherever the surface faces
+    up or down, and a texel spans at most ``1 / _CAP_NZ`` times its width on the surface; a run
+    facing sideways is unrolled: v is the arc length along each meridian, u the arc length
+    around each ring scaled to the run's mean circumference (the seam where the rings start).
+    Charts are packed in shelves, the same millimetres per texel along u and v, ``padding``
+    texels apart and from the border, for a ``texture`` (W, H) image.
+
+    Returns vertices (V', 3) float64, uvs (V', 2) float64 in [0, 1] ((0, 0) the top-left
+    corner) and faces (F, 3) int64, counter-clockwise seen from outside.
+    """
+    P = np.asarray(rings, np.float64)
+    n_rings, n_ring = P.shape[:2]
+    seg = n_ring - 1
+    centre = P[:, :seg].mean(axis=1)                                       # (R, 3)
+    radius = np.linalg.norm((P[:, :seg] - centre[:, None])[..., :2], axis=2).mean(axis=1)
+    dz, dr = np.diff(P[:, 0, 2]), np.diff(radius)
+    nz = -dr / np.maximum(np.hypot(dz, dr), 1e-12)
+    kind = np.where(nz > _CAP_NZ, 1, np.where(nz < -_CAP_NZ, -1, 0))      # per band: up, down, side
+    # band b joins ring b and b + 1; band -1 is the bottom cap (down), band R - 1 the crown cap (up)
+    kinds = np.concatenate([[-1], kind, [1]])
+    runs, start = [], 0
+    for b in range(1, len(kinds) + 1):
+        if b == len(kinds) or kinds[b] != kinds[start]:
+            runs.append((start - 1, b - 1, int(kinds[start])))             # bands start-1 .. b-2
+            start = b
+    charts = []                                                           # (vertices, planar mm, faces)
+    for b0, b1, k in runs:
+        r0, r1 = max(b0, 0), min(b1, n_rings - 1)                          # rings of the run
+        pts = P[r0:r1 + 1].reshape(-1, 3)
+        local = np.arange((r1 - r0 + 1) * n_ring).reshape(r1 - r0 + 1, n_ring)
+        faces = []
+        for r in range(r1 - r0):
+            a, bb, c = local[r, :seg], local[r, 1:], local[r + 1, :seg]
+            d = local[r + 1, 1:]
+            faces += [np.column_stack([a, bb, d]), np.column_stack([a, d, c])]
+        if k == 0:
+            steps = np.linalg.norm(np.diff(P[r0:r1 + 1], axis=0), axis=2)  # (rings-1, S+1) along meridians
+            v = np.concatenate([np.cumsum(steps[::-1], axis=0)[::-1], np.zeros((1, n_ring))])  # top ring at 0
+            around = np.linalg.norm(np.diff(P[r0:r1 + 1], axis=1), axis=2)                    # (rings, S)
+            frac = np.concatenate([np.zeros((r1 - r0 + 1, 1)), np.cumsum(around, axis=1)], axis=1)
+            length = frac[:, -1:]
+            u = frac / length * float(length.mean())
+            flat = np.column_stack([u.ravel(), v.ravel()])
+        else:
+            flat = np.column_stack([pts[:, 0], -k * pts[:, 1]])             # from above; from below mirrored
+        if b0 < 0:                                                        # the bottom cap: fan to the pole
+            pole = len(pts)
+            pts = np.vstack([pts, bottom])
+            flat = np.vstack([flat, [bottom[0], -k * bottom[1]]])
+            faces.append(np.column_stack([np.full(seg, pole), local[0, 1:], local[0, :seg]]))
+        if b1 > n_rings - 1:                                              # the crown cap
+            pole = len(pts)
+            pts = np.vstack([pts, top])
+            flat = np.vstack([flat, [top[0], -k * top[1]]])
+            last = local[-1]
+            faces.append(np.column_stack([last[:seg], last[1:], np.full(seg, pole)]))
+        charts.append((pts, flat - flat.min(axis=0), np.vstack(faces)))
+    offsets, (width, height) = _pack_shelves([c[1].max(axis=0) for c in charts], texture, padding)
+    V, UV, F, base = [], [], [], 0
+    for (pts, flat, faces), off in zip(charts, offsets):
+        V.append(pts)
+        UV.append((flat + off) / np.array([width, height]))
+        F.append(faces + base)
+        base += len(pts)
+    return np.vstack(V), np.clip(np.vstack(UV), 0.0, 1.0), np.vstack(F)
+
+
+def _pack_shelves(sizes: list[np.ndarray], texture: tuple[int, int], padding: int
+                  ) -> tuple[list[np.ndarray], tuple[float, float]]:
+    """Shelf packing of rectangles ``sizes`` (w, h) mm into the smallest ``W : H`` (``texture``) rectangle.
+
+    Returns each rectangle's top-left offset (mm) and the atlas's extent (mm); rectangles are
+    ``padding`` texels apart and from the border (the texel size follows from the extent).
+    """
+    tw, th = (int(v) for v in texture)
+    if tw < 8 or th < 8:
+        raise ValueError(f"an atlas needs a texture of at least 8 x 8 texels, got {tw} x {th}")
+    order = sorted(range(len(sizes)), key=lambda i: -sizes[i][1])
+    widest = max(float(s[0]) for s in sizes)
+    best = None
+    for limit in np.linspace(widest, sum(float(s[0]) for s in sizes), 64):
+        # the gap in mm depends on the texel size, which depends on the packing: iterate to a fixed point
+        gap = 0.0
+        for _ in range(6):
+            x = y = shelf = used = 0.0
+            offsets = [np.zeros(2)] * len(sizes)
+            for i in order:
+                w, h = float(sizes[i][0]), float(sizes[i][1])
+                if x > 0 and x + w > limit + 1e-9:
+                    y, x, shelf = y + shelf + gap, 0.0, 0.0
+                offsets[i] = np.array([x + gap, y + gap])
+                x += w + gap
+                used = max(used, x)
+                shelf = max(shelf, h)
+            W, H = used + gap, y + shelf + 2 * gap
+            W, H = max(W, H * tw / th), max(H, W * th / tw)
+            gap = padding * W / tw
+        if best is None or W < best[1][0]:
+            best = (offsets, (W, H))
+    return best[0], best[1]
 
 
 def _weld_seam_positions(mesh: Mesh) -> Mesh:

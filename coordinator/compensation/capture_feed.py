@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import queue
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -64,16 +64,18 @@ class CaptureFeed:
             yield item
 
 
-async def transport_while_capturing(ctx: Any, captures: AsyncIterator[np.ndarray], black: np.ndarray,
+async def transport_while_capturing(ctx: Any, captures: AsyncIterator[np.ndarray], black: np.ndarray, *,
+                                    recover: Callable[..., sp.csr_matrix] = transport_from_captures,
                                     **options: Any) -> sp.csr_matrix:
-    """:func:`transport_from_captures` on a worker thread (``ctx.compute``) while ``captures`` are taken.
+    """:func:`transport_from_captures` (or ``recover``, which takes the same ``(captures, black, **options)``)
+    on a worker thread (``ctx.compute``) while ``captures`` are taken.
 
     ``options`` are those of :func:`transport_from_captures` (``grid``, ``homography``,
     ``radius``, ...). A capture count or shape the dot grid does not accept raises
     :class:`JobError`; an error while capturing stops the recovery and propagates.
     """
     feed = CaptureFeed()
-    task = asyncio.ensure_future(ctx.compute(transport_from_captures, feed, black, **options))
+    task = asyncio.ensure_future(ctx.compute(recover, feed, black, **options))
     try:
         async for img in captures:
             while not task.done() and not feed.offer(img):

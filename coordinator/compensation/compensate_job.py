@@ -9,6 +9,9 @@ result without compensation, with ours and (``baseline``) with the per-projector
 captured and scored against the target (PSNR/SSIM) and put side by side in
 ``compensation/quality.png``.
 
+On a mesh rig the content is the mesh's texture and the solve runs in texture space, weighted
+by how well the camera sees each part of the surface: :mod:`coordinator.compensation.mesh_compensate`.
+
 Spaces: ``L`` maps ``content`` pixels to ``camera`` pixels; the target is the content as the
 camera would see it on a blur-free rig
 (:func:`~coordinator.compensation.geometry.camera_target`), scaled to a level the rig reaches.
@@ -22,15 +25,31 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.geometry import camera_target, inscribed_region, row_white, target_level
+from coordinator.compensation.geometry import (
+    camera_target,
+    inscribed_region,
+    row_white,
+    target_level,
+)
 from coordinator.compensation.image_param import load_image_param, prepare_image
-from coordinator.compensation.jobkit import content_size, rounded, throttled
+from coordinator.compensation.jobkit import content_size, rounded, surface_of, throttled
+from coordinator.compensation.mesh_compensate import run_mesh_compensate
 from coordinator.compensation.options import CompensateOptions
 from coordinator.compensation.quality import quality, side_by_side
 from coordinator.compensation.ridge import RidgeProblem, best_scale
 from coordinator.compensation.solver import SolveResult, solve
-from coordinator.compensation.store import SUBDIR, StoredTransport, compensation_dir, transport_summary, write_result
-from coordinator.compensation.transport_job import baseline_exposure, ensure_baseline, ensure_transport
+from coordinator.compensation.store import (
+    SUBDIR,
+    StoredTransport,
+    compensation_dir,
+    transport_summary,
+    write_result,
+)
+from coordinator.compensation.transport_job import (
+    baseline_exposure,
+    ensure_baseline,
+    ensure_transport,
+)
 from coordinator.jobs import JobContext, JobError
 from coordinator.store import atomic_write_bytes
 from protos.spaces import warp_content
@@ -67,7 +86,9 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
             image, name = load_image_param(opts.image, opts.image_path)
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
-    slots = ctx.select_slots(opts.slots, need_pose=True, planar=True)
+    slots = ctx.select_slots(opts.slots, need_pose=True)
+    if surface_of(ctx, slots) == "mesh":
+        return await run_mesh_compensate(ctx, opts, slots, image, name, t0, shown_as=f"{COMPENSATED_PREFIX}{name}")
     if opts.baseline:
         baseline_exposure(ctx, opts)  # refused before any capture
     tr = await ensure_transport(ctx, opts, slots, measure=opts.measure)

@@ -31,6 +31,7 @@ __all__ = [
     "choose_spacing",
     "psf_profile",
     "psf_radius",
+    "psf_radius_at_scales",
     "edge_energy",
     "camera_target",
     "inscribed_region",
@@ -167,6 +168,12 @@ def psf_radius(homography: np.ndarray, poses: Sequence[np.ndarray], content_size
     x0, y0 = (w - 1) / 2, (h - 1) / 2
     c = _jacobian_scale(homography, x0, y0)
     p = float(np.median([c / _jacobian_scale(pose, x0, y0) for pose in poses])) if len(poses) else c
+    return psf_radius_at_scales(c, p, tolerance=tolerance, blur=blur, limit=limit)
+
+
+def psf_radius_at_scales(c: float, p: float, *, tolerance: float = 1e-4, blur: float = 0.0, limit: int = 16) -> int:
+    """:func:`psf_radius` from the scales themselves: ``c`` camera px per content px, ``p`` camera px per
+    projector px (a mesh rig has no homography; :mod:`coordinator.compensation.mesh_geometry` measures them)."""
     step = 0.01
     x, f = psf_profile(c, p, blur=blur, step=step)
     cdf = np.concatenate([[0.0], np.cumsum(f)])

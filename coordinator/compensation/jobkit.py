@@ -4,14 +4,16 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from coordinator.compensation.errors import CompensationError
 from coordinator.compensation.geometry import content_to_camera
 from coordinator.jobs import JobContext, JobError
+from coordinator.rig import ProjectionPose
 
-__all__ = ["content_size", "rig_geometry", "rounded", "throttled"]
+__all__ = ["content_size", "rig_geometry", "rounded", "throttled", "baseline_exposure", "surface_of"]
 
 
 def content_size(ctx: JobContext) -> tuple[int, int]:
@@ -43,3 +45,27 @@ def throttled(fn: Callable[[int, float], None], period: float = 0.2) -> Callable
             fn(k, f)
 
     return cb
+
+
+def baseline_exposure(ctx: JobContext, opts: Any) -> float | None:
+    """The exposure of the baseline's captures (None: the camera's own); refused for a camera that cannot
+    change it per capture."""
+    if opts.baseline_exposure == 1.0:
+        return None
+    if not ctx.supports_exposure(opts.camera):
+        raise JobError(f"camera {opts.camera} ({ctx.camera_spec(opts.camera)}) cannot change exposure per capture; "
+                       "average frames instead (baseline_frames)")
+    return opts.baseline_exposure
+
+
+def surface_of(ctx: JobContext, slots: list[str]) -> str:
+    """``"table"`` when every slot has a homography pose, ``"mesh"`` when every one has a 3D pose; a rig
+    with both is refused (its light transport would mix two content spaces)."""
+    solid = [s for s in slots if isinstance(ctx.rig.slot(s).pose, ProjectionPose)]
+    if not solid:
+        return "table"
+    if len(solid) == len(slots):
+        return "mesh"
+    flat = [s for s in slots if s not in solid]
+    raise JobError(f"projector {solid[0]} has a 3D pose and {flat[0]} a homography: this job supports planar rigs "
+                   "(a table) or a mesh, not both at once (choose the projectors with --slots)")

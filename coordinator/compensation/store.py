@@ -126,7 +126,7 @@ class StoredTransport:
     L: sp.csr_matrix
     meta: dict
     black: np.ndarray           # (Hc, Wc, 3) float32
-    H: np.ndarray               # (3, 3) content -> camera
+    H: np.ndarray               # (3, 3) content -> camera; on a mesh the camera's (3, 4) projection
     camera_shape: tuple[int, int]
     slots: list[str]
     reused: bool

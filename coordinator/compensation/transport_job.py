@@ -10,6 +10,9 @@ measured ``L`` whose windows cut light is reported
 ``L_i`` is measured too, one projector at a time (``N*S*S`` captures), for the conventional
 method only.
 
+On a mesh rig (every projector with a 3D pose) the content is the mesh's texture and the same
+measurement runs in texture space: :mod:`coordinator.compensation.mesh_transport`.
+
 A stored ``L`` is reused while the rig is as it was measured (poses, LUTs, gains, content
 size, camera, table mapping) and its dot grid matches whatever radius, spacing or frames the
 caller sets; ``force`` measures again. :func:`ensure_transport` and :func:`ensure_baseline`
@@ -32,7 +35,14 @@ from coordinator.compensation.geometry import (
     psf_radius,
     row_white,
 )
-from coordinator.compensation.jobkit import content_size, rig_geometry, rounded
+from coordinator.compensation.jobkit import (
+    baseline_exposure,
+    content_size,
+    rig_geometry,
+    rounded,
+    surface_of,
+)
+from coordinator.compensation.mesh_transport import run_mesh_transport
 from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.store import (
     StoredTransport,
@@ -57,7 +67,9 @@ OPTIONS = TransportOptions
 async def run(ctx: JobContext, opts: TransportOptions) -> dict:
     """Measure (or reuse) ``L``, and with ``baseline`` each projector's ``L_i``; their figures."""
     t0 = time.monotonic()
-    slots = ctx.select_slots(opts.slots, need_pose=True, planar=True)
+    slots = ctx.select_slots(opts.slots, need_pose=True)
+    if surface_of(ctx, slots) == "mesh":
+        return await run_mesh_transport(ctx, opts, slots)
     if opts.baseline:
         baseline_exposure(ctx, opts)  # refused before any capture
     tr = await ensure_transport(ctx, opts, slots)
@@ -141,17 +153,6 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
             "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5)}
     await ctx.compute(save_measured_transport, rig, L, meta, black)
     return StoredTransport(L, meta, black, H, cam, slots, False)
-
-
-def baseline_exposure(ctx: JobContext, opts: TransportOptions) -> float | None:
-    """The exposure of the baseline's captures (None: the camera's own); refused for a camera that cannot
-    change it per capture."""
-    if opts.baseline_exposure == 1.0:
-        return None
-    if not ctx.supports_exposure(opts.camera):
-        raise JobError(f"camera {opts.camera} ({ctx.camera_spec(opts.camera)}) cannot change exposure per capture; "
-                       "average frames instead (baseline_frames)")
-    return opts.baseline_exposure
 
 
 async def ensure_baseline(ctx: JobContext, tr: StoredTransport,

@@ -1,0 +1,288 @@
+"""`shadowless bench compensation_bust`: blur compensation on the bust (a mesh rig) in the virtual room.
+
+The coordinator's ``response``, ``transport`` and ``compensate`` jobs run in-process against the
+reference room with the procedural bust (:func:`sim.scene.reference_scene` ``surface="bust"``)
+through :class:`shadowless.room_driver.RoomDriver`, which renders content on a mesh pose as a
+node's mesh shader does (:func:`coordinator.compensation.texture_space.mesh_warp`). Content is
+the bust's texture: an even-density uv atlas (:func:`sim.mesh.bust` ``atlas=``) whose size follows
+from the camera's sampling of the surface (:func:`texture_size_for`). By default the rig's poses and the camera's pose are the room's truth
+(:func:`make_bust_rig`; 3D calibration is measured by ``bench calibration``); ``--calibrate``
+runs the sequential 3D calibration first instead (about 20 s per projector).
+
+Reported: the light transport (captures for the 25- and the 1-projector rig: the same grid, so
+the same count), the texels the camera sees and measures, and the captured PSNR / SSIM over the
+visible surface of none / the per-projector baseline / ours, with the side-by-side picture
+(``--out``). This module is also the test kit of
+``tests/coordinator/compensation/test_mesh_*.py``. It may import ``sim``; the coordinator never does.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from bench.calibration import landmarks_from_truth, make_rig, table_points_from_truth
+from bench.compensation_room import demo_image
+from bench.machine import machine
+from coordinator.calibration.runs import save_cameras
+from coordinator.calibration.threed import depth_range
+from coordinator.compensation.image_param import encode_image_array
+from coordinator.compensation.texture_space import DeviceView, MeshCaster, texels_per_pixel
+from coordinator.rig import ProjectionPose, Rig, mesh_with_id
+from protos import cli_types
+from protos.spaces import bilinear_taps
+from shadowless.room_driver import RoomDriver
+from sim.mesh import bust, save_mesh
+from sim.room import Room
+from sim.scene import SUBSETS, reference_scene
+
+__all__ = ["make_bust_rig", "bust_room", "mesh_lookup_matrix", "truth_mesh_transport", "texture_size_for"]
+
+
+# ---------------------------------------------------------------------- the test kit
+def mesh_lookup_matrix(view: DeviceView, content_size: tuple[int, int]) -> sp.csr_matrix:
+    """A node's content lookup on a mesh pose as a matrix: ``(w*h, W*H)`` CSR float64, projector px x texel
+    (the bilinear weights of :func:`protos.spaces.bilinear_taps` at each pixel's texel coordinates, 0 off
+    the mesh): what :func:`coordinator.compensation.texture_space.mesh_warp` applies."""
+    h, w = view.shape
+    x = np.nan_to_num(view.x, nan=-10.0)
+    y = np.nan_to_num(view.y, nan=-10.0)
+    rows, cols, vals = [], [], []
+    for index, weight in bilinear_taps(x, y, content_size):
+        ok = weight > 0
+        rows.append(np.flatnonzero(ok))
+        cols.append(index[ok])
+        vals.append(weight[ok])
+    cw, ch = content_size
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(w * h, cw * ch))
+
+
+def truth_mesh_transport(room: Room, rig: Rig, slots: list[str], *, camera: int = 0) -> sp.csr_matrix:
+    """The mesh rig's true light transport, texel -> camera px, as the jobs measure it:
+    :func:`bench.compensation_room.truth_transport` with each node's lookup through its mesh pose."""
+    content = (rig.config.content_width, rig.config.content_height)
+    views = {}
+    for s in slots:
+        st, pose = rig.slot(s), rig.slot(s).pose
+        with MeshCaster(pose.mesh.vertices, pose.mesh.uvs, pose.mesh.faces) as caster:
+            views[s] = caster.view(pose.matrix, (st.width, st.height), content, near=pose.near_mm, far=pose.far_mm)
+    total = None
+    for s in slots:
+        st = rig.slot(s)
+        B = mesh_lookup_matrix(views[s], content)
+        part = (sp.csr_matrix(room.truth.transport(s, camera), dtype=np.float64) @ B) \
+            * (st.gain * float(np.mean(1 - room.truth.projector(s).black)))
+        total = part if total is None else total + part
+    return sp.csr_matrix(total, dtype=np.float32)
+
+
+def texture_size_for(room: Room, *, camera: int = 0, px_per_texel: float = 2.5, aspect: tuple[int, int] = (4, 3)
+                     ) -> tuple[int, int]:
+    """The bust's texture size (W, H) at which a texel the camera sees spans about ``px_per_texel`` camera px.
+
+    A texel spanning many camera pixels wastes the camera's resolution on a coarse content; one
+    smaller than a pixel cannot be measured apart from its neighbours. The median over the surface
+    the camera sees (cosine of the viewing angle >= 0.25), of the camera px per texel of a
+    reference atlas, scales the reference size; W is a multiple of ``4 * aspect[0]``.
+    """
+    ref = (16 * aspect[0], 16 * aspect[1])
+    b = bust(atlas=ref)
+    c = room.truth.camera(camera)
+    P = c.K @ np.column_stack([c.R, np.asarray(c.t).reshape(3)])
+    with MeshCaster(b.vertices, b.uvs, b.faces) as caster:
+        view = caster.view(P, tuple(c.size), ref)
+    area = texels_per_pixel(view)
+    ok = view.on_mesh & (view.cos >= 0.25) & np.isfinite(area) & (area > 0)
+    side = 1.0 / np.sqrt(float(np.median(area[ok])))            # camera px per reference texel
+    unit = 4 * aspect[0]
+    w = max(unit, int(round(ref[0] * side / px_per_texel / unit)) * unit)
+    return w, w * aspect[1] // aspect[0]
+
+
+def bust_room(*, projector_scale: float = 0.25, camera_scale: float = 0.25, seed: int = 0, aperture: float = 10.0,
+              noise: bool = True) -> Room:
+    """The reference 5x5 room with the procedural bust at the table centre."""
+    return Room(reference_scene(projector_scale=projector_scale, camera_scale=camera_scale, surface="bust", seed=seed,
+                                aperture=aperture), seed=seed, noise=noise)
+
+
+def make_bust_rig(path: Path, room: Room, slots: list[str], *, content_size: tuple[int, int] = (128, 96),
+                  cameras: int = 1, luts: bool = False) -> Rig:
+    """A mesh rig posed from the room's truth: every slot's true 3x4 projection with the bust and each camera's
+    true pinhole in ``calibration/cameras.json``, as 3D calibration writes them; with ``luts`` each slot's
+    inverse-response LUT from its true gamma (instead of the ``response`` job).
+
+    The rig's bust is the room's surface with an even-density uv atlas for ``content_size``
+    (:func:`sim.mesh.bust` ``atlas=``), as a scan's texture would be; the room renders light on the
+    geometry only, so its own (cylindrical) uvs do not matter."""
+    if room.scene.mesh_source != "builtin:bust":
+        raise ValueError("make_bust_rig needs the room's builtin bust (bust_room)")
+    rig = make_rig(path, room, slots, content_size=content_size)
+    b = bust(atlas=content_size)
+    mesh = mesh_with_id(b.vertices, b.uvs, b.faces)
+    for s in slots:
+        P = room.truth.projector(s).P
+        near, far = depth_range(P, mesh.vertices)
+        rig.update_slot(s, pose=ProjectionPose(P, mesh, near, far), source="calibration")
+        if luts:
+            grid = np.linspace(0.0, 1.0, 1024)
+            gamma = room.truth.projector(s).gamma
+            rig.update_slot(s, lut=np.stack([grid ** (1.0 / g) for g in gamma]).astype(np.float32), source="truth")
+    doc = {"content_size": list(content_size), "table_mm": list(room.scene.table.size), "cameras": []}
+    for i in range(cameras):
+        c = room.truth.camera(i)
+        doc["cameras"].append({"camera": i, "size": list(c.size),
+                               "pinhole": {"K": c.K.tolist(), "R": c.R.tolist(), "t": c.t.tolist(),
+                                           "size": list(c.size)}})
+    save_cameras(rig.path, doc)
+    return rig
+
+
+async def calibrated_bust_rig(path: Path, room: Room, slots: list[str], *, content_size: tuple[int, int]) -> tuple[Rig, dict]:
+    """A mesh rig from the ``calibrate`` job (sequential Gray codes on the bust, table points and landmarks
+    clicked with noise from the room's truth)."""
+    path.mkdir(parents=True, exist_ok=True)
+    save_mesh(bust(atlas=content_size), path / "bust.obj")
+    table_points_from_truth(room, path / "table.json", click_noise_px=0.3)
+    landmarks_from_truth(room, path / "landmarks.json", count=20, click_noise_px=0.5)
+    rig = make_rig(path / "rig", room, slots, content_size=content_size)
+    out = await RoomDriver(room, rig).run("calibrate", {"mesh": str(path / "bust.obj"), "settle_s": 0.0,
+                                                            "table_points": str(path / "table.json"),
+                                                            "landmarks": str(path / "landmarks.json")})
+    return rig, out
+
+
+# ---------------------------------------------------------------------- the benchmark
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Blur compensation on the bust (a mesh rig: content is the mesh's texture) in the virtual room, through\n"
+        "the coordinator's jobs in-process: light transport in texture space (every projector at once; the\n"
+        "baseline one projector at a time), the weighted solve, and the captured quality over the visible\n"
+        "surface of none / baseline / ours. One JSON document."
+    )
+    parser.epilog = ("examples:\n  shadowless bench compensation_bust --quick\n"
+                     "  shadowless bench compensation_bust --content-size 128x96 --out /tmp/bust\n"
+                     "  shadowless bench compensation_bust --calibrate   # 3D calibration first (slow)")
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("--quick", action="store_true", help="4 projectors and 1, no baseline: a smoke run")
+    parser.add_argument("--projector-scale", type=float, default=0.5, help="room projector resolution (default 0.5)")
+    parser.add_argument("--camera-scale", type=float, default=0.25, help="room camera resolution (default 0.25)")
+    parser.add_argument("--content-size", type=cli_types.size, default=None, metavar="WxH",
+                        help="texture size (default: a texel the camera sees spans about 2.5 camera px; 304x228 at "
+                             "--camera-scale 0.25)")
+    parser.add_argument("--aperture", type=float, default=10.0, help="projector lens aperture, mm (defocus; default 10)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--radius", type=int, default=None, help="PSF recovery radius (default: from the geometry)")
+    parser.add_argument("--frames", type=int, default=1, help="captures averaged per dot pattern (default 1)")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the per-projector baseline")
+    parser.add_argument("--calibrate", action="store_true", help="3D-calibrate the rig first instead of the true poses")
+    parser.add_argument("--response", action="store_true",
+                        help="measure the responses (`response --mode full`) instead of the LUTs from the true gammas")
+    parser.add_argument("--max-iter", type=int, default=300)
+    parser.add_argument("--eval-frames", type=int, default=8, help="captures averaged per evaluated result (default 8)")
+    parser.add_argument("--out", type=Path, default=None, help="copy the side-by-side picture and the rig's JSON here")
+
+
+def _log(msg: str) -> None:
+    print(f"[bench compensation_bust] {msg}", file=sys.stderr, flush=True)
+
+
+async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baseline: bool) -> dict:
+    out: dict = {"projectors": len(slots)}
+    cs = tuple(args.content_size)
+    t = time.perf_counter()
+    if args.calibrate:
+        rig, cal = await calibrated_bust_rig(workdir, room, slots, content_size=cs)
+        out["calibration"] = {"captures": cal.get("captures"), "wall_s": round(time.perf_counter() - t, 2)}
+    else:
+        rig = make_bust_rig(workdir / "rig", room, slots, content_size=cs, luts=not args.response)
+        out["calibration"] = "the room's true poses (projectors and camera)"
+    driver = RoomDriver(room, rig)
+    if args.response:
+        c0 = driver.captures
+        resp = await driver.run("response", {"settle_s": 0.0, "mode": "full"})
+        out["response"] = {"captures": driver.captures - c0, "linearity": resp["linearity"]}
+    else:
+        out["response"] = "LUTs from the room's true gammas"
+    c0 = driver.captures
+    t = time.perf_counter()
+    params = {"settle_s": 0.0, "frames": args.frames, **({"radius": args.radius} if args.radius else {})}
+    tr = await driver.run("transport", params)
+    L_truth = await asyncio.to_thread(truth_mesh_transport, room, rig, slots)
+    from coordinator.compensation.mesh_geometry import measured_texels
+    from coordinator.compensation.transport import load_transport, transport_error
+
+    L, _ = load_transport(rig.path / "compensation" / "transport.npz")
+    cols = measured_texels(L)
+    err = transport_error(sp.csr_matrix(L.tocsc()[:, cols]), sp.csr_matrix(L_truth.tocsc()[:, cols]))
+    out["transport"] = {"captures": driver.captures - c0, "wall_s": round(time.perf_counter() - t, 2),
+                        "patterns": tr["patterns"], "spacing": tr["spacing"], "radius": tr["radius"],
+                        "edge_energy": tr["edge_energy"], "texture": tr["texture"],
+                        "relative_error_measured_columns": round(err, 5)}
+    _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {err:.4f})")
+    cp = {"image": encode_image_array(demo_image(cs), "astronaut.png"), "evaluate": True, "settle_s": 0.0,
+          "eval_frames": args.eval_frames, "max_iter": args.max_iter, **params}
+    if baseline:
+        cp.update(baseline=True, baseline_exposure=float(len(slots)))
+    c0 = driver.captures
+    t = time.perf_counter()
+    res = await driver.run("compensate", cp)
+    out["compensate"] = {k: res[k] for k in ("solve", "texture", "quality", "baseline", "baseline_over_ours_seconds")
+                         if k in res}
+    out["compensate"]["captures"] = driver.captures - c0
+    out["compensate"]["wall_s"] = round(time.perf_counter() - t, 2)
+    _log(f"N={len(slots)}: compensated ({json.dumps(res['quality']['ordering'])})")
+    out["rig_dir"] = str(rig.path)
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    room = bust_room(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed,
+                     aperture=args.aperture)
+    if args.content_size is None:
+        args.content_size = texture_size_for(room)
+    big = ["r1c1", "r1c3", "r3c1", "r3c3"] if args.quick else list(SUBSETS["P25"])
+    baseline = not (args.no_baseline or args.quick)
+    doc: dict = {"benchmark": "compensation_bust", "machine": machine(),
+                 "parameters": {**{k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
+                                   if not k.startswith("_") and k not in ("command", "bench")},
+                                "projector_size": list(room.projector_size("r0c0")), "camera_size": list(room.camera_size(0))}}
+    with tempfile.TemporaryDirectory(prefix="bench-compensation-bust-") as tmp:
+        rigs = {str(len(big)): asyncio.run(_rig_run(room, big, Path(tmp) / "big", args, baseline=baseline))}
+        # the same dot grid for one projector (the radius follows the projectors' pixel size otherwise)
+        one = argparse.Namespace(**{**vars(args), "radius": rigs[str(len(big))]["transport"]["radius"]})
+        rigs["1"] = asyncio.run(_rig_run(room, ["r2c2"], Path(tmp) / "one", one, baseline=False))
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            src = Path(rigs[str(len(big))]["rig_dir"]) / "compensation"
+            for f in ("quality.png", "quality.json", "result.json", "transport.json"):
+                if (src / f).exists():
+                    shutil.copy(src / f, args.out / f)
+        for r in rigs.values():
+            r.pop("rig_dir", None)
+    doc["rigs"] = rigs
+    q = rigs[str(len(big))]["compensate"]["quality"]
+    targets: dict = {"quality_order": {"none_psnr": q["none"]["psnr"], "ours_psnr": q["ours"]["psnr"],
+                                       "ours_minus_none_db": q["ordering"]["ours_minus_none_db"]},
+                     "transport_captures_N_vs_1": [rigs[str(len(big))]["transport"]["captures"],
+                                                   rigs["1"]["transport"]["captures"]]}
+    if "baseline" in q:
+        d = q["ordering"]
+        targets["quality_order"].update(baseline_psnr=q["baseline"]["psnr"],
+                                        ours_minus_baseline_db=d["ours_minus_baseline_db"],
+                                        baseline_minus_none_db=d["baseline_minus_none_db"],
+                                        met=d["ours_minus_baseline_db"] >= -0.05 and d["baseline_minus_none_db"] > 1.0
+                                        and d["ours_minus_none_db"] > 1.0)
+    doc["targets"] = targets
+    doc["wall_s"] = round(time.perf_counter() - t0, 1)
+    print(json.dumps(doc, indent=2, default=float))
+    return 0

@@ -1,0 +1,261 @@
+"""The ``compensate`` job on a mesh rig: one bounded least-squares solve in texture space.
+
+``p' = argmin ||W^1/2 (L p - c')||^2 + lam ||p - p0||^2, 0 <= p <= 1`` over the texels ``L``
+measured (:mod:`coordinator.compensation.mesh_transport`); ``W`` weighs each camera pixel by the
+cosine of its viewing angle and the texture area it covers
+(:func:`~coordinator.compensation.mesh_geometry.row_weights`). Texels no camera sees (or that
+could not be measured) stay uncompensated: they keep ``p0``, the content at the level of the
+uncompensated start (``none``), and their count and share are reported.
+
+The target is the content as the camera would see it on the object without blur: sampled at each
+camera pixel's uv (:func:`~coordinator.compensation.texture_space.content_at_view`) times
+``level`` times the rig's white at that pixel (``L 1``). On an object the rig's white changes with
+the surface's orientation to the projectors; keeping it (removing the blur, not the shading)
+keeps the target within reach everywhere, where a flat target would dim the whole object to its
+least lit part. The per-projector baseline asks each projector for its own share of that target,
+``c' white_i / white`` (on a table, where every projector lights every point alike, this is the
+``c' / N`` of the planar baseline).
+
+Quality is scored over the visible surface (the pixels the solve weighs): captures minus black
+and the target, both divided by the target's 99th percentile, PSNR and SSIM over those pixels only
+(:func:`~coordinator.compensation.mesh_geometry.masked_quality`).
+"""
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+
+from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.geometry import row_white
+from coordinator.compensation.image_param import prepare_image
+from coordinator.compensation.jobkit import (
+    baseline_exposure,
+    content_size,
+    rounded,
+    throttled,
+)
+from coordinator.compensation.mesh_geometry import masked_quality, measured_texels
+from coordinator.compensation.mesh_transport import (
+    ensure_mesh_baseline,
+    ensure_mesh_transport,
+    load_geometry,
+    solve_weights,
+    texel_summary,
+)
+from coordinator.compensation.options import CompensateOptions
+from coordinator.compensation.quality import side_by_side
+from coordinator.compensation.ridge import RidgeProblem, best_scale
+from coordinator.compensation.solver import SolveResult, solve
+from coordinator.compensation.store import (
+    SUBDIR,
+    compensation_dir,
+    transport_summary,
+    write_result,
+)
+from coordinator.compensation.texture_space import content_at_view, mesh_warp
+from coordinator.jobs import JobContext, JobError
+from coordinator.store import atomic_write_bytes
+
+__all__ = ["run_mesh_compensate", "WeightedProblem"]
+
+#: percentile of the target (over the visible surface) that scores divide by
+SCORE_PERCENTILE = 99.0
+
+
+class WeightedProblem:
+    """The solve's rows and columns: camera pixels with a weight, texels with a column in ``L``.
+
+    ``L`` (n_camera, n_content) becomes ``diag(sqrt(w)) L`` restricted to ``rows`` x ``cols``;
+    :meth:`rows_of` applies the same to a camera image.
+    """
+
+    def __init__(self, weights: np.ndarray, measured: np.ndarray) -> None:
+        w = np.asarray(weights, np.float32).ravel()
+        self.rows = np.flatnonzero(w > 0)
+        self.cols = np.flatnonzero(np.asarray(measured, bool))
+        self.sqrt_w = np.sqrt(w[self.rows])
+
+    def matrix(self, L: sp.spmatrix) -> sp.csr_matrix:
+        Lr = sp.csr_matrix(L)[self.rows][:, self.cols]
+        return sp.csr_matrix(sp.diags(self.sqrt_w) @ Lr, dtype=np.float32)
+
+    def rows_of(self, image: np.ndarray) -> np.ndarray:
+        a = np.asarray(image, np.float32)
+        a = a.reshape(-1, a.shape[-1]) if a.ndim == 3 else a.reshape(-1, 1)
+        return np.ascontiguousarray(a[self.rows] * self.sqrt_w[:, None])
+
+
+def _weighted_solve(wp: WeightedProblem, L: sp.spmatrix, target: np.ndarray, content: np.ndarray,
+                    opts: CompensateOptions, progress=None) -> tuple[SolveResult, np.ndarray, np.ndarray, float]:
+    """Solve on the measured texels from the content scaled to the target; returns the result, the full image
+    (unsolved texels keep the start; the caller pads the chart edges), the start and its scale (runs on a worker thread)."""
+    ch, cw, nc = content.shape
+    Lw = wp.matrix(L)
+    tw = wp.rows_of(target)
+    flat = content.reshape(-1, nc)
+    alpha = best_scale(Lw @ flat[wp.cols], tw)
+    start = np.clip(content * np.float32(alpha), 0, 1).astype(np.float32)
+    x0 = np.ascontiguousarray(start.reshape(-1, nc)[wp.cols])
+    problem = RidgeProblem(Lw, opts.regularization)
+    res = solve(problem.op, problem.target(tw, x0), x0=x0, max_iter=opts.max_iter, tol=opts.tol, method=opts.method,
+                progress=progress)
+    x = start.reshape(-1, nc).copy()
+    x[wp.cols] = np.clip(res.x.reshape(-1, nc), 0, 1)
+    return res, x.reshape(ch, cw, nc), start, alpha
+
+
+async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: list[str], image: np.ndarray,
+                              name: str, t0: float, *, shown_as: str) -> dict:
+    """The ``compensate`` job's solve, evaluation and result on a mesh rig (see the module docstring); with
+    ``persist`` the result is shown as the rig's content named ``shown_as``."""
+    if opts.baseline:
+        baseline_exposure(ctx, opts)  # refused before any capture
+    tr, geo = await ensure_mesh_transport(ctx, opts, slots, measure=opts.measure)
+    cw, ch = content_size(ctx)
+    content = prepare_image(image, (cw, ch), srgb=opts.srgb)
+    measured = measured_texels(tr.L)
+    try:
+        w = await ctx.compute(solve_weights, geo, tr)
+    except CompensationError as exc:
+        raise JobError(str(exc)) from exc
+    region = w > 0
+    white = row_white(tr.L, tr.camera_shape)
+    T = content_at_view(content, geo.view)
+    target = np.ascontiguousarray(np.float32(opts.level) * white[:, :, None] * T)
+    wp = WeightedProblem(w, measured)
+    ctx.progress("solve", "", 0, opts.max_iter, "objective")
+    progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, "objective", f))
+    res, x, none, alpha = await ctx.compute(_weighted_solve, wp, tr.L, target, content, opts, progress)
+    x, none = geo.pad(x), geo.pad(none)          # the chart edges the nodes sample, as the dots were shown
+    ctx.progress("solve", "", res.iterations, res.iterations, res.reason, res.objective)
+    solved = np.zeros(cw * ch, bool)
+    solved[wp.cols[np.diff(sp.csc_matrix(wp.matrix(tr.L)).indptr) > 0]] = True
+    tex = texel_summary(tr, geo)
+    on = int(tex["on_mesh"])
+    result = {
+        "image": name, "surface": "mesh", "content_size": [cw, ch], "channels": int(x.shape[2]),
+        "target_level": opts.level, "target_level_from": "the rig's white at each camera pixel (the surface's shading "
+                                                          "kept)",
+        "level": opts.level, "none_scale": round(alpha, 6),
+        "solve": {"method": opts.method, "iterations": res.iterations, "reason": res.reason,
+                  "converged": res.converged, "penalised_objective": res.objective, "regularization": opts.regularization,
+                  "gap": rounded(res.gap, 6), "seconds": round(res.seconds, 3), "lipschitz": res.lipschitz,
+                  "rows": int(len(wp.rows)), "columns": int(len(wp.cols))},
+        "transport": transport_summary(tr),
+        "texture": {**tex, "compensated": int(solved.sum()), "uncompensated": on - int(solved[geo.texels.on_mesh].sum()),
+                    "uncompensated_share": rounded(1 - solved[geo.texels.on_mesh].sum() / on if on else 1.0, 4),
+                    "note": "texels no camera sees well stay uncompensated (the content at the none level)"},
+        "weights": "cos(viewing angle) x texture area per camera pixel, median 1; 0 off the visible surface",
+        "saturated_fraction": {"low": round(float(np.mean(x[solved.reshape(ch, cw)] <= 1e-4)), 5),
+                               "high": round(float(np.mean(x[solved.reshape(ch, cw)] >= 1 - 1e-4)), 5)},
+    }
+    base_x = None
+    if opts.baseline:
+        base_L, base_summary = await ensure_mesh_baseline(ctx, tr, opts)
+        if not base_L:
+            raise JobError("baseline: no projector adds light to the camera image")
+        t_b = time.monotonic()
+        base_x, results = await ctx.compute(_solve_baseline, ctx, base_L, wp, white, target, content, opts)
+        base_x = {k: geo.pad(v) for k, v in base_x.items()}
+        result["baseline"] = {**base_summary, "solve_seconds": round(time.monotonic() - t_b, 3),
+                              "iterations": sum(r.iterations for r in results),
+                              "solve_seconds_sum": round(sum(r.seconds for r in results), 3)}
+        result["baseline_over_ours_seconds"] = round(result["baseline"]["solve_seconds_sum"] / max(res.seconds, 1e-9), 2)
+    if opts.evaluate:
+        result["quality"] = await _evaluate(ctx, tr, geo, none, x, base_x, target, region, opts, name)
+    result["wall_s"] = round(time.monotonic() - t0, 3)
+    write_result(ctx.rig, "result.json", result)
+    if opts.persist:
+        ctx.show_still(np.ascontiguousarray(x), name=shown_as, persist=True)
+        result["content"] = "shown on every projector (the mesh's texture) and stored as the rig's content"
+    return result
+
+
+def _solve_baseline(ctx: JobContext, base_L: dict[str, sp.csr_matrix], wp: WeightedProblem, white: np.ndarray,
+                    target: np.ndarray, content: np.ndarray, opts: CompensateOptions
+                    ) -> tuple[dict[str, np.ndarray], list[SolveResult]]:
+    """The conventional method: each projector's own weighted ridge problem for its share of the target
+    (``c' white_i / white``), from its own uncompensated start (runs on a worker thread)."""
+    xs, results = {}, []
+    names = sorted(base_L)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i, k in enumerate(names):
+            share = np.where(white > 0, row_white(base_L[k], white.shape) / white, 0).astype(np.float32)
+            res, x, _, _ = _weighted_solve(wp, base_L[k], target * share[:, :, None], content, opts)
+            xs[k] = x
+            results.append(res)
+            ctx.progress("baseline solve", k, i + 1, len(names), f"{res.iterations} iterations")
+    return xs, results
+
+
+async def _evaluate(ctx: JobContext, tr, geo, none: np.ndarray, ours: np.ndarray,
+                    base_x: dict[str, np.ndarray] | None, target: np.ndarray, region: np.ndarray,
+                    opts: CompensateOptions, name: str) -> dict:
+    """Capture none / baseline / ours; PSNR, SSIM over the visible surface and the side-by-side picture."""
+    rig = ctx.rig
+    camera = int(tr.meta["camera"])
+    frames = opts.eval_frames
+    steps = 3 if base_x else 2
+    ref = float(np.percentile(target[region], SCORE_PERCENTILE))
+    if ref <= 0:
+        raise JobError("the rig adds no light to the visible surface: check the light-transport measurement")
+    goal = target / np.float32(ref)
+
+    async def seen(image: np.ndarray) -> np.ndarray:
+        await ctx.show_content(image, settle_s=opts.settle_s)
+        return await ctx.capture(camera, frames=frames)
+
+    def score(capture: np.ndarray) -> tuple[dict, np.ndarray]:
+        c = (np.asarray(capture, np.float32) - black) / np.float32(ref)
+        if goal.shape[2] == 1:
+            c = c.mean(axis=2, keepdims=True)
+        return masked_quality(goal, c, region), c
+
+    ctx.progress("evaluate", "", 0, steps, "without compensation")
+    black = await seen(np.zeros(none.shape[:2], np.float32))
+    scores: dict[str, dict] = {}
+    tiles: dict[str, np.ndarray] = {}
+    scores["none"], tiles["none"] = score(await seen(none))
+    if base_x is not None:
+        ctx.progress("evaluate", "", 1, steps, "baseline")
+        views = (await load_geometry(ctx, sorted(base_x), camera, projectors=True)).projectors
+        frames_by_slot = {}
+        for k, x in base_x.items():
+            st = rig.slot(k)
+            frames_by_slot[k] = await ctx.compute(mesh_warp, x, views[k], lut=st.lut, gain=st.gain)
+        await ctx.show(frames_by_slot, settle_s=opts.settle_s, require=list(frames_by_slot))
+        scores["baseline"], tiles["baseline"] = score(await ctx.capture(camera, frames=frames))
+    ctx.progress("evaluate", "", steps - 1, steps, "ours")
+    scores["ours"], tiles["ours"] = score(await seen(ours))
+    ctx.progress("evaluate", "", steps, steps, "scored")
+
+    def predicted(x: np.ndarray) -> dict:
+        c = (tr.L @ x.reshape(-1, x.shape[2])).reshape(*tr.camera_shape, -1) / np.float32(ref)
+        return masked_quality(goal, c, region)
+
+    ys, xs = np.nonzero(region)
+    box = (slice(max(ys.min() - 4, 0), ys.max() + 5), slice(max(xs.min() - 4, 0), xs.max() + 5))
+    order = ["none"] + (["baseline"] if base_x is not None else []) + ["ours"]
+    inside = region[box][:, :, None]
+    images = [np.where(inside, goal[box], 0)] + [np.where(inside, np.clip(tiles[k][box], 0, 1), 0) for k in order]
+    labels = ["target"] + [f"{k} {scores[k]['psnr']:.2f} dB / {scores[k]['ssim']:.3f}" for k in order]
+    pic = side_by_side(images, labels)
+    ok, png = cv2.imencode(".png", cv2.cvtColor(pic, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise JobError("could not encode the side-by-side picture")
+    atomic_write_bytes(compensation_dir(rig) / "quality.png", png.tobytes())
+    out = {**scores, "predicted": {"none": await ctx.compute(predicted, none), "ours": await ctx.compute(predicted, ours)},
+           "region": {"visible_surface_pixels": int(region.sum()), "of_mesh_pixels": int(geo.view.on_mesh.sum()),
+                      "score_reference": round(ref, 6)},
+           "captures_averaged": frames, "picture": f"{SUBDIR}/quality.png", "image": name}
+    out["ordering"] = {
+        "ours_minus_none_db": round(scores["ours"]["psnr"] - scores["none"]["psnr"], 3),
+        **({"ours_minus_baseline_db": round(scores["ours"]["psnr"] - scores["baseline"]["psnr"], 3),
+            "baseline_minus_none_db": round(scores["baseline"]["psnr"] - scores["none"]["psnr"], 3)}
+           if base_x is not None else {}),
+    }
+    write_result(rig, "quality.json", out)
+    return out

@@ -1,0 +1,429 @@
+"""The light transport and the solve's weights in texture space (a mesh rig), from the texel maps of
+:mod:`coordinator.compensation.texture_space`.
+
+On a table one homography places every content pixel in the camera; on a mesh each texel has its
+own camera position (:class:`~coordinator.compensation.texture_space.TexelMap`), or none when the
+camera does not see it. Here:
+
+* the window structure of ``L`` (:func:`texel_windows`): the planar layout of
+  :mod:`coordinator.compensation.transport` (a ``(2R+1)^2`` window per content pixel, row-major
+  offsets), centred on each seen texel's rounded camera position; texels the camera does not
+  see get no window (an empty column);
+* dot-grid separation (:class:`TexelGrid`, :func:`dot_conflicts`, :func:`schedule_dots`): a uv
+  layout does not keep texels evenly spaced in the camera (the surface turns away from it, chart
+  seams put texels far apart in the texture side by side on the object), so the grid's spacing
+  may differ along u and v, and the dots of a grid pattern whose windows would overlap in the
+  camera (found by a k-d tree) move to extra patterns, greedily, each to the first pattern
+  where no dot near it in the camera is lit (:class:`TexelSchedule`): every seen texel is
+  measured, in a number of patterns set by the geometry, not by the projectors;
+* texels too large for their window (:func:`texel_extent`: where the uv map stretches a texel over
+  more camera pixels than the window holds) are left out too: their light would be cut;
+* the recovery from the captures (:func:`texel_transport_from_captures`);
+* the PSF radius's scales (:func:`view_scales`) and the solve's row weights
+  (:func:`row_weights`): a camera pixel's squared residual weighs ``cos(theta)`` times the
+  texture area it covers (in texels), normalised to a median of 1, so the pixels over one texel
+  weigh about ``cos(theta)`` together whatever the camera's resolution and distance; pixels off
+  the mesh, seen at grazing angles (``cos < min_cos``), within the window radius of a silhouette
+  or of a seen texel missing from ``L``, or over a texel missing from ``L`` weigh 0;
+* quality over a mask (:func:`masked_quality`): PSNR and SSIM over the visible surface only.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from scipy import ndimage
+from scipy.spatial import cKDTree
+from skimage.metrics import structural_similarity
+
+from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.texture_space import DeviceView, texels_per_pixel
+from coordinator.compensation.transport import assemble_transport
+
+__all__ = ["TexelGrid", "TexelSchedule", "texel_windows", "dot_conflicts", "schedule_dots",
+           "texel_transport_from_captures", "view_scales", "row_weights", "masked_quality", "ring_energy",
+           "measured_texels", "texel_extent"]
+
+class TexelGrid:
+    """Shifted dot grids in texture space with spacings ``sx`` (along x, u) and ``sy`` (along y, v).
+
+    Pattern ``k = ty * sx + tx`` (``0 <= k < sx * sy``) lights every texel ``(x, y)`` with
+    ``x % sx == tx`` and ``y % sy == ty``; together the patterns light every texel once. The
+    interface of :class:`coordinator.compensation.transport.DotGrid` (``sx == sy`` is that grid).
+    """
+
+    def __init__(self, width: int, height: int, sx: int, sy: int) -> None:
+        if width < 1 or height < 1 or sx < 1 or sy < 1:
+            raise ValueError(f"need a positive size and spacings, got {width}x{height}, {sx}x{sy}")
+        self.width, self.height, self.sx, self.sy = int(width), int(height), int(sx), int(sy)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.height, self.width
+
+    @property
+    def spacing(self) -> list[int]:
+        """``[sx, sy]``."""
+        return [self.sx, self.sy]
+
+    def __len__(self) -> int:
+        return self.sx * self.sy
+
+    def dots(self, k: int) -> np.ndarray:
+        """Texel indices ``(D,) int64`` (``y * W + x``) lit by pattern ``k``."""
+        if not 0 <= k < len(self):
+            raise IndexError(f"pattern {k} out of range 0..{len(self) - 1}")
+        xs = np.arange(k % self.sx, self.width, self.sx, dtype=np.int64)
+        ys = np.arange(k // self.sx, self.height, self.sy, dtype=np.int64)
+        return (ys[:, None] * self.width + xs[None, :]).ravel()
+
+    def pattern(self, k: int, *, value: float = 1.0, dtype=np.float32) -> np.ndarray:
+        """Pattern ``k`` as an ``(H, W)`` image of ``dtype``."""
+        img = np.zeros(self.width * self.height, dtype=dtype)
+        img[self.dots(k)] = value
+        return img.reshape(self.height, self.width)
+
+
+class TexelSchedule:
+    """Dot patterns over the texels of a ``width`` x ``height`` texture: texel ``i`` is lit by pattern
+    ``colour[i]`` alone (-1: never lit, no column in ``L``). The interface of :class:`TexelGrid`;
+    ``spacing`` is the grid it started from (:func:`schedule_dots`)."""
+
+    def __init__(self, width: int, height: int, colour: np.ndarray, spacing: Sequence[int]) -> None:
+        c = np.asarray(colour, np.int32)
+        if c.shape != (int(width) * int(height),) or (c.size and c.min() < -1):
+            raise ValueError(f"colour must be ({int(width) * int(height)},) ints >= -1, got {c.shape}")
+        self.width, self.height, self.colour = int(width), int(height), c
+        self.spacing = [int(v) for v in spacing]
+        self._order = np.argsort(c, kind="stable")
+        self._starts = np.searchsorted(c[self._order], np.arange(len(self) + 1))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.height, self.width
+
+    def __len__(self) -> int:
+        return int(self.colour.max()) + 1 if self.colour.size else 0
+
+    @property
+    def lit(self) -> np.ndarray:
+        """(n,) bool: texels some pattern lights."""
+        return self.colour >= 0
+
+    def dots(self, k: int) -> np.ndarray:
+        """Texel indices ``(D,) int64`` lit by pattern ``k``."""
+        if not 0 <= k < len(self):
+            raise IndexError(f"pattern {k} out of range 0..{len(self) - 1}")
+        return self._order[self._starts[k]:self._starts[k + 1]].astype(np.int64)
+
+    def pattern(self, k: int, *, value: float = 1.0, dtype=np.float32) -> np.ndarray:
+        """Pattern ``k`` as an ``(H, W)`` image of ``dtype``."""
+        img = np.zeros(self.width * self.height, dtype=dtype)
+        img[self.dots(k)] = value
+        return img.reshape(self.height, self.width)
+
+
+def _greedy_colours(grid: TexelGrid, base: np.ndarray, seen: np.ndarray, radius: int, guard: int) -> np.ndarray:
+    """``grid``'s pattern per seen texel, the dots that crowd another of their pattern moved to the first
+    pattern none of their camera neighbours (Chebyshev distance <= ``2 radius + guard``) has: ``(n,) int32``,
+    -1 unseen."""
+    reach = 2 * radius + guard
+    n = len(base)
+    colour = np.full(n, -1, np.int32)
+    idx = np.arange(n)
+    colour[seen] = ((idx[seen] // grid.width) % grid.sy) * grid.sx + (idx[seen] % grid.width) % grid.sx
+    pending = np.flatnonzero(dot_conflicts(grid, base, seen, radius, guard=guard))
+    if not len(pending):
+        return colour
+    colour[pending] = -2
+    ids = np.flatnonzero(seen)
+    tree = cKDTree(base[ids].astype(np.float64))
+    near = tree.query_ball_point(base[pending].astype(np.float64), r=reach, p=np.inf)
+    preferred = ((pending // grid.width) % grid.sy) * grid.sx + (pending % grid.width) % grid.sx
+    for t, nb, want in zip(pending, near, preferred):
+        used = set(colour[ids[nb]].tolist())
+        if want in used:
+            want = 0
+            while want in used:
+                want += 1
+        colour[t] = want
+    return colour
+
+
+def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[int], radius: int, *,
+                  spacing: int | Sequence[int] | None = None, guard: int = 1, limit: int = 32) -> TexelSchedule:
+    """Dot patterns that measure every seen texel with its ``(2R+1)^2`` window alone (:class:`TexelSchedule`).
+
+    Starting from a grid (``spacing``: ``s`` or ``(sx, sy)``; by default each ``sx`` x ``sy`` near the median
+    camera spacing of neighbouring texels, the one with the fewest patterns in the end), the
+    dots whose windows would come within ``guard`` px of another dot's of the same pattern move
+    greedily to extra patterns (seams, oblique views). Every pattern lights only seen texels.
+
+    Parameters
+    ----------
+    base : (n, 2) int
+        Rounded camera position of each texel (:func:`texel_windows`).
+    seen : (n,) bool
+    content_shape : (H, W)
+
+    Raises
+    ------
+    CompensationError
+        When the camera sees no texel.
+    """
+    h, w = int(content_shape[0]), int(content_shape[1])
+    seen = np.asarray(seen, bool)
+    if base.shape != (h * w, 2) or seen.shape != (h * w,):
+        raise ValueError(f"base must be ({h * w}, 2) and seen ({h * w},), got {base.shape}, {seen.shape}")
+    if not seen.any():
+        raise CompensationError("the camera sees no texel of the mesh: check the camera's pose (calibration)")
+    if guard < 0:
+        raise ValueError(f"guard must be >= 0, got {guard}")
+    reach = 2 * int(radius) + guard
+    if spacing is not None:
+        sx, sy = (spacing, spacing) if np.isscalar(spacing) else spacing
+        candidates = [(int(sx), int(sy))]
+    else:
+        pos = base.reshape(h, w, 2).astype(np.float64)
+        ok = seen.reshape(h, w)
+        steps = []
+        for axis in (1, 0):                                  # along x (u), then along y (v)
+            a = [slice(None)] * 2
+            b = [slice(None)] * 2
+            a[axis], b[axis] = slice(1, None), slice(None, -1)
+            both = ok[tuple(a)] & ok[tuple(b)]
+            d = np.abs(pos[tuple(a)] - pos[tuple(b)]).max(axis=2)[both]
+            steps.append(float(np.median(d)) if d.size else 1.0)
+        s0 = [min(limit, max(1, math.ceil((reach + 1) / max(st, 0.5)))) for st in steps]
+        candidates = sorted({(min(limit, max(1, s0[0] + dx)), min(limit, max(1, s0[1] + dy)))
+                             for dx in (-1, 0, 1) for dy in (-1, 0, 1)})
+    best: TexelSchedule | None = None
+    for sx, sy in candidates:
+        colour = _greedy_colours(TexelGrid(w, h, sx, sy), base, seen, int(radius), guard)
+        sched = TexelSchedule(w, h, colour, (sx, sy))
+        if best is None or len(sched) < len(best):
+            best = sched
+    return best
+
+
+def texel_windows(position: np.ndarray, seen: np.ndarray, camera_shape: Sequence[int],
+                  radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The window structure of a mesh rig's ``L`` in one camera.
+
+    Parameters
+    ----------
+    position : (n, 2) float
+        Camera position ``(X, Y)`` of each texel (NaN allowed where not ``seen``).
+    seen : (n,) bool
+        Texels that get a window.
+    camera_shape : (Hc, Wc)
+    radius : int
+
+    Returns
+    -------
+    base : (n, 2) int64
+        Rounded camera position of each texel (0 where not seen).
+    rows : (n, K) int32
+        Camera pixel of each window entry, ``K = (2R+1)^2`` row-major over ``(dy, dx)``.
+    valid : (n, K) bool
+        Entries inside the image, of seen texels.
+    """
+    hc, wc = int(camera_shape[0]), int(camera_shape[1])
+    pos = np.asarray(position, np.float64)
+    seen = np.asarray(seen, bool)
+    if pos.ndim != 2 or pos.shape[1] != 2 or seen.shape != (len(pos),):
+        raise ValueError(f"position must be (n, 2) and seen (n,), got {pos.shape}, {seen.shape}")
+    if radius < 0:
+        raise ValueError(f"radius must be >= 0, got {radius}")
+    b = np.where(seen[:, None], np.nan_to_num(np.rint(pos)), 0).astype(np.int64)
+    offs = np.arange(-radius, radius + 1, dtype=np.int64)
+    dy = np.repeat(offs, 2 * radius + 1)
+    dx = np.tile(offs, 2 * radius + 1)
+    X = b[:, :1] + dx[None, :]
+    Y = b[:, 1:] + dy[None, :]
+    valid = seen[:, None] & (X >= 0) & (X < wc) & (Y >= 0) & (Y < hc)
+    rows = (np.clip(Y, 0, hc - 1) * wc + np.clip(X, 0, wc - 1)).astype(np.int32)
+    return b, rows, valid
+
+
+def dot_conflicts(grid: TexelGrid, base: np.ndarray, seen: np.ndarray, radius: int, *, guard: int = 0) -> np.ndarray:
+    """Seen texels whose window would share camera pixels (plus ``guard``) with another dot of their pattern.
+
+    ``base``: rounded camera positions (:func:`texel_windows`). Returns ``(n,) bool``.
+    """
+    out = np.zeros(len(base), bool)
+    reach = 2 * radius + guard            # Chebyshev distance below 2R+1+guard: the windows touch
+    for k in range(len(grid)):
+        dots = grid.dots(k)
+        dots = dots[seen[dots]]
+        if len(dots) < 2:
+            continue
+        pairs = cKDTree(base[dots].astype(np.float64)).query_pairs(r=reach, p=np.inf, output_type="ndarray")
+        if len(pairs):
+            out[dots[pairs.ravel()]] = True
+    return out
+
+
+def texel_transport_from_captures(captures: Iterable[np.ndarray], black: np.ndarray, *, grid: TexelGrid,
+                                  rows: np.ndarray, valid: np.ndarray, dot_value: float = 1.0) -> sp.csr_matrix:
+    """A mesh rig's ``L`` in one camera from dot-grid captures: ``(Hc*Wc, W*H) float32`` CSR.
+
+    As :func:`coordinator.compensation.transport.transport_from_captures` (the channel mean of
+    ``capture - black`` inside each dot's window, negatives clipped, divided by ``dot_value``),
+    with the window structure of :func:`texel_windows` (texels left out: ``valid`` all False).
+
+    Parameters
+    ----------
+    captures : iterable of (Hc, Wc, C) float32, one per pattern of ``grid`` in order
+    black : (Hc, Wc, C) float32
+    rows, valid : (W*H, K)
+    """
+    b = np.asarray(black, np.float32)
+    b = b.mean(axis=2, dtype=np.float32) if b.ndim == 3 else b
+    camera_shape = b.shape
+    if rows.shape != valid.shape or rows.shape[0] != grid.width * grid.height:
+        raise ValueError(f"rows {rows.shape} and valid {valid.shape} must be ({grid.width * grid.height}, K)")
+    if dot_value <= 0:
+        raise ValueError(f"dot_value must be positive, got {dot_value}")
+    values = np.zeros(rows.shape, np.float32)
+    count = 0
+    for k, capture in enumerate(captures):
+        if k >= len(grid):
+            raise ValueError(f"got more than the {len(grid)} captures the dot grid needs")
+        img = np.asarray(capture, np.float32)
+        img = img.mean(axis=2, dtype=np.float32) if img.ndim == 3 else img
+        if img.shape != camera_shape:
+            raise ValueError(f"capture {k} has shape {img.shape}, the black capture {camera_shape}")
+        diff = (img - b).reshape(-1)
+        dots = grid.dots(k)
+        values[dots] = diff[rows[dots]]
+        count += 1
+    if count != len(grid):
+        raise ValueError(f"the dot grid needs {len(grid)} captures, got {count}")
+    if dot_value != 1.0:
+        values /= np.float32(dot_value)
+    np.maximum(values, 0, out=values)
+    values[~valid] = 0
+    return assemble_transport(values, rows, valid, camera_shape)
+
+
+def view_scales(camera: DeviceView, projectors: Sequence[DeviceView]) -> tuple[float, float]:
+    """Median scales on the surface: ``c`` camera px per texel and ``p`` camera px per projector px
+    (for :func:`coordinator.compensation.geometry.psf_radius_at_scales`)."""
+    a_cam = texels_per_pixel(camera)
+    a_cam = a_cam[camera.on_mesh & np.isfinite(a_cam) & (a_cam > 0)]
+    if a_cam.size == 0:
+        raise CompensationError("the camera sees none of the mesh: check the camera's pose (calibration)")
+    c = float(1.0 / np.sqrt(np.median(a_cam)))
+    ratios = []
+    for v in projectors:
+        a = texels_per_pixel(v)
+        a = a[v.on_mesh & np.isfinite(a) & (a > 0)]
+        if a.size:
+            ratios.append(c * float(np.sqrt(np.median(a))))     # texel px per projector px, times c
+    return c, float(np.median(ratios)) if ratios else c
+
+
+def row_weights(view: DeviceView, measured: np.ndarray, content_size: tuple[int, int], *, radius: int,
+                min_cos: float = 0.25, unmeasured_at: np.ndarray | None = None) -> np.ndarray:
+    """The weight of each camera pixel's squared residual in the solve: ``(Hc, Wc) float32`` (see the module
+    docstring), 0 outside the visible surface the solve uses.
+
+    ``measured``: (W*H,) bool texels with a column in ``L``. A pixel counts when it sees the mesh
+    at ``cos >= min_cos`` more than ``radius`` px from the outline of that region (light from the
+    texels beyond it, unmeasured, reaches that far), its nearest texel is measured, and no texel
+    of ``unmeasured_at`` ((m, 2) camera positions of texels the camera sees but ``L`` lacks) lies
+    within ``radius`` px (Chebyshev).
+    """
+    cw, ch = content_size
+    good = view.on_mesh & (view.cos >= min_cos)
+    good = ndimage.binary_erosion(good, structure=np.ones((3, 3), bool), iterations=radius, border_value=0)
+    x, y = np.rint(np.nan_to_num(view.x, nan=-10.0)), np.rint(np.nan_to_num(view.y, nan=-10.0))
+    inside = (x >= 0) & (x < cw) & (y >= 0) & (y < ch)
+    m = np.asarray(measured, bool).reshape(ch, cw)
+    good &= inside & m[np.clip(y, 0, ch - 1).astype(np.int64), np.clip(x, 0, cw - 1).astype(np.int64)]
+    if unmeasured_at is not None and len(unmeasured_at):
+        hc, wc = view.shape
+        pts = np.rint(np.asarray(unmeasured_at, np.float64))
+        pts = pts[np.isfinite(pts).all(axis=1)].astype(np.int64)
+        pts = pts[(pts[:, 0] >= 0) & (pts[:, 0] < wc) & (pts[:, 1] >= 0) & (pts[:, 1] < hc)]
+        near = np.zeros(view.shape, bool)
+        near[pts[:, 1], pts[:, 0]] = True
+        good &= ~ndimage.binary_dilation(near, structure=np.ones((2 * radius + 1, 2 * radius + 1), bool))
+    area = texels_per_pixel(view)
+    good &= np.isfinite(area) & (area > 0)
+    w = np.zeros(view.shape, np.float32)
+    if not good.any():
+        raise CompensationError("no camera pixel sees the measured surface well: check the camera's pose and the "
+                                "light-transport measurement")
+    a = np.minimum(area[good], 4 * float(np.median(area[good])))     # uv seams make the differences jump
+    raw = view.cos[good] * a
+    w[good] = raw / np.float32(np.median(raw))
+    return w
+
+
+def masked_quality(target: np.ndarray, captured: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """PSNR and SSIM (data range 1) of ``captured`` against ``target`` over the pixels of ``mask`` only.
+
+    ``target``, ``captured``: ``(H, W, C)`` float; ``captured`` is clipped to [0, 1]. Outside
+    the mask the captured image is replaced by the target, so SSIM's 7x7 windows that straddle
+    the mask's edge compare only what lies inside it; SSIM is the mean of its map over the mask.
+    Returns ``{"psnr", "ssim", "pixels"}``.
+    """
+    t = np.asarray(target, np.float64)
+    c = np.clip(np.asarray(captured, np.float64), 0.0, 1.0)
+    m = np.asarray(mask, bool)
+    if t.shape != c.shape or t.shape[:2] != m.shape:
+        raise ValueError(f"target {t.shape}, captured {c.shape} and mask {m.shape} must match")
+    if not m.any():
+        raise ValueError("the mask is empty")
+    c = np.where(m[:, :, None] if c.ndim == 3 else m, c, t)
+    mse = float(np.mean((t[m] - c[m]) ** 2))
+    psnr = float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse))
+    _, smap = structural_similarity(t, c, data_range=1.0, channel_axis=2 if t.ndim == 3 else None, full=True)
+    if smap.ndim == 3:
+        smap = smap.mean(axis=2)
+    return {"psnr": round(psnr, 3), "ssim": round(float(smap[m].mean()), 4), "pixels": int(m.sum())}
+
+
+def ring_energy(L: sp.spmatrix, base: np.ndarray, camera_width: int, radius: int) -> float:
+    """Share of ``L``'s squared entries on the outer ring of their windows (centred on ``base``, (n, 2)):
+    :func:`coordinator.compensation.geometry.edge_energy` for windows placed per texel."""
+    csc = sp.csc_matrix(L)
+    cols = np.repeat(np.arange(csc.shape[1]), np.diff(csc.indptr))
+    rows = csc.indices.astype(np.int64)
+    dx = rows % int(camera_width) - base[cols, 0]
+    dy = rows // int(camera_width) - base[cols, 1]
+    ring = (np.abs(dx) == radius) | (np.abs(dy) == radius)
+    v = csc.data.astype(np.float64) ** 2
+    total = float(v.sum())
+    return float(v[ring].sum()) / total if total > 0 else 0.0
+
+
+def measured_texels(L: sp.spmatrix) -> np.ndarray:
+    """``(n_content,) bool``: texels with a window in ``L`` (a non-empty column)."""
+    return np.diff(sp.csc_matrix(L).indptr) > 0
+
+
+def texel_extent(position: np.ndarray, content_shape: Sequence[int]) -> np.ndarray:
+    """How far a texel's light reaches in the camera: ``(n,) float64``, the largest Chebyshev camera distance
+    (px) from its centre to its 8 neighbours' (a node's bilinear lookup spreads a texel over its
+    neighbours' span). NaN where the texel has no position; neighbours without one are skipped.
+    A uv map that stretches texels on the surface (a cylindrical map near its poles) makes it large.
+    """
+    h, w = int(content_shape[0]), int(content_shape[1])
+    pos = np.asarray(position, np.float64).reshape(h, w, 2)
+    pad = np.full((h + 2, w + 2, 2), np.nan)
+    pad[1:-1, 1:-1] = pos
+    out = np.full((h, w), -np.inf)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx == dy == 0:
+                continue
+            d = np.abs(pad[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx] - pos).max(axis=2)
+            out = np.fmax(out, d)
+    out[~np.isfinite(pos).all(axis=2)] = np.nan
+    out[np.isneginf(out)] = 0.0
+    return out.reshape(-1)

@@ -1,0 +1,251 @@
+"""The ``transport`` job on a mesh rig: ``L`` in texture space, every projector at once.
+
+Each node renders the dot pattern as the mesh's texture through its own 3x4 pose, so every
+projector lights the same surface dots; ``sx * sy`` patterns (plus one black capture) whatever
+the number of projectors (:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Each
+dot's window is centred where the camera sees its texel
+(:func:`~coordinator.compensation.texture_space.texel_camera_map`); texels the camera does not
+see, or whose dots crowd in the camera (:func:`~coordinator.compensation.mesh_geometry.dot_conflicts`),
+get no column and are reported. Stored, reused and refused as the table's ``L``
+(:mod:`coordinator.compensation.transport_job`), with the camera's projection and the mesh in
+its fingerprint. With ``baseline`` each projector's ``L_i`` is measured one at a time: the
+coordinator renders the texture through that projector's pose (:func:`~coordinator.compensation.
+texture_space.mesh_warp`, the node's mesh shader in numpy) and shows it on that projector alone.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from coordinator.compensation.capture_feed import transport_while_capturing
+from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.geometry import (
+    EDGE_WARNING,
+    psf_radius_at_scales,
+    row_white,
+)
+from coordinator.compensation.jobkit import baseline_exposure, content_size, rounded
+from coordinator.compensation.mesh_geometry import (
+    measured_texels,
+    ring_energy,
+    row_weights,
+    schedule_dots,
+    texel_extent,
+    texel_transport_from_captures,
+    texel_windows,
+    view_scales,
+)
+from coordinator.compensation.mesh_rig import MeshGeometry, geometry_key, mesh_geometry
+from coordinator.compensation.options import TransportOptions
+from coordinator.compensation.store import (
+    StoredTransport,
+    baseline_fingerprint,
+    load_baseline_transport,
+    load_valid_transport,
+    rig_state_fingerprint,
+    save_baseline_transport,
+    save_measured_transport,
+    transport_fingerprint,
+    transport_summary,
+)
+from coordinator.compensation.texture_space import mesh_warp
+from coordinator.jobs import JobContext, JobError
+
+__all__ = ["run_mesh_transport", "ensure_mesh_transport", "ensure_mesh_baseline", "load_geometry", "texel_summary",
+           "solve_weights"]
+
+
+async def load_geometry(ctx: JobContext, slots: list[str], camera: int, *, projectors: bool = False) -> MeshGeometry:
+    """The rig's mesh geometry (:func:`~coordinator.compensation.mesh_rig.mesh_geometry`) off the loop."""
+    try:
+        return await ctx.compute(mesh_geometry, ctx.rig, slots, camera, projectors=projectors)
+    except CompensationError as exc:
+        raise JobError(str(exc)) from exc
+
+
+def solve_weights(geo: MeshGeometry, tr: StoredTransport) -> np.ndarray:
+    """:func:`~coordinator.compensation.mesh_geometry.row_weights` of a measured mesh rig: ``(Hc, Wc) float32``."""
+    measured = measured_texels(tr.L)
+    missing = geo.texels.visible & ~measured
+    return row_weights(geo.view, measured, geo.content_size, radius=int(tr.meta["radius"]),
+                       unmeasured_at=geo.texels.position[missing])
+
+
+def texel_summary(tr: StoredTransport, geo: MeshGeometry) -> dict:
+    """How much of the texture the measurement covers: texels on the mesh, seen by the camera, in ``L``."""
+    on = int(np.count_nonzero(geo.texels.on_mesh))
+    measured = int(np.count_nonzero(measured_texels(tr.L)))
+    seen = int(np.count_nonzero(geo.texels.visible))
+    return {"texels": int(geo.texels.on_mesh.size), "on_mesh": on, "seen": seen, "measured": measured,
+            "left_out": seen - measured, "unseen": on - seen,
+            "unseen_share": rounded(1 - seen / on if on else 1.0, 4),
+            "measured_share": rounded(measured / on if on else 0.0, 4)}
+
+
+async def run_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: list[str]) -> dict:
+    """The ``transport`` job's work and figures on a mesh rig."""
+    t0 = time.monotonic()
+    if opts.baseline:
+        baseline_exposure(ctx, opts)  # refused before any capture
+    tr, geo = await ensure_mesh_transport(ctx, opts, slots)
+    white = row_white(tr.L, tr.camera_shape)
+    try:
+        region = await ctx.compute(solve_weights, geo, tr)
+    except CompensationError as exc:
+        raise JobError(str(exc)) from exc
+    vals = white[region > 0]
+    summary = {**transport_summary(tr), "surface": "mesh", "texture": texel_summary(tr, geo),
+               "white": {"p2": rounded(float(np.percentile(vals, 2)), 5), "median": rounded(float(np.median(vals)), 5),
+                         "max": rounded(float(vals.max()), 5)},
+               "visible_surface_pixels": int(np.count_nonzero(region))}
+    if opts.baseline:
+        _, summary["baseline"] = await ensure_mesh_baseline(ctx, tr, opts)
+    summary["wall_s"] = round(time.monotonic() - t0, 3)
+    return summary
+
+
+async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: list[str], *,
+                                measure: bool = True) -> tuple[StoredTransport, MeshGeometry]:
+    """The stored ``L`` of the mesh rig when its fingerprint matches (and not ``force``), else a new
+    measurement (``measure=False``: a :class:`JobError` instead); and the rig's geometry."""
+    rig = ctx.rig
+    geo = await load_geometry(ctx, slots, opts.camera, projectors=opts.radius is None)
+    cw, ch = content_size(ctx)
+    extent = texel_extent(geo.texels.position, (ch, cw))
+    radius = opts.radius
+    if radius is None:
+        # camera px per texel: the reach of a texel's light (it spans its neighbours') for 90 % of the texels
+        # the camera sees, so they fit their window; the few larger ones are left out (below)
+        _, p = view_scales(geo.view, list(geo.projectors.values()))
+        seen_extent = extent[geo.texels.visible]
+        c = float(np.percentile(seen_extent, 90)) if seen_extent.size else 1.0
+        radius = psf_radius_at_scales(max(c, 0.5), p)
+    key = geometry_key(geo.P, geo.mesh)
+    state = rig_state_fingerprint(rig, slots, key, opts.camera)
+    fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count)
+    if not opts.force:
+        found = load_valid_transport(rig, state, opts.given, geo.P, slots, log=ctx.log)
+        if found is not None and found.meta.get("surface") == "mesh":
+            ctx.log(f"light transport: reusing the stored measurement of {found.meta.get('date', '?')} "
+                    f"({found.meta.get('captures')} captures)")
+            return found, geo
+    if not measure:
+        asked = ", ".join(f"{k} {v}" for k, v in sorted(opts.given.items()))
+        raise JobError("no valid light-transport measurement for the rig as it is now (poses, LUTs or gains changed, "
+                       f"or none was made{'; or it was measured with another ' + asked if asked else ''}): "
+                       "run `shadowless transport`")
+    spec = ctx.camera_spec(opts.camera)
+    missing = [s for s in slots if rig.slot(s).lut is None]
+    if missing:
+        ctx.log(f"warning: {', '.join(missing)} have no inverse-response LUT: the light transport assumes linear "
+                "projectors; run `shadowless response` first")
+    t0 = time.monotonic()
+    c0 = ctx.captures
+    frames = opts.frame_count
+    ctx.progress("transport", "", 0, 1, "every projector black")
+    await ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s)
+    black = await ctx.capture(opts.camera, frames=frames)
+    cam = black.shape[:2]
+    if cam != geo.camera_shape:
+        raise JobError(f"camera {opts.camera} delivers {cam[1]}x{cam[0]} images but was calibrated at "
+                       f"{geo.camera_shape[1]}x{geo.camera_shape[0]}: calibrate again")
+    large = geo.texels.visible & ~(np.nan_to_num(extent, nan=np.inf) <= radius)   # its bilinear hat alone is wider
+    seen = geo.texels.visible & ~large
+    base, _, _ = texel_windows(geo.texels.position, seen, cam, radius)
+    try:
+        grid = await ctx.compute(schedule_dots, base, seen, (ch, cw), radius, spacing=opts.spacing)
+    except CompensationError as exc:
+        raise JobError(str(exc)) from exc
+    base, rows, valid = texel_windows(geo.texels.position, grid.lit, cam, radius)
+    ctx.log(f"light transport on the mesh: {len(grid)} dot patterns (from a {grid.spacing[0]}x{grid.spacing[1]} grid, "
+            f"radius {radius}, {frames} frame(s) each), every projector at once; the camera sees "
+            f"{int(geo.texels.visible.sum())} texels, {int(large.sum())} of them too large for the windows")
+
+    async def patterns():
+        for k in range(len(grid)):
+            await ctx.show_content(geo.pad(grid.pattern(k, value=255, dtype=np.uint8)), settle_s=opts.settle_s)
+            yield await ctx.capture(opts.camera, frames=frames)
+            ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
+
+    L = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures, grid=grid,
+                                        rows=rows, valid=valid)
+    seconds = time.monotonic() - t0
+    edge = await ctx.compute(ring_energy, L, base, cam[1], radius)
+    if edge > EDGE_WARNING:
+        ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * radius + 1}-pixel "
+                f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")
+    spacing = grid.spacing[0] if grid.spacing[0] == grid.spacing[1] else grid.spacing
+    meta = {"fingerprint": fp, "rig_state": state, "surface": "mesh", "radius": radius, "spacing": spacing,
+            "frames": frames, "captures": ctx.captures - c0, "patterns": len(grid), "content_size": [cw, ch],
+            "camera_size": [cam[1], cam[0]], "camera_projection": np.asarray(geo.P).tolist(), "camera": opts.camera,
+            "camera_spec": spec, "mesh_id": geo.mesh.mesh_id, "slots": sorted(slots), "measured_at": time.time(),
+            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": round(seconds, 3), "nnz": int(L.nnz),
+            "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5),
+            "texels_seen": int(geo.texels.visible.sum()), "texels_too_large": int(large.sum()),
+            "texels_lit": int(grid.lit.sum())}
+    await ctx.compute(save_measured_transport, rig, L, meta, black)
+    return StoredTransport(L, meta, black, geo.P, cam, slots, False), geo
+
+
+async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
+                               opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], dict]:
+    """The per-projector ``L_i`` on the mesh (baseline only), as
+    :func:`coordinator.compensation.transport_job.ensure_baseline`: stored ones reused, the rest measured one
+    projector at a time, each shown the texture pattern through its own pose by the coordinator."""
+    rig = ctx.rig
+    exposure = baseline_exposure(ctx, opts)
+    frames = opts.baseline_frame_count
+    fp = baseline_fingerprint(tr.meta["fingerprint"], frames, opts.baseline_exposure)
+    cw, ch = content_size(ctx)
+    radius = int(tr.meta["radius"])
+    out: dict[str, sp.csr_matrix] = {}
+    todo = []
+    for s in tr.slots:
+        Li = load_baseline_transport(rig, s, fp, tr.L.shape)
+        if Li is None:
+            todo.append(s)
+        else:
+            out[s] = Li
+    t0 = time.monotonic()
+    c0 = ctx.captures
+    if todo:
+        geo = await load_geometry(ctx, tr.slots, int(tr.meta["camera"]), projectors=True)
+        use = measured_texels(tr.L)
+        base, _, _ = texel_windows(geo.texels.position, use, tr.camera_shape, radius)
+        # any schedule that separates the measured texels' windows will do: the stored grid's, recoloured
+        grid = await ctx.compute(schedule_dots, base, use, (ch, cw), radius, spacing=tr.meta["spacing"])
+        _, rows, valid = texel_windows(geo.texels.position, use, tr.camera_shape, radius)
+        ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
+                f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
+        await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])
+        black = await ctx.capture(opts.camera, frames=frames, exposure=exposure)
+        for n, s in enumerate(todo):
+            st = rig.slot(s)
+
+            async def patterns(s=s, st=st):
+                for k in range(len(grid)):
+                    frame = await ctx.compute(mesh_warp, geo.pad(grid.pattern(k, value=255, dtype=np.uint8)),
+                                              geo.projectors[s],
+                                              lut=st.lut, gain=st.gain)
+                    await ctx.show({s: frame}, settle_s=opts.settle_s, require=[s])
+                    yield await ctx.capture(opts.camera, frames=frames, exposure=exposure)
+                    ctx.progress("baseline transport", s, k + 1, len(grid), f"projector {n + 1}/{len(todo)}")
+
+            Li = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures,
+                                                 grid=grid, rows=rows, valid=valid, dot_value=opts.baseline_exposure)
+            await ctx.compute(save_baseline_transport, rig, s, Li,
+                              {"fingerprint": fp, "slot": s, "frames": frames, "exposure": opts.baseline_exposure,
+                               "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+            out[s] = Li
+    total = float(tr.L.sum())
+    excluded = [s for s in tr.slots if float(out[s].sum()) < 1e-3 * total / max(len(tr.slots), 1)]
+    for s in excluded:
+        ctx.log(f"baseline: {s} adds no light to the camera image (powered off, or it does not see the surface the "
+                "camera sees); left out")
+        out.pop(s)
+    summary = {"slots": sorted(out), "excluded": excluded, "measured": todo, "captures": ctx.captures - c0,
+               "captures_per_projector": (len(grid) * frames) if todo else None, "frames": frames,
+               "exposure": opts.baseline_exposure, "seconds": round(time.monotonic() - t0, 3)}
+    return out, summary

@@ -1,0 +1,174 @@
+"""Texture space on a mesh rig, against independent references: the camera's uv map against the room's
+ground truth, the numpy form of a node's mesh rendering against the node's own GL renderer, the
+dot-grid conflicts against a brute-force search, the recovery of L against a known transport, and
+the masked scores against scikit-image."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from bench.compensation_bust import bust_room, mesh_lookup_matrix
+from coordinator.compensation.mesh_geometry import (
+    TexelGrid,
+    dot_conflicts,
+    masked_quality,
+    texel_extent,
+    texel_transport_from_captures,
+    texel_windows,
+)
+from coordinator.compensation.texture_space import (
+    MeshCaster,
+    content_at_view,
+    mesh_warp,
+    texel_camera_map,
+)
+
+CONTENT = (64, 48)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return bust_room(projector_scale=0.125, camera_scale=0.125, seed=3)
+
+
+@pytest.fixture(scope="module")
+def maps(room):
+    b = room.scene.mesh
+    cam = room.truth.camera(0)
+    pr = room.truth.projector("r2c2")
+    with MeshCaster(b.vertices, b.uvs, b.faces) as caster:
+        view = caster.view(cam.P, cam.size, CONTENT)
+        atlas = caster.atlas(CONTENT)
+        proj = caster.view(pr.P, pr.size, CONTENT, near=300.0, far=3000.0)
+    return view, atlas, proj
+
+
+def test_the_cameras_uv_map_is_the_rooms_truth(room, maps):
+    view, atlas, _ = maps
+    truth = room.truth.surface(0)
+    mesh = truth.kind == 2
+    assert np.array_equal(view.on_mesh, mesh) and mesh.sum() > 1000
+    x = truth.uv[..., 0] * CONTENT[0] - 0.5
+    y = truth.uv[..., 1] * CONTENT[1] - 0.5
+    assert np.percentile(np.abs(view.x - x)[mesh], 99) < 0.02 and np.percentile(np.abs(view.y - y)[mesh], 99) < 0.02
+    # the cosine of the viewing angle (flat triangles here, smooth normals in the room)
+    cam = room.truth.camera(0)
+    ray = cam.center - truth.points
+    cos = np.abs(np.sum(truth.normals * ray, axis=2)) / np.linalg.norm(ray, axis=2)
+    assert np.median(np.abs(cos - view.cos)[mesh]) < 0.02
+    # texels the camera sees land on camera pixels that see them (a shadow-map test, checked against the uv map)
+    tm = texel_camera_map(atlas, cam.P, view)
+    assert tm.on_mesh.all() and 0.1 < tm.visible.mean() < 0.5
+    idx = np.flatnonzero(tm.visible)
+    X, Y = np.rint(tm.position[idx]).astype(int).T
+    tx, ty = idx % CONTENT[0], idx // CONTENT[0]
+    du = np.abs(view.x[Y, X] - tx)
+    du = np.minimum(du, CONTENT[0] - du)       # the seam at the back
+    assert np.median(np.maximum(du, np.abs(view.y[Y, X] - ty))) < 0.6
+
+
+def test_mesh_warp_is_what_the_nodes_renderer_draws(room, maps):
+    """The coordinator's numpy rendering of a mesh pose against node/render (GLSL through EGL)."""
+    from node.render.renderer import Mesh as NodeMesh
+    from node.render.renderer import Renderer
+
+    _, _, proj = maps
+    b = room.scene.mesh
+    pr = room.truth.projector("r2c2")
+    rng = np.random.default_rng(0)
+    content = rng.random((CONTENT[1], CONTENT[0], 3)).astype(np.float32)
+    ours = mesh_warp(content, proj)
+    w, h = pr.size
+    with Renderer.standalone(w, h) as r:
+        r.set_projection(pr.P, NodeMesh(b.vertices, b.uvs, b.faces), near=300.0, far=3000.0)
+        r.upload("c", content)
+        r.render("c")
+        node = r.read().copy()
+    on = proj.on_mesh
+    assert on.sum() > 1000
+    diff = np.abs(ours.astype(int) - node[..., :3].astype(int))
+    # the same pixels lit; values within one level but on a few pixels along triangle edges
+    assert np.mean(diff[on] > 1) < 0.01 and np.mean(diff[~on] > 0) < 0.01
+    # and the lookup matrix of the test kit is the same lookup
+    B = mesh_lookup_matrix(proj, CONTENT)
+    lin = (B @ content.reshape(-1, 3)).reshape(h, w, 3)
+    assert np.abs(np.floor(np.clip(lin, 0, 1) * 255 + 0.5) - mesh_warp(content, proj, apply_lut=False)).max() <= 1
+
+
+def test_content_as_the_camera_sees_it(maps):
+    view, _, _ = maps
+    content = np.random.default_rng(1).random((CONTENT[1], CONTENT[0], 3)).astype(np.float32)
+    seen = content_at_view(content, view)
+    ys, xs = np.nonzero(view.on_mesh)
+    k = slice(None, None, 97)
+    from scipy.ndimage import map_coordinates
+
+    for c in range(3):
+        ref = map_coordinates(content[..., c], [view.y[ys[k], xs[k]], view.x[ys[k], xs[k]]], order=1, mode="grid-constant")
+        assert np.abs(seen[ys[k], xs[k], c] - ref).max() < 1e-3
+    assert not seen[~view.on_mesh].any()
+
+
+def test_dot_conflicts_match_a_brute_force_search():
+    rng = np.random.default_rng(2)
+    w, h, radius = 20, 12, 2
+    base = rng.integers(0, 60, (w * h, 2))
+    seen = rng.random(w * h) < 0.8
+    grid = TexelGrid(w, h, 3, 2)
+    assert sorted(np.concatenate([grid.dots(k) for k in range(len(grid))])) == list(range(w * h))
+    found = dot_conflicts(grid, base, seen, radius)
+    expected = np.zeros(w * h, bool)
+    for k in range(len(grid)):
+        d = [i for i in grid.dots(k) if seen[i]]
+        for i in d:
+            for j in d:
+                if i != j and np.abs(base[i] - base[j]).max() <= 2 * radius:
+                    expected[i] = True
+    assert np.array_equal(found, expected) and expected.any()
+
+
+def test_transport_recovered_from_dot_captures_is_the_true_one():
+    """Captures synthesised from a known transport inside the windows: recovered exactly (no noise)."""
+    rng = np.random.default_rng(4)
+    w, h, radius, cam = 12, 9, 1, (40, 50)
+    pos = np.stack(np.meshgrid(np.arange(w) * 4.0 + 2.3, np.arange(h) * 4.0 + 3.1), -1).reshape(-1, 2)
+    seen = rng.random(w * h) < 0.9
+    base, rows, valid = texel_windows(pos, seen, cam, radius)
+    truth_vals = rng.random(rows.shape).astype(np.float32) * valid
+    from coordinator.compensation.transport import assemble_transport
+
+    truth = assemble_transport(truth_vals, rows, valid, cam)
+    grid = TexelGrid(w, h, 2, 2)
+    black = rng.random((*cam, 3)).astype(np.float32) * 0.01
+    caps = [black + (truth @ grid.pattern(k).ravel()).reshape(cam)[:, :, None] for k in range(len(grid))]
+    L = texel_transport_from_captures(caps, black, grid=grid, rows=rows, valid=valid)
+    assert abs(L - truth).max() < 1e-5
+    assert np.array_equal(np.diff(L.tocsc().indptr) > 0, seen)
+    with pytest.raises(ValueError, match="needs 4 captures"):
+        texel_transport_from_captures(caps[:3], black, grid=grid, rows=rows, valid=valid)
+
+
+def test_texel_extent_is_the_neighbours_reach():
+    pos = np.stack(np.meshgrid(np.arange(5) * 3.0, np.arange(4) * 2.0), -1).reshape(-1, 2)
+    pos[7] = np.nan
+    e = texel_extent(pos, (4, 5))
+    assert np.isnan(e[7]) and np.allclose(e[np.isfinite(e)], 3.0)
+
+
+def test_masked_scores_are_scikit_images_over_the_mask():
+    rng = np.random.default_rng(5)
+    t = rng.random((40, 50, 3))
+    c = np.clip(t + rng.normal(0, 0.05, t.shape), 0, 1)
+    full = masked_quality(t, c, np.ones((40, 50), bool))
+    assert full["psnr"] == pytest.approx(peak_signal_noise_ratio(t, c, data_range=1.0), abs=1e-3)
+    # scikit-image's mean leaves out a 3-pixel border, the masked mean does not
+    assert full["ssim"] == pytest.approx(structural_similarity(t, c, data_range=1.0, channel_axis=2), abs=1e-3)
+    mask = np.zeros((40, 50), bool)
+    mask[5:30, 10:40] = True
+    c2 = c.copy()
+    c2[~mask] = 0      # what lies outside the mask does not count
+    part = masked_quality(t, c2, mask)
+    assert part["psnr"] == pytest.approx(10 * np.log10(1 / np.mean((t[mask] - c[mask]) ** 2)), abs=1e-3)
+    assert part["pixels"] == mask.sum()
+
