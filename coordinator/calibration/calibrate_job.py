@@ -9,8 +9,9 @@ Stages (each reports progress per stage and projector; :mod:`coordinator.calibra
    saved) and, for a mesh, each camera's pose in the world and the mesh's registration.
    Saved in ``calibration/cameras.json``.
 3. **projectors**: *multiplexed* (planar default; captures independent of the projector
-   count): every projector at once, coded dots then an interleaved lattice. *sequential*
-   (the paper's method, the reference): per projector, white and black references and the
+   count): every projector at once, coded dots then an interleaved lattice, on the table or,
+   lifted onto the surface by the camera's rays, on a mesh (3D). *sequential* (the paper's
+   method, the reference; mesh default): per projector, white and black references and the
    Gray-code patterns, on the table or cast onto the mesh (3D).
 
 Each projector's pose is stored and pushed to its node as soon as it is computed, with its
@@ -32,6 +33,7 @@ from coordinator.calibration import runs
 from coordinator.calibration.options import CalibrateOptions, Inputs, decide, resolve, rig_defaults
 from coordinator.calibration.stages.cameras import map_cameras
 from coordinator.calibration.stages.dots import multiplexed
+from coordinator.calibration.stages.dots3d import multiplexed_3d
 from coordinator.calibration.stages.exposure import exposure
 from coordinator.calibration.stages.gray import sequential
 from coordinator.calibration.stages.mesh import sequential_3d
@@ -97,6 +99,8 @@ async def run(ctx: JobContext, opts: CalibrateOptions) -> dict:
                 await multiplexed(st)
             elif opts.surface == "table":
                 await sequential(st)
+            elif opts.mode == "multiplexed":
+                await multiplexed_3d(st)
             else:
                 await sequential_3d(st)
         status = "complete" if not st.failed else "incomplete"

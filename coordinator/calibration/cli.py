@@ -28,6 +28,7 @@ examples:
   shadowless calibrate --rig-dir rigs/table --table-points marks.json --record /var/lib/shadowless/records/cal-run1
   shadowless calibrate --rig-dir rigs/table --camera folder:/var/lib/shadowless/records/cal-run1/camera0 --force   # replay offline
   shadowless calibrate --rig-dir rigs/bust --mesh bust.obj --landmarks clicks.json --table-points marks.json
+  shadowless calibrate --rig-dir rigs/bust --mesh bust.obj --landmarks clicks.json --table-points marks.json --mode multiplexed
   shadowless alignment --rig-dir rigs/table
 
 A points file (JSON) lists known points and where the camera sees them:
@@ -62,8 +63,9 @@ def configure_calibrate(p: argparse.ArgumentParser) -> None:
         "Calibrate the rig's projectors with the camera(s): each projector's pose (content -> projector\n"
         "homography on a table, or a 3x4 projection onto a mesh) is computed, stored in the rig directory\n"
         "and pushed to its node as soon as it is done. Modes: 'multiplexed' (default on a table) shows every\n"
-        "projector's patterns at once, so the captures do not grow with the number of projectors;\n"
-        "'sequential' is the reference Gray-code method, one projector after another.\n"
+        "projector's patterns at once, so the captures do not grow with the number of projectors (on a\n"
+        "mesh too, with --mode multiplexed); 'sequential' (default on a mesh) is the reference Gray-code\n"
+        "method, one projector after another.\n"
         "Files named here (points, landmarks, a board) are read here and sent with the job; the mesh\n"
         "and --record are paths on the coordinator's machine."
     )

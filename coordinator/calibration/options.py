@@ -93,7 +93,7 @@ class CalibrateOptions:
 
     mode: str | None = option(None, choices=("multiplexed", "sequential"), group=WHAT,
                               help="'multiplexed': every projector at once, captures independent of their number "
-                                   "(planar); 'sequential': Gray codes, one projector after another "
+                                   "(on a table or a mesh); 'sequential': Gray codes, one projector after another "
                                    "(default: multiplexed on a table, sequential on a mesh)")
     surface: str | None = option(None, choices=("table", "mesh"), group=WHAT,
                                  help="what the projectors light (default: mesh when a mesh is given, else table)")
@@ -130,7 +130,8 @@ class CalibrateOptions:
                                  help="white - black below this (fraction of full scale) is shadow")
     max_saturated: float = option(0.02, lo=0, hi=1, group=CAPTURES,
                                   help="over-exposure limit: fraction of the lit camera pixels that may saturate")
-    rounds: int = option(4, lo=1, hi=16, group=CAPTURES, help="multiplexed: lattice captures")
+    rounds: int = option(4, lo=1, hi=16, group=CAPTURES,
+                         help="multiplexed: lattice captures (more are added when a projector would get too few dots)")
     seed: int = option(0, group=CAPTURES, help="multiplexed: dot placement seed")
     force: bool = option(False, help="start a new run instead of resuming an interrupted one")
     keep_going: bool = option(True, help="go on with the other projectors when one fails (--stop-on-error: stop)")
@@ -175,8 +176,6 @@ def decide(opts: CalibrateOptions) -> CalibrateOptions:
     if surface == "mesh" and not opts.mesh:
         raise JobError("surface 'mesh' needs a mesh file (parameter or [calibration] mesh = \"object.obj\")")
     mode = opts.mode or ("multiplexed" if surface == "table" else "sequential")
-    if mode == "multiplexed" and surface != "table":
-        raise JobError("the multiplexed mode calibrates planar surfaces; use mode 'sequential' for a mesh")
     return dataclasses.replace(opts, surface=surface, mode=mode)
 
 

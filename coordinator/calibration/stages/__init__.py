@@ -10,4 +10,5 @@ Each stage is ``async def stage(st: State) -> ...`` on the job's :class:`~.state
 * :mod:`.gray`: sequential Gray codes on the table, one projector after another.
 * :mod:`.dots`: the multiplexed mode on the table, every projector at once.
 * :mod:`.mesh`: sequential Gray codes cast onto the mesh (3D poses).
+* :mod:`.dots3d`: the multiplexed mode on the mesh, every projector at once (3D poses).
 """

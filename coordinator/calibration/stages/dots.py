@@ -52,7 +52,7 @@ async def _coded_dots(st: State, cam: int) -> tuple[dict[str, np.ndarray], dict[
         ctx.progress(stage, "", plan.captures, plan.captures, "decoding")
         dec = await ctx.compute(multiplex.decode_coded_dots, caps, st.dark[k_cam], plan)
         ctx.log(f"coded dots: {dec.blobs} blobs, {dec.collisions} overlapping, {dec.unknown} unknown codes")
-        _check_dot_saturation(caps, dec, cam, opts.max_saturated)
+        check_dot_saturation(caps, dec, cam, opts.max_saturated)
         still = []
         for s in pending:
             m = dec.matches[s]
@@ -129,7 +129,7 @@ async def _lattice(st: State, cam: int, ok: list[str], coarse: dict[str, np.ndar
         ctx.progress("projectors", s, n + 1, len(ok), "calibrated", value=fit.rms)
 
 
-def _check_dot_saturation(caps: list[np.ndarray], dec: multiplex.CodedDecode, camera: int, max_saturated: float) -> None:
+def check_dot_saturation(caps: list[np.ndarray], dec: multiplex.CodedDecode, camera: int, max_saturated: float) -> None:
     found = [m.camera for m in dec.matches.values() if m.count]
     if not found:
         return

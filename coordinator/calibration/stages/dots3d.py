@@ -1,0 +1,224 @@
+"""Stage 3, multiplexed on a mesh (3D): every projector at once, so the captures do not grow
+with their number. Coded dots decoded in every posed camera and lifted onto the surface give
+each projector a coarse 3x4 pose; a lattice of dots planned on the surface through the coarse
+poses (so that no two overlap on the object) gives the final one
+(:mod:`coordinator.calibration.multiplex3d`)."""
+from __future__ import annotations
+
+import numpy as np
+
+from coordinator.calibration import multiplex, threed
+from coordinator.calibration.alignment import plan_surface_lattice
+from coordinator.calibration.errors import CalibrationError
+from coordinator.calibration.multiplex3d import fit_pose, lift
+from coordinator.calibration.runs import save_slot, slot_doc
+from coordinator.calibration.stages.dots import check_dot_saturation
+from coordinator.calibration.stages.state import State
+from coordinator.jobs import JobError
+from coordinator.rig import ProjectionPose
+
+MIN_COARSE_DOTS = 8         # stage 1: fewest lifted dots for a coarse pose (7 degrees of freedom with a fixed principal point)
+MIN_LATTICE_DOTS = 20       # stage 2: fewest measured dots for the final pose
+OBJECT_DOTS_WANTED = 24     # stage 2: add rounds while a projector would get fewer dots on the object than this
+ON_OBJECT_MM = 5.0          # a site this far above the table is on the object
+MAX_ROUNDS = 16
+COARSE_DOTS = 96            # stage 1: dots per projector while the code space holds them (the planar mode's 48
+                            # leave too few on a small object; the code space caps them for large rigs)
+
+
+def usable_surfaces(setup, table_mm: tuple[float, float] | None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per posed camera: the world point of every pixel, (H, W, 3) float64, and the pixels whose points
+    may be used, (H, W) bool (on the mesh, or on the table when ``table_mm`` is given; away from
+    silhouettes and depth steps)."""
+    out = {}
+    with threed.SurfaceCaster(setup.mesh, table_mm=table_mm) as caster:
+        for i, dev in setup.devices.items():
+            pts, kind = caster.cast(dev)
+            out[i] = (pts, (kind != 0) & ~threed.edge_mask(pts, kind))
+    return out
+
+
+def cast_projectors(setup, table_mm: tuple[float, float] | None, devices: dict[str, threed.Pinhole]) -> dict[str, np.ndarray]:
+    """Per projector: the world point each of its pixels lights through ``devices`` (its coarse pose)."""
+    with threed.SurfaceCaster(setup.mesh, table_mm=table_mm) as caster:
+        return {s: caster.cast(d)[0] for s, d in devices.items()}
+
+
+async def multiplexed_3d(st: State) -> None:
+    """Calibrate ``st.todo`` all at once on the mesh (the lattice in the first posed camera)."""
+    ctx, opts, setup = st.ctx, st.opts, st.setup
+    table = opts.table_mm if opts.use_table else None
+    try:
+        surfaces = await ctx.compute(usable_surfaces, setup, table)
+    except CalibrationError as exc:
+        raise JobError(str(exc)) from exc
+    coarse, seen = await _coded_dots(st, surfaces)
+    ok = [s for s in st.todo if s in coarse]
+    if ok:
+        await _lattice(st, ok, coarse, seen, surfaces)
+    if st.failed and not opts.keep_going:
+        raise JobError("; ".join(st.failed.values()))
+
+
+async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], dict[str, int]]:
+    """Coarse poses from the coded dots lifted onto the surface; a retry round for projectors short of dots."""
+    ctx, opts = st.ctx, st.opts
+    coarse: dict[str, threed.Pinhole] = {}
+    seen: dict[str, int] = {s: 0 for s in st.todo}
+    lifted: dict[str, int] = {s: 0 for s in st.todo}
+    pending = list(st.todo)
+    for attempt in range(2):
+        if not pending:
+            break
+        plan = multiplex.plan_coded_dots({s: st.sizes[s] for s in pending}, seed=opts.seed + attempt,
+                                         max_dots=COARSE_DOTS)
+        caps: list[list[np.ndarray]] = []
+        stage = "coded dots" if attempt == 0 else "coded dots (retry)"
+        for k in range(plan.captures):
+            ctx.progress(stage, "", k, plan.captures, f"{len(pending)} projectors at once")
+            caps.append(await st.shoot(plan.frames(k), require=pending))
+        ctx.progress(stage, "", plan.captures, plan.captures, "decoding")
+        X: dict[str, list[np.ndarray]] = {s: [] for s in pending}
+        x: dict[str, list[np.ndarray]] = {s: [] for s in pending}
+        for i in surfaces:
+            k_cam = st.cameras.index(i)
+            mine = [c[k_cam] for c in caps]
+            dec = await ctx.compute(multiplex.decode_coded_dots, mine, st.dark[k_cam], plan)
+            ctx.log(f"coded dots, camera {i}: {dec.blobs} blobs, {dec.collisions} overlapping, {dec.unknown} unknown codes")
+            check_dot_saturation(mine, dec, i, opts.max_saturated)
+            pts, usable = surfaces[i]
+            for s in pending:
+                m = dec.matches[s]
+                seen[s] += m.count
+                W = lift(st.setup.devices[i], pts, usable, m.camera) if m.count else np.zeros((0, 3))
+                good = np.isfinite(W).all(axis=1)
+                X[s].append(W[good])
+                x[s].append(m.projector[good])
+        still = []
+        for s in pending:
+            Xs, xs = np.vstack(X[s]), np.vstack(x[s])
+            lifted[s] += len(Xs)
+            if len(Xs) >= MIN_COARSE_DOTS:
+                try:
+                    fit, _ = await ctx.compute(fit_pose, Xs, xs, st.sizes[s], threshold=2.0, seed=opts.seed)
+                    if fit.count >= MIN_COARSE_DOTS:
+                        coarse[s] = fit.device
+                        continue
+                except CalibrationError:
+                    pass
+            still.append(s)
+        pending = still
+    for s in pending:
+        if seen[s] == 0:
+            st.failed[s] = (f"projector {s} not seen by the camera (none of its coded dots was found): check that it "
+                            "is on, shows the patterns and is aimed at the object")
+        else:
+            st.failed[s] = (f"too few dots on the surface for {s} ({lifted[s]} of {seen[s]} decoded dots on the mesh"
+                            f"{' or the table' if opts.use_table else ''}, need {MIN_COARSE_DOTS} that agree with one "
+                            "projection): is most of its image off the object or blocked, or the mesh registration off?")
+        ctx.log(st.failed[s])
+    if pending and not opts.keep_going:
+        raise JobError("; ".join(st.failed[s] for s in pending))
+    return coarse, seen
+
+
+def _plan(st: State, devices: dict[str, threed.Pinhole], surfaces, cam: int, rounds: int, dot_px: int) -> multiplex.Lattice:
+    """The surface lattice of ``rounds`` rounds in camera ``cam`` through ``devices`` (the poses so far)."""
+    table = st.opts.table_mm if st.opts.use_table else None
+    proj_pts = cast_projectors(st.setup, table, devices)
+    pts, usable = surfaces[cam]
+    return plan_surface_lattice(devices, st.setup.devices[cam], pts, usable, proj_pts, rounds=rounds, dot_px=dot_px)
+
+
+def _on_object(lattice: multiplex.Lattice, rounds: range) -> int:
+    """Median over the projectors of their dots in ``rounds`` whose sites are on the object (above the table)."""
+    return int(np.median([sum(int(np.sum(lattice.rounds[r].sites[s][:, 2] > ON_OBJECT_MM)) for r in rounds)
+                          for s in lattice.slots]))
+
+
+def _fit(st: State, s: str, found: list[tuple[np.ndarray, np.ndarray]]):
+    """The projector's pose from its lifted lattice dots: (DeviceFit, free) or None when too few."""
+    X = np.vstack([f[0] for f in found])
+    x = np.vstack([f[1] for f in found])
+    if len(X) < MIN_LATTICE_DOTS:
+        return None
+    return fit_pose(X, x, st.sizes[s], threshold=1.0, seed=st.opts.seed)
+
+
+async def _measure(st: State, lattice: multiplex.Lattice, rounds: range, total: int, surfaces, cam: int,
+                   found: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> None:
+    """Show and capture ``rounds`` of ``lattice``; add each projector's lifted dots to ``found``."""
+    ctx, k_cam = st.ctx, st.cameras.index(cam)
+    pts, usable = surfaces[cam]
+    ok = list(lattice.slots)
+    for r in rounds:
+        ctx.progress("lattice", "", r, total, f"{len(ok)} projectors at once")
+        cap = (await st.shoot(lattice.frames(r), require=ok))[k_cam]
+        ms = await ctx.compute(multiplex.measure_lattice, cap, st.dark[k_cam], lattice, r)
+        for s in ok:
+            X = lift(st.setup.devices[cam], pts, usable, ms[s].camera)
+            good = np.isfinite(X).all(axis=1)
+            found[s].append((X[good], ms[s].projector[good]))
+
+
+async def _lattice(st: State, ok: list[str], coarse: dict[str, threed.Pinhole], seen: dict[str, int], surfaces) -> None:
+    """Measure a lattice on the surface in two passes (the second planned through the poses the first
+    gave, with finer dots); fit and save each projector's pose."""
+    ctx, opts, setup = st.ctx, st.opts, st.setup
+    cam = min(surfaces)
+    devices = {s: coarse[s] for s in ok}
+    found: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {s: [] for s in ok}
+    start = st.shots
+    first = max(1, opts.rounds // 2)
+    try:
+        # pass 1: dots 3 px wide, a lattice step a coarse pose may be off by a good fraction of
+        lattice = await ctx.compute(_plan, st, devices, surfaces, cam, first, 3)
+        have = _on_object(lattice, range(first))
+        await _measure(st, lattice, range(first), opts.rounds, surfaces, cam, found)
+        for s in ok:
+            try:
+                got = await ctx.compute(_fit, st, s, found[s])
+            except CalibrationError:
+                got = None
+            if got is not None:
+                devices[s] = got[0].device
+        # pass 2: single-pixel dots, a denser lattice, planned through the better poses; more rounds while
+        # a projector would get too few dots on the object (the only growth with N, bounded)
+        second = opts.rounds - first
+        lattice = await ctx.compute(_plan, st, devices, surfaces, cam, MAX_ROUNDS - first, 1)
+        while second < MAX_ROUNDS - first and have + _on_object(lattice, range(second)) < OBJECT_DOTS_WANTED:
+            second += 1
+        if first + second > opts.rounds:
+            ctx.log(f"lattice: {first + second} rounds (not {opts.rounds}) so that each projector gets "
+                    f"{_on_object(lattice, range(second)) + have} dots on the object")
+        if second:
+            await _measure(st, lattice, range(second), first + second, surfaces, cam, found)
+    except (CalibrationError, ValueError) as exc:
+        raise JobError(f"cannot plan the lattice on the surface: {exc}") from exc
+    total = first + second
+    ctx.progress("lattice", "", total, total, "fitting")
+    for n, s in enumerate(ok):
+        count = sum(len(f[0]) for f in found[s])
+        try:
+            got = await ctx.compute(_fit, st, s, found[s])
+            if got is None:
+                st.failed[s] = (f"too few lattice dots measured on the surface for {s} ({count} < {MIN_LATTICE_DOTS}): "
+                                "is most of its image off the object?")
+                ctx.log(st.failed[s])
+                continue
+            fit, free = got
+            near, far = threed.depth_range(fit.device.P, setup.rig_mesh.vertices)
+        except CalibrationError as exc:
+            st.failed[s] = f"{s}: {exc}"
+            ctx.log(st.failed[s])
+            continue
+        if not free:
+            ctx.log(f"{s}: its dots hardly leave one plane; principal point fixed at the image centre")
+        P = fit.device.P / np.linalg.norm(fit.device.P[2, :3])
+        pose = ProjectionPose(P, setup.rig_mesh, near_mm=near, far_mm=far)
+        doc = slot_doc(st.run, s, opts, rms=fit.rms, mx=fit.max, points=fit.count, coarse_dots=int(seen[s]),
+                       lattice_dots=count, captures=st.shots - start, camera=cam, free_intrinsics=free,
+                       K=fit.device.K.tolist(), center_mm=fit.device.center.tolist())
+        save_slot(ctx, s, pose, doc)
+        st.results[s] = doc
+        ctx.progress("projectors", s, n + 1, len(ok), "calibrated", value=fit.rms)
