@@ -22,8 +22,8 @@ MIN_LATTICE_DOTS = 20       # stage 2: fewest measured dots for the final pose
 OBJECT_DOTS_WANTED = 24     # stage 2: add rounds while a projector would get fewer dots on the object than this
 ON_OBJECT_MM = 5.0          # a site this far above the table is on the object
 MAX_ROUNDS = 16
-COARSE_DOTS = 96            # stage 1: dots per projector while the code space holds them (the planar mode's 48
-                            # leave too few on a small object; the code space caps them for large rigs)
+COARSE_DOTS = 256           # stage 1: dots per projector while the code space holds them (the planar mode's 48
+                            # leave too few on the object; 2**bits / N caps them for larger rigs)
 
 
 def usable_surfaces(setup, table_mm: tuple[float, float] | None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -65,7 +65,9 @@ async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], d
     ctx, opts = st.ctx, st.opts
     coarse: dict[str, threed.Pinhole] = {}
     seen: dict[str, int] = {s: 0 for s in st.todo}
-    lifted: dict[str, int] = {s: 0 for s in st.todo}
+    # lifted dots of every attempt: a retry adds to what the first one found
+    X: dict[str, list[np.ndarray]] = {s: [] for s in st.todo}
+    x: dict[str, list[np.ndarray]] = {s: [] for s in st.todo}
     pending = list(st.todo)
     for attempt in range(2):
         if not pending:
@@ -78,8 +80,6 @@ async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], d
             ctx.progress(stage, "", k, plan.captures, f"{len(pending)} projectors at once")
             caps.append(await st.shoot(plan.frames(k), require=pending))
         ctx.progress(stage, "", plan.captures, plan.captures, "decoding")
-        X: dict[str, list[np.ndarray]] = {s: [] for s in pending}
-        x: dict[str, list[np.ndarray]] = {s: [] for s in pending}
         for i in surfaces:
             k_cam = st.cameras.index(i)
             mine = [c[k_cam] for c in caps]
@@ -97,7 +97,6 @@ async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], d
         still = []
         for s in pending:
             Xs, xs = np.vstack(X[s]), np.vstack(x[s])
-            lifted[s] += len(Xs)
             if len(Xs) >= MIN_COARSE_DOTS:
                 try:
                     fit, _ = await ctx.compute(fit_pose, Xs, xs, st.sizes[s], threshold=2.0, seed=opts.seed)
@@ -113,7 +112,7 @@ async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], d
             st.failed[s] = (f"projector {s} not seen by the camera (none of its coded dots was found): check that it "
                             "is on, shows the patterns and is aimed at the object")
         else:
-            st.failed[s] = (f"too few dots on the surface for {s} ({lifted[s]} of {seen[s]} decoded dots on the mesh"
+            st.failed[s] = (f"too few dots on the surface for {s} ({sum(map(len, X[s]))} of {seen[s]} decoded dots on the mesh"
                             f"{' or the table' if opts.use_table else ''}, need {MIN_COARSE_DOTS} that agree with one "
                             "projection): is most of its image off the object or blocked, or the mesh registration off?")
         ctx.log(st.failed[s])
