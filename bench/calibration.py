@@ -1,12 +1,15 @@
 """`shadowless bench calibration`: captures, time and error of the sequential and the
-multiplexed calibration modes for rigs of several sizes, in the virtual room.
+multiplexed calibration modes for rigs of several sizes, in the virtual room, on the table
+or (``--surface bust``) on the plaster bust standing on it.
 
 The coordinator's ``calibrate`` job runs in-process against :class:`sim.room.Room` through
 :class:`shadowless.room_driver.RoomDriver` (the rig driver whose projectors and cameras are
 the room's), so the figures measure calibration itself, not gRPC or the node processes. The
 table -> camera mapping comes from known table points written from the room's truth with
-click noise (:func:`table_points_from_truth`), as an operator would click them. Errors are
-against the room's ground truth (:func:`planar_errors`).
+click noise (:func:`table_points_from_truth`), as an operator would click them; on the bust,
+landmarks clicked on it the same way (:func:`landmarks_from_truth`) pose the camera with them.
+Errors are against the room's ground truth: over the table (:func:`planar_errors`), or over the
+bust's surface each projector lights and the camera sees (:func:`mesh_errors`).
 
 This module is also the test kit of ``tests/coordinator/calibration`` (rigs, truth-derived
 point files and error measures); it may import ``sim``, the coordinator never does.
@@ -16,6 +19,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -32,6 +36,7 @@ from coordinator.calibration.threed import project
 from coordinator.rig import Rig, init_rig
 from protos.spaces import content_to_table
 from shadowless.room_driver import RoomDriver
+from sim.mesh import bust, save_mesh
 from sim.room import Room
 from sim.scene import SUBSETS, reference_scene
 
@@ -183,8 +188,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Calibrate rigs of several sizes in the virtual room, sequential (Gray codes, one projector after another)\n"
         "and multiplexed (every projector at once), and print one JSON document: captures, wall time and the\n"
-        "RMS / max error of the poses against the room's truth (projector pixels, over the table)."
+        "RMS / max error of the poses against the room's truth (projector pixels, over the table, or with\n"
+        "--surface bust over the bust's surface each projector lights: 3x4 poses)."
     )
+    parser.epilog = (
+        "examples:\n"
+        "  shadowless bench calibration\n"
+        "  shadowless bench calibration --projectors 1,25 --modes multiplexed\n"
+        "  shadowless bench calibration --surface bust --projectors 1,25      # both modes side by side on the bust\n"
+    )
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("--surface", choices=("table", "bust"), default="table",
+                        help="what the projectors light: the table (homographies) or the bust on it (3x4 poses)")
     parser.add_argument("--projectors", type=cli_types.int_list(1, 25), default="1,9,25", help="rig sizes, comma separated (default 1,9,25)")
     parser.add_argument("--modes", type=cli_types.names, default="sequential,multiplexed", help="modes to run (default both)")
     parser.add_argument("--projector-scale", type=float, default=0.25, help="room projector resolution scale (default 0.25)")
@@ -221,47 +236,95 @@ async def _run_one(room, slots: list[str], mode: str, table_points, workdir: Pat
             "fit_rms_px_mean": round(float(np.mean([d["rms_px"] for d in result["slots"].values()])), 4)}
 
 
+async def _run_one_bust(room, slots: list[str], mode: str, files: dict[str, Path], workdir: Path,
+                        seconds_per_capture: float) -> dict:
+    """One calibration of ``slots`` on the bust; errors over the surface each projector lights (:func:`mesh_errors`)."""
+    rig = make_rig(workdir, room, slots)
+    driver = RoomDriver(room, rig)
+    t0 = time.perf_counter()
+    result = await driver.run("calibrate", {"mode": mode, "mesh": str(files["mesh"]), "table_points": str(files["table"]),
+                                            "landmarks": str(files["landmarks"]), "settle_s": 0.0})
+    wall = time.perf_counter() - t0
+    errs = {s: mesh_errors(room, s, rig.slot(s).pose.matrix) for s in slots}
+    rms = [e[0] for e in errs.values()]
+    print(f"{len(slots)} projector(s), {mode}: {result['captures']} captures, worst rms {max(rms):.3f} px",
+          file=sys.stderr)
+    return {"captures": result["captures"], "wall_s": round(wall, 3), "wall_s_per_capture": round(wall / result["captures"], 4),
+            "est_rig_s": round(result["captures"] * seconds_per_capture, 1),
+            "rms_px_worst_slot": round(max(rms), 4), "rms_px_mean": round(float(np.mean(rms)), 4),
+            "max_px": round(max(e[1] for e in errs.values()), 4),
+            "surface_points_min": min(e[2] for e in errs.values()),
+            "fit_rms_px_mean": round(float(np.mean([d["rms_px"] for d in result["slots"].values()])), 4)}
+
+
+def _bust_files(room, directory: Path, click_noise: float, seed: int) -> dict[str, Path]:
+    """The operator's inputs for the bust: its mesh (in the world frame), table marks and landmarks clicked in the camera."""
+    files = {"mesh": directory / "bust.obj", "table": directory / "table.json", "landmarks": directory / "landmarks.json"}
+    save_mesh(bust(), files["mesh"])
+    table_points_from_truth(room, files["table"], click_noise_px=click_noise, seed=seed)
+    landmarks_from_truth(room, files["landmarks"], count=20, click_noise_px=0.5, seed=seed)
+    return files
+
+
 def run(args: argparse.Namespace) -> int:
     sizes, modes = list(args.projectors), list(args.modes)
     for m in modes:
         if m not in ("sequential", "multiplexed"):
             raise SystemExit(f"unknown mode {m!r}: sequential or multiplexed")
+    on_bust = args.surface == "bust"
     t_room = time.perf_counter()
-    room = Room(reference_scene(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed),
-                seed=args.seed)
+    room = Room(reference_scene(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed,
+                                surface="bust" if on_bust else "table"), seed=args.seed)
     room.prepare(0)
     setup_s = time.perf_counter() - t_room
-    points = table_points_from_truth(room, click_noise_px=args.click_noise, seed=args.seed)
     figures: dict[str, dict] = {}
     with tempfile.TemporaryDirectory(prefix="bench-calibration-") as tmp:
+        if on_bust:
+            files = _bust_files(room, Path(tmp), args.click_noise, args.seed)
+        else:
+            points = table_points_from_truth(room, click_noise_px=args.click_noise, seed=args.seed)
         for n in sizes:
             slots = rig_slots(n)
             figures[str(n)] = {}
             for mode in modes:
-                figures[str(n)][mode] = asyncio.run(_run_one(room, slots, mode, points, Path(tmp) / f"{n}-{mode}",
-                                                             args.seconds_per_capture))
+                work = Path(tmp) / f"{n}-{mode}"
+                if on_bust:
+                    figures[str(n)][mode] = asyncio.run(_run_one_bust(room, slots, mode, files, work, args.seconds_per_capture))
+                else:
+                    figures[str(n)][mode] = asyncio.run(_run_one(room, slots, mode, points, work, args.seconds_per_capture))
     summary = {}
-    if "multiplexed" in modes and sizes:
+    if sizes:
         lo, hi = str(min(sizes)), str(max(sizes))
-        summary["multiplexed_captures_ratio_largest_to_smallest"] = round(
-            figures[hi]["multiplexed"]["captures"] / figures[lo]["multiplexed"]["captures"], 3)
-        if "sequential" in modes:
+        for mode in modes:
+            summary[f"{mode}_captures_ratio_largest_to_smallest"] = round(
+                figures[hi][mode]["captures"] / figures[lo][mode]["captures"], 3)
+        if "multiplexed" in modes and "sequential" in modes:
             summary["sequential_to_multiplexed_wall_ratio_largest"] = round(
                 figures[hi]["sequential"]["wall_s"] / figures[hi]["multiplexed"]["wall_s"], 2)
+            summary["sequential_to_multiplexed_captures_ratio_largest"] = round(
+                figures[hi]["sequential"]["captures"] / figures[hi]["multiplexed"]["captures"], 2)
+        summary["side_by_side"] = {n: {m: {"captures": figures[n][m]["captures"],
+                                           "rms_px_worst_slot": figures[n][m]["rms_px_worst_slot"]} for m in modes}
+                                   for n in figures}
     doc = {
         "benchmark": "calibration",
-        "parameters": {"projectors": sizes, "modes": modes, "projector_scale": args.projector_scale,
+        "parameters": {"surface": args.surface, "projectors": sizes, "modes": modes, "projector_scale": args.projector_scale,
                        "camera_scale": args.camera_scale, "seed": args.seed, "click_noise_px": args.click_noise,
                        "projector_size": list(room.projector_size("r0c0")), "camera_size": list(room.camera_size(0)),
-                       "table_mapping": "15 known table points with click noise", "room_setup_s": round(setup_s, 3),
+                       "table_mapping": "15 known table points with click noise"
+                                        + (", 20 landmarks on the bust with 0.5 px click noise" if on_bust else ""),
+                       "room_setup_s": round(setup_s, 3),
                        "seconds_per_capture": args.seconds_per_capture},
         "figures": figures,
         "summary": summary,
         "notes": "in-process room (no gRPC, no node processes): wall_s is calibration compute plus simulated captures "
                  "(the room's first capture of each projector includes its one-off precomputation); est_rig_s = captures x "
-                 "seconds_per_capture. Errors: poses against the room's truth over the table, in projector px; exact_table_*: "
-                 "the same poses with the clicked table -> camera mapping replaced by the true one (the projector "
-                 "calibration's own error)",
+                 "seconds_per_capture. Errors: poses against the room's truth in projector px, "
+                 + ("over the bust's surface points the camera sees and each projector lights (the true points "
+                    "projected through the estimated vs the true 3x4 pose; the camera posed from clicked table marks "
+                    "and landmarks)" if on_bust else
+                    "over the table; exact_table_*: the same poses with the clicked table -> camera mapping replaced by "
+                    "the true one (the projector calibration's own error)"),
         "machine": machine(),
     }
     print(json.dumps(doc, indent=2))
