@@ -1,7 +1,7 @@
 """The multiplexed mode on a mesh: lifting camera positions onto the surface (against a brute-force
 ray/triangle intersection), the pose fit for nearly coplanar correspondences (against the true
 projection), and the whole mode on the room's bust (captures that do not grow with the projectors,
-poses against the room's truth)."""
+poses against the room's truth; two cameras and a lens-shifted projector)."""
 from __future__ import annotations
 
 import asyncio
@@ -10,17 +10,30 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bench.calibration import landmarks_from_truth, make_rig, mesh_errors, table_points_from_truth
+from bench.calibration import (
+    landmarks_from_truth,
+    make_rig,
+    mesh_errors,
+    table_points_from_truth,
+)
 from coordinator.calibration.alignment import sample_points
 from coordinator.calibration.errors import CalibrationError
 from coordinator.calibration.multiplex3d import fit_pose, lift, off_plane, rays
-from coordinator.calibration.threed import MeshData, Pinhole, SurfaceCaster, calibrate_projector, edge_mask, project
+from coordinator.calibration.points import write_points
+from coordinator.calibration.threed import (
+    MeshData,
+    Pinhole,
+    SurfaceCaster,
+    calibrate_projector,
+    edge_mask,
+    project,
+)
 from coordinator.jobs import Progress
 from coordinator.rig import ProjectionPose
 from shadowless.room_driver import RoomDriver
 from sim.mesh import bust, save_mesh
 from sim.room import Room
-from sim.scene import reference_scene
+from sim.scene import load_layout, reference_scene
 
 TABLE_MM = (1200.0, 600.0)
 
@@ -176,3 +189,53 @@ def test_multiplexed_3d_captures_do_not_grow_with_the_projectors_and_poses_match
         assert {"exposure", "cameras", "coded dots", "lattice", "projectors"} <= set(stages)
     # every projector at once: 2 exposure + 20 coded + 4 lattice captures, for 2 projectors as for 5
     assert captures[2] == captures[5] == 26, captures
+
+
+LENS_SHIFT = """
+name = "bust, two cameras, a lens-shifted projector"
+[table]
+size = [1200, 600]
+[mesh]
+builtin = "bust"
+[[projector]]
+slot = "shifted"
+position = [-500, -200, 1350]
+target = [0, 0, 250]
+principal = [489.5, 699.5]
+[[projector]]
+slot = "plain"
+position = [450, 100, 1400]
+target = [0, 0, 200]
+[[camera]]
+position = [-550, 650, 1150]
+target = [0, 0, 250]
+exposure = 0.4
+[[camera]]
+position = [550, 650, 1150]
+target = [0, 0, 250]
+exposure = 0.4
+"""
+
+
+def test_multiplexed_3d_pools_two_cameras_and_frees_a_lens_shifted_principal_point(tmp_path):
+    """A projector whose lens is shifted (principal point 300 px below and 150 px left of the centre at its
+    native 1280x800) is found as such, with coded dots decoded in both cameras."""
+    (tmp_path / "room.toml").write_text(LENS_SHIFT)
+    room = Room(load_layout(tmp_path / "room.toml", projector_scale=0.15, camera_scale=0.2), seed=2)
+    save_mesh(bust(), tmp_path / "bust.obj")
+    write_points(tmp_path / "table.json", [s for i in (0, 1) for s in table_points_from_truth(room, camera=i, seed=i)])
+    write_points(tmp_path / "landmarks.json", [s for i in (0, 1) for s in landmarks_from_truth(room, camera=i, count=20, seed=i)])
+    rig = make_rig(tmp_path / "rig", room, ["shifted", "plain"])
+    driver = RoomDriver(room, rig, cameras=2)
+    result = asyncio.run(driver.run("calibrate", {"mode": "multiplexed", "mesh": str(tmp_path / "bust.obj"), "settle_s": 0,
+                                                  "table_points": str(tmp_path / "table.json"),
+                                                  "landmarks": str(tmp_path / "landmarks.json")}))
+    assert result["captures"] == 26
+    assert sum("coded dots, camera" in e for e in driver.events if isinstance(e, str)) == 2
+    for s in ("shifted", "plain"):
+        doc = result["slots"][s]
+        true_K = room.truth.projector(s).K
+        assert doc["free_intrinsics"] and np.abs(np.array(doc["K"])[:2, 2] - true_K[:2, 2]).max() < 1.5, (doc["K"], true_K)
+        for cam in (0, 1):
+            rms, mx, n = mesh_errors(room, s, rig.slot(s).pose.matrix, camera=cam)
+            assert n > 1000 and rms < 0.5, (s, cam, rms, mx)
