@@ -144,14 +144,23 @@ def _fit(st: State, s: str, found: list[tuple[np.ndarray, np.ndarray]]):
     return fit_pose(X, x, st.sizes[s], threshold=1.0, seed=st.opts.seed)
 
 
-async def _measure(st: State, lattice: multiplex.Lattice, rounds: range, total: int, surfaces, cam: int,
+async def _planned(st: State, devices: dict[str, threed.Pinhole], surfaces, cam: int, rounds: int,
+                   dot_px: int) -> multiplex.Lattice:
+    try:
+        return await st.ctx.compute(_plan, st, devices, surfaces, cam, rounds, dot_px)
+    except (CalibrationError, ValueError) as exc:
+        raise JobError(f"cannot plan the lattice on the surface: {exc}") from exc
+
+
+async def _measure(st: State, lattice: multiplex.Lattice, count: int, *, done: int, total: int, surfaces, cam: int,
                    found: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> None:
-    """Show and capture ``rounds`` of ``lattice``; add each projector's lifted dots to ``found``."""
+    """Show and capture the first ``count`` rounds of ``lattice`` (``done`` of ``total`` lattice captures
+    taken before them); add each projector's lifted dots to ``found``."""
     ctx, k_cam = st.ctx, st.cameras.index(cam)
     pts, usable = surfaces[cam]
     ok = list(lattice.slots)
-    for r in rounds:
-        ctx.progress("lattice", "", r, total, f"{len(ok)} projectors at once")
+    for r in range(count):
+        ctx.progress("lattice", "", done + r, total, f"{len(ok)} projectors at once")
         cap = (await st.shoot(lattice.frames(r), require=ok))[k_cam]
         ms = await ctx.compute(multiplex.measure_lattice, cap, st.dark[k_cam], lattice, r)
         for s in ok:
@@ -168,32 +177,28 @@ async def _lattice(st: State, ok: list[str], coarse: dict[str, threed.Pinhole], 
     devices = {s: coarse[s] for s in ok}
     found: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {s: [] for s in ok}
     start = st.shots
+    # pass 1: dots 3 px wide on a lattice whose step tolerates a coarse pose a few pixels off
     first = max(1, opts.rounds // 2)
-    try:
-        # pass 1: dots 3 px wide, a lattice step a coarse pose may be off by a good fraction of
-        lattice = await ctx.compute(_plan, st, devices, surfaces, cam, first, 3)
-        have = _on_object(lattice, range(first))
-        await _measure(st, lattice, range(first), opts.rounds, surfaces, cam, found)
-        for s in ok:
-            try:
-                got = await ctx.compute(_fit, st, s, found[s])
-            except CalibrationError:
-                got = None
-            if got is not None:
-                devices[s] = got[0].device
-        # pass 2: single-pixel dots, a denser lattice, planned through the better poses; more rounds while
-        # a projector would get too few dots on the object (the only growth with N, bounded)
-        second = opts.rounds - first
-        lattice = await ctx.compute(_plan, st, devices, surfaces, cam, MAX_ROUNDS - first, 1)
-        while second < MAX_ROUNDS - first and have + _on_object(lattice, range(second)) < OBJECT_DOTS_WANTED:
-            second += 1
-        if first + second > opts.rounds:
-            ctx.log(f"lattice: {first + second} rounds (not {opts.rounds}) so that each projector gets "
-                    f"{_on_object(lattice, range(second)) + have} dots on the object")
-        if second:
-            await _measure(st, lattice, range(second), first + second, surfaces, cam, found)
-    except (CalibrationError, ValueError) as exc:
-        raise JobError(f"cannot plan the lattice on the surface: {exc}") from exc
+    lattice = await _planned(st, devices, surfaces, cam, first, 3)
+    have = _on_object(lattice, range(first))
+    await _measure(st, lattice, first, done=0, total=opts.rounds, surfaces=surfaces, cam=cam, found=found)
+    for s in ok:
+        try:
+            got = await ctx.compute(_fit, st, s, found[s])
+        except CalibrationError:
+            got = None
+        if got is not None:
+            devices[s] = got[0].device
+    # pass 2: single-pixel dots on a denser lattice, planned through the better poses; more rounds while a
+    # projector would get too few dots on the object (the only growth with N, bounded by MAX_ROUNDS)
+    lattice = await _planned(st, devices, surfaces, cam, MAX_ROUNDS - first, 1)
+    second = opts.rounds - first
+    while first + second < MAX_ROUNDS and have + _on_object(lattice, range(second)) < OBJECT_DOTS_WANTED:
+        second += 1
+    if first + second > opts.rounds:
+        ctx.log(f"lattice: {first + second} rounds (not {opts.rounds}) so that each projector gets "
+                f"{have + _on_object(lattice, range(second))} dots on the object")
+    await _measure(st, lattice, second, done=first, total=first + second, surfaces=surfaces, cam=cam, found=found)
     total = first + second
     ctx.progress("lattice", "", total, total, "fitting")
     for n, s in enumerate(ok):
@@ -202,7 +207,7 @@ async def _lattice(st: State, ok: list[str], coarse: dict[str, threed.Pinhole], 
             got = await ctx.compute(_fit, st, s, found[s])
             if got is None:
                 st.failed[s] = (f"too few lattice dots measured on the surface for {s} ({count} < {MIN_LATTICE_DOTS}): "
-                                "is most of its image off the object?")
+                                "is most of its image off the object, or the mesh registration off?")
                 ctx.log(st.failed[s])
                 continue
             fit, free = got
