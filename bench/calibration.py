@@ -33,6 +33,7 @@ from bench.machine import machine
 from coordinator.calibration import planar
 from coordinator.calibration.points import PointSet, write_points
 from coordinator.calibration.threed import project
+from coordinator.jobs import Progress
 from coordinator.rig import Rig, init_rig
 from protos.spaces import content_to_table
 from shadowless.room_driver import RoomDriver
@@ -210,13 +211,28 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="for est_rig_s: a real rig's time per capture (swap latency + settle + exposure; default 0.3)")
 
 
+async def _calibrate(driver: RoomDriver, params: dict, what: str) -> dict:
+    """The calibrate job on ``driver``, its progress on stderr every few seconds (a sequential run of
+    25 projectors takes hundreds of captures)."""
+    job = asyncio.ensure_future(driver.run("calibrate", params))
+    last = None
+    while not job.done():
+        await asyncio.wait([job], timeout=5.0)
+        now = next((e for e in reversed(driver.events) if isinstance(e, Progress)), None)
+        if now is not None and now != last and not job.done():
+            print(f"{what}: {now.stage} {now.item} {now.done}/{now.total}".replace("  ", " "), file=sys.stderr)
+            last = now
+    return job.result()
+
+
 async def _run_one(room, slots: list[str], mode: str, table_points, workdir: Path, seconds_per_capture: float) -> dict:
     rig = make_rig(workdir, room, slots)
     driver = RoomDriver(room, rig)
     points_doc = {"frame": "world", "points": [{"xyz": list(map(float, x)), "pixel": list(map(float, p)), "camera": 0}
                                               for x, p in zip(table_points[0].xyz, table_points[0].pixels)]}
     t0 = time.perf_counter()
-    result = await driver.run("calibrate", {"mode": mode, "table_points": points_doc, "settle_s": 0.0})
+    result = await _calibrate(driver, {"mode": mode, "table_points": points_doc, "settle_s": 0.0},
+                              f"{len(slots)} projector(s), {mode}")
     wall = time.perf_counter() - t0
     content = (rig.config.content_width, rig.config.content_height)
     errs = {s: planar_errors(room, s, rig.slot(s).pose.matrix, content) for s in slots}
@@ -242,8 +258,9 @@ async def _run_one_bust(room, slots: list[str], mode: str, files: dict[str, Path
     rig = make_rig(workdir, room, slots)
     driver = RoomDriver(room, rig)
     t0 = time.perf_counter()
-    result = await driver.run("calibrate", {"mode": mode, "mesh": str(files["mesh"]), "table_points": str(files["table"]),
-                                            "landmarks": str(files["landmarks"]), "settle_s": 0.0})
+    result = await _calibrate(driver, {"mode": mode, "mesh": str(files["mesh"]), "table_points": str(files["table"]),
+                                       "landmarks": str(files["landmarks"]), "settle_s": 0.0},
+                              f"{len(slots)} projector(s) on the bust, {mode}")
     wall = time.perf_counter() - t0
     errs = {s: mesh_errors(room, s, rig.slot(s).pose.matrix) for s in slots}
     rms = [e[0] for e in errs.values()]
