@@ -47,7 +47,8 @@ from coordinator.calibration.threed import DeviceFit, Pinhole, calibrate_project
 
 __all__ = ["lift", "rays", "off_plane", "fit_pose", "MIN_OFF_PLANE"]
 
-#: Fewest correspondences off their best-fit plane for a free pinhole (else the principal point is fixed).
+#: Fewest correspondences off the plane that holds most of them for a free pinhole (else the principal
+#: point is fixed at the image centre).
 MIN_OFF_PLANE = 8
 
 
@@ -225,8 +226,8 @@ def fit_pose(X: np.ndarray, x: np.ndarray, size: tuple[int, int], *, threshold: 
              rounds: int = 3) -> tuple[DeviceFit, bool]:
     """A projector's pinhole from world <-> projector pixel correspondences, also when they are nearly coplanar.
 
-    With at least :data:`MIN_OFF_PLANE` points off their best-fit plane (an object
-    standing on the table), the sequential mode's solve
+    With at least :data:`MIN_OFF_PLANE` points off the plane holding most of them
+    (:func:`off_plane`: an object standing on the table), the sequential mode's solve
     (:func:`coordinator.calibration.threed.calibrate_projector`: DLT, then
     ``cv2.calibrateCamera`` with every intrinsic free but skew and distortion). With
     fewer (a projector whose coded dots mostly landed on the table), a plane fixes only a
