@@ -17,7 +17,7 @@ from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobError
 from coordinator.rig import ProjectionPose
 
-MIN_COARSE_DOTS = 8         # stage 1: fewest lifted dots for a coarse pose (7 degrees of freedom with a fixed principal point)
+MIN_COARSE_DOTS = 6         # stage 1: fewest lifted dots for a coarse pose (7 degrees of freedom with a fixed principal point)
 MIN_LATTICE_DOTS = 20       # stage 2: fewest measured dots for the final pose
 OBJECT_DOTS_WANTED = 24     # stage 2: add rounds while a projector would get fewer dots on the object than this
 ON_OBJECT_MM = 5.0          # a site this far above the table is on the object
