@@ -25,3 +25,41 @@ def machine() -> dict:
     except OSError:
         pass
     return info
+
+
+def load() -> list[float]:
+    """The 1, 5 and 15 minute load averages (how busy the machine was around a measurement)."""
+    return [round(v, 2) for v in os.getloadavg()]
+
+
+def streaming_bandwidth(*, mib: int = 512, threads: int = 2, repeats: int = 5) -> dict:
+    """The machine's streaming bandwidth, measured as a benchmark's solver would see it.
+
+    ``threads`` threads each copy their share of a ``mib`` MiB float32 array (far larger than
+    any cache) with numpy, which releases the GIL; every repeat moves ``2 * mib`` MiB (each
+    byte read once and written once, as STREAM's copy counts it). Returns the best and the
+    median rate in GB/s (1e9 bytes) over ``repeats`` timed copies after one warm-up copy, and
+    the load averages when it ran.
+    """
+    import itertools
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    import numpy as np
+
+    n = (mib << 20) // 4
+    src = np.ones(n, dtype=np.float32)
+    dst = np.zeros(n, dtype=np.float32)
+    cuts = np.linspace(0, n, threads + 1).astype(int)
+    parts = [(src[a:b], dst[a:b]) for a, b in itertools.pairwise(cuts)]
+    rates = []
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for k in range(repeats + 1):
+            t = time.perf_counter()
+            list(pool.map(lambda p: np.copyto(p[1], p[0]), parts))
+            dt = time.perf_counter() - t
+            if k:
+                rates.append(2 * src.nbytes / dt / 1e9)
+    rates.sort()
+    return {"gb_per_s": round(rates[-1], 2), "gb_per_s_median": round(rates[len(rates) // 2], 2),
+            "array_mib": mib, "threads": threads, "load": load()}

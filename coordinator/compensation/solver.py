@@ -48,6 +48,9 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from coordinator.compensation.stencil import STORAGES, stencil_blocks, stencil_from_csr
+from coordinator.compensation.stencil_apg import fused_apg
+
 __all__ = [
     "TransportOperator",
     "SolveResult",
@@ -106,24 +109,56 @@ class TransportOperator:
         Converted once to CSR float32 (no copy if it already is). Treat it as immutable.
     threads : int, optional
         Row blocks / worker threads for products and updates (default: up to 2, the CPU count).
-
-    Memory: ``L`` plus one CSR copy of ``L^T`` (about 2 x 8 bytes per non-zero).
+    storage : {"auto", "csr", "float32", "uint16"}
+        How the products read ``L``. ``"csr"``: CSR blocks of ``L`` plus a CSR copy of ``L^T``
+        (about 2 x 8 bytes per non-zero). ``"float32"`` / ``"uint16"``: shifted weight images
+        (:mod:`.stencil`; 4 or 2 bytes per window entry, one copy serves both products), for an
+        ``L`` whose content and camera grids coincide (``ValueError`` otherwise). ``"auto"``
+        (default): ``"float32"`` when ``L`` has that structure, else ``"csr"``.
     """
 
-    def __init__(self, L: sp.spmatrix, *, threads: int | None = None) -> None:
+    def __init__(self, L: sp.spmatrix, *, threads: int | None = None, storage: str = "auto") -> None:
         if not sp.issparse(L) or L.ndim != 2:
             raise ValueError("L must be a 2-D scipy.sparse matrix")
+        if storage not in ("auto", "csr", *STORAGES):
+            raise ValueError(f"storage must be auto, csr, {' or '.join(STORAGES)}; got {storage!r}")
         L = sp.csr_matrix(L, dtype=np.float32, copy=False)
         if not L.has_sorted_indices:
             L = L.sorted_indices()
         self.L = L
         self.shape: tuple[int, int] = (int(L.shape[0]), int(L.shape[1]))
         self.threads = max(1, int(threads if threads is not None else min(2, os.cpu_count() or 1)))
-        self.LT = L.T.tocsr()
-        self.forward_blocks = _row_blocks(L, self.threads)
-        self.adjoint_blocks = _row_blocks(self.LT, self.threads)
+        self.stencil = None if storage == "csr" else stencil_from_csr(L, storage="float32" if storage == "auto" else storage)
+        if self.stencil is None and storage in STORAGES:
+            raise ValueError(f"L has no shared-grid window structure: storage {storage!r} does not apply")
+        self.storage = "csr" if self.stencil is None else self.stencil.storage
+        self.fused = True  #: APG on the stencil storage in one weight sweep per iteration (:mod:`.stencil_apg`)
+        self._LT: sp.csr_matrix | None = None
+        self.forward_blocks, self.adjoint_blocks = stencil_blocks(self.stencil, self.threads) if self.stencil is not None else \
+            (_row_blocks(L, self.threads), _row_blocks(self.LT, self.threads))
         self._lipschitz: float | None = None
         self.lipschitz_info: dict[str, float] = {}
+
+    @property
+    def LT(self) -> sp.csr_matrix:
+        """``L^T`` as CSR (built on first use; the stencil storage never needs it)."""
+        if self._LT is None:
+            self._LT = self.L.T.tocsr()
+        return self._LT
+
+    @property
+    def storage_bytes(self) -> int:
+        """Bytes the products read ``L`` from: CSR ``L`` and ``L^T``, or the weight images."""
+        L = self.L
+        return self.stencil.nbytes if self.stencil is not None else 2 * int(L.data.nbytes + L.indices.nbytes + L.indptr.nbytes)
+
+    def bytes_per_iteration(self, channels: int = 1) -> int:
+        """What one APG iteration must move through memory, at least: ``L`` read once per product
+        (CSR: ``L`` and ``L^T``; stencil: the weights twice, or once in the fused sweep) and the
+        float32 vectors (``r``, ``x_k``, ``x_{k-1}``, ``c``, ``Lx_k`` read, ``x_{k+1}``, ``Lx_{k+1}``, ``r`` written)."""
+        m, n = self.shape
+        twice = self.stencil is not None and not (self.fused and self.stencil.tail is None)
+        return self.storage_bytes * (2 if twice else 1) + 4 * channels * (5 * n + 6 * m)
 
     @property
     def nnz(self) -> int:
@@ -153,10 +188,9 @@ class TransportOperator:
             raise ValueError(f"expected (n,) or (n, C), got {v.shape}")
         out = np.empty((vt.shape[0], rows), dtype=np.float32)
 
-        def one(block: tuple[int, int, sp.csr_matrix]) -> None:
+        def one(block: tuple[int, int, Any]) -> None:
             a, b, m = block
-            for k in range(vt.shape[0]):
-                out[k, a:b] = m @ vt[k]
+            _block_apply(m, vt, out[:, a:b])
 
         if pool is None or len(blocks) == 1:
             for blk in blocks:
@@ -165,13 +199,15 @@ class TransportOperator:
             list(pool.map(one, blocks))
         return out[0] if v.ndim == 1 else np.ascontiguousarray(out.T)
 
-    def lipschitz(self, *, iterations: int = 6, pool: Executor | None = None) -> float:
+    def lipschitz(self, *, iterations: int = 6, pool: Executor | None = None, early_exit: bool = True) -> float:
         """A step bound ``Lip >= ||L||_2^2`` (largest eigenvalue of ``L^T L``), cached.
 
         ``||L||_1 ||L||_inf`` (Schur) is a guaranteed bound, and tight for a blur whose top
         singular vector is nearly constant. A few power iterations from the all-ones vector
         give a lower estimate; when it is clearly below the Schur bound the step uses the
-        estimate raised by 5 %.
+        estimate raised by 5 %. The estimates never decrease (Rayleigh quotients of a power
+        iteration on ``L^T L``), so once 1.05 x the estimate reaches the Schur bound the result
+        is the Schur bound and ``early_exit`` stops there (the same value, fewer products).
         """
         if self._lipschitz is None:
             if self.L.nnz and float(self.L.data.min()) < 0:
@@ -187,6 +223,8 @@ class TransportOperator:
             for _ in range(iterations):
                 w = self.matvec(v, pool=pool)
                 est = _dot(w, w) / max(_dot(v, v), 1e-300)
+                if early_exit and 1.05 * est >= schur:
+                    break
                 v = self.rmatvec(w, pool=pool)
                 nv = math.sqrt(_dot(v, v))
                 if nv == 0:
@@ -196,6 +234,15 @@ class TransportOperator:
             self._lipschitz = max(lip, 1e-12)
             self.lipschitz_info = {"power_estimate": est, "schur_bound": schur, "lipschitz": self._lipschitz}
         return self._lipschitz
+
+
+def _block_apply(m: Any, v: np.ndarray, out: np.ndarray) -> None:
+    """``out[c] = m @ v[c]`` for every channel: a CSR block one channel at a time, a stencil band all at once."""
+    if hasattr(m, "apply"):
+        m.apply(v, out)
+    else:
+        for k in range(v.shape[0]):
+            out[k] = m @ v[k]
 
 
 _OPERATORS: dict[int, tuple[Any, TransportOperator]] = {}
@@ -372,7 +419,8 @@ def solve(
                           progress=progress, clock=clock, start=start, pool=pool)
         else:
             lip = op.lipschitz(pool=pool)
-            runner = _apg if method == "apg" else _steepest
+            fused = method == "apg" and op.stencil is not None and op.stencil.tail is None and op.fused
+            runner = _fused if fused else _apg if method == "apg" else _steepest
             res = runner(op, c, x, lip=lip, tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter,
                          time_limit=time_limit, progress=progress, clock=clock, start=start, pool=pool)
             res.lipschitz = lip
@@ -458,7 +506,6 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
                            reason="optimal" if f <= 0 else "max_iter", history=stop.history)
     rr, rc = f, _dot(r, c)
     lx_new = np.empty_like(lx_cur)
-    channels = c.shape[0]
     beta = 0.0
     t = 1.0
     k = 0
@@ -483,11 +530,10 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
             t = t_next
         bn = np.float32(beta_next)
 
-        def camera_phase(block: tuple[int, int, sp.csr_matrix]) -> tuple[float, float, float]:
+        def camera_phase(block: tuple[int, int, Any]) -> tuple[float, float, float]:
             a, b, m = block
             lxn = lx_new[:, a:b]
-            for ch in range(channels):
-                lxn[ch] = m @ x_cur[ch]
+            _block_apply(m, x_cur, lxn)
             cb = c[:, a:b]
             rb = r[:, a:b]
             np.subtract(lxn, cb, out=rb)
@@ -518,6 +564,20 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
                        reason=reason, history=stop.history, gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
 
+def _fused(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol: float, gap_tol: float,
+           pg_tol: float, max_iter: int, time_limit: float | None, progress: Progress | None,
+           clock: Callable[[], float], start: float, pool: Executor | None) -> SolveResult:
+    """:func:`_apg`'s iterates in one sweep over the stencil weights per iteration."""
+    stop = _Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter, time_limit=time_limit,
+                    clock=clock, start=start)
+    xs, f, k, reason = fused_apg(op.stencil, np.ascontiguousarray(c.T), np.ascontiguousarray(x.T), lip=lip, stop=stop,
+                                 threads=op.threads if pool is not None else 1, pool=pool, progress=progress,
+                                 dual_bound=_dual_bound)
+    return SolveResult(x=np.ascontiguousarray(xs.T), objective=f, iterations=k, reason=reason, history=stop.history,
+                       converged=reason in ("gap", "objective", "gradient", "optimal"), gap=stop.gap(f),
+                       lower_bound=max(stop.lower, 0.0))
+
+
 def _content_phase_factory(x_cur: np.ndarray, x_prev: np.ndarray, r: np.ndarray, step: np.float32, beta: np.float32):
     """One content-row block of an APG iteration (arrays channel-major: (C, n)).
 
@@ -526,12 +586,11 @@ def _content_phase_factory(x_cur: np.ndarray, x_prev: np.ndarray, r: np.ndarray,
     sums ``(sum min(0, g), ||y - x_{k+1}||^2, <y - x_{k+1}, x_{k+1} - x_k>)``.
     """
 
-    def phase(block: tuple[int, int, sp.csr_matrix]) -> tuple[float, float, float]:
+    def phase(block: tuple[int, int, Any]) -> tuple[float, float, float]:
         a, b, m = block
         xc, xp = x_cur[:, a:b], x_prev[:, a:b]  # (C, nb) views
         g = np.empty(xc.shape, dtype=np.float32)
-        for ch in range(g.shape[0]):
-            g[ch] = m @ r[ch]
+        _block_apply(m, r, g)
         gneg = float(np.minimum(g, 0).sum(dtype=np.float64))
         if beta != 0:
             y = np.subtract(xc, xp)  # beta (x_k - x_{k-1}) + x_k

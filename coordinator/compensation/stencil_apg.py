@@ -1,0 +1,197 @@
+"""The APG iteration of :mod:`.solver` in one sweep over the stencil weights per iteration.
+
+The plain iteration (``_apg`` in :mod:`.solver`) reads ``L`` twice: ``g = L^T r`` for every
+content pixel, then ``L x_{k+1}`` for every camera pixel, with a global reduction (the restart
+test) in between. With the stencil storage (:mod:`.stencil`) both products read the same weight
+rows, so they can share one pass if the adjoint of band ``i`` and the forward of band ``i - 1``
+follow each other while those rows are still in cache. What stands in the way is the momentum:
+the residual at ``y_{k+1}`` needs ``beta_{k+1}``, known only after the whole sweep. So the sweep
+keeps ``Lx_k`` and ``Lx_{k-1}`` and assembles ``r = Lx_k + beta_k (Lx_k - Lx_{k-1}) - c`` band by
+band just ahead of the adjoint that reads it. Per band ``i`` (rows ``[a, b)``):
+
+1. assemble ``r`` up to row ``b + R`` (the adjoint's halo); partial ``||r||^2``, ``<r, c>``;
+2. ``g = L^T r`` on rows ``[a, b)``;
+3. ``y = x_k + beta (x_k - x_{k-1})``, ``x_{k+1} = clip(y - g / Lip)`` stored over ``x_{k-1}``;
+   partial ``sum min(0, g)``, ``||y - x_{k+1}||^2``, ``<y - x_{k+1}, x_{k+1} - x_k>``;
+4. ``Lx_{k+1}`` on band ``i - 1`` (its halo reaches ``R`` rows into band ``i``, just updated),
+   stored over ``Lx_{k-1}``; partial ``||Lx_{k+1} - c||^2``.
+
+The iterates are those of ``_apg`` (same step, restart rule, stopping rules and dual bound);
+only the order of floating-point sums differs. Threads sweep contiguous row ranges; the rows
+of ``r`` within ``R`` of a boundary are assembled before the threads start, and the forward of
+a band whose halo crosses a boundary waits until both threads are done. Channel-major arrays:
+``(C, n)`` float32, viewed as ``(C, H, W)`` images.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from concurrent.futures import Executor
+from typing import Any
+
+import numpy as np
+
+from coordinator.compensation.stencil import StencilTransport
+
+__all__ = ["fused_apg"]
+
+_BAND_PIXELS = 1 << 17  # pixels per band of the sweep: its slices of every array fit in L2 beside one weight slice
+
+
+def _dot3(u: np.ndarray, v: np.ndarray) -> float:
+    """Sum of ``u * v`` over (C, rows, W) views with contiguous rows (float64 across channels)."""
+    return math.fsum(float(np.dot(u[ch].reshape(-1), v[ch].reshape(-1))) for ch in range(u.shape[0]))
+
+
+class _Sweep:
+    """The arrays of one solve and the four steps of a band."""
+
+    def __init__(self, st: StencilTransport, c: np.ndarray, x: np.ndarray, lip: float) -> None:
+        self.st = st
+        h, w = st.grid
+        self.h, self.w, self.r = h, w, st.radius
+        ch = c.shape[0]
+        shape3 = (ch, h, w)
+        self.c = c.reshape(shape3)
+        self.x_cur = x.copy().reshape(shape3)
+        self.x_prev = x.copy().reshape(shape3)
+        self.lx_cur = np.empty(shape3, dtype=np.float32)
+        self.lx_prev = np.empty(shape3, dtype=np.float32)
+        self.res = np.empty(shape3, dtype=np.float32)  # r at y_k, assembled band by band
+        self.step = np.float32(1.0 / lip)
+        self.beta = np.float32(0.0)
+        self.rows = max(st.radius, 1, min(h, _BAND_PIXELS // max(w, 1)))
+
+    def assemble(self, y0: int, y1: int) -> tuple[float, float]:
+        """``r = Lx_k + beta (Lx_k - Lx_{k-1}) - c`` on rows ``[y0, y1)``; returns ``(||r||^2, <r, c>)``."""
+        if y1 <= y0:
+            return 0.0, 0.0
+        rb, lc, cb = self.res[:, y0:y1], self.lx_cur[:, y0:y1], self.c[:, y0:y1]
+        if self.beta != 0:
+            np.subtract(lc, self.lx_prev[:, y0:y1], out=rb)
+            rb *= self.beta
+            rb += lc
+            rb -= cb
+        else:
+            np.subtract(lc, cb, out=rb)
+        return _dot3(rb, rb), _dot3(rb, cb)
+
+    def update(self, a: int, b: int, g: np.ndarray) -> tuple[float, float, float]:
+        """Steps 2 and 3 on rows ``[a, b)``; ``g`` is scratch (C, b - a, W)."""
+        self.st.adjoint_rows(self.res, g, a, b)
+        xc, xp = self.x_cur[:, a:b], self.x_prev[:, a:b]
+        gneg = float(np.minimum(g, 0).sum(dtype=np.float64))
+        if self.beta != 0:
+            y = np.subtract(xc, xp)
+            y *= self.beta
+            y += xc
+        else:
+            y = xc.copy()
+        g *= -self.step
+        g += y
+        np.clip(g, 0, 1, out=g)  # x_{k+1}
+        y -= g
+        ymx = _dot3(y, y)
+        np.subtract(g, xc, out=xp)
+        inner = _dot3(y, xp)
+        xp[...] = g
+        return gneg, ymx, inner
+
+    def forward(self, a: int, b: int) -> float:
+        """Step 4 on rows ``[a, b)`` (``x_{k+1}`` lives in ``x_prev`` during the sweep); returns its ``f`` part."""
+        out = self.lx_prev[:, a:b]
+        self.st.forward_rows(self.x_prev, out, a, b)
+        d = out - self.c[:, a:b]
+        return _dot3(d, d)
+
+    def sweep(self, y0: int, y1: int) -> tuple[list[float], list[tuple[int, int]]]:
+        """One thread's rows ``[y0, y1)``: partial sums (gneg, ymx, inner, f, rr, rc) and deferred bands."""
+        h, r = self.h, self.r
+        first, last = y0 == 0, y1 == h
+        lo = y0 if first else y0 + r  # rows within r of a boundary were assembled before the threads
+        hi = y1 if last else y1 - r
+        bands = [(a, min(a + self.rows, y1)) for a in range(y0, y1, self.rows)]
+        if len(bands) > 1 and bands[-1][1] - bands[-1][0] < r:  # band i's rows must hold band i-1's halo
+            bands[-2:] = [(bands[-2][0], y1)]
+        g = np.empty((self.c.shape[0], self.rows + r, self.w), dtype=np.float32)
+        sums = {k: [] for k in ("gneg", "ymx", "inner", "f", "rr", "rc")}
+        deferred: list[tuple[int, int]] = []
+        done = lo
+        for i, (a, b) in enumerate(bands):
+            upto = min(b + r, hi)
+            if upto > done:
+                rr, rc = self.assemble(done, upto)
+                sums["rr"].append(rr)
+                sums["rc"].append(rc)
+                done = upto
+            gn, ym, inn = self.update(a, b, g[:, : b - a])
+            sums["gneg"].append(gn)
+            sums["ymx"].append(ym)
+            sums["inner"].append(inn)
+            if i >= 1:
+                pa, pb = bands[i - 1]
+                if i - 1 == 0 and not first:
+                    deferred.append((pa, pb))
+                else:
+                    sums["f"].append(self.forward(pa, pb))
+        a, b = bands[-1]
+        if last and not (len(bands) == 1 and not first):
+            sums["f"].append(self.forward(a, b))
+        else:
+            deferred.append((a, b))
+        return [math.fsum(sums[k]) for k in ("gneg", "ymx", "inner", "f", "rr", "rc")], deferred
+
+
+def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float, stop: Any, threads: int,
+              pool: Executor | None, progress: Callable[[int, float], None] | None,
+              dual_bound: Callable[[float, float, float], float]) -> tuple[np.ndarray, float, int, str]:
+    """FISTA with gradient restart, one weight sweep per iteration (see the module docstring).
+
+    ``c``: (C, n) float32 target, ``x``: (C, n) float32 start in [0, 1]; ``stop``: the solver's
+    stopping rules (``history``, ``bound``, ``check``). Returns ``(x, f, iterations, reason)``
+    with ``x`` (C, n) the last iterate and ``f`` its objective.
+    """
+    if st.tail is not None:
+        raise ValueError("the fused sweep handles L without a stacked diagonal")
+    s = _Sweep(st, c, x, lip)
+    h, r = s.h, s.r
+    ranges = st.bands(threads)
+    if any(b - a < 2 * r + s.rows for a, b in ranges):
+        ranges = [(0, h)]  # too few rows to share: one sweep
+    run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None and len(ranges) > 1 else \
+        (lambda fn, items: [fn(i) for i in items])
+    run(lambda rg: st.forward_rows(s.x_cur, s.lx_cur[:, rg[0] : rg[1]], rg[0], rg[1]), ranges)
+    s.lx_prev[...] = s.lx_cur
+    d = s.lx_cur - s.c
+    f = _dot3(d, d)
+    stop.history.append(f)
+    if stop.max_iter == 0 or f <= 0:
+        return s.x_cur.reshape(c.shape), f, 0, "optimal" if f <= 0 else "max_iter"
+    t = 1.0
+    k = 0
+    while True:
+        k += 1
+        pre = [s.assemble(max(b0 - r, 0), min(b0 + r, h)) for _, b0 in ranges[:-1]]
+        parts = run(lambda rg: s.sweep(*rg), ranges)
+        deferred = [band for _, dl in parts for band in dl]
+        f_late = run(lambda band: s.forward(*band), deferred)
+        gneg, ymx, inner, f, rr, rc = (math.fsum(p[0][j] for p in parts) for j in range(6))
+        f = math.fsum([f, *f_late])
+        rr = math.fsum([rr, *(p[0] for p in pre)])
+        rc = math.fsum([rc, *(p[1] for p in pre)])
+        stop.bound(dual_bound(rr, rc, gneg))
+        if inner > 0:  # the momentum points uphill: restart
+            t, beta = 1.0, 0.0
+        else:
+            t_next = 0.5 * (1 + math.sqrt(1 + 4 * t * t))
+            beta = (t - 1) / t_next
+            t = t_next
+        s.beta = np.float32(beta)
+        s.x_cur, s.x_prev = s.x_prev, s.x_cur
+        s.lx_cur, s.lx_prev = s.lx_prev, s.lx_cur
+        stop.history.append(f)
+        if progress is not None:
+            progress(k, f)
+        why = stop.check(k, f, math.sqrt(ymx) * lip)
+        if why is not None:
+            return np.ascontiguousarray(s.x_cur.reshape(c.shape)), f, k, why

@@ -1,0 +1,63 @@
+"""`shadowless bench compensation`: the current and the new solver side by side, and the bandwidth probe."""
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from bench import compensation
+from bench.machine import streaming_bandwidth
+
+
+def run_bench(capsys, argv):
+    parser = argparse.ArgumentParser()
+    compensation.configure(parser)
+    args = parser.parse_args(argv)
+    assert compensation.run(args) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_streaming_bandwidth_measures_a_copy():
+    bw = streaming_bandwidth(mib=64, threads=2, repeats=3)
+    assert 0 < bw["gb_per_s_median"] <= bw["gb_per_s"] and bw["threads"] == 2 and len(bw["load"]) == 3
+
+
+def test_current_and_new_side_by_side(capsys):
+    doc = run_bench(capsys, ["--quick", "--size", "none", "--paper-size", "96x64", "--paper-channels", "3",
+                             "--video-size", "80x48", "--video-frames", "5", "--video-new-iterations", "6"])
+    assert doc["per_projectors"] == [] and doc["video_more"] == []
+    p = doc["paper_size"]
+    cur, new, u16 = p["current"], p["new"], p["new_uint16"]
+    assert (cur["storage"], new["storage"], u16["storage"]) == ("csr", "float32", "uint16")
+    assert new["fused"] and not cur["fused"]
+    # the same problem solved to the same stopping rule: the same iterations, objectives within rounding
+    assert new["iterations"] == cur["iterations"] > 3
+    assert new["objective"] == pytest.approx(cur["objective"], rel=1e-4)
+    for s in (cur, new, u16):
+        assert 0 <= s["relative_gap_to_reference"] <= 0.01
+        assert s["bandwidth_fraction"] > 0 and s["solver_peak_memory_mib"] > 0
+    # 25 float32 weights (once per iteration) against 2 x 25 x (value + index) bytes per pixel
+    assert u16["bytes_per_iteration"] < new["bytes_per_iteration"] < cur["bytes_per_iteration"] / 2
+    assert p["new_over_current"]["bytes_per_iteration"] == pytest.approx(
+        new["bytes_per_iteration"] / cur["bytes_per_iteration"], abs=1e-3)
+    assert p["streaming_bandwidth"]["before"]["gb_per_s"] > 0
+    v = doc["video"]
+    assert v["iterations_per_frame"] == {"current": 4, "new": 6}
+    for clip in ("pan", "overlay"):
+        c, n = v["current"][clip], v["new"][clip]
+        assert c["storage"] == "csr" and n["storage"] == "float32"
+        assert c["iterations_per_frame_mean"] == 4 and n["iterations_per_frame_mean"] == 6
+        # more iterations from the same warm start: closer to the converged solve
+        assert n["psnr_short_of_converged_max_db"] <= c["psnr_short_of_converged_max_db"] + 1e-3
+        assert v[clip]["ms_per_frame_mean"] == n["ms_per_frame_mean"] and v[clip]["new_over_current_ms_per_frame"] > 0
+    assert "paper_size_rgb_solver_peak_gib" in doc["targets"] and "video_80x48" in doc["targets"]
+
+
+def test_storage_names_are_checked(capsys):
+    parser = argparse.ArgumentParser()
+    compensation.configure(parser)
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args(["--paper-storage", "float16"])
+    assert exc.value.code == 2
+    assert "storages are float32, uint16" in capsys.readouterr().err
