@@ -154,6 +154,57 @@ class StencilTransport:
             if self.scale != 1.0:
                 dst *= np.float32(self.scale)
 
+    def band_weights(self, y0: int, y1: int, scratch: np.ndarray) -> np.ndarray:
+        """The weights of anchor rows ``[y0, y1)`` as float32 ``(K, y1 - y0, W)``: a view, or
+        converted into ``scratch`` (``(K, >= y1 - y0, W)`` float32) for uint16 storage (unscaled)."""
+        src = self.weights[:, y0:y1]
+        if src.dtype == np.float32:
+            return src
+        out = scratch[:, : y1 - y0]
+        np.copyto(out, src, casting="unsafe")
+        return out
+
+    def adjoint_band(self, wb: np.ndarray, v: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
+        """``out = (L^T v)`` on content rows ``[y0, y1)`` from their :meth:`band_weights` ``wb``.
+
+        ``v``: (C, H, W) camera images; ``out``: (C, y1 - y0, W) float32, overwritten.
+        """
+        h, w = self.grid
+        out.fill(0)
+        for k, (dy, dx) in enumerate(self.offsets):
+            s0, s1 = max(y0, -dy), min(y1, h - dy)
+            if s1 <= s0:
+                continue
+            c0, c1 = max(0, -dx), min(w, w - dx)
+            wk = wb[k, s0 - y0 : s1 - y0, c0:c1]
+            for ch in range(v.shape[0]):
+                cv2.accumulateProduct(wk, v[ch, s0 + dy : s1 + dy, c0 + dx : c1 + dx], out[ch, s0 - y0 : s1 - y0, c0:c1])
+        if self.scale != 1.0:
+            out *= np.float32(self.scale)
+
+    def scatter_band(self, wb: np.ndarray, x: np.ndarray, y0: int, y1: int,
+                     sinks: list[tuple[int, int, np.ndarray]]) -> None:
+        """Add the light of content rows ``[y0, y1)`` to the camera: ``L[:, band] x[band]``.
+
+        ``wb``: the rows' :meth:`band_weights`; ``x``: (C, y1 - y0, W) float32 content rows;
+        ``sinks``: ``(r0, r1, view)`` with ``view`` (C, r1 - r0, W) float32 accumulating camera
+        rows ``[r0, r1)``; light landing on rows no sink holds is dropped (the caller's sinks
+        must cover rows ``[y0 - R, y1 + R)`` inside the image).
+        """
+        h, w = self.grid
+        if self.scale != 1.0:
+            x = x * np.float32(self.scale)
+        for k, (dy, dx) in enumerate(self.offsets):
+            c0, c1 = max(0, -dx), min(w, w - dx)
+            for r0, r1, view in sinks:
+                d0, d1 = max(y0 + dy, r0, 0), min(y1 + dy, r1, h)
+                if d1 <= d0:
+                    continue
+                wk = wb[k, d0 - dy - y0 : d1 - dy - y0, c0:c1]
+                for ch in range(x.shape[0]):
+                    cv2.accumulateProduct(wk, x[ch, d0 - dy - y0 : d1 - dy - y0, c0:c1],
+                                          view[ch, d0 - r0 : d1 - r0, c0 + dx : c1 + dx])
+
     def to_csr(self) -> sp.csr_matrix:
         """The matrix this storage represents (for tests and comparisons), CSR float32."""
         h, w = self.grid

@@ -2,25 +2,26 @@
 
 The plain iteration (``_apg`` in :mod:`.solver`) reads ``L`` twice: ``g = L^T r`` for every
 content pixel, then ``L x_{k+1}`` for every camera pixel, with a global reduction (the restart
-test) in between. With the stencil storage (:mod:`.stencil`) both products read the same weight
-rows, so they can share one pass if the adjoint of band ``i`` and the forward of band ``i - 1``
-follow each other while those rows are still in cache. What stands in the way is the momentum:
-the residual at ``y_{k+1}`` needs ``beta_{k+1}``, known only after the whole sweep. So the sweep
-keeps ``Lx_k`` and ``Lx_{k-1}`` and assembles ``r = Lx_k + beta_k (Lx_k - Lx_{k-1}) - c`` band by
-band just ahead of the adjoint that reads it. Per band ``i`` (rows ``[a, b)``):
+test) in between. With the stencil storage (:mod:`.stencil`) both products can read the same
+weight rows: the adjoint of a band of content rows gives that band's gradient, the update its
+``x_{k+1}``, and the forward product *from* that band (its light scattered onto camera rows
+``[a - R, b + R)``) reuses the band's weights while they are still in cache. What stands in the
+way is the momentum: the residual at ``y_{k+1}`` needs ``beta_{k+1}``, known only after the whole
+sweep. So the sweep keeps ``Lx_k`` and ``Lx_{k-1}`` and assembles ``r = Lx_k + beta_k (Lx_k -
+Lx_{k-1}) - c`` band by band just ahead of the adjoint that reads it. Per band (rows ``[a, b)``):
 
 1. assemble ``r`` up to row ``b + R`` (the adjoint's halo); partial ``||r||^2``, ``<r, c>``;
-2. ``g = L^T r`` on rows ``[a, b)``;
+2. the band's weights (uint16 converted to float32 once), then ``g = L^T r`` on rows ``[a, b)``;
 3. ``y = x_k + beta (x_k - x_{k-1})``, ``x_{k+1} = clip(y - g / Lip)`` stored over ``x_{k-1}``;
    partial ``sum min(0, g)``, ``||y - x_{k+1}||^2``, ``<y - x_{k+1}, x_{k+1} - x_k>``;
-4. ``Lx_{k+1}`` on band ``i - 1`` (its halo reaches ``R`` rows into band ``i``, just updated),
-   stored over ``Lx_{k-1}``; partial ``||Lx_{k+1} - c||^2``.
+4. add the band's light ``L[:, band] x_{k+1}[band]`` into ``Lx_{k+1}`` (stored over ``Lx_{k-1}``,
+   whose rows step 1 has used by then); rows above ``b - R`` are final: partial ``||Lx_{k+1} - c||^2``.
 
 The iterates are those of ``_apg`` (same step, restart rule, stopping rules and dual bound);
 only the order of floating-point sums differs. Threads sweep contiguous row ranges; the rows
-of ``r`` within ``R`` of a boundary are assembled before the threads start, and the forward of
-a band whose halo crosses a boundary waits until both threads are done. Channel-major arrays:
-``(C, n)`` float32, viewed as ``(C, H, W)`` images.
+within ``R`` of a boundary are assembled before the threads start and finished after they end,
+and each thread adds the light it throws across a boundary into a halo of its own, summed in
+after. Channel-major arrays: ``(C, n)`` float32, viewed as ``(C, H, W)`` images.
 """
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ from coordinator.compensation.stencil import StencilTransport
 
 __all__ = ["fused_apg"]
 
-_BAND_PIXELS = 1 << 17  # pixels per band of the sweep: its slices of every array fit in L2 beside one weight slice
+_BAND_PIXELS = 1 << 16  # pixels per band of the sweep: every array's band slice stays in cache between the two products
 
 
 def _dot3(u: np.ndarray, v: np.ndarray) -> float:
@@ -44,7 +45,7 @@ def _dot3(u: np.ndarray, v: np.ndarray) -> float:
 
 
 class _Sweep:
-    """The arrays of one solve and the four steps of a band."""
+    """The arrays of one solve and the steps of a band."""
 
     def __init__(self, st: StencilTransport, c: np.ndarray, x: np.ndarray, lip: float) -> None:
         self.st = st
@@ -60,7 +61,7 @@ class _Sweep:
         self.res = np.empty(shape3, dtype=np.float32)  # r at y_k, assembled band by band
         self.step = np.float32(1.0 / lip)
         self.beta = np.float32(0.0)
-        self.rows = max(st.radius, 1, min(h, _BAND_PIXELS // max(w, 1)))
+        self.rows = max(1, min(h, _BAND_PIXELS // max(w, 1)))
 
     def assemble(self, y0: int, y1: int) -> tuple[float, float]:
         """``r = Lx_k + beta (Lx_k - Lx_{k-1}) - c`` on rows ``[y0, y1)``; returns ``(||r||^2, <r, c>)``."""
@@ -77,8 +78,7 @@ class _Sweep:
         return _dot3(rb, rb), _dot3(rb, cb)
 
     def update(self, a: int, b: int, g: np.ndarray) -> tuple[float, float, float]:
-        """Steps 2 and 3 on rows ``[a, b)``; ``g`` is scratch (C, b - a, W)."""
-        self.st.adjoint_rows(self.res, g, a, b)
+        """Step 3 on rows ``[a, b)`` from the gradient ``g`` (C, b - a, W), which it overwrites."""
         xc, xp = self.x_cur[:, a:b], self.x_prev[:, a:b]
         gneg = float(np.minimum(g, 0).sum(dtype=np.float64))
         if self.beta != 0:
@@ -97,49 +97,52 @@ class _Sweep:
         xp[...] = g
         return gneg, ymx, inner
 
-    def forward(self, a: int, b: int) -> float:
-        """Step 4 on rows ``[a, b)`` (``x_{k+1}`` lives in ``x_prev`` during the sweep); returns its ``f`` part."""
-        out = self.lx_prev[:, a:b]
-        self.st.forward_rows(self.x_prev, out, a, b)
-        d = out - self.c[:, a:b]
+    def finish(self, y0: int, y1: int) -> float:
+        """``||Lx_{k+1} - c||^2`` on camera rows ``[y0, y1)`` (``Lx_{k+1}`` lives in ``lx_prev`` during the sweep)."""
+        if y1 <= y0:
+            return 0.0
+        d = self.lx_prev[:, y0:y1] - self.c[:, y0:y1]
         return _dot3(d, d)
 
-    def sweep(self, y0: int, y1: int) -> tuple[list[float], list[tuple[int, int]]]:
-        """One thread's rows ``[y0, y1)``: partial sums (gneg, ymx, inner, f, rr, rc) and deferred bands."""
-        h, r = self.h, self.r
+    def sweep(self, y0: int, y1: int) -> tuple[list[float], list[tuple[int, np.ndarray]]]:
+        """One thread's rows ``[y0, y1)``: partial sums (gneg, ymx, inner, f, rr, rc) and the light
+        its content rows threw onto the ``R`` camera rows beyond each end, ``(first row, (C, R', W))``."""
+        st, h, w, r = self.st, self.h, self.w, self.r
         first, last = y0 == 0, y1 == h
-        lo = y0 if first else y0 + r  # rows within r of a boundary were assembled before the threads
+        lo = y0 if first else y0 + r  # rows within r of a boundary are assembled and finished outside
         hi = y1 if last else y1 - r
-        bands = [(a, min(a + self.rows, y1)) for a in range(y0, y1, self.rows)]
-        if len(bands) > 1 and bands[-1][1] - bands[-1][0] < r:  # band i's rows must hold band i-1's halo
-            bands[-2:] = [(bands[-2][0], y1)]
-        g = np.empty((self.c.shape[0], self.rows + r, self.w), dtype=np.float32)
-        sums = {k: [] for k in ("gneg", "ymx", "inner", "f", "rr", "rc")}
-        deferred: list[tuple[int, int]] = []
-        done = lo
-        for i, (a, b) in enumerate(bands):
+        ch = self.c.shape[0]
+        halos = [] if first else [(y0 - r, np.zeros((ch, r, w), dtype=np.float32))]
+        if not last:
+            halos.append((y1, np.zeros((ch, min(r, h - y1), w), dtype=np.float32)))
+        sinks = [(a, a + v.shape[1], v) for a, v in halos] + [(y0, y1, self.lx_prev[:, y0:y1])]
+        scratch = np.empty((len(st.offsets), self.rows, w), dtype=np.float32) if st.storage != "float32" else None
+        g = np.empty((ch, self.rows, w), dtype=np.float32)
+        sums: dict[str, list[float]] = {k: [] for k in ("gneg", "ymx", "inner", "f", "rr", "rc")}
+        assembled, zeroed, finished = lo, y0, lo
+        for a in range(y0, y1, self.rows):
+            b = min(a + self.rows, y1)
             upto = min(b + r, hi)
-            if upto > done:
-                rr, rc = self.assemble(done, upto)
+            if upto > assembled:
+                rr, rc = self.assemble(assembled, upto)
                 sums["rr"].append(rr)
                 sums["rc"].append(rc)
-                done = upto
-            gn, ym, inn = self.update(a, b, g[:, : b - a])
-            sums["gneg"].append(gn)
-            sums["ymx"].append(ym)
-            sums["inner"].append(inn)
-            if i >= 1:
-                pa, pb = bands[i - 1]
-                if i - 1 == 0 and not first:
-                    deferred.append((pa, pb))
-                else:
-                    sums["f"].append(self.forward(pa, pb))
-        a, b = bands[-1]
-        if last and not (len(bands) == 1 and not first):
-            sums["f"].append(self.forward(a, b))
-        else:
-            deferred.append((a, b))
-        return [math.fsum(sums[k]) for k in ("gneg", "ymx", "inner", "f", "rr", "rc")], deferred
+                assembled = upto
+            wb = st.band_weights(a, b, scratch)  # read once, used by both products while in cache
+            gb = g[:, : b - a]
+            st.adjoint_band(wb, self.res, gb, a, b)
+            for key, v in zip(("gneg", "ymx", "inner"), self.update(a, b, gb)):
+                sums[key].append(v)
+            z = min(b + r, y1)  # Lx_{k-1} on these rows was used by the assembly above: start Lx_{k+1}
+            if z > zeroed:
+                self.lx_prev[:, zeroed:z].fill(0)
+                zeroed = z
+            st.scatter_band(wb, self.x_prev[:, a:b], a, b, sinks)
+            done = hi if b == y1 else min(b - r, hi)  # no later band reaches rows above b - r
+            if done > finished:
+                sums["f"].append(self.finish(finished, done))
+                finished = done
+        return [math.fsum(sums[k]) for k in ("gneg", "ymx", "inner", "f", "rr", "rc")], halos
 
 
 def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float, stop: Any, threads: int,
@@ -156,7 +159,7 @@ def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float,
     s = _Sweep(st, c, x, lip)
     h, r = s.h, s.r
     ranges = st.bands(threads)
-    if any(b - a < 2 * r + s.rows for a, b in ranges):
+    if any(b - a <= 2 * r for a, b in ranges):
         ranges = [(0, h)]  # too few rows to share: one sweep
     run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None and len(ranges) > 1 else \
         (lambda fn, items: [fn(i) for i in items])
@@ -171,10 +174,12 @@ def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float,
     k = 0
     while True:
         k += 1
-        pre = [s.assemble(max(b0 - r, 0), min(b0 + r, h)) for _, b0 in ranges[:-1]]
+        pre = [s.assemble(b0 - r, b0 + r) for _, b0 in ranges[:-1]]
         parts = run(lambda rg: s.sweep(*rg), ranges)
-        deferred = [band for _, dl in parts for band in dl]
-        f_late = run(lambda band: s.forward(*band), deferred)
+        for _, halos in parts:
+            for a, v in halos:
+                s.lx_prev[:, a : a + v.shape[1]] += v
+        f_late = [s.finish(b0 - r, b0 + r) for _, b0 in ranges[:-1]]
         gneg, ymx, inner, f, rr, rc = (math.fsum(p[0][j] for p in parts) for j in range(6))
         f = math.fsum([f, *f_late])
         rr = math.fsum([rr, *(p[0] for p in pre)])
