@@ -7,9 +7,11 @@ for each number of projectors N, the rig's light transport ``L = sum L_i`` and t
 and the projected results are evaluated through the true transport (PSNR/SSIM against the target).
 Solve times of ours and of the baseline are measured side by side in this one run.
 
-Also: the paper's camera size 2592x1944 with 25 projectors (time to 1 % of the optimum), warm-started
-video at 960x540 (ms per frame), and a sweep over camera noise showing what decides the quality
-ordering. Prints one JSON document; progress goes to stderr.
+Also the solver near the machine's limit: at the paper's camera size 2592x1944 with 25 projectors
+(time to 1 % of the optimum) and for warm-started video (960x540, 1920x1080), the current solver
+(CSR) and the new one (stencil storage, one weight sweep per iteration) side by side, each with
+the bytes an iteration moves against the machine's streaming bandwidth measured in the same run;
+and a sweep over camera noise showing what decides the quality ordering. One JSON document.
 
 The camera model matters for the quality ordering and is a stated parameter: per frame, read
 noise 5e-4 of full scale and shot noise 0.01*sqrt(signal) (10 000 e- full well), 8 frames
@@ -129,6 +131,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--video-iterations", type=int, default=4, help="APG iterations per warm-started frame (current)")
     parser.add_argument("--video-new-iterations", type=int, default=8,
                         help="APG iterations per warm-started frame of the new solver (default 8)")
+    parser.add_argument("--video-new-warm", choices=("delta", "motion"), default="motion",
+                        help="the new solver's warm start: previous correction in place (delta, as current) or moved "
+                             "along the picture's optical flow (motion, default)")
     parser.add_argument("--video-deadline-ms", type=float, default=None,
                         help="optional per-frame deadline: stop a frame's iterations once it has used this long")
     parser.add_argument("--sweep-frames", type=_ints, default=None, metavar="F,F,...",
@@ -315,15 +320,6 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
     return rows
 
 
-def _impl_stats(op: TransportOperator, res, seconds: float, channels: int, bandwidth: float) -> dict[str, Any]:
-    """Seconds, iterations and what the iterations moved through memory against the machine's bandwidth."""
-    bpi = op.bytes_per_iteration(channels)
-    rate = bpi * res.iterations / seconds if seconds > 0 and res.iterations else 0.0
-    return {"storage": op.storage, "fused": op.storage != "csr" and op.fused, "iterations": res.iterations,
-            "bytes_per_iteration": bpi, "storage_mib": round(op.storage_bytes / 2**20, 1),
-            "gb_per_s_moved": round(rate / 1e9, 2), "bandwidth_fraction": round(rate / (bandwidth * 1e9), 3)}
-
-
 def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tuple[dict[str, Any], Any, Any]:
     """One implementation, timed as a user pays for it: build the operator, its step bound, the solve.
 
@@ -339,18 +335,17 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
     op.lipschitz(early_exit=storage != "csr")
     lip_s = time.perf_counter() - t
     res = solve(op, target, threads=args.threads, **opts)
+    # what the iterations moved through memory against the machine's bandwidth
+    bpi = op.bytes_per_iteration(target.shape[-1] if target.ndim == 3 else 1)
+    rate = bpi * res.iterations / res.seconds if res.seconds > 0 and res.iterations else 0.0
     stats = {"prepare_seconds": round(prep, 3), "lipschitz_seconds": round(lip_s, 3),
              "solve_seconds": round(res.seconds, 3), "total_seconds": round(prep + lip_s + res.seconds, 3),
              "seconds_per_iteration": round(res.seconds / max(res.iterations, 1), 4), "reason": res.reason,
-             "objective": res.objective, **_impl_stats(op, res, res.seconds, target.shape[-1] if target.ndim == 3 else 1,
-                                                        bandwidth), "load": [round(load0, 2), round(os.getloadavg()[0], 2)]}
+             "objective": res.objective, "storage": op.storage, "fused": op.storage != "csr" and op.fused,
+             "iterations": res.iterations, "bytes_per_iteration": bpi, "storage_mib": round(op.storage_bytes / 2**20, 1),
+             "gb_per_s_moved": round(rate / 1e9, 2), "bandwidth_fraction": round(rate / (bandwidth * 1e9), 3),
+             "load": [round(load0, 2), round(os.getloadavg()[0], 2)]}
     return stats, res, op
-
-
-def _peak_mib(L, target, args, storage: str) -> float:
-    """Peak allocation (MiB) of building the operator and 3 iterations: its storage plus the solve's vectors."""
-    return round(_tracemalloc_peak(lambda: solve(TransportOperator(L, threads=args.threads, storage=storage), target,
-                                                 threads=args.threads, max_iter=3)), 1)
 
 
 def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
@@ -386,7 +381,9 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
     gc.collect()
     for name, stats in impls.items():
         stats["relative_gap_to_reference"] = (stats["objective"] - best) / best
-        stats["solver_peak_memory_mib"] = _peak_mib(L, target, args, stats["storage"])
+        # peak allocation of building the operator and 3 iterations: its storage plus the solve's vectors
+        stats["solver_peak_memory_mib"] = round(_tracemalloc_peak(lambda st=stats["storage"]: solve(
+            TransportOperator(L, threads=args.threads, storage=st), target, threads=args.threads, max_iter=3)), 1)
         gc.collect()
     cur, new = impls["current"], impls["new"]
     return {
@@ -434,13 +431,17 @@ def _video(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, Any]:
     its = {"current": args.video_iterations, "new": args.video_new_iterations}
     frames = args.video_frames
     out: dict[str, Any] = {"size": f"{w}x{h}", "projectors": n, "frames": frames, "iterations_per_frame": its,
-                           "deadline_ms": args.video_deadline_ms, "warm_start": "previous solution + target change",
+                           "deadline_ms": args.video_deadline_ms,
+                           "warm_start": {"current": "target + previous correction (x - c)",
+                                          "new": "target + previous correction" + (" moved along the optical flow"
+                                                                                   if args.video_new_warm == "motion" else "")},
                            "streaming_bandwidth": bw}
     deadline = None if args.video_deadline_ms is None else args.video_deadline_ms / 1000
     out["current"], out["new"] = {}, {}
     for clip_name, clip in _clips(w, h, frames, args).items():
         for name, op in ops.items():
-            comp = FrameCompensator(op, iterations=its[name], deadline=deadline, threads=args.threads)
+            motion = name == "new" and args.video_new_warm == "motion"
+            comp = FrameCompensator(op, iterations=its[name], deadline=deadline, threads=args.threads, motion=motion)
             times, gaps, q_warm, q_conv, q_none, done = [], [], [], [], [], []
             first = None
             load0 = os.getloadavg()[0]

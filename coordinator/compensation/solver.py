@@ -7,19 +7,19 @@ projector shows (the summed method) or, for the baseline, one image per projecto
 Methods
 -------
 ``"apg"`` (default)
-    Accelerated projected gradient (FISTA) with gradient-based adaptive restart
-    (O'Donoghue & Candes 2015), step ``1/Lip`` with ``Lip`` >= ``||L||_2^2`` from a few power
-    iterations, capped by the bound ``||L||_1 ||L||_inf``. Two sparse products per iteration.
+    FISTA with gradient-based adaptive restart (O'Donoghue & Candes 2015), step ``1/Lip``,
+    ``Lip >= ||L||_2^2`` from power iterations capped by ``||L||_1 ||L||_inf``. Two products.
 ``"steepest"``
     The paper's reference: projected steepest descent with exact line search along the
     projected negative gradient (two or three sparse products per iteration).
 ``"lbfgsb"``
     SciPy's L-BFGS-B on the same objective (float64), for comparison.
 
-Dtype policy: ``L``, iterates and residuals are float32 (sparse products are memory-bound;
-float32 halves the traffic); every reduction (objective, dual bound, dot products) is
-accumulated in float64. Large problems run their sparse products and element-wise updates
-on ``threads`` row blocks (SciPy's sparse kernels release the GIL).
+Storage and dtype: products are memory-bound. ``L``, iterates and residuals are float32; every
+reduction (objective, dual bound, dot products) is accumulated in float64. When content and
+camera share a grid, ``L`` is read as shifted weight images (:mod:`.stencil`, a quarter of CSR's
+bytes per iteration with the one-sweep APG of :mod:`.stencil_apg`), else as CSR row blocks of
+``L`` and ``L^T``. Work runs on ``threads`` row blocks (the kernels release the GIL).
 
 Stopping rules (``SolveResult.reason`` says which one stopped the solve)
 ------------------------------------------------------------------------
@@ -31,8 +31,7 @@ Stopping rules (``SolveResult.reason`` says which one stopped the solve)
     Relative objective decrease over the last 5 iterations below ``5 * tol``.
 ``"gradient"``
     Norm of the projected-gradient step below ``pg_tol`` times its first value.
-``"optimal"``
-    Zero residual. ``"max_iter"`` / ``"time_limit"``: budget exhausted.
+``"optimal"``: zero residual. ``"max_iter"`` / ``"time_limit"``: budget exhausted.
 """
 from __future__ import annotations
 
@@ -48,6 +47,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.stencil import STORAGES, stencil_blocks, stencil_from_csr
 from coordinator.compensation.stencil_apg import fused_apg
 
@@ -142,8 +142,7 @@ class TransportOperator:
     @property
     def LT(self) -> sp.csr_matrix:
         """``L^T`` as CSR (built on first use; the stencil storage never needs it)."""
-        if self._LT is None:
-            self._LT = self.L.T.tocsr()
+        self._LT = self.L.T.tocsr() if self._LT is None else self._LT
         return self._LT
 
     @property
@@ -166,8 +165,7 @@ class TransportOperator:
 
     def clear_cache(self) -> None:
         """Forget the cached step bound (benchmarks time it as part of a solve)."""
-        self._lipschitz = None
-        self.lipschitz_info = {}
+        self._lipschitz, self.lipschitz_info = None, {}
 
     def matvec(self, x: np.ndarray, *, pool: Executor | None = None) -> np.ndarray:
         """``L @ x`` for ``x`` of shape (n_content,) or (n_content, C), float32."""
@@ -564,18 +562,15 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
                        reason=reason, history=stop.history, gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
 
-def _fused(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol: float, gap_tol: float,
-           pg_tol: float, max_iter: int, time_limit: float | None, progress: Progress | None,
-           clock: Callable[[], float], start: float, pool: Executor | None) -> SolveResult:
-    """:func:`_apg`'s iterates in one sweep over the stencil weights per iteration."""
-    stop = _Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter, time_limit=time_limit,
-                    clock=clock, start=start)
+def _fused(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, progress: Progress | None,
+           pool: Executor | None, **rules: Any) -> SolveResult:
+    """:func:`_apg`'s iterates in one sweep over the stencil weights per iteration (``rules``: :class:`_Stopper`'s)."""
+    stop = _Stopper(**rules)
     xs, f, k, reason = fused_apg(op.stencil, np.ascontiguousarray(c.T), np.ascontiguousarray(x.T), lip=lip, stop=stop,
                                  threads=op.threads if pool is not None else 1, pool=pool, progress=progress,
                                  dual_bound=_dual_bound)
     return SolveResult(x=np.ascontiguousarray(xs.T), objective=f, iterations=k, reason=reason, history=stop.history,
-                       converged=reason in ("gap", "objective", "gradient", "optimal"), gap=stop.gap(f),
-                       lower_bound=max(stop.lower, 0.0))
+                       converged=reason in ("gap", "objective", "gradient", "optimal"), gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
 
 def _content_phase_factory(x_cur: np.ndarray, x_prev: np.ndarray, r: np.ndarray, step: np.float32, beta: np.float32):
@@ -752,6 +747,9 @@ class FrameCompensator:
         Iteration budget per frame and for a cold start.
     delta : bool
         Add the target change to the warm start (square ``L`` only).
+    motion : bool
+        With ``delta`` and image-shaped targets: move the previous correction ``x - c`` along
+        the target's motion first (:class:`~coordinator.compensation.motion.MotionWarp`).
     deadline : float, optional
         Seconds per frame: a warm-started frame stops after the iteration that crosses it
         (its result then says ``reason == "time_limit"``).
@@ -760,7 +758,7 @@ class FrameCompensator:
     """
 
     def __init__(self, L: sp.spmatrix | TransportOperator, *, iterations: int = 4, first_iterations: int = 60,
-                 delta: bool = True, deadline: float | None = None, **solve_options: Any) -> None:
+                 delta: bool = True, motion: bool = False, deadline: float | None = None, **solve_options: Any) -> None:
         if iterations < 1 or first_iterations < 1:
             raise ValueError("iteration budgets must be >= 1")
         if deadline is not None:
@@ -771,6 +769,7 @@ class FrameCompensator:
         self.iterations = iterations
         self.first_iterations = first_iterations
         self.delta = delta and self.op.shape[0] == self.op.shape[1]
+        self.motion = MotionWarp() if motion and self.delta else None
         solve_options.setdefault("gap_tol", 0.0)
         solve_options.setdefault("pg_tol", 0.0)
         self.options = solve_options
@@ -779,8 +778,7 @@ class FrameCompensator:
 
     def reset(self) -> None:
         """Forget the previous frame (e.g. after a cut)."""
-        self._x = None
-        self._target = None
+        self._x = self._target = None
 
     def __call__(self, target: np.ndarray, *, progress: Progress | None = None) -> SolveResult:
         """Compensate one frame (same shapes as :func:`solve`); returns its :class:`SolveResult`."""
@@ -790,7 +788,10 @@ class FrameCompensator:
         if self._x is not None and self._target is not None and self._target.shape == target.shape:
             budget = self.iterations
             if self.delta:
-                x0 = self._x.reshape(target.shape) + (target - self._target)
+                corr = self._x.reshape(target.shape) - self._target
+                if self.motion is not None and target.ndim in (2, 3) and target.shape[-1] != 1:
+                    corr = self.motion(corr, self._target, target).reshape(target.shape)
+                x0 = target + corr
             else:
                 x0 = self._x
         res = solve(self.op, target, x0=x0, max_iter=budget, progress=progress, **self.options)
