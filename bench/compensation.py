@@ -125,6 +125,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="time budget of the converged reference at the large size")
     parser.add_argument("--paper-storage", type=_storages, default=["float32", "uint16"], metavar="S,S",
                         help="storages of the new solver at the paper size, the first one is 'new' (default float32,uint16)")
+    parser.add_argument("--bandwidth-mib", type=int, default=None, help="array of the bandwidth probe (default 512, quick 64)")
     parser.add_argument("--video-size", type=_sizes, default=None, metavar="WxH[,WxH]",
                         help="video figure sizes (default 960x540,1920x1080)")
     parser.add_argument("--video-frames", type=int, default=None, help="frames per clip (default 30; 0 skips the video figure)")
@@ -157,6 +158,7 @@ _DEFAULTS = {  # option: (full run, --quick)
     "video_frames": (30, 6),
     "sweep_frames": ([1, 4, 16, 64], []),
     "repeats": (3, 1),
+    "bandwidth_mib": (512, 64),
 }
 
 
@@ -357,7 +359,7 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
     gen = time.perf_counter() - t
     _log(f"{w}x{h}: 25 projectors' transport generated in {gen:.1f} s ({L.nnz / L.shape[0]:.1f} nnz per row)")
     target = _target(h, w, args.paper_channels, args.target_range, args.seed)
-    bw = streaming_bandwidth()
+    bw = streaming_bandwidth(mib=args.bandwidth_mib)
     opts = {"method": args.method, "tol": args.paper_tol, "max_iter": args.max_iter}
     impls: dict[str, Any] = {}
     results = {}
@@ -370,7 +372,7 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
             best_op = op
         del op
         gc.collect()
-    bw_after = streaming_bandwidth()
+    bw_after = streaming_bandwidth(mib=args.bandwidth_mib)
     best_x = min(results.values(), key=lambda r: r.objective).x
     ref = solve(best_op, target, x0=best_x, method="apg", tol=1e-7, max_iter=2000,
                 time_limit=args.paper_reference_seconds, threads=args.threads)
@@ -423,7 +425,7 @@ def _video(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, Any]:
     n = 25
     rig = synthetic_rig(n, content_shape=(h, w), radius=args.radius, seed=args.seed)
     L = synthetic_transport(rig, scale=1.0 / n, footprint_samples=1, workers=2)
-    bw = streaming_bandwidth()
+    bw = streaming_bandwidth(mib=args.bandwidth_mib)
     ops = {"current": TransportOperator(L, threads=args.threads, storage="csr"),
            "new": TransportOperator(L, threads=args.threads, storage=args.paper_storage[0])}
     for op in ops.values():

@@ -25,7 +25,8 @@ def test_streaming_bandwidth_measures_a_copy():
 
 def test_current_and_new_side_by_side(capsys):
     doc = run_bench(capsys, ["--quick", "--size", "none", "--paper-size", "96x64", "--paper-channels", "3",
-                             "--video-size", "80x48", "--video-frames", "5", "--video-new-iterations", "6"])
+                             "--video-size", "80x48", "--video-frames", "5", "--video-new-iterations", "6",
+                             "--paper-reference-seconds", "2"])
     assert doc["per_projectors"] == [] and doc["video_more"] == []
     p = doc["paper_size"]
     cur, new, u16 = p["current"], p["new"], p["new_uint16"]

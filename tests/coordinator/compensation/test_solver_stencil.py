@@ -103,13 +103,19 @@ def test_fused_sweep_follows_the_csr_iterates(monkeypatch, L, target, band_rows,
         assert res.lower_bound == pytest.approx(ref.lower_bound, rel=1e-4)
 
 
-@pytest.mark.parametrize("storage", ["float32", "uint16"])
-def test_matches_lsq_linear(L, target, storage):
+@pytest.fixture(scope="module")
+def reference(L, target):
+    """Independent bounded least squares for the green channel: SciPy's lsq_linear (trust region reflective, float64)."""
     c = target[:, :, 1]
     A = sp.csr_matrix(L, dtype=np.float64)
     ref = lsq_linear(A, c.astype(np.float64).ravel(), bounds=(0, 1), method="trf", tol=1e-12, lsmr_tol=1e-12,
                      max_iter=1000)
-    f_ref = float(np.sum((A @ ref.x - c.ravel()) ** 2))
+    return c, float(np.sum((A @ ref.x - c.ravel()) ** 2))
+
+
+@pytest.mark.parametrize("storage", ["float32", "uint16"])
+def test_matches_lsq_linear(L, reference, storage):
+    c, f_ref = reference
     op = TransportOperator(L, storage=storage)
     res = solve(op, c, tol=1e-9, gap_tol=0, pg_tol=0, max_iter=4000)
     f = objective(TransportOperator(L, storage="csr"), res.x, c)  # through the exact matrix
