@@ -7,7 +7,11 @@ import pytest
 
 from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve
-from coordinator.compensation.synthetic import sample_image, synthetic_rig, synthetic_transport
+from coordinator.compensation.synthetic import (
+    sample_image,
+    synthetic_rig,
+    synthetic_transport,
+)
 
 
 def texture(h, w, seed=0):
