@@ -54,7 +54,7 @@ class _Sweep:
         ch = c.shape[0]
         shape3 = (ch, h, w)
         self.c = c.reshape(shape3)
-        self.x_cur = x.copy().reshape(shape3)
+        self.x_cur = x.reshape(shape3)  # the solver's own copy: updated in place
         self.x_prev = x.copy().reshape(shape3)
         self.lx_cur = np.empty(shape3, dtype=np.float32)
         self.lx_prev = np.empty(shape3, dtype=np.float32)
@@ -150,7 +150,8 @@ def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float,
               dual_bound: Callable[[float, float, float], float]) -> tuple[np.ndarray, float, int, str]:
     """FISTA with gradient restart, one weight sweep per iteration (see the module docstring).
 
-    ``c``: (C, n) float32 target, ``x``: (C, n) float32 start in [0, 1]; ``stop``: the solver's
+    ``c``: (C, n) float32 target, ``x``: (C, n) float32 start in [0, 1] (used as a work array: its
+    values are overwritten); ``stop``: the solver's
     stopping rules (``history``, ``bound``, ``check``). Returns ``(x, f, iterations, reason)``
     with ``x`` (C, n) the last iterate and ``f`` its objective.
     """
