@@ -130,8 +130,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="video figure sizes (default 960x540,1920x1080)")
     parser.add_argument("--video-frames", type=int, default=None, help="frames per clip (default 30; 0 skips the video figure)")
     parser.add_argument("--video-iterations", type=int, default=4, help="APG iterations per warm-started frame (current)")
-    parser.add_argument("--video-new-iterations", type=int, default=8,
-                        help="APG iterations per warm-started frame of the new solver (default 8)")
+    parser.add_argument("--video-new-iterations", type=int, default=10,
+                        help="APG iterations per warm-started frame of the new solver (default 10)")
     parser.add_argument("--video-new-warm", choices=("delta", "motion"), default="motion",
                         help="the new solver's warm start: previous correction in place (delta, as current) or moved "
                              "along the picture's optical flow (motion, default)")
@@ -327,7 +327,8 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
 
     ``current`` is the CSR storage with the full power iteration for the step bound, as before the
     stencil storage; the others are the stencil storages (fused sweep, step bound stopped as soon as
-    the Schur bound is known to win; the same value)."""
+    the Schur bound is known to win; the same value). ``cpu_seconds_per_iteration``: the process's
+    CPU time (all threads) per iteration, which a loaded machine inflates far less than wall time."""
     gc.collect()
     load0 = os.getloadavg()[0]
     t = time.perf_counter()
@@ -335,14 +336,16 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
     prep = time.perf_counter() - t
     t = time.perf_counter()
     op.lipschitz(early_exit=storage != "csr")
-    lip_s = time.perf_counter() - t
+    lip_s, cpu = time.perf_counter() - t, time.process_time()
     res = solve(op, target, threads=args.threads, **opts)
+    cpu = time.process_time() - cpu
     # what the iterations moved through memory against the machine's bandwidth
     bpi = op.bytes_per_iteration(target.shape[-1] if target.ndim == 3 else 1)
     rate = bpi * res.iterations / res.seconds if res.seconds > 0 and res.iterations else 0.0
     stats = {"prepare_seconds": round(prep, 3), "lipschitz_seconds": round(lip_s, 3),
              "solve_seconds": round(res.seconds, 3), "total_seconds": round(prep + lip_s + res.seconds, 3),
              "seconds_per_iteration": round(res.seconds / max(res.iterations, 1), 4), "reason": res.reason,
+             "cpu_seconds_per_iteration": round(cpu / max(res.iterations, 1), 4),
              "objective": res.objective, "storage": op.storage, "fused": op.storage != "csr" and op.fused,
              "iterations": res.iterations, "bytes_per_iteration": bpi, "storage_mib": round(op.storage_bytes / 2**20, 1),
              "gb_per_s_moved": round(rate / 1e9, 2), "bandwidth_fraction": round(rate / (bandwidth * 1e9), 3),
@@ -362,16 +365,14 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
     bw = streaming_bandwidth(mib=args.bandwidth_mib)
     opts = {"method": args.method, "tol": args.paper_tol, "max_iter": args.max_iter}
     impls: dict[str, Any] = {}
-    results = {}
+    results, best_op = {}, None
     for name, storage in (("current", "csr"), *(("new" if st == args.paper_storage[0] else f"new_{st}", st)
                                                 for st in args.paper_storage)):
         impls[name], results[name], op = _solve_timed(L, target, args, storage, bw["gb_per_s"], **opts)
         _log(f"{w}x{h} {name} ({storage}): {impls[name]['total_seconds']} s, {impls[name]['iterations']} it, "
              f"load {impls[name]['load']}")
-        if name == "new":
-            best_op = op
+        best_op = op if name == "new" else best_op
         del op
-        gc.collect()
     bw_after = streaming_bandwidth(mib=args.bandwidth_mib)
     best_x = min(results.values(), key=lambda r: r.objective).x
     ref = solve(best_op, target, x0=best_x, method="apg", tol=1e-7, max_iter=2000,
@@ -380,7 +381,6 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
     hist = ref.history
     tail = (hist[-6] - hist[-1]) / hist[-1] / 5 if len(hist) > 6 else float("nan")
     del best_op
-    gc.collect()
     for name, stats in impls.items():
         stats["relative_gap_to_reference"] = (stats["objective"] - best) / best
         # peak allocation of building the operator and 3 iterations: its storage plus the solve's vectors
@@ -393,10 +393,8 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
         "nnz_per_row": round(L.nnz / L.shape[0], 2), "generate_seconds": round(gen, 2),
         "streaming_bandwidth": {"before": bw, "after": bw_after},
         **impls,
-        "new_over_current": {"total_seconds": round(new["total_seconds"] / cur["total_seconds"], 3),
-                             "seconds_per_iteration": round(new["seconds_per_iteration"] / cur["seconds_per_iteration"], 3),
-                             "bytes_per_iteration": round(new["bytes_per_iteration"] / cur["bytes_per_iteration"], 3),
-                             "solver_peak_memory": round(new["solver_peak_memory_mib"] / cur["solver_peak_memory_mib"], 3)},
+        "new_over_current": {k: round(new[k] / cur[k], 3) for k in ("total_seconds", "seconds_per_iteration",
+                             "cpu_seconds_per_iteration", "bytes_per_iteration", "solver_peak_memory_mib")},
         "reference_objective": best, "reference_iterations": ref.iterations,
         "reference_last_relative_decrease_per_iteration": tail,
         "matrix_csr_mib": round((L.data.nbytes + L.indices.nbytes + L.indptr.nbytes) / 2**20, 1),
@@ -444,13 +442,14 @@ def _video(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, Any]:
         for name, op in ops.items():
             motion = name == "new" and args.video_new_warm == "motion"
             comp = FrameCompensator(op, iterations=its[name], deadline=deadline, threads=args.threads, motion=motion)
-            times, gaps, q_warm, q_conv, q_none, done = [], [], [], [], [], []
+            times, gaps, q_warm, q_conv, q_none, done, cpu = [], [], [], [], [], [], []
             first = None
             load0 = os.getloadavg()[0]
             for k, frame in enumerate(clip):
-                t = time.perf_counter()
+                t, c0 = time.perf_counter(), time.process_time()
                 res = comp(frame)
                 dt = time.perf_counter() - t
+                cpu.append(time.process_time() - c0)
                 if k == 0:
                     first = dt
                 else:
@@ -472,6 +471,7 @@ def _video(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, Any]:
                 "ms_per_frame_median": round(1000 * float(np.median(times)), 2) if times else None,
                 "ms_per_frame_max": round(1000 * float(np.max(times)), 2) if times else None,
                 "ms_first_frame": round(1000 * first, 2) if first is not None else None,
+                "cpu_ms_per_frame_mean": round(1000 * float(np.mean(cpu[1:])), 2) if times else None,
                 "iterations_per_frame_mean": round(iters, 2), "storage": op.storage, "bytes_per_iteration": bpi,
                 "bandwidth_fraction": round(rate / (bw["gb_per_s"] * 1e9), 3),
                 "relative_gap_to_converged_mean": round(float(np.mean(gaps)), 4),
