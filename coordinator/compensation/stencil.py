@@ -131,30 +131,17 @@ class StencilTransport:
                 dst *= np.float32(self.scale)
 
     def adjoint_rows(self, v: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
-        """``out[c] = (L^T v[c])`` on content rows ``[y0, y1)``.
+        """``out[c] = (L^T v[c])`` on content rows ``[y0, y1)``, in bands of :meth:`adjoint_band`.
 
         ``v``: (C, H, W) float32 camera images; ``out``: (C, y1 - y0, W) float32, overwritten.
         """
-        h, w = self.grid
         step = self._band_rows()
-        scratch = np.empty((step, w), dtype=np.float32)
+        scratch = None if self.storage == "float32" else np.empty((len(self.offsets), step, self.grid[1]), np.float32)
         for a in range(y0, y1, step):
             b = min(a + step, y1)
-            dst = out[:, a - y0 : b - y0]
-            dst.fill(0)
-            for k, (dy, dx) in enumerate(self.offsets):
-                s0, s1 = max(a, -dy), min(b, h - dy)
-                if s1 <= s0:
-                    continue
-                c0, c1 = max(0, -dx), min(w, w - dx)
-                wk = self._weight_slice(k, slice(s0, s1), slice(c0, c1), scratch)
-                for ch in range(v.shape[0]):
-                    cv2.accumulateProduct(wk, v[ch, s0 + dy : s1 + dy, c0 + dx : c1 + dx],
-                                          dst[ch, s0 - a : s1 - a, c0:c1])
-            if self.scale != 1.0:
-                dst *= np.float32(self.scale)
+            self.adjoint_band(self.band_weights(a, b, scratch), v, out[:, a - y0 : b - y0], a, b)
 
-    def band_weights(self, y0: int, y1: int, scratch: np.ndarray) -> np.ndarray:
+    def band_weights(self, y0: int, y1: int, scratch: np.ndarray | None) -> np.ndarray:
         """The weights of anchor rows ``[y0, y1)`` as float32 ``(K, y1 - y0, W)``: a view, or
         converted into ``scratch`` (``(K, >= y1 - y0, W)`` float32) for uint16 storage (unscaled)."""
         src = self.weights[:, y0:y1]
