@@ -4,7 +4,6 @@ identified by their grey level), sequential decoding, seeks both ways, loops, 10
 and the decode-ahead thread (hits and misses counted, errors surfacing on get, joined on close)."""
 from __future__ import annotations
 
-import json
 import time
 from fractions import Fraction
 from pathlib import Path
@@ -477,71 +476,6 @@ def test_decode_ahead_never_blocks_past_the_timeout_and_close_joins(cache):
     ahead.close()                                           # idempotent
     with pytest.raises(FrameError, match="closed"):
         ahead.get(0, timeout=0)
-
-
-# ---------------------------------------------------------------------------- decode speed (printed)
-
-def _smooth_1080p(n: int) -> list[np.ndarray]:
-    y, x = np.mgrid[0:1080, 0:1920].astype(np.float32)
-    out = []
-    for i in range(n):
-        t = i / 8.0
-        r = 127 + 120 * np.sin(x / 97 + t) * np.cos(y / 61 - t)
-        g = 127 + 120 * np.sin((x + y) / 143 - 2 * t)
-        b = 127 + 120 * np.cos(np.hypot(x - 960, y - 540) / 53 - 3 * t)
-        out.append(np.dstack([r, g, b]).astype(np.uint8))
-    return out
-
-
-@pytest.mark.slow
-def test_decode_speed_1080p_printed(cache, tmp_path):
-    """Decode ms per 1080p frame, sequential and after a seek: printed (run with -s), not asserted."""
-    n = 48
-    imgs = _smooth_1080p(n)
-    cases = [("h264 8-bit yuv420p", "libx264", "yuv420p", 8, "rgb24", imgs),
-             ("hevc 10-bit yuv420p10le", "libx265", "yuv420p10le", 10, "rgb48le",
-              [f.astype(np.uint16) * 257 for f in imgs]),
-             ("h264 10-bit yuv420p10le", "libx264", "yuv420p10le", 10, "rgb48le",
-              [f.astype(np.uint16) * 257 for f in imgs])]
-    results = {}
-    for label, codec, pix_fmt, depth, fmt_in, frames in cases:
-        if codec not in av.codecs_available:
-            continue
-        opts = {"preset": "veryfast", "crf": "20"}
-        opts["x265-params" if codec == "libx265" else "x264-params"] = \
-            "log-level=error:keyint=24:min-keyint=24" if codec == "libx265" else "keyint=24:min-keyint=24"
-        data = encode_video(tmp_path / f"{codec}{depth}.mp4", frames, codec=codec, pix_fmt=pix_fmt, fmt_in=fmt_in,
-                            options=opts, rate=Fraction(30))
-        aid = put_video(cache, data, f"{codec}{depth}.mp4", frames=n, width=1920, height=1080, channels=3,
-                        bit_depth=depth, container="mov", pix_fmt=pix_fmt, rate=Fraction(30))
-        with open_frames(cache, aid) as src:
-            src.frame(0)                                         # open + first frame
-            t0 = time.perf_counter()
-            for k in range(1, n):
-                src.frame(k)
-            seq = (time.perf_counter() - t0) * 1000 / (n - 1)
-            seeks, work = [], []
-            for k in (20, 7, 40, 30, 11):                        # mid-GOP targets: seek + decode forward
-                t0, before = time.perf_counter(), src.decoder.decoded
-                src.frame(k)
-                seeks.append((time.perf_counter() - t0) * 1000)
-                work.append(src.decoder.decoded - before)
-        with DecodeAhead(open_frames(cache, aid), depth=8) as ahead:
-            ahead.want(0)
-            t0 = time.perf_counter()
-            for k in range(n):
-                ahead.get(k, timeout=10)
-            wall = (time.perf_counter() - t0) * 1000 / n
-            st = ahead.stats()
-        results[label] = {"bytes": len(data), "sequential_ms_per_frame": round(seq, 2),
-                          "after_seek_ms_median": round(float(np.median(seeks)), 1),
-                          "after_seek_ms": [round(s, 1) for s in seeks],
-                          "frames_decoded_per_seek": work,
-                          "decode_ahead_ms_per_frame_wall": round(wall, 2),
-                          "decode_ahead_p50_ms": round(st.decode_ms_p50, 2),
-                          "decode_ahead_p99_ms": round(st.decode_ms_p99, 2)}
-    print("\n1080p decode:", json.dumps(results, indent=1))
-    assert results
 
 
 class _StartTimes(_SlowStill):

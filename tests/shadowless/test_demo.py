@@ -1,6 +1,8 @@
-"""`shadowless demo` end to end (with the room's poses, to keep it short; `make demo` calibrates):
-room + coordinator + 26 node processes, the image on every projector, the hand 0.2 m above the table,
-then blur compensation of the 25 projectors through the nodes and the room's camera."""
+"""`shadowless demo` end to end (with the room's poses and without its blur compensation, to keep
+it short; `make demo` calibrates and compensates): room + coordinator + 26 node processes, the
+image on every projector, the hand 0.2 m above the table. The demo's compensation step runs the
+response, transport and compensate jobs, which tests/coordinator/compensation/test_job_end_to_end.py
+runs through nodes, the coordinator and the room service the same way."""
 from __future__ import annotations
 
 import json
@@ -12,7 +14,7 @@ import cv2
 
 def test_demo_writes_the_comparison_and_shows_the_papers_observation(tmp_path):
     out = tmp_path / "demo"
-    r = subprocess.run([sys.executable, "-m", "shadowless", "demo", "--poses", "truth", "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "shadowless", "demo", "--poses", "truth", "--no-compensate", "--out", str(out)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert "ground truth" in r.stdout, "the demo must say when poses were not calibrated"
@@ -23,9 +25,4 @@ def test_demo_writes_the_comparison_and_shows_the_papers_observation(tmp_path):
     teaser = cv2.imread(str(out / "teaser.png"))
     assert teaser is not None and teaser.shape[0] > 400 and teaser.shape[1] > 800
     assert (out / "light_drop.png").exists() and (out / "report.md").read_text().startswith("# shadowless demo")
-    comp = report["compensation"]
-    assert comp["transport_captures"] < 100                   # the dot grids, not one projector at a time
-    assert comp["ours"]["psnr"] > comp["none"]["psnr"] + 1.0, comp
-    pic = cv2.imread(str(out / "compensation.png"))
-    assert pic is not None and pic.shape[1] > 3 * pic.shape[0]
-    assert "| compensated |" in (out / "report.md").read_text()
+    assert "compensation" not in report and not (out / "compensation.png").exists()
