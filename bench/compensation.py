@@ -261,9 +261,10 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
             P["op"].clear_cache()
             ours_times[n].append(solve(P["op"], target, threads=args.threads, **opts).seconds)
         t_ours = statistics.median(ours_times[n])
-        mem_ours = _tracemalloc_peak(lambda: solve(P["op"], target, threads=args.threads, method=args.method, max_iter=3))
-        mem_base = _tracemalloc_peak(lambda: solve_per_projector(ops, target, threads=args.threads,
-                                                                  method=args.method, max_iter=3))
+        mem_ours = _tracemalloc_peak(lambda op=P["op"]: solve(op, target, threads=args.threads, method=args.method,
+                                                               max_iter=3))
+        mem_base = _tracemalloc_peak(lambda ops=ops: solve_per_projector(ops, target, threads=args.threads,
+                                                                          method=args.method, max_iter=3))
         del ops
         cap_none = _capture(L, np.clip(target, 0, 1), target.shape)
         cap_ours = _capture(L, ours.x, target.shape)
