@@ -10,6 +10,7 @@ import numpy as np
 
 from coordinator.compensation.errors import CompensationError
 from coordinator.compensation.geometry import content_to_camera
+from coordinator.compensation.store import StoredTransport, load_valid_transport
 from coordinator.jobs import JobContext, JobError
 from coordinator.rig import ProjectionPose
 
@@ -69,3 +70,28 @@ def surface_of(ctx: JobContext, slots: list[str]) -> str:
     flat = [s for s in slots if s not in solid]
     raise JobError(f"projector {solid[0]} has a 3D pose and {flat[0]} a homography: this job supports planar rigs "
                    "(a table) or a mesh, not both at once (choose the projectors with --slots)")
+
+
+def stored_transport(ctx: JobContext, state: str, given: dict[str, Any], key: np.ndarray, slots: list[str], *,
+                     force: bool, measure: bool, surface: str | None = None) -> "StoredTransport | None":
+    """The stored light transport when it is still valid for the rig as it is now (logged: it is
+    reused), None when a new one must be measured (after warning about slots without an inverse
+    LUT), and a JobError when none is valid and ``measure`` is False. ``surface``: only a
+    measurement made on that kind of surface counts ("mesh")."""
+    rig = ctx.rig
+    if not force:
+        found = load_valid_transport(rig, state, given, key, slots, log=ctx.log)
+        if found is not None and (surface is None or found.meta.get("surface") == surface):
+            ctx.log(f"light transport: reusing the stored measurement of {found.meta.get('date', '?')} "
+                    f"({found.meta.get('captures')} captures)")
+            return found
+    if not measure:
+        asked = ", ".join(f"{k} {v}" for k, v in sorted(given.items()))
+        raise JobError("no valid light-transport measurement for the rig as it is now (poses, LUTs or gains changed, "
+                       f"or none was made{'; or it was measured with another ' + asked if asked else ''}): "
+                       "run `shadowless transport`")
+    missing = [s for s in slots if rig.slot(s).lut is None]
+    if missing:
+        ctx.log(f"warning: {', '.join(missing)} have no inverse-response LUT: the light transport assumes linear "
+                "projectors; run `shadowless response` first")
+    return None

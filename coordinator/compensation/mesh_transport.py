@@ -26,7 +26,12 @@ from coordinator.compensation.geometry import (
     psf_radius_at_scales,
     row_white,
 )
-from coordinator.compensation.jobkit import baseline_exposure, content_size, rounded
+from coordinator.compensation.jobkit import (
+    baseline_exposure,
+    content_size,
+    rounded,
+    stored_transport,
+)
 from coordinator.compensation.mesh_geometry import (
     measured_texels,
     ring_energy,
@@ -43,7 +48,6 @@ from coordinator.compensation.store import (
     StoredTransport,
     baseline_fingerprint,
     load_baseline_transport,
-    load_valid_transport,
     rig_state_fingerprint,
     save_baseline_transport,
     save_measured_transport,
@@ -125,22 +129,10 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
     key = geometry_key(geo.P, geo.mesh)
     state = rig_state_fingerprint(rig, slots, key, opts.camera)
     fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count)
-    if not opts.force:
-        found = load_valid_transport(rig, state, opts.given, geo.P, slots, log=ctx.log)
-        if found is not None and found.meta.get("surface") == "mesh":
-            ctx.log(f"light transport: reusing the stored measurement of {found.meta.get('date', '?')} "
-                    f"({found.meta.get('captures')} captures)")
-            return found, geo
-    if not measure:
-        asked = ", ".join(f"{k} {v}" for k, v in sorted(opts.given.items()))
-        raise JobError("no valid light-transport measurement for the rig as it is now (poses, LUTs or gains changed, "
-                       f"or none was made{'; or it was measured with another ' + asked if asked else ''}): "
-                       "run `shadowless transport`")
+    found = stored_transport(ctx, state, opts.given, geo.P, slots, force=opts.force, measure=measure, surface="mesh")
+    if found is not None:
+        return found, geo
     spec = ctx.camera_spec(opts.camera)
-    missing = [s for s in slots if rig.slot(s).lut is None]
-    if missing:
-        ctx.log(f"warning: {', '.join(missing)} have no inverse-response LUT: the light transport assumes linear "
-                "projectors; run `shadowless response` first")
     t0 = time.monotonic()
     c0 = ctx.captures
     frames = opts.frame_count

@@ -40,6 +40,7 @@ from coordinator.compensation.jobkit import (
     content_size,
     rig_geometry,
     rounded,
+    stored_transport,
     surface_of,
 )
 from coordinator.compensation.mesh_transport import run_mesh_transport
@@ -48,7 +49,6 @@ from coordinator.compensation.store import (
     StoredTransport,
     baseline_fingerprint,
     load_baseline_transport,
-    load_valid_transport,
     rig_state_fingerprint,
     save_baseline_transport,
     save_measured_transport,
@@ -97,22 +97,10 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
         radius = psf_radius(H, [rig.slot(s).pose.matrix for s in slots], (cw, ch))
     state = rig_state_fingerprint(rig, slots, H, opts.camera)
     fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count)
-    if not opts.force:
-        found = load_valid_transport(rig, state, opts.given, H, slots, log=ctx.log)
-        if found is not None:
-            ctx.log(f"light transport: reusing the stored measurement of {found.meta.get('date', '?')} "
-                    f"({found.meta.get('captures')} captures)")
-            return found
-    if not measure:
-        asked = ", ".join(f"{k} {v}" for k, v in sorted(opts.given.items()))
-        raise JobError("no valid light-transport measurement for the rig as it is now (poses, LUTs or gains changed, "
-                       f"or none was made{'; or it was measured with another ' + asked if asked else ''}): "
-                       "run `shadowless transport`")
+    found = stored_transport(ctx, state, opts.given, H, slots, force=opts.force, measure=measure)
+    if found is not None:
+        return found
     spec = ctx.camera_spec(opts.camera)
-    missing = [s for s in slots if rig.slot(s).lut is None]
-    if missing:
-        ctx.log(f"warning: {', '.join(missing)} have no inverse-response LUT: the light transport assumes linear "
-                "projectors; run `shadowless response` first")
     t0 = time.monotonic()
     c0 = ctx.captures
     frames = opts.frame_count
