@@ -20,7 +20,8 @@ from collections.abc import Callable
 __all__ = ["register", "unregister"]
 
 _CLOSERS: list[Callable[[], None]] = []
-_HOOKED = False
+_AT_EXIT = False
+_ON_SIGNALS = False
 _LOCK = threading.Lock()
 
 
@@ -43,15 +44,18 @@ def _on_signal(signum, frame) -> None:
 
 def register(close: Callable[[], None]) -> None:
     """Run ``close()`` at exit or on SIGTERM/SIGHUP unless :func:`unregister` came first."""
-    global _HOOKED
+    global _AT_EXIT, _ON_SIGNALS
     with _LOCK:
         if close not in _CLOSERS:
             _CLOSERS.append(close)
-        if _HOOKED:
-            return
-        _HOOKED = True
-    atexit.register(_close_all)
-    if threading.current_thread() is threading.main_thread():
+        at_exit, _AT_EXIT = not _AT_EXIT, True
+        # signal handlers can only be set from the main thread: a first registration from another
+        # thread (a rig started by a worker) leaves them to the next one from the main thread
+        on_signals = not _ON_SIGNALS and threading.current_thread() is threading.main_thread()
+        _ON_SIGNALS = _ON_SIGNALS or on_signals
+    if at_exit:
+        atexit.register(_close_all)
+    if on_signals:
         for sig in (signal.SIGTERM, signal.SIGHUP):
             if signal.getsignal(sig) == signal.SIG_DFL:
                 signal.signal(sig, _on_signal)
