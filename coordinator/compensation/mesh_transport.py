@@ -47,10 +47,10 @@ from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.store import (
     StoredTransport,
     baseline_fingerprint,
-    load_baseline_transport,
     rig_state_fingerprint,
     save_baseline_transport,
     save_measured_transport,
+    stored_baselines,
     transport_fingerprint,
     transport_summary,
 )
@@ -192,14 +192,7 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
     fp = baseline_fingerprint(tr.meta["fingerprint"], frames, opts.baseline_exposure)
     cw, ch = content_size(ctx)
     radius = int(tr.meta["radius"])
-    out: dict[str, sp.csr_matrix] = {}
-    todo = []
-    for s in tr.slots:
-        Li = load_baseline_transport(rig, s, fp, tr.L.shape)
-        if Li is None:
-            todo.append(s)
-        else:
-            out[s] = Li
+    out, todo = stored_baselines(rig, tr.slots, fp, tr.L.shape)
     t0 = time.monotonic()
     c0 = ctx.captures
     if todo:

@@ -54,6 +54,7 @@ __all__ = [
     "transport_summary",
     "baseline_fingerprint",
     "load_baseline_transport",
+    "stored_baselines",
     "save_baseline_transport",
 ]
 
@@ -222,6 +223,21 @@ def load_baseline_transport(rig: Rig, slot: str, fingerprint: str, shape: tuple[
     except TransportFileError:
         return None
     return Li if meta.get("fingerprint") == fingerprint and Li.shape == tuple(shape) else None
+
+
+def stored_baselines(rig: Rig, slots: list[str], fingerprint: str,
+                     shape: tuple[int, int]) -> tuple[dict[str, sp.csr_matrix], list[str]]:
+    """The slots' stored ``L_i`` that are still valid (:func:`load_baseline_transport`), and the
+    slots, in order, whose ``L_i`` must be measured."""
+    found: dict[str, sp.csr_matrix] = {}
+    todo: list[str] = []
+    for s in slots:
+        Li = load_baseline_transport(rig, s, fingerprint, shape)
+        if Li is None:
+            todo.append(s)
+        else:
+            found[s] = Li
+    return found, todo
 
 
 def save_baseline_transport(rig: Rig, slot: str, Li: sp.csr_matrix, meta: Mapping[str, Any]) -> None:
