@@ -3,12 +3,14 @@
 * ``GET /api/pictures``: what exists, as JSON: the alignment heat maps (``calibration/
   alignment.json``: extent, frame, per-slot residuals, projector outlines in table mm, the
   figure's layout) and the compensation quality picture with its PSNR/SSIM (``compensation/
-  quality.json``), each with its file's modification time; whether a camera is configured; the
+  quality.json``) and the coverage heat map with its per-slot summary (``coverage/coverage.json``),
+  each with its file's modification time; whether a camera is configured; the
   current job (the page refreshes a picture when its file changes, and leaves the camera alone
   while a job runs).
 * ``GET /api/pictures/alignment.png`` (``alignment-mesh.png`` for a rig with planar and 3D
-  poses) and ``/api/pictures/compensation.png``: the files, never cached; 404 with what to run
-  when there is none yet. The alignment figure (colour bar, axes, outlines) is served when the
+  poses), ``/api/pictures/compensation.png`` and ``/api/pictures/coverage.png`` (how many
+  projectors reach each point of the object, ``shadowless coverage``): the files, never cached;
+  404 with what to run when there is none yet. The alignment figure (colour bar, axes, outlines) is served when the
   job drew one, else the bare map (an older run).
 * ``GET /api/camera.png``: one frame of the rig's first camera (``rig.toml`` ``cameras`` or the
   coordinator's ``--camera``), at most one capture per :data:`CAMERA_INTERVAL_S` (the last frame,
@@ -56,6 +58,12 @@ NO_ALIGNMENT = ("no alignment heat map in this rig yet: run the alignment job (J
                 "`shadowless alignment`) after calibrating")
 NO_COMPENSATION = ("no compensation quality picture in this rig yet: run the compensate job with evaluate "
                    "(`shadowless compensate IMAGE --evaluate`)")
+NO_COVERAGE = ("no coverage picture in this rig yet: run `shadowless coverage --rig-dir DIR` on a rig calibrated "
+               "onto a mesh")
+#: the figures of coverage.json the page shows (the rest is for scripts)
+COVERAGE_KEYS = ("slots", "surface_mm2", "lit_pct", "count_mean", "count_min", "count_p5", "count_median",
+                 "effective_mean", "max_share_mean_pct", "count_area_mm2", "views", "mesh", "texture")
+COVERAGE_SLOT_KEYS = ("reach_mm2", "reach_pct", "reach_pct_of_lit", "mean_share_pct", "sole_mm2")
 
 
 def _error(cls: type[web.HTTPException], message: str, **kw) -> web.HTTPException:
@@ -156,6 +164,23 @@ def describe_compensation(rig_dir: Path) -> dict | None:
             "ordering": doc.get("ordering"), "captures_averaged": doc.get("captures_averaged"), "problem": problem}
 
 
+def describe_coverage(rig_dir: Path) -> dict | None:
+    """The last coverage computation: its picture, the count over the surface and each slot's reach,
+    or None when there is none. The picture is ``coverage/coverage.png`` (a picture written
+    elsewhere with ``--out`` is not the rig's and is not served)."""
+    cdir = Path(rig_dir) / "coverage"
+    modified = _mtime(cdir / "coverage.png")
+    if modified is None:
+        return None
+    doc, problem = _read_json(cdir / "coverage.json")
+    doc = doc or {}
+    per_slot = doc.get("per_slot") if isinstance(doc.get("per_slot"), dict) else {}
+    slots = {str(s): {k: d.get(k) for k in COVERAGE_SLOT_KEYS} for s, d in per_slot.items() if isinstance(d, dict)}
+    return {"url": f"/api/pictures/coverage.png?v={modified}", "modified": modified,
+            "computed_at": doc.get("computed_at"), **{k: doc.get(k) for k in COVERAGE_KEYS},
+            "per_slot": slots, "problem": problem}
+
+
 # ---------------------------------------------------------------------- the camera
 def to_srgb(linear: np.ndarray) -> np.ndarray:
     """sRGB encoding of linear values in [0, 1] (same shape, float32)."""
@@ -224,11 +249,11 @@ class Pictures:
 
     async def listing(self, request: web.Request, session: "Session") -> web.Response:
         rig_dir = Path(self.coord.rig.path)
-        alignment, compensation = await asyncio.to_thread(
-            lambda: (describe_alignment(rig_dir), describe_compensation(rig_dir)))
+        alignment, compensation, coverage = await asyncio.to_thread(
+            lambda: (describe_alignment(rig_dir), describe_compensation(rig_dir), describe_coverage(rig_dir)))
         specs = self.coord.camera_specs
         last = self._last
-        doc = {"ok": True, "alignment": alignment, "compensation": compensation,
+        doc = {"ok": True, "alignment": alignment, "compensation": compensation, "coverage": coverage,
                "camera": {"configured": bool(specs), "spec": specs[0] if specs else None, "url": "/api/camera.png",
                           "interval_s": self.camera_interval_s,
                           "captured_at": round(last.wall, 3) if last is not None and last.png else None},
@@ -244,9 +269,11 @@ class Pictures:
                 "no heat map over the camera image: this rig's last alignment check had no 3D pose beside planar ones"
         elif name == "compensation.png":
             path, missing = rig_dir / "compensation" / "quality.png", NO_COMPENSATION
+        elif name == "coverage.png":
+            path, missing = rig_dir / "coverage" / "coverage.png", NO_COVERAGE
         else:
-            raise _error(web.HTTPNotFound, f"no picture {name!r}: there are alignment.png, alignment-mesh.png and "
-                                           "compensation.png")
+            raise _error(web.HTTPNotFound, f"no picture {name!r}: there are alignment.png, alignment-mesh.png, "
+                                           "compensation.png and coverage.png")
         try:
             data = await asyncio.to_thread(path.read_bytes) if path is not None else None
         except FileNotFoundError:

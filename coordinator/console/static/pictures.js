@@ -1,5 +1,5 @@
 // The console's pictures: the alignment heat map, the compensation before/after picture (with
-// their figures) and the camera's view. Its own scope, beside console.js (loaded first), whose
+// their figures), the coverage of an object (shown once `shadowless coverage` ran) and the camera's view. Its own scope, beside console.js (loaded first), whose
 // page helpers ($, el, clear, fmt) it uses; every piece of rig data is put on the page with
 // textContent or setAttribute, never as HTML.
 // What exists comes from GET /api/pictures, polled while the page is open and asked again soon after
@@ -50,6 +50,7 @@
   function render(p) {
     renderAlignment(p.alignment);
     renderCompensation(p.compensation);
+    renderCoverage(p.coverage);
     renderCamera(p.camera);
   }
 
@@ -140,6 +141,41 @@
     if (c.captures_averaged) parts.push(`${c.captures_averaged} captures averaged per result`);
     if (c.problem) parts.push(c.problem);
     summary.textContent = parts.join("; ");
+  }
+
+  // A rig that projects onto an object: how many projectors reach each point (a planar rig never
+  // has one, so the figure stays hidden there).
+  function renderCoverage(c) {
+    const fig = $("pic-coverage"), table = $("pic-coverage-slots");
+    fig.hidden = !c;
+    if (!c) return;
+    showImage($("pic-coverage-img"), c.url);
+    $("pic-coverage-link").setAttribute("href", c.url);
+    $("pic-coverage-when").textContent = c.computed_at ? `computed ${when(c.computed_at)}` : "";
+    const parts = [];
+    if (c.lit_pct !== null && c.lit_pct !== undefined) {
+      parts.push(`${fmt(c.lit_pct, 1)} % of the surface reached by at least one of ${c.slots} projectors`);
+    }
+    if (c.count_mean !== null && c.count_mean !== undefined) {
+      parts.push(`projectors per point: mean ${fmt(c.count_mean, 2)}, min ${c.count_min}, 5th percentile ${c.count_p5}`);
+    }
+    if (c.max_share_mean_pct !== null && c.max_share_mean_pct !== undefined) {
+      parts.push(`one blocked projector takes at most ${fmt(c.max_share_mean_pct, 1)} % of the light (mean)`);
+    }
+    if (c.views && c.views.length) parts.push(`views: ${c.views.join(", ")}`);
+    if (c.problem) parts.push(c.problem);
+    $("pic-coverage-summary").textContent = parts.join("; ");
+    const tbody = table.tBodies[0];
+    clear(tbody);
+    for (const [slot, d] of Object.entries(c.per_slot || {})) {
+      const cm2 = (v) => (v === null || v === undefined ? null : v / 100);
+      const tr = el("tr", { "data-slot": slot });
+      tr.append(el("td", {}, slot), el("td", { class: "num" }, fmt(cm2(d.reach_mm2), 1)),
+                el("td", { class: "num" }, fmt(d.reach_pct, 1)), el("td", { class: "num" }, fmt(d.mean_share_pct, 2)),
+                el("td", { class: "num" }, fmt(cm2(d.sole_mm2), 1)));
+      tbody.appendChild(tr);
+    }
+    table.hidden = !tbody.rows.length;
   }
 
   // ------------------------------------------------------------------ the camera

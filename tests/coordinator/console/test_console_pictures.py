@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import shutil
 import time
 import urllib.error
 import urllib.request
@@ -26,8 +27,9 @@ from coordinator.calibration.heatmap_figure import colourise, footprint_mm, heat
 from coordinator.camera import encode_png16, open_camera
 from coordinator.console import auth
 from coordinator.console.pictures import CAMERA_INTERVAL_S, to_srgb
-from coordinator.rig import Rig, grid_slots, init_rig
+from coordinator.rig import ProjectionPose, Rig, grid_slots, init_rig, mesh_with_id
 from coordinator.server import Coordinator
+from shadowless.cli import main
 from sim.room import Room
 from sim.scene import reference_scene
 from sim.service import RoomServerThread
@@ -133,7 +135,23 @@ async def console(tmp_path: Path, cameras: list[str] | None = None):
         await coord.stop()
 
 
-PATHS = ["/api/pictures", "/api/pictures/alignment.png", "/api/pictures/compensation.png", "/api/camera.png"]
+PATHS = ["/api/pictures", "/api/pictures/alignment.png", "/api/pictures/compensation.png",
+         "/api/pictures/coverage.png", "/api/camera.png"]
+
+
+def coverage_result(tmp_path: Path) -> Path:
+    """``coverage/`` as `shadowless coverage` leaves it in a rig posed onto the bust (the room's true
+    poses of three projectors; a small texture and picture)."""
+    scene = reference_scene(projector_scale=0.1, camera_scale=0.1, surface="bust")
+    d = init_rig(tmp_path / "bust-rig", name="bust", slots=["r0c0", "r2c2", "r4c4"], width=128, height=80)
+    rig = Rig(d)
+    mesh = mesh_with_id(scene.mesh.vertices, scene.mesh.uvs, scene.mesh.faces)
+    for s in rig.slots:
+        p = scene.projector(s).pinhole
+        rig.update_slot(s, pose=ProjectionPose(p.P, mesh), size=p.size)
+    code = main(["coverage", "--rig-dir", str(d), "--texture", "96x96", "--panel", "160x160", "--json"])
+    assert code == 0
+    return d / "coverage"
 
 
 def test_pictures_need_a_session_and_say_what_to_run_when_there_are_none(tmp_path):
@@ -151,6 +169,7 @@ def test_pictures_need_a_session_and_say_what_to_run_when_there_are_none(tmp_pat
             assert doc["camera"]["configured"] is False
             for path, words in (("/api/pictures/alignment.png", "run the alignment job"),
                                 ("/api/pictures/compensation.png", "compensate job with evaluate"),
+                                ("/api/pictures/coverage.png", "shadowless coverage"),
                                 ("/api/camera.png", "no camera configured"),
                                 ("/api/pictures/..%2Ftoken", "no picture")):
                 r = await s.get(base + path, headers=headers)
@@ -164,6 +183,17 @@ def test_pictures_need_a_session_and_say_what_to_run_when_there_are_none(tmp_pat
             r = await s.get(base + "/api/pictures/alignment.png", headers=headers)
             assert r.status == 200 and r.content_type == "image/png" and r.headers["Cache-Control"] == "no-store"
             assert decode(await r.read()).shape == (30, 60, 3)
+            # what `shadowless coverage` left: its picture, the count over the surface and each slot's reach
+            shutil.copytree(coverage_result(tmp_path), coord.rig.path / "coverage")
+            stored = json.loads((coord.rig.path / "coverage" / "coverage.json").read_text())
+            cov = (await (await s.get(base + "/api/pictures", headers=headers)).json())["coverage"]
+            assert cov["slots"] == 3 and cov["lit_pct"] == stored["lit_pct"] and cov["count_p5"] == stored["count_p5"]
+            assert cov["views"] == stored["views"] and cov["mesh"] == stored["mesh"]
+            assert {s: d["reach_mm2"] for s, d in cov["per_slot"].items()} == \
+                {s: d["reach_mm2"] for s, d in stored["per_slot"].items()}
+            r = await s.get(base + cov["url"], headers=headers)
+            assert r.status == 200 and r.headers["Cache-Control"] == "no-store"
+            assert await r.read() == (coord.rig.path / "coverage" / "coverage.png").read_bytes()
 
     asyncio.run(go())
 
@@ -328,7 +358,9 @@ def test_the_jobs_pictures_and_the_camera_view_on_the_page(tmp_path, browser_rea
             status, _, qpng = http.request("/api/pictures/compensation.png")
             assert status == 200 and qpng == (rig.local.rig_dir / "compensation" / "quality.png").read_bytes()
 
-            # the page
+            # the page; with what `shadowless coverage` leaves in a rig that projects onto an object
+            shutil.copytree(coverage_result(tmp_path), rig.local.rig_dir / "coverage")
+            cov_png = decode((rig.local.rig_dir / "coverage" / "coverage.png").read_bytes())
             driver = chromium(tmp_path / "chromium-profile")
             try:
                 driver.get(rig.url)
@@ -356,6 +388,15 @@ def test_the_jobs_pictures_and_the_camera_view_on_the_page(tmp_path, browser_rea
                     assert float(scores[k][1]) == pytest.approx(quality[k]["ssim"], abs=0.00006), scores
                 summary = driver.execute_script("return document.getElementById('pic-compensation-summary').textContent;")
                 assert "after − before" in summary and "dB PSNR" in summary and "astronaut.png" in summary
+                wait_for(lambda: (img_state(driver, "#pic-coverage-img") or {}).get("w") == cov_png.shape[1], 60,
+                         "the coverage picture shown")
+                reach = dict(driver.execute_script(
+                    "return Array.from(document.querySelectorAll('#pic-coverage-slots tbody tr'))"
+                    ".map(tr => [tr.dataset.slot, tr.cells[1].textContent]);"))
+                stored_cov = json.loads((rig.local.rig_dir / "coverage" / "coverage.json").read_text())
+                assert reach == {s: f"{d['reach_mm2'] / 100:.1f}" for s, d in stored_cov["per_slot"].items()}
+                summary = driver.execute_script("return document.getElementById('pic-coverage-summary').textContent;")
+                assert "reached by at least one of 3 projectors" in summary, summary
 
                 # the camera refreshes by itself while on screen (the pictures above it have grown since), and on
                 # the button
