@@ -17,6 +17,10 @@ where the coordinator, the node, the room and the benchmarks may all read it:
 * :func:`lut_lookup`: the node's luminance pipeline, ``LUT(clip(gain * value))`` per channel
   with linear interpolation between the ``E`` LUT samples at ``k / (E - 1)``, output
   quantised to ``round(255 * value)``.
+* :func:`look_at`, :func:`intrinsics`, :func:`scale_intrinsics`: a pinhole device in the world
+  (``x ~ K (R X + t)``, OpenCV's axes, pixel centres at integers) aimed at a point, and the same
+  optics sampled at another resolution; the room builds its devices with them and the
+  coordinator a layout's planned poses (:mod:`protos.layout`).
 
 Only numpy: this module is part of every install, the edge node's included.
 """
@@ -27,7 +31,7 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["content_to_table", "output_outline", "projector_samples", "bilinear_taps", "warp_content", "lut_lookup",
-           "quantise", "as_linear"]
+           "quantise", "as_linear", "intrinsics", "scale_intrinsics", "look_at"]
 
 
 def content_to_table(content_size: Sequence[int], table_mm: Sequence[float]) -> np.ndarray:
@@ -212,3 +216,85 @@ def warp_content(content: np.ndarray, pose: np.ndarray, projector_size: Sequence
     if table is None:
         table = np.array([[0.0, 1.0]] * 3, np.float32)
     return lut_lookup(table, warped, gain=gain)
+
+
+# ---------------------------------------------------------------- devices in the world
+
+
+def intrinsics(size: tuple[int, int], *, focal: float | tuple[float, float], principal: tuple[float, float] | None = None) -> np.ndarray:
+    """Intrinsic matrix for an image of ``size`` = (width, height).
+
+    Parameters
+    ----------
+    size : (int, int)
+        Width and height in pixels.
+    focal : float or (float, float)
+        Focal length in pixels (fx, fy).
+    principal : (float, float), optional
+        Principal point in pixel coordinates; default the image centre
+        ``((w - 1) / 2, (h - 1) / 2)``.
+
+    Returns
+    -------
+    K : (3, 3) float64
+    """
+    w, h = size
+    if w <= 0 or h <= 0:
+        raise ValueError(f"size must be positive, got {size}")
+    fx, fy = (focal, focal) if np.isscalar(focal) else focal
+    if fx <= 0 or fy <= 0:
+        raise ValueError(f"focal length must be positive, got {focal}")
+    cx, cy = ((w - 1) / 2.0, (h - 1) / 2.0) if principal is None else principal
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=np.float64)
+
+
+def scale_intrinsics(K: np.ndarray, from_size: tuple[int, int], to_size: tuple[int, int]) -> np.ndarray:
+    """Intrinsics of the same optics sampled at another resolution.
+
+    The image area is kept: pixel centres move as ``x' = sx (x + 0.5) - 0.5``
+    with ``sx = w' / w`` (same for y), so a resized image stays registered.
+
+    Returns
+    -------
+    K' : (3, 3) float64
+    """
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"K must be (3, 3), got {K.shape}")
+    sx = to_size[0] / from_size[0]
+    sy = to_size[1] / from_size[1]
+    S = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
+    return S @ K
+
+
+def look_at(eye, target, *, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation and translation of a device at ``eye`` looking at ``target``.
+
+    ``up`` is the world direction that appears towards the top of the image
+    (image -y). For a device looking straight down on the table with the
+    default ``up = +y``, image x runs along world +x and image y along world -y.
+
+    Returns
+    -------
+    R : (3, 3) float64
+        World-to-device rotation (rows: device x, y, z axes in world coordinates).
+    t : (3,) float64
+        ``-R @ eye``.
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    up = np.asarray(up, dtype=np.float64)
+    if eye.shape != (3,) or target.shape != (3,) or up.shape != (3,):
+        raise ValueError("eye, target and up must be 3-vectors")
+    z = target - eye
+    norm = np.linalg.norm(z)
+    if norm == 0:
+        raise ValueError("eye and target coincide")
+    z /= norm
+    x = np.cross(-up, z)  # so that image y (= z cross x) points along -up
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError("up is parallel to the viewing direction; choose another up vector")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ eye

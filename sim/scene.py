@@ -37,21 +37,19 @@ A layout file (TOML, :func:`load_layout`) describes any other room.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from protos.layout import CAMERA_NATIVE, PROJECTOR_NATIVE, TABLE_SIZE, Layout, LayoutFileError, read_layout
 from sim.errors import LayoutError, UnknownSlotError
 from sim.geometry import Pinhole, intrinsics, look_at, rotation_about
 from sim.mesh import Mesh, bust, load_mesh
 from sim.optics import Response, Sensor, irradiance_factor, random_response
 
-#: Native resolutions of the reference devices.
-PROJECTOR_NATIVE = (1280, 800)
-CAMERA_NATIVE = (2592, 1944)
-TABLE_SIZE = (1200.0, 600.0)
+# PROJECTOR_NATIVE, CAMERA_NATIVE (the reference devices' native resolutions, a layout's defaults)
+# and TABLE_SIZE come from protos.layout, which reads layout files for the room and the coordinator.
 CEILING_MM = 1400.0
 
 #: Level the powered projectors at full white reach on the camera's axis (fraction of full scale).
@@ -390,105 +388,52 @@ def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale
     LayoutError
         Naming the file and the entry that is wrong.
     """
-    path = Path(path)
     try:
-        doc = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise LayoutError(f"cannot read layout {path}: {exc.strerror or exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise LayoutError(f"layout {path} is not valid TOML: {exc}") from exc
-    try:
-        return _scene_from_doc(doc, base=path.parent, projector_scale=projector_scale, camera_scale=camera_scale, seed=seed)
+        layout = read_layout(path)
+        return _scene_from_layout(layout, projector_scale=projector_scale, camera_scale=camera_scale, seed=seed)
+    except LayoutFileError as exc:
+        raise LayoutError(str(exc)) from None
     except LayoutError as exc:
         raise LayoutError(f"layout {path}: {exc}") from None
     except (TypeError, ValueError, KeyError) as exc:
         raise LayoutError(f"layout {path}: {exc}") from exc
 
 
-def _vec(entry: dict, key: str, n: int, default=None, *, where: str) -> np.ndarray:
-    if key not in entry:
-        if default is None:
-            raise LayoutError(f"{where} needs {key!r}")
-        return np.asarray(default, np.float64)
-    val = np.asarray(entry[key], np.float64).reshape(-1)
-    if val.shape != (n,) or not np.all(np.isfinite(val)):
-        raise LayoutError(f"{where}: {key!r} must be {n} finite numbers, got {entry[key]!r}")
-    return val
-
-
-def _scene_from_doc(doc: dict, *, base: Path, projector_scale: float, camera_scale: float, seed: int) -> Scene:
+def _scene_from_layout(layout: Layout, *, projector_scale: float, camera_scale: float, seed: int) -> Scene:
+    """The room of a parsed layout (:mod:`protos.layout`): its devices, plus the photometry only the
+    room models (responses, peaks, apertures, sensors)."""
     rng = np.random.default_rng(seed)
-    known = {"name", "table", "mesh", "projector", "camera"}
-    unknown = set(doc) - known
-    if unknown:
-        raise LayoutError(f"unknown top-level keys {sorted(unknown)}; expected {sorted(known)}")
-    table = None
-    if "table" in doc:
-        t = doc["table"]
-        table = Table(tuple(_vec(t, "size", 2, TABLE_SIZE, where="[table]")), float(t.get("albedo", 0.85)))
+    table = None if layout.table is None else Table(layout.table.size, layout.table.albedo)
     mesh, source, mesh_albedo = None, None, 0.8
-    if "mesh" in doc:
-        m = doc["mesh"]
-        if "builtin" in m:
-            if m["builtin"] != "bust":
-                raise LayoutError(f"[mesh]: unknown builtin {m['builtin']!r}; the builtin mesh is 'bust'")
-            mesh, source = bust(), "builtin:bust"
-        elif "path" in m:
-            mesh, source = _surface_mesh(m["path"], base)
-        else:
-            raise LayoutError("[mesh] needs 'builtin' or 'path'")
-        if any(k in m for k in ("position", "yaw_deg", "scale")):
-            yaw = math.radians(float(m.get("yaw_deg", 0.0)))
-            mesh = mesh.transformed(rotation=rotation_about((0, 0, 1), yaw), translation=_vec(m, "position", 3, (0, 0, 0), where="[mesh]"), scale=float(m.get("scale", 1.0)))
-        mesh_albedo = float(m.get("albedo", 0.8))
-    entries = doc.get("projector", [])
-    if not isinstance(entries, list) or not entries:
-        raise LayoutError("needs at least one [[projector]]")
+    if layout.mesh is not None:
+        spec = layout.mesh
+        mesh, source = (bust(), "builtin:bust") if spec.builtin == "bust" else _surface_mesh(spec.path)
+        if spec.placed:
+            mesh = Mesh(spec.place(mesh.vertices), mesh.faces, mesh.uvs)
+        mesh_albedo = spec.albedo
     projectors = []
-    for i, e in enumerate(entries):
-        where = f"[[projector]] #{i + 1}"
-        slot = str(e.get("slot", f"p{i}"))
-        where = f"{where} ({slot})"
-        pos = _vec(e, "position", 3, where=where)
-        target = _vec(e, "target", 3, (0, 0, 0), where=where)
-        up = _vec(e, "up", 3, (0, 1, 0), where=where)
-        res = tuple(int(v) for v in _vec(e, "resolution", 2, PROJECTOR_NATIVE, where=where))
-        if "focal_px" in e:
-            focal = float(e["focal_px"])
-        elif "throw_ratio" in e:
-            focal = float(e["throw_ratio"]) * res[0]
-        else:
-            focal = 0.98 * res[0]
-        principal = tuple(_vec(e, "principal", 2, ((res[0] - 1) / 2, (res[1] - 1) / 2), where=where))
-        native = _device(pos, target, up, res, focal, principal)
+    for d in layout.projectors:
+        e = d.entry
+        native = Pinhole(d.K, d.R, d.t, d.size)
         unit = random_response(rng)
         gamma = e.get("gamma", unit.gamma)
         black = e.get("black", unit.black)
         peak = float(e.get("peak", 1.0 + rng.uniform(-0.05, 0.05)))
         response = Response(gamma, black)
-        focus = float(e.get("focus_mm", np.linalg.norm(native.center - target)))
-        size = _scaled_size(res, projector_scale)
+        focus = float(e.get("focus_mm", np.linalg.norm(native.center - d.target)))
+        size = _scaled_size(d.size, projector_scale)
         projectors.append(
-            ProjectorSpec(slot, native, native.scaled(size), response, peak, float(e.get("aperture_mm", 10.0)), focus, float(e.get("falloff", 1.0)), bool(e.get("powered", True)))
+            ProjectorSpec(d.name, native, native.scaled(size), response, peak, float(e.get("aperture_mm", 10.0)), focus, float(e.get("falloff", 1.0)), bool(e.get("powered", True)))
         )
-    cams = doc.get("camera", [])
-    if not isinstance(cams, list) or not cams:
-        raise LayoutError("needs at least one [[camera]]")
     cameras = []
-    for i, e in enumerate(cams):
-        where = f"[[camera]] #{i + 1}"
-        pos = _vec(e, "position", 3, where=where)
-        target = _vec(e, "target", 3, (0, 0, 0), where=where)
-        up = _vec(e, "up", 3, (0, 1, 0), where=where)
-        res = tuple(int(v) for v in _vec(e, "resolution", 2, CAMERA_NATIVE, where=where))
-        focal = float(e.get("focal_px", 1.02 * res[0]))
-        principal = tuple(_vec(e, "principal", 2, ((res[0] - 1) / 2, (res[1] - 1) / 2), where=where))
-        native = _device(pos, target, up, res, focal, principal)
+    for d in layout.cameras:
+        e = d.entry
+        native = Pinhole(d.K, d.R, d.t, d.size)
         albedo = table.albedo if table is not None else mesh_albedo
         gain = float(e["gain"]) if "gain" in e else auto_gain(projectors, native, albedo=albedo)
         sensor = Sensor(float(e.get("full_well", 10000.0)), float(e.get("read_noise", 2.5)), int(e.get("bits", 12)), float(e.get("gamma", 1.0)))
-        cameras.append(CameraSpec(str(e.get("name", f"camera{i}")), native, native.scaled(_scaled_size(res, camera_scale)), gain, float(e.get("exposure", 1.0)), sensor))
-    return Scene(tuple(projectors), tuple(cameras), table, mesh, mesh_albedo, source, name=str(doc.get("name", "room")))
+        cameras.append(CameraSpec(d.name, native, native.scaled(_scaled_size(d.size, camera_scale)), gain, float(e.get("exposure", 1.0)), sensor))
+    return Scene(tuple(projectors), tuple(cameras), table, mesh, mesh_albedo, source, name=layout.name)
 
 
 def write_layout(scene: Scene, path: str | Path) -> None:
