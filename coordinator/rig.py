@@ -33,6 +33,7 @@ from coordinator.schema import (MAX_GAIN, MAX_SIDE, MIN_SIDE, SLOT_RE, ContentMe
                                 parse_toml, read_bytes, read_json, read_npy, read_text, valid_gain, validate, validate_lut)
 from coordinator.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
 from protos.auth import new_token
+from protos.spaces import scale_intrinsics
 
 __all__ = ["MAX_GAIN", "MAX_SIDE", "MIN_SIDE", "SLOT_RE", "Content", "HomographyPose", "Mesh", "ProjectionPose", "Rig",
            "RigConfig", "SlotState", "grid_slots", "init_rig", "parse_config", "valid_gain", "validate_lut"]
@@ -122,6 +123,10 @@ class SlotState:
     lut: np.ndarray | None = None   # (C, E) float32
     source: str = "none"
     updated_at: float = 0.0
+    #: the 3x4 pose a layout planned for this projector (``rig init --layout``), onto the layout's
+    #: surface; not part of the node's assignment, and no job reads it: only ``coverage --planned``.
+    #: Setting a pose (calibration, ``configure``) drops it.
+    planned: ProjectionPose | None = None
 
 
 @dataclass(frozen=True)
@@ -204,7 +209,9 @@ def grid_slots(rows: int, cols: int) -> list[str]:
 
 
 def render_config(name: str, rig_id: str, slots: list[str], *, width: int, height: int,
-                  content_width: int, content_height: int, latency_ms: float, cameras: list[str] = ()) -> str:
+                  content_width: int, content_height: int, latency_ms: float, cameras: list[str] = (),
+                  sizes: dict[str, tuple[int, int]] | None = None) -> str:
+    """rig.toml's text; ``sizes`` gives slots whose output is not ``width`` x ``height`` their own."""
     hb_ms = default_heartbeat_ms(len(slots))
     lines = [
         "# A shadowless rig. Edit by hand; the coordinator reads this file when it starts.",
@@ -230,14 +237,17 @@ def render_config(name: str, rig_id: str, slots: list[str], *, width: int, heigh
         "[slots]",
         "# one entry per projector; e.g. r0c1 = { width = 1280, height = 800 }",
     ]
-    lines += [f"{s} = {{}}" for s in slots]
+    for s in slots:
+        w, h = (sizes or {}).get(s, (width, height))
+        lines.append(f"{s} = {{}}" if (w, h) == (width, height) else f"{s} = {{ width = {w}, height = {h} }}")
     return "\n".join(lines) + "\n"
 
 
 def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920, height: int = 1080,
              content_width: int = 1200, content_height: int = 600, latency_ms: float = 50.0,
-             cameras: list[str] = (), force: bool = False) -> Path:
-    """Create a rig directory with ``rig.toml`` and a fresh token; refuse to overwrite one."""
+             cameras: list[str] = (), force: bool = False, sizes: dict[str, tuple[int, int]] | None = None) -> Path:
+    """Create a rig directory with ``rig.toml`` and a fresh token; refuse to overwrite one.
+    ``sizes`` (slot -> (w, h)) overrides ``width`` x ``height`` for some slots."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise RigError(f"{path} is a file; give a folder for the rig (it is created if missing)")
@@ -249,10 +259,12 @@ def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920
     if len(set(slots)) != len(slots) or not slots:
         raise RigError("slot names must be unique and at least one is needed")
     _check_size("output", width, height)
+    for s, (w, h) in (sizes or {}).items():
+        _check_size(f"slot {s}'s output", w, h)
     _check_size("content", content_width, content_height)
     text = render_config(name, uuid.uuid4().hex[:12], slots, width=width, height=height,
                          content_width=content_width, content_height=content_height, latency_ms=latency_ms,
-                         cameras=list(cameras))
+                         cameras=list(cameras), sizes=sizes)
     parse_config(text)  # what we write must read back
     path.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path / "rig.toml", text)
@@ -323,14 +335,16 @@ class Rig:
         except RigError as exc:
             raise RigError(f"{exc}{hint}") from None
         pose: Pose | None = None
-        if doc.pose is not None and doc.pose.kind == "homography":
-            pose = HomographyPose(np.array(doc.pose.matrix, dtype=np.float64))
-        elif doc.pose is not None:
-            try:
-                pose = ProjectionPose(np.array(doc.pose.matrix, dtype=np.float64), self._load_mesh(doc.pose.mesh),
-                                      doc.pose.near_mm, doc.pose.far_mm)
-            except ValueError as exc:
-                raise RigError(f"{f}: {exc}{hint}") from None
+        planned: ProjectionPose | None = None
+        try:
+            if doc.pose is not None and doc.pose.kind == "homography":
+                pose = HomographyPose(np.array(doc.pose.matrix, dtype=np.float64))
+            elif doc.pose is not None:
+                pose = self._projection(doc.pose)
+            if doc.planned is not None:
+                planned = self._projection(doc.planned)
+        except ValueError as exc:
+            raise RigError(f"{f}: {exc}{hint}") from None
         lut = None
         if doc.lut:
             lut_f = self.path / doc.lut
@@ -340,7 +354,11 @@ class Rig:
             except ValueError as exc:
                 raise RigError(f"{lut_f}: {exc} (named by {f})") from None
         return SlotState(name=name, width=doc.width or width, height=doc.height or height, revision=doc.revision,
-                         gain=doc.gain, pose=pose, lut=lut, source=doc.source, updated_at=doc.updated_at)
+                         gain=doc.gain, pose=pose, lut=lut, source=doc.source, updated_at=doc.updated_at, planned=planned)
+
+    def _projection(self, doc) -> ProjectionPose:
+        """A slot file's projection document (:class:`coordinator.schema.ProjectionDoc`) with its mesh."""
+        return ProjectionPose(np.array(doc.matrix, dtype=np.float64), self._load_mesh(doc.mesh), doc.near_mm, doc.far_mm)
 
     def _load_content(self) -> Content | None:
         """``content/current.json`` (checked by :class:`coordinator.schema.ContentMeta`) and the image
@@ -363,13 +381,9 @@ class Rig:
         if isinstance(st.pose, HomographyPose):
             doc["pose"] = {"kind": "homography", "matrix": st.pose.matrix.tolist()}
         elif isinstance(st.pose, ProjectionPose):
-            mesh = st.pose.mesh
-            mf = self.path / "meshes" / f"{mesh.mesh_id}.npz"
-            if not mf.exists():
-                atomic_save_npz(mf, vertices=mesh.vertices, uvs=mesh.uvs, faces=mesh.faces)
-            self.meshes[mesh.mesh_id] = mesh
-            doc["pose"] = {"kind": "projection", "matrix": st.pose.matrix.tolist(), "mesh": mesh.mesh_id,
-                           "near_mm": st.pose.near_mm, "far_mm": st.pose.far_mm}
+            doc["pose"] = self._projection_doc(st.pose)
+        if st.planned is not None:
+            doc["planned"] = self._projection_doc(st.planned)
         if st.lut is not None:
             rel = f"luts/{st.name}.r{st.revision}.npy"
             atomic_save_npy(self.path / rel, st.lut)
@@ -379,6 +393,16 @@ class Rig:
         for old in (self.path / "luts").glob(f"{st.name}.r*.npy"):
             if old.name != f"{st.name}.r{st.revision}.npy":
                 old.unlink(missing_ok=True)
+
+    def _projection_doc(self, pose: ProjectionPose) -> dict:
+        """A projection pose as its slot-file document, its mesh saved first (once per mesh id)."""
+        mesh = pose.mesh
+        mf = self.path / "meshes" / f"{mesh.mesh_id}.npz"
+        if not mf.exists():
+            atomic_save_npz(mf, vertices=mesh.vertices, uvs=mesh.uvs, faces=mesh.faces)
+        self.meshes[mesh.mesh_id] = mesh
+        return {"kind": "projection", "matrix": pose.matrix.tolist(), "mesh": mesh.mesh_id,
+                "near_mm": pose.near_mm, "far_mm": pose.far_mm}
 
     def slot(self, name: str) -> SlotState:
         try:
@@ -390,13 +414,24 @@ class Rig:
 
     def update_slot(self, name: str, *, pose: Pose | None | object = _UNSET, gain: float | None = None,
                     lut: np.ndarray | None | object = _UNSET, size: tuple[int, int] | None = None,
-                    source: str = "manual") -> SlotState:
-        """Change a slot's assignment; bump its revision; persist; return the new state."""
+                    planned: ProjectionPose | None | object = _UNSET, source: str = "manual") -> SlotState:
+        """Change a slot's assignment; bump its revision; persist; return the new state.
+
+        A pose replaces the slot's planned pose (calibration supersedes the plan). A new ``size``
+        resamples the planned pose's optics to it (:func:`protos.spaces.scale_intrinsics`: a plan
+        is optics, not a measurement; a calibrated pose at another size is stale and stays as is).
+        """
         self._writable()
         st = self.slot(name)
         changes: dict = {}
         if pose is not Rig._UNSET:
             changes["pose"] = pose
+            if pose is not None:
+                changes["planned"] = None
+        if planned is not Rig._UNSET:
+            if planned is not None and not isinstance(planned, ProjectionPose):
+                raise ValueError("a planned pose is a projection (3x4) onto the layout's surface")
+            changes["planned"] = planned
         if gain is not None:
             if not valid_gain(gain):
                 raise ValueError(f"gain must be in 0..{MAX_GAIN:g}, got {gain}")
@@ -408,6 +443,9 @@ class Rig:
             changes["lut"] = lut
         if size is not None:
             changes["width"], changes["height"] = _check_size(f"slot {name}", *size)
+            if "planned" not in changes and st.planned is not None and (st.width, st.height) != tuple(size):
+                S = scale_intrinsics(np.eye(3), (st.width, st.height), tuple(size))
+                changes["planned"] = replace(st.planned, matrix=S @ st.planned.matrix)
         st = replace(st, **changes, revision=st.revision + 1, source=source, updated_at=time.time())
         self._save_slot(st)
         self.slots[name] = st

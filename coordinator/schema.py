@@ -236,6 +236,9 @@ class SlotFile(_Strict):
     source: Text = ""
     updated_at: Annotated[float, _num_in(0)] = 0.0
     pose: Annotated[HomographyDoc | ProjectionDoc, Field(discriminator="kind")] | None = None
+    #: the pose a layout planned (`rig init --layout`): never rendered nor used by a job, only by
+    #: `coverage --planned`; a calibrated or configured pose replaces it
+    planned: ProjectionDoc | None = None
     lut: Annotated[str, BeforeValidator(_rel_path)] | None = None
 
 

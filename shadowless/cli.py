@@ -21,7 +21,7 @@ INFO_BY_DEFAULT = {"coordinator", "node"}
 COMMANDS: dict[str, tuple[str, str]] = {
     "coordinator": ("coordinator.cli", "run the coordinator: holds the rig, serves nodes and operators"),
     "node": ("node.cli", "run one node (one per projector, on its edge computer)"),
-    "rig": ("coordinator.rigcli", "create or inspect a rig directory (slots, token)"),
+    "rig": ("shadowless.rig", "create or inspect a rig directory (slots, token; or from a planned layout)"),
     "status": ("coordinator.commands", "show the rig's nodes and sync figures (--json for scripts)"),
     "show": ("coordinator.commands", "show an image on every projector"),
     "play": ("coordinator.commands", "play a sequence of images, or a generated test sequence"),

@@ -138,7 +138,8 @@ class JobContext:
             for s in slots:
                 pose = self.rig.slot(s).pose
                 if pose is None:
-                    raise JobError(f"projector {s} has no pose: calibrate it first (`shadowless calibrate`)")
+                    plan = " (only the pose a layout planned, which is not a calibration)" if self.rig.slot(s).planned else ""
+                    raise JobError(f"projector {s} has no pose{plan}: calibrate it first (`shadowless calibrate`)")
                 if planar and not isinstance(pose, HomographyPose):
                     raise JobError(f"projector {s} has a 3D pose: this job supports planar rigs (a table) only")
         return slots

@@ -32,8 +32,8 @@ from sim.sop import CHOSEN, PoseSet
 DESCRIPTION = """\
 Choose where to mount projectors: from candidate positions (a ceiling grid, walls, or a file),
 pick --budget of them that minimise a sense-of-projection proxy under hands over the surface,
-with every surface point lit by at least --k of them. Writes a layout the room reads
-(shadowless room --layout FILE), a picture of the plan, and prints the proxy against the budget
+with every surface point lit by at least --k of them. Writes a layout the room and the coordinator
+read (shadowless room --layout FILE; shadowless rig init DIR --layout FILE), a picture of the plan, and prints the proxy against the budget
 (greedy: the best next projector each time; the chosen set is then refined by swaps)."""
 
 EPILOG = f"""\
@@ -43,6 +43,8 @@ examples:
   shadowless plan --surface bust --mount ceiling+walls --budget 17 --k 3
   shadowless plan --candidates positions.csv        # one x,y,z[,name] per line, mm
   shadowless room --layout plan.toml                # the planned rig in the virtual room
+  shadowless rig init rigs/planned --layout plan.toml   # its rig directory: slots, sizes, planned poses
+  shadowless coverage --rig-dir rigs/planned --planned  # the plan's coverage, before any hardware
 
 proxies (lower is better; default {CHOSEN}): {', '.join(PLAN_PROXIES)}
 hands: over the table, flat at --heights over 3x3 positions and --yaws; on the bust, pointing
@@ -141,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
         "curve": [round(v, 4) for v in result.curve],
         "value": round(result.value, 4), "uncovered_mm2": round(result.uncovered, 1), "swaps": result.swaps,
         "knee_projectors": knee(result.curve, span),
-        "rig_init": f"shadowless rig init DIR --slots {','.join(s.name for s in chosen)}",
+        "rig_init": f"shadowless rig init DIR --layout {args.layout}",
         "layout": str(args.layout), "picture": str(args.picture), "seconds": round(time.perf_counter() - t0, 1),
     }
     if args.json:
@@ -155,5 +157,5 @@ def run(args: argparse.Namespace) -> int:
           f"flattens after {doc['knee_projectors']} projectors (one more improves by < 5 % of the curve's range)")
     if doc["wall_positions_chosen"]:
         print(f"{doc['wall_positions_chosen']} of them on walls")
-    print(f"wrote {args.layout} (shadowless room --layout {args.layout}; shadowless rig init DIR --slots {','.join(s.name for s in chosen)}) and {args.picture}")
+    print(f"wrote {args.layout} (shadowless room --layout {args.layout}; shadowless rig init DIR --layout {args.layout}) and {args.picture}")
     return 0
