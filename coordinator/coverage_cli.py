@@ -1,4 +1,5 @@
-"""`shadowless coverage`: how many projectors reach each point of the object, from the rig's poses and mesh.
+"""`shadowless coverage`: how many projectors reach each point of the object, from the rig's poses and mesh
+(the calibrated poses, or with ``--planned`` those a layout planned: :mod:`coordinator.rig_layout`).
 
 Offline: reads the rig directory (works while a coordinator serves it; writes only under
 ``coverage/``), computes the coverage per texel (:mod:`coordinator.coverage`), stores it
@@ -14,6 +15,8 @@ import re
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from coordinator.calibration.errors import CalibrationError
 from coordinator.content_format import operator_table, rendered
@@ -36,6 +39,12 @@ examples:
   shadowless coverage --rig-dir rigs/bust --view 30,20 --view 210,20 --out bust-coverage.png
   shadowless coverage --rig-dir rigs/bust --view camera          # as the rig's calibrated camera 0 sees it
   shadowless coverage --rig-dir rigs/bust --slots r0c0,r0c2,r2c2 --json   # what a subset would reach
+  shadowless rig init rigs/plan --layout plan.toml && shadowless coverage --rig-dir rigs/plan --planned
+                                                                 # a plan's coverage before any hardware
+
+--planned reads the poses a layout planned (`shadowless rig init DIR --layout FILE`: each projector's
+position, aim and focal length onto the layout's object, or onto its table when it has none), so its
+figures are for the projectors as planned, not as hung; a slot's calibration replaces its planned pose.
 
 A view is AZ,EL in degrees around the object's centre: azimuth about the vertical, 0 on the +y
 side (the front of an object facing +y), 90 on +x, 180 behind; elevation above the horizontal.
@@ -66,7 +75,9 @@ def configure(p: argparse.ArgumentParser) -> None:
         "the light there, from the calibrated 3D poses and the mesh alone (nothing is shown or captured).\n"
         "Where few projectors reach, a hand casts a deeper, larger shadow. Per texel of the mesh's texture:\n"
         "inside the projector's image, facing it, not hidden by the object (a shadow map per projector);\n"
-        "irradiance = gain x cos(incidence) x (1 m / distance)^2 x cos(off-axis)^(falloff - 3).")
+        "irradiance = gain x cos(incidence) x (1 m / distance)^2 x cos(off-axis)^(falloff - 3).\n"
+        "With --planned, from the poses a layout planned (`rig init --layout`), before any projector hangs:\n"
+        "the figures are then for the plan, onto its object or its table.")
     p.epilog = EXAMPLES
     p.add_argument("--rig-dir", required=True, metavar="DIR", help="the rig directory (read; results go to DIR/coverage/)")
     p.add_argument("--view", dest="views", action="append", type=view, metavar="AZ,EL|camera[:N]",
@@ -74,6 +85,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="PNG", help="the picture (default DIR/coverage/coverage.png)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     p.add_argument("--slots", type=cli_types.names, metavar="A,B,...", help="only these slots (default: every slot with a 3D pose)")
+    p.add_argument("--planned", action="store_true",
+                   help="the planned poses of a rig made by `rig init --layout` (before any hardware) instead of the "
+                        "calibrated ones: the figures are for the plan")
     p.add_argument("--texture", type=cli_types.size, default=DEFAULT_TEXTURE, metavar="WxH",
                    help=f"texels sampled over the mesh's UV texture (default {DEFAULT_TEXTURE[0]}x{DEFAULT_TEXTURE[1]})")
     p.add_argument("--shadow-scale", type=cli_types.int_range(1, 8), default=DEFAULT_SHADOW_SCALE, metavar="N",
@@ -97,16 +111,17 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     rig = Rig(args.rig_dir)
-    mesh, projectors = rig_projectors(rig, args.slots)
+    mesh, projectors = rig_projectors(rig, args.slots, planned=args.planned)
+    flat = float(np.ptp(mesh.vertices[:, 2])) < 1e-6          # a table: seen from above
     views = []
-    for kind, value in args.views or [("orbit", (0.0, 20.0)), ("orbit", (180.0, 20.0))]:
+    for kind, value in args.views or ([("orbit", (0.0, 90.0))] if flat else [("orbit", (0.0, 20.0)), ("orbit", (180.0, 20.0))]):
         if kind == "camera":
             views.append((f"camera {value}", rig_camera(rig.path, value)))
         else:
             az, el = value
             views.append((f"az {az:g} el {el:g}", orbit_camera(mesh.vertices, az, el, size=args.panel)))
-    _progress(f"{len(projectors)} projectors onto mesh {mesh.mesh_id} ({len(mesh.vertices)} vertices, "
-              f"{len(mesh.faces)} triangles): shadow maps")
+    _progress(f"{len(projectors)} projectors{' as planned' if args.planned else ''} onto mesh {mesh.mesh_id} "
+              f"({len(mesh.vertices)} vertices, {len(mesh.faces)} triangles): shadow maps")
     with CoverageModel(mesh.vertices, mesh.faces, mesh.uvs, projectors, shadow_scale=args.shadow_scale,
                        falloff=args.falloff) as model:
         _progress(f"sampling {args.texture[0]}x{args.texture[1]} texels")
@@ -116,7 +131,8 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else coverage_dir(rig.path) / "coverage.png"
     atomic_write_bytes(out, png)
     summary = cov.summary()
-    doc = {**summary, "rig": rig.config.name, "mesh": mesh.mesh_id, "computed_at": time.time(),
+    doc = {**summary, "rig": rig.config.name, "mesh": mesh.mesh_id, "poses": "planned" if args.planned else "calibrated",
+           "computed_at": time.time(),
            "seconds": round(time.monotonic() - t0, 2), "picture": str(out),
            "views": [label for label, _ in views], "layout": layout}
     npz, js = save_coverage(rig.path, cov, doc)
@@ -135,7 +151,8 @@ def _fmt(v: float | None, nd: int = 1) -> str:
 
 def summary_text(doc: dict, *, tty: bool = False) -> str:
     """The summary for an operator: the surface, the count over it, then one row per slot."""
-    lines = [f"rig {doc['rig']}  mesh {doc['mesh']}  {doc['slots']} projectors  texture "
+    planned = " (as planned)" if doc.get("poses") == "planned" else ""
+    lines = [f"rig {doc['rig']}  mesh {doc['mesh']}  {doc['slots']} projectors{planned}  texture "
              f"{doc['texture'][0]}x{doc['texture'][1]}  surface {doc['surface_mm2'] / 100:.0f} cm^2, "
              f"{_fmt(doc['lit_pct'])}% reached by at least one projector"]
     lines.append(f"projectors per point (by area): mean {_fmt(doc['count_mean'], 2)}, min {doc['count_min']}, "

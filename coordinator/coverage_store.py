@@ -54,29 +54,38 @@ def load_coverage(path: str | Path) -> Coverage:
         raise RigError(" ".join(f"{path}: cannot read the coverage ({exc})".split())) from None
 
 
-def rig_projectors(rig: Rig, slots: list[str] | None = None) -> tuple[Mesh, list[Projector]]:
+def rig_projectors(rig: Rig, slots: list[str] | None = None, *, planned: bool = False) -> tuple[Mesh, list[Projector]]:
     """The rig's mesh and its projectors posed onto it (each slot's 3x4 pose, output size and gain).
 
+    ``planned``: the slots' planned poses (``rig init --layout``) instead of their calibrated ones.
     Raises RigError (one line) when no slot has a 3D pose, when the slots render different meshes
     or when a named slot is unknown or has no 3D pose.
     """
     names = list(rig.slots) if slots is None else list(slots)
     for s in names:
         rig.slot(s)        # unknown slot: one line naming the rig's slots
-    posed = {s: rig.slots[s] for s in names if isinstance(rig.slots[s].pose, ProjectionPose)}
+    pose_of = (lambda st: st.planned) if planned else (lambda st: st.pose)
+    what = "planned pose" if planned else "3D pose (a projection onto a mesh)"
+    posed = {s: pose_of(rig.slots[s]) for s in names if isinstance(pose_of(rig.slots[s]), ProjectionPose)}
     if slots is not None and len(posed) < len(names):
         missing = [s for s in names if s not in posed]
-        raise RigError(f"slot(s) {', '.join(missing)} have no 3D pose (a projection onto a mesh)")
+        raise RigError(f"slot(s) {', '.join(missing)} have no {what}")
     if not posed:
+        if planned:
+            raise RigError("no slot of the rig has a planned pose: they come from `shadowless rig init DIR --layout FILE`, "
+                           "and a calibration replaces them")
         planar = any(st.pose is not None for st in rig.slots.values())
-        raise RigError("no slot of the rig has a 3D pose (a projection onto a mesh)"
-                       + ("; its poses are planar: coverage is for rigs that project onto an object"
-                          if planar else "; calibrate the rig on its mesh first (shadowless calibrate --mesh ...)"))
-    meshes = {st.pose.mesh.mesh_id for st in posed.values()}
+        plan = any(st.planned is not None for st in rig.slots.values())
+        raise RigError(f"no slot of the rig has a {what}"
+                       + ("; its poses are planar: coverage is for rigs that project onto an object" if planar else
+                          "; its poses are only planned (rig init --layout): pass --planned for the plan's coverage"
+                          if plan else "; calibrate the rig on its mesh first (shadowless calibrate --mesh ...)"))
+    meshes = {pose.mesh.mesh_id for pose in posed.values()}
     if len(meshes) > 1:
         raise RigError(f"the slots render different meshes ({', '.join(sorted(meshes))}); give --slots that share one")
-    mesh = next(iter(posed.values())).pose.mesh
-    return mesh, [projector_from_pose(s, st.pose.matrix, (st.width, st.height), gain=st.gain) for s, st in posed.items()]
+    mesh = next(iter(posed.values())).mesh
+    return mesh, [projector_from_pose(s, pose.matrix, (rig.slots[s].width, rig.slots[s].height), gain=rig.slots[s].gain)
+                  for s, pose in posed.items()]
 
 
 def rig_camera(rig_dir: str | Path, index: int) -> Pinhole:
