@@ -2,35 +2,22 @@
 (the calibrated poses, or with ``--planned`` those a layout planned: :mod:`coordinator.rig_layout`).
 
 Offline: reads the rig directory (works while a coordinator serves it; writes only under
-``coverage/``), computes the coverage per texel (:mod:`coordinator.coverage`), stores it
-(:mod:`coordinator.coverage_store`), draws the heat map (:mod:`coordinator.coverage_figure`) and
-prints the per-slot summary.
+``coverage/``), computes, stores and draws the coverage (:func:`coordinator.coverage_run.compute_coverage`,
+which the coordinator's ``coverage`` job runs too) and prints the per-slot summary.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
-import re
 import sys
-import time
-from pathlib import Path
-
-import numpy as np
 
 from coordinator.calibration.errors import CalibrationError
 from coordinator.content_format import operator_table, rendered
-from coordinator.coverage import DEFAULT_SHADOW_SCALE, DEFAULT_TEXTURE, CoverageModel
-from coordinator.coverage_figure import coverage_picture, orbit_camera
-from coordinator.coverage_store import (
-    coverage_dir,
-    rig_camera,
-    rig_projectors,
-    save_coverage,
-)
+from coordinator.coverage import DEFAULT_SHADOW_SCALE, DEFAULT_TEXTURE
+from coordinator.coverage_run import compute_coverage, view
 from coordinator.errors import RigError
 from coordinator.rig import Rig
-from coordinator.store import atomic_write_bytes
 from protos import cli_types
 
 EXAMPLES = """\
@@ -50,24 +37,9 @@ A view is AZ,EL in degrees around the object's centre: azimuth about the vertica
 side (the front of an object facing +y), 90 on +x, 180 behind; elevation above the horizontal.
 Written under DIR/coverage/: coverage.npz (per texel: count, reach, irradiance, area),
 coverage.json (the summary) and coverage.png (unless --out names another file).
+A running coordinator computes the same as its `coverage` job (the console's Jobs form), and the
+console's Pictures panel shows the heat map and the per-slot table of the last run either way.
 """
-
-_VIEW = re.compile(r"^camera(?::(\d+))?$")
-
-
-def view(text: str) -> tuple[str, object]:
-    """``"30,20"`` -> ("orbit", (30.0, 20.0)); ``"camera"`` / ``"camera:1"`` -> ("camera", index)."""
-    m = _VIEW.match(text.strip())
-    if m:
-        return "camera", int(m.group(1) or 0)
-    try:
-        az, el = cli_types.pair(text)
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a view: AZ,EL in degrees (e.g. 30,20) or camera[:N]") from None
-    if not -90.0 <= el <= 90.0:
-        raise argparse.ArgumentTypeError(f"{text!r}: the elevation must be -90..90 degrees")
-    return "orbit", (az, el)
-
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = (
@@ -109,34 +81,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    t0 = time.monotonic()
-    rig = Rig(args.rig_dir)
-    mesh, projectors = rig_projectors(rig, args.slots, planned=args.planned)
-    flat = float(np.ptp(mesh.vertices[:, 2])) < 1e-6          # a table: seen from above
-    views = []
-    for kind, value in args.views or ([("orbit", (0.0, 90.0))] if flat else [("orbit", (0.0, 20.0)), ("orbit", (180.0, 20.0))]):
-        if kind == "camera":
-            views.append((f"camera {value}", rig_camera(rig.path, value)))
-        else:
-            az, el = value
-            views.append((f"az {az:g} el {el:g}", orbit_camera(mesh.vertices, az, el, size=args.panel)))
-    _progress(f"{len(projectors)} projectors{' as planned' if args.planned else ''} onto mesh {mesh.mesh_id} "
-              f"({len(mesh.vertices)} vertices, {len(mesh.faces)} triangles): shadow maps")
-    with CoverageModel(mesh.vertices, mesh.faces, mesh.uvs, projectors, shadow_scale=args.shadow_scale,
-                       falloff=args.falloff) as model:
-        _progress(f"sampling {args.texture[0]}x{args.texture[1]} texels")
-        cov = model.texture(args.texture)
-        _progress("drawing the picture")
-        png, layout = coverage_picture(cov, model.raster, views)
-    out = Path(args.out) if args.out else coverage_dir(rig.path) / "coverage.png"
-    atomic_write_bytes(out, png)
-    summary = cov.summary()
-    doc = {**summary, "rig": rig.config.name, "mesh": mesh.mesh_id, "poses": "planned" if args.planned else "calibrated",
-           "computed_at": time.time(),
-           "seconds": round(time.monotonic() - t0, 2), "picture": str(out),
-           "views": [label for label, _ in views], "layout": layout}
-    npz, js = save_coverage(rig.path, cov, doc)
-    doc["files"] = [str(npz), str(js), str(out)]
+    doc = compute_coverage(Rig(args.rig_dir), slots=args.slots, planned=args.planned, views=args.views,
+                           texture=args.texture, shadow_scale=args.shadow_scale, falloff=args.falloff,
+                           panel=args.panel, out=args.out, progress=_progress)
     if args.json:
         json.dump(doc, sys.stdout, indent=2)
         print()

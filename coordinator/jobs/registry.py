@@ -28,6 +28,7 @@ JOBS: dict[str, str] = {
     "compensate": "coordinator.compensation.compensate_job",
     "compensate_sequence": "coordinator.compensation.sequence_job",
     "compensate_video": "coordinator.compensation.video_job",
+    "coverage": "coordinator.coverage_job",
 }
 
 

@@ -119,9 +119,11 @@ def test_the_heat_map_figure_has_a_colour_bar_axes_in_mm_and_each_projectors_out
 
 # ---------------------------------------------------------------------- over HTTP, nothing run yet
 @contextlib.asynccontextmanager
-async def console(tmp_path: Path, cameras: list[str] | None = None):
+async def console(tmp_path: Path, cameras: list[str] | None = None, prepare=None):
     rig = Rig(init_rig(tmp_path / "rig", name="pics", slots=grid_slots(1, 2), width=32, height=32,
                        content_width=64, content_height=32))
+    if prepare is not None:
+        prepare(rig)
     coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0", cameras=cameras)
     await coord.start()
     try:
@@ -130,6 +132,7 @@ async def console(tmp_path: Path, cameras: list[str] | None = None):
             r = await s.post(base + "/login", json={"token": TOKEN.decode()}, headers={"Origin": base})
             assert r.status == 200, await r.text()
             headers = {"Cookie": f"{auth.COOKIE}={r.cookies[auth.COOKIE].value}"}
+            coord.console_post_headers = {**headers, "Origin": base, auth.CSRF_HEADER: (await r.json())["csrf"]}
             yield coord, s, base, headers
     finally:
         await coord.stop()
@@ -139,16 +142,20 @@ PATHS = ["/api/pictures", "/api/pictures/alignment.png", "/api/pictures/compensa
          "/api/pictures/coverage.png", "/api/camera.png"]
 
 
-def coverage_result(tmp_path: Path) -> Path:
-    """``coverage/`` as `shadowless coverage` leaves it in a rig posed onto the bust (the room's true
-    poses of three projectors; a small texture and picture)."""
+def pose_on_bust(rig: Rig) -> None:
+    """Give every slot of ``rig`` the room's true 3x4 pose onto the bust (what 3D calibration stores)."""
     scene = reference_scene(projector_scale=0.1, camera_scale=0.1, surface="bust")
-    d = init_rig(tmp_path / "bust-rig", name="bust", slots=["r0c0", "r2c2", "r4c4"], width=128, height=80)
-    rig = Rig(d)
     mesh = mesh_with_id(scene.mesh.vertices, scene.mesh.uvs, scene.mesh.faces)
     for s in rig.slots:
         p = scene.projector(s).pinhole
         rig.update_slot(s, pose=ProjectionPose(p.P, mesh), size=p.size)
+
+
+def coverage_result(tmp_path: Path) -> Path:
+    """``coverage/`` as `shadowless coverage` leaves it in a rig of three projectors posed onto the bust
+    (a small texture and picture)."""
+    d = init_rig(tmp_path / "bust-rig", name="bust", slots=["r0c0", "r2c2", "r4c4"], width=128, height=80)
+    pose_on_bust(Rig(d))
     code = main(["coverage", "--rig-dir", str(d), "--texture", "96x96", "--panel", "160x160", "--json"])
     assert code == 0
     return d / "coverage"
@@ -183,17 +190,50 @@ def test_pictures_need_a_session_and_say_what_to_run_when_there_are_none(tmp_pat
             r = await s.get(base + "/api/pictures/alignment.png", headers=headers)
             assert r.status == 200 and r.content_type == "image/png" and r.headers["Cache-Control"] == "no-store"
             assert decode(await r.read()).shape == (30, 60, 3)
-            # what `shadowless coverage` left: its picture, the count over the surface and each slot's reach
-            shutil.copytree(coverage_result(tmp_path), coord.rig.path / "coverage")
+
+    asyncio.run(go())
+
+
+async def finished(coord: Coordinator) -> dict:
+    """The current job's snapshot once it is no longer running (bounded: 120 s)."""
+    for _ in range(1200):
+        job = coord.jobs.snapshot()
+        if job is not None and job["state"] != "running":
+            return job
+        await asyncio.sleep(0.1)
+    raise AssertionError(f"the job still runs: {coord.jobs.snapshot()}")
+
+
+def test_the_coverage_job_from_the_page_leaves_its_picture_and_per_slot_reach(tmp_path):
+    """The console's Jobs form starts ``coverage`` on an object rig; the Pictures panel then lists what
+    it stored: its picture, the count over the surface and each slot's reach."""
+    async def go():
+        async with console(tmp_path, prepare=pose_on_bust) as (coord, s, base, headers):
+            assert (await (await s.get(base + "/api/pictures", headers=headers)).json())["coverage"] is None
+            r = await s.post(base + "/api/job", headers=coord.console_post_headers,
+                             json={"kind": "coverage", "params": {"texture": [96, 96], "panel": [160, 160],
+                                                                  "views": ["0,20", "90,0"]}})
+            assert r.status == 200, await r.text()
+            job = await finished(coord)
+            assert job["state"] == "done" and job["result"]["slots"] == 2, job
             stored = json.loads((coord.rig.path / "coverage" / "coverage.json").read_text())
+            assert stored["poses"] == "calibrated" and stored["texture"] == [96, 96]
+            assert stored["views"] == ["az 0 el 20", "az 90 el 0"]
             cov = (await (await s.get(base + "/api/pictures", headers=headers)).json())["coverage"]
-            assert cov["slots"] == 3 and cov["lit_pct"] == stored["lit_pct"] and cov["count_p5"] == stored["count_p5"]
+            assert cov["slots"] == 2 and cov["lit_pct"] == stored["lit_pct"] and cov["count_p5"] == stored["count_p5"]
             assert cov["views"] == stored["views"] and cov["mesh"] == stored["mesh"]
             assert {s: d["reach_mm2"] for s, d in cov["per_slot"].items()} == \
                 {s: d["reach_mm2"] for s, d in stored["per_slot"].items()}
             r = await s.get(base + cov["url"], headers=headers)
             assert r.status == 200 and r.headers["Cache-Control"] == "no-store"
             assert await r.read() == (coord.rig.path / "coverage" / "coverage.png").read_bytes()
+            # a view that is not one fails the job before anything is computed, naming what a view is
+            r = await s.post(base + "/api/job", headers=coord.console_post_headers,
+                             json={"kind": "coverage", "params": {"views": ["north"]}})
+            assert r.status == 200, await r.text()
+            job = await finished(coord)
+            assert job["state"] == "failed" and "'north' is not a view: AZ,EL" in job["error"], job
+            assert json.loads((coord.rig.path / "coverage" / "coverage.json").read_text()) == stored
 
     asyncio.run(go())
 
