@@ -210,8 +210,10 @@ def grid_slots(rows: int, cols: int) -> list[str]:
 
 def render_config(name: str, rig_id: str, slots: list[str], *, width: int, height: int,
                   content_width: int, content_height: int, latency_ms: float, cameras: list[str] = (),
-                  sizes: dict[str, tuple[int, int]] | None = None) -> str:
-    """rig.toml's text; ``sizes`` gives slots whose output is not ``width`` x ``height`` their own."""
+                  sizes: dict[str, tuple[int, int]] | None = None, calibration_mesh: str | None = None) -> str:
+    """rig.toml's text; ``sizes`` gives slots whose output is not ``width`` x ``height`` their own;
+    ``calibration_mesh`` (a mesh file, relative to the rig directory) is the object `shadowless
+    calibrate` poses the projectors onto unless told otherwise."""
     hb_ms = default_heartbeat_ms(len(slots))
     lines = [
         "# A shadowless rig. Edit by hand; the coordinator reads this file when it starts.",
@@ -240,14 +242,19 @@ def render_config(name: str, rig_id: str, slots: list[str], *, width: int, heigh
     for s in slots:
         w, h = (sizes or {}).get(s, (width, height))
         lines.append(f"{s} = {{}}" if (w, h) == (width, height) else f"{s} = {{ width = {w}, height = {h} }}")
+    if calibration_mesh is not None:
+        lines += ["", "[calibration]", "# the object the projectors light: `shadowless calibrate` poses them onto it",
+                  f"mesh = {json.dumps(calibration_mesh)}"]
     return "\n".join(lines) + "\n"
 
 
 def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920, height: int = 1080,
              content_width: int = 1200, content_height: int = 600, latency_ms: float = 50.0,
-             cameras: list[str] = (), force: bool = False, sizes: dict[str, tuple[int, int]] | None = None) -> Path:
+             cameras: list[str] = (), force: bool = False, sizes: dict[str, tuple[int, int]] | None = None,
+             calibration_mesh: str | None = None) -> Path:
     """Create a rig directory with ``rig.toml`` and a fresh token; refuse to overwrite one.
-    ``sizes`` (slot -> (w, h)) overrides ``width`` x ``height`` for some slots."""
+    ``sizes`` (slot -> (w, h)) overrides ``width`` x ``height`` for some slots; ``calibration_mesh``
+    see :func:`render_config`."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise RigError(f"{path} is a file; give a folder for the rig (it is created if missing)")
@@ -264,7 +271,7 @@ def init_rig(path: str | Path, *, name: str, slots: list[str], width: int = 1920
     _check_size("content", content_width, content_height)
     text = render_config(name, uuid.uuid4().hex[:12], slots, width=width, height=height,
                          content_width=content_width, content_height=content_height, latency_ms=latency_ms,
-                         cameras=list(cameras), sizes=sizes)
+                         cameras=list(cameras), sizes=sizes, calibration_mesh=calibration_mesh)
     parse_config(text)  # what we write must read back
     path.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path / "rig.toml", text)

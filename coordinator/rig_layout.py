@@ -9,7 +9,10 @@ each projector's pose as planned: ``K [R | t]`` onto the layout's surface (the o
 else the table as a two-triangle mesh, :func:`table_mesh`). The rig stores that as the slot's
 ``planned`` pose, which is not the slot's pose: nodes never render it and no job uses it (a
 transport or a compensation still refuses an uncalibrated projector); ``shadowless coverage
---planned`` reads it, and calibrating or configuring the slot replaces it.
+--planned`` reads it, and calibrating or configuring the slot replaces it. A layout with an object
+also leaves the object in the rig as ``object.obj`` (world millimetres, exactly as planned), named by
+``rig.toml``'s ``[calibration] mesh``, so `shadowless calibrate` poses the projectors onto it
+without being told.
 
 The coordinator does not build the room's procedural meshes: a layout naming a builtin mesh
 is read with a ``builtin_mesh`` callable the command's wiring supplies (``shadowless/rig.py``).
@@ -33,10 +36,14 @@ from coordinator.rig import (
     mesh_with_id,
 )
 from protos.layout import Layout, LayoutFileError, read_layout
-from protos.mesh_files import MeshFileError, read_mesh
+from coordinator.store import atomic_write_text
+from protos.mesh_files import MeshFileError, format_obj, read_mesh
 from protos.spaces import scale_intrinsics
 
-__all__ = ["BuiltinMesh", "PlannedRig", "content_size_of", "init_from_layout", "planned_rig", "table_mesh"]
+__all__ = ["OBJECT_FILE", "BuiltinMesh", "PlannedRig", "content_size_of", "init_from_layout", "planned_rig", "table_mesh"]
+
+#: the planned object's mesh in a rig made from a layout with one (rig.toml's [calibration] mesh)
+OBJECT_FILE = "object.obj"
 
 #: a builtin mesh by name -> (vertices (V, 3), uvs (V, 2), faces (F, 3)), or None when unknown
 BuiltinMesh = Callable[[str], "tuple[np.ndarray, np.ndarray, np.ndarray] | None"]
@@ -155,9 +162,15 @@ def init_from_layout(path: str | Path, layout_file: str | Path, *, name: str | N
     plan = planned_rig(layout, builtin_mesh=builtin_mesh, resolution=resolution, content_size=content_size)
     sizes = list(plan.slots.values())
     width, height = max(sizes, key=sizes.count)               # the most common size is the default
+    mesh_file = OBJECT_FILE if plan.surface == "mesh" else None
     path = init_rig(path, name=name or Path(path).resolve().name, slots=list(plan.slots), width=width, height=height,
                     content_width=plan.content_size[0], content_height=plan.content_size[1], latency_ms=latency_ms,
-                    force=force, sizes=plan.slots)
+                    force=force, sizes=plan.slots, calibration_mesh=mesh_file)
+    if mesh_file is not None:
+        # the object as placed in the room, exactly: calibration on it gives poses onto the planned mesh
+        m = next(iter(plan.planned.values())).mesh
+        atomic_write_text(Path(path) / mesh_file, format_obj(m.vertices, m.faces, m.uvs, exact=True,
+                                                             comment="the object of the planned layout (millimetres, world)"))
     rig = Rig(path)
     for slot, pose in plan.planned.items():
         rig.update_slot(slot, planned=pose, size=plan.slots[slot], source="layout")

@@ -7,9 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
+from coordinator.calibration.options import rig_defaults
 from coordinator.coverage_figure import NOT_REACHED_BGR, count_colours, orbit_camera
 from coordinator.coverage_store import load_coverage
 from coordinator.rig import HomographyPose, ProjectionPose, Rig, init_rig, mesh_with_id
+from protos.mesh_files import read_mesh
 
 SLOTS = ["r0c0", "r0c4", "r2c2", "r4c0", "r4c4"]
 
@@ -120,6 +122,12 @@ def test_a_planned_bust_rig_has_the_coverage_of_the_room_poses(bust_rig, tmp_pat
     write_layout(replace(scene, projectors=tuple(p for p in scene.projectors if p.slot in SLOTS)), layout)
     planned = tmp_path / "planned"
     assert shadowless_main("rig", "init", str(planned), "--layout", str(layout), "--resolution", "160x100")[0] == 0
+    # the object stays in the rig, as planned, for calibration to pose the projectors onto
+    rig = Rig(planned)
+    assert rig_defaults(planned)[0] == {"mesh": "object.obj"}
+    obj = read_mesh(planned / "object.obj")
+    placed = next(st.planned.mesh for st in rig.slots.values())
+    assert mesh_with_id(obj.vertices, obj.uvs, obj.faces).mesh_id == placed.mesh_id
     code, out, err = run("--rig-dir", str(d), "--json", "--texture", "96x96", "--panel", "96x96")
     assert code == 0, err
     truth = json.loads(out)
