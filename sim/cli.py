@@ -24,6 +24,7 @@ what it serves (one port, 127.0.0.1 by default):
 examples:
   shadowless room                                   # the paper's 5x5 rig over the table, scaled down
   shadowless room --surface bust --port 50071       # the procedural bust on the table
+  shadowless room --surface bust --cameras 3        # ... seen by 3 cameras: room://HOST:PORT?camera=0|1|2
   shadowless room --hand 0,0 --hand-height 200      # a hand 0.2 m above the table centre
   shadowless room --hand 100,50 --hand-height 0 --hand-pose point   # a fingertip touching the table
   shadowless room --hand-path -400,0:400,0 --hand-period 4          # a hand sweeping across
@@ -60,6 +61,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=int, default=0, help="unit-to-unit variation and sensor noise (default 0)")
     g.add_argument("--no-noise", action="store_true", help="captures without shot and read noise (still quantised)")
     g.add_argument("--subset", metavar="NAME", help="power only a named subset: P1, P9D, P9W, P13, P17, P20 or P25")
+    g.add_argument("--cameras", type=int, choices=(1, 3), default=1,
+                   help="cameras of the reference rig: 1 (on the ceiling) or 3 (plus front-left and back-right of the "
+                        "bust, cameras 1 and 2: room://HOST:PORT?camera=N); a layout file lists its own")
     g.add_argument("--write-layout", metavar="FILE", help="write the room's layout as TOML and exit (a starting point for --layout)")
     h = parser.add_argument_group("a hand over the table")
     h.add_argument("--hand", type=cli_types.pair, metavar="X,Y", help="place a hand (palm centre, or fingertip with --hand-pose point) at table mm X,Y")
@@ -80,7 +84,8 @@ def build_room(args: argparse.Namespace):
     if args.layout:
         scene = load_layout(args.layout, projector_scale=ps, camera_scale=cs, seed=args.seed)
     else:
-        scene = reference_scene(ps, cs, args.surface, args.seed, pitch=args.pitch, aperture=args.aperture)
+        scene = reference_scene(ps, cs, args.surface, args.seed, pitch=args.pitch, aperture=args.aperture,
+                                cameras=args.cameras)
     room = Room(scene, seed=args.seed, noise=not args.no_noise)
     if args.subset:
         if args.subset not in SUBSETS:

@@ -5,7 +5,8 @@ array on the ceiling plane z = 1400 mm above a 1200 x 600 mm table, slot
 ``r{row}c{col}`` at x = (col - 2) * pitch, y = (row - 2) * pitch (rows grow
 along +y, columns along +x), every projector aimed at the table centre so its
 footprint covers the whole table; one ceiling camera beside the centre
-projector; plus ``p1``, the single high-luminance projector at the centre
+projector (with ``cameras=3`` two more around the bust, :data:`RING_CAMERAS`, as the paper
+measured its object with three); plus ``p1``, the single high-luminance projector at the centre
 position that the paper compares against (unpowered unless selected).
 
 Named subsets (:data:`SUBSETS`, paper section 5.2; ``#`` = powered, ``.`` = off,
@@ -51,6 +52,12 @@ from sim.optics import Response, Sensor, irradiance_factor, random_response
 # PROJECTOR_NATIVE, CAMERA_NATIVE (the reference devices' native resolutions, a layout's defaults)
 # and TABLE_SIZE come from protos.layout, which reads layout files for the room and the coordinator.
 CEILING_MM = 1400.0
+
+#: The cameras ``reference_scene(cameras=3)`` adds to the ceiling one: name, position (mm), each aimed at the
+#: bust's middle (z = 250 mm) with the image's top up, its focal fitted to the bust and the table around it.
+#: From the ceiling the bust shows its crown and shoulders (15 % of its surface at cos >= 0.25); these add
+#: its face and its back (72 % with the three).
+RING_CAMERAS = (("front-left", (-400.0, 1000.0, 700.0)), ("back-right", (400.0, -1000.0, 700.0)))
 
 #: Level the powered projectors at full white reach on the camera's axis (fraction of full scale).
 TARGET_LEVEL = 0.8
@@ -266,8 +273,9 @@ def reference_scene(
     ceiling: float = CEILING_MM,
     jitter: bool = True,
     aperture: float = 10.0,
+    cameras: int = 1,
 ) -> Scene:
-    """The paper's rig: 5 x 5 projectors 1.4 m above a 1200 x 600 mm table, one ceiling camera.
+    """The paper's rig: 5 x 5 projectors 1.4 m above a 1200 x 600 mm table, one ceiling camera (or three).
 
     Parameters
     ----------
@@ -285,7 +293,11 @@ def reference_scene(
         Spacing of the array along x and y, mm.
     aperture : float
         Lens aperture diameter (mm) of every projector (defocus blur).
+    cameras : 1 or 3
+        The ceiling camera alone, or with the two of :data:`RING_CAMERAS` (cameras 1 and 2).
     """
+    if cameras not in (1, 3):
+        raise ValueError(f"the reference rig has 1 or 3 cameras, not {cameras}")
     rng = np.random.default_rng(seed)
     px, py = (pitch, pitch) if np.isscalar(pitch) else pitch
     up = (0.0, 1.0, 0.0)
@@ -323,10 +335,18 @@ def reference_scene(
     cam_native = _device(cam_pos, target, up, CAMERA_NATIVE, cam_focal, None)
     table = Table()
     gain = auto_gain(projectors, cam_native, albedo=table.albedo)
-    camera = CameraSpec("ceiling", cam_native, cam_native.scaled(_scaled_size(CAMERA_NATIVE, camera_scale)), gain)
+    cam_size = _scaled_size(CAMERA_NATIVE, camera_scale)
+    devices = [CameraSpec("ceiling", cam_native, cam_native.scaled(cam_size), gain)]
+    middle = np.array([0.0, 0.0, 250.0])
+    seen = np.array([[x, y, z] for x in (-160, 160) for y in (-140, 140) for z in (0, 600)]
+                    + [[x, y, 0.0] for x in (-450, 450) for y in (-250, 250)])
+    for name, pos in RING_CAMERAS[:cameras - 1]:
+        f = _fit_focal([np.asarray(pos)], middle, (0.0, 0.0, 1.0), CAMERA_NATIVE, seen, margin=0.05)
+        native = _device(np.asarray(pos), middle, (0.0, 0.0, 1.0), CAMERA_NATIVE, f, None)
+        devices.append(CameraSpec(name, native, native.scaled(cam_size), auto_gain(projectors, native, albedo=table.albedo)))
 
     mesh, source = _surface_mesh(surface)
-    return Scene(tuple(projectors), (camera,), table, mesh, mesh_source=source, name=f"reference-5x5-{surface if isinstance(surface, str) else 'mesh'}")
+    return Scene(tuple(projectors), tuple(devices), table, mesh, mesh_source=source, name=f"reference-5x5-{surface if isinstance(surface, str) else 'mesh'}")
 
 
 def _surface_mesh(surface, base: Path | None = None) -> tuple[Mesh | None, str | None]:

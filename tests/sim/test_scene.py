@@ -142,3 +142,18 @@ def test_bad_layouts_name_the_entry(tmp_path, text, match):
     path.write_text(text)
     with pytest.raises(LayoutError, match=match):
         load_layout(path)
+
+
+def test_three_cameras_keep_the_ceiling_one_and_see_the_bust_and_the_table(scene):
+    three = reference_scene(surface="bust", cameras=3)
+    assert [c.name for c in three.cameras] == ["ceiling", "front-left", "back-right"]
+    np.testing.assert_array_equal(three.cameras[0].pinhole.P, scene.cameras[0].pinhole.P)
+    bust_box = np.array([[x, y, z] for x in (-150, 150) for y in (-125, 125) for z in (0, 600)], np.float64)
+    table_middle = np.array([[x, y, 0.0] for x in (-400, 400) for y in (-250, 250)])
+    for cam in three.cameras[1:]:
+        pix, z = cam.pinhole.project(np.vstack([bust_box, table_middle]))
+        W, H = cam.size
+        assert np.all(z > 0) and np.all((pix >= 0) & (pix < [W, H])), cam.name
+        assert cam.gain > 0
+    with pytest.raises(ValueError, match="1 or 3 cameras"):
+        reference_scene(cameras=2)
