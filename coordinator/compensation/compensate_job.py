@@ -89,6 +89,9 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
     slots = ctx.select_slots(opts.slots, need_pose=True)
     if surface_of(ctx, slots) == "mesh":
         return await run_mesh_compensate(ctx, opts, slots, image, name, t0, shown_as=f"{COMPENSATED_PREFIX}{name}")
+    if opts.camera_indices is not None:
+        raise JobError("camera_indices (several cameras measuring L together) is for a mesh rig; a table's L is "
+                       "measured with one camera (camera, --camera-index)")
     if opts.baseline:
         baseline_exposure(ctx, opts)  # refused before any capture
     tr = await ensure_transport(ctx, opts, slots, measure=opts.measure)

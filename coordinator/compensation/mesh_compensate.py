@@ -3,7 +3,9 @@
 ``p' = argmin ||W^1/2 (L p - c')||^2 + lam ||p - p0||^2, 0 <= p <= 1`` over the texels ``L``
 measured (:mod:`coordinator.compensation.mesh_transport`); ``W`` weighs each camera pixel by the
 cosine of its viewing angle and the texture area it covers
-(:func:`~coordinator.compensation.mesh_geometry.row_weights`). Texels no camera sees (or that
+(:func:`~coordinator.compensation.mesh_geometry.row_weights`); with several cameras the rows are all
+their pixels, each also weighed by its texel's share of that camera
+(:mod:`coordinator.compensation.mesh_cameras`). Texels no camera sees (or that
 could not be measured) stay uncompensated: they keep ``p0``, the content at the level of the
 uncompensated start (``none``), and their count and share are reported.
 
@@ -18,7 +20,8 @@ least lit part. The per-projector baseline asks each projector for its own share
 
 Quality is scored over the visible surface (the pixels the solve weighs): captures minus black
 and the target, both divided by the target's 99th percentile, PSNR and SSIM over those pixels only
-(:func:`~coordinator.compensation.mesh_geometry.masked_quality`).
+(:func:`~coordinator.compensation.mesh_geometry.masked_quality`); with several cameras over all
+their pixels together, and per camera.
 """
 from __future__ import annotations
 
@@ -39,10 +42,12 @@ from coordinator.compensation.jobkit import (
 )
 from coordinator.compensation.mesh_geometry import masked_quality, measured_texels
 from coordinator.compensation.mesh_transport import (
+    capture_cameras,
     ensure_mesh_baseline,
     ensure_mesh_transport,
     load_geometry,
     solve_weights,
+    stored_cameras,
     texel_summary,
 )
 from coordinator.compensation.options import CompensateOptions
@@ -113,27 +118,27 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
     ``persist`` the result is shown as the rig's content named ``shown_as``."""
     if opts.baseline:
         baseline_exposure(ctx, opts)  # refused before any capture
-    tr, geo = await ensure_mesh_transport(ctx, opts, slots, measure=opts.measure)
+    tr, cams = await ensure_mesh_transport(ctx, opts, slots, measure=opts.measure)
     cw, ch = content_size(ctx)
     content = prepare_image(image, (cw, ch), srgb=opts.srgb)
     measured = measured_texels(tr.L)
     try:
-        w = await ctx.compute(solve_weights, geo, tr)
+        w = await ctx.compute(solve_weights, cams, tr)
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
     region = w > 0
     white = row_white(tr.L, tr.camera_shape)
-    T = content_at_view(content, geo.view)
+    T = content_at_view(content, cams.view)
     target = np.ascontiguousarray(np.float32(opts.level) * white[:, :, None] * T)
     wp = WeightedProblem(w, measured)
     ctx.progress("solve", "", 0, opts.max_iter, "objective")
     progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, "objective", f))
     res, x, none, alpha = await ctx.compute(_weighted_solve, wp, tr.L, target, content, opts, progress)
-    x, none = geo.pad(x), geo.pad(none)          # the chart edges the nodes sample, as the dots were shown
+    x, none = cams.pad(x), cams.pad(none)        # the chart edges the nodes sample, as the dots were shown
     ctx.progress("solve", "", res.iterations, res.iterations, res.reason, res.objective)
     solved = np.zeros(cw * ch, bool)
     solved[wp.cols[np.diff(sp.csc_matrix(wp.matrix(tr.L)).indptr) > 0]] = True
-    tex = texel_summary(tr, geo)
+    tex = texel_summary(tr, cams)
     on = int(tex["on_mesh"])
     result = {
         "image": name, "surface": "mesh", "content_size": [cw, ch], "channels": int(x.shape[2]),
@@ -145,10 +150,11 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
                   "gap": rounded(res.gap, 6), "seconds": round(res.seconds, 3), "lipschitz": res.lipschitz,
                   "rows": int(len(wp.rows)), "columns": int(len(wp.cols))},
         "transport": transport_summary(tr),
-        "texture": {**tex, "compensated": int(solved.sum()), "uncompensated": on - int(solved[geo.texels.on_mesh].sum()),
-                    "uncompensated_share": rounded(1 - solved[geo.texels.on_mesh].sum() / on if on else 1.0, 4),
+        "texture": {**tex, "compensated": int(solved.sum()), "uncompensated": on - int(solved[cams.on_mesh].sum()),
+                    "uncompensated_share": rounded(1 - solved[cams.on_mesh].sum() / on if on else 1.0, 4),
                     "note": "texels no camera sees well stay uncompensated (the content at the none level)"},
-        "weights": "cos(viewing angle) x texture area per camera pixel, median 1; 0 off the visible surface",
+        "weights": "cos(viewing angle) x texture area per camera pixel (x its texel's share of the camera, with "
+                   "several), median 1; 0 off the visible surface",
         "saturated_fraction": {"low": round(float(np.mean(x[solved.reshape(ch, cw)] <= 1e-4)), 5),
                                "high": round(float(np.mean(x[solved.reshape(ch, cw)] >= 1 - 1e-4)), 5)},
     }
@@ -159,13 +165,13 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
             raise JobError("baseline: no projector adds light to the camera image")
         t_b = time.monotonic()
         base_x, results = await ctx.compute(_solve_baseline, ctx, base_L, wp, white, target, content, opts)
-        base_x = {k: geo.pad(v) for k, v in base_x.items()}
+        base_x = {k: cams.pad(v) for k, v in base_x.items()}
         result["baseline"] = {**base_summary, "solve_seconds": round(time.monotonic() - t_b, 3),
                               "iterations": sum(r.iterations for r in results),
                               "solve_seconds_sum": round(sum(r.seconds for r in results), 3)}
         result["baseline_over_ours_seconds"] = round(result["baseline"]["solve_seconds_sum"] / max(res.seconds, 1e-9), 2)
     if opts.evaluate:
-        result["quality"] = await _evaluate(ctx, tr, geo, none, x, base_x, target, region, opts, name)
+        result["quality"] = await _evaluate(ctx, tr, cams, none, x, base_x, target, region, opts, name)
     result["wall_s"] = round(time.monotonic() - t0, 3)
     write_result(ctx.rig, "result.json", result)
     if opts.persist:
@@ -191,12 +197,24 @@ def _solve_baseline(ctx: JobContext, base_L: dict[str, sp.csr_matrix], wp: Weigh
     return xs, results
 
 
-async def _evaluate(ctx: JobContext, tr, geo, none: np.ndarray, ours: np.ndarray,
+def _scores(goal: np.ndarray, captured: np.ndarray, region: np.ndarray, cameras: int) -> dict:
+    """:func:`masked_quality` over the visible surface of the stacked image; with several cameras also each
+    camera's own (``per_camera``, in their order), where it sees any of it."""
+    out = masked_quality(goal, captured, region)
+    if cameras > 1:
+        h = region.shape[0] // cameras
+        out["per_camera"] = [masked_quality(goal[k * h:(k + 1) * h], captured[k * h:(k + 1) * h],
+                                            region[k * h:(k + 1) * h]) if region[k * h:(k + 1) * h].any() else None
+                             for k in range(cameras)]
+    return out
+
+
+async def _evaluate(ctx: JobContext, tr, cams, none: np.ndarray, ours: np.ndarray,
                     base_x: dict[str, np.ndarray] | None, target: np.ndarray, region: np.ndarray,
                     opts: CompensateOptions, name: str) -> dict:
     """Capture none / baseline / ours; PSNR, SSIM over the visible surface and the side-by-side picture."""
     rig = ctx.rig
-    camera = int(tr.meta["camera"])
+    cameras = stored_cameras(tr)
     frames = opts.eval_frames
     steps = 3 if base_x else 2
     ref = float(np.percentile(target[region], SCORE_PERCENTILE))
@@ -206,13 +224,13 @@ async def _evaluate(ctx: JobContext, tr, geo, none: np.ndarray, ours: np.ndarray
 
     async def seen(image: np.ndarray) -> np.ndarray:
         await ctx.show_content(image, settle_s=opts.settle_s)
-        return await ctx.capture(camera, frames=frames)
+        return await capture_cameras(ctx, cameras, frames=frames)
 
     def score(capture: np.ndarray) -> tuple[dict, np.ndarray]:
         c = (np.asarray(capture, np.float32) - black) / np.float32(ref)
         if goal.shape[2] == 1:
             c = c.mean(axis=2, keepdims=True)
-        return masked_quality(goal, c, region), c
+        return _scores(goal, c, region, len(cameras)), c
 
     ctx.progress("evaluate", "", 0, steps, "without compensation")
     black = await seen(np.zeros(none.shape[:2], np.float32))
@@ -221,20 +239,20 @@ async def _evaluate(ctx: JobContext, tr, geo, none: np.ndarray, ours: np.ndarray
     scores["none"], tiles["none"] = score(await seen(none))
     if base_x is not None:
         ctx.progress("evaluate", "", 1, steps, "baseline")
-        views = (await load_geometry(ctx, sorted(base_x), camera, projectors=True)).projectors
+        views = (await load_geometry(ctx, sorted(base_x), cameras, projectors=True)).projectors
         frames_by_slot = {}
         for k, x in base_x.items():
             st = rig.slot(k)
             frames_by_slot[k] = await ctx.compute(mesh_warp, x, views[k], lut=st.lut, gain=st.gain)
         await ctx.show(frames_by_slot, settle_s=opts.settle_s, require=list(frames_by_slot))
-        scores["baseline"], tiles["baseline"] = score(await ctx.capture(camera, frames=frames))
+        scores["baseline"], tiles["baseline"] = score(await capture_cameras(ctx, cameras, frames=frames))
     ctx.progress("evaluate", "", steps - 1, steps, "ours")
     scores["ours"], tiles["ours"] = score(await seen(ours))
     ctx.progress("evaluate", "", steps, steps, "scored")
 
     def predicted(x: np.ndarray) -> dict:
         c = (tr.L @ x.reshape(-1, x.shape[2])).reshape(*tr.camera_shape, -1) / np.float32(ref)
-        return masked_quality(goal, c, region)
+        return _scores(goal, c, region, len(cameras))
 
     ys, xs = np.nonzero(region)
     box = (slice(max(ys.min() - 4, 0), ys.max() + 5), slice(max(xs.min() - 4, 0), xs.max() + 5))
@@ -248,7 +266,7 @@ async def _evaluate(ctx: JobContext, tr, geo, none: np.ndarray, ours: np.ndarray
         raise JobError("could not encode the side-by-side picture")
     atomic_write_bytes(compensation_dir(rig) / "quality.png", png.tobytes())
     out = {**scores, "predicted": {"none": await ctx.compute(predicted, none), "ours": await ctx.compute(predicted, ours)},
-           "region": {"visible_surface_pixels": int(region.sum()), "of_mesh_pixels": int(geo.view.on_mesh.sum()),
+           "region": {"visible_surface_pixels": int(region.sum()), "of_mesh_pixels": int(cams.view.on_mesh.sum()),
                       "score_reference": round(ref, 6)},
            "captures_averaged": frames, "picture": f"{SUBDIR}/quality.png", "image": name}
     out["ordering"] = {

@@ -13,9 +13,10 @@ camera does not see it. Here:
   layout does not keep texels evenly spaced in the camera (the surface turns away from it, chart
   seams put texels far apart in the texture side by side on the object), so the grid's spacing
   may differ along u and v, and the dots of a grid pattern whose windows would overlap in the
-  camera (found by a k-d tree) move to extra patterns, greedily, each to the first pattern
-  where no dot near it in the camera is lit (:class:`TexelSchedule`): every seen texel is
-  measured, in a number of patterns set by the geometry, not by the projectors;
+  camera (found by a k-d tree; in any of them when several cameras measure together) move to
+  extra patterns, greedily, each to the first pattern where no dot near it in the camera is lit
+  (:class:`TexelSchedule`): every seen texel is measured, in a number of patterns set by the
+  geometry, not by the projectors;
 * texels too large for their window (:func:`texel_extent`: where the uv map stretches a texel over
   more camera pixels than the window holds) are left out too: their light would be cut;
 * the recovery from the captures (:func:`texel_transport_from_captures`);
@@ -125,25 +126,34 @@ class TexelSchedule:
         return img.reshape(self.height, self.width)
 
 
-def _greedy_colours(grid: TexelGrid, base: np.ndarray, seen: np.ndarray, radius: int, guard: int) -> np.ndarray:
-    """``grid``'s pattern per seen texel, the dots that crowd another of their pattern moved to the first
-    pattern none of their camera neighbours (Chebyshev distance <= ``2 radius + guard``) has: ``(n,) int32``,
-    -1 unseen."""
+def _greedy_colours(grid: TexelGrid, bases: np.ndarray, seens: np.ndarray, radius: int, guard: int) -> np.ndarray:
+    """``grid``'s pattern per seen texel, the dots that crowd another of their pattern in any camera moved to the
+    first pattern none of their neighbours (Chebyshev distance <= ``2 radius + guard``) in the cameras that see
+    them has: ``(n,) int32``, -1 unseen. ``bases`` (K, n, 2), ``seens`` (K, n): one row per camera."""
     reach = 2 * radius + guard
-    n = len(base)
+    n = bases.shape[1]
+    seen = seens.any(axis=0)
     colour = np.full(n, -1, np.int32)
     idx = np.arange(n)
     colour[seen] = ((idx[seen] // grid.width) % grid.sy) * grid.sx + (idx[seen] % grid.width) % grid.sx
-    pending = np.flatnonzero(dot_conflicts(grid, base, seen, radius, guard=guard))
+    crowded = np.zeros(n, bool)
+    for base, ok in zip(bases, seens):
+        crowded |= dot_conflicts(grid, base, ok, radius, guard=guard)
+    pending = np.flatnonzero(crowded)
     if not len(pending):
         return colour
     colour[pending] = -2
-    ids = np.flatnonzero(seen)
-    tree = cKDTree(base[ids].astype(np.float64))
-    near = tree.query_ball_point(base[pending].astype(np.float64), r=reach, p=np.inf)
+    near = []                      # per camera: its seen texels' ids and, per pending texel, its neighbours there
+    for base, ok in zip(bases, seens):
+        ids = np.flatnonzero(ok)
+        tree = cKDTree(base[ids].astype(np.float64))
+        near.append((ids, ok[pending], tree.query_ball_point(base[pending].astype(np.float64), r=reach, p=np.inf)))
     preferred = ((pending // grid.width) % grid.sy) * grid.sx + (pending % grid.width) % grid.sx
-    for t, nb, want in zip(pending, near, preferred):
-        used = set(colour[ids[nb]].tolist())
+    for i, (t, want) in enumerate(zip(pending, preferred)):
+        used = set()
+        for ids, sees, nb in near:
+            if sees[i]:
+                used.update(colour[ids[nb[i]]].tolist())
         if want in used:
             want = 0
             while want in used:
@@ -160,12 +170,15 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
     camera spacing of neighbouring texels, the one with the fewest patterns in the end), the
     dots whose windows would come within ``guard`` px of another dot's of the same pattern move
     greedily to extra patterns (seams, oblique views). Every pattern lights only seen texels.
+    With several cameras (``base`` (K, n, 2), ``seen`` (K, n)) one schedule serves them all: every
+    camera captures every pattern, and a dot's window stays clear in each camera that sees it;
+    the grids tried are those near each camera's spacing.
 
     Parameters
     ----------
-    base : (n, 2) int
-        Rounded camera position of each texel (:func:`texel_windows`).
-    seen : (n,) bool
+    base : (n, 2) or (K, n, 2) int
+        Rounded camera position of each texel (:func:`texel_windows`), per camera.
+    seen : (n,) or (K, n) bool
     content_shape : (H, W)
 
     Raises
@@ -174,10 +187,14 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
         When the camera sees no texel.
     """
     h, w = int(content_shape[0]), int(content_shape[1])
-    seen = np.asarray(seen, bool)
-    if base.shape != (h * w, 2) or seen.shape != (h * w,):
-        raise ValueError(f"base must be ({h * w}, 2) and seen ({h * w},), got {base.shape}, {seen.shape}")
-    if not seen.any():
+    seens = np.asarray(seen, bool)
+    bases = np.asarray(base)
+    if seens.ndim == 1:
+        seens, bases = seens[None], bases[None]
+    if bases.shape != (len(seens), h * w, 2) or seens.shape != (len(bases), h * w):
+        raise ValueError(f"base must be ([K,] {h * w}, 2) and seen ([K,] {h * w},), got {np.shape(base)}, "
+                         f"{np.shape(seen)}")
+    if not seens.any():
         raise CompensationError("the camera sees no texel of the mesh: check the camera's pose (calibration)")
     if guard < 0:
         raise ValueError(f"guard must be >= 0, got {guard}")
@@ -186,22 +203,27 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
         sx, sy = (spacing, spacing) if np.isscalar(spacing) else spacing
         candidates = [(int(sx), int(sy))]
     else:
-        pos = base.reshape(h, w, 2).astype(np.float64)
-        ok = seen.reshape(h, w)
-        steps = []
-        for axis in (1, 0):                                  # along x (u), then along y (v)
-            a = [slice(None)] * 2
-            b = [slice(None)] * 2
-            a[axis], b[axis] = slice(1, None), slice(None, -1)
-            both = ok[tuple(a)] & ok[tuple(b)]
-            d = np.abs(pos[tuple(a)] - pos[tuple(b)]).max(axis=2)[both]
-            steps.append(float(np.median(d)) if d.size else 1.0)
-        s0 = [min(limit, max(1, math.ceil((reach + 1) / max(st, 0.5)))) for st in steps]
-        candidates = sorted({(min(limit, max(1, s0[0] + dx)), min(limit, max(1, s0[1] + dy)))
-                             for dx in (-1, 0, 1) for dy in (-1, 0, 1)})
+        found = set()
+        for b, s in zip(bases, seens):
+            if not s.any():
+                continue
+            pos = b.reshape(h, w, 2).astype(np.float64)
+            ok = s.reshape(h, w)
+            steps = []
+            for axis in (1, 0):                                  # along x (u), then along y (v)
+                a = [slice(None)] * 2
+                c = [slice(None)] * 2
+                a[axis], c[axis] = slice(1, None), slice(None, -1)
+                both = ok[tuple(a)] & ok[tuple(c)]
+                d = np.abs(pos[tuple(a)] - pos[tuple(c)]).max(axis=2)[both]
+                steps.append(float(np.median(d)) if d.size else 1.0)
+            s0 = [min(limit, max(1, math.ceil((reach + 1) / max(st, 0.5)))) for st in steps]
+            found |= {(min(limit, max(1, s0[0] + dx)), min(limit, max(1, s0[1] + dy)))
+                      for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
+        candidates = sorted(found)
     best: TexelSchedule | None = None
     for sx, sy in candidates:
-        colour = _greedy_colours(TexelGrid(w, h, sx, sy), base, seen, int(radius), guard)
+        colour = _greedy_colours(TexelGrid(w, h, sx, sy), bases, seens, int(radius), guard)
         sched = TexelSchedule(w, h, colour, (sx, sy))
         if best is None or len(sched) < len(best):
             best = sched
@@ -327,9 +349,10 @@ def view_scales(camera: DeviceView, projectors: Sequence[DeviceView]) -> tuple[f
 
 
 def row_weights(view: DeviceView, measured: np.ndarray, content_size: tuple[int, int], *, radius: int,
-                min_cos: float = 0.25, unmeasured_at: np.ndarray | None = None) -> np.ndarray:
+                min_cos: float = 0.25, unmeasured_at: np.ndarray | None = None, normalise: bool = True) -> np.ndarray:
     """The weight of each camera pixel's squared residual in the solve: ``(Hc, Wc) float32`` (see the module
-    docstring), 0 outside the visible surface the solve uses.
+    docstring), 0 outside the visible surface the solve uses; ``normalise=False``: ``cos`` times the texture
+    area, not divided by its median (cameras combined share one divisor).
 
     ``measured``: (W*H,) bool texels with a column in ``L``. A pixel counts when it sees the mesh
     at ``cos >= min_cos`` more than ``radius`` px from the outline of that region (light from the
@@ -360,7 +383,7 @@ def row_weights(view: DeviceView, measured: np.ndarray, content_size: tuple[int,
                                 "light-transport measurement")
     a = np.minimum(area[good], 4 * float(np.median(area[good])))     # uv seams make the differences jump
     raw = view.cos[good] * a
-    w[good] = raw / np.float32(np.median(raw))
+    w[good] = raw / np.float32(np.median(raw)) if normalise else raw
     return w
 
 

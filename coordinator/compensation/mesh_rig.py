@@ -2,7 +2,8 @@
 maps rendered from them (:mod:`coordinator.compensation.texture_space`).
 
 The camera's pinhole comes from ``calibration/cameras.json`` (3D calibration poses every camera
-in the world); the mesh is the one the projectors' poses render (one for the whole rig). Every
+in the world); several cameras measure the rig together as one (:class:`MeshCameras`: their
+images stacked top to bottom into one tall camera image); the mesh is the one the projectors' poses render (one for the whole rig). Every
 map is rendered again from these inputs whenever a job needs it (a fraction of a second), so
 only the light transport is stored; its fingerprint covers the camera's projection and the mesh
 (:func:`geometry_key`).
@@ -10,7 +11,9 @@ only the light transport is stored; its fingerprint covers the camera's projecti
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +29,8 @@ from coordinator.compensation.texture_space import (
 )
 from coordinator.rig import Mesh, ProjectionPose, Rig
 
-__all__ = ["MIN_COS", "MeshGeometry", "camera_projection", "rig_mesh", "geometry_key", "mesh_geometry"]
+__all__ = ["MIN_COS", "MeshGeometry", "MeshCameras", "camera_projection", "rig_mesh", "geometry_key", "mesh_geometry",
+           "mesh_cameras"]
 
 #: texels and camera pixels seen more obliquely than this cosine (about 75 degrees) are not used
 MIN_COS = 0.25
@@ -55,6 +59,75 @@ class MeshGeometry:
     def pad(self, image: np.ndarray) -> np.ndarray:
         """``image`` (H, W[, C]) in texture space with its chart edges padded."""
         return padded(image, self.padding)
+
+
+@dataclass(frozen=True, eq=False)
+class MeshCameras:
+    """One or several posed cameras of a mesh rig measuring it together, as one camera.
+
+    Their images (one size for all) are stacked top to bottom into one tall image, camera
+    ``cameras[k]`` in rows ``k Hc .. (k + 1) Hc - 1``: the rows of ``L``, its black capture, the
+    target and the solve's weights live on that image, so the solve and the store need nothing
+    else; with one camera it is that camera's image. ``parts``: each camera's
+    :class:`MeshGeometry` (the same mesh, content and projector views).
+    """
+
+    cameras: tuple[int, ...]
+    parts: tuple[MeshGeometry, ...]
+
+    def __post_init__(self) -> None:
+        if not self.parts or len(self.parts) != len(self.cameras):
+            raise ValueError(f"need one geometry per camera, got {len(self.parts)} for {self.cameras}")
+        shapes = {g.camera_shape for g in self.parts}
+        if len(shapes) != 1:
+            sizes = ", ".join(f"camera {c}: {g.camera_shape[1]}x{g.camera_shape[0]}" for c, g in zip(self.cameras, self.parts))
+            raise CompensationError(f"the cameras measured together must deliver one image size ({sizes})")
+
+    @property
+    def mesh(self) -> Mesh:
+        return self.parts[0].mesh
+
+    @property
+    def content_size(self) -> tuple[int, int]:
+        return self.parts[0].content_size
+
+    @property
+    def projectors(self) -> dict[str, DeviceView]:
+        return self.parts[0].projectors
+
+    @property
+    def part_shape(self) -> tuple[int, int]:
+        """(Hc, Wc) of one camera."""
+        return self.parts[0].camera_shape
+
+    @property
+    def camera_shape(self) -> tuple[int, int]:
+        """(K Hc, Wc): the stacked image."""
+        hc, wc = self.part_shape
+        return len(self.parts) * hc, wc
+
+    @cached_property
+    def view(self) -> DeviceView:
+        """The cameras' views stacked: ``(K Hc, Wc)`` arrays."""
+        if len(self.parts) == 1:
+            return self.parts[0].view
+        return DeviceView(*(np.vstack([getattr(g.view, k) for g in self.parts]) for k in ("x", "y", "depth", "cos")))
+
+    @property
+    def visible(self) -> np.ndarray:
+        """(n,) bool: texels some camera sees."""
+        return np.logical_or.reduce([g.texels.visible for g in self.parts])
+
+    @property
+    def on_mesh(self) -> np.ndarray:
+        return self.parts[0].texels.on_mesh
+
+    def key(self) -> np.ndarray:
+        """:func:`geometry_key` of the cameras, in order (one camera: its own)."""
+        return np.concatenate([geometry_key(g.P, g.mesh) for g in self.parts])
+
+    def pad(self, image: np.ndarray) -> np.ndarray:
+        return self.parts[0].pad(image)
 
 
 def camera_projection(rig_dir: str | Path, camera: int) -> tuple[np.ndarray, tuple[int, int]]:
@@ -117,22 +190,44 @@ def mesh_geometry(rig: Rig, slots: list[str], camera: int, *, projectors: bool =
 
     ``camera_size``: the size the camera delivers now (w, h), checked against its calibration.
     """
-    P, size = camera_projection(rig.path, camera)
-    if camera_size is not None and tuple(camera_size) != tuple(size):
-        raise CompensationError(f"camera {camera} delivers {camera_size[0]}x{camera_size[1]} images but was calibrated "
-                                f"at {size[0]}x{size[1]}: calibrate again")
+    return mesh_cameras(rig, slots, [camera], projectors=projectors, camera_size=camera_size).parts[0]
+
+
+def mesh_cameras(rig: Rig, slots: list[str], cameras: Sequence[int], *, projectors: bool = False,
+                 camera_size: tuple[int, int] | None = None) -> MeshCameras:
+    """:func:`mesh_geometry` for each of ``cameras`` (one rendering context; the projectors' views once).
+
+    Raises
+    ------
+    CompensationError
+        A camera not posed in 3D or that does not see the mesh, or cameras of different sizes.
+    """
+    if not cameras or len(set(cameras)) != len(cameras):
+        raise CompensationError(f"cameras must be distinct calibrated camera indices, got {list(cameras)}")
+    posed = []
+    for camera in cameras:
+        P, size = camera_projection(rig.path, camera)
+        if camera_size is not None and tuple(camera_size) != tuple(size):
+            raise CompensationError(f"camera {camera} delivers {camera_size[0]}x{camera_size[1]} images but was "
+                                    f"calibrated at {size[0]}x{size[1]}: calibrate again")
+        posed.append((camera, P, size))
     mesh = rig_mesh(rig, slots)
     content = (rig.config.content_width, rig.config.content_height)
+    seen = []
     with MeshCaster(mesh.vertices, mesh.uvs, mesh.faces) as caster:
-        view = caster.view(P, size, content)
-        texels = texel_camera_map(caster.atlas(content), P, view, min_cos=MIN_COS)
+        atlas = caster.atlas(content)
+        for camera, P, size in posed:
+            view = caster.view(P, size, content)
+            if not view.on_mesh.any():
+                raise CompensationError(f"camera {camera} does not see the mesh: check its pose (calibration)")
+            seen.append((view, texel_camera_map(atlas, P, view, min_cos=MIN_COS)))
         views = {}
         if projectors:
             for s in slots:
                 st = rig.slot(s)
                 pose = st.pose
                 views[s] = caster.view(pose.matrix, (st.width, st.height), content, near=pose.near_mm, far=pose.far_mm)
-    if not view.on_mesh.any():
-        raise CompensationError(f"camera {camera} does not see the mesh: check its pose (calibration)")
-    pad = padding_index(texels.on_mesh.reshape(content[1], content[0]))
-    return MeshGeometry(mesh, P, (size[1], size[0]), content, view, texels, views, pad)
+    pad = padding_index(seen[0][1].on_mesh.reshape(content[1], content[0]))
+    parts = tuple(MeshGeometry(mesh, P, (size[1], size[0]), content, view, texels, views, pad)
+                  for (_, P, size), (view, texels) in zip(posed, seen))
+    return MeshCameras(tuple(int(c) for c in cameras), parts)

@@ -2,12 +2,14 @@
 
 Each node renders the dot pattern as the mesh's texture through its own 3x4 pose, so every
 projector lights the same surface dots; ``sx * sy`` patterns (plus one black capture) whatever
-the number of projectors (:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Each
+the number of projectors (:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Several
+cameras (``camera_indices``) measure together, each capturing every pattern, as one camera whose
+image is theirs stacked (:mod:`coordinator.compensation.mesh_cameras`). Each
 dot's window is centred where the camera sees its texel
 (:func:`~coordinator.compensation.texture_space.texel_camera_map`); texels the camera does not
 see, or whose dots crowd in the camera (:func:`~coordinator.compensation.mesh_geometry.dot_conflicts`),
 get no column and are reported. Stored, reused and refused as the table's ``L``
-(:mod:`coordinator.compensation.transport_job`), with the camera's projection and the mesh in
+(:mod:`coordinator.compensation.transport_job`), with the cameras' projections and the mesh in
 its fingerprint. With ``baseline`` each projector's ``L_i`` is measured one at a time: the
 coordinator renders the texture through that projector's pose (:func:`~coordinator.compensation.
 texture_space.mesh_warp`, the node's mesh shader in numpy) and shows it on that projector alone.
@@ -32,17 +34,21 @@ from coordinator.compensation.jobkit import (
     rounded,
     stored_transport,
 )
+from coordinator.compensation.mesh_cameras import (
+    camera_blocks,
+    camera_summary,
+    stacked_ring_energy,
+    stacked_row_weights,
+    stacked_windows,
+)
 from coordinator.compensation.mesh_geometry import (
     measured_texels,
-    ring_energy,
-    row_weights,
     schedule_dots,
     texel_extent,
     texel_transport_from_captures,
-    texel_windows,
     view_scales,
 )
-from coordinator.compensation.mesh_rig import MeshGeometry, geometry_key, mesh_geometry
+from coordinator.compensation.mesh_rig import MeshCameras, mesh_cameras
 from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.store import (
     StoredTransport,
@@ -58,34 +64,51 @@ from coordinator.compensation.texture_space import mesh_warp
 from coordinator.jobs import JobContext, JobError
 
 __all__ = ["run_mesh_transport", "ensure_mesh_transport", "ensure_mesh_baseline", "load_geometry", "texel_summary",
-           "solve_weights"]
+           "solve_weights", "stored_cameras", "capture_cameras"]
 
 
-async def load_geometry(ctx: JobContext, slots: list[str], camera: int, *, projectors: bool = False) -> MeshGeometry:
-    """The rig's mesh geometry (:func:`~coordinator.compensation.mesh_rig.mesh_geometry`) off the loop."""
+async def load_geometry(ctx: JobContext, slots: list[str], cameras: tuple[int, ...], *,
+                        projectors: bool = False) -> MeshCameras:
+    """The rig's mesh geometry seen by ``cameras`` (:func:`~coordinator.compensation.mesh_rig.mesh_cameras`) off
+    the loop."""
     try:
-        return await ctx.compute(mesh_geometry, ctx.rig, slots, camera, projectors=projectors)
+        return await ctx.compute(mesh_cameras, ctx.rig, slots, list(cameras), projectors=projectors)
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
 
 
-def solve_weights(geo: MeshGeometry, tr: StoredTransport) -> np.ndarray:
-    """:func:`~coordinator.compensation.mesh_geometry.row_weights` of a measured mesh rig: ``(Hc, Wc) float32``."""
-    measured = measured_texels(tr.L)
-    missing = geo.texels.visible & ~measured
-    return row_weights(geo.view, measured, geo.content_size, radius=int(tr.meta["radius"]),
-                       unmeasured_at=geo.texels.position[missing])
+def stored_cameras(tr: StoredTransport) -> tuple[int, ...]:
+    """The cameras a stored ``L`` was measured with, in the order of its stacked rows."""
+    return tuple(int(c) for c in tr.meta.get("cameras", [tr.meta["camera"]]))
 
 
-def texel_summary(tr: StoredTransport, geo: MeshGeometry) -> dict:
-    """How much of the texture the measurement covers: texels on the mesh, seen by the camera, in ``L``."""
-    on = int(np.count_nonzero(geo.texels.on_mesh))
+async def capture_cameras(ctx: JobContext, cameras: tuple[int, ...], *, frames: int,
+                          exposure: float | None = None) -> np.ndarray:
+    """One capture of the pattern shown from each of ``cameras``, stacked top to bottom: ``(K Hc, Wc, C)``."""
+    shots = [await ctx.capture(c, frames=frames, **({"exposure": exposure} if exposure is not None else {}))
+             for c in cameras]
+    if len({s.shape for s in shots}) != 1:
+        raise JobError("the cameras measured together deliver different image sizes ("
+                       + ", ".join(f"camera {c}: {s.shape[1]}x{s.shape[0]}" for c, s in zip(cameras, shots)) + ")")
+    return shots[0] if len(shots) == 1 else np.concatenate(shots, axis=0)
+
+
+def solve_weights(cams: MeshCameras, tr: StoredTransport) -> np.ndarray:
+    """:func:`~coordinator.compensation.mesh_cameras.stacked_row_weights` of a measured mesh rig:
+    ``(K Hc, Wc) float32``."""
+    return stacked_row_weights(cams, tr.L, radius=int(tr.meta["radius"]))
+
+
+def texel_summary(tr: StoredTransport, cams: MeshCameras) -> dict:
+    """How much of the texture the measurement covers: texels on the mesh, seen by a camera, in ``L``; per
+    camera, and how many cameras see each texel (:func:`~coordinator.compensation.mesh_cameras.camera_summary`)."""
+    on = int(np.count_nonzero(cams.on_mesh))
     measured = int(np.count_nonzero(measured_texels(tr.L)))
-    seen = int(np.count_nonzero(geo.texels.visible))
-    return {"texels": int(geo.texels.on_mesh.size), "on_mesh": on, "seen": seen, "measured": measured,
+    seen = int(np.count_nonzero(cams.visible))
+    return {"texels": int(cams.on_mesh.size), "on_mesh": on, "seen": seen, "measured": measured,
             "left_out": seen - measured, "unseen": on - seen,
             "unseen_share": rounded(1 - seen / on if on else 1.0, 4),
-            "measured_share": rounded(measured / on if on else 0.0, 4)}
+            "measured_share": rounded(measured / on if on else 0.0, 4), **camera_summary(cams, tr.L)}
 
 
 async def run_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: list[str]) -> dict:
@@ -111,74 +134,88 @@ async def run_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: lis
 
 
 async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: list[str], *,
-                                measure: bool = True) -> tuple[StoredTransport, MeshGeometry]:
+                                measure: bool = True) -> tuple[StoredTransport, MeshCameras]:
     """The stored ``L`` of the mesh rig when its fingerprint matches (and not ``force``), else a new
-    measurement (``measure=False``: a :class:`JobError` instead); and the rig's geometry."""
+    measurement (``measure=False``: a :class:`JobError` instead); and the rig's geometry in its cameras."""
     rig = ctx.rig
-    geo = await load_geometry(ctx, slots, opts.camera, projectors=opts.radius is None)
+    cameras = opts.camera_list
+    cams = await load_geometry(ctx, slots, cameras, projectors=opts.radius is None)
     cw, ch = content_size(ctx)
-    extent = texel_extent(geo.texels.position, (ch, cw))
+    extents = [texel_extent(g.texels.position, (ch, cw)) for g in cams.parts]
     radius = opts.radius
     if radius is None:
         # camera px per texel: the reach of a texel's light (it spans its neighbours') for 90 % of the texels
-        # the camera sees, so they fit their window; the few larger ones are left out (below)
-        _, p = view_scales(geo.view, list(geo.projectors.values()))
-        seen_extent = extent[geo.texels.visible]
-        c = float(np.percentile(seen_extent, 90)) if seen_extent.size else 1.0
-        radius = psf_radius_at_scales(max(c, 0.5), p)
-    key = geometry_key(geo.P, geo.mesh)
-    state = rig_state_fingerprint(rig, slots, key, opts.camera)
+        # a camera sees, so they fit their window; the few larger ones are left out (below); the largest
+        # radius the cameras need, as every window has one size
+        radius = 0
+        for g, extent in zip(cams.parts, extents):
+            _, p = view_scales(g.view, list(g.projectors.values()))
+            seen_extent = extent[g.texels.visible]
+            c = float(np.percentile(seen_extent, 90)) if seen_extent.size else 1.0
+            radius = max(radius, psf_radius_at_scales(max(c, 0.5), p))
+    one = len(cameras) == 1
+    key = cams.key()
+    state = rig_state_fingerprint(rig, slots, key, cameras[0] if one else cameras)
     fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count)
-    found = stored_transport(ctx, state, opts.given, geo.P, slots, force=opts.force, measure=measure, surface="mesh")
+    P = cams.parts[0].P if one else np.vstack([g.P for g in cams.parts])
+    found = stored_transport(ctx, state, opts.given, P, slots, force=opts.force, measure=measure, surface="mesh")
     if found is not None:
-        return found, geo
-    spec = ctx.camera_spec(opts.camera)
+        return found, cams
+    specs = [ctx.camera_spec(c) for c in cameras]
     t0 = time.monotonic()
     c0 = ctx.captures
     frames = opts.frame_count
     ctx.progress("transport", "", 0, 1, "every projector black")
     await ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s)
-    black = await ctx.capture(opts.camera, frames=frames)
+    black = await capture_cameras(ctx, cameras, frames=frames)
     cam = black.shape[:2]
-    if cam != geo.camera_shape:
-        raise JobError(f"camera {opts.camera} delivers {cam[1]}x{cam[0]} images but was calibrated at "
-                       f"{geo.camera_shape[1]}x{geo.camera_shape[0]}: calibrate again")
-    large = geo.texels.visible & ~(np.nan_to_num(extent, nan=np.inf) <= radius)   # its bilinear hat alone is wider
-    seen = geo.texels.visible & ~large
-    base, _, _ = texel_windows(geo.texels.position, seen, cam, radius)
+    if cam != cams.camera_shape:
+        what = f"camera {cameras[0]} delivers" if one else "the cameras deliver"
+        raise JobError(f"{what} {cam[1]}x{cam[0] // len(cameras)} images but "
+                       f"{'was' if one else 'were'} calibrated at {cams.part_shape[1]}x{cams.part_shape[0]}: "
+                       "calibrate again")
+    # per camera: the texels it sees whose bilinear hat alone is not wider than the window
+    seen = [g.texels.visible & (np.nan_to_num(e, nan=np.inf) <= radius) for g, e in zip(cams.parts, extents)]
+    large = cams.visible & ~np.logical_or.reduce(seen)
+    positions = [g.texels.position for g in cams.parts]
+    base, _, _ = stacked_windows(positions, seen, cams.part_shape, radius)
     try:
-        grid = await ctx.compute(schedule_dots, base, seen, (ch, cw), radius, spacing=opts.spacing)
+        grid = await ctx.compute(schedule_dots, base, np.stack(seen), (ch, cw), radius, spacing=opts.spacing)
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
-    base, rows, valid = texel_windows(geo.texels.position, grid.lit, cam, radius)
+    lit = [grid.lit & s for s in seen]
+    base, rows, valid = stacked_windows(positions, lit, cams.part_shape, radius)
+    who = "the camera sees" if one else f"the {len(cameras)} cameras {', '.join(map(str, cameras))} see"
     ctx.log(f"light transport on the mesh: {len(grid)} dot patterns (from a {grid.spacing[0]}x{grid.spacing[1]} grid, "
-            f"radius {radius}, {frames} frame(s) each), every projector at once; the camera sees "
-            f"{int(geo.texels.visible.sum())} texels, {int(large.sum())} of them too large for the windows")
+            f"radius {radius}, {frames} frame(s) each), every projector at once{'' if one else ', every camera each'}; "
+            f"{who} {int(cams.visible.sum())} texels, {int(large.sum())} of them too large for the windows")
 
     async def patterns():
         for k in range(len(grid)):
-            await ctx.show_content(geo.pad(grid.pattern(k, value=255, dtype=np.uint8)), settle_s=opts.settle_s)
-            yield await ctx.capture(opts.camera, frames=frames)
+            await ctx.show_content(cams.pad(grid.pattern(k, value=255, dtype=np.uint8)), settle_s=opts.settle_s)
+            yield await capture_cameras(ctx, cameras, frames=frames)
             ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
 
     L = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures, grid=grid,
                                         rows=rows, valid=valid)
     seconds = time.monotonic() - t0
-    edge = await ctx.compute(ring_energy, L, base, cam[1], radius)
+    edge = await ctx.compute(stacked_ring_energy, L, base, cams.part_shape, radius)
     if edge > EDGE_WARNING:
         ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * radius + 1}-pixel "
                 f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")
     spacing = grid.spacing[0] if grid.spacing[0] == grid.spacing[1] else grid.spacing
+    projection = np.asarray(P).tolist() if one else [np.asarray(g.P).tolist() for g in cams.parts]
     meta = {"fingerprint": fp, "rig_state": state, "surface": "mesh", "radius": radius, "spacing": spacing,
             "frames": frames, "captures": ctx.captures - c0, "patterns": len(grid), "content_size": [cw, ch],
-            "camera_size": [cam[1], cam[0]], "camera_projection": np.asarray(geo.P).tolist(), "camera": opts.camera,
-            "camera_spec": spec, "mesh_id": geo.mesh.mesh_id, "slots": sorted(slots), "measured_at": time.time(),
+            "camera_size": [cam[1], cam[0]], "camera_projection": projection, "camera": cameras[0],
+            "cameras": list(cameras), "camera_spec": specs[0] if one else specs,
+            "mesh_id": cams.mesh.mesh_id, "slots": sorted(slots), "measured_at": time.time(),
             "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": round(seconds, 3), "nnz": int(L.nnz),
             "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5),
-            "texels_seen": int(geo.texels.visible.sum()), "texels_too_large": int(large.sum()),
+            "texels_seen": int(cams.visible.sum()), "texels_too_large": int(large.sum()),
             "texels_lit": int(grid.lit.sum())}
     await ctx.compute(save_measured_transport, rig, L, meta, black)
-    return StoredTransport(L, meta, black, geo.P, cam, slots, False), geo
+    return StoredTransport(L, meta, black, P, cam, slots, False), cams
 
 
 async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
@@ -196,26 +233,27 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
     t0 = time.monotonic()
     c0 = ctx.captures
     if todo:
-        geo = await load_geometry(ctx, tr.slots, int(tr.meta["camera"]), projectors=True)
-        use = measured_texels(tr.L)
-        base, _, _ = texel_windows(geo.texels.position, use, tr.camera_shape, radius)
+        cameras = stored_cameras(tr)
+        cams = await load_geometry(ctx, tr.slots, cameras, projectors=True)
+        use = [measured_texels(b) for b in camera_blocks(tr.L, len(cameras))]
+        positions = [g.texels.position for g in cams.parts]
         # any schedule that separates the measured texels' windows will do: the stored grid's, recoloured
-        grid = await ctx.compute(schedule_dots, base, use, (ch, cw), radius, spacing=tr.meta["spacing"])
-        _, rows, valid = texel_windows(geo.texels.position, use, tr.camera_shape, radius)
+        base, rows, valid = stacked_windows(positions, use, cams.part_shape, radius)
+        grid = await ctx.compute(schedule_dots, base, np.stack(use), (ch, cw), radius, spacing=tr.meta["spacing"])
         ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
                 f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
         await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])
-        black = await ctx.capture(opts.camera, frames=frames, exposure=exposure)
+        black = await capture_cameras(ctx, cameras, frames=frames, exposure=exposure)
         for n, s in enumerate(todo):
             st = rig.slot(s)
 
             async def patterns(s=s, st=st):
                 for k in range(len(grid)):
-                    frame = await ctx.compute(mesh_warp, geo.pad(grid.pattern(k, value=255, dtype=np.uint8)),
-                                              geo.projectors[s],
+                    frame = await ctx.compute(mesh_warp, cams.pad(grid.pattern(k, value=255, dtype=np.uint8)),
+                                              cams.projectors[s],
                                               lut=st.lut, gain=st.gain)
                     await ctx.show({s: frame}, settle_s=opts.settle_s, require=[s])
-                    yield await ctx.capture(opts.camera, frames=frames, exposure=exposure)
+                    yield await capture_cameras(ctx, cameras, frames=frames, exposure=exposure)
                     ctx.progress("baseline transport", s, k + 1, len(grid), f"projector {n + 1}/{len(todo)}")
 
             Li = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures,

@@ -2,8 +2,8 @@
 receives, its validation, its command-line flag and its documentation all come from the
 field (:mod:`coordinator.jobs.options`).
 
-Only the standard library and :mod:`coordinator.jobs.options` are imported here, so the
-commands that build their flags from these classes start quickly.
+Only the standard library, :mod:`coordinator.jobs.options` and the argparse types it uses are
+imported here, so the commands that build their flags from these classes start quickly.
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from typing import Any
 
 from coordinator.jobs.errors import JobError
 from coordinator.jobs.options import option
+from protos import cli_types
 
 __all__ = ["ResponseOptions", "TransportOptions", "CompensateOptions", "SequenceOptions", "VideoOptions",
            "METHODS"]
@@ -58,6 +59,25 @@ def _images(value: Any) -> list[dict]:
     if not isinstance(value, list) or not value:
         raise JobError("frames must be a non-empty list of images")
     return [_image(v) for v in value]
+
+
+def _camera_indices(value: Any) -> list[int]:
+    if isinstance(value, str):
+        value = [v.strip() for v in value.split(",") if v.strip()]
+    if not isinstance(value, (list, tuple)) or not value:
+        raise JobError("camera_indices must be a non-empty list of camera indices, e.g. [0, 1, 2]")
+    out = []
+    for v in value:
+        try:
+            i = int(v)
+        except (TypeError, ValueError):
+            raise JobError(f"camera_indices must be whole numbers, got {v!r}") from None
+        if isinstance(v, bool) or (isinstance(v, float) and v != i):
+            raise JobError(f"camera_indices must be whole numbers, got {v!r}")
+        out.append(i)
+    if len(set(out)) != len(out):
+        raise JobError(f"camera_indices lists a camera twice: {out}")
+    return out
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -116,6 +136,16 @@ class TransportOptions(_CaptureOptions):
     baseline_exposure: float = option(1.0, lo=1e-3, hi=1e4, metavar="X", group=TRANSPORT,
                                       help="camera exposure of the baseline's captures relative to the camera's own "
                                            "(cameras that can set it; e.g. N, as one projector gives 1/N of the light)")
+    camera_indices: list[int] | None = option(
+        None, parse=_camera_indices, cli_type=cli_types.int_list(0, 64), lo=0, hi=64, flag="--camera-indices",
+        metavar="I,J,...", group=CAMERA,
+        help="a mesh rig: several calibrated cameras measure L together (each captures every dot pattern; each texel "
+             "from the cameras that see it well; instead of --camera-index; compensate with the same list)")
+
+    @property
+    def camera_list(self) -> tuple[int, ...]:
+        """The calibrated cameras the measurement uses: ``camera_indices``, or ``camera`` alone."""
+        return tuple(self.camera_indices) if self.camera_indices else (self.camera,)
 
     @property
     def frame_count(self) -> int:

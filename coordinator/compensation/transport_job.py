@@ -70,6 +70,9 @@ async def run(ctx: JobContext, opts: TransportOptions) -> dict:
     slots = ctx.select_slots(opts.slots, need_pose=True)
     if surface_of(ctx, slots) == "mesh":
         return await run_mesh_transport(ctx, opts, slots)
+    if opts.camera_indices is not None:
+        raise JobError("camera_indices (several cameras measuring L together) is for a mesh rig; a table's L is "
+                       "measured with one camera (camera, --camera-index)")
     if opts.baseline:
         baseline_exposure(ctx, opts)  # refused before any capture
     tr = await ensure_transport(ctx, opts, slots)
