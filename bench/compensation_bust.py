@@ -12,7 +12,9 @@ runs the sequential 3D calibration first instead (about 20 s per projector).
 Reported: the light transport (captures for the 25- and the 1-projector rig: the same grid, so
 the same count), the texels the camera sees and measures, and the captured PSNR / SSIM over the
 visible surface of none / the per-projector baseline / ours, with the side-by-side picture
-(``--out``). This module is also the test kit of
+(``--out``). ``--cameras 3``: the room's three cameras (:data:`sim.scene.RING_CAMERAS`) measure
+together; the big rig is also compensated from the ceiling camera alone, and both results are
+scored from the three cameras over the same surface (:mod:`bench.compensation_bust_cameras`). This module is also the test kit of
 ``tests/coordinator/compensation/test_mesh_*.py``. It may import ``sim``; the coordinator never does.
 """
 from __future__ import annotations
@@ -35,7 +37,7 @@ from bench.machine import machine
 from coordinator.calibration.runs import save_cameras
 from coordinator.calibration.threed import depth_range
 from coordinator.compensation.image_param import encode_image_array
-from coordinator.compensation.texture_space import DeviceView, MeshCaster, texels_per_pixel
+from coordinator.compensation.texture_space import DeviceView, MeshCaster, padded, padding_index, texels_per_pixel
 from coordinator.rig import ProjectionPose, Rig, mesh_with_id
 from protos import cli_types
 from protos.spaces import bilinear_taps
@@ -108,10 +110,10 @@ def texture_size_for(room: Room, *, camera: int = 0, px_per_texel: float = 2.5, 
 
 
 def bust_room(*, projector_scale: float = 0.25, camera_scale: float = 0.25, seed: int = 0, aperture: float = 10.0,
-              noise: bool = True) -> Room:
-    """The reference 5x5 room with the procedural bust at the table centre."""
+              noise: bool = True, cameras: int = 1) -> Room:
+    """The reference 5x5 room with the procedural bust at the table centre (``cameras``: 1 or 3)."""
     return Room(reference_scene(projector_scale=projector_scale, camera_scale=camera_scale, surface="bust", seed=seed,
-                                aperture=aperture), seed=seed, noise=noise)
+                                aperture=aperture, cameras=cameras), seed=seed, noise=noise)
 
 
 def make_bust_rig(path: Path, room: Room, slots: list[str], *, content_size: tuple[int, int] = (128, 96),
@@ -169,6 +171,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "surface of none / baseline / ours. One JSON document."
     )
     parser.epilog = ("examples:\n  shadowless bench compensation_bust --quick\n"
+                     "  shadowless bench compensation_bust --quick --cameras 3   # three cameras vs the ceiling one\n"
                      "  shadowless bench compensation_bust --content-size 128x96 --out /tmp/bust\n"
                      "  shadowless bench compensation_bust --calibrate   # 3D calibration first (slow)")
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -183,6 +186,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--radius", type=int, default=None, help="PSF recovery radius (default: from the geometry)")
     parser.add_argument("--frames", type=int, default=1, help="captures averaged per dot pattern (default 1)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the per-projector baseline")
+    parser.add_argument("--cameras", type=int, choices=(1, 3), default=1,
+                        help="the room's cameras that measure together: 1 (the ceiling camera) or 3 (plus two around "
+                             "the bust; the ceiling camera alone is compared, scored from all three)")
     parser.add_argument("--calibrate", action="store_true", help="3D-calibrate the rig first instead of the true poses")
     parser.add_argument("--response", action="store_true",
                         help="measure the responses (`response --mode full`) instead of the LUTs from the true gammas")
@@ -195,28 +201,46 @@ def _log(msg: str) -> None:
     print(f"[bench compensation_bust] {msg}", file=sys.stderr, flush=True)
 
 
-async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baseline: bool) -> dict:
-    out: dict = {"projectors": len(slots)}
+async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baseline: bool, compare: bool = False) -> dict:
+    """One rig's transport and compensation; with ``compare`` (several cameras) the ceiling camera's alone first,
+    then both results scored from every camera."""
+    k = args.cameras
+    out: dict = {"projectors": len(slots), "cameras": k}
     cs = tuple(args.content_size)
     t = time.perf_counter()
     if args.calibrate:
         rig, cal = await calibrated_bust_rig(workdir, room, slots, content_size=cs)
         out["calibration"] = {"captures": cal.get("captures"), "wall_s": round(time.perf_counter() - t, 2)}
     else:
-        rig = make_bust_rig(workdir / "rig", room, slots, content_size=cs, luts=not args.response)
+        rig = make_bust_rig(workdir / "rig", room, slots, content_size=cs, luts=not args.response, cameras=k)
         out["calibration"] = "the room's true poses (projectors and camera)"
-    driver = RoomDriver(room, rig)
+    driver = RoomDriver(room, rig, cameras=k)
     if args.response:
         c0 = driver.captures
         resp = await driver.run("response", {"settle_s": 0.0, "mode": "full"})
         out["response"] = {"captures": driver.captures - c0, "linearity": resp["linearity"]}
     else:
         out["response"] = "LUTs from the room's true gammas"
+    params = {"settle_s": 0.0, "frames": args.frames, **({"radius": args.radius} if args.radius else {})}
+    cp = {"image": encode_image_array(demo_image(cs), "astronaut.png"), "evaluate": True, "settle_s": 0.0,
+          "eval_frames": args.eval_frames, "max_iter": args.max_iter, **params}
+    one_x = None
+    if compare:
+        c0 = driver.captures
+        t = time.perf_counter()
+        res = await driver.run("compensate", cp)          # the ceiling camera alone: measures its own L first
+        one_x = rig.content.image.copy()
+        out["one_camera"] = {"texture": res["texture"], "quality_from_its_camera": res["quality"]["ours"],
+                             "captures": driver.captures - c0, "wall_s": round(time.perf_counter() - t, 2)}
+        _log(f"N={len(slots)}: compensated from the ceiling camera alone ({json.dumps(res['quality']['ordering'])})")
+    if k > 1:
+        params["camera_indices"] = list(range(k))
+        cp["camera_indices"] = list(range(k))
     c0 = driver.captures
     t = time.perf_counter()
-    params = {"settle_s": 0.0, "frames": args.frames, **({"radius": args.radius} if args.radius else {})}
     tr = await driver.run("transport", params)
-    L_truth = await asyncio.to_thread(truth_mesh_transport, room, rig, slots)
+    L_truth = await asyncio.to_thread(lambda: sp.vstack([truth_mesh_transport(room, rig, slots, camera=c)
+                                                         for c in range(k)], format="csr"))
     from coordinator.compensation.mesh_geometry import measured_texels
     from coordinator.compensation.transport import load_transport, transport_error
 
@@ -228,8 +252,6 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
                         "edge_energy": tr["edge_energy"], "texture": tr["texture"],
                         "relative_error_measured_columns": round(err, 5)}
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {err:.4f})")
-    cp = {"image": encode_image_array(demo_image(cs), "astronaut.png"), "evaluate": True, "settle_s": 0.0,
-          "eval_frames": args.eval_frames, "max_iter": args.max_iter, **params}
     if baseline:
         cp.update(baseline=True, baseline_exposure=float(len(slots)))
     c0 = driver.captures
@@ -240,14 +262,29 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
     out["compensate"]["captures"] = driver.captures - c0
     out["compensate"]["wall_s"] = round(time.perf_counter() - t, 2)
     _log(f"N={len(slots)}: compensated ({json.dumps(res['quality']['ordering'])})")
+    if compare:
+        from bench.compensation_bust_cameras import score_from_cameras
+
+        x = rig.content.image.copy()
+        mesh = rig.slot(slots[0]).pose.mesh
+        with MeshCaster(mesh.vertices, mesh.uvs, mesh.faces) as caster:
+            pad = padding_index(np.isfinite(caster.atlas(cs)).all(axis=2))
+        none = padded(np.clip(demo_image(cs).astype(np.float32) / 255 * np.float32(res["none_scale"]), 0, 1), pad)
+        out["scored_from_every_camera"] = await asyncio.to_thread(
+            score_from_cameras, driver, demo_image(cs), {"none": none, "one_camera": one_x, "cameras": x},
+            level=float(res["target_level"]), frames=args.eval_frames)
+        _log(f"N={len(slots)}: scored from every camera")
     out["rig_dir"] = str(rig.path)
     return out
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.calibrate and args.cameras > 1:
+        raise SystemExit("bench compensation_bust: --calibrate poses the ceiling camera only; --cameras 3 uses the "
+                         "room's true poses")
     t0 = time.perf_counter()
     room = bust_room(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed,
-                     aperture=args.aperture)
+                     aperture=args.aperture, cameras=args.cameras)
     if args.content_size is None:
         args.content_size = texture_size_for(room)
     big = ["r1c1", "r1c3", "r3c1", "r3c3"] if args.quick else list(SUBSETS["P25"])
@@ -257,7 +294,8 @@ def run(args: argparse.Namespace) -> int:
                                    if not k.startswith("_") and k not in ("command", "bench")},
                                 "projector_size": list(room.projector_size("r0c0")), "camera_size": list(room.camera_size(0))}}
     with tempfile.TemporaryDirectory(prefix="bench-compensation-bust-") as tmp:
-        rigs = {str(len(big)): asyncio.run(_rig_run(room, big, Path(tmp) / "big", args, baseline=baseline))}
+        rigs = {str(len(big)): asyncio.run(_rig_run(room, big, Path(tmp) / "big", args, baseline=baseline,
+                                                    compare=args.cameras > 1))}
         # the same dot grid for one projector (the radius follows the projectors' pixel size otherwise)
         one = argparse.Namespace(**{**vars(args), "radius": rigs[str(len(big))]["transport"]["radius"]})
         rigs["1"] = asyncio.run(_rig_run(room, ["r2c2"], Path(tmp) / "one", one, baseline=False))
@@ -282,6 +320,15 @@ def run(args: argparse.Namespace) -> int:
                                         baseline_minus_none_db=d["baseline_minus_none_db"],
                                         met=d["ours_minus_baseline_db"] >= -0.05 and d["baseline_minus_none_db"] > 1.0
                                         and d["ours_minus_none_db"] > 1.0)
+    if args.cameras > 1:
+        r = rigs[str(len(big))]
+        sc = r["scored_from_every_camera"]
+        targets["cameras_vs_ceiling_camera"] = {
+            "measured_share": [r["compensate"]["texture"]["measured_share"], r["one_camera"]["texture"]["measured_share"]],
+            "compensated_texels": [r["compensate"]["texture"]["compensated"], r["one_camera"]["texture"]["compensated"]],
+            "psnr_from_every_camera": {k: sc[k]["psnr"] for k in ("none", "one_camera", "cameras")},
+            "ssim_from_every_camera": {k: sc[k]["ssim"] for k in ("none", "one_camera", "cameras")},
+            "met": sc["cameras"]["psnr"] > sc["one_camera"]["psnr"] > sc["none"]["psnr"]}
     doc["targets"] = targets
     doc["wall_s"] = round(time.perf_counter() - t0, 1)
     print(json.dumps(doc, indent=2, default=float))

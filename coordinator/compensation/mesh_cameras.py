@@ -36,7 +36,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.mesh_geometry import measured_texels, ring_energy, row_weights, texel_windows
+from coordinator.compensation.mesh_geometry import (
+    measured_texels,
+    ring_energy,
+    row_weights,
+    texel_windows,
+)
 from coordinator.compensation.mesh_rig import MIN_COS, MeshCameras
 from coordinator.compensation.texture_space import texels_per_pixel
 

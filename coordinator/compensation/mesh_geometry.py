@@ -126,17 +126,19 @@ class TexelSchedule:
         return img.reshape(self.height, self.width)
 
 
-def _greedy_colours(grid: TexelGrid, bases: np.ndarray, seens: np.ndarray, radius: int, guard: int) -> np.ndarray:
+def _greedy_colours(grid: TexelGrid, bases: np.ndarray, seen: np.ndarray, presents: np.ndarray, radius: int,
+                    guard: int) -> np.ndarray:
     """``grid``'s pattern per seen texel, the dots that crowd another of their pattern in any camera moved to the
-    first pattern none of their neighbours (Chebyshev distance <= ``2 radius + guard``) in the cameras that see
-    them has: ``(n,) int32``, -1 unseen. ``bases`` (K, n, 2), ``seens`` (K, n): one row per camera."""
+    first pattern none of their neighbours (Chebyshev distance <= ``2 radius + guard``) in the cameras they light
+    has: ``(n,) int32``, -1 unseen. ``bases`` (K, n, 2), ``presents`` (K, n): one row per camera (the seen
+    texels whose light reaches it); ``seen`` (n,): the texels to light."""
     reach = 2 * radius + guard
     n = bases.shape[1]
-    seen = seens.any(axis=0)
     colour = np.full(n, -1, np.int32)
     idx = np.arange(n)
     colour[seen] = ((idx[seen] // grid.width) % grid.sy) * grid.sx + (idx[seen] % grid.width) % grid.sx
     crowded = np.zeros(n, bool)
+    seens = presents & seen[None]
     for base, ok in zip(bases, seens):
         crowded |= dot_conflicts(grid, base, ok, radius, guard=guard)
     pending = np.flatnonzero(crowded)
@@ -146,6 +148,8 @@ def _greedy_colours(grid: TexelGrid, bases: np.ndarray, seens: np.ndarray, radiu
     near = []                      # per camera: its seen texels' ids and, per pending texel, its neighbours there
     for base, ok in zip(bases, seens):
         ids = np.flatnonzero(ok)
+        if not len(ids):
+            continue
         tree = cKDTree(base[ids].astype(np.float64))
         near.append((ids, ok[pending], tree.query_ball_point(base[pending].astype(np.float64), r=reach, p=np.inf)))
     preferred = ((pending // grid.width) % grid.sy) * grid.sx + (pending % grid.width) % grid.sx
@@ -163,7 +167,8 @@ def _greedy_colours(grid: TexelGrid, bases: np.ndarray, seens: np.ndarray, radiu
 
 
 def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[int], radius: int, *,
-                  spacing: int | Sequence[int] | None = None, guard: int = 1, limit: int = 32) -> TexelSchedule:
+                  spacing: int | Sequence[int] | None = None, guard: int = 1, limit: int = 32,
+                  present: np.ndarray | None = None) -> TexelSchedule:
     """Dot patterns that measure every seen texel with its ``(2R+1)^2`` window alone (:class:`TexelSchedule`).
 
     Starting from a grid (``spacing``: ``s`` or ``(sx, sy)``; by default each ``sx`` x ``sy`` near the median
@@ -171,8 +176,10 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
     dots whose windows would come within ``guard`` px of another dot's of the same pattern move
     greedily to extra patterns (seams, oblique views). Every pattern lights only seen texels.
     With several cameras (``base`` (K, n, 2), ``seen`` (K, n)) one schedule serves them all: every
-    camera captures every pattern, and a dot's window stays clear in each camera that sees it;
-    the grids tried are those near each camera's spacing.
+    camera captures every pattern, and a dot's window stays clear in each camera that sees it,
+    also of the dots lit for another camera whose light reaches it (``present`` (K, n): the texels
+    whose light reaches each camera, seen or at a grazing angle; default ``seen``; ``base`` must
+    hold their positions); the grids tried are those near each camera's spacing.
 
     Parameters
     ----------
@@ -191,6 +198,7 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
     bases = np.asarray(base)
     if seens.ndim == 1:
         seens, bases = seens[None], bases[None]
+    presents = seens if present is None else np.asarray(present, bool).reshape(seens.shape) | seens
     if bases.shape != (len(seens), h * w, 2) or seens.shape != (len(bases), h * w):
         raise ValueError(f"base must be ([K,] {h * w}, 2) and seen ([K,] {h * w},), got {np.shape(base)}, "
                          f"{np.shape(seen)}")
@@ -223,7 +231,7 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
         candidates = sorted(found)
     best: TexelSchedule | None = None
     for sx, sy in candidates:
-        colour = _greedy_colours(TexelGrid(w, h, sx, sy), bases, seens, int(radius), guard)
+        colour = _greedy_colours(TexelGrid(w, h, sx, sy), bases, seens.any(axis=0), presents, int(radius), guard)
         sched = TexelSchedule(w, h, colour, (sx, sy))
         if best is None or len(sched) < len(best):
             best = sched

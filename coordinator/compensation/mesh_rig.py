@@ -69,11 +69,14 @@ class MeshCameras:
     ``cameras[k]`` in rows ``k Hc .. (k + 1) Hc - 1``: the rows of ``L``, its black capture, the
     target and the solve's weights live on that image, so the solve and the store need nothing
     else; with one camera it is that camera's image. ``parts``: each camera's
-    :class:`MeshGeometry` (the same mesh, content and projector views).
+    :class:`MeshGeometry` (the same mesh, content and projector views); ``reaching``: per camera,
+    ``(n,) bool`` the texels whose light reaches it (in its image, not hidden, at any angle: the
+    dots that must stay clear of its windows).
     """
 
     cameras: tuple[int, ...]
     parts: tuple[MeshGeometry, ...]
+    reaching: tuple[np.ndarray, ...]
 
     def __post_init__(self) -> None:
         if not self.parts or len(self.parts) != len(self.cameras):
@@ -220,7 +223,8 @@ def mesh_cameras(rig: Rig, slots: list[str], cameras: Sequence[int], *, projecto
             view = caster.view(P, size, content)
             if not view.on_mesh.any():
                 raise CompensationError(f"camera {camera} does not see the mesh: check its pose (calibration)")
-            seen.append((view, texel_camera_map(atlas, P, view, min_cos=MIN_COS)))
+            seen.append((view, texel_camera_map(atlas, P, view, min_cos=MIN_COS),
+                         texel_camera_map(atlas, P, view, min_cos=0.0).visible))
         views = {}
         if projectors:
             for s in slots:
@@ -229,5 +233,5 @@ def mesh_cameras(rig: Rig, slots: list[str], cameras: Sequence[int], *, projecto
                 views[s] = caster.view(pose.matrix, (st.width, st.height), content, near=pose.near_mm, far=pose.far_mm)
     pad = padding_index(seen[0][1].on_mesh.reshape(content[1], content[0]))
     parts = tuple(MeshGeometry(mesh, P, (size[1], size[0]), content, view, texels, views, pad)
-                  for (_, P, size), (view, texels) in zip(posed, seen))
-    return MeshCameras(tuple(int(c) for c in cameras), parts)
+                  for (_, P, size), (view, texels, _) in zip(posed, seen))
+    return MeshCameras(tuple(int(c) for c in cameras), parts, tuple(r for _, _, r in seen))

@@ -178,9 +178,12 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
     seen = [g.texels.visible & (np.nan_to_num(e, nan=np.inf) <= radius) for g, e in zip(cams.parts, extents)]
     large = cams.visible & ~np.logical_or.reduce(seen)
     positions = [g.texels.position for g in cams.parts]
-    base, _, _ = stacked_windows(positions, seen, cams.part_shape, radius)
+    # the dots lit for one camera whose light reaches another (at a grazing angle there) stay clear of its windows
+    present = [r | s for r, s in zip(cams.reaching, seen)]
+    base, _, _ = stacked_windows(positions, present, cams.part_shape, radius)
     try:
-        grid = await ctx.compute(schedule_dots, base, np.stack(seen), (ch, cw), radius, spacing=opts.spacing)
+        grid = await ctx.compute(schedule_dots, base, np.stack(seen), (ch, cw), radius, spacing=opts.spacing,
+                                 present=np.stack(present))
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
     lit = [grid.lit & s for s in seen]
@@ -238,8 +241,11 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
         use = [measured_texels(b) for b in camera_blocks(tr.L, len(cameras))]
         positions = [g.texels.position for g in cams.parts]
         # any schedule that separates the measured texels' windows will do: the stored grid's, recoloured
-        base, rows, valid = stacked_windows(positions, use, cams.part_shape, radius)
-        grid = await ctx.compute(schedule_dots, base, np.stack(use), (ch, cw), radius, spacing=tr.meta["spacing"])
+        present = [r | u for r, u in zip(cams.reaching, use)]
+        base, _, _ = stacked_windows(positions, present, cams.part_shape, radius)
+        grid = await ctx.compute(schedule_dots, base, np.stack(use), (ch, cw), radius, spacing=tr.meta["spacing"],
+                                 present=np.stack(present))
+        _, rows, valid = stacked_windows(positions, use, cams.part_shape, radius)
         ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
                 f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
         await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])

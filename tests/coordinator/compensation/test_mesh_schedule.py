@@ -59,3 +59,34 @@ def test_padding_copies_the_nearest_chart_texel_within_reach():
     img = rng.random((20, 30, 3)).astype(np.float32)
     out = padded(img, idx)
     assert np.array_equal(out[on], img[on]) and np.array_equal(out.reshape(-1, 3), img.reshape(-1, 3)[idx])
+
+
+def test_one_schedule_separates_the_windows_in_every_camera():
+    rng = np.random.default_rng(7)
+    w, h, radius, guard = 24, 16, 2, 1
+    bases = np.stack([_positions(w, h, rng), _positions(w, h, rng)[::-1].copy()])   # the second camera: reversed
+    seens = np.stack([rng.random(w * h) < 0.6, rng.random(w * h) < 0.6])
+    sched = schedule_dots(bases, seens, (h, w), radius, guard=guard)
+    assert np.array_equal(sched.lit, seens.any(axis=0))                 # each texel some camera sees, once
+    for k in range(len(sched)):
+        d = sched.dots(k)
+        for base, seen in zip(bases, seens):                           # brute force, in each camera that sees them
+            dd = d[seen[d]]
+            if len(dd) > 1:
+                dist = cdist(base[dd], base[dd], metric="chebyshev")
+                np.fill_diagonal(dist, np.inf)
+                assert dist.min() > 2 * radius + guard
+    # one camera's schedule alone would crowd the other's windows
+    alone = schedule_dots(bases[0], seens.any(axis=0), (h, w), radius, guard=guard)
+    crowded = False
+    for k in range(len(alone)):
+        d = alone.dots(k)
+        d = d[seens[1][d]]
+        if len(d) > 1:
+            dist = cdist(bases[1][d], bases[1][d], metric="chebyshev")
+            np.fill_diagonal(dist, np.inf)
+            crowded |= bool(dist.min() <= 2 * radius + guard)
+    assert crowded
+    # a single camera as a (1, n) stack is the same schedule as without the stack
+    one = schedule_dots(bases[:1], seens[:1], (h, w), radius, guard=guard)
+    assert np.array_equal(one.colour, schedule_dots(bases[0], seens[0], (h, w), radius, guard=guard).colour)
