@@ -57,6 +57,9 @@ class PlannedRig:
     content_size: tuple[int, int]
     surface: str                       # "table" or "mesh"
     planned: dict[str, ProjectionPose]
+    #: projectors the layout places but leaves off (``powered = false``, as the room's bright single
+    #: unit for the P1 comparison): not slots of the rig, as they are not lit in the room
+    unpowered: tuple[str, ...] = ()
 
 
 def table_mesh(size_mm: tuple[float, float]) -> Mesh:
@@ -133,9 +136,13 @@ def planned_rig(layout: Layout, *, builtin_mesh: BuiltinMesh | None = None, reso
     surface, mesh = _surface(layout, builtin_mesh)
     slots: dict[str, tuple[int, int]] = {}
     planned: dict[str, ProjectionPose] = {}
+    unpowered: list[str] = []
     for d in layout.projectors:
-        if d.name in slots:
+        if d.name in slots or d.name in unpowered:
             raise RigError(f"the layout names projector {d.name!r} twice; slot names must be unique")
+        if d.entry.get("powered", True) is False:
+            unpowered.append(d.name)
+            continue
         size = tuple(resolution) if resolution is not None else d.size
         K = d.K if size == d.size else scale_intrinsics(d.K, d.size, size)
         slots[d.name] = size
@@ -143,9 +150,11 @@ def planned_rig(layout: Layout, *, builtin_mesh: BuiltinMesh | None = None, reso
             planned[d.name] = ProjectionPose(K @ np.hstack([d.R, d.t[:, None]]), mesh)
         except ValueError as exc:
             raise RigError(f"projector {d.name}: {exc}") from None
+    if not slots:
+        raise RigError(f"every projector of the layout is unpowered ({', '.join(unpowered)}): nothing to make slots of")
     if content_size is None:
         content_size = content_size_of(mesh.vertices, mesh.uvs, mesh.faces)
-    return PlannedRig(slots, tuple(content_size), surface, planned)
+    return PlannedRig(slots, tuple(content_size), surface, planned, tuple(unpowered))
 
 
 def init_from_layout(path: str | Path, layout_file: str | Path, *, name: str | None = None,

@@ -70,6 +70,9 @@ def _init_from_layout(args: argparse.Namespace, builtin_mesh: BuiltinMesh | None
     sizes = sorted({f"{w}x{h}" for w, h in plan.slots.values()})
     _created(path, f"{len(plan.slots)} slots from layout {args.layout} ({', '.join(sizes)}), content "
                    f"{plan.content_size[0]}x{plan.content_size[1]}, planned poses onto the {plan.surface}")
+    if plan.unpowered:
+        print(f"left out, unpowered in the layout: {', '.join(plan.unpowered)} (set powered = true there to make "
+              "them slots)")
     print(f"planned poses are not a calibration: the plan's coverage now, `shadowless coverage --rig-dir {path} "
           "--planned`; calibrate once the projectors hang")
     return 0

@@ -72,6 +72,13 @@ def test_the_plan_becomes_the_rig_an_operator_would_type(plan, tmp_path, rig_cmd
         np.testing.assert_allclose(xy[:, :2], m.vertices[:, :2], atol=1e-4)
     shown = json.loads(rig_cmd("show", str(tmp_path / "planned"))[1])
     assert all(s["planned"] and s["pose"] is None and s["source"] == "layout" for s in shown["slots"].values())
+    # a projector the layout leaves off (as the room's bright single unit) is not a slot, and the command says so
+    off = tmp_path / "off.toml"
+    off.write_text(plan.read_text().replace("[[projector]]\n", "[[projector]]\npowered = false\n", 1))
+    code, out, err = rig_cmd("init", str(tmp_path / "off"), "--layout", str(off))
+    assert code == 0, err
+    assert "2 slots from layout" in out and f"left out, unpowered in the layout: {slots[0]}" in out
+    assert list(parse_config((tmp_path / "off" / "rig.toml").read_text()).slots) == slots[1:]
 
 
 def test_a_resolution_resamples_the_planned_poses_as_the_room_scales_its_projectors(plan, tmp_path, rig_cmd):
