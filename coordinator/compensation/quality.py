@@ -57,6 +57,13 @@ def linear_to_srgb(img: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055).astype(np.float32)
 
 
+#: pictures smaller than this (px high) are enlarged by a whole factor, pixels kept square and sharp
+MIN_PICTURE_HEIGHT = 240
+#: at most this enlargement
+MAX_ENLARGEMENT = 4
+_FONT, _FONT_SCALE = cv2.FONT_HERSHEY_SIMPLEX, 0.6
+
+
 def side_by_side(
     images: Sequence[np.ndarray],
     labels: Sequence[str] | None = None,
@@ -67,11 +74,16 @@ def side_by_side(
 ) -> np.ndarray:
     """Place images left to right with a caption above each: ``(H', W', 3) uint8`` (BGR = RGB order kept).
 
+    Images of different heights are scaled to the first one's height; when that is below
+    :data:`MIN_PICTURE_HEIGHT` every image is enlarged by the same whole factor (nearest
+    neighbour, at most :data:`MAX_ENLARGEMENT`), so a small camera view stays readable. Each column
+    is as wide as the wider of its image (centred in it) and its caption, so captions never run
+    into each other.
+
     Parameters
     ----------
     images : sequence of (H, W) or (H, W, C) arrays
         Float images in [0, 1] (linear luminance when ``linear``, shown sRGB-encoded) or uint8.
-        Images of different heights are scaled to the first one's height.
     labels : sequence of str, optional
         One caption per image.
     """
@@ -96,14 +108,21 @@ def side_by_side(
             w = max(1, round(a.shape[1] * height / a.shape[0]))
             a = cv2.resize(a, (w, height), interpolation=cv2.INTER_AREA)
         tiles.append(a)
-    width = sum(t.shape[1] for t in tiles) + gap * (len(tiles) + 1)
+    k = min(MAX_ENLARGEMENT, max(1, -(-MIN_PICTURE_HEIGHT // max(height, 1))))
+    if k > 1:
+        tiles = [cv2.resize(t, (t.shape[1] * k, t.shape[0] * k), interpolation=cv2.INTER_NEAREST) for t in tiles]
+        height *= k
+    texts = [str(x) for x in labels] if labels is not None else [""] * len(tiles)
+    columns = [max(t.shape[1], cv2.getTextSize(x, _FONT, _FONT_SCALE, 1)[0][0] + 2 if x else 0)
+               for t, x in zip(tiles, texts)]
+    width = sum(columns) + gap * (len(tiles) + 1)
     top = label_height if labels is not None else 0
     canvas = np.full((height + top + 2 * gap, width, 3), 32, dtype=np.uint8)
     x = gap
-    for i, t in enumerate(tiles):
-        canvas[top + gap : top + gap + height, x : x + t.shape[1]] = t
-        if labels is not None:
-            cv2.putText(canvas, str(labels[i]), (x, gap + label_height - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
-                        (235, 235, 235), 1, cv2.LINE_AA)
-        x += t.shape[1] + gap
+    for t, text, col in zip(tiles, texts, columns):
+        left = x + (col - t.shape[1]) // 2
+        canvas[top + gap : top + gap + height, left : left + t.shape[1]] = t
+        if text:
+            cv2.putText(canvas, text, (x, gap + label_height - 10), _FONT, _FONT_SCALE, (235, 235, 235), 1, cv2.LINE_AA)
+        x += col + gap
     return canvas

@@ -42,15 +42,24 @@ def test_srgb_round_trip():
 
 
 def test_side_by_side_layout():
-    a = np.zeros((30, 40), dtype=np.float32)
-    b = np.ones((30, 20, 3), dtype=np.float32)
-    c = np.full((15, 10), 128, dtype=np.uint8)
+    a = np.zeros((60, 80), dtype=np.float32)
+    b = np.ones((60, 40, 3), dtype=np.float32)
+    c = np.full((30, 20), 128, dtype=np.uint8)
     pic = side_by_side([a, b, c], ["target", "none", "ours"], gap=4, label_height=20)
     assert pic.dtype == np.uint8 and pic.ndim == 3 and pic.shape[2] == 3
-    assert pic.shape[0] == 30 + 20 + 8
-    assert pic.shape[1] == 40 + 20 + 20 + 4 * 4  # c is scaled to height 30 -> width 20
-    assert np.all(pic[24:54, 4:44] == 0) and np.all(pic[24:54, 48:68] == 255)
+    # 60 px high is small: every image is enlarged 4x (nearest neighbour), c first scaled to 60 high
+    assert pic.shape[0] == 240 + 20 + 8
+    assert pic.shape[1] == 320 + 160 + 160 + 4 * 4
+    assert np.all(pic[24:264, 4:324] == 0) and np.all(pic[24:264, 328:488] == 255)
+    assert np.all(pic[24:264, 492:652] == 128)
     assert pic[:20].max() > 200  # captions are drawn
+    # a caption wider than its image widens the column instead of running into the next one
+    narrow = [np.zeros((300, 50), np.float32)] * 2
+    pic = side_by_side(narrow, ["baseline 31.43 dB / 0.957", "ours 31.40 dB / 0.957"], gap=4, label_height=20)
+    ink = pic[:20].max(axis=(0, 2)) > 100
+    first = side_by_side(narrow[:1], ["baseline 31.43 dB / 0.957"], gap=4, label_height=20).shape[1] - 4
+    assert first > 4 + 50 + 4 and not ink[first - 1: first + 2].any()      # a gap between the two captions
+    assert np.all(pic[24:324, (first - 4 - 50) // 2 + 4: (first - 4 - 50) // 2 + 54] == 0)  # the image, centred
     with pytest.raises(ValueError):
         side_by_side([a], ["x", "y"])
     with pytest.raises(ValueError):
