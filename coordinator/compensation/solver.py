@@ -50,13 +50,13 @@ import scipy.sparse as sp
 from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.stencil import STORAGES, stencil_blocks, stencil_from_csr
 from coordinator.compensation.stencil_apg import fused_apg
+from coordinator.compensation.stencil_start import deconvolved_start
 
 __all__ = [
     "TransportOperator",
     "SolveResult",
     "PerProjectorResult",
-    "solve",
-    "solve_per_projector",
+    "solve", "solve_per_projector",
     "objective",
     "operator_for",
     "FrameCompensator",
@@ -341,8 +341,8 @@ def _prepare(
         out_shape = (n, *channels)
     c2 = np.ascontiguousarray(c, dtype=np.float32).reshape(m, nc)
     if x0 is None:
-        if n == m:
-            xs = np.clip(c2, 0, 1)
+        if n == m:  # the target, deconvolved by the stencil's mean blur when L is one (a far better start)
+            xs = deconvolved_start(op.stencil, c2, workers=op.threads) if op.stencil is not None else np.clip(c2, 0, 1)
         else:
             ones = op.matvec(np.ones(n, dtype=np.float32))
             scale = np.array([_dot(ones, c2[:, j].copy()) for j in range(nc)]) / max(_dot(ones, ones), 1e-30)
@@ -384,8 +384,8 @@ def solve(
         Desired camera image in linear luminance; channels are solved together.
     x0 : array, optional
         Warm start (e.g. the previous frame's solution), any shape holding n_content x C
-        values; clipped to [0, 1]. Default: the target itself when L is square, else the best
-        uniform grey.
+        values; clipped to [0, 1]. Default: the target itself when L is square (deconvolved by
+        the mean stencil, :mod:`.stencil_start`, on the stencil storage), else the best uniform grey.
     method : {"apg", "steepest", "lbfgsb"}
     tol, gap_tol, pg_tol, max_iter, time_limit :
         Stopping rules (see the module docstring); ``0`` disables a tolerance.
