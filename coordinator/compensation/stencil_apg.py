@@ -30,6 +30,7 @@ from collections.abc import Callable
 from concurrent.futures import Executor
 from typing import Any
 
+import cv2
 import numpy as np
 
 from coordinator.compensation.stencil import StencilTransport
@@ -67,42 +68,46 @@ class _Sweep:
         """``r = Lx_k + beta (Lx_k - Lx_{k-1}) - c`` on rows ``[y0, y1)``; returns ``(||r||^2, <r, c>)``."""
         if y1 <= y0:
             return 0.0, 0.0
-        rb, lc, cb = self.res[:, y0:y1], self.lx_cur[:, y0:y1], self.c[:, y0:y1]
-        if self.beta != 0:
-            np.subtract(lc, self.lx_prev[:, y0:y1], out=rb)
-            rb *= self.beta
-            rb += lc
-            rb -= cb
-        else:
-            np.subtract(lc, cb, out=rb)
-        return _dot3(rb, rb), _dot3(rb, cb)
+        rr, rc = [], []
+        b = float(self.beta)
+        for ch in range(self.c.shape[0]):  # per channel: (rows, W) C-contiguous views OpenCV writes into
+            rb, lc, cb = self.res[ch, y0:y1], self.lx_cur[ch, y0:y1], self.c[ch, y0:y1]
+            if b != 0:
+                cv2.addWeighted(lc, 1 + b, self.lx_prev[ch, y0:y1], -b, 0.0, dst=rb)  # one pass
+                cv2.subtract(rb, cb, dst=rb)
+            else:
+                cv2.subtract(lc, cb, dst=rb)
+            rr.append(cv2.norm(rb, cv2.NORM_L2SQR))  # float64 accumulation, no temporary
+            rc.append(float(np.dot(rb.reshape(-1), cb.reshape(-1))))
+        return math.fsum(rr), math.fsum(rc)
 
-    def update(self, a: int, b: int, g: np.ndarray) -> tuple[float, float, float]:
-        """Step 3 on rows ``[a, b)`` from the gradient ``g`` (C, b - a, W), which it overwrites."""
-        xc, xp = self.x_cur[:, a:b], self.x_prev[:, a:b]
-        gneg = float(np.minimum(g, 0).sum(dtype=np.float64))
-        if self.beta != 0:
-            y = np.subtract(xc, xp)
-            y *= self.beta
-            y += xc
-        else:
-            y = xc.copy()
-        g *= -self.step
-        g += y
-        np.clip(g, 0, 1, out=g)  # x_{k+1}
-        y -= g
-        ymx = _dot3(y, y)
-        np.subtract(g, xc, out=xp)
-        inner = _dot3(y, xp)
-        xp[...] = g
-        return gneg, ymx, inner
+    def update(self, a: int, b: int, g: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+        """Step 3 on rows ``[a, b)`` from the gradient ``g`` (C, b - a, W), which it overwrites;
+        ``y``: (C, >= b - a, W) float32 scratch. Ten passes over the band, none allocating."""
+        gneg, ymx, inner = [], [], []
+        beta = float(self.beta)
+        for ch in range(g.shape[0]):
+            gc, xc, xp = g[ch], self.x_cur[ch, a:b], self.x_prev[ch, a:b]
+            gneg.append(0.5 * (cv2.sumElems(gc)[0] - cv2.norm(gc, cv2.NORM_L1)))  # sum min(0, g)
+            yc = y[ch, : b - a]
+            if beta != 0:
+                cv2.addWeighted(xc, 1 + beta, xp, -beta, 0.0, dst=yc)  # y = x_k + beta (x_k - x_{k-1})
+            else:
+                np.copyto(yc, xc)
+            cv2.scaleAdd(gc, -float(self.step), yc, dst=xp)  # x_{k+1} = clip(y - g / Lip), over x_{k-1}
+            np.clip(xp, 0, 1, out=xp)
+            cv2.subtract(yc, xp, dst=gc)  # y - x_{k+1}
+            ymx.append(cv2.norm(gc, cv2.NORM_L2SQR))
+            cv2.subtract(xp, xc, dst=yc)  # x_{k+1} - x_k
+            inner.append(float(np.dot(gc.reshape(-1), yc.reshape(-1))))
+        return math.fsum(gneg), math.fsum(ymx), math.fsum(inner)
 
     def finish(self, y0: int, y1: int) -> float:
         """``||Lx_{k+1} - c||^2`` on camera rows ``[y0, y1)`` (``Lx_{k+1}`` lives in ``lx_prev`` during the sweep)."""
         if y1 <= y0:
             return 0.0
-        d = self.lx_prev[:, y0:y1] - self.c[:, y0:y1]
-        return _dot3(d, d)
+        return math.fsum(cv2.norm(self.lx_prev[ch, y0:y1], self.c[ch, y0:y1], cv2.NORM_L2SQR)
+                         for ch in range(self.c.shape[0]))
 
     def sweep(self, y0: int, y1: int) -> tuple[list[float], list[tuple[int, np.ndarray]]]:
         """One thread's rows ``[y0, y1)``: partial sums (gneg, ymx, inner, f, rr, rc) and the light
@@ -118,6 +123,7 @@ class _Sweep:
         sinks = [(a, a + v.shape[1], v) for a, v in halos] + [(y0, y1, self.lx_prev[:, y0:y1])]
         scratch = np.empty((len(st.offsets), self.rows, w), dtype=np.float32) if st.storage != "float32" else None
         g = np.empty((ch, self.rows, w), dtype=np.float32)
+        y = np.empty((ch, self.rows, w), dtype=np.float32)
         sums: dict[str, list[float]] = {k: [] for k in ("gneg", "ymx", "inner", "f", "rr", "rc")}
         assembled, zeroed, finished = lo, y0, lo
         for a in range(y0, y1, self.rows):
@@ -131,7 +137,7 @@ class _Sweep:
             wb = st.band_weights(a, b, scratch)  # read once, used by both products while in cache
             gb = g[:, : b - a]
             st.adjoint_band(wb, self.res, gb, a, b)
-            for key, v in zip(("gneg", "ymx", "inner"), self.update(a, b, gb)):
+            for key, v in zip(("gneg", "ymx", "inner"), self.update(a, b, gb, y)):
                 sums[key].append(v)
             z = min(b + r, y1)  # Lx_{k-1} on these rows was used by the assembly above: start Lx_{k+1}
             if z > zeroed:
