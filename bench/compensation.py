@@ -9,7 +9,8 @@ Solve times of ours and of the baseline are measured side by side in this one ru
 
 Also the solver near the machine's limit: at the paper's camera size 2592x1944 with 25 projectors
 (time to 1 % of the optimum) and for warm-started video (960x540, 1920x1080), the current solver
-(CSR) and the new one (stencil storage, one weight sweep per iteration) side by side, each with
+(CSR), the new one (stencil storage, one sweep per iteration, deconvolved start) and, at the paper
+size, the new one from the target itself as before (``new_target_start``) side by side, each with
 the bytes an iteration moves against the machine's streaming bandwidth measured in the same run;
 and a sweep over camera noise showing what decides the quality ordering. One JSON document.
 
@@ -79,8 +80,7 @@ def _ints(text: str) -> list[int]:
 
 
 def _sizes(text: str) -> list[tuple[int, int]] | bool:
-    sizes = [_size(t) for t in text.split(",")]
-    return False if not all(sizes) else sizes
+    return False if not all(sizes := [_size(t) for t in text.split(",")]) else sizes
 
 
 def _storages(text: str) -> list[str]:
@@ -365,11 +365,11 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
     target = _target(h, w, args.paper_channels, args.target_range, args.seed)
     bw = streaming_bandwidth(mib=args.bandwidth_mib)
     opts = {"method": args.method, "tol": args.paper_tol, "max_iter": args.max_iter}
-    impls: dict[str, Any] = {}
-    results, best_op = {}, None
-    for name, storage in (("current", "csr"), *(("new" if st == args.paper_storage[0] else f"new_{st}", st)
-                                                for st in args.paper_storage)):
-        impls[name], results[name], op = _solve_timed(L, target, args, storage, bw["gb_per_s"], **opts)
+    impls, results, best_op = {}, {}, None  # name -> figures, name -> SolveResult; the new solver's operator
+    for name, storage in (("current", "csr"), ("new_target_start", args.paper_storage[0]), *(
+            ("new" if st == args.paper_storage[0] else f"new_{st}", st) for st in args.paper_storage)):
+        x0 = {"x0": np.clip(target, 0, 1)} if name == "new_target_start" else {}  # the start before stencil_start.py
+        impls[name], results[name], op = _solve_timed(L, target, args, storage, bw["gb_per_s"], **opts, **x0)
         _log(f"{w}x{h} {name} ({storage}): {impls[name]['total_seconds']} s, {impls[name]['iterations']} it, "
              f"load {impls[name]['load']}")
         best_op = op if name == "new" else best_op
@@ -388,7 +388,7 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
         stats["solver_peak_memory_mib"] = round(_tracemalloc_peak(lambda st=stats["storage"]: solve(
             TransportOperator(L, threads=args.threads, storage=st), target, threads=args.threads, max_iter=3)), 1)
         gc.collect()
-    cur, new = impls["current"], impls["new"]
+    cur, new, plain = impls["current"], impls["new"], impls["new_target_start"]
     return {
         "size": f"{w}x{h}", "projectors": n, "channels": args.paper_channels, "nnz": int(L.nnz),
         "nnz_per_row": round(L.nnz / L.shape[0], 2), "generate_seconds": round(gen, 2),
@@ -396,6 +396,7 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
         **impls,
         "new_over_current": {k: round(new[k] / cur[k], 3) for k in ("total_seconds", "seconds_per_iteration",
                              "cpu_seconds_per_iteration", "bytes_per_iteration", "solver_peak_memory_mib")},
+        "new_over_new_target_start": {k: round(new[k] / plain[k], 3) for k in ("total_seconds", "iterations")},
         "reference_objective": best, "reference_iterations": ref.iterations,
         "reference_last_relative_decrease_per_iteration": tail,
         "matrix_csr_mib": round((L.data.nbytes + L.indices.nbytes + L.indptr.nbytes) / 2**20, 1),
@@ -443,8 +444,7 @@ def _video(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, Any]:
         for name, op in ops.items():
             motion = name == "new" and args.video_new_warm == "motion"
             comp = FrameCompensator(op, iterations=its[name], deadline=deadline, threads=args.threads, motion=motion)
-            times, gaps, q_warm, q_conv, q_none, done, cpu = [], [], [], [], [], [], []
-            first = None
+            times, gaps, q_warm, q_conv, q_none, done, cpu, first = [], [], [], [], [], [], [], None
             load0 = os.getloadavg()[0]
             for k, frame in enumerate(clip):
                 t, c0 = time.perf_counter(), time.process_time()

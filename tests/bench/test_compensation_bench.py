@@ -29,13 +29,16 @@ def test_current_and_new_side_by_side(capsys):
                              "--paper-reference-seconds", "2"])
     assert doc["per_projectors"] == [] and doc["video_more"] == []
     p = doc["paper_size"]
-    cur, new, u16 = p["current"], p["new"], p["new_uint16"]
-    assert (cur["storage"], new["storage"], u16["storage"]) == ("csr", "float32", "uint16")
+    cur, new, u16, plain = p["current"], p["new"], p["new_uint16"], p["new_target_start"]
+    assert (cur["storage"], new["storage"], u16["storage"], plain["storage"]) == ("csr", "float32", "uint16", "float32")
     assert new["fused"] and not cur["fused"]
-    # the same problem solved to the same stopping rule: the same iterations, objectives within rounding
-    assert new["iterations"] == cur["iterations"] > 3
-    assert new["objective"] == pytest.approx(cur["objective"], rel=1e-4)
-    for s in (cur, new, u16):
+    # the same problem from the same start to the same stopping rule: the same iterations, objectives within rounding
+    assert plain["iterations"] == cur["iterations"] > 3
+    assert plain["objective"] == pytest.approx(cur["objective"], rel=1e-4)
+    # from the deconvolved start: fewer iterations to the same rule
+    assert new["iterations"] < plain["iterations"]
+    assert p["new_over_new_target_start"]["iterations"] == round(new["iterations"] / plain["iterations"], 3)
+    for s in (cur, new, u16, plain):
         assert 0 <= s["relative_gap_to_reference"] <= 0.01
         assert s["bandwidth_fraction"] > 0 and s["solver_peak_memory_mib"] > 0
     # 25 float32 weights (once per iteration) against 2 x 25 x (value + index) bytes per pixel
