@@ -315,23 +315,34 @@ def _extract_rows(L: sp.csr_matrix, weights: np.ndarray, y0: int, y1: int, w: in
 
     Row ``i`` lies ``off_k = dy * W + dx`` after column ``j = i - off_k`` (``L[i, j] = w_k[j]``).
     The interior of an image row (``R`` pixels from its ends), when every one of its rows holds
-    a full window, is checked and copied as ``K`` slices; every other row entry by entry, with
-    the no-wrap check. Returns False as soon as an entry does not fit.
+    a full window, is checked against the window's column pattern, transposed (OpenCV's blocked
+    transpose: the ``(pixels, K)`` values become ``K`` contiguous rows) and copied as ``K``
+    slices; every other row entry by entry, with the no-wrap check. Returns False as soon as an
+    entry does not fit.
     """
     k_all = offs.size
     ptr = L.indptr
     rest = np.ones((y1 - y0) * w, dtype=bool)
-    for y in range(y0, y1):
+    inner = w - 2 * r
+    counts = np.diff(ptr[y0 * w : y1 * w + 1]).reshape(y1 - y0, w)[:, r : w - r]
+    full = np.flatnonzero((counts == k_all).all(axis=1)) + y0
+    # columns of an interior row's entries, less the row's first pixel: the same for every row
+    small = L.shape[1] < 2**31 - 1
+    pattern = (np.arange(inner, dtype=np.int64)[:, None] - offs[None, ::-1]).astype(np.int32 if small else np.int64)
+    vals_t = np.empty((k_all, inner), dtype=np.float32)
+    for y in full.tolist():
         i0, i1 = y * w + r, (y + 1) * w - r
         s, e = int(ptr[i0]), int(ptr[i1])
-        if e - s != k_all * (i1 - i0) or np.any(np.diff(ptr[i0 : i1 + 1]) != k_all):
-            continue
-        i = np.arange(i0, i1, dtype=np.int64)
-        if not np.array_equal(L.indices[s:e].reshape(-1, k_all), i[:, None] - offs[None, ::-1]):
+        cols = L.indices[s:e].reshape(inner, k_all)
+        if not np.array_equal(cols - cols.dtype.type(i0) if small else cols.astype(np.int64) - i0, pattern):
             return False  # columns ascending = offsets descending
-        vals = L.data[s:e].reshape(-1, k_all)
+        vals = L.data[s:e].reshape(inner, k_all)
+        if vals.dtype == np.float32:
+            cv2.transpose(vals, dst=vals_t)
+        else:
+            vals_t[...] = vals.T
         for k in range(k_all):
-            weights[k, i0 - offs[k] : i1 - offs[k]] = vals[:, k_all - 1 - k]
+            weights[k, i0 - offs[k] : i1 - offs[k]] = vals_t[k_all - 1 - k]
         rest[i0 - y0 * w : i1 - y0 * w] = False
     a = y0 * w
     rows_left = np.flatnonzero(rest) + a
