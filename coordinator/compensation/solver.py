@@ -208,7 +208,7 @@ class TransportOperator:
         is the Schur bound and ``early_exit`` stops there (the same value, fewer products).
         """
         if self._lipschitz is None:
-            if self.L.nnz and float(self.L.data.min()) < 0:
+            if negative := bool(self.L.nnz) and float(self.L.data.min()) < 0:
                 absL = abs(self.L)
                 col = np.asarray(absL.sum(axis=0)).ravel()
                 row = np.asarray(absL.sum(axis=1)).ravel()
@@ -218,8 +218,8 @@ class TransportOperator:
             schur = float(col.max(initial=0.0)) * float(row.max(initial=0.0))
             v = np.ones(self.shape[1], dtype=np.float32)
             est = 0.0
-            for _ in range(iterations):
-                w = self.matvec(v, pool=pool)
+            for k in range(iterations):
+                w = self.matvec(v, pool=pool) if k or negative else row  # L 1 is the Schur bound's row sums
                 est = _dot(w, w) / max(_dot(v, v), 1e-300)
                 if early_exit and 1.05 * est >= schur:
                     break
