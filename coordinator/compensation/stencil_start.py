@@ -47,13 +47,32 @@ def mean_kernel(st: StencilTransport) -> np.ndarray:
 
 
 def _transfer(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """``H`` on the ``rfft2`` grid of ``shape``: (H, W // 2 + 1) complex128, ``h`` centred at the origin."""
+    """``H`` on the ``rfft2`` grid of ``shape``: (H, W // 2 + 1) complex64, ``h`` centred at the origin.
+
+    ``H[u, v] = sum_(dy,dx) h[dy, dx] exp(-2 pi i (u dy / H + v dx / W))``: two small matrix products.
+    """
     rows, cols = shape
     r = (h.shape[0] - 1) // 2
     d = np.arange(-r, r + 1)
     ey = np.exp(-2j * np.pi * np.outer(np.arange(rows), d) / rows)  # (H, 2R+1)
     ex = np.exp(-2j * np.pi * np.outer(d, np.arange(cols // 2 + 1)) / cols)  # (2R+1, W//2+1)
-    return ey @ h @ ex
+    return (ey @ h).astype(np.complex64) @ ex.astype(np.complex64)
+
+
+def _filter(st: StencilTransport, lam: float) -> np.ndarray:
+    """``conj(H) / (|H|^2 + lam |H(0)|^2)`` on ``rfft2``'s grid, complex64; cached on ``st`` per ``lam``."""
+    cached = getattr(st, "_start_filter", None)
+    if cached is not None and cached[0] == lam:
+        return cached[1]
+    g = _transfer(mean_kernel(st), st.grid)
+    dc = float(abs(g[0, 0])) ** 2
+    den = np.square(g.real)
+    den += np.square(g.imag)
+    den += np.float32(lam * max(dc, 1e-30))
+    np.conjugate(g, out=g)
+    g /= den
+    st._start_filter = (lam, g)
+    return g
 
 
 def deconvolved_start(st: StencilTransport, c: np.ndarray, *, lam: float = LAMBDA, workers: int = 1) -> np.ndarray:
@@ -64,9 +83,7 @@ def deconvolved_start(st: StencilTransport, c: np.ndarray, *, lam: float = LAMBD
     """
     rows, cols = st.grid
     nc = c.shape[1]
-    hf = _transfer(mean_kernel(st), (rows, cols))
-    dc = float(abs(hf[0, 0])) ** 2
-    g = (np.conj(hf) / (np.abs(hf) ** 2 + lam * max(dc, 1e-30))).astype(np.complex64)
+    g = _filter(st, lam)
     out = np.empty((rows * cols, nc), dtype=np.float32)
     for ch in range(nc):
         img = np.ascontiguousarray(c[:, ch].reshape(rows, cols), dtype=np.float32)
