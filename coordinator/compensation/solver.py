@@ -746,10 +746,12 @@ class FrameCompensator:
     iterations, first_iterations : int
         Iteration budget per frame and for a cold start.
     delta : bool
-        Add the target change to the warm start (square ``L`` only).
+        Add the target change to the warm start (square ``L`` only). On the stencil storage the
+        change of the *deconvolved* target (:mod:`.stencil_start`): its sharpening is exact for
+        the new picture, the carried correction ``x - deconvolved(c)`` small and smooth.
     motion : bool
-        With ``delta`` and image-shaped targets: move the previous correction ``x - c`` along
-        the target's motion first (:class:`~coordinator.compensation.motion.MotionWarp`).
+        With ``delta`` and image-shaped targets: move the previous correction (``x - c``, or
+        ``x - deconvolved(c)``) along the target's motion first (:class:`.motion.MotionWarp`).
     deadline : float, optional
         Seconds per frame: a warm-started frame stops after the iteration that crosses it
         (its result then says ``reason == "time_limit"``).
@@ -770,31 +772,29 @@ class FrameCompensator:
         self.first_iterations = first_iterations
         self.delta = delta and self.op.shape[0] == self.op.shape[1]
         self.motion = MotionWarp() if motion and self.delta else None
-        solve_options.setdefault("gap_tol", 0.0)
-        solve_options.setdefault("pg_tol", 0.0)
-        self.options = solve_options
-        self._x: np.ndarray | None = None
-        self._target: np.ndarray | None = None
+        self.options = {"gap_tol": 0.0, "pg_tol": 0.0, **solve_options}
+        self._x = self._target = self._base = None  # the previous frame's solution, target and base
 
     def reset(self) -> None:
         """Forget the previous frame (e.g. after a cut)."""
-        self._x = self._target = None
+        self._x = self._target = self._base = None
 
     def __call__(self, target: np.ndarray, *, progress: Progress | None = None) -> SolveResult:
         """Compensate one frame (same shapes as :func:`solve`); returns its :class:`SolveResult`."""
         target = np.asarray(target, dtype=np.float32)
-        x0 = None
-        budget = self.first_iterations
+        st = self.op.stencil if self.delta else None
+        base = target if st is None else deconvolved_start(st, target.reshape(self.op.shape[1], -1),
+                                                           workers=self.op.threads).reshape(target.shape)
+        x0, budget = (None if st is None else base), self.first_iterations  # base: solve's own cold start
         if self._x is not None and self._target is not None and self._target.shape == target.shape:
             budget = self.iterations
             if self.delta:
-                corr = self._x.reshape(target.shape) - self._target
+                corr = self._x.reshape(target.shape) - self._base
                 if self.motion is not None and target.ndim in (2, 3) and target.shape[-1] != 1:
                     corr = self.motion(corr, self._target, target).reshape(target.shape)
-                x0 = target + corr
+                x0 = base + corr
             else:
                 x0 = self._x
         res = solve(self.op, target, x0=x0, max_iter=budget, progress=progress, **self.options)
-        self._x = res.x
-        self._target = target
+        self._x, self._target, self._base = res.x, target, base
         return res
