@@ -52,8 +52,8 @@ def test_current_and_new_side_by_side(capsys):
         c, n = v["current"][clip], v["new"][clip]
         assert c["storage"] == "csr" and n["storage"] == "float32"
         assert c["iterations_per_frame_mean"] == 4 and n["iterations_per_frame_mean"] == 6
-        # more iterations from the same warm start: closer to the converged solve
-        assert n["psnr_short_of_converged_max_db"] <= c["psnr_short_of_converged_max_db"] + 1e-3
+        # the new warm start (deconvolved change + carried correction) stays within the target of converged
+        assert n["psnr_short_of_converged_max_db"] <= min(0.5, c["psnr_short_of_converged_max_db"] + 0.02)
         assert v[clip]["ms_per_frame_mean"] == n["ms_per_frame_mean"] and v[clip]["new_over_current_ms_per_frame"] > 0
     assert "paper_size_rgb_solver_peak_gib" in doc["targets"] and "video_80x48" in doc["targets"]
 
