@@ -37,7 +37,10 @@ from bench.machine import machine
 from coordinator.calibration.runs import save_cameras
 from coordinator.calibration.threed import depth_range
 from coordinator.compensation.image_param import encode_image_array
+from coordinator.compensation.mesh_cameras import camera_blocks
+from coordinator.compensation.mesh_geometry import measured_texels
 from coordinator.compensation.texture_space import DeviceView, MeshCaster, padded, padding_index, texels_per_pixel
+from coordinator.compensation.transport import transport_error
 from coordinator.rig import ProjectionPose, Rig, mesh_with_id
 from protos import cli_types
 from protos.spaces import bilinear_taps
@@ -46,7 +49,8 @@ from sim.mesh import bust, save_mesh
 from sim.room import Room
 from sim.scene import SUBSETS, reference_scene
 
-__all__ = ["make_bust_rig", "bust_room", "mesh_lookup_matrix", "truth_mesh_transport", "texture_size_for"]
+__all__ = ["make_bust_rig", "bust_room", "mesh_lookup_matrix", "truth_mesh_transport", "mesh_transport_errors",
+           "texture_size_for"]
 
 
 # ---------------------------------------------------------------------- the test kit
@@ -69,21 +73,50 @@ def mesh_lookup_matrix(view: DeviceView, content_size: tuple[int, int]) -> sp.cs
 
 def truth_mesh_transport(room: Room, rig: Rig, slots: list[str], *, camera: int = 0) -> sp.csr_matrix:
     """The mesh rig's true light transport, texel -> camera px, as the jobs measure it:
-    :func:`bench.compensation_room.truth_transport` with each node's lookup through its mesh pose."""
+    :func:`bench.compensation_room.truth_transport` with each node's lookup through its mesh pose, of the
+    texture with its chart edges padded (:func:`~coordinator.compensation.texture_space.padding_index`), as
+    the jobs send every image, dot patterns included: a texel's column holds its padding texels' light."""
     content = (rig.config.content_width, rig.config.content_height)
     views = {}
+    mesh = rig.slot(slots[0]).pose.mesh
+    with MeshCaster(mesh.vertices, mesh.uvs, mesh.faces) as caster:
+        pad = padding_index(np.isfinite(caster.atlas(content)).all(axis=2))
     for s in slots:
         st, pose = rig.slot(s), rig.slot(s).pose
         with MeshCaster(pose.mesh.vertices, pose.mesh.uvs, pose.mesh.faces) as caster:
             views[s] = caster.view(pose.matrix, (st.width, st.height), content, near=pose.near_mm, far=pose.far_mm)
+    n = len(pad)
+    padding = sp.csr_matrix((np.ones(n), (np.arange(n), pad)), shape=(n, n))     # texel j shows texel pad[j]
     total = None
     for s in slots:
         st = rig.slot(s)
-        B = mesh_lookup_matrix(views[s], content)
+        B = mesh_lookup_matrix(views[s], content) @ padding
         part = (sp.csr_matrix(room.truth.transport(s, camera), dtype=np.float64) @ B) \
             * (st.gain * float(np.mean(1 - room.truth.projector(s).black)))
         total = part if total is None else total + part
     return sp.csr_matrix(total, dtype=np.float32)
+
+
+def mesh_transport_errors(L: sp.spmatrix, truths: list[sp.spmatrix]) -> dict:
+    """A measured (stacked) mesh ``L`` against the truth of each of its cameras, each camera over the texels
+    it measured: ``{"per_camera": [...], "stacked": e}`` relative Frobenius errors.
+
+    A camera's rows of ``L`` hold only the texels it has a window for; the light of the others (seen at a
+    grazing angle, too large for a window, seen by another camera only) reaches it all the same, on pixels
+    the solve does not weigh. So camera ``k``'s truth counts in texel ``j``'s column only when ``L``
+    measured ``j`` in camera ``k``; ``stacked`` is the error of the whole ``L`` against those columns.
+    """
+    blocks = camera_blocks(L, len(truths))
+    kept, per = [], []
+    for block, truth in zip(blocks, truths):
+        m = measured_texels(block)
+        t = sp.csr_matrix(sp.csr_matrix(truth, dtype=np.float64) @ sp.diags(m.astype(np.float64)))
+        kept.append(t)
+        per.append(transport_error(sp.csr_matrix(block.tocsc()[:, m]), sp.csr_matrix(t.tocsc()[:, m])))
+    cols = measured_texels(L)
+    stacked = transport_error(sp.csr_matrix(sp.csc_matrix(L)[:, cols]),
+                              sp.csr_matrix(sp.vstack(kept, format="csc")[:, cols]))
+    return {"per_camera": per, "stacked": stacked}
 
 
 def texture_size_for(room: Room, *, camera: int = 0, px_per_texel: float = 2.5, aspect: tuple[int, int] = (4, 3)
@@ -239,18 +272,17 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
     c0 = driver.captures
     t = time.perf_counter()
     tr = await driver.run("transport", params)
-    L_truth = await asyncio.to_thread(lambda: sp.vstack([truth_mesh_transport(room, rig, slots, camera=c)
-                                                         for c in range(k)], format="csr"))
-    from coordinator.compensation.mesh_geometry import measured_texels
-    from coordinator.compensation.transport import load_transport, transport_error
+    truths = await asyncio.to_thread(lambda: [truth_mesh_transport(room, rig, slots, camera=c) for c in range(k)])
+    from coordinator.compensation.transport import load_transport
 
     L, _ = load_transport(rig.path / "compensation" / "transport.npz")
-    cols = measured_texels(L)
-    err = transport_error(sp.csr_matrix(L.tocsc()[:, cols]), sp.csr_matrix(L_truth.tocsc()[:, cols]))
+    errs = mesh_transport_errors(L, truths)
+    err = errs["stacked"]
     out["transport"] = {"captures": driver.captures - c0, "wall_s": round(time.perf_counter() - t, 2),
                         "patterns": tr["patterns"], "spacing": tr["spacing"], "radius": tr["radius"],
                         "edge_energy": tr["edge_energy"], "texture": tr["texture"],
-                        "relative_error_measured_columns": round(err, 5)}
+                        "relative_error_measured_columns": round(err, 5),
+                        "relative_error_per_camera": [round(e, 5) for e in errs["per_camera"]]}
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {err:.4f})")
     if baseline:
         cp.update(baseline=True, baseline_exposure=float(len(slots)))

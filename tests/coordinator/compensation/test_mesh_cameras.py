@@ -11,7 +11,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg  # noqa: F401  (sp.linalg.norm)
 
-from bench.compensation_bust import bust_room, make_bust_rig, truth_mesh_transport
+from bench.compensation_bust import bust_room, make_bust_rig, mesh_transport_errors, truth_mesh_transport
 from bench.compensation_room import demo_image
 from coordinator.compensation.image_param import encode_image_array
 from coordinator.compensation.mesh_cameras import camera_blocks, camera_shares, stacked_row_weights
@@ -82,10 +82,11 @@ def test_two_cameras_see_more_and_each_measures_its_own_rows(measured):
     assert errs[0] < 0.05 and errs[1] < 0.2, errs
     for combined, own in truth_errs:
         assert combined < own + 0.01, truth_errs
-    # and both blocks against the room's truth in each camera (an independent check)
-    truth = sp.vstack([truth_mesh_transport(room, rig, SLOTS, camera=c) for c in (0, 1)], format="csr")
-    cols = np.flatnonzero(m0 | m1)
-    assert transport_error(sp.csr_matrix(L01.tocsc()[:, cols]), sp.csr_matrix(truth.tocsc()[:, cols])) < 0.35
+    # and both blocks against the room's truth in each camera, each over the texels it measured (an independent
+    # check; what is left is mostly light that lands far from its texel in the oblique camera: a dot near the
+    # projector's silhouette of the bust spills, defocused, onto the table behind it)
+    errs = mesh_transport_errors(L01, [truth_mesh_transport(room, rig, SLOTS, camera=c) for c in (0, 1)])
+    assert errs["per_camera"][0] < 0.07 and errs["per_camera"][1] < 0.14 and errs["stacked"] < 0.1, errs
 
 
 def test_unseen_texels_are_reported_and_left_uncompensated(measured):
