@@ -13,10 +13,10 @@ camera does not see it. Here:
   layout does not keep texels evenly spaced in the camera (the surface turns away from it, chart
   seams put texels far apart in the texture side by side on the object), so the grid's spacing
   may differ along u and v, and the dots of a grid pattern whose windows would overlap in the
-  camera (found by a k-d tree; in any of them when several cameras measure together) move to
-  extra patterns, greedily, each to the first pattern where no dot near it in the camera is lit
-  (:class:`TexelSchedule`): every seen texel is measured, in a number of patterns set by the
-  geometry, not by the projectors;
+  camera (found by a k-d tree; in any of them when several cameras measure together, where a pair
+  counts only when one of the two has a window in that camera) move to extra patterns, greedily,
+  each to the first pattern where no dot near it in the camera is lit (:class:`TexelSchedule`):
+  every seen texel is measured, in a number of patterns set by the geometry, not by the projectors;
 * texels too large for their window (:func:`texel_extent`: where the uv map stretches a texel over
   more camera pixels than the window holds) are left out too: their light would be cut;
 * the recovery from the captures (:func:`texel_transport_from_captures`);
@@ -126,38 +126,56 @@ class TexelSchedule:
         return img.reshape(self.height, self.width)
 
 
-def _greedy_colours(grid: TexelGrid, bases: np.ndarray, seen: np.ndarray, presents: np.ndarray, radius: int,
-                    guard: int) -> np.ndarray:
-    """``grid``'s pattern per seen texel, the dots that crowd another of their pattern in any camera moved to the
-    first pattern none of their neighbours (Chebyshev distance <= ``2 radius + guard``) in the cameras they light
-    has: ``(n,) int32``, -1 unseen. ``bases`` (K, n, 2), ``presents`` (K, n): one row per camera (the seen
-    texels whose light reaches it); ``seen`` (n,): the texels to light."""
-    reach = 2 * radius + guard
+def _crowding_graph(bases: np.ndarray, windows: np.ndarray, presents: np.ndarray, reach: int) -> sp.csr_matrix:
+    """Which texels may not share a pattern: ``(n, n)`` symmetric CSR int32, entry ``(i, j)`` the number of
+    cameras where both dots' light reaches it (``presents``; only texels with a window somewhere are lit), they
+    lie within Chebyshev distance ``reach`` and one of them has a window (``windows`` (K, n)). Two dots of which
+    a camera measures neither may overlap in it (at a grazing angle they do): none of their light is recorded
+    there, so they need not be apart."""
     n = bases.shape[1]
-    colour = np.full(n, -1, np.int32)
+    lit = windows.any(axis=0)
+    rows, cols = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for base, reaches, win in zip(bases, presents, windows):
+        ids = np.flatnonzero(reaches & lit)
+        if len(ids) < 2:
+            continue
+        pairs = cKDTree(base[ids].astype(np.float64)).query_pairs(r=reach, p=np.inf, output_type="ndarray")
+        pairs = ids[pairs]
+        pairs = pairs[win[pairs[:, 0]] | win[pairs[:, 1]]]
+        rows += [pairs[:, 0], pairs[:, 1]]
+        cols += [pairs[:, 1], pairs[:, 0]]
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    return sp.csr_matrix((np.ones(len(r), np.int32), (r, c)), shape=(n, n))      # duplicates summed
+
+
+def _greedy_colours(grid: TexelGrid, lit: np.ndarray, graph: sp.csr_matrix, *, crowded_first: bool = False
+                    ) -> np.ndarray:
+    """``grid``'s pattern per ``lit`` texel, the dots that crowd another of their pattern (``graph``,
+    :func:`_crowding_graph`) moved to the first pattern none of their neighbours has: ``(n,) int32``, -1 never
+    lit. The moved dots are coloured in texel order, or with ``crowded_first`` those crowded most first
+    (neighbours counted in every camera where they crowd; the largest-first heuristic: fewer patterns where
+    several cameras' constraints pile up)."""
+    n = len(lit)
     idx = np.arange(n)
-    colour[seen] = ((idx[seen] // grid.width) % grid.sy) * grid.sx + (idx[seen] % grid.width) % grid.sx
+    colour = np.full(n, -1, np.int32)
+    colour[lit] = ((idx[lit] // grid.width) % grid.sy) * grid.sx + (idx[lit] % grid.width) % grid.sx
+    coo = graph.tocoo()
+    same = colour[coo.row] == colour[coo.col]
     crowded = np.zeros(n, bool)
-    seens = presents & seen[None]
-    for base, ok in zip(bases, seens):
-        crowded |= dot_conflicts(grid, base, ok, radius, guard=guard)
+    crowded[coo.row[same]] = True
     pending = np.flatnonzero(crowded)
     if not len(pending):
         return colour
+    preferred = colour[pending].copy()
     colour[pending] = -2
-    near = []                      # per camera: its seen texels' ids and, per pending texel, its neighbours there
-    for base, ok in zip(bases, seens):
-        ids = np.flatnonzero(ok)
-        if not len(ids):
-            continue
-        tree = cKDTree(base[ids].astype(np.float64))
-        near.append((ids, ok[pending], tree.query_ball_point(base[pending].astype(np.float64), r=reach, p=np.inf)))
-    preferred = ((pending // grid.width) % grid.sy) * grid.sx + (pending % grid.width) % grid.sx
-    for i, (t, want) in enumerate(zip(pending, preferred)):
-        used = set()
-        for ids, sees, nb in near:
-            if sees[i]:
-                used.update(colour[ids[nb[i]]].tolist())
+    if crowded_first:
+        order = np.argsort(-np.asarray(graph[pending].sum(axis=1)).ravel(), kind="stable")
+    else:
+        order = range(len(pending))
+    indptr, indices = graph.indptr, graph.indices
+    for i in order:
+        t, want = pending[i], int(preferred[i])
+        used = set(colour[indices[indptr[t]:indptr[t + 1]]].tolist())
         if want in used:
             want = 0
             while want in used:
@@ -179,7 +197,9 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
     camera captures every pattern, and a dot's window stays clear in each camera that sees it,
     also of the dots lit for another camera whose light reaches it (``present`` (K, n): the texels
     whose light reaches each camera, seen or at a grazing angle; default ``seen``; ``base`` must
-    hold their positions); the grids tried are those near each camera's spacing.
+    hold their positions); two dots of which a camera has no window may crowd in it (their light
+    lands on no window: :func:`_crowding_graph`). The grids tried are those near each camera's
+    spacing, each coloured in texel order and crowded dots first (:func:`_greedy_colours`).
 
     Parameters
     ----------
@@ -229,12 +249,15 @@ def schedule_dots(base: np.ndarray, seen: np.ndarray, content_shape: Sequence[in
             found |= {(min(limit, max(1, s0[0] + dx)), min(limit, max(1, s0[1] + dy)))
                       for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
         candidates = sorted(found)
+    graph = _crowding_graph(bases, seens, presents, reach)
+    lit = seens.any(axis=0)
     best: TexelSchedule | None = None
     for sx, sy in candidates:
-        colour = _greedy_colours(TexelGrid(w, h, sx, sy), bases, seens.any(axis=0), presents, int(radius), guard)
-        sched = TexelSchedule(w, h, colour, (sx, sy))
-        if best is None or len(sched) < len(best):
-            best = sched
+        for crowded_first in (False, True):
+            colour = _greedy_colours(TexelGrid(w, h, sx, sy), lit, graph, crowded_first=crowded_first)
+            sched = TexelSchedule(w, h, colour, (sx, sy))
+            if best is None or len(sched) < len(best):
+                best = sched
     return best
 
 
