@@ -17,6 +17,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from coordinator.compensation.errors import CompensationError
 from coordinator.compensation.texture_space import (
@@ -29,8 +30,8 @@ from coordinator.compensation.texture_space import (
 )
 from coordinator.rig import Mesh, ProjectionPose, Rig
 
-__all__ = ["MIN_COS", "MeshGeometry", "MeshCameras", "camera_projection", "rig_mesh", "geometry_key", "mesh_geometry",
-           "mesh_cameras"]
+__all__ = ["MIN_COS", "MeshGeometry", "MeshCameras", "reaching_texels", "camera_projection", "rig_mesh", "geometry_key",
+           "mesh_geometry", "mesh_cameras"]
 
 #: texels and camera pixels seen more obliquely than this cosine (about 75 degrees) are not used
 MIN_COS = 0.25
@@ -70,8 +71,8 @@ class MeshCameras:
     target and the solve's weights live on that image, so the solve and the store need nothing
     else; with one camera it is that camera's image. ``parts``: each camera's
     :class:`MeshGeometry` (the same mesh, content and projector views); ``reaching``: per camera,
-    ``(n,) bool`` the texels whose light reaches it (in its image, not hidden, at any angle: the
-    dots that must stay clear of its windows).
+    ``(n,) bool`` the texels whose light reaches it (:func:`reaching_texels`: in its image, not hidden,
+    at any angle, or beside such a texel: the dots that must stay clear of its windows).
     """
 
     cameras: tuple[int, ...]
@@ -131,6 +132,23 @@ class MeshCameras:
 
     def pad(self, image: np.ndarray) -> np.ndarray:
         return self.parts[0].pad(image)
+
+
+def reaching_texels(texels: TexelMap, content_size: tuple[int, int]) -> np.ndarray:
+    """The texels whose light reaches a camera: ``(n,) bool``, those it sees at any angle (``texels`` from
+    :func:`~coordinator.compensation.texture_space.texel_camera_map` with ``min_cos=0``) and their 8
+    neighbours in the texture (on the mesh, with a camera position).
+
+    A node samples the texture bilinearly, so a texel's light covers its neighbours' span on the surface:
+    a texel hidden just behind the camera's silhouette of the object lights the visible texel beside it,
+    where a window of that camera may lie (hidden texels are lit for another camera that sees them).
+    """
+    w, h = (int(v) for v in content_size)
+    vis = np.asarray(texels.visible, bool)
+    if vis.shape != (w * h,):
+        raise ValueError(f"texels must hold {w * h} texels for a {w}x{h} texture, got {vis.shape}")
+    near = ndimage.binary_dilation(vis.reshape(h, w), structure=np.ones((3, 3), bool)).reshape(-1)
+    return near & texels.on_mesh & np.isfinite(texels.position).all(axis=1)
 
 
 def camera_projection(rig_dir: str | Path, camera: int) -> tuple[np.ndarray, tuple[int, int]]:
@@ -224,7 +242,7 @@ def mesh_cameras(rig: Rig, slots: list[str], cameras: Sequence[int], *, projecto
             if not view.on_mesh.any():
                 raise CompensationError(f"camera {camera} does not see the mesh: check its pose (calibration)")
             seen.append((view, texel_camera_map(atlas, P, view, min_cos=MIN_COS),
-                         texel_camera_map(atlas, P, view, min_cos=0.0).visible))
+                         reaching_texels(texel_camera_map(atlas, P, view, min_cos=0.0), content)))
         views = {}
         if projectors:
             for s in slots:

@@ -5,7 +5,8 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from coordinator.compensation.mesh_geometry import TexelGrid, dot_conflicts, schedule_dots
-from coordinator.compensation.texture_space import padded, padding_index
+from coordinator.compensation.mesh_rig import reaching_texels
+from coordinator.compensation.texture_space import TexelMap, padded, padding_index
 
 
 def _positions(w: int, h: int, rng) -> np.ndarray:
@@ -122,3 +123,22 @@ def test_dots_no_camera_window_lies_near_may_share_a_pattern_but_never_a_window(
     # every dot whose light reaches a camera kept clear of every other there, as if each had a window: more
     strict = schedule_dots(bases, present & lit, (h, w), radius, guard=guard)
     assert np.array_equal(strict.lit, lit) and len(sched) < len(strict)
+
+
+def test_a_texels_light_reaches_a_camera_where_it_or_a_neighbour_is_seen():
+    """Brute force: a texel on the mesh with a camera position reaches the camera when it or one of its 8
+    neighbours in the texture is seen (the node's bilinear lookup spreads its light over their span)."""
+    rng = np.random.default_rng(4)
+    w, h = 14, 9
+    on = rng.random(w * h) < 0.85
+    visible = on & (rng.random(w * h) < 0.2)
+    pos = np.where(on[:, None], rng.random((w * h, 2)) * 50, np.nan)
+    pos[3] = np.nan                                              # on the mesh but behind the camera
+    texels = TexelMap(pos, visible, np.where(visible, 0.5, 0).astype(np.float32), on)
+    got = reaching_texels(texels, (w, h))
+    vis = visible.reshape(h, w)
+    for t in range(w * h):
+        y, x = divmod(t, w)
+        near = vis[max(0, y - 1):y + 2, max(0, x - 1):x + 2].any()
+        assert got[t] == (near and on[t] and np.isfinite(pos[t]).all()), t
+    assert (got & ~visible).any() and got[visible & np.isfinite(pos).all(axis=1)].all()
