@@ -10,7 +10,8 @@ from the camera's sampling of the surface (:func:`texture_size_for`). By default
 runs the sequential 3D calibration first instead (about 20 s per projector).
 
 Reported: the light transport (captures for the 25- and the 1-projector rig: the same grid, so
-the same count), the texels the camera sees and measures, and the captured PSNR / SSIM over the
+the same count; its error against the room's truth, per camera over the texels that camera measured,
+:func:`mesh_transport_errors`), the texels the camera sees and measures, and the captured PSNR / SSIM over the
 visible surface of none / the per-projector baseline / ours, with the side-by-side picture
 (``--out``). ``--cameras 3``: the room's three cameras (:data:`sim.scene.RING_CAMERAS`) measure
 together; the big rig is also compensated from the ceiling camera alone, and both results are
