@@ -9,7 +9,12 @@ import pytest
 import scipy.sparse as sp
 from scipy import ndimage
 
-from bench.compensation_bust import bust_room, make_bust_rig, mesh_transport_errors, truth_mesh_transport
+from bench.compensation_bust import (
+    bust_room,
+    make_bust_rig,
+    mesh_transport_errors,
+    truth_mesh_transport,
+)
 from coordinator.compensation.texture_space import MeshCaster, padded, padding_index
 from shadowless.room_driver import RoomDriver
 
