@@ -1,14 +1,15 @@
 """The ``transport`` job on a mesh rig: ``L`` in texture space, every projector at once.
 
 Each node renders the dot pattern as the mesh's texture through its own 3x4 pose, so every
-projector lights the same surface dots; ``sx * sy`` patterns (plus one black capture) whatever
-the number of projectors (:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Several
+projector lights the same surface dots; ``sx * sy`` patterns (plus one black capture, and a few
+extra patterns for dots that would crowd in a camera) whatever the number of projectors
+(:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Several
 cameras (``camera_indices``) measure together, each capturing every pattern, as one camera whose
 image is theirs stacked (:mod:`coordinator.compensation.mesh_cameras`). Each
 dot's window is centred where the camera sees its texel
-(:func:`~coordinator.compensation.texture_space.texel_camera_map`); texels the camera does not
-see, or whose dots crowd in the camera (:func:`~coordinator.compensation.mesh_geometry.dot_conflicts`),
-get no column and are reported. Stored, reused and refused as the table's ``L``
+(:func:`~coordinator.compensation.texture_space.texel_camera_map`); dots that would crowd in a
+camera move to extra patterns (:mod:`coordinator.compensation.mesh_geometry`), and texels no camera
+sees, or whose light is too wide for a window, get no column and are reported. Stored, reused and refused as the table's ``L``
 (:mod:`coordinator.compensation.transport_job`), with the cameras' projections and the mesh in
 its fingerprint. With ``baseline`` each projector's ``L_i`` is measured one at a time: the
 coordinator renders the texture through that projector's pose (:func:`~coordinator.compensation.
