@@ -35,8 +35,8 @@ from coordinator.rig import (
     init_rig,
     mesh_with_id,
 )
-from protos.layout import Layout, LayoutFileError, read_layout
 from coordinator.store import atomic_write_text
+from protos.layout import Layout, LayoutFileError, read_layout
 from protos.mesh_files import MeshFileError, format_obj, read_mesh
 from protos.spaces import scale_intrinsics
 

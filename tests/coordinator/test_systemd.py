@@ -57,7 +57,10 @@ def test_ready_keepalives_freeze_and_stopping(tmp_path):
         assert _count_keepalives(sock, 1), "keep-alives resume when it runs again"
 
         proc.send_signal(signal.SIGTERM)
-        tail = _drain(sock, time.monotonic() + 10.0)
+        tail: list = []               # until STOPPING arrives (at most 10 s)
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end and not any("STOPPING=1" in m for _, m in tail):
+            tail += _drain(sock, min(end, time.monotonic() + 0.5))
         assert any("STOPPING=1" in m for _, m in tail)
         assert proc.wait(timeout=30) == 0
     finally:

@@ -78,7 +78,10 @@ def test_ready_keepalives_from_both_halves_and_stopping(tmp_path):
         assert _keepalives(sock, 1), "and they resume"
 
         proc.send_signal(signal.SIGTERM)
-        tail = _drain(sock, time.monotonic() + 10.0)
+        tail: list[str] = []          # until STOPPING arrives (at most 10 s)
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end and not any("STOPPING=1" in m for m in tail):
+            tail += _drain(sock, min(end, time.monotonic() + 0.5))
         assert proc.wait(30) == 0
         assert any("STOPPING=1" in m for m in tail), tail
     finally:
