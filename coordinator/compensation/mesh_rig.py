@@ -241,8 +241,8 @@ def mesh_cameras(rig: Rig, slots: list[str], cameras: Sequence[int], *, projecto
             view = caster.view(P, size, content)
             if not view.on_mesh.any():
                 raise CompensationError(f"camera {camera} does not see the mesh: check its pose (calibration)")
-            seen.append((view, texel_camera_map(atlas, P, view, min_cos=MIN_COS),
-                         reaching_texels(texel_camera_map(atlas, P, view, min_cos=0.0), content)))
+            every = texel_camera_map(atlas, P, view, min_cos=0.0)     # at any angle: whose light reaches it
+            seen.append((view, every.at_least(MIN_COS), reaching_texels(every, content)))
         views = {}
         if projectors:
             for s in slots:

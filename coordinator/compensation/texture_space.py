@@ -125,6 +125,12 @@ class TexelMap:
     cos: np.ndarray
     on_mesh: np.ndarray
 
+    def at_least(self, min_cos: float) -> TexelMap:
+        """The same map with texels seen more obliquely than ``min_cos`` counted as not seen: what
+        :func:`texel_camera_map` gives with that ``min_cos`` when this map's is lower."""
+        visible = self.visible & (self.cos >= min_cos)
+        return TexelMap(self.position, visible, np.where(visible, self.cos, 0).astype(np.float32), self.on_mesh)
+
 
 def normalised_projection(P: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     """``P`` (3, 4) scaled so that its third row gives the depth in mm, the mesh in front (as the node does).
