@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import json
 import math
+import signal
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -354,6 +355,36 @@ async def _play_asset(args) -> int:
     return 0
 
 
+async def _play_until_interrupted(c, st: PlaySettings, frames: list[np.ndarray]) -> PlayResult:
+    """``c.play``; Ctrl-C stops the sequence on the rig, not only here, and raises KeyboardInterrupt.
+
+    The interrupt is caught by a handler of its own rather than through the task's cancellation: a
+    gRPC stream-unary call can swallow a cancellation that lands while it sends (grpc/grpc#43502), and
+    the sequence would then play on with the command waiting for it."""
+    loop = asyncio.get_running_loop()
+    task = asyncio.ensure_future(c.play(st, frames))
+    interrupted = asyncio.Event()
+    waiter = asyncio.ensure_future(interrupted.wait())
+    loop.add_signal_handler(signal.SIGINT, interrupted.set)
+    try:
+        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        loop.remove_signal_handler(signal.SIGINT)
+        waiter.cancel()
+    if task.done():
+        return task.result()
+    task.cancel()
+    try:
+        showing = await asyncio.wait_for(c.stop(), 10)
+        print(f"stopped on the rig; it shows {showing}", file=sys.stderr)
+    except (asyncio.TimeoutError, grpc.aio.AioRpcError) as exc:
+        print(f"could not stop the sequence on the rig ({exc}); run `shadowless stop`", file=sys.stderr)
+    await asyncio.wait({task}, timeout=5)      # the call ends with the sequence
+    if task.done() and not task.cancelled():
+        task.exception()                       # retrieved: the call's own end is no news after Ctrl-C
+    raise KeyboardInterrupt
+
+
 async def _play(args) -> int:
     frames: list[np.ndarray] = []
     if args.source and not args.pattern and not args.compensate and not Path(args.source).is_dir():
@@ -380,15 +411,7 @@ async def _play(args) -> int:
         raise OperatorError("give a folder of images or --pattern counter")
     async with await open_client(args) as c:
         await warn_unposed(c)
-        try:
-            r = await c.play(st, frames)
-        except asyncio.CancelledError:       # Ctrl-C: the sequence stops on the rig, not only here
-            try:
-                showing = await asyncio.wait_for(c.stop(), 10)
-                print(f"stopped on the rig; it shows {showing}", file=sys.stderr)
-            except (asyncio.TimeoutError, grpc.aio.AioRpcError) as exc:
-                print(f"could not stop the sequence on the rig ({exc}); run `shadowless stop`", file=sys.stderr)
-            raise
+        r = await _play_until_interrupted(c, st, frames)
     d = play_dict(r)
     print(json.dumps(d, indent=2) if args.json else
           f"played {d['frames_sent']} frames on {d['nodes']} nodes: shown by all {d['frames_shown']}, late {d['frames_late']}, "
