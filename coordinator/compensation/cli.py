@@ -124,10 +124,15 @@ def transport_params(args: argparse.Namespace) -> dict:
     return _params(args, TransportOptions)
 
 
+def _tail_note(result: dict) -> str:
+    """How a mesh ``L``'s window was recovered: its core per texel, the tail beyond averaged over neighbours."""
+    return f", tail beyond {result['core']} averaged over neighbouring texels" if result.get("tails_averaged") else ""
+
+
 def transport_report(result: dict) -> str:
     lines = [f"light transport {'reused (unchanged rig)' if result.get('reused') else 'measured'}: "
              f"{result.get('captures')} captures ({result.get('patterns')} dot patterns, spacing {result.get('spacing')}, "
-             f"radius {result.get('radius')}), {result.get('nnz')} non-zeros, {result.get('slots')} projectors",
+             f"radius {result.get('radius')}{_tail_note(result)}), {result.get('nnz')} non-zeros, {result.get('slots')} projectors",
              f"stored in the rig directory: {result.get('file')} ({result.get('date')})"]
     w = result.get("white")
     if w:

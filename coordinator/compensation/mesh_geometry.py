@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 from skimage.metrics import structural_similarity
 
 from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.psf_tails import smooth_tails
 from coordinator.compensation.texture_space import DeviceView, texels_per_pixel
 from coordinator.compensation.transport import assemble_transport
 
@@ -320,12 +321,16 @@ def dot_conflicts(grid: TexelGrid, base: np.ndarray, seen: np.ndarray, radius: i
 
 
 def texel_transport_from_captures(captures: Iterable[np.ndarray], black: np.ndarray, *, grid: TexelGrid,
-                                  rows: np.ndarray, valid: np.ndarray, dot_value: float = 1.0) -> sp.csr_matrix:
+                                  rows: np.ndarray, valid: np.ndarray, dot_value: float = 1.0, core: int | None = None,
+                                  part_rows: int | None = None) -> sp.csr_matrix:
     """A mesh rig's ``L`` in one camera from dot-grid captures: ``(Hc*Wc, W*H) float32`` CSR.
 
     As :func:`coordinator.compensation.transport.transport_from_captures` (the channel mean of
     ``capture - black`` inside each dot's window, negatives clipped, divided by ``dot_value``),
-    with the window structure of :func:`texel_windows` (texels left out: ``valid`` all False).
+    with the window structure of :func:`texel_windows` (texels left out: ``valid`` all False). With
+    ``core`` below the windows' radius, the entries beyond it are first averaged over neighbouring texels
+    (:func:`~coordinator.compensation.psf_tails.smooth_tails`; ``part_rows``: rows per camera when the
+    images stack several).
 
     Parameters
     ----------
@@ -357,6 +362,10 @@ def texel_transport_from_captures(captures: Iterable[np.ndarray], black: np.ndar
         raise ValueError(f"the dot grid needs {len(grid)} captures, got {count}")
     if dot_value != 1.0:
         values /= np.float32(dot_value)
+    if core is not None:
+        radius = (math.isqrt(rows.shape[1]) - 1) // 2
+        smooth_tails(values, rows, valid, camera_width=camera_shape[1], part_rows=part_rows or camera_shape[0],
+                     radius=radius, core=core)
     np.maximum(values, 0, out=values)
     values[~valid] = 0
     return assemble_transport(values, rows, valid, camera_shape)

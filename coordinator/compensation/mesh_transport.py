@@ -9,7 +9,11 @@ image is theirs stacked (:mod:`coordinator.compensation.mesh_cameras`). Each
 dot's window is centred where the camera sees its texel
 (:func:`~coordinator.compensation.texture_space.texel_camera_map`); dots that would crowd in a
 camera move to extra patterns (:mod:`coordinator.compensation.mesh_geometry`), and texels no camera
-sees, or whose light is too wide for a window, get no column and are reported. Stored, reused and refused as the table's ``L``
+sees, or whose light is too wide for a window, get no column and are reported. The windows reach
+:data:`TAIL_FACTOR` times the PSF's core radius (from the geometry) unless ``radius`` is given: the
+core's entries are each texel's own, the tail's the mean over its neighbours
+(:mod:`coordinator.compensation.psf_tails`), so ``L 1`` holds the defocus's spill without the
+clipped noise of a single capture. Stored, reused and refused as the table's ``L``
 (:mod:`coordinator.compensation.transport_job`), with the cameras' projections and the mesh in
 its fingerprint. With ``baseline`` each projector's ``L_i`` is measured one at a time: the
 coordinator renders the texture through that projector's pose (:func:`~coordinator.compensation.
@@ -68,6 +72,11 @@ __all__ = ["run_mesh_transport", "ensure_mesh_transport", "ensure_mesh_baseline"
            "solve_weights", "stored_cameras", "capture_cameras"]
 
 
+#: default window radius over the PSF's core radius from the geometry: the outer part holds the lens's
+#: defocus tail, measured as the mean over neighbouring texels (:mod:`coordinator.compensation.psf_tails`)
+TAIL_FACTOR = 2
+
+
 async def load_geometry(ctx: JobContext, slots: list[str], cameras: tuple[int, ...], *,
                         projectors: bool = False) -> MeshCameras:
     """The rig's mesh geometry seen by ``cameras`` (:func:`~coordinator.compensation.mesh_rig.mesh_cameras`) off
@@ -97,7 +106,7 @@ async def capture_cameras(ctx: JobContext, cameras: tuple[int, ...], *, frames: 
 def solve_weights(cams: MeshCameras, tr: StoredTransport) -> np.ndarray:
     """:func:`~coordinator.compensation.mesh_cameras.stacked_row_weights` of a measured mesh rig:
     ``(K Hc, Wc) float32``."""
-    return stacked_row_weights(cams, tr.L, radius=int(tr.meta["radius"]))
+    return stacked_row_weights(cams, tr.L, radius=int(tr.meta.get("core", tr.meta["radius"])))
 
 
 def texel_summary(tr: StoredTransport, cams: MeshCameras) -> dict:
@@ -140,24 +149,27 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
     measurement (``measure=False``: a :class:`JobError` instead); and the rig's geometry in its cameras."""
     rig = ctx.rig
     cameras = opts.camera_list
-    cams = await load_geometry(ctx, slots, cameras, projectors=opts.radius is None)
+    cams = await load_geometry(ctx, slots, cameras, projectors=True)
     cw, ch = content_size(ctx)
     extents = [texel_extent(g.texels.position, (ch, cw)) for g in cams.parts]
-    radius = opts.radius
-    if radius is None:
-        # camera px per texel: the reach of a texel's light (it spans its neighbours') for 90 % of the texels
-        # a camera sees, so they fit their window; the few larger ones are left out (below); the largest
-        # radius the cameras need, as every window has one size
-        radius = 0
-        for g, extent in zip(cams.parts, extents):
-            _, p = view_scales(g.view, list(g.projectors.values()))
-            seen_extent = extent[g.texels.visible]
-            c = float(np.percentile(seen_extent, 90)) if seen_extent.size else 1.0
-            radius = max(radius, psf_radius_at_scales(max(c, 0.5), p))
+    # camera px per texel: the reach of a texel's light (it spans its neighbours') for 90 % of the texels
+    # a camera sees, so they fit their window; the few larger ones are left out (below); the largest
+    # radius the cameras need, as every window has one size: the core of the PSF, kept per texel
+    core = 0
+    for g, extent in zip(cams.parts, extents):
+        _, p = view_scales(g.view, list(g.projectors.values()))
+        seen_extent = extent[g.texels.visible]
+        c = float(np.percentile(seen_extent, 90)) if seen_extent.size else 1.0
+        core = max(core, psf_radius_at_scales(max(c, 0.5), p))
+    # the windows reach TAIL_FACTOR times as far by default: the lens's defocus spreads light past the core,
+    # and that tail, averaged over neighbouring texels (psf_tails), is part of the rig's white
+    radius = opts.radius if opts.radius is not None else TAIL_FACTOR * core
+    core = min(core, radius)
+    tails = core if core < radius else None
     one = len(cameras) == 1
     key = cams.key()
     state = rig_state_fingerprint(rig, slots, key, cameras[0] if one else cameras)
-    fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count)
+    fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count, core=tails)
     P = cams.parts[0].P if one else np.vstack([g.P for g in cams.parts])
     found = stored_transport(ctx, state, opts.given, P, slots, force=opts.force, measure=measure, surface="mesh")
     if found is not None:
@@ -201,7 +213,7 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
             ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
 
     L = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures, grid=grid,
-                                        rows=rows, valid=valid)
+                                        rows=rows, valid=valid, core=tails, part_rows=cams.part_shape[0])
     seconds = time.monotonic() - t0
     edge = await ctx.compute(stacked_ring_energy, L, base, cams.part_shape, radius)
     if edge > EDGE_WARNING:
@@ -209,7 +221,8 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
                 f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")
     spacing = grid.spacing[0] if grid.spacing[0] == grid.spacing[1] else grid.spacing
     projection = np.asarray(P).tolist() if one else [np.asarray(g.P).tolist() for g in cams.parts]
-    meta = {"fingerprint": fp, "rig_state": state, "surface": "mesh", "radius": radius, "spacing": spacing,
+    meta = {"fingerprint": fp, "rig_state": state, "surface": "mesh", "radius": radius, "core": core,
+            "tails_averaged": tails is not None, "spacing": spacing,
             "frames": frames, "captures": ctx.captures - c0, "patterns": len(grid), "content_size": [cw, ch],
             "camera_size": [cam[1], cam[0]], "camera_projection": projection, "camera": cameras[0],
             "cameras": list(cameras), "camera_spec": specs[0] if one else specs,
@@ -233,6 +246,7 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
     fp = baseline_fingerprint(tr.meta["fingerprint"], frames, opts.baseline_exposure)
     cw, ch = content_size(ctx)
     radius = int(tr.meta["radius"])
+    tails = int(tr.meta["core"]) if tr.meta.get("tails_averaged") else None
     out, todo = stored_baselines(rig, tr.slots, fp, tr.L.shape)
     t0 = time.monotonic()
     c0 = ctx.captures
@@ -264,7 +278,8 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
                     ctx.progress("baseline transport", s, k + 1, len(grid), f"projector {n + 1}/{len(todo)}")
 
             Li = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures,
-                                                 grid=grid, rows=rows, valid=valid, dot_value=opts.baseline_exposure)
+                                                 grid=grid, rows=rows, valid=valid, dot_value=opts.baseline_exposure,
+                                                 core=tails, part_rows=cams.part_shape[0])
             await ctx.compute(save_baseline_transport, rig, s, Li,
                               {"fingerprint": fp, "slot": s, "frames": frames, "exposure": opts.baseline_exposure,
                                "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})

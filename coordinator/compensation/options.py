@@ -123,7 +123,8 @@ class TransportOptions(_CaptureOptions):
     slots: list[str] | None = option(None, help="projectors that must take part (default: every connected one with "
                                                 "a pose)")
     radius: int | None = option(None, lo=1, hi=16, metavar="R", group=TRANSPORT,
-                                help="PSF recovery radius in camera pixels (default: from the geometry)")
+                                help="PSF recovery radius in camera pixels (default: from the geometry; on a mesh "
+                                     "twice that, the part beyond it averaged over neighbouring texels)")
     spacing: int | None = option(None, lo=2, hi=64, metavar="S", group=TRANSPORT,
                                  help="dot-grid spacing in content pixels (default: the smallest that separates the "
                                       "windows; S*S captures)")

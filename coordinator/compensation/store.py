@@ -151,10 +151,12 @@ def rig_state_fingerprint(rig: Rig, slots: Sequence[str], H: np.ndarray, camera:
     return h.hexdigest()
 
 
-def transport_fingerprint(state: str, radius: int, spacing: int | None, frames: int) -> str:
+def transport_fingerprint(state: str, radius: int, spacing: int | None, frames: int, *, core: int | None = None) -> str:
     """One measurement: the rig's state and the dot grid it was measured with (names its black capture and
-    ties the baseline's ``L_i`` to it)."""
-    return hashlib.blake2b(repr((state, radius, spacing, frames)).encode(), digest_size=10).hexdigest()
+    ties the baseline's ``L_i`` to it); ``core``: the windows' radius kept per texel when the tails beyond it
+    are averaged over neighbours (:mod:`coordinator.compensation.psf_tails`)."""
+    key = (state, radius, spacing, frames) if core is None else (state, radius, spacing, frames, "tails", core)
+    return hashlib.blake2b(repr(key).encode(), digest_size=10).hexdigest()
 
 
 def load_valid_transport(rig: Rig, state: str, wanted: Mapping[str, Any], H: np.ndarray, slots: list[str], *,
@@ -202,6 +204,7 @@ def transport_summary(tr: StoredTransport) -> dict:
     return {"reused": tr.reused, "captures": m["captures"], "patterns": m["patterns"], "spacing": m["spacing"],
             "radius": m["radius"], "frames": m["frames"], "seconds": m["seconds"], "nnz": m["nnz"],
             "edge_energy": m.get("edge_energy"),
+            **({"core": m["core"], "tails_averaged": m["tails_averaged"]} if "tails_averaged" in m else {}),
             "shape": list(tr.L.shape), "slots": len(tr.slots), "date": m["date"], "fingerprint": m["fingerprint"],
             "file": f"{SUBDIR}/transport.npz"}
 

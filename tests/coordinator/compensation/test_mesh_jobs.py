@@ -41,13 +41,15 @@ def test_transport_in_texture_space_is_the_rooms_and_is_reused(setup):
     out = run(driver, "transport", {"settle_s": 0.0})
     assert out["surface"] == "mesh" and not out["reused"]
     assert out["captures"] == out["patterns"] + 1 == driver.captures - c0 and out["patterns"] >= 16
+    # by default the windows reach twice the PSF's core, the tail beyond it averaged over neighbouring texels
+    assert out["tails_averaged"] and out["radius"] == 2 * out["core"] >= 2
     tex = out["texture"]
     assert tex["texels"] == CONTENT[0] * CONTENT[1] and 0 < tex["measured"] <= tex["seen"] < tex["on_mesh"]
     L, meta = load_transport(rig.path / "compensation" / "transport.npz")
     cols = measured_texels(L)
     truth = truth_mesh_transport(room, rig, SLOTS)
     err = transport_error(sp.csr_matrix(L.tocsc()[:, cols]), sp.csr_matrix(truth.tocsc()[:, cols]))
-    assert err < 0.35, err
+    assert err < 0.12, err      # 0.06 here: the defocus's tail is in L, its noise averaged away
     c0 = driver.captures
     again = run(driver, "transport", {"settle_s": 0.0})
     assert again["reused"] and driver.captures == c0
