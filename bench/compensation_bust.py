@@ -276,12 +276,14 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
     truths = await asyncio.to_thread(lambda: [truth_mesh_transport(room, rig, slots, camera=c) for c in range(k)])
     from coordinator.compensation.transport import load_transport
 
-    L, _ = load_transport(rig.path / "compensation" / "transport.npz")
-    errs = mesh_transport_errors(L, truths)
+    L, meta = load_transport(rig.path / "compensation" / "transport.npz")
+    exposure = float(meta.get("exposure", 1.0))        # L is in the units of the exposure it was measured at
+    errs = mesh_transport_errors(L, [t * np.float32(exposure) for t in truths])
     err = errs["stacked"]
     out["transport"] = {"captures": driver.captures - c0, "wall_s": round(time.perf_counter() - t, 2),
                         "patterns": tr["patterns"], "spacing": tr["spacing"], "radius": tr["radius"],
-                        "edge_energy": tr["edge_energy"], "texture": tr["texture"],
+                        "edge_energy": tr["edge_energy"], "texture": tr["texture"], "exposure": exposure,
+                        "white_peak": tr.get("white_peak"),
                         "relative_error_measured_columns": round(err, 5),
                         "relative_error_per_camera": [round(e, 5) for e in errs["per_camera"]]}
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {err:.4f})")

@@ -27,11 +27,14 @@ from shadowless.room_driver import RoomDriver
 __all__ = ["score_from_cameras"]
 
 
-def _captured(driver: RoomDriver, image: np.ndarray | None, cameras: list[int], frames: int) -> np.ndarray:
-    """``image`` shown (None: black), each camera's mean of ``frames`` captures, stacked: ``(K Hc, Wc, 3)``."""
+def _captured(driver: RoomDriver, image: np.ndarray | None, cameras: list[int], frames: int,
+              exposure: float = 1.0) -> np.ndarray:
+    """``image`` shown (None: black), each camera's mean of ``frames`` captures at ``exposure`` times its own,
+    stacked: ``(K Hc, Wc, 3)``."""
     driver.render_content(image)
-    return np.concatenate([np.mean([driver.room.capture(c) for _ in range(frames)], axis=0, dtype=np.float32)
-                           for c in cameras], axis=0)
+    room = driver.room
+    return np.concatenate([np.mean([room.capture(c, exposure=room.truth.camera(c).exposure * exposure)
+                                    for _ in range(frames)], axis=0, dtype=np.float32) for c in cameras], axis=0)
 
 
 def score_from_cameras(driver: RoomDriver, content: np.ndarray, results: dict[str, np.ndarray], *, level: float,
@@ -54,12 +57,13 @@ def score_from_cameras(driver: RoomDriver, content: np.ndarray, results: dict[st
     target = np.float32(level) * row_white(L, shape)[:, :, None] * T
     ref = np.float32(np.percentile(target[region], SCORE_PERCENTILE))
     goal = target / ref
-    black = _captured(driver, None, cameras, frames)
+    exposure = float(meta.get("exposure", 1.0))       # L's units: the captures it is compared with use it too
+    black = _captured(driver, None, cameras, frames, exposure)
     h = shape[0] // len(cameras)
     out: dict = {"cameras": cameras, "visible_surface_pixels": int(region.sum()),
                  "per_camera_pixels": [int(region[k * h:(k + 1) * h].sum()) for k in range(len(cameras))]}
     for name, x in results.items():
-        c = (_captured(driver, x, cameras, frames) - black) / ref
+        c = (_captured(driver, x, cameras, frames, exposure) - black) / ref
         s = masked_quality(goal, c, region)
         s["per_camera"] = [masked_quality(goal[k * h:(k + 1) * h], c[k * h:(k + 1) * h], region[k * h:(k + 1) * h])
                            for k in range(len(cameras))]

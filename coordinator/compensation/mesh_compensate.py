@@ -21,7 +21,12 @@ least lit part. The per-projector baseline asks each projector for its own share
 Quality is scored over the visible surface (the pixels the solve weighs): captures minus black
 and the target, both divided by the target's 99th percentile, PSNR and SSIM over those pixels only
 (:func:`~coordinator.compensation.mesh_geometry.masked_quality`); with several cameras over all
-their pixels together, and per camera.
+their pixels together, and per camera. An object can be lit far brighter than the table the camera's
+exposure was set on (25 projectors on the bust's crown: 1.3 times the camera's full scale), and a
+clipped capture scores the sensor, not the compensation. ``L`` was measured at an exposure that keeps
+the rig's white in range (:mod:`coordinator.compensation.exposure`), and the evaluation captures at
+that one, lowered further if the white on the scored surface still passes :data:`HEADROOM` of full
+scale (:func:`evaluation_exposure`; reported, and warned about on a camera that cannot change it).
 """
 from __future__ import annotations
 
@@ -32,6 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.exposure import HEADROOM
 from coordinator.compensation.geometry import row_white
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.jobkit import (
@@ -64,7 +70,7 @@ from coordinator.compensation.texture_space import content_at_view, mesh_warp
 from coordinator.jobs import JobContext, JobError
 from coordinator.store import atomic_write_bytes
 
-__all__ = ["run_mesh_compensate", "WeightedProblem"]
+__all__ = ["run_mesh_compensate", "WeightedProblem", "evaluation_exposure"]
 
 #: percentile of the target (over the visible surface) that scores divide by
 SCORE_PERCENTILE = 99.0
@@ -171,7 +177,7 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
                               "solve_seconds_sum": round(sum(r.seconds for r in results), 3)}
         result["baseline_over_ours_seconds"] = round(result["baseline"]["solve_seconds_sum"] / max(res.seconds, 1e-9), 2)
     if opts.evaluate:
-        result["quality"] = await _evaluate(ctx, tr, cams, none, x, base_x, target, region, opts, name)
+        result["quality"] = await _evaluate(ctx, tr, cams, none, x, base_x, target, region, opts, name, white)
     result["wall_s"] = round(time.monotonic() - t0, 3)
     write_result(ctx.rig, "result.json", result)
     if opts.persist:
@@ -197,6 +203,22 @@ def _solve_baseline(ctx: JobContext, base_L: dict[str, sp.csr_matrix], wp: Weigh
     return xs, results
 
 
+def evaluation_exposure(white: np.ndarray, black: np.ndarray, region: np.ndarray) -> tuple[float, float]:
+    """``(exposure, peak)``: the relative exposure (at most 1) at which black plus the rig's white stays within
+    :data:`HEADROOM` of full scale (1.0) over ``region``, and that peak, both relative to the exposure ``L``
+    and ``black`` were captured at.
+
+    ``white``: (Hc, Wc) the rig's white (``L 1``, camera units above black); ``black``: (Hc, Wc[, C]) the
+    black capture; ``region``: (Hc, Wc) bool, the scored pixels.
+    """
+    b = np.asarray(black, np.float32)
+    b = b.max(axis=2) if b.ndim == 3 else b
+    if not region.any():
+        return 1.0, 0.0
+    peak = float(np.max((white + b)[region]))
+    return (min(1.0, HEADROOM / peak) if peak > 0 else 1.0), peak
+
+
 def _scores(goal: np.ndarray, captured: np.ndarray, region: np.ndarray, cameras: int) -> dict:
     """:func:`masked_quality` over the visible surface of the stacked image; with several cameras also each
     camera's own (``per_camera``, in their order), where it sees any of it."""
@@ -211,11 +233,22 @@ def _scores(goal: np.ndarray, captured: np.ndarray, region: np.ndarray, cameras:
 
 async def _evaluate(ctx: JobContext, tr, cams, none: np.ndarray, ours: np.ndarray,
                     base_x: dict[str, np.ndarray] | None, target: np.ndarray, region: np.ndarray,
-                    opts: CompensateOptions, name: str) -> dict:
+                    opts: CompensateOptions, name: str, white: np.ndarray) -> dict:
     """Capture none / baseline / ours; PSNR, SSIM over the visible surface and the side-by-side picture."""
     rig = ctx.rig
     cameras = stored_cameras(tr)
     frames = opts.eval_frames
+    base = float(tr.meta.get("exposure", 1.0))          # L's captures were taken at this exposure
+    f, peak = evaluation_exposure(white, tr.black, region)
+    if f < 1.0 and not all(ctx.supports_exposure(c) for c in cameras):
+        ctx.log(f"warning: the rig's white reaches {peak:.2f} of the camera's full scale on the scored surface: its "
+                "captures clip there and cap the scores; lower the camera's exposure (or --level)")
+        f = 1.0
+    elif f < 1.0:
+        ctx.log(f"the rig's white reaches {peak:.2f} of the camera's full scale on the scored surface: evaluating at "
+                f"{f:.3f} times the exposure L was measured at")
+    exposure = base * f
+    shot = {"exposure": exposure} if exposure < 1.0 else {}
     steps = 3 if base_x else 2
     ref = float(np.percentile(target[region], SCORE_PERCENTILE))
     if ref <= 0:
@@ -224,10 +257,10 @@ async def _evaluate(ctx: JobContext, tr, cams, none: np.ndarray, ours: np.ndarra
 
     async def seen(image: np.ndarray) -> np.ndarray:
         await ctx.show_content(image, settle_s=opts.settle_s)
-        return await capture_cameras(ctx, cameras, frames=frames)
+        return await capture_cameras(ctx, cameras, frames=frames, **shot)
 
     def score(capture: np.ndarray) -> tuple[dict, np.ndarray]:
-        c = (np.asarray(capture, np.float32) - black) / np.float32(ref)
+        c = (np.asarray(capture, np.float32) - black) / np.float32(ref * f)
         if goal.shape[2] == 1:
             c = c.mean(axis=2, keepdims=True)
         return _scores(goal, c, region, len(cameras)), c
@@ -245,7 +278,7 @@ async def _evaluate(ctx: JobContext, tr, cams, none: np.ndarray, ours: np.ndarra
             st = rig.slot(k)
             frames_by_slot[k] = await ctx.compute(mesh_warp, x, views[k], lut=st.lut, gain=st.gain)
         await ctx.show(frames_by_slot, settle_s=opts.settle_s, require=list(frames_by_slot))
-        scores["baseline"], tiles["baseline"] = score(await capture_cameras(ctx, cameras, frames=frames))
+        scores["baseline"], tiles["baseline"] = score(await capture_cameras(ctx, cameras, frames=frames, **shot))
     ctx.progress("evaluate", "", steps - 1, steps, "ours")
     scores["ours"], tiles["ours"] = score(await seen(ours))
     ctx.progress("evaluate", "", steps, steps, "scored")
@@ -268,6 +301,8 @@ async def _evaluate(ctx: JobContext, tr, cams, none: np.ndarray, ours: np.ndarra
     out = {**scores, "predicted": {"none": await ctx.compute(predicted, none), "ours": await ctx.compute(predicted, ours)},
            "region": {"visible_surface_pixels": int(region.sum()), "of_mesh_pixels": int(cams.view.on_mesh.sum()),
                       "score_reference": round(ref, 6)},
+           "exposure": round(exposure, 4), "transport_exposure": round(base, 4),
+           "white_peak_of_full_scale": round(peak, 4),
            "captures_averaged": frames, "picture": f"{SUBDIR}/quality.png", "image": name}
     out["ordering"] = {
         "ours_minus_none_db": round(scores["ours"]["psnr"] - scores["none"]["psnr"], 3),

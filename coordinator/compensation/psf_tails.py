@@ -35,9 +35,10 @@ def smooth_tails(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, cam
 
     Parameters
     ----------
-    values : (n, K) float32
-        Unclipped window entries per texel (``capture - black`` over the dot value), ``K = (2 radius + 1)^2``.
-    rows, valid : (n, K)
+    values : (n, B K) float32
+        Unclipped window entries per texel (``capture - black`` over the dot value), ``K = (2 radius + 1)^2``
+        per camera, ``B`` cameras one after the other (:func:`~coordinator.compensation.mesh_cameras.stacked_windows`).
+    rows, valid : (n, B K)
         Camera pixel (flat, of the stacked image: ``part_rows`` rows per camera) of each entry, and whether
         it was measured.
     core : int
@@ -45,23 +46,35 @@ def smooth_tails(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, cam
     reach : float
         Chebyshev distance (camera px) between window centres that counts as near; default ``radius``.
 
-    Returns the median number of texels averaged per measured texel (1 when nothing was smoothed).
+    Returns the median number of texels averaged per measured texel and camera (1 when nothing was smoothed).
     """
     k_all = (2 * radius + 1) ** 2
-    if values.shape != rows.shape or values.shape != valid.shape or values.shape[1] != k_all:
-        raise ValueError(f"values {values.shape}, rows {rows.shape} and valid {valid.shape} must be (n, {k_all})")
+    if values.shape != rows.shape or values.shape != valid.shape or values.shape[1] % k_all or not values.shape[1]:
+        raise ValueError(f"values {values.shape}, rows {rows.shape} and valid {valid.shape} must be (n, B * {k_all})")
     if not 0 <= core < radius:
         return 1
-    centre = k_all // 2
+    counts = []
+    for b in range(values.shape[1] // k_all):
+        cols = slice(b * k_all, (b + 1) * k_all)
+        counts += _smooth_one(values[:, cols], rows[:, cols], valid[:, cols], camera_width=camera_width,
+                              part_rows=part_rows, radius=radius, core=core,
+                              reach=float(radius if reach is None else reach))
+    return int(np.median(counts)) if counts else 1
+
+
+def _smooth_one(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, camera_width: int, part_rows: int,
+                radius: int, core: int, reach: float) -> list[int]:
+    """:func:`smooth_tails` for one camera's ``(n, K)`` block (``values`` a view written through); the number
+    of texels averaged per measured texel."""
+    centre = values.shape[1] // 2
     texels = np.flatnonzero(valid[:, centre])
     if texels.size == 0:
-        return 1
+        return []
     cam = rows[texels, centre].astype(np.int64)
     y, x = np.divmod(cam, camera_width)
     part, y = np.divmod(y, part_rows)
     gap = part_rows + 4 * radius + 4                 # cameras stacked apart: never each other's neighbours
     pts = np.column_stack([x, y + part * gap]).astype(np.float64)
-    reach = float(radius if reach is None else reach)
     pairs = cKDTree(pts).query_pairs(r=reach, p=np.inf, output_type="ndarray")
     m = texels.size
     i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
@@ -75,4 +88,4 @@ def smooth_tails(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, cam
     with np.errstate(divide="ignore", invalid="ignore"):
         mean = np.where(count > 0, total / count, 0.0).astype(np.float32)
     values[np.ix_(texels, ring)] = np.where(ok > 0, mean, v)
-    return int(np.median(np.diff(near.indptr)))
+    return np.diff(near.indptr).tolist()

@@ -205,6 +205,7 @@ def transport_summary(tr: StoredTransport) -> dict:
             "radius": m["radius"], "frames": m["frames"], "seconds": m["seconds"], "nnz": m["nnz"],
             "edge_energy": m.get("edge_energy"),
             **({"core": m["core"], "tails_averaged": m["tails_averaged"]} if "tails_averaged" in m else {}),
+            **({"exposure": m["exposure"], "white_peak": m["white_peak"]} if "exposure" in m else {}),
             "shape": list(tr.L.shape), "slots": len(tr.slots), "date": m["date"], "fingerprint": m["fingerprint"],
             "file": f"{SUBDIR}/transport.npz"}
 

@@ -52,8 +52,8 @@ def test_two_cameras_see_more_and_each_measures_its_own_rows(measured):
     one, two = out["0"]["texture"], out["1"]["texture"]
     both = out["01"]["texture"]
     assert both["seen"] > max(one["seen"], two["seen"]) and both["measured"] > max(one["measured"], two["measured"])
-    # every camera captures every pattern: (patterns + black) per camera, whatever the projectors
-    assert out["01"]["captures"] == out["01"]["captures_taken"] == 2 * (out["01"]["patterns"] + 1)
+    # every camera captures every pattern: (patterns + black + white) per camera, whatever the projectors
+    assert out["01"]["captures"] == out["01"]["captures_taken"] == 2 * (out["01"]["patterns"] + 2)
     assert both["per_camera"] == [{"camera": 0, "seen": one["seen"], "measured": one["measured"]},
                                   {"camera": 1, "seen": two["seen"], "measured": two["measured"]}]
     assert both["seen"] == one["seen"] + two["seen"] - both["seen_by"]["2"]
@@ -148,3 +148,18 @@ def test_camera_shares_and_weights(measured):
                                               radius=int(out["1"]["radius"]),
                                               unmeasured_at=one.parts[0].texels.position[
                                                   one.parts[0].texels.visible & ~measured_texels(out["1"]["L"])]))
+
+
+def test_tails_beyond_the_core_are_averaged_per_camera(measured):
+    """Windows wider than the core: each camera's tail is averaged over its own texels (a stacked image's rows
+    hold one window per camera), every texel measured before still is, and what the wider windows add is a faint
+    tail. Runs last: it measures the rig again."""
+    room, rig, driver, out = measured
+    wide = run(driver, "transport", {"settle_s": 0.0, "camera_indices": [0, 1], "radius": RADIUS + 2})
+    assert wide["tails_averaged"] and wide["core"] == RADIUS and wide["radius"] == RADIUS + 2
+    L = load_transport(rig.path / "compensation" / "transport.npz")[0]
+    for block, narrow in zip(camera_blocks(L, 2), camera_blocks(out["01"]["L"], 2)):
+        m = measured_texels(narrow)
+        np.testing.assert_array_equal(measured_texels(block)[m], True)
+        total, core = float(block.tocsc()[:, m].sum()), float(narrow.tocsc()[:, m].sum())
+        assert core <= total < 1.1 * core, (core, total)

@@ -13,12 +13,13 @@ import scipy.sparse as sp
 from bench.compensation_bust import bust_room, make_bust_rig, truth_mesh_transport
 from bench.compensation_room import demo_image
 from coordinator.compensation.image_param import encode_image_array
+from coordinator.compensation.mesh_compensate import evaluation_exposure
 from coordinator.compensation.mesh_geometry import measured_texels
 from coordinator.compensation.texture_space import MeshCaster, padding_index
 from coordinator.compensation.transport import load_transport, transport_error
 from coordinator.jobs import JobError
 from coordinator.rig import HomographyPose
-from shadowless.room_driver import RoomDriver
+from shadowless.room_driver import RoomCamera, RoomDriver
 
 CONTENT = (128, 96)
 SLOTS = ["r2c2"]
@@ -40,7 +41,9 @@ def test_transport_in_texture_space_is_the_rooms_and_is_reused(setup):
     c0 = driver.captures
     out = run(driver, "transport", {"settle_s": 0.0})
     assert out["surface"] == "mesh" and not out["reused"]
-    assert out["captures"] == out["patterns"] + 1 == driver.captures - c0 and out["patterns"] >= 16
+    # the dot patterns, black and one white (the exposure: one projector does not reach the camera's full scale)
+    assert out["captures"] == out["patterns"] + 2 == driver.captures - c0 and out["patterns"] >= 16
+    assert out["exposure"] == 1.0 and 0 < out["white_peak"] < 0.9
     # by default the windows reach twice the PSF's core, the tail beyond it averaged over neighbouring texels
     assert out["tails_averaged"] and out["radius"] == 2 * out["core"] >= 2
     tex = out["texture"]
@@ -94,3 +97,35 @@ def test_refusals_on_a_mesh_rig(setup, tmp_path):
         run(RoomDriver(room, mixed), "transport", {"settle_s": 0.0, "slots": ["r2c2"]})
     with pytest.raises(JobError, match="run `shadowless transport`"):
         run(driver, "compensate", {"image": encode_image_array(demo_image(CONTENT)), "measure": False, "radius": 7})
+
+
+def test_evaluation_exposure_keeps_the_white_within_the_cameras_range():
+    white = np.array([[0.2, 1.4], [0.5, 3.0]], np.float32)
+    black = np.full((2, 2, 3), 0.05, np.float32)
+    region = np.array([[True, True], [True, False]])           # the 3.0 pixel is not scored
+    e, peak = evaluation_exposure(white, black, region)
+    assert peak == pytest.approx(1.45) and e == pytest.approx(0.9 / 1.45)
+    assert evaluation_exposure(white * 0.1, black, region)[0] == 1.0      # in range: the camera's own exposure
+
+
+def test_a_surface_brighter_than_the_camera_is_measured_and_scored_unclipped(tmp_path, monkeypatch):
+    """The camera's exposure set far too high for the bust: transport and evaluation lower it for their captures,
+    where a camera that cannot change its exposure captures clipped dots and images, is warned about, and
+    scores far lower."""
+    room = bust_room(projector_scale=0.25, camera_scale=0.125, seed=2)
+    params = {"image": encode_image_array(demo_image(CONTENT), "a.png"), "evaluate": True, "eval_frames": 2,
+              "settle_s": 0.0, "max_iter": 40}
+    rigs = [make_bust_rig(tmp_path / name, room, SLOTS, content_size=CONTENT, luts=True) for name in ("a", "b")]
+    driver = RoomDriver(room, rigs[0], exposure=20.0)
+    res = run(driver, "compensate", params)
+    lowered = res["quality"]
+    assert res["transport"]["white_peak"] > 1.5 and res["transport"]["exposure"] == pytest.approx(lowered["transport_exposure"], abs=1e-4)
+    assert lowered["transport_exposure"] < 0.5 and lowered["exposure"] <= lowered["transport_exposure"]
+    assert not any("clip" in str(e) for e in driver.events)
+    monkeypatch.setattr(RoomCamera, "supports_exposure", False)
+    fixed = RoomDriver(room, rigs[1], exposure=20.0)
+    clipped = run(fixed, "compensate", params)["quality"]
+    assert clipped["exposure"] == clipped["transport_exposure"] == 1.0
+    assert any("full scale" in str(e) and "clip" in str(e) for e in fixed.events)
+    for k in ("none", "ours"):
+        assert lowered[k]["psnr"] > clipped[k]["psnr"] + 3.0, (k, lowered[k], clipped[k])

@@ -72,3 +72,24 @@ def test_bad_shapes_are_refused():
     with pytest.raises(ValueError, match="must be"):
         smooth_tails(np.zeros((2, 9), np.float32), np.zeros((2, 9), int), np.ones((2, 9), bool), camera_width=5,
                      part_rows=5, radius=2, core=1)
+
+
+def test_stacked_cameras_are_smoothed_each_in_its_own_block():
+    rng = np.random.default_rng(2)
+    radius, core, width, part_rows = 2, 0, 50, 30
+    blocks = []
+    for k in range(2):                                   # camera k's pixels follow camera k-1's in the stacked image
+        centres = np.column_stack([rng.integers(3, 47, 40), rng.integers(3, 27, 40)])
+        blocks.append(_windows(centres, radius, width) + k * part_rows * width)
+    rows = np.concatenate(blocks, axis=1)
+    valid = np.ones(rows.shape, bool)
+    valid[::3, 25:] = False                              # a third of the texels unseen by camera 1
+    values = rng.normal(size=rows.shape).astype(np.float32)
+    stacked = values.copy()
+    smooth_tails(stacked, rows, valid, camera_width=width, part_rows=part_rows, radius=radius, core=core)
+    for k in range(2):
+        one = np.ascontiguousarray(values[:, 25 * k:25 * (k + 1)])
+        smooth_tails(one, rows[:, 25 * k:25 * (k + 1)], valid[:, 25 * k:25 * (k + 1)], camera_width=width,
+                     part_rows=part_rows, radius=radius, core=core)
+        np.testing.assert_array_equal(stacked[:, 25 * k:25 * (k + 1)], one)
+    assert not np.array_equal(stacked, values)
