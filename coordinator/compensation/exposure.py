@@ -1,7 +1,7 @@
 """The camera exposure a measurement on an object runs at: the rig's white inside the camera's range.
 
 A camera's exposure is set once, on the table. An object can be lit far brighter: the bust's crown
-is closer to the projectors and faces them, and 25 projectors throw 1.3 times the camera's full scale
+is closer to the projectors and faces them, and 25 projectors throw 1.9 times the camera's full scale
 there. A dot of one texel is nearly as bright as the white where a texel spans several camera pixels,
 so the dots clip too, ``L`` comes out short where the surface is brightest, and every score made
 against a clipped capture measures the sensor. So before measuring, the rig shows white, and the

@@ -22,7 +22,7 @@ Quality is scored over the visible surface (the pixels the solve weighs): captur
 and the target, both divided by the target's 99th percentile, PSNR and SSIM over those pixels only
 (:func:`~coordinator.compensation.mesh_geometry.masked_quality`); with several cameras over all
 their pixels together, and per camera. An object can be lit far brighter than the table the camera's
-exposure was set on (25 projectors on the bust's crown: 1.3 times the camera's full scale), and a
+exposure was set on (25 projectors on the bust's crown: 1.9 times the camera's full scale), and a
 clipped capture scores the sensor, not the compensation. ``L`` was measured at an exposure that keeps
 the rig's white in range (:mod:`coordinator.compensation.exposure`), and the evaluation captures at
 that one, lowered further if the white on the scored surface still passes :data:`HEADROOM` of full

@@ -155,8 +155,8 @@ def test_tails_beyond_the_core_are_averaged_per_camera(measured):
     hold one window per camera), every texel measured before still is, and what the wider windows add is a faint
     tail. Runs last: it measures the rig again."""
     room, rig, driver, out = measured
-    wide = run(driver, "transport", {"settle_s": 0.0, "camera_indices": [0, 1], "radius": RADIUS + 2})
-    assert wide["tails_averaged"] and wide["core"] == RADIUS and wide["radius"] == RADIUS + 2
+    wide = run(driver, "transport", {"settle_s": 0.0, "camera_indices": [0, 1], "radius": RADIUS + 1})
+    assert wide["tails_averaged"] and wide["core"] == RADIUS and wide["radius"] == RADIUS + 1
     L = load_transport(rig.path / "compensation" / "transport.npz")[0]
     for block, narrow in zip(camera_blocks(L, 2), camera_blocks(out["01"]["L"], 2)):
         m = measured_texels(narrow)

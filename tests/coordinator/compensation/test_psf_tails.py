@@ -93,3 +93,14 @@ def test_stacked_cameras_are_smoothed_each_in_its_own_block():
                      part_rows=part_rows, radius=radius, core=core)
         np.testing.assert_array_equal(stacked[:, 25 * k:25 * (k + 1)], one)
     assert not np.array_equal(stacked, values)
+
+
+def test_the_transport_report_says_how_a_mesh_l_was_measured():
+    from coordinator.compensation.cli import transport_report
+
+    base = {"captures": 135, "patterns": 133, "spacing": [7, 13], "radius": 6, "nnz": 10, "slots": 25, "file": "f",
+            "date": "d"}
+    line = transport_report({**base, "core": 3, "tails_averaged": True, "exposure": 0.47, "white_peak": 1.91})
+    assert "tail beyond 3 averaged" in line and "0.470 times the camera's exposure" in line and "1.91" in line
+    plain = transport_report({**base, "exposure": 1.0, "white_peak": 0.5})
+    assert "tail" not in plain and "exposure" not in plain
