@@ -179,7 +179,8 @@ class RoomService(room_pb2_grpc.RoomServicer):
         late: list[str] = []
         if request.not_before_rig_ns:
             late = await self._wait_for_frames(request.not_before_rig_ns, (request.timeout_ms or DEFAULT_CAPTURE_TIMEOUT_MS) / 1000.0)
-        exposure = float(request.exposure) if request.exposure > 0 else None
+        # relative to the camera's own exposure, as the room takes it in its own units
+        exposure = float(request.exposure) * cam.exposure if request.exposure > 0 else None
 
         def job():
             self.apply_pending()

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import replace
 
 import grpc
 import numpy as np
@@ -138,3 +139,19 @@ def test_health_reflection_and_truth_switch():
         with pytest.raises(grpc.RpcError) as info:
             room_pb2_grpc.RoomTruthStub(ch).GetLightDrop(room_pb2.CameraRequest(), timeout=10)
         assert info.value.code() == grpc.StatusCode.UNIMPLEMENTED
+
+
+def test_a_capture_exposure_is_relative_to_the_cameras_own():
+    """A camera opened up 4x: no exposure asked is its own, 0.5 is half of it (2x the room's unit), as the
+    coordinator's jobs ask for a share of the camera's exposure whatever the camera is set to."""
+    scene = reference_scene(projector_scale=0.125, camera_scale=0.125)
+    scene = replace(scene, cameras=(replace(scene.cameras[0], exposure=4.0),))
+    room, local = Room(scene, seed=7, noise=False), Room(scene, seed=7, noise=False)
+    frame = np.full((100, 160, 3), 200, np.uint8)
+    with RoomServerThread(room) as server, RoomClient(server.address) as client:
+        client.display({"r2c2": frame}, frame_id=1, swap_rig_ns=1)
+        local.set_frame("r2c2", frame)
+        own, half = client.capture().image, client.capture(exposure=0.5).image
+    np.testing.assert_array_equal(own, local.capture())
+    np.testing.assert_allclose(half, local.capture(exposure=2.0), atol=1e-7)
+    assert 0 < float(half.max()) < float(own.max())
