@@ -207,7 +207,8 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
             errs.append(transport_error(Li, truths[s]))
         out["compensate"]["baseline"]["relative_error_mean"] = round(float(np.mean(errs)), 5)
         _log(f"N={len(slots)}: oracle solves (the room's true transport)")
-        out["compensate"]["oracle"] = await asyncio.to_thread(_oracle, rig, res, truth, truths, content_size)
+        out["compensate"]["oracle"] = await asyncio.to_thread(_oracle, rig, res, truth, truths, content_size,
+                                                            max_iter=args.max_iter)
     if args.video_frames > 0:
         wide = demo_image((content_size[0] + args.video_frames, content_size[1]))
         frames = [encode_image_array(np.ascontiguousarray(wide[:, k:k + content_size[0]]), f"f{k:03d}.png")
@@ -221,7 +222,7 @@ async def _rig_run(room, slots: list[str], workdir: Path, args, content_size, po
     return out
 
 
-def _oracle(rig, res: dict, truth: sp.spmatrix, truths: dict, content_size) -> dict:
+def _oracle(rig, res: dict, truth: sp.spmatrix, truths: dict, content_size, *, max_iter: int) -> dict:
     """Both methods solved with the room's true transport, scored through it (no camera): what each could
     reach with perfect measurements, at the same target, ridge weight and iteration budget."""
     _, meta = load_transport(rig.path / "compensation" / "transport.npz")
@@ -244,7 +245,7 @@ def _oracle(rig, res: dict, truth: sp.spmatrix, truths: dict, content_size) -> d
         p = RidgeProblem(L, mu)
         a = best_scale(p.data.matvec(flat), goal.reshape(-1, 3))
         start = np.clip(content * np.float32(a), 0, 1)
-        return solve(p.op, p.target(goal, start), x0=start, content_shape=(ch, cw), max_iter=300).x, start
+        return solve(p.op, p.target(goal, start), x0=start, content_shape=(ch, cw), max_iter=max_iter).x, start
 
     ours, none = ridge_solve(truth, target)
     share = target / np.float32(len(truths))
