@@ -283,7 +283,7 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
     out["transport"] = {"captures": driver.captures - c0, "wall_s": round(time.perf_counter() - t, 2),
                         "patterns": tr["patterns"], "spacing": tr["spacing"], "radius": tr["radius"],
                         "edge_energy": tr["edge_energy"], "texture": tr["texture"], "exposure": exposure,
-                        "white_peak": tr.get("white_peak"),
+                        "white_peak": tr.get("white_peak"), "dot_gain": tr.get("dot_gain"),
                         "relative_error_measured_columns": round(err, 5),
                         "relative_error_per_camera": [round(e, 5) for e in errs["per_camera"]]}
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {err:.4f})")

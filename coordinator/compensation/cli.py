@@ -126,11 +126,13 @@ def transport_params(args: argparse.Namespace) -> dict:
 
 def _tail_note(result: dict) -> str:
     """How a mesh ``L`` was measured: its windows' core per texel, the tail beyond averaged over neighbours,
-    and the camera's exposure when the rig's white needed a lower one."""
+    the camera's exposure when the rig's white needed a lower one, and the dots' longer one."""
     note = f", tail beyond {result['core']} averaged over neighbouring texels" if result.get("tails_averaged") else ""
     if result.get("exposure", 1.0) < 1.0:
         note += (f"; at {result['exposure']:.3f} times the camera's exposure (the white reached "
                  f"{result.get('white_peak', float('nan')):.2f} of its full scale)")
+    if result.get("dot_gain", 1.0) > 1.0:
+        note += f"; the dots at {result['dot_gain']:.2f} times that"
     return note
 
 

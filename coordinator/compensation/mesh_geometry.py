@@ -322,15 +322,14 @@ def dot_conflicts(grid: TexelGrid, base: np.ndarray, seen: np.ndarray, radius: i
 
 def texel_transport_from_captures(captures: Iterable[np.ndarray], black: np.ndarray, *, grid: TexelGrid,
                                   rows: np.ndarray, valid: np.ndarray, dot_value: float = 1.0, core: int | None = None,
-                                  radius: int | None = None, part_rows: int | None = None) -> sp.csr_matrix:
+                                  radius: int | None = None) -> sp.csr_matrix:
     """A mesh rig's ``L`` in one camera from dot-grid captures: ``(Hc*Wc, W*H) float32`` CSR.
 
     As :func:`coordinator.compensation.transport.transport_from_captures` (the channel mean of
     ``capture - black`` inside each dot's window, negatives clipped, divided by ``dot_value``),
     with the window structure of :func:`texel_windows` (texels left out: ``valid`` all False). With
     ``core`` below the windows' ``radius``, the entries beyond it are first averaged over neighbouring texels
-    (:func:`~coordinator.compensation.psf_tails.smooth_tails`; ``part_rows``: rows per camera when the
-    images stack several).
+    (:func:`~coordinator.compensation.psf_tails.smooth_tails`, within each camera of a stacked image).
 
     Parameters
     ----------
@@ -365,8 +364,7 @@ def texel_transport_from_captures(captures: Iterable[np.ndarray], black: np.ndar
     if core is not None:
         if radius is None:
             raise ValueError("averaging the tails beyond the core needs the windows' radius")
-        smooth_tails(values, rows, valid, camera_width=camera_shape[1], part_rows=part_rows or camera_shape[0],
-                     radius=radius, core=core)
+        smooth_tails(values, rows, valid, camera_width=camera_shape[1], radius=radius, core=core)
     np.maximum(values, 0, out=values)
     values[~valid] = 0
     return assemble_transport(values, rows, valid, camera_shape)

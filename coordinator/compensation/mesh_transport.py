@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.exposure import CLIPPED, exposure_for_white
+from coordinator.compensation.exposure import dot_exposure, exposure_for_white
 from coordinator.compensation.geometry import (
     EDGE_WARNING,
     psf_radius_at_scales,
@@ -182,12 +182,12 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
     ctx.progress("transport", "", 0, 1, "every projector white: the camera's exposure")
     await ctx.show_content(cams.pad(np.full((ch, cw), 255, np.uint8)), settle_s=opts.settle_s)
     exposure, white_peak = await exposure_for_white(
-        lambda e: capture_cameras(ctx, cameras, frames=1, **({} if e is None else {"exposure": e})),
+        lambda e: capture_cameras(ctx, cameras, frames=1, exposure=e),
         adjustable=all(ctx.supports_exposure(c) for c in cameras), log=ctx.log)
-    shot = {"exposure": exposure} if exposure < 1.0 else {}
+    white_exposure = exposure if exposure < 1.0 else None       # None: the camera's own
     ctx.progress("transport", "", 0, 1, "every projector black")
     await ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s)
-    black = await capture_cameras(ctx, cameras, frames=frames, **shot)
+    black = await capture_cameras(ctx, cameras, frames=frames, exposure=white_exposure)
     cam = black.shape[:2]
     if cam != cams.camera_shape:
         what = f"camera {cameras[0]} delivers" if one else "the cameras deliver"
@@ -213,22 +213,27 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
             f"radius {radius}, {frames} frame(s) each), every projector at once{'' if one else ', every camera each'}; "
             f"{who} {int(cams.visible.sum())} texels, {int(large.sum())} of them too large for the windows")
 
-    clipped = []
+    # the dots light a few texels apart: captured longer than the white, as far as the first pattern allows
+    async def show_pattern(k: int) -> None:
+        await ctx.show_content(cams.pad(grid.pattern(k, value=255, dtype=np.uint8)), settle_s=opts.settle_s)
+
+    async def capture(e: float | None, n: int) -> np.ndarray:
+        return await capture_cameras(ctx, cameras, frames=n, exposure=e)
+
+    dots = await dot_exposure(capture, show_first=lambda: show_pattern(0),
+                              show_black=lambda: ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s),
+                              black=black, exposure=white_exposure, frames=frames, log=ctx.log,
+                              adjustable=len(grid) > 0 and all(ctx.supports_exposure(c) for c in cameras))
 
     async def patterns():
         for k in range(len(grid)):
-            await ctx.show_content(cams.pad(grid.pattern(k, value=255, dtype=np.uint8)), settle_s=opts.settle_s)
-            img = await capture_cameras(ctx, cameras, frames=frames, **shot)
-            if float(img.max()) >= CLIPPED:
-                clipped.append(k)
-            yield img
+            await show_pattern(k)
+            yield await dots.take(k, capture, frames)
             ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
 
     L = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures, grid=grid,
-                                        rows=rows, valid=valid, core=tails, radius=radius, part_rows=cams.part_shape[0])
-    if clipped:
-        ctx.log(f"warning: {len(clipped)} of {len(grid)} dot patterns reached the camera's full scale: L is short "
-                "where they clipped; lower the camera's exposure and measure again")
+                                        rows=rows, valid=valid, core=tails, radius=radius)
+    dots.report(len(grid), ctx.log)
     seconds = time.monotonic() - t0
     edge = await ctx.compute(stacked_ring_energy, L, base, cams.part_shape, radius)
     if edge > EDGE_WARNING:
@@ -245,7 +250,8 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
             "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": round(seconds, 3), "nnz": int(L.nnz),
             "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5),
             "texels_seen": int(cams.visible.sum()), "texels_too_large": int(large.sum()),
-            "texels_lit": int(grid.lit.sum()), "exposure": exposure, "white_peak": round(white_peak, 4)}
+            "texels_lit": int(grid.lit.sum()), "exposure": exposure, "white_peak": round(white_peak, 4),
+            "dot_gain": round(dots.gain, 4), "patterns_captured_again": len(dots.again)}
     await ctx.compute(save_measured_transport, rig, L, meta, black)
     return StoredTransport(L, meta, black, P, cam, slots, False), cams
 
@@ -296,7 +302,7 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
 
             Li = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures,
                                                  grid=grid, rows=rows, valid=valid, dot_value=opts.baseline_exposure,
-                                                 core=tails, radius=radius, part_rows=cams.part_shape[0])
+                                                 core=tails, radius=radius)
             await ctx.compute(save_baseline_transport, rig, s, Li,
                               {"fingerprint": fp, "slot": s, "frames": frames, "exposure": opts.baseline_exposure,
                                "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})

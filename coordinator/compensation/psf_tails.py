@@ -29,8 +29,8 @@ def tail_offsets(radius: int, core: int) -> np.ndarray:
     return (cheb > core).ravel()
 
 
-def smooth_tails(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, camera_width: int, part_rows: int,
-                 radius: int, core: int, reach: float | None = None) -> int:
+def smooth_tails(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, camera_width: int, radius: int, core: int,
+                 reach: float | None = None) -> int:
     """Average each tail entry of ``values`` over the texels near its own in the camera, in place.
 
     Parameters
@@ -39,8 +39,8 @@ def smooth_tails(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, cam
         Unclipped window entries per texel (``capture - black`` over the dot value), ``K = (2 radius + 1)^2``
         per camera, ``B`` cameras one after the other (:func:`~coordinator.compensation.mesh_cameras.stacked_windows`).
     rows, valid : (n, B K)
-        Camera pixel (flat, of the stacked image: ``part_rows`` rows per camera) of each entry, and whether
-        it was measured.
+        Camera pixel (flat, of the stacked image) of each entry, and whether it was measured. Each block
+        of ``K`` columns lies in one camera, so texels are neighbours only within their camera.
     core : int
         Offsets within ``core`` of the centre (Chebyshev) keep their own value.
     reach : float
@@ -57,13 +57,12 @@ def smooth_tails(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, cam
     for b in range(values.shape[1] // k_all):
         cols = slice(b * k_all, (b + 1) * k_all)
         counts += _smooth_one(values[:, cols], rows[:, cols], valid[:, cols], camera_width=camera_width,
-                              part_rows=part_rows, radius=radius, core=core,
-                              reach=float(radius if reach is None else reach))
+                              radius=radius, core=core, reach=float(radius if reach is None else reach))
     return int(np.median(counts)) if counts else 1
 
 
-def _smooth_one(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, camera_width: int, part_rows: int,
-                radius: int, core: int, reach: float) -> list[int]:
+def _smooth_one(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, camera_width: int, radius: int,
+                core: int, reach: float) -> list[int]:
     """:func:`smooth_tails` for one camera's ``(n, K)`` block (``values`` a view written through); the number
     of texels averaged per measured texel."""
     centre = values.shape[1] // 2
@@ -72,9 +71,7 @@ def _smooth_one(values: np.ndarray, rows: np.ndarray, valid: np.ndarray, *, came
         return []
     cam = rows[texels, centre].astype(np.int64)
     y, x = np.divmod(cam, camera_width)
-    part, y = np.divmod(y, part_rows)
-    gap = part_rows + 4 * radius + 4                 # cameras stacked apart: never each other's neighbours
-    pts = np.column_stack([x, y + part * gap]).astype(np.float64)
+    pts = np.column_stack([x, y]).astype(np.float64)
     pairs = cKDTree(pts).query_pairs(r=reach, p=np.inf, output_type="ndarray")
     m = texels.size
     i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])

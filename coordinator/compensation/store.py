@@ -206,6 +206,8 @@ def transport_summary(tr: StoredTransport) -> dict:
             "edge_energy": m.get("edge_energy"),
             **({"core": m["core"], "tails_averaged": m["tails_averaged"]} if "tails_averaged" in m else {}),
             **({"exposure": m["exposure"], "white_peak": m["white_peak"]} if "exposure" in m else {}),
+            **({"dot_gain": m["dot_gain"], "patterns_captured_again": m["patterns_captured_again"]}
+               if "dot_gain" in m else {}),
             "shape": list(tr.L.shape), "slots": len(tr.slots), "date": m["date"], "fingerprint": m["fingerprint"],
             "file": f"{SUBDIR}/transport.npz"}
 

@@ -2,7 +2,10 @@
 
 ``S*S`` dot-grid captures with every projector showing the same content pattern through its
 pose (plus one black capture) give the summed light transport ``L`` (camera pixels x content
-pixels), stored in ``compensation/transport.npz``. The PSF radius follows the geometry
+pixels), stored in ``compensation/transport.npz``. A camera that can change its exposure per
+capture takes the dots longer than the white, as far as the first pattern allows (two more
+captures: that pattern at the camera's exposure, and the black at the longer one;
+:func:`~coordinator.compensation.exposure.dot_exposure`), and ``L``'s noise falls as much. The PSF radius follows the geometry
 (:func:`~coordinator.compensation.geometry.psf_radius`) and the spacing is the smallest that
 keeps the dots' windows apart (:func:`~coordinator.compensation.geometry.choose_spacing`); a
 measured ``L`` whose windows cut light is reported
@@ -27,6 +30,7 @@ import scipy.sparse as sp
 
 from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.exposure import dot_exposure
 from coordinator.compensation.geometry import (
     EDGE_WARNING,
     choose_spacing,
@@ -124,13 +128,26 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
     ctx.log(f"light transport: {len(grid)} dot patterns (spacing {spacing}, radius {radius}, "
             f"{frames} frame(s) each), every projector at once")
 
+    async def show_pattern(k: int) -> None:
+        await ctx.show_content(grid.pattern(k, value=255, dtype=np.uint8), settle_s=opts.settle_s)
+
+    async def capture(e: float | None, n: int) -> np.ndarray:
+        return await ctx.capture(opts.camera, frames=n, **({} if e is None else {"exposure": e}))
+
+    # the dots light a few content pixels apart: captured longer than the white, as far as the first pattern allows
+    dots = await dot_exposure(capture, show_first=lambda: show_pattern(0),
+                              show_black=lambda: ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s),
+                              black=black, exposure=None, frames=frames, log=ctx.log,
+                              adjustable=ctx.supports_exposure(opts.camera))
+
     async def patterns():
         for k in range(len(grid)):
-            await ctx.show_content(grid.pattern(k, value=255, dtype=np.uint8), settle_s=opts.settle_s)
-            yield await ctx.capture(opts.camera, frames=frames)
+            await show_pattern(k)
+            yield await dots.take(k, capture, frames)
             ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
 
     L = await transport_while_capturing(ctx, patterns(), black, grid=grid, homography=H, radius=radius)
+    dots.report(len(grid), ctx.log)
     seconds = time.monotonic() - t0
     edge = await ctx.compute(edge_energy, L, H, (ch, cw), cam, radius)
     if edge > EDGE_WARNING:
@@ -141,7 +158,8 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
             "camera_size": [cam[1], cam[0]], "content_to_camera": np.asarray(H).tolist(), "camera": opts.camera,
             "camera_spec": spec, "slots": sorted(slots), "measured_at": time.time(),
             "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": round(seconds, 3), "nnz": int(L.nnz),
-            "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5)}
+            "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5), "dot_gain": round(dots.gain, 4),
+            "patterns_captured_again": len(dots.again)}
     await ctx.compute(save_measured_transport, rig, L, meta, black)
     return StoredTransport(L, meta, black, H, cam, slots, False)
 

@@ -72,7 +72,7 @@ def test_compensation_through_nodes_the_coordinator_and_the_room_service(tmp_pat
             # L through the nodes' own rendering, against the room's truth; the baseline's L_i as well
             assert main(["transport", *common, "--baseline", "--json"]) == 0
             tr = json.loads(capsys.readouterr().out)
-            assert not tr["reused"] and tr["captures"] == tr["patterns"] + 1
+            assert not tr["reused"] and tr["captures"] == tr["patterns"] + 3 and tr["dot_gain"] > 1.0
             assert tr["baseline"]["captures"] == len(SLOTS) * tr["patterns"] + 1
             state = Rig(rig.rig_dir)
             L, meta = load_transport(rig.rig_dir / "compensation" / "transport.npz")

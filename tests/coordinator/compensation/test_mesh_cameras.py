@@ -52,8 +52,10 @@ def test_two_cameras_see_more_and_each_measures_its_own_rows(measured):
     one, two = out["0"]["texture"], out["1"]["texture"]
     both = out["01"]["texture"]
     assert both["seen"] > max(one["seen"], two["seen"]) and both["measured"] > max(one["measured"], two["measured"])
-    # every camera captures every pattern: (patterns + black + white) per camera, whatever the projectors
-    assert out["01"]["captures"] == out["01"]["captures_taken"] == 2 * (out["01"]["patterns"] + 2)
+    # every camera captures every pattern: (patterns + white + black + the first pattern at the white's exposure
+    # + black at the dots' longer one) per camera, whatever the projectors
+    assert out["01"]["captures"] == out["01"]["captures_taken"] == 2 * (out["01"]["patterns"] + 4)
+    assert out["01"]["dot_gain"] > 1.0
     assert both["per_camera"] == [{"camera": 0, "seen": one["seen"], "measured": one["measured"]},
                                   {"camera": 1, "seen": two["seen"], "measured": two["measured"]}]
     assert both["seen"] == one["seen"] + two["seen"] - both["seen_by"]["2"]
