@@ -219,6 +219,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--radius", type=int, default=None, help="PSF recovery radius (default: from the geometry)")
     parser.add_argument("--frames", type=int, default=1, help="captures averaged per dot pattern (default 1)")
+    parser.add_argument("--baseline-frames", type=int, default=None,
+                        help="captures averaged per dot pattern of the baseline's L_i (default: --frames)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the per-projector baseline")
     parser.add_argument("--cameras", type=int, choices=(1, 3), default=1,
                         help="the room's cameras that measure together: 1 (the ceiling camera) or 3 (plus two around "
@@ -288,7 +290,7 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
                         "relative_error_per_camera": [round(e, 5) for e in errs["per_camera"]]}
     _log(f"N={len(slots)}: transport ({out['transport']['captures']} captures, error {err:.4f})")
     if baseline:
-        cp.update(baseline=True, baseline_exposure=float(len(slots)))
+        cp.update(baseline=True, baseline_exposure=float(len(slots)), baseline_frames=args.baseline_frames or args.frames)
     c0 = driver.captures
     t = time.perf_counter()
     res = await driver.run("compensate", cp)
