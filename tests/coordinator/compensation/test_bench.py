@@ -41,11 +41,11 @@ def test_room_bench_runs_the_jobs_and_reports_the_comparison(capsys, tmp_path):
     """`shadowless bench compensation_room` on a small room: the coordinator's jobs end to end, in-process."""
     parser = argparse.ArgumentParser()
     compensation_room.configure(parser)
-    args = parser.parse_args(["--projector-scale", "0.2", "--camera-scale", "0.12", "--content-size", "120x60",
+    args = parser.parse_args(["--projector-scale", "0.14", "--camera-scale", "0.09", "--content-size", "96x48",
                               "--video-frames", "2", "--eval-frames", "2", "--max-iter", "100", "--out", str(tmp_path)])
     assert compensation_room.run(args) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["benchmark"] == "compensation_room" and doc["parameters"]["camera_size"] == [311, 233]
+    assert doc["benchmark"] == "compensation_room" and doc["parameters"]["camera_size"] == [233, 175]
     r25, t = doc["rigs"]["25"], doc["targets"]
     # L costs the same captures for 1 or 25 projectors; the baseline's L_i cost N times as many
     assert t["transport_captures_25_vs_1"][0] == t["transport_captures_25_vs_1"][1] == r25["transport"]["captures"]
