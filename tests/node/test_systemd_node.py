@@ -38,7 +38,7 @@ def _frozen_silence(s: socket.socket, pid: int) -> list[str]:
     os.kill(pid, signal.SIGSTOP)
     try:
         _drain(s, time.monotonic() + 1.5)      # in flight, or due before the part went stale (1 s)
-        return [m for m in _drain(s, time.monotonic() + 3.0) if m == "WATCHDOG=1"]
+        return [m for m in _drain(s, time.monotonic() + 2.0) if m == "WATCHDOG=1"]   # two keep-alive periods
     finally:
         os.kill(pid, signal.SIGCONT)
 
