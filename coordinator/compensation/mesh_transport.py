@@ -1,9 +1,10 @@
 """The ``transport`` job on a mesh rig: ``L`` in texture space, every projector at once.
 
 Each node renders the dot pattern as the mesh's texture through its own 3x4 pose, so every
-projector lights the same surface dots; ``sx * sy`` patterns (plus one black capture, and a few
-extra patterns for dots that would crowd in a camera) whatever the number of projectors
-(:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Several
+projector lights the same surface dots; ``sx * sy`` patterns (plus a few extra patterns for dots
+that would crowd in a camera, and four captures: the white that sets the exposure, the black, and
+the first pattern and the black that set the dots' longer one, :mod:`coordinator.compensation.exposure`)
+whatever the number of projectors (:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Several
 cameras (``camera_indices``) measure together, each capturing every pattern, as one camera whose
 image is theirs stacked (:mod:`coordinator.compensation.mesh_cameras`). Each
 dot's window is centred where the camera sees its texel
