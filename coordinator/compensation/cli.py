@@ -132,7 +132,7 @@ def _tail_note(result: dict) -> str:
         note += (f"; at {result['exposure']:.3f} times the camera's exposure (the white reached "
                  f"{result.get('white_peak', float('nan')):.2f} of its full scale)")
     if result.get("dot_gain", 1.0) > 1.0:
-        note += f"; the dots at {result['dot_gain']:.2f} times that"
+        note += f"; the dots at {result['dot_gain']:.2f} times the white's exposure"
     return note
 
 

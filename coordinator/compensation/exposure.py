@@ -11,7 +11,8 @@ capture compared with it is taken at the same one.
 
 A dot pattern lights a few texels apart, so its brightest pixel holds a part of the white's: the dots
 are captured longer (:func:`dot_gain`), as far as the first pattern's peak allows, and brought back to
-the white's units by the caller. The noise in ``L`` falls by the same factor, for no extra pattern.
+the white's units. The noise in ``L`` falls by the same factor, for two more captures (that pattern
+at the white's exposure, and the black at the longer one) and no extra pattern.
 """
 from __future__ import annotations
 

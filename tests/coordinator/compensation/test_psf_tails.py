@@ -101,6 +101,8 @@ def test_the_transport_report_says_how_a_mesh_l_was_measured():
     line = transport_report({**base, "core": 3, "tails_averaged": True, "exposure": 0.47, "white_peak": 1.91,
                              "dot_gain": 3.5})
     assert "tail beyond 3 averaged" in line and "0.470 times the camera's exposure" in line and "1.91" in line
-    assert "the dots at 3.50 times that" in line
+    assert "the dots at 3.50 times the white's exposure" in line
+    planar = transport_report({**base, "exposure": 1.0, "white_peak": 0.5, "dot_gain": 8.1})
+    assert "tail" not in planar and "the dots at 8.10 times the white's exposure" in planar
     plain = transport_report({**base, "exposure": 1.0, "white_peak": 0.5})
     assert "tail" not in plain and "exposure" not in plain
