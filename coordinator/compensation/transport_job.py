@@ -5,10 +5,11 @@ pose (plus one black capture) give the summed light transport ``L`` (camera pixe
 pixels), stored in ``compensation/transport.npz``. A camera that can change its exposure per
 capture takes the dots longer than the white, as far as the first pattern allows (two more
 captures: that pattern at the camera's exposure, and the black at the longer one;
-:func:`~coordinator.compensation.exposure.dot_exposure`), and ``L``'s noise falls as much. The PSF radius follows the geometry
-(:func:`~coordinator.compensation.geometry.psf_radius`) and the spacing is the smallest that
-keeps the dots' windows apart (:func:`~coordinator.compensation.geometry.choose_spacing`); a
-measured ``L`` whose windows cut light is reported
+:func:`~coordinator.compensation.exposure.dot_exposure`), and ``L``'s noise falls as much. The
+PSF radius follows the geometry (:func:`~coordinator.compensation.geometry.psf_radius`) and the
+spacing is the smallest that keeps the dots' windows apart
+(:func:`~coordinator.compensation.geometry.choose_spacing`); a measured ``L`` whose windows cut
+light is reported
 (:func:`~coordinator.compensation.geometry.edge_energy`). With ``baseline``, each projector's
 ``L_i`` is measured too, one projector at a time (``N*S*S`` captures), for the conventional
 method only.
@@ -132,7 +133,7 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
         await ctx.show_content(grid.pattern(k, value=255, dtype=np.uint8), settle_s=opts.settle_s)
 
     async def capture(e: float | None, n: int) -> np.ndarray:
-        return await ctx.capture(opts.camera, frames=n, **({} if e is None else {"exposure": e}))
+        return await ctx.capture(opts.camera, frames=n, exposure=e)
 
     # the dots light a few content pixels apart: captured longer than the white, as far as the first pattern allows
     dots = await dot_exposure(capture, show_first=lambda: show_pattern(0),
