@@ -1,9 +1,16 @@
-"""Shared test fixtures. Every test is checked for leaked processes and threads."""
+"""Shared test fixtures. Every test is checked for leaked processes, threads, venue namespaces and
+temporary files.
+
+The session gets its own temporary directory (``TMPDIR`` for the processes the tests start, and
+:mod:`tempfile`'s default here), so a test that leaves something in it is told apart from
+whatever else runs on the machine; the directory is removed when the session ends."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -54,6 +61,20 @@ def _is_runtime_thread(t: threading.Thread) -> bool:
     return t.name.startswith(("asyncio_", "ThreadPoolExecutor")) or "_poll_wrapper" in t.name
 
 
+#: the session's temporary directory (set in pytest_configure)
+_SESSION_TMP: Path | None = None
+
+
+def _temp_entries() -> set[str]:
+    """What lies in the session's temporary directory, but pytest's own ``tmp_path`` tree."""
+    if _SESSION_TMP is None:
+        return set()
+    try:
+        return {e.name for e in _SESSION_TMP.iterdir() if not e.name.startswith("pytest-of-")}
+    except OSError:
+        return set()
+
+
 def _owned_namespaces() -> set[str]:
     """Network namespaces of venues this process owns (shadowless.netns); only looked up once
     that module is loaded, since nothing else creates them."""
@@ -68,10 +89,12 @@ def _owned_namespaces() -> set[str]:
 
 @pytest.fixture(autouse=True)
 def no_leaks(request):
-    """Fail a test that leaves processes, threads or venue namespaces behind (after a short grace)."""
+    """Fail a test that leaves processes, threads, venue namespaces or temporary files behind (after a short
+    grace)."""
     before_pids = child_pids()
     before_threads = _live_threads()
     before_ns = _owned_namespaces()
+    before_tmp = _temp_entries()
     yield
     if request.node.get_closest_marker("allow_leaks"):
         return
@@ -85,12 +108,16 @@ def no_leaks(request):
             break
         time.sleep(0.1)
     namespaces = _owned_namespaces() - before_ns
+    temps = _temp_entries() - before_tmp
+    for name in temps:      # removed, so the next test starts clean
+        shutil.rmtree(_SESSION_TMP / name, ignore_errors=True)
+        (_SESSION_TMP / name).unlink(missing_ok=True)
     if namespaces:
         try:   # close the venues still open (their processes and namespaces) before failing
             sys.modules["shadowless.netns"].close_owned(namespaces)
         except Exception:   # noqa: BLE001
             pass
-    if not pids and not threads and not namespaces:
+    if not pids and not threads and not namespaces and not temps:
         return
     for pid in pids:
         try:
@@ -104,11 +131,22 @@ def no_leaks(request):
         problems.append(f"leaked processes {sorted(pids)}")
     if threads:
         problems.append(f"leaked threads {sorted(t.name for t in threads)}")
+    if temps:
+        problems.append(f"leaked temporary files {sorted(temps)} (in {_SESSION_TMP})")
     pytest.fail("; ".join(problems), pytrace=False)
 
 
 def pytest_configure(config):
+    global _SESSION_TMP
     config.addinivalue_line("markers", "allow_leaks: a module-scoped rig fixture owns processes across tests")
+    _SESSION_TMP = Path(tempfile.mkdtemp(prefix="shadowless-tests-"))
+    os.environ["TMPDIR"] = str(_SESSION_TMP)
+    tempfile.tempdir = str(_SESSION_TMP)
+
+
+def pytest_unconfigure(config):
+    if _SESSION_TMP is not None:
+        shutil.rmtree(_SESSION_TMP, ignore_errors=True)
 
 
 CI = os.environ.get("CI", "").lower() == "true"

@@ -17,12 +17,11 @@ The worker reports each solved frame as a Dask event (topic :data:`TOPIC`: ``{"k
 """
 from __future__ import annotations
 
-import tempfile
+import io
 import threading
 import time
 from dataclasses import dataclass, field
 from fractions import Fraction
-from pathlib import Path
 
 from coordinator.compensation.frames import FrameSolver
 from coordinator.compensation.ridge import ContentWarmStart, RidgeProblem
@@ -143,35 +142,33 @@ def solve_segment(spec: SegmentSpec, source: bytes | SequenceFrames, start: int,
         frames = SourceFrames(spec.manifest, lambda k: source, rate=spec.rate, start=start, stop=start + count)
     decode_s = encode_s = 0.0
     it = iter(frames)
-    with tempfile.TemporaryDirectory(prefix="shadowless-segment-") as tmp:
-        writer: Ffv1Writer | None = None
-        try:
-            while True:
-                t = time.perf_counter()
-                image = next(it, None)
-                decode_s += time.perf_counter() - t
-                if image is None:
-                    break
-                out = solver.solve(image, predict=spec.predict)
-                t = time.perf_counter()
-                if writer is None:
-                    writer = Ffv1Writer(Path(tmp) / "segment.mkv", size=solver.size, channels=out.frame.shape[2],
-                                        rate=spec.rate, first=start)
-                writer.write(out.frame)
-                encode_s += time.perf_counter() - t
-                report(writer.frames)
-        except BaseException:
-            if writer is not None:
-                writer.abort()
-            raise
-        finally:
-            it.close()   # closes the video file
-        t = time.perf_counter()
-        data = b""
+    buf = io.BytesIO()          # in memory: a worker killed mid-segment leaves no file behind
+    writer: Ffv1Writer | None = None
+    try:
+        while True:
+            t = time.perf_counter()
+            image = next(it, None)
+            decode_s += time.perf_counter() - t
+            if image is None:
+                break
+            out = solver.solve(image, predict=spec.predict)
+            t = time.perf_counter()
+            if writer is None:
+                writer = Ffv1Writer(buf, size=solver.size, channels=out.frame.shape[2], rate=spec.rate, first=start)
+            writer.write(out.frame)
+            encode_s += time.perf_counter() - t
+            report(writer.frames)
+    except BaseException:
         if writer is not None:
-            writer.close()
-            data = writer.path.read_bytes()
-        encode_s += time.perf_counter() - t
+            writer.abort()
+        raise
+    finally:
+        it.close()   # closes the video file
+    t = time.perf_counter()
+    if writer is not None:
+        writer.close()
+    data = buf.getvalue()
+    encode_s += time.perf_counter() - t
     return SegmentResult(start=start, frames=len(solver.times), data=data, times=list(solver.times),
                          objectives=list(solver.objectives), psnrs=list(solver.psnrs), scale=solver.warm.scale,
                          worker=address, decode_s=decode_s, solve_s=float(sum(solver.times)), encode_s=encode_s)

@@ -23,7 +23,7 @@ import os
 from collections.abc import Callable, Iterator
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import av
 import numpy as np
@@ -184,25 +184,27 @@ class Ffv1Writer:
 
     Parameters
     ----------
-    path : path of the ``.mkv`` to write (created; the caller removes it on failure)
+    path : path of the ``.mkv`` to write (created; the caller removes it on failure), or a seekable binary file
+        object (an ``io.BytesIO``: a segment made in memory leaves no file behind if its process is killed)
     size : (W, H) of every frame
     channels : 1 (``gray16le``) or 3 (``gbrp16le``)
     rate : exact frame rate (e.g. ``Fraction(30000, 1001)``)
     first : index of the first frame (its timestamp: a segment of a longer video)
     """
 
-    def __init__(self, path: str | os.PathLike[str], *, size: tuple[int, int], channels: int, rate: Fraction,
+    def __init__(self, path: str | os.PathLike[str] | BinaryIO, *, size: tuple[int, int], channels: int, rate: Fraction,
                  first: int = 0) -> None:
         if channels not in FFV1_FORMATS:
             raise ValueError(f"channels must be 1 or 3, got {channels}")
         if rate <= 0:
             raise ValueError(f"rate must be > 0, got {rate}")
-        self.path = Path(path)
+        self.path = Path(path) if isinstance(path, (str, os.PathLike)) else None
         self.size, self.channels, self.rate = (int(size[0]), int(size[1])), channels, Fraction(rate)
         self.first, self.frames = int(first), 0
         self._started = False
         # bitexact: no random segment/track UIDs nor version strings, so the same frames give the same bytes
-        self._out = av.open(str(self.path), mode="w", format="matroska", options={"fflags": "+bitexact"})
+        self._out = av.open(str(self.path) if self.path is not None else path, mode="w", format="matroska",
+                            options={"fflags": "+bitexact"})
         try:
             s = self._out.add_stream("ffv1", rate=self.rate)
             s.width, s.height = self.size
