@@ -27,19 +27,35 @@ BENCHMARKS: dict[str, str] = {
 }
 
 
+class _LazyBenchmarks(argparse._SubParsersAction):
+    """The benchmarks' subparsers, each filled in by its module only when that benchmark is named: a
+    benchmark's imports (SciPy, OpenCV, the room) cost only the run that needs them."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        name = values[0] if values else None
+        p = self._name_parser_map.get(name)
+        if p is not None and not getattr(p, "_bench_configured", False):
+            _configure_one(name, p)
+        super().__call__(parser, namespace, values, option_string)
+
+
+def _configure_one(name: str, p: argparse.ArgumentParser) -> None:
+    p._bench_configured = True
+    try:
+        mod = importlib.import_module(f"bench.{name}")
+    except ModuleNotFoundError as exc:
+        if exc.name != f"bench.{name}":
+            raise
+        p.set_defaults(_bench=None)
+        return
+    mod.configure(p)
+    p.set_defaults(_bench=mod)
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="bench", metavar="NAME", required=True)
+    sub = parser.add_subparsers(dest="bench", metavar="NAME", required=True, action=_LazyBenchmarks)
     for name, summary in BENCHMARKS.items():
-        p = sub.add_parser(name, help=summary, description=summary)
-        try:
-            mod = importlib.import_module(f"bench.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"bench.{name}":
-                raise
-            p.set_defaults(_bench=None)
-            continue
-        mod.configure(p)
-        p.set_defaults(_bench=mod)
+        sub.add_parser(name, help=summary, description=summary)
 
 
 def run(args: argparse.Namespace) -> int:
