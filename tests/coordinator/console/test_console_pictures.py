@@ -358,8 +358,8 @@ def test_the_jobs_pictures_and_the_camera_view_on_the_page(tmp_path, browser_rea
             assert status == 409 and "running alignment job" in json.loads(body)["error"], body
             assert http.json("/api/pictures")["job"]["state"] == "running"
             wait_for(lambda: job_done(rig, "alignment"), 240, "the alignment job done", poll=0.5)
-            run_job(rig, "response", {})
-            run_job(rig, "compensate", {"image_path": str(image), "evaluate": True, "max_iter": 150})
+            run_job(rig, "response", {"levels": 5, "repeats": 1, "verify_levels": 3})   # the curves' accuracy is not
+            run_job(rig, "compensate", {"image_path": str(image), "evaluate": True, "max_iter": 30})  # what this checks
 
             # the camera's view is the room's camera, seeing the compensated image the rig shows now
             status, headers, body = http.request("/api/camera.png")
