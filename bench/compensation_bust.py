@@ -33,6 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from bench.calibration import landmarks_from_truth, make_rig, table_points_from_truth
+from bench.compensation_bust_oracle import bust_oracle
 from bench.compensation_room import demo_image
 from bench.machine import machine
 from coordinator.calibration.runs import save_cameras
@@ -230,7 +231,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="measure the responses (`response --mode full`) instead of the LUTs from the true gammas")
     parser.add_argument("--max-iter", type=int, default=300)
     parser.add_argument("--eval-frames", type=int, default=8, help="captures averaged per evaluated result (default 8)")
+    parser.add_argument("--no-oracle", dest="oracle", action="store_false",
+                        help="skip the oracle (with the baseline and one camera: both methods solved again with the "
+                             "measured and the room's true transports, scored through the true one)")
     parser.add_argument("--out", type=Path, default=None, help="copy the side-by-side picture and the rig's JSON here")
+    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                        help="build the rigs in DIR (new or empty) and keep them, measured transports included, to "
+                             "study further (default: a temporary directory, removed)")
 
 
 def _log(msg: str) -> None:
@@ -299,6 +306,12 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
     out["compensate"]["captures"] = driver.captures - c0
     out["compensate"]["wall_s"] = round(time.perf_counter() - t, 2)
     _log(f"N={len(slots)}: compensated ({json.dumps(res['quality']['ordering'])})")
+    if baseline and k == 1 and args.oracle:
+        _log(f"N={len(slots)}: oracle solves (measured and true transports, scored through the true one)")
+        t = time.perf_counter()
+        out["compensate"]["oracle"] = await asyncio.to_thread(
+            bust_oracle, lambda which: truth_mesh_transport(room, rig, which), rig, slots, res, max_iter=args.max_iter)
+        out["compensate"]["oracle"]["wall_s"] = round(time.perf_counter() - t, 2)
     if compare:
         from bench.compensation_bust_cameras import score_from_cameras
 
@@ -331,6 +344,10 @@ def run(args: argparse.Namespace) -> int:
                                    if not k.startswith("_") and k not in ("command", "bench")},
                                 "projector_size": list(room.projector_size("r0c0")), "camera_size": list(room.camera_size(0))}}
     with tempfile.TemporaryDirectory(prefix="bench-compensation-bust-") as tmp:
+        if args.keep is not None:
+            if args.keep.exists() and any(args.keep.iterdir()):
+                raise SystemExit(f"bench compensation_bust: --keep {args.keep} is not empty")
+            tmp = str(args.keep)
         rigs = {str(len(big)): asyncio.run(_rig_run(room, big, Path(tmp) / "big", args, baseline=baseline,
                                                     compare=args.cameras > 1))}
         # the same dot grid for one projector (the radius follows the projectors' pixel size otherwise)
@@ -342,8 +359,9 @@ def run(args: argparse.Namespace) -> int:
             for f in ("quality.png", "quality.json", "result.json", "transport.json"):
                 if (src / f).exists():
                     shutil.copy(src / f, args.out / f)
-        for r in rigs.values():
-            r.pop("rig_dir", None)
+        if args.keep is None:
+            for r in rigs.values():
+                r.pop("rig_dir", None)
     doc["rigs"] = rigs
     q = rigs[str(len(big))]["compensate"]["quality"]
     targets: dict = {"quality_order": {"none_psnr": q["none"]["psnr"], "ours_psnr": q["ours"]["psnr"],
@@ -357,6 +375,10 @@ def run(args: argparse.Namespace) -> int:
                                         baseline_minus_none_db=d["baseline_minus_none_db"],
                                         met=d["ours_minus_baseline_db"] >= -0.05 and d["baseline_minus_none_db"] > 1.0
                                         and d["ours_minus_none_db"] > 1.0)
+        oracle = rigs[str(len(big))]["compensate"].get("oracle")
+        if oracle:
+            targets["ours_minus_baseline_through_truth_db"] = {
+                k: oracle[k]["ours_minus_baseline_db"] for k in ("true_transport", "measured_transport")}
     if args.cameras > 1:
         r = rigs[str(len(big))]
         sc = r["scored_from_every_camera"]

@@ -70,7 +70,7 @@ from coordinator.compensation.texture_space import content_at_view, mesh_warp
 from coordinator.jobs import JobContext, JobError
 from coordinator.store import atomic_write_bytes
 
-__all__ = ["run_mesh_compensate", "WeightedProblem", "evaluation_exposure"]
+__all__ = ["run_mesh_compensate", "WeightedProblem", "weighted_solve", "evaluation_exposure"]
 
 #: percentile of the target (over the visible surface) that scores divide by
 SCORE_PERCENTILE = 99.0
@@ -99,7 +99,7 @@ class WeightedProblem:
         return np.ascontiguousarray(a[self.rows] * self.sqrt_w[:, None])
 
 
-def _weighted_solve(wp: WeightedProblem, L: sp.spmatrix, target: np.ndarray, content: np.ndarray,
+def weighted_solve(wp: WeightedProblem, L: sp.spmatrix, target: np.ndarray, content: np.ndarray,
                     opts: CompensateOptions, progress=None) -> tuple[SolveResult, np.ndarray, np.ndarray, float]:
     """Solve on the measured texels from the content scaled to the target; returns the result, the full image
     (unsolved texels keep the start; the caller pads the chart edges), the start and its scale (runs on a worker thread)."""
@@ -139,7 +139,7 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
     wp = WeightedProblem(w, measured)
     ctx.progress("solve", "", 0, opts.max_iter, "objective")
     progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, "objective", f))
-    res, x, none, alpha = await ctx.compute(_weighted_solve, wp, tr.L, target, content, opts, progress)
+    res, x, none, alpha = await ctx.compute(weighted_solve, wp, tr.L, target, content, opts, progress)
     x, none = cams.pad(x), cams.pad(none)        # the chart edges the nodes sample, as the dots were shown
     ctx.progress("solve", "", res.iterations, res.iterations, res.reason, res.objective)
     solved = np.zeros(cw * ch, bool)
@@ -196,7 +196,7 @@ def _solve_baseline(ctx: JobContext, base_L: dict[str, sp.csr_matrix], wp: Weigh
     with np.errstate(divide="ignore", invalid="ignore"):
         for i, k in enumerate(names):
             share = np.where(white > 0, row_white(base_L[k], white.shape) / white, 0).astype(np.float32)
-            res, x, _, _ = _weighted_solve(wp, base_L[k], target * share[:, :, None], content, opts)
+            res, x, _, _ = weighted_solve(wp, base_L[k], target * share[:, :, None], content, opts)
             xs[k] = x
             results.append(res)
             ctx.progress("baseline solve", k, i + 1, len(names), f"{res.iterations} iterations")
