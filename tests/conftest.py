@@ -66,7 +66,7 @@ _SESSION_TMP: Path | None = None
 
 
 def _temp_entries() -> set[str]:
-    """What lies in the session's temporary directory, but pytest's own ``tmp_path`` tree."""
+    """What lies in the session's temporary directory, except pytest's own ``tmp_path`` tree."""
     if _SESSION_TMP is None:
         return set()
     try:

@@ -100,7 +100,7 @@ class WeightedProblem:
 
 
 def weighted_solve(wp: WeightedProblem, L: sp.spmatrix, target: np.ndarray, content: np.ndarray,
-                    opts: CompensateOptions, progress=None) -> tuple[SolveResult, np.ndarray, np.ndarray, float]:
+                   opts: CompensateOptions, progress=None) -> tuple[SolveResult, np.ndarray, np.ndarray, float]:
     """Solve on the measured texels from the content scaled to the target; returns the result, the full image
     (unsolved texels keep the start; the caller pads the chart edges), the start and its scale (runs on a worker thread)."""
     ch, cw, nc = content.shape

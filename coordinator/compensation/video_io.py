@@ -192,8 +192,8 @@ class Ffv1Writer:
     first : index of the first frame (its timestamp: a segment of a longer video)
     """
 
-    def __init__(self, path: str | os.PathLike[str] | BinaryIO, *, size: tuple[int, int], channels: int, rate: Fraction,
-                 first: int = 0) -> None:
+    def __init__(self, path: str | os.PathLike[str] | BinaryIO, *, size: tuple[int, int], channels: int,
+                 rate: Fraction, first: int = 0) -> None:
         if channels not in FFV1_FORMATS:
             raise ValueError(f"channels must be 1 or 3, got {channels}")
         if rate <= 0:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import io
 import json
 import re
 import time
@@ -235,6 +236,13 @@ def test_ffv1_writer_round_trips_every_16_bit_sample(tmp_path, channels):
         parts.append(seg.path)
     assert join_segments(parts, tmp_path / "joined.mkv", rate=Fraction(30000, 1001)) == 4
     assert (tmp_path / "joined.mkv").read_bytes() == path.read_bytes()
+    # written into memory (as a cluster worker encodes its segment): the file's bytes
+    buf = io.BytesIO()
+    mem = Ffv1Writer(buf, size=(44, 30), channels=channels, rate=Fraction(30000, 1001))
+    for f in frames:
+        mem.write(f)
+    mem.close()
+    assert mem.path is None and buf.getvalue() == path.read_bytes()
 
 
 def parse(argv: list[str]) -> argparse.Namespace:
