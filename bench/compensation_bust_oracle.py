@@ -48,8 +48,9 @@ def bust_oracle(truth_of: Callable[[list[str]], sp.spmatrix], rig: Rig, slots: l
     """Ours and the baseline solved with the measured and the true transports, scored through the true one.
 
     ``truth_of(slots)``: the room's true transport of those slots together (texel -> camera px, as ``L`` is
-    measured); ``job``: the ``compensate`` job's result (its ``target_level`` and ridge weight are reused); the rig holds
-    the measured ``L`` and each slot's ``L_i`` (``compensation/baseline``). Returns PSNR / SSIM over the
+    measured); ``job``: the ``compensate`` job's result on the bench's demo image (its ``target_level``, ridge
+    weight and method are reused); the rig holds the measured ``L`` and each slot's ``L_i``
+    (``compensation/baseline``). Returns PSNR / SSIM over the
     solve's rows for ``none``, ``ours`` and ``baseline`` under ``true_transport`` and ``measured_transport``,
     and the differences ours - baseline of each.
     """
