@@ -27,6 +27,7 @@ import shutil
 import sys
 import tempfile
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -330,8 +331,10 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
 
 def run(args: argparse.Namespace) -> int:
     if args.calibrate and args.cameras > 1:
-        raise SystemExit("bench compensation_bust: --calibrate poses the ceiling camera only; --cameras 3 uses the "
+        raise SystemExit("--calibrate poses the ceiling camera only; --cameras 3 uses the "
                          "room's true poses")
+    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
+        raise SystemExit(f"--keep {args.keep} is not empty")
     t0 = time.perf_counter()
     room = bust_room(projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed,
                      aperture=args.aperture, cameras=args.cameras)
@@ -343,11 +346,8 @@ def run(args: argparse.Namespace) -> int:
                  "parameters": {**{k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
                                    if not k.startswith("_") and k not in ("command", "bench")},
                                 "projector_size": list(room.projector_size("r0c0")), "camera_size": list(room.camera_size(0))}}
-    with tempfile.TemporaryDirectory(prefix="bench-compensation-bust-") as tmp:
-        if args.keep is not None:
-            if args.keep.exists() and any(args.keep.iterdir()):
-                raise SystemExit(f"bench compensation_bust: --keep {args.keep} is not empty")
-            tmp = str(args.keep)
+    with (nullcontext(str(args.keep)) if args.keep is not None
+          else tempfile.TemporaryDirectory(prefix="bench-compensation-bust-")) as tmp:
         rigs = {str(len(big)): asyncio.run(_rig_run(room, big, Path(tmp) / "big", args, baseline=baseline,
                                                     compare=args.cameras > 1))}
         # the same dot grid for one projector (the radius follows the projectors' pixel size otherwise)

@@ -22,7 +22,12 @@ from bench.compensation_room import demo_image
 from coordinator.compensation.geometry import row_white
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.mesh_cameras import stacked_row_weights
-from coordinator.compensation.mesh_compensate import SCORE_PERCENTILE, WeightedProblem, weighted_solve
+from coordinator.compensation.mesh_compensate import (
+    SCORE_PERCENTILE,
+    WeightedProblem,
+    solve_baseline,
+    weighted_solve,
+)
 from coordinator.compensation.mesh_geometry import masked_quality, measured_texels
 from coordinator.compensation.mesh_rig import mesh_cameras
 from coordinator.compensation.texture_space import content_at_view
@@ -30,17 +35,6 @@ from coordinator.compensation.transport import load_transport
 from coordinator.rig import Rig
 
 __all__ = ["bust_oracle"]
-
-
-def _baseline(wp: WeightedProblem, Ls: dict[str, sp.spmatrix], white: np.ndarray, target: np.ndarray,
-              content: np.ndarray, opts) -> dict[str, np.ndarray]:
-    """Each projector's own solve for its share of the target (``target white_i / white``), as the job's."""
-    xs = {}
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for k, Li in Ls.items():
-            share = np.where(white > 0, row_white(Li, white.shape) / white, 0).astype(np.float32)
-            xs[k] = weighted_solve(wp, Li, target * share[:, :, None], content, opts)[1]
-    return xs
 
 
 def bust_oracle(truth_of: Callable[[list[str]], sp.spmatrix], rig: Rig, slots: list[str], job: dict, *,
@@ -86,7 +80,7 @@ def bust_oracle(truth_of: Callable[[list[str]], sp.spmatrix], rig: Rig, slots: l
         white = row_white(big, cams.part_shape)
         target = np.float32(job["target_level"]) * white[:, :, None] * T
         _, ours, none, _ = weighted_solve(wp, big, target, content, opts)
-        base = _baseline(wp, each, white, target, content, opts)
+        base, _ = solve_baseline(each, wp, white, target, content, opts)
         light = sum(truths[k] @ x.reshape(-1, x.shape[2]) for k, x in base.items())
         scores = {"none": score(through_truth(none)), "ours": score(through_truth(ours)), "baseline": score(light)}
         scores["ours_minus_baseline_db"] = round(scores["ours"]["psnr"] - scores["baseline"]["psnr"], 3)

@@ -70,7 +70,7 @@ from coordinator.compensation.texture_space import content_at_view, mesh_warp
 from coordinator.jobs import JobContext, JobError
 from coordinator.store import atomic_write_bytes
 
-__all__ = ["run_mesh_compensate", "WeightedProblem", "weighted_solve", "evaluation_exposure"]
+__all__ = ["run_mesh_compensate", "WeightedProblem", "weighted_solve", "solve_baseline", "evaluation_exposure"]
 
 #: percentile of the target (over the visible surface) that scores divide by
 SCORE_PERCENTILE = 99.0
@@ -170,7 +170,9 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
         if not base_L:
             raise JobError("baseline: no projector adds light to the camera image")
         t_b = time.monotonic()
-        base_x, results = await ctx.compute(_solve_baseline, ctx, base_L, wp, white, target, content, opts)
+        base_x, results = await ctx.compute(
+            solve_baseline, base_L, wp, white, target, content, opts,
+            lambda k, i, n, res: ctx.progress("baseline solve", k, i, n, f"{res.iterations} iterations"))
         base_x = {k: cams.pad(v) for k, v in base_x.items()}
         result["baseline"] = {**base_summary, "solve_seconds": round(time.monotonic() - t_b, 3),
                               "iterations": sum(r.iterations for r in results),
@@ -186,11 +188,12 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
     return result
 
 
-def _solve_baseline(ctx: JobContext, base_L: dict[str, sp.csr_matrix], wp: WeightedProblem, white: np.ndarray,
-                    target: np.ndarray, content: np.ndarray, opts: CompensateOptions
-                    ) -> tuple[dict[str, np.ndarray], list[SolveResult]]:
+def solve_baseline(base_L: dict[str, sp.csr_matrix], wp: WeightedProblem, white: np.ndarray, target: np.ndarray,
+                   content: np.ndarray, opts: CompensateOptions, done=None
+                   ) -> tuple[dict[str, np.ndarray], list[SolveResult]]:
     """The conventional method: each projector's own weighted ridge problem for its share of the target
-    (``c' white_i / white``), from its own uncompensated start (runs on a worker thread)."""
+    (``c' white_i / white``), from its own uncompensated start (runs on a worker thread). ``done(slot, k, n,
+    result)``, if given, after each projector's solve."""
     xs, results = {}, []
     names = sorted(base_L)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -199,7 +202,8 @@ def _solve_baseline(ctx: JobContext, base_L: dict[str, sp.csr_matrix], wp: Weigh
             res, x, _, _ = weighted_solve(wp, base_L[k], target * share[:, :, None], content, opts)
             xs[k] = x
             results.append(res)
-            ctx.progress("baseline solve", k, i + 1, len(names), f"{res.iterations} iterations")
+            if done is not None:
+                done(k, i + 1, len(names), res)
     return xs, results
 
 
