@@ -26,10 +26,18 @@ GRPC_OPTIONS = [
 ]
 
 #: Largest message the coordinator accepts. Everything that reaches it is small (handshakes,
-#: reports, 1 MiB upload chunks, images in 1 MiB parts), so an unauthenticated peer cannot make it
-#: buffer more than this per call: gRPC refuses a larger message from its length prefix, before
-#: reading it.
+#: reports, 1 MiB upload chunks, images in 1 MiB parts). gRPC refuses a larger message with
+#: RESOURCE_EXHAUSTED, but only once it holds the whole message (grpc/grpc#43012), so this alone
+#: does not bound what an unauthenticated peer makes the coordinator buffer: the receive window
+#: does (COORDINATOR_WINDOW_BYTES).
 MAX_REQUEST_BYTES = 4 * 1024 * 1024
+
+#: The coordinator's HTTP/2 receive window per stream. gRPC's bandwidth-delay probe would grow it
+#: on a fast link until a peer can push hundreds of MiB of an oversized message into memory
+#: before the refusal (4 peers sending 200 MiB made a bare server peak at 179 and 278 MiB; with
+#: the probe off and this window, at 7-10 MiB). 1 MiB keeps an upload at ~1 GB/s over a 1 ms
+#: round trip, beyond a venue's gigabit link. Nodes keep the probe: their large downloads need it.
+COORDINATOR_WINDOW_BYTES = 1024 * 1024
 
 #: Servers accept the clients' keepalive pings (every 10 s, also between calls): gRPC's
 #: default refuses pings more often than every 5 minutes and closes idle channels with
@@ -41,4 +49,7 @@ SERVER_GRPC_OPTIONS = GRPC_OPTIONS + [
 
 #: The coordinator's server: small messages in (MAX_REQUEST_BYTES), large frames out.
 COORDINATOR_GRPC_OPTIONS = [(k, MAX_REQUEST_BYTES if k == "grpc.max_receive_message_length" else v)
-                            for k, v in SERVER_GRPC_OPTIONS]
+                            for k, v in SERVER_GRPC_OPTIONS] + [
+    ("grpc.http2.bdp_probe", 0),
+    ("grpc.http2.lookahead_bytes", COORDINATOR_WINDOW_BYTES),
+]

@@ -16,7 +16,11 @@ from protos.version import MAX_REQUEST_BYTES, PROTOCOL_VERSION
 from shadowless.local import LocalRig
 
 HUGE = 200 * 1024 * 1024
-RSS_LIMIT_MB = 300
+#: How much the coordinator's resident peak may grow while 4 peers send 200 MiB messages 3 times
+#: each beside a Hello flood. With gRPC's bandwidth-delay probe on, the peak grew by 10-250 MB
+#: from one run to the next (CI once saw 323 MB against a 71 MB start); with the coordinator's
+#: bounded receive window (protos.version.COORDINATOR_WINDOW_BYTES) it grows by 1-3 MB.
+GROWTH_LIMIT_MB = 32
 
 
 def _peak_rss_mb(pid: int) -> float:
@@ -75,6 +79,7 @@ def test_unauthenticated_floods_do_not_swell_the_coordinator_or_drop_nodes(tmp_p
                 return await rig.wait_live(c, slots, **kw)
 
         asyncio.run(live(["r0c0"]))
+        before = _peak_rss_mb(rig.coordinator.pid)
         payload = b"\x0a" + b"\xff" * (HUGE - 1)          # a 200 MiB "HelloRequest"
         stop = threading.Event()
         codes: list[str] = []
@@ -111,8 +116,8 @@ def test_unauthenticated_floods_do_not_swell_the_coordinator_or_drop_nodes(tmp_p
         assert nodes["r0c0"].state == NodeState.LIVE and nodes["r0c0"].joins == 1, "r0c0 was never lost"
         assert nodes["r0c1"].state == NodeState.LIVE
         peak = _peak_rss_mb(rig.coordinator.pid)
-        assert peak < RSS_LIMIT_MB, f"coordinator peaked at {peak:.0f} MB resident"
+        assert peak - before < GROWTH_LIMIT_MB, f"coordinator peaked at {peak:.0f} MB resident from {before:.0f} MB"
         assert MAX_REQUEST_BYTES <= 8 * 1024 * 1024
-        print(f"coordinator peak RSS {peak:.0f} MB; {flood_result[0]} Hello answered during the flood")
+        print(f"coordinator peak RSS {peak:.0f} MB from {before:.0f} MB; {flood_result[0]} Hello answered during the flood")
     finally:
         rig.close()
