@@ -27,9 +27,9 @@ GRPC_OPTIONS = [
 
 #: Largest message the coordinator accepts. Everything that reaches it is small (handshakes,
 #: reports, 1 MiB upload chunks, images in 1 MiB parts). gRPC refuses a larger message with
-#: RESOURCE_EXHAUSTED, but only once it holds the whole message (grpc/grpc#43012), so this alone
-#: does not bound what an unauthenticated peer makes the coordinator buffer: the receive window
-#: does (COORDINATOR_WINDOW_BYTES).
+#: RESOURCE_EXHAUSTED, but may hold much of it first (grpc/grpc#43012), so this alone does not bound
+#: what an unauthenticated peer makes the coordinator buffer: the receive window does
+#: (COORDINATOR_WINDOW_BYTES).
 MAX_REQUEST_BYTES = 4 * 1024 * 1024
 
 #: The coordinator's HTTP/2 receive window per stream. gRPC's bandwidth-delay probe would grow it
