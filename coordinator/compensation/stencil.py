@@ -19,10 +19,9 @@ non-zero per product (value and column index) and keeps ``L`` and ``L^T``; this 
 error at most ``scale / 2``) and keeps one copy. A weight image is zero where its window entry
 falls outside the camera (the edges), so no product ever wraps across a row.
 
-Products run over bands of whole rows, each band small enough that its slice of the input, its
-output and one weight slice stay in the core's cache while the weights stream past; per offset
-one OpenCV ``accumulateProduct`` (``dst += a * b`` in one pass; releases the GIL) per channel, after
-one vectorised ``uint16 -> float32`` conversion of the band's weight slice. Bands are split over
+Both products are compiled loops (:mod:`.stencil_kernels`) that go row by row: each weight row is
+read once, converted from ``uint16`` in registers, and every offset of it is applied while the
+few output rows it touches stay in the core's cache. They release the GIL; bands are split over
 threads by whole rows, so threads never write the same pixel.
 
 The ridge problem of :mod:`.ridge` stacks ``[L; sqrt(lam) I]``; a stacked diagonal below the
@@ -43,7 +42,6 @@ __all__ = ["STORAGES", "StencilBand", "StencilTransport", "stencil_blocks", "ste
 #: weight storages: exact float32, or uint16 fixed point (half the bytes)
 STORAGES = ("float32", "uint16")
 _MAX_RADIUS = 4  # K = 81: beyond this CSR is as compact and the band loop gets long
-_BAND_PIXELS = 1 << 16  # pixels per band: one float32 weight slice plus in/out slices fit in L2
 _CHUNK_ROWS = 1 << 18  # camera pixels per step of the extraction (bounds its temporary memory)
 
 
@@ -95,102 +93,44 @@ class StencilTransport:
         cuts = np.linspace(0, h, max(1, min(count, h)) + 1).round().astype(int)
         return [(int(a), int(b)) for a, b in itertools.pairwise(cuts) if b > a]
 
-    def _band_rows(self) -> int:
-        return max(1, min(self.grid[0], _BAND_PIXELS // max(self.grid[1], 1)))
-
-    def _weight_slice(self, k: int, ys: slice, xs: slice, scratch: np.ndarray) -> np.ndarray:
-        src = self.weights[k, ys, xs]
-        if src.dtype == np.float32:
-            return src
-        out = scratch[: src.shape[0], : src.shape[1]]
-        np.copyto(out, src, casting="unsafe")
-        return out
-
     def forward_rows(self, x: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
         """``out[c] = (L x[c])`` on camera rows ``[y0, y1)``.
 
         ``x``: (C, H, W) float32 content images; ``out``: (C, y1 - y0, W) float32, overwritten.
         """
-        h, w = self.grid
-        step = self._band_rows()
-        scratch = np.empty((step, w), dtype=np.float32)
-        for a in range(y0, y1, step):
-            b = min(a + step, y1)
-            dst = out[:, a - y0 : b - y0]
-            dst.fill(0)
-            for k, (dy, dx) in enumerate(self.offsets):
-                s0, s1 = max(a - dy, 0), min(b - dy, h)  # source (anchor) rows
-                if s1 <= s0:
-                    continue
-                c0, c1 = max(0, -dx), min(w, w - dx)
-                wk = self._weight_slice(k, slice(s0, s1), slice(c0, c1), scratch)
-                for ch in range(x.shape[0]):
-                    cv2.accumulateProduct(wk, x[ch, s0:s1, c0:c1],
-                                          dst[ch, s0 + dy - a : s1 + dy - a, c0 + dx : c1 + dx])
-            if self.scale != 1.0:
-                dst *= np.float32(self.scale)
+        a, b = max(0, y0 - self.radius), min(self.grid[0], y1 + self.radius)  # the rows whose light lands there
+        out.fill(0)
+        self.scatter_band(x[:, a:b], a, b, [(y0, y1, out)])
 
     def adjoint_rows(self, v: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
-        """``out[c] = (L^T v[c])`` on content rows ``[y0, y1)``, in bands of :meth:`adjoint_band`.
+        """``out[c] = (L^T v[c])`` on content rows ``[y0, y1)``.
 
         ``v``: (C, H, W) float32 camera images; ``out``: (C, y1 - y0, W) float32, overwritten.
         """
-        step = self._band_rows()
-        scratch = None if self.storage == "float32" else np.empty((len(self.offsets), step, self.grid[1]), np.float32)
-        for a in range(y0, y1, step):
-            b = min(a + step, y1)
-            self.adjoint_band(self.band_weights(a, b, scratch), v, out[:, a - y0 : b - y0], a, b)
+        self.adjoint_band(v, out, y0, y1)
 
-    def band_weights(self, y0: int, y1: int, scratch: np.ndarray | None) -> np.ndarray:
-        """The weights of anchor rows ``[y0, y1)`` as float32 ``(K, y1 - y0, W)``: a view, or
-        converted into ``scratch`` (``(K, >= y1 - y0, W)`` float32) for uint16 storage (unscaled)."""
-        src = self.weights[:, y0:y1]
-        if src.dtype == np.float32:
-            return src
-        out = scratch[:, : y1 - y0]
-        np.copyto(out, src, casting="unsafe")
-        return out
-
-    def adjoint_band(self, wb: np.ndarray, v: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
-        """``out = (L^T v)`` on content rows ``[y0, y1)`` from their :meth:`band_weights` ``wb``.
+    def adjoint_band(self, v: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
+        """``out = (L^T v)`` on content rows ``[y0, y1)``, from their weight rows only.
 
         ``v``: (C, H, W) camera images; ``out``: (C, y1 - y0, W) float32, overwritten.
         """
-        h, w = self.grid
-        out.fill(0)
-        for k, (dy, dx) in enumerate(self.offsets):
-            s0, s1 = max(y0, -dy), min(y1, h - dy)
-            if s1 <= s0:
-                continue
-            c0, c1 = max(0, -dx), min(w, w - dx)
-            wk = wb[k, s0 - y0 : s1 - y0, c0:c1]
-            for ch in range(v.shape[0]):
-                cv2.accumulateProduct(wk, v[ch, s0 + dy : s1 + dy, c0 + dx : c1 + dx], out[ch, s0 - y0 : s1 - y0, c0:c1])
-        if self.scale != 1.0:
-            out *= np.float32(self.scale)
+        from coordinator.compensation.stencil_kernels import adjoint_rows  # Numba: loaded on the first product
 
-    def scatter_band(self, wb: np.ndarray, x: np.ndarray, y0: int, y1: int,
-                     sinks: list[tuple[int, int, np.ndarray]]) -> None:
+        adjoint_rows(self.weights, np.float32(self.scale), v, out, y0, y1, self.radius)
+
+    def scatter_band(self, x: np.ndarray, y0: int, y1: int, sinks: list[tuple[int, int, np.ndarray]]) -> None:
         """Add the light of content rows ``[y0, y1)`` to the camera: ``L[:, band] x[band]``.
 
-        ``wb``: the rows' :meth:`band_weights`; ``x``: (C, y1 - y0, W) float32 content rows;
-        ``sinks``: ``(r0, r1, view)`` with ``view`` (C, r1 - r0, W) float32 accumulating camera
-        rows ``[r0, r1)``; light landing on rows no sink holds is dropped (the caller's sinks
-        must cover rows ``[y0 - R, y1 + R)`` inside the image).
+        ``x``: (C, y1 - y0, W) float32 content rows; ``sinks``: ``(r0, r1, view)`` with ``view``
+        (C, r1 - r0, W) float32 accumulating camera rows ``[r0, r1)``; light landing on rows no
+        sink holds is dropped (the caller's sinks must cover rows ``[y0 - R, y1 + R)`` inside the
+        image).
         """
-        h, w = self.grid
-        if self.scale != 1.0:
-            x = x * np.float32(self.scale)
-        for k, (dy, dx) in enumerate(self.offsets):
-            c0, c1 = max(0, -dx), min(w, w - dx)
-            for r0, r1, view in sinks:
-                d0, d1 = max(y0 + dy, r0, 0), min(y1 + dy, r1, h)
-                if d1 <= d0:
-                    continue
-                wk = wb[k, d0 - dy - y0 : d1 - dy - y0, c0:c1]
-                for ch in range(x.shape[0]):
-                    cv2.accumulateProduct(wk, x[ch, d0 - dy - y0 : d1 - dy - y0, c0:c1],
-                                          view[ch, d0 - r0 : d1 - r0, c0 + dx : c1 + dx])
+        from coordinator.compensation.stencil_kernels import scatter_rows  # Numba: loaded on the first product
+
+        scale = np.float32(self.scale)
+        for r0, r1, view in sinks:
+            scatter_rows(self.weights, scale, x, y0, y1, self.radius, view, r0, r1)
 
     def to_csr(self) -> sp.csr_matrix:
         """The matrix this storage represents (for tests and comparisons), CSR float32."""

@@ -11,7 +11,7 @@ sweep. So the sweep keeps ``Lx_k`` and ``Lx_{k-1}`` and assembles ``r = Lx_k + b
 Lx_{k-1}) - c`` band by band just ahead of the adjoint that reads it. Per band (rows ``[a, b)``):
 
 1. assemble ``r`` up to row ``b + R`` (the adjoint's halo); partial ``||r||^2``, ``<r, c>``;
-2. the band's weights (uint16 converted to float32 once), then ``g = L^T r`` on rows ``[a, b)``;
+2. ``g = L^T r`` on rows ``[a, b)`` (:mod:`.stencil_kernels`, from the band's weight rows);
 3. ``y = x_k + beta (x_k - x_{k-1})``, ``x_{k+1} = clip(y - g / Lip)`` stored over ``x_{k-1}``;
    partial ``sum min(0, g)``, ``||y - x_{k+1}||^2``, ``<y - x_{k+1}, x_{k+1} - x_k>``;
 4. add the band's light ``L[:, band] x_{k+1}[band]`` into ``Lx_{k+1}`` (stored over ``Lx_{k-1}``,
@@ -121,7 +121,6 @@ class _Sweep:
         if not last:
             halos.append((y1, np.zeros((ch, min(r, h - y1), w), dtype=np.float32)))
         sinks = [(a, a + v.shape[1], v) for a, v in halos] + [(y0, y1, self.lx_prev[:, y0:y1])]
-        scratch = np.empty((len(st.offsets), self.rows, w), dtype=np.float32) if st.storage != "float32" else None
         g = np.empty((ch, self.rows, w), dtype=np.float32)
         y = np.empty((ch, self.rows, w), dtype=np.float32)
         sums: dict[str, list[float]] = {k: [] for k in ("gneg", "ymx", "inner", "f", "rr", "rc")}
@@ -134,16 +133,15 @@ class _Sweep:
                 sums["rr"].append(rr)
                 sums["rc"].append(rc)
                 assembled = upto
-            wb = st.band_weights(a, b, scratch)  # read once, used by both products while in cache
             gb = g[:, : b - a]
-            st.adjoint_band(wb, self.res, gb, a, b)
+            st.adjoint_band(self.res, gb, a, b)  # the band's weights: read here, again from cache below
             for key, v in zip(("gneg", "ymx", "inner"), self.update(a, b, gb, y)):
                 sums[key].append(v)
             z = min(b + r, y1)  # Lx_{k-1} on these rows was used by the assembly above: start Lx_{k+1}
             if z > zeroed:
                 self.lx_prev[:, zeroed:z].fill(0)
                 zeroed = z
-            st.scatter_band(wb, self.x_prev[:, a:b], a, b, sinks)
+            st.scatter_band(self.x_prev[:, a:b], a, b, sinks)
             done = hi if b == y1 else min(b - r, hi)  # no later band reaches rows above b - r
             if done > finished:
                 sums["f"].append(self.finish(finished, done))
