@@ -20,6 +20,7 @@ import json
 import math
 import os
 import random
+import shutil
 import signal
 import sys
 import tempfile
@@ -195,8 +196,27 @@ def chromium(user_data_dir: Path, *, size=(1400, 2000)):
               f"--window-size={size[0]},{size[1]}", "--disable-dev-shm-usage", "--no-first-run",
               "--disable-extensions", "--disable-background-networking"):
         opts.add_argument(a)
-    service = Service(CHROMEDRIVER, log_output=str(Path(user_data_dir).with_suffix(".chromedriver.log")))
-    return webdriver.Chrome(service=service, options=opts)
+    # Chromium's scratch files (with --disable-dev-shm-usage its shared memory is files in TMPDIR,
+    # and a few outlived quit()) go into a directory of their own, removed by quit(); its path is
+    # short because Chromium's sockets live there too (a socket's path has at most 107 bytes)
+    scratch = tempfile.mkdtemp(prefix="chromium-")
+    service = Service(CHROMEDRIVER, log_output=str(Path(user_data_dir).with_suffix(".chromedriver.log")),
+                      env={**os.environ, "TMPDIR": scratch})
+    try:
+        driver = webdriver.Chrome(service=service, options=opts)
+    except BaseException:
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
+    quit_driver = driver.quit
+
+    def quit_and_clean() -> None:
+        try:
+            quit_driver()
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+    driver.quit = quit_and_clean
+    return driver
 
 
 def wait_for(fn: Callable[[], Any], timeout: float, what: str, poll: float = 0.02) -> Any:
