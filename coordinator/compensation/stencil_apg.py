@@ -3,19 +3,20 @@
 The plain iteration (``_apg`` in :mod:`.solver`) reads ``L`` twice: ``g = L^T r`` for every
 content pixel, then ``L x_{k+1}`` for every camera pixel, with a global reduction (the restart
 test) in between. With the stencil storage (:mod:`.stencil`) both products can read the same
-weight rows: the adjoint of a band of content rows gives that band's gradient, the update its
-``x_{k+1}``, and the forward product *from* that band (its light scattered onto camera rows
-``[a - R, b + R)``) reuses the band's weights while they are still in cache. What stands in the
-way is the momentum: the residual at ``y_{k+1}`` needs ``beta_{k+1}``, known only after the whole
-sweep. So the sweep keeps ``Lx_k`` and ``Lx_{k-1}`` and assembles ``r = Lx_k + beta_k (Lx_k -
-Lx_{k-1}) - c`` band by band just ahead of the adjoint that reads it. Per band (rows ``[a, b)``):
+weight rows: the adjoint of a content row gives that row's gradient, the update its ``x_{k+1}``,
+and the forward product *from* that row (its light scattered onto camera rows ``[y - R, y + R]``)
+reads the same weight row again while it is in the first-level cache, so ``L`` streams from memory
+once per iteration. What stands in the way is the momentum: the residual at ``y_{k+1}`` needs
+``beta_{k+1}``, known only after the whole sweep. So the sweep keeps ``Lx_k`` and ``Lx_{k-1}`` and
+assembles ``r = Lx_k + beta_k (Lx_k - Lx_{k-1}) - c`` just ahead of the adjoint that reads it. Per
+content row ``y`` (compiled: :mod:`.stencil_apg_kernel`):
 
-1. assemble ``r`` up to row ``b + R`` (the adjoint's halo); partial ``||r||^2``, ``<r, c>``;
-2. ``g = L^T r`` on rows ``[a, b)`` (:mod:`.stencil_kernels`, from the band's weight rows);
+1. assemble ``r`` up to row ``y + R`` (the adjoint's reach); partial ``||r||^2``, ``<r, c>``;
+2. ``g = L^T r`` on row ``y``;
 3. ``y = x_k + beta (x_k - x_{k-1})``, ``x_{k+1} = clip(y - g / Lip)`` stored over ``x_{k-1}``;
    partial ``sum min(0, g)``, ``||y - x_{k+1}||^2``, ``<y - x_{k+1}, x_{k+1} - x_k>``;
-4. add the band's light ``L[:, band] x_{k+1}[band]`` into ``Lx_{k+1}`` (stored over ``Lx_{k-1}``,
-   whose rows step 1 has used by then); rows above ``b - R`` are final: partial ``||Lx_{k+1} - c||^2``.
+4. add the row's light ``L[:, y] x_{k+1}[y]`` into ``Lx_{k+1}`` (stored over ``Lx_{k-1}``, whose
+   rows step 1 has used by then); rows above ``y - R`` are final: partial ``||Lx_{k+1} - c||^2``.
 
 The iterates are those of ``_apg`` (same step, restart rule, stopping rules and dual bound);
 only the order of floating-point sums differs. Threads sweep contiguous row ranges; the rows
@@ -37,7 +38,6 @@ from coordinator.compensation.stencil import StencilTransport
 
 __all__ = ["fused_apg"]
 
-_BAND_PIXELS = 1 << 16  # pixels per band of the sweep: every array's band slice stays in cache between the two products
 
 
 def _dot3(u: np.ndarray, v: np.ndarray) -> float:
@@ -62,7 +62,6 @@ class _Sweep:
         self.res = np.empty(shape3, dtype=np.float32)  # r at y_k, assembled band by band
         self.step = np.float32(1.0 / lip)
         self.beta = np.float32(0.0)
-        self.rows = max(1, min(h, _BAND_PIXELS // max(w, 1)))
 
     def assemble(self, y0: int, y1: int) -> tuple[float, float]:
         """``r = Lx_k + beta (Lx_k - Lx_{k-1}) - c`` on rows ``[y0, y1)``; returns ``(||r||^2, <r, c>)``."""
@@ -81,27 +80,6 @@ class _Sweep:
             rc.append(float(np.dot(rb.reshape(-1), cb.reshape(-1))))
         return math.fsum(rr), math.fsum(rc)
 
-    def update(self, a: int, b: int, g: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-        """Step 3 on rows ``[a, b)`` from the gradient ``g`` (C, b - a, W), which it overwrites;
-        ``y``: (C, >= b - a, W) float32 scratch. Ten passes over the band, none allocating."""
-        gneg, ymx, inner = [], [], []
-        beta = float(self.beta)
-        for ch in range(g.shape[0]):
-            gc, xc, xp = g[ch], self.x_cur[ch, a:b], self.x_prev[ch, a:b]
-            gneg.append(0.5 * (cv2.sumElems(gc)[0] - cv2.norm(gc, cv2.NORM_L1)))  # sum min(0, g)
-            yc = y[ch, : b - a]
-            if beta != 0:
-                cv2.addWeighted(xc, 1 + beta, xp, -beta, 0.0, dst=yc)  # y = x_k + beta (x_k - x_{k-1})
-            else:
-                np.copyto(yc, xc)
-            cv2.scaleAdd(gc, -float(self.step), yc, dst=xp)  # x_{k+1} = clip(y - g / Lip), over x_{k-1}
-            np.clip(xp, 0, 1, out=xp)
-            cv2.subtract(yc, xp, dst=gc)  # y - x_{k+1}
-            ymx.append(cv2.norm(gc, cv2.NORM_L2SQR))
-            cv2.subtract(xp, xc, dst=yc)  # x_{k+1} - x_k
-            inner.append(float(np.dot(gc.reshape(-1), yc.reshape(-1))))
-        return math.fsum(gneg), math.fsum(ymx), math.fsum(inner)
-
     def finish(self, y0: int, y1: int) -> float:
         """``||Lx_{k+1} - c||^2`` on camera rows ``[y0, y1)`` (``Lx_{k+1}`` lives in ``lx_prev`` during the sweep)."""
         if y1 <= y0:
@@ -112,41 +90,20 @@ class _Sweep:
     def sweep(self, y0: int, y1: int) -> tuple[list[float], list[tuple[int, np.ndarray]]]:
         """One thread's rows ``[y0, y1)``: partial sums (gneg, ymx, inner, f, rr, rc) and the light
         its content rows threw onto the ``R`` camera rows beyond each end, ``(first row, (C, R', W))``."""
+        from coordinator.compensation.stencil_apg_kernel import sweep_rows  # Numba: loaded on the first sweep
+
         st, h, w, r = self.st, self.h, self.w, self.r
         first, last = y0 == 0, y1 == h
         lo = y0 if first else y0 + r  # rows within r of a boundary are assembled and finished outside
         hi = y1 if last else y1 - r
         ch = self.c.shape[0]
-        halos = [] if first else [(y0 - r, np.zeros((ch, r, w), dtype=np.float32))]
-        if not last:
-            halos.append((y1, np.zeros((ch, min(r, h - y1), w), dtype=np.float32)))
-        sinks = [(a, a + v.shape[1], v) for a, v in halos] + [(y0, y1, self.lx_prev[:, y0:y1])]
-        g = np.empty((ch, self.rows, w), dtype=np.float32)
-        y = np.empty((ch, self.rows, w), dtype=np.float32)
-        sums: dict[str, list[float]] = {k: [] for k in ("gneg", "ymx", "inner", "f", "rr", "rc")}
-        assembled, zeroed, finished = lo, y0, lo
-        for a in range(y0, y1, self.rows):
-            b = min(a + self.rows, y1)
-            upto = min(b + r, hi)
-            if upto > assembled:
-                rr, rc = self.assemble(assembled, upto)
-                sums["rr"].append(rr)
-                sums["rc"].append(rc)
-                assembled = upto
-            gb = g[:, : b - a]
-            st.adjoint_band(self.res, gb, a, b)  # the band's weights: read here, again from cache below
-            for key, v in zip(("gneg", "ymx", "inner"), self.update(a, b, gb, y)):
-                sums[key].append(v)
-            z = min(b + r, y1)  # Lx_{k-1} on these rows was used by the assembly above: start Lx_{k+1}
-            if z > zeroed:
-                self.lx_prev[:, zeroed:z].fill(0)
-                zeroed = z
-            st.scatter_band(self.x_prev[:, a:b], a, b, sinks)
-            done = hi if b == y1 else min(b - r, hi)  # no later band reaches rows above b - r
-            if done > finished:
-                sums["f"].append(self.finish(finished, done))
-                finished = done
-        return [math.fsum(sums[k]) for k in ("gneg", "ymx", "inner", "f", "rr", "rc")], halos
+        top = np.zeros((ch, 0 if first else r, w), dtype=np.float32)
+        bottom = np.zeros((ch, 0 if last else min(r, h - y1), w), dtype=np.float32)
+        sums = sweep_rows(st.weights, np.float32(st.scale), r, self.c, self.x_cur, self.x_prev, self.lx_cur,
+                          self.lx_prev, self.res, self.step, self.beta, y0, y1, lo, hi, top, bottom,
+                          np.empty((ch, w), dtype=np.float32), np.empty((ch, w), dtype=np.float32))
+        halos = ([] if first else [(y0 - r, top)]) + ([] if last else [(y1, bottom)])
+        return list(sums), halos
 
 
 def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float, stop: Any, threads: int,

@@ -6,7 +6,6 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from coordinator.compensation import stencil_apg
 from coordinator.compensation.solver import TransportOperator, objective, solve
 from coordinator.compensation.stencil import stencil_from_csr
 from coordinator.compensation.synthetic import (
@@ -95,11 +94,10 @@ def test_the_ridge_stack_keeps_the_stencil(L):
     np.testing.assert_allclose(res.history, ref.history, rtol=2e-5)
 
 
-@pytest.mark.parametrize("band_rows", [1, 3, 11])
-@pytest.mark.parametrize("threads", [1, 2, 3])
-def test_fused_sweep_follows_the_csr_iterates(monkeypatch, L, target, band_rows, threads):
-    """Same step, restarts and stopping rules as the CSR APG: the histories agree to float32 rounding."""
-    monkeypatch.setattr(stencil_apg, "_BAND_PIXELS", band_rows * SHAPE[1])
+@pytest.mark.parametrize("threads", [1, 2, 3, 5])
+def test_fused_sweep_follows_the_csr_iterates(L, target, threads):
+    """Same step, restarts and stopping rules as the CSR APG: the histories agree to float32 rounding
+    (threads split the rows; 5 leaves some ranges barely wider than the stencil)."""
     for c in (target[:, :, 0], target):
         x0 = np.clip(c, 0, 1)  # the same start for both (the stencil's default start is its own)
         ref = solve(TransportOperator(L, storage="csr"), c, x0=x0, tol=0, gap_tol=0, pg_tol=0, max_iter=40)
