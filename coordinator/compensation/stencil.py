@@ -343,8 +343,7 @@ def stencil_from_csr(L: sp.spmatrix, *, storage: str = "float32") -> StencilTran
             return None
         scale = top / 65535.0 if top > 0 else 1.0
         q = np.empty(weights.shape, dtype=np.uint16)
-        for k in range(weights.shape[0]):  # one image at a time: no float32 temporary of all K
-            np.rint(weights[k] / np.float32(scale), out=weights[k])
-            np.copyto(q[k], weights[k], casting="unsafe")
+        for k in range(weights.shape[0]):  # one pass per image: scaled, rounded to nearest (ties to even)
+            cv2.multiply(weights[k], 1.0 / scale, dst=q[k], dtype=cv2.CV_16U)
         weights = q
     return StencilTransport((h, w), r, weights, scale, tail)
