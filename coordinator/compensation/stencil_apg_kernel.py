@@ -8,7 +8,10 @@ adjoint read is still in the first-level cache when the scatter reads it again: 
 from memory once per iteration.
 
 Arrays are (C, H, W) float32 images with unit-stride rows unless stated; ``w`` (K, H, W) float32
-or uint16 weights as in :mod:`.stencil`. Partial sums are float64 (summed in row order).
+or uint16 weights as in :mod:`.stencil`. Partial sums are float64. The kernel may reassociate sums
+and fuse multiply-adds (``fastmath`` reassoc and contract, nothing that assumes finite values), so
+the sums' loops vectorise too (about 10 % faster at 2592x1944); the iterates differ from the
+plain loop's only in float32's last bits.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ from numba import njit
 __all__ = ["sweep_rows"]
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
 def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, beta, y0, y1, lo, hi,
                halo_top, halo_bot, g, yv):  # pragma: no cover - compiled
     """Rows ``[y0, y1)`` of one APG iteration (the module docstring of :mod:`.stencil_apg`).
