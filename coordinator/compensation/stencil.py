@@ -103,16 +103,9 @@ class StencilTransport:
         self.scatter_band(x[:, a:b], a, b, [(y0, y1, out)])
 
     def adjoint_rows(self, v: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
-        """``out[c] = (L^T v[c])`` on content rows ``[y0, y1)``.
+        """``out[c] = (L^T v[c])`` on content rows ``[y0, y1)``, from their weight rows only.
 
         ``v``: (C, H, W) float32 camera images; ``out``: (C, y1 - y0, W) float32, overwritten.
-        """
-        self.adjoint_band(v, out, y0, y1)
-
-    def adjoint_band(self, v: np.ndarray, out: np.ndarray, y0: int, y1: int) -> None:
-        """``out = (L^T v)`` on content rows ``[y0, y1)``, from their weight rows only.
-
-        ``v``: (C, H, W) camera images; ``out``: (C, y1 - y0, W) float32, overwritten.
         """
         from coordinator.compensation.stencil_kernels import adjoint_rows  # Numba: loaded on the first product
 

@@ -39,7 +39,6 @@ from coordinator.compensation.stencil import StencilTransport
 __all__ = ["fused_apg"]
 
 
-
 def _dot3(u: np.ndarray, v: np.ndarray) -> float:
     """Sum of ``u * v`` over (C, rows, W) views with contiguous rows (float64 across channels)."""
     return math.fsum(float(np.dot(u[ch].reshape(-1), v[ch].reshape(-1))) for ch in range(u.shape[0]))
@@ -59,7 +58,7 @@ class _Sweep:
         self.x_prev = x.copy().reshape(shape3)
         self.lx_cur = np.empty(shape3, dtype=np.float32)
         self.lx_prev = np.empty(shape3, dtype=np.float32)
-        self.res = np.empty(shape3, dtype=np.float32)  # r at y_k, assembled band by band
+        self.res = np.empty(shape3, dtype=np.float32)  # r at y_k, assembled row by row
         self.step = np.float32(1.0 / lip)
         self.beta = np.float32(0.0)
 
