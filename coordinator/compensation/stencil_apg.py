@@ -9,7 +9,7 @@ reads the same weight row again while it is in the first-level cache, so ``L`` s
 once per iteration. What stands in the way is the momentum: the residual at ``y_{k+1}`` needs
 ``beta_{k+1}``, known only after the whole sweep. So the sweep keeps ``Lx_k`` and ``Lx_{k-1}`` and
 assembles ``r = Lx_k + beta_k (Lx_k - Lx_{k-1}) - c`` just ahead of the adjoint that reads it. Per
-content row ``y`` (compiled: :mod:`.stencil_apg_kernel`):
+content row ``y`` (compiled: :func:`.stencil_kernels.sweep_rows`):
 
 1. assemble ``r`` up to row ``y + R`` (the adjoint's reach); partial ``||r||^2``, ``<r, c>``;
 2. ``g = L^T r`` on row ``y``;
@@ -89,7 +89,7 @@ class _Sweep:
     def sweep(self, y0: int, y1: int) -> tuple[list[float], list[tuple[int, np.ndarray]]]:
         """One thread's rows ``[y0, y1)``: partial sums (gneg, ymx, inner, f, rr, rc) and the light
         its content rows threw onto the ``R`` camera rows beyond each end, ``(first row, (C, R', W))``."""
-        from coordinator.compensation.stencil_apg_kernel import sweep_rows  # Numba: loaded on the first sweep
+        from coordinator.compensation.stencil_kernels import sweep_rows  # Numba: loaded on the first sweep
 
         st, h, w, r = self.st, self.h, self.w, self.r
         first, last = y0 == 0, y1 == h
