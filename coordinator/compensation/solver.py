@@ -49,7 +49,7 @@ import scipy.sparse as sp
 
 from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.stencil import STORAGES, stencil_blocks, stencil_from_csr
-from coordinator.compensation.stencil_apg import fused_apg
+from coordinator.compensation.stencil_apg import fused_apg, warm_up
 from coordinator.compensation.stencil_start import deconvolved_start
 
 __all__ = [
@@ -74,8 +74,7 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
     """
     if a.ndim == 2 and not (a.flags.c_contiguous and b.flags.c_contiguous):
         return math.fsum(_dot(a[i], b[i]) for i in range(a.shape[0]))
-    a = a.reshape(-1)
-    b = b.reshape(-1)
+    a, b = a.reshape(-1), b.reshape(-1)
     n = a.size
     if n <= _CHUNK:
         return float(np.dot(a, b))
@@ -110,11 +109,11 @@ class TransportOperator:
     threads : int, optional
         Row blocks / worker threads for products and updates (default: up to 2, the CPU count).
     storage : {"auto", "csr", "float32", "uint16"}
-        How the products read ``L``. ``"csr"``: CSR blocks of ``L`` plus a CSR copy of ``L^T``
-        (about 2 x 8 bytes per non-zero). ``"float32"`` / ``"uint16"``: shifted weight images
-        (:mod:`.stencil`; 4 or 2 bytes per window entry, one copy serves both products), for an
-        ``L`` whose content and camera grids coincide (``ValueError`` otherwise). ``"auto"``
-        (default): ``"float32"`` when ``L`` has that structure, else ``"csr"``.
+        How the products read ``L``. ``"csr"``: CSR blocks of ``L`` plus a CSR copy of ``L^T`` (about
+        2 x 8 bytes per non-zero). ``"float32"`` / ``"uint16"``: shifted weight images (:mod:`.stencil`;
+        4 or 2 bytes per window entry, one copy serves both products; their compiled kernels are
+        loaded here), for an ``L`` whose content and camera grids coincide (``ValueError`` otherwise).
+        ``"auto"`` (default): ``"float32"`` when ``L`` has that structure, else ``"csr"``.
     """
 
     def __init__(self, L: sp.spmatrix, *, threads: int | None = None, storage: str = "auto") -> None:
@@ -132,6 +131,7 @@ class TransportOperator:
         if self.stencil is None and storage in STORAGES:
             raise ValueError(f"L has no shared-grid window structure: storage {storage!r} does not apply")
         self.storage = "csr" if self.stencil is None else self.stencil.storage
+        if self.stencil is not None: warm_up(self.storage)  # compiled here, not in a solve's time budget
         self.fused = True  #: APG on the stencil storage in one weight sweep per iteration (:mod:`.stencil_apg`)
         self._LT: sp.csr_matrix | None = None
         self.forward_blocks, self.adjoint_blocks = stencil_blocks(self.stencil, self.threads) if self.stencil is not None else \

@@ -64,3 +64,24 @@ def test_a_bands_light_splits_over_sinks_and_nothing_lands_twice(storage):
         got[:, r0:r1] += view
     np.testing.assert_allclose(got, want, rtol=2e-6, atol=2e-6)
     assert not want[:, :6].any() and not want[:, 16:].any()
+
+
+@pytest.mark.parametrize("storage", ["float32", "uint16"])
+def test_building_the_operator_compiles_what_a_solve_needs(storage):
+    """After :class:`TransportOperator` is built, solving (grey and RGB) and both products compile
+    nothing more: a solve's time budget or a video frame's deadline is not spent on the compiler."""
+    from coordinator.compensation import stencil_kernels as kernels
+    from coordinator.compensation.solver import TransportOperator, solve
+    from coordinator.compensation.synthetic import synthetic_rig, synthetic_transport
+
+    L = synthetic_transport(synthetic_rig(4, content_shape=(24, 32), radius=2, seed=1), scale=0.25,
+                            footprint_samples=1, workers=1)
+    op = TransportOperator(L, threads=2, storage=storage)
+    compiled = {f.__name__: list(f.signatures) for f in (kernels.adjoint_rows, kernels.scatter_rows, kernels.sweep_rows)}
+    target = np.random.default_rng(0).random((24, 32, 3), dtype=np.float32) * 0.5
+    solve(op, target, max_iter=5, threads=2)
+    solve(op, target[:, :, 0], max_iter=5, threads=2)
+    op.matvec(np.ones(L.shape[1], np.float32))
+    op.rmatvec(np.ones(L.shape[0], np.float32))
+    assert {f.__name__: list(f.signatures) for f in (kernels.adjoint_rows, kernels.scatter_rows,
+                                                     kernels.sweep_rows)} == compiled
