@@ -349,7 +349,7 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
              "cpu_seconds_per_iteration": round(cpu / max(res.iterations, 1), 4),
              "objective": res.objective, "storage": op.storage, "fused": op.storage != "csr" and op.fused,
              "iterations": res.iterations, "bytes_per_iteration": bpi, "storage_mib": round(op.storage_bytes / 2**20, 1),
-             "gb_per_s_moved": round(rate / 1e9, 2), "bandwidth_fraction": round(rate / (bandwidth * 1e9), 3),
+             "gb_per_s_moved": round(rate / 1e9, 2), "bandwidth_fraction": float(f"{rate / (bandwidth * 1e9):.3g}"),  # small runs: not rounded to 0
              "load": [round(load0, 2), round(os.getloadavg()[0], 2)]}
     return stats, res, op
 
@@ -474,7 +474,7 @@ def _video(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, Any]:
                 "ms_first_frame": round(1000 * first, 2) if first is not None else None,
                 "cpu_ms_per_frame_mean": round(1000 * float(np.mean(cpu[1:])), 2) if times else None,
                 "iterations_per_frame_mean": round(iters, 2), "storage": op.storage, "bytes_per_iteration": bpi,
-                "bandwidth_fraction": round(rate / (bw["gb_per_s"] * 1e9), 3),
+                "bandwidth_fraction": float(f"{rate / (bw['gb_per_s'] * 1e9):.3g}"),
                 "relative_gap_to_converged_mean": round(float(np.mean(gaps)), 4),
                 "psnr_none_mean": round(float(np.mean(q_none)), 3),
                 "psnr_warm_mean": round(float(np.mean(q_warm)), 3),
