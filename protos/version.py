@@ -34,8 +34,8 @@ MAX_REQUEST_BYTES = 4 * 1024 * 1024
 
 #: The coordinator's HTTP/2 receive window per stream. gRPC's bandwidth-delay probe would grow it
 #: on a fast link until a peer can push hundreds of MiB of an oversized message into memory
-#: before the refusal (4 peers sending 200 MiB made a bare server peak at 179 and 278 MiB; with
-#: the probe off and this window, at 7-10 MiB). 1 MiB keeps an upload at ~1 GB/s over a 1 ms
+#: before the refusal (4 peers sending 200 MiB made a bare server, 33 MiB idle, peak at up to
+#: 278 MiB; with the probe off and this window, at 39-43 MiB). 1 MiB allows ~1 GB/s over a 1 ms
 #: round trip, beyond a venue's gigabit link. Nodes keep the probe: their large downloads need it.
 COORDINATOR_WINDOW_BYTES = 1024 * 1024
 
