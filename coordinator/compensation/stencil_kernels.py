@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["adjoint_rows", "mac", "scatter_rows", "sweep_rows", "tap"]
+__all__ = ["adjoint_row", "adjoint_rows", "mac", "scatter_rows", "sweep_rows", "tap"]
 
 
 @njit(inline="always", cache=True)
@@ -56,6 +56,20 @@ def mac(dst, w_row, src):  # pragma: no cover - compiled
         dst[i] += np.float32(w_row[i]) * src[i]
 
 
+@njit(inline="always", cache=True)
+def adjoint_row(dst, w, v, y, radius):  # pragma: no cover - compiled
+    """``dst = sum_(dy,dx) w_(dy,dx)[y] * v[y + dy, . + dx]``, unscaled: content row ``y`` of
+    ``L^T v`` from its weight row; ``v``: (H, W) one channel's camera image."""
+    n_k, h, width = w.shape
+    for i in range(width):
+        dst[i] = np.float32(0.0)
+    for k in range(n_k):
+        dy, dx, c0, c1 = tap(k, radius, width)
+        yy = y + dy
+        if 0 <= yy < h:
+            mac(dst[c0:c1], w[k, y, c0:c1], v[yy, c0 + dx : c1 + dx])
+
+
 @njit(nogil=True, cache=True)
 def adjoint_rows(w, scale, v, out, y0, y1, radius):  # pragma: no cover - compiled
     """``out[c, y - y0] = (L^T v[c])[y]`` for content rows ``y`` in ``[y0, y1)``.
@@ -63,18 +77,11 @@ def adjoint_rows(w, scale, v, out, y0, y1, radius):  # pragma: no cover - compil
     ``w``: (K, H, W) weights (all rows); ``scale``: float32; ``v``: (C, H, W) float32 camera
     images; ``out``: (C, y1 - y0, W) float32, overwritten.
     """
-    n_k, h, width = w.shape
-    zero = np.float32(0.0)
+    width = w.shape[2]
     for ch in range(v.shape[0]):
         for y in range(y0, y1):
             row = out[ch, y - y0]
-            for i in range(width):
-                row[i] = zero
-            for k in range(n_k):
-                dy, dx, c0, c1 = tap(k, radius, width)
-                yy = y + dy
-                if 0 <= yy < h:
-                    mac(row[c0:c1], w[k, y, c0:c1], v[ch, yy, c0 + dx : c1 + dx])
+            adjoint_row(row, w, v[ch], y, radius)
             if scale != 1.0:
                 for i in range(width):
                     row[i] *= scale
@@ -140,13 +147,7 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
             assembled += 1
         for ch in range(n_ch):  # 2. g = L^T res on row y
             gr = g[ch]
-            for i in range(width):
-                gr[i] = zero
-            for k in range(n_k):
-                dy, dx, c0, c1 = tap(k, radius, width)
-                yy = y + dy
-                if 0 <= yy < h:
-                    mac(gr[c0:c1], w[k, y, c0:c1], res[ch, yy, c0 + dx : c1 + dx])
+            adjoint_row(gr, w, res[ch], y, radius)
             for i in range(width):  # 3. the update of row y, over x_{k-1}
                 gi = gr[i] * scale
                 if gi < 0:
