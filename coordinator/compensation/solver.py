@@ -122,12 +122,11 @@ class TransportOperator:
         if storage not in ("auto", "csr", *STORAGES):
             raise ValueError(f"storage must be auto, csr, {' or '.join(STORAGES)}; got {storage!r}")
         L = sp.csr_matrix(L, dtype=np.float32, copy=False)
-        if not L.has_sorted_indices:
-            L = L.sorted_indices()
-        self.L = L
         self.shape: tuple[int, int] = (int(L.shape[0]), int(L.shape[1]))
         self.threads = max(1, int(threads if threads is not None else min(2, os.cpu_count() or 1)))
-        self.stencil = None if storage == "csr" else stencil_from_csr(L, storage="float32" if storage == "auto" else storage)
+        self.stencil = None if storage == "csr" else \
+            stencil_from_csr(L, storage="float32" if storage == "auto" else storage, threads=self.threads)
+        self.L = L = L if self.stencil is not None or L.has_sorted_indices else L.sorted_indices()  # CSR's own order
         if self.stencil is None and storage in STORAGES:
             raise ValueError(f"L has no shared-grid window structure: storage {storage!r} does not apply")
         self.storage = "csr" if self.stencil is None else self.stencil.storage

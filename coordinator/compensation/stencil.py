@@ -31,9 +31,9 @@ from __future__ import annotations
 
 import itertools
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import scipy.sparse as sp
 
@@ -42,7 +42,6 @@ __all__ = ["STORAGES", "StencilBand", "StencilTransport", "stencil_blocks", "ste
 #: weight storages: exact float32, or uint16 fixed point (half the bytes)
 STORAGES = ("float32", "uint16")
 _MAX_RADIUS = 4  # K = 81: beyond this CSR is as compact and the band loop gets long
-_CHUNK_ROWS = 1 << 18  # camera pixels per step of the extraction (bounds its temporary memory)
 
 
 @dataclass
@@ -243,65 +242,15 @@ def _grid_width(L: sp.csr_matrix) -> tuple[int, int] | None:
     return w, r
 
 
-def _extract_rows(L: sp.csr_matrix, weights: np.ndarray, y0: int, y1: int, w: int, r: int, offs: np.ndarray) -> bool:
-    """Scatter the camera rows of image rows ``[y0, y1)`` of ``L`` into ``weights`` (K, n).
-
-    Row ``i`` lies ``off_k = dy * W + dx`` after column ``j = i - off_k`` (``L[i, j] = w_k[j]``).
-    The interior of an image row (``R`` pixels from its ends), when every one of its rows holds
-    a full window, is checked against the window's column pattern, transposed (OpenCV's blocked
-    transpose: the ``(pixels, K)`` values become ``K`` contiguous rows) and copied as ``K``
-    slices; every other row entry by entry, with the no-wrap check. Returns False as soon as an
-    entry does not fit.
-    """
-    k_all = offs.size
-    ptr = L.indptr
-    rest = np.ones((y1 - y0) * w, dtype=bool)
-    inner = w - 2 * r
-    counts = np.diff(ptr[y0 * w : y1 * w + 1]).reshape(y1 - y0, w)[:, r : w - r]
-    full = np.flatnonzero((counts == k_all).all(axis=1)) + y0
-    # columns of an interior row's entries, less the row's first pixel: the same for every row
-    small = L.shape[1] < 2**31 - 1
-    pattern = (np.arange(inner, dtype=np.int64)[:, None] - offs[None, ::-1]).astype(np.int32 if small else np.int64)
-    vals_t = np.empty((k_all, inner), dtype=np.float32)
-    for y in full.tolist():
-        i0, i1 = y * w + r, (y + 1) * w - r
-        s, e = int(ptr[i0]), int(ptr[i1])
-        cols = L.indices[s:e].reshape(inner, k_all)
-        if not np.array_equal(cols - cols.dtype.type(i0) if small else cols.astype(np.int64) - i0, pattern):
-            return False  # columns ascending = offsets descending
-        vals = L.data[s:e].reshape(inner, k_all)
-        if vals.dtype == np.float32:
-            cv2.transpose(vals, dst=vals_t)
-        else:
-            vals_t[...] = vals.T
-        for k in range(k_all):
-            weights[k, i0 - offs[k] : i1 - offs[k]] = vals_t[k_all - 1 - k]
-        rest[i0 - y0 * w : i1 - y0 * w] = False
-    a = y0 * w
-    rows_left = np.flatnonzero(rest) + a
-    if rows_left.size:
-        counts = np.diff(ptr[a : y1 * w + 1]).astype(np.int64)[rows_left - a]
-        starts = ptr[rows_left].astype(np.int64)
-        pos = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
-        rows = np.repeat(rows_left, counts)
-        cols = L.indices[pos].astype(np.int64)
-        u = rows - cols
-        dy = np.floor_divide(u + r, w)
-        dx = u - dy * w
-        xc = cols % w
-        if not np.all((np.abs(dy) <= r) & (np.abs(dx) <= r) & (xc + dx >= 0) & (xc + dx < w)):
-            return False
-        weights[(dy + r) * (2 * r + 1) + (dx + r), cols] = L.data[pos]
-    return True
-
-
-def stencil_from_csr(L: sp.spmatrix, *, storage: str = "float32") -> StencilTransport | None:
+def stencil_from_csr(L: sp.spmatrix, *, storage: str = "float32", threads: int = 2) -> StencilTransport | None:
     """``L`` as :class:`StencilTransport` when it has the shared-grid window structure, else None.
 
-    ``L``: (n, n) or, with a stacked diagonal, (2n, n). Every non-zero is checked: it must lie
-    within ``R`` rows and columns of its column's own pixel without wrapping across a row. The
-    grid's height and width are inferred (``n = H * W``). ``storage``: ``"float32"`` (exact) or
-    ``"uint16"`` (non-negative ``L`` only; returns None otherwise).
+    ``L``: (n, n) or, with a stacked diagonal, (2n, n), in any CSR order (duplicates are summed).
+    Every entry is checked: it must lie within ``R`` rows and columns of its column's own pixel (so
+    no window wraps across a row). The grid's height and width are inferred (``n = H * W``). ``storage``: ``"float32"`` (exact) or
+    ``"uint16"`` (non-negative ``L`` only, rounded to the nearest of 65536 steps of ``max(L) /
+    65535``; returns None otherwise). The copy is a compiled pass over ``L``'s CSR arrays
+    (:func:`.stencil_kernels.extract_rows`), split over ``threads`` row ranges.
     """
     if storage not in STORAGES:
         raise ValueError(f"storage must be one of {STORAGES}, got {storage!r}")
@@ -321,22 +270,22 @@ def stencil_from_csr(L: sp.spmatrix, *, storage: str = "float32") -> StencilTran
     w, r = guess
     h = n // w
     side = 2 * r + 1
-    k_all = side * side
-    offs = np.array([dy * w + dx for dy in range(-r, r + 1) for dx in range(-r, r + 1)], dtype=np.int64)
-    weights = np.zeros((k_all, n), dtype=np.float32)
-    step = max(1, _CHUNK_ROWS // w)
-    for y0 in range(0, h, step):
-        if not _extract_rows(L, weights, y0, min(h, y0 + step), w, r, offs):
-            return None
-    weights = weights.reshape(side * side, h, w)
-    scale = 1.0
+    scale, inv = 1.0, 1.0
     if storage == "uint16":
-        top = float(weights.max(initial=0.0))
-        if float(weights.min(initial=0.0)) < 0:
-            return None
+        top = float(L.data.max())
         scale = top / 65535.0 if top > 0 else 1.0
-        q = np.empty(weights.shape, dtype=np.uint16)
-        for k in range(weights.shape[0]):  # one pass per image: scaled, rounded to nearest (ties to even)
-            cv2.multiply(weights[k], 1.0 / scale, dst=q[k], dtype=cv2.CV_16U)
-        weights = q
-    return StencilTransport((h, w), r, weights, scale, tail)
+        inv = 1.0 / scale
+    weights = np.zeros((side * side, h, w), dtype=np.uint16 if storage == "uint16" else np.float32)
+    data = L.data if L.data.dtype in (np.float32, np.float64) else L.data.astype(np.float64)
+    from coordinator.compensation.stencil_kernels import extract_rows  # Numba: loaded on the first extraction
+
+    def part(rows: tuple[int, int]) -> bool:
+        return bool(extract_rows(L.indptr, L.indices, data, weights, rows[0], rows[1], r, storage == "uint16", inv))
+
+    bands = StencilTransport((h, w), r, weights).bands(threads)
+    if len(bands) == 1:
+        fits = [part(bands[0])]
+    else:
+        with ThreadPoolExecutor(len(bands)) as pool:
+            fits = list(pool.map(part, bands))
+    return StencilTransport((h, w), r, weights, scale, tail) if all(fits) else None

@@ -27,6 +27,8 @@ vectorise too (about 10 % faster at 2592x1944); its iterates differ from a plain
 float32's last bits. All kernels live in this one module because Numba's cache follows a
 function's own file only: an inlined helper changed in another file would leave stale machine code.
 
+``extract_rows`` builds the weights from ``L``'s CSR arrays, checking every entry's place.
+
 Shapes: ``w`` (K, H, W) uint16 or float32; images (C, rows, W) float32 with unit-stride rows.
 The first call of each kernel for a new combination of argument types compiles it (a few seconds);
 the machine code is cached beside this module for the next process.
@@ -36,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["adjoint_row", "adjoint_rows", "mac", "scatter_rows", "sweep_rows", "tap"]
+__all__ = ["adjoint_row", "adjoint_rows", "extract_rows", "mac", "scatter_rows", "sweep_rows", "tap"]
 
 
 @njit(inline="always", cache=True)
@@ -85,6 +87,119 @@ def adjoint_rows(w, scale, v, out, y0, y1, radius):  # pragma: no cover - compil
             if scale != 1.0:
                 for i in range(width):
                     row[i] *= scale
+
+
+@njit(inline="always", cache=True)
+def _add_entry(w, k, yj, xj, value, quantize, inv_scale):  # pragma: no cover - compiled
+    """``w[k, yj, xj] += value`` (``uint16``: its rounded steps); False when it leaves ``uint16``'s range."""
+    if quantize:
+        q = np.rint(value * inv_scale) + w[k, yj, xj]
+        if not 0.0 <= q <= 65535.0:  # also refuses NaN
+            return False
+        w[k, yj, xj] = q
+    else:
+        w[k, yj, xj] += value
+    return True
+
+
+@njit(nogil=True, cache=True)
+def _extract_entries(indptr, indices, data, w, i0, i1, radius, quantize, inv_scale):  # pragma: no cover - compiled
+    """:func:`extract_rows` entry by entry for camera pixels ``[i0, i1)``: any order, duplicates summed."""
+    _, h, width = w.shape
+    side = 2 * radius + 1
+    shift = radius + 1
+    inv_width = 1.0 / width
+    for i in range(i0, i1):
+        yi = i // width
+        xi = i - yi * width
+        for p in range(indptr[i], indptr[i + 1]):
+            d = i - indices[p]  # dy * W + dx
+            # dy without an integer division: (d + R + 0.5) / W is never within 0.5 / W of an integer,
+            # so float64 rounding cannot move the floor (shifted positive, so truncation is the floor)
+            dy = int((d + radius + 0.5) * inv_width + shift) - shift
+            dx = d - dy * width
+            yj = yi - dy
+            xj = xi - dx
+            if dy < -radius or dy > radius or dx < -radius or dx > radius or not (0 <= yj < h and 0 <= xj < width):
+                return False
+            if not _add_entry(w, (dy + radius) * side + dx + radius, yj, xj, data[p], quantize, inv_scale):
+                return False
+    return True
+
+
+_RUN = 64  # camera pixels whose windows are checked and copied as one block
+
+
+@njit(nogil=True, cache=True)
+def extract_rows(indptr, indices, data, w, y0, y1, radius, quantize, inv_scale):  # pragma: no cover - compiled
+    """Copy camera rows ``[y0, y1)`` of the CSR matrix ``(indptr, indices, data)`` into ``w``; False
+    as soon as an entry does not fit.
+
+    Row ``i`` (camera pixel ``(yi, xi)``) and column ``j`` (content pixel ``(yj, xj)``) of ``L`` on
+    the ``(H, W)`` grid of ``w`` (K, H, W) hold ``w_(dy,dx)[yj, xj]`` with ``(dy, dx) = (yi - yj,
+    xi - xj)``; an entry fits when ``|dy|, |dx| <= radius`` (so no window wraps across a row).
+    ``w`` float32 takes the values as they are; ``uint16`` (``quantize`` True) takes
+    ``rint(value * inv_scale)`` and refuses a negative value or one beyond 65535 steps. ``w`` must
+    be zero on entry. Calls on separate row ranges may run on separate threads: each
+    ``(k, yj, xj)`` belongs to one camera pixel.
+
+    A run of ``_RUN`` interior pixels whose rows hold exactly the ``K`` window columns in CSR's
+    sorted order (the common case) is checked by one vectorised comparison against that pattern
+    and copied offset by offset (a blocked transpose); every other pixel goes entry by entry
+    (:func:`_extract_entries`).
+    """
+    n_k, h, width = w.shape
+    side = 2 * radius + 1
+    pattern = np.empty(_RUN * n_k, dtype=indices.dtype)  # columns of a run of full windows, less its first row
+    for q in range(_RUN):
+        for t in range(n_k):  # columns ascending = offsets descending
+            k = n_k - 1 - t
+            pattern[q * n_k + t] = q - ((k // side - radius) * width + k % side - radius)
+    for y in range(y0, y1):
+        row0 = y * width
+        if y < radius or y >= h - radius:
+            if not _extract_entries(indptr, indices, data, w, row0, row0 + width, radius, quantize, inv_scale):
+                return False
+            continue
+        if not (_extract_entries(indptr, indices, data, w, row0, row0 + radius, radius, quantize, inv_scale)
+                and _extract_entries(indptr, indices, data, w, row0 + width - radius, row0 + width, radius,
+                                     quantize, inv_scale)):
+            return False
+        x = radius
+        while x < width - radius:
+            m = min(_RUN, width - radius - x)
+            i = row0 + x
+            s = np.int64(indptr[i])
+            full = np.int64(indptr[i + m]) - s == m * n_k
+            if full:
+                cols = indices[s : s + m * n_k]
+                bad = 0
+                for t in range(m * n_k):
+                    bad |= (cols[t] - i) ^ pattern[t]
+                full = bad == 0
+            if not full:
+                if not _extract_entries(indptr, indices, data, w, i, i + m, radius, quantize, inv_scale):
+                    return False
+            else:
+                vals = data[s : s + m * n_k]
+                for t in range(n_k):
+                    k = n_k - 1 - t
+                    dy = k // side - radius
+                    dx = k % side - radius
+                    dst = w[k, y - dy, x - dx : x - dx + m]
+                    if quantize:
+                        fits = True
+                        for q in range(m):
+                            v = np.rint(vals[q * n_k + t] * inv_scale)
+                            fits &= 0.0 <= v <= 65535.0
+                            dst[q] = v
+                        if not fits:
+                            return False
+                    else:
+                        for q in range(m):
+                            dst[q] = vals[q * n_k + t]
+            x += m
+    return True
 
 
 @njit(nogil=True, cache=True)

@@ -1,29 +1,90 @@
 """The compiled stencil products against SciPy's CSR product of the same matrix: every row range,
 both storages, one and three channels, outputs that are views into larger arrays, and light split
-over several sinks (the fused sweep's halos)."""
+over several sinks (the fused sweep's halos); and the extraction of the weights from CSR, checked
+against the weights the CSR matrix was made from."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from coordinator.compensation.stencil import StencilTransport
+import scipy.sparse as sp
+
+from coordinator.compensation.stencil import StencilTransport, stencil_from_csr
 
 H, W = 23, 31
 
 
-def _stencil(radius: int, storage: str, seed: int = 0) -> StencilTransport:
+def _stencil(radius: int, storage: str, seed: int = 0, shape: tuple[int, int] = (H, W)) -> StencilTransport:
     """Random weights, zero where a window entry falls outside the grid (as measured ones are)."""
     rng = np.random.default_rng(seed)
     side = 2 * radius + 1
-    w = rng.random((side * side, H, W), dtype=np.float32)
+    h, w_ = shape
+    w = rng.random((side * side, h, w_), dtype=np.float32)
     for k in range(side * side):
         dy, dx = k // side - radius, k % side - radius
-        ys, xs = np.arange(H)[:, None] + dy, np.arange(W)[None, :] + dx
-        w[k][(ys < 0) | (ys >= H) | (xs < 0) | (xs >= W)] = 0
+        ys, xs = np.arange(h)[:, None] + dy, np.arange(w_)[None, :] + dx
+        w[k][(ys < 0) | (ys >= h) | (xs < 0) | (xs >= w_)] = 0
     if storage == "float32":
-        return StencilTransport((H, W), radius, w)
+        return StencilTransport(shape, radius, w)
     scale = 1.0 / 60000
-    return StencilTransport((H, W), radius, np.rint(w / scale).astype(np.uint16), scale=scale)
+    return StencilTransport(shape, radius, np.rint(w / scale).astype(np.uint16), scale=scale)
+
+
+WIDE = (9, 157)  # rows of several 64-pixel runs and a shorter last one
+
+
+@pytest.mark.parametrize("radius", [1, 2, 3])
+def test_extraction_gives_back_the_weights_the_matrix_was_made_of(radius):
+    st = _stencil(radius, "float32", seed=radius, shape=WIDE)
+    st.weights[:, 4, 70] = 0  # one window missing an entry (to_csr drops zeros): that run goes entry by entry
+    L = st.to_csr()
+    assert L.has_sorted_indices
+    for threads in (1, 2, 3):
+        got = stencil_from_csr(L, threads=threads)
+        assert got is not None and got.radius == radius and got.grid == WIDE
+        np.testing.assert_array_equal(got.weights, st.weights)
+    q = stencil_from_csr(L, storage="uint16", threads=2)  # rounded to half a step of max / 65535
+    assert q.scale == pytest.approx(float(L.data.max()) / 65535)
+    err = np.abs(q.weights.astype(np.float64) * q.scale - st.weights)
+    assert err.max() <= 0.5 * q.scale * (1 + 1e-6)
+    np.testing.assert_array_equal(q.weights == 0, st.weights == 0)
+
+
+def test_extraction_takes_any_csr_order_and_sums_duplicates():
+    st = _stencil(2, "float32", seed=5, shape=WIDE)
+    L = st.to_csr()
+    rng = np.random.default_rng(0)
+    split = 5 * WIDE[1] + 80  # this row's entries come as two halves each (exact in float32)
+    indptr, indices, data = [0], [], []
+    for i in range(L.shape[0]):
+        cols, vals = L.indices[L.indptr[i] : L.indptr[i + 1]], L.data[L.indptr[i] : L.indptr[i + 1]]
+        if i == split:
+            cols, vals = np.concatenate([cols, cols]), np.concatenate([vals / 2, vals / 2])
+        order = rng.permutation(cols.size)
+        indices.append(cols[order])
+        data.append(vals[order])
+        indptr.append(indptr[-1] + cols.size)
+    M = sp.csr_matrix((np.concatenate(data), np.concatenate(indices), np.array(indptr)), shape=L.shape)
+    assert not M.has_canonical_format and M.nnz == L.nnz + 25
+    got = stencil_from_csr(M, threads=2)
+    np.testing.assert_array_equal(got.weights, st.weights)
+
+
+def test_extraction_refuses_an_entry_outside_its_window_anywhere():
+    st = _stencil(2, "float32", seed=6, shape=WIDE)
+    L = st.to_csr()
+    row = 4 * WIDE[1] + 100  # interior, in the middle of a run of full windows
+    for bad in (row - 3, row + 3 * WIDE[1], row - WIDE[1] - 3):  # dx = 3, dy = -3, a wrap of dy = 1, dx = -3
+        M = L.tolil()
+        M[row, bad] = 0.5
+        M[row, M.rows[row][0]] = 0  # the window keeps its count of entries
+        M = M.tocsr()
+        M.eliminate_zeros()
+        assert stencil_from_csr(M) is None
+    negative = L.copy()
+    negative.data[negative.indptr[row]] = -0.1
+    assert stencil_from_csr(negative) is not None  # float32 holds any sign
+    assert stencil_from_csr(negative, storage="uint16") is None
 
 
 @pytest.mark.parametrize("storage", ["float32", "uint16"])
