@@ -9,12 +9,15 @@
 OpenCV needs one ``accumulateProduct`` per offset and channel over a whole band, and a ``uint16``
 band must first be converted to float32 in a separate pass. Here, per weight row, Numba's loop
 over the row's pixels reads the ``uint16`` (or float32) weights once, converts them in registers
-and accumulates into output rows that stay in the core's first-level cache; LLVM vectorises the
-inner loop (it is a plain ``a[i] += w[i] * b[i]`` over unit-stride slices, indexed from 0 so no
-negative-index check blocks it). The kernels release the GIL, so the solver's threads run them on
-separate row ranges at once.
+and accumulates into output rows that stay in the core's first-level cache. The offsets of one
+``dy`` are applied together, up to five per pass (:func:`taps`): each output pixel is loaded and
+stored once per five multiply-adds instead of once per offset, which made both products about a
+quarter faster on one core at 2592x1944. LLVM vectorises each pass (a plain ``d[i] += a0[i] *
+s0[i] + ...`` over unit-stride slices, indexed from 0 so no negative-index check blocks it); the
+few columns near the row's ends where some offset falls outside go offset by offset. The kernels
+release the GIL, so the solver's threads run them on separate row ranges at once.
 
-The sums are the OpenCV loop's in float32; only their order per output pixel may differ (and
+The sums are in float32, as OpenCV's were; only their order per output pixel may differ (and
 with it the last bits). The tests compare both products against SciPy's CSR product of the same
 matrix.
 
@@ -38,38 +41,100 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["adjoint_row", "adjoint_rows", "extract_rows", "mac", "scatter_rows", "sweep_rows", "tap"]
+__all__ = ["adjoint_row", "adjoint_rows", "extract_rows", "gather_group", "scatter_group", "scatter_rows", "sweep_rows", "taps"]
+
+
+_GROUP = 5  # offsets of one weight row applied in one pass over its output row
 
 
 @njit(inline="always", cache=True)
-def tap(k, radius, width):  # pragma: no cover - compiled
-    """Offset ``k``'s ``(dy, dx)`` and the columns ``[c0, c1)`` of a weight row whose light stays
-    inside the image's width."""
-    side = 2 * radius + 1
-    dx = k % side - radius
-    return k // side - radius, dx, max(0, -dx), min(width, width - dx)
+def taps(dst, n, a0, s0, a1, s1, a2, s2, a3, s3, a4, s4):  # pragma: no cover - compiled
+    """``dst += sum_(t < n) a_t * s_t`` element by element, ``n`` in 1..5 (``a_t`` uint16 or float32,
+    converted in registers; the unused pairs are ignored). One load and store of ``dst`` per
+    ``n`` offsets; each branch is a plain unit-stride loop that LLVM vectorises."""
+    if n == 1:
+        for i in range(dst.shape[0]):
+            dst[i] += np.float32(a0[i]) * s0[i]
+    elif n == 2:
+        for i in range(dst.shape[0]):
+            dst[i] += np.float32(a0[i]) * s0[i] + np.float32(a1[i]) * s1[i]
+    elif n == 3:
+        for i in range(dst.shape[0]):
+            dst[i] += np.float32(a0[i]) * s0[i] + np.float32(a1[i]) * s1[i] + np.float32(a2[i]) * s2[i]
+    elif n == 4:
+        for i in range(dst.shape[0]):
+            dst[i] += (np.float32(a0[i]) * s0[i] + np.float32(a1[i]) * s1[i] + np.float32(a2[i]) * s2[i]
+                       + np.float32(a3[i]) * s3[i])
+    else:
+        for i in range(dst.shape[0]):
+            dst[i] += (np.float32(a0[i]) * s0[i] + np.float32(a1[i]) * s1[i] + np.float32(a2[i]) * s2[i]
+                       + np.float32(a3[i]) * s3[i] + np.float32(a4[i]) * s4[i])
 
 
 @njit(inline="always", cache=True)
-def mac(dst, w_row, src):  # pragma: no cover - compiled
-    """``dst += w_row * src`` element by element (``w_row`` uint16 or float32, converted in
-    registers); inlined into the caller, where LLVM vectorises it."""
-    for i in range(dst.shape[0]):
-        dst[i] += np.float32(w_row[i]) * src[i]
+def gather_group(dst, w, k0, y, src, n, dx0):  # pragma: no cover - compiled
+    """``dst[i] += sum_(t < n) w[k0 + t, y, i] * src[i + dx0 + t]`` where ``src`` has that pixel:
+    the adjoint's share of offsets ``dx0 .. dx0 + n - 1`` of one ``dy`` (``dst``, ``src``: (W,))."""
+    width = dst.shape[0]
+    lo, hi = max(0, -dx0), min(width, width - (dx0 + n - 1))  # every offset of the group inside
+    if hi > lo:
+        t1, t2, t3, t4 = min(1, n - 1), min(2, n - 1), min(3, n - 1), min(4, n - 1)
+        b = lo + dx0
+        e = hi + dx0
+        taps(dst[lo:hi], n, w[k0, y, lo:hi], src[b:e], w[k0 + t1, y, lo:hi], src[b + t1 : e + t1],
+             w[k0 + t2, y, lo:hi], src[b + t2 : e + t2], w[k0 + t3, y, lo:hi], src[b + t3 : e + t3],
+             w[k0 + t4, y, lo:hi], src[b + t4 : e + t4])
+    else:
+        lo = hi = 0
+    for t in range(n):  # the columns near the ends, offset by offset
+        dx = dx0 + t
+        for i in range(max(0, -dx), min(lo, width - dx)):
+            dst[i] += np.float32(w[k0 + t, y, i]) * src[i + dx]
+        for i in range(max(hi, -dx), min(width, width - dx)):
+            dst[i] += np.float32(w[k0 + t, y, i]) * src[i + dx]
+
+
+@njit(inline="always", cache=True)
+def scatter_group(dst, w, k0, y, src, n, dx0):  # pragma: no cover - compiled
+    """``dst[o] += sum_(t < n) w[k0 + t, y, o - dx] * src[o - dx]`` (``dx = dx0 + t``) where the
+    source pixel exists: the light of one content row ``src`` through offsets ``dx0 .. dx0 + n - 1``
+    of one ``dy``, onto camera row ``dst`` (both (W,))."""
+    width = dst.shape[0]
+    dx1 = dx0 + n - 1
+    lo, hi = max(0, dx1), min(width, width + dx0)  # every offset of the group has its source
+    if hi > lo:
+        t1, t2, t3, t4 = min(1, n - 1), min(2, n - 1), min(3, n - 1), min(4, n - 1)
+        b = lo - dx0
+        e = hi - dx0
+        taps(dst[lo:hi], n, w[k0, y, b:e], src[b:e], w[k0 + t1, y, b - t1 : e - t1], src[b - t1 : e - t1],
+             w[k0 + t2, y, b - t2 : e - t2], src[b - t2 : e - t2], w[k0 + t3, y, b - t3 : e - t3],
+             src[b - t3 : e - t3], w[k0 + t4, y, b - t4 : e - t4], src[b - t4 : e - t4])
+    else:
+        lo = hi = 0
+    for t in range(n):
+        dx = dx0 + t
+        for o in range(max(0, dx), min(lo, width + dx)):
+            dst[o] += np.float32(w[k0 + t, y, o - dx]) * src[o - dx]
+        for o in range(max(hi, dx), min(width, width + dx)):
+            dst[o] += np.float32(w[k0 + t, y, o - dx]) * src[o - dx]
 
 
 @njit(inline="always", cache=True)
 def adjoint_row(dst, w, v, y, radius):  # pragma: no cover - compiled
     """``dst = sum_(dy,dx) w_(dy,dx)[y] * v[y + dy, . + dx]``, unscaled: content row ``y`` of
     ``L^T v`` from its weight row; ``v``: (H, W) one channel's camera image."""
-    n_k, h, width = w.shape
-    for i in range(width):
+    h = w.shape[1]
+    side = 2 * radius + 1
+    for i in range(dst.shape[0]):
         dst[i] = np.float32(0.0)
-    for k in range(n_k):
-        dy, dx, c0, c1 = tap(k, radius, width)
+    for dy in range(-radius, radius + 1):
         yy = y + dy
         if 0 <= yy < h:
-            mac(dst[c0:c1], w[k, y, c0:c1], v[yy, c0 + dx : c1 + dx])
+            dx0 = -radius
+            while dx0 <= radius:
+                n = min(_GROUP, radius - dx0 + 1)
+                gather_group(dst, w, (dy + radius) * side + dx0 + radius, y, v[yy], n, dx0)
+                dx0 += n
 
 
 @njit(nogil=True, cache=True)
@@ -210,7 +275,8 @@ def scatter_rows(w, scale, x, y0, y1, radius, sink, r0, r1):  # pragma: no cover
     ``w``: (K, H, W) weights (all rows); ``scale``: float32; ``x``: (C, y1 - y0, W) float32
     content rows; ``sink``: (C, r1 - r0, W) float32, accumulated into.
     """
-    n_k, h, width = w.shape
+    h, width = w.shape[1], w.shape[2]
+    side = 2 * radius + 1
     lo = max(r0, 0)
     hi = min(r1, h)
     src = np.empty(width, dtype=np.float32)  # the row times scale, as the OpenCV loop scaled x first
@@ -219,11 +285,14 @@ def scatter_rows(w, scale, x, y0, y1, radius, sink, r0, r1):  # pragma: no cover
             row = x[ch, y - y0]
             for i in range(width):
                 src[i] = row[i] * scale
-            for k in range(n_k):
-                dy, dx, c0, c1 = tap(k, radius, width)
+            for dy in range(-radius, radius + 1):
                 yy = y + dy
                 if lo <= yy < hi:
-                    mac(sink[ch, yy - r0, c0 + dx : c1 + dx], w[k, y, c0:c1], src[c0:c1])
+                    dx0 = -radius
+                    while dx0 <= radius:
+                        n = min(_GROUP, radius - dx0 + 1)
+                        scatter_group(sink[ch, yy - r0], w, (dy + radius) * side + dx0 + radius, y, src, n, dx0)
+                        dx0 += n
 
 
 @njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
@@ -241,7 +310,8 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
     Returns ``(sum min(0, g), ||y - x_{k+1}||^2, <y - x_{k+1}, x_{k+1} - x_k>,
     ||Lx_{k+1} - c||^2 on rows [lo, hi), ||res||^2, <res, c>)``.
     """
-    n_k, h, width = w.shape
+    h, width = w.shape[1], w.shape[2]
+    side = 2 * radius + 1
     n_ch = c.shape[0]
     one_b = np.float32(1.0) + beta
     zero = np.float32(0.0)
@@ -282,19 +352,22 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
                 for i in range(width):
                     lz[i] = zero
             zeroed += 1
-        for k in range(n_k):  # 4. the light of row y, from the weight row the adjoint just read
-            dy, dx, c0, c1 = tap(k, radius, width)
+        for dy in range(-radius, radius + 1):  # 4. the light of row y, from the weight row the adjoint just read
             yy = y + dy
             if yy < 0 or yy >= h:
                 continue
             for ch in range(n_ch):
                 if yy < y0:
-                    dst = halo_top[ch, yy - top0, c0 + dx : c1 + dx]
+                    dst = halo_top[ch, yy - top0]
                 elif yy >= y1:
-                    dst = halo_bot[ch, yy - y1, c0 + dx : c1 + dx]
+                    dst = halo_bot[ch, yy - y1]
                 else:
-                    dst = lx_prev[ch, yy, c0 + dx : c1 + dx]
-                mac(dst, w[k, y, c0:c1], yv[ch, c0:c1])
+                    dst = lx_prev[ch, yy]
+                dx0 = -radius
+                while dx0 <= radius:
+                    n = min(_GROUP, radius - dx0 + 1)
+                    scatter_group(dst, w, (dy + radius) * side + dx0 + radius, y, yv[ch], n, dx0)
+                    dx0 += n
         done = hi if y == y1 - 1 else min(y - radius + 1, hi)  # no later row reaches rows above y - R
         while finished < done:  # 5. the objective on final rows
             for ch in range(n_ch):

@@ -88,7 +88,7 @@ def test_extraction_refuses_an_entry_outside_its_window_anywhere():
 
 
 @pytest.mark.parametrize("storage", ["float32", "uint16"])
-@pytest.mark.parametrize("radius", [1, 2, 3])
+@pytest.mark.parametrize("radius", [1, 2, 3, 4])  # offsets applied in groups of 5: 3, 5, 5 + 2, 5 + 4
 @pytest.mark.parametrize("channels", [1, 3])
 def test_both_products_are_the_csr_products_on_any_row_range(storage, radius, channels):
     st = _stencil(radius, storage, seed=radius)
