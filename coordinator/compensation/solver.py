@@ -406,8 +406,8 @@ def solve(
     if max_iter < 0:
         raise ValueError(f"max_iter must be >= 0, got {max_iter}")
     op = operator_for(L, threads=threads)
+    start = clock()  # the cold start (two FFTs per channel on the stencil storage) is part of the solve's time
     c, x, out_shape = _prepare(op, target, x0, content_shape)
-    start = clock()
     nthreads = op.threads if threads is None else max(1, threads)
     pool = ThreadPoolExecutor(max_workers=nthreads) if nthreads > 1 else None
     try:
