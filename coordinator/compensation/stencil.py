@@ -245,10 +245,11 @@ def _grid_width(L: sp.csr_matrix) -> tuple[int, int] | None:
 def stencil_from_csr(L: sp.spmatrix, *, storage: str = "float32", threads: int = 2) -> StencilTransport | None:
     """``L`` as :class:`StencilTransport` when it has the shared-grid window structure, else None.
 
-    ``L``: (n, n) or, with a stacked diagonal, (2n, n), in any CSR order (duplicates are summed).
-    Every entry is checked: it must lie within ``R`` rows and columns of its column's own pixel (so
-    no window wraps across a row). The grid's height and width are inferred (``n = H * W``). ``storage``: ``"float32"`` (exact) or
-    ``"uint16"`` (non-negative ``L`` only, rounded to the nearest of 65536 steps of ``max(L) /
+    ``L``: (n, n) or, with a stacked diagonal, (2n, n), in any CSR order (duplicates are summed;
+    in ``uint16``, their rounded steps). Every entry is checked: it must lie within ``R`` rows and
+    columns of its column's own pixel (so no window wraps across a row). The grid's height and
+    width are inferred (``n = H * W``). ``storage``: ``"float32"`` (exact) or ``"uint16"``
+    (non-negative ``L`` only, each entry rounded to the nearest of 65536 steps of ``max(L) /
     65535``; returns None otherwise). The copy is a compiled pass over ``L``'s CSR arrays
     (:func:`.stencil_kernels.extract_rows`), split over ``threads`` row ranges.
     """
