@@ -417,7 +417,7 @@ def scatter_rows(w, scale, x, y0, y1, radius, sink, r0, r1):  # pragma: no cover
 
 @njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
 def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, beta, y0, y1, lo, hi,
-               halo_top, halo_bot, g, yv):  # pragma: no cover - compiled
+               halo_top, halo_bot, g, light):  # pragma: no cover - compiled
     """Rows ``[y0, y1)`` of one APG iteration (the module docstring of :mod:`.stencil_apg`).
 
     Assembles ``res = Lx_k + beta (Lx_k - Lx_{k-1}) - c`` on camera rows ``[lo, hi)`` (the rows
@@ -425,7 +425,8 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
     ``x_{k+1} = clip(y - step g, 0, 1)`` with ``y = x_k + beta (x_k - x_{k-1})`` into ``x_prev``,
     and accumulates ``L x_{k+1}`` over ``lx_prev`` (zeroed just after its old rows were
     assembled); light thrown above ``y0`` goes to ``halo_top`` (camera rows ``[y0 - R, y0)``),
-    below ``y1`` to ``halo_bot`` (rows ``[y1, ...)``). ``g``, ``yv``: (C, W) float32 scratch.
+    below ``y1`` to ``halo_bot`` (rows ``[y1, ...)``). ``g`` (the row's gradient) and ``light``
+    (its ``x_{k+1}`` times ``scale``, what the forward product scatters): (C, W) float32 scratch.
 
     Returns ``(sum min(0, g), ||y - x_{k+1}||^2, <y - x_{k+1}, x_{k+1} - x_k>,
     ||Lx_{k+1} - c||^2 on rows [lo, hi), ||res||^2, <res, c>)``.
@@ -467,7 +468,7 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
                 d = yi - xn
                 ymx += d * d
                 inner += d * (xn - xc)
-                yv[ch, i] = xn * scale  # the row's light source, scaled as the products scale x
+                light[ch, i] = xn * scale  # scaled as the products scale x
         z = min(y + radius + 1, y1)  # Lx_{k-1} on these rows is assembled: they start Lx_{k+1}
         while zeroed < z:
             for ch in range(n_ch):
@@ -490,10 +491,10 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
                 n = min(_GROUP, radius - dx0 + 1)
                 k = (dy + radius) * side + dx0 + radius
                 if n_ch == 3:
-                    scatter_group3(dst[0, row], dst[1, row], dst[2, row], w, k, y, yv[0], yv[1], yv[2], n, dx0)
+                    scatter_group3(dst[0, row], dst[1, row], dst[2, row], w, k, y, light[0], light[1], light[2], n, dx0)
                 else:
                     for ch in range(n_ch):
-                        scatter_group(dst[ch, row], w, k, y, yv[ch], n, dx0)
+                        scatter_group(dst[ch, row], w, k, y, light[ch], n, dx0)
                 dx0 += n
         done = hi if y == y1 - 1 else min(y - radius + 1, hi)  # no later row reaches rows above y - R
         while finished < done:  # 5. the objective on final rows
