@@ -283,10 +283,11 @@ def stencil_from_csr(L: sp.spmatrix, *, storage: str = "float32", threads: int =
     def part(rows: tuple[int, int]) -> bool:
         return bool(extract_rows(L.indptr, L.indices, data, weights, rows[0], rows[1], r, storage == "uint16", inv))
 
-    bands = StencilTransport((h, w), r, weights).bands(threads)
+    st = StencilTransport((h, w), r, weights, scale, tail)
+    bands = st.bands(threads)
     if len(bands) == 1:
         fits = [part(bands[0])]
     else:
         with ThreadPoolExecutor(len(bands)) as pool:
             fits = list(pool.map(part, bands))
-    return StencilTransport((h, w), r, weights, scale, tail) if all(fits) else None
+    return st if all(fits) else None
