@@ -204,8 +204,11 @@ class TransportOperator:
         give a lower estimate; when it is clearly below the Schur bound the step uses the
         estimate raised by 5 %. The estimates never decrease (Rayleigh quotients of a power
         iteration on ``L^T L``), so once 1.05 x the estimate reaches the Schur bound the result
-        is the Schur bound and ``early_exit`` stops there (the same value, fewer products).
+        is the Schur bound and ``early_exit`` stops there. Products on ``pool``, else the operator's threads.
         """
+        if self._lipschitz is None and pool is None and self.threads > 1:
+            with ThreadPoolExecutor(max_workers=self.threads) as own:
+                return self.lipschitz(iterations=iterations, pool=own, early_exit=early_exit)
         if self._lipschitz is None:
             if negative := bool(self.L.nnz) and float(self.L.data.min()) < 0:
                 absL = abs(self.L)
@@ -339,21 +342,18 @@ def _prepare(
     else:
         out_shape = (n, *channels)
     c2 = np.ascontiguousarray(c, dtype=np.float32).reshape(m, nc)
-    if x0 is None:
-        if n == m:  # the target, deconvolved by the stencil's mean blur when L is one (a far better start)
-            xs = deconvolved_start(op.stencil, c2, workers=op.threads) if op.stencil is not None else np.clip(c2, 0, 1)
-        else:
-            ones = op.matvec(np.ones(n, dtype=np.float32))
-            scale = np.array([_dot(ones, c2[:, j].copy()) for j in range(nc)]) / max(_dot(ones, ones), 1e-30)
-            xs = np.broadcast_to(np.clip(scale, 0, 1).astype(np.float32), (n, nc))
-        x = np.array(xs, dtype=np.float32, order="C")
+    if x0 is None and n == m:  # the target, deconvolved by the stencil's mean blur when L is one (a far better start)
+        x = deconvolved_start(op.stencil, c2, workers=op.threads) if op.stencil is not None else np.clip(c2, 0, 1)
+    elif x0 is None:
+        ones = op.matvec(np.ones(n, dtype=np.float32))
+        scale = np.array([_dot(ones, c2[:, j].copy()) for j in range(nc)]) / max(_dot(ones, ones), 1e-30)
+        x = np.array(np.broadcast_to(np.clip(scale, 0, 1).astype(np.float32), (n, nc)), order="C")
     else:
         x = np.array(x0, dtype=np.float32, order="C").reshape(-1)
         if x.size != n * nc:
             raise ValueError(f"x0 has {x.size} values, expected {n * nc} ({n} content pixels x {nc} channels)")
         x = x.reshape(n, nc)
-        np.nan_to_num(x, copy=False)
-        np.clip(x, 0, 1, out=x)
+        np.fmin(np.fmax(x, 0, out=x), 1, out=x)  # into [0, 1]; fmax takes NaN to 0, as nan_to_num then clip did
     return c2, x, out_shape
 
 

@@ -39,11 +39,6 @@ from coordinator.compensation.stencil import StencilTransport
 __all__ = ["fused_apg", "warm_up"]
 
 
-def _dot3(u: np.ndarray, v: np.ndarray) -> float:
-    """Sum of ``u * v`` over (C, rows, W) views with contiguous rows (float64 across channels)."""
-    return math.fsum(float(np.dot(u[ch].reshape(-1), v[ch].reshape(-1))) for ch in range(u.shape[0]))
-
-
 class _Sweep:
     """The arrays of one solve and the steps of a band."""
 
@@ -55,9 +50,9 @@ class _Sweep:
         shape3 = (ch, h, w)
         self.c = c.reshape(shape3)
         self.x_cur = x.reshape(shape3)  # the solver's own copy: updated in place
-        self.x_prev = x.copy().reshape(shape3)
+        self.x_prev = np.empty(shape3, dtype=np.float32)  # x_{k-1}: read only once beta > 0 (not at k = 0)
         self.lx_cur = np.empty(shape3, dtype=np.float32)
-        self.lx_prev = np.empty(shape3, dtype=np.float32)
+        self.lx_prev = np.empty(shape3, dtype=np.float32)  # Lx_{k-1}: read only once beta > 0, like x_{k-1}
         self.res = np.empty(shape3, dtype=np.float32)  # r at y_k, assembled row by row
         self.step = np.float32(1.0 / lip)
         self.beta = np.float32(0.0)
@@ -125,9 +120,8 @@ def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float,
     run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None and len(ranges) > 1 else \
         (lambda fn, items: [fn(i) for i in items])
     run(lambda rg: st.forward_rows(s.x_cur, s.lx_cur[:, rg[0] : rg[1]], rg[0], rg[1]), ranges)
-    s.lx_prev[...] = s.lx_cur
-    d = s.lx_cur - s.c
-    f = _dot3(d, d)
+    # no Lx_{-1} and x_{-1}: the first iteration has beta = 0 and reads neither
+    f = math.fsum(cv2.norm(s.lx_cur[ch], s.c[ch], cv2.NORM_L2SQR) for ch in range(s.c.shape[0]))
     stop.history.append(f)
     if stop.max_iter == 0 or f <= 0:
         return s.x_cur.reshape(c.shape), f, 0, "optimal" if f <= 0 else "max_iter"

@@ -445,11 +445,18 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
         while assembled < upto:  # 1. the residual, R rows ahead of the adjoint that reads it
             for ch in range(n_ch):
                 rrow, lc, lp, cr = res[ch, assembled], lx_cur[ch, assembled], lx_prev[ch, assembled], c[ch, assembled]
-                for i in range(width):
-                    v = one_b * lc[i] - beta * lp[i] - cr[i]
-                    rrow[i] = v
-                    rr += v * v
-                    rc += v * cr[i]
+                if beta == 0:  # Lx_{k-1} unread: the first iteration has none
+                    for i in range(width):
+                        v = lc[i] - cr[i]
+                        rrow[i] = v
+                        rr += v * v
+                        rc += v * cr[i]
+                else:
+                    for i in range(width):
+                        v = one_b * lc[i] - beta * lp[i] - cr[i]
+                        rrow[i] = v
+                        rr += v * v
+                        rc += v * cr[i]
             assembled += 1
         if n_ch == 3:  # 2. g = L^T res on row y (three channels at once)
             adjoint_row3(g[0], g[1], g[2], w, res, y, radius)
@@ -462,7 +469,7 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
                 if gi < 0:
                     gneg += gi
                 xc = x_cur[ch, y, i]
-                yi = one_b * xc - beta * x_prev[ch, y, i]
+                yi = xc if beta == 0 else one_b * xc - beta * x_prev[ch, y, i]  # x_{k-1} unread at beta = 0
                 xn = min(max(yi - step * gi, zero), one)
                 x_prev[ch, y, i] = xn
                 d = yi - xn

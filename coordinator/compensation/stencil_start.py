@@ -84,12 +84,14 @@ def deconvolved_start(st: StencilTransport, c: np.ndarray, *, lam: float = LAMBD
     rows, cols = st.grid
     nc = c.shape[1]
     g = _filter(st, lam)
-    out = np.empty((rows * cols, nc), dtype=np.float32)
+    out = None if nc == 1 else np.empty((rows * cols, nc), dtype=np.float32)
     for ch in range(nc):
         img = np.ascontiguousarray(c[:, ch].reshape(rows, cols), dtype=np.float32)
         spec = sfft.rfft2(img, workers=workers)
         spec *= g
-        x = sfft.irfft2(spec, s=(rows, cols), workers=workers)
+        x = sfft.irfft2(spec, s=(rows, cols), workers=workers, overwrite_x=True)
         np.clip(x, 0, 1, out=x)
+        if out is None:
+            return x.reshape(-1, 1)  # one channel: the transform's own fresh array, no copy
         out[:, ch] = x.reshape(-1)
     return out
