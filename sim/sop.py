@@ -25,6 +25,14 @@ pose (lower is better, every one):
     Area losing between 1 % and 90 %: dimmed but present.
 ``area_above_10_mm2``
     Area losing more than 10 %: how far a visible drop spreads.
+``shadow_mm2``
+    ``penumbra_mm2 + UMBRA_WEIGHT * umbra_mm2``: the area where the picture is
+    visibly dimmed, where it is gone counting :data:`UMBRA_WEIGHT` (10) times.
+    Every weight in :func:`umbra_weight_interval` reproduces the four
+    orderings with the default poses (about 5.5 to 44); 10 is a round number
+    inside it, not a fit. It rewards a compact shadow, so it prefers few
+    projectors close together: the planner minimising it stops improving
+    after two (README).
 ``edge_per_arcmin``
     The steepest drop gradient at the eye's scale, in drop per arcminute of
     visual angle: the drop map is blurred by a Gaussian of ``edge_sigma_mm``,
@@ -70,10 +78,14 @@ PROXIES: dict[str, str] = {
     "umbra_mm2": "area losing >= 90 % (mm^2)",
     "penumbra_mm2": "area losing 1-90 % (mm^2)",
     "area_above_10_mm2": "area losing > 10 % (mm^2)",
+    "shadow_mm2": "penumbra + 10 x umbra area (mm^2)",
     "edge_per_arcmin": "steepest drop gradient at the eye's scale (drop per arcmin)",
     "copies": "effective number of distinct shadow copies",
     "overlap": "mean number of projectors blocked at a shadowed point",
 }
+
+#: how many times an umbra's area counts against a penumbra's in ``shadow_mm2``
+UMBRA_WEIGHT = 10.0
 
 #: the proxy this project uses to compare layouts (see docs in :mod:`sim.sop_cli` and the report).
 CHOSEN = "max_drop"
@@ -148,15 +160,17 @@ def point_proxies(drop: np.ndarray, area: np.ndarray | float) -> dict[str, float
 
     Returns
     -------
-    dict with ``max_drop``, ``umbra_mm2``, ``penumbra_mm2``, ``area_above_10_mm2``.
+    dict with ``max_drop``, ``umbra_mm2``, ``penumbra_mm2``, ``area_above_10_mm2``, ``shadow_mm2``.
     """
     d = np.asarray(drop, np.float64)
     a = np.broadcast_to(np.asarray(area, np.float64), d.shape)
+    umbra, penumbra = float(a[d >= 0.9].sum()), float(a[(d >= 0.01) & (d < 0.9)].sum())
     return {
         "max_drop": float(d.max(initial=0.0)),
-        "umbra_mm2": float(a[d >= 0.9].sum()),
-        "penumbra_mm2": float(a[(d >= 0.01) & (d < 0.9)].sum()),
+        "umbra_mm2": umbra,
+        "penumbra_mm2": penumbra,
         "area_above_10_mm2": float(a[d > 0.1].sum()),
+        "shadow_mm2": penumbra + UMBRA_WEIGHT * umbra,
     }
 
 
@@ -302,6 +316,20 @@ def orderings(values: Mapping[str, float], *, tolerance: float = 0.1) -> dict[st
         "p17_p20_p25_alike": max(trio) - min(trio) <= tolerance * span,
         "p20_not_worse_than_p25": v["P20"] <= v["P25"],
     }
+
+
+def umbra_weight_interval(results: Mapping[str, Mapping[str, float]], *, tolerance: float = 0.1,
+                          weights: np.ndarray | None = None) -> tuple[float, float] | None:
+    """The weights ``w`` for which ``penumbra_mm2 + w * umbra_mm2`` reproduces all four orderings.
+
+    ``results``: :func:`evaluate_subsets`' output. ``weights``: the ``w`` tried (default 2001
+    log-spaced from 0.01 to 1000). Returns the smallest and largest of them that reproduce every
+    ordering, or None when none does (the weights in between need not all reproduce them).
+    """
+    ws = np.logspace(-2, 3, 2001) if weights is None else np.asarray(weights, np.float64)
+    good = [float(w) for w in ws if all(orderings(
+        {name: r["penumbra_mm2"] + w * r["umbra_mm2"] for name, r in results.items()}, tolerance=tolerance).values())]
+    return (min(good), max(good)) if good else None
 
 
 def ordering_table(results: Mapping[str, Mapping[str, float]], *, tolerance: float = 0.1) -> dict[str, dict[str, bool]]:

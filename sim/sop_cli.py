@@ -13,11 +13,13 @@ from sim.sop import (
     ORDERINGS,
     PROXIES,
     QUICK,
+    UMBRA_WEIGHT,
     WORKSPACE,
     PoseSet,
     Viewing,
     evaluate_subsets,
     ordering_table,
+    umbra_weight_interval,
 )
 from sim.sop_shadows import Source
 
@@ -86,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
 
     results = evaluate_subsets(sources, SUBSETS, table_size=TABLE_SIZE, poses=poses, viewing=viewing, progress=progress)
     table = ordering_table(results, tolerance=args.tolerance)
+    interval = umbra_weight_interval(results, tolerance=args.tolerance)
     doc = {
         "poses": poses.describe(),
         "viewing": {"distance_mm": viewing.distance_mm, "acuity_arcmin": viewing.acuity_arcmin, "mm_per_arcmin": round(viewing.mm_per_arcmin, 4),
@@ -93,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         "tolerance": args.tolerance,
         "proxies": {name: {p: round(v, 4) for p, v in r.items()} for name, r in results.items()},
         "orderings": table,
+        "umbra_weight_interval": None if interval is None else [round(v, 3) for v in interval],
         "chosen": CHOSEN,
         "seconds": round(time.perf_counter() - t0, 1),
     }
@@ -108,5 +112,7 @@ def run(args: argparse.Namespace) -> int:
     for p in PROXIES:
         mark = " <- chosen" if p == CHOSEN else ""
         print(f"{p:<20}" + "".join(f"{'yes' if table[p][k] else 'no':>24}" for k in ORDERINGS) + mark)
+    print("\npenumbra + w x umbra reproduces all four for " + ("no w" if interval is None else
+          f"w from {interval[0]:.3g} to {interval[1]:.3g}") + f" (shadow_mm2: w = {UMBRA_WEIGHT:g})")
     print(f"\n{doc['poses']['count']} poses, {doc['seconds']} s; 'alike' = within {args.tolerance:g} of |P1 - P25|", file=sys.stderr)
     return 0

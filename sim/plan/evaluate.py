@@ -10,7 +10,7 @@ subset), so adding one candidate to every subset at once is a few array
 operations on ``(candidates, shadowed samples)`` per pose.
 
 Proxies (lower is better; means over the poses), as :func:`sim.sop.point_proxies`
-defines them: ``max_drop``, ``area_above_10_mm2``, ``umbra_mm2``, ``penumbra_mm2``.
+defines them: ``max_drop``, ``area_above_10_mm2``, ``umbra_mm2``, ``penumbra_mm2``, ``shadow_mm2``.
 """
 from __future__ import annotations
 
@@ -19,10 +19,11 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from sim.plan.surface import Surface
+from sim.sop import UMBRA_WEIGHT
 from sim.sop_shadows import Source, rasterize, shadow_polygons
 
 #: the proxies the planner can minimise (see the module docstring)
-PLAN_PROXIES = ("max_drop", "area_above_10_mm2", "umbra_mm2", "penumbra_mm2")
+PLAN_PROXIES = ("max_drop", "area_above_10_mm2", "umbra_mm2", "penumbra_mm2", "shadow_mm2")
 
 
 def shadow_masks(surface: Surface, sources: Sequence[Source], hand) -> np.ndarray:
@@ -64,6 +65,9 @@ def proxy_of(drop: np.ndarray, area: np.ndarray, proxy: str) -> np.ndarray:
         return (drop >= 0.9).astype(np.float32) @ area
     if proxy == "penumbra_mm2":
         return ((drop >= 0.01) & (drop < 0.9)).astype(np.float32) @ area
+    if proxy == "shadow_mm2":  # sim.sop's: penumbra + UMBRA_WEIGHT x umbra
+        weight = np.where(drop >= 0.9, np.float32(UMBRA_WEIGHT), (drop >= 0.01).astype(np.float32))
+        return weight @ area
     raise ValueError(f"unknown proxy {proxy!r}; the planner minimises one of {', '.join(PLAN_PROXIES)}")
 
 

@@ -14,12 +14,14 @@ from sim.geometry import Pinhole, intrinsics, look_at
 from sim.occluders import Hand, Sphere, segment_blocked
 from sim.optics import irradiance_factor
 from sim.sop import (
+    UMBRA_WEIGHT,
     PoseSet,
     ShadowRasters,
     Viewing,
     edge_per_arcmin,
     orderings,
     point_proxies,
+    umbra_weight_interval,
 )
 from sim.sop_shadows import (
     Grid,
@@ -84,6 +86,18 @@ def test_point_proxies_of_a_known_map():
     assert p["area_above_10_mm2"] == count(r <= 50)
     assert p["penumbra_mm2"] == count((r > 20) & (r <= 70))
     assert p["umbra_mm2"] == pytest.approx(math.pi * 40**2, rel=0.03)
+    assert p["shadow_mm2"] == p["penumbra_mm2"] + UMBRA_WEIGHT * p["umbra_mm2"]
+
+
+def test_umbra_weight_interval_is_where_every_ordering_holds():
+    """Made-up areas whose orderings bound w by hand: P1 worst needs 100 w > 180 (w > 1.8), P9D
+    before P9W needs 100 + 20 w < 160 (w < 3); P17, P20, P25 alike and P20 <= P25 hold for any w."""
+    umbra = {"P1": 100.0, "P9D": 20.0, "P9W": 0.0, "P13": 0.0, "P17": 0.0, "P20": 0.0, "P25": 0.0}
+    pen = {"P1": 0.0, "P9D": 100.0, "P9W": 160.0, "P13": 170.0, "P17": 180.0, "P20": 180.0, "P25": 180.0}
+    results = {k: {"umbra_mm2": umbra[k], "penumbra_mm2": pen[k]} for k in umbra}
+    lo, hi = umbra_weight_interval(results, weights=np.linspace(0, 10, 10001))
+    assert lo == pytest.approx(1.8, abs=2e-3) and hi == pytest.approx(3.0, abs=2e-3)
+    assert umbra_weight_interval(dict(results, P9D={"umbra_mm2": 20.0, "penumbra_mm2": 200.0})) is None
 
 
 def test_edge_gradient_of_a_step_is_its_height_over_the_blur():
@@ -141,6 +155,8 @@ def test_study_proxies_command(capsys):
     assert v["P1"]["max_drop"] == 1.0 and v["P1"]["copies"] == 1.0
     assert v["P25"]["max_drop"] < v["P9D"]["max_drop"] < 1.0
     assert doc["orderings"]["max_drop"]["p1_worst"] is True
+    assert doc["umbra_weight_interval"] is None or doc["umbra_weight_interval"][0] <= doc["umbra_weight_interval"][1]
+    assert v["P25"]["shadow_mm2"] == pytest.approx(v["P25"]["penumbra_mm2"] + UMBRA_WEIGHT * v["P25"]["umbra_mm2"], abs=1e-3)
     with pytest.raises(SystemExit, match="half"):
         sop_cli.run(parser.parse_args(["--pitch", "1", "--edge-sigma", "1"]))
 

@@ -19,10 +19,11 @@ from sim.plan.candidates import (
     source_for,
     walls,
 )
-from sim.plan.evaluate import Evaluator
+from sim.plan.evaluate import PLAN_PROXIES, Evaluator, proxy_of
 from sim.plan.search import knee, plan
 from sim.plan.surface import irradiance, table_surface
 from sim.scene import load_layout, reference_scene
+from sim.sop import point_proxies
 
 HANDS = [Hand(position=(-150.0, 0.0), height=150.0), Hand(position=(200.0, 80.0), height=250.0, yaw_deg=30.0)]
 
@@ -74,6 +75,16 @@ def test_cached_drop_matches_brute_force_ray_tests():
     assert np.mean(vals) - 1e-9 <= got <= np.mean(vals) + 0.1
     with_each = ev.with_each(subset[:3])
     assert with_each[2] == pytest.approx(ev.value(subset[:3] + [2]), abs=1e-6)
+
+
+def test_planner_proxies_are_the_sop_module_s():
+    """Every proxy the planner minimises is :func:`sim.sop.point_proxies`' figure of the same drop map."""
+    rng = np.random.default_rng(4)
+    drop = np.concatenate([np.zeros(50), np.full(30, 0.005), rng.uniform(0, 1, 400), np.ones(20), np.full(10, 0.9)])
+    area = rng.uniform(1, 3, drop.size)
+    ref = point_proxies(drop, area)
+    for name in PLAN_PROXIES:
+        assert float(proxy_of(drop.astype(np.float32)[None], area.astype(np.float32), name)[0]) == pytest.approx(ref[name], rel=1e-5), name
 
 
 def test_the_plan_is_swap_optimal_by_exhaustive_check():
