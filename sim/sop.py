@@ -29,10 +29,10 @@ pose (lower is better, every one):
     ``penumbra_mm2 + UMBRA_WEIGHT * umbra_mm2``: the area where the picture is
     visibly dimmed, where it is gone counting :data:`UMBRA_WEIGHT` (10) times.
     Every weight in :func:`umbra_weight_interval` reproduces the four
-    orderings with the default poses (about 5.5 to 44); 10 is a round number
+    orderings with the default poses (about 5.4 to 44); 10 is a round number
     inside it, not a fit. It rewards a compact shadow, so it prefers few
-    projectors close together: the planner minimising it stops improving
-    after two (README).
+    projectors close together: each of those weights ranks P9D ahead of
+    P25, and the planner minimising it stops improving after two (README).
 ``edge_per_arcmin``
     The steepest drop gradient at the eye's scale, in drop per arcminute of
     visual angle: the drop map is blurred by a Gaussian of ``edge_sigma_mm``,
