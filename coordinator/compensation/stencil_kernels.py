@@ -444,19 +444,13 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
         upto = min(y + radius + 1, hi)
         while assembled < upto:  # 1. the residual, R rows ahead of the adjoint that reads it
             for ch in range(n_ch):
-                rrow, lc, lp, cr = res[ch, assembled], lx_cur[ch, assembled], lx_prev[ch, assembled], c[ch, assembled]
-                if beta == 0:  # Lx_{k-1} unread: the first iteration has none
-                    for i in range(width):
-                        v = lc[i] - cr[i]
-                        rrow[i] = v
-                        rr += v * v
-                        rc += v * cr[i]
-                else:
-                    for i in range(width):
-                        v = one_b * lc[i] - beta * lp[i] - cr[i]
-                        rrow[i] = v
-                        rr += v * v
-                        rc += v * cr[i]
+                rrow, lc, cr = res[ch, assembled], lx_cur[ch, assembled], c[ch, assembled]
+                lp = lc if beta == 0 else lx_prev[ch, assembled]  # beta = 0: Lx_{k-1} unread (none at k = 0)
+                for i in range(width):
+                    v = one_b * lc[i] - beta * lp[i] - cr[i]
+                    rrow[i] = v
+                    rr += v * v
+                    rc += v * cr[i]
             assembled += 1
         if n_ch == 3:  # 2. g = L^T res on row y (three channels at once)
             adjoint_row3(g[0], g[1], g[2], w, res, y, radius)
@@ -464,12 +458,13 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
             gr = g[ch]
             if n_ch != 3:
                 adjoint_row(gr, w, res[ch], y, radius)
+            xk, xp = x_cur[ch, y], (x_cur[ch, y] if beta == 0 else x_prev[ch, y])  # beta = 0: x_{k-1} unread
             for i in range(width):  # 3. the update of row y, over x_{k-1}
                 gi = gr[i] * scale
                 if gi < 0:
                     gneg += gi
-                xc = x_cur[ch, y, i]
-                yi = xc if beta == 0 else one_b * xc - beta * x_prev[ch, y, i]  # x_{k-1} unread at beta = 0
+                xc = xk[i]
+                yi = one_b * xc - beta * xp[i]
                 xn = min(max(yi - step * gi, zero), one)
                 x_prev[ch, y, i] = xn
                 d = yi - xn
