@@ -40,7 +40,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
     "demo": ("shadowless.demo", "the whole rig in the virtual room: what `make demo` runs"),
     "study": ("shadowless.study", "studies: Scheffé paired comparison, paired task times; in the room: a moving hand (motion), "
-                                  "shadow proxies of the layouts (proxies)"),
+                                  "shadow proxies of the layouts (proxies, pointwise)"),
     "plan": ("sim.plan.cli", "choose projector positions that keep a hand's shadow least visible (layout, picture, curve)"),
     "bench": ("bench.cli", "benchmarks that print JSON (sync, venue, room, calibration, compensation, node, console, motion, plan, …)"),
 }

@@ -24,6 +24,7 @@ ANALYSES: dict[str, tuple[str, str]] = {
     "run": ("coordinator.study.run_cli", "one participant's trials on the rig, side by side; answers appended to RATINGS"),
     "motion": ("sim.motion_cli", "a hand moving over the table: light drop per frame, synthetic aperture vs reactive compensation"),
     "proxies": ("sim.sop_cli", "geometric proxies of the sense of projection per layout, against the paper's orderings"),
+    "pointwise": ("sim.plan.pointwise_cli", "whether any pointwise shadow proxy fits the paper's orderings and keeps few projectors behind 25"),
 }
 
 

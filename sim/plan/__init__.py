@@ -14,4 +14,6 @@ budget.
   and the proxy of any subset as sums over them;
 * :mod:`sim.plan.search` — greedy forward selection and swap refinement;
 * :mod:`sim.plan.output` — the layout file and the picture.
+* :mod:`sim.plan.pointwise` — whether any pointwise proxy (a weight per drop) can reproduce
+  the study's orderings and keep few projectors behind many (``shadowless study pointwise``).
 """

@@ -10,10 +10,14 @@ subset), so adding one candidate to every subset at once is a few array
 operations on ``(candidates, shadowed samples)`` per pose.
 
 Proxies (lower is better; means over the poses), as :func:`sim.sop.point_proxies`
-defines them: ``max_drop``, ``area_above_10_mm2``, ``umbra_mm2``, ``penumbra_mm2``, ``shadow_mm2``.
+defines them: ``max_drop``, ``area_above_10_mm2``, ``umbra_mm2``, ``penumbra_mm2``, ``shadow_mm2``;
+or any *pointwise* proxy: a callable that weighs each sample by its drop
+(``weigh(drop) -> weights``, the same shape), summed over the area
+(:class:`sim.plan.pointwise.BandWeights`).
 """
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -55,8 +59,13 @@ def shadow_masks(surface: Surface, sources: Sequence[Source], hand) -> np.ndarra
     return out
 
 
-def proxy_of(drop: np.ndarray, area: np.ndarray, proxy: str) -> np.ndarray:
-    """One proxy along the last axis of ``drop`` ((..., m) float) with ``area`` (m,) mm^2 per sample: (...,)."""
+def proxy_of(drop: np.ndarray, area: np.ndarray, proxy) -> np.ndarray:
+    """One proxy along the last axis of ``drop`` ((..., m) float) with ``area`` (m,) mm^2 per sample: (...,).
+
+    ``proxy``: a name of :data:`PLAN_PROXIES`, or a callable weighing each drop (pointwise).
+    """
+    if callable(proxy):
+        return np.asarray(proxy(drop), np.float32) @ area
     if proxy == "max_drop":
         return drop.max(axis=-1, initial=0.0)
     if proxy == "area_above_10_mm2":
@@ -83,13 +92,13 @@ class Evaluator:
         :func:`sim.plan.surface.irradiance` of the sources.
     hands : list
         The occluder distribution (each with ``primitives()``), equally likely.
-    proxy : str
-        One of :data:`PLAN_PROXIES`.
+    proxy : str or callable
+        One of :data:`PLAN_PROXIES`, or a pointwise weighing (see the module docstring).
     """
 
     def __init__(self, surface: Surface, sources: Sequence[Source], irradiance: np.ndarray, hands: Sequence, *, proxy: str = "max_drop",
                  progress: Callable[[int, int], None] | None = None) -> None:
-        if proxy not in PLAN_PROXIES:
+        if not callable(proxy) and proxy not in PLAN_PROXIES:
             raise ValueError(f"unknown proxy {proxy!r}; the planner minimises one of {', '.join(PLAN_PROXIES)}")
         E = np.asarray(irradiance, np.float32)
         if E.shape != (len(sources), surface.size):
@@ -112,19 +121,31 @@ class Evaluator:
     def candidates(self) -> int:
         return len(self.sources)
 
-    def value(self, subset: Sequence[int]) -> float:
-        """The proxy of one subset of candidate indices (mean over poses)."""
+    def using(self, proxy) -> Evaluator:
+        """The same cached shadows judged by another proxy (a shallow copy; nothing is recomputed)."""
+        if not callable(proxy) and proxy not in PLAN_PROXIES:
+            raise ValueError(f"unknown proxy {proxy!r}; the planner minimises one of {', '.join(PLAN_PROXIES)}")
+        out = copy.copy(self)
+        out.proxy = proxy
+        return out
+
+    def drops(self, subset: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per pose, the samples some shadow reaches (m,) int and the subset's light drop there (m,) float32."""
         s = list(subset)
-        if not s:
-            return 0.0
-        total = self.E[s].sum(axis=0)
-        vals = []
+        total = self.E[s].sum(axis=0) if s else np.zeros(self.surface.size, np.float32)
+        out = []
         for idx, B in zip(self.index, self.blocked):
             t = total[idx]
             with np.errstate(divide="ignore", invalid="ignore"):
-                drop = np.where(t > 0, B[s].sum(axis=0) / t, 0.0)
-            vals.append(float(proxy_of(drop[None], self.area[idx], self.proxy)[0]))
-        return float(np.mean(vals))
+                drop = np.where(t > 0, B[s].sum(axis=0) / t, 0.0).astype(np.float32)
+            out.append((idx, drop))
+        return out
+
+    def value(self, subset: Sequence[int]) -> float:
+        """The proxy of one subset of candidate indices (mean over poses)."""
+        if not list(subset):
+            return 0.0
+        return float(np.mean([proxy_of(drop[None], self.area[idx], self.proxy)[0] for idx, drop in self.drops(subset)]))
 
     def with_each(self, subset: Sequence[int]) -> np.ndarray:
         """The proxy of ``subset`` plus each candidate in turn: (C,) float64 (a member added again counts twice)."""
