@@ -12,6 +12,10 @@ Prints one JSON document:
 * ``reference``: the proxy of the paper's layouts P1 ... P25; from it
   ``dense_beats_wide_9`` (P9D < P9W) and ``centre_free_20_not_worse``
   (P20 <= P25): what the planner's own objective says about the paper's guidelines.
+* ``pointwise``: :func:`sim.plan.pointwise.search` on the same hands and candidates: whether any
+  pointwise proxy (a nondecreasing weight of the drop) reproduces the study's four orderings while
+  every layout of at most ``most`` projectors ranks behind P25 (``exists``; false is a proof, with
+  the planner's ``small_layouts_ahead`` that rule every weighting out).
 * ``bust`` (not with --quick): the procedural bust with pointing hands, the same
   budget from the ceiling grid alone and from the ceiling plus walls: the area
   lit by fewer than ``k`` projectors and the proxy, and how many wall
@@ -28,6 +32,7 @@ from bench.machine import machine
 from sim.mesh import bust
 from sim.plan.candidates import ProjectorModel, ceiling_grid, source_for, walls
 from sim.plan.evaluate import PLAN_PROXIES, Evaluator
+from sim.plan.pointwise import search as pointwise_search
 from sim.plan.search import knee, plan
 from sim.plan.surface import (
     bust_poses,
@@ -48,6 +53,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--proxy", choices=PLAN_PROXIES, default=CHOSEN, help=f"the planner's objective (default {CHOSEN})")
     parser.add_argument("--bust-budget", type=int, default=12, help="projectors on the bust (default 12)")
     parser.add_argument("--bust-k", type=int, default=2, help="coverage asked of every bust point (default 2)")
+    parser.add_argument("--pointwise-most", type=int, default=3, metavar="N",
+                        help="the pointwise search: layouts of at most N projectors behind P25 (default 3; 0 skips it)")
     parser.add_argument("--quick", action="store_true", help="a 6x6 grid, budget 12, no bust (a smoke run)")
     parser.add_argument("--seed", type=int, default=0)
 
@@ -56,13 +63,19 @@ def _say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def reference_values(surface, hands, proxy: str, seed: int) -> dict[str, float]:
-    """The proxy of each named subset of the reference rig, with the planner's evaluator."""
+def reference_evaluator(surface, hands, proxy: str, seed: int) -> tuple[Evaluator, dict[str, list[int]]]:
+    """The reference rig on the planner's samples and hands, and its named subsets as indices."""
     scene = reference_scene(seed=seed)
     sources = [Source.from_spec(p) for p in scene.projectors]
     ev = Evaluator(surface, sources, irradiance(surface, sources), hands, proxy=proxy)
     names = [s.name for s in sources]
-    return {n: round(ev.value([names.index(x) for x in slots]), 4) for n, slots in SUBSETS.items()}
+    return ev, {n: [names.index(x) for x in slots] for n, slots in SUBSETS.items()}
+
+
+def reference_values(surface, hands, proxy: str, seed: int) -> dict[str, float]:
+    """The proxy of each named subset of the reference rig, with the planner's evaluator."""
+    ev, subsets = reference_evaluator(surface, hands, proxy, seed)
+    return {n: round(ev.value(s), 4) for n, s in subsets.items()}
 
 
 def bust_comparison(budget: int, k: int, proxy: str) -> dict:
@@ -119,6 +132,14 @@ def run(args: argparse.Namespace) -> int:
         "centre_free_20_not_worse": ref["P20"] <= ref["P25"],
         "planned_vs_p25": round(res.value / ref["P25"], 3) if budget == 25 and ref["P25"] > 0 else None,
     })
+    if args.pointwise_most > 0:
+        t1 = time.perf_counter()
+        ref_ev, subsets = reference_evaluator(surface, hands, args.proxy, args.seed)
+        most = min(args.pointwise_most, ev.candidates)
+        found = pointwise_search(ev, ref_ev, subsets, most=most, bands=50 if args.quick else 200, progress=_say)
+        doc["pointwise"] = {"most": most, "exists": found.exists, "small_layouts_ahead": found.layouts,
+                            "rounds": len(found.rounds) + (0 if found.exists else 1),  # the last, unsolvable fit counts
+                            "seconds": round(time.perf_counter() - t1, 2)}
     doc["targets"] = {"plan_25_of_100_under_60_s": seconds <= 60.0 if (budget, side) == (25, 10) else None}
     if do_bust:
         doc["bust"] = bust_comparison(args.bust_budget, args.bust_k, args.proxy)

@@ -22,4 +22,7 @@ def test_quick_plan_benchmark_prints_one_json_document(capsys):
     assert doc["centre_free_20_not_worse"] == (ref["P20"] <= ref["P25"])
     assert doc["p1_to_p25_improvement"] == round(ref["P1"] - ref["P25"], 4)
     assert doc["knee_projectors"] is None or 1 <= doc["knee_projectors"] < 12
+    pw = doc["pointwise"]  # the search ran on the same world and says whether some weighting exists
+    assert pw["most"] == 3 and isinstance(pw["exists"], bool) and pw["rounds"] >= 1
+    assert all(1 <= len(layout) <= 3 for layout in pw["small_layouts_ahead"])
     assert doc["plan_seconds"] > 0 and doc["targets"]["plan_25_of_100_under_60_s"] is None and "bust" not in doc
