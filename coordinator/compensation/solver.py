@@ -40,7 +40,7 @@ import os
 import time
 import weakref
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, ThreadPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,6 +51,7 @@ from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.stencil import STORAGES, stencil_blocks, stencil_from_csr
 from coordinator.compensation.stencil_apg import fused_apg, warm_up
 from coordinator.compensation.stencil_start import deconvolved_start
+from coordinator.compensation.workers import workers
 
 __all__ = [
     "TransportOperator",
@@ -206,9 +207,7 @@ class TransportOperator:
         iteration on ``L^T L``), so once 1.05 x the estimate reaches the Schur bound the result
         is the Schur bound and ``early_exit`` stops there. Products on ``pool``, else the operator's threads.
         """
-        if self._lipschitz is None and pool is None and self.threads > 1:
-            with ThreadPoolExecutor(max_workers=self.threads) as own:
-                return self.lipschitz(iterations=iterations, pool=own, early_exit=early_exit)
+        pool = workers(self.threads) if pool is None else pool
         if self._lipschitz is None:
             if negative := bool(self.L.nnz) and float(self.L.data.min()) < 0:
                 absL = abs(self.L)
@@ -408,22 +407,17 @@ def solve(
     op = operator_for(L, threads=threads)
     start = clock()  # the cold start (two FFTs per channel on the stencil storage) is part of the solve's time
     c, x, out_shape = _prepare(op, target, x0, content_shape)
-    nthreads = op.threads if threads is None else max(1, threads)
-    pool = ThreadPoolExecutor(max_workers=nthreads) if nthreads > 1 else None
-    try:
-        if method == "lbfgsb":
-            res = _lbfgsb(op, c, x, tol=tol, pg_tol=pg_tol, max_iter=max_iter, time_limit=time_limit,
-                          progress=progress, clock=clock, start=start, pool=pool)
-        else:
-            lip = op.lipschitz(pool=pool)
-            fused = method == "apg" and op.stencil is not None and op.stencil.tail is None and op.fused
-            runner = _fused if fused else _apg if method == "apg" else _steepest
-            res = runner(op, c, x, lip=lip, tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter,
-                         time_limit=time_limit, progress=progress, clock=clock, start=start, pool=pool)
-            res.lipschitz = lip
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True)
+    pool = workers(op.threads if threads is None else max(1, threads))
+    if method == "lbfgsb":
+        res = _lbfgsb(op, c, x, tol=tol, pg_tol=pg_tol, max_iter=max_iter, time_limit=time_limit,
+                      progress=progress, clock=clock, start=start, pool=pool)
+    else:
+        lip = op.lipschitz(pool=pool)
+        fused = method == "apg" and op.stencil is not None and op.stencil.tail is None and op.fused
+        runner = _fused if fused else _apg if method == "apg" else _steepest
+        res = runner(op, c, x, lip=lip, tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter,
+                     time_limit=time_limit, progress=progress, clock=clock, start=start, pool=pool)
+        res.lipschitz = lip
     res.method = method
     res.seconds = clock() - start
     res.x = res.x.reshape(out_shape)

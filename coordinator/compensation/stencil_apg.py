@@ -117,8 +117,14 @@ def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float,
     ranges = st.bands(threads)
     if any(b - a <= 2 * r for a, b in ranges):
         ranges = [(0, h)]  # too few rows to share: one sweep
-    run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None and len(ranges) > 1 else \
-        (lambda fn, items: [fn(i) for i in items])
+
+    def run(fn, items):  # the calling thread takes the first range itself: one hand-off fewer per sweep
+        if pool is None or len(items) == 1:
+            return [fn(i) for i in items]
+        rest = [pool.submit(fn, i) for i in items[1:]]
+        first = fn(items[0])
+        return [first, *(f.result() for f in rest)]
+
     run(lambda rg: st.forward_rows(s.x_cur, s.lx_cur[:, rg[0] : rg[1]], rg[0], rg[1]), ranges)
     # no Lx_{-1} and x_{-1}: the first iteration has beta = 0 and reads neither
     f = math.fsum(cv2.norm(s.lx_cur[ch], s.c[ch], cv2.NORM_L2SQR) for ch in range(s.c.shape[0]))

@@ -144,3 +144,31 @@ def test_an_iteration_moves_fewer_bytes(L):
     assert u16.bytes_per_iteration() == 2 * 25 * n + vectors
     f32.fused = False
     assert f32.bytes_per_iteration() == 2 * 4 * 25 * n + vectors
+
+
+def test_solves_share_one_set_of_worker_threads(L, target, monkeypatch):
+    """A video solves every frame: once the workers exist, a solve starts no thread."""
+    import threading
+
+    op = TransportOperator(L, threads=2)
+    first = solve(op, target, max_iter=5, tol=0, threads=2)
+    started = []
+    real_start = threading.Thread.start
+    monkeypatch.setattr(threading.Thread, "start", lambda self: (started.append(self.name), real_start(self))[1])
+    again = solve(op, target, max_iter=5, tol=0, threads=2)
+    monkeypatch.undo()
+    assert started == []
+    np.testing.assert_array_equal(again.x, first.x)
+
+
+def test_solves_at_once_from_several_threads_give_their_own_results(L, target):
+    """The shared workers only run the solver's own row tasks: concurrent solves neither deadlock nor mix."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    op = TransportOperator(L, threads=2)
+    targets = [np.clip(target * s, 0, 1).astype(np.float32) for s in (0.6, 0.8, 1.0, 1.2)]
+    alone = [solve(op, t, max_iter=8, tol=0, threads=2).x for t in targets]
+    with ThreadPoolExecutor(4) as callers:
+        together = list(callers.map(lambda t: solve(op, t, max_iter=8, tol=0, threads=2).x, targets))
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a, b)
