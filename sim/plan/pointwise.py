@@ -126,11 +126,11 @@ def fit(reference: Mapping[str, np.ndarray], behind: Sequence[np.ndarray] = (), 
         raise ValueError(f"need histograms of {sorted(need)}, got {sorted(reference)}")
     nb = len(edges) - 1
     # w = T a with a >= 0 (increments): w is nondecreasing and nonnegative; a value is h . w = (h T) . a
-    cum = np.tril(np.ones((nb, nb)))
-    row = {k: np.asarray(h, np.float64) @ cum for k, h in reference.items()}
     for k, h in reference.items():
         if np.shape(h) != (nb,):
             raise ValueError(f"{k}'s histogram has {np.shape(h)} bands, the edges make {nb}")
+    cum = np.tril(np.ones((nb, nb)))
+    row = {k: np.asarray(h, np.float64) @ cum for k, h in reference.items()}
     A: list[np.ndarray] = []
     spare = SPARE * row["P1"]  # every constraint, so the solver's own tolerance cannot break one
 
