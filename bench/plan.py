@@ -32,6 +32,7 @@ from bench.machine import machine
 from sim.mesh import bust
 from sim.plan.candidates import ProjectorModel, ceiling_grid, source_for, walls
 from sim.plan.evaluate import PLAN_PROXIES, Evaluator
+from sim.plan.pointwise import reference_evaluator
 from sim.plan.pointwise import search as pointwise_search
 from sim.plan.search import knee, plan
 from sim.plan.surface import (
@@ -41,9 +42,8 @@ from sim.plan.surface import (
     table_poses,
     table_surface,
 )
-from sim.scene import SUBSETS, TABLE_SIZE, reference_scene
+from sim.scene import TABLE_SIZE
 from sim.sop import CHOSEN, PoseSet
-from sim.sop_shadows import Source
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -61,21 +61,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
-
-
-def reference_evaluator(surface, hands, proxy: str, seed: int) -> tuple[Evaluator, dict[str, list[int]]]:
-    """The reference rig on the planner's samples and hands, and its named subsets as indices."""
-    scene = reference_scene(seed=seed)
-    sources = [Source.from_spec(p) for p in scene.projectors]
-    ev = Evaluator(surface, sources, irradiance(surface, sources), hands, proxy=proxy)
-    names = [s.name for s in sources]
-    return ev, {n: [names.index(x) for x in slots] for n, slots in SUBSETS.items()}
-
-
-def reference_values(surface, hands, proxy: str, seed: int) -> dict[str, float]:
-    """The proxy of each named subset of the reference rig, with the planner's evaluator."""
-    ev, subsets = reference_evaluator(surface, hands, proxy, seed)
-    return {n: round(ev.value(s), 4) for n, s in subsets.items()}
 
 
 def bust_comparison(budget: int, k: int, proxy: str) -> dict:
@@ -116,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     cached = time.perf_counter() - t0
     res = plan(ev, budget, progress=_say)
     seconds = time.perf_counter() - t0
-    ref = reference_values(surface, hands, args.proxy, args.seed)
+    ref_ev, subsets = reference_evaluator(surface, hands, seed=args.seed, proxy=args.proxy)  # the paper's layouts
+    ref = {n: round(ref_ev.value(s), 4) for n, s in subsets.items()}
     span = ref["P1"] - ref["P25"]
     doc.update({
         "plan_seconds": round(seconds, 2),
@@ -134,7 +120,6 @@ def run(args: argparse.Namespace) -> int:
     })
     if args.pointwise_most > 0:
         t1 = time.perf_counter()
-        ref_ev, subsets = reference_evaluator(surface, hands, args.proxy, args.seed)
         most = min(args.pointwise_most, ev.candidates)
         found = pointwise_search(ev, ref_ev, subsets, most=most, bands=50 if args.quick else 200, progress=_say)
         doc["pointwise"] = {"most": most, "exists": found.exists, "small_layouts_ahead": found.layouts,

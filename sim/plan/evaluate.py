@@ -80,6 +80,12 @@ def proxy_of(drop: np.ndarray, area: np.ndarray, proxy) -> np.ndarray:
     raise ValueError(f"unknown proxy {proxy!r}; the planner minimises one of {', '.join(PLAN_PROXIES)}")
 
 
+def _checked(proxy):
+    if not callable(proxy) and proxy not in PLAN_PROXIES:
+        raise ValueError(f"unknown proxy {proxy!r}; the planner minimises one of {', '.join(PLAN_PROXIES)}")
+    return proxy
+
+
 class Evaluator:
     """Irradiance and shadow masks of every candidate under every pose, and the proxy of subsets.
 
@@ -98,8 +104,7 @@ class Evaluator:
 
     def __init__(self, surface: Surface, sources: Sequence[Source], irradiance: np.ndarray, hands: Sequence, *, proxy: str = "max_drop",
                  progress: Callable[[int, int], None] | None = None) -> None:
-        if not callable(proxy) and proxy not in PLAN_PROXIES:
-            raise ValueError(f"unknown proxy {proxy!r}; the planner minimises one of {', '.join(PLAN_PROXIES)}")
+        _checked(proxy)
         E = np.asarray(irradiance, np.float32)
         if E.shape != (len(sources), surface.size):
             raise ValueError(f"irradiance must be ({len(sources)}, {surface.size}), got {E.shape}")
@@ -123,10 +128,8 @@ class Evaluator:
 
     def using(self, proxy) -> Evaluator:
         """The same cached shadows judged by another proxy (a shallow copy; nothing is recomputed)."""
-        if not callable(proxy) and proxy not in PLAN_PROXIES:
-            raise ValueError(f"unknown proxy {proxy!r}; the planner minimises one of {', '.join(PLAN_PROXIES)}")
         out = copy.copy(self)
-        out.proxy = proxy
+        out.proxy = _checked(proxy)
         return out
 
     def drops(self, subset: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:

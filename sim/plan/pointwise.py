@@ -34,6 +34,9 @@ from scipy.optimize import linprog
 
 from sim.plan.evaluate import Evaluator
 from sim.plan.search import plan
+from sim.plan.surface import Surface, irradiance
+from sim.scene import SUBSETS, reference_scene
+from sim.sop_shadows import Source
 
 #: every constraint of :func:`fit` holds with this fraction of P1's value to spare (the LP solver's tolerance)
 SPARE = 1e-6
@@ -180,6 +183,16 @@ class Outcome:
     @property
     def exists(self) -> bool:
         return self.weights is not None
+
+
+def reference_evaluator(surface: Surface, hands, *, seed: int = 0,
+                        proxy="max_drop") -> tuple[Evaluator, dict[str, list[int]]]:
+    """The reference rig (:func:`sim.scene.reference_scene`) on ``surface`` under ``hands``, and its
+    named layouts (:data:`sim.scene.SUBSETS`) as indices into it: :func:`search`'s reference world."""
+    sources = [Source.from_spec(p) for p in reference_scene(seed=seed).projectors]
+    ev = Evaluator(surface, sources, irradiance(surface, sources), hands, proxy=proxy)
+    names = [s.name for s in sources]
+    return ev, {n: [names.index(x) for x in slots] for n, slots in SUBSETS.items()}
 
 
 def search(ev: Evaluator, reference_ev: Evaluator, subsets: Mapping[str, Sequence[int]], *, most: int = 4, bands: int = 200,

@@ -9,11 +9,10 @@ import time
 from protos import cli_types
 from sim.plan.candidates import ProjectorModel, ceiling_grid, source_for
 from sim.plan.evaluate import Evaluator
-from sim.plan.pointwise import search
+from sim.plan.pointwise import reference_evaluator, search
 from sim.plan.surface import irradiance, table_poses, table_surface
-from sim.scene import SUBSETS, TABLE_SIZE, reference_scene
+from sim.scene import TABLE_SIZE
 from sim.sop import PoseSet
-from sim.sop_shadows import Source
 
 DESCRIPTION = """\
 Search every pointwise proxy at once: any nondecreasing weight of a table point's light drop, summed
@@ -73,10 +72,7 @@ def run(args: argparse.Namespace) -> int:
     hands = table_poses(poses)
     sources = [source_for(c, surface.target, surface.corners, ProjectorModel()) for c in ceiling_grid(side, side)]
     ev = Evaluator(surface, sources, irradiance(surface, sources), hands)
-    ref_sources = [Source.from_spec(p) for p in reference_scene(seed=args.seed).projectors]
-    ref_ev = Evaluator(surface, ref_sources, irradiance(surface, ref_sources), hands)
-    names = [s.name for s in ref_sources]
-    subsets = {k: [names.index(x) for x in v] for k, v in SUBSETS.items()}
+    ref_ev, subsets = reference_evaluator(surface, hands, seed=args.seed)
     out = search(ev, ref_ev, subsets, most=args.most, bands=bands, rounds=args.rounds, tolerance=args.tolerance,
                  margin=args.margin, progress=_say)
     w = out.weights

@@ -10,7 +10,7 @@ from shadowless.cli import main
 from sim.occluders import Hand
 from sim.plan.candidates import ProjectorModel, ceiling_grid, source_for
 from sim.plan.evaluate import Evaluator
-from sim.plan.pointwise import BandWeights, fit, search
+from sim.plan.pointwise import BandWeights, fit, reference_evaluator, search
 from sim.plan.search import plan
 from sim.plan.surface import irradiance, table_poses, table_surface
 from sim.scene import SUBSETS, reference_scene
@@ -120,10 +120,7 @@ def test_search_proves_no_weights_exist_on_the_planner_s_hands():
     hands = table_poses(PoseSet(heights=(200.0,)))
     cands = [source_for(c, surface.target, surface.corners, ProjectorModel()) for c in ceiling_grid(6, 6)]
     ev = Evaluator(surface, cands, irradiance(surface, cands), hands)
-    ref = [Source.from_spec(p) for p in reference_scene().projectors]
-    rev = Evaluator(surface, ref, irradiance(surface, ref), hands)
-    names = [s.name for s in ref]
-    subsets = {k: [names.index(x) for x in v] for k, v in SUBSETS.items()}
+    rev, subsets = reference_evaluator(surface, hands)
     out = search(ev, rev, subsets, most=3, bands=50)
     assert not out.exists and out.layouts and all(1 <= len(layout) <= 3 for layout in out.layouts)
     grid, ref_h, behind = _histograms(ev, rev, subsets, out.layouts, 50)
