@@ -114,20 +114,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--radius", type=int, default=2, help="PSF recovery radius R (25 nnz per column at R=2)")
     parser.add_argument("--spacing", type=int, default=6, help="dot-grid spacing S (S*S captures)")
     parser.add_argument("--read-noise", type=float, default=5e-4, help="camera read noise per frame, fraction of full scale")
-    parser.add_argument("--shot-noise", type=float, default=0.01,
-                        help="shot-noise coefficient per frame: std = coef*sqrt(signal) (0.01 = 10k e- full well)")
+    parser.add_argument("--shot-noise", type=float, default=0.01, help="shot noise per frame: std = coef*sqrt(signal) (10k e-)")
     parser.add_argument("--frames", type=int, default=8, help="camera frames averaged per pattern, for both methods")
     parser.add_argument("--paper-size", type=_size, default=None, metavar="WxH",
                         help="large single run with 25 projectors (default 2592x1944; 'none' skips)")
     parser.add_argument("--paper-channels", type=int, choices=(1, 3), default=1)
     parser.add_argument("--paper-tol", type=float, default=5e-4, help="stopping tolerance of the large run")
-    parser.add_argument("--paper-reference-seconds", type=float, default=150.0,
-                        help="time budget of the converged reference at the large size")
+    parser.add_argument("--paper-est-tol", type=float, default=5e-3, help="extrapolated stopping rule of the large run "
+                        "(est_tol of coordinator.compensation.stopping; default 0.005, 0: off)")
+    parser.add_argument("--paper-reference-seconds", type=float, default=150.0, help="time budget of the large reference")
     parser.add_argument("--paper-storage", type=_storages, default=["float32", "uint16"], metavar="S,S",
                         help="storages of the new solver at the paper size, the first one is 'new' (default float32,uint16)")
     parser.add_argument("--bandwidth-mib", type=int, default=None, help="array of the bandwidth probe (default 512, quick 64)")
-    parser.add_argument("--video-size", type=_sizes, default=None, metavar="WxH[,WxH]",
-                        help="video figure sizes (default 960x540,1920x1080)")
+    parser.add_argument("--video-size", type=_sizes, default=None, metavar="WxH[,WxH]", help="video sizes (default 960x540,1920x1080)")
     parser.add_argument("--video-frames", type=int, default=None, help="frames per clip (default 30; 0 skips the video figure)")
     parser.add_argument("--video-iterations", type=int, default=4, help="APG iterations per warm-started frame (current)")
     parser.add_argument("--video-new-iterations", type=int, default=5,
@@ -364,7 +363,7 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
     _log(f"{w}x{h}: 25 projectors' transport generated in {gen:.1f} s ({L.nnz / L.shape[0]:.1f} nnz per row)")
     target = _target(h, w, args.paper_channels, args.target_range, args.seed)
     bw = streaming_bandwidth(mib=args.bandwidth_mib)
-    opts = {"method": args.method, "tol": args.paper_tol, "max_iter": args.max_iter}
+    opts = {"method": args.method, "tol": args.paper_tol, "est_tol": args.paper_est_tol, "max_iter": args.max_iter}
     impls, results, best_op = {}, {}, None  # name -> figures, name -> SolveResult; the new solver's operator
     for name, storage in (("current", "csr"), ("new_target_start", args.paper_storage[0]), *(
             ("new" if st == args.paper_storage[0] else f"new_{st}", st) for st in args.paper_storage)):

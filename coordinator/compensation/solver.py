@@ -21,17 +21,10 @@ camera share a grid, ``L`` is read as shifted weight images (:mod:`.stencil`, a 
 bytes per iteration with the one-sweep APG of :mod:`.stencil_apg`), else as CSR row blocks of
 ``L`` and ``L^T``. Work runs on ``threads`` row blocks (the kernels release the GIL).
 
-Stopping rules (``SolveResult.reason`` says which one stopped the solve)
-------------------------------------------------------------------------
-``"gap"``
-    Certified: a Lagrangian dual bound ``D <= min`` is evaluated for free from each residual
-    and gradient; stop when ``(objective - D) / D <= gap_tol``, which guarantees the objective
-    is within ``gap_tol`` (relative) of the optimum.
-``"objective"``
-    Relative objective decrease over the last 5 iterations below ``5 * tol``.
-``"gradient"``
-    Norm of the projected-gradient step below ``pg_tol`` times its first value.
-``"optimal"``: zero residual. ``"max_iter"`` / ``"time_limit"``: budget exhausted.
+Stopping rules (:mod:`.stopping`; ``SolveResult.reason`` says which one stopped the solve):
+``"gap"`` (certified by a dual bound, ``gap_tol``), ``"objective"`` (relative decrease over 5
+iterations, ``tol``), ``"extrapolated"`` (the remaining decrease extrapolated from the last 10
+iterations, ``est_tol``), ``"gradient"`` (``pg_tol``), ``"optimal"``, ``"max_iter"``, ``"time_limit"``.
 """
 from __future__ import annotations
 
@@ -51,6 +44,7 @@ from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.stencil import STORAGES, stencil_blocks, stencil_from_csr
 from coordinator.compensation.stencil_apg import fused_apg, warm_up
 from coordinator.compensation.stencil_start import deconvolved_start
+from coordinator.compensation.stopping import CONVERGED, Stopper, dual_bound
 from coordinator.compensation.workers import workers
 
 __all__ = [
@@ -365,6 +359,7 @@ def solve(
     tol: float = 1e-5,
     gap_tol: float = 1e-3,
     pg_tol: float = 1e-6,
+    est_tol: float = 0.0,
     max_iter: int = 500,
     time_limit: float | None = None,
     content_shape: Sequence[int] | None = None,
@@ -385,8 +380,9 @@ def solve(
         values; clipped to [0, 1]. Default: the target itself when L is square (deconvolved by
         the mean stencil, :mod:`.stencil_start`, on the stencil storage), else the best uniform grey.
     method : {"apg", "steepest", "lbfgsb"}
-    tol, gap_tol, pg_tol, max_iter, time_limit :
-        Stopping rules (see the module docstring); ``0`` disables a tolerance.
+    tol, gap_tol, pg_tol, est_tol, max_iter, time_limit :
+        Stopping rules (:mod:`.stopping`); ``0`` disables a tolerance. ``est_tol`` (off by
+        default) applies to ``"apg"`` and ``"steepest"``.
     content_shape : (H, W), optional
         Shape of the returned image (default: the target's when L is square).
     progress : callable(iteration, objective), optional
@@ -415,7 +411,7 @@ def solve(
         lip = op.lipschitz(pool=pool)
         fused = method == "apg" and op.stencil is not None and op.stencil.tail is None and op.fused
         runner = _fused if fused else _apg if method == "apg" else _steepest
-        res = runner(op, c, x, lip=lip, tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter,
+        res = runner(op, c, x, lip=lip, tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, est_tol=est_tol, max_iter=max_iter,
                      time_limit=time_limit, progress=progress, clock=clock, start=start, pool=pool)
         res.lipschitz = lip
     res.method = method
@@ -424,62 +420,11 @@ def solve(
     return res
 
 
-class _Stopper:
-    """The shared stopping rules; ``check`` returns the reason to stop, or None."""
-
-    def __init__(self, *, tol: float, gap_tol: float, pg_tol: float, max_iter: int,
-                 time_limit: float | None, clock: Callable[[], float], start: float) -> None:
-        self.tol, self.gap_tol, self.pg_tol = tol, gap_tol, pg_tol
-        self.max_iter, self.time_limit, self.clock, self.start = max_iter, time_limit, clock, start
-        self.history: list[float] = []
-        self.lower = -math.inf
-        self.pg0: float | None = None
-
-    def bound(self, value: float) -> None:
-        if value > self.lower:
-            self.lower = value
-
-    def gap(self, f: float) -> float:
-        return (f - self.lower) / self.lower if self.lower > 0 else math.inf
-
-    def check(self, k: int, f: float, pg: float) -> str | None:
-        """After iteration ``k`` (1-based) with objective ``f`` and projected-gradient norm ``pg``."""
-        h = self.history
-        if f <= 0:
-            return "optimal"
-        if self.gap_tol > 0 and self.gap(f) <= self.gap_tol:
-            return "gap"
-        if self.pg0 is None:
-            self.pg0 = pg
-        if self.pg_tol > 0 and self.pg0 and pg <= self.pg_tol * self.pg0:
-            return "gradient"
-        w = 5
-        if self.tol > 0 and len(h) > w and h[-1 - w] - f <= w * self.tol * f:
-            return "objective"
-        if k >= self.max_iter:
-            return "max_iter"
-        if self.time_limit is not None and self.clock() - self.start >= self.time_limit:
-            return "time_limit"
-        return None
-
-
-def _dual_bound(rr: float, rc: float, gneg: float) -> float:
-    """Best Lagrangian dual value of ``min ||Lx-c||^2, 0<=x<=1`` along the ray ``alpha * r``.
-
-    With ``g = L^T r``: ``D(a r) = -a^2 rr - 2 a rc + 2 a gneg`` (``gneg = sum min(0, g)``),
-    maximised over ``a >= 0``; any value is a lower bound of the minimum.
-    """
-    if rr <= 0:
-        return 0.0
-    a = (gneg - rc) / rr
-    return a * a * rr if a > 0 else 0.0
-
-
 def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol: float, gap_tol: float,
-         pg_tol: float, max_iter: int, time_limit: float | None, progress: Progress | None,
+         pg_tol: float, est_tol: float, max_iter: int, time_limit: float | None, progress: Progress | None,
          clock: Callable[[], float], start: float, pool: Executor | None) -> SolveResult:
     """FISTA with gradient-based adaptive restart; fused, row-blocked updates."""
-    stop = _Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter, time_limit=time_limit,
+    stop = Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, est_tol=est_tol, max_iter=max_iter, time_limit=time_limit,
                     clock=clock, start=start)
     fwd, adj = op.forward_blocks, op.adjoint_blocks
     run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None else (lambda fn, items: [fn(i) for i in items])
@@ -511,7 +456,7 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
         inner = math.fsum(p[2] for p in parts)
         # x_prev now holds x_{k+1}; swap names
         x_cur, x_prev = x_prev, x_cur
-        stop.bound(_dual_bound(rr, rc, gneg))
+        stop.bound(dual_bound(rr, rc, gneg))
         if inner > 0:  # the momentum points uphill: restart
             t = 1.0
             beta_next = 0.0
@@ -551,19 +496,19 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
             reason = why
             break
     # x_cur holds the last iterate and f its objective (the extrapolated point y is discarded)
-    return SolveResult(x=np.ascontiguousarray(x_cur.T), objective=f, iterations=k, converged=reason in ("gap", "objective", "gradient", "optimal"),
+    return SolveResult(x=np.ascontiguousarray(x_cur.T), objective=f, iterations=k, converged=reason in CONVERGED,
                        reason=reason, history=stop.history, gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
 
 def _fused(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, progress: Progress | None,
            pool: Executor | None, **rules: Any) -> SolveResult:
-    """:func:`_apg`'s iterates in one sweep over the stencil weights per iteration (``rules``: :class:`_Stopper`'s)."""
-    stop = _Stopper(**rules)
+    """:func:`_apg`'s iterates in one sweep over the stencil weights per iteration (``rules``: :class:`.stopping.Stopper`'s)."""
+    stop = Stopper(**rules)
     xs, f, k, reason = fused_apg(op.stencil, np.ascontiguousarray(c.T), np.ascontiguousarray(x.T), lip=lip, stop=stop,
                                  threads=op.threads if pool is not None else 1, pool=pool, progress=progress,
-                                 dual_bound=_dual_bound)
+                                 dual_bound=dual_bound)
     return SolveResult(x=np.ascontiguousarray(xs.T), objective=f, iterations=k, reason=reason, history=stop.history,
-                       converged=reason in ("gap", "objective", "gradient", "optimal"), gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
+                       converged=reason in CONVERGED, gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
 
 def _content_phase_factory(x_cur: np.ndarray, x_prev: np.ndarray, r: np.ndarray, step: np.float32, beta: np.float32):
@@ -600,10 +545,10 @@ def _content_phase_factory(x_cur: np.ndarray, x_prev: np.ndarray, r: np.ndarray,
 
 
 def _steepest(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol: float, gap_tol: float,
-              pg_tol: float, max_iter: int, time_limit: float | None, progress: Progress | None,
+              pg_tol: float, est_tol: float, max_iter: int, time_limit: float | None, progress: Progress | None,
               clock: Callable[[], float], start: float, pool: Executor | None) -> SolveResult:
     """Projected steepest descent with exact line search (the paper's reference method)."""
-    stop = _Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, max_iter=max_iter, time_limit=time_limit,
+    stop = Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, est_tol=est_tol, max_iter=max_iter, time_limit=time_limit,
                     clock=clock, start=start)
     lx = op.matvec(x, pool=pool)
     r = lx - c
@@ -614,7 +559,7 @@ def _steepest(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float
     while max_iter > 0 and f > 0:
         k += 1
         g = op.rmatvec(r, pool=pool)
-        stop.bound(_dual_bound(f, _dot(r, c), float(np.minimum(g, 0).sum(dtype=np.float64))))
+        stop.bound(dual_bound(f, _dot(r, c), float(np.minimum(g, 0).sum(dtype=np.float64))))
         d = np.negative(g)
         d[((x <= 0) & (g > 0)) | ((x >= 1) & (g < 0))] = 0
         dd = _dot(d, d)
@@ -644,7 +589,7 @@ def _steepest(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float
         if why is not None:
             reason = why
             break
-    return SolveResult(x=x, objective=f, iterations=k, converged=reason in ("gap", "objective", "gradient", "optimal"),
+    return SolveResult(x=x, objective=f, iterations=k, converged=reason in CONVERGED,
                        reason=reason, history=stop.history, gap=stop.gap(f), lower_bound=max(stop.lower, 0.0))
 
 
