@@ -15,7 +15,8 @@ Prints one JSON document:
 * ``pointwise``: :func:`sim.plan.pointwise.search` on the same hands and candidates: whether any
   pointwise proxy (a nondecreasing weight of the drop) reproduces the study's four orderings while
   every layout of at most ``most`` projectors ranks behind P25 (``exists``; false is a proof, with
-  the planner's ``small_layouts_ahead`` that rule every weighting out).
+  the planner's ``small_layouts_ahead`` that rule every weighting out, and ``must_give``: the
+  orderings the best weighting still breaks, by a fraction of P1's value).
 * ``bust`` (not with --quick): the procedural bust with pointing hands, the same
   budget from the ceiling grid alone and from the ceiling plus walls: the area
   lit by fewer than ``k`` projectors and the proxy, and how many wall
@@ -123,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         most = min(args.pointwise_most, ev.candidates)
         found = pointwise_search(ev, ref_ev, subsets, most=most, bands=50 if args.quick else 200, progress=_say)
         doc["pointwise"] = {"most": most, "exists": found.exists, "small_layouts_ahead": found.layouts,
+                            "must_give": {k: float(f"{v:.3g}") for k, v in found.must_give.items()},
                             "rounds": len(found.rounds) + (0 if found.exists else 1),  # the last, unsolvable fit counts
                             "seconds": round(time.perf_counter() - t1, 2)}
     doc["targets"] = {"plan_25_of_100_under_60_s": seconds <= 60.0 if (budget, side) == (25, 10) else None}

@@ -17,7 +17,9 @@ constraint, and fits again, until either no small layout beats P25 (the
 weights are returned) or the programme has no solution: then no pointwise
 proxy at all, at the bands' resolution, reproduces the four orderings
 without ranking one of those small layouts ahead of the paper's 25, which a
-proxy whose curve flattens near 17 projectors must not do.
+proxy whose curve flattens near 17 projectors must not do. :func:`conflict` then
+says which of the orderings must give, and by how much: the least violation over
+every weighting (an elastic form of the same programme).
 
 Everything is measured on one :class:`~sim.plan.evaluate.Evaluator` world
 (its samples and hands): the planner's candidates, and the reference rig's
@@ -103,6 +105,45 @@ class BandWeights:
         return "pointwise"
 
 
+#: the names :func:`conflict` gives the constraints: :data:`sim.sop.ORDERINGS` and the small layouts
+BEHIND = "behind_p25"
+
+
+def _constraints(reference: Mapping[str, np.ndarray], behind: Sequence[np.ndarray], nb: int, tolerance: float,
+                 margin: float) -> tuple[np.ndarray, list[str], dict[str, np.ndarray]]:
+    """``A`` with ``A @ a <= 0`` for the increments ``a`` (w = T a), each row's name, and each layout's ``h T``."""
+    need = {"P1", "P9D", "P9W", "P17", "P20", "P25"}
+    if not need <= set(reference):
+        raise ValueError(f"need histograms of {sorted(need)}, got {sorted(reference)}")
+    for k, h in reference.items():
+        if np.shape(h) != (nb,):
+            raise ValueError(f"{k}'s histogram has {np.shape(h)} bands, the edges make {nb}")
+    # w = T a with a >= 0 (increments): w is nondecreasing and nonnegative; a value is h . w = (h T) . a
+    cum = np.tril(np.ones((nb, nb)))
+    row = {k: np.asarray(h, np.float64) @ cum for k, h in reference.items()}
+    A: list[np.ndarray] = []
+    names: list[str] = []
+
+    def better(x: np.ndarray, y: np.ndarray, name: str, strict: bool = True) -> None:  # value x (+ margin) <= value y
+        A.append(x - y + (margin * row["P1"] if strict else 0.0))
+        names.append(name)
+
+    for k in reference:
+        if k != "P1":
+            better(row[k], row["P1"], "p1_worst")
+    better(row["P9D"], row["P9W"], "dense_beats_wide_9")
+    trio = ("P17", "P20", "P25")
+    for x in trio:
+        for y in trio:
+            if x != y:
+                A.append(row[x] - row[y] - tolerance * (row["P1"] - row["P25"]))
+                names.append("p17_p20_p25_alike")
+    better(row["P20"], row["P25"], "p20_not_worse_than_p25", strict=False)
+    for h in behind:
+        better(row["P25"], np.asarray(h, np.float64) @ cum, BEHIND)
+    return np.array(A), names, row
+
+
 def fit(reference: Mapping[str, np.ndarray], behind: Sequence[np.ndarray] = (), *, edges: np.ndarray,
         tolerance: float = 0.1, margin: float = 1e-3) -> BandWeights | None:
     """Nondecreasing band weights that reproduce the four orderings and rank every ``behind`` layout after P25.
@@ -124,41 +165,43 @@ def fit(reference: Mapping[str, np.ndarray], behind: Sequence[np.ndarray] = (), 
     -------
     The weights, or None when no nondecreasing weights satisfy every constraint.
     """
-    need = {"P1", "P9D", "P9W", "P17", "P20", "P25"}
-    if not need <= set(reference):
-        raise ValueError(f"need histograms of {sorted(need)}, got {sorted(reference)}")
     nb = len(edges) - 1
-    # w = T a with a >= 0 (increments): w is nondecreasing and nonnegative; a value is h . w = (h T) . a
-    for k, h in reference.items():
-        if np.shape(h) != (nb,):
-            raise ValueError(f"{k}'s histogram has {np.shape(h)} bands, the edges make {nb}")
-    cum = np.tril(np.ones((nb, nb)))
-    row = {k: np.asarray(h, np.float64) @ cum for k, h in reference.items()}
-    A: list[np.ndarray] = []
-    spare = SPARE * row["P1"]  # every constraint, so the solver's own tolerance cannot break one
-
-    def better(x: np.ndarray, y: np.ndarray, strict: bool = True) -> None:  # value x (+ margin) <= value y
-        A.append(x - y + (margin * row["P1"] if strict else 0.0) + spare)
-
-    for k in reference:
-        if k != "P1":
-            better(row[k], row["P1"])
-    better(row["P9D"], row["P9W"])
-    trio = ("P17", "P20", "P25")
-    for x in trio:
-        for y in trio:
-            if x != y:
-                A.append(row[x] - row[y] - tolerance * (row["P1"] - row["P25"]) + spare)
-    better(row["P20"], row["P25"], strict=False)
-    for h in behind:
-        better(row["P25"], np.asarray(h, np.float64) @ cum)
-    res = linprog(np.zeros(nb), A_ub=np.array(A), b_ub=np.zeros(len(A)), A_eq=np.ones((1, nb)), b_eq=[1.0],
+    A, _, row = _constraints(reference, behind, nb, tolerance, margin)
+    A = A + SPARE * row["P1"]  # every constraint, so the solver's own tolerance cannot break one
+    res = linprog(np.zeros(nb), A_ub=A, b_ub=np.zeros(len(A)), A_eq=np.ones((1, nb)), b_eq=[1.0],
                   bounds=[(0, None)] * nb, method="highs")
     if res.status == 2:
         return None
     if res.status != 0:
         raise RuntimeError(f"the linear programme did not finish: {res.message}")
+    cum = np.tril(np.ones((nb, nb)))
     return BandWeights(np.asarray(edges, np.float64), np.maximum.accumulate(cum @ np.maximum(res.x, 0.0)))
+
+
+def conflict(reference: Mapping[str, np.ndarray], behind: Sequence[np.ndarray] = (), *, edges: np.ndarray,
+             tolerance: float = 0.1, margin: float = 1e-3) -> dict[str, float]:
+    """What must give when :func:`fit` has no solution: the least violation of its constraints.
+
+    The same programme made elastic: each constraint may be broken by a slack ``s >= 0``, the
+    weights scaled so that P1's value is 1, and the total slack minimised over every
+    nondecreasing weighting. Returns the slack per constraint group that needs one, as a fraction
+    of P1's value: the names of :data:`sim.sop.ORDERINGS`, and :data:`BEHIND` for the small
+    layouts together. Empty when the constraints hold (up to :data:`SPARE`). Which orderings
+    appear tells which of the paper's findings a pointwise proxy cannot reconcile with the rest;
+    how much, how far it is from holding.
+    """
+    nb = len(edges) - 1
+    A, names, row = _constraints(reference, behind, nb, tolerance, margin)
+    m = len(A)
+    res = linprog(np.r_[np.zeros(nb), np.ones(m)], A_ub=np.hstack([A, -np.eye(m)]), b_ub=np.zeros(m),
+                  A_eq=np.r_[row["P1"], np.zeros(m)][None], b_eq=[1.0], bounds=[(0, None)] * (nb + m), method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"the elastic programme did not finish: {res.message}")
+    out: dict[str, float] = {}
+    for name, slack in zip(names, res.x[nb:]):
+        if slack > SPARE:
+            out[name] = out.get(name, 0.0) + float(slack)
+    return out
 
 
 @dataclass
@@ -174,11 +217,14 @@ class Outcome:
         The small layouts the planner found ahead of P25 in some round (candidate names).
     rounds : list of dict
         Per round: the layouts it added and the best value per projector count against P25's.
+    must_give : dict
+        When no weights exist: :func:`conflict`'s least violation per ordering (fractions of P1's value).
     """
 
     weights: BandWeights | None
     layouts: list[list[str]] = field(default_factory=list)
     rounds: list[dict] = field(default_factory=list)
+    must_give: dict[str, float] = field(default_factory=dict)
 
     @property
     def exists(self) -> bool:
@@ -223,6 +269,7 @@ def search(ev: Evaluator, reference_ev: Evaluator, subsets: Mapping[str, Sequenc
     for r in range(rounds):
         w = fit(ref, list(behind.values()), edges=grid.edges, tolerance=tolerance, margin=margin)
         if w is None:
+            out.must_give = conflict(ref, list(behind.values()), edges=grid.edges, tolerance=tolerance, margin=margin)
             if progress is not None:
                 progress(f"round {r + 1}: no weights satisfy the orderings and the {len(behind)} small layouts")
             return out

@@ -23,7 +23,9 @@ the planner then looks for layouts of at most --most projectors, from a ceiling 
 weights rank ahead of P25; each it finds becomes one more constraint, and the programme is solved
 again. It ends with weights under which no such small layout beats P25, or with the proof that no
 weights exist: then no pointwise proxy can both reproduce the study and tell an operator that a few
-projectors are worse than 25, and the planner needs a proxy of another kind."""
+projectors are worse than 25, and the planner needs a proxy of another kind. With the proof comes
+what must give: the ordering (or the small layouts) that the best weighting still breaks, and by how
+much of P1's value."""
 
 EPILOG = """\
 examples:
@@ -81,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         "hand_poses": poses.describe(), "pitch_mm": args.pitch,
         "exists": out.exists,
         "small_layouts_ahead": out.layouts,
+        "must_give": {k: float(f"{v:.3g}") for k, v in out.must_give.items()},
         "rounds": out.rounds,
         "weights": None if w is None else {f"{d:g}": round(w.at(d), 4) for d in (0.01, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.9, 1.0)},
         "seconds": round(time.perf_counter() - t0, 1),
@@ -94,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
               f"found by the planner ({_rounds(out)}):")
         for layout in out.layouts:
             print(f"  {len(layout):>2}: {' '.join(layout)}")
+        print("The least any weighting must give (the elastic programme), as a fraction of P1's value:")
+        for name, v in out.must_give.items():
+            print(f"  {name}: {100 * v:.3g} %")
     else:
         print(f"These weights reproduce the four orderings, and the planner finds no layout of at most {args.most} "
               f"projectors ahead of P25 ({_rounds(out)}):")

@@ -25,4 +25,5 @@ def test_quick_plan_benchmark_prints_one_json_document(capsys):
     pw = doc["pointwise"]  # the search ran on the same world and says whether some weighting exists
     assert pw["most"] == 3 and isinstance(pw["exists"], bool) and pw["rounds"] >= 1
     assert all(1 <= len(layout) <= 3 for layout in pw["small_layouts_ahead"])
+    assert bool(pw["must_give"]) == (not pw["exists"])  # no weights: the orderings that must give, with how much
     assert doc["plan_seconds"] > 0 and doc["targets"]["plan_25_of_100_under_60_s"] is None and "bust" not in doc

@@ -10,11 +10,11 @@ from shadowless.cli import main
 from sim.occluders import Hand
 from sim.plan.candidates import ProjectorModel, ceiling_grid, source_for
 from sim.plan.evaluate import Evaluator
-from sim.plan.pointwise import BandWeights, fit, reference_evaluator, search
+from sim.plan.pointwise import BEHIND, BandWeights, conflict, fit, reference_evaluator, search
 from sim.plan.search import plan
 from sim.plan.surface import irradiance, table_poses, table_surface
 from sim.scene import SUBSETS, reference_scene
-from sim.sop import PoseSet, orderings
+from sim.sop import ORDERINGS, PoseSet, orderings
 from sim.sop_shadows import Source
 
 HANDS = [Hand(position=(-150.0, 0.0), height=150.0), Hand(position=(200.0, 80.0), height=250.0, yaw_deg=30.0)]
@@ -93,6 +93,18 @@ def test_fit_proves_there_are_no_weights_when_a_layout_is_dominated_band_by_band
         fit({k: v for k, v in REFERENCE.items() if k != "P9W"}, edges=EDGES)
 
 
+def test_conflict_names_what_must_give_and_by_how_much():
+    assert conflict(REFERENCE, edges=EDGES) == {}  # fit has weights: nothing must give
+    # P9D = P9W + 1 mm^2 in every band: P1's value 1 puts 0.01 on the top band, and P9D - P9W is the
+    # sum of the weights, least at (0, 0, 0, 0.01); with the 0.1 % margin P9D must give 0.011
+    got = conflict(dict(REFERENCE, P9D=REFERENCE["P9W"] + 1.0), edges=EDGES)
+    assert got.keys() == {"dense_beats_wide_9"} and got["dense_beats_wide_9"] == pytest.approx(0.011, rel=1e-6)
+    # a small layout exactly as good as P25 can be behind it by nothing: it breaks the margin, whatever the weights
+    got = conflict(REFERENCE, [REFERENCE["P25"]], edges=EDGES)
+    assert got.keys() == {BEHIND} and got[BEHIND] == pytest.approx(1e-3, rel=1e-6)
+    assert fit(REFERENCE, [REFERENCE["P25"]], edges=EDGES) is None
+
+
 def _histograms(ev, rev, subsets, layouts, bands):
     grid = BandWeights.bands(bands)
     names = [s.name for s in ev.sources]
@@ -128,11 +140,16 @@ def test_search_proves_no_weights_exist_on_the_planner_s_hands():
     # without the last round's layouts the orderings alone still have weights: those layouts are what rule them out
     last = len(out.rounds[-1]["added"])
     assert fit(ref_h, behind[:-last], edges=grid.edges) is not None
+    assert conflict(ref_h, behind[:-last], edges=grid.edges) == {}
+    # what must give is what the search reported: one of the paper's orderings, by a fraction of P1's value
+    assert out.must_give and out.must_give == pytest.approx(conflict(ref_h, behind, edges=grid.edges))
+    assert set(out.must_give) <= {*ORDERINGS, BEHIND} and all(0 < v < 1 for v in out.must_give.values())
 
 
 def test_study_pointwise_command_proves_it_on_the_quick_world(capsys):
     assert main(["study", "pointwise", "--quick", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["exists"] is False and doc["weights"] is None
+    assert doc["must_give"] and all(v > 0 for v in doc["must_give"].values())
     assert doc["small_layouts_ahead"] and all(1 <= len(x) <= 3 for x in doc["small_layouts_ahead"])
     assert doc["candidates"] == 36 and doc["bands"] == 50
