@@ -57,7 +57,7 @@ def bust_oracle(truth_of: Callable[[list[str]], sp.spmatrix], rig: Rig, slots: l
     region = w > 0
     wp = WeightedProblem(w, measured_texels(L))
     opts = SimpleNamespace(regularization=float(job["solve"]["regularization"]), max_iter=max_iter, tol=1e-5,
-                           method=job["solve"]["method"])
+                           est_tol=0.0, method=job["solve"]["method"])  # the job's defaults
     content = prepare_image(demo_image((cw, ch)), (cw, ch))
     T = content_at_view(content, cams.view)
     truth = sp.csr_matrix(truth_of(slots) * exposure)

@@ -124,7 +124,8 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
     ctx.progress("solve", "", 0, opts.max_iter, "objective")
     progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, "objective", f))
     res = await ctx.compute(solve, problem.op, problem.target(target, none), x0=none, content_shape=(ch, cw),
-                            max_iter=opts.max_iter, tol=opts.tol, method=opts.method, progress=progress)
+                            max_iter=opts.max_iter, tol=opts.tol, est_tol=opts.est_tol, method=opts.method,
+                            progress=progress)
     ctx.progress("solve", "", res.iterations, res.iterations, res.reason, res.objective)
     x = np.clip(res.x, 0, 1).astype(np.float32).reshape(ch, cw, -1)
     data_objective = await ctx.compute(problem.data_objective, x, target)
@@ -173,7 +174,7 @@ def _solve_baseline(ctx: JobContext, base_L: dict[str, sp.csr_matrix], names: li
         a = best_scale(p.data.matvec(flat), share.reshape(-1, share.shape[2]))
         start = np.clip(content * np.float32(a), 0, 1)
         out.append(solve(p.op, p.target(share, start), x0=start, content_shape=(ch, cw), max_iter=opts.max_iter,
-                         tol=opts.tol, method=opts.method))
+                         tol=opts.tol, est_tol=opts.est_tol, method=opts.method))
         ctx.progress("baseline solve", k, i + 1, len(names), f"{out[-1].iterations} iterations")
     return out
 

@@ -111,8 +111,8 @@ def weighted_solve(wp: WeightedProblem, L: sp.spmatrix, target: np.ndarray, cont
     start = np.clip(content * np.float32(alpha), 0, 1).astype(np.float32)
     x0 = np.ascontiguousarray(start.reshape(-1, nc)[wp.cols])
     problem = RidgeProblem(Lw, opts.regularization)
-    res = solve(problem.op, problem.target(tw, x0), x0=x0, max_iter=opts.max_iter, tol=opts.tol, method=opts.method,
-                progress=progress)
+    res = solve(problem.op, problem.target(tw, x0), x0=x0, max_iter=opts.max_iter, tol=opts.tol, est_tol=opts.est_tol,
+                method=opts.method, progress=progress)
     x = start.reshape(-1, nc).copy()
     x[wp.cols] = np.clip(res.x.reshape(-1, nc), 0, 1)
     return res, x.reshape(ch, cw, nc), start, alpha

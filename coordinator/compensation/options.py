@@ -180,6 +180,10 @@ class CompensateOptions(TransportOptions):
                                "--baseline at most what the dimmest projector's share allows")
     max_iter: int = option(300, lo=1, hi=100_000, metavar="N", group=SOLVE, help="iteration budget")
     tol: float = option(1e-5, lo=0.0, hi=1.0, metavar="T", group=SOLVE, help="relative objective decrease that stops")
+    est_tol: float = option(0.0, lo=0.0, hi=0.5, metavar="T", group=SOLVE,
+                            help="also stop once the decrease still to come, extrapolated from the last 10 iterations, "
+                                 "is at most this fraction of the objective (0.005: within about 0.6 percent of the "
+                                 "optimum in a fraction of the iterations; 0: off; apg and steepest)")
     method: str = option("apg", choices=METHODS, group=SOLVE, help="solver")
     regularization: float = option(REGULARIZATION, lo=0.0, hi=100.0, metavar="MU", group=SOLVE,
                                    help="ridge weight towards the uncompensated image, relative to ||L||^2 (0 fits the "

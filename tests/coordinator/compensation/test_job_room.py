@@ -161,6 +161,11 @@ def test_with_no_image_the_image_the_rig_shows_is_compensated(setup):
     rig.set_content(Content(demo_image(CONTENT), name="card.png"))
     out = run(driver, "compensate", {"measure": False, "max_iter": 20, "persist": False})
     assert out["image"] == "card.png" and out["solve"]["objective"] < out["solve"]["initial_objective"]
+    # --est-tol: the extrapolated rule stops the solve near the optimum, before the plain tolerance would
+    full = run(driver, "compensate", {"measure": False, "max_iter": 2000, "persist": False})["solve"]
+    fast = run(driver, "compensate", {"measure": False, "max_iter": 2000, "est_tol": 0.005, "persist": False})["solve"]
+    assert fast["reason"] == "extrapolated" and fast["converged"] and fast["iterations"] < full["iterations"]
+    assert full["penalised_objective"] <= fast["penalised_objective"] <= 1.01 * full["penalised_objective"]
 
 
 def test_sequence_is_compensated_with_warm_starts_and_played(setup):
