@@ -425,7 +425,7 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
          clock: Callable[[], float], start: float, pool: Executor | None) -> SolveResult:
     """FISTA with gradient-based adaptive restart; fused, row-blocked updates."""
     stop = Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, est_tol=est_tol, max_iter=max_iter, time_limit=time_limit,
-                    clock=clock, start=start)
+                   clock=clock, start=start)
     fwd, adj = op.forward_blocks, op.adjoint_blocks
     run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None else (lambda fn, items: [fn(i) for i in items])
     step = np.float32(1.0 / lip)
@@ -549,7 +549,7 @@ def _steepest(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float
               clock: Callable[[], float], start: float, pool: Executor | None) -> SolveResult:
     """Projected steepest descent with exact line search (the paper's reference method)."""
     stop = Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, est_tol=est_tol, max_iter=max_iter, time_limit=time_limit,
-                    clock=clock, start=start)
+                   clock=clock, start=start)
     lx = op.matvec(x, pool=pool)
     r = lx - c
     f = _dot(r, r)
