@@ -45,7 +45,7 @@ from coordinator.compensation.stencil import STORAGES, stencil_blocks, stencil_f
 from coordinator.compensation.stencil_apg import fused_apg, warm_up
 from coordinator.compensation.stencil_start import deconvolved_start
 from coordinator.compensation.stopping import CONVERGED, Stopper, dual_bound
-from coordinator.compensation.workers import workers
+from coordinator.compensation.workers import run_all, workers
 
 __all__ = [
     "TransportOperator",
@@ -184,11 +184,7 @@ class TransportOperator:
             a, b, m = block
             _block_apply(m, vt, out[:, a:b])
 
-        if pool is None or len(blocks) == 1:
-            for blk in blocks:
-                one(blk)
-        else:
-            list(pool.map(one, blocks))
+        run_all(pool, one, blocks)
         return out[0] if v.ndim == 1 else np.ascontiguousarray(out.T)
 
     def lipschitz(self, *, iterations: int = 6, pool: Executor | None = None, early_exit: bool = True) -> float:
@@ -427,7 +423,6 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
     stop = Stopper(tol=tol, gap_tol=gap_tol, pg_tol=pg_tol, est_tol=est_tol, max_iter=max_iter, time_limit=time_limit,
                    clock=clock, start=start)
     fwd, adj = op.forward_blocks, op.adjoint_blocks
-    run = (lambda fn, items: list(pool.map(fn, items))) if pool is not None else (lambda fn, items: [fn(i) for i in items])
     step = np.float32(1.0 / lip)
     # channel-major (C, n) layout: every channel of every row block is one contiguous vector
     c = np.ascontiguousarray(c.T)
@@ -450,7 +445,7 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
         k += 1
         b32 = np.float32(beta)
 
-        parts = run(_content_phase_factory(x_cur, x_prev, r, step, b32), adj)
+        parts = run_all(pool, _content_phase_factory(x_cur, x_prev, r, step, b32), adj)
         gneg = math.fsum(p[0] for p in parts)
         ymx = math.fsum(p[1] for p in parts)
         inner = math.fsum(p[2] for p in parts)
@@ -482,7 +477,7 @@ def _apg(op: TransportOperator, c: np.ndarray, x: np.ndarray, *, lip: float, tol
                 rb += lxc
             return fpart, _dot(rb, rb), _dot(rb, cb)
 
-        cparts = run(camera_phase, fwd)
+        cparts = run_all(pool, camera_phase, fwd)
         f = math.fsum(p[0] for p in cparts)
         rr = math.fsum(p[1] for p in cparts)
         rc = math.fsum(p[2] for p in cparts)

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from coordinator.compensation.stencil import StencilTransport
+from coordinator.compensation.workers import run_all
 
 __all__ = ["fused_apg", "warm_up"]
 
@@ -117,15 +118,7 @@ def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float,
     ranges = st.bands(threads)
     if any(b - a <= 2 * r for a, b in ranges):
         ranges = [(0, h)]  # too few rows to share: one sweep
-
-    def run(fn, items):  # the calling thread takes the first range itself: one hand-off fewer per sweep
-        if pool is None or len(items) == 1:
-            return [fn(i) for i in items]
-        rest = [pool.submit(fn, i) for i in items[1:]]
-        first = fn(items[0])
-        return [first, *(f.result() for f in rest)]
-
-    run(lambda rg: st.forward_rows(s.x_cur, s.lx_cur[:, rg[0] : rg[1]], rg[0], rg[1]), ranges)
+    run_all(pool, lambda rg: st.forward_rows(s.x_cur, s.lx_cur[:, rg[0] : rg[1]], rg[0], rg[1]), ranges)
     # no Lx_{-1} and x_{-1}: the first iteration has beta = 0 and reads neither
     f = math.fsum(cv2.norm(s.lx_cur[ch], s.c[ch], cv2.NORM_L2SQR) for ch in range(s.c.shape[0]))
     stop.history.append(f)
@@ -136,7 +129,7 @@ def fused_apg(st: StencilTransport, c: np.ndarray, x: np.ndarray, *, lip: float,
     while True:
         k += 1
         pre = [s.assemble(b0 - r, b0 + r) for _, b0 in ranges[:-1]]
-        parts = run(lambda rg: s.sweep(*rg), ranges)
+        parts = run_all(pool, lambda rg: s.sweep(*rg), ranges)
         for _, halos in parts:
             for a, v in halos:
                 s.lx_prev[:, a : a + v.shape[1]] += v
