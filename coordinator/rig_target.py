@@ -113,12 +113,15 @@ async def discover(rig: RigTarget, *, interfaces: list[str] | None = None, timeo
                    tls_ca: bytes | None = None, tls_server_name: str | None = None) -> Client:
     """A client of ``rig``'s coordinator found over mDNS. Advertisements of the rig (by id, or by
     the ``--rig`` name) are tried as they arrive, for up to ``timeout`` seconds: a rogue that answers
-    first is passed over and the right one, answering a moment later, still found."""
+    first is passed over and the right one, answering a moment later, still found. When only
+    refused coordinators of the rig have answered by then, the right one is waited for up to
+    ``timeout`` seconds more (a loaded network or host answers late; the rig is evidently out there)."""
     tls = {"tls_ca": tls_ca, "tls_server_name": tls_server_name}
     disc = Discovery(interfaces=interfaces)
     await disc.start()
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout
+    extended = False
     tried: set[str] = set()
     failures: list[str] = []
     try:
@@ -132,7 +135,9 @@ async def discover(rig: RigTarget, *, interfaces: list[str] | None = None, timeo
                     return got
                 failures += got
             if loop.time() >= deadline:
-                break
+                if not failures or extended:
+                    break
+                deadline, extended = loop.time() + timeout, True
             await asyncio.sleep(0.2)
         if failures:
             raise _failed(rig, failures)

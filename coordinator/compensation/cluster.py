@@ -17,7 +17,11 @@ What travels, and why:
 * The source goes as bytes, not as a path: a worker need not share the coordinator's disk. A
   video file is scattered once to every worker (it stays in the workers' memory for the run; a
   worker that joins or is restarted fetches it from another); an image sequence's files are sent
-  with their segment only. At most ``2 x workers`` segments are in flight, so a long image
+  with their segment only.
+* Scattered data has no lineage: Dask cannot compute it again, and its active memory manager may
+  keep a single replica of it. When the worker holding the last one dies, the segments waiting for
+  it are cancelled ("already forgotten"); ``L`` and the source are then scattered again and those
+  segments submitted again (:data:`RETRIES` times per segment at most). At most ``2 x workers`` segments are in flight, so a long image
   sequence is never held whole.
 * Each result is one message of the segment's encoded frames (about ``N x`` a frame's FFV1 size:
   ~3 MB at 1200x600 RGB), fetched as soon as it is done: lower ``--segment-frames`` for large
@@ -215,6 +219,14 @@ def _sequence_part(store: AssetStore, src: Manifest, start: int, count: int) -> 
     return SequenceFrames(start, [store.blob_path(b.sha256).read_bytes() for b in src.blobs[start:end]])
 
 
+async def _a_worker(client: Any, address: str) -> None:
+    """Wait for the cluster to have a worker (JobError after :data:`WORKERS_S` seconds)."""
+    try:
+        await client.wait_for_workers(1, timeout=WORKERS_S)
+    except TimeoutError:
+        raise JobError(f"the Dask scheduler at {address} has no worker (waited {WORKERS_S:g} s)") from None
+
+
 def _failure(distributed: Any, start: int, exc: BaseException) -> JobError:
     """The one-line error of a segment that could not be solved."""
     where = f"segment at frame {start}"
@@ -278,7 +290,7 @@ async def compensate_on_cluster(ctx: JobContext, opts: VideoOptions, *, store: A
     progress = _Progress(key, lambda done, what: report(done, segs.resumed_from, what), segs.frames)
     workers = 0
     client = None
-    running: dict[Any, int] = {}
+    running: dict[Any, tuple[int, int, int]] = {}   # future -> (first frame, frames, inputs' generation)
     try:
         if todo:
             try:
@@ -286,41 +298,57 @@ async def compensate_on_cluster(ctx: JobContext, opts: VideoOptions, *, store: A
                                                   set_as_default=False)
             except (OSError, TimeoutError, ValueError) as exc:
                 raise JobError(f"cannot reach the Dask scheduler at {opts.cluster}: {exc}") from None
-            try:
-                await client.wait_for_workers(1, timeout=WORKERS_S)
-            except TimeoutError:
-                raise JobError(f"the Dask scheduler at {opts.cluster} has no worker (waited {WORKERS_S:g} s)") from None
+            await _a_worker(client, opts.cluster)
             workers = len(client.scheduler_info().get("workers", {}))
             report(segs.frames, segs.resumed_from, f"sending L and the source to {workers} worker(s)")
             spec = SegmentSpec(key=key, transport=solver.transport, regularization=opts.regularization,
                                iterations=opts.iterations, first_iterations=opts.first_iterations, size=solver.size,
                                level=solver.level, region=solver.region, srgb=opts.srgb, predict=opts.psnr,
                                manifest=src, rate=rate)
-            spec_f = await client.scatter(spec, broadcast=True, hash=False)
-            video_f = None
-            if src.kind == "video":
-                video_f = await client.scatter(await ctx.compute(_source_bytes, store, src), broadcast=True,
-                                               hash=False)
+            sent: dict[str, Any] = {"generation": 0}
+
+            async def send_inputs() -> None:
+                """``L`` and the settings (and a video's bytes) to every worker (once one is up again)."""
+                await _a_worker(client, opts.cluster)
+                sent["spec"] = await client.scatter(spec, broadcast=True, hash=False)
+                if src.kind == "video":
+                    sent["video"] = await client.scatter(await ctx.compute(_source_bytes, store, src),
+                                                         broadcast=True, hash=False)
+                sent["generation"] += 1
+
+            await send_inputs()
             client.subscribe_topic(TOPIC, progress.event)
             pending = list(todo)
             flying = distributed.as_completed(loop=client.loop)
+            lost: dict[int, int] = {}   # segment -> times its inputs were lost under it
 
             async def submit() -> None:
                 start, count = pending.pop(0)
-                part = video_f
+                part = sent.get("video")
                 if part is None:
                     part = await client.scatter(await ctx.compute(_sequence_part, store, src, start, count), hash=False)
-                f = client.submit(solve_segment, spec_f, part, start, count, retries=RETRIES, pure=False)
-                running[f] = start
+                f = client.submit(solve_segment, sent["spec"], part, start, count, retries=RETRIES, pure=False)
+                running[f] = (start, count, sent["generation"])
                 flying.add(f)
 
             while pending and len(running) < 2 * max(workers, 1):
                 await submit()
             progress.show()
             async for f in flying:
-                start = running.pop(f)
+                start, count, generation = running.pop(f)
                 try:
                     res = await f
+                except distributed.client.FutureCancelledError as exc:   # not ours: its inputs died with a worker
+                    lost[start] = lost.get(start, 0) + 1
+                    if lost[start] > RETRIES:
+                        raise _failure(distributed, start, exc) from exc
+                    if generation == sent["generation"]:
+                        ctx.log(f"segment at frame {start}: its inputs were lost with a worker ({exc.reason}); "
+                                "sending L and the source again")
+                        await send_inputs()
+                    pending.insert(0, (start, count))
+                    await submit()
+                    continue
                 except Exception as exc:   # the task's own exception, or Dask's (KilledWorker, ...)
                     raise _failure(distributed, start, exc) from exc
                 f.release()

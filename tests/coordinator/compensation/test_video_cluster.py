@@ -7,7 +7,8 @@ Checked: a cluster run gives the bytes of a local ``--segment-frames`` run (the 
 each segment is what ``compensate_sequence`` (an independent path: the frames sent as images)
 computes from a cold start for that segment's frames alone; without segments the bytes differ; a
 worker killed mid-segment (SIGKILL, found from the workers' own frame events) has its segment
-solved again elsewhere, to the same bytes; a cancelled cluster run resumes without solving its
+solved again elsewhere, to the same bytes; when every worker is killed, the scattered ``L`` and
+source are lost with them and sent again, to the same bytes; a cancelled cluster run resumes without solving its
 finished segments again; without ``distributed`` the job fails with one line naming the extra.
 
 The module's tests share one calibrated rig and one cluster, and run in file order."""
@@ -172,6 +173,44 @@ def test_a_worker_killed_mid_segment_is_replaced_and_its_segment_solved_again(se
     run(driver, {**params, "name": "local 12"})
     assert sha(store, "survived") == sha(store, "local 12")
     client.wait_for_workers(2, timeout=60)   # the nanny restarted it, for the next test
+
+
+def _kill_every_worker_mid_segment(client, killed: list, stop: threading.Event) -> None:
+    """SIGKILL every worker once the first reports frame 1 of a segment: the scattered ``L`` and
+    source die with them (scattered data has no lineage to compute it again from)."""
+    pids = client.run(os.getpid)
+    since = time.time()
+    while not stop.is_set():
+        if any(at >= since and msg["done"] == 1 for at, msg in client.get_events(TOPIC)):
+            for worker, pid in pids.items():
+                os.kill(pid, signal.SIGKILL)
+                killed.append(worker)
+            return
+        stop.wait(0.01)
+
+
+@pytest.mark.allow_leaks   # the restarted workers belong to the module's cluster
+def test_inputs_lost_with_every_worker_are_sent_again_and_the_run_finishes(setup, cluster):
+    rig, driver, _ = setup
+    lc, client = cluster
+    store = AssetStore(rig.path)
+    killed: list = []
+    stop = threading.Event()
+    watcher = threading.Thread(target=_kill_every_worker_mid_segment, args=(client, killed, stop))
+    driver.events.clear()
+    watcher.start()
+    try:
+        out = run(driver, {"asset": "clip", **SOLVE, "segment_frames": 12, "name": "lost inputs",
+                           "cluster": lc.scheduler_address})
+    finally:
+        stop.set()
+        watcher.join()
+    assert len(killed) == 2
+    lines = [e for e in driver.events if isinstance(e, str) and "inputs were lost with a worker" in e]
+    assert lines and all("sending L and the source again" in e for e in lines), driver.events
+    assert not set(killed) & set(out["cluster"]["per_worker"])   # every segment came from a restarted worker
+    assert sha(store, "lost inputs") == sha(store, "local 12")   # (made by the test above)
+    client.wait_for_workers(2, timeout=60)
 
 
 def test_a_cancelled_cluster_run_resumes_without_solving_its_finished_segments(setup, cluster):
