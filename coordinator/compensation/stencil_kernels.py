@@ -26,9 +26,10 @@ with it the last bits). The tests compare both products against SciPy's CSR prod
 matrix.
 
 ``sweep_rows`` is one thread's share of an iteration of :mod:`.stencil_apg`, one content row at a
-time: each row is assembled, differentiated, updated and scattered before the next starts, so the
-weight row the adjoint read is still in the first-level cache when the scatter reads it again and
-``L`` streams from memory once per iteration. It may reassociate its sums and fuse multiply-adds
+time: each row is assembled, differentiated, updated (:func:`update_row`, written so that LLVM
+vectorises it) and scattered before the next starts, so the weight row the adjoint read is still
+in the first-level cache when the scatter reads it again and ``L`` streams from memory once per
+iteration. It may reassociate its sums and fuse multiply-adds
 (``fastmath`` reassoc and contract, nothing that assumes finite values), so its float64 reductions
 vectorise too (about 10 % faster at 2592x1944); its iterates differ from a plain loop's only in
 float32's last bits. All kernels live in this one module because Numba's cache follows a
@@ -416,6 +417,45 @@ def scatter_rows(w, scale, x, y0, y1, radius, sink, r0, r1):  # pragma: no cover
 
 
 @njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
+def update_row(gr, xk, xo, light, scale, step, beta):  # pragma: no cover - compiled
+    """One row of the APG update: ``xo = clip(y - step * scale * gr, 0, 1)`` with
+    ``y = xk + beta (xk - xo)`` (``xo`` holds ``x_{k-1}`` on entry, ``x_{k+1}`` on return) and
+    ``light = xo * scale``. Returns ``(sum min(0, scale gr), ||y - xo||^2, <y - xo, xo - xk>)``.
+
+    Written to vectorise: the sum of the negative gradients is branch-free (``min(0, g)``; a
+    conditional sum kept the loop scalar, 3x slower), and ``x_{k-1}`` is read and ``x_{k+1}``
+    written through the one array ``xo`` (inside the sweep, two views of the same row, which a
+    runtime overlap check cannot pass). Together about 20 % of a sweep at 2592x1944."""
+    zero, one = np.float32(0.0), np.float32(1.0)
+    one_b = one + beta
+    gneg = ymx = inner = 0.0
+    if beta == 0:  # the first iteration: x_{k-1} unread (there is none)
+        for i in range(gr.shape[0]):
+            gi = gr[i] * scale
+            gneg += min(gi, zero)
+            yi = xk[i]
+            xn = min(max(yi - step * gi, zero), one)
+            xo[i] = xn
+            d = yi - xn
+            ymx += d * d
+            inner += d * (xn - yi)
+            light[i] = xn * scale
+        return gneg, ymx, inner
+    for i in range(gr.shape[0]):
+        gi = gr[i] * scale
+        gneg += min(gi, zero)
+        xc = xk[i]
+        yi = one_b * xc - beta * xo[i]
+        xn = min(max(yi - step * gi, zero), one)
+        xo[i] = xn
+        d = yi - xn
+        ymx += d * d
+        inner += d * (xn - xc)
+        light[i] = xn * scale  # scaled as the products scale x
+    return gneg, ymx, inner
+
+
+@njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
 def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, beta, y0, y1, lo, hi,
                halo_top, halo_bot, g, light):  # pragma: no cover - compiled
     """Rows ``[y0, y1)`` of one APG iteration (the module docstring of :mod:`.stencil_apg`).
@@ -458,19 +498,10 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
             gr = g[ch]
             if n_ch != 3:
                 adjoint_row(gr, w, res[ch], y, radius)
-            xk, xp = x_cur[ch, y], (x_cur[ch, y] if beta == 0 else x_prev[ch, y])  # beta = 0: x_{k-1} unread
-            for i in range(width):  # 3. the update of row y, over x_{k-1}
-                gi = gr[i] * scale
-                if gi < 0:
-                    gneg += gi
-                xc = xk[i]
-                yi = one_b * xc - beta * xp[i]
-                xn = min(max(yi - step * gi, zero), one)
-                x_prev[ch, y, i] = xn
-                d = yi - xn
-                ymx += d * d
-                inner += d * (xn - xc)
-                light[ch, i] = xn * scale  # scaled as the products scale x
+            a, b, c_ = update_row(gr, x_cur[ch, y], x_prev[ch, y], light[ch], scale, step, beta)  # 3. the update
+            gneg += a
+            ymx += b
+            inner += c_
         z = min(y + radius + 1, y1)  # Lx_{k-1} on these rows is assembled: they start Lx_{k+1}
         while zeroed < z:
             for ch in range(n_ch):

@@ -146,3 +146,28 @@ def test_building_the_operator_compiles_what_a_solve_needs(storage):
     op.rmatvec(np.ones(L.shape[0], np.float32))
     assert {f.__name__: list(f.signatures) for f in (kernels.adjoint_rows, kernels.scatter_rows,
                                                      kernels.sweep_rows)} == compiled
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.7])
+def test_a_rows_update_is_the_projected_step_in_float64(beta):
+    """:func:`update_row` against NumPy in float64: the clipped step from the extrapolated point,
+    the light it scatters, and its three sums (the first iteration, beta 0, reads no x_{k-1})."""
+    from coordinator.compensation.stencil_kernels import update_row
+
+    rng = np.random.default_rng(3)
+    n = 1037   # not a multiple of any vector width
+    g = rng.standard_normal(n).astype(np.float32)
+    xk, xprev = rng.random(n, dtype=np.float32), rng.random(n, dtype=np.float32)
+    xprev[::7] = xk[::7]    # some steps of zero momentum
+    scale, step = np.float32(0.37), np.float32(0.6)
+    xo, light = xprev.copy(), np.empty(n, np.float32)
+    sums = update_row(g, xk, xo, light, scale, step, np.float32(beta))
+
+    g64, xk64 = g.astype(np.float64) * 0.37, xk.astype(np.float64)
+    y = xk64 + beta * (xk64 - xprev.astype(np.float64))
+    want = np.clip(y - 0.6 * g64, 0.0, 1.0)
+    np.testing.assert_allclose(xo, want, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(light, want * 0.37, rtol=0, atol=1e-6)
+    d = y - want
+    np.testing.assert_allclose(sums, (np.minimum(g64, 0).sum(), d @ d, d @ (want - xk64)), rtol=1e-5, atol=1e-5)
+    assert (xo == 0).any() and (xo == 1).any()   # both bounds were hit

@@ -139,17 +139,34 @@ def test_a_cluster_run_gives_the_bytes_of_a_local_run_of_the_same_segments(setup
     assert not np.array_equal(got[start - 1], driver.played[0])
 
 
-def _kill_a_worker_mid_segment(client, killed: list, stop: threading.Event) -> None:
-    """Watch the workers' frame events; SIGKILL the first worker to report frame 1 of a segment."""
+def _kill_mid_segment(client, killed: list, stop: threading.Event, every: bool) -> None:
+    """Watch the workers' frame events; SIGKILL the first worker to report frame 1 of a segment
+    (``every``: every worker then, so that the scattered ``L`` and source die with them: scattered
+    data has no lineage to compute it again from). ``killed`` gets the addresses."""
     pids = client.run(os.getpid)
     since = time.time()
     while not stop.is_set():
         for at, msg in client.get_events(TOPIC):
             if at >= since and msg["done"] == 1 and msg["worker"] in pids:
-                os.kill(pids[msg["worker"]], signal.SIGKILL)
-                killed.append(msg)
+                for worker in (pids if every else [msg["worker"]]):
+                    os.kill(pids[worker], signal.SIGKILL)
+                    killed.append(worker)
                 return
         stop.wait(0.01)
+
+
+def run_killing(driver: RoomDriver, client, params: dict, *, every: bool = False) -> tuple[dict, list]:
+    """``compensate_video`` with ``params`` while :func:`_kill_mid_segment` watches: its result
+    and the killed workers' addresses."""
+    killed: list = []
+    stop = threading.Event()
+    watcher = threading.Thread(target=_kill_mid_segment, args=(client, killed, stop, every))
+    watcher.start()
+    try:
+        return run(driver, params), killed
+    finally:
+        stop.set()
+        watcher.join()
 
 
 @pytest.mark.allow_leaks   # the restarted worker belongs to the module's cluster
@@ -158,35 +175,13 @@ def test_a_worker_killed_mid_segment_is_replaced_and_its_segment_solved_again(se
     lc, client = cluster
     store = AssetStore(rig.path)
     params = {"asset": "clip", **SOLVE, "segment_frames": 12}
-    killed: list = []
-    stop = threading.Event()
-    watcher = threading.Thread(target=_kill_a_worker_mid_segment, args=(client, killed, stop))
-    watcher.start()
-    try:
-        out = run(driver, {**params, "name": "survived", "cluster": lc.scheduler_address})
-    finally:
-        stop.set()
-        watcher.join()
+    out, killed = run_killing(driver, client, {**params, "name": "survived", "cluster": lc.scheduler_address})
     assert killed, "no worker reported a frame"
     assert out["cluster"]["segments_retried"] >= 1, out["cluster"]
-    assert killed[0]["worker"] not in out["cluster"]["per_worker"]   # its segment was delivered by another
+    assert killed[0] not in out["cluster"]["per_worker"]   # its segment was delivered by another
     run(driver, {**params, "name": "local 12"})
     assert sha(store, "survived") == sha(store, "local 12")
     client.wait_for_workers(2, timeout=60)   # the nanny restarted it, for the next test
-
-
-def _kill_every_worker_mid_segment(client, killed: list, stop: threading.Event) -> None:
-    """SIGKILL every worker once the first reports frame 1 of a segment: the scattered ``L`` and
-    source die with them (scattered data has no lineage to compute it again from)."""
-    pids = client.run(os.getpid)
-    since = time.time()
-    while not stop.is_set():
-        if any(at >= since and msg["done"] == 1 for at, msg in client.get_events(TOPIC)):
-            for worker, pid in pids.items():
-                os.kill(pid, signal.SIGKILL)
-                killed.append(worker)
-            return
-        stop.wait(0.01)
 
 
 @pytest.mark.allow_leaks   # the restarted workers belong to the module's cluster
@@ -194,17 +189,9 @@ def test_inputs_lost_with_every_worker_are_sent_again_and_the_run_finishes(setup
     rig, driver, _ = setup
     lc, client = cluster
     store = AssetStore(rig.path)
-    killed: list = []
-    stop = threading.Event()
-    watcher = threading.Thread(target=_kill_every_worker_mid_segment, args=(client, killed, stop))
     driver.events.clear()
-    watcher.start()
-    try:
-        out = run(driver, {"asset": "clip", **SOLVE, "segment_frames": 12, "name": "lost inputs",
-                           "cluster": lc.scheduler_address})
-    finally:
-        stop.set()
-        watcher.join()
+    out, killed = run_killing(driver, client, {"asset": "clip", **SOLVE, "segment_frames": 12, "name": "lost inputs",
+                                               "cluster": lc.scheduler_address}, every=True)
     assert len(killed) == 2
     lines = [e for e in driver.events if isinstance(e, str) and "inputs were lost with a worker" in e]
     assert lines and all("sending L and the source again" in e for e in lines), driver.events
