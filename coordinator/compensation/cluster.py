@@ -17,12 +17,12 @@ What travels, and why:
 * The source goes as bytes, not as a path: a worker need not share the coordinator's disk. A
   video file is scattered once to every worker (it stays in the workers' memory for the run; a
   worker that joins or is restarted fetches it from another); an image sequence's files are sent
-  with their segment only.
+  with their segment only. At most ``2 x workers`` segments are in flight, so a long image
+  sequence is never held whole.
 * Scattered data has no lineage: Dask cannot compute it again, and its active memory manager may
   keep a single replica of it. When the worker holding the last one dies, the segments waiting for
   it are cancelled ("already forgotten"); ``L`` and the source are then scattered again and those
-  segments submitted again (:data:`RETRIES` times per segment at most). At most ``2 x workers`` segments are in flight, so a long image
-  sequence is never held whole.
+  segments submitted again (:data:`RETRIES` times per segment at most).
 * Each result is one message of the segment's encoded frames (about ``N x`` a frame's FFV1 size:
   ~3 MB at 1200x600 RGB), fetched as soon as it is done: lower ``--segment-frames`` for large
   content.
