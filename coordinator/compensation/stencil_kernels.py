@@ -429,18 +429,8 @@ def update_row(gr, xk, xo, light, scale, step, beta):  # pragma: no cover - comp
     zero, one = np.float32(0.0), np.float32(1.0)
     one_b = one + beta
     gneg = ymx = inner = 0.0
-    if beta == 0:  # the first iteration: x_{k-1} unread (there is none)
-        for i in range(gr.shape[0]):
-            gi = gr[i] * scale
-            gneg += min(gi, zero)
-            yi = xk[i]
-            xn = min(max(yi - step * gi, zero), one)
-            xo[i] = xn
-            d = yi - xn
-            ymx += d * d
-            inner += d * (xn - yi)
-            light[i] = xn * scale
-        return gneg, ymx, inner
+    if beta == 0:  # the first iteration: there is no x_{k-1} (xo may hold anything); y = x_k exactly
+        xo[:] = xk
     for i in range(gr.shape[0]):
         gi = gr[i] * scale
         gneg += min(gi, zero)
@@ -476,7 +466,6 @@ def sweep_rows(w, scale, radius, c, x_cur, x_prev, lx_cur, lx_prev, res, step, b
     n_ch = c.shape[0]
     one_b = np.float32(1.0) + beta
     zero = np.float32(0.0)
-    one = np.float32(1.0)
     gneg = ymx = inner = f = rr = rc = 0.0
     assembled, zeroed, finished = lo, y0, lo
     top0 = y0 - radius
