@@ -8,8 +8,16 @@ when the picture slides by a pixel the correction must slide with it. Left in pl
 is a high-frequency image, exactly what the iterations fix slowest (a 1 px/frame pan stays
 1.7 dB short of its converged solve after 8 iterations at 960x540). :class:`MotionWarp`
 estimates the dense motion from the previous target to the new one (OpenCV's DIS optical flow
-on 8-bit pictures, at half resolution by default) and moves the correction along it (bilinear
-``remap``), so the start is ``c_new + warp(x_prev - c_prev)``.
+on 8-bit pictures, at half resolution by default) and moves the correction along it (``remap``),
+so the start is ``c_new + warp(x_prev - c_prev)``.
+
+The move interpolates bicubically by default. The estimated flow is fractional (DIS is about
+0.3 px off on a 1 px pan), and at a fractional offset bilinear interpolation is a low-pass filter
+(at half a pixel its response at the highest frequency is zero), while the correction is mostly
+high frequencies: a bilinear move erased part of what the previous frame's iterations had
+built. Measured at 960x540, 25 projectors (``bench compensation``'s clips), the largest shortfall
+from converged after 4 iterations went from 0.55 / 0.49 dB (pan / overlay) to 0.41 / 0.46, and
+after 5 from 0.41 / 0.32 to 0.30 / 0.32, for about half a millisecond more per frame.
 """
 from __future__ import annotations
 
@@ -17,6 +25,8 @@ import cv2
 import numpy as np
 
 __all__ = ["MotionWarp"]
+
+_INTERPOLATIONS = (cv2.INTER_LINEAR, cv2.INTER_CUBIC, cv2.INTER_LANCZOS4)
 
 
 class MotionWarp:
@@ -28,14 +38,21 @@ class MotionWarp:
         The flow is estimated on pictures ``scale`` times smaller (area-averaged), then resized
         back (1: full resolution; 2, the default, costs about a quarter and loses little on
         smooth motion).
+    interpolation : int
+        OpenCV's interpolation of the move: ``cv2.INTER_CUBIC`` (the default, see the module
+        docstring), ``cv2.INTER_LINEAR`` or ``cv2.INTER_LANCZOS4``.
     """
 
-    def __init__(self, *, scale: int = 2) -> None:
+    def __init__(self, *, scale: int = 2, interpolation: int = cv2.INTER_CUBIC) -> None:
         if scale < 1:
             raise ValueError(f"scale must be >= 1, got {scale}")
+        if interpolation not in _INTERPOLATIONS:
+            raise ValueError(f"interpolation must be one of cv2.INTER_LINEAR, INTER_CUBIC or INTER_LANCZOS4, "
+                             f"got {interpolation!r}")
         self.scale = int(scale)
+        self.interpolation = int(interpolation)
         self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
-        self._grid: tuple[np.ndarray, np.ndarray] | None = None
+        self._grid: np.ndarray | None = None  # (H, W, 2) float32 pixel coordinates (x, y)
 
     def _small(self, img: np.ndarray) -> np.ndarray:
         if self.scale > 1:
@@ -50,7 +67,8 @@ class MotionWarp:
             return np.zeros((h, w, 2), dtype=np.float32)
         f = self._dis.calc(a, b, None)
         if self.scale > 1:
-            f = cv2.resize(f, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(self.scale)
+            f *= np.float32(self.scale)  # on the small flow: a quarter of the pixels
+            f = cv2.resize(f, (w, h), interpolation=cv2.INTER_LINEAR)
         return f
 
     def __call__(self, field: np.ndarray, prev: np.ndarray, new: np.ndarray) -> np.ndarray:
@@ -60,8 +78,9 @@ class MotionWarp:
         h, w = field.shape[:2]
         if np.ndim(prev) == 3:
             prev, new = np.mean(prev, axis=2), np.mean(new, axis=2)
-        if self._grid is None or self._grid[0].shape != (h, w):
-            self._grid = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        f = self.flow(prev, new)
-        gx, gy = self._grid
-        return cv2.remap(field, gx + f[..., 0], gy + f[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if self._grid is None or self._grid.shape[:2] != (h, w):
+            gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+            self._grid = np.dstack([gx, gy])
+        where = self.flow(prev, new)
+        where += self._grid  # the flow becomes the map: where each pixel of new was in prev
+        return cv2.remap(field, where, None, self.interpolation, borderMode=cv2.BORDER_REPLICATE)
