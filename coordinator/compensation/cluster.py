@@ -164,7 +164,8 @@ class _Segments:
             with atomic_file(self.folder / self._file(res.start)) as f:
                 f.write(res.data)
         self.done[res.start] = {"frames": res.frames, "times": res.times, "objectives": res.objectives,
-                                "psnrs": [list(p) for p in res.psnrs], "scale": res.scale, "worker": res.worker,
+                                "psnrs": [list(p) for p in res.psnrs], "shares": res.shares, "scale": res.scale,
+                                "worker": res.worker,
                                 "decode_s": res.decode_s, "encode_s": res.encode_s}
         with atomic_file(self.folder / STATE) as f:
             f.write(json.dumps({"segments": self.done}).encode())
@@ -302,7 +303,8 @@ async def compensate_on_cluster(ctx: JobContext, opts: VideoOptions, *, store: A
             workers = len(client.scheduler_info().get("workers", {}))
             report(segs.frames, segs.resumed_from, f"sending L and the source to {workers} worker(s)")
             spec = SegmentSpec(key=key, transport=solver.transport, regularization=opts.regularization,
-                               iterations=opts.iterations, first_iterations=opts.first_iterations, size=solver.size,
+                               iterations=opts.iterations, first_iterations=opts.first_iterations, motion=opts.motion,
+                               size=solver.size,
                                level=solver.level, region=solver.region, srgb=opts.srgb, predict=opts.psnr,
                                manifest=src, rate=rate)
             sent: dict[str, Any] = {"generation": 0}
@@ -379,6 +381,7 @@ async def compensate_on_cluster(ctx: JobContext, opts: VideoOptions, *, store: A
     solver.times = [t for d in figures for t in d["times"]]
     solver.objectives = [v for d in figures for v in d["objectives"]]
     solver.psnrs = [(a, b) for d in figures for a, b in d["psnrs"]]
+    solver.shares = [v for d in figures for v in d.get("shares", [])]
     return ClusterRun(frames=done, resumed_from=segs.resumed_from,
                       decode_s=sum(d["decode_s"] for d in figures), encode_s=sum(d["encode_s"] for d in figures),
                       cluster={"address": opts.cluster, "workers": workers, "segment_frames": length,

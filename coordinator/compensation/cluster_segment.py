@@ -23,7 +23,7 @@ import time
 from dataclasses import dataclass, field
 from fractions import Fraction
 
-from coordinator.compensation.frames import FrameSolver
+from coordinator.compensation.frames import FrameSolver, motion_warp
 from coordinator.compensation.ridge import ContentWarmStart, RidgeProblem
 from coordinator.compensation.store import StoredTransport
 from coordinator.compensation.video_io import Ffv1Writer, SourceFrames
@@ -51,8 +51,9 @@ class SegmentSpec:
     ``transport`` is the stored light transport (``L``: ``(n_camera, n_content)`` float32 CSR;
     ``H``: content -> camera homography); ``size`` the content size ``(W, H)``; ``level`` the
     target white in camera units; ``region`` the camera rows/cols of the PSNR figures;
-    ``rate`` the source's exact frame rate; ``key`` names the run (the worker's cached problem
-    and the event topic).
+    ``rate`` the source's exact frame rate; ``motion`` the ``--motion`` flow
+    (:func:`~.frames.motion_warp`); ``key`` names the run (the worker's cached problem and the
+    event topic).
     """
 
     key: str
@@ -60,6 +61,7 @@ class SegmentSpec:
     regularization: float
     iterations: int
     first_iterations: int
+    motion: str
     size: tuple[int, int]
     level: float
     region: tuple[slice, slice]
@@ -81,7 +83,8 @@ class SequenceFrames:
 class SegmentResult:
     """A solved segment: ``data`` is its FFV1 Matroska file (empty when the source had no frame
     left at ``start``); ``frames`` how many it holds (fewer than asked at the source's end);
-    per-frame solve ``times`` (s), data ``objectives`` and ``psnrs`` (predicted, none/ours);
+    per-frame solve ``times`` (s), data ``objectives``, ``psnrs`` (predicted, none/ours) and
+    motion starts' ``shares`` (:attr:`.ridge.ContentWarmStart.last_share`);
     ``scale`` the content -> target scale of its first frame; the worker's address and seconds
     spent decoding, solving and encoding."""
 
@@ -91,6 +94,7 @@ class SegmentResult:
     times: list[float] = field(default_factory=list)
     objectives: list[float] = field(default_factory=list)
     psnrs: list[tuple[float, float]] = field(default_factory=list)
+    shares: list[float] = field(default_factory=list)
     scale: float | None = None
     worker: str = ""
     decode_s: float = 0.0
@@ -112,7 +116,7 @@ def frame_solver(spec: SegmentSpec) -> FrameSolver:
             problem = _problems[spec.key] = RidgeProblem(spec.transport.L, spec.regularization)
     w, h = spec.size
     warm = ContentWarmStart(problem, iterations=spec.iterations, first_iterations=spec.first_iterations,
-                            content_shape=(h, w))
+                            content_shape=(h, w), motion=motion_warp(spec.motion))
     return FrameSolver(spec.transport, problem, warm, (w, h), spec.level, spec.region, srgb=spec.srgb)
 
 
@@ -170,5 +174,6 @@ def solve_segment(spec: SegmentSpec, source: bytes | SequenceFrames, start: int,
     data = buf.getvalue()
     encode_s += time.perf_counter() - t
     return SegmentResult(start=start, frames=len(solver.times), data=data, times=list(solver.times),
-                         objectives=list(solver.objectives), psnrs=list(solver.psnrs), scale=solver.warm.scale,
+                         objectives=list(solver.objectives), psnrs=list(solver.psnrs), shares=list(solver.shares),
+                         scale=solver.warm.scale,
                          worker=address, decode_s=decode_s, solve_s=float(sum(solver.times)), encode_s=encode_s)

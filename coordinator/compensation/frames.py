@@ -19,13 +19,20 @@ import numpy as np
 from coordinator.compensation.geometry import camera_target, inscribed_region, row_white, target_level
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.jobkit import content_size
+from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.ridge import ContentWarmStart, RidgeProblem
 from coordinator.compensation.store import StoredTransport, transport_summary
 from coordinator.compensation.transport_job import ensure_transport
 from coordinator.jobs import JobContext
 
-__all__ = ["FrameSolver", "SolvedFrame", "open_frame_solver", "to_uint16", "psnr"]
+__all__ = ["FrameSolver", "SolvedFrame", "open_frame_solver", "motion_warp", "to_uint16", "psnr"]
+
+
+def motion_warp(flow: str) -> MotionWarp | None:
+    """The jobs' motion warm start for ``--motion FLOW``: ``"off"`` (None) or a DIS preset, the flow
+    estimated at full resolution (the jobs are not real time: the accurate flow is worth its cost)."""
+    return None if flow == "off" else MotionWarp(scale=1, preset=flow)
 
 
 def to_uint16(x: np.ndarray) -> np.ndarray:
@@ -80,6 +87,7 @@ class FrameSolver:
     times: list[float] = field(default_factory=list)
     objectives: list[float] = field(default_factory=list)
     psnrs: list[tuple[float, float]] = field(default_factory=list)
+    shares: list[float] = field(default_factory=list)  #: each motion start's share of the moved start
 
     def solve(self, image: np.ndarray, *, predict: bool = False) -> SolvedFrame:
         """Compensate the next frame (blocking: run it through ``ctx.compute``).
@@ -98,6 +106,8 @@ class FrameSolver:
         obj = self.problem.data_objective(x, target)
         self.times.append(seconds)
         self.objectives.append(obj)
+        if self.warm.last_share is not None:
+            self.shares.append(self.warm.last_share)
         p_none = p_ours = None
         if predict:
             p_none, p_ours = self._predicted(content, x, target)
@@ -123,7 +133,8 @@ class FrameSolver:
         x, content, scale = st
         return {"x": x, "content": content, "scale": np.float64(scale), "times": np.asarray(self.times, np.float64),
                 "objectives": np.asarray(self.objectives, np.float64),
-                "psnrs": np.asarray(self.psnrs, np.float64).reshape(-1, 2)}
+                "psnrs": np.asarray(self.psnrs, np.float64).reshape(-1, 2),
+                "shares": np.asarray(self.shares, np.float64)}
 
     def restore(self, saved: dict[str, np.ndarray]) -> None:
         """Continue from a :meth:`checkpoint` (``ValueError`` when it does not fit)."""
@@ -131,16 +142,18 @@ class FrameSolver:
         self.times = [float(v) for v in saved["times"]]
         self.objectives = [float(v) for v in saved["objectives"]]
         self.psnrs = [(float(a), float(b)) for a, b in np.asarray(saved["psnrs"]).reshape(-1, 2)]
+        self.shares = [float(v) for v in saved["shares"]] if "shares" in saved else []
 
     def summary(self) -> dict[str, Any]:
         """The run's figures: frames, the first frame's and the later frames' solve times (ms),
-        the mean data objective, the content -> target scale, the transport, and PSNR means when
-        predicted."""
+        the mean data objective, the content -> target scale, the transport, PSNR means when
+        predicted, and the mean share of the moved start when the correction follows the motion."""
         times = self.times or [0.0]
         warm = times[1:] or times
         out: dict[str, Any] = {
             "frames": len(self.times), "iterations_per_frame": self.warm.iterations,
-            "first_iterations": self.warm.first_iterations, "target_level": round(self.level, 6),
+            "first_iterations": self.warm.first_iterations,
+            "motion": self.warm.motion.preset if self.warm.motion is not None else "off", "target_level": round(self.level, 6),
             "ms_first_frame": round(1000 * times[0], 2),
             "ms_per_frame_mean": round(1000 * float(np.mean(warm)), 2),
             "ms_per_frame_median": round(1000 * float(np.median(warm)), 2),
@@ -148,6 +161,8 @@ class FrameSolver:
             "objective_mean": float(np.mean(self.objectives)) if self.objectives else None,
             "scale": self.warm.scale, "transport": transport_summary(self.transport),
         }
+        if self.shares:   # how much of each start moved with the picture (0: the rig's pattern, kept in place)
+            out["motion_share_mean"] = round(float(np.mean(self.shares)), 3)
         if self.psnrs:
             a = np.asarray(self.psnrs, np.float64)
             out["predicted_psnr"] = {"none_mean": round(float(np.mean(a[:, 0])), 3),
@@ -158,7 +173,7 @@ class FrameSolver:
 
 
 async def open_frame_solver(ctx: JobContext, *, camera: int, measure: bool, level: float, regularization: float,
-                            iterations: int, first_iterations: int, srgb: bool) -> FrameSolver:
+                            iterations: int, first_iterations: int, srgb: bool, motion: str = "off") -> FrameSolver:
     """The solver for the rig's planar projectors over the stored transport (measured first when
     none is valid and ``measure``; otherwise a :class:`~coordinator.jobs.JobError` says to run
     `shadowless transport`)."""
@@ -168,5 +183,6 @@ async def open_frame_solver(ctx: JobContext, *, camera: int, measure: bool, leve
     region = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)
     s = target_level(row_white(tr.L, tr.camera_shape), region, level)
     problem = await ctx.compute(RidgeProblem, tr.L, regularization)
-    warm = ContentWarmStart(problem, iterations=iterations, first_iterations=first_iterations, content_shape=(ch, cw))
+    warm = ContentWarmStart(problem, iterations=iterations, first_iterations=first_iterations, content_shape=(ch, cw),
+                            motion=motion_warp(motion))
     return FrameSolver(tr, problem, warm, (cw, ch), float(s), region, srgb=srgb)

@@ -12,7 +12,9 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.solver import SolveResult, TransportOperator, objective, solve
+from coordinator.compensation.motion import MotionWarp
+from coordinator.compensation.solver import SolveResult, TransportOperator, dot32, objective, solve
+from coordinator.compensation.workers import workers
 
 __all__ = ["DEFAULT_REGULARIZATION", "best_scale", "RidgeProblem", "ContentWarmStart"]
 
@@ -80,7 +82,20 @@ class ContentWarmStart:
     previous solution only when ``L`` is square (content = camera grid). Here the content's own
     change is known: frame ``k`` starts from ``x_{k-1} + a (content_k - content_{k-1})``, where
     ``a`` is the scale that best maps content to the target (``L a content ~ target``), clipped to
-    [0, 1]; the first frame (or one after :meth:`reset`) starts from ``a content``. Each frame then
+    [0, 1]; the first frame (or one after :meth:`reset`) starts from ``a content``.
+
+    That start leaves the previous correction ``x_{k-1} - a content_{k-1}`` where it was. Part of
+    a correction belongs to the rig (a projector's brighter or dimmer pixels, the pattern where
+    footprints overlap) and must stay; the part that undoes the blur belongs to the picture's
+    edges and must move with them. With ``motion``, a second start moves the correction along
+    the content's optical flow where that motion explains the new frame
+    (:meth:`.motion.MotionWarp.carry`): ``a content_k + carry(x_{k-1} - a content_{k-1})``. The
+    frame starts on the segment between the two, at the point of least (ridge) objective, found
+    in closed form with one product of ``L`` (:attr:`last_share`: 0 for the unmoved start, 1 for
+    the moved one). On a blur-dominated rig a 1 px/frame pan takes the moved start (share 1): at
+    960x540, 25 projectors, 4 iterations, 0.41 dB short of converged instead of 2.47. In the
+    room at an eighth of the projectors' resolution, where the correction is nearly all the rig's
+    pattern, the share is about 0.01 and nothing is lost. Each frame then
     runs ``iterations`` APG iterations (``first_iterations`` for the first), so the time per
     frame is bounded. With ``mu > 0`` (or a :class:`RidgeProblem` for ``L``) every frame is
     solved with the ridge penalty towards its scaled content.
@@ -92,17 +107,20 @@ class ContentWarmStart:
     content_shape : (H, W)
     mu : float
         Ridge weight (see :class:`RidgeProblem`; ignored when ``L`` is one).
+    motion : MotionWarp, optional
+        Moves the correction between frames (None: it stays in place).
     solve_options :
         Passed to :func:`~coordinator.compensation.solve` (``tol``, ``threads``, ...).
     """
 
     def __init__(self, L, *, iterations: int = 4, first_iterations: int = 60, content_shape: Sequence[int],
-                 mu: float = 0.0, **solve_options: Any) -> None:
+                 mu: float = 0.0, motion: MotionWarp | None = None, **solve_options: Any) -> None:
         if iterations < 1 or first_iterations < 1:
             raise ValueError("iteration budgets must be >= 1")
         self.problem = L if isinstance(L, RidgeProblem) else RidgeProblem(L, mu)
         self.op = self.problem.data
         self.iterations, self.first_iterations = iterations, first_iterations
+        self.motion = motion
         self.content_shape = (int(content_shape[0]), int(content_shape[1]))
         if self.content_shape[0] * self.content_shape[1] != self.op.shape[1]:
             raise ValueError(f"content_shape {self.content_shape} does not hold L's {self.op.shape[1]} content pixels")
@@ -112,6 +130,8 @@ class ContentWarmStart:
         self._x: np.ndarray | None = None
         self._content: np.ndarray | None = None
         self._scale: float | None = None
+        #: the share of the moved start in the last frame's start (None: that frame had no motion start)
+        self.last_share: float | None = None
 
     @property
     def scale(self) -> float | None:
@@ -120,7 +140,7 @@ class ContentWarmStart:
 
     def reset(self) -> None:
         """Forget the previous frame (e.g. after a cut)."""
-        self._x = self._content = self._scale = None
+        self._x = self._content = self._scale = self.last_share = None
 
     def state(self) -> tuple[np.ndarray, np.ndarray, float] | None:
         """What the next frame starts from: the previous solution ``(n_content, C) float32``, the
@@ -138,24 +158,68 @@ class ContentWarmStart:
             raise ValueError(f"state of shape {x.shape} / {content.shape} does not fit content {self.content_shape}")
         self._x, self._content, self._scale = x, content, float(scale)
 
+    def _goal(self, target: np.ndarray, content: np.ndarray) -> np.ndarray:
+        """The solve's target: ``target``, stacked with the scaled content as the ridge's prior."""
+        if self.problem.lam == 0:
+            return target
+        return self.problem.target(target, np.clip(content * np.float32(self._scale), 0, 1))
+
+    def _start(self, content: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """A warm-started frame's start ((H, W, C) float32 in [0, 1]; see the class docstring)."""
+        a = np.float32(self._scale)
+        x = self._x.reshape(content.shape)
+        still = np.clip(x + a * (content - self._content), 0, 1)
+        if self.motion is None:
+            return still
+        moved = self.motion.carry(x - a * self._content, self._content, content).reshape(content.shape)
+        step = np.clip(a * content + moved, 0, 1) - still
+        share = self._least_objective(still, step, goal) if step.any() else 0.0   # a still picture: nothing moved
+        self.last_share = share
+        return still + np.float32(share) * step
+
+    def _least_objective(self, x: np.ndarray, d: np.ndarray, goal: np.ndarray) -> float:
+        """The ``t`` in [0, 1] that minimises the stacked objective at ``x + t d`` (float64 sums of
+        float32 products, in chunks: :func:`~.solver.dot32`).
+
+        ``x``, ``d``: (H, W, C) float32; ``goal``: :meth:`_goal`'s. With ``r = [L; s I] x - goal``
+        and ``e = [L; s I] d`` (``s = sqrt(lam)``), ``t = -<e, r> / <e, e>``, clipped. ``L``'s
+        products go one channel at a time (a single channel is the products' fast path); the
+        ridge rows are pointwise."""
+        m, n = self.op.shape
+        c = x.shape[2]
+        x2, d2 = x.reshape(n, c), d.reshape(n, c)
+        g2 = np.asarray(goal, np.float32).reshape(-1, c)
+        pool = workers(self.op.threads)
+        num = den = 0.0
+        for ch in range(c):
+            res = self.op.matvec(x2[:, ch], pool=pool)   # L x, then the residual
+            res -= g2[:m, ch]
+            along = self.op.matvec(d2[:, ch], pool=pool)
+            num += dot32(along, res)
+            den += dot32(along, along)
+        if self.problem.lam > 0:
+            s = np.float32(math.sqrt(self.problem.lam))
+            tail = s * d2
+            num += dot32(tail, s * x2 - g2[m:])
+            den += dot32(tail, tail)
+        return min(max(-num / den, 0.0), 1.0) if den > 0 else 0.0
+
     def __call__(self, target: np.ndarray, content: np.ndarray) -> SolveResult:
         """Compensate one frame: ``target`` (Hc, Wc, C) camera signal, ``content`` (H, W, C) linear."""
         content = np.asarray(content, np.float32)
         if content.ndim == 2:
             content = content[:, :, None]
+        self.last_share = None
         if self._x is None or self._content is None or self._content.shape != content.shape:
             flat = content.reshape(-1, content.shape[2])
             self._scale = best_scale(self.op.matvec(flat), np.asarray(target, np.float32).reshape(-1, content.shape[2]))
             x0 = np.clip(content * np.float32(self._scale), 0, 1)
             budget = self.first_iterations
+            goal = self._goal(target, content)
         else:
-            x0 = np.clip(self._x.reshape(content.shape) + np.float32(self._scale) * (content - self._content), 0, 1)
+            goal = self._goal(target, content)
+            x0 = self._start(content, goal)
             budget = self.iterations
-        if self._scale is not None and self.problem.lam > 0:
-            prior = np.clip(content * np.float32(self._scale), 0, 1)
-            goal = self.problem.target(target, prior)
-        else:
-            goal = target
         res = solve(self.problem.op, goal, x0=x0, max_iter=budget, content_shape=self.content_shape, **self.options)
         self._x = res.x
         self._content = content

@@ -1,7 +1,8 @@
 """The ``compensate_sequence`` job: frames compensated one after the other, then played in sync.
 
-Each frame is solved from the previous frame's solution moved by the content's change
-(:class:`~coordinator.compensation.ridge.ContentWarmStart`, through
+Each frame is solved from the previous frame's solution moved by the content's change, its
+correction moved along the content's motion as far as that helps (``motion``,
+:class:`~coordinator.compensation.ridge.ContentWarmStart`, through
 :class:`~coordinator.compensation.frames.FrameSolver`): ``first_iterations`` for the first
 frame, ``iterations`` for each later one, so the time per frame is bounded. The frames are
 played as 16-bit content on every node (``play``), and the figures stored in
@@ -33,7 +34,8 @@ async def run(ctx: JobContext, opts: SequenceOptions) -> dict:
     t0 = time.monotonic()
     solver = await open_frame_solver(ctx, camera=opts.camera, measure=opts.measure, level=opts.level,
                                      regularization=opts.regularization, iterations=opts.iterations,
-                                     first_iterations=opts.first_iterations, srgb=opts.srgb)
+                                     first_iterations=opts.first_iterations, srgb=opts.srgb,
+                                     motion=opts.motion)
     frames: list[np.ndarray] = []
     for k, item in enumerate(opts.frames):
         try:

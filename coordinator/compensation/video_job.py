@@ -4,7 +4,9 @@ The source is a ``video`` (or image ``sequence``) asset in the rig's store, name
 or id prefix. Its frames are decoded on the coordinator (:class:`~.video_io.AssetFrames`),
 resized to the rig's content size and solved one after the other, each warm-started from the
 previous one (:class:`~.frames.FrameSolver`, as ``compensate_sequence``: ``first_iterations``
-for the first frame, ``iterations`` for each later one). The compensated frames (``(H, W, C)``
+for the first frame, ``iterations`` for each later one; ``motion`` moves the previous correction
+along the content's optical flow as far as that lowers the objective,
+:class:`~.ridge.ContentWarmStart`). The compensated frames (``(H, W, C)``
 uint16, ``rint(65535 x)``) are written as they come into lossless 16-bit FFV1 segments
 (:class:`~.video_io.Ffv1Writer`), joined at the end into one Matroska file at the source's exact
 frame rate (:func:`~.video_io.join_segments`), and added to the store as the asset
@@ -103,6 +105,8 @@ def run_key(source_id: str, transport: dict, opts: VideoOptions, size: tuple[int
     what = {"source": source_id, "transport": [transport.get("fingerprint"), transport.get("date")],
             "size": list(size), **{k: getattr(opts, k) for k in ("iterations", "first_iterations", "level", "srgb",
                                                                  "regularization", "camera", "psnr")}}
+    if opts.motion != "off":  # (absent when off: such a run keeps the key it had before the motion start)
+        what["motion"] = opts.motion
     if opts.segment_length:   # (absent otherwise: a run without segments keeps its key, and its checkpoints)
         what["segment_frames"] = opts.segment_length
     return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:24]
@@ -164,7 +168,7 @@ class _Pipeline:
         """Start over: no frames done, the solver as new."""
         self.done, self.segments = 0, []
         self.solver.warm.reset()
-        self.solver.times, self.solver.objectives, self.solver.psnrs = [], [], []
+        self.solver.times, self.solver.objectives, self.solver.psnrs, self.solver.shares = [], [], [], []
 
     def step(self) -> SolvedFrame | None:
         """The next frame decoded, compensated and written; None at the end of the source."""
@@ -286,7 +290,8 @@ async def run(ctx: JobContext, opts: VideoOptions) -> dict:
     name = opts.name or compensated_name(src.name)
     solver = await open_frame_solver(ctx, camera=opts.camera, measure=opts.measure, level=opts.level,
                                      regularization=opts.regularization, iterations=opts.iterations,
-                                     first_iterations=opts.first_iterations, srgb=opts.srgb)
+                                     first_iterations=opts.first_iterations, srgb=opts.srgb,
+                                     motion=opts.motion)
     work = compensation_dir(ctx.rig) / TMP_DIR
     key = run_key(source_id, solver.transport.meta, opts, solver.size)
     folder = work / (f"{key}-cluster" if opts.cluster else key)   # a cluster run checkpoints per segment
