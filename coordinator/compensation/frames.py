@@ -153,7 +153,8 @@ class FrameSolver:
         out: dict[str, Any] = {
             "frames": len(self.times), "iterations_per_frame": self.warm.iterations,
             "first_iterations": self.warm.first_iterations,
-            "motion": self.warm.motion.preset if self.warm.motion is not None else "off", "target_level": round(self.level, 6),
+            "motion": self.warm.motion.preset if self.warm.motion is not None else "off",
+            "target_level": round(self.level, 6),
             "ms_first_frame": round(1000 * times[0], 2),
             "ms_per_frame_mean": round(1000 * float(np.mean(warm)), 2),
             "ms_per_frame_median": round(1000 * float(np.median(warm)), 2),

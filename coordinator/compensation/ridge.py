@@ -91,14 +91,15 @@ class ContentWarmStart:
     the content's optical flow where that motion explains the new frame
     (:meth:`.motion.MotionWarp.carry`): ``a content_k + carry(x_{k-1} - a content_{k-1})``. The
     frame starts on the segment between the two, at the point of least (ridge) objective, found
-    in closed form with one product of ``L`` (:attr:`last_share`: 0 for the unmoved start, 1 for
-    the moved one). On a blur-dominated rig a 1 px/frame pan takes the moved start (share 1): at
-    960x540, 25 projectors, 4 iterations, 0.41 dB short of converged instead of 2.47. In the
-    room at an eighth of the projectors' resolution, where the correction is nearly all the rig's
-    pattern, the share is about 0.01 and nothing is lost. Each frame then
-    runs ``iterations`` APG iterations (``first_iterations`` for the first), so the time per
-    frame is bounded. With ``mu > 0`` (or a :class:`RidgeProblem` for ``L``) every frame is
-    solved with the ridge penalty towards its scaled content.
+    in closed form with two products of ``L`` per channel (:attr:`last_share`: 0 for the unmoved
+    start, 1 for the moved one). On a blur-dominated rig a 1 px/frame pan takes the moved start
+    (share 1): at 960x540, 25 projectors, 4 iterations, 0.41 dB short of converged instead of
+    2.47. In the room at an eighth of the projectors' resolution, where the correction is nearly
+    all the rig's pattern, the share is about 0.01 and nothing is lost.
+
+    Each frame then runs ``iterations`` APG iterations (``first_iterations`` for the first), so
+    the time per frame is bounded. With ``mu > 0`` (or a :class:`RidgeProblem` for ``L``) every
+    frame is solved with the ridge penalty towards its scaled content.
 
     Parameters
     ----------
@@ -210,16 +211,13 @@ class ContentWarmStart:
         if content.ndim == 2:
             content = content[:, :, None]
         self.last_share = None
-        if self._x is None or self._content is None or self._content.shape != content.shape:
+        cold = self._x is None or self._content is None or self._content.shape != content.shape
+        if cold:
             flat = content.reshape(-1, content.shape[2])
             self._scale = best_scale(self.op.matvec(flat), np.asarray(target, np.float32).reshape(-1, content.shape[2]))
-            x0 = np.clip(content * np.float32(self._scale), 0, 1)
-            budget = self.first_iterations
-            goal = self._goal(target, content)
-        else:
-            goal = self._goal(target, content)
-            x0 = self._start(content, goal)
-            budget = self.iterations
+        goal = self._goal(target, content)
+        x0 = np.clip(content * np.float32(self._scale), 0, 1) if cold else self._start(content, goal)
+        budget = self.first_iterations if cold else self.iterations
         res = solve(self.problem.op, goal, x0=x0, max_iter=budget, content_shape=self.content_shape, **self.options)
         self._x = res.x
         self._content = content

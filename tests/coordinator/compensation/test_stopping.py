@@ -65,7 +65,8 @@ def problems():
         L = synthetic_transport(synthetic_rig(n, content_shape=shape, radius=2, seed=seed), scale=1 / n)
         c = 0.02 + 0.9 * srgb_to_linear(sample_image(*shape, channels=1, seed=seed))  # bounds are active
         A, b = sp.csr_matrix(L, dtype=np.float64), c.ravel().astype(np.float64)
-        ref = lsq_linear(A, b, bounds=(0, 1), method="trf", tol=1e-12, lsmr_tol=1e-12, max_iter=1000)
+        # tol 1e-9: the optimum's objective agrees with tol 1e-12's to 2e-10 (relative) in under half the time
+        ref = lsq_linear(A, b, bounds=(0, 1), method="trf", tol=1e-9, lsmr_tol=1e-9, max_iter=1000)
         out.append((TransportOperator(L), c, float(np.sum((A @ ref.x - b) ** 2))))
     return out
 
