@@ -182,27 +182,21 @@ class ContentWarmStart:
         """The ``t`` in [0, 1] that minimises the stacked objective at ``x + t d`` (float64 sums of
         float32 products, in chunks: :func:`~.solver.dot32`).
 
-        ``x``, ``d``: (H, W, C) float32; ``goal``: :meth:`_goal`'s. With ``r = [L; s I] x - goal``
-        and ``e = [L; s I] d`` (``s = sqrt(lam)``), ``t = -<e, r> / <e, e>``, clipped. ``L``'s
-        products go one channel at a time (a single channel is the products' fast path); the
-        ridge rows are pointwise."""
-        m, n = self.op.shape
-        c = x.shape[2]
+        ``x``, ``d``: (H, W, C) float32; ``goal``: :meth:`_goal`'s. With ``A`` the solved operator
+        (``[L; sqrt(lam) I]``), ``r = A x - goal`` and ``e = A d``, ``t = -<e, r> / <e, e>``,
+        clipped. The products go one channel at a time (a single channel is their fast path)."""
+        op = self.problem.op
+        n, c = op.shape[1], x.shape[2]
         x2, d2 = x.reshape(n, c), d.reshape(n, c)
         g2 = np.asarray(goal, np.float32).reshape(-1, c)
-        pool = workers(self.op.threads)
+        pool = workers(op.threads)
         num = den = 0.0
         for ch in range(c):
-            res = self.op.matvec(x2[:, ch], pool=pool)   # L x, then the residual
-            res -= g2[:m, ch]
-            along = self.op.matvec(d2[:, ch], pool=pool)
+            res = op.matvec(x2[:, ch], pool=pool)   # A x, then the residual
+            res -= g2[:, ch]
+            along = op.matvec(d2[:, ch], pool=pool)
             num += dot32(along, res)
             den += dot32(along, along)
-        if self.problem.lam > 0:
-            s = np.float32(math.sqrt(self.problem.lam))
-            tail = s * d2
-            num += dot32(tail, s * x2 - g2[m:])
-            den += dot32(tail, tail)
         return min(max(-num / den, 0.0), 1.0) if den > 0 else 0.0
 
     def __call__(self, target: np.ndarray, content: np.ndarray) -> SolveResult:
