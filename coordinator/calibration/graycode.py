@@ -26,6 +26,8 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from coordinator.channel_mean import channel_mean
+
 
 @dataclass(frozen=True, eq=False)
 class GrayCodeLayout:
@@ -120,7 +122,7 @@ def luminance(image: np.ndarray) -> np.ndarray:
     """(H, W) float32 from (H, W) or (H, W, C) camera images: the channel mean (less noise than one channel)."""
     a = np.asarray(image, np.float32)
     if a.ndim == 3:
-        return a.mean(axis=2, dtype=np.float32)
+        return channel_mean(a)
     if a.ndim != 2:
         raise ValueError(f"a capture must be (H, W) or (H, W, C), got {a.shape}")
     return a

@@ -39,6 +39,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from skimage.metrics import structural_similarity
 
+from coordinator.channel_mean import channel_mean
 from coordinator.compensation.errors import CompensationError
 from coordinator.compensation.psf_tails import smooth_tails
 from coordinator.compensation.texture_space import DeviceView, texels_per_pixel
@@ -337,8 +338,7 @@ def texel_transport_from_captures(captures: Iterable[np.ndarray], black: np.ndar
     black : (Hc, Wc, C) float32
     rows, valid : (W*H, K)
     """
-    b = np.asarray(black, np.float32)
-    b = b.mean(axis=2, dtype=np.float32) if b.ndim == 3 else b
+    b = channel_mean(black)
     camera_shape = b.shape
     if rows.shape != valid.shape or rows.shape[0] != grid.width * grid.height:
         raise ValueError(f"rows {rows.shape} and valid {valid.shape} must be ({grid.width * grid.height}, K)")
@@ -349,8 +349,7 @@ def texel_transport_from_captures(captures: Iterable[np.ndarray], black: np.ndar
     for k, capture in enumerate(captures):
         if k >= len(grid):
             raise ValueError(f"got more than the {len(grid)} captures the dot grid needs")
-        img = np.asarray(capture, np.float32)
-        img = img.mean(axis=2, dtype=np.float32) if img.ndim == 3 else img
+        img = channel_mean(capture)
         if img.shape != camera_shape:
             raise ValueError(f"capture {k} has shape {img.shape}, the black capture {camera_shape}")
         diff = (img - b).reshape(-1)

@@ -35,6 +35,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from coordinator.channel_mean import channel_mean
+
 __all__ = ["MotionWarp", "PRESETS"]
 
 _INTERPOLATIONS = (cv2.INTER_LINEAR, cv2.INTER_CUBIC, cv2.INTER_LANCZOS4)
@@ -117,8 +119,7 @@ class MotionWarp:
 
     @staticmethod
     def _grey(img: np.ndarray) -> np.ndarray:
-        img = np.asarray(img, np.float32)
-        return np.mean(img, axis=2, dtype=np.float32) if img.ndim == 3 else img
+        return channel_mean(img)
 
     def _move(self, field: np.ndarray, where: np.ndarray) -> np.ndarray:
         return cv2.remap(field, where, None, self.interpolation, borderMode=cv2.BORDER_REPLICATE)

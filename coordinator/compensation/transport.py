@@ -27,6 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.calibration.planar import apply_homography
+from coordinator.channel_mean import channel_mean
 from coordinator.compensation.errors import TransportFileError
 from coordinator.store import atomic_file
 
@@ -322,7 +323,7 @@ def _luminance(img: np.ndarray, weights: Sequence[float] | None, what: str) -> n
         raise ValueError(f"{what} must be (H, W) or (H, W, C), got shape {img.shape}")
     c = img.shape[2]
     if weights is None:
-        return img.mean(axis=2, dtype=np.float32)
+        return channel_mean(img)
     w = np.asarray(weights, dtype=np.float32)
     if w.shape != (c,):
         raise ValueError(f"channel_weights must have {c} entries, got {w.shape}")
