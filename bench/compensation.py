@@ -39,10 +39,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from bench import compensation_args as value_types
 from bench.machine import load, machine, streaming_bandwidth
 from coordinator.compensation.quality import quality, side_by_side, srgb_to_linear
 from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve, solve_per_projector
-from coordinator.compensation.stencil import STORAGES
 from coordinator.compensation.synthetic import (
     camera_noise,
     sample_image,
@@ -59,53 +59,15 @@ PAPER_TABLE_1 = {
 }
 
 
-def _size(text: str) -> tuple[int, int] | bool:
-    if text.lower() in ("", "none", "0", "off"):
-        return False  # explicitly skipped (None means: not given, use the default)
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"size must look like 648x486, got {text!r}") from exc
-    if w < 16 or h < 16:
-        raise argparse.ArgumentTypeError(f"size must be at least 16x16, got {text!r}")
-    return w, h
-
-
-def _ints(text: str) -> list[int]:
-    try:
-        vals = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from exc
-    return vals
-
-
-def _sizes(text: str) -> list[tuple[int, int]] | bool:
-    return False if not all(sizes := [_size(t) for t in text.split(",")]) else sizes
-
-
-def _storages(text: str) -> list[str]:
-    vals = [v.strip() for v in text.split(",") if v.strip()]
-    if not vals or any(v not in STORAGES for v in vals):
-        raise argparse.ArgumentTypeError(f"storages are {', '.join(STORAGES)}, got {text!r}")
-    return vals
-
-
-def _range(text: str) -> tuple[float, float]:
-    lo, hi = (float(v) for v in text.split(","))
-    if not 0 <= lo < hi <= 1:
-        raise argparse.ArgumentTypeError("target range must be lo,hi with 0 <= lo < hi <= 1")
-    return lo, hi
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--size", type=_size, default=None, metavar="WxH",
+    parser.add_argument("--size", type=value_types.size, default=None, metavar="WxH",
                         help="camera = content size of the per-N comparison (default 648x486, a quarter of the paper's "
                              "camera; 'none' skips it)")
-    parser.add_argument("--projectors", type=_ints, default=[1, 9, 25], metavar="N,N,...",
+    parser.add_argument("--projectors", type=value_types.ints, default=[1, 9, 25], metavar="N,N,...",
                         help="rig sizes from the 5x5 array, nearest the centre first (default 1,9,25)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic rig and camera noise")
     parser.add_argument("--channels", type=int, choices=(1, 3), default=1, help="1 = luminance, 3 = RGB solved together")
-    parser.add_argument("--target-range", type=_range, default=(0.02, 0.9), metavar="LO,HI",
+    parser.add_argument("--target-range", type=value_types.unit_range, default=(0.02, 0.9), metavar="LO,HI",
                         help="target camera image = LO + (HI-LO) * linear content (default 0.02,0.9)")
     parser.add_argument("--method", choices=("apg", "steepest", "lbfgsb"), default="apg",
                         help="solver used by both ours and the baseline (default apg)")
@@ -116,17 +78,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--read-noise", type=float, default=5e-4, help="camera read noise per frame, fraction of full scale")
     parser.add_argument("--shot-noise", type=float, default=0.01, help="shot noise per frame: std = coef*sqrt(signal) (10k e-)")
     parser.add_argument("--frames", type=int, default=8, help="camera frames averaged per pattern, for both methods")
-    parser.add_argument("--paper-size", type=_size, default=None, metavar="WxH",
+    parser.add_argument("--paper-size", type=value_types.size, default=None, metavar="WxH",
                         help="large single run with 25 projectors (default 2592x1944; 'none' skips)")
     parser.add_argument("--paper-channels", type=int, choices=(1, 3), default=1)
     parser.add_argument("--paper-tol", type=float, default=5e-4, help="stopping tolerance of the large run")
     parser.add_argument("--paper-est-tol", type=float, default=5e-3, help="extrapolated stopping rule of the large run "
                         "(est_tol of coordinator.compensation.stopping; default 0.005, 0: off)")
     parser.add_argument("--paper-reference-seconds", type=float, default=150.0, help="time budget of the large reference")
-    parser.add_argument("--paper-storage", type=_storages, default=["float32", "uint16"], metavar="S,S",
+    parser.add_argument("--paper-storage", type=value_types.storages, default=["float32", "uint16"], metavar="S,S",
                         help="storages of the new solver at the paper size, the first one is 'new' (default float32,uint16)")
     parser.add_argument("--bandwidth-mib", type=int, default=None, help="array of the bandwidth probe (default 512, quick 64)")
-    parser.add_argument("--video-size", type=_sizes, default=None, metavar="WxH[,WxH]", help="video sizes (default 960x540,1920x1080)")
+    parser.add_argument("--video-size", type=value_types.sizes, default=None, metavar="WxH[,WxH]", help="video sizes (default 960x540,1920x1080)")
     parser.add_argument("--video-frames", type=int, default=None, help="frames per clip (default 30; 0 skips the video figure)")
     parser.add_argument("--video-iterations", type=int, default=4, help="APG iterations per warm-started frame (current)")
     parser.add_argument("--video-new-iterations", type=int, default=4,
@@ -137,9 +99,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "along the picture's optical flow (motion, default)")
     parser.add_argument("--video-deadline-ms", type=float, default=None,
                         help="optional per-frame deadline: stop a frame's iterations once it has used this long")
-    parser.add_argument("--sweep-frames", type=_ints, default=None, metavar="F,F,...",
+    parser.add_argument("--sweep-frames", type=value_types.ints, default=None, metavar="F,F,...",
                         help="frames averaged per pattern in the camera-noise sweep (empty skips it)")
-    parser.add_argument("--sweep-size", type=_size, default=(324, 243), metavar="WxH")
+    parser.add_argument("--sweep-size", type=value_types.size, default=(324, 243), metavar="WxH")
     parser.add_argument("--threads", type=int, default=None, help="solver threads (default: up to 2)")
     parser.add_argument("--repeats", type=int, default=None, help="timed repeats of each of our solves (median; default 3)")
     parser.add_argument("--out", type=Path, default=None, help="folder for the side-by-side pictures")
@@ -329,7 +291,11 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
     ``current`` is the CSR storage with the full power iteration for the step bound, as before the
     stencil storage; the others are the stencil storages (fused sweep, step bound stopped as soon as
     the Schur bound is known to win; the same value). ``cpu_seconds_per_iteration``: the process's
-    CPU time (all threads) per iteration, which a loaded machine inflates far less than wall time."""
+    CPU time (all threads) per iteration, which a loaded machine inflates far less than wall time.
+    ``bandwidth_fraction`` counts the whole solve, its start (the deconvolved target, the first
+    product) included; ``loop_seconds_per_iteration`` and ``loop_bandwidth_fraction`` the iterations
+    alone, from the end of the first to the end of the last (``start_seconds``: the solve's time
+    before its first iteration)."""
     gc.collect()
     load0 = os.getloadavg()[0]
     t = time.perf_counter()
@@ -338,11 +304,14 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
     t = time.perf_counter()
     op.lipschitz(early_exit=storage != "csr")
     lip_s, cpu = time.perf_counter() - t, time.process_time()
-    res = solve(op, target, threads=args.threads, **opts)
+    ends: list[float] = []   # when each iteration ended
+    t = time.perf_counter()
+    res = solve(op, target, threads=args.threads, progress=lambda k, f: ends.append(time.perf_counter()), **opts)
     cpu = time.process_time() - cpu
     # what the iterations moved through memory against the machine's bandwidth
     bpi = op.bytes_per_iteration(target.shape[-1] if target.ndim == 3 else 1)
     rate = bpi * res.iterations / res.seconds if res.seconds > 0 and res.iterations else 0.0
+    loop = (ends[-1] - ends[0]) / (len(ends) - 1) if len(ends) > 1 else None
     stats = {"prepare_seconds": round(prep, 3), "lipschitz_seconds": round(lip_s, 3),
              "solve_seconds": round(res.seconds, 3), "total_seconds": round(prep + lip_s + res.seconds, 3),
              "seconds_per_iteration": round(res.seconds / max(res.iterations, 1), 4), "reason": res.reason,
@@ -351,6 +320,9 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
              "iterations": res.iterations, "bytes_per_iteration": bpi, "storage_mib": round(op.storage_bytes / 2**20, 1),
              "gb_per_s_moved": round(rate / 1e9, 2), "bandwidth_fraction": float(f"{rate / (bandwidth * 1e9):.3g}"),  # small runs: not rounded to 0
              "load": [round(load0, 2), round(os.getloadavg()[0], 2)]}
+    if loop is not None and loop > 0:
+        stats.update(start_seconds=round(max(ends[0] - t - loop, 0.0), 4), loop_seconds_per_iteration=round(loop, 5),
+                     loop_bandwidth_fraction=float(f"{bpi / loop / (bandwidth * 1e9):.3g}"))
     return stats, res, op
 
 
@@ -371,7 +343,8 @@ def _paper_size(args: argparse.Namespace) -> dict[str, Any]:
         x0 = {"x0": np.clip(target, 0, 1)} if name == "new_target_start" else {}  # the start before stencil_start.py
         impls[name], results[name], op = _solve_timed(L, target, args, storage, bw["gb_per_s"], **opts, **x0)
         _log(f"{w}x{h} {name} ({storage}): {impls[name]['total_seconds']} s, {impls[name]['iterations']} it, "
-             f"load {impls[name]['load']}")
+             f"bandwidth fraction {impls[name]['bandwidth_fraction']} (the iterations alone "
+             f"{impls[name].get('loop_bandwidth_fraction')}), load {impls[name]['load']}")
         best_op = op if name == "new" else best_op
         del op
     bw_after = streaming_bandwidth(mib=args.bandwidth_mib)

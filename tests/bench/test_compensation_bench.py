@@ -41,6 +41,11 @@ def test_current_and_new_side_by_side(capsys):
     for s in (cur, new, u16, plain):
         assert 0 <= s["relative_gap_to_reference"] <= 0.01
         assert s["bandwidth_fraction"] > 0 and s["solver_peak_memory_mib"] > 0
+        # the iterations alone, and the solve's time before the first of them (a part of the solve's)
+        assert s["loop_seconds_per_iteration"] > 0 and 0 <= s["start_seconds"] <= s["solve_seconds"] + 1e-3
+        assert s["loop_bandwidth_fraction"] == pytest.approx(
+            s["bytes_per_iteration"] / s["loop_seconds_per_iteration"] / (p["streaming_bandwidth"]["before"]["gb_per_s"] * 1e9),
+            rel=0.01)
     # 25 float32 weights (once per iteration) against 2 x 25 x (value + index) bytes per pixel
     assert u16["bytes_per_iteration"] < new["bytes_per_iteration"] < cur["bytes_per_iteration"] / 2
     assert p["new_over_current"]["bytes_per_iteration"] == pytest.approx(
