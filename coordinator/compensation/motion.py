@@ -110,16 +110,17 @@ class MotionWarp:
         f = small_flow * np.float32(self.scale)  # scaled while small: a quarter of the pixels
         return cv2.resize(f, (w, h), interpolation=cv2.INTER_LINEAR)
 
+    def _estimate(self, prev: np.ndarray,
+                  new: np.ndarray) -> tuple[tuple[int, int], np.ndarray, np.ndarray, np.ndarray | None]:
+        """The pictures' full size ``(H, W)``, their grey small versions (``prev``'s, ``new``'s) and the
+        small flow between them (:meth:`_small_flow`; colour pictures by their channel mean)."""
+        small_prev, small_new = self._shrink(channel_mean(prev)), self._shrink(channel_mean(new))
+        return np.shape(new)[:2], small_prev, small_new, self._small_flow(small_prev, small_new)
+
     def flow(self, prev: np.ndarray, new: np.ndarray) -> np.ndarray:
         """(H, W, 2) float32: for each pixel of ``new``, the offset to where it was in ``prev``."""
-        a, b = self._grey(prev), self._grey(new)
-        h, w = b.shape
-        small = self._small_flow(self._shrink(a), self._shrink(b))
+        (h, w), _, _, small = self._estimate(prev, new)
         return np.zeros((h, w, 2), dtype=np.float32) if small is None else self._full(small, h, w)
-
-    @staticmethod
-    def _grey(img: np.ndarray) -> np.ndarray:
-        return channel_mean(img)
 
     def _move(self, field: np.ndarray, where: np.ndarray) -> np.ndarray:
         return cv2.remap(field, where, None, self.interpolation, borderMode=cv2.BORDER_REPLICATE)
@@ -143,12 +144,9 @@ class MotionWarp:
         new array of ``field``'s shape, float32.
         """
         field = np.asarray(field, np.float32)
-        a, b = self._grey(prev), self._grey(new)
-        h, w = b.shape
+        (h, w), small_prev, small_new, small = self._estimate(prev, new)
         if field.shape[:2] != (h, w):
-            raise ValueError(f"field {field.shape} and pictures {b.shape} differ in size")
-        small_prev, small_new = self._shrink(a), self._shrink(b)
-        small = self._small_flow(small_prev, small_new)
+            raise ValueError(f"field {field.shape} and pictures {(h, w)} differ in size")
         out = field.copy()
         if small is None:
             return out

@@ -248,7 +248,7 @@ class _FrameOptions:
                          help="which calibrated camera L was measured with")
     motion: str = option("fast", choices=MOTION_FLOWS, metavar="FLOW", group=VIDEO,
                          help="follow the picture's motion: each frame may start from the previous correction moved "
-                              "along the content's optical flow, as far as that lowers the objective (the blur's part "
+                              "along the content's optical flow, as far as that lowers the start's objective (the blur's part "
                               "moves, the rig's pixel pattern stays); FLOW is the DIS preset (ultrafast, fast, medium: "
                               "more accurate and slower in that order). off: the correction stays in place, and on a "
                               "blurred rig a pan ends about 2.5 dB short of converged at 4 iterations (fast: within "

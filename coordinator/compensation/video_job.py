@@ -5,7 +5,7 @@ or id prefix. Its frames are decoded on the coordinator (:class:`~.video_io.Asse
 resized to the rig's content size and solved one after the other, each warm-started from the
 previous one (:class:`~.frames.FrameSolver`, as ``compensate_sequence``: ``first_iterations``
 for the first frame, ``iterations`` for each later one; ``motion`` moves the previous correction
-along the content's optical flow as far as that lowers the objective,
+along the content's optical flow as far as that lowers the start's objective,
 :class:`~.ridge.ContentWarmStart`). The compensated frames (``(H, W, C)``
 uint16, ``rint(65535 x)``) are written as they come into lossless 16-bit FFV1 segments
 (:class:`~.video_io.Ffv1Writer`), joined at the end into one Matroska file at the source's exact
