@@ -321,7 +321,7 @@ def _solve_timed(L, target, args, storage: str, bandwidth: float, **opts) -> tup
              "gb_per_s_moved": round(rate / 1e9, 2), "bandwidth_fraction": float(f"{rate / (bandwidth * 1e9):.3g}"),  # small runs: not rounded to 0
              "load": [round(load0, 2), round(os.getloadavg()[0], 2)]}
     if loop is not None and loop > 0:
-        stats.update(start_seconds=round(max(ends[0] - t - loop, 0.0), 4), loop_seconds_per_iteration=round(loop, 5),
+        stats.update(start_seconds=round(max(ends[0] - t - loop, 0.0), 4), loop_seconds_per_iteration=float(f"{loop:.4g}"),  # small runs: 4 figures, not 5 decimals
                      loop_bandwidth_fraction=float(f"{bpi / loop / (bandwidth * 1e9):.3g}"))
     return stats, res, op
 
