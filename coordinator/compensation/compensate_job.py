@@ -19,6 +19,7 @@ camera would see it on a blur-free rig
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -34,7 +35,7 @@ from coordinator.compensation.geometry import (
 from coordinator.compensation.image_param import load_image_param, prepare_image
 from coordinator.compensation.jobkit import content_size, rounded, surface_of, throttled
 from coordinator.compensation.mesh_compensate import run_mesh_compensate
-from coordinator.compensation.options import CompensateOptions
+from coordinator.compensation.options import MESH_REGULARIZATION, REGULARIZATION, CompensateOptions
 from coordinator.compensation.quality import quality, side_by_side
 from coordinator.compensation.ridge import RidgeProblem, best_scale
 from coordinator.compensation.solver import SolveResult, solve
@@ -87,7 +88,10 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
     slots = ctx.select_slots(opts.slots, need_pose=True)
-    if surface_of(ctx, slots) == "mesh":
+    mesh = surface_of(ctx, slots) == "mesh"
+    if opts.regularization is None:
+        opts = replace(opts, regularization=MESH_REGULARIZATION if mesh else REGULARIZATION)
+    if mesh:
         return await run_mesh_compensate(ctx, opts, slots, image, name, t0, shown_as=f"{COMPENSATED_PREFIX}{name}")
     if opts.camera_indices is not None:
         raise JobError("camera_indices (several cameras measuring L together) is for a mesh rig; a table's L is "

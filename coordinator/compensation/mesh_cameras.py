@@ -12,10 +12,9 @@ image is theirs stacked top to bottom:
   (:func:`stacked_windows`: the windows of :func:`~coordinator.compensation.mesh_geometry.texel_windows`
   placed in the stacked image), so the rows of the cameras that do not see it are empty, and its
   column in camera ``k``'s rows is what camera ``k`` alone would measure;
-* in the solve every camera pixel's residual weighs ``cos`` times the texture area it covers
-  (:func:`~coordinator.compensation.mesh_geometry.row_weights`, one divisor for all cameras, so
-  the pixels over one texel weigh about its ``cos`` in each camera whatever the camera's
-  distance or resolution), times its texel's **share** of that camera (:func:`camera_shares`).
+* in the solve every camera pixel's residual weighs ``cos``, how squarely that camera sees the
+  surface there (:func:`~coordinator.compensation.mesh_geometry.row_weights`, one divisor for all
+  cameras), times its texel's **share** of that camera (:func:`camera_shares`).
 
 Why shares and not the best camera alone: every camera's rows are a real measurement of the same
 light, and each adds samples (where the cameras agree, the noise of the combined residual falls);
@@ -139,7 +138,7 @@ def stacked_row_weights(cams: MeshCameras, L: sp.spmatrix, *, radius: int, min_c
 
     Per camera :func:`~coordinator.compensation.mesh_geometry.row_weights` with that camera's
     measured texels (its rows of ``L``), times the share of the texel each pixel sees
-    (:func:`camera_shares`); one divisor for all: the median of ``cos`` x area over the pixels used.
+    (:func:`camera_shares`); one divisor for all: the median of ``cos`` over the pixels used.
     One camera: exactly its :func:`row_weights`.
     """
     blocks = camera_blocks(L, len(cams.parts))

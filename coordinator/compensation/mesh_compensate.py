@@ -2,8 +2,8 @@
 
 ``p' = argmin ||W^1/2 (L p - c')||^2 + lam ||p - p0||^2, 0 <= p <= 1`` over the texels ``L``
 measured (:mod:`coordinator.compensation.mesh_transport`); ``W`` weighs each camera pixel by the
-cosine of its viewing angle and the texture area it covers
-(:func:`~coordinator.compensation.mesh_geometry.row_weights`); with several cameras the rows are all
+cosine of its viewing angle (:func:`~coordinator.compensation.mesh_geometry.row_weights`: per pixel,
+as the captures are scored); with several cameras the rows are all
 their pixels, each also weighed by its texel's share of that camera
 (:mod:`coordinator.compensation.mesh_cameras`). Texels no camera sees (or that
 could not be measured) stay uncompensated: they keep ``p0``, the content at the level of the
@@ -159,8 +159,8 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
         "texture": {**tex, "compensated": int(solved.sum()), "uncompensated": on - int(solved[cams.on_mesh].sum()),
                     "uncompensated_share": rounded(1 - solved[cams.on_mesh].sum() / on if on else 1.0, 4),
                     "note": "texels no camera sees well stay uncompensated (the content at the none level)"},
-        "weights": "cos(viewing angle) x texture area per camera pixel (x its texel's share of the camera, with "
-                   "several), median 1; 0 off the visible surface",
+        "weights": "cos(viewing angle) per camera pixel (x its texel's share of the camera, with several), "
+                   "median 1; 0 off the visible surface",
         "saturated_fraction": {"low": round(float(np.mean(x[solved.reshape(ch, cw)] <= 1e-4)), 5),
                                "high": round(float(np.mean(x[solved.reshape(ch, cw)] >= 1 - 1e-4)), 5)},
     }

@@ -21,11 +21,12 @@ camera does not see it. Here:
   more camera pixels than the window holds) are left out too: their light would be cut;
 * the recovery from the captures (:func:`texel_transport_from_captures`);
 * the PSF radius's scales (:func:`view_scales`) and the solve's row weights
-  (:func:`row_weights`): a camera pixel's squared residual weighs ``cos(theta)`` times the
-  texture area it covers (in texels), normalised to a median of 1, so the pixels over one texel
-  weigh about ``cos(theta)`` together whatever the camera's resolution and distance; pixels off
-  the mesh, seen at grazing angles (``cos < min_cos``), within the window radius of a silhouette
-  or of a seen texel missing from ``L``, or over a texel missing from ``L`` weigh 0;
+  (:func:`row_weights`): a camera pixel's squared residual weighs ``cos(theta)``, how squarely
+  the camera sees the surface there, normalised to a median of 1; pixels off the mesh, seen at
+  grazing angles (``cos < min_cos``), within the window radius of a silhouette or of a seen
+  texel missing from ``L``, or over a texel missing from ``L`` weigh 0. The weight is per
+  camera pixel, as the captured quality is scored: a texel the camera magnifies counts with all
+  its pixels, since the blur's error inside it is what the camera (and a viewer near it) sees;
 * quality over a mask (:func:`masked_quality`): PSNR and SSIM over the visible surface only.
 """
 from __future__ import annotations
@@ -389,14 +390,14 @@ def view_scales(camera: DeviceView, projectors: Sequence[DeviceView]) -> tuple[f
 def row_weights(view: DeviceView, measured: np.ndarray, content_size: tuple[int, int], *, radius: int,
                 min_cos: float = 0.25, unmeasured_at: np.ndarray | None = None, normalise: bool = True) -> np.ndarray:
     """The weight of each camera pixel's squared residual in the solve: ``(Hc, Wc) float32`` (see the module
-    docstring), 0 outside the visible surface the solve uses; ``normalise=False``: ``cos`` times the texture
-    area, not divided by its median (cameras combined share one divisor).
+    docstring), 0 outside the visible surface the solve uses; ``normalise=False``: ``cos``, not divided by
+    its median (cameras combined share one divisor).
 
     ``measured``: (W*H,) bool texels with a column in ``L``. A pixel counts when it sees the mesh
     at ``cos >= min_cos`` more than ``radius`` px from the outline of that region (light from the
     texels beyond it, unmeasured, reaches that far), its nearest texel is measured, and no texel
     of ``unmeasured_at`` ((m, 2) camera positions of texels the camera sees but ``L`` lacks) lies
-    within ``radius`` px (Chebyshev).
+    within ``radius`` px (Chebyshev), and the texture area it covers is defined (none across a uv seam).
     """
     cw, ch = content_size
     good = view.on_mesh & (view.cos >= min_cos)
@@ -419,8 +420,7 @@ def row_weights(view: DeviceView, measured: np.ndarray, content_size: tuple[int,
     if not good.any():
         raise CompensationError("no camera pixel sees the measured surface well: check the camera's pose and the "
                                 "light-transport measurement")
-    a = np.minimum(area[good], 4 * float(np.median(area[good])))     # uv seams make the differences jump
-    raw = view.cos[good] * a
+    raw = view.cos[good].astype(np.float32)
     w[good] = raw / np.float32(np.median(raw)) if normalise else raw
     return w
 

@@ -13,6 +13,7 @@ from coordinator.compensation.mesh_geometry import (
     TexelGrid,
     dot_conflicts,
     masked_quality,
+    row_weights,
     texel_extent,
     texel_transport_from_captures,
     texel_windows,
@@ -22,6 +23,7 @@ from coordinator.compensation.texture_space import (
     content_at_view,
     mesh_warp,
     texel_camera_map,
+    texels_per_pixel,
 )
 
 CONTENT = (64, 48)
@@ -175,3 +177,34 @@ def test_masked_scores_are_scikit_images_over_the_mask():
     assert part["psnr"] == pytest.approx(10 * np.log10(1 / np.mean((t[mask] - c[mask]) ** 2)), abs=1e-3)
     assert part["pixels"] == mask.sum()
 
+
+
+def test_row_weights_are_the_cosine_of_each_usable_pixel(maps):
+    """Brute force: a pixel weighs its cosine over the median of the pixels used, whatever texture area it covers;
+    used are the pixels whose every neighbour within the radius sees the mesh at cos >= 0.25, over a measured
+    texel, away from the seen texels L lacks, and not across a uv seam."""
+    view, _, _ = maps
+    radius, cw, ch = 2, CONTENT[0], CONTENT[1]
+    measured = np.ones(cw * ch, bool)
+    measured[np.random.default_rng(7).choice(cw * ch, 60, replace=False)] = False
+    missing_at = np.array([[40.0, 30.0]])
+    w = row_weights(view, measured, CONTENT, radius=radius, unmeasured_at=missing_at)
+    hc, wc = view.shape
+    ok = view.on_mesh & (view.cos >= 0.25)
+    area = texels_per_pixel(view)
+    used = np.zeros((hc, wc), bool)
+    for y in range(hc):
+        for x in range(wc):
+            y0, y1, x0, x1 = y - radius, y + radius + 1, x - radius, x + radius + 1
+            if y0 < 0 or x0 < 0 or y1 > hc or x1 > wc or not ok[y0:y1, x0:x1].all():
+                continue
+            tx, ty = int(np.rint(view.x[y, x])), int(np.rint(view.y[y, x]))
+            if not (0 <= tx < cw and 0 <= ty < ch and measured[ty * cw + tx]):
+                continue
+            if max(abs(x - 40), abs(y - 30)) <= radius or not (np.isfinite(area[y, x]) and area[y, x] > 0):
+                continue
+            used[y, x] = True
+    assert used.sum() > 500 and np.array_equal(w > 0, used)
+    np.testing.assert_allclose(w[used], view.cos[used] / np.median(view.cos[used]), rtol=1e-5)
+    # the camera magnifies some texels far more than others; their pixels still weigh their cosine alone
+    assert np.percentile(area[used], 90) > 2 * np.percentile(area[used], 10)
