@@ -207,11 +207,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "surface of none / baseline / ours. One JSON document."
     )
     parser.epilog = ("examples:\n  shadowless bench compensation_bust --quick\n"
+                     "  shadowless bench compensation_bust --quick --baseline   # ours against the baseline, 4 projectors\n"
                      "  shadowless bench compensation_bust --quick --cameras 3   # three cameras vs the ceiling one\n"
                      "  shadowless bench compensation_bust --content-size 128x96 --out /tmp/bust\n"
                      "  shadowless bench compensation_bust --calibrate   # 3D calibration first (slow)")
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument("--quick", action="store_true", help="4 projectors and 1, no baseline: a smoke run")
+    parser.add_argument("--quick", action="store_true",
+                        help="4 projectors and 1, no baseline unless --baseline: a smoke run (a few minutes)")
     parser.add_argument("--projector-scale", type=float, default=0.5, help="room projector resolution (default 0.5)")
     parser.add_argument("--camera-scale", type=float, default=0.25, help="room camera resolution (default 0.25)")
     parser.add_argument("--content-size", type=cli_types.size, default=None, metavar="WxH",
@@ -223,7 +225,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=1, help="captures averaged per dot pattern (default 1)")
     parser.add_argument("--baseline-frames", type=int, default=None,
                         help="captures averaged per dot pattern of the baseline's L_i (default: --frames)")
-    parser.add_argument("--no-baseline", action="store_true", help="skip the per-projector baseline")
+    parser.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=None,
+                        help="the per-projector baseline (and, with one camera, the oracle) beside ours (default: on, "
+                             "off with --quick)")
     parser.add_argument("--cameras", type=int, choices=(1, 3), default=1,
                         help="the room's cameras that measure together: 1 (the ceiling camera) or 3 (plus two around "
                              "the bust; the ceiling camera alone is compared, scored from all three)")
@@ -341,7 +345,7 @@ def run(args: argparse.Namespace) -> int:
     if args.content_size is None:
         args.content_size = texture_size_for(room)
     big = ["r1c1", "r1c3", "r3c1", "r3c3"] if args.quick else list(SUBSETS["P25"])
-    baseline = not (args.no_baseline or args.quick)
+    baseline = (not args.quick) if args.baseline is None else args.baseline
     doc: dict = {"benchmark": "compensation_bust", "machine": machine(),
                  "parameters": {**{k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
                                    if not k.startswith("_") and k not in ("command", "bench")},

@@ -178,7 +178,6 @@ def test_masked_scores_are_scikit_images_over_the_mask():
     assert part["pixels"] == mask.sum()
 
 
-
 def test_row_weights_are_the_cosine_of_each_usable_pixel(maps):
     """Brute force: a pixel weighs its cosine over the median of the pixels used, whatever texture area it covers;
     used are the pixels whose every neighbour within the radius sees the mesh at cos >= 0.25, over a measured
