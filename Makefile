@@ -6,9 +6,9 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PROTOS := $(wildcard protos/*.proto)
 
-.PHONY: demo test setup protos check-protos system-deps clean
+.PHONY: demo test setup protos kernels check-protos system-deps clean
 
-setup: $(STAMP) protos
+setup: $(STAMP) protos kernels
 
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -21,6 +21,11 @@ protos: $(STAMP) protos/.generated
 protos/.generated: $(PROTOS) protos/generate.py
 	$(PY) protos/generate.py
 	@touch $@
+
+# The solver's compiled loops go into Numba's cache now, not on the first solve: about 40 s once
+# after an install or a change to them, a second when the cache is current.
+kernels: $(STAMP)
+	@$(PY) -m coordinator.compensation.precompile
 
 # Debian packages the tests need, installed when missing (as root, through apt-get; CI runs as
 # root): $(call need,CHECK,PACKAGES,WHAT NEEDS THEM).

@@ -18,9 +18,10 @@ def run_bench(capsys, argv):
     return json.loads(capsys.readouterr().out)
 
 
-def test_streaming_bandwidth_measures_a_copy():
+def test_streaming_bandwidth_measures_a_copy_and_a_read():
     bw = streaming_bandwidth(mib=64, threads=2, repeats=3)
     assert 0 < bw["gb_per_s_median"] <= bw["gb_per_s"] and bw["threads"] == 2 and len(bw["load"]) == 3
+    assert bw["read_gb_per_s"] > 0 and bw["read_over_copy"] == pytest.approx(bw["read_gb_per_s"] / bw["gb_per_s"], rel=0.01)
 
 
 def test_current_and_new_side_by_side(capsys):
@@ -51,6 +52,9 @@ def test_current_and_new_side_by_side(capsys):
     assert p["new_over_current"]["bytes_per_iteration"] == pytest.approx(
         new["bytes_per_iteration"] / cur["bytes_per_iteration"], abs=1e-3)
     assert p["streaming_bandwidth"]["before"]["gb_per_s"] > 0
+    frac = doc["targets"]["paper_size_bandwidth_fraction"]
+    assert frac["iterations_alone"] == new["loop_bandwidth_fraction"]
+    assert frac["read_only_ceiling"] == p["streaming_bandwidth"]["before"]["read_over_copy"] > 0
     v = doc["video"]
     assert v["iterations_per_frame"] == {"current": 4, "new": 6}
     for clip in ("pan", "overlay"):
