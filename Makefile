@@ -51,8 +51,10 @@ system-deps:
 demo: setup
 	$(VENV)/bin/shadowless demo --out results/demo
 
+# Two workers (pytest-xdist), a test module's tests on one of them (module-scoped rigs are set up
+# once); each worker's rigs advertise an mDNS service of their own, so neither sees the other's.
 test: setup system-deps
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

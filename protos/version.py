@@ -1,4 +1,5 @@
 """Wire protocol version. Every Hello/Join carries it; a mismatch is refused."""
+import os
 
 #: 2: frame contents may be packed ENCODING_ZSTD_GRADIENT and sequences travel as live video
 #: (FramePacket.video), which a version-1 node could not show.
@@ -7,8 +8,10 @@
 #: accepts small messages only (MAX_REQUEST_BYTES); Stop can black out; fit modes.
 PROTOCOL_VERSION = 4
 
-#: mDNS service type the coordinator advertises.
-SERVICE_TYPE = "_shadowless._tcp.local."
+#: mDNS service type the coordinator advertises. ``SHADOWLESS_MDNS_SERVICE`` (e.g. ``_shadowless-t1``)
+#: gives rigs that must not see each other on one network, such as test sessions run side by
+#: side, a service of their own.
+SERVICE_TYPE = os.environ.get("SHADOWLESS_MDNS_SERVICE", "_shadowless") + "._tcp.local."
 
 #: gRPC metadata key that carries the session id after the handshake.
 SESSION_KEY = "x-shadowless-session"

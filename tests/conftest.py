@@ -17,9 +17,11 @@ from pathlib import Path
 
 import pytest
 
-from shadowless.netns import available as venue_available
-
 os.environ.setdefault("SHADOWLESS_TEST", "1")
+if os.environ.get("PYTEST_XDIST_WORKER"):  # workers side by side: rigs of one never seen by the other
+    os.environ["SHADOWLESS_MDNS_SERVICE"] = "_shadowless-" + os.environ["PYTEST_XDIST_WORKER"]
+
+from shadowless.netns import available as venue_available  # noqa: E402 - after the environment above
 
 
 def child_pids(root: int | None = None, *, exclude: set[int] = frozenset()) -> set[int]:
@@ -139,7 +141,10 @@ def no_leaks(request):
 def pytest_configure(config):
     global _SESSION_TMP
     config.addinivalue_line("markers", "allow_leaks: a module-scoped rig fixture owns processes across tests")
-    _SESSION_TMP = Path(tempfile.mkdtemp(prefix="shadowless-tests-"))
+    # beside, not inside, another session's directory: pytest-xdist's workers inherit the TMPDIR set
+    # below, and Chromium refuses a socket path longer than 107 bytes
+    base = os.environ.setdefault("SHADOWLESS_TESTS_BASE_TMP", tempfile.gettempdir())
+    _SESSION_TMP = Path(tempfile.mkdtemp(prefix="shadowless-tests-", dir=base))
     os.environ["TMPDIR"] = str(_SESSION_TMP)
     tempfile.tempdir = str(_SESSION_TMP)
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from protos.version import SERVICE_TYPE
 from shadowless import netns
 from shadowless.netns import namespaces as netns_names
 from shadowless.netns import (
@@ -363,7 +364,7 @@ def test_rig_of_three_nodes_on_a_gigabit_venue(ns, tmp_path):
         for n in st["nodes"]:
             assert n["shown"] > 0 and n["last_swap_frame"], n
         log = rig.log("coordinator")
-        assert f"advertising {rig.rig_name}._shadowless._tcp.local. on 10.77.0.1" in log
+        assert f"advertising {rig.rig_name}.{SERVICE_TYPE} on 10.77.0.1" in log
         for s in slots:     # each node came over its own link of the bridge
             assert f"node {s} joined from ipv4:{v.address(s)}:" in log, log[-2000:]
     assert netns_names() == ns_before
