@@ -6,28 +6,26 @@ from __future__ import annotations
 import argparse
 
 from coordinator.compensation.stencil import STORAGES
+from protos import cli_types
 
 __all__ = ["ints", "size", "sizes", "storages", "unit_range"]
 
 
 def size(text: str) -> tuple[int, int] | bool:
+    """A size WxH of at least 16x16 (:func:`protos.cli_types.size`), or False for 'none', 'off', '0' or
+    nothing: that part of the bench is skipped (None means not given: its default)."""
     if text.lower() in ("", "none", "0", "off"):
-        return False  # explicitly skipped (None means: not given, use the default)
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"size must look like 648x486, got {text!r}") from exc
+        return False
+    w, h = cli_types.size(text)
     if w < 16 or h < 16:
         raise argparse.ArgumentTypeError(f"size must be at least 16x16, got {text!r}")
     return w, h
 
 
 def ints(text: str) -> list[int]:
-    try:
-        vals = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from exc
-    return vals
+    """Whole numbers of at least 1 joined by commas (:func:`protos.cli_types.int_list`); an empty list
+    skips that part of the bench."""
+    return cli_types.int_list(1)(text) if text.strip() else []
 
 
 def sizes(text: str) -> list[tuple[int, int]] | bool:

@@ -1,5 +1,6 @@
 """Wire protocol version. Every Hello/Join carries it; a mismatch is refused."""
 import os
+import re
 
 #: 2: frame contents may be packed ENCODING_ZSTD_GRADIENT and sequences travel as live video
 #: (FramePacket.video), which a version-1 node could not show.
@@ -8,10 +9,26 @@ import os
 #: accepts small messages only (MAX_REQUEST_BYTES); Stop can black out; fit modes.
 PROTOCOL_VERSION = 4
 
-#: mDNS service type the coordinator advertises. ``SHADOWLESS_MDNS_SERVICE`` (e.g. ``_shadowless-t1``)
+
+def _service_type() -> str:
+    """``_NAME._tcp.local.`` with ``_NAME`` from ``SHADOWLESS_MDNS_SERVICE`` (default ``_shadowless``).
+
+    NAME follows RFC 6763's service names: 1 to 15 letters, digits and single hyphens, starting and
+    ending with a letter or digit. A process started with another value stops at once with one line
+    naming it (every program of the rig reads this on start), not at its first advertisement.
+    """
+    name = os.environ.get("SHADOWLESS_MDNS_SERVICE", "_shadowless")
+    if not re.fullmatch(r"_(?=.*[A-Za-z])(?!.*--)[A-Za-z0-9](?:[A-Za-z0-9-]{0,13}[A-Za-z0-9])?", name):
+        raise SystemExit(f"SHADOWLESS_MDNS_SERVICE={name!r} is not an mDNS service name: '_' and then 1 to 15 "
+                         "letters, digits or single hyphens, starting and ending with a letter or digit "
+                         "(e.g. _shadowless-b)")
+    return name + "._tcp.local."
+
+
+#: mDNS service type the coordinator advertises. ``SHADOWLESS_MDNS_SERVICE`` (e.g. ``_shadowless-b``)
 #: gives rigs that must not see each other on one network, such as test sessions run side by
 #: side, a service of their own.
-SERVICE_TYPE = os.environ.get("SHADOWLESS_MDNS_SERVICE", "_shadowless") + "._tcp.local."
+SERVICE_TYPE = _service_type()
 
 #: gRPC metadata key that carries the session id after the handshake.
 SESSION_KEY = "x-shadowless-session"
