@@ -99,17 +99,32 @@ class Window:
     def __init__(self, coord_pid: int, swarm_pid: int, stats_file: Path):
         self.pids, self.stats_file = (coord_pid, swarm_pid), stats_file
 
+    def _fresh_stats(self, timeout: float = 10.0) -> dict:
+        """The swarm's counters as it next writes them (about every second; a busy machine delays
+        it): read at once, a window shorter than the writes' spacing could see one write at both
+        ends and count nothing. After ``timeout`` s without a write, what the file holds."""
+        since = time.time()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                if self.stats_file.stat().st_mtime > since and (doc := read_stats(self.stats_file)):
+                    return doc
+            except OSError:
+                pass
+            time.sleep(0.02)
+        return read_stats(self.stats_file)
+
     def __enter__(self) -> Window:
+        self.s0 = self._fresh_stats()
         self.t0 = time.monotonic()
         self.cpu0 = [proc_cpu_s(p) for p in self.pids]
-        self.s0 = read_stats(self.stats_file)
         return self
 
     def __exit__(self, *exc) -> None:
+        s1 = self._fresh_stats()
         self.wall = time.monotonic() - self.t0
         cpu1 = [proc_cpu_s(p) for p in self.pids]
         self.coord_cpu, self.swarm_cpu = (b - a for a, b in zip(self.cpu0, cpu1))
-        s1 = read_stats(self.stats_file)
         self.swaps = s1.get("swaps", 0) - self.s0.get("swaps", 0)
         self.late = s1.get("woke_late", 0) - self.s0.get("woke_late", 0)
         self.arrived_late = s1.get("arrived_late", 0) - self.s0.get("arrived_late", 0)
