@@ -11,13 +11,13 @@ PROTOCOL_VERSION = 4
 
 
 def _service_type() -> str:
-    """``_NAME._tcp.local.`` with ``_NAME`` from ``SHADOWLESS_MDNS_SERVICE`` (default ``_shadowless``).
+    """``_NAME._tcp.local.`` with ``_NAME`` from ``SHADOWLESS_MDNS_SERVICE`` (unset or empty: ``_shadowless``).
 
     NAME follows RFC 6763's service names: 1 to 15 letters, digits and single hyphens, starting and
     ending with a letter or digit. A process started with another value stops at once with one line
     naming it (every program of the rig reads this on start), not at its first advertisement.
     """
-    name = os.environ.get("SHADOWLESS_MDNS_SERVICE", "_shadowless")
+    name = os.environ.get("SHADOWLESS_MDNS_SERVICE") or "_shadowless"  # set but empty: the default
     if not re.fullmatch(r"_(?=.*[A-Za-z])(?!.*--)[A-Za-z0-9](?:[A-Za-z0-9-]{0,13}[A-Za-z0-9])?", name):
         raise SystemExit(f"SHADOWLESS_MDNS_SERVICE={name!r} is not an mDNS service name: '_' and then 1 to 15 "
                          "letters, digits or single hyphens, starting and ending with a letter or digit "

@@ -19,7 +19,7 @@ from protos.discovery import Discovery
 from shadowless.local import LocalRig
 
 NAMES = ["_a", "_1", "_a1", "_-a", "_a-", "_a--b", "_a-b", "_" + "a" * 15, "_" + "a" * 16, "_abc_d", "_ABC",
-         "_shadowless-gw0", "a", "__a", ""]
+         "_shadowless-gw0", "a", "__a"]
 
 
 @pytest.fixture
@@ -43,6 +43,11 @@ def test_accepted_names_are_what_zeroconf_accepts(name, monkeypatch, reload_vers
     else:
         with pytest.raises(SystemExit, match="is not an mDNS service name"):
             reload_version()
+
+
+def test_an_empty_value_is_the_default(monkeypatch, reload_version):
+    monkeypatch.setenv("SHADOWLESS_MDNS_SERVICE", "")
+    assert reload_version().SERVICE_TYPE == "_shadowless._tcp.local."
 
 
 def test_a_wrong_value_is_one_line_before_anything_runs():
