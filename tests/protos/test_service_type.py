@@ -11,8 +11,7 @@ import sys
 import time
 
 import pytest
-from zeroconf import BadTypeInNameException
-from zeroconf._utils.name import service_type_name
+from zeroconf import BadTypeInNameException, service_type_name
 
 import protos.version
 from protos.discovery import Discovery
