@@ -13,8 +13,12 @@ and the security headers every response carries.
 * ``POST /api/stop``, ``/api/blackout``, ``/api/identify``, ``/api/gain``, ``/api/show``, ``/api/play``,
   ``/api/job`` (start one) and ``/api/job/cancel``.
 
-Every POST must come from the console's own origin (``Origin`` header) and, but the login,
-carry the session's CSRF token in ``X-CSRF-Token``; everything under ``/api/`` needs a session.
+Every request must name the console in its ``Host`` header (an address it listens on, or an
+allowed name: :mod:`coordinator.console.hosts`), else it is answered 421 (a DNS-rebinding page
+names its own). Every POST must come from the console's own origin (``Origin`` header equal to
+this scheme and Host) and, but the login, carry the session's CSRF token in ``X-CSRF-Token``;
+everything under ``/api/`` needs a session. Logins are limited as :mod:`coordinator.console.auth`
+says.
 """
 from __future__ import annotations
 
@@ -28,6 +32,7 @@ from aiohttp import web
 
 from coordinator.console import auth
 from coordinator.console.actions import MAX_UPLOAD_BYTES, Actions
+from coordinator.console.hosts import HostCheck
 from coordinator.console.pictures import Pictures
 from coordinator.console.thumbnails import Thumbnails
 from coordinator.jobs.errors import JobError
@@ -81,17 +86,25 @@ class ConsoleApp:
         self.coord, self.audit, self.live, self.secure = coord, audit, live, secure
         self.sessions = auth.Sessions(idle_s=idle_s)
         self.limiter = auth.LoginLimiter()
+        self.devices = auth.DeviceCookies(coord.handshake.token)
+        self.hosts: HostCheck | None = None     # set once the console knows where it listens
+        self.url = ""                           # where it does, for the refusal of a foreign Host
         self.actions = Actions(coord, audit, live)
         self.static = _load_static()
         self._job_options: str | None = None
 
     # ------------------------------------------------------------------ checks
+    def host_ok(self, request: web.Request) -> bool:
+        """Whether the request's Host header names this console (an address or an allowed name)."""
+        return self.hosts is not None and self.hosts.ok(request.headers.get("Host"))
+
     def origin_ok(self, request: web.Request) -> bool:
-        """Whether a POST comes from this console's own page (its Origin is this origin)."""
-        origin = request.headers.get("Origin")
-        if not origin:
+        """Whether a POST comes from this console's own page (its Origin is this scheme and
+        Host, which :meth:`host_ok` checked)."""
+        origin, host = request.headers.get("Origin"), request.headers.get("Host")
+        if not origin or not host:
             return False
-        return origin.lower() == f"{request.scheme}://{request.host}".lower()
+        return origin.lower() == f"{request.scheme}://{host}".lower()
 
     def session_of(self, request: web.Request, *, touch: bool = True) -> auth.Session | None:
         return self.sessions.get(request.cookies.get(auth.COOKIE), touch=touch)
@@ -131,11 +144,15 @@ class ConsoleApp:
         address = client_address(request)
         if not self.origin_ok(request):
             raise _error(web.HTTPForbidden, "refused: the login does not come from the console's own page")
-        wait = self.limiter.retry_after(address)
-        if wait:
-            raise _error(web.HTTPTooManyRequests, f"too many failed logins from {address}: try again in {wait} s",
-                         headers={"Retry-After": str(wait)})
         raw = await request.content.read(MAX_LOGIN_BYTES + 1)
+        # from here to the verdict nothing awaits: no other login slips past the same check
+        device = self.devices.verify(request.cookies.get(auth.DEVICE_COOKIE))
+        wait, limit = self.limiter.wait(address, device)
+        if wait:
+            why = {"address": f"too many failed logins from {address}",
+                   "device": "too many failed logins from this browser",
+                   "global": "too many failed logins from many addresses"}[limit]
+            raise _error(web.HTTPTooManyRequests, f"{why}: try again in {wait} s", headers={"Retry-After": str(wait)})
         token = ""
         try:
             doc = json.loads(raw) if len(raw) <= MAX_LOGIN_BYTES else None
@@ -144,16 +161,20 @@ class ConsoleApp:
         except ValueError:
             pass
         if not token or not auth.token_matches(token, self.coord.handshake.token):
-            self.limiter.failed(address)
+            self.limiter.failed(address, device)
             await self.audit.record(who="-", address=address, action="login", ok=False, result="wrong token")
             self.live.poke()
             raise _error(web.HTTPUnauthorized, "wrong token: paste the rig's token (the file `token` in the rig "
                                                "directory)")
+        self.limiter.succeeded(address, device)
         session = self.sessions.open(address)
         await self.audit.record(who=session.who, address=address, action="login", ok=True, result="logged in")
         self.live.poke()
         resp = web.json_response({"ok": True, "csrf": session.csrf, "who": session.who})
         resp.set_cookie(auth.COOKIE, session.sid, httponly=True, samesite="Strict", secure=self.secure, path="/")
+        # this browser's logins are then limited by its own failures only (auth's module docstring)
+        resp.set_cookie(auth.DEVICE_COOKIE, self.devices.issue(device), httponly=True, samesite="Strict",
+                        secure=self.secure, path="/login", max_age=auth.DEVICE_MAX_AGE_S)
         return resp
 
     async def logout(self, request: web.Request, session: auth.Session) -> web.Response:
@@ -193,6 +214,16 @@ class ConsoleApp:
 
 
 @web.middleware
+async def host_check(request: web.Request, handler) -> web.StreamResponse:
+    """Every request names the console in its Host header, or is answered 421 with one line."""
+    console: ConsoleApp = request.app[KEY]
+    if not console.host_ok(request):
+        raise _error(web.HTTPMisdirectedRequest, console.hosts.refusal(request.headers.get("Host"), console.url)
+                     if console.hosts is not None else "refused: the console is not listening yet")
+    return await handler(request)
+
+
+@web.middleware
 async def security_headers(request: web.Request, handler) -> web.StreamResponse:
     """The security headers on every answer, errors included; nothing under /api/ is cached."""
     try:
@@ -209,7 +240,7 @@ async def security_headers(request: web.Request, handler) -> web.StreamResponse:
 
 
 def make_app(console: ConsoleApp) -> web.Application:
-    app = web.Application(middlewares=[security_headers], client_max_size=MAX_UPLOAD_BYTES + (1 << 20))
+    app = web.Application(middlewares=[security_headers, host_check], client_max_size=MAX_UPLOAD_BYTES + (1 << 20))
     app[KEY] = console
     c, a = console, console.actions
     app.router.add_get("/", c.index)

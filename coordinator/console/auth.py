@@ -1,4 +1,4 @@
-"""Who may use the console: login with the rig token, sessions, CSRF and a login rate limit.
+"""Who may use the console: login with the rig token, sessions, CSRF and the login limits.
 
 The operator pastes the rig's token into the login form; it is compared in constant time
 (:func:`hmac.compare_digest`) with the coordinator's. A login opens a session: a random id in
@@ -6,17 +6,37 @@ an HttpOnly, SameSite=Strict cookie (Secure when the console serves TLS) and a r
 token the page keeps in memory and sends in the ``X-CSRF-Token`` header of every POST. A
 session ends after :data:`IDLE_S` without a request, or on logout.
 
-Failed logins are counted per client address: after :data:`MAX_FAILURES` within
-:data:`WINDOW_S`, every login from that address is answered 429 with ``Retry-After`` until
-the oldest failure leaves the window (a correct token then too: a guesser learns nothing).
+Failed logins are limited twice (:class:`LoginLimiter`):
+
+* **per source**: after a failed login, the next one from the same client address (IPv6: the
+  same /64, which one host commonly holds) waits
+  (the first failure is free, then 1 s, 2 s, 4 s … up to :data:`BACKOFF_CAP_S`); a login that
+  succeeds, or :data:`FORGET_S` without a failure, starts the address again from nothing. An
+  operator who mistypes five times waits 8 s, not a minute.
+* **globally**: failures from all addresses draw on one budget of :data:`GLOBAL_BUDGET` per
+  :data:`GLOBAL_WINDOW_S` (a token bucket). Once it is spent, a login is tried only when the
+  bucket holds a whole failure again (one every 2 s), so guessers on many addresses together
+  get no more tries than that.
+
+A browser that has logged in once carries a **device cookie** (:class:`DeviceCookies`: a random
+id and its HMAC under a key derived from the rig token, OWASP's "device cookies"). Its logins
+are limited by its own failures only, never by the global budget nor by its address: a guesser
+cannot forge one, so the right token typed in a browser that logged in before gets in within
+its own backoff (0 s when it did not mistype), however many addresses attack. A browser that
+never logged in competes with the guessers for the global budget's turns while an attack lasts.
+
+While a limit holds, a login is answered 429 with ``Retry-After`` and "try again in N s"
+without looking at the token (a correct one too: a guesser learns nothing).
 """
 from __future__ import annotations
 
+import base64
+import hashlib
 import hmac
+import ipaddress
 import math
 import secrets
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -26,12 +46,22 @@ COOKIE = "shadowless_console"
 CSRF_HEADER = "X-CSRF-Token"
 #: a session unused this long (seconds) is closed
 IDLE_S = 30 * 60.0
-#: failed logins allowed per client address within WINDOW_S seconds
-MAX_FAILURES = 5
-WINDOW_S = 60.0
+#: failed logins from one address (or browser) that cost no wait; each further one doubles the wait
+FREE_FAILURES = 1
+#: the wait after the first failure past the free ones (seconds), and the most it grows to
+BACKOFF_FIRST_S = 1.0
+BACKOFF_CAP_S = 30.0
+#: an address (or browser) without a failed login for this long (seconds) starts from nothing again
+FORGET_S = 15 * 60.0
+#: failed logins from all addresses (browsers without a device cookie) per GLOBAL_WINDOW_S seconds
+GLOBAL_BUDGET = 30
+GLOBAL_WINDOW_S = 60.0
+#: the device cookie's name, and how long a browser keeps it (seconds)
+DEVICE_COOKIE = "shadowless_device"
+DEVICE_MAX_AGE_S = 180 * 24 * 3600
 #: sessions kept at once (the least recently used is closed first)
 MAX_SESSIONS = 64
-#: client addresses whose failures are remembered (the stalest are forgotten first)
+#: client addresses (and browsers) whose failures are remembered (the stalest are forgotten first)
 MAX_ADDRESSES = 4096
 
 
@@ -107,38 +137,127 @@ def csrf_ok(session: Session, header: str | None) -> bool:
     return bool(header) and hmac.compare_digest(header.encode(), session.csrf.encode())
 
 
+class DeviceCookies:
+    """The device cookie of browsers that logged in: ``<id>.<mac>``, where ``id`` is 16 random
+    bytes and ``mac`` their HMAC-SHA256 under a key derived from the rig token (so a new token
+    voids every device cookie, and a restarted coordinator still knows them; nothing is stored)."""
+
+    def __init__(self, token: bytes):
+        self._key = hmac.new(token.strip(), b"shadowless console device cookie v1", hashlib.sha256).digest()
+
+    def _mac(self, device: str) -> str:
+        mac = hmac.new(self._key, device.encode("ascii"), hashlib.sha256).digest()
+        return base64.urlsafe_b64encode(mac).rstrip(b"=").decode("ascii")
+
+    def issue(self, device: str | None = None) -> str:
+        """A cookie value for ``device`` (a new random id when None)."""
+        device = device or secrets.token_urlsafe(16)
+        return f"{device}.{self._mac(device)}"
+
+    def verify(self, value: str | None) -> str | None:
+        """The device id a cookie value proves, or None (missing, malformed or forged)."""
+        if not value or len(value) > 128:
+            return None
+        device, sep, mac = value.partition(".")
+        if not sep or not device.isascii() or not mac.isascii():
+            return None
+        return device if hmac.compare_digest(mac, self._mac(device)) else None
+
+
+@dataclass
+class _Backoff:
+    """Consecutive failures of one address or browser: (count, last failure, locked until)."""
+
+    count: int
+    last: float
+    until: float
+
+
 @dataclass
 class LoginLimiter:
-    """Failed logins per client address in a sliding window."""
+    """The login limits (module docstring): exponential backoff per address or device, and a
+    global token bucket of failures for logins without a device cookie. ``clock`` is monotonic
+    seconds (injectable).
 
-    max_failures: int = MAX_FAILURES
-    window_s: float = WINDOW_S
+    Call :meth:`wait` before looking at the token, then :meth:`failed` or :meth:`succeeded`, with
+    no ``await`` in between (the console's event loop then never lets two logins slip past one
+    check).
+    """
+
+    free_failures: int = FREE_FAILURES
+    first_s: float = BACKOFF_FIRST_S
+    cap_s: float = BACKOFF_CAP_S
+    forget_s: float = FORGET_S
+    budget: int = GLOBAL_BUDGET
+    window_s: float = GLOBAL_WINDOW_S
     clock: Callable[[], float] = time.monotonic
-    _failures: dict[str, deque] = field(default_factory=dict)
+    _by_key: dict[str, _Backoff] = field(default_factory=dict)
+    _tokens: float | None = None
+    _stamp: float = 0.0
 
-    def _recent(self, address: str) -> deque:
-        q = self._failures.get(address)
-        if q is None:
-            return deque()
+    @staticmethod
+    def _key(address: str, device: str | None) -> str:
+        if device:
+            return f"device {device}"
+        try:
+            ip = ipaddress.ip_address(address)
+        except ValueError:
+            return f"address {address}"
+        if ip.version == 6:
+            if ip.ipv4_mapped is not None:
+                return f"address {ip.ipv4_mapped}"
+            return f"address {ipaddress.ip_network(f'{ip}/64', strict=False)}"     # one host holds a whole /64
+        return f"address {ip}"
+
+    def lock_s(self, count: int) -> float:
+        """The wait (seconds) after ``count`` consecutive failures."""
+        n = count - self.free_failures
+        return 0.0 if n <= 0 else min(self.cap_s, self.first_s * 2.0 ** min(n - 1, 62))
+
+    def _bucket(self, now: float) -> float:
+        if self._tokens is None:
+            self._tokens, self._stamp = float(self.budget), now
+        rate = self.budget / self.window_s
+        self._tokens = min(float(self.budget), self._tokens + max(0.0, now - self._stamp) * rate)
+        self._stamp = now
+        return self._tokens
+
+    def wait(self, address: str, device: str | None = None) -> tuple[int, str]:
+        """(whole seconds to wait before this login is tried, 0: now; which limit holds:
+        ``"address"``, ``"device"``, ``"global"`` or ``""``)."""
         now = self.clock()
-        while q and now - q[0] >= self.window_s:
-            q.popleft()
-        if not q:
-            del self._failures[address]
-        return q
+        own = 0.0
+        b = self._by_key.get(self._key(address, device))
+        if b is not None and now - b.last < self.forget_s:
+            own = max(0.0, b.until - now)
+        glob = 0.0
+        if not device:
+            tokens = self._bucket(now)
+            if tokens < 1.0:
+                glob = (1.0 - tokens) * self.window_s / self.budget
+        if own <= 0.0 and glob <= 0.0:
+            return 0, ""
+        if glob > own:
+            return max(1, math.ceil(glob)), "global"
+        return max(1, math.ceil(own)), "device" if device else "address"
 
-    def retry_after(self, address: str) -> int:
-        """Seconds until ``address`` may try again (0: now)."""
-        q = self._recent(address)
-        if len(q) < self.max_failures:
-            return 0
-        return max(1, math.ceil(q[0] + self.window_s - self.clock()))
+    def failed(self, address: str, device: str | None = None) -> None:
+        """A login with a wrong token: the source's wait doubles; without a device cookie, it
+        draws one failure from the global budget."""
+        now = self.clock()
+        key = self._key(address, device)
+        b = self._by_key.pop(key, None)
+        if b is None or now - b.last >= self.forget_s:
+            b = _Backoff(count=0, last=now, until=now)
+            while len(self._by_key) >= MAX_ADDRESSES:
+                del self._by_key[next(iter(self._by_key))]
+        b.count += 1
+        b.last = now
+        b.until = now + self.lock_s(b.count)
+        self._by_key[key] = b       # re-inserted last: the dict stays in order of last failure
+        if not device:
+            self._tokens = max(-float(self.budget), self._bucket(now) - 1.0)
 
-    def failed(self, address: str) -> None:
-        q = self._failures.pop(address, None)
-        if q is None:
-            q = deque()
-            if len(self._failures) >= MAX_ADDRESSES:
-                del self._failures[next(iter(self._failures))]
-        q.append(self.clock())
-        self._failures[address] = q     # re-inserted last: the dict stays in order of last failure
+    def succeeded(self, address: str, device: str | None = None) -> None:
+        """The right token: this address's (or browser's) failures are forgotten."""
+        self._by_key.pop(self._key(address, device), None)

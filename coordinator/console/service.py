@@ -2,7 +2,9 @@
 
 ``Console(coordinator, "127.0.0.1:7680")``, ``await start()``, ``await stop()``; :attr:`port`
 is the port it listens on (port 0 picks a free one). It serves HTTPS with the coordinator's
-certificate when the coordinator has one (``Coordinator.tls``), plain HTTP otherwise.
+certificate when the coordinator has one (``Coordinator.tls``), plain HTTP otherwise. It answers
+only requests whose Host names it: an address it listens on, or one of ``hosts`` (the
+``--console-host`` allow-list; :mod:`coordinator.console.hosts`).
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from aiohttp import web
 from coordinator.console import auth
 from coordinator.console.app import ConsoleApp, make_app
 from coordinator.console.audit import ActionLog
+from coordinator.console.hosts import HostCheck, split_host
 from coordinator.console.live import Live
 from coordinator.errors import CoordinatorError
 
@@ -72,10 +75,18 @@ def ssl_context(tls: tuple[bytes, bytes]) -> ssl.SSLContext:
 class Console:
     """The operator console of ``coordinator``, listening on ``listen`` (``HOST:PORT``)."""
 
-    def __init__(self, coordinator: "Coordinator", listen: str = DEFAULT_LISTEN, *, idle_s: float = auth.IDLE_S):
+    def __init__(self, coordinator: "Coordinator", listen: str = DEFAULT_LISTEN, *, idle_s: float = auth.IDLE_S,
+                 hosts: list[str] | tuple[str, ...] = ()):
         self.coord = coordinator
         self.listen = listen
         self.host, self._port = parse_listen(listen)
+        for h in hosts:
+            try:
+                split_host(h)
+            except ValueError as exc:
+                raise CoordinatorError(f"console host {exc}: give a name a browser uses for the console, e.g. "
+                                       "console.venue.lan, 10.0.0.2 or proxy.lan:443") from None
+        self.hosts = tuple(hosts)
         self.idle_s = idle_s
         self.port = 0
         self.secure = coordinator.tls is not None
@@ -102,6 +113,14 @@ class Console:
             raise CoordinatorError(f"the console cannot listen on {self.listen}: {exc}") from exc
         self._runner = runner
         self.port = int(runner.addresses[0][1])
+        try:
+            ipaddress.ip_address(self.host)
+            names: tuple[str, ...] = ()
+        except ValueError:
+            names = (self.host,)        # listening on a name: browsers may use it
+        self.app.hosts = HostCheck([(a[0], int(a[1])) for a in runner.addresses], scheme="https" if self.secure
+                                   else "http", names=names, allowed=self.hosts)
+        self.app.url = self.url
         live.start()
         self.coord.jobs.on_change = live.poke      # a job's progress reaches the page as it happens
         if not is_loopback(self.host):
