@@ -15,6 +15,8 @@ from typing import Any, Callable
 import numpy as np
 
 from coordinator.errors import AssetError
+from coordinator.float_range import check_float_range
+from coordinator.image_decode import ImageRefused, read_image_file
 
 STILL_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".npy")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi")
@@ -57,9 +59,10 @@ def _image_probe(shape: tuple[int, ...], dtype: np.dtype, path: Path) -> Probe:
 def probe_still(path: str | os.PathLike[str]) -> Probe:
     """Probe one image file.
 
-    PNG (8/16-bit), TIFF and JPEG are read with ``cv2.imread(..., IMREAD_UNCHANGED)``: uint8 ->
-    8 bit, uint16 -> 16 bit, float32 (TIFF) -> 32 bit. ``.npy`` must hold float32 of shape
-    (H, W) or (H, W, C), all finite; it is memory-mapped, not loaded.
+    PNG (8/16-bit), TIFF and JPEG are decoded by :func:`coordinator.image_decode.decode_image`
+    (its declared size checked against the limit before any pixel is decoded): uint8 -> 8 bit,
+    uint16 -> 16 bit, float32 (TIFF) -> 32 bit. ``.npy`` must hold float32 of shape (H, W) or
+    (H, W, C); it is memory-mapped, not loaded. Float pixels must be finite and within 0..1.
 
     Returns
     -------
@@ -85,15 +88,23 @@ def probe_still(path: str | os.PathLike[str]) -> Probe:
         if arr.dtype != np.dtype(np.float32):
             raise AssetError(f"{path}: a .npy still must be float32 (native byte order), got {arr.dtype}")
         probe = _image_probe(arr.shape, arr.dtype, path)
-        if not np.isfinite(arr).all():
-            raise AssetError(f"{path}: holds NaN or infinite values")
+        _float_range(arr, path)
         return probe
-    import cv2  # the coordinator's stack
+    try:
+        img = read_image_file(path)
+    except ImageRefused as exc:
+        raise AssetError(str(exc)) from None
+    probe = _image_probe(img.shape, img.dtype, path)
+    _float_range(img, path)
+    return probe
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise AssetError(f"{path}: not an image OpenCV can read (corrupt, truncated or not {suffix[1:].upper()})")
-    return _image_probe(img.shape, img.dtype, path)
+
+def _float_range(img: np.ndarray, path: Path) -> None:
+    """Float pixels outside 0..1 would be shown clipped without a word: refused (AssetError)."""
+    try:
+        check_float_range(img, str(path), hint="clip it to 0..1 before adding it (an asset is stored byte for byte)")
+    except ValueError as exc:
+        raise AssetError(str(exc)) from None
 
 
 def _natural_key(name: str) -> list[Any]:

@@ -317,14 +317,16 @@ class OpenCVCamera(_SizeCheck):
 
 # ---------------------------------------------------------------------- folder
 def read_png(path: Path, *, source: str) -> np.ndarray:
-    """Read an 8- or 16-bit PNG (gray or RGB) as (H, W, 3) float32 in [0, 1]."""
-    import cv2
+    """Read an 8- or 16-bit PNG (gray or RGB; alpha dropped) as (H, W, 3) float32 in [0, 1],
+    through the coordinator's one decoder (its declared size checked before decoding)."""
+    from coordinator.image_decode import ImageRefused, read_image_file
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CameraError(f"{source}: {path} is not a readable PNG")
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    try:
+        img = read_image_file(path)
+    except ImageRefused as exc:
+        raise CameraError(f"{source}: not a readable PNG: {exc}") from None
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[:, :, :3]
     return to_float_image(img, source=f"{source} ({path.name})")
 
 

@@ -23,9 +23,11 @@ from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, Sho
 from coordinator.client import OperatorError, add_connection_args
 from coordinator.content_format import operator_table, rendered
 from coordinator.errors import RigError
+from coordinator.float_range import check_float_range
+from coordinator.image_decode import ImageRefused, read_image_file
 from coordinator.job_command import run_job
 from coordinator.rig_target import open_client
-from coordinator.schema import read_npy
+from coordinator.schema import read_npy, validate_lut
 from protos import auth, cli_types
 from protos.mesh_files import MeshFileError, read_mesh
 from protos.version import MAX_REQUEST_BYTES
@@ -178,24 +180,54 @@ def _npy(path: Path, dtypes: tuple[str, ...], what: str) -> np.ndarray:
         raise OperatorError(str(exc)) from None
 
 
-def read_image(path: str) -> np.ndarray:
-    """Read an image file as (H, W, C) RGB: 8/16-bit PNG/TIFF/JPEG via OpenCV, or float32 .npy."""
+def read_image(path: str, *, clip: bool = False, hint: str = "pass --clip to clip it to 0..1") -> np.ndarray:
+    """Read an image file as (H, W, C) RGB (alpha dropped): any format of
+    :func:`coordinator.image_decode.decode_image` (8/16-bit integer, float32), or a float32/uint8/
+    uint16 .npy. Float pixels must lie in 0..1: ``clip`` clips them, else OperatorError names the
+    range found and ``hint``."""
     p = Path(path)
     if not p.is_file():
         raise OperatorError(f"{p}: {'not a file' if p.exists() else 'no such file'}")
     if p.suffix == ".npy":
         img = _npy(p, ("float32", "float64", "uint8", "uint16"), "image")
-        return img.astype(np.float32) if img.dtype == np.float64 else img
-    import cv2  # the coordinator's stack; an operator reading image files has it
+        img = img.astype(np.float32) if img.dtype == np.float64 else img
+    else:
+        try:
+            img = read_image_file(p)
+        except ImageRefused as exc:
+            raise OperatorError(str(exc)) from None
+        if img.ndim == 3 and img.shape[2] in (2, 4):     # grey+alpha or RGBA: the alpha is dropped
+            img = img[:, :, :1] if img.shape[2] == 2 else img[:, :, :3]
+        if img.dtype not in (np.uint8, np.uint16, np.float32):
+            img = img.astype(np.float32)
+    try:
+        return check_float_range(img, str(p), clip=clip, hint=hint)
+    except ValueError as exc:
+        raise OperatorError(str(exc)) from None
 
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise OperatorError(f"cannot read image {p} (missing, or not an image OpenCV reads)")
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
-    if img.dtype not in (np.uint8, np.uint16, np.float32):
-        img = img.astype(np.float32)
-    return img
+
+def read_lut(path: str | Path) -> np.ndarray:
+    """An inverse-response LUT from a .npy: (3, E) (a curve per channel, R G B) or (E,) (one
+    curve for every channel, sent as (1, E), which every node applies to each channel); float32
+    or float64, 2 <= E <= 65536, finite values in 0..1. Returns (C, E) float32, C in {1, 3}."""
+    p = Path(path)
+    lut = _npy(p, ("float32", "float64"), "LUT")
+    if lut.ndim == 1:
+        lut = lut[None, :]
+    elif lut.ndim == 2 and lut.shape[0] == 1:
+        pass                                    # (1, E): already one curve for every channel
+    elif lut.ndim != 2 or lut.shape[0] != 3:
+        hint = "; transpose it (lut.T)" if lut.ndim == 2 and lut.shape[1] == 3 and lut.shape[0] != 3 else ""
+        raise OperatorError(f"{p}: a LUT must be (3, E) (a curve per channel) or (E,) (one curve for all), "
+                            f"got shape {lut.shape}{hint}")
+    lut = lut.astype(np.float32)
+    try:
+        validate_lut(lut)
+    except ValueError as exc:
+        lo, hi = (float(np.nanmin(lut)), float(np.nanmax(lut))) if lut.size and not np.isnan(lut).all() else (0, 0)
+        found = f" (found {lo:.6g} to {hi:.6g})" if "values" in str(exc) else ""
+        raise OperatorError(f"{p}: {exc}{found}") from None
+    return lut
 
 
 # ---------------------------------------------------------------- commands
@@ -217,6 +249,8 @@ def configure_show(p: argparse.ArgumentParser) -> None:
     p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1]), or pause, resume, seek, stop")
     p.add_argument("frame", nargs="?", type=cli_types.int_range(0), help="with seek: the asset frame to show")
     p.add_argument("--persist", action="store_true", help="make it the rig's content (shown again after a restart)")
+    p.add_argument("--clip", action="store_true",
+                   help="clip a float image's values to 0..1 (without it, values outside 0..1 are refused)")
     p.add_argument("--fit", choices=["contain", "cover", "stretch"],
                    help="an image of another aspect than the rig's content area: contain (whole, black bars), cover "
                         "(fills it, cropped) or stretch (distorted); without --fit it is refused")
@@ -245,6 +279,8 @@ def configure_play(p: argparse.ArgumentParser) -> None:
                    help="a folder's images of another aspect than the rig's content area: contain (whole, black bars), cover "
                         "(fills it, cropped) or stretch (distorted); without --fit it is refused")
     p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
+    p.add_argument("--clip", action="store_true",
+                   help="clip a folder's float images to 0..1 (without it, values outside 0..1 are refused)")
     p.add_argument("--allow-partial", action="store_true",
                    help="exit 0 even if not every live node showed every frame of a played sequence (default: "
                         "exit 1 and say what was missed)")
@@ -271,7 +307,9 @@ def configure_configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mesh", type=cli_types.existing_file, metavar="OBJ_OR_PLY",
                    help="with --projection: the object's mesh, with texture coordinates (sent with the pose)")
     p.add_argument("--mesh-id", metavar="ID", help="with --projection: a mesh the rig already holds (RIG/meshes/ID.npz)")
-    p.add_argument("--lut", type=cli_types.existing_file, metavar="NPY", help="(C, E) float32 inverse-response LUT")
+    p.add_argument("--lut", type=cli_types.existing_file, metavar="NPY",
+                   help="inverse-response LUT .npy: (3, E) float (a curve per channel) or (E,) (one curve for every "
+                        "channel), 2 <= E <= 65536 entries in 0..1")
     p.add_argument("--gain", type=cli_types.number(0, 16), help="linear gain, 0..16 (0 switches the projector's light off)")
     p.add_argument("--resolution", type=cli_types.size, metavar="WxH", help="output size, e.g. 1920x1080")
     p.add_argument("--clear-pose", action="store_true", help="remove the pose (the projector shows black)")
@@ -329,7 +367,7 @@ async def warn_unposed(c) -> None:
 async def _show(args) -> int:
     if args.image in SHOW_ACTIONS and not Path(args.image).exists():
         return await _show_control(args)
-    img = read_image(args.image)
+    img = read_image(args.image, clip=args.clip)
     async with await open_client(args) as c:
         r = await c.show(img, name=Path(args.image).name, persist=args.persist, fit=args.fit or "")
         await warn_unposed(c)
@@ -406,7 +444,7 @@ async def _play(args) -> int:
         files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
         if not files:
             raise OperatorError(f"no images in {args.source}")
-        frames = [read_image(str(f)) for f in files]
+        frames = [read_image(str(f), clip=args.clip) for f in files]
     else:
         raise OperatorError("give a folder of images or --pattern counter")
     async with await open_client(args) as c:
@@ -494,7 +532,7 @@ async def _configure(args) -> int:
         mesh = _mesh_arrays(args.mesh) if args.mesh else None
     elif args.mesh or args.mesh_id:
         raise OperatorError("--mesh and --mesh-id go with --projection")
-    lut = _npy(args.lut, ("float32", "float64"), "LUT").astype(np.float32) if args.lut else None
+    lut = read_lut(args.lut) if args.lut else None
     async with await open_client(args) as c:
         revision = await c.configure(args.slot, homography=h, lut=lut, gain=args.gain, size=args.resolution,
                                      clear_pose=args.clear_pose, projection=proj, mesh=mesh,

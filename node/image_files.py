@@ -20,6 +20,7 @@ import av
 import numpy as np
 
 from node.errors import NodeError
+from protos.image_limits import MAX_IMAGE_SIDE, MAX_PIXELS, within_limits
 
 __all__ = ["FILTERS", "PngError", "atomic_write_bytes", "decode_png", "decode_png_text", "encode_png", "read_png",
            "write_png"]
@@ -194,10 +195,18 @@ def decode_png(data: bytes) -> np.ndarray:
     Raises
     ------
     PngError
-        The data is not a PNG, or is corrupt or truncated.
+        The data is not a PNG, or is corrupt or truncated, or its header declares more than
+        :data:`protos.image_limits.MAX_PIXELS` pixels or ``MAX_IMAGE_SIDE`` a side (then
+        nothing is decoded).
     """
     if bytes(data[:8]) != SIGNATURE:
         raise PngError("not a PNG file (bad signature)")
+    if bytes(data[12:16]) != b"IHDR":
+        raise PngError("corrupt PNG: its first chunk is not IHDR")
+    w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not within_limits(w, h):     # refused from the header: FFmpeg would allocate the frame first
+        raise PngError(f"PNG declares {w}x{h} pixels, more than the {MAX_PIXELS / 1e6:.0f} megapixels and "
+                       f"{MAX_IMAGE_SIDE} pixels a side a node decodes")
     ctx = av.CodecContext.create("png", "r")  # the decoder alone: no demuxer, no probing
     ctx.options = {"err_detect": "crccheck+bitstream+explode"}
     try:

@@ -109,6 +109,26 @@ def default_image() -> np.ndarray:
     return data.astronaut()
 
 
+def read_demo_image(path: str) -> np.ndarray:
+    """An operator's picture for the demo as (H, W, 3) uint8 RGB, read through the coordinator's
+    one decoder (any format it reads, its declared size checked first; 16-bit and float 0..1
+    scaled to 8 bits, grey repeated, alpha dropped). SystemExit with one line when it is refused."""
+    from coordinator.client import OperatorError
+    from coordinator.commands import read_image
+
+    try:
+        img = read_image(path, hint="clip it to 0..1 first")
+    except OperatorError as exc:
+        raise SystemExit(f"--image {exc}") from None
+    if img.dtype == np.uint16:
+        img = np.round(img / 257.0).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = np.round(np.asarray(img, np.float32) * 255.0).astype(np.uint8)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    return np.ascontiguousarray(np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img[:, :, :3])
+
+
 def fit_image(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Centre-crop to the content aspect ratio, then resize to ``size`` (w, h)."""
     w, h = size
@@ -146,6 +166,7 @@ def _heat(drop: np.ndarray, on: np.ndarray) -> np.ndarray:
 async def _demo(args) -> int:
 
     t_start = time.monotonic()
+    picture = read_demo_image(args.image) if args.image else None   # refused now, not after calibrating
     out = Path(args.out)
     work = out / "rig"
     if work.exists():
@@ -206,7 +227,7 @@ async def _demo(args) -> int:
                         report["calibration"][name] = await run_job(c, "calibrate", params, view=ProgressView(sys.stdout))
                 report["alignment_s"] = round(time.monotonic() - t0, 1)
 
-                img = fit_image(cv2.cvtColor(cv2.imread(args.image), cv2.COLOR_BGR2RGB) if args.image else default_image(), (cw, ch))
+                img = fit_image(picture if picture is not None else default_image(), (cw, ch))
                 shown = await c.show(img, name=Path(args.image).name if args.image else "astronaut", persist=True)
                 _say("showing the image on every projector")
 

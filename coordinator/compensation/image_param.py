@@ -78,7 +78,9 @@ def decode_image_param(value: dict) -> tuple[np.ndarray, str]:
 def decode_image_bytes(raw: bytes, name: str) -> tuple[np.ndarray, str]:
     """An image file's bytes as ``(image, name)``; image (H, W, C) uint8/uint16/float32, RGB, C 1 or 3.
 
-    ``name`` says what the bytes are (``.npy``, else anything OpenCV reads: PNG, TIFF, JPEG).
+    ``name`` says what the bytes are (``.npy``, else any format of
+    :func:`coordinator.image_decode.decode_image`: PNG, TIFF, JPEG, ..., its declared size
+    checked before decoding).
 
     Raises
     ------
@@ -91,13 +93,14 @@ def decode_image_bytes(raw: bytes, name: str) -> tuple[np.ndarray, str]:
         except ValueError as exc:
             raise CompensationError(f"image {name}: not a numpy array file ({exc})") from exc
     else:
-        import cv2  # lazy: OpenCV is heavy; the coordinator decodes, the client only encodes
+        from coordinator.image_decode import ImageRefused, decode_image  # lazy: the client only encodes
 
-        img = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise CompensationError(f"image {name}: OpenCV cannot read it (PNG, TIFF, JPEG or .npy expected)")
-        if img.ndim == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+        try:
+            img = decode_image(raw, name)
+        except ImageRefused as exc:
+            raise CompensationError(f"cannot read image {exc}") from None
+        if img.ndim == 3 and img.shape[2] in (2, 4):    # alpha dropped
+            img = img[:, :, :img.shape[2] - 1]
     img = np.asarray(img)
     if img.ndim == 2:
         img = img[:, :, None]

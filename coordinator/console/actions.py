@@ -9,7 +9,6 @@ The caller (``app.py``) has already checked the session, the CSRF token and the 
 from __future__ import annotations
 
 import asyncio
-import io
 import json
 import logging
 import math
@@ -21,9 +20,10 @@ from aiohttp import web
 from coordinator.api import Space
 from coordinator.errors import CoordinatorError
 from coordinator.fit import FIT_MODES
+from coordinator.float_range import check_float_range
+from coordinator.image_decode import MAX_PIXELS, decode_image
 from coordinator.jobs.registry import JOBS
 from coordinator.rig import Content
-from coordinator.schema import MAX_SIDE
 from coordinator.sessions import RpcRefusal
 
 if TYPE_CHECKING:  # pragma: no cover - types only
@@ -44,56 +44,22 @@ class BadRequest(ValueError):
     """The request itself is malformed (not the rig refusing it)."""
 
 
-#: the largest upload the console decodes (a small PNG can declare a huge image: 64 Mpx of RGBA
-#: float would already be 1 GiB), checked from the file's header before anything is decoded
-MAX_UPLOAD_PIXELS = 64 * 2**20
-
-
-def _declared_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) from the image's header, read by Pillow without decoding the pixels; None
-    for a format Pillow does not know (OpenCV's own limit applies to those)."""
-    import warnings
-
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)   # the size is judged here
-            with Image.open(io.BytesIO(data)) as im:
-                return im.size
-    except Image.DecompressionBombError:     # larger than Pillow will even describe
-        return (MAX_SIDE + 1, MAX_SIDE + 1)
-    except (UnidentifiedImageError, OSError, ValueError):
-        return None
+#: the largest upload the console decodes (the coordinator's one limit, see coordinator.image_decode)
+MAX_UPLOAD_PIXELS = MAX_PIXELS
 
 
 def decode_upload(data: bytes, filename: str) -> np.ndarray:
-    """An uploaded file as an (H, W, C) RGB(A) array of uint8, uint16 or float32 (OpenCV's
-    ``imdecode`` with ``IMREAD_UNCHANGED``); ValueError naming the file for anything else."""
-    import cv2  # the coordinator's stack
-
-    if not data:
-        raise ValueError(f"{filename or 'the upload'} is empty: choose an image file")
-    size = _declared_size(data)
-    if size is not None:
-        w, h = size
-        if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE and w * h <= MAX_UPLOAD_PIXELS):
-            what = f"is {w}x{h} pixels" if w <= MAX_SIDE and h <= MAX_SIDE else "declares a larger image than that"
-            raise ValueError(f"{filename or 'the upload'} {what}: the console shows images of at most "
-                             f"{MAX_UPLOAD_PIXELS / 1e6:.0f} megapixels and {MAX_SIDE} pixels a side (scale it down; "
-                             "the rig shows it at its content size anyway)")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError(f"{filename or 'the upload'} is not an image the coordinator can read "
-                         "(PNG, JPEG, TIFF, WebP, OpenEXR, ...)")
-    if img.ndim == 3 and img.shape[2] in (3, 4):
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB if img.shape[2] == 3 else cv2.COLOR_BGRA2RGBA)
+    """An uploaded file as an (H, W, C) RGB(A) array of uint8, uint16 or float32 (float in 0..1),
+    decoded by :func:`coordinator.image_decode.decode_image` (its declared size checked first);
+    ValueError naming the file for anything else."""
+    name = filename or "the upload"
+    img = decode_image(data, name)
     if img.dtype == np.float64:
         img = img.astype(np.float32)
     if img.dtype not in (np.uint8, np.uint16, np.float32):
-        raise ValueError(f"{filename or 'the upload'} holds {img.dtype} pixels: give an 8- or 16-bit integer or a "
+        raise ValueError(f"{name} holds {img.dtype} pixels: give an 8- or 16-bit integer or a "
                          "32-bit float image")
-    return img
+    return check_float_range(img, name, hint="clip it first (`shadowless show FILE --clip` clips for you)")
 
 
 async def _json_body(request: web.Request) -> dict[str, Any]:

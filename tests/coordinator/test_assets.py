@@ -338,7 +338,7 @@ def test_read_blob_at_offsets_equals_slices_of_the_file(store, tmp_path):
 def test_lookup_by_id_prefix_and_name_with_clear_errors(store, tmp_path, monkeypatch):
     ids = {}
     for i in range(17):  # 17 ids over 16 hex digits: two share their first digit
-        np.save(tmp_path / f"s{i:02d}.npy", np.full((4, 4), i, np.float32))
+        np.save(tmp_path / f"s{i:02d}.npy", np.full((4, 4), i / 16, np.float32))  # float content lies in 0..1
         ids[store.add(tmp_path / f"s{i:02d}.npy").asset_id] = f"s{i:02d}"
     aid = next(iter(ids))
     assert store.resolve(aid) == aid and store.resolve(aid[:8]) == aid and store.resolve(aid[:8].upper()) == aid
