@@ -30,9 +30,9 @@ _LABEL = re.compile(r"^[a-z0-9]([a-z0-9-]{0,61}[a-z0-9])?$")
 DEFAULT_PORTS = {"http": 80, "https": 443}
 
 
-def _port(text: str) -> int:
+def _port(text: str, value: str) -> int:
     if not text.isdigit() or len(text) > 5 or not 1 <= int(text) <= 65535:
-        raise ValueError(f"port {text!r} is not a number 1..65535")
+        raise ValueError(f"{value.strip()!r}: port {text!r} is not a number 1..65535")
     return int(text)
 
 
@@ -72,20 +72,24 @@ def split_host(value: str) -> tuple[str, int | None]:
             return host, None
         if not rest.startswith(":"):
             raise ValueError(f"{value!r} is not a host name or IP address")
-        return host, _port(rest[1:])
+        return host, _port(rest[1:], value)
     if v.count(":") > 1:        # a bare IPv6 address (no port can follow one without brackets)
         try:
             return ipaddress.IPv6Address(v).compressed, None
         except ValueError:
             raise ValueError(f"{value!r} is not a host name or IP address") from None
     host, sep, port = v.partition(":")
-    return normal_host(host), (_port(port) if sep else None)
+    return normal_host(host), (_port(port, value) if sep else None)
 
 
 def allowed_host(text: str) -> str:
     """``argparse`` type of ``--console-host``: ``NAME`` or ``NAME:PORT`` (IPv6 in brackets),
     returned as given once valid; a one-line error otherwise."""
     try:
+        scheme, sep, rest = text.strip().partition("://")
+        if sep:
+            raise ValueError(f"{text.strip()!r} is a URL, not a name (give {rest.split('/')[0] or 'the name'!r} "
+                             "alone)")
         split_host(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(
@@ -170,6 +174,7 @@ class HostCheck:
 
     def refusal(self, value: str | None, url: str) -> str:
         """The one line a request with a foreign Host gets (``url``: where the console is)."""
-        shown = "no Host header" if not value else f"Host {value[:100]!r}"
-        return (f"refused: {shown} is not an address of this console (a page of another site may be trying to "
-                f"reach it); open {url}, or start the coordinator with --console-host NAME to allow a name")
+        if not value:
+            return f"refused: the request has no Host header; open {url} in a browser"
+        return (f"refused: Host {value[:100]!r} is not an address of this console (a page of another site may be "
+                f"trying to reach it); open {url}, or start the coordinator with --console-host NAME to allow a name")

@@ -1,0 +1,144 @@
+"""The console's bad-input corpus for its Host check and login limits: every refusal is one line
+naming what is wrong and what to do, with no traceback in the coordinator's log. HTTP cases go to
+a real console with a real client; the option's cases to real `python -m shadowless coordinator`
+processes, refused before anything starts. Each row goes to SHADOWLESS_CORPUS_TABLE."""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import socket
+import subprocess
+import sys
+
+import aiohttp
+import pytest
+
+from coordinator.console import auth
+from coordinator.rig import Rig, grid_slots, init_rig
+from coordinator.server import Coordinator
+
+TOKEN = b"c" * 32
+
+# (name, Host header or None for none at all, Origin or None, path, expected status, words in the line);
+# "{port}" is the console's port
+HTTP_CASES = [
+    ("foreign Host", "evil.example:{port}", None, "/", 421, "Host 'evil.example:{port}' is not an address"),
+    ("Host on another port", "127.0.0.1:1", None, "/api/status", 421, "open http://127.0.0.1:{port}/"),
+    ("Host port out of range", "127.0.0.1:99999", None, "/", 421, "is not an address of this console"),
+    ("Host 0.0.0.0", "0.0.0.0:{port}", None, "/", 421, "--console-host NAME to allow a name"),
+    ("Host with a user part", "127.0.0.1:{port}@evil.example", None, "/", 421, "is not an address"),
+    ("Host an unclosed IPv6 bracket", "[::1:{port}", None, "/", 421, "is not an address"),
+    ("Host with a control character", "evil.example\t:{port}", None, "/", 421, "is not an address"),
+    ("no Host header (HTTP/1.0)", None, None, "/", 421, "the request has no Host header; open http://127.0.0.1:{port}/"),
+    ("DNS rebinding: Host and Origin agree", "evil.example:{port}", "http://evil.example:{port}", "/login", 421,
+     "is not an address of this console"),
+    ("login from a foreign Origin", "127.0.0.1:{port}", "http://evil.example", "/login", 403,
+     "does not come from the console's own page"),
+    ("login from the same host, other scheme", "127.0.0.1:{port}", "https://127.0.0.1:{port}", "/login", 403,
+     "does not come from the console's own page"),
+]
+
+# (name, --console-host value, words in the one line)
+OPTION_CASES = [
+    ("--console-host with a space", "console venue", "'console venue' is not a host name or IP address"),
+    ("--console-host port 0", "console.lan:0", "'console.lan:0': port '0' is not a number 1..65535"),
+    ("--console-host as a URL", "http://console.lan/", "'http://console.lan/' is a URL, not a name (give "
+                                                        "'console.lan' alone)"),
+    ("--console-host with an underscore", "my_console.lan", "e.g. console.venue.lan"),
+]
+
+
+def raw(port: int, request: bytes) -> tuple[int, str]:
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
+        s.sendall(request)
+        data = b""
+        while chunk := s.recv(65536):
+            data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    return int(head.split(b" ")[1]), body.decode()
+
+
+@pytest.fixture
+def console_port(tmp_path):
+    """A coordinator with its console on 127.0.0.1, in a thread's event loop: yields its console port."""
+    import threading
+
+    rig = Rig(init_rig(tmp_path / "rig", name="corpus", slots=grid_slots(1, 1), width=32, height=32,
+                       content_width=32, content_height=32))
+    ready, stop, box = threading.Event(), threading.Event(), {}
+
+    def run():
+        async def main():
+            coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+            await coord.start()
+            box["coord"] = coord
+            ready.set()
+            while not stop.is_set():
+                await asyncio.sleep(0.05)
+            await coord.stop()
+        asyncio.run(main())
+
+    t = threading.Thread(target=run, name="corpus-coordinator")
+    t.start()
+    assert ready.wait(60), "the coordinator did not start"
+    yield box["coord"].console_port, box["coord"]
+    stop.set()
+    t.join(60)
+
+
+def test_bad_requests_get_one_line(console_port, corpus_table, caplog):
+    port, coord = console_port
+    caplog.set_level(logging.DEBUG)
+    for name, host, origin, path, status, words in HTTP_CASES:
+        host = host.format(port=port) if host else None
+        lines = [f"{'POST' if path == '/login' else 'GET'} {path} HTTP/{'1.1' if host else '1.0'}"]
+        if host:
+            lines.append(f"Host: {host}")
+        if origin:
+            lines.append(f"Origin: {origin.format(port=port)}")
+        body = b'{"token": "%s"}' % TOKEN if path == "/login" else b""
+        lines += [f"Content-Length: {len(body)}", "Connection: close"]
+        got, text = raw(port, ("\r\n".join(lines) + "\r\n\r\n").encode() + body)
+        corpus_table("console request", name, text, got)
+        assert got == status, (name, got, text)
+        error = json.loads(text)["error"]
+        assert "\n" not in error and words.format(port=port) in error, (name, error)
+
+    async def limits():
+        base = f"http://127.0.0.1:{port}"
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
+            rows = []
+            for _ in range(auth.FREE_FAILURES + 1):
+                r = await s.post(base + "/login", json={"token": "wrong"}, headers={"Origin": base})
+                rows.append(("wrong token", r.status, (await r.json())["error"]))
+            r = await s.post(base + "/login", json={"token": TOKEN.decode()}, headers={"Origin": base})
+            rows.append(("the right token while the address waits", r.status, (await r.json())["error"]))
+            r = await s.post(base + "/login", json={"token": TOKEN.decode()},
+                             headers={"Origin": base, "Cookie": f"{auth.DEVICE_COOKIE}=made.up"})
+            rows.append(("a forged device cookie while the address waits", r.status, (await r.json())["error"]))
+            return rows
+
+    rows = asyncio.run(limits())
+    for name, status, error in rows:
+        corpus_table("console login", name, error, status)
+        assert "\n" not in error
+    assert [s for _, s, _ in rows] == [401] * (auth.FREE_FAILURES + 1) + [429, 429]
+    assert rows[0][2].startswith("wrong token: paste the rig's token")
+    for _, _, error in rows[-2:]:
+        assert error.startswith("too many failed logins from 127.0.0.1: try again in ") and error.endswith(" s")
+    assert "Traceback" not in caplog.text
+    assert len(HTTP_CASES) + len(rows) >= 10
+
+
+@pytest.mark.parametrize("name, value, words", OPTION_CASES, ids=[c[0] for c in OPTION_CASES])
+def test_a_bad_console_host_option_is_one_line_and_status_2(tmp_path, corpus_table, name, value, words):
+    rig = init_rig(tmp_path / "rig", name="corpus", slots=grid_slots(1, 1), width=32, height=32, content_width=32,
+                   content_height=32)
+    r = subprocess.run([sys.executable, "-m", "shadowless", "coordinator", "--rig", str(rig), "--listen",
+                        "127.0.0.1:0", "--no-mdns", "--console", "127.0.0.1:0", "--console-host", value],
+                       capture_output=True, text=True, timeout=120)
+    err = r.stderr.strip()
+    corpus_table("CLI", f"shadowless coordinator --console-host {value!r}", err, r.returncode)
+    assert "Traceback" not in err and r.returncode == 2, (r.returncode, err)
+    assert len(err.splitlines()) == 1 and words in err, err
