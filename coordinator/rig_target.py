@@ -21,7 +21,7 @@ from coordinator.errors import RigError
 from coordinator.rig import parse_config
 from coordinator.schema import read_text
 from protos import auth
-from protos.discovery import Discovery
+from protos.discovery import Discovery, DiscoveryError
 
 __all__ = ["RigTarget", "resolve", "connect", "discover", "open_client"]
 
@@ -118,7 +118,10 @@ async def discover(rig: RigTarget, *, interfaces: list[str] | None = None, timeo
     ``timeout`` seconds more (a loaded network or host answers late; the rig is evidently out there)."""
     tls = {"tls_ca": tls_ca, "tls_server_name": tls_server_name}
     disc = Discovery(interfaces=interfaces)
-    await disc.start()
+    try:
+        await disc.start()
+    except DiscoveryError as exc:
+        raise OperatorError(str(exc)) from None
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout
     extended = False
@@ -141,12 +144,16 @@ async def discover(rig: RigTarget, *, interfaces: list[str] | None = None, timeo
             await asyncio.sleep(0.2)
         if failures:
             raise _failed(rig, failures)
+        searched = f"searched {disc.service_type} on {', '.join(interfaces) if interfaces else 'every interface'} " \
+                   f"for {timeout * (2 if extended else 1):g} s"
         others = await disc.find(timeout=0) if (rig.rig_id or rig.wanted) else []
         if others:
             listed = ", ".join(sorted(f"{a.name!r} (id {a.rig_id}) at {a.target}" for a in others))
-            raise OperatorError(f"no coordinator of {rig.describe()} is advertised over mDNS; found only {listed}. "
-                                "Start its coordinator, or pass --coordinator HOST:PORT")
-        raise OperatorError(f"no coordinator of {rig.describe()} found over mDNS; pass --coordinator HOST:PORT")
+            raise OperatorError(f"no coordinator of {rig.describe()} is advertised over mDNS ({searched}); found only "
+                                f"{listed}. Start its coordinator, or pass --coordinator HOST:PORT")
+        raise OperatorError(f"no coordinator of {rig.describe()} found over mDNS: {searched}; start its "
+                            "coordinator, check SHADOWLESS_MDNS_SERVICE and --mdns-interface, or pass --coordinator "
+                            "HOST:PORT")
     finally:
         await disc.close()
 
