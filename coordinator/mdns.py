@@ -1,4 +1,13 @@
-"""Advertise the coordinator as ``_shadowless._tcp.local.`` (zeroconf)."""
+"""Advertise the coordinator as ``_shadowless._tcp.local.`` (zeroconf).
+
+The instance name is the rig's name, unless another responder already answers for it: then the
+coordinator takes ``NAME-2`` (``-3``, ...), as RFC 6762 §9 asks, and says so in its log. Before
+claiming a name it asks the network which instances of the service exist (QM questions, so the
+answers come by multicast: on one host several processes share port 5353, and the unicast answer
+to zeroconf's own QU probe reaches one of them at random), then zeroconf probes the chosen name
+(``allow_name_change=True`` renames it again if a late answer shows a conflict). The TXT record
+keeps the rig's own name and id, by which nodes and operators find it whatever the instance name.
+"""
 from __future__ import annotations
 
 import logging
@@ -8,9 +17,22 @@ from zeroconf import InterfaceChoice, IPVersion, NonUniqueNameException
 from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
 
 from coordinator.errors import CoordinatorError
+from protos.discovery import DiscoveryError, check_interfaces, names_in_use
 from protos.version import PROTOCOL_VERSION, SERVICE_TYPE
 
 log = logging.getLogger(__name__)
+
+#: how long the coordinator listens for other instances of the service before it claims a name
+PROBE_WAIT_S = 1.0
+
+
+def free_instance_name(base: str, service_type: str, taken: set[str]) -> str:
+    """``base`` if ``BASE.SERVICE_TYPE`` is not in ``taken`` (lower-cased full names), else the first of
+    ``base-2``, ``base-3``, ... that is not (python-zeroconf's and Apple's renaming scheme)."""
+    name, k = base, 2
+    while f"{name}.{service_type}".lower() in taken:
+        name, k = f"{base}-{k}", k + 1
+    return name
 
 
 def _local_ipv4_addresses() -> list[str]:
@@ -42,15 +64,24 @@ class Advertiser:
         return self._info.name if self._info else ""
 
     async def start(self) -> None:
+        try:
+            check_interfaces(self.interfaces)
+        except DiscoveryError as exc:
+            raise CoordinatorError(str(exc)) from None
         addresses = self.interfaces or _local_ipv4_addresses()
         try:
             self._azc = AsyncZeroconf(interfaces=self.interfaces or InterfaceChoice.All, ip_version=IPVersion.V4Only)
         except OSError as exc:
-            raise CoordinatorError(f"cannot start mDNS on {self.interfaces or 'all interfaces'}: {exc}") from exc
+            raise CoordinatorError(f"cannot advertise {SERVICE_TYPE} over mDNS on "
+                                   f"{', '.join(self.interfaces) if self.interfaces else 'every interface'}: "
+                                   f"{exc.strerror or exc} (is it an address of this machine? see `ip -4 addr`)") from exc
         host = socket.gethostname().split(".")[0] or "coordinator"
+        await self._azc.zeroconf.async_wait_for_start()
+        taken = await names_in_use(self._azc.zeroconf, SERVICE_TYPE, wait_s=PROBE_WAIT_S)
+        instance = free_instance_name(self.rig_name, SERVICE_TYPE, taken)
         self._info = AsyncServiceInfo(
             SERVICE_TYPE,
-            f"{self.rig_name}.{SERVICE_TYPE}",
+            f"{instance}.{SERVICE_TYPE}",
             addresses=[socket.inet_aton(a) for a in addresses],
             port=self.port,
             properties={"rig": self.rig_id, "proto": str(PROTOCOL_VERSION), "instance": self.instance_id, "name": self.rig_name},
@@ -60,6 +91,12 @@ class Advertiser:
             await self._azc.async_register_service(self._info, allow_name_change=True)
         except NonUniqueNameException as exc:  # pragma: no cover - allow_name_change avoids it
             raise CoordinatorError(f"another service already uses the mDNS name {self._info.name}") from exc
+        wanted = f"{self.rig_name}.{SERVICE_TYPE}"
+        if self._info.name != wanted:
+            log.warning("the mDNS name %s is already answered for on %s (another rig of that name, or an "
+                        "advertiser that did not probe for it): advertising as %s instead (RFC 6762 section 9); "
+                        "nodes and operators find this rig by its id %s all the same", wanted,
+                        ", ".join(addresses), self._info.name, self.rig_id)
         log.info("advertising %s on %s port %d", self._info.name, ", ".join(addresses), self.port)
 
     async def stop(self) -> None:
