@@ -25,8 +25,11 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
+import re
 import shutil
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -37,9 +40,13 @@ from coordinator.api import NodeState
 from coordinator.rig import parse_config
 from protos import auth
 from shadowless.local import LocalRig, grid_names
+from shadowless.netns import Venue
+from shadowless.netns import available as netns_available
 
 SIZE = (32, 18)
 NOT_TRUSTED_MARK = "could not prove it knows the rig token"
+#: the venue host the hostile advertiser runs on
+ROGUE = "rogue"
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -53,6 +60,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="also time the same nodes joining with no rogue (default on)")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for every node (default 120)")
     p.add_argument("--workdir", help="keep the rigs and logs here (default: a temporary folder, removed)")
+    p.add_argument("--hostile", choices=("before", "after"),
+                   help="instead: a hostile advertiser claims the rig's mDNS name without probing, from before the "
+                        "coordinator starts (it renames itself) or after it advertised (two responders, one name)")
+    p.add_argument("--where", choices=("loopback", "venue", "both"), default="both",
+                   help="with --hostile: on loopback, in a virtual venue network, or both (default)")
 
 
 def _rig(workdir: Path, slots: list[str]) -> LocalRig:
@@ -157,10 +169,143 @@ def trial(workdir: Path, n: int, *, rogues: bool, pin: str = "none", prime_other
             r.close()
 
 
+def _advertised_name(rig: LocalRig, timeout: float = 30.0) -> str:
+    """The instance name the rig's coordinator advertises (from its log's 'advertising NAME on' line)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        m = re.search(r"advertising (\S+) on \S+ port \d+", rig.log("coordinator"))
+        if m:
+            return m.group(1)
+        if time.monotonic() > deadline or (rig.coordinator is not None and rig.coordinator.poll() is not None):
+            raise RuntimeError("the coordinator never said what it advertises:\n" + rig.log("coordinator")[-2000:])
+        time.sleep(0.1)
+
+
+def _start_hostile(rig: LocalRig, venue: Venue | None, name: str, rig_id: str, service: str) -> subprocess.Popen:
+    """bench.mdns_hostile claiming ``name`` (the rig's or its coordinator's instance name) without probing,
+    on 127.0.0.1 or from the venue's ``rogue`` host; returns once it advertises."""
+    interface = venue.address(ROGUE) if venue is not None else "127.0.0.1"
+    argv = [sys.executable, "-m", "bench.mdns_hostile", "--interface", interface, "--name", name,
+            "--rig-id", rig_id, "--service", service]
+    kw = dict(stdout=subprocess.PIPE, stderr=open(rig.log_dir / "hostile.log", "ab"), text=True,
+              env=rig._env(), start_new_session=True)
+    proc = venue.run(ROGUE, argv, **kw) if venue is not None else subprocess.Popen(argv, **kw)
+    line = proc.stdout.readline()
+    if not line.startswith("{"):
+        proc.kill()
+        proc.wait()
+        raise RuntimeError("the hostile advertiser did not start: " + rig.log("hostile")[-2000:])
+    return proc
+
+
+def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "after", timeout: float = 60.0,
+                  service: str | None = None) -> dict:
+    """N real nodes (unpinned) join their rig while a hostile advertiser claims the rig's instance name
+    without probing (bench.mdns_hostile: a tarpit behind it). ``when``: "before" the coordinator starts
+    (the coordinator renames itself) or "after" it advertised (the hostile takes its very name: two
+    responders, one instance name). ``venue``: on a virtual venue network (the hostile on a host of its
+    own) instead of loopback. ``service``: an mDNS service of the trial's own (default: one derived from
+    this process's id, so that other rigs on the machine neither see nor disturb it)."""
+    if when not in ("before", "after"):
+        raise ValueError(f"when must be 'before' or 'after', not {when!r}")
+    slots = grid_names(n)
+    service_name = service or f"_slh-{os.getpid() % 10 ** 6}"
+    service_type = f"{service_name}._tcp.local."
+    v = Venue([*slots, ROGUE]) if venue else None
+    real = LocalRig(slots, workdir, output_size=SIZE, content_size=SIZE, mdns=True, venue=v,
+                    env={"SHADOWLESS_MDNS_SERVICE": service_name})
+    hostile = None
+    try:
+        real.create()
+        cfg = parse_config((real.rig_dir / "rig.toml").read_text())
+        if when == "before":
+            hostile = _start_hostile(real, v, cfg.name, cfg.rig_id, service_type)
+        real.start_coordinator()
+        real.wait_ready(60)
+        advertised = _advertised_name(real)
+        if when == "after":
+            hostile = _start_hostile(real, v, advertised.removesuffix("." + service_type), cfg.rig_id, service_type)
+        t0 = time.monotonic()
+        for s in slots:
+            real.start_node(s, ["--rig", ""])
+        live = asyncio.run(_wait_all_live(real, t0, timeout))
+        times = sorted(live.values())
+        tarpit = [s for s in slots if "DEADLINE_EXCEEDED" in real.log("node-" + s)]
+        return {
+            "where": "venue" if venue else "loopback",
+            "hostile": when,
+            "advertised_as": advertised,
+            "renamed": advertised != f"{cfg.name}.{service_type}",
+            "started": n,
+            "joined": len(live),
+            "joined_within_10s": sum(1 for t in times if t <= 10.0),
+            "join_s": {"p50": round(statistics.median(times), 3), "max": round(times[-1], 3)} if times else None,
+            "live_s": {s: round(t, 3) for s, t in sorted(live.items())},
+            "timed_out_on_hostile": len(tarpit),
+        }
+    finally:
+        if hostile is not None:
+            if hostile.poll() is None:
+                hostile.terminate()
+                try:
+                    hostile.wait(10)
+                except subprocess.TimeoutExpired:
+                    hostile.kill()
+                    hostile.wait()
+            hostile.stdout.close()
+        real.close()
+        if v is not None:
+            v.close()
+
+
+def _run_hostile(args: argparse.Namespace) -> int:
+    trials = []
+    wheres = {"loopback": [False], "venue": [True], "both": [False, True]}[args.where]
+    with run_dir(args.workdir, "discovery-hostile") as work:
+        for k in range(args.runs):
+            for venue in wheres:
+                if venue:
+                    ok, reason = netns_available()
+                    if not ok:
+                        print(f"shadowless bench discovery: no virtual venue here ({reason}); loopback only",
+                              file=sys.stderr)
+                        continue
+                rec = hostile_trial(Path(work) / f"run{k + 1}" / ("venue" if venue else "loopback"), args.nodes,
+                                    venue=venue, when=args.hostile, timeout=args.timeout)
+                rec["run"] = k + 1
+                print(f"run {k + 1} {rec['where']}: {rec['joined']}/{rec['started']} joined, "
+                      f"{rec['joined_within_10s']} within 10 s, {rec['join_s']}", file=sys.stderr)
+                trials.append(rec)
+    summary = {}
+    for where in ("loopback", "venue"):
+        ts = [t for t in trials if t["where"] == where]
+        if not ts:
+            continue
+        times = sorted(t for tr in ts for t in tr["live_s"].values())
+        summary[where] = {
+            "joined": sum(t["joined"] for t in ts), "started": sum(t["started"] for t in ts),
+            "joined_within_10s": sum(t["joined_within_10s"] for t in ts),
+            "join_s": {"p50": round(statistics.median(times), 3), "max": round(times[-1], 3)} if times else None,
+        }
+    out = {
+        "benchmark": "discovery",
+        "mode": "hostile",
+        "params": {"nodes": args.nodes, "runs": args.runs, "hostile": args.hostile, "where": args.where,
+                   "timeout": args.timeout},
+        "machine": machine(),
+        "summary": summary,
+        "trials": trials,
+    }
+    print(json.dumps(out, indent=2))
+    return 0 if all(t["joined"] == t["started"] for t in trials) else 1
+
+
 def run(args: argparse.Namespace) -> int:
     if args.nodes < 1 or args.runs < 1:
         print("shadowless bench discovery: --nodes and --runs must be at least 1", file=sys.stderr)
         return 2
+    if args.hostile:
+        return _run_hostile(args)
     runs = []
     with run_dir(args.workdir, "discovery") as work:
         for k in range(args.runs):

@@ -50,6 +50,7 @@ from node.records import (
 )
 from protos import auth
 from protos.discovery import Discovery
+from protos.discovery import DiscoveryError as MdnsUnusable
 from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION
 
@@ -81,9 +82,16 @@ class NodeConfig:
     fetch_rate: float | None = None         # bytes per second; None: unlimited
 
 
+#: how long one look over mDNS waits for a first advertisement
+DISCOVERY_TIMEOUT_S = 3.0
+
 #: after the first advertisement, how long the node waits for the others before choosing among
 #: them (so that the rig it joined before goes first even when a rogue answers quicker)
 DISCOVERY_SETTLE_S = 0.3
+
+#: how long a Hello may take when several advertised coordinators are asked at once (one that never
+#: answers, e.g. an advertiser pointing at nothing that speaks gRPC, costs this once per pass)
+SCREEN_TIMEOUT_S = 2.5
 
 #: the longest wait between attempts to rejoin a lost coordinator (the regular cap is backoff_max_s)
 ALONE_BACKOFF_S = 1.0
@@ -150,6 +158,14 @@ class Node:
     async def run(self) -> int:
         self._loop = asyncio.get_running_loop()
         self._reports = asyncio.Queue()
+        discovery, early = None, None
+        if self.cfg.coordinator is None:
+            discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
+            try:
+                await discovery.start()
+            except MdnsUnusable as exc:    # a wrong --mdns-interface: waiting will not mend it
+                log.error("%s", exc)
+                return 2
         self.presenter = PresenterProcess(PresenterSettings(
             slot=self.cfg.slot, output_spec=self.cfg.output, clock_offset_ns=self.clock.offset_ns,
             clock_drift_ppm=self.clock.drift_ppm, clock_anchor_ns=self.clock.anchor_ns,
@@ -157,10 +173,7 @@ class Node:
             log_level=logging.getLogger().getEffectiveLevel(), log_name=f"node {self.cfg.slot}"))
         self.presenter.start()
         # the coordinator is looked for while the presenter starts (a new interpreter, the GL context)
-        discovery, early = None, None
-        if self.cfg.coordinator is None:
-            discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
-            await discovery.start()
+        if discovery is not None:
             early = asyncio.ensure_future(self._candidates(discovery))
         ok = await asyncio.get_running_loop().run_in_executor(None, self.presenter.wait_ready, 120.0)
         if not ok:
@@ -190,7 +203,7 @@ class Node:
                     else:
                         candidates = await self._candidates(discovery)
                     self.book.forget_absent(candidates)
-                    tried, joined = await self._pass(candidates)
+                    tried, joined = await self._pass(candidates, discovery)
                     if joined:
                         backoff = self.cfg.backoff_min_s
                         delay = backoff
@@ -232,12 +245,17 @@ class Node:
                 w.cancel()
             await asyncio.gather(*waits, return_exceptions=True)
 
-    async def _pass(self, candidates: list[Candidate]) -> tuple[int, bool]:
+    async def _pass(self, candidates: list[Candidate], discovery: Discovery | None = None) -> tuple[int, bool]:
         """Try the due candidates in the book's order until one takes this node and its session
         ends. A refusal or an unreachable target never ends the pass: the next one is tried.
         Returns (targets tried, whether one was joined)."""
+        due = self.book.order(candidates, time.monotonic())
         tried = 0
-        for cand in self.book.order(candidates, time.monotonic()):
+        if self.cfg.coordinator is None and due:
+            # advertised coordinators: ask them all at once which can prove the token, so that one
+            # that never answers (or an impostor) costs one short timeout, not a turn each
+            tried, due = await self._screen(due, len(candidates), discovery)
+        for cand in due:
             if self._stopping.is_set():
                 break
             tried += 1
@@ -245,21 +263,108 @@ class Node:
                 if await self._session(cand):
                     return tried, True
                 self._unreachable(cand, "no answer to the handshake")
-            except Refused as exc:
-                news = self.book.refused(cand, str(exc), time.monotonic())
-                log.log(logging.ERROR if news else logging.INFO, "refused by %s: %s (asking it again in %.0f s%s)",
-                        cand.label(), exc, self.cfg.refusal_backoff_s,
-                        ", trying the other coordinators meanwhile" if len(candidates) > 1 else "")
-            except CoordinatorNotTrusted as exc:
-                news = self.book.refused(cand, "not trusted", time.monotonic())
-                if news:
-                    log.warning("%s; not joining it (trying the other coordinators; again there in %.0f s)",
-                                exc, self.cfg.refusal_backoff_s)
-                else:
-                    log.info("%s still cannot prove the rig token; skipped", cand.label())
-            except LinkError as exc:
-                self._unreachable(cand, f"{exc.code}: {exc.details}")
+            except (Refused, CoordinatorNotTrusted, LinkError) as exc:
+                self._judged(cand, exc, len(candidates))
         return tried, False
+
+    def _judged(self, cand: Candidate, exc: Exception, advertised: int) -> None:
+        """Book and log why ``cand`` was not joined (``exc``: Refused, CoordinatorNotTrusted or LinkError)."""
+        if isinstance(exc, Refused):
+            news = self.book.refused(cand, str(exc), time.monotonic())
+            log.log(logging.ERROR if news else logging.INFO, "refused by %s: %s (asking it again in %.0f s%s)",
+                    cand.label(), exc, self.cfg.refusal_backoff_s,
+                    ", trying the other coordinators meanwhile" if advertised > 1 else "")
+        elif isinstance(exc, CoordinatorNotTrusted):
+            news = self.book.refused(cand, "not trusted", time.monotonic())
+            if news:
+                log.warning("%s; not joining it (trying the other coordinators; again there in %.0f s)",
+                            exc, self.cfg.refusal_backoff_s)
+            else:
+                log.info("%s still cannot prove the rig token; skipped", cand.label())
+        elif isinstance(exc, LinkError):
+            self._unreachable(cand, f"{exc.code}: {exc.details}")
+
+    async def _tell_not_trusted(self, target: str, hello: HelloReply, client_nonce: bytes) -> None:
+        """Let a coordinator that failed the token proof see why this node does not join: a Join with
+        this node's own proof, which a coordinator of another token refuses as a token mismatch and
+        lists in its status next to the slot (else the slot shows only as expected there). The
+        proof reveals nothing of the token; the answer changes nothing here (the node joins nowhere)."""
+        proof = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
+        info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
+                        software_version=_version(), output=self.cfg.output.split("?")[0])
+        try:
+            async with CoordinatorLink(target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
+                await asyncio.wait_for(link.join(JoinRequest(
+                    protocol_version=self.cfg.protocol_version, slot=self.cfg.slot, client_nonce=client_nonce,
+                    server_nonce=hello.server_nonce, client_proof=proof, info=info)), SCREEN_TIMEOUT_S)
+        except (LinkError, asyncio.TimeoutError, OSError):
+            pass
+
+    async def _prove(self, cand: Candidate) -> Candidate:
+        """``cand`` if it answers a Hello within SCREEN_TIMEOUT_S and proves the rig token; raises
+        Refused, CoordinatorNotTrusted or LinkError otherwise."""
+        async with CoordinatorLink(cand.target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
+            nonce = auth.new_nonce()
+            try:
+                hello = await link.hello(protocol_version=self.cfg.protocol_version, client_nonce=nonce,
+                                         slot=self.cfg.slot, timeout=SCREEN_TIMEOUT_S)
+            except LinkError as exc:
+                if exc.refused:
+                    raise Refused(exc.details) from exc
+                raise
+        if not auth.verify(auth.coordinator_proof(self.cfg.token, hello.rig_id, nonce, hello.server_nonce),
+                           hello.server_proof):
+            await self._tell_not_trusted(cand.target, hello, nonce)
+            raise CoordinatorNotTrusted(
+                f"the coordinator at {cand.target} (rig {hello.rig_name!r}) could not prove it knows the rig token: "
+                "this node has the wrong token file, or that advertiser is not our coordinator")
+        return cand
+
+    async def _screen(self, due: list[Candidate], advertised: int,
+                      discovery: Discovery | None) -> tuple[int, list[Candidate]]:
+        """Send a Hello to every candidate in ``due`` at once, and to every coordinator advertised while
+        they answer (a rogue that answers mDNS first must not have the pass to itself); as soon as one
+        proves the token, return it (the others are left unjudged: still due next pass). The ones that
+        answered otherwise by then are booked (refused, not trusted, unreachable). Returns (targets
+        judged, candidates to join: the proven one, or none)."""
+        async def verdict(c: Candidate) -> tuple[Candidate, Exception | None]:
+            try:
+                return await self._prove(c), None
+            except (Refused, CoordinatorNotTrusted, LinkError) as exc:
+                return c, exc
+
+        pending = {asyncio.ensure_future(verdict(c)) for c in due}
+        started = {c.target for c in due}
+        watch: asyncio.Future | None = None
+        judged = 0
+        try:
+            while pending:
+                if discovery is not None and watch is None:
+                    # what answered since the candidates were listed (the list may be seconds old)
+                    fresh = [Candidate(a.target, a.rig_id, a.name) for a in discovery.current(self.cfg.rig)
+                             if a.target not in started]
+                    for c in self.book.order(fresh, time.monotonic()):
+                        log.info("also asking %s, advertised meanwhile", c.label())
+                        started.add(c.target)
+                        pending.add(asyncio.ensure_future(verdict(c)))
+                    watch = asyncio.ensure_future(discovery.wait_change(discovery.generation, SCREEN_TIMEOUT_S))
+                done, _ = await asyncio.wait(pending | ({watch} if watch is not None else set()),
+                                             return_when=asyncio.FIRST_COMPLETED)
+                if watch is not None and watch in done:
+                    done.discard(watch)
+                    watch = None
+                for t in done:
+                    pending.discard(t)
+                    cand, exc = t.result()
+                    if exc is None:
+                        return judged, [cand]
+                    judged += 1
+                    self._judged(cand, exc, advertised)
+            return judged, []
+        finally:
+            for t in [*pending, *([watch] if watch is not None else [])]:
+                t.cancel()
+            await asyncio.gather(*pending, *([watch] if watch is not None else []), return_exceptions=True)
 
     def _unreachable(self, cand: Candidate, reason: str) -> None:
         self.book.unreachable(cand, reason, time.monotonic())
@@ -274,10 +379,10 @@ class Node:
         that proves it knows this node's token is joined."""
         if discovery is None:
             return [Candidate(self.cfg.coordinator)]
-        ads = await discovery.find(rig=self.cfg.rig, timeout=3.0, settle=DISCOVERY_SETTLE_S)
+        ads = await discovery.find(rig=self.cfg.rig, timeout=DISCOVERY_TIMEOUT_S, settle=DISCOVERY_SETTLE_S)
         if not ads:
-            raise DiscoveryError(f"no coordinator advertised over mDNS{' for rig ' + repr(self.cfg.rig) if self.cfg.rig else ''}"
-                                 " yet; still looking (or pass --coordinator HOST:PORT)")
+            raise DiscoveryError(f"{discovery.nothing_found(DISCOVERY_TIMEOUT_S, self.cfg.rig)}; still looking "
+                                 "(or pass --coordinator HOST:PORT)")
         seen = {(a.target, a.rig_id) for a in ads}
         if seen != self._advertised:
             self._advertised = seen
@@ -375,6 +480,7 @@ class Node:
                                  slot=self.cfg.slot)
         expected = auth.coordinator_proof(self.cfg.token, hello.rig_id, client_nonce, hello.server_nonce)
         if not auth.verify(expected, hello.server_proof):
+            await self._tell_not_trusted(target, hello, client_nonce)
             raise CoordinatorNotTrusted(
                 f"the coordinator at {target} (rig {hello.rig_name!r}) could not prove it knows the rig token: "
                 "this node has the wrong token file, or that advertiser is not our coordinator")

@@ -95,10 +95,12 @@ class CoordinatorLink:
             await self._channel.__aexit__(*exc)
 
     # ---------------------------------------------------------------- handshake
-    async def hello(self, *, protocol_version: int, client_nonce: bytes, slot: str) -> HelloReply:
+    async def hello(self, *, protocol_version: int, client_nonce: bytes, slot: str, timeout: float = 5.0) -> HelloReply:
+        """The coordinator's half of the handshake (``timeout``: seconds; screening several advertised
+        coordinators at once uses a shorter one, so that one that never answers costs little)."""
         with _translated():
             reply = await self._stub.Hello(wire.hello_request(protocol_version=protocol_version,
-                                                              client_nonce=client_nonce, slot=slot), timeout=5)
+                                                              client_nonce=client_nonce, slot=slot), timeout=timeout)
         return wire.hello_reply_from_message(reply)
 
     async def join(self, request: JoinRequest) -> JoinReply:
