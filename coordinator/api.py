@@ -165,6 +165,24 @@ class Refusal:
 
 
 @dataclass(frozen=True)
+class AdmissionFigures:
+    """Calls that carried no session (handshakes, and anything sent before one): the budget they
+    get (``coordinator/admission.py``), what is in flight now and what was refused since start.
+    Bytes are reserved at the largest allowed message until a call's message arrived."""
+
+    in_flight_calls: int = 0
+    in_flight_bytes: int = 0
+    peak_bytes: int = 0           # the most reserved or held at once
+    admitted: int = 0
+    refused: int = 0              # over the budget, refused unread
+    malformed: int = 0            # a message that was not the method's request
+    max_calls: int = 0
+    max_bytes: int = 0
+    max_calls_per_address: int = 0
+    max_bytes_per_address: int = 0
+
+
+@dataclass(frozen=True)
 class ShowState:
     """The timeline show (see :mod:`coordinator.show`): which asset plays, from where, how.
 
@@ -216,6 +234,10 @@ class RigStatus:
     frame_bytes_sent: int = 0
     show_updates_sent: int = 0      # Show stream messages (timelines, stops, beacons) since start
     show_bytes_sent: int = 0
+    admission: AdmissionFigures = field(default_factory=AdmissionFigures)
+    #: where the operator console is served (``http://HOST:PORT/``), ``NOT SERVED (why)`` when it
+    #: could not be and the coordinator was told to run on, or ``off`` (``--no-console``)
+    console: str = ""
 
 
 @dataclass(frozen=True)

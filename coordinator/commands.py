@@ -70,8 +70,15 @@ def assets_cell(a: dict) -> str:
 
 
 def status_dict(st: RigStatus) -> dict:
-    """The rig's status as JSON (what `shadowless status --json` prints)."""
+    """The rig's status as JSON (what `shadowless status --json` prints). A slot without a joined
+    or live node carries the newest refusal of a node claiming it (``refusal``): why it is not there."""
     num = _num
+    refusals = [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1), "count": r.count}
+                for r in st.refusals]
+    refused: dict[str, dict] = {}
+    for r in refusals:                       # newest first
+        refused.setdefault(r["slot"], r)
+    adm = st.admission
 
     return {
         "rig": {"name": st.rig_name, "id": st.rig_id, "instance": st.instance_id, "dir": st.rig_dir,
@@ -88,13 +95,19 @@ def status_dict(st: RigStatus) -> dict:
             "software": n.software_version, "output": n.output, "gl": n.gl,
             "show": {"state": n.show.state.value, "revision": n.show.revision, "last_frame": n.show.last_frame,
                      "shown": n.show.frames_shown, "missed": n.show.frames_late, "alone_ms": round(n.show.alone_ms)},
+            "refusal": refused.get(n.slot) if n.state.value in ("expected", "lost") else None,
         } for n in st.nodes],
         "sync": sync_dict(st.sync),
         "show": show_dict(st.show),
         "sent": {"frame_packets": st.frame_packets_sent, "frame_bytes": st.frame_bytes_sent,
                  "show_updates": st.show_updates_sent, "show_bytes": st.show_bytes_sent},
-        "refusals": [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1), "count": r.count}
-                     for r in st.refusals],
+        "refusals": refusals,
+        "console": st.console,
+        "before_auth": {"in_flight_calls": adm.in_flight_calls, "in_flight_bytes": adm.in_flight_bytes,
+                        "peak_bytes": adm.peak_bytes, "admitted": adm.admitted, "refused": adm.refused,
+                        "malformed": adm.malformed, "max_calls": adm.max_calls, "max_bytes": adm.max_bytes,
+                        "max_calls_per_address": adm.max_calls_per_address,
+                        "max_bytes_per_address": adm.max_bytes_per_address},
     }
 
 
@@ -149,7 +162,8 @@ def status_table(d: dict, *, tty: bool = False) -> str:
     t = operator_table("slot", "state", "host", ">offset ms", ">drift ppm", ">rtt ms", ">last frame", ">shown", ">late",
                        ">drop", "pose", "show", "assets")
     for n in d["nodes"]:
-        t.add_row(n["slot"], Text(n["state"], style=STATE_STYLES.get(n["state"], "yellow")), n["host"] or "-",
+        state = "refused" if n.get("refusal") else n["state"]
+        t.add_row(n["slot"], Text(state, style=STATE_STYLES.get(state, "yellow")), n["host"] or "-",
                   f"{n['clock_offset_ms']:.3f}", f"{n['drift_ppm']:.1f}", f"{n['rtt_ms']:.3f}",
                   str(n["last_swap_frame"] or "-"), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
                   show_cell(n["show"]), assets_cell(n["assets"]))
@@ -167,10 +181,33 @@ def status_table(d: dict, *, tty: bool = False) -> str:
     lines.append(f"sync: {s['frames']} frames, skew p50 {fmt(s['skew_p50_ms'])} ms, p99 {fmt(s['skew_p99_ms'])} ms, "
                  f"max {fmt(s['skew_max_ms'])} ms ({s['skew_source'] or 'no data'}); late {s['late']}, dropped {s['dropped']}, "
                  f"out of order {s['out_of_order']}")
+    for n in d["nodes"]:                      # why a slot has no node: its newest refused join
+        ref = n.get("refusal")
+        if ref:
+            times = f"{ref['count']}x, last " if ref.get("count", 1) > 1 else ""
+            lines.append(f"{n['slot']}: refused from {ref['peer']}: {ref['reason']} ({times}{ref['age_s']:.0f} s ago)")
     for ref in d["refusals"][:5]:            # newest first, counted per address, slot and reason
         times = f"{ref['count']}x, last " if ref.get("count", 1) > 1 else ""
         lines.append(f"refused {ref['peer']} {ref['slot'] or '-'}: {ref['reason']} ({times}{ref['age_s']:.0f} s ago)")
+    lines += status_extra_lines(d)
     return "\n".join(lines)
+
+
+def status_extra_lines(d: dict) -> list[str]:
+    """The console's address (loud when it is not served) and the calls refused before authentication."""
+    out = []
+    console = d.get("console", "")
+    if console and console != "off":
+        out.append(f"console: {console}")
+    b = d.get("before_auth")
+    if b and (b["refused"] or b["malformed"] or b["in_flight_calls"]):
+        mib = 1024 * 1024
+        out.append(f"before authentication: {b['refused']} calls refused over the budget, {b['malformed']} malformed, "
+                   f"{b['admitted']} admitted; in flight {b['in_flight_calls']} calls, "
+                   f"{b['in_flight_bytes'] / mib:.1f} MiB (budget {b['max_calls']} calls, "
+                   f"{b['max_bytes'] / mib:.0f} MiB; per address {b['max_calls_per_address']}, "
+                   f"{b['max_bytes_per_address'] / mib:.0f} MiB)")
+    return out
 
 
 def _npy(path: Path, dtypes: tuple[str, ...], what: str) -> np.ndarray:

@@ -15,6 +15,14 @@ from coordinator.api import Refusal
 MAX_KEYS = 256
 #: a key that keeps being refused is logged again after this long, with its count
 RELOG_S = 60.0
+#: characters of a slot name and of a reason kept (a peer chooses the slot it claims: up to the message cap)
+MAX_SLOT_CHARS = 40
+MAX_REASON_CHARS = 400
+
+
+def clipped(text: str, limit: int) -> str:
+    """``text`` cut to ``limit`` characters, an ellipsis marking the cut."""
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def peer_address(peer: str) -> str:
@@ -45,7 +53,9 @@ class Refusals:
         self._entries: dict[tuple[str, str, str], _Entry] = {}
 
     def record(self, peer: str, slot: str, reason: str, now: float) -> str | None:
-        """Count a refusal at ``now`` (seconds); the line to log, or None to stay quiet."""
+        """Count a refusal at ``now`` (seconds); the line to log, or None to stay quiet. Slot and
+        reason are clipped (MAX_SLOT_CHARS, MAX_REASON_CHARS): a peer picks them."""
+        slot, reason = clipped(slot, MAX_SLOT_CHARS), clipped(reason, MAX_REASON_CHARS)
         key = (peer_address(peer), slot, reason)
         e = self._entries.pop(key, None)           # re-inserted last: the dict stays in refusal order
         if e is None:

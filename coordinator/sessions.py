@@ -21,7 +21,8 @@ import numpy as np
 
 from coordinator.api import AssetProgress, NodeShow, NodeState
 from coordinator.previews import Preview
-from coordinator.refusals import peer_address
+from coordinator.refusals import MAX_SLOT_CHARS, clipped, peer_address
+from coordinator.schema import SLOT_RE
 from protos import auth
 from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION
@@ -225,15 +226,25 @@ class Handshake:
             return None
         return int.from_bytes(head[:8], "big") / 1000.0
 
+    def _check_slot_name(self, peer: str, slot: str) -> None:
+        """A slot a peer claims is a slot name (or empty, for an operator): the name travels into
+        replies, refusals and the log."""
+        if slot and not SLOT_RE.match(slot):
+            shown = clipped(slot, MAX_SLOT_CHARS)
+            raise self.refuse(peer, shown, grpc.StatusCode.INVALID_ARGUMENT,
+                              f"{shown!r} is not a slot name (1-32 letters, digits, '_', '-' or '.')")
+
     def hello(self, *, protocol_version: int, client_nonce: bytes, role: str, slot: str, peer: str) -> HelloResult:
         """The first half: prove the coordinator knows the token and hand out a server nonce."""
         if protocol_version != PROTOCOL_VERSION:
             raise self.refuse(peer, slot, grpc.StatusCode.FAILED_PRECONDITION,
-                              f"protocol version mismatch: {role or 'client'} {slot} speaks shadowless protocol "
+                              f"protocol version mismatch: {clipped(role, 16) or 'client'} "
+                              f"{clipped(slot, MAX_SLOT_CHARS)} speaks shadowless protocol "
                               f"{protocol_version}, coordinator of rig {self.rig_name!r} speaks {PROTOCOL_VERSION}; "
                               f"install the same shadowless release on both")
         if len(client_nonce) != auth.NONCE_BYTES:
             raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT, "client nonce must be 32 bytes")
+        self._check_slot_name(peer, slot)
         server_nonce = self._server_nonce(client_nonce, self.clock())
         return HelloResult(rig_id=self.rig_id, rig_name=self.rig_name, server_nonce=server_nonce,
                            server_proof=auth.coordinator_proof(self.token, self.rig_id, client_nonce, server_nonce),
@@ -248,7 +259,8 @@ class Handshake:
                               f"coordinator speaks {PROTOCOL_VERSION}")
         if role != expected_role:
             raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT,
-                              f"this call is for role {expected_role!r}, not {role!r}")
+                              f"this call is for role {clipped(expected_role, 16)!r}, not {clipped(role, 16)!r}")
+        self._check_slot_name(peer, slot)
         now = self.clock()
         expiry = self._nonce_expiry(server_nonce, client_nonce)
         if expiry is None or expiry < now or server_nonce in self.used:

@@ -12,14 +12,15 @@ import json
 import math
 import threading
 from collections import OrderedDict
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from coordinator.api import (AssetProgress, DropReason, NodeShow, NodeShowState, NodeState, NodeStatus, PlayResult,
-                             PlaySettings, Refusal, RigStatus, ShowResult, ShowState, Space, SyncSummary)
+from coordinator.api import (AdmissionFigures, AssetProgress, DropReason, NodeShow, NodeShowState, NodeState,
+                             NodeStatus, PlayResult, PlaySettings, Refusal, RigStatus, ShowResult, ShowState, Space,
+                             SyncSummary)
 from coordinator.distribution import WantedList
 from coordinator.fanout import Frame
 from coordinator.jobs.context import Event, Progress
@@ -307,7 +308,8 @@ def status_message(st: RigStatus) -> control_pb2.RigStatus:
         latency_budget_ms=st.latency_budget_ms, cpu_s=st.cpu_s, sync=_sync_message(st.sync),
         show=show_state_message(st.show), frame_packets_sent=st.frame_packets_sent,
         frame_bytes_sent=st.frame_bytes_sent, show_updates_sent=st.show_updates_sent,
-        show_bytes_sent=st.show_bytes_sent,
+        show_bytes_sent=st.show_bytes_sent, console=st.console,
+        admission=control_pb2.Admission(**asdict(st.admission)),
     )
     msg.nodes.extend(_node_status_message(n) for n in st.nodes)
     msg.refusals.extend(control_pb2.Refusal(peer=r.peer, slot=r.slot, reason=r.reason, age_s=r.age_s,
@@ -323,7 +325,9 @@ def status_from_message(m: control_pb2.RigStatus) -> RigStatus:
                      refusals=tuple(Refusal(r.peer, r.slot, r.reason, r.age_s, r.count) for r in m.refusals),
                      show=show_state_from_message(m.show) if m.HasField("show") else ShowState(),
                      frame_packets_sent=m.frame_packets_sent, frame_bytes_sent=m.frame_bytes_sent,
-                     show_updates_sent=m.show_updates_sent, show_bytes_sent=m.show_bytes_sent)
+                     show_updates_sent=m.show_updates_sent, show_bytes_sent=m.show_bytes_sent, console=m.console,
+                     admission=AdmissionFigures(**{f.name: getattr(m.admission, f.name)
+                                                   for f in fields(AdmissionFigures)}))
 
 
 # ---------------------------------------------------------------------- the timeline show

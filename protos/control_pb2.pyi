@@ -191,7 +191,7 @@ class Refusal(_message.Message):
     def __init__(self, peer: _Optional[str] = ..., slot: _Optional[str] = ..., reason: _Optional[str] = ..., age_s: _Optional[float] = ..., count: _Optional[int] = ...) -> None: ...
 
 class RigStatus(_message.Message):
-    __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s", "show", "frame_packets_sent", "frame_bytes_sent", "show_updates_sent", "show_bytes_sent")
+    __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s", "show", "frame_packets_sent", "frame_bytes_sent", "show_updates_sent", "show_bytes_sent", "admission", "console")
     RIG_ID_FIELD_NUMBER: _ClassVar[int]
     RIG_NAME_FIELD_NUMBER: _ClassVar[int]
     INSTANCE_ID_FIELD_NUMBER: _ClassVar[int]
@@ -209,6 +209,8 @@ class RigStatus(_message.Message):
     FRAME_BYTES_SENT_FIELD_NUMBER: _ClassVar[int]
     SHOW_UPDATES_SENT_FIELD_NUMBER: _ClassVar[int]
     SHOW_BYTES_SENT_FIELD_NUMBER: _ClassVar[int]
+    ADMISSION_FIELD_NUMBER: _ClassVar[int]
+    CONSOLE_FIELD_NUMBER: _ClassVar[int]
     rig_id: str
     rig_name: str
     instance_id: str
@@ -226,7 +228,33 @@ class RigStatus(_message.Message):
     frame_bytes_sent: int
     show_updates_sent: int
     show_bytes_sent: int
-    def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ..., show: _Optional[_Union[ShowState, _Mapping]] = ..., frame_packets_sent: _Optional[int] = ..., frame_bytes_sent: _Optional[int] = ..., show_updates_sent: _Optional[int] = ..., show_bytes_sent: _Optional[int] = ...) -> None: ...
+    admission: Admission
+    console: str
+    def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ..., show: _Optional[_Union[ShowState, _Mapping]] = ..., frame_packets_sent: _Optional[int] = ..., frame_bytes_sent: _Optional[int] = ..., show_updates_sent: _Optional[int] = ..., show_bytes_sent: _Optional[int] = ..., admission: _Optional[_Union[Admission, _Mapping]] = ..., console: _Optional[str] = ...) -> None: ...
+
+class Admission(_message.Message):
+    __slots__ = ("in_flight_calls", "in_flight_bytes", "peak_bytes", "admitted", "refused", "malformed", "max_calls", "max_bytes", "max_calls_per_address", "max_bytes_per_address")
+    IN_FLIGHT_CALLS_FIELD_NUMBER: _ClassVar[int]
+    IN_FLIGHT_BYTES_FIELD_NUMBER: _ClassVar[int]
+    PEAK_BYTES_FIELD_NUMBER: _ClassVar[int]
+    ADMITTED_FIELD_NUMBER: _ClassVar[int]
+    REFUSED_FIELD_NUMBER: _ClassVar[int]
+    MALFORMED_FIELD_NUMBER: _ClassVar[int]
+    MAX_CALLS_FIELD_NUMBER: _ClassVar[int]
+    MAX_BYTES_FIELD_NUMBER: _ClassVar[int]
+    MAX_CALLS_PER_ADDRESS_FIELD_NUMBER: _ClassVar[int]
+    MAX_BYTES_PER_ADDRESS_FIELD_NUMBER: _ClassVar[int]
+    in_flight_calls: int
+    in_flight_bytes: int
+    peak_bytes: int
+    admitted: int
+    refused: int
+    malformed: int
+    max_calls: int
+    max_bytes: int
+    max_calls_per_address: int
+    max_bytes_per_address: int
+    def __init__(self, in_flight_calls: _Optional[int] = ..., in_flight_bytes: _Optional[int] = ..., peak_bytes: _Optional[int] = ..., admitted: _Optional[int] = ..., refused: _Optional[int] = ..., malformed: _Optional[int] = ..., max_calls: _Optional[int] = ..., max_bytes: _Optional[int] = ..., max_calls_per_address: _Optional[int] = ..., max_bytes_per_address: _Optional[int] = ...) -> None: ...
 
 class NodeList(_message.Message):
     __slots__ = ("nodes",)

@@ -104,12 +104,24 @@ def snapshot(status: RigStatus, coord: "Coordinator", actions: list[dict[str, An
                  "frames_dropped": s.frames_dropped},
         "slots": slots,
         "refusals": refusals,
+        "before_auth": _before_auth(status),
         "assets": [{"id": aid, "name": m.name, "kind": m.kind, "frames": m.frames}
                    for aid, m in sorted(coord.distribution.manifests.items(), key=lambda t: (t[1].name, t[0]))],
         "actions": actions,
         "job": coord.jobs.snapshot(),
         "job_kinds": list(JOBS),
     }
+
+
+def _before_auth(status: RigStatus) -> dict[str, Any]:
+    """Calls without a session (coordinator/admission.py): the budget, what is in flight, what was
+    refused over it or malformed since start."""
+    a = status.admission
+    return {"refused": a.refused, "malformed": a.malformed, "admitted": a.admitted,
+            "in_flight_calls": a.in_flight_calls, "in_flight_mib": round(a.in_flight_bytes / 2**20, 1),
+            "peak_mib": round(a.peak_bytes / 2**20, 1), "max_calls": a.max_calls,
+            "max_mib": round(a.max_bytes / 2**20, 1), "max_calls_per_address": a.max_calls_per_address,
+            "max_mib_per_address": round(a.max_bytes_per_address / 2**20, 1)}
 
 
 def _cached_footprint(cache: dict, st: SlotState, content: tuple[int, int]) -> list[list[float]] | None:

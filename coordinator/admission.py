@@ -1,0 +1,187 @@
+"""A memory budget for calls that carry no session: what a peer that has not proved the rig
+token can make the coordinator hold.
+
+gRPC receives a unary call's whole message (up to ``protos.version.MAX_REQUEST_BYTES``) and
+parses it before a handler runs, so a budget checked in the handler comes too late: 400
+concurrent 3 MiB Hellos held hundreds of MiB. The gRPC edge (``coordinator/services.py:
+Admission``) therefore asks :meth:`Budget.admit` before any byte of the message is read. An
+admitted call reserves the largest message it may send until its message arrived, then holds
+the message's real size until it ends. A call over the budget is refused at once, unread, and
+counted in the rig's refusals; its bytes are never taken from the connection beyond gRPC's
+receive window.
+
+The budget counts per peer address and in all: calls in flight and bytes reserved or held.
+After a burst the freed memory stays in glibc's arenas unless it is handed back
+(:func:`trim_memory`); :meth:`Budget.should_trim` says when a burst ended.
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+from coordinator.api import AdmissionFigures
+from coordinator.refusals import peer_address
+
+log = logging.getLogger(__name__)
+
+MIB = 1024 * 1024
+#: calls without a session in flight, from all peers / from one address
+MAX_CALLS = 64
+MAX_CALLS_PER_ADDRESS = 16
+#: bytes reserved (a message not yet received counts as the largest allowed) or held, all peers / one address
+MAX_BYTES = 16 * MIB
+MAX_BYTES_PER_ADDRESS = 8 * MIB
+#: a burst that moved this much (received, or reserved by refused calls) is followed by a trim
+TRIM_AFTER_BYTES = 16 * MIB
+#: seconds the budget must have been idle before the trim (gRPC frees its buffers in its own threads)
+TRIM_IDLE_S = 1.0
+
+REFUSED_OVER_BUDGET = ("over the budget for calls before authentication (too many calls or bytes in flight "
+                       "from this address or in all): retry in a moment")
+
+
+@dataclass
+class _Use:
+    calls: int = 0
+    bytes: int = 0
+
+
+@dataclass
+class Ticket:
+    """One admitted call: its address and the bytes it holds now."""
+
+    address: str
+    bytes: int
+    released: bool = False
+
+
+@dataclass
+class Budget:
+    """Admission of calls without a session (see the module docstring).
+
+    Parameters
+    ----------
+    reserve_bytes : int
+        What a call holds before its message arrived: the largest message the server accepts.
+    max_calls, max_calls_per_address, max_bytes, max_bytes_per_address : int
+        The caps (in all, and per peer address).
+    clock : callable
+        Seconds, monotonic (the host's: an injected rig clock may stand still).
+    """
+
+    reserve_bytes: int
+    max_calls: int = MAX_CALLS
+    max_calls_per_address: int = MAX_CALLS_PER_ADDRESS
+    max_bytes: int = MAX_BYTES
+    max_bytes_per_address: int = MAX_BYTES_PER_ADDRESS
+    clock: Callable[[], float] = time.monotonic
+    total: _Use = field(default_factory=_Use)
+    by_address: dict[str, _Use] = field(default_factory=dict)
+    admitted: int = 0
+    refused: int = 0
+    malformed: int = 0
+    peak_bytes: int = 0
+    _burst_bytes: int = 0
+    _idle_since: float = 0.0
+
+    def admit(self, peer: str) -> Ticket | None:
+        """Reserve room for a new call from ``peer`` (a gRPC peer string); None: over the budget."""
+        address = peer_address(peer)
+        mine = self.by_address.get(address) or _Use()
+        need = self.reserve_bytes
+        if (self.total.calls + 1 > self.max_calls or mine.calls + 1 > self.max_calls_per_address
+                or self.total.bytes + need > self.max_bytes or mine.bytes + need > self.max_bytes_per_address):
+            self.refused += 1
+            self._burst_bytes += need
+            return None
+        self.by_address[address] = mine
+        mine.calls += 1
+        mine.bytes += need
+        self.total.calls += 1
+        self.total.bytes += need
+        self.peak_bytes = max(self.peak_bytes, self.total.bytes)
+        self.admitted += 1
+        return Ticket(address, need)
+
+    def received(self, ticket: Ticket, nbytes: int) -> None:
+        """The call's message arrived: it holds ``nbytes`` from now on, not the reservation."""
+        if ticket.released:
+            return
+        delta = nbytes - ticket.bytes
+        ticket.bytes = nbytes
+        self.total.bytes += delta
+        self.by_address[ticket.address].bytes += delta
+        self._burst_bytes += nbytes
+
+    def release(self, ticket: Ticket) -> None:
+        """The call ended (answered, refused, cancelled): its room is free again."""
+        if ticket.released:
+            return
+        ticket.released = True
+        mine = self.by_address[ticket.address]
+        mine.calls -= 1
+        mine.bytes -= ticket.bytes
+        self.total.calls -= 1
+        self.total.bytes -= ticket.bytes
+        if mine.calls == 0:
+            del self.by_address[ticket.address]
+        if self.total.calls == 0:
+            self._idle_since = self.clock()
+
+    def should_trim(self) -> bool:
+        """Whether a burst of unauthenticated bytes just ended (idle for TRIM_IDLE_S): then the
+        memory it freed should go back to the system (:func:`trim_memory`). Resets the burst."""
+        if self._burst_bytes < TRIM_AFTER_BYTES or self.total.calls or self.clock() - self._idle_since < TRIM_IDLE_S:
+            return False
+        self._burst_bytes = 0
+        return True
+
+    def figures(self) -> AdmissionFigures:
+        return AdmissionFigures(in_flight_calls=self.total.calls, in_flight_bytes=self.total.bytes,
+                                peak_bytes=self.peak_bytes, admitted=self.admitted, refused=self.refused,
+                                malformed=self.malformed, max_calls=self.max_calls, max_bytes=self.max_bytes,
+                                max_calls_per_address=self.max_calls_per_address,
+                                max_bytes_per_address=self.max_bytes_per_address)
+
+
+def _malloc_trim():
+    name = ctypes.util.find_library("c")
+    try:
+        fn = ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):    # not glibc: nothing to trim this way
+        return None
+    if fn is not None:
+        fn.argtypes, fn.restype = [ctypes.c_size_t], ctypes.c_int
+    return fn
+
+
+_TRIM = _malloc_trim()
+
+
+def resident_bytes() -> int:
+    """This process's resident memory (``VmRSS``), 0 where /proc does not say."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def trim_memory() -> int:
+    """Hand the heap's free pages back to the system (glibc ``malloc_trim(0)``, every arena);
+    the resident bytes that went (0 where there is no glibc).
+
+    After a burst of large messages the freed buffers stay in the process's malloc arenas and
+    count as resident; this returns them. Blocks for milliseconds: call it off the event loop."""
+    if _TRIM is None:
+        return 0
+    before = resident_bytes()
+    _TRIM(0)
+    return max(0, before - resident_bytes())
