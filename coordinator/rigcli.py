@@ -106,6 +106,8 @@ def run(args: argparse.Namespace, *, builtin_mesh: BuiltinMesh | None = None) ->
         json.dump(doc, sys.stdout, indent=2)
         print()
         return 0
+    except BrokenPipeError:       # stdout's reader has gone (`rig show | head -1`): the caller ends quietly
+        raise
     except (RigError, ValueError, OSError) as exc:
         print(" ".join(f"shadowless rig: {exc}".split()), file=sys.stderr)   # one line, no traceback
         return 2

@@ -125,6 +125,21 @@ def _complete() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit status. Output into a pipe whose reader has gone (``shadowless
+    status | head -1``) ends the command quietly, as Python's documentation advises (its "Note on
+    SIGPIPE"): stdout is pointed at /dev/null so the interpreter's last flush cannot fail again,
+    and the exit status is 1, with nothing on stderr."""
+    try:
+        code = _main(argv)
+        sys.stdout.flush()        # what is still buffered fails here, not in the interpreter's exit
+        return code
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
+
+
+def _main(argv: list[str] | None) -> int:
     if "_ARGCOMPLETE" in os.environ:
         _complete()
     argv = list(sys.argv[1:] if argv is None else argv)

@@ -8,6 +8,7 @@ arguments are checked first). Each row goes to the closing note's table (SHADOWL
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 import subprocess
 import sys
@@ -21,6 +22,10 @@ from coordinator.rig import init_rig
 from protos import auth
 
 NOWHERE = "127.0.0.1:1"          # a port nothing listens on: a case that got this far would fail differently
+_spec = importlib.util.spec_from_file_location("image_headers", Path(__file__).parents[1] / "image_headers.py")
+HEADERS = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(HEADERS)
+REMOTE = ["--coordinator", NOWHERE, "--token-file", "{ok}"]
 
 # (name, argv with {rig} {dir} {ok} {loose} {pickle} {f64img} placeholders, what the one line must say)
 CASES = [
@@ -83,6 +88,35 @@ CASES = [
      "give an image or video file"),
     ("content add: not a rig", ["content", "add", "{ok}", "--rig-dir", "{dir}"], "is not a rig directory"),
     ("study: missing ratings", ["study", "scheffe", "{dir}/missing.csv"], "missing.csv"),
+    # images: each declares 10000x10000 pixels in a file of a few kB; refused from its header, never decoded
+    *[(f"show: a {fmt} declaring 100 megapixels", ["show", f"{{dir}}/bomb{HEADERS.SUFFIX[fmt]}", *REMOTE],
+       "header declares 10000x10000 pixels (100.0 megapixels), nothing was decoded") for fmt in HEADERS.FORMATS],
+    ("show: a PAM (OpenCV reads it, no header reader does)", ["show", "{dir}/x.pam", *REMOTE],
+     "x.pam is not an image the coordinator reads: give PNG"),
+    ("show: a PNG cut inside its header", ["show", "{dir}/cut.png", *REMOTE], "its PNG header cannot be read"),
+    ("show: an empty image file", ["show", "{dir}/empty.png", *REMOTE], "empty.png is empty"),
+    ("show: float .npy outside 0..1", ["show", "{dir}/hot.npy", *REMOTE],
+     "hot.npy holds values from -0.5 to 3, but float content must lie in 0..1"),
+    ("show: an HDR photograph brighter than white", ["show", "{dir}/bright.hdr", *REMOTE], "pass --clip to clip it"),
+    ("play: a float frame outside 0..1", ["play", "{dir}/hot-frames", *REMOTE], "0001.npy holds values from"),
+    ("content add: a TIFF declaring 100 megapixels", ["content", "add", "{dir}/bomb.tif", "--rig-dir", "{rig}"],
+     "its TIFF header declares 10000x10000 pixels"),
+    ("content add: float .npy outside 0..1", ["content", "add", "{dir}/hot.npy", "--rig-dir", "{rig}"],
+     "hot.npy holds values from -0.5 to 3"),
+    ("demo: an image declaring 100 megapixels", ["demo", "--image", "{dir}/bomb.bmp", "--out", "{dir}/demo"],
+     "bomb.bmp: its BMP header declares 10000x10000"),
+    ("configure: a LUT of E rows and 3 columns", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-e3.npy", *REMOTE],
+     "a LUT must be (3, E) (a curve per channel) or (E,) (one curve for all), got shape (256, 3); transpose it"),
+    ("configure: a 3-D LUT", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-3d.npy", *REMOTE],
+     "got shape (3, 16, 16)"),
+    ("configure: LUT values above 1", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-hot.npy", *REMOTE],
+     "LUT values must be finite and within [0, 1] (found 0 to 2)"),
+    ("configure: a LUT of one entry", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-one.npy", *REMOTE],
+     "2 <= E <= 65536"),
+    ("configure: an integer LUT", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-int.npy", *REMOTE],
+     "LUT must be float32 or float64, got int64"),
+    ("configure: an empty 1-D LUT", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-empty.npy", *REMOTE],
+     "got (1, 0)"),
 ]
 
 
@@ -105,6 +139,23 @@ def results(tmp_path_factory):
     (d / "frames").mkdir()
     np.save(d / "frames" / "0001.npy", np.zeros((18, 32, 3), np.float32))
     np.save(d / "frames" / "0002.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    for fmt in HEADERS.FORMATS:
+        (d / f"bomb{HEADERS.SUFFIX[fmt]}").write_bytes(HEADERS.huge(fmt))
+    (d / "bright.hdr").write_bytes(HEADERS.valid("HDR"))         # values 0..4
+    (d / "cut.png").write_bytes(HEADERS.valid("PNG")[:20])
+    (d / "empty.png").write_bytes(b"")
+    (d / "x.pam").write_bytes(b"P7\nWIDTH 4\nHEIGHT 4\nDEPTH 1\nMAXVAL 255\nTUPLTYPE GRAYSCALE\nENDHDR\n" + bytes(16))
+    hot = np.full((18, 32, 3), 0.5, np.float32)
+    hot[0, 0], hot[1, 1] = -0.5, 3.0
+    np.save(d / "hot.npy", hot)
+    (d / "hot-frames").mkdir()
+    np.save(d / "hot-frames" / "0001.npy", hot)
+    np.save(d / "lut-e3.npy", np.zeros((256, 3), np.float32))
+    np.save(d / "lut-3d.npy", np.zeros((3, 16, 16), np.float32))
+    np.save(d / "lut-hot.npy", np.linspace(0, 2, 3 * 16, dtype=np.float32).reshape(3, 16))
+    np.save(d / "lut-one.npy", np.zeros((3, 1), np.float32))
+    np.save(d / "lut-int.npy", np.arange(256).reshape(1, 256))
+    np.save(d / "lut-empty.npy", np.zeros((0,), np.float32))
     values = {"rig": str(rig), "dir": str(d), "ok": str(ok), "loose": str(loose), "pickle": str(pickle)}
     before = digest(rig)
     env = {k: v for k, v in os.environ.items() if k != "SHADOWLESS_TOKEN_FILE"}
@@ -134,5 +185,5 @@ def test_a_mistake_is_one_line_and_status_2(results, corpus_table, name, argv, e
 
 def test_the_corpus_is_large_enough_and_nothing_stored_changed(results):
     out, before, after = results
-    assert len(CASES) >= 25 and len(out) == len(CASES)
+    assert len(CASES) >= 50 + 24 and len(out) == len(CASES)
     assert before == after, "a refused command changed the rig directory"
