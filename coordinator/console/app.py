@@ -60,6 +60,8 @@ SECURITY_HEADERS = {
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css",
           "pictures.js": "text/javascript"}
 MAX_LOGIN_BYTES = 4096
+#: foreign Host headers logged (each once); later ones are refused without a log line
+MAX_FOREIGN_HOSTS = 64
 
 KEY = web.AppKey("console", object)
 
@@ -89,6 +91,7 @@ class ConsoleApp:
         self.devices = auth.DeviceCookies(coord.handshake.token)
         self.hosts: HostCheck | None = None     # set once the console knows where it listens
         self.url = ""                           # where it does, for the refusal of a foreign Host
+        self.foreign_hosts: set[str] = set()    # the Hosts refused so far (each logged once)
         self.actions = Actions(coord, audit, live)
         self.static = _load_static()
         self._job_options: str | None = None
@@ -218,8 +221,15 @@ async def host_check(request: web.Request, handler) -> web.StreamResponse:
     """Every request names the console in its Host header, or is answered 421 with one line."""
     console: ConsoleApp = request.app[KEY]
     if not console.host_ok(request):
-        raise _error(web.HTTPMisdirectedRequest, console.hosts.refusal(request.headers.get("Host"), console.url)
-                     if console.hosts is not None else "refused: the console is not listening yet")
+        host = request.headers.get("Host")
+        if console.hosts is None:
+            raise _error(web.HTTPMisdirectedRequest, "refused: the console is not listening yet")
+        message = console.hosts.refusal(host, console.url)
+        key = (host or "")[:100]
+        if key not in console.foreign_hosts and len(console.foreign_hosts) < MAX_FOREIGN_HOSTS:
+            console.foreign_hosts.add(key)      # said once per Host: a page retrying cannot flood the log
+            log.warning("console: %s (from %s)", message, client_address(request))
+        raise _error(web.HTTPMisdirectedRequest, message)
     return await handler(request)
 
 

@@ -176,5 +176,11 @@ class HostCheck:
         """The one line a request with a foreign Host gets (``url``: where the console is)."""
         if not value:
             return f"refused: the request has no Host header; open {url} in a browser"
+        try:
+            name = split_host(value)[0]
+            allow = f"--console-host {name}" if not name.replace(".", "").isdigit() and ":" not in name else None
+        except ValueError:
+            allow = None
         return (f"refused: Host {value[:100]!r} is not an address of this console (a page of another site may be "
-                f"trying to reach it); open {url}, or start the coordinator with --console-host NAME to allow a name")
+                f"trying to reach it); open {url}, or if that name is this machine's, start the coordinator with "
+                f"{allow or '--console-host NAME'}")

@@ -120,7 +120,7 @@ class Console:
             names = (self.host,)        # listening on a name: browsers may use it
         self.app.hosts = HostCheck([(a[0], int(a[1])) for a in runner.addresses], scheme="https" if self.secure
                                    else "http", names=names, allowed=self.hosts)
-        self.app.url = self.url
+        self.app.url = self.url.replace("//0.0.0.0:", "//127.0.0.1:").replace("//[::]:", "//[::1]:")
         live.start()
         self.coord.jobs.on_change = live.poke      # a job's progress reaches the page as it happens
         if not is_loopback(self.host):

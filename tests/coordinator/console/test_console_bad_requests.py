@@ -24,9 +24,12 @@ TOKEN = b"c" * 32
 # "{port}" is the console's port
 HTTP_CASES = [
     ("foreign Host", "evil.example:{port}", None, "/", 421, "Host 'evil.example:{port}' is not an address"),
+    ("foreign Host, upper case", "EVIL.example.:{port}", None, "/", 421, "start the coordinator with "
+                                                                         "--console-host evil.example"),
     ("Host on another port", "127.0.0.1:1", None, "/api/status", 421, "open http://127.0.0.1:{port}/"),
     ("Host port out of range", "127.0.0.1:99999", None, "/", 421, "is not an address of this console"),
-    ("Host 0.0.0.0", "0.0.0.0:{port}", None, "/", 421, "--console-host NAME to allow a name"),
+    ("Host 0.0.0.0", "0.0.0.0:{port}", None, "/", 421, "if that name is this machine's, start the coordinator "
+                                                       "with --console-host NAME"),
     ("Host with a user part", "127.0.0.1:{port}@evil.example", None, "/", 421, "is not an address"),
     ("Host an unclosed IPv6 bracket", "[::1:{port}", None, "/", 421, "is not an address"),
     ("Host with a control character", "evil.example\t:{port}", None, "/", 421, "is not an address"),

@@ -8,6 +8,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import logging
 import socket
 from pathlib import Path
 
@@ -117,7 +118,9 @@ def raw_request(port: int, request: bytes) -> tuple[int, dict]:
     return int(head.split(b" ")[1]), json.loads(body)
 
 
-def test_requests_naming_another_host_are_refused_with_one_line(tmp_path):
+def test_requests_naming_another_host_are_refused_with_one_line(tmp_path, caplog):
+    caplog.set_level(logging.WARNING, logger="coordinator.console.app")
+
     async def go():
         async with console(tmp_path) as (coord, port), client() as s:
             base = f"http://127.0.0.1:{port}"
@@ -139,7 +142,13 @@ def test_requests_naming_another_host_are_refused_with_one_line(tmp_path):
             assert not (coord.rig.path / FILE_NAME).exists(), "a refused request never reaches the login"
             # a request with no Host header at all (HTTP/1.0)
             status, body = await asyncio.to_thread(raw_request, port, b"GET / HTTP/1.0\r\n\r\n")
-            assert status == 421 and body["error"] == f"refused: the request has no Host header; open {base}/ in a browser", body
+            assert status == 421, body
+            assert body["error"] == f"refused: the request has no Host header; open {base}/ in a browser", body
+            # the log names each refused Host once, however often a page retries it
+            refused = [r.getMessage() for r in caplog.records if "is not an address of this console" in r.getMessage()]
+            assert sum(f"Host 'evil.example:{port}'" in m for m in refused) == 1, refused
+            assert all(m.endswith("(from 127.0.0.1)") for m in refused), refused
+            assert "--console-host evil.example" in refused[0]
 
     asyncio.run(go())
 
