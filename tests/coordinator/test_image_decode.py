@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib.util
 import io
 import json
 import subprocess
@@ -19,10 +18,11 @@ import cv2
 import numpy as np
 import pytest
 
+import bench.image_headers as H
 from coordinator.camera import CameraError, read_png
 from coordinator.compensation.image_param import decode_image_bytes
-from coordinator.console import auth
 from coordinator.compensation.errors import CompensationError
+from coordinator.console import auth
 from coordinator.image_decode import FORMATS as DECODER_FORMATS
 from coordinator.image_decode import MAX_PIXELS, ImageRefused, decode_image, declared_size, read_image_file
 from coordinator.rig import Rig, grid_slots, init_rig
@@ -30,9 +30,6 @@ from coordinator.schema import MAX_SIDE
 from coordinator.server import Coordinator
 from protos.image_limits import MAX_IMAGE_SIDE
 
-_spec = importlib.util.spec_from_file_location("image_headers", Path(__file__).parents[1] / "image_headers.py")
-H = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(H)
 
 TOKEN = b"t" * 32
 LOSSLESS = ("PNG", "TIFF", "PPM", "BMP", "EXR", "PFM", "WebP")   # cv2's WebP default (quality 100) is lossless
@@ -64,9 +61,11 @@ def test_a_side_longer_than_the_rigs_is_refused_even_under_the_pixel_count():
 
 def test_refusing_every_huge_header_keeps_memory_bounded(tmp_path):
     """In a fresh process: the peak RSS grows by less than one refused image would take (10000 x
-    10000 x 3 bytes is 286 MiB; the float formats 1.1 GiB) while all nine are refused."""
+    10000 x 3 bytes is 286 MiB; the float formats 1.1 GiB) while all nine are refused, and a whole
+    6.4 MB run-length-encoded HDR (which OpenCV decodes into 1.1 GiB) with them."""
     for fmt in H.FORMATS:
         (tmp_path / f"bomb{H.SUFFIX[fmt]}").write_bytes(H.huge(fmt))
+    (tmp_path / "bomb.whole.hdr").write_bytes(H.hdr_whole())   # 6.4 MB that OpenCV would decode whole
     script = f"""
 import resource, json, sys
 from pathlib import Path
@@ -85,7 +84,7 @@ print(json.dumps({{"grew_kib": after - before, "refused": refused}}))
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    assert len(out["refused"]) == 9 and all("declares 10000x10000 pixels" in m for m in out["refused"]), out
+    assert len(out["refused"]) == 10 and all("declares 10000x10000 pixels" in m for m in out["refused"]), out
     assert out["grew_kib"] < 64 * 1024, f"peak RSS grew {out['grew_kib'] / 1024:.0f} MiB while refusing"
 
 

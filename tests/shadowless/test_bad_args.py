@@ -8,7 +8,6 @@ arguments are checked first). Each row goes to the closing note's table (SHADOWL
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import os
 import subprocess
 import sys
@@ -18,13 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import bench.image_headers as HEADERS
 from coordinator.rig import init_rig
 from protos import auth
 
 NOWHERE = "127.0.0.1:1"          # a port nothing listens on: a case that got this far would fail differently
-_spec = importlib.util.spec_from_file_location("image_headers", Path(__file__).parents[1] / "image_headers.py")
-HEADERS = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(HEADERS)
 REMOTE = ["--coordinator", NOWHERE, "--token-file", "{ok}"]
 
 # (name, argv with {rig} {dir} {ok} {loose} {pickle} {f64img} placeholders, what the one line must say)

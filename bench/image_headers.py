@@ -1,6 +1,7 @@
-"""Image files for the image decoder's tests (tests/coordinator/test_image_decode.py and the bad-input
-corpus): small valid files of nine formats, and the same files
-with their headers patched to declare a huge image (their pixel data stays tiny)."""
+"""Image files for the image decoder's benchmark (``bench image_bombs``) and tests
+(tests/coordinator/test_image_decode.py, the bad-input corpus): small valid files of nine
+formats, and the same files with their headers patched to declare a huge image (their pixel
+data stays tiny)."""
 from __future__ import annotations
 
 import struct
@@ -44,6 +45,20 @@ def exr(image: np.ndarray) -> bytes:
         offset += len(block)
         blocks.append(block)
     return header + table + b"".join(blocks)
+
+
+def hdr_whole(w: int = BIG[0], h: int = BIG[1]) -> bytes:
+    """A complete Radiance HDR file of ``w`` x ``h`` pixels of one grey, every scan line
+    run-length encoded (new-style RLE: runs of 127 per component), so 10000 x 10000 pixels take
+    about 6.4 MB, the file of the issue: a decoder that trusts it fills 1.1 GiB of float pixels."""
+    assert 8 <= w <= 0x7FFF
+    runs, left = bytearray(), w
+    while left:                    # runs of one byte, 128: mantissas 128 and exponent 128 make 0.5
+        n = min(127, left)
+        runs += bytes([128 + n, 128])
+        left -= n
+    line = bytes([2, 2, w >> 8, w & 0xFF]) + bytes(runs) * 4       # R, G, B and the exponent
+    return b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {h} +X {w}\n".encode() + line * h
 
 
 def _png_huge(data: bytes, w: int, h: int) -> bytes:
