@@ -6,6 +6,7 @@ Layout under the rig directory::
     assets/manifests/<asset_id>.json       a manifest's canonical bytes: the file hashes to its name
     assets/tmp/                            files being added (a killed add may leave one; swept later)
     assets/.lock                           taken while an add commits and while a remove deletes
+    assets/.staging.lock                   held shared by every add, start-up recovery's exclusively
 
 An asset is described by a :class:`protos.asset_manifest.Manifest`. Adding streams every source
 file in chunks into ``assets/tmp`` while hashing it (a multi-GB video never sits in memory), then,
@@ -43,6 +44,9 @@ CHUNK_BYTES = 1 << 20          # streaming unit for hashing, copying and verifyi
 MAX_READ_BYTES = 64 << 20      # read_blob's largest chunk
 MIN_PREFIX = 4                 # shortest id prefix `get` accepts
 STALE_TMP_S = 3600.0           # files in assets/tmp untouched this long are leftovers of killed adds
+#: an add holds this (under assets/) shared while it stages and commits; start-up recovery empties
+#: assets/tmp only when it can take it exclusively (:mod:`coordinator.recovery`)
+STAGING_LOCK = ".staging.lock"
 _NAME_MAX = 200
 
 Progress = Callable[[int, int], None]
@@ -94,10 +98,10 @@ class AssetStore:
         return self.manifests_dir / f"{asset_id}.json"
 
     @contextmanager
-    def _locked(self) -> Iterator[None]:
+    def _locked(self, name: str = ".lock", mode: int = fcntl.LOCK_EX) -> Iterator[None]:
         self.root.mkdir(parents=True, exist_ok=True)
-        with open(self.root / ".lock", "a+b") as f:
-            fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        with open(self.root / name, "a+b") as f:
+            fcntl.flock(f.fileno(), mode)
             try:
                 yield
             finally:
@@ -197,17 +201,18 @@ class AssetStore:
 
         self._sweep_tmp()
         staged: list[tuple[str, Path]] = []
-        try:
-            blobs = self._stage(files, staged, progress)
-            manifest = Manifest(kind=kind, name=name, blobs=tuple(blobs), width=probe.width, height=probe.height,
-                                channels=probe.channels, bit_depth=probe.bit_depth, frames=probe.frames,
-                                fps=float(probe.fps), extra=dict(probe.extra))
-            self._commit(manifest, staged)
-        except ManifestError as exc:
-            raise AssetError(f"{src}: {exc}") from exc
-        finally:
-            for _, tmp in staged:
-                tmp.unlink(missing_ok=True)
+        with self._locked(STAGING_LOCK, fcntl.LOCK_SH):     # recovery leaves assets/tmp alone meanwhile
+            try:
+                blobs = self._stage(files, staged, progress)
+                manifest = Manifest(kind=kind, name=name, blobs=tuple(blobs), width=probe.width, height=probe.height,
+                                    channels=probe.channels, bit_depth=probe.bit_depth, frames=probe.frames,
+                                    fps=float(probe.fps), extra=dict(probe.extra))
+                self._commit(manifest, staged)
+            except ManifestError as exc:
+                raise AssetError(f"{src}: {exc}") from exc
+            finally:
+                for _, tmp in staged:
+                    tmp.unlink(missing_ok=True)
         return manifest
 
     def _stage(self, files: list[Path], staged: list[tuple[str, Path]], progress: Progress | None) -> list[Blob]:

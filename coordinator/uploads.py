@@ -10,8 +10,10 @@ chunks, each appended at the offset the coordinator holds, into::
 
 :meth:`Uploads.finish` checks every file's size and SHA-256 against the announcement, adds
 the files to the store (:meth:`coordinator.assets.AssetStore.add`: one file is a still or a
-video, several an image sequence sorted by name) and removes the upload. Uploads left
-unfinished are removed after :data:`STALE_UPLOAD_S` without a byte.
+video, several an image sequence sorted by name) and removes the upload; content the store
+refuses (a corrupt video) is refused naming the operator's file, and its upload is removed at
+once. Uploads left unfinished are removed after :data:`STALE_UPLOAD_S` without a byte; what a
+crash leaves of one is settled at start (:mod:`coordinator.recovery`).
 
 Everything here blocks on the disk: the gRPC edge (:mod:`coordinator.content_service`) calls it
 from worker threads. One lock per upload orders its writes.
@@ -76,6 +78,16 @@ def check_spec(files: list[UploadFile]) -> None:
             raise ValueError(f"{f.name}: {f.sha256!r} is not a SHA-256 (64 lowercase hex digits)")
         if f.size < 0:
             raise ValueError(f"{f.name}: negative size")
+
+
+def operator_names(text: str, folder: Path, files: list[UploadFile], sequence: str) -> str:
+    """``text`` with the upload's internal paths (``…/uploads/<id>/files/NAME``, the folder) replaced
+    by the names the operator announced, so a refusal names the operator's own file."""
+    for base in dict.fromkeys((folder, folder.resolve())):
+        for f in files:
+            text = text.replace(str(base / f.name), f.name)
+        text = text.replace(str(base), sequence)
+    return text
 
 
 def upload_id(files: list[UploadFile]) -> str:
@@ -194,12 +206,22 @@ class Uploads:
             src = folder / files[0].name if len(files) == 1 else folder
             if src == folder and not name:
                 name = "sequence"
-            m = self.store.add(src, name=name or None, fps=fps, note=notes.append)
-            shutil.rmtree(self._dir(uid), ignore_errors=True)
+            try:
+                m = self.store.add(src, name=name or None, fps=fps, note=notes.append)
+            except AssetError as exc:      # the content is refused: nothing of it is kept
+                self._drop(uid)
+                raise AssetError(operator_names(str(exc), folder, files, name or "the sequence")) from None
+            finally:
+                notes[:] = [operator_names(n, folder, files, name or "the sequence") for n in notes]
+            self._drop(uid)
+        return AddedAsset(m, m.asset_id in before, tuple(notes))
+
+    def _drop(self, uid: str) -> None:
+        """Remove upload ``uid``'s folder and forget it."""
+        shutil.rmtree(self._dir(uid), ignore_errors=True)
         with self._guard:
             self._locks.pop(uid, None)
             self._specs.pop(uid, None)
-        return AddedAsset(m, m.asset_id in before, tuple(notes))
 
     def sweep(self, *, now: float | None = None, max_age_s: float = STALE_UPLOAD_S) -> list[str]:
         """Remove uploads without a new byte for ``max_age_s``; their ids."""
@@ -209,7 +231,7 @@ class Uploads:
             return gone
         for d in self.root.iterdir():
             try:
-                idle = now - max(d.stat().st_mtime, *(p.stat().st_mtime for p in (d / "files").glob("*")))
+                idle = now - max([d.stat().st_mtime, *(p.stat().st_mtime for p in (d / "files").glob("*"))])
             except (OSError, ValueError):
                 continue
             if idle > max_age_s:
@@ -218,4 +240,4 @@ class Uploads:
         return gone
 
 
-__all__ = ["AddedAsset", "STALE_UPLOAD_S", "UploadFile", "Uploads", "check_spec", "upload_id"]
+__all__ = ["AddedAsset", "STALE_UPLOAD_S", "UploadFile", "Uploads", "check_spec", "operator_names", "upload_id"]

@@ -91,6 +91,17 @@ def finish_run(rig_dir: str | Path, run: Run, status: str) -> None:
     atomic_write_json(f, {**doc, "status": status, "finished_at": time.time()})
 
 
+def mark_interrupted(rig_dir: str | Path) -> Path | None:
+    """At a coordinator's start: a run left ``running`` was stopped by a crash; mark it ``interrupted``
+    (the next run with its settings still resumes it). The file changed, or None."""
+    f = calibration_dir(rig_dir) / "run.json"
+    doc = _read(f)
+    if doc is None or doc.get("status") != "running":
+        return None
+    atomic_write_json(f, {**doc, "status": "interrupted", "interrupted_at": time.time()})
+    return f
+
+
 def _read(f: Path) -> dict | None:
     try:
         doc = json.loads(f.read_text())

@@ -22,7 +22,7 @@ av = pytest.importorskip("av")
 from coordinator import assets as assets_mod  # noqa: E402
 from coordinator import content_commands, content_format  # noqa: E402
 from coordinator.asset_probe import pixel_format_layout, probe_video  # noqa: E402
-from coordinator.assets import AssetStore  # noqa: E402
+from coordinator.assets import STAGING_LOCK, AssetStore  # noqa: E402
 from coordinator.errors import AssetError  # noqa: E402
 from coordinator.errors import CoordinatorError  # noqa: E402
 from coordinator.rig import init_rig  # noqa: E402
@@ -76,9 +76,10 @@ def h264_or_mpeg4() -> str:
 
 
 def stored_files(store: AssetStore) -> list[str]:
-    """Everything under assets/ except the lock and empty folders."""
+    """Everything under assets/ except the locks and empty folders."""
     root = store.root
-    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file() and p.name != ".lock")
+    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*")
+                  if p.is_file() and p.name not in (".lock", STAGING_LOCK))
 
 
 @pytest.fixture
