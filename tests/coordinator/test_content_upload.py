@@ -175,3 +175,22 @@ def test_damaged_bytes_are_refused_and_dropped_and_bad_names_and_strangers_too(r
     assert missing.returncode == 2 and "no such file or folder" in missing.stderr
     assert cli(rig, "verify", "x").returncode == 2
     shutil.rmtree(rig.rig_dir / "assets" / "uploads", ignore_errors=True)
+
+
+def test_a_corrupt_video_is_refused_naming_the_operators_file_and_nothing_of_it_stays(rig, tmp_path, corpus_table):
+    uploads = rig.rig_dir / "assets" / "uploads"
+    cases = {   # what the operator adds (the store's probes word the reason; the name is what is checked here)
+        "holiday.mp4": np.random.default_rng(5).integers(0, 256, 300_000, dtype=np.uint8).tobytes(),
+        "poster.png": b"\x89PNG\r\n\x1a\n" + b"\x00" * 5000,
+        "frames.npy": b"\x93NUMPY not really an array",
+    }
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+        r = cli(rig, "add", str(tmp_path / name))
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1, r.stderr
+        assert lines[0].startswith(f"shadowless content: the coordinator refused: {name}: "), lines[0]
+        assert "uploads" not in lines[0] and "/files/" not in lines[0] and str(rig.rig_dir) not in lines[0], lines[0]
+        assert not any(uploads.iterdir()), f"{name}: the refused upload stayed: {sorted(uploads.iterdir())}"
+        corpus_table("content add --coordinator", name, lines[0], r.returncode)
+    assert "Traceback" not in rig.log("coordinator")
