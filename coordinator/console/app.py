@@ -92,6 +92,7 @@ class ConsoleApp:
         self.hosts: HostCheck | None = None     # set once the console knows where it listens
         self.url = ""                           # where it does, for the refusal of a foreign Host
         self.foreign_hosts: set[str] = set()    # the Hosts refused so far (each logged once)
+        self._global_said: float | None = None  # when the spent global login budget was last logged
         self.actions = Actions(coord, audit, live)
         self.static = _load_static()
         self._job_options: str | None = None
@@ -108,6 +109,15 @@ class ConsoleApp:
         if not origin or not host:
             return False
         return origin.lower() == f"{request.scheme}://{host}".lower()
+
+    def _say_global_limit(self) -> None:
+        """Log, at most once a minute, that the global login budget is spent (many addresses guessing)."""
+        now = self.limiter.clock()
+        if self._global_said is None or now - self._global_said >= 60.0:
+            self._global_said = now
+            log.warning("console: more than %d failed logins a minute from many addresses: a login from a browser "
+                        "that never logged in here is tried once every %.0f s; browsers that did are not held back",
+                        self.limiter.budget, self.limiter.window_s / self.limiter.budget)
 
     def session_of(self, request: web.Request, *, touch: bool = True) -> auth.Session | None:
         return self.sessions.get(request.cookies.get(auth.COOKIE), touch=touch)
@@ -152,6 +162,8 @@ class ConsoleApp:
         device = self.devices.verify(request.cookies.get(auth.DEVICE_COOKIE))
         wait, limit = self.limiter.wait(address, device)
         if wait:
+            if limit == "global":
+                self._say_global_limit()
             why = {"address": f"too many failed logins from {address}",
                    "device": "too many failed logins from this browser",
                    "global": "too many failed logins from many addresses"}[limit]

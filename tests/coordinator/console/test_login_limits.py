@@ -153,7 +153,7 @@ def _post_login(s: aiohttp.ClientSession, base: str, body: dict, *, device: str 
     return s.post(base + "/login", json=body, headers=headers)
 
 
-def test_login_limits_over_http(tmp_path):
+def test_login_limits_over_http(tmp_path, caplog):
     """A real console: a mistyping operator waits seconds, not a minute, and is told how long; a
     spent global budget holds back every browser but one that logged in before."""
     async def go():
@@ -191,6 +191,10 @@ def test_login_limits_over_http(tmp_path):
             assert error == f"too many failed logins from many addresses: try again in {r.headers['Retry-After']} s"
             r = await _post_login(s, base, {"token": TOKEN.decode()}, device=device.value + "x")
             assert r.status == 429, "a forged device cookie counts for nothing"
+            said = [r.getMessage() for r in caplog.records if "failed logins a minute" in r.getMessage()]
+            assert said == ["console: more than 3 failed logins a minute from many addresses: a login from a browser "
+                            "that never logged in here is tried once every 20 s; browsers that did are not held "
+                            "back"], said
             r = await _post_login(s, base, {"token": TOKEN.decode()}, device=device.value)
             assert r.status == 200, await r.text()
             assert r.cookies[auth.DEVICE_COOKIE].value == device.value, "the same browser keeps its id"
