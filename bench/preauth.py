@@ -30,6 +30,7 @@ from pathlib import Path
 from bench.machine import load, machine
 from bench.workdir import run_dir
 from coordinator.api import NodeState
+from coordinator.services import BUDGET_OFF_ENV
 from shadowless.local import LocalRig, grid_names
 
 MIB = 1024 * 1024
@@ -42,7 +43,12 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nodes", type=int, default=2, help="real node processes that must stay live (default 2)")
     p.add_argument("--method", default="/shadowless.v1.NodeLink/Hello",
                    help="the unauthenticated method called (default /shadowless.v1.NodeLink/Hello)")
+    p.add_argument("--payload", choices=("garbage", "hello"), default="garbage",
+                   help="garbage: bytes that are no message (default); hello: a HelloRequest with a huge slot name")
     p.add_argument("--settle", type=float, default=3.0, help="seconds after the burst before rss_after (default 3)")
+    p.add_argument("--compare", action="store_true",
+                   help="measure first without the budget for calls before authentication (the coordinator as it "
+                        "was before it), then with it, side by side")
     p.add_argument("--keep", metavar="DIR", help="keep the rig and its logs in DIR/preauth")
 
 
@@ -77,7 +83,13 @@ ATTACK = r"""
 import asyncio, collections, json, sys
 import grpc
 target, method, calls, size, channels = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
-payload = b"\xff" * size          # not a protobuf message: it fails to parse
+if sys.argv[6] == "hello":        # a well-formed HelloRequest whose slot name fills the size
+    from protos import auth, common_pb2
+    from protos.version import PROTOCOL_VERSION
+    payload = common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, role="node", client_nonce=auth.new_nonce(),
+                                      slot="x" * (size - 64)).SerializeToString()
+else:
+    payload = b"\xff" * size      # not a protobuf message: it fails to parse
 async def main():
     chans = [grpc.aio.insecure_channel(target, options=[("grpc.max_send_message_length", size + 1024)])
              for _ in range(channels)]
@@ -105,9 +117,11 @@ async def _status_probe(client, stop: threading.Event, times: list[float]) -> No
         await asyncio.sleep(0.05)
 
 
-def measure(workdir: Path, *, calls: int, size: int, channels: int, nodes: int, method: str, settle: float) -> dict:
+def measure(workdir: Path, *, calls: int, size: int, channels: int, nodes: int, method: str, settle: float,
+            payload: str = "garbage", budget: bool = True) -> dict:
     slots = grid_names(nodes)
-    rig = LocalRig(slots, workdir, output_size=(32, 32), content_size=(32, 32), mdns=False).create()
+    env = {} if budget else {BUDGET_OFF_ENV: "off"}
+    rig = LocalRig(slots, workdir, output_size=(32, 32), content_size=(32, 32), mdns=False, env=env).create()
     try:
         rig.start_coordinator()
         rig.wait_ready()
@@ -134,7 +148,7 @@ def measure(workdir: Path, *, calls: int, size: int, channels: int, nodes: int, 
                 probe = asyncio.create_task(_status_probe(c, stop, times))
                 t0 = time.monotonic()
                 attack = await asyncio.create_subprocess_exec(
-                    sys.executable, "-c", ATTACK, rig.target, method, str(calls), str(size), str(channels),
+                    sys.executable, "-c", ATTACK, rig.target, method, str(calls), str(size), str(channels), payload,
                     stdout=subprocess.PIPE, stderr=subprocess.PIPE)
                 out, err = await asyncio.wait_for(attack.communicate(), 300)
                 result["burst_s"] = round(time.monotonic() - t0, 2)
@@ -172,10 +186,15 @@ def measure(workdir: Path, *, calls: int, size: int, channels: int, nodes: int, 
 
 def run(args: argparse.Namespace) -> int:
     params = {"calls": args.calls, "size_mib": args.size_mib, "channels": args.channels, "nodes": args.nodes,
-              "method": args.method, "settle_s": args.settle}
+              "method": args.method, "settle_s": args.settle, "payload": args.payload}
+    kw = dict(calls=args.calls, size=int(args.size_mib * MIB), channels=args.channels, nodes=args.nodes,
+              method=args.method, settle=args.settle, payload=args.payload)
     with run_dir(args.keep, "preauth") as work:
-        figures = measure(work, calls=args.calls, size=int(args.size_mib * MIB), channels=args.channels,
-                          nodes=args.nodes, method=args.method, settle=args.settle)
+        if args.compare:
+            figures = {"without_budget": measure(work / "without", budget=False, **kw),
+                       "with_budget": measure(work / "with", **kw)}
+        else:
+            figures = measure(work, **kw)
     print(json.dumps({"benchmark": "preauth", "figures": figures, "parameters": params, "machine": machine(),
                       "load": load()}, indent=2))
     return 0

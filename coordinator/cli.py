@@ -8,6 +8,7 @@ import os
 import signal
 from pathlib import Path
 
+from coordinator.console.hosts import allowed_host
 from coordinator.errors import CoordinatorError, RigError
 from coordinator.rig import Rig
 from coordinator.server import Coordinator
@@ -51,7 +52,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--console", default="127.0.0.1:7680", metavar="HOST:PORT",
                    help="serve the operator console (a web page) here (default 127.0.0.1:7680, this machine only; "
                         "0.0.0.0:7680 opens it to the network, with TLS when --tls-cert is given; port 0 picks one)")
+    p.add_argument("--console-host", action="append", default=[], type=allowed_host, metavar="NAME[:PORT]",
+                   help="a name browsers use for the console (repeatable; e.g. console.venue.lan): requests must name "
+                        "an address the console listens on or one of these, else they are refused")
     p.add_argument("--no-console", action="store_true", help="do not serve the operator console")
+    p.add_argument("--console-optional", action="store_true",
+                   help="if the console's port is taken, run on without the console (status then says "
+                        "'console: NOT SERVED'); by default the coordinator refuses to start")
     p.add_argument("--console-port-file", metavar="FILE", help="write the console's bound port here (for scripts)")
 
 
@@ -68,7 +75,8 @@ async def serve(args: argparse.Namespace) -> int:
         tls = (Path(args.tls_cert).read_bytes(), Path(args.tls_key).read_bytes())
     coord = Coordinator(rig, token, listen=args.listen, mdns_interfaces=args.mdns_interface,
                         advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms,
-                        cameras=args.camera, console=None if args.no_console else args.console)
+                        cameras=args.camera, console=None if args.no_console else args.console,
+                        console_hosts=args.console_host, console_optional=args.console_optional)
     await coord.start()
     if args.port_file:
         atomic_write_text(args.port_file, f"{coord.port}\n")

@@ -14,6 +14,7 @@ injectable (``clock_ns``) so tests decide when time passes.
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import math
 import secrets
@@ -36,6 +37,7 @@ from coordinator.api import (
     ShowResult,
     ShowState,
 )
+from coordinator.admission import Budget, trim_memory
 from coordinator.assets import AssetStore
 from coordinator.camera import Camera, RoomCamera, open_camera
 from coordinator.distribution import Distribution, note_ready
@@ -50,13 +52,14 @@ from coordinator.playback import Playback, cpu_seconds
 from coordinator.previews import Previews
 from coordinator.refusals import Refusals
 from coordinator.rig import Content, Rig
+from coordinator.recovery import recover
 from coordinator.rig_lock import RigLock
 from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
 from coordinator.show import MIN_LEAD_NS, Show
 from coordinator.sync import SyncTracker, summarize
 from protos import sd_notify
 from protos.host import boot_id
-from protos.version import PROTOCOL_VERSION
+from protos.version import MAX_REQUEST_BYTES, PROTOCOL_VERSION
 
 log = logging.getLogger(__name__)
 
@@ -109,14 +112,23 @@ class Coordinator:
         The rig clock, monotonic nanoseconds (injectable for tests).
     console : str, optional
         Serve the operator console (a web page) on this ``HOST:PORT`` (see :attr:`console_port`).
+    console_hosts : list of str, optional
+        Names (``NAME`` or ``NAME:PORT``) a browser may use for the console besides the addresses it listens on.
+    console_optional : bool
+        A console that cannot listen is said loudly (the log, ``status``) and the rig runs on;
+        by default :meth:`start` refuses with one line instead.
     """
 
     def __init__(self, rig: Rig, token: bytes, *, listen: str = "0.0.0.0:7600", mdns_interfaces: list[str] | None = None,
                  advertise: bool = True, tls: tuple[bytes, bytes] | None = None, latency_ms: float | None = None,
                  cameras: list[str] | None = None, clock_ns: Callable[[], int] = time.monotonic_ns,
-                 console: str | None = None):
+                 console: str | None = None, console_hosts: list[str] | None = None, console_optional: bool = False):
         self._rig = rig
         self.console_listen, self.console_port, self._console = console, 0, None   # the operator console (web)
+        self.console_optional = console_optional
+        #: what `status` says of the console: its address, "NOT SERVED (why)" or "off"
+        self.console_state = "off" if console is None else "starting"
+        self.console_hosts = list(console_hosts or ())
         self.listen = listen
         self.mdns_interfaces = mdns_interfaces
         self.advertise = advertise
@@ -137,6 +149,7 @@ class Coordinator:
         self.live_at: dict[str, int] = {}
         self.ready_at: dict[str, dict[str, int]] = {}
         self.refusals = Refusals()
+        self.admission = Budget(reserve_bytes=MAX_REQUEST_BYTES)   # calls without a session
         self.jobs = JobTracker()
         self._job_task: asyncio.Task | None = None
         self._systemd = sd_notify.Watchdog()
@@ -171,17 +184,16 @@ class Coordinator:
         """Listen, register the services (health and reflection too), advertise, watch the nodes.
         Takes the rig directory's lock first: RigLockError if another coordinator serves it."""
         self._rig_lock.acquire()
+        recover(self._rig.path)     # settle what a crash left (coordinator/recovery.py) before serving
         self.distribution.load()
         self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
         if self.console_listen is not None:
-            from coordinator.console import Console   # aiohttp only when the console is wanted
-            console = Console(self, self.console_listen)
             try:
-                await console.start()
-            except CoordinatorError as exc:      # the rig runs on without its page; say why, loudly
-                log.error("the operator console is not served: %s (choose another --console HOST:PORT)", exc)
-            else:
-                self._console, self.console_port = console, console.port
+                await self._start_console()
+            except CoordinatorError:
+                await self._server.stop(0)
+                self._rig_lock.release()
+                raise
         if self.advertise:
             self._advertiser = Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
                                           instance_id=self.instance_id, port=self.port, interfaces=self.mdns_interfaces)
@@ -193,6 +205,28 @@ class Coordinator:
         # under systemd (Type=notify): ready now; keep-alives from the loop that serves everything
         self._systemd.expect("loop")
         sd_notify.notify("READY=1", f"STATUS=rig {self.rig.config.name} on port {self.port}")
+
+    async def _start_console(self) -> None:
+        """Serve the operator console. One that cannot listen (its port taken: the operator's browser
+        would reach whatever holds it) stops the start with one line, unless it is optional: then
+        the rig runs on and says so in the log and in ``status``."""
+        from coordinator.console import Console   # aiohttp only when the console is wanted
+        console = Console(self, self.console_listen, hosts=self.console_hosts)
+        try:
+            await console.start()
+        except CoordinatorError as exc:
+            why = _bind_failure(exc, self.console_listen)
+            if not self.console_optional:
+                raise CoordinatorError(f"the operator console cannot listen on {self.console_listen}: {why}; choose "
+                                       "another --console HOST:PORT, --no-console, or --console-optional to run "
+                                       "without it") from None
+            self.console_state = f"NOT SERVED ({why})"
+            log.error("console: NOT SERVED (%s): the rig runs on without its page (--console-optional)", why)
+        else:
+            self._console, self.console_port = console, console.port
+            host = self.console_listen.rpartition(":")[0].strip("[]") or "0.0.0.0"
+            scheme = "https" if self.tls is not None else "http"
+            self.console_state = f"{scheme}://{host}:{console.port}/"
 
     async def stop(self, grace: float = 2.0) -> None:
         """Graceful shutdown: health NOT_SERVING, mDNS unregister, streams closed, server stopped."""
@@ -319,6 +353,11 @@ class Coordinator:
             self._systemd.beat("loop")     # a frozen event loop stops systemd's keep-alives
             self._systemd.tick()
             self.sweep()
+            if self.admission.should_trim():    # a burst before authentication ended
+                freed = await asyncio.to_thread(trim_memory)
+                if freed:
+                    log.info("returned %.0f MiB to the system after a burst of calls before authentication",
+                             freed / 2**20)
             if time.monotonic() >= next_poll:   # host time: an injected rig clock may stand still
                 next_poll = time.monotonic() + STORE_POLL_S
                 await self.refresh_assets()
@@ -564,7 +603,20 @@ class Coordinator:
             frame_bytes_sent=self.frame_bytes_sent, show_updates_sent=self.show_updates_sent,
             show_bytes_sent=self.show_bytes_sent, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
-            refusals=self.refusals.summary(now))
+            refusals=self.refusals.summary(now), admission=self.admission.figures(), console=self.console_state)
+
+
+def _bind_failure(exc: BaseException, listen: str) -> str:
+    """Why a listener could not bind, in a few words: ``port 7680 in use`` for the usual case."""
+    cause = exc.__cause__
+    port = listen.rpartition(":")[2]
+    if isinstance(cause, OSError) and cause.errno == errno.EADDRINUSE:
+        return f"port {port} in use"
+    if isinstance(cause, OSError) and cause.errno == errno.EADDRNOTAVAIL:
+        return f"address {listen.rpartition(':')[0]} is not on this host"
+    if isinstance(cause, OSError) and cause.strerror:
+        return cause.strerror.lower()
+    return str(exc)
 
 
 def _same_machine(a: NodeInfo, b: NodeInfo) -> bool:

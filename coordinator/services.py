@@ -10,8 +10,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import functools
+import inspect
 import logging
+import os
+import socket
+import traceback
 from typing import TYPE_CHECKING, Any
 
 import grpc
@@ -20,8 +25,11 @@ from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 from grpc_reflection.v1alpha import reflection
 
 from coordinator import content_service, wire
+from coordinator.admission import MAX_MESSAGE_BYTES as MAX_PREAUTH_MESSAGE_BYTES
+from coordinator.admission import REFUSED_OVER_BUDGET, Ticket
 from coordinator.api import Space
 from coordinator.errors import CoordinatorError
+from coordinator.float_range import check_float_range
 from coordinator.rig import Content
 from coordinator.sessions import RpcRefusal
 from coordinator.show import BEACON_S
@@ -34,6 +42,9 @@ if TYPE_CHECKING:  # pragma: no cover - types only
 log = logging.getLogger(__name__)
 
 SERVER_OPTIONS = COORDINATOR_GRPC_OPTIONS + [("grpc.so_reuseport", 0)]
+#: set to "off", the server runs without the budget for calls before authentication: what
+#: `shadowless bench preauth --compare` measures as "before" (never for a rig in use)
+BUDGET_OFF_ENV = "SHADOWLESS_PREAUTH_BUDGET"
 
 
 def _peer(context: Any) -> str:
@@ -63,7 +74,180 @@ def _guard(fn):
 
 def _decoded(image: Any) -> np.ndarray:
     img = codec.decode_image(image)
-    return img.astype(np.float32) if img.dtype == np.float16 else img
+    img = img.astype(np.float32) if img.dtype == np.float16 else img
+    return check_float_range(img, "the image", hint="clip it before sending (shadowless show/play --clip)")
+
+
+class _Malformed:
+    """A request that did not parse as its method's message (see :func:`_measured`): only the
+    parser's words are kept (an exception would hold the raw bytes through its traceback)."""
+
+    def __init__(self, error: str):
+        self.error = error
+
+
+def _measured(deserializer):
+    """The request deserializer of an admitted call: ``raw -> (len(raw), message)``. A message that
+    does not parse becomes a :class:`_Malformed`, refused by the handler in one line: raised in
+    gRPC's deserializer it was an ERROR with a traceback per message. One larger than a call
+    without a session needs (MAX_PREAUTH_MESSAGE_BYTES) is not parsed at all."""
+
+    def parse(raw: bytes):
+        if len(raw) > MAX_PREAUTH_MESSAGE_BYTES:
+            return len(raw), _Malformed(f"larger than the {MAX_PREAUTH_MESSAGE_BYTES // 1024} KiB a call without "
+                                        "a session may send")
+        if deserializer is None:
+            return len(raw), raw
+        try:
+            return len(raw), deserializer(raw)
+        except Exception as exc:  # noqa: BLE001 - a protobuf DecodeError, or whatever a parser raises
+            error = f"not the method's message: {type(exc).__name__}"
+        return len(raw), _Malformed(error)
+
+    return parse
+
+
+def _forget_locals(exc: BaseException) -> None:
+    """Drop the locals of the finished frames ``exc`` passed through. An abort's exception ends up
+    in a reference cycle with the call's context, and its traceback's frames hold the request (up to
+    the size cap each): without this, a burst of refused calls stayed resident until a full garbage
+    collection."""
+    traceback.clear_frames(exc.__traceback__)
+
+
+class Admission(grpc.aio.ServerInterceptor):
+    """Calls without a live session go through the coordinator's budget for calls before
+    authentication (:class:`coordinator.admission.Budget`) before a byte of their message is read.
+
+    gRPC reads a unary call's whole message before its handler runs; so such a call is served
+    here by a request-streaming handler (the same on the wire), which asks the budget first and
+    then reads the one message itself. Over the budget, the call is refused unread with
+    RESOURCE_EXHAUSTED and counted in the rig's refusals (logged once per address a minute). Calls
+    with a node's or an operator's session pass untouched.
+    """
+
+    def __init__(self, coordinator: "Coordinator"):
+        self.c = coordinator
+
+    async def intercept_service(self, continuation, handler_call_details):
+        handler = await continuation(handler_call_details)
+        if handler is None:
+            return None
+        session = dict(handler_call_details.invocation_metadata or ()).get(SESSION_KEY, "")
+        if session and (session in self.c.sessions or session in self.c.handshake.operators):
+            return handler
+        return self._budgeted(handler, handler_call_details.method)
+
+    async def _enter(self, context) -> Ticket:
+        peer = _peer(context)
+        ticket = self.c.admission.admit(peer)
+        if ticket is None:
+            exc = self.c.handshake.refuse(peer, "", grpc.StatusCode.RESOURCE_EXHAUSTED, REFUSED_OVER_BUDGET)
+            await context.abort(exc.code, exc.message)
+        return ticket
+
+    def _leave(self, ticket: Ticket) -> None:
+        self.c.admission.release(ticket)
+
+    async def _read_one(self, context, ticket: Ticket, method: str):
+        """The call's one request message. Read with ``context.read()``: the request iterator is an
+        async generator whose suspended frame would keep the last message (up to the size cap)
+        alive in a reference cycle until a full garbage collection."""
+        got = await context.read()
+        if got is grpc.aio.EOF:
+            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"{method}: the call carried no request message")
+        nbytes, request = got
+        del got
+        self.c.admission.received(ticket, nbytes)
+        if isinstance(request, _Malformed):
+            self.c.admission.malformed += 1
+            exc = self.c.handshake.refuse(_peer(context), "", grpc.StatusCode.INVALID_ARGUMENT,
+                                          f"malformed {method} request ({request.error}): dropped")
+            await context.abort(exc.code, exc.message)
+        return request
+
+    def _budgeted(self, handler, method: str):
+        ser = handler.response_serializer
+        if handler.request_streaming:
+            return self._budgeted_stream(handler, ser)
+        deser = _measured(handler.request_deserializer)
+        if not handler.response_streaming:
+            inner = handler.unary_unary
+
+            async def unary(request_iterator, context):
+                ticket = await self._enter(context)
+                request = None
+                try:
+                    request = await self._read_one(context, ticket, method)
+                    return await inner(request, context)
+                except BaseException as exc:
+                    request = None
+                    _forget_locals(exc)
+                    raise
+                finally:
+                    self._leave(ticket)
+
+            return grpc.stream_unary_rpc_method_handler(unary, request_deserializer=deser, response_serializer=ser)
+        inner = handler.unary_stream
+
+        async def first(request_iterator, context):   # the request is what the budget holds
+            ticket = await self._enter(context)
+            try:
+                return await self._read_one(context, ticket, method)
+            finally:
+                self._leave(ticket)
+
+        if inspect.isasyncgenfunction(inner):
+            async def streamed(request_iterator, context):
+                try:
+                    async for reply in inner(await first(request_iterator, context), context):
+                        yield reply
+                except BaseException as exc:
+                    _forget_locals(exc)
+                    raise
+        else:       # a handler that writes with context.write
+            async def streamed(request_iterator, context):
+                try:
+                    await inner(await first(request_iterator, context), context)
+                except BaseException as exc:
+                    _forget_locals(exc)
+                    raise
+
+        return grpc.stream_stream_rpc_method_handler(streamed, request_deserializer=deser, response_serializer=ser)
+
+    def _budgeted_stream(self, handler, ser):
+        """A request stream is read by its handler (ours check the session first): the call holds
+        a reservation while it lasts."""
+        deser = handler.request_deserializer
+        if not handler.response_streaming:
+            inner = handler.stream_unary
+
+            async def unary(request_iterator, context):
+                ticket = await self._enter(context)
+                try:
+                    return await inner(request_iterator, context)
+                finally:
+                    self._leave(ticket)
+
+            return grpc.stream_unary_rpc_method_handler(unary, request_deserializer=deser, response_serializer=ser)
+        inner = handler.stream_stream
+        if inspect.isasyncgenfunction(inner):
+            async def streamed(request_iterator, context):
+                ticket = await self._enter(context)
+                try:
+                    async for reply in inner(request_iterator, context):
+                        yield reply
+                finally:
+                    self._leave(ticket)
+        else:
+            async def streamed(request_iterator, context):
+                ticket = await self._enter(context)
+                try:
+                    await inner(request_iterator, context)
+                finally:
+                    self._leave(ticket)
+
+        return grpc.stream_stream_rpc_method_handler(streamed, request_deserializer=deser, response_serializer=ser)
 
 
 def regions_from_request(msg: control_pb2.ShowRequest) -> dict[str, list[tuple[int, int, int, int]]]:
@@ -452,9 +636,41 @@ class RigControlService(_Handshake):
         return await self._control("stop", request, context)
 
 
+def check_free(listen: str) -> None:
+    """Refuse, in one line of ours, an address whose port another process holds: bound by gRPC,
+    its C core logs its own error line first. A plain bind (with SO_REUSEADDR, as gRPC binds) on
+    every address ``HOST`` resolves to, closed at once. Port 0 and unix sockets are not checked."""
+    host, _, port = listen.rpartition(":")
+    if listen.startswith("unix:") or not port.isdigit() or int(port) == 0:
+        return
+    host = host.strip("[]")
+    try:
+        infos = socket.getaddrinfo(host or None, int(port), type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as exc:
+        raise CoordinatorError(f"cannot listen on {listen}: {host!r} is not an address of this host "
+                               f"({exc.strerror}); give --listen HOST:PORT with one of its addresses") from None
+    for family, kind, proto, _, addr in infos:
+        with socket.socket(family, kind, proto) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                sock.bind(addr)
+            except OSError as exc:
+                if exc.errno == errno.EADDRINUSE:
+                    raise CoordinatorError(f"cannot listen on {listen}: port {port} is in use (another coordinator? "
+                                           "stop it, or give --listen HOST:PORT another port)") from None
+                if exc.errno == errno.EADDRNOTAVAIL:
+                    raise CoordinatorError(f"cannot listen on {listen}: {host} is not an address of this host; "
+                                           "give --listen HOST:PORT with one of its addresses") from None
+                raise CoordinatorError(f"cannot listen on {listen}: {exc.strerror}") from None
+
+
 async def serve(coordinator: "Coordinator", listen: str, *, tls: tuple[bytes, bytes] | None = None):
     """Start the gRPC server for ``coordinator``; returns ``(server, health servicer, port)``."""
-    server = grpc.aio.server(options=SERVER_OPTIONS)
+    interceptors = [Admission(coordinator)]
+    if os.environ.get(BUDGET_OFF_ENV) == "off":     # bench preauth's "before" only
+        log.warning("%s=off: calls before authentication have no budget (for measurements only)", BUDGET_OFF_ENV)
+        interceptors = []
+    server = grpc.aio.server(options=SERVER_OPTIONS, interceptors=interceptors)
     _add_node_link(server, NodeLinkService(coordinator))
     control_pb2_grpc.add_RigControlServicer_to_server(RigControlService(coordinator), server)
     content_service.add_to_server(server, coordinator.distribution.store, coordinator.handshake)
@@ -468,6 +684,7 @@ async def serve(coordinator: "Coordinator", listen: str, *, tls: tuple[bytes, by
         reflection.SERVICE_NAME,
     )
     reflection.enable_server_reflection(names, server)
+    check_free(listen)
     try:
         if tls:
             creds = grpc.ssl_server_credentials([(tls[1], tls[0])])

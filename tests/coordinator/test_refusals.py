@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import subprocess
 import time
 
@@ -57,6 +58,26 @@ def test_node_with_wrong_token_does_not_trust_the_coordinator(small_rig, tmp_pat
     small_rig.start_node("r0c0", ["--token-file", str(bad)])
     log = wait_for_log(small_rig, "node-r0c0", "could not prove it knows the rig token")
     assert "wrong token file" in log
+
+    # the coordinator lists the node as refused next to its slot, with why (not as expected)
+    async def refused():
+        async with await small_rig.client() as c:
+            deadline = time.monotonic() + 30
+            while True:
+                st = await c.status()
+                mine = [r for r in st.refusals if r.slot == "r0c0"]
+                if mine or time.monotonic() > deadline:
+                    return mine, st
+                await asyncio.sleep(0.2)
+
+    mine, st = run(refused())
+    assert mine and "rig token mismatch" in mine[0].reason and mine[0].peer == "127.0.0.1", st.refusals
+    table = small_rig.run_cli(["status"])
+    row = next(line for line in table.splitlines() if line.startswith("r0c0"))
+    assert row.split()[1] == "refused", table
+    assert "r0c0: refused from 127.0.0.1: rig token mismatch" in table, table
+    node = next(n for n in json.loads(small_rig.run_cli(["status", "--json"]))["nodes"] if n["slot"] == "r0c0")
+    assert node["state"] == "expected" and "rig token mismatch" in node["refusal"]["reason"]
 
 
 def test_rogue_coordinator_cannot_capture_a_node(small_rig, tmp_path):

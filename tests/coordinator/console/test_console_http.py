@@ -464,23 +464,30 @@ def test_the_tracker_estimates_time_left_per_stage():
                                       "extra": "(dict)"}
 
 
-def test_a_taken_console_port_leaves_the_rig_running(tmp_path):
-    """The console failing to listen is logged; the coordinator serves its nodes regardless."""
+def test_a_taken_console_port_stops_the_start_unless_the_console_is_optional(tmp_path):
+    """A console that cannot listen stops the coordinator's start with one line (the operator's
+    browser would reach whatever holds the port); with ``console_optional`` the rig runs on and its
+    status says the console is not served."""
     import socket
 
     async def go():
         holder = socket.socket()
         holder.bind(("127.0.0.1", 0))
         holder.listen(1)
+        port = holder.getsockname()[1]
         try:
             rig = Rig(init_rig(tmp_path / "rig", name="web", slots=grid_slots(1, 1), width=32, height=32,
                                content_width=32, content_height=32))
-            coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False,
-                                console=f"127.0.0.1:{holder.getsockname()[1]}")
-            await coord.start()
+            coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}")
+            with pytest.raises(CoordinatorError, match=f"cannot listen on 127.0.0.1:{port}: port {port} in use"):
+                await coord.start()
+            coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}",
+                                console_optional=True)
+            await coord.start()        # the refused start released the rig's lock
             try:
                 assert coord.port and coord.console_port == 0
-                assert coord.status().rig_name == "web"
+                st = coord.status()
+                assert st.rig_name == "web" and st.console == f"NOT SERVED (port {port} in use)"
             finally:
                 await coord.stop()
         finally:
