@@ -12,11 +12,14 @@ import ipaddress
 import logging
 import os
 import ssl
+import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from aiohttp import web
+from aiohttp.http_exceptions import HttpProcessingError
 
 from coordinator.console import auth
 from coordinator.console.app import ConsoleApp, make_app
@@ -53,6 +56,34 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+class HttpLog(logging.LoggerAdapter):
+    """What the console's HTTP server logs. A request aiohttp could not parse (a bad header, a
+    duplicate Host, random bytes) becomes one WARNING line naming the peer and the reason, with
+    no traceback, at most one every ``every_s`` seconds (then with the count since); every other
+    record passes unchanged. ``clock`` is monotonic seconds (injectable)."""
+
+    def __init__(self, logger: logging.Logger, *, every_s: float = 10.0, clock=time.monotonic):
+        super().__init__(logger, {})
+        self.every_s, self.clock = every_s, clock
+        self._last: float | None = None
+        self._since = 0
+
+    def log(self, level, msg, *args, exc_info=None, **kw):
+        exc = sys.exc_info()[1] if exc_info is True else exc_info[1] if isinstance(exc_info, tuple) else exc_info
+        if level < logging.ERROR or not isinstance(exc, HttpProcessingError):
+            self.logger.log(level, msg, *args, exc_info=exc_info, **kw)
+            return
+        now = self.clock()
+        if self._last is not None and now - self._last < self.every_s:
+            self._since += 1
+            return
+        more = f" ({self._since} more since)" if self._since else ""
+        self._last, self._since = now, 0
+        peer = args[0] if args else "?"
+        reason = " ".join(str(exc.message or exc).split())[:200]
+        self.logger.warning("console: refused a malformed request from %s: %s%s", peer, reason, more)
+
+
 def ssl_context(tls: tuple[bytes, bytes]) -> ssl.SSLContext:
     """A server context for the PEM certificate (chain) and key (loaded from private temp files)."""
     cert, key = tls
@@ -87,6 +118,7 @@ class Console:
                 raise CoordinatorError(f"console host {exc}: give a name a browser uses for the console, e.g. "
                                        "console.venue.lan, 10.0.0.2 or proxy.lan:443") from None
         self.hosts = tuple(hosts)
+        self.http_log = HttpLog(logging.getLogger("coordinator.console.http"))
         self.idle_s = idle_s
         self.port = 0
         self.secure = coordinator.tls is not None
@@ -103,7 +135,8 @@ class Console:
         audit = ActionLog(self.coord.rig.path)
         live = Live(self.coord, audit)
         self.app = ConsoleApp(self.coord, audit, live, secure=self.secure, idle_s=self.idle_s)
-        runner = web.AppRunner(make_app(self.app), access_log=None, handle_signals=False, shutdown_timeout=2.0)
+        runner = web.AppRunner(make_app(self.app), access_log=None, handle_signals=False, shutdown_timeout=2.0,
+                               logger=self.http_log)
         await runner.setup()
         try:
             site = web.TCPSite(runner, self.host, self._port, ssl_context=ctx)

@@ -145,3 +145,66 @@ def test_a_bad_console_host_option_is_one_line_and_status_2(tmp_path, corpus_tab
     corpus_table("CLI", f"shadowless coordinator --console-host {value!r}", err, r.returncode)
     assert "Traceback" not in err and r.returncode == 2, (r.returncode, err)
     assert len(err.splitlines()) == 1 and words in err, err
+
+
+# (name, raw bytes with {port}, the reason the log line gives)
+MALFORMED = [
+    ("two Host headers", b"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nHost: evil.example\r\n\r\n",
+     "Duplicate 'Host' header found."),
+    ("a NUL in a header name", b"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nX-A\x00: 1\r\n\r\n", "Invalid header"),
+    ("a header line of 20000 bytes", b"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nX: " + b"y" * 20000 + b"\r\n\r\n",
+     "Got more than 8190 bytes"),
+    ("a header line without a colon", b"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nNoColonHere\r\n\r\n", "Invalid header"),
+    ("chunked and a length at once", b"POST /login HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Length: 4\r\n"
+                                     b"Transfer-Encoding: chunked\r\n\r\n0\r\n\r\n", "Transfer-Encoding"),
+]
+
+
+def test_malformed_http_costs_one_log_line_and_no_traceback(console_port, corpus_table, caplog):
+    """aiohttp refuses what it cannot parse with 400; the coordinator's log says so in one line per
+    request (here: none held back), instead of an ERROR with a traceback each."""
+    port, coord = console_port
+    coord._console.http_log.every_s = 0.0
+    caplog.set_level(logging.DEBUG, logger="coordinator.console.http")
+    for name, data, reason in MALFORMED:
+        caplog.clear()
+        with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
+            s.sendall(data.replace(b"{port}", str(port).encode()))
+            answer = b""
+            while chunk := s.recv(65536):
+                answer += chunk
+        statuses = [int(line.split(b" ")[1]) for line in answer.split(b"\r\n") if line.startswith(b"HTTP/1.")]
+        assert statuses[-1] == 400, (name, answer[:300])
+        records = [r for r in caplog.records if r.name == "coordinator.console.http" and r.levelno >= logging.WARNING]
+        assert len(records) == 1, (name, [r.getMessage() for r in records])
+        line = records[0].getMessage()
+        corpus_table("console log", name, line, statuses[-1])
+        assert records[0].exc_info is None and "\n" not in line, (name, line)
+        assert line.startswith("console: refused a malformed request from 127.0.0.1: ") and reason in line, (name, line)
+
+
+def test_a_burst_of_malformed_requests_is_one_line_every_ten_seconds():
+    from aiohttp.http_exceptions import BadHttpMessage
+
+    from coordinator.console.service import HttpLog
+
+    now = [0.0]
+    seen = []
+
+    class Sink(logging.Logger):
+        def log(self, level, msg, *args, **kw):
+            seen.append((level, msg % args, kw.get("exc_info")))
+
+        def warning(self, msg, *args, **kw):
+            self.log(logging.WARNING, msg, *args, **kw)
+
+    log = HttpLog(Sink("sink"), clock=lambda: now[0])
+    for i in range(50):
+        log.exception("Error handling request from %s", "10.0.0.9", exc_info=BadHttpMessage("bad header"))
+        now[0] += 0.5
+    log.exception("Unhandled exception", exc_info=ValueError("a bug"))
+    lines = [m for level, m, _ in seen if level == logging.WARNING]
+    assert lines[0] == "console: refused a malformed request from 10.0.0.9: bad header"
+    assert lines[1] == "console: refused a malformed request from 10.0.0.9: bad header (19 more since)"
+    assert len(lines) == 3, lines
+    assert seen[-1][0] == logging.ERROR and isinstance(seen[-1][2], ValueError), "other errors keep their traceback"
