@@ -116,16 +116,18 @@ class Uploads:
         return self.root / uid
 
     def _spec(self, uid: str) -> list[UploadFile]:
+        spec = self._dir(uid) / "spec.json"      # ValueError for what is not an upload id
         cached = self._specs.get(uid)
-        if cached is not None and (self._dir(uid) / "spec.json").exists():
+        if cached is not None and spec.exists():
             return cached
         try:
-            doc = json.loads((self._dir(uid) / "spec.json").read_text())
+            doc = json.loads(spec.read_text())
+            files = [UploadFile(str(d["name"]), int(d["size"]), str(d["sha256"])) for d in doc["files"]]
         except FileNotFoundError:
             raise AssetError(f"no upload {uid[:12]} (finished, removed as stale, or never begun): begin it again") from None
-        except (OSError, ValueError) as exc:
-            raise AssetError(f"upload {uid[:12]} is damaged ({exc}): begin it again") from exc
-        files = [UploadFile(d["name"], int(d["size"]), d["sha256"]) for d in doc["files"]]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise AssetError(" ".join(f"upload {uid[:12]} is damaged ({type(exc).__name__}: {exc}): "
+                                      f"begin it again".split())) from exc
         self._specs[uid] = files
         return files
 

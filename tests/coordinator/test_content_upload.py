@@ -194,3 +194,48 @@ def test_a_corrupt_video_is_refused_naming_the_operators_file_and_nothing_of_it_
         assert not any(uploads.iterdir()), f"{name}: the refused upload stayed: {sorted(uploads.iterdir())}"
         corpus_table("content add --coordinator", name, lines[0], r.returncode)
     assert "Traceback" not in rig.log("coordinator")
+
+
+def test_bad_upload_calls_are_refused_in_one_line_naming_what_is_wrong(rig, corpus_table):
+    data = b"0123456789" * 30
+    sha = hashlib.sha256(data).hexdigest()
+
+    async def chunk(payload: bytes):
+        yield payload
+
+    async def go():
+        async with await rig.client() as c:
+            uid, _ = await c.begin_upload([("bad.npy", len(data), sha)])
+            spec = rig.rig_dir / "assets" / "uploads" / uid / "spec.json"
+            cases = [   # (what, call, words the refusal holds, its status)
+                ("finish an upload never begun", lambda: c.finish_upload("c" * 64), "begin it again",
+                 grpc.StatusCode.FAILED_PRECONDITION),
+                ("an upload id that is not one", lambda: c.finish_upload("../../etc"), "not an upload id",
+                 grpc.StatusCode.INVALID_ARGUMENT),
+                ("a file index past the upload's files", lambda: c.upload_file(uid, 3, 0, chunk(b"x")),
+                 "no file 3", grpc.StatusCode.INVALID_ARGUMENT),
+                ("bytes from the wrong offset", lambda: c.upload_file(uid, 0, 100, chunk(b"x")),
+                 "resume from there", grpc.StatusCode.FAILED_PRECONDITION),
+                ("bytes past the announced size", lambda: c.upload_file(uid, 0, 0, chunk(data + b"!")),
+                 "more than its announced 300 bytes", grpc.StatusCode.INVALID_ARGUMENT),
+                ("an announcement of no file", lambda: c.begin_upload([]), "at least one file",
+                 grpc.StatusCode.INVALID_ARGUMENT),
+                ("a file announced twice", lambda: c.begin_upload([("a.npy", 1, sha), ("a.npy", 1, sha)]),
+                 "appears twice", grpc.StatusCode.INVALID_ARGUMENT),
+                ("finish before every byte came", lambda: c.finish_upload(uid), "not complete",
+                 grpc.StatusCode.FAILED_PRECONDITION),
+            ]
+            out = []
+            for what, call, words, code in cases:
+                with pytest.raises(grpc.aio.AioRpcError) as e:
+                    await call()
+                out.append((what, e.value, words, code))
+            shutil.rmtree(spec.parent)
+            return out
+
+    for what, exc, words, code in run(go()):
+        msg = exc.details()
+        assert exc.code() == code, f"{what}: {exc.code()} {msg}"
+        assert words in msg and "\n" not in msg and str(rig.rig_dir) not in msg, f"{what}: {msg!r}"
+        corpus_table("upload call", what, f"{exc.code().name}: {msg}", "-")
+    assert "Traceback" not in rig.log("coordinator")
