@@ -15,13 +15,17 @@ global budget's ceiling (``budget_ceiling`` = budget + refill over the attack) a
 the per-address rule alone allowed before (``per_address_only_ceiling``: 5 a minute each); the
 429s; each operator's time to get in (None: not within the attack) and attempts. Then the Host
 check's own cost per request, microseconds, for a console on one address and on a wildcard
-(which binds a socket to test an address). Prints one JSON document.
+(which binds a socket to test an address). ``malformed_requests``: 100 requests with two Host
+headers (aiohttp refuses them with 400) and the WARNING-or-worse log records and tracebacks they
+cost. Prints one JSON document.
 """
 from __future__ import annotations
 
 import argparse
 import asyncio
 import json
+import logging
+import socket
 import time
 import timeit
 from collections import Counter
@@ -75,6 +79,34 @@ async def _mistyped(base: str, address: str, times: int) -> dict:
     return {"waited_between_s": waited, "then_told_to_wait_s": told}
 
 
+def _malformed(port: int, count: int) -> dict:
+    """Send ``count`` requests with two Host headers (aiohttp answers 400): what the log got."""
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    keep = Keep(logging.DEBUG)
+    names = ("aiohttp.server", "coordinator.console.http")
+    old_levels = {n: logging.getLogger(n).level for n in names}
+    for n in names:
+        logging.getLogger(n).addHandler(keep)
+        logging.getLogger(n).setLevel(logging.INFO)
+    try:
+        for _ in range(count):
+            with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
+                s.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nHost: evil.example\r\n\r\n".encode())
+                while s.recv(65536):
+                    pass
+    finally:
+        for n in names:
+            logging.getLogger(n).removeHandler(keep)
+            logging.getLogger(n).setLevel(old_levels[n])
+    shown = [r for r in records if r.levelno >= logging.WARNING]
+    return {"sent": count, "log_records": len(shown), "tracebacks": sum(r.exc_info is not None for r in shown)}
+
+
 async def _operator(base: str, until: float, cookie: str | None, device_cookie: str) -> dict:
     """Try the right token until in or ``until``; obey Retry-After (at least 0.5 s between tries)."""
     headers = {"Origin": base}
@@ -112,6 +144,7 @@ async def _run(args: argparse.Namespace, rig_dir) -> dict:
                 if device_name and device_name in r.cookies:
                     cookie = r.cookies[device_name].value
         mistyped = await _mistyped(base, "127.0.0.254", 5)
+        malformed = await asyncio.to_thread(_malformed, coord.console_port, 100)
         codes: Counter = Counter()
         start = time.monotonic()
         until = start + args.seconds
@@ -136,6 +169,7 @@ async def _run(args: argparse.Namespace, rig_dir) -> dict:
         "per_address_only_ceiling": args.addresses * 5 * max(1, -(-elapsed // 60)),
         "attack_s": round(elapsed, 2),
         "mistyped_5_times": mistyped,
+        "malformed_requests": malformed,
         **results,
     }
 

@@ -21,3 +21,4 @@ def test_a_small_distributed_attack_stays_within_the_budget(capsys):
                                                 "attempts": 1}, f
     assert f["mistyped_5_times"] == {"waited_between_s": 7, "then_told_to_wait_s": 8}, f
     assert set(f["host_check"]) == {"one_address_us", "wildcard_us", "foreign_name_us"}
+    assert f["malformed_requests"] == {"sent": 100, "log_records": 1, "tracebacks": 0}, f
