@@ -10,6 +10,7 @@ import difflib
 import json
 import math
 import re
+import os
 import tomllib
 import types
 import typing
@@ -29,6 +30,7 @@ from pydantic import (
 )
 
 from coordinator.errors import RigError
+from coordinator.npy_header import check_npy_fits
 
 SLOT_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$")
 FILE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
@@ -370,7 +372,9 @@ def read_npy(path: Path, dtypes: tuple[str, ...], what: str) -> np.ndarray:
     if path.is_dir():
         raise RigError(f"{path}: is a directory, expected a {what} .npy file")
     try:
-        arr = np.load(path, allow_pickle=False)
+        with open(path, "rb") as f:
+            check_npy_fits(f, os.fstat(f.fileno()).st_size)   # before numpy allocates its shape
+            arr = np.load(f, allow_pickle=False)
     except FileNotFoundError:
         raise RigError(f"{path}: missing ({what})") from None
     except (OSError, ValueError, EOFError) as exc:

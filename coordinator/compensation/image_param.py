@@ -88,7 +88,10 @@ def decode_image_bytes(raw: bytes, name: str) -> tuple[np.ndarray, str]:
         If the bytes are not an image OpenCV or numpy can read.
     """
     if name.lower().endswith(".npy") or raw[:6] == b"\x93NUMPY":
+        from coordinator.npy_header import check_npy_fits
+
         try:
+            check_npy_fits(io.BytesIO(raw), len(raw))
             img = np.load(io.BytesIO(raw), allow_pickle=False)
         except ValueError as exc:
             raise CompensationError(f"image {name}: not a numpy array file ({exc})") from exc

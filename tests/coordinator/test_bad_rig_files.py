@@ -86,6 +86,17 @@ def save_npy(rel: str, array: np.ndarray):
     return apply
 
 
+def npy_declaring(shape: tuple[int, ...], dtype: str = "<f4") -> bytes:
+    """A .npy of a few bytes whose header declares ``shape`` (numpy would allocate it all)."""
+    import io
+
+    from numpy.lib import format as npy_format
+
+    buf = io.BytesIO()
+    npy_format.write_array_header_1_0(buf, {"descr": dtype, "fortran_order": False, "shape": shape})
+    return buf.getvalue() + bytes(64)
+
+
 def truncate(rel: str, keep: float = 0.5):
     def apply(d: Path) -> None:
         f = d / rel
@@ -169,6 +180,8 @@ RIG_CASES = [
     ("lut-out-of-range", save_npy(LUT, np.full((3, 8), 1.5, np.float32)), LUT, ["within [0, 1]"]),
     ("lut-truncated", truncate(LUT, 0.6), LUT, ["not a readable .npy"]),
     ("lut-missing", remove(LUT), LUT, ["missing"]),
+    ("lut-declares-112-gib", write(LUT, npy_declaring((3, 10**10))), LUT,
+     ["its header declares an array of shape (3, 10000000000) float32", "the file holds 64"]),
     ("luts-folder-missing", remove("luts"), LUT, ["missing"]),
     ("content-meta-truncated", truncate(META), META, ["not valid JSON"]),
     ("content-meta-misspelled", edit_json(META, lambda d: d.update(flie=d.pop("file"))), META,
@@ -177,6 +190,8 @@ RIG_CASES = [
     ("content-meta-nan-time", edit_json(META, set_key("updated_at", float("nan"))), META, ["updated_at", "nan"]),
     ("content-image-float64", lambda d: np.save(d / "content" / json.loads((d / META).read_text())["file"],
                                                 np.zeros((16, 32, 3))), "content/", ["must be uint8 or uint16 or float32, got float64"]),
+    ("content-image-declares-112-gib", lambda d: (d / "content" / json.loads((d / META).read_text())["file"]).write_bytes(
+        npy_declaring((100000, 100000, 3))), "content/", ["its header declares an array of shape (100000, 100000, 3)"]),
     ("content-folder-missing", remove("content"), "", None),   # no content: a valid rig (shows nothing)
 ]
 

@@ -17,6 +17,7 @@ import aiohttp
 import cv2
 import numpy as np
 import pytest
+from numpy.lib import format as npy_format
 
 import bench.image_headers as H
 from coordinator.camera import CameraError, read_png
@@ -144,6 +145,8 @@ def test_truncated_headers_and_empty_files_are_one_line_refusals(tmp_path):
 
 
 def test_the_camera_and_job_readers_go_through_the_decoder(tmp_path):
+    """A file camera's PNG and a job's image (an image file, or a .npy whose header declares more
+    than its bytes hold) are refused in one line before anything is allocated."""
     (tmp_path / "000001.png").write_bytes(H.huge("PNG"))
     with pytest.raises(CameraError, match=r"000001\.png: its PNG header declares 10000x10000 pixels"):
         read_png(tmp_path / "000001.png", source="camera folder:x")
@@ -151,6 +154,11 @@ def test_the_camera_and_job_readers_go_through_the_decoder(tmp_path):
         decode_image_bytes(H.huge("HDR"), "target.hdr")
     img, _ = decode_image_bytes(H.valid("PNG"), "target.png")
     np.testing.assert_array_equal(img, H.source("PNG"))
+    vast = io.BytesIO()
+    npy_format.write_array_header_1_0(vast, {"descr": "<f4", "fortran_order": False, "shape": (100000, 100000, 3)})
+    with pytest.raises(CompensationError, match=r"target\.npy: not a numpy array file \(its header declares an array "
+                                                 r"of shape \(100000, 100000, 3\) float32"):
+        decode_image_bytes(vast.getvalue() + bytes(64), "target.npy")
 
 
 # ---------------------------------------------------------------- the console's upload

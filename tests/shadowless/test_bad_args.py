@@ -8,6 +8,7 @@ arguments are checked first). Each row goes to the closing note's table (SHADOWL
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.lib import format as npy_format
 
 import bench.image_headers as HEADERS
 from coordinator.rig import init_rig
@@ -112,6 +114,10 @@ CASES = [
      "2 <= E <= 65536"),
     ("configure: an integer LUT", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-int.npy", *REMOTE],
      "LUT must be float32 or float64, got int64"),
+    ("show: a 200-byte .npy declaring 112 GiB", ["show", "{dir}/vast.npy", *REMOTE],
+     "its header declares an array of shape (100000, 100000, 3) float32 (120,000,000,000 bytes)"),
+    ("configure: a LUT .npy declaring 112 GiB", ["configure", "--slot", "r0c0", "--lut", "{dir}/vast.npy", *REMOTE],
+     "not a readable .npy LUT (its header declares"),
     ("configure: an empty 1-D LUT", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-empty.npy", *REMOTE],
      "got (1, 0)"),
 ]
@@ -153,6 +159,9 @@ def results(tmp_path_factory):
     np.save(d / "lut-one.npy", np.zeros((3, 1), np.float32))
     np.save(d / "lut-int.npy", np.arange(256).reshape(1, 256))
     np.save(d / "lut-empty.npy", np.zeros((0,), np.float32))
+    vast = io.BytesIO()
+    npy_format.write_array_header_1_0(vast, {"descr": "<f4", "fortran_order": False, "shape": (100000, 100000, 3)})
+    (d / "vast.npy").write_bytes(vast.getvalue() + bytes(64))
     values = {"rig": str(rig), "dir": str(d), "ok": str(ok), "loose": str(loose), "pickle": str(pickle)}
     before = digest(rig)
     env = {k: v for k, v in os.environ.items() if k != "SHADOWLESS_TOKEN_FILE"}
@@ -182,5 +191,5 @@ def test_a_mistake_is_one_line_and_status_2(results, corpus_table, name, argv, e
 
 def test_the_corpus_is_large_enough_and_nothing_stored_changed(results):
     out, before, after = results
-    assert len(CASES) >= 50 + 24 and len(out) == len(CASES)
+    assert len(CASES) >= 50 + 26 and len(out) == len(CASES)
     assert before == after, "a refused command changed the rig directory"
