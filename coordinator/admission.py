@@ -16,6 +16,7 @@ After a burst the freed memory stays in glibc's arenas unless it is handed back
 """
 from __future__ import annotations
 
+import asyncio
 import ctypes
 import ctypes.util
 import logging
@@ -35,6 +36,15 @@ MAX_CALLS_PER_ADDRESS = 16
 #: bytes reserved (a message not yet received counts as the largest allowed) or held, all peers / one address
 MAX_BYTES = 16 * MIB
 MAX_BYTES_PER_ADDRESS = 8 * MIB
+#: calls over the budget that wait for room (their bytes stay in gRPC's receive window, at most
+#: protos.version.COORDINATOR_WINDOW_BYTES each), per address and in all, and for how long: a host
+#: whose nodes all start at once is served in turn, not refused; beyond these a call is refused
+MAX_WAITING_PER_ADDRESS = 16
+MAX_WAITING = 32
+WAIT_S = 2.0
+#: the largest message a call without a session may bring: handshakes (Hello, Join, Login) and
+#: health checks are a few hundred bytes; a larger one is refused without being parsed
+MAX_MESSAGE_BYTES = 64 * 1024
 #: a burst that moved this much (received, or reserved by refused calls) is followed by a trim
 TRIM_AFTER_BYTES = 16 * MIB
 #: seconds the budget must have been idle before the trim (gRPC frees its buffers in its own threads)
@@ -69,6 +79,8 @@ class Budget:
         What a call holds before its message arrived: the largest message the server accepts.
     max_calls, max_calls_per_address, max_bytes, max_bytes_per_address : int
         The caps (in all, and per peer address).
+    max_waiting, max_waiting_per_address : int
+        Calls :meth:`enter` lets wait for room (at most ``WAIT_S``) before it refuses.
     clock : callable
         Seconds, monotonic (the host's: an injected rig clock may stand still).
     """
@@ -78,7 +90,11 @@ class Budget:
     max_calls_per_address: int = MAX_CALLS_PER_ADDRESS
     max_bytes: int = MAX_BYTES
     max_bytes_per_address: int = MAX_BYTES_PER_ADDRESS
+    max_waiting: int = MAX_WAITING
+    max_waiting_per_address: int = MAX_WAITING_PER_ADDRESS
     clock: Callable[[], float] = time.monotonic
+    waiting: dict[str, int] = field(default_factory=dict)
+    waited: int = 0
     total: _Use = field(default_factory=_Use)
     by_address: dict[str, _Use] = field(default_factory=dict)
     admitted: int = 0
@@ -87,17 +103,59 @@ class Budget:
     peak_bytes: int = 0
     _burst_bytes: int = 0
     _idle_since: float = 0.0
+    _wakers: list[asyncio.Event] = field(default_factory=list)
 
-    def admit(self, peer: str) -> Ticket | None:
-        """Reserve room for a new call from ``peer`` (a gRPC peer string); None: over the budget."""
-        address = peer_address(peer)
+    def _fits(self, address: str) -> bool:
         mine = self.by_address.get(address) or _Use()
         need = self.reserve_bytes
-        if (self.total.calls + 1 > self.max_calls or mine.calls + 1 > self.max_calls_per_address
-                or self.total.bytes + need > self.max_bytes or mine.bytes + need > self.max_bytes_per_address):
-            self.refused += 1
-            self._burst_bytes += need
+        return not (self.total.calls + 1 > self.max_calls or mine.calls + 1 > self.max_calls_per_address
+                    or self.total.bytes + need > self.max_bytes or mine.bytes + need > self.max_bytes_per_address)
+
+    def admit(self, peer: str) -> Ticket | None:
+        """Reserve room for a new call from ``peer`` (a gRPC peer string) now; None: over the budget."""
+        address = peer_address(peer)
+        if not self._fits(address):
+            self._refuse()
             return None
+        return self._take(address)
+
+    async def enter(self, peer: str, *, wait_s: float = WAIT_S) -> Ticket | None:
+        """Like :meth:`admit`, but a call over the budget waits up to ``wait_s`` seconds for room
+        while fewer than ``max_waiting`` calls (``max_waiting_per_address`` from its address) wait."""
+        address = peer_address(peer)
+        if self._fits(address):
+            return self._take(address)
+        queued = self.waiting.get(address, 0)
+        if sum(self.waiting.values()) >= self.max_waiting or queued >= self.max_waiting_per_address:
+            self._refuse()
+            return None
+        self.waiting[address] = queued + 1
+        self.waited += 1
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + wait_s
+        try:
+            while True:
+                waker = asyncio.Event()
+                self._wakers.append(waker)
+                try:
+                    await asyncio.wait_for(waker.wait(), max(0.0, deadline - loop.time()))
+                except asyncio.TimeoutError:
+                    self._refuse()
+                    return None
+                if self._fits(address):
+                    return self._take(address)
+        finally:
+            self.waiting[address] -= 1
+            if not self.waiting[address]:
+                del self.waiting[address]
+
+    def _refuse(self) -> None:
+        self.refused += 1
+        self._burst_bytes += self.reserve_bytes
+
+    def _take(self, address: str) -> Ticket:
+        mine = self.by_address.get(address) or _Use()
+        need = self.reserve_bytes
         self.by_address[address] = mine
         mine.calls += 1
         mine.bytes += need
@@ -116,6 +174,8 @@ class Budget:
         self.total.bytes += delta
         self.by_address[ticket.address].bytes += delta
         self._burst_bytes += nbytes
+        if delta < 0:
+            self._wake()
 
     def release(self, ticket: Ticket) -> None:
         """The call ended (answered, refused, cancelled): its room is free again."""
@@ -131,6 +191,12 @@ class Budget:
             del self.by_address[ticket.address]
         if self.total.calls == 0:
             self._idle_since = self.clock()
+        self._wake()
+
+    def _wake(self) -> None:
+        wakers, self._wakers = self._wakers, []
+        for waker in wakers:          # each waiting call looks again whether it fits now
+            waker.set()
 
     def should_trim(self) -> bool:
         """Whether a burst of unauthenticated bytes just ended (idle for TRIM_IDLE_S): then the

@@ -140,7 +140,7 @@ class Admission(grpc.aio.ServerInterceptor):
 
     async def _enter(self, context) -> Ticket:
         peer = _peer(context)
-        ticket = self.c.admission.admit(peer)
+        ticket = await self.c.admission.enter(peer)
         if ticket is None:
             exc = self.c.handshake.refuse(peer, "", grpc.StatusCode.RESOURCE_EXHAUSTED, REFUSED_OVER_BUDGET)
             await context.abort(exc.code, exc.message)

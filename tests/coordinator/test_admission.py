@@ -187,3 +187,25 @@ def test_calls_before_authentication_get_one_clear_line(tmp_path, corpus_table):
         assert "Traceback" not in log and max(len(line) for line in log.splitlines()) < 700
     finally:
         rig.close()
+
+
+def test_calls_over_the_budget_wait_their_turn_within_limits():
+    async def go():
+        b = Budget(reserve_bytes=4 * MIB, max_bytes_per_address=9 * MIB, max_waiting_per_address=2, max_waiting=3)
+        held = [await b.enter("ipv4:10.0.0.1:1"), await b.enter("ipv4:10.0.0.1:2")]
+        waiters = [asyncio.ensure_future(b.enter(f"ipv4:10.0.0.1:{p}", wait_s=5)) for p in (3, 4)]
+        await asyncio.sleep(0)
+        assert b.waiting == {"10.0.0.1": 2}
+        assert await b.enter("ipv4:10.0.0.1:5") is None, "a third waiter from one address is refused at once"
+        b.received(held[0], 200)                 # a small message: room for one more
+        first = await asyncio.wait_for(asyncio.shield(asyncio.wait(waiters, return_when="FIRST_COMPLETED")), 5)
+        assert len(first[0]) == 1
+        b.release(held[1])
+        got = await asyncio.gather(*waiters)
+        assert all(t is not None for t in got) and not b.waiting
+        late = await b.enter("ipv4:10.0.0.1:6", wait_s=0.05)
+        assert late is None, "no room came within its wait"
+        f = b.figures()
+        assert (f.admitted, f.refused, b.waited) == (4, 2, 3)
+
+    asyncio.run(go())
