@@ -55,14 +55,15 @@ def normal_host(host: str) -> str:
 def split_host(value: str) -> tuple[str, int | None]:
     """A ``Host`` header or allow-list entry -> (normal host, port or None).
 
-    ``name``, ``name:port``, ``1.2.3.4:port``, ``[v6]`` and ``[v6]:port``; ValueError otherwise.
+    ``name``, ``name:port``, ``1.2.3.4:port``, ``[v6]`` and ``[v6]:port`` (RFC 7230's Host);
+    ValueError otherwise.
     """
     v = value.strip()
     if not v or len(v) > 300 or any(c.isspace() for c in v):
         raise ValueError(f"{value!r} is not a host name or IP address")
     if v.startswith("["):
         inner, sep, rest = v[1:].partition("]")
-        if not sep or ":" not in inner:
+        if not sep or ":" not in inner or "%" in inner:     # no zone ids: browsers send none
             raise ValueError(f"{value!r} is not a host name or IP address")
         try:
             host = ipaddress.IPv6Address(inner).compressed
@@ -73,11 +74,9 @@ def split_host(value: str) -> tuple[str, int | None]:
         if not rest.startswith(":"):
             raise ValueError(f"{value!r} is not a host name or IP address")
         return host, _port(rest[1:], value)
-    if v.count(":") > 1:        # a bare IPv6 address (no port can follow one without brackets)
-        try:
-            return ipaddress.IPv6Address(v).compressed, None
-        except ValueError:
-            raise ValueError(f"{value!r} is not a host name or IP address") from None
+    if v.count(":") > 1:        # an IPv6 address must be in brackets (RFC 3986's IP-literal)
+        raise ValueError(f"{value!r} is not a host name or IP address (an IPv6 address goes in brackets: "
+                         "[fd00::1])")
     host, sep, port = v.partition(":")
     return normal_host(host), (_port(port, value) if sep else None)
 
