@@ -19,11 +19,24 @@ start-up time for N interpreters and GL contexts.
 
 ``--prime-other K``: K nodes start believing they last joined the *other* rig (its id in
 their cache), so they try it first: a deterministic rogue attempt.
+
+``--hostile before|after`` measures something else: a *hostile* advertiser
+(``bench/mdns_hostile.py``) claims the rig's mDNS instance name without conflict probing and
+points at a tarpit (a port that accepts and never answers), from before the coordinator starts
+(which then renames itself, RFC 6762 §9) or from after it advertised (two responders, one
+name). On an mDNS service of the run's own, on loopback and/or in a virtual venue network
+(``--where``; the hostile on a venue host of its own), N unpinned nodes start; per trial:
+``joined``/``started``, ``joined_within_10s``, ``join_s`` p50/max (from starting the node
+processes until live), ``ready_to_join_s`` (from each node's renderer being up to its join, from
+its log: discovery and handshake alone), ``timed_out_on_hostile`` (nodes whose Hello to the
+tarpit ran out), and with ``--control`` the same nodes with no hostile (``control_join_s``,
+``hostile_cost_max`` = max over control max).
 """
 from __future__ import annotations
 
 import argparse
 import asyncio
+import datetime
 import json
 import os
 import re
@@ -198,16 +211,29 @@ def _start_hostile(rig: LocalRig, venue: Venue | None, name: str, rig_id: str, s
     return proc
 
 
+def _ready_to_join_s(log: str) -> float | None:
+    """Seconds from a node's renderer being up (its 'rendering with' line) to its first join (the
+    'joined rig' line), from the log's timestamps: what discovery and the handshake cost, free of the
+    node's start-up (an interpreter and a GL context, seconds on a loaded machine)."""
+    stamps = {}
+    for mark in ("rendering with", "joined rig"):
+        m = re.search(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) .*" + mark, log, re.M)
+        if m is None:
+            return None
+        stamps[mark] = datetime.datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S,%f")
+    return max(0.0, (stamps["joined rig"] - stamps["rendering with"]).total_seconds())
+
+
 def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "after", timeout: float = 60.0,
                   service: str | None = None) -> dict:
     """N real nodes (unpinned) join their rig while a hostile advertiser claims the rig's instance name
     without probing (bench.mdns_hostile: a tarpit behind it). ``when``: "before" the coordinator starts
     (the coordinator renames itself) or "after" it advertised (the hostile takes its very name: two
-    responders, one instance name). ``venue``: on a virtual venue network (the hostile on a host of its
+    responders, one instance name); "none": no hostile (the control: this machine's start-up time). ``venue``: on a virtual venue network (the hostile on a host of its
     own) instead of loopback. ``service``: an mDNS service of the trial's own (default: one derived from
     this process's id, so that other rigs on the machine neither see nor disturb it)."""
-    if when not in ("before", "after"):
-        raise ValueError(f"when must be 'before' or 'after', not {when!r}")
+    if when not in ("before", "after", "none"):
+        raise ValueError(f"when must be 'before', 'after' or 'none', not {when!r}")
     slots = grid_names(n)
     service_name = service or f"_slh-{os.getpid() % 10 ** 6}"
     service_type = f"{service_name}._tcp.local."
@@ -231,6 +257,7 @@ def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "af
         live = asyncio.run(_wait_all_live(real, t0, timeout))
         times = sorted(live.values())
         tarpit = [s for s in slots if "DEADLINE_EXCEEDED" in real.log("node-" + s)]
+        after_ready = sorted(t for t in (_ready_to_join_s(real.log("node-" + s)) for s in slots) if t is not None)
         return {
             "where": "venue" if venue else "loopback",
             "hostile": when,
@@ -241,6 +268,8 @@ def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "af
             "joined_within_10s": sum(1 for t in times if t <= 10.0),
             "join_s": {"p50": round(statistics.median(times), 3), "max": round(times[-1], 3)} if times else None,
             "live_s": {s: round(t, 3) for s, t in sorted(live.items())},
+            "ready_to_join_s": {"p50": round(statistics.median(after_ready), 3), "max": round(after_ready[-1], 3)}
+            if after_ready else None,
             "timed_out_on_hostile": len(tarpit),
         }
     finally:
@@ -270,11 +299,19 @@ def _run_hostile(args: argparse.Namespace) -> int:
                         print(f"shadowless bench discovery: no virtual venue here ({reason}); loopback only",
                               file=sys.stderr)
                         continue
-                rec = hostile_trial(Path(work) / f"run{k + 1}" / ("venue" if venue else "loopback"), args.nodes,
-                                    venue=venue, when=args.hostile, timeout=args.timeout)
+                where = "venue" if venue else "loopback"
+                rec = hostile_trial(Path(work) / f"run{k + 1}" / where, args.nodes, venue=venue, when=args.hostile,
+                                    timeout=args.timeout)
                 rec["run"] = k + 1
+                if args.control:   # the same nodes, no hostile, side by side: what the hostile costs
+                    ctl = hostile_trial(Path(work) / f"run{k + 1}" / f"{where}-control", args.nodes, venue=venue,
+                                        when="none", timeout=args.timeout)
+                    rec["control_join_s"] = ctl["join_s"]
+                    if rec["join_s"] and ctl["join_s"]:
+                        rec["hostile_cost_max"] = round(rec["join_s"]["max"] / ctl["join_s"]["max"], 3)
                 print(f"run {k + 1} {rec['where']}: {rec['joined']}/{rec['started']} joined, "
-                      f"{rec['joined_within_10s']} within 10 s, {rec['join_s']}", file=sys.stderr)
+                      f"{rec['joined_within_10s']} within 10 s, {rec['join_s']} (control {rec.get('control_join_s')})",
+                      file=sys.stderr)
                 trials.append(rec)
     summary = {}
     for where in ("loopback", "venue"):
@@ -282,16 +319,20 @@ def _run_hostile(args: argparse.Namespace) -> int:
         if not ts:
             continue
         times = sorted(t for tr in ts for t in tr["live_s"].values())
+        costs = [t["hostile_cost_max"] for t in ts if t.get("hostile_cost_max")]
+        ready = sorted(t["ready_to_join_s"]["max"] for t in ts if t.get("ready_to_join_s"))
         summary[where] = {
             "joined": sum(t["joined"] for t in ts), "started": sum(t["started"] for t in ts),
             "joined_within_10s": sum(t["joined_within_10s"] for t in ts),
             "join_s": {"p50": round(statistics.median(times), 3), "max": round(times[-1], 3)} if times else None,
+            "hostile_cost_max_median": round(statistics.median(costs), 3) if costs else None,
+            "ready_to_join_max_s": ready[-1] if ready else None,
         }
     out = {
         "benchmark": "discovery",
         "mode": "hostile",
         "params": {"nodes": args.nodes, "runs": args.runs, "hostile": args.hostile, "where": args.where,
-                   "timeout": args.timeout},
+                   "timeout": args.timeout, "control": args.control},
         "machine": machine(),
         "summary": summary,
         "trials": trials,
