@@ -8,12 +8,14 @@ import json
 import logging
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from hypothesis.configuration import set_hypothesis_home_dir
 
 from coordinator.assets import STAGING_LOCK, AssetStore
 from coordinator.distribution import Distribution
@@ -22,6 +24,11 @@ from coordinator.rig import Content, HomographyPose, Rig, init_rig
 from coordinator.uploads import UploadFile, Uploads, upload_id
 
 SLOTS = ["r0c0", "r0c1"]
+
+# Hypothesis keeps its caches in the session's temporary folder (made at collection), not in the checkout
+_HOME = Path(tempfile.gettempdir()) / "hypothesis"
+_HOME.mkdir(exist_ok=True)
+set_hypothesis_home_dir(_HOME)
 
 
 def _lut(level: float) -> np.ndarray:
