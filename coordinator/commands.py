@@ -217,7 +217,7 @@ def _npy(path: Path, dtypes: tuple[str, ...], what: str) -> np.ndarray:
         raise OperatorError(str(exc)) from None
 
 
-def read_image(path: str, *, clip: bool = False, hint: str = "pass --clip to clip it to 0..1") -> np.ndarray:
+def read_image(path: str, *, clip: bool = False, hint: str = "clip it to 0..1 first") -> np.ndarray:
     """Read an image file as (H, W, C) RGB (alpha dropped): any format of
     :func:`coordinator.image_decode.decode_image` (8/16-bit integer, float32), or a float32/uint8/
     uint16 .npy. Float pixels must lie in 0..1: ``clip`` clips them, else OperatorError names the
@@ -241,6 +241,10 @@ def read_image(path: str, *, clip: bool = False, hint: str = "pass --clip to cli
         return check_float_range(img, str(p), clip=clip, hint=hint)
     except ValueError as exc:
         raise OperatorError(str(exc)) from None
+
+
+#: what `show` and `play` say of float content outside 0..1
+CLIP_HINT = "pass --clip to clip it to 0..1"
 
 
 def read_lut(path: str | Path) -> np.ndarray:
@@ -404,7 +408,7 @@ async def warn_unposed(c) -> None:
 async def _show(args) -> int:
     if args.image in SHOW_ACTIONS and not Path(args.image).exists():
         return await _show_control(args)
-    img = read_image(args.image, clip=args.clip)
+    img = read_image(args.image, clip=args.clip, hint=CLIP_HINT)
     async with await open_client(args) as c:
         r = await c.show(img, name=Path(args.image).name, persist=args.persist, fit=args.fit or "")
         await warn_unposed(c)
@@ -481,7 +485,7 @@ async def _play(args) -> int:
         files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
         if not files:
             raise OperatorError(f"no images in {args.source}")
-        frames = [read_image(str(f), clip=args.clip) for f in files]
+        frames = [read_image(str(f), clip=args.clip, hint=CLIP_HINT) for f in files]
     else:
         raise OperatorError("give a folder of images or --pattern counter")
     async with await open_client(args) as c:

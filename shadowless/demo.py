@@ -117,7 +117,7 @@ def read_demo_image(path: str) -> np.ndarray:
     from coordinator.commands import read_image
 
     try:
-        img = read_image(path, hint="clip it to 0..1 first")
+        img = read_image(path)
     except OperatorError as exc:
         raise SystemExit(f"--image {exc}") from None
     if img.dtype == np.uint16:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.api import NodeState, PlaySettings, RigStatus
-from coordinator.client import Client
+from coordinator.client import Client, OperatorError
 from coordinator.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
 from protos import auth
@@ -359,6 +359,10 @@ def spread(n: int, amplitude: float, seed: int) -> list[float]:
 
 async def _local(args) -> int:
     w, h = args.size
+    try:       # the --image is read (and refused in one line) before any process starts
+        picture = read_image(args.image) if args.image else None
+    except OperatorError as exc:
+        raise SystemExit(f"--image {exc}") from None
     slots = grid_names(args.nodes)
     workdir = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="shadowless-local-"))
     offsets = dict(zip(slots, spread(len(slots), args.clock_offset_ms, 1)))
@@ -375,7 +379,7 @@ async def _local(args) -> int:
                   file=sys.stderr)
         async with await rig.client() as c:
             await rig.wait_live(c)
-            img = read_image(args.image) if args.image else card_image(w, h)
+            img = picture if picture is not None else card_image(w, h)
             await c.show(img, name=args.image or "test card", fit="contain")   # an image of any aspect, whole
             await asyncio.sleep(1.0)
             frames = max(1, int(args.fps * args.seconds))

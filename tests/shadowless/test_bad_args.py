@@ -118,6 +118,11 @@ CASES = [
      "its header declares an array of shape (100000, 100000, 3) float32 (120,000,000,000 bytes)"),
     ("configure: a LUT .npy declaring 112 GiB", ["configure", "--slot", "r0c0", "--lut", "{dir}/vast.npy", *REMOTE],
      "not a readable .npy LUT (its header declares"),
+    ("local: an --image outside 0..1", ["local", "--image", "{dir}/hot.npy"],
+     "hot.npy holds values from -0.5 to 3, but float content must lie in 0..1 (0 black, 1 the projector's white): "
+     "rescale it, or clip it to 0..1 first"),
+    ("local: an --image declaring 100 megapixels", ["local", "--image", "{dir}/bomb.webp"],
+     "its WebP header declares 10000x10000 pixels"),
     ("configure: an empty 1-D LUT", ["configure", "--slot", "r0c0", "--lut", "{dir}/lut-empty.npy", *REMOTE],
      "got (1, 0)"),
 ]
@@ -191,5 +196,5 @@ def test_a_mistake_is_one_line_and_status_2(results, corpus_table, name, argv, e
 
 def test_the_corpus_is_large_enough_and_nothing_stored_changed(results):
     out, before, after = results
-    assert len(CASES) >= 50 + 26 and len(out) == len(CASES)
+    assert len(CASES) >= 50 + 28 and len(out) == len(CASES)
     assert before == after, "a refused command changed the rig directory"
