@@ -25,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import time
 from importlib import resources
 from typing import TYPE_CHECKING, Awaitable, Callable
 
@@ -93,6 +94,8 @@ class ConsoleApp:
         self.url = ""                           # where it does, for the refusal of a foreign Host
         self.foreign_hosts: set[str] = set()    # the Hosts refused so far (each logged once)
         self._global_said: float | None = None  # when the spent global login budget was last logged
+        # logins since start, for the page: wrong tokens, refused while a limit held, the last wrong one
+        self.logins = {"failed": 0, "refused": 0, "last_failed_at": None}
         self.actions = Actions(coord, audit, live)
         self.static = _load_static()
         self._job_options: str | None = None
@@ -118,6 +121,12 @@ class ConsoleApp:
             log.warning("console: more than %d failed logins a minute from many addresses: a login from a browser "
                         "that never logged in here is tried once every %.0f s; browsers that did are not held back",
                         self.limiter.budget, self.limiter.window_s / self.limiter.budget)
+
+    def login_figures(self) -> dict:
+        """What the page shows of logins: wrong tokens and refused logins since start, when the
+        last wrong one came (Unix time), and whether new browsers are held back right now."""
+        return {**self.logins, "held_back": self.limiter.held_back(),
+                "budget_per_min": round(self.limiter.budget * 60.0 / self.limiter.window_s)}
 
     def session_of(self, request: web.Request, *, touch: bool = True) -> auth.Session | None:
         return self.sessions.get(request.cookies.get(auth.COOKIE), touch=touch)
@@ -162,6 +171,7 @@ class ConsoleApp:
         device = self.devices.verify(request.cookies.get(auth.DEVICE_COOKIE))
         wait, limit = self.limiter.wait(address, device)
         if wait:
+            self.logins["refused"] += 1
             if limit == "global":
                 self._say_global_limit()
             why = {"address": f"too many failed logins from {address}",
@@ -177,6 +187,8 @@ class ConsoleApp:
             pass
         if not token or not auth.token_matches(token, self.coord.handshake.token):
             self.limiter.failed(address, device)
+            self.logins["failed"] += 1
+            self.logins["last_failed_at"] = round(time.time())
             await self.audit.record(who="-", address=address, action="login", ok=False, result="wrong token")
             self.live.poke()
             raise _error(web.HTTPUnauthorized, "wrong token: paste the rig's token (the file `token` in the rig "

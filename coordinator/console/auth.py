@@ -241,6 +241,10 @@ class LoginLimiter:
             return max(1, math.ceil(glob)), "global"
         return max(1, math.ceil(own)), "device" if device else "address"
 
+    def held_back(self) -> bool:
+        """Whether the global budget is spent now (logins without a device cookie wait their turn)."""
+        return self._bucket(self.clock()) < 1.0
+
     def failed(self, address: str, device: str | None = None) -> None:
         """A login with a wrong token: the source's wait doubles; without a device cookie, it
         draws one failure from the global budget."""

@@ -59,9 +59,11 @@ def footprint(st: SlotState, content_size: tuple[int, int]) -> list[list[float]]
 
 
 def snapshot(status: RigStatus, coord: "Coordinator", actions: list[dict[str, Any]],
-             footprints: dict[tuple, list[list[float]] | None] | None = None) -> dict[str, Any]:
+             footprints: dict[tuple, list[list[float]] | None] | None = None,
+             logins: dict[str, Any] | None = None) -> dict[str, Any]:
     """The page's view of the rig (JSON-able, stable while nothing changes). ``footprints`` caches
-    each slot's footprint by its assignment (slot, revision, size)."""
+    each slot's footprint by its assignment (slot, revision, size); ``logins`` is the console's
+    login figures (``ConsoleApp.login_figures``)."""
     rig = coord.rig
     footprints = {} if footprints is None else footprints
     content = (rig.config.content_width, rig.config.content_height)
@@ -105,6 +107,7 @@ def snapshot(status: RigStatus, coord: "Coordinator", actions: list[dict[str, An
         "slots": slots,
         "refusals": refusals,
         "before_auth": _before_auth(status),
+        "logins": logins or {},
         "assets": [{"id": aid, "name": m.name, "kind": m.kind, "frames": m.frames}
                    for aid, m in sorted(coord.distribution.manifests.items(), key=lambda t: (t[1].name, t[0]))],
         "actions": actions,
@@ -153,6 +156,7 @@ class Live:
         self._unlisten: Callable[[], None] | None = None
         self._cpu_last: tuple[float, float] | None = None
         self._footprints: dict[tuple, list[list[float]] | None] = {}
+        self.logins: Callable[[], dict[str, Any]] = dict     # the console's login figures (set by the console)
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
@@ -194,8 +198,8 @@ class Live:
         self.samples_taken += 1
 
     def _refresh(self, status: RigStatus) -> bool:
-        text = json.dumps(snapshot(status, self.coord, self.audit.recent(), self._footprints), sort_keys=True,
-                          allow_nan=False)
+        text = json.dumps(snapshot(status, self.coord, self.audit.recent(), self._footprints, self.logins()),
+                          sort_keys=True, allow_nan=False)
         if text == self.snapshot_json:
             return False
         self.snapshot_json = text

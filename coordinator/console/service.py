@@ -135,6 +135,7 @@ class Console:
         audit = ActionLog(self.coord.rig.path)
         live = Live(self.coord, audit)
         self.app = ConsoleApp(self.coord, audit, live, secure=self.secure, idle_s=self.idle_s)
+        live.logins = self.app.login_figures
         runner = web.AppRunner(make_app(self.app), access_log=None, handle_signals=False, shutdown_timeout=2.0,
                                logger=self.http_log)
         await runner.setup()

@@ -156,6 +156,7 @@ function render(s) {
   drawLayout(s);
   renderNodes(s.slots);
   renderRefusals(s.refusals);
+  renderLogins(s.logins);
   renderAssets(s.assets);
   renderActions(s.actions);
   renderJob(s.job);
@@ -345,6 +346,19 @@ function renderRefusals(list) {
               el("td", {}, ago(r.at)), el("td", { class: "reason" }, r.reason));
     tbody.appendChild(tr);
   }
+}
+
+function renderLogins(l) {
+  const p = $("logins");
+  if (!l || !l.failed) { p.textContent = "console logins: no wrong token since the coordinator started"; return; }
+  let text = `console logins: ${l.failed} wrong token${l.failed === 1 ? "" : "s"} since the coordinator started ` +
+    `(last ${ago(l.last_failed_at)}), ${l.refused} refused while a limit held`;
+  if (l.held_back) {
+    text += ` — more than ${l.budget_per_min} a minute from many addresses: browsers that never logged in here are ` +
+      "tried once in a while, this one is not held back";
+  }
+  p.textContent = text;
+  p.className = l.held_back ? "warn" : "muted";
 }
 
 function renderAssets(list) {

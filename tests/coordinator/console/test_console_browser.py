@@ -66,6 +66,9 @@ def test_the_console_in_a_browser(tmp_path, browser_ready, silent_camera):
                 " document.querySelector('#unposed [data-slot=\"r0c1\"]').getAttribute('class')];")
             assert "state-live" in classes[0] and "state-live" in classes[1], classes
             assert "grey card" in text_of(driver, "showing")
+            # the wrong token above, counted where the operator sees refusals
+            wait_for(lambda: "1 wrong token since the coordinator started" in text_of(driver, "logins"), 60,
+                     f"the wrong token counted on the page, which says {text_of(driver, 'logins')!r}")
 
             # a hostile name from a refusal is shown as text, never run or parsed
             wait_for(lambda: EVIL in text_of(driver, "refusals"), 60, "the refusal listed")

@@ -198,6 +198,12 @@ def test_login_limits_over_http(tmp_path, caplog):
             r = await _post_login(s, base, {"token": TOKEN.decode()}, device=device.value)
             assert r.status == 200, await r.text()
             assert r.cookies[auth.DEVICE_COOKIE].value == device.value, "the same browser keeps its id"
+            # the page sees it: wrong tokens and refused logins since start, new browsers held back now
+            cookie = r.cookies[auth.COOKIE].value
+            doc = await (await s.get(base + "/api/status", headers={"Cookie": f"{auth.COOKIE}={cookie}"})).json()
+            logins = doc["logins"]
+            assert (logins["failed"], logins["refused"], logins["held_back"]) == (5, 3, True), logins
+            assert logins["budget_per_min"] == 3 and isinstance(logins["last_failed_at"], int)
             # its own mistakes: its own backoff, told in the same words
             for expected in (401, 401, 429):
                 r = await _post_login(s, base, GUESS, device=device.value)
