@@ -115,6 +115,30 @@ def _forget_locals(exc: BaseException) -> None:
     traceback.clear_frames(exc.__traceback__)
 
 
+class _BadStreamMessage(Exception):
+    """A message of a request stream without a session that did not parse or was too large."""
+
+
+def _strict(deserializer):
+    """A request stream's deserializer for a call without a session: a message over
+    MAX_PREAUTH_MESSAGE_BYTES, or one that does not parse, raises :class:`_BadStreamMessage` (caught
+    by the call's wrapper and refused in one line) instead of gRPC's traceback."""
+
+    def parse(raw: bytes):
+        if len(raw) > MAX_PREAUTH_MESSAGE_BYTES:
+            raise _BadStreamMessage(f"larger than the {MAX_PREAUTH_MESSAGE_BYTES // 1024} KiB a call without a "
+                                    "session may send")
+        if deserializer is None:
+            return raw
+        try:
+            return deserializer(raw)
+        except Exception as exc:  # noqa: BLE001 - a protobuf DecodeError, or whatever a parser raises
+            error = f"not the method's message: {type(exc).__name__}"
+        raise _BadStreamMessage(error)
+
+    return parse
+
+
 class Admission(grpc.aio.ServerInterceptor):
     """Calls without a live session go through the coordinator's budget for calls before
     authentication (:class:`coordinator.admission.Budget`) before a byte of their message is read.
@@ -169,7 +193,7 @@ class Admission(grpc.aio.ServerInterceptor):
     def _budgeted(self, handler, method: str):
         ser = handler.response_serializer
         if handler.request_streaming:
-            return self._budgeted_stream(handler, ser)
+            return self._budgeted_stream(handler, ser, method)
         deser = _measured(handler.request_deserializer)
         if not handler.response_streaming:
             inner = handler.unary_unary
@@ -215,10 +239,16 @@ class Admission(grpc.aio.ServerInterceptor):
 
         return grpc.stream_stream_rpc_method_handler(streamed, request_deserializer=deser, response_serializer=ser)
 
-    def _budgeted_stream(self, handler, ser):
+    async def _bad_stream(self, context, method: str, exc: _BadStreamMessage) -> None:
+        self.c.admission.malformed += 1
+        refusal = self.c.handshake.refuse(_peer(context), "", grpc.StatusCode.INVALID_ARGUMENT,
+                                          f"malformed {method} request ({exc}): dropped")
+        await context.abort(refusal.code, refusal.message)
+
+    def _budgeted_stream(self, handler, ser, method: str):
         """A request stream is read by its handler (ours check the session first): the call holds
-        a reservation while it lasts."""
-        deser = handler.request_deserializer
+        a reservation while it lasts, and its messages are checked as they arrive (:func:`_strict`)."""
+        deser = _strict(handler.request_deserializer)
         if not handler.response_streaming:
             inner = handler.stream_unary
 
@@ -226,6 +256,8 @@ class Admission(grpc.aio.ServerInterceptor):
                 ticket = await self._enter(context)
                 try:
                     return await inner(request_iterator, context)
+                except _BadStreamMessage as exc:
+                    await self._bad_stream(context, method, exc)
                 finally:
                     self._leave(ticket)
 
@@ -237,6 +269,8 @@ class Admission(grpc.aio.ServerInterceptor):
                 try:
                     async for reply in inner(request_iterator, context):
                         yield reply
+                except _BadStreamMessage as exc:
+                    await self._bad_stream(context, method, exc)
                 finally:
                     self._leave(ticket)
         else:
@@ -244,6 +278,8 @@ class Admission(grpc.aio.ServerInterceptor):
                 ticket = await self._enter(context)
                 try:
                     await inner(request_iterator, context)
+                except _BadStreamMessage as exc:
+                    await self._bad_stream(context, method, exc)
                 finally:
                     self._leave(ticket)
 

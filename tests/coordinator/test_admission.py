@@ -153,6 +153,9 @@ def _raw_cases():
          ["is not a slot name", "…"]),
         ("Hello of protocol 99 with a 10,000-character role and slot", "/shadowless.v1.RigControl/Hello", long_role,
          S.FAILED_PRECONDITION, ["protocol version mismatch", "99"]),
+        ("Server reflection stream of bytes that are no request",
+         "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo", garbage, S.INVALID_ARGUMENT,
+         ["malformed /grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo request"]),
         ("Join for the slot '../../etc'", "/shadowless.v1.NodeLink/Join", path_slot, S.INVALID_ARGUMENT,
          ["'../../etc' is not a slot name"]),
     ]
@@ -169,7 +172,11 @@ def test_calls_before_authentication_get_one_clear_line(tmp_path, corpus_table):
             async with grpc.aio.insecure_channel(rig.target) as ch:
                 for what, method, body, code, words in _raw_cases():
                     try:
-                        await ch.unary_unary(method)(body, timeout=30)
+                        if "Reflection" in method:      # a request stream
+                            async for _ in ch.stream_stream(method)(iter([body]), timeout=30):
+                                pass
+                        else:
+                            await ch.unary_unary(method)(body, timeout=30)
                     except grpc.aio.AioRpcError as exc:
                         out.append((what, exc, code, words))
                     else:
