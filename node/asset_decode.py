@@ -41,7 +41,7 @@ import av
 import numpy as np
 
 from node.errors import NodeError
-from node.image_files import PngError, decode_png
+from node.image_files import PngError, PngTooLarge, decode_png
 
 __all__ = ["DecodeError", "VideoDecoder", "content_dtype", "decode_image", "frame_to_array", "match_channels"]
 
@@ -178,6 +178,8 @@ def decode_image(path: str | os.PathLike[str], *, name: str, channels: int, bit_
     if suffix == ".png" and png == "node":
         try:
             img = decode_png(Path(path).read_bytes())
+        except PngTooLarge as exc:       # refused from its header: no other decoder may try it
+            raise DecodeError(str(exc)) from exc
         except PngError as exc:
             try:
                 return frame_to_array(_first_av_frame(path, "png_pipe"), channels, bit_depth)

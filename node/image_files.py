@@ -22,7 +22,7 @@ import numpy as np
 from node.errors import NodeError
 from protos.image_limits import MAX_IMAGE_SIDE, MAX_PIXELS, within_limits
 
-__all__ = ["FILTERS", "PngError", "atomic_write_bytes", "decode_png", "decode_png_text", "encode_png", "read_png",
+__all__ = ["FILTERS", "PngError", "PngTooLarge", "atomic_write_bytes", "decode_png", "decode_png_text", "encode_png", "read_png",
            "write_png"]
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -38,6 +38,10 @@ _PACKED = {"gray": (1, "u1"), "gray16be": (1, ">u2"), "ya8": (2, "u1"), "ya16be"
 
 class PngError(NodeError, ValueError):
     """A PNG file is malformed or FFmpeg's PNG decoder cannot read it."""
+
+
+class PngTooLarge(PngError):
+    """A PNG's header declares more pixels than a node decodes (nothing was decoded)."""
 
 
 # ---------------------------------------------------------------------------- files
@@ -205,8 +209,8 @@ def decode_png(data: bytes) -> np.ndarray:
         raise PngError("corrupt PNG: its first chunk is not IHDR")
     w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     if not within_limits(w, h):     # refused from the header: FFmpeg would allocate the frame first
-        raise PngError(f"PNG declares {w}x{h} pixels, more than the {MAX_PIXELS / 1e6:.0f} megapixels and "
-                       f"{MAX_IMAGE_SIDE} pixels a side a node decodes")
+        raise PngTooLarge(f"PNG declares {w}x{h} pixels, outside what a node decodes (1..{MAX_IMAGE_SIDE} pixels a "
+                          f"side, at most {MAX_PIXELS / 1e6:.0f} megapixels)")
     ctx = av.CodecContext.create("png", "r")  # the decoder alone: no demuxer, no probing
     ctx.options = {"err_detect": "crccheck+bitstream+explode"}
     try:

@@ -11,6 +11,7 @@ import pytest
 from node.image_files import (
     FILTERS,
     PngError,
+    PngTooLarge,
     atomic_write_bytes,
     decode_png,
     decode_png_text,
@@ -263,3 +264,28 @@ def test_atomic_write_bytes_replaces_the_file(tmp_path):
     atomic_write_bytes(path, b"two")
     assert path.read_bytes() == b"two"
     assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+
+
+def _png_declaring(w: int, h: int) -> bytes:
+    """A small 8-bit RGB PNG whose IHDR (CRC fixed) declares ``w`` x ``h`` pixels."""
+    data = encode_png(np.zeros((4, 4, 3), np.uint8))
+    ihdr = bytearray(data[12:29])
+    ihdr[4:12] = w.to_bytes(4, "big") + h.to_bytes(4, "big")
+    return data[:12] + bytes(ihdr) + zlib.crc32(bytes(ihdr)).to_bytes(4, "big") + data[33:]
+
+
+@pytest.mark.parametrize("w, h", [(10000, 10000), (20000, 10), (0, 4)])
+def test_a_png_declaring_too_many_pixels_is_refused_from_its_header(tmp_path, w, h):
+    """FFmpeg allocates the declared frame before it finds the data missing (293 MiB for a 300-byte
+    10000x10000 PNG); the header check refuses first, and the asset decoder does not hand the file
+    to FFmpeg's png_pipe instead."""
+    from node.asset_decode import DecodeError
+    from node.asset_decode import decode_image as decode_asset_image
+
+    data = _png_declaring(w, h)
+    with pytest.raises(PngTooLarge, match=rf"PNG declares {w}x{h} pixels, outside what a node decodes \(1\.\.16384 pixels a side, at most 67 megapixels\)"):
+        decode_png(data)
+    (tmp_path / "blob").write_bytes(data)
+    with pytest.raises(DecodeError, match=f"PNG declares {w}x{h} pixels"):
+        decode_asset_image(tmp_path / "blob", name="huge.png", channels=3, bit_depth=8)
+    assert decode_png(_png_declaring(4, 4)).shape == (4, 4, 3)
