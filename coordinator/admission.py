@@ -10,7 +10,8 @@ the message's real size until it ends. A call over the budget is refused at once
 counted in the rig's refusals; its bytes are never taken from the connection beyond gRPC's
 receive window.
 
-The budget counts per peer address and in all: calls in flight and bytes reserved or held.
+The budget counts per peer address (an IPv6 peer: per /64, see :func:`budget_key`) and in all:
+calls in flight and bytes reserved or held.
 After a burst the freed memory stays in glibc's arenas unless it is handed back
 (:func:`trim_memory`); :meth:`Budget.should_trim` says when a burst ended.
 """
@@ -19,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import ctypes
 import ctypes.util
+import ipaddress
 import logging
 import time
 from dataclasses import dataclass, field
@@ -52,6 +54,22 @@ TRIM_IDLE_S = 1.0
 
 REFUSED_OVER_BUDGET = ("over the budget for calls before authentication (too many calls or bytes in flight "
                        "from this address or in all): retry in a moment")
+
+
+def budget_key(peer: str) -> str:
+    """Whose budget a call from ``peer`` (a gRPC peer string) draws on: its address, or for IPv6 its
+    /64 (one host or link commonly holds a whole /64, so per address would be no limit there)."""
+    address = peer_address(peer)
+    try:
+        ip = ipaddress.ip_address(address)
+    except ValueError:
+        return address
+    mapped = getattr(ip, "ipv4_mapped", None)       # ::ffff:a.b.c.d is an IPv4 peer
+    if mapped is not None:
+        return str(mapped)
+    if ip.version == 6 and not ip.is_loopback:
+        return str(ipaddress.ip_network(f"{ip}/64", strict=False))
+    return str(ip)
 
 
 @dataclass
@@ -113,7 +131,7 @@ class Budget:
 
     def admit(self, peer: str) -> Ticket | None:
         """Reserve room for a new call from ``peer`` (a gRPC peer string) now; None: over the budget."""
-        address = peer_address(peer)
+        address = budget_key(peer)
         if not self._fits(address):
             self._refuse()
             return None
@@ -122,7 +140,7 @@ class Budget:
     async def enter(self, peer: str, *, wait_s: float = WAIT_S) -> Ticket | None:
         """Like :meth:`admit`, but a call over the budget waits up to ``wait_s`` seconds for room
         while fewer than ``max_waiting`` calls (``max_waiting_per_address`` from its address) wait."""
-        address = peer_address(peer)
+        address = budget_key(peer)
         if self._fits(address):
             return self._take(address)
         queued = self.waiting.get(address, 0)

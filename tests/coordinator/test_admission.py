@@ -9,7 +9,7 @@ import collections
 import grpc
 import pytest
 
-from coordinator.admission import MIB, Budget, trim_memory
+from coordinator.admission import MIB, Budget, budget_key, trim_memory
 from coordinator.api import NodeState
 from protos import auth, common_pb2, node_pb2
 from protos.version import PROTOCOL_VERSION
@@ -216,3 +216,16 @@ def test_calls_over_the_budget_wait_their_turn_within_limits():
         assert (f.admitted, f.refused, b.waited) == (4, 2, 3)
 
     asyncio.run(go())
+
+
+def test_an_ipv6_64_shares_one_budget_and_ipv4_mapped_counts_as_ipv4():
+    assert budget_key("ipv6:[2001:db8:1:2:aaaa::1]:5000") == budget_key("ipv6:[2001:db8:1:2:bbbb::9]:6000") \
+        == "2001:db8:1:2::/64"
+    assert budget_key("ipv6:[2001:db8:1:3::1]:5000") == "2001:db8:1:3::/64"
+    assert budget_key("ipv6:[::1]:5000") == "::1"
+    assert budget_key("ipv6:[::ffff:10.0.0.5]:5000") == budget_key("ipv4:10.0.0.5:1") == "10.0.0.5"
+    assert budget_key("unix:/tmp/relay") == "unix:/tmp/relay"
+    b = Budget(reserve_bytes=4 * MIB, max_bytes_per_address=8 * MIB)
+    assert b.admit("ipv6:[2001:db8::1]:1") and b.admit("ipv6:[2001:db8::2]:1")
+    assert b.admit("ipv6:[2001:db8::3]:1") is None, "a third address of the same /64"
+    assert b.admit("ipv6:[2001:db8:0:1::3]:1") is not None, "another /64"
