@@ -2,7 +2,8 @@
 
 * ``coverage/coverage.npz``: the per-texel arrays (``slots``, ``mask``, ``area``, ``count``,
   ``reach`` packed one bit per slot along the first axis, ``irradiance`` as float16, ``points``,
-  ``normals``), compressed;
+  ``normals``), compressed, and the summary as JSON text (``summary``: what coverage.json is
+  completed from when a crash came between the two writes);
 * ``coverage/coverage.json``: the summary (:meth:`coordinator.coverage.Coverage.summary`), the
   mesh it was computed for, the views of the picture and when;
 * ``coverage/coverage.png``: the picture (unless the operator named another file).
@@ -13,6 +14,7 @@ Also the reading of what coverage needs from a rig: the slots posed onto one mes
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +25,7 @@ from coordinator.errors import RigError
 from coordinator.rig import Mesh, ProjectionPose, Rig
 from coordinator.store import atomic_file, atomic_write_json
 
-__all__ = ["coverage_dir", "save_coverage", "load_coverage", "rig_projectors", "rig_camera"]
+__all__ = ["coverage_dir", "save_coverage", "load_coverage", "rig_projectors", "rig_camera", "summary_behind"]
 
 
 def coverage_dir(rig_dir: str | Path) -> Path:
@@ -34,12 +36,32 @@ def save_coverage(rig_dir: str | Path, cov: Coverage, doc: dict) -> tuple[Path, 
     """Write ``coverage.npz`` and ``coverage.json`` (``doc``) under the rig's ``coverage/``."""
     d = coverage_dir(rig_dir)
     npz, js = d / "coverage.npz", d / "coverage.json"
-    with atomic_file(npz) as f:
+    with atomic_file(npz) as f:     # the summary rides along: a crash before coverage.json is completed from it
         np.savez_compressed(f, slots=np.array(cov.slots), mask=cov.mask, area=cov.area, count=cov.count,
                             reach=np.packbits(cov.reach, axis=0), irradiance=cov.irradiance.astype(np.float16),
-                            points=cov.points, normals=cov.normals)
+                            points=cov.points, normals=cov.normals, summary=np.asarray(json.dumps(doc, sort_keys=True)))
     atomic_write_json(js, doc)
     return npz, js
+
+
+def summary_behind(rig_dir: str | Path) -> dict | None:
+    """The summary ``coverage.npz`` carries when ``coverage.json`` is missing or another one (a crash
+    came between the two writes of :func:`save_coverage`); None when they agree or cannot be told."""
+    d = coverage_dir(rig_dir)
+    try:
+        with np.load(d / "coverage.npz", allow_pickle=False) as z:
+            if "summary" not in z.files:
+                return None
+            text = str(z["summary"])
+        doc = json.loads(text)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None         # none, or unreadable: load_coverage says so when it is asked for
+    try:
+        if json.dumps(json.loads((d / "coverage.json").read_text()), sort_keys=True) == text:
+            return None
+    except (FileNotFoundError, ValueError):
+        pass
+    return doc
 
 
 def load_coverage(path: str | Path) -> Coverage:

@@ -19,7 +19,10 @@ one plus files nothing names. This pass removes those files and settles the rest
   ``content/current.json`` does not name, left when a crash came between a write and its
   clean-up, are removed; a calibration run left ``running`` is marked ``interrupted`` (the next
   run with its settings resumes it); a ``show.json`` that is not JSON is quarantined; black
-  captures ``compensation/transport.*`` does not name are removed.
+  captures ``compensation/transport.*`` does not name are removed;
+* **pairs written one after the other**: ``compensation/transport.json`` and
+  ``coverage/coverage.json`` are completed from the metadata ``transport.npz`` and
+  ``coverage.npz`` carry when a crash came between the two writes.
 
 Quarantined files move to ``quarantine/<UTC time>/<their path>`` inside the rig, never deleted.
 Each thing done is one log line (WARNING for quarantine, INFO otherwise). Nothing here raises: a
@@ -41,12 +44,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
-import numpy as np
 
 from coordinator.assets import STAGING_LOCK
 from coordinator.calibration.runs import mark_interrupted
 from coordinator.rig import parse_config
 from coordinator.show import SHOW_FILE
+from coordinator.store import atomic_write_json
 from coordinator.uploads import UploadFile, check_spec, upload_id
 from protos.asset_manifest import Manifest, ManifestError, is_sha256
 
@@ -378,21 +381,39 @@ def _show(r: Recovery) -> None:
 
 def _compensation(r: Recovery) -> None:
     d = r.rig_dir / "compensation"
+    npz, js = d / "transport.npz", d / "transport.json"
     blacks = sorted(d.glob("black-*.npy")) if d.is_dir() else []
-    if not blacks:
+    if not blacks and not npz.exists():
         return
-    keep: set[str] = set()
+    from coordinator.compensation.store import stored_transport_meta   # SciPy: only for a rig that has L
+    meta = stored_transport_meta(d)
     try:
-        keep.add(str(json.loads((d / "transport.json").read_bytes())["black_file"]))
+        doc = json.loads(js.read_bytes())
     except FileNotFoundError:
-        pass
-    npz = d / "transport.npz"
-    if npz.exists():
-        with np.load(npz, allow_pickle=False) as z:            # reads only the member asked for
-            keep.add(str(json.loads(str(z["meta"]))["black_file"]))
+        doc = None
+    except ValueError:
+        doc = {}
+    if meta is not None and json.dumps(doc, sort_keys=True) != json.dumps(meta, sort_keys=True):
+        atomic_write_json(js, meta)
+        r.did("completed", js, "rewritten from transport.npz's metadata (a save cut between the two files)")
+        doc = meta
+    keep = {str(x.get("black_file")) for x in (meta, doc) if isinstance(x, dict)}
+    if meta is None and npz.exists():
+        return                    # an unreadable L: which black capture is its cannot be told
     for p in blacks:
         if p.name not in keep:
             r.remove(p, "a black capture no stored light transport names (a save cut before its clean-up)")
+
+
+def _coverage(r: Recovery) -> None:
+    if not (r.rig_dir / "coverage" / "coverage.npz").exists():
+        return
+    from coordinator.coverage_store import coverage_dir, summary_behind   # OpenCV, GL: only for a rig with coverage
+    doc = summary_behind(r.rig_dir)
+    if doc is not None:
+        js = coverage_dir(r.rig_dir) / "coverage.json"
+        atomic_write_json(js, doc)
+        r.did("completed", js, "rewritten from coverage.npz's summary (a save cut between the two files)")
 
 
 # ---------------------------------------------------------------- the pass
@@ -406,6 +427,6 @@ def recover(rig_dir: str | os.PathLike[str]) -> Recovery:
     for name, fn in (("temp files", _temps), ("uploads", _uploads), ("staged assets", _staged),
                      ("assets", _assets), ("LUTs", _slot_luts), ("content", _content),
                      ("calibration run", _calibration), ("show.json", _show),
-                     ("compensation", _compensation)):
+                     ("compensation", _compensation), ("coverage", _coverage)):
         r.step(name, lambda fn=fn: fn(r))
     return r

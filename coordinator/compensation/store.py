@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +52,7 @@ __all__ = [
     "transport_fingerprint",
     "load_valid_transport",
     "save_measured_transport",
+    "stored_transport_meta",
     "transport_summary",
     "baseline_fingerprint",
     "load_baseline_transport",
@@ -196,6 +198,20 @@ def save_measured_transport(rig: Rig, L: sp.csr_matrix, meta: dict, black: np.nd
     for old in d.glob("black-*.npy"):
         if old.name != meta["black_file"]:
             old.unlink(missing_ok=True)
+
+
+def stored_transport_meta(comp_dir: str | Path) -> dict | None:
+    """The metadata ``transport.npz`` in ``comp_dir`` carries, read without its arrays; None when there
+    is none or it cannot be read (:func:`load_valid_transport` says why when a job asks for it)."""
+    try:
+        with np.load(Path(comp_dir) / "transport.npz", allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    if not isinstance(meta, dict):
+        return None
+    meta.pop("format", None)
+    return meta
 
 
 def transport_summary(tr: StoredTransport) -> dict:

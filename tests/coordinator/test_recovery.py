@@ -13,11 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.configuration import set_hypothesis_home_dir
 
 from coordinator.assets import STAGING_LOCK, AssetStore
+from coordinator.compensation.store import save_measured_transport, stored_transport_meta
+from coordinator.coverage import Coverage
+from coordinator.coverage_store import save_coverage, summary_behind
 from coordinator.distribution import Distribution
 from coordinator.recovery import QUARANTINE, is_temp_name, recover
 from coordinator.rig import Content, HomographyPose, Rig, init_rig
@@ -52,6 +56,15 @@ def base_rig(tmp_path_factory) -> Path:
     (path / "calibration").mkdir()
     (path / "calibration" / "run.json").write_text(json.dumps({"run": "x", "status": "complete"}))
     (path / "show.json").write_text(json.dumps({"version": 1, "revision": 0, "timeline": None}))
+    # the pairs written one after the other: the light transport (npz, json, black) and the coverage
+    L = sp.csr_matrix(np.eye(4, 6, dtype=np.float32))
+    save_measured_transport(rig, L, {"black_file": "black-aaaa.npy", "fingerprint": "aaaa", "radius": 3},
+                            np.zeros((2, 2, 3), np.float32))
+    h, w = 4, 5
+    cov = Coverage(("r0c0", "r0c1"), np.ones((h, w), bool), np.ones((h, w), np.float32),
+                   np.zeros((h, w, 3), np.float32), np.zeros((h, w, 3), np.float32), np.ones((2, h, w), bool),
+                   np.ones((2, h, w), np.float32))
+    save_coverage(path, cov, {"texels": h * w, "mean": 1.5, "mesh": "m"})
     return path
 
 
@@ -187,10 +200,27 @@ def orphan_black(rig: Path, draw) -> None:
     np.save(d / "black-0123456789abcdef.npy", np.zeros((2, 2, 3), np.float32))
 
 
+def transport_json_behind(rig: Path, draw) -> None:   # a new L saved, killed before its transport.json
+    d = rig / "compensation"
+    np.save(d / "black-bbbb.npy", np.zeros((2, 2, 3), np.float32))
+    if draw(st.booleans()):
+        (d / "transport.json").write_text(json.dumps({"black_file": "black-bbbb.npy", "fingerprint": "bbbb"}))
+    else:
+        (d / "transport.json").unlink()
+
+
+def coverage_json_behind(rig: Path, draw) -> None:    # a new coverage.npz, killed before its coverage.json
+    f = rig / "coverage" / "coverage.json"
+    if draw(st.booleans()):
+        f.write_text(json.dumps({"texels": 1, "mean": 0.5}))
+    else:
+        f.unlink()
+
+
 CRASH_STATES = [empty_upload, partial_upload, upload_without_spec, truncated_spec, spec_of_another_id,
                 file_bigger_than_announced, unannounced_file, files_is_a_file, temp_file,
                 temp_in_upload, staged_add, orphan_blob, old_lut, orphan_content, running_calibration,
-                orphan_black]
+                orphan_black, transport_json_behind, coverage_json_behind]
 DAMAGE = [damaged_manifest, missing_blob, truncated_show, stray_upload_entry]
 
 
@@ -218,7 +248,10 @@ def check_settled(rig: Path) -> None:
     luts = {f for f in left if f.startswith("luts/")}
     assert luts == {f"luts/{s}.r{Rig(rig).slot(s).revision}.npy" for s in SLOTS}, luts
     assert len([f for f in left if f.startswith("content/") and f.endswith(".npy")]) == 1
-    assert not [f for f in left if f.startswith("compensation/black-")]
+    meta = stored_transport_meta(rig / "compensation")
+    assert meta is not None and json.loads((rig / "compensation" / "transport.json").read_text()) == meta
+    assert {f for f in left if f.startswith("compensation/black-")} == {f"compensation/{meta['black_file']}"}
+    assert summary_behind(rig) is None
     assert json.loads((rig / "calibration" / "run.json").read_text())["status"] != "running"
 
 
@@ -274,7 +307,6 @@ def test_a_temp_file_a_running_writer_holds_open_stays(base_rig, tmp_path):
     rig = tmp_path / "rig"
     shutil.copytree(base_rig, rig, symlinks=True)
     held = rig / "coverage" / ".coverage.npz.abcdefgh.tmp"
-    held.parent.mkdir()
     with open(held, "wb") as f:
         f.write(b"being written")
         recover(rig)
