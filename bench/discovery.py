@@ -29,7 +29,8 @@ name). On an mDNS service of the run's own, on loopback and/or in a virtual venu
 ``joined``/``started``, ``joined_within_10s``, ``join_s`` p50/max (from starting the node
 processes until live), ``ready_to_join_s`` (from each node's renderer being up to its join, from
 its log: discovery and handshake alone), ``timed_out_on_hostile`` (nodes whose Hello to the
-tarpit ran out), and with ``--control`` the same nodes with no hostile (``control_join_s``,
+tarpit ran out), ``operator_found_rig`` (``shadowless status --rig-dir`` over mDNS reached the
+rig's own coordinator, the hostile advertising), and with ``--control`` the same nodes with no hostile (``control_join_s``,
 ``hostile_cost_max`` = max over control max).
 """
 from __future__ import annotations
@@ -53,7 +54,7 @@ from coordinator.api import NodeState
 from coordinator.rig import parse_config
 from protos import auth
 from shadowless.local import LocalRig, grid_names
-from shadowless.netns import Venue
+from shadowless.netns import Venue, VenueError
 from shadowless.netns import available as netns_available
 
 SIZE = (32, 18)
@@ -224,6 +225,22 @@ def _ready_to_join_s(log: str) -> float | None:
     return max(0.0, (stamps["joined rig"] - stamps["rendering with"]).total_seconds())
 
 
+def _operator_finds(rig: LocalRig, venue: Venue | None, host: str, rig_id: str) -> bool:
+    """Whether ``shadowless status --rig-dir`` over mDNS (from ``host``'s namespace in a venue) reaches the
+    rig's own coordinator (its id in the answer), the hostile advertising all the while."""
+    argv = [sys.executable, "-m", "shadowless", "status", "--json", "--rig-dir", str(rig.rig_dir),
+            "--mdns-interface", rig.node_address(host)]
+    try:
+        if venue is not None:
+            out = venue.check_output(host, argv, timeout=60, env=rig._env())
+        else:
+            out = subprocess.run(argv, capture_output=True, text=True, timeout=60, env=rig._env(), check=True).stdout
+        return json.loads(out)["rig"]["id"] == rig_id
+    except (subprocess.SubprocessError, VenueError, ValueError, KeyError) as exc:
+        print(f"shadowless bench discovery: the operator's status failed: {exc}", file=sys.stderr)
+        return False
+
+
 def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "after", timeout: float = 60.0,
                   service: str | None = None) -> dict:
     """N real nodes (unpinned) join their rig while a hostile advertiser claims the rig's instance name
@@ -256,6 +273,7 @@ def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "af
             real.start_node(s, ["--rig", ""])
         live = asyncio.run(_wait_all_live(real, t0, timeout))
         times = sorted(live.values())
+        operator = _operator_finds(real, v, slots[0], cfg.rig_id)
         tarpit = [s for s in slots if "DEADLINE_EXCEEDED" in real.log("node-" + s)]
         after_ready = sorted(t for t in (_ready_to_join_s(real.log("node-" + s)) for s in slots) if t is not None)
         return {
@@ -271,6 +289,7 @@ def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "af
             "ready_to_join_s": {"p50": round(statistics.median(after_ready), 3), "max": round(after_ready[-1], 3)}
             if after_ready else None,
             "timed_out_on_hostile": len(tarpit),
+            "operator_found_rig": operator,
         }
     finally:
         if hostile is not None:

@@ -1,7 +1,8 @@
 """Real nodes join their rig while a hostile advertiser claims the rig's mDNS name without conflict
 probing and points at a tarpit (a port that accepts and never answers): every node tries every
 (address, port) that answered for the name, the tarpit costs at most one short timeout, and all of
-them join the real coordinator, on loopback and on a virtual venue network. The times go to the
+them join the real coordinator, on loopback and on a virtual venue network; an operator's
+`status --rig-dir` over mDNS reaches it too. The times go to the
 test report (``record_property``); ``shadowless bench discovery --hostile`` measures them with 16."""
 from __future__ import annotations
 
@@ -17,9 +18,11 @@ def test_nodes_join_past_a_hostile_same_name_advertiser_on_loopback(tmp_path, re
     record_property("hostile_trial", rec)
     assert rec["joined"] == rec["started"] == 4, rec
     assert rec["renamed"] is (when == "before"), rec
+    assert rec["operator_found_rig"], rec
 
 
 def test_nodes_join_past_a_hostile_same_name_advertiser_in_the_venue(ns, tmp_path, record_property):
     rec = hostile_trial(tmp_path, 4, venue=True, when="after", timeout=60)
     record_property("hostile_trial", rec)
     assert rec["joined"] == rec["started"] == 4, rec
+    assert rec["operator_found_rig"], rec
