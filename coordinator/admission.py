@@ -37,12 +37,12 @@ MAX_CALLS = 64
 MAX_CALLS_PER_ADDRESS = 16
 #: bytes reserved (a message not yet received counts as the largest allowed) or held, all peers / one address
 MAX_BYTES = 16 * MIB
-MAX_BYTES_PER_ADDRESS = 8 * MIB
+MAX_BYTES_PER_ADDRESS = 4 * MIB
 #: calls over the budget that wait for room (their bytes stay in gRPC's receive window, at most
 #: protos.version.COORDINATOR_WINDOW_BYTES each), per address and in all, and for how long: a host
 #: whose nodes all start at once is served in turn, not refused; beyond these a call is refused
-MAX_WAITING_PER_ADDRESS = 16
-MAX_WAITING = 32
+MAX_WAITING_PER_ADDRESS = 8
+MAX_WAITING = 16
 WAIT_S = 2.0
 #: the largest message a call without a session may bring: handshakes (Hello, Join, Login) and
 #: health checks are a few hundred bytes; a larger one is refused without being parsed
