@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 
 from bench import compensation_args as value_types
+from bench.compensation_memory import plan as memory_plan
 from bench.machine import load, machine, streaming_bandwidth
 from coordinator.compensation.quality import quality, side_by_side, srgb_to_linear
 from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve, solve_per_projector
@@ -75,6 +76,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-iter", type=int, default=1000)
     parser.add_argument("--radius", type=int, default=2, help="PSF recovery radius R (25 nnz per column at R=2)")
     parser.add_argument("--spacing", type=int, default=6, help="dot-grid spacing S (S*S captures)")
+    parser.add_argument("--no-baseline", dest="baseline", action="store_false",
+                        help="leave out the per-projector baseline (it holds every projector's L_i: N times ours); "
+                             "it is left out by itself, with one line, when it would not fit in memory")
     parser.add_argument("--read-noise", type=float, default=5e-4, help="camera read noise per frame, fraction of full scale")
     parser.add_argument("--shot-noise", type=float, default=0.01, help="shot noise per frame: std = coef*sqrt(signal) (10k e-)")
     parser.add_argument("--frames", type=int, default=8, help="camera frames averaged per pattern, for both methods")
@@ -175,15 +179,20 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
     counts = sorted(set(args.projectors))
     rig = synthetic_rig(max(counts), content_shape=(h, w), radius=args.radius, seed=args.seed)
     t0 = time.perf_counter()
-    units = synthetic_transport(rig, per_projector=True, footprint_samples=2, workers=2)
-    _log(f"{w}x{h}: {len(units)} projectors' transport generated in {time.perf_counter() - t0:.1f} s")
+    # the baseline needs every unit's L_i; without it each rig's L is generated as a sum, one at a time
+    units = synthetic_transport(rig, per_projector=True, footprint_samples=2, workers=2) if args.baseline else None
+    if units is not None:
+        _log(f"{w}x{h}: {len(units)} projectors' transport generated in {time.perf_counter() - t0:.1f} s")
     target = _target(h, w, args.channels, args.target_range, args.seed)
     grid = DotGrid(w, h, args.spacing)
     cam = {"read": args.read_noise / math.sqrt(args.frames), "shot": args.shot_noise / math.sqrt(args.frames)}
     opts = _solve_opts(args)
     prepared: dict[int, dict[str, Any]] = {}
     for n in counts:
-        L = sum(units[1:n], units[0]) * (1.0 / n)  # brightness matched to one projector
+        if units is not None:
+            L = sum(units[1:n], units[0]) * (1.0 / n)  # brightness matched to one projector
+        else:
+            L = synthetic_transport(rig, projectors=range(n), scale=1.0 / n, footprint_samples=2, workers=2)
         rng = np.random.default_rng([args.seed, n])
         Lm = _measure(L, grid, (h, w), cam, rng, args.radius)
         t = time.perf_counter()
@@ -207,17 +216,19 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
         L = P["L"]
         ours = ours_res[n]
         t_ours = statistics.median(ours_times[n])
-        _log(f"N={n}: ours {t_ours:.2f} s ({ours.iterations} it); measuring {n} L_i ({n * len(grid) + 1} captures)")
-        Ls = [u * (1.0 / n) for u in units[:n]]
-        # with one projector both procedures are the same measurement
-        Lms = [P["Lm"]] if n == 1 else [_measure(Li, grid, (h, w), cam, P["rng"], args.radius) for Li in Ls]
-        err_base = float(np.mean([transport_error(a, b) for a, b in zip(Lms, Ls)]))
-        t = time.perf_counter()
-        ops = [TransportOperator(Li, threads=args.threads) for Li in Lms]
-        prep_base = time.perf_counter() - t
-        del Lms
-        base = solve_per_projector(ops, target, threads=args.threads, **opts)
-        _log(f"N={n}: baseline {base.seconds:.2f} s ({base.iterations} it)")
+        Ls, base = None, None
+        if units is not None:
+            _log(f"N={n}: ours {t_ours:.2f} s ({ours.iterations} it); measuring {n} L_i ({n * len(grid) + 1} captures)")
+            Ls = [u * (1.0 / n) for u in units[:n]]
+            # with one projector both procedures are the same measurement
+            Lms = [P["Lm"]] if n == 1 else [_measure(Li, grid, (h, w), cam, P["rng"], args.radius) for Li in Ls]
+            err_base = float(np.mean([transport_error(a, b) for a, b in zip(Lms, Ls)]))
+            t = time.perf_counter()
+            ops = [TransportOperator(Li, threads=args.threads) for Li in Lms]
+            prep_base = time.perf_counter() - t
+            del Lms
+            base = solve_per_projector(ops, target, threads=args.threads, **opts)
+            _log(f"N={n}: baseline {base.seconds:.2f} s ({base.iterations} it)")
         # ours again right after the baseline: the machine's load is shared, keep the two side by side
         for _ in range(max(1, args.repeats - 1)):
             P["op"].clear_cache()
@@ -225,40 +236,45 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
         t_ours = statistics.median(ours_times[n])
         mem_ours = _tracemalloc_peak(lambda op=P["op"]: solve(op, target, threads=args.threads, method=args.method,
                                                                max_iter=3))
-        mem_base = _tracemalloc_peak(lambda ops=ops: solve_per_projector(ops, target, threads=args.threads,
-                                                                          method=args.method, max_iter=3))
-        del ops
+        if base is not None:
+            mem_base = _tracemalloc_peak(lambda ops=ops: solve_per_projector(ops, target, threads=args.threads,
+                                                                              method=args.method, max_iter=3))
+            del ops
         cap_none = _capture(L, np.clip(target, 0, 1), target.shape)
         cap_ours = _capture(L, ours.x, target.shape)
-        cap_base = sum(_capture(Li, xi, target.shape) for Li, xi in zip(Ls, base.xs))
-        q = {
-            "none": quality(target, cap_none).as_dict(),
-            "baseline": quality(target, cap_base).as_dict(),
-            "ours": quality(target, cap_ours).as_dict(),
-        }
+        q = {"none": quality(target, cap_none).as_dict()}
+        if base is not None:
+            cap_base = sum(_capture(Li, xi, target.shape) for Li, xi in zip(Ls, base.xs))
+            q["baseline"] = quality(target, cap_base).as_dict()
+        q["ours"] = quality(target, cap_ours).as_dict()
         if n == counts[-1]:
             # oracle: the same solves with the exact (noise-free) matrices, for the largest rig
             o_ours = solve(L, target, threads=args.threads, **opts)
-            o_base = solve_per_projector(Ls, target, threads=args.threads, **opts)
             q["oracle_ours"] = quality(target, _capture(L, o_ours.x, target.shape)).as_dict()
-            q["oracle_baseline"] = quality(target, sum(_capture(Li, xi, target.shape)
-                                                       for Li, xi in zip(Ls, o_base.xs))).as_dict()
-            del o_base
+            if Ls is not None:
+                o_base = solve_per_projector(Ls, target, threads=args.threads, **opts)
+                q["oracle_baseline"] = quality(target, sum(_capture(Li, xi, target.shape)
+                                                           for Li, xi in zip(Ls, o_base.xs))).as_dict()
+                del o_base
         del Ls
         picture = None
         if args.out is not None:
             args.out.mkdir(parents=True, exist_ok=True)
-            pic = side_by_side([target, cap_none, cap_base, cap_ours],
-                               ["target", f"none {q['none']['psnr']:.2f} dB", f"baseline {q['baseline']['psnr']:.2f} dB",
-                                f"ours {q['ours']['psnr']:.2f} dB"])
+            shown = [target, cap_none, *([cap_base] if base is not None else []), cap_ours]
+            names = ["target", f"none {q['none']['psnr']:.2f} dB",
+                     *([f"baseline {q['baseline']['psnr']:.2f} dB"] if base is not None else []),
+                     f"ours {q['ours']['psnr']:.2f} dB"]
+            pic = side_by_side(shown, names)
             picture = str(args.out / f"compensation_{w}x{h}_N{n}.png")
             if not cv2.imwrite(picture, cv2.cvtColor(pic, cv2.COLOR_RGB2BGR)):
                 raise OSError(f"could not write {picture}")
+        skipped = getattr(args, "baseline_skipped", None) or "skipped"
         rows.append({
             "projectors": n,
-            "captures": {"ours": len(grid) + 1, "baseline": n * len(grid) + 1},
-            "transport_relative_error": {"ours": round(P["error"], 5), "baseline_mean": round(err_base, 5)},
-            "prepare_seconds": {"ours": round(P["prep"], 4), "baseline": round(prep_base, 4)},
+            "captures": {"ours": len(grid) + 1, "baseline": n * len(grid) + 1 if base is not None else None},
+            "transport_relative_error": {"ours": round(P["error"], 5),
+                                         "baseline_mean": round(err_base, 5) if base is not None else None},
+            "prepare_seconds": {"ours": round(P["prep"], 4), "baseline": round(prep_base, 4) if base is not None else None},
             "ours": {
                 "seconds": round(t_ours, 4),
                 "seconds_all": [round(v, 4) for v in ours_times[n]],
@@ -268,7 +284,7 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
                 "reason": ours.reason,
                 "peak_memory_mib": round(mem_ours, 1),
             },
-            "baseline": {
+            "baseline": skipped if base is None else {
                 "seconds": round(base.seconds, 4),
                 "iterations": base.iterations,
                 "iterations_per_projector": round(base.iterations / n, 1),
@@ -276,7 +292,7 @@ def _per_projectors(args: argparse.Namespace) -> list[dict[str, Any]]:
                 "reasons": sorted({r.reason for r in base.results}),
                 "peak_memory_mib": round(mem_base, 1),
             },
-            "baseline_over_ours": round(base.seconds / t_ours, 2),
+            "baseline_over_ours": round(base.seconds / t_ours, 2) if base is not None else None,
             "quality": q,
             "picture": picture,
         })
@@ -502,7 +518,7 @@ def _targets(doc: dict[str, Any]) -> dict[str, Any]:
         v = rows[25]["ours"]["seconds"] / rows[1]["ours"]["seconds"]
         t["ours_time_25_over_1"] = {"value": round(v, 3), "limit": "<= 1.2", "met": v <= 1.2,
                                     "iterations_25_over_1": round(rows[25]["ours"]["iterations"] / rows[1]["ours"]["iterations"], 3)}
-    if 25 in rows:
+    if 25 in rows and isinstance(rows[25]["baseline"], dict):
         v = rows[25]["baseline_over_ours"]
         work = rows[25]["baseline"]["iterations"] / rows[25]["ours"]["iterations"]
         t["baseline_25_over_ours_25"] = {"value": v, "limit": ">= 20", "met": v >= 20,
@@ -556,11 +572,13 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("--projectors must list rig sizes between 1 and 25")
     if args.frames < 1 or args.repeats < 1:
         raise SystemExit("--frames and --repeats must be >= 1")
+    memory = memory_plan(args, log=_log)  # every part estimated before anything is allocated
+    memory["rss_at_start_gib"] = round(_maxrss_gib(), 3)  # the interpreter and its imports, under every estimate
     start = time.perf_counter()
     params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(args).items() if not k.startswith("_")}
     params = {k: (str(v) if isinstance(v, Path) else v) for k, v in params.items() if k not in ("command", "bench")}
     doc: dict[str, Any] = {"benchmark": "compensation", "machine": machine(), "parameters": params,
-                           "paper_table_1": PAPER_TABLE_1}
+                           "paper_table_1": PAPER_TABLE_1, "memory": memory}
     doc["per_projectors"] = _per_projectors(args) if args.size else []
     gc.collect()
     doc["paper_size"] = _paper_size(args) if args.paper_size else None

@@ -1,0 +1,100 @@
+"""`shadowless bench compensation` estimates its memory before it allocates: it refuses in one line what
+cannot fit, drops the per-projector baseline alone when only that does not fit, and its estimates lie
+between the measured peak and twice it.
+
+Every run is a real `python -m shadowless` process; ``SHADOWLESS_MEMORY_LIMIT`` gives it a budget of the
+test's choosing, so a refusal is fast and the same on any machine."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+SMALL = ["--paper-size", "none", "--video-frames", "0", "--sweep-frames", "", "--repeats", "1", "--max-iter", "30",
+         "--bandwidth-mib", "64", "--paper-reference-seconds", "2"]
+
+
+def bench(args: list[str], limit: str | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env.pop("SHADOWLESS_MEMORY_LIMIT", None)
+    if limit is not None:
+        env["SHADOWLESS_MEMORY_LIMIT"] = limit
+    return subprocess.run([sys.executable, "-m", "shadowless", "bench", "compensation", *args], env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_the_issue_command_refuses_before_allocating_when_even_ours_does_not_fit():
+    # the command that was OOM-killed, on a 2 GB budget: one line, status 2, nothing generated
+    out = bench(["--projectors", "25", "--size", "2592x1944"], limit="2G", timeout=60)
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1 and not out.stdout, (out.returncode, out.stderr[-2000:])
+    assert lines[0].startswith("shadowless bench compensation: needs about "), lines
+    assert "for the rig's transport at 2592x1944 for 25 projectors" in lines[0]
+    assert "2.0 GB available (SHADOWLESS_MEMORY_LIMIT=2G)" in lines[0] and "use a smaller --size" in lines[0]
+
+
+def test_only_the_baseline_is_dropped_when_only_it_does_not_fit():
+    # 324x243, 9 projectors: ours needs about 0.4 GB, ours and the baseline about 0.9 GB
+    out = bench(["--size", "324x243", "--projectors", "1,9", *SMALL], limit="600M")
+    assert out.returncode == 0, out.stderr[-3000:]
+    doc = json.loads(out.stdout)
+    skipped = [line for line in out.stderr.splitlines() if "baseline" in line and "skipped" in line]
+    assert len(skipped) == 1 and "for 9 projectors skipped: it needs about" in skipped[0], out.stderr
+    rows = doc["per_projectors"]
+    assert [r["projectors"] for r in rows] == [1, 9]
+    for r in rows:
+        assert r["baseline"].startswith("skipped: needs ~") and r["baseline"].endswith("600 MB available"), r["baseline"]
+        assert r["baseline_over_ours"] is None and "baseline" not in r["quality"]
+        assert r["quality"]["ours"]["psnr"] > r["quality"]["none"]["psnr"]
+    assert doc["memory"]["source"] == "SHADOWLESS_MEMORY_LIMIT=600M" and doc["parameters"]["baseline"] is False
+    assert "oracle_ours" in rows[-1]["quality"] and "oracle_baseline" not in rows[-1]["quality"]
+
+
+# (part, arguments that run only that part) at small sizes where the part's arrays outweigh the interpreter
+PARTS = [
+    ("per_projectors_ours", ["--size", "324x243", "--projectors", "9", "--no-baseline", *SMALL]),
+    ("per_projectors", ["--size", "324x243", "--projectors", "9", *SMALL]),
+    ("paper_size", ["--size", "none", *SMALL, "--paper-size", "648x486"]),
+    ("video_640x360", ["--size", "none", *SMALL, "--video-size", "640x360", "--video-frames", "6"]),
+    ("noise_sweep", ["--size", "none", *SMALL, "--sweep-frames", "1", "--sweep-size", "160x120"]),
+]
+
+
+@pytest.mark.parametrize("part,args", PARTS, ids=[p for p, _ in PARTS])
+def test_each_estimate_lies_between_the_measured_peak_and_twice_it(part, args):
+    out = bench(args, limit="off")
+    assert out.returncode == 0, out.stderr[-3000:]
+    doc = json.loads(out.stdout)
+    mem = doc["memory"]
+    est = mem["estimates_gib"]
+    estimate = est["per_projectors_ours"] + est["per_projectors_baseline"] if part == "per_projectors" else est[part]
+    # the peak above what the interpreter and its imports held when the estimate was made
+    peak = doc["process_peak_rss_gib"] - mem["rss_at_start_gib"]
+    assert peak <= estimate <= 2 * peak, f"{part}: estimate {estimate} GiB, measured peak {peak:.3f} GiB above the start"
+
+
+CORPUS = [
+    ("budget in words", ["--size", "160x120"], "lots", "SHADOWLESS_MEMORY_LIMIT: 'lots' is not a memory size"),
+    ("negative budget", ["--size", "160x120"], "-1G", "SHADOWLESS_MEMORY_LIMIT: '-1G' is not a memory size"),
+    ("paper size beyond the machine", ["--size", "none", "--paper-size", "16000x12000"], None,
+     "for the paper-size run at 16000x12000"),
+    ("video beyond the machine", ["--size", "none", "--paper-size", "none", "--video-size", "16000x9000"], None,
+     "for the 30-frame video at 16000x9000"),
+    ("noise sweep beyond the machine", ["--size", "none", "--paper-size", "none", "--video-frames", "0",
+                                        "--sweep-size", "12000x9000"], None, "for the noise sweep at 12000x9000"),
+    ("per-N comparison beyond the machine", ["--size", "16384x12000", "--projectors", "1"], None,
+     "for the rig's transport at 16384x12000 for 1 projectors"),
+]
+
+
+@pytest.mark.parametrize("name,args,limit,expect", CORPUS, ids=[c[0] for c in CORPUS])
+def test_bad_sizes_and_budgets_cost_one_line(name, args, limit, expect, corpus_table):
+    out = bench(args, limit=limit, timeout=60)
+    lines = out.stderr.strip().splitlines()
+    corpus_table("bench compensation memory", f"{name}: {' '.join(args)}" + (f" (limit {limit})" if limit else ""),
+                 lines[-1] if lines else "", out.returncode)
+    assert out.returncode == 2 and len(lines) == 1 and not out.stdout, (out.returncode, out.stderr[-2000:])
+    assert lines[0].startswith("shadowless bench compensation: ") and expect in lines[0], lines[0]
