@@ -63,7 +63,7 @@ def decode_image_param(value: dict) -> tuple[np.ndarray, str]:
     Raises
     ------
     CompensationError
-        If the bytes are not an image OpenCV or numpy can read.
+        If the bytes are not an image the decoder or numpy reads (see :func:`decode_image_bytes`).
     """
     if not isinstance(value, dict) or not isinstance(value.get("data"), str):
         raise CompensationError("image parameter must be {\"name\": ..., \"data\": base64}")
@@ -85,7 +85,8 @@ def decode_image_bytes(raw: bytes, name: str) -> tuple[np.ndarray, str]:
     Raises
     ------
     CompensationError
-        If the bytes are not an image OpenCV or numpy can read.
+        If the bytes are not an image the decoder or numpy reads, or hold float values outside
+        0..1 (the solver's target is linear light from 0 to 1).
     """
     if name.lower().endswith(".npy") or raw[:6] == b"\x93NUMPY":
         from coordinator.npy_header import check_npy_fits
@@ -113,6 +114,12 @@ def decode_image_bytes(raw: bytes, name: str) -> tuple[np.ndarray, str]:
         img = img.astype(np.float32)
     if img.dtype == np.float32 and not np.all(np.isfinite(img)):
         raise CompensationError(f"image {name}: contains NaN or infinity")
+    from coordinator.float_range import check_float_range
+
+    try:      # the solver's target is linear light from 0 to 1: other floats were clipped without a word
+        check_float_range(img, f"image {name}", hint="clip it to 0..1 first")
+    except ValueError as exc:
+        raise CompensationError(str(exc)) from None
     return img[:, :, :3], name
 
 

@@ -16,6 +16,8 @@ import pytest
 from coordinator.api import PlaySettings
 from coordinator.asset_probe import probe_still
 from coordinator.client import Client
+from coordinator.compensation.errors import CompensationError
+from coordinator.compensation.image_param import decode_image_param, encode_image_array
 from coordinator.errors import AssetError
 from coordinator.float_range import check_float_range
 from coordinator.rig import Rig, init_rig
@@ -55,6 +57,15 @@ def test_content_add_refuses_an_out_of_range_npy(tmp_path):
         probe_still(tmp_path / "hot.npy")
     np.save(tmp_path / "ok.npy", np.full((4, 4, 3), 0.5, np.float32))
     assert probe_still(tmp_path / "ok.npy").bit_depth == 32
+
+
+def test_a_compensation_target_outside_0_1_is_refused(tmp_path):
+    hot = np.full((8, 8, 3), 0.25, np.float32)
+    hot[2, 3] = 1.75
+    with pytest.raises(CompensationError, match=r"^image target\.npy holds values from 0\.25 to 1\.75.*clip it to 0\.\.1"):
+        decode_image_param(encode_image_array(hot, "target.npy"))
+    img, _ = decode_image_param(encode_image_array(np.clip(hot, 0, 1), "target.npy"))
+    assert img.max() == 1.0
 
 
 def test_grpc_show_and_play_refuse_floats_outside_0_1_from_any_client(tmp_path):
