@@ -32,6 +32,10 @@ its log: discovery and handshake alone), ``timed_out_on_hostile`` (nodes whose H
 tarpit ran out), ``operator_found_rig`` (``shadowless status --rig-dir`` over mDNS reached the
 rig's own coordinator, the hostile advertising), and with ``--control`` the same nodes with no hostile (``control_join_s``,
 ``hostile_cost_max`` = max over control max).
+
+``--name-clash K`` (loopback): K times, two rigs with the same name start their coordinators one
+after the other, ``--clash-nodes`` nodes of the first running meanwhile; ``renamed`` (the second advertises as another instance name), ``logged_rename``
+and ``both_found`` (a browser finds both rig ids under the rig's name) count the starts.
 """
 from __future__ import annotations
 
@@ -53,6 +57,7 @@ from bench.workdir import run_dir
 from coordinator.api import NodeState
 from coordinator.rig import parse_config
 from protos import auth
+from protos.discovery import Discovery
 from shadowless.local import LocalRig, grid_names
 from shadowless.netns import Venue, VenueError
 from shadowless.netns import available as netns_available
@@ -77,6 +82,11 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hostile", choices=("before", "after"),
                    help="instead: a hostile advertiser claims the rig's mDNS name without probing, from before the "
                         "coordinator starts (it renames itself) or after it advertised (two responders, one name)")
+    p.add_argument("--name-clash", type=int, default=0, metavar="K",
+                   help="instead: K times, two rigs of the same name start their coordinators one after the other: "
+                        "does the second rename itself, are both found (default 0: off)")
+    p.add_argument("--clash-nodes", type=int, default=4, metavar="M",
+                   help="with --name-clash: nodes of the first rig running when the second starts (default 4)")
     p.add_argument("--where", choices=("loopback", "venue", "both"), default="both",
                    help="with --hostile: on loopback, in a virtual venue network, or both (default)")
 
@@ -306,6 +316,73 @@ def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "af
             v.close()
 
 
+def clash_trial(workdir: Path, *, nodes: int = 4, service: str | None = None) -> dict:
+    """Two rigs with the same name, their coordinators started one after the other on loopback (on an
+    mDNS service of the trial's own), the first one's ``nodes`` nodes running meanwhile (more processes
+    sharing port 5353, as on a rig's network): what each advertises as, whether the second renamed
+    itself, and whether a browser finds both (by the rig name in TXT, each with its own id)."""
+    service_name = service or f"_slc-{os.getpid() % 10 ** 6}"
+    service_type = f"{service_name}._tcp.local."
+    name = f"clash-{os.getpid()}-{int(time.time() * 1000) % 100000}"
+    rigs = [LocalRig(grid_names(max(1, nodes)), workdir / k, output_size=SIZE, content_size=SIZE, rig_name=name,
+                     env={"SHADOWLESS_MDNS_SERVICE": service_name}) for k in ("first", "second")]
+    try:
+        names = []
+        for r in rigs:
+            r.create()
+            r.start_coordinator()
+            r.wait_ready(60)
+            names.append(_advertised_name(r))
+            if r is rigs[0] and nodes:
+                for slot in r.slots[:nodes]:
+                    r.start_node(slot)
+                asyncio.run(_wait_all_live(r, time.monotonic(), 120))
+        ids = {parse_config((r.rig_dir / "rig.toml").read_text()).rig_id for r in rigs}
+
+        async def browse() -> set[str]:
+            disc = Discovery(interfaces=["127.0.0.1"], service_type=service_type)
+            await disc.start()
+            try:
+                deadline = time.monotonic() + 10
+                found: set[str] = set()
+                while time.monotonic() < deadline and found != ids:
+                    found = {a.rig_id for a in await disc.find(rig=name, timeout=5, settle=0.5)}
+                return found
+            finally:
+                await disc.close()
+
+        found = asyncio.run(browse())
+        return {"advertised_as": names, "renamed": names[1] != names[0],
+                "logged_rename": "is already answered for" in rigs[1].log("coordinator"),
+                "both_found": found == ids}
+    finally:
+        for r in rigs:
+            r.close()
+
+
+def _run_clash(args: argparse.Namespace) -> int:
+    trials = []
+    with run_dir(args.workdir, "discovery-clash") as work:
+        for k in range(args.name_clash):
+            rec = clash_trial(Path(work) / f"start{k + 1}", nodes=args.clash_nodes)
+            print(f"start {k + 1}: {rec['advertised_as']} renamed={rec['renamed']} both found={rec['both_found']}",
+                  file=sys.stderr)
+            trials.append(rec)
+    out = {
+        "benchmark": "discovery",
+        "mode": "name-clash",
+        "params": {"starts": args.name_clash, "clash_nodes": args.clash_nodes},
+        "machine": machine(),
+        "renamed": sum(t["renamed"] for t in trials),
+        "logged_rename": sum(t["logged_rename"] for t in trials),
+        "both_found": sum(t["both_found"] for t in trials),
+        "starts": len(trials),
+        "trials": trials,
+    }
+    print(json.dumps(out, indent=2))
+    return 0 if all(t["renamed"] and t["both_found"] for t in trials) else 1
+
+
 def _run_hostile(args: argparse.Namespace) -> int:
     trials = []
     wheres = {"loopback": [False], "venue": [True], "both": [False, True]}[args.where]
@@ -361,9 +438,12 @@ def _run_hostile(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.nodes < 1 or args.runs < 1:
-        print("shadowless bench discovery: --nodes and --runs must be at least 1", file=sys.stderr)
+    if args.nodes < 1 or args.runs < 1 or args.name_clash < 0 or args.clash_nodes < 0:
+        print("shadowless bench discovery: --nodes and --runs must be at least 1, --name-clash at least 0",
+              file=sys.stderr)
         return 2
+    if args.name_clash:
+        return _run_clash(args)
     if args.hostile:
         return _run_hostile(args)
     runs = []

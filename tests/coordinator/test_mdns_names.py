@@ -40,13 +40,23 @@ def test_a_second_rig_of_the_same_name_renames_itself_and_both_stay_found(tmp_pa
     own = f"_sl-name-{os.getpid() % 10**6}"
     service = f"{own}._tcp.local."
     name = f"twin-{os.getpid()}"
-    rigs = [LocalRig(["r0c0"], tmp_path / k, output_size=(32, 18), content_size=(32, 18), rig_name=name,
+    rigs = [LocalRig(["r0c0", "r0c1"], tmp_path / k, output_size=(32, 18), content_size=(32, 18), rig_name=name,
                      env={"SHADOWLESS_MDNS_SERVICE": own}).create() for k in ("first", "second")]
     try:
         first, second = rigs
         first.start_coordinator()
         first.wait_ready(60)
         assert _advertised(first) == f"{name}.{service}"
+        # the first rig's nodes run: more processes share port 5353, where the unicast answer to
+        # zeroconf's own (QU) probe reached the second coordinator only by chance
+        for s in first.slots:
+            first.start_node(s)
+
+        async def live():
+            async with await first.client() as c:
+                await first.wait_live(c, timeout=120)
+
+        asyncio.run(live())
         second.start_coordinator()
         second.wait_ready(60)
         assert _advertised(second) == f"{name}-2.{service}"
