@@ -44,6 +44,9 @@ MAX_BYTES_PER_ADDRESS = 4 * MIB
 MAX_WAITING_PER_ADDRESS = 8
 MAX_WAITING = 16
 WAIT_S = 2.0
+#: seconds an admitted call has to deliver its message: one that sends headers and then nothing
+#: would otherwise hold its room (a slow-loris) until its connection died
+READ_TIMEOUT_S = 5.0
 #: the largest message a call without a session may bring: handshakes (Hello, Join, Login) and
 #: health checks are a few hundred bytes; a larger one is refused without being parsed
 MAX_MESSAGE_BYTES = 64 * 1024

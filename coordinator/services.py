@@ -26,7 +26,7 @@ from grpc_reflection.v1alpha import reflection
 
 from coordinator import content_service, wire
 from coordinator.admission import MAX_MESSAGE_BYTES as MAX_PREAUTH_MESSAGE_BYTES
-from coordinator.admission import REFUSED_OVER_BUDGET, Ticket
+from coordinator.admission import READ_TIMEOUT_S, REFUSED_OVER_BUDGET, Ticket
 from coordinator.api import Space
 from coordinator.errors import CoordinatorError
 from coordinator.float_range import check_float_range
@@ -177,7 +177,12 @@ class Admission(grpc.aio.ServerInterceptor):
         """The call's one request message. Read with ``context.read()``: the request iterator is an
         async generator whose suspended frame would keep the last message (up to the size cap)
         alive in a reference cycle until a full garbage collection."""
-        got = await context.read()
+        try:
+            got = await asyncio.wait_for(context.read(), READ_TIMEOUT_S)
+        except asyncio.TimeoutError:
+            exc = self.c.handshake.refuse(_peer(context), "", grpc.StatusCode.DEADLINE_EXCEEDED,
+                                          f"{method} sent no request within {READ_TIMEOUT_S:.0f} s of its start")
+            await context.abort(exc.code, exc.message)
         if got is grpc.aio.EOF:
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"{method}: the call carried no request message")
         nbytes, request = got

@@ -229,3 +229,39 @@ def test_an_ipv6_64_shares_one_budget_and_ipv4_mapped_counts_as_ipv4():
     assert b.admit("ipv6:[2001:db8::1]:1") and b.admit("ipv6:[2001:db8::2]:1")
     assert b.admit("ipv6:[2001:db8::3]:1") is None, "a third address of the same /64"
     assert b.admit("ipv6:[2001:db8:0:1::3]:1") is not None, "another /64"
+
+
+def test_a_call_that_never_sends_its_message_gives_its_room_back(tmp_path, corpus_table):
+    """A slow-loris: calls that open and send nothing are ended after READ_TIMEOUT_S, and a Hello
+    from the same address is answered afterwards."""
+    rig = LocalRig(["r0c0"], tmp_path, output_size=(32, 32), content_size=(32, 32), mdns=False).create()
+    try:
+        rig.start_coordinator()
+        rig.wait_ready()
+
+        async def go():
+            async with grpc.aio.insecure_channel(rig.target) as ch:
+                silent = [ch.stream_stream("/shadowless.v1.NodeLink/Hello")() for _ in range(12)]
+                codes = collections.Counter()
+                details = ""
+                for call in silent:        # never written to
+                    try:
+                        await asyncio.wait_for(call.read(), 60)
+                    except grpc.aio.AioRpcError as exc:
+                        codes[exc.code().name] += 1
+                        if exc.code() == grpc.StatusCode.DEADLINE_EXCEEDED:
+                            details = exc.details()
+                hello = common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=auth.new_nonce(),
+                                                role="node", slot="r0c0")
+                call = ch.unary_unary("/shadowless.v1.NodeLink/Hello", request_serializer=lambda m: m.SerializeToString(),
+                                      response_deserializer=common_pb2.HelloReply.FromString)
+                reply = await call(hello, timeout=30)
+                return codes, details, reply
+
+        codes, details, reply = asyncio.run(go())
+        assert set(codes) <= {"DEADLINE_EXCEEDED", "RESOURCE_EXHAUSTED"} and codes["DEADLINE_EXCEEDED"] >= 1, codes
+        assert "sent no request within 5 s" in details
+        assert reply.server_nonce, "the address's room came back"
+        corpus_table("call before authentication", "a Hello stream that never sends its message", details, "-")
+    finally:
+        rig.close()
