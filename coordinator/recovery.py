@@ -15,9 +15,9 @@ one plus files nothing names. This pass removes those files and settles the rest
   (adds hold ``assets/.staging.lock`` shared); blobs no manifest names (an add killed between
   moving its blobs and writing its manifest) are removed; a manifest that does not parse, does
   not hash to its name or names a missing or resized blob is quarantined;
-* **rig state**: LUT files of older revisions (``luts/<slot>.r<N>.npy``) and content images that
-  ``content/current.json`` does not name, left when a crash came between a write and its
-  clean-up, are removed; a calibration run left ``running`` is marked ``interrupted`` (the next
+* **rig state**: LUT files (``luts/<slot>.r<N>.npy``) the slot's file does not name and content
+  images ``content/current.json`` does not name, left when a crash came between the steps of a
+  write, are removed; a calibration run left ``running`` is marked ``interrupted`` (the next
   run with its settings resumes it); a ``show.json`` that is not JSON is quarantined; black
   captures ``compensation/transport.*`` does not name are removed;
 * **pairs written one after the other**: ``compensation/transport.json`` and
@@ -337,7 +337,8 @@ def _slot_luts(r: Recovery) -> None:
     for p in sorted(luts.iterdir()):
         m = _LUT.match(p.name)
         if m and m["slot"] in slots and f"luts/{p.name}" not in current and p.is_file():
-            r.remove(p, f"an older LUT of slot {m['slot']} (the write of a newer one was cut before its clean-up)")
+            r.remove(p, f"a LUT slot {m['slot']}'s file does not name (a write cut before the slot file, or before "
+                        f"the older LUT's clean-up)")
 
 
 def _content(r: Recovery) -> None:
