@@ -34,6 +34,7 @@ from coordinator.compensation.geometry import (
 )
 from coordinator.compensation.image_param import load_image_param, prepare_image
 from coordinator.compensation.jobkit import content_size, rounded, surface_of, throttled
+from coordinator.compensation.memory_check import check_solve
 from coordinator.compensation.mesh_compensate import run_mesh_compensate
 from coordinator.compensation.options import MESH_REGULARIZATION, REGULARIZATION, CompensateOptions
 from coordinator.compensation.quality import quality, side_by_side
@@ -100,6 +101,7 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
         baseline_exposure(ctx, opts)  # refused before any capture
     tr = await ensure_transport(ctx, opts, slots, measure=opts.measure)
     cw, ch = content_size(ctx)
+    check_solve((cw, ch), tr.camera_shape, int(tr.meta["radius"]))  # before the solve's operators are built
     content = prepare_image(image, (cw, ch), srgb=opts.srgb)
     T = camera_target(content, tr.H, tr.camera_shape)
     region = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)

@@ -19,6 +19,7 @@ import numpy as np
 from coordinator.compensation.geometry import camera_target, inscribed_region, row_white, target_level
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.jobkit import content_size
+from coordinator.compensation.memory_check import check_solve
 from coordinator.compensation.motion import MotionWarp
 from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.ridge import ContentWarmStart, RidgeProblem
@@ -183,6 +184,7 @@ async def open_frame_solver(ctx: JobContext, *, camera: int, measure: bool, leve
     cw, ch = content_size(ctx)
     region = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)
     s = target_level(row_white(tr.L, tr.camera_shape), region, level)
+    check_solve((cw, ch), tr.camera_shape, int(tr.meta["radius"]), what="the frames' solver")
     problem = await ctx.compute(RidgeProblem, tr.L, regularization)
     warm = ContentWarmStart(problem, iterations=iterations, first_iterations=first_iterations, content_shape=(ch, cw),
                             motion=motion_warp(motion))

@@ -48,6 +48,7 @@ from coordinator.compensation.jobkit import (
     stored_transport,
     surface_of,
 )
+from coordinator.compensation.memory_check import check_baseline, check_measure
 from coordinator.compensation.mesh_transport import run_mesh_transport
 from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.store import (
@@ -119,6 +120,7 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
     if cal_size != (0, 0) and tuple(cal_size) != (cam[1], cam[0]):
         raise JobError(f"camera {opts.camera} delivers {cam[1]}x{cam[0]} images but was calibrated at "
                        f"{cal_size[0]}x{cal_size[1]}: calibrate again")
+    check_measure((cw, ch), cam, radius)  # the camera's size is known now; nothing large is held yet
     spacing = opts.spacing
     if spacing is None:
         try:
@@ -180,6 +182,7 @@ async def ensure_baseline(ctx: JobContext, tr: StoredTransport,
     t0 = time.monotonic()
     c0 = ctx.captures
     if todo:
+        check_baseline((cw, ch), tr.camera_shape, radius, len(todo))
         ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
                 f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
         await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])

@@ -1,0 +1,46 @@
+"""The compensation jobs' memory checks: each big step estimated (:mod:`.memory_estimate`) and refused
+with one :class:`~coordinator.jobs.JobError` line before it allocates, when it would not fit in what the
+coordinator may still take (:mod:`coordinator.memory_budget`)."""
+from __future__ import annotations
+
+from coordinator.compensation.memory_estimate import measure_bytes, ridge_bytes, solve_bytes, transport_bytes
+from coordinator.jobs.errors import JobError
+from coordinator.memory_budget import MemoryBudgetError, ensure_fits
+
+__all__ = ["check_baseline", "check_measure", "check_solve"]
+
+_HINT = "a smaller content size (rig.toml) or camera resolution, or a smaller --radius"
+
+
+def _fits(estimate: int, what: str, hint: str = _HINT) -> None:
+    try:
+        ensure_fits(estimate, what=what, hint=f"use {hint}")
+    except MemoryBudgetError as exc:
+        raise JobError(str(exc)) from None
+
+
+def _sizes(content: tuple[int, int], camera_shape: tuple[int, ...]) -> tuple[int, int, str]:
+    cw, ch = int(content[0]), int(content[1])
+    hc, wc = int(camera_shape[0]), int(camera_shape[1])
+    return cw * ch, hc * wc, f"{cw}x{ch} content seen by a {wc}x{hc} camera"
+
+
+def check_measure(content: tuple[int, int], camera_shape: tuple[int, ...], radius: int) -> None:
+    """Before the dot patterns of a light-transport measurement: ``content`` (W, H), ``camera_shape``
+    (Hc, Wc[, C]) of the black capture, the PSF ``radius``."""
+    n, m, what = _sizes(content, camera_shape)
+    _fits(measure_bytes(n, m, radius), f"the light transport of {what} (radius {radius})")
+
+
+def check_baseline(content: tuple[int, int], camera_shape: tuple[int, ...], radius: int, todo: int) -> None:
+    """Before measuring ``todo`` projectors' own ``L_i`` (each one is kept for the baseline's solves)."""
+    n, m, what = _sizes(content, camera_shape)
+    need = todo * transport_bytes(n, m, radius) + measure_bytes(n, m, radius)
+    _fits(need, f"{todo} per-projector baseline transports of {what}", f"no --baseline, or {_HINT}")
+
+
+def check_solve(content: tuple[int, int], camera_shape: tuple[int, ...], radius: int, *, channels: int = 3,
+                what: str = "the compensation solve") -> None:
+    """Before building a solve's operators over a loaded ``L`` (the ridge problem and its vectors)."""
+    n, m, sizes = _sizes(content, camera_shape)
+    _fits(ridge_bytes(n, m, radius) + solve_bytes(n, m + n, channels), f"{what} over {sizes} (radius {radius})")
