@@ -232,7 +232,7 @@ class Budget:
                                 peak_bytes=self.peak_bytes, admitted=self.admitted, refused=self.refused,
                                 malformed=self.malformed, max_calls=self.max_calls, max_bytes=self.max_bytes,
                                 max_calls_per_address=self.max_calls_per_address,
-                                max_bytes_per_address=self.max_bytes_per_address)
+                                max_bytes_per_address=self.max_bytes_per_address, waited=self.waited)
 
 
 def _malloc_trim():

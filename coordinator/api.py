@@ -180,6 +180,7 @@ class AdmissionFigures:
     max_bytes: int = 0
     max_calls_per_address: int = 0
     max_bytes_per_address: int = 0
+    waited: int = 0               # calls that waited for room before they were admitted or refused
 
 
 @dataclass(frozen=True)

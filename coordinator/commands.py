@@ -107,7 +107,7 @@ def status_dict(st: RigStatus) -> dict:
                         "peak_bytes": adm.peak_bytes, "admitted": adm.admitted, "refused": adm.refused,
                         "malformed": adm.malformed, "max_calls": adm.max_calls, "max_bytes": adm.max_bytes,
                         "max_calls_per_address": adm.max_calls_per_address,
-                        "max_bytes_per_address": adm.max_bytes_per_address},
+                        "max_bytes_per_address": adm.max_bytes_per_address, "waited": adm.waited},
     }
 
 
@@ -203,7 +203,7 @@ def status_extra_lines(d: dict) -> list[str]:
     if b and (b["refused"] or b["malformed"] or b["in_flight_calls"]):
         mib = 1024 * 1024
         out.append(f"before authentication: {b['refused']} calls refused over the budget, {b['malformed']} malformed, "
-                   f"{b['admitted']} admitted; in flight {b['in_flight_calls']} calls, "
+                   f"{b['admitted']} admitted, {b.get('waited', 0)} waited for room; in flight {b['in_flight_calls']} calls, "
                    f"{b['in_flight_bytes'] / mib:.1f} MiB (budget {b['max_calls']} calls, "
                    f"{b['max_bytes'] / mib:.0f} MiB; per address {b['max_calls_per_address']}, "
                    f"{b['max_bytes_per_address'] / mib:.0f} MiB)")

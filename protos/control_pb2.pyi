@@ -233,7 +233,7 @@ class RigStatus(_message.Message):
     def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ..., show: _Optional[_Union[ShowState, _Mapping]] = ..., frame_packets_sent: _Optional[int] = ..., frame_bytes_sent: _Optional[int] = ..., show_updates_sent: _Optional[int] = ..., show_bytes_sent: _Optional[int] = ..., admission: _Optional[_Union[Admission, _Mapping]] = ..., console: _Optional[str] = ...) -> None: ...
 
 class Admission(_message.Message):
-    __slots__ = ("in_flight_calls", "in_flight_bytes", "peak_bytes", "admitted", "refused", "malformed", "max_calls", "max_bytes", "max_calls_per_address", "max_bytes_per_address")
+    __slots__ = ("in_flight_calls", "in_flight_bytes", "peak_bytes", "admitted", "refused", "malformed", "max_calls", "max_bytes", "max_calls_per_address", "max_bytes_per_address", "waited")
     IN_FLIGHT_CALLS_FIELD_NUMBER: _ClassVar[int]
     IN_FLIGHT_BYTES_FIELD_NUMBER: _ClassVar[int]
     PEAK_BYTES_FIELD_NUMBER: _ClassVar[int]
@@ -244,6 +244,7 @@ class Admission(_message.Message):
     MAX_BYTES_FIELD_NUMBER: _ClassVar[int]
     MAX_CALLS_PER_ADDRESS_FIELD_NUMBER: _ClassVar[int]
     MAX_BYTES_PER_ADDRESS_FIELD_NUMBER: _ClassVar[int]
+    WAITED_FIELD_NUMBER: _ClassVar[int]
     in_flight_calls: int
     in_flight_bytes: int
     peak_bytes: int
@@ -254,7 +255,8 @@ class Admission(_message.Message):
     max_bytes: int
     max_calls_per_address: int
     max_bytes_per_address: int
-    def __init__(self, in_flight_calls: _Optional[int] = ..., in_flight_bytes: _Optional[int] = ..., peak_bytes: _Optional[int] = ..., admitted: _Optional[int] = ..., refused: _Optional[int] = ..., malformed: _Optional[int] = ..., max_calls: _Optional[int] = ..., max_bytes: _Optional[int] = ..., max_calls_per_address: _Optional[int] = ..., max_bytes_per_address: _Optional[int] = ...) -> None: ...
+    waited: int
+    def __init__(self, in_flight_calls: _Optional[int] = ..., in_flight_bytes: _Optional[int] = ..., peak_bytes: _Optional[int] = ..., admitted: _Optional[int] = ..., refused: _Optional[int] = ..., malformed: _Optional[int] = ..., max_calls: _Optional[int] = ..., max_bytes: _Optional[int] = ..., max_calls_per_address: _Optional[int] = ..., max_bytes_per_address: _Optional[int] = ..., waited: _Optional[int] = ...) -> None: ...
 
 class NodeList(_message.Message):
     __slots__ = ("nodes",)

@@ -124,7 +124,7 @@ def _before_auth(status: RigStatus) -> dict[str, Any]:
             "in_flight_calls": a.in_flight_calls, "in_flight_mib": round(a.in_flight_bytes / 2**20, 1),
             "peak_mib": round(a.peak_bytes / 2**20, 1), "max_calls": a.max_calls,
             "max_mib": round(a.max_bytes / 2**20, 1), "max_calls_per_address": a.max_calls_per_address,
-            "max_mib_per_address": round(a.max_bytes_per_address / 2**20, 1)}
+            "max_mib_per_address": round(a.max_bytes_per_address / 2**20, 1), "waited": a.waited}
 
 
 def _cached_footprint(cache: dict, st: SlotState, content: tuple[int, int]) -> list[list[float]] | None:
