@@ -300,6 +300,8 @@ def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "af
             if after_ready else None,
             "timed_out_on_hostile": len(tarpit),
             "operator_found_rig": operator,
+            "coordinator_saw_hostile": "another mDNS responder answers for this coordinator's name"
+                                       in real.log("coordinator"),
         }
     finally:
         if hostile is not None:

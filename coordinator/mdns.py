@@ -7,13 +7,18 @@ answers come by multicast: on one host several processes share port 5353, and th
 to zeroconf's own QU probe reaches one of them at random), then zeroconf probes the chosen name
 (``allow_name_change=True`` renames it again if a late answer shows a conflict). The TXT record
 keeps the rig's own name and id, by which nodes and operators find it whatever the instance name.
+
+A responder that claims the name later, without probing (a hostile advertiser, or a program that
+ignores RFC 6762), is logged once per address it points at (:class:`_Squatters`); the coordinator
+keeps its name rather than renaming after it (an advertiser that follows every rename would keep it
+renaming forever, and nodes find the rig by its id and token all the same).
 """
 from __future__ import annotations
 
 import logging
 import socket
 
-from zeroconf import InterfaceChoice, IPVersion, NonUniqueNameException
+from zeroconf import DNSService, InterfaceChoice, IPVersion, NonUniqueNameException, RecordUpdateListener
 from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
 
 from coordinator.errors import CoordinatorError
@@ -46,6 +51,27 @@ def _local_ipv4_addresses() -> list[str]:
     return addrs or ["127.0.0.1"]
 
 
+class _Squatters(RecordUpdateListener):
+    """Logs (once each) the other targets that responses name for this coordinator's own instance name."""
+
+    def __init__(self, name: str, server: str, port: int):
+        super().__init__()
+        self.name, self.own = name.lower(), (server.lower(), port)
+        self.seen: set[tuple[str, int]] = set()
+
+    def async_update_records(self, zc, now: float, records) -> None:
+        for update in records:
+            rec = update.new
+            if isinstance(rec, DNSService) and rec.name.lower() == self.name and rec.ttl:
+                target = (rec.server.lower(), rec.port)
+                if target != self.own and target not in self.seen and len(self.seen) < 64:
+                    self.seen.add(target)
+                    log.warning("another mDNS responder answers for this coordinator's name %s, pointing at %s "
+                                "port %d (an advertiser that did not probe for the name); nodes and operators "
+                                "join only the coordinator that proves the rig token", rec.name, rec.server,
+                                rec.port)
+
+
 class Advertiser:
     """Registers the rig on the chosen interfaces; unregisters on :meth:`stop`.
 
@@ -58,6 +84,7 @@ class Advertiser:
         self.interfaces = interfaces
         self._azc: AsyncZeroconf | None = None
         self._info: AsyncServiceInfo | None = None
+        self._squatters: _Squatters | None = None
 
     @property
     def name(self) -> str:
@@ -98,11 +125,16 @@ class Advertiser:
                         "nodes and operators find this rig by its id %s all the same", wanted,
                         ", ".join(addresses), self._info.name, self.rig_id)
         log.info("advertising %s on %s port %d", self._info.name, ", ".join(addresses), self.port)
+        self._squatters = _Squatters(self._info.name, self._info.server, self.port)
+        self._azc.zeroconf.async_add_listener(self._squatters, None)
 
     async def stop(self) -> None:
         if self._azc is None:
             return
         try:
+            if self._squatters is not None:
+                self._azc.zeroconf.async_remove_listener(self._squatters)
+                self._squatters = None
             if self._info is not None:
                 await self._azc.async_unregister_service(self._info)
         finally:

@@ -19,6 +19,8 @@ def test_nodes_join_past_a_hostile_same_name_advertiser_on_loopback(tmp_path, re
     assert rec["joined"] == rec["started"] == 4, rec
     assert rec["renamed"] is (when == "before"), rec
     assert rec["operator_found_rig"], rec
+    # a name taken after the coordinator claimed it is logged there (a renamed one has its own)
+    assert rec["coordinator_saw_hostile"] is (when == "after"), rec
 
 
 def test_nodes_join_past_a_hostile_same_name_advertiser_in_the_venue(ns, tmp_path, record_property):
