@@ -118,8 +118,9 @@ class ConsoleApp:
         now = self.limiter.clock()
         if self._global_said is None or now - self._global_said >= 60.0:
             self._global_said = now
-            log.warning("console: more than %d failed logins a minute from many addresses: a login from a browser "
-                        "that never logged in here is tried once every %.0f s; browsers that did are not held back",
+            log.warning("console: more than %d failed logins a minute from many addresses: logins from addresses "
+                        "without a device cookie are tried once every %.0f s in all, addresses that failed last; "
+                        "browsers that logged in here before are not held back",
                         self.limiter.budget, self.limiter.window_s / self.limiter.budget)
 
     def login_figures(self) -> dict:

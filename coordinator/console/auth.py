@@ -16,14 +16,18 @@ Failed logins are limited twice (:class:`LoginLimiter`):
 * **globally**: failures from all addresses draw on one budget of :data:`GLOBAL_BUDGET` per
   :data:`GLOBAL_WINDOW_S` (a token bucket). Once it is spent, a login is tried only when the
   bucket holds a whole failure again (one every 2 s), so guessers on many addresses together
-  get no more tries than that.
+  get no more tries than that. The last failure in the bucket is kept for addresses without a
+  failure of their own in the last :data:`FORGET_S`: once each address of a guessing pool has
+  failed once, they wait for a second one, and a browser from a clean address gets the turn
+  they leave (within 2 s of the last clean one).
 
 A browser that has logged in once carries a **device cookie** (:class:`DeviceCookies`: a random
 id and its HMAC under a key derived from the rig token, OWASP's "device cookies"). Its logins
 are limited by its own failures only, never by the global budget nor by its address: a guesser
 cannot forge one, so the right token typed in a browser that logged in before gets in within
 its own backoff (0 s when it did not mistype), however many addresses attack. A browser that
-never logged in competes with the guessers for the global budget's turns while an attack lasts.
+never logged in gets the reserved turn (above) unless fresh addresses keep taking it: against
+an endless supply of them it competes for one turn every 2 s.
 
 While a limit holds, a login is answered 429 with ``Retry-After`` and "try again in N s"
 without looking at the token (a correct one too: a guesser learns nothing).
@@ -56,6 +60,8 @@ FORGET_S = 15 * 60.0
 #: failed logins from all addresses (browsers without a device cookie) per GLOBAL_WINDOW_S seconds
 GLOBAL_BUDGET = 30
 GLOBAL_WINDOW_S = 60.0
+#: of that budget, the failures a source that failed within FORGET_S cannot draw on (kept for the others)
+GLOBAL_RESERVE = 1.0
 #: the device cookie's name, and how long a browser keeps it (seconds)
 DEVICE_COOKIE = "shadowless_device"
 DEVICE_MAX_AGE_S = 180 * 24 * 3600
@@ -190,6 +196,7 @@ class LoginLimiter:
     forget_s: float = FORGET_S
     budget: int = GLOBAL_BUDGET
     window_s: float = GLOBAL_WINDOW_S
+    reserve: float = GLOBAL_RESERVE
     clock: Callable[[], float] = time.monotonic
     _by_key: dict[str, _Backoff] = field(default_factory=dict)
     _tokens: float | None = None
@@ -232,9 +239,12 @@ class LoginLimiter:
             own = max(0.0, b.until - now)
         glob = 0.0
         if not device:
+            # the bucket's last failure is kept for sources without a recent failure of their own
+            known = b is not None and now - b.last < self.forget_s
+            need = 1.0 + (self.reserve if known else 0.0)
             tokens = self._bucket(now)
-            if tokens < 1.0:
-                glob = (1.0 - tokens) * self.window_s / self.budget
+            if tokens < need:
+                glob = (need - tokens) * self.window_s / self.budget
         if own <= 0.0 and glob <= 0.0:
             return 0, ""
         if glob > own:
@@ -242,8 +252,8 @@ class LoginLimiter:
         return max(1, math.ceil(own)), "device" if device else "address"
 
     def held_back(self) -> bool:
-        """Whether the global budget is spent now (logins without a device cookie wait their turn)."""
-        return self._bucket(self.clock()) < 1.0
+        """Whether the global budget is spent now for sources that failed recently (they wait their turn)."""
+        return self._bucket(self.clock()) < 1.0 + self.reserve
 
     def failed(self, address: str, device: str | None = None) -> None:
         """A login with a wrong token: the source's wait doubles; without a device cookie, it

@@ -354,8 +354,8 @@ function renderLogins(l) {
   let text = `console logins: ${l.failed} wrong token${l.failed === 1 ? "" : "s"} since the coordinator started ` +
     `(last ${ago(l.last_failed_at)}), ${l.refused} refused while a limit held`;
   if (l.held_back) {
-    text += ` — more than ${l.budget_per_min} a minute from many addresses: browsers that never logged in here are ` +
-      "tried once in a while, this one is not held back";
+    text += ` — more than ${l.budget_per_min} a minute from many addresses: addresses that failed now wait their ` +
+      "turn; browsers that logged in here before, like this one, are not held back";
   }
   p.textContent = text;
   p.className = l.held_back ? "warn" : "muted";

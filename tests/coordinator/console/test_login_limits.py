@@ -114,6 +114,29 @@ def test_many_addresses_together_get_no_more_tries_than_the_global_budget():
     assert max(w for limit, w in waits if limit == "global") <= math.ceil(auth.GLOBAL_WINDOW_S / auth.GLOBAL_BUDGET)
 
 
+def test_once_a_guessing_pool_has_failed_a_clean_address_gets_the_next_turn():
+    """50 guessing addresses, each trying 5 times a second for 10 minutes (as its backoff lets it):
+    after each has failed once, a login from an address with no failure waits at most one refill
+    (2 s); the guessers together still stay within the budget."""
+    clock = Clock()
+    lim = auth.LoginLimiter(clock=clock)
+    pool = [f"172.16.0.{i}" for i in range(50)]
+    rate = auth.GLOBAL_BUDGET / auth.GLOBAL_WINDOW_S
+    tried, clean_waits = 0, []
+    start = clock.t
+    for step in range(600 * 5):
+        for a in pool:
+            if lim.wait(a)[0] == 0:
+                tried += 1
+                lim.failed(a)
+        if step % 25 == 0 and clock.t - start > 60:       # every 5 s after the first minute
+            clean_waits.append(lim.wait("10.1.2.3")[0])
+        clock.t += 0.2
+    assert all(w <= math.ceil(1 / rate) for w in clean_waits), clean_waits
+    assert clean_waits.count(0) > 0.4 * len(clean_waits), clean_waits
+    assert tried <= auth.GLOBAL_BUDGET + 600 * rate + 1, tried
+
+
 def test_a_browser_with_a_device_cookie_gets_in_during_a_distributed_attack():
     clock = Clock()
     lim = auth.LoginLimiter(clock=clock)
@@ -192,9 +215,9 @@ def test_login_limits_over_http(tmp_path, caplog):
             r = await _post_login(s, base, {"token": TOKEN.decode()}, device=device.value + "x")
             assert r.status == 429, "a forged device cookie counts for nothing"
             said = [r.getMessage() for r in caplog.records if "failed logins a minute" in r.getMessage()]
-            assert said == ["console: more than 3 failed logins a minute from many addresses: a login from a browser "
-                            "that never logged in here is tried once every 20 s; browsers that did are not held "
-                            "back"], said
+            assert said == ["console: more than 3 failed logins a minute from many addresses: logins from addresses "
+                            "without a device cookie are tried once every 20 s in all, addresses that failed last; "
+                            "browsers that logged in here before are not held back"], said
             r = await _post_login(s, base, {"token": TOKEN.decode()}, device=device.value)
             assert r.status == 200, await r.text()
             assert r.cookies[auth.DEVICE_COOKIE].value == device.value, "the same browser keeps its id"
