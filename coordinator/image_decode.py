@@ -39,6 +39,12 @@ _PILLOW = {"PNG": ("PngImagePlugin", "PngImageFile"), "JPEG": ("JpegImagePlugin"
            "Sun raster": ("SunImagePlugin", "SunImageFile"), "PPM": ("PpmImagePlugin", "PpmImageFile")}
 
 
+# Pillow's plugins warn about what they find damaged in a header (a TIFF's cut EXIF, ...); the
+# refusal says it in its one line, so those warnings would only be a second, stray line on stderr.
+# Set once here (catch_warnings per call is not thread-safe, and uploads decode in threads).
+warnings.filterwarnings("ignore", module=r"PIL\.")
+
+
 class ImageRefused(ValueError):
     """An image file refused before (or instead of) decoding it; the message is one line that
     names the file, what is wrong and what to do."""
@@ -81,21 +87,14 @@ def sniff(data: bytes) -> str | None:
 
 def _pillow_size(data: bytes, fmt: str) -> tuple[int, int]:
     """(width, height) from Pillow's plugin for ``fmt``, made directly (not through
-    ``Image.open``: its decompression-bomb check would refuse before the size is known); the
-    plugin reads the header only."""
+    ``Image.open``: its decompression-bomb check would refuse before the size is known, and it
+    would try every other plugin on bytes this one refuses); the plugin reads the header only."""
     import importlib
-
-    from PIL import Image
 
     module, cls = _PILLOW[fmt]
     plugin = importlib.import_module(f"PIL.{module}")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        with getattr(plugin, cls)(io.BytesIO(data)) as im:
-            size = im.size
-    if not isinstance(im, Image.Image):  # pragma: no cover - every plugin class is an Image
-        raise ValueError("not an image")
-    return int(size[0]), int(size[1])
+    with getattr(plugin, cls)(io.BytesIO(data)) as im:
+        return int(im.size[0]), int(im.size[1])
 
 
 def _hdr_size(data: bytes) -> tuple[int, int]:
@@ -126,14 +125,17 @@ def _pfm_size(data: bytes) -> tuple[int, int]:
 
 
 def _exr_size(data: bytes) -> tuple[int, int]:
-    """OpenEXR: the ``dataWindow`` box2i (xMin, yMin, xMax, yMax) among the header's attributes
-    (name, type, int32 size, value; an empty name ends the header). Single-part scan-line or
-    tiled files; deep and multi-part files are refused."""
+    """OpenEXR: the header's attributes (name, type, int32 size, value; an empty name ends it)
+    hold two box2i windows (xMin, yMin, xMax, yMax): ``dataWindow``, the pixels stored, and
+    ``displayWindow``, the frame FFmpeg's decoder allocates and returns. Both count: the
+    size returned is the display window's, or the window beyond the limit when one is.
+    Single-part scan-line or tiled files; deep and multi-part files are refused."""
     version = struct.unpack_from("<I", data, 4)[0] if len(data) >= 8 else 0
     if version & 0xFF != 2:
         raise ValueError(f"OpenEXR version {version & 0xFF} (2 expected)")
     if version & 0x1800:
         raise ValueError("a deep or multi-part OpenEXR file; give a single-part image")
+    windows: dict[bytes, tuple[int, int]] = {}
     pos, limit = 8, min(len(data), 1 << 20)
     while pos < limit:
         nul = data.find(b"\x00", pos, pos + 256)
@@ -150,11 +152,15 @@ def _exr_size(data: bytes) -> tuple[int, int]:
         value = tnul + 5
         if size < 0 or value + size > len(data):
             break
-        if name == b"dataWindow" and kind == b"box2i" and size == 16:
+        if name in (b"dataWindow", b"displayWindow") and kind == b"box2i" and size == 16:
             x0, y0, x1, y1 = struct.unpack_from("<4i", data, value)
-            return x1 - x0 + 1, y1 - y0 + 1
+            windows[name] = (x1 - x0 + 1, y1 - y0 + 1)
         pos = value + size
-    raise ValueError("no dataWindow in its header")
+    if len(windows) < 2:
+        raise ValueError(f"no {' or '.join(w.decode() for w in (b'dataWindow', b'displayWindow') if w not in windows)}"
+                         " in its header")
+    beyond = [wh for wh in windows.values() if not within_limits(*wh)]
+    return beyond[0] if beyond else windows[b"displayWindow"]
 
 
 def declared_size(data: bytes, name: str = "the image") -> tuple[str, int, int]:

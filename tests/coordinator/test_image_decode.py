@@ -9,6 +9,7 @@ import asyncio
 import contextlib
 import io
 import json
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -109,6 +110,16 @@ def test_a_small_valid_file_decodes_to_its_pixels(fmt):
         ref = np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
         tol = 2 if fmt == "JPEG" else 0               # two JPEG decoders' IDCTs may differ by a level
         assert np.abs(img.astype(int) - ref).max() <= tol
+
+
+def test_an_exr_is_judged_by_its_display_window_too():
+    """FFmpeg's EXR decoder allocates the display window, whatever the data window stores."""
+    data = H.valid("EXR")
+    i = data.index(b"displayWindow\0box2i\0") + len(b"displayWindow\0box2i\0") + 4
+    with pytest.raises(ImageRefused, match=r"its OpenEXR header declares 12000x9000 pixels"):
+        decode_image(data[:i] + struct.pack("<4i", 0, 0, 11999, 8999) + data[i + 16:], "wide.exr")
+    with pytest.raises(ImageRefused, match=r"no displayWindow in its header"):
+        decode_image(data.replace(b"displayWindow", b"displayWindoX"), "odd.exr")
 
 
 def test_declared_sizes_of_other_formats_opencv_reads():

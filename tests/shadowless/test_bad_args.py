@@ -93,6 +93,10 @@ CASES = [
     ("show: a PAM (OpenCV reads it, no header reader does)", ["show", "{dir}/x.pam", *REMOTE],
      "x.pam is not an image the coordinator reads: give PNG"),
     ("show: a PNG cut inside its header", ["show", "{dir}/cut.png", *REMOTE], "its PNG header cannot be read"),
+    ("show: a TIFF cut inside its header (Pillow warns, the line stays one)", ["show", "{dir}/cut.tif", *REMOTE],
+     "cut.tif: its TIFF header cannot be read"),
+    ("show: an OpenEXR whose display window is 100 megapixels", ["show", "{dir}/wide.exr", *REMOTE],
+     "its OpenEXR header declares 10000x10000 pixels"),
     ("show: an empty image file", ["show", "{dir}/empty.png", *REMOTE], "empty.png is empty"),
     ("show: float .npy outside 0..1", ["show", "{dir}/hot.npy", *REMOTE],
      "hot.npy holds values from -0.5 to 3, but float content must lie in 0..1"),
@@ -151,6 +155,10 @@ def results(tmp_path_factory):
         (d / f"bomb{HEADERS.SUFFIX[fmt]}").write_bytes(HEADERS.huge(fmt))
     (d / "bright.hdr").write_bytes(HEADERS.valid("HDR"))         # values 0..4
     (d / "cut.png").write_bytes(HEADERS.valid("PNG")[:20])
+    (d / "cut.tif").write_bytes(HEADERS.valid("TIFF")[:12])
+    exr = HEADERS.valid("EXR")
+    i = exr.index(b"displayWindow\0box2i\0") + len(b"displayWindow\0box2i\0") + 4
+    (d / "wide.exr").write_bytes(exr[:i] + np.array([0, 0, 9999, 9999], "<i4").tobytes() + exr[i + 16:])
     (d / "empty.png").write_bytes(b"")
     (d / "x.pam").write_bytes(b"P7\nWIDTH 4\nHEIGHT 4\nDEPTH 1\nMAXVAL 255\nTUPLTYPE GRAYSCALE\nENDHDR\n" + bytes(16))
     hot = np.full((18, 32, 3), 0.5, np.float32)
@@ -196,5 +204,5 @@ def test_a_mistake_is_one_line_and_status_2(results, corpus_table, name, argv, e
 
 def test_the_corpus_is_large_enough_and_nothing_stored_changed(results):
     out, before, after = results
-    assert len(CASES) >= 50 + 28 and len(out) == len(CASES)
+    assert len(CASES) >= 50 + 30 and len(out) == len(CASES)
     assert before == after, "a refused command changed the rig directory"
