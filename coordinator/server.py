@@ -186,7 +186,11 @@ class Coordinator:
         self._rig_lock.acquire()
         recover(self._rig.path)     # settle what a crash left (coordinator/recovery.py) before serving
         self.distribution.load()
-        self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
+        try:
+            self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
+        except CoordinatorError:        # its port taken: the next try (another --listen) may take the rig
+            self._rig_lock.release()
+            raise
         if self.console_listen is not None:
             try:
                 await self._start_console()

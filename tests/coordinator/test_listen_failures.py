@@ -68,3 +68,26 @@ def test_an_optional_console_that_cannot_listen_is_named_in_status(rig, held_por
         time.sleep(0.1)
     assert f"console: NOT SERVED (port {held_port} in use)" in rig.log("coordinator")
     assert f"console: NOT SERVED (port {held_port} in use)" in rig.run_cli(["status"])
+
+
+def test_a_refused_start_lets_the_next_start_take_the_rig(rig, held_port):
+    """In one process (as an embedding tool or test runs it): a start refused for a taken gRPC port
+    releases the rig directory's lock, so a start on another port serves the rig."""
+    import asyncio
+
+    from coordinator.errors import CoordinatorError
+    from coordinator.rig import Rig
+    from coordinator.server import Coordinator
+
+    async def go():
+        coord = Coordinator(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{held_port}", advertise=False)
+        with pytest.raises(CoordinatorError, match=f"port {held_port} is in use"):
+            await coord.start()
+        coord = Coordinator(Rig(rig.rig_dir), rig.token, listen="127.0.0.1:0", advertise=False)
+        await coord.start()
+        try:
+            assert coord.port and coord.status().console == "off"
+        finally:
+            await coord.stop()
+
+    asyncio.run(go())
