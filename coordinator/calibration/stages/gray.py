@@ -16,6 +16,7 @@ from coordinator.calibration.errors import CalibrationError
 from coordinator.calibration.runs import save_slot, slot_doc
 from coordinator.calibration.stages.state import SATURATED, Abort, CameraSetup, State, full
 from coordinator.jobs import JobError
+from coordinator.memory_budget import MemoryBudgetError, ensure_fits
 from coordinator.rig import HomographyPose
 from protos.spaces import content_to_table
 
@@ -37,6 +38,13 @@ async def gray_captures(st: State, slot: str) -> tuple[list[np.ndarray], list[np
         if sat > st.opts.max_saturated:
             raise Abort(f"camera {i} over-exposed ({100 * sat:.0f} % of the pixels {slot} lights are saturated): "
                         "lower the exposure")
+    # every pattern's capture is kept for the decode (float32 per camera), which adds about 100 bytes a pixel
+    need = layout.count * sum(w.nbytes for w in white) + 100 * sum(w.shape[0] * w.shape[1] for w in white)
+    try:
+        ensure_fits(need, what=f"the {layout.count} Gray-code captures of {slot} from {len(white)} camera(s) of "
+                    f"{white[0].shape[1]}x{white[0].shape[0]}", hint="use a lower camera resolution or the multiplexed mode")
+    except MemoryBudgetError as exc:
+        raise Abort(str(exc)) from None
     caps: list[list[np.ndarray]] = []
     for k, p in enumerate(graycode.gray_patterns(size)):
         caps.append(await st.shoot({slot: p}, require=[slot]))

@@ -1,8 +1,9 @@
 """The compensation jobs refuse in one line, before they allocate, what would not fit in memory: measuring the
-light transport, the per-projector baseline's transports, the solve of ``compensate``, and the frames' solver of
-``compensate_sequence`` and ``compensate_video``. The budget is set through ``SHADOWLESS_MEMORY_LIMIT`` (an
-absurdly small one is the same refusal an absurd size meets on a real machine), on a small in-process room rig
-(2 projectors, 160x80 content). The tests of this module share one rig and run in file order."""
+light transport, the per-projector baseline's transports, the solve of ``compensate``, the frames' solver of
+``compensate_sequence`` and ``compensate_video``, and the Gray-code captures of a sequential calibration. The
+budget is set through ``SHADOWLESS_MEMORY_LIMIT`` (an absurdly small one is the same refusal an absurd size
+meets on a real machine), on a small in-process room rig (2 projectors, 160x80 content). The tests of this
+module share one rig and run in file order."""
 from __future__ import annotations
 
 import asyncio
@@ -93,3 +94,19 @@ def test_the_solves_are_refused_over_a_stored_transport(setup, monkeypatch):
     monkeypatch.setenv("SHADOWLESS_MEMORY_LIMIT", "off")
     out = run(driver, "compensate", {"image": image, "measure": False, "max_iter": 5, "persist": False})
     assert out["solve"]["iterations"] >= 1
+
+
+def test_gray_code_calibration_is_refused_before_its_patterns(setup, monkeypatch, tmp_path):
+    work, rig, driver = setup
+    room = driver.room
+    bare = make_rig(tmp_path / "bare", room, SLOTS, content_size=CONTENT)
+    bdriver = RoomDriver(room, bare)
+    monkeypatch.setenv("SHADOWLESS_MEMORY_LIMIT", "1M")
+    c0 = bdriver.captures
+    with pytest.raises(JobError, match=ONE_LINE.format(what=r"the \d+ Gray-code captures of r1c1 from 1 camera\(s\) of "
+                                                       r"\d+x\d+")):
+        run(bdriver, "calibrate", {"mode": "sequential", "settle_s": 0.0,
+                                   "table_points": points_doc(table_points_from_truth(room))})
+    # the setup's captures, the white and the black; not one of the (at least 2 x 8) Gray-code patterns
+    assert bdriver.captures - c0 < 8, bdriver.captures - c0
+    assert bare.slot(SLOTS[0]).pose is None
