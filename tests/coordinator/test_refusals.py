@@ -184,7 +184,7 @@ def test_tls_channel(tmp_path):
                    extra_node_args={"r0c0": ["--tls-ca", str(cert), "--tls-server-name", "shadowless-test"]}).create()
 
     rig.coordinator = rig._spawn("coordinator", ["coordinator", "--rig", str(rig.rig_dir), "--listen", f"127.0.0.1:{rig.port}",
-                                                 "--no-mdns", "--tls-cert", str(cert), "--tls-key", str(key)])
+                                                 "--no-mdns", "--no-console", "--tls-cert", str(cert), "--tls-key", str(key)])
     try:
         rig.start_node("r0c0")
 
