@@ -51,12 +51,17 @@ def test_nan_is_refused_even_with_clip():
             check_float_range(a, "n.npy", clip=clip)
 
 
-def test_content_add_refuses_an_out_of_range_npy(tmp_path):
+def test_content_add_refuses_an_out_of_range_npy_or_float_tiff(tmp_path):
     np.save(tmp_path / "hot.npy", np.full((4, 4, 3), 2.0, np.float32))
     with pytest.raises(AssetError, match=r"hot\.npy holds values from 2 to 2"):
         probe_still(tmp_path / "hot.npy")
     np.save(tmp_path / "ok.npy", np.full((4, 4, 3), 0.5, np.float32))
     assert probe_still(tmp_path / "ok.npy").bit_depth == 32
+    import cv2
+
+    assert cv2.imwrite(str(tmp_path / "hot.tif"), np.full((4, 4, 3), 2.5, np.float32))   # a float TIFF
+    with pytest.raises(AssetError, match=r"hot\.tif holds values from 2\.5 to 2\.5.*clip it to 0\.\.1 before adding"):
+        probe_still(tmp_path / "hot.tif")
 
 
 def test_a_compensation_target_outside_0_1_is_refused(tmp_path):
