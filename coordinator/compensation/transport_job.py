@@ -178,11 +178,11 @@ async def ensure_baseline(ctx: JobContext, tr: StoredTransport,
     cw, ch = content_size(ctx)
     grid = DotGrid(cw, ch, int(tr.meta["spacing"]))
     radius = int(tr.meta["radius"])
+    check_baseline((cw, ch), tr.camera_shape, radius, len(tr.slots))  # stored or measured, every L_i is held
     out, todo = stored_baselines(rig, tr.slots, fp, tr.L.shape)
     t0 = time.monotonic()
     c0 = ctx.captures
     if todo:
-        check_baseline((cw, ch), tr.camera_shape, radius, len(todo))
         ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
                 f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
         await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])
