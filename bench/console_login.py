@@ -4,7 +4,8 @@ A coordinator in this process serves its console on 127.0.0.1. ``--addresses`` g
 from a source address of its own on the loopback network (127.0.0.2, 127.0.0.3 …; the whole of
 127.0.0.0/8 is this machine's), post wrong tokens for ``--seconds``, one at a time each, at most
 one every ``--pause`` seconds, honouring no Retry-After (an attacker would not). Meanwhile the
-operator, from 127.0.0.1, tries the right token every half second (obeying Retry-After), twice:
+operator, from 127.0.0.1, starts ``--operator-after`` seconds into the attack and tries the right
+token every half second (obeying Retry-After), twice:
 
 * ``operator_with_device_cookie``: a browser that logged in before the attack, with its cookie;
 * ``operator_new_browser``: one without (it gets the cookie only once it is in).
@@ -45,6 +46,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=number(1.0, 600.0), default=20.0, help="how long the attack lasts (default 20)")
     p.add_argument("--pause", type=number(0.01, 10.0), default=0.2,
                    help="each guesser's pause between its attempts, seconds (default 0.2)")
+    p.add_argument("--operator-after", type=number(0.0, 600.0), default=2.0,
+                   help="when the operator starts trying, seconds into the attack (default 2)")
+    p.add_argument("--no-reserve", action="store_true",
+                   help="keep no turn for addresses without failures (the limiter's reserve 0), to compare")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory here")
 
 
@@ -136,6 +141,8 @@ async def _run(args: argparse.Namespace, rig_dir) -> dict:
     await coord.start()
     base = f"http://127.0.0.1:{coord.console_port}"
     device_name = getattr(auth, "DEVICE_COOKIE", None)      # absent before device cookies existed
+    if args.no_reserve:
+        coord._console.app.limiter.reserve = 0.0
     try:
         cookie = None
         async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
@@ -150,7 +157,7 @@ async def _run(args: argparse.Namespace, rig_dir) -> dict:
         until = start + args.seconds
         attackers = [asyncio.create_task(_attack(base, f"127.0.0.{2 + i}", until, args.pause, codes))
                      for i in range(args.addresses)]
-        await asyncio.sleep(min(2.0, args.seconds / 4))       # the budget is spent by now
+        await asyncio.sleep(args.operator_after)
         ops = {"operator_new_browser": asyncio.create_task(_operator(base, until, None, device_name or ""))}
         if cookie:
             ops["operator_with_device_cookie"] = asyncio.create_task(_operator(base, until, cookie, device_name))
@@ -190,10 +197,14 @@ def _host_check_cost() -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.operator_after >= args.seconds:
+        raise SystemExit(f"bench console_login: --operator-after ({args.operator_after:g}) must be less than --seconds "
+                         f"({args.seconds:g}): the operator tries during the attack")
     with run_dir(args.keep, "console-login") as d:
         figures = asyncio.run(_run(args, d))
     figures["host_check"] = _host_check_cost()
     doc = {"benchmark": "console_login", "machine": machine(), "figures": figures,
-           "parameters": {"addresses": args.addresses, "seconds": args.seconds, "pause": args.pause}}
+           "parameters": {"addresses": args.addresses, "seconds": args.seconds, "pause": args.pause,
+                          "operator_after": args.operator_after, "no_reserve": args.no_reserve}}
     print(json.dumps(doc, indent=2))
     return 0
