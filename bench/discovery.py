@@ -211,9 +211,9 @@ def _start_hostile(rig: LocalRig, venue: Venue | None, name: str, rig_id: str, s
     interface = venue.address(ROGUE) if venue is not None else "127.0.0.1"
     argv = [sys.executable, "-m", "bench.mdns_hostile", "--interface", interface, "--name", name,
             "--rig-id", rig_id, "--service", service]
-    kw = dict(stdout=subprocess.PIPE, stderr=open(rig.log_dir / "hostile.log", "ab"), text=True,
-              env=rig._env(), start_new_session=True)
-    proc = venue.run(ROGUE, argv, **kw) if venue is not None else subprocess.Popen(argv, **kw)
+    with open(rig.log_dir / "hostile.log", "ab") as err:     # the child keeps its own copy
+        kw = dict(stdout=subprocess.PIPE, stderr=err, text=True, env=rig._env(), start_new_session=True)
+        proc = venue.run(ROGUE, argv, **kw) if venue is not None else subprocess.Popen(argv, **kw)
     line = proc.stdout.readline()
     if not line.startswith("{"):
         proc.kill()

@@ -39,8 +39,10 @@ log = logging.getLogger(__name__)
 
 #: most distinct (address, port) pairs kept (a flood of fake answers evicts the least recently seen)
 MAX_SIGHTINGS = 256
-#: shortest interval between two of our own queries (RFC 6762 §5.2: at least one second)
+#: shortest interval between two of our own queries (RFC 6762 §5.2: at least one second, then at
+#: least doubling, here up to QUERY_MAX_INTERVAL_S; back to the shortest when what answers changes)
 QUERY_INTERVAL_S = 1.0
+QUERY_MAX_INTERVAL_S = 16.0
 
 
 class DiscoveryError(RuntimeError):
@@ -237,6 +239,7 @@ class Discovery:
         self._sightings = _Sightings(self.service_type, self._bump)
         self._changed = asyncio.Event()
         self._last_query = -1e9
+        self._interval = QUERY_INTERVAL_S
         #: counts the advertisements' comings and goings (see :meth:`wait_change`)
         self.generation = 0
 
@@ -259,14 +262,20 @@ class Discovery:
 
     def _bump(self) -> None:
         self.generation += 1
+        self._interval = QUERY_INTERVAL_S
         self._changed.set()
 
     def _query(self) -> None:
         """Ask every responder for the service's instances (QM: the answers come by multicast, with
-        the SRV, TXT and A records as additionals), at most once a QUERY_INTERVAL_S."""
+        the SRV, TXT and A records as additionals), at intervals from QUERY_INTERVAL_S doubling to
+        QUERY_MAX_INTERVAL_S (a coordinator that starts announces itself meanwhile)."""
         now = time.monotonic()
-        if self._azc is None or now - self._last_query < QUERY_INTERVAL_S:
+        gap = now - self._last_query
+        if self._azc is None or gap < self._interval:
             return
+        # after a long quiet spell (a node that was joined for hours) the next ones come quickly again
+        self._interval = QUERY_INTERVAL_S if gap > 2 * QUERY_MAX_INTERVAL_S else min(QUERY_MAX_INTERVAL_S,
+                                                                                      2 * self._interval)
         self._last_query = now
         self._azc.zeroconf.async_send(_query_message(self.service_type))
 
@@ -300,7 +309,7 @@ class Discovery:
     async def find(self, *, rig: str | None = None, timeout: float = 3.0, settle: float = 0.0) -> list[Advertisement]:
         """Advertised coordinators matching ``rig`` (name or id), waiting up to ``timeout`` for a first
         one, then ``settle`` seconds more for the others to answer (so a caller choosing among them sees
-        them all, not just the quickest). Asks the network again (at most once a second) while it waits."""
+        them all, not just the quickest). Asks the network again while it waits (see :meth:`_query`)."""
         assert self._azc is not None, "call start() first"
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout
