@@ -25,11 +25,12 @@ def _sizes(content: tuple[int, int], camera_shape: tuple[int, ...]) -> tuple[int
     return cw * ch, hc * wc, f"{cw}x{ch} content seen by a {wc}x{hc} camera"
 
 
-def check_measure(content: tuple[int, int], camera_shape: tuple[int, ...], radius: int) -> None:
+def check_measure(content: tuple[int, int], camera_shape: tuple[int, ...], radius: int, *, cameras: int = 1) -> None:
     """Before the dot patterns of a light-transport measurement: ``content`` (W, H), ``camera_shape``
-    (Hc, Wc[, C]) of the black capture, the PSF ``radius``."""
+    (Hc, Wc[, C]) of the black capture, the PSF ``radius``; ``cameras``: on a mesh each texel has a window
+    in each camera (their images stacked), at most that many times the entries."""
     n, m, what = _sizes(content, camera_shape)
-    _fits(measure_bytes(n, m, radius), f"the light transport of {what} (radius {radius})")
+    _fits(measure_bytes(n * cameras, m, radius), f"the light transport of {what} (radius {radius})")
 
 
 def check_baseline(content: tuple[int, int], camera_shape: tuple[int, ...], radius: int, todo: int) -> None:

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.capture_feed import transport_while_capturing
+from coordinator.compensation.memory_check import check_measure
 from coordinator.compensation.errors import CompensationError
 from coordinator.compensation.exposure import dot_exposure, exposure_for_white
 from coordinator.compensation.geometry import (
@@ -195,6 +196,7 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
         raise JobError(f"{what} {cam[1]}x{cam[0] // len(cameras)} images but "
                        f"{'was' if one else 'were'} calibrated at {cams.part_shape[1]}x{cams.part_shape[0]}: "
                        "calibrate again")
+    check_measure((cw, ch), cam, radius, cameras=len(cameras))  # the cameras' size is known; nothing large is held
     # per camera: the texels it sees whose bilinear hat alone is not wider than the window
     seen = [g.texels.visible & (np.nan_to_num(e, nan=np.inf) <= radius) for g, e in zip(cams.parts, extents)]
     large = cams.visible & ~np.logical_or.reduce(seen)

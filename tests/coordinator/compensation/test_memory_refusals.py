@@ -110,3 +110,16 @@ def test_gray_code_calibration_is_refused_before_its_patterns(setup, monkeypatch
     # the setup's captures, the white and the black; not one of the (at least 2 x 8) Gray-code patterns
     assert bdriver.captures - c0 < 8, bdriver.captures - c0
     assert bare.slot(SLOTS[0]).pose is None
+
+
+def test_a_mesh_rigs_transport_is_refused_after_the_black_capture(tmp_path, monkeypatch):
+    from bench.compensation_bust import bust_room, make_bust_rig
+
+    room = bust_room(projector_scale=0.25, camera_scale=0.125, seed=2)
+    rig = make_bust_rig(tmp_path / "bust", room, ["r2c2"], content_size=(128, 96), luts=True)
+    driver = RoomDriver(room, rig)
+    monkeypatch.setenv("SHADOWLESS_MEMORY_LIMIT", "1M")
+    with pytest.raises(JobError, match=ONE_LINE.format(what=r"the light transport of 128x96 content seen by a \d+x\d+ "
+                                                       r"camera \(radius \d+\)")):
+        run(driver, "transport", {"settle_s": 0.0})
+    assert not (rig.path / "compensation" / "transport.npz").exists()
