@@ -20,6 +20,12 @@ averaged per pattern for both methods. A single projector's dots carry 1/N of th
 so each L_i is measured N times less precisely than L; with exact matrices (``oracle_*``) the
 baseline, which can shift each projector's image on its own, is the sharper one. The sweep
 shows where the two cross.
+
+Memory: every part is estimated before anything is allocated (bench/compensation_memory.py). The
+per-projector baseline holds every projector's ``L_i`` (about 85 GB at 25 projectors and 2592x1944):
+when only it does not fit it is skipped with one line (``"baseline": "skipped: needs ~X GB"``);
+``--no-baseline`` skips it on purpose; a part that cannot fit even alone refuses in one line.
+``SHADOWLESS_MEMORY_LIMIT`` sets the budget (a size) or turns the check off (``off``).
 """
 from __future__ import annotations
 
