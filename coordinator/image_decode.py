@@ -6,8 +6,9 @@ A small file can declare a huge image (a 6 MB Radiance ``.hdr`` declaring 10000x
 took a coordinator from 206 to 2,504 MiB), so nothing is decoded blind: the format is told from
 the file's first bytes (its signature, as OpenCV tells it), the size from its header --
 Pillow's lazy readers for the formats it knows (they read the header, never the pixels), this
-module's own for Radiance HDR (the ``-Y H +X W`` line), PFM (its three header lines) and
-OpenEXR (the ``dataWindow`` attribute) -- and a format the header reader does not know is
+module's own for TIFF (the first IFD's ImageWidth and ImageLength: Pillow refuses layouts it
+cannot hold, such as 3-channel float), Radiance HDR (the ``-Y H +X W`` line), PFM (its three
+header lines) and OpenEXR (the data and display windows) -- and a format the header reader does not know is
 refused, not decoded. Pixels then come from OpenCV (``imdecode``, ``IMREAD_UNCHANGED``), or
 from FFmpeg's EXR decoder (PyAV) for OpenEXR, which this OpenCV build does not read.
 """
@@ -33,7 +34,7 @@ FORMATS = ("PNG", "JPEG", "TIFF", "WebP", "BMP", "GIF", "JPEG 2000", "AVIF", "Su
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 # Pillow's plugin module and image class per format it reads the header of
 _PILLOW = {"PNG": ("PngImagePlugin", "PngImageFile"), "JPEG": ("JpegImagePlugin", "JpegImageFile"),
-           "TIFF": ("TiffImagePlugin", "TiffImageFile"), "WebP": ("WebPImagePlugin", "WebPImageFile"),
+           "WebP": ("WebPImagePlugin", "WebPImageFile"),
            "BMP": ("BmpImagePlugin", "BmpImageFile"), "GIF": ("GifImagePlugin", "GifImageFile"),
            "JPEG 2000": ("Jpeg2KImagePlugin", "Jpeg2KImageFile"), "AVIF": ("AvifImagePlugin", "AvifImageFile"),
            "Sun raster": ("SunImagePlugin", "SunImageFile"), "PPM": ("PpmImagePlugin", "PpmImageFile")}
@@ -95,6 +96,33 @@ def _pillow_size(data: bytes, fmt: str) -> tuple[int, int]:
     plugin = importlib.import_module(f"PIL.{module}")
     with getattr(plugin, cls)(io.BytesIO(data)) as im:
         return int(im.size[0]), int(im.size[1])
+
+
+def _tiff_size(data: bytes) -> tuple[int, int]:
+    """TIFF and BigTIFF: ImageWidth (tag 256) and ImageLength (257) of the first IFD, the page
+    OpenCV decodes. Read here rather than by Pillow, which refuses pixel layouts it cannot hold
+    (3-channel float32, which OpenCV reads) before it gives their size."""
+    order = "<" if data[:2] == b"II" else ">"
+    big = struct.unpack_from(order + "H", data, 2)[0] == 43
+    if big:
+        ifd = struct.unpack_from(order + "Q", data, 8)[0]
+        count, pos, step, head = struct.unpack_from(order + "Q", data, ifd)[0], ifd + 8, 20, "HHQ"
+    else:
+        ifd = struct.unpack_from(order + "I", data, 4)[0]
+        count, pos, step, head = struct.unpack_from(order + "H", data, ifd)[0], ifd + 2, 12, "HHI"
+    found: dict[int, int] = {}
+    for i in range(min(count, 4096)):
+        entry = pos + i * step
+        tag, kind, _ = struct.unpack_from(order + head, data, entry)
+        if tag in (256, 257):
+            value = entry + struct.calcsize("=" + head)
+            code = {3: "H", 4: "I", 16: "Q"}.get(kind)
+            if code is None:
+                raise ValueError(f"tag {tag} has type {kind}, not SHORT or LONG")
+            found[tag] = struct.unpack_from(order + code, data, value)[0]
+    if len(found) < 2:
+        raise ValueError("its first IFD has no ImageWidth or ImageLength")
+    return found[256], found[257]
 
 
 def _hdr_size(data: bytes) -> tuple[int, int]:
@@ -183,8 +211,13 @@ def declared_size(data: bytes, name: str = "the image") -> tuple[str, int, int]:
             w, h = _pfm_size(data)
         elif fmt == "OpenEXR":
             w, h = _exr_size(data)
+        elif fmt == "TIFF":
+            w, h = _tiff_size(data)
         else:
             w, h = _pillow_size(data, fmt)
+    except struct.error:      # an offset or a field past the end of the bytes
+        raise ImageRefused(f"{name}: its {fmt} header cannot be read (the file ends inside it); is the file "
+                           "whole?") from None
     except Exception as exc:  # noqa: BLE001 - any failure to read the header refuses the file
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ImageRefused(f"{name}: its {fmt} header cannot be read ({why}); is the file whole?") from None

@@ -92,7 +92,9 @@ print(json.dumps({{"grew_kib": after - before, "refused": refused}}))
 
 def _cv2_rgb(data: bytes) -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    return img[:, :, ::-1] if img.ndim == 3 else img
+    if img.ndim == 3 and img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if img.ndim == 3 else img
 
 
 @pytest.mark.parametrize("fmt", H.FORMATS)
@@ -110,6 +112,24 @@ def test_a_small_valid_file_decodes_to_its_pixels(fmt):
         ref = np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
         tol = 2 if fmt == "JPEG" else 0               # two JPEG decoders' IDCTs may differ by a level
         assert np.abs(img.astype(int) - ref).max() <= tol
+
+
+@pytest.mark.parametrize("dtype, channels", [(np.float32, 3), (np.float32, 1), (np.uint16, 4), (np.uint8, 1)])
+def test_tiff_layouts_pillow_cannot_hold_are_read_too(dtype, channels):
+    """The TIFF header is read here, not by Pillow, which refuses 3-channel float (OpenCV reads it)."""
+    img = (np.random.default_rng(5).random((20, 28, channels)) * (1 if dtype == np.float32 else 200)).astype(dtype)
+    ok, buf = cv2.imencode(".tif", img)
+    assert ok
+    assert declared_size(buf.tobytes()) == ("TIFF", 28, 20)
+    np.testing.assert_array_equal(decode_image(buf.tobytes(), "x.tif"), _cv2_rgb(buf.tobytes()))
+
+
+def test_a_bigtiff_header_is_read():
+    tifffile = pytest.importorskip("tifffile")
+    out = io.BytesIO()
+    tifffile.imwrite(out, np.zeros((20, 28, 3), np.uint8), bigtiff=True)
+    assert out.getvalue()[:4] == b"II+\0"
+    assert declared_size(out.getvalue()) == ("TIFF", 28, 20)
 
 
 def test_an_exr_is_judged_by_its_display_window_too():
