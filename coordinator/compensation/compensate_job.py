@@ -101,7 +101,8 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> dict:
         baseline_exposure(ctx, opts)  # refused before any capture
     tr = await ensure_transport(ctx, opts, slots, measure=opts.measure)
     cw, ch = content_size(ctx)
-    check_solve((cw, ch), tr.camera_shape, int(tr.meta["radius"]))  # before the solve's operators are built
+    # before the solve's operators are built, with the baseline's L_i it will hold beside them
+    check_solve((cw, ch), tr.camera_shape, int(tr.meta["radius"]), baselines=len(tr.slots) if opts.baseline else 0)
     content = prepare_image(image, (cw, ch), srgb=opts.srgb)
     T = camera_target(content, tr.H, tr.camera_shape)
     region = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)

@@ -41,7 +41,11 @@ def check_baseline(content: tuple[int, int], camera_shape: tuple[int, ...], radi
 
 
 def check_solve(content: tuple[int, int], camera_shape: tuple[int, ...], radius: int, *, channels: int = 3,
-                what: str = "the compensation solve") -> None:
-    """Before building a solve's operators over a loaded ``L`` (the ridge problem and its vectors)."""
+                what: str = "the compensation solve", baselines: int = 0) -> None:
+    """Before building a solve's operators over a loaded ``L`` (the ridge problem and its vectors);
+    ``baselines``: the per-projector ``L_i`` held beside it (``compensate --baseline``)."""
     n, m, sizes = _sizes(content, camera_shape)
-    _fits(ridge_bytes(n, m, radius) + solve_bytes(n, m + n, channels), f"{what} over {sizes} (radius {radius})")
+    need = ridge_bytes(n, m, radius) + solve_bytes(n, m + n, channels) + baselines * transport_bytes(n, m, radius)
+    if baselines:
+        what = f"{what} with {baselines} per-projector baselines"
+    _fits(need, f"{what} over {sizes} (radius {radius})", f"no --baseline, or {_HINT}" if baselines else _HINT)

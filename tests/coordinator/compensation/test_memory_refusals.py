@@ -123,3 +123,18 @@ def test_a_mesh_rigs_transport_is_refused_after_the_black_capture(tmp_path, monk
                                                        r"camera \(radius \d+\)")):
         run(driver, "transport", {"settle_s": 0.0})
     assert not (rig.path / "compensation" / "transport.npz").exists()
+
+
+def test_compensate_with_the_baseline_counts_its_transports(setup, monkeypatch):
+    from coordinator.compensation.memory_estimate import ridge_bytes, solve_bytes
+
+    work, rig, driver = setup
+    L, meta = load_transport(rig.path / "compensation" / "transport.npz")
+    cw, ch = meta["content_size"]
+    n, m, r = cw * ch, L.shape[0], int(meta["radius"])
+    # room for ours alone, not for ours and the two projectors' L_i beside it
+    monkeypatch.setenv("SHADOWLESS_MEMORY_LIMIT", str(ridge_bytes(n, m, r) + solve_bytes(n, m + n, 3) + transport_bytes(n, m, r)))
+    with pytest.raises(JobError, match=r"^needs about \d+ MB for the compensation solve with 2 per-projector baselines "
+                                       r"over 160x80 content .*; use no --baseline, or a smaller content size"):
+        run(driver, "compensate", {"image": encode_image_array(demo_image(CONTENT)), "measure": False,
+                                   "baseline": True, "settle_s": 0.0})
