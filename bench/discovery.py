@@ -23,19 +23,20 @@ their cache), so they try it first: a deterministic rogue attempt.
 ``--hostile before|after`` measures something else: a *hostile* advertiser
 (``bench/mdns_hostile.py``) claims the rig's mDNS instance name without conflict probing and
 points at a tarpit (a port that accepts and never answers), from before the coordinator starts
-(which then renames itself, RFC 6762 §9) or from after it advertised (two responders, one
-name). On an mDNS service of the run's own, on loopback and/or in a virtual venue network
-(``--where``; the hostile on a venue host of its own), N unpinned nodes start; per trial:
+(which then renames itself, RFC 6762 §9) or from after it advertised (two responders, one name).
+On an mDNS service of the run's own, on loopback and/or in a virtual venue network (``--where``;
+the hostile on a venue host of its own), N unpinned nodes start; per trial:
 ``joined``/``started``, ``joined_within_10s``, ``join_s`` p50/max (from starting the node
 processes until live), ``ready_to_join_s`` (from each node's renderer being up to its join, from
 its log: discovery and handshake alone), ``timed_out_on_hostile`` (nodes whose Hello to the
 tarpit ran out), ``operator_found_rig`` (``shadowless status --rig-dir`` over mDNS reached the
-rig's own coordinator, the hostile advertising), and with ``--control`` the same nodes with no hostile (``control_join_s``,
-``hostile_cost_max`` = max over control max).
+rig's own coordinator, the hostile advertising), and with ``--control`` the same nodes with no
+hostile (``control_join_s``, ``hostile_cost_max`` = max over control max).
 
 ``--name-clash K`` (loopback): K times, two rigs with the same name start their coordinators one
-after the other, ``--clash-nodes`` nodes of the first running meanwhile; ``renamed`` (the second advertises as another instance name), ``logged_rename``
-and ``both_found`` (a browser finds both rig ids under the rig's name) count the starts.
+after the other, ``--clash-nodes`` nodes of the first running meanwhile; ``renamed`` (the second
+advertises as another instance name), ``logged_rename`` and ``both_found`` (a browser finds both
+rig ids under the rig's name) count the starts.
 """
 from __future__ import annotations
 
@@ -253,12 +254,14 @@ def _operator_finds(rig: LocalRig, venue: Venue | None, host: str, rig_id: str) 
 
 def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "after", timeout: float = 60.0,
                   service: str | None = None) -> dict:
-    """N real nodes (unpinned) join their rig while a hostile advertiser claims the rig's instance name
-    without probing (bench.mdns_hostile: a tarpit behind it). ``when``: "before" the coordinator starts
-    (the coordinator renames itself) or "after" it advertised (the hostile takes its very name: two
-    responders, one instance name); "none": no hostile (the control: this machine's start-up time). ``venue``: on a virtual venue network (the hostile on a host of its
-    own) instead of loopback. ``service``: an mDNS service of the trial's own (default: one derived from
-    this process's id, so that other rigs on the machine neither see nor disturb it)."""
+    """N real nodes (unpinned) join their rig while a hostile advertiser claims the rig's instance name without
+    probing (bench.mdns_hostile: a tarpit behind it). ``when``: "before" the coordinator starts (the
+    coordinator renames itself) or "after" it advertised (the hostile takes its very name: two
+    responders, one instance name); "none": no hostile (the control: this machine's start-up time).
+    ``venue``: on a virtual venue network (the hostile on a host of its own) instead of loopback.
+    ``service``: an mDNS service of the trial's own (default: one derived from this process's id, so
+    that other rigs on the machine neither see nor disturb it).
+    """
     if when not in ("before", "after", "none"):
         raise ValueError(f"when must be 'before', 'after' or 'none', not {when!r}")
     slots = grid_names(n)

@@ -50,7 +50,8 @@ async def advertise(*, interface: str, name: str, rig_id: str, service: str, eve
     server, port = await _tarpit(interface)
     azc = AsyncZeroconf(interfaces=[interface], ip_version=IPVersion.V4Only)
     info = AsyncServiceInfo(service, f"{name}.{service}", addresses=[socket.inet_aton(interface)], port=port,
-                            properties={"rig": rig_id, "proto": str(PROTOCOL_VERSION), "instance": "hostile", "name": name},
+                            properties={"rig": rig_id, "proto": str(PROTOCOL_VERSION), "instance": "hostile",
+                                        "name": name},
                             server=server_name(rig_id))
     try:
         await azc.async_register_service(info, allow_name_change=False, cooperating_responders=True)

@@ -303,7 +303,8 @@ class Node:
     async def _prove(self, cand: Candidate) -> Candidate:
         """``cand`` if it answers a Hello within SCREEN_TIMEOUT_S and proves the rig token; raises
         Refused, CoordinatorNotTrusted or LinkError otherwise."""
-        async with CoordinatorLink(cand.target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
+        async with CoordinatorLink(cand.target, tls_ca=self.cfg.tls_ca,
+                                   tls_server_name=self.cfg.tls_server_name) as link:
             nonce = auth.new_nonce()
             try:
                 hello = await link.hello(protocol_version=self.cfg.protocol_version, client_nonce=nonce,
