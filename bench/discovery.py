@@ -444,8 +444,8 @@ def _run_hostile(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     if args.nodes < 1 or args.runs < 1 or args.name_clash < 0 or args.clash_nodes < 0:
-        print("shadowless bench discovery: --nodes and --runs must be at least 1, --name-clash at least 0",
-              file=sys.stderr)
+        print("shadowless bench discovery: --nodes and --runs must be at least 1, --name-clash and --clash-nodes "
+              "at least 0", file=sys.stderr)
         return 2
     if args.name_clash:
         return _run_clash(args)
