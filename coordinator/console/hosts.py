@@ -134,7 +134,12 @@ class HostCheck:
         self.default_port = DEFAULT_PORTS[scheme]
         self.bound = [(ipaddress.ip_address(ip.split("%")[0]), int(port)) for ip, port in bound]
         self.ports = {port for _, port in self.bound}
-        self.names = {normal_host(n) for n in names}
+        self.names = set()
+        for n in names:
+            try:
+                self.names.add(normal_host(n))
+            except ValueError:      # a listen name no browser can send (e.g. with "_"): only its addresses
+                pass
         if any(a.is_loopback or a.is_unspecified for a, _ in self.bound):
             self.names.add("localhost")
         self.allowed: set[tuple[str, int | None]] = {split_host(a) for a in allowed}

@@ -70,6 +70,8 @@ def test_names_the_operator_allowed_and_the_default_port_of_the_scheme():
         assert not check.ok(bad), bad
     with pytest.raises(ValueError):
         HostCheck([("127.0.0.1", 1)], allowed=["not a name"])
+    odd = HostCheck([("10.0.0.2", 80)], names=["my_rig", "rig.lan"])     # a listen name no browser can send
+    assert odd.ok("rig.lan") and odd.ok("10.0.0.2") and not odd.ok("my_rig")
 
 
 def test_an_address_is_this_machines_when_a_socket_binds_to_it():
