@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 
 import pytest
 
@@ -48,3 +49,27 @@ def test_a_discovery_mistake_is_one_line(name, argv, env, says, token_file, corp
     corpus_table("discovery", " ".join(argv), lines[-1] if lines else "", r.returncode)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert len(lines) == 1 and says in lines[0], r.stderr
+
+
+def test_a_node_that_finds_nothing_names_the_service_it_searched(token_file, tmp_path):
+    # not a refusal (the node keeps looking, a coordinator may be starting): a warning naming what it searched
+    env = {**os.environ, "SHADOWLESS_MDNS_SERVICE": OWN}
+    proc = subprocess.Popen([sys.executable, "-m", "shadowless", "node", "--slot", "r0c0", "--token-file",
+                             str(token_file), "--mdns-interface", "127.0.0.1", "--rig", "nosuch", "--cache-dir",
+                             str(tmp_path / "cache")], stderr=subprocess.PIPE, text=True, env=env)
+    want = f"no coordinator advertised {OWN}._tcp.local. for rig 'nosuch' on 127.0.0.1 within 3 s; still looking"
+    seen = []
+    deadline = threading.Timer(60, proc.kill)     # a node that says nothing ends the read at 60 s
+    deadline.start()
+    try:
+        for line in proc.stderr:     # bounded: the node logs a line per look (every few seconds) until stopped
+            seen.append(line)
+            if want in line or len(seen) > 50:
+                break
+    finally:
+        deadline.cancel()
+        deadline.join()
+        proc.terminate()
+        proc.wait(30)
+        proc.stderr.close()
+    assert any(want in line for line in seen), "".join(seen)
