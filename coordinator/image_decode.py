@@ -4,20 +4,22 @@ after its header's declared size has been read and found within :data:`MAX_PIXEL
 
 A small file can declare a huge image (a 6 MB Radiance ``.hdr`` declaring 10000x10000 pixels
 took a coordinator from 206 to 2,504 MiB), so nothing is decoded blind: the format is told from
-the file's first bytes (its signature, as OpenCV tells it), the size from its header --
-Pillow's lazy readers for the formats it knows (they read the header, never the pixels), this
-module's own for TIFF (the first IFD's ImageWidth and ImageLength: Pillow refuses layouts it
-cannot hold, such as 3-channel float), Radiance HDR (the ``-Y H +X W`` line), PFM (its three
-header lines) and OpenEXR (the data and display windows) -- and a format the header reader does not know is
-refused, not decoded. Pixels then come from OpenCV (``imdecode``, ``IMREAD_UNCHANGED``), or
-from FFmpeg's EXR decoder (PyAV) for OpenEXR, which this OpenCV build does not read.
+the file's first bytes (its signature, as OpenCV tells it), the size from its header -- Pillow's
+lazy readers for the formats it knows (they read the header, never the pixels), this module's
+own for TIFF (the first IFD's ImageWidth and ImageLength: Pillow refuses layouts it cannot hold,
+such as 3-channel float), Radiance HDR (the ``-Y H +X W`` line), PFM (its three header lines)
+and OpenEXR (the data and display windows) -- and a format no header reader knows is refused,
+not decoded. Pixels then come from OpenCV (``imdecode``, ``IMREAD_UNCHANGED``), or from
+FFmpeg's EXR decoder (PyAV) for OpenEXR, which this OpenCV build does not read.
 """
 from __future__ import annotations
 
 import io
 import os
 import re
+import contextlib
 import struct
+import threading
 import warnings
 from pathlib import Path
 
@@ -40,7 +42,7 @@ _PILLOW = {"PNG": ("PngImagePlugin", "PngImageFile"), "JPEG": ("JpegImagePlugin"
            "Sun raster": ("SunImagePlugin", "SunImageFile"), "PPM": ("PpmImagePlugin", "PpmImageFile")}
 
 
-# Pillow's plugins warn about what they find damaged in a header (a TIFF's cut EXIF, ...); the
+# Pillow's plugins warn about what they find damaged in a header (a cut EXIF block, ...); the
 # refusal says it in its one line, so those warnings would only be a second, stray line on stderr.
 # Set once here (catch_warnings per call is not thread-safe, and uploads decode in threads).
 warnings.filterwarnings("ignore", module=r"PIL\.")
@@ -232,6 +234,33 @@ def _check_size(fmt: str, w: int, h: int, name: str) -> None:
                            "content size anyway)")
 
 
+_quiet_lock = threading.Lock()
+_quiet_depth = 0
+_quiet_saved = 0
+
+
+@contextlib.contextmanager
+def _opencv_quiet():
+    """OpenCV's own log off while it decodes (its ``[ WARN ]``/``[ERROR]`` lines about a damaged
+    file would be more lines on stderr beside the refusal); restored when the last concurrent
+    decode ends (uploads decode in threads)."""
+    import cv2
+
+    global _quiet_depth, _quiet_saved
+    with _quiet_lock:
+        if _quiet_depth == 0:
+            _quiet_saved = cv2.utils.logging.getLogLevel()
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+        _quiet_depth += 1
+    try:
+        yield
+    finally:
+        with _quiet_lock:
+            _quiet_depth -= 1
+            if _quiet_depth == 0:
+                cv2.utils.logging.setLogLevel(_quiet_saved)
+
+
 def _decode_exr(data: bytes, name: str) -> np.ndarray:
     """OpenEXR through FFmpeg's decoder (PyAV): float32 RGB(A) or grey."""
     import av
@@ -282,7 +311,8 @@ def decode_image(data: bytes, name: str = "the image") -> np.ndarray:
         import cv2  # the coordinator's stack
 
         try:
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            with _opencv_quiet():
+                img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
         except cv2.error as exc:
             img = None
             why = str(exc).strip().splitlines()[-1]

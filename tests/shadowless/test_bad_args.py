@@ -97,6 +97,9 @@ CASES = [
      "cut.tif: its TIFF header cannot be read"),
     ("show: an OpenEXR whose display window is 100 megapixels", ["show", "{dir}/wide.exr", *REMOTE],
      "its OpenEXR header declares 10000x10000 pixels"),
+    *[(f"show: a {fmt} cut inside its pixels (OpenCV's own log stays quiet)",
+       ["show", f"{{dir}}/half{HEADERS.SUFFIX[fmt]}", *REMOTE], f"half{HEADERS.SUFFIX[fmt]}: its {name} pixels cannot be "
+       "decoded") for fmt, name in (("PNG", "PNG"), ("HDR", "Radiance HDR"), ("BMP", "BMP"))],
     ("show: an empty image file", ["show", "{dir}/empty.png", *REMOTE], "empty.png is empty"),
     ("show: float .npy outside 0..1", ["show", "{dir}/hot.npy", *REMOTE],
      "hot.npy holds values from -0.5 to 3, but float content must lie in 0..1"),
@@ -156,6 +159,9 @@ def results(tmp_path_factory):
     (d / "bright.hdr").write_bytes(HEADERS.valid("HDR"))         # values 0..4
     (d / "cut.png").write_bytes(HEADERS.valid("PNG")[:20])
     (d / "cut.tif").write_bytes(HEADERS.valid("TIFF")[:12])
+    for fmt in ("PNG", "HDR", "BMP"):
+        whole = HEADERS.valid(fmt)
+        (d / f"half{HEADERS.SUFFIX[fmt]}").write_bytes(whole[:len(whole) * 6 // 10])
     exr = HEADERS.valid("EXR")
     i = exr.index(b"displayWindow\0box2i\0") + len(b"displayWindow\0box2i\0") + 4
     (d / "wide.exr").write_bytes(exr[:i] + np.array([0, 0, 9999, 9999], "<i4").tobytes() + exr[i + 16:])
@@ -204,5 +210,5 @@ def test_a_mistake_is_one_line_and_status_2(results, corpus_table, name, argv, e
 
 def test_the_corpus_is_large_enough_and_nothing_stored_changed(results):
     out, before, after = results
-    assert len(CASES) >= 50 + 30 and len(out) == len(CASES)
+    assert len(CASES) >= 50 + 33 and len(out) == len(CASES)
     assert before == after, "a refused command changed the rig directory"
