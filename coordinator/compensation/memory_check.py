@@ -3,11 +3,17 @@ with one :class:`~coordinator.jobs.JobError` line before it allocates, when it w
 coordinator may still take (:mod:`coordinator.memory_budget`)."""
 from __future__ import annotations
 
-from coordinator.compensation.memory_estimate import measure_bytes, ridge_bytes, solve_bytes, transport_bytes
+from coordinator.compensation.memory_estimate import (
+    BUILD_PER_ENTRY,
+    measure_bytes,
+    ridge_bytes,
+    solve_bytes,
+    transport_bytes,
+)
 from coordinator.jobs.errors import JobError
 from coordinator.memory_budget import MemoryBudgetError, ensure_fits
 
-__all__ = ["check_baseline", "check_measure", "check_solve"]
+__all__ = ["check_baseline", "check_measure", "check_solve", "check_stored"]
 
 _HINT = "a smaller content size (rig.toml) or camera resolution, or a smaller --radius"
 
@@ -49,3 +55,18 @@ def check_solve(content: tuple[int, int], camera_shape: tuple[int, ...], radius:
     if baselines:
         what = f"{what} with {baselines} per-projector baselines"
     _fits(need, f"{what} over {sizes} (radius {radius})", f"no --baseline, or {_HINT}" if baselines else _HINT)
+
+
+def check_stored(L, *, what: str, baselines: int = 0, solve: bool = True, channels: int = 3) -> None:
+    """The same checks from a loaded ``L``'s own non-zeros (a mesh rig's texel windows are not one per content
+    pixel): ``baselines`` per-projector ``L_i`` of at most its size (loaded or measured, one being built), and
+    with ``solve`` the ridge problem over it, before any of it is allocated."""
+    m, n = int(L.shape[0]), int(L.shape[1])
+    per_entry = 8 * int(L.nnz)
+    need = baselines * (per_entry + 4 * (m + 1))
+    if baselines:
+        need += BUILD_PER_ENTRY * int(L.nnz)
+    if solve:
+        need += 6 * per_entry + 32 * n + 8 * m + solve_bytes(n, m + n, channels)   # ridge_bytes' 48 per entry
+    hint = f"no --baseline, or {_HINT}" if baselines else _HINT
+    _fits(need, f"{what} over {n} texels seen by {m} camera pixels ({int(L.nnz)} non-zeros)", hint)

@@ -46,6 +46,7 @@ from coordinator.compensation.jobkit import (
     rounded,
     throttled,
 )
+from coordinator.compensation.memory_check import check_stored
 from coordinator.compensation.mesh_geometry import masked_quality, measured_texels
 from coordinator.compensation.mesh_transport import (
     capture_cameras,
@@ -125,6 +126,10 @@ async def run_mesh_compensate(ctx: JobContext, opts: CompensateOptions, slots: l
     if opts.baseline:
         baseline_exposure(ctx, opts)  # refused before any capture
     tr, cams = await ensure_mesh_transport(ctx, opts, slots, measure=opts.measure)
+    # the weighted ridge problem, with the baseline's L_i it will hold beside it
+    check_stored(tr.L, what="the compensation solve" + (f" with {len(tr.slots)} per-projector baselines"
+                                                        if opts.baseline else ""),
+                 baselines=len(tr.slots) if opts.baseline else 0)
     cw, ch = content_size(ctx)
     content = prepare_image(image, (cw, ch), srgb=opts.srgb)
     measured = measured_texels(tr.L)

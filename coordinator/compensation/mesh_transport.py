@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.capture_feed import transport_while_capturing
-from coordinator.compensation.memory_check import check_measure
+from coordinator.compensation.memory_check import check_measure, check_stored
 from coordinator.compensation.errors import CompensationError
 from coordinator.compensation.exposure import dot_exposure, exposure_for_white
 from coordinator.compensation.geometry import (
@@ -273,6 +273,7 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
     cw, ch = content_size(ctx)
     radius = int(tr.meta["radius"])
     tails = int(tr.meta["core"]) if tr.meta.get("tails_averaged") else None
+    check_stored(tr.L, what=f"{len(tr.slots)} per-projector baseline transports", baselines=len(tr.slots), solve=False)
     out, todo = stored_baselines(rig, tr.slots, fp, tr.L.shape)
     t0 = time.monotonic()
     c0 = ctx.captures

@@ -138,3 +138,20 @@ def test_compensate_with_the_baseline_counts_its_transports(setup, monkeypatch):
                                        r"over 160x80 content .*; use no --baseline, or a smaller content size"):
         run(driver, "compensate", {"image": encode_image_array(demo_image(CONTENT)), "measure": False,
                                    "baseline": True, "settle_s": 0.0})
+
+
+def test_a_mesh_rigs_solve_and_baseline_are_refused_over_its_stored_transport(tmp_path, monkeypatch):
+    from bench.compensation_bust import bust_room, make_bust_rig
+
+    room = bust_room(projector_scale=0.25, camera_scale=0.125, seed=2)
+    rig = make_bust_rig(tmp_path / "bust", room, ["r2c2"], content_size=(128, 96), luts=True)
+    driver = RoomDriver(room, rig)
+    run(driver, "transport", {"settle_s": 0.0})
+    monkeypatch.setenv("SHADOWLESS_MEMORY_LIMIT", "1M")
+    image = encode_image_array(demo_image((128, 96)))
+    with pytest.raises(JobError, match=ONE_LINE.format(what=r"the compensation solve over \d+ texels seen by \d+ "
+                                                       r"camera pixels \(\d+ non-zeros\)")):
+        run(driver, "compensate", {"image": image, "measure": False})
+    with pytest.raises(JobError, match=r"^needs about \d+ MB for 1 per-projector baseline transports over \d+ texels"
+                                       r".*; use no --baseline"):
+        run(driver, "transport", {"baseline": True, "settle_s": 0.0})
