@@ -285,11 +285,14 @@ class Node:
             self._unreachable(cand, f"{exc.code}: {exc.details}")
 
     async def _tell_not_trusted(self, target: str, hello: HelloReply, client_nonce: bytes) -> None:
-        """Let a coordinator that failed the token proof see why this node does not join: a Join with
-        this node's own proof, which a coordinator of another token refuses as a token mismatch and
-        lists in its status next to the slot (else the slot shows only as expected there). The
-        proof reveals nothing of the token; the answer changes nothing here (the node joins nowhere)."""
-        proof = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
+        """Let a coordinator that failed the token proof see why this node does not join: a Join whose
+        proof is random bytes, which a coordinator refuses as a token mismatch and lists in its status
+        next to the slot (else the slot shows only as expected there). Never this node's real proof:
+        the peer is unverified, and an impostor that relayed a real coordinator's server nonce (with a
+        bad server proof) could replay a real proof to that coordinator and join as this slot. The
+        answer changes nothing here (the node joins nowhere)."""
+        real = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
+        proof = os.urandom(len(real))
         info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
                         software_version=_version(), output=self.cfg.output.split("?")[0])
         try:
