@@ -113,7 +113,9 @@ def test_https_and_a_secure_cookie_with_the_coordinators_certificate(tmp_path):
             async with client(connector=aiohttp.TCPConnector(ssl=ctx)) as s:
                 r = await s.post(base + "/login", json={"token": TOKEN.decode()}, headers={"Origin": base})
                 assert r.status == 200
-                assert "Secure" in r.headers["Set-Cookie"].split("; ")
+                for cookie in r.headers.getall("Set-Cookie"):      # the session's and the device cookie
+                    assert "Secure" in cookie.split("; "), cookie
+                assert {c.split("=")[0] for c in r.headers.getall("Set-Cookie")} == {auth.COOKIE, auth.DEVICE_COOKIE}
                 # an http:// Origin is another origin than the https:// console
                 headers, _ = await login(s, base)
                 headers["Origin"] = base.replace("https://", "http://")
