@@ -267,16 +267,22 @@ class AssetStore:
                 raise
 
     def _sweep_tmp(self) -> None:
-        """Delete files in assets/tmp that no add has touched for ``STALE_TMP_S`` (killed adds)."""
+        """Delete files in assets/tmp that no add has touched for ``STALE_TMP_S`` (killed adds), and
+        only while no other add is staging (one that holds the staging lock is not dead)."""
         if not self.tmp_dir.is_dir():
             return
-        now = time.time()
-        for p in self.tmp_dir.iterdir():
+        with open(self.root / STAGING_LOCK, "a+b") as lock:
             try:
-                if p.is_file() and now - p.stat().st_mtime > STALE_TMP_S:
-                    p.unlink()
-            except OSError:
-                pass
+                fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return
+            now = time.time()
+            for p in self.tmp_dir.iterdir():
+                try:
+                    if p.is_file() and now - p.stat().st_mtime > STALE_TMP_S:
+                        p.unlink()
+                except OSError:
+                    pass
 
     # ------------------------------------------------------------ finding
     def resolve(self, key: str) -> str:
