@@ -323,7 +323,7 @@ def _missing_blobs(blobs: Path, m: Manifest) -> str:
 # ---------------------------------------------------------------- rig state
 def _slot_luts(r: Recovery) -> None:
     luts = r.rig_dir / "luts"
-    if not luts.is_dir():
+    if not luts.is_dir() or luts.is_symlink():      # a folder an operator linked elsewhere is theirs
         return
     slots = parse_config((r.rig_dir / "rig.toml").read_text()).slots
     current: set[str] = set()
@@ -343,7 +343,7 @@ def _slot_luts(r: Recovery) -> None:
 
 def _content(r: Recovery) -> None:
     folder = r.rig_dir / "content"
-    if not folder.is_dir():
+    if not folder.is_dir() or folder.is_symlink():
         return
     meta = folder / "current.json"
     try:
