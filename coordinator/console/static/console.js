@@ -157,6 +157,7 @@ function render(s) {
   renderNodes(s.slots);
   renderRefusals(s.refusals);
   renderLogins(s.logins);
+  renderBeforeAuth(s.before_auth);
   renderAssets(s.assets);
   renderActions(s.actions);
   renderJob(s.job);
@@ -359,6 +360,22 @@ function renderLogins(l) {
   }
   p.textContent = text;
   p.className = l.held_back ? "warn" : "muted";
+}
+
+// Calls from peers that have not proved the rig token: what the budget refused or could not parse.
+function renderBeforeAuth(a) {
+  const p = $("before-auth");
+  if (!a) { p.textContent = ""; return; }
+  const budget = `budget ${a.max_calls} calls and ${a.max_mib} MiB in all, ${a.max_calls_per_address} calls and ` +
+    `${a.max_mib_per_address} MiB per address`;
+  if (!a.refused && !a.malformed) {
+    p.textContent = `calls before login: none refused since the coordinator started (${budget})`;
+    p.className = "muted";
+    return;
+  }
+  p.textContent = `calls before login: ${a.refused} refused over the budget, ${a.malformed} malformed, ` +
+    `${a.waited} waited their turn since the coordinator started; peak ${a.peak_mib} MiB held (${budget})`;
+  p.className = "warn";
 }
 
 function renderAssets(list) {
