@@ -98,7 +98,7 @@ class Recovery:
     def did(self, verb: str, p: Path, why: str) -> None:
         a = Action(verb, self.rel(p), why)
         self.actions.append(a)
-        (log.warning if verb.startswith("quarantined") else log.info)("%s", a.line())
+        (log.warning if verb == "quarantined" else log.info)("%s", a.line())
 
     def remove(self, p: Path, why: str, verb: str = "removed") -> None:
         if p.is_dir() and not p.is_symlink():
@@ -115,7 +115,7 @@ class Recovery:
         while dest.exists() or dest.is_symlink():
             dest = dest.with_name(dest.name + "~")
         os.replace(p, dest)
-        self.did(f"quarantined (to {self.rel(dest)})", p, why)
+        self.did("quarantined", p, f"{why}; moved to {self.rel(dest)}")
 
     def step(self, name: str, fn: Callable[[], None]) -> None:
         try:

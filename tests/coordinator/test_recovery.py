@@ -337,3 +337,23 @@ def test_the_upload_sweep_takes_an_upload_without_bytes(base_rig, tmp_path):
     assert uploads.sweep() == []
     os.utime(d, (1.0, 1.0))
     assert uploads.sweep() == [d.name]
+
+
+def test_what_cannot_be_read_is_quarantined_inside_the_rig_with_one_warning_each(base_rig, tmp_path, caplog):
+    rig = tmp_path / "rig"
+    shutil.copytree(base_rig, rig, symlinks=True)
+    manifest = sorted((rig / "assets" / "manifests").glob("*.json"))[0]
+    os.chmod(manifest, 0o644)
+    manifest.write_bytes(manifest.read_bytes()[:20])          # half a manifest
+    (rig / "show.json").write_text('{"version": 1, "rev')
+    with caplog.at_level(logging.INFO, logger="coordinator.recovery"):
+        result = recover(rig)
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert [a.verb for a in result.actions].count("quarantined") == len(warned) >= 3, warned   # + its blob
+    assert any(manifest.name in w and "moved to quarantine/" in w for w in warned), warned
+    assert any("show.json" in w for w in warned), warned
+    kept = {p.name for p in (rig / QUARANTINE).rglob("*") if p.is_file()}
+    assert {manifest.name, "show.json"} <= kept
+    assert not manifest.exists() and not (rig / "show.json").exists()
+    check_settled(rig)
+    assert len(AssetStore(rig).list()) == 1
