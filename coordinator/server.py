@@ -58,6 +58,7 @@ from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRe
 from coordinator.show import MIN_LEAD_NS, Show
 from coordinator.sync import SyncTracker, summarize
 from protos import sd_notify
+from protos.discovery import DiscoveryError, check_interfaces
 from protos.host import boot_id
 from protos.version import MAX_REQUEST_BYTES, PROTOCOL_VERSION
 
@@ -183,25 +184,28 @@ class Coordinator:
     async def start(self) -> None:
         """Listen, register the services (health and reflection too), advertise, watch the nodes.
         Takes the rig directory's lock first: RigLockError if another coordinator serves it."""
-        self._rig_lock.acquire()
-        recover(self._rig.path)     # settle what a crash left (coordinator/recovery.py) before serving
-        self.distribution.load()
-        try:
-            self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
-        except CoordinatorError:        # its port taken: the next try (another --listen) may take the rig
-            self._rig_lock.release()
-            raise
-        if self.console_listen is not None:
+        if self.advertise:          # a mistyped --mdns-interface is refused before anything starts
             try:
+                check_interfaces(self.mdns_interfaces)
+            except DiscoveryError as exc:
+                raise CoordinatorError(str(exc)) from None
+        self._rig_lock.acquire()
+        try:
+            recover(self._rig.path)     # settle what a crash left (coordinator/recovery.py) before serving
+            self.distribution.load()
+            self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
+            if self.console_listen is not None:
                 await self._start_console()
-            except CoordinatorError:
-                await self._server.stop(0)
-                self._rig_lock.release()
-                raise
-        if self.advertise:
-            self._advertiser = Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
-                                          instance_id=self.instance_id, port=self.port, interfaces=self.mdns_interfaces)
-            await self._advertiser.start()
+            if self.advertise:
+                self._advertiser = Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
+                                              instance_id=self.instance_id, port=self.port,
+                                              interfaces=self.mdns_interfaces)
+                await self._advertiser.start()
+        except BaseException:
+            # a start refused part-way (a port taken, mDNS on a wrong interface) undoes what it began,
+            # so nothing outlives the loop and the next try (other options) may take the rig
+            await self._undo_start()
+            raise
         self._tasks.append(asyncio.create_task(self._watchdog(), name="watchdog"))
         self._tasks.append(asyncio.create_task(self._follow_show(), name="show"))
         log.info("coordinator for rig %r (%s) listening on port %d, instance %s",
@@ -209,6 +213,16 @@ class Coordinator:
         # under systemd (Type=notify): ready now; keep-alives from the loop that serves everything
         self._systemd.expect("loop")
         sd_notify.notify("READY=1", f"STATUS=rig {self.rig.config.name} on port {self.port}")
+
+    async def _undo_start(self) -> None:
+        """Stop what a refused :meth:`start` had begun (console, gRPC server) and free the rig's lock."""
+        if self._console is not None:
+            await self._console.stop()
+            self._console = None
+        if self._server is not None:
+            await self._server.stop(0)
+            self._server = None
+        self._rig_lock.release()
 
     async def _start_console(self) -> None:
         """Serve the operator console. One that cannot listen (its port taken: the operator's browser

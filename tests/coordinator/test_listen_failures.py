@@ -30,7 +30,9 @@ def rig(tmp_path):
 
 
 def _coordinator(rig: LocalRig, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", "coordinator", "--rig", str(rig.rig_dir), "--no-mdns",
+    """The coordinator with ``args``, without mDNS unless they name its interface."""
+    mdns = [] if "--mdns-interface" in args else ["--no-mdns"]
+    return subprocess.run([sys.executable, "-m", "shadowless", "coordinator", "--rig", str(rig.rig_dir), *mdns,
                            *args], capture_output=True, text=True, timeout=60)
 
 
@@ -43,6 +45,15 @@ def _cases(port: int):
          [f"the operator console cannot listen on 127.0.0.1:{port}: port {port} in use", "--console-optional"]),
         ("--listen on an address this host does not have", ["--listen", "10.255.255.1:7600", "--no-console"],
          ["cannot listen on 10.255.255.1:7600", "not an address of this host"]),
+        # refused before anything listens
+        ("mDNS on an interface that is no address", ["--listen", "127.0.0.1:0", "--console", "127.0.0.1:0",
+                                                     "--mdns-interface", "not-an-ip"],
+         ["--mdns-interface 'not-an-ip' is not an IPv4 address"]),
+        # refused after the gRPC server started: it is stopped before the loop ends (else gRPC's
+        # 'Exception ignored ... Event loop is closed' followed the line)
+        ("mDNS on an address this host does not have", ["--listen", "127.0.0.1:0", "--no-console",
+                                                        "--mdns-interface", "10.255.255.1"],
+         ["cannot advertise", "over mDNS on 10.255.255.1", "is it an address of this machine?"]),
     ]
 
 
