@@ -12,7 +12,9 @@ same directory and must serve; what the rig holds is then checked against what w
 * ``slot``: ``configure --slot S --gain G --lut NPY``: the slot file and its LUT;
 * ``content``: ``show IMAGE --persist``: the rig's content image and ``current.json``;
 * ``show``: ``play ASSET --start-without --no-wait`` or ``show stop``: ``show.json``;
-* ``asset_rm``: ``content rm ID``: the manifest, then its blobs.
+* ``asset_rm``: ``content rm ID``: the manifest, then its blobs;
+* ``coverage``: ``coverage --rig-dir DIR`` (a process of its own beside the coordinator, killed
+  too): ``coverage.npz``, then ``coverage.json`` and the picture.
 
 Figures: rigs that failed to start (``failed_starts``, must be 0), acknowledged writes lost
 (``lost_writes``, must be 0), files left over after the next start (``leftovers``: temp files,
@@ -42,10 +44,14 @@ import numpy as np
 from bench.machine import load, machine
 from bench.workdir import run_dir
 from coordinator.assets import AssetStore
-from coordinator.rig import Content, Rig
+from coordinator.coverage_store import load_coverage, summary_behind
+from coordinator.rig import Content, ProjectionPose, Rig, mesh_with_id
 from shadowless.local import LocalRig
+from sim.scene import reference_scene
 
-PATHS = ("content_add", "slot", "content", "show", "asset_rm")
+PATHS = ("content_add", "slot", "content", "show", "asset_rm", "coverage")
+#: commands that write the rig directory themselves, beside the coordinator (no --coordinator)
+LOCAL = ("coverage",)
 SLOT = "r0c0"
 SIZE = (64, 48)                 # content and output size
 RECOVERY_LINE = "start-up recovery:"
@@ -100,6 +106,8 @@ def leftovers(rig_dir: Path) -> list[str]:
     except FileNotFoundError:
         current = None
     out += [rel(p) for p in (rig_dir / "content").glob("*.npy") if p.name != current]
+    if summary_behind(rig_dir) is not None:
+        out.append("coverage/coverage.json (not the summary coverage.npz carries)")
     return sorted(set(out))
 
 
@@ -112,6 +120,7 @@ class Expect:
     gain: float | None = None
     content: str | None = None
     show_revision: int = 0
+    coverage: bool = False
     inflight: dict = field(default_factory=dict)
 
 
@@ -134,6 +143,11 @@ def lost_writes(rig_dir: Path, e: Expect) -> list[str]:
         rev = 0
     if rev < e.show_revision:
         lost.append(f"show revision {e.show_revision} (show.json has {rev})")
+    if e.coverage:
+        try:
+            load_coverage(rig_dir / "coverage" / "coverage.npz")
+        except Exception as exc:    # noqa: BLE001
+            lost.append(f"coverage ({exc})")
     return lost
 
 
@@ -156,6 +170,10 @@ class Trials:
     # -- processes
     def start(self) -> None:
         self.rig.create()
+        # a 3D pose onto the room's bust, for `coverage` (what 3D calibration would store)
+        scene = reference_scene(projector_scale=0.125, camera_scale=0.125, surface="bust")
+        m, pin = scene.mesh, scene.projector("r2c2").pinhole
+        Rig(self.rig.rig_dir).update_slot(SLOT, pose=ProjectionPose(pin.P, mesh_with_id(m.vertices, m.uvs, m.faces)))
         self.rig.start_coordinator()
         self.rig.wait_ready(60)
         self.show_asset = self._cli(["content", "add", str(self._still("show")), "--name", "show-asset"]).stdout.strip()
@@ -165,6 +183,8 @@ class Trials:
         self.rig.close()
 
     def _argv(self, args: list[str]) -> list[str]:
+        if args[0] in LOCAL:
+            return [sys.executable, "-m", "shadowless", *args, "--rig-dir", str(self.rig.rig_dir)]
         return [sys.executable, "-m", "shadowless", *args, "--coordinator", self.rig.coordinator_target,
                 "--token-file", str(self.rig.rig_dir / "token")]
 
@@ -228,6 +248,10 @@ class Trials:
             def ack(out: str) -> None:
                 e.removed.add(aid)
             return ["content", "rm", aid], ack
+        if path == "coverage":
+            def ack(out: str) -> None:
+                e.coverage = True
+            return ["coverage", "--texture", "64x64", "--view", "0,20", "--panel", "80x80", "--json"], ack
         raise ValueError(f"unknown write path {path!r} (paths: {', '.join(PATHS)})")
 
     def duration(self, path: str) -> float:
@@ -264,7 +288,7 @@ class Trials:
         """Names, sizes and mtimes of the folders the write paths touch (a write shows here first)."""
         d = self.rig.rig_dir
         out = []
-        for sub in (d, d / "slots", d / "luts", d / "content", d / "assets" / "tmp", d / "assets" / "manifests",
+        for sub in (d, d / "slots", d / "luts", d / "content", d / "coverage", d / "assets" / "tmp", d / "assets" / "manifests",
                     d / "assets" / "uploads", *(d / "assets" / "uploads").glob("*/files")):
             try:
                 with os.scandir(sub) as it:
@@ -288,7 +312,7 @@ class Trials:
     def trial(self, path: str) -> dict:
         span, ready = self.duration(path), self.startup()
         argv, ack = self.command(path)
-        client_first = self.rng.random() < 0.3
+        client_first = self.rng.random() < 0.3 or argv[0] in LOCAL
         on_write = self.rng.random() < 0.5
         # half the kills come a random 0-50 ms after the coordinator's first write of the command (the
         # moments a crash leaves partial state); the others at a random moment of the command's run
@@ -303,7 +327,7 @@ class Trials:
                 proc.wait(timeout=delay)
             except subprocess.TimeoutExpired:
                 pass
-            if client_first and proc.poll() is None:
+            if (client_first or argv[0] in LOCAL) and proc.poll() is None:   # a local writer dies with the host
                 proc.send_signal(signal.SIGKILL)
                 time.sleep(self.rng.uniform(0.0, 0.3))
             coord = self.rig.coordinator

@@ -1,6 +1,6 @@
 """kill -9 of a real coordinator process during every write path it serves (content add through
-the real client included): the next start serves, keeps every acknowledged write and leaves
-nothing over. The trial driver is bench/crash.py's (`shadowless bench crash` runs 200 of them)."""
+the real client included), and of `coverage` writing beside it: the next start serves, keeps
+every acknowledged write and leaves nothing over. The trial driver is bench/crash.py's (`shadowless bench crash` runs 200 of them)."""
 from __future__ import annotations
 
 import asyncio
