@@ -13,8 +13,9 @@ one plus files nothing names. This pass removes those files and settles the rest
   files are removed; a missing ``files/`` is made again. What was received stays: it resumes;
 * **assets**: files staged by an add that died (``assets/tmp``) are removed when no add is running
   (adds hold ``assets/.staging.lock`` shared); blobs no manifest names (an add killed between
-  moving its blobs and writing its manifest) are removed; a manifest that does not parse, does
-  not hash to its name or names a missing or resized blob is quarantined;
+  moving its blobs and writing its manifest) are removed, or quarantined when a manifest could
+  not be read (they may be its); a manifest that does not parse, does not hash to its name or
+  names a missing or resized blob is quarantined;
 * **rig state**: LUT files (``luts/<slot>.r<N>.npy``) the slot's file does not name and content
   images ``content/current.json`` does not name, left when a crash came between the steps of a
   write, are removed; a calibration run left ``running`` is marked ``interrupted`` (the next
@@ -27,7 +28,8 @@ one plus files nothing names. This pass removes those files and settles the rest
 Quarantined files move to ``quarantine/<UTC time>/<their path>`` inside the rig, never deleted.
 Each thing done is one log line (WARNING for quarantine, INFO otherwise). Nothing here raises: a
 step that fails is one ERROR line and the next step runs. Call it with the rig directory's lock
-held (:mod:`coordinator.rig_lock`): only temp files are checked against other processes.
+held (:mod:`coordinator.rig_lock`): only temp files (held open?) and staged files (the staging
+lock) are checked against processes beside the coordinator.
 """
 from __future__ import annotations
 
