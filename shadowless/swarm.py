@@ -155,7 +155,8 @@ class Swarm:
             names = ", ".join(sorted(f"{a.name} ({a.rig_id})" for a in ads))
             raise DiscoveryError(f"several rigs are advertised ({names}); pick one with --rig NAME")
         if not ads:
-            raise NothingAdvertised("no coordinator advertised over mDNS yet; still looking (or pass --coordinator)")
+            raise NothingAdvertised(self._discovery.nothing_found(3.0, self.cfg.rig) +
+                                    "; still looking (or pass --coordinator)")
         return [a.target for a in ads]
 
     async def start(self) -> None:
