@@ -21,11 +21,8 @@ so each L_i is measured N times less precisely than L; with exact matrices (``or
 baseline, which can shift each projector's image on its own, is the sharper one. The sweep
 shows where the two cross.
 
-Memory: every part is estimated before anything is allocated (bench/compensation_memory.py). The
-per-projector baseline holds every projector's ``L_i`` (about 85 GB at 25 projectors and 2592x1944):
-when only it does not fit it is skipped with one line (``"baseline": "skipped: needs ~X GB"``);
-``--no-baseline`` skips it on purpose; a part that cannot fit even alone refuses in one line.
-``SHADOWLESS_MEMORY_LIMIT`` sets the budget (a size) or turns the check off (``off``).
+Memory: every part is estimated first (bench/compensation_memory.py); the per-projector baseline is
+skipped with one line when only it does not fit, a part that cannot fit alone refuses in one line.
 """
 from __future__ import annotations
 
@@ -46,6 +43,7 @@ import cv2
 import numpy as np
 
 from bench import compensation_args as value_types
+from bench.compensation_memory import peak_rss_gib
 from bench.compensation_memory import plan as memory_plan
 from bench.machine import load, machine, streaming_bandwidth
 from coordinator.compensation.quality import quality, side_by_side, srgb_to_linear
@@ -579,7 +577,7 @@ def run(args: argparse.Namespace) -> int:
     if args.frames < 1 or args.repeats < 1:
         raise SystemExit("--frames and --repeats must be >= 1")
     memory = memory_plan(args, log=_log)  # every part estimated before anything is allocated
-    memory["rss_at_start_gib"] = round(_maxrss_gib(), 3)  # the interpreter and its imports, under every estimate
+    memory["rss_at_start_gib"] = round(peak_rss_gib(), 3)  # the interpreter and its imports, under every estimate
     start = time.perf_counter()
     params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(args).items() if not k.startswith("_")}
     params = {k: (str(v) if isinstance(v, Path) else v) for k, v in params.items() if k not in ("command", "bench")}
@@ -596,5 +594,6 @@ def run(args: argparse.Namespace) -> int:
     doc["wall_seconds"] = round(time.perf_counter() - start, 1)
     doc["load_at_end"] = load()
     doc["process_peak_rss_gib"] = round(_maxrss_gib(), 2)
+    doc["memory"]["peak_rss_gib"] = round(peak_rss_gib(), 3)  # the estimates' check: this peak minus rss_at_start_gib
     print(json.dumps(doc, indent=2, default=float))
     return 0

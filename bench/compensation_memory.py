@@ -21,7 +21,14 @@ from coordinator.compensation.memory_estimate import (
 )
 from coordinator.memory_budget import Budget, MemoryBudgetError, available, ensure_fits, fits, gb
 
-__all__ = ["per_projectors_bytes", "paper_size_bytes", "video_bytes", "sweep_bytes", "plan"]
+__all__ = ["per_projectors_bytes", "paper_size_bytes", "video_bytes", "sweep_bytes", "plan", "peak_rss_gib"]
+
+
+def peak_rss_gib() -> float:
+    """This process's peak resident memory (``VmHWM``), GiB: unlike ``ru_maxrss``, which a process started by
+    a large parent begins at the parent's size (Linux carries it across exec), it counts this program only."""
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 2**20
 
 
 def _sizes(w: int, h: int, radius: int) -> tuple[int, int, int, int]:
