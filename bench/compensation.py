@@ -43,8 +43,7 @@ import cv2
 import numpy as np
 
 from bench import compensation_args as value_types
-from bench.compensation_memory import peak_rss_gib
-from bench.compensation_memory import plan as memory_plan
+from bench.compensation_memory import configure as memory_options, peak_rss_gib, plan as memory_plan, print_plan
 from bench.machine import load, machine, streaming_bandwidth
 from coordinator.compensation.quality import quality, side_by_side, srgb_to_linear
 from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve, solve_per_projector
@@ -80,9 +79,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-iter", type=int, default=1000)
     parser.add_argument("--radius", type=int, default=2, help="PSF recovery radius R (25 nnz per column at R=2)")
     parser.add_argument("--spacing", type=int, default=6, help="dot-grid spacing S (S*S captures)")
-    parser.add_argument("--no-baseline", dest="baseline", action="store_false",
-                        help="leave out the per-projector baseline (it holds every projector's L_i: N times ours); "
-                             "it is left out by itself, with one line, when it would not fit in memory")
+    memory_options(parser)  # --no-baseline, --memory-plan
     parser.add_argument("--read-noise", type=float, default=5e-4, help="camera read noise per frame, fraction of full scale")
     parser.add_argument("--shot-noise", type=float, default=0.01, help="shot noise per frame: std = coef*sqrt(signal) (10k e-)")
     parser.add_argument("--frames", type=int, default=8, help="camera frames averaged per pattern, for both methods")
@@ -578,6 +575,8 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("--frames and --repeats must be >= 1")
     memory = memory_plan(args, log=_log)  # every part estimated before anything is allocated
     memory["rss_at_start_gib"] = round(peak_rss_gib(), 3)  # the interpreter and its imports, under every estimate
+    if print_plan(args, memory):
+        return 0
     start = time.perf_counter()
     params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(args).items() if not k.startswith("_")}
     params = {k: (str(v) if isinstance(v, Path) else v) for k, v in params.items() if k not in ("command", "bench")}

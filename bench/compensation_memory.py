@@ -10,6 +10,7 @@ part that does not fit even without it.
 from __future__ import annotations
 
 import argparse
+import json
 from typing import Any
 
 from coordinator.compensation.memory_estimate import (
@@ -21,7 +22,25 @@ from coordinator.compensation.memory_estimate import (
 )
 from coordinator.memory_budget import Budget, MemoryBudgetError, available, ensure_fits, fits, gb
 
-__all__ = ["per_projectors_bytes", "paper_size_bytes", "video_bytes", "sweep_bytes", "plan", "peak_rss_gib"]
+__all__ = ["configure", "per_projectors_bytes", "paper_size_bytes", "video_bytes", "sweep_bytes", "plan", "peak_rss_gib",
+           "print_plan"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """The benchmark's memory options: ``--no-baseline`` and ``--memory-plan``."""
+    parser.add_argument("--no-baseline", dest="baseline", action="store_false",
+                        help="leave out the per-projector baseline (it holds every projector's L_i: N times ours); "
+                             "it is left out by itself, with one line, when it would not fit in memory")
+    parser.add_argument("--memory-plan", action="store_true",
+                        help="print each part's memory estimate, the budget and whether the baseline runs, then stop")
+
+
+def print_plan(args: argparse.Namespace, memory: dict[str, Any]) -> bool:
+    """With ``--memory-plan``: print the plan as the benchmark's JSON document and say so (the run stops)."""
+    if getattr(args, "memory_plan", False):
+        baseline = getattr(args, "baseline_skipped", None) or "runs"
+        print(json.dumps({"benchmark": "compensation", "memory": {**memory, "baseline": baseline}}, indent=2))
+    return bool(getattr(args, "memory_plan", False))
 
 
 def peak_rss_gib() -> float:
