@@ -8,9 +8,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("coordinator", "node", "sim", "protos", "bench", "shadowless")
 
-#: numerical kernels allowed past the general limit, with theirs
-LIMITS = {"coordinator/compensation/solver.py": 800, "coordinator/calibration/threed.py": 800}
-GENERAL_LIMIT = 600
+#: modules allowed past the general limit, with theirs (none now)
+LIMITS: dict[str, int] = {}
+#: DESIGN.md section 8: a module past ~900 lines usually holds two concerns; below that, a module is
+#: split where its concerns part, never to meet a line count (a 600-line cap had begun to shape files)
+GENERAL_LIMIT = 900
 
 
 def _tracked(*patterns: str) -> list[Path]:

@@ -20,7 +20,7 @@ CASES = [
     ("status: interface not an address", ["status", "--token-file", "{token}", "--mdns-interface", "not-an-ip"], {},
      "--mdns-interface 'not-an-ip' is not an IPv4 address"),
     ("status: interface not on this machine", ["status", "--token-file", "{token}", "--mdns-interface", "192.0.2.1"],
-     {}, "cannot browse _shadowless._tcp.local. over mDNS on 192.0.2.1: "),
+     {"SHADOWLESS_MDNS_SERVICE": OWN}, f"cannot browse {OWN}._tcp.local. over mDNS on 192.0.2.1: "),
     ("status: nobody advertises the service", ["status", "--token-file", "{token}", "--rig", "nosuch",
                                                "--mdns-interface", "127.0.0.1"], {"SHADOWLESS_MDNS_SERVICE": OWN},
      f"no coordinator of rig 'nosuch' found over mDNS: searched {OWN}._tcp.local. on 127.0.0.1 for 3 s"),
