@@ -16,8 +16,9 @@ from shadowless.local import LocalRig
 
 
 def test_kill_9_during_every_write_path_leaves_a_rig_that_starts_whole(tmp_path):
-    rows, _ = run_trials(tmp_path, 2 * len(PATHS), seed=7, upload_bytes=4 << 20, max_seconds=240)
-    assert len(rows) == 2 * len(PATHS), rows
+    # one trial a path here (the suite's time); `shadowless bench crash --trials 200` runs the many
+    rows, _ = run_trials(tmp_path, len(PATHS), seed=7, upload_bytes=4 << 20, max_seconds=240)
+    assert len(rows) == len(PATHS), rows
     assert {r["path"] for r in rows} == set(PATHS)
     for r in rows:
         assert r["started"], r
