@@ -20,12 +20,12 @@ from __future__ import annotations
 import asyncio
 import ctypes
 import ctypes.util
-import ipaddress
 import logging
 import time
 from dataclasses import dataclass, field
 from typing import Callable
 
+from coordinator.address_owner import address_owner
 from coordinator.api import AdmissionFigures
 from coordinator.refusals import peer_address
 
@@ -61,18 +61,8 @@ REFUSED_OVER_BUDGET = ("over the budget for calls before authentication (too man
 
 def budget_key(peer: str) -> str:
     """Whose budget a call from ``peer`` (a gRPC peer string) draws on: its address, or for IPv6 its
-    /64 (one host or link commonly holds a whole /64, so per address would be no limit there)."""
-    address = peer_address(peer)
-    try:
-        ip = ipaddress.ip_address(address)
-    except ValueError:
-        return address
-    mapped = getattr(ip, "ipv4_mapped", None)       # ::ffff:a.b.c.d is an IPv4 peer
-    if mapped is not None:
-        return str(mapped)
-    if ip.version == 6 and not ip.is_loopback:
-        return str(ipaddress.ip_network(f"{ip}/64", strict=False))
-    return str(ip)
+    /64 (:func:`coordinator.address_owner.address_owner`)."""
+    return address_owner(peer_address(peer))
 
 
 @dataclass

@@ -37,12 +37,13 @@ from __future__ import annotations
 import base64
 import hashlib
 import hmac
-import ipaddress
 import math
 import secrets
 import time
 from dataclasses import dataclass, field
 from typing import Callable
+
+from coordinator.address_owner import address_owner
 
 #: the session cookie's name
 COOKIE = "shadowless_console"
@@ -206,15 +207,7 @@ class LoginLimiter:
     def _key(address: str, device: str | None) -> str:
         if device:
             return f"device {device}"
-        try:
-            ip = ipaddress.ip_address(address)
-        except ValueError:
-            return f"address {address}"
-        if ip.version == 6:
-            if ip.ipv4_mapped is not None:
-                return f"address {ip.ipv4_mapped}"
-            return f"address {ipaddress.ip_network(f'{ip}/64', strict=False)}"     # one host holds a whole /64
-        return f"address {ip}"
+        return f"address {address_owner(address)}"      # an IPv6 peer: its /64, which one host commonly holds
 
     def lock_s(self, count: int) -> float:
         """The wait (seconds) after ``count`` consecutive failures."""
