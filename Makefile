@@ -53,7 +53,7 @@ demo: setup
 
 # Three workers (pytest-xdist) on the two cores, a test module's tests on one of them (module-scoped
 # rigs are set up once): much of a test's time is spent waiting on processes and sockets, so a third
-# worker fills it (9:26 against 2 workers' 11:09 for the same 1,692 tests); each worker's rigs
+# worker fills it (9:26 against 2 workers' 11:09 for about 1,690 tests, 8:22 for 1,695); each worker's rigs
 # advertise an mDNS service of their own, so no worker sees another's.
 test: setup system-deps
 	$(PY) -m pytest -q -n 3 --dist loadfile
