@@ -120,21 +120,17 @@ class _BadStreamMessage(Exception):
 
 
 def _strict(deserializer):
-    """A request stream's deserializer for a call without a session: a message over
-    MAX_PREAUTH_MESSAGE_BYTES, or one that does not parse, raises :class:`_BadStreamMessage` (caught
-    by the call's wrapper and refused in one line) instead of gRPC's traceback."""
+    """A request stream's deserializer for a call without a session: the same rule as
+    :func:`_measured`, but a message over MAX_PREAUTH_MESSAGE_BYTES, or one that does not parse,
+    raises :class:`_BadStreamMessage` (caught by the call's wrapper and refused in one line)
+    instead of gRPC's traceback."""
+    measured = _measured(deserializer)
 
     def parse(raw: bytes):
-        if len(raw) > MAX_PREAUTH_MESSAGE_BYTES:
-            raise _BadStreamMessage(f"larger than the {MAX_PREAUTH_MESSAGE_BYTES // 1024} KiB a call without a "
-                                    "session may send")
-        if deserializer is None:
-            return raw
-        try:
-            return deserializer(raw)
-        except Exception as exc:  # noqa: BLE001 - a protobuf DecodeError, or whatever a parser raises
-            error = f"not the method's message: {type(exc).__name__}"
-        raise _BadStreamMessage(error)
+        _, message = measured(raw)
+        if isinstance(message, _Malformed):
+            raise _BadStreamMessage(message.error)
+        return message
 
     return parse
 
@@ -189,10 +185,7 @@ class Admission(grpc.aio.ServerInterceptor):
         del got
         self.c.admission.received(ticket, nbytes)
         if isinstance(request, _Malformed):
-            self.c.admission.malformed += 1
-            exc = self.c.handshake.refuse(_peer(context), "", grpc.StatusCode.INVALID_ARGUMENT,
-                                          f"malformed {method} request ({request.error}): dropped")
-            await context.abort(exc.code, exc.message)
+            await self._malformed(context, method, request.error)
         return request
 
     def _budgeted(self, handler, method: str):
@@ -244,10 +237,11 @@ class Admission(grpc.aio.ServerInterceptor):
 
         return grpc.stream_stream_rpc_method_handler(streamed, request_deserializer=deser, response_serializer=ser)
 
-    async def _bad_stream(self, context, method: str, exc: _BadStreamMessage) -> None:
+    async def _malformed(self, context, method: str, error: str) -> None:
+        """Count a request that did not parse (or was too large) and refuse its call in one line."""
         self.c.admission.malformed += 1
         refusal = self.c.handshake.refuse(_peer(context), "", grpc.StatusCode.INVALID_ARGUMENT,
-                                          f"malformed {method} request ({exc}): dropped")
+                                          f"malformed {method} request ({error}): dropped")
         await context.abort(refusal.code, refusal.message)
 
     def _budgeted_stream(self, handler, ser, method: str):
@@ -262,7 +256,7 @@ class Admission(grpc.aio.ServerInterceptor):
                 try:
                     return await inner(request_iterator, context)
                 except _BadStreamMessage as exc:
-                    await self._bad_stream(context, method, exc)
+                    await self._malformed(context, method, str(exc))
                 finally:
                     self._leave(ticket)
 
@@ -275,7 +269,7 @@ class Admission(grpc.aio.ServerInterceptor):
                     async for reply in inner(request_iterator, context):
                         yield reply
                 except _BadStreamMessage as exc:
-                    await self._bad_stream(context, method, exc)
+                    await self._malformed(context, method, str(exc))
                 finally:
                     self._leave(ticket)
         else:
@@ -284,7 +278,7 @@ class Admission(grpc.aio.ServerInterceptor):
                 try:
                     await inner(request_iterator, context)
                 except _BadStreamMessage as exc:
-                    await self._bad_stream(context, method, exc)
+                    await self._malformed(context, method, str(exc))
                 finally:
                     self._leave(ticket)
 

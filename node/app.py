@@ -291,8 +291,7 @@ class Node:
         the peer is unverified, and an impostor that relayed a real coordinator's server nonce (with a
         bad server proof) could replay a real proof to that coordinator and join as this slot. The
         answer changes nothing here (the node joins nowhere)."""
-        real = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
-        proof = os.urandom(len(real))
+        proof = os.urandom(auth.PROOF_BYTES)
         info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
                         software_version=_version(), output=self.cfg.output.split("?")[0])
         try:

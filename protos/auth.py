@@ -17,6 +17,8 @@ from pathlib import Path
 
 NONCE_BYTES = 32
 MIN_TOKEN_BYTES = 16
+#: bytes of a proof (an HMAC-SHA-256)
+PROOF_BYTES = hashlib.sha256().digest_size
 
 
 class TokenError(ValueError):
