@@ -76,11 +76,16 @@ class Advertiser:
     """Registers the rig on the chosen interfaces; unregisters on :meth:`stop`.
 
     ``interfaces``: IPv4 addresses to advertise on (e.g. ``["127.0.0.1"]`` in
-    tests), or None for every interface.
+    tests), or None for every interface; one that is no IPv4 address is refused here, so a
+    coordinator makes its Advertiser before it listens. The port comes with :meth:`start`.
     """
 
-    def __init__(self, *, rig_name: str, rig_id: str, instance_id: str, port: int, interfaces: list[str] | None):
-        self.rig_name, self.rig_id, self.instance_id, self.port = rig_name, rig_id, instance_id, port
+    def __init__(self, *, rig_name: str, rig_id: str, instance_id: str, interfaces: list[str] | None):
+        try:
+            check_interfaces(interfaces)
+        except DiscoveryError as exc:
+            raise CoordinatorError(str(exc)) from None
+        self.rig_name, self.rig_id, self.instance_id, self.port = rig_name, rig_id, instance_id, 0
         self.interfaces = interfaces
         self._azc: AsyncZeroconf | None = None
         self._info: AsyncServiceInfo | None = None
@@ -90,11 +95,9 @@ class Advertiser:
     def name(self) -> str:
         return self._info.name if self._info else ""
 
-    async def start(self) -> None:
-        try:
-            check_interfaces(self.interfaces)
-        except DiscoveryError as exc:
-            raise CoordinatorError(str(exc)) from None
+    async def start(self, port: int) -> None:
+        """Claim a free instance name and advertise the coordinator's gRPC ``port``."""
+        self.port = port
         addresses = self.interfaces or _local_ipv4_addresses()
         try:
             self._azc = AsyncZeroconf(interfaces=self.interfaces or InterfaceChoice.All, ip_version=IPVersion.V4Only)

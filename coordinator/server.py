@@ -58,7 +58,6 @@ from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRe
 from coordinator.show import MIN_LEAD_NS, Show
 from coordinator.sync import SyncTracker, summarize
 from protos import sd_notify
-from protos.discovery import DiscoveryError, check_interfaces
 from protos.host import boot_id
 from protos.version import MAX_REQUEST_BYTES, PROTOCOL_VERSION
 
@@ -184,11 +183,10 @@ class Coordinator:
     async def start(self) -> None:
         """Listen, register the services (health and reflection too), advertise, watch the nodes.
         Takes the rig directory's lock first: RigLockError if another coordinator serves it."""
-        if self.advertise:          # a mistyped --mdns-interface is refused before anything starts
-            try:
-                check_interfaces(self.mdns_interfaces)
-            except DiscoveryError as exc:
-                raise CoordinatorError(str(exc)) from None
+        # made first: a mistyped --mdns-interface is refused before anything starts
+        advertiser = (Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
+                                 instance_id=self.instance_id, interfaces=self.mdns_interfaces)
+                      if self.advertise else None)
         self._rig_lock.acquire()
         try:
             recover(self._rig.path)     # settle what a crash left (coordinator/recovery.py) before serving
@@ -196,11 +194,9 @@ class Coordinator:
             self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
             if self.console_listen is not None:
                 await self._start_console()
-            if self.advertise:
-                self._advertiser = Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
-                                              instance_id=self.instance_id, port=self.port,
-                                              interfaces=self.mdns_interfaces)
-                await self._advertiser.start()
+            if advertiser is not None:
+                self._advertiser = advertiser
+                await advertiser.start(self.port)
         except BaseException:
             # a start refused part-way (a port taken, mDNS on a wrong interface) undoes what it began,
             # so nothing outlives the loop and the next try (other options) may take the rig
@@ -215,7 +211,10 @@ class Coordinator:
         sd_notify.notify("READY=1", f"STATUS=rig {self.rig.config.name} on port {self.port}")
 
     async def _undo_start(self) -> None:
-        """Stop what a refused :meth:`start` had begun (console, gRPC server) and free the rig's lock."""
+        """Stop what a refused :meth:`start` had begun (mDNS, console, gRPC server) and free the rig's lock."""
+        if self._advertiser is not None:
+            await self._advertiser.stop()
+            self._advertiser = None
         if self._console is not None:
             await self._console.stop()
             self._console = None
