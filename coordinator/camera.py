@@ -325,8 +325,6 @@ def read_png(path: Path, *, source: str) -> np.ndarray:
         img = read_image_file(path)
     except ImageRefused as exc:
         raise CameraError(f"{source}: not a readable PNG: {exc}") from None
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, :3]
     return to_float_image(img, source=f"{source} ({path.name})")
 
 

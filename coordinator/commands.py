@@ -24,7 +24,7 @@ from coordinator.client import OperatorError, add_connection_args
 from coordinator.content_format import operator_table, rendered
 from coordinator.errors import RigError
 from coordinator.float_range import check_float_range
-from coordinator.image_decode import ImageRefused, read_image_file
+from coordinator.image_decode import ImageRefused, drop_alpha, read_image_file
 from coordinator.job_command import run_job
 from coordinator.rig_target import open_client
 from coordinator.schema import read_npy, validate_lut
@@ -233,8 +233,7 @@ def read_image(path: str, *, clip: bool = False, hint: str = "clip it to 0..1 fi
             img = read_image_file(p)
         except ImageRefused as exc:
             raise OperatorError(str(exc)) from None
-        if img.ndim == 3 and img.shape[2] in (2, 4):     # grey+alpha or RGBA: the alpha is dropped
-            img = img[:, :, :1] if img.shape[2] == 2 else img[:, :, :3]
+        img = drop_alpha(img)
         if img.dtype not in (np.uint8, np.uint16, np.float32):
             img = img.astype(np.float32)
     try:

@@ -27,7 +27,8 @@ import numpy as np
 
 from protos.image_limits import MAX_IMAGE_SIDE, MAX_PIXELS, within_limits
 
-__all__ = ["FORMATS", "MAX_PIXELS", "ImageRefused", "declared_size", "decode_image", "read_image_file", "sniff"]
+__all__ = ["FORMATS", "MAX_PIXELS", "ImageRefused", "declared_size", "decode_image", "drop_alpha", "read_image_file",
+           "sniff"]
 
 #: what the decoder reads, as operators name the formats
 FORMATS = ("PNG", "JPEG", "TIFF", "WebP", "BMP", "GIF", "JPEG 2000", "AVIF", "Sun raster", "PPM/PGM/PBM", "PFM",
@@ -325,6 +326,14 @@ def decode_image(data: bytes, name: str = "the image") -> np.ndarray:
     if img.shape[:2] != (h, w):
         raise ImageRefused(f"{name}: its {fmt} header declares {w}x{h} pixels but it decodes to "
                            f"{img.shape[1]}x{img.shape[0]}: the file is inconsistent")
+    return img
+
+
+def drop_alpha(img: np.ndarray) -> np.ndarray:
+    """``img`` without its alpha channel: (H, W, 2) grey+alpha -> (H, W, 1), (H, W, 4) RGBA ->
+    (H, W, 3) (views, no copy); any other shape unchanged."""
+    if img.ndim == 3 and img.shape[2] in (2, 4):
+        return img[:, :, :img.shape[2] - 1]
     return img
 
 

@@ -97,14 +97,13 @@ def decode_image_bytes(raw: bytes, name: str) -> tuple[np.ndarray, str]:
         except ValueError as exc:
             raise CompensationError(f"image {name}: not a numpy array file ({exc})") from exc
     else:
-        from coordinator.image_decode import ImageRefused, decode_image  # lazy: the client only encodes
+        from coordinator.image_decode import ImageRefused, decode_image, drop_alpha  # lazy: the client only encodes
 
         try:
             img = decode_image(raw, name)
         except ImageRefused as exc:
             raise CompensationError(f"cannot read image {exc}") from None
-        if img.ndim == 3 and img.shape[2] in (2, 4):    # alpha dropped
-            img = img[:, :, :img.shape[2] - 1]
+        img = drop_alpha(img)
     img = np.asarray(img)
     if img.ndim == 2:
         img = img[:, :, None]
