@@ -7,7 +7,9 @@ from coordinator.compensation.memory_estimate import (
     BUILD_PER_ENTRY,
     measure_bytes,
     ridge_bytes,
+    ridge_bytes_of,
     solve_bytes,
+    stored_bytes,
     transport_bytes,
 )
 from coordinator.jobs.errors import JobError
@@ -61,12 +63,11 @@ def check_stored(L, *, what: str, baselines: int = 0, solve: bool = True, channe
     """The same checks from a loaded ``L``'s own non-zeros (a mesh rig's texel windows are not one per content
     pixel): ``baselines`` per-projector ``L_i`` of at most its size (loaded or measured, one being built), and
     with ``solve`` the ridge problem over it, before any of it is allocated."""
-    m, n = int(L.shape[0]), int(L.shape[1])
-    per_entry = 8 * int(L.nnz)
-    need = baselines * (per_entry + 4 * (m + 1))
+    m, n, nnz = int(L.shape[0]), int(L.shape[1]), int(L.nnz)
+    need = baselines * stored_bytes(nnz, m)
     if baselines:
-        need += BUILD_PER_ENTRY * int(L.nnz)
+        need += BUILD_PER_ENTRY * nnz
     if solve:
-        need += 6 * per_entry + 32 * n + 8 * m + solve_bytes(n, m + n, channels)   # ridge_bytes' 48 per entry
+        need += ridge_bytes_of(nnz, n, m) + solve_bytes(n, m + n, channels)
     hint = f"no --baseline, or {_HINT}" if baselines else _HINT
-    _fits(need, f"{what} over {n} texels seen by {m} camera pixels ({int(L.nnz)} non-zeros)", hint)
+    _fits(need, f"{what} over {n} texels seen by {m} camera pixels ({nnz} non-zeros)", hint)

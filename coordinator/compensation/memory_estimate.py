@@ -20,7 +20,7 @@ All functions return bytes (``int``) and take sizes in pixels; none allocates.
 from __future__ import annotations
 
 __all__ = ["BUILD_PER_ENTRY", "RUNTIME_BYTES", "build_bytes", "entries", "measure_bytes", "operator_bytes",
-           "ridge_bytes", "solve_bytes", "transport_bytes"]
+           "ridge_bytes", "ridge_bytes_of", "solve_bytes", "stored_bytes", "transport_bytes"]
 
 #: bytes per window entry that building one ``L`` holds above the result for a moment (values, rows,
 #: valid, masked copies, the CSC arrays while the CSR is made; read off the code: 4 + 4 + 1 + 8 + 8 - 8 = 17,
@@ -42,8 +42,12 @@ def entries(n_content: int, radius: int) -> int:
 
 def transport_bytes(n_content: int, n_camera: int, radius: int) -> int:
     """One stored ``L``: CSR float32 data and int32 indices (8 bytes per entry) and its row pointers."""
-    e = entries(n_content, radius)
-    return 8 * e + (8 if e >= 2**31 else 4) * (int(n_camera) + 1)
+    return stored_bytes(entries(n_content, radius), n_camera)
+
+
+def stored_bytes(nnz: int, n_camera: int) -> int:
+    """:func:`transport_bytes` of an ``L`` with ``nnz`` entries (e.g. a loaded one's own ``L.nnz``)."""
+    return 8 * int(nnz) + (8 if nnz >= 2**31 else 4) * (int(n_camera) + 1)
 
 
 def build_bytes(n_content: int, n_camera: int, radius: int) -> int:
@@ -81,6 +85,10 @@ def ridge_bytes(n_content: int, n_camera: int, radius: int, *, shared_grid: bool
     content grids differ: CSR operators, ``L^T``, the stack and its transpose held (8 bytes per entry each) and,
     for a moment, the transpose being made and the stack's rows the stencil check slices off (measured: about
     43 bytes per entry); ``shared_grid``: the stencil storages (4 bytes per entry each, about 23 measured)."""
-    e = entries(n_content, radius)
+    return ridge_bytes_of(entries(n_content, radius), n_content, n_camera, shared_grid=shared_grid)
+
+
+def ridge_bytes_of(nnz: int, n_content: int, n_camera: int, *, shared_grid: bool = False) -> int:
+    """:func:`ridge_bytes` over an ``L`` with ``nnz`` entries (e.g. a loaded one's own ``L.nnz``)."""
     per = 26 if shared_grid else 48
-    return per * e + 32 * int(n_content) + 8 * int(n_camera)
+    return per * int(nnz) + 32 * int(n_content) + 8 * int(n_camera)
