@@ -81,9 +81,9 @@ def split_host(value: str) -> tuple[str, int | None]:
     return normal_host(host), (_port(port, value) if sep else None)
 
 
-def allowed_host(text: str) -> str:
-    """``argparse`` type of ``--console-host``: ``NAME`` or ``NAME:PORT`` (IPv6 in brackets),
-    returned as given once valid; a one-line error otherwise."""
+def check_allowed(text: str) -> str:
+    """A name the console may be reached by (``--console-host``): ``NAME`` or ``NAME:PORT`` (IPv6 in
+    brackets), returned stripped once valid; ValueError with one line saying what to give otherwise."""
     try:
         scheme, sep, rest = text.strip().partition("://")
         if sep:
@@ -91,10 +91,17 @@ def allowed_host(text: str) -> str:
                              "alone)")
         split_host(text)
     except ValueError as exc:
-        raise argparse.ArgumentTypeError(
-            f"{exc}; give a name a browser uses for the console, e.g. console.venue.lan, 10.0.0.2 or "
-            "proxy.lan:443") from None
+        raise ValueError(f"{exc}; give a name a browser uses for the console, e.g. console.venue.lan, 10.0.0.2 or "
+                         "proxy.lan:443") from None
     return text.strip()
+
+
+def allowed_host(text: str) -> str:
+    """``argparse`` type of ``--console-host`` (:func:`check_allowed`)."""
+    try:
+        return check_allowed(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def is_local_address(ip: str) -> bool:

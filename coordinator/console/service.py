@@ -24,7 +24,7 @@ from aiohttp.http_exceptions import HttpProcessingError
 from coordinator.console import auth
 from coordinator.console.app import ConsoleApp, make_app
 from coordinator.console.audit import ActionLog
-from coordinator.console.hosts import HostCheck, split_host
+from coordinator.console.hosts import HostCheck, check_allowed
 from coordinator.console.live import Live
 from coordinator.errors import CoordinatorError
 
@@ -111,13 +111,10 @@ class Console:
         self.coord = coordinator
         self.listen = listen
         self.host, self._port = parse_listen(listen)
-        for h in hosts:
-            try:
-                split_host(h)
-            except ValueError as exc:
-                raise CoordinatorError(f"console host {exc}: give a name a browser uses for the console, e.g. "
-                                       "console.venue.lan, 10.0.0.2 or proxy.lan:443") from None
-        self.hosts = tuple(hosts)
+        try:
+            self.hosts = tuple(check_allowed(h) for h in hosts)
+        except ValueError as exc:
+            raise CoordinatorError(f"console host {exc}") from None
         self.http_log = HttpLog(logging.getLogger("coordinator.console.http"))
         self.idle_s = idle_s
         self.port = 0

@@ -183,7 +183,7 @@ def test_a_malformed_allowed_name_stops_the_console_with_one_line(tmp_path):
     rig = Rig(init_rig(tmp_path / "rig", name="hosts", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
     coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False)
-    with pytest.raises(CoordinatorError, match=r"^console host 'bad name' is not a host name or IP address: give a"):
+    with pytest.raises(CoordinatorError, match=r"^console host 'bad name' is not a host name or IP address; give a"):
         Console(coord, "127.0.0.1:0", hosts=["bad name"])
 
 
