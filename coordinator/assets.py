@@ -35,7 +35,7 @@ from typing import BinaryIO, Callable, Iterator
 from coordinator.asset_probe import (DEFAULT_SEQUENCE_FPS, LONG_GOP_S, STILL_SUFFIXES, VIDEO_SUFFIXES, Note, Probe,
                                      keyframe_gap_s, probe_sequence, probe_still, probe_video, sequence_files)
 from coordinator.errors import AssetError
-from coordinator.store import atomic_file, atomic_write_bytes, fsync_dir
+from coordinator.store import atomic_file, atomic_write_bytes, flocked, fsync_dir
 from protos.asset_manifest import Blob, Manifest, ManifestError, is_sha256
 
 log = logging.getLogger(__name__)
@@ -99,13 +99,8 @@ class AssetStore:
 
     @contextmanager
     def _locked(self, name: str = ".lock", mode: int = fcntl.LOCK_EX) -> Iterator[None]:
-        self.root.mkdir(parents=True, exist_ok=True)
-        with open(self.root / name, "a+b") as f:
-            fcntl.flock(f.fileno(), mode)
-            try:
-                yield
-            finally:
-                fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+        with flocked(self.root / name, mode):
+            yield
 
     def _ids(self) -> list[str]:
         return [] if not self.manifests_dir.is_dir() else sorted(p.stem for p in self.manifests_dir.glob("*.json") if is_sha256(p.stem))
@@ -271,10 +266,8 @@ class AssetStore:
         only while no other add is staging (one that holds the staging lock is not dead)."""
         if not self.tmp_dir.is_dir():
             return
-        with open(self.root / STAGING_LOCK, "a+b") as lock:
-            try:
-                fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
+        with flocked(self.root / STAGING_LOCK, fcntl.LOCK_EX | fcntl.LOCK_NB) as free:
+            if not free:
                 return
             now = time.time()
             for p in self.tmp_dir.iterdir():

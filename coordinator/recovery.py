@@ -41,32 +41,26 @@ import re
 import shutil
 import stat
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 
 from coordinator.assets import STAGING_LOCK
 from coordinator.calibration.runs import mark_interrupted
 from coordinator.rig import parse_config
 from coordinator.show import SHOW_FILE
-from coordinator.store import atomic_write_json
+from coordinator.store import atomic_write_json, flocked, is_temp_name
 from coordinator.uploads import UploadFile, check_spec, upload_id
 from protos.asset_manifest import Manifest, ManifestError, is_sha256
 
 log = logging.getLogger(__name__)
 
-__all__ = ["QUARANTINE", "Action", "Recovery", "open_files", "recover", "is_temp_name"]
+__all__ = ["QUARANTINE", "Action", "Recovery", "open_files", "recover"]
 
 #: where damaged files go, inside the rig directory
 QUARANTINE = "quarantine"
 _LUT = re.compile(r"^(?P<slot>.+)\.r(?P<rev>\d+)\.npy$")
-
-
-def is_temp_name(name: str) -> bool:
-    """Whether ``name`` is a temp file of :func:`coordinator.store.atomic_file` (``.NAME.XXXXXXXX.tmp``)."""
-    return name.startswith(".") and name.endswith(".tmp") and len(name) > 5
 
 
 @dataclass(frozen=True)
@@ -231,27 +225,11 @@ def _uploads(r: Recovery) -> None:
 
 
 # ---------------------------------------------------------------- assets
-@contextmanager
-def _flock(path: Path, mode: int) -> Iterator[bool]:
-    """Hold ``flock(mode)`` on ``path`` (made if missing); yields whether it was taken."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a+b") as f:
-        try:
-            fcntl.flock(f.fileno(), mode)
-        except BlockingIOError:
-            yield False
-            return
-        try:
-            yield True
-        finally:
-            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
-
-
 def _staged(r: Recovery) -> None:
     tmp = r.rig_dir / "assets" / "tmp"
     if not tmp.is_dir() or tmp.is_symlink():
         return
-    with _flock(r.rig_dir / "assets" / STAGING_LOCK, fcntl.LOCK_EX | fcntl.LOCK_NB) as free:
+    with flocked(r.rig_dir / "assets" / STAGING_LOCK, fcntl.LOCK_EX | fcntl.LOCK_NB) as free:
         if not free:
             log.info("start-up recovery: left assets/tmp: another process is adding an asset")
             return
@@ -264,7 +242,7 @@ def _assets(r: Recovery) -> None:
     manifests, blobs = root / "manifests", root / "blobs"
     if not root.is_dir():
         return
-    with _flock(root / ".lock", fcntl.LOCK_EX):      # the store's own: no commit or remove meanwhile
+    with flocked(root / ".lock", fcntl.LOCK_EX):      # the store's own: no commit or remove meanwhile
         named: set[str] = set()
         unsure = False         # a manifest could not be read: blobs nothing names may be its
         if manifests.is_dir():

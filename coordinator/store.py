@@ -1,6 +1,7 @@
 """Atomic file writes: a crash never leaves a half-written rig file."""
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import os
@@ -77,6 +78,30 @@ def atomic_save_npz(path: str | os.PathLike[str], **arrays: np.ndarray) -> None:
         np.savez(f, **{k: np.asarray(v) for k, v in arrays.items()})
 
 
+@contextmanager
+def flocked(path: str | os.PathLike[str], mode: int = fcntl.LOCK_EX) -> Iterator[bool]:
+    """Hold ``flock(mode)`` on the file ``path`` (made, with its folder, if missing) while the block
+    runs; yields whether it was taken (always True unless ``mode`` has ``LOCK_NB`` and another
+    process holds a conflicting lock)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+b") as f:
+        try:
+            fcntl.flock(f.fileno(), mode)
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+
+
+def is_temp_name(name: str) -> bool:
+    """Whether ``name`` is a temp file of :func:`atomic_file` (``.NAME.XXXXXXXX.tmp``)."""
+    return name.startswith(".") and name.endswith(".tmp") and len(name) > 5
+
+
 def remove_stale_temps(root: str | os.PathLike[str], *, older_than_s: float = STALE_TEMP_S,
                        skip: tuple[str, ...] = ("assets",)) -> list[Path]:
     """Delete the temp files :func:`atomic_file` left under ``root`` when its writer was killed.
@@ -94,7 +119,7 @@ def remove_stale_temps(root: str | os.PathLike[str], *, older_than_s: float = ST
         if Path(dirpath) == root:
             dirnames[:] = [d for d in dirnames if d not in skip]
         for name in filenames:
-            if not (name.startswith(".") and name.endswith(".tmp")):
+            if not is_temp_name(name):
                 continue
             f = Path(dirpath) / name
             try:
