@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import tempfile
 import threading
@@ -192,3 +193,29 @@ def corpus_table():
                 f.write(f"| {cell(kind)} | {cell(what)} | {cell(message)} | {cell(status)} |\n")
 
     return add
+
+
+@pytest.fixture
+def coordinator_process():
+    """``start(rig_dir) -> "127.0.0.1:PORT"``: a real `shadowless coordinator` process on the rig at
+    ``rig_dir`` (loopback, no mDNS, no console), once it listens; every one started is stopped after
+    the test."""
+    procs: list[subprocess.Popen] = []
+
+    def start(rig_dir) -> str:
+        port_file = Path(rig_dir).parent / f"coordinator-{len(procs)}.port"
+        proc = subprocess.Popen([sys.executable, "-m", "shadowless", "coordinator", "--rig", str(rig_dir), "--listen",
+                                 "127.0.0.1:0", "--no-mdns", "--no-console", "--port-file", str(port_file)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        procs.append(proc)
+        deadline = time.monotonic() + 60
+        while not (port_file.exists() and port_file.read_text().strip()):
+            assert proc.poll() is None, f"the coordinator exited with {proc.returncode}"
+            assert time.monotonic() < deadline, "the coordinator wrote no port file within 60 s"
+            time.sleep(0.1)
+        return f"127.0.0.1:{int(port_file.read_text())}"
+
+    yield start
+    for proc in procs:
+        proc.terminate()
+        proc.wait(timeout=30)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -29,27 +28,15 @@ def test_read_lut_shapes(tmp_path):
         read_lut(tmp_path / "nan.npy")
 
 
-def test_a_one_dimensional_lut_reaches_the_rig_as_one_curve_for_every_channel(tmp_path):
+def test_a_one_dimensional_lut_reaches_the_rig_as_one_curve_for_every_channel(tmp_path, coordinator_process):
     rig_dir = init_rig(tmp_path / "rig", name="luts", slots=["r0c0"], width=32, height=32)
     curve = np.linspace(0, 1, 64, dtype=np.float32) ** 0.5
     np.save(tmp_path / "curve.npy", curve)
-    port_file = tmp_path / "port"
-    proc = subprocess.Popen([sys.executable, "-m", "shadowless", "coordinator", "--rig", str(rig_dir), "--listen",
-                             "127.0.0.1:0", "--no-mdns", "--no-console", "--port-file", str(port_file)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 60
-        while not (port_file.exists() and port_file.read_text().strip()):
-            assert proc.poll() is None, f"the coordinator exited with {proc.returncode}"
-            assert time.monotonic() < deadline, "the coordinator wrote no port file within 60 s"
-            time.sleep(0.1)
-        r = subprocess.run([sys.executable, "-m", "shadowless", "configure", "--slot", "r0c0", "--lut",
-                            str(tmp_path / "curve.npy"), "--coordinator", f"127.0.0.1:{int(port_file.read_text())}",
-                            "--rig-dir", str(rig_dir)], capture_output=True, text=True, timeout=60)
-        assert r.returncode == 0 and "now at revision" in r.stdout, r.stderr
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+    address = coordinator_process(rig_dir)
+    r = subprocess.run([sys.executable, "-m", "shadowless", "configure", "--slot", "r0c0", "--lut",
+                        str(tmp_path / "curve.npy"), "--coordinator", address, "--rig-dir", str(rig_dir)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "now at revision" in r.stdout, r.stderr
     stored = Rig(rig_dir, read_only=True).slots["r0c0"].lut
     assert stored.shape == (1, 64)
     np.testing.assert_array_equal(stored[0], curve)

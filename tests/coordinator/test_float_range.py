@@ -7,7 +7,6 @@ from __future__ import annotations
 import asyncio
 import subprocess
 import sys
-import time
 
 import grpc
 import numpy as np
@@ -99,31 +98,17 @@ def test_grpc_show_and_play_refuse_floats_outside_0_1_from_any_client(tmp_path):
     asyncio.run(go())
 
 
-def test_show_clip_clips_what_it_refuses_without(tmp_path):
+def test_show_clip_clips_what_it_refuses_without(tmp_path, coordinator_process):
     """`shadowless show` against a real coordinator process: refused without --clip, shown with it."""
     rig_dir = init_rig(tmp_path / "rig", name="clip", slots=["r0c0"], width=32, height=24, content_width=32,
                        content_height=24)
     hot = tmp_path / "hot.npy"
     np.save(hot, np.full((24, 32, 3), 1.5, np.float32))
-    port_file = tmp_path / "port"
-    proc = subprocess.Popen([sys.executable, "-m", "shadowless", "coordinator", "--rig", str(rig_dir),
-                             "--listen", "127.0.0.1:0", "--no-mdns", "--no-console", "--port-file", str(port_file)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 60
-        while not (port_file.exists() and port_file.read_text().strip()):
-            assert proc.poll() is None, f"the coordinator exited with {proc.returncode}"
-            assert time.monotonic() < deadline, "the coordinator wrote no port file within 60 s"
-            time.sleep(0.1)
-        port = int(port_file.read_text())
-        conn = ["--coordinator", f"127.0.0.1:{port}", "--rig-dir", str(rig_dir)]
-        r = subprocess.run([sys.executable, "-m", "shadowless", "show", str(hot), *conn],
-                           capture_output=True, text=True, timeout=60)
-        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-        assert len(r.stderr.strip().splitlines()) == 1 and "holds values from 1.5 to 1.5" in r.stderr, r.stderr
-        r = subprocess.run([sys.executable, "-m", "shadowless", "show", str(hot), "--clip", *conn],
-                           capture_output=True, text=True, timeout=60)
-        assert r.returncode == 0 and "showing" in r.stdout, r.stderr
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+    conn = ["--coordinator", coordinator_process(rig_dir), "--rig-dir", str(rig_dir)]
+    r = subprocess.run([sys.executable, "-m", "shadowless", "show", str(hot), *conn],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "holds values from 1.5 to 1.5" in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-m", "shadowless", "show", str(hot), "--clip", *conn],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "showing" in r.stdout, r.stderr

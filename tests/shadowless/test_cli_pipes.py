@@ -6,8 +6,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
-from pathlib import Path
 
 import pytest
 
@@ -47,22 +45,9 @@ def test_a_long_output_into_head_ends_quietly(tmp_path):
 
 
 @pytest.fixture
-def coordinator(tmp_path):
+def coordinator(tmp_path, coordinator_process):
     rig = init_rig(tmp_path / "rig", name="pipes", slots=["r0c0", "r0c1"], width=32, height=32)
-    port_file = tmp_path / "port"
-    proc = subprocess.Popen([*PY, "coordinator", "--rig", str(rig), "--listen", "127.0.0.1:0", "--no-mdns",
-                             "--no-console", "--port-file", str(port_file)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 60
-        while not (port_file.exists() and port_file.read_text().strip()):
-            assert proc.poll() is None, f"the coordinator exited with {proc.returncode}"
-            assert time.monotonic() < deadline, "the coordinator wrote no port file within 60 s"
-            time.sleep(0.1)
-        yield ["--coordinator", f"127.0.0.1:{int(port_file.read_text())}", "--rig-dir", str(rig)]
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+    return ["--coordinator", coordinator_process(rig), "--rig-dir", str(rig)]
 
 
 def test_status_into_a_closed_pipe_or_head_ends_quietly(coordinator):
