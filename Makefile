@@ -25,7 +25,7 @@ protos/.generated: $(PROTOS) protos/generate.py
 # The solver's compiled loops go into Numba's cache now, not on the first solve: about 40 s once
 # after an install or a change to them, a second when the cache is current.
 kernels: $(STAMP)
-	@$(PY) -m coordinator.compensation.precompile
+	@$(PY) -m imaging.compensation.precompile
 
 # Debian packages the tests need, installed when missing (as root, through apt-get; CI runs as
 # root): $(call need,CHECK,PACKAGES,WHAT NEEDS THEM).

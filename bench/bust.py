@@ -86,7 +86,7 @@ from bench.bust_touch import (
     touch_points,
 )
 from bench.machine import machine
-from coordinator.calibration.threed import Pinhole as CoordPinhole
+from imaging.calibration.threed import Pinhole as CoordPinhole
 from coordinator.coverage import CoverageModel, Projector
 from sim.precompute import MESH
 from sim.room import Room

@@ -30,9 +30,9 @@ from protos import cli_types
 from scipy.spatial import cKDTree
 
 from bench.machine import machine
-from coordinator.calibration import planar
-from coordinator.calibration.points import PointSet, write_points
-from coordinator.calibration.threed import project
+from imaging.calibration import planar
+from imaging.calibration.points import PointSet, write_points
+from imaging.calibration.threed import project
 from coordinator.jobs import Progress
 from coordinator.rig import Rig, init_rig
 from protos.spaces import content_to_table

@@ -1,6 +1,6 @@
 """`shadowless bench compensation`: blur compensation, ours (one solve for the rig) vs the baseline.
 
-Reproduces the paper's Table 1 comparison in a synthetic rig (coordinator/compensation/synthetic.py):
+Reproduces the paper's Table 1 comparison in a synthetic rig (imaging/compensation/synthetic.py):
 for each number of projectors N, the rig's light transport ``L = sum L_i`` and the per-projector
 ``L_i`` are measured through a simulated camera from dot-grid captures (``S*S`` captures for ours,
 ``N*S*S`` for the baseline, same camera settings), both methods solve with what they measured,
@@ -45,16 +45,16 @@ import numpy as np
 from bench import compensation_args as value_types
 from bench.compensation_memory import configure as memory_options, peak_rss_gib, plan as memory_plan, print_plan
 from bench.machine import load, machine, streaming_bandwidth
-from coordinator.compensation.quality import quality, side_by_side, srgb_to_linear
-from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve, solve_per_projector
-from coordinator.compensation.synthetic import (
+from imaging.compensation.quality import quality, side_by_side, srgb_to_linear
+from imaging.compensation.solver import FrameCompensator, TransportOperator, solve, solve_per_projector
+from imaging.compensation.synthetic import (
     camera_noise,
     sample_image,
     simulate_captures,
     synthetic_rig,
     synthetic_transport,
 )
-from coordinator.compensation.transport import DotGrid, transport_error, transport_from_captures
+from imaging.compensation.transport import DotGrid, transport_error, transport_from_captures
 
 PAPER_TABLE_1 = {
     "none": {"psnr": 19.54, "ssim": 0.44},
@@ -88,7 +88,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--paper-channels", type=int, choices=(1, 3), default=1)
     parser.add_argument("--paper-tol", type=float, default=5e-4, help="stopping tolerance of the large run")
     parser.add_argument("--paper-est-tol", type=float, default=5e-3, help="extrapolated stopping rule of the large run "
-                        "(est_tol of coordinator.compensation.stopping; default 0.005, 0: off)")
+                        "(est_tol of imaging.compensation.stopping; default 0.005, 0: off)")
     parser.add_argument("--paper-reference-seconds", type=float, default=150.0, help="time budget of the large reference")
     parser.add_argument("--paper-storage", type=value_types.storages, default=["float32", "uint16"], metavar="S,S",
                         help="storages of the new solver at the paper size, the first one is 'new' (default float32,uint16)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from coordinator.compensation.stencil import STORAGES
+from imaging.compensation.stencil import STORAGES
 from protos import cli_types
 
 __all__ = ["ints", "size", "sizes", "storages", "unit_range"]

@@ -3,7 +3,7 @@
 The coordinator's ``response``, ``transport`` and ``compensate`` jobs run in-process against the
 reference room with the procedural bust (:func:`sim.scene.reference_scene` ``surface="bust"``)
 through :class:`shadowless.room_driver.RoomDriver`, which renders content on a mesh pose as a
-node's mesh shader does (:func:`coordinator.compensation.texture_space.mesh_warp`). Content is
+node's mesh shader does (:func:`imaging.compensation.texture_space.mesh_warp`). Content is
 the bust's texture: an even-density uv atlas (:func:`sim.mesh.bust` ``atlas=``) whose size follows
 from the camera's sampling of the surface (:func:`texture_size_for`). By default the rig's poses and the camera's pose are the room's truth
 (:func:`make_bust_rig`; 3D calibration is measured by ``bench calibration``); ``--calibrate``
@@ -38,12 +38,12 @@ from bench.compensation_bust_oracle import bust_oracle
 from bench.compensation_room import demo_image
 from bench.machine import machine
 from coordinator.calibration.runs import save_cameras
-from coordinator.calibration.threed import depth_range
+from imaging.calibration.threed import depth_range
 from coordinator.compensation.image_param import encode_image_array
 from coordinator.compensation.mesh_cameras import camera_blocks
-from coordinator.compensation.mesh_geometry import measured_texels
-from coordinator.compensation.texture_space import DeviceView, MeshCaster, padded, padding_index, texels_per_pixel
-from coordinator.compensation.transport import transport_error
+from imaging.compensation.mesh_geometry import measured_texels
+from imaging.compensation.texture_space import DeviceView, MeshCaster, padded, padding_index, texels_per_pixel
+from imaging.compensation.transport import transport_error
 from coordinator.rig import ProjectionPose, Rig, mesh_with_id
 from protos import cli_types
 from protos.spaces import bilinear_taps
@@ -60,7 +60,7 @@ __all__ = ["make_bust_rig", "bust_room", "mesh_lookup_matrix", "truth_mesh_trans
 def mesh_lookup_matrix(view: DeviceView, content_size: tuple[int, int]) -> sp.csr_matrix:
     """A node's content lookup on a mesh pose as a matrix: ``(w*h, W*H)`` CSR float64, projector px x texel
     (the bilinear weights of :func:`protos.spaces.bilinear_taps` at each pixel's texel coordinates, 0 off
-    the mesh): what :func:`coordinator.compensation.texture_space.mesh_warp` applies."""
+    the mesh): what :func:`imaging.compensation.texture_space.mesh_warp` applies."""
     h, w = view.shape
     x = np.nan_to_num(view.x, nan=-10.0)
     y = np.nan_to_num(view.y, nan=-10.0)
@@ -77,7 +77,7 @@ def mesh_lookup_matrix(view: DeviceView, content_size: tuple[int, int]) -> sp.cs
 def truth_mesh_transport(room: Room, rig: Rig, slots: list[str], *, camera: int = 0) -> sp.csr_matrix:
     """The mesh rig's true light transport, texel -> camera px, as the jobs measure it:
     :func:`bench.compensation_room.truth_transport` with each node's lookup through its mesh pose, of the
-    texture with its chart edges padded (:func:`~coordinator.compensation.texture_space.padding_index`), as
+    texture with its chart edges padded (:func:`~imaging.compensation.texture_space.padding_index`), as
     the jobs send every image, dot patterns included: a texel's column holds its padding texels' light."""
     content = (rig.config.content_width, rig.config.content_height)
     views = {}
@@ -288,7 +288,7 @@ async def _rig_run(room: Room, slots: list[str], workdir: Path, args, *, baselin
     t = time.perf_counter()
     tr = await driver.run("transport", params)
     truths = await asyncio.to_thread(lambda: [truth_mesh_transport(room, rig, slots, camera=c) for c in range(k)])
-    from coordinator.compensation.transport import load_transport
+    from imaging.compensation.transport import load_transport
 
     L, meta = load_transport(rig.path / "compensation" / "transport.npz")
     exposure = float(meta.get("exposure", 1.0))        # L is in the units of the exposure it was measured at

@@ -13,15 +13,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from coordinator.compensation.geometry import row_white
+from imaging.compensation.geometry import row_white
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.mesh_compensate import SCORE_PERCENTILE
-from coordinator.compensation.mesh_geometry import masked_quality
+from imaging.compensation.mesh_geometry import masked_quality
 from coordinator.compensation.mesh_rig import mesh_cameras
 from coordinator.compensation.mesh_transport import solve_weights
 from coordinator.compensation.store import StoredTransport
-from coordinator.compensation.texture_space import content_at_view
-from coordinator.compensation.transport import load_transport
+from imaging.compensation.texture_space import content_at_view
+from imaging.compensation.transport import load_transport
 from shadowless.room_driver import RoomDriver
 
 __all__ = ["score_from_cameras"]

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from bench.compensation_room import demo_image
-from coordinator.compensation.geometry import row_white
+from imaging.compensation.geometry import row_white
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.mesh_cameras import stacked_row_weights
 from coordinator.compensation.mesh_compensate import (
@@ -28,10 +28,10 @@ from coordinator.compensation.mesh_compensate import (
     solve_baseline,
     weighted_solve,
 )
-from coordinator.compensation.mesh_geometry import masked_quality, measured_texels
+from imaging.compensation.mesh_geometry import masked_quality, measured_texels
 from coordinator.compensation.mesh_rig import mesh_cameras
-from coordinator.compensation.texture_space import content_at_view
-from coordinator.compensation.transport import load_transport
+from imaging.compensation.texture_space import content_at_view
+from imaging.compensation.transport import load_transport
 from coordinator.rig import Rig
 
 __all__ = ["bust_oracle"]

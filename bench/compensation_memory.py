@@ -2,7 +2,7 @@
 
 Each part of the benchmark (the per-N comparison, the paper-size run, each video size, the noise
 sweep) runs after the previous one let go of its arrays, so the process's peak is the largest part's.
-:func:`plan` estimates every part from its sizes (:mod:`coordinator.compensation.memory_estimate`),
+:func:`plan` estimates every part from its sizes (:mod:`imaging.compensation.memory_estimate`),
 drops the per-projector baseline when only it does not fit (the comparison then reports
 ``"baseline": "skipped: needs ~X GB"``) and refuses, in one line naming the option to change, a
 part that does not fit even without it.
@@ -13,7 +13,7 @@ import argparse
 import json
 from typing import Any
 
-from coordinator.compensation.memory_estimate import (
+from imaging.compensation.memory_estimate import (
     RUNTIME_BYTES,
     build_bytes,
     operator_bytes,

@@ -40,13 +40,13 @@ from skimage import data as skimage_data
 
 from bench.calibration import make_rig, table_points_from_truth
 from bench.machine import machine
-from coordinator.compensation.geometry import camera_target, inscribed_region
+from imaging.compensation.geometry import camera_target, inscribed_region
 from coordinator.compensation.image_param import encode_image_array, prepare_image
 from coordinator.compensation.options import MOTION_FLOWS
-from coordinator.compensation.quality import quality
-from coordinator.compensation.ridge import RidgeProblem, best_scale
-from coordinator.compensation.solver import solve
-from coordinator.compensation.transport import load_transport, transport_error
+from imaging.compensation.quality import quality
+from imaging.compensation.ridge import RidgeProblem, best_scale
+from imaging.compensation.solver import solve
+from imaging.compensation.transport import load_transport, transport_error
 from protos.spaces import bilinear_taps, projector_samples
 from shadowless.room_driver import RoomDriver
 from sim.room import Room

@@ -12,7 +12,7 @@ Prints one JSON document:
 * ``reference``: the proxy of the paper's layouts P1 ... P25; from it
   ``dense_beats_wide_9`` (P9D < P9W) and ``centre_free_20_not_worse``
   (P20 <= P25): what the planner's own objective says about the paper's guidelines.
-* ``pointwise``: :func:`sim.plan.pointwise.search` on the same hands and candidates: whether any
+* ``pointwise``: :func:`planner.pointwise.search` on the same hands and candidates: whether any
   pointwise proxy (a nondecreasing weight of the drop) reproduces the study's four orderings while
   every layout of at most ``most`` projectors ranks behind P25 (``exists``; false is a proof, with
   the planner's ``small_layouts_ahead`` that rule every weighting out, and ``must_give``: the
@@ -31,12 +31,12 @@ import time
 
 from bench.machine import machine
 from sim.mesh import bust
-from sim.plan.candidates import ProjectorModel, ceiling_grid, source_for, walls
-from sim.plan.evaluate import PLAN_PROXIES, Evaluator
-from sim.plan.pointwise import reference_evaluator
-from sim.plan.pointwise import search as pointwise_search
-from sim.plan.search import knee, plan
-from sim.plan.surface import (
+from planner.candidates import ProjectorModel, ceiling_grid, source_for, walls
+from planner.evaluate import PLAN_PROXIES, Evaluator
+from planner.pointwise import reference_evaluator
+from planner.pointwise import search as pointwise_search
+from planner.search import knee, plan
+from planner.surface import (
     bust_poses,
     irradiance,
     mesh_surface,
@@ -44,7 +44,7 @@ from sim.plan.surface import (
     table_surface,
 )
 from sim.scene import TABLE_SIZE
-from sim.sop import CHOSEN, PoseSet
+from studies.proxies import CHOSEN, PoseSet
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

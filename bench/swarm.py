@@ -34,7 +34,7 @@ from bench.machine import machine
 from bench.workdir import run_dir
 from coordinator.api import NodeState, PlaySettings
 from coordinator.assets import AssetStore
-from coordinator.commands import play_dict
+from rigctl.commands import play_dict
 from node.image_files import write_png
 from shadowless.local import LocalRig, grid_names
 

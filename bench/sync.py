@@ -20,7 +20,7 @@ from pathlib import Path
 from bench.machine import machine
 from bench.workdir import run_dir
 from coordinator.api import PlaySettings
-from coordinator.commands import play_dict
+from rigctl.commands import play_dict
 from protos import cli_types
 from shadowless.local import LocalRig, grid_names, spread
 

@@ -11,7 +11,7 @@ Layout under the rig directory::
 An asset is described by a :class:`protos.asset_manifest.Manifest`. Adding streams every source
 file in chunks into ``assets/tmp`` while hashing it (a multi-GB video never sits in memory), then,
 under the lock, renames the blobs into place and writes the manifest last, each step atomic
-(:func:`coordinator.store.atomic_file`). So a manifest only ever names blobs that are there, the
+(:func:`protos.store.atomic_file`). So a manifest only ever names blobs that are there, the
 same content added twice is the same asset and stores nothing new, and an add that fails (or is
 killed) leaves no manifest behind.
 """
@@ -35,7 +35,7 @@ from typing import BinaryIO, Callable, Iterator
 from coordinator.asset_probe import (DEFAULT_SEQUENCE_FPS, LONG_GOP_S, STILL_SUFFIXES, VIDEO_SUFFIXES, Note, Probe,
                                      keyframe_gap_s, probe_sequence, probe_still, probe_video, sequence_files)
 from coordinator.errors import AssetError
-from coordinator.store import atomic_file, atomic_write_bytes, flocked, fsync_dir
+from protos.store import atomic_file, atomic_write_bytes, flocked, fsync_dir
 from protos.asset_manifest import Blob, Manifest, ManifestError, is_sha256
 
 log = logging.getLogger(__name__)

@@ -43,7 +43,7 @@ import grpc
 import numpy as np
 
 from coordinator.errors import CoordinatorError
-from coordinator.store import atomic_write_bytes
+from protos.store import atomic_write_bytes
 from protos import codec, room_pb2, room_pb2_grpc
 from protos.version import GRPC_OPTIONS
 

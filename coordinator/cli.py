@@ -9,10 +9,10 @@ import signal
 from pathlib import Path
 
 from coordinator.console.hosts import allowed_host
-from coordinator.errors import CoordinatorError, RigError
+from coordinator.errors import OPERATOR_ERRORS, CoordinatorError, RigError
 from coordinator.rig import Rig
 from coordinator.server import Coordinator
-from coordinator.store import atomic_write_text
+from protos.store import atomic_write_text
 from protos.auth import TokenError, resolve_token
 
 log = logging.getLogger("coordinator")
@@ -95,6 +95,6 @@ async def serve(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(serve(args))
-    except (CoordinatorError, RigError, TokenError, OSError) as exc:
+    except (*OPERATOR_ERRORS, RigError, TokenError, OSError) as exc:
         log.error("%s", exc)
         return 2

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coordinator.calibration.threed import Pinhole, decompose
+from imaging.calibration.threed import Pinhole, decompose
 from coordinator.coverage_gl import CoverageRaster, scaled_device
 
 __all__ = ["Projector", "PointCoverage", "Coverage", "CoverageModel", "projector_from_pose", "irradiance",

@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from coordinator.calibration.heatmap_figure import FONT, INK, SCALE, put_text
-from coordinator.calibration.threed import Pinhole
+from imaging.calibration.heatmap_figure import FONT, INK, SCALE, put_text
+from imaging.calibration.threed import Pinhole
 from coordinator.coverage import Coverage
 from coordinator.coverage_gl import CoverageRaster
 

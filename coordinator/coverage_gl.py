@@ -12,7 +12,7 @@ Three passes, each a few lines of GLSL kept here beside the numpy that reads the
   camera), each pixel holding the content uv and the normal of the nearest surface.
 
 Window pixel ``(x + 0.5, y + 0.5)`` is image pixel ``(x, y)`` and read-back row 0 is image row 0
-(:func:`coordinator.calibration.threed.gl_projection`); in UV space read-back row ``i``, column
+(:func:`imaging.calibration.threed.gl_projection`); in UV space read-back row ``i``, column
 ``j`` is the texel whose centre is uv ``((j + 0.5) / w, (i + 0.5) / h)``, uv (0, 0) being the
 content image's top-left corner (the mesh convention).
 
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from coordinator.calibration.errors import CalibrationError
-from coordinator.calibration.threed import Pinhole, gl_projection
+from imaging.calibration.errors import CalibrationError
+from imaging.calibration.threed import Pinhole, gl_projection
 
 _TEXEL_VS = """
 #version 330

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 
-from coordinator.calibration.errors import CalibrationError
+from imaging.calibration.errors import CalibrationError
 from coordinator.coverage import DEFAULT_SHADOW_SCALE, DEFAULT_TEXTURE
 from coordinator.coverage_run import compute_coverage, view
 from coordinator.errors import RigError

@@ -22,7 +22,7 @@ from coordinator.coverage import DEFAULT_SHADOW_SCALE, DEFAULT_TEXTURE, Coverage
 from coordinator.coverage_figure import coverage_picture, orbit_camera
 from coordinator.coverage_store import coverage_dir, rig_camera, rig_projectors, save_coverage
 from coordinator.rig import Rig
-from coordinator.store import atomic_write_bytes
+from protos.store import atomic_write_bytes
 from protos import cli_types
 
 __all__ = ["View", "view", "default_views", "compute_coverage"]

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.calibration.threed import Pinhole
+from imaging.calibration.threed import Pinhole
 from coordinator.coverage import Coverage, Projector, projector_from_pose
 from coordinator.errors import RigError
 from coordinator.rig import Mesh, ProjectionPose, Rig
-from coordinator.store import atomic_file, atomic_write_json
+from protos.store import atomic_file, atomic_write_json
 
 __all__ = ["coverage_dir", "save_coverage", "load_coverage", "rig_projectors", "rig_camera", "summary_behind"]
 

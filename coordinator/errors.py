@@ -1,4 +1,5 @@
 """Errors the coordinator raises; each message says what the operator can do."""
+from imaging.errors import ImagingError
 
 
 class CoordinatorError(Exception):
@@ -11,3 +12,7 @@ class RigError(CoordinatorError):
 
 class AssetError(CoordinatorError):
     """An asset cannot be added, found, read or removed; the message names the file or id."""
+
+
+#: what the coordinator reports to an operator as one line: its own errors and the numerics'
+OPERATOR_ERRORS: tuple[type[Exception], ...] = (CoordinatorError, ImagingError)

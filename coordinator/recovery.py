@@ -1,7 +1,7 @@
 """Start-up recovery: whatever a crash (``kill -9``, a power cut after the last fsync) left in a rig
 directory is completed, rolled back or quarantined before the coordinator serves it.
 
-Every write of the rig goes through a temp file, fsync and rename (:mod:`coordinator.store`), and
+Every write of the rig goes through a temp file, fsync and rename (:mod:`protos.store`), and
 the multi-file writes order their steps so that each crash point leaves the old state or the new
 one plus files nothing names. This pass removes those files and settles the rest:
 
@@ -50,7 +50,7 @@ from coordinator.assets import STAGING_LOCK
 from coordinator.calibration.runs import mark_interrupted
 from coordinator.rig import parse_config
 from coordinator.show import SHOW_FILE
-from coordinator.store import atomic_write_json, flocked, is_temp_name
+from protos.store import atomic_write_json, flocked, is_temp_name
 from coordinator.uploads import UploadFile, check_spec, upload_id
 from protos.asset_manifest import Manifest, ManifestError, is_sha256
 

@@ -31,7 +31,7 @@ import numpy as np
 from coordinator.errors import RigError
 from coordinator.schema import (MAX_GAIN, MAX_SIDE, MIN_SIDE, SLOT_RE, ContentMeta, RigToml, SizeDoc, SlotFile, check_homography,
                                 parse_toml, read_bytes, read_json, read_npy, read_text, valid_gain, validate, validate_lut)
-from coordinator.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
+from protos.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
 from protos.auth import new_token
 from protos.spaces import scale_intrinsics
 

@@ -35,7 +35,7 @@ from coordinator.rig import (
     init_rig,
     mesh_with_id,
 )
-from coordinator.store import atomic_write_text
+from protos.store import atomic_write_text
 from protos.layout import Layout, LayoutFileError, read_layout
 from protos.mesh_files import MeshFileError, format_obj, read_mesh
 from protos.spaces import scale_intrinsics

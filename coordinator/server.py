@@ -41,7 +41,7 @@ from coordinator.admission import Budget, trim_memory
 from coordinator.assets import AssetStore
 from coordinator.camera import Camera, RoomCamera, open_camera
 from coordinator.distribution import Distribution, note_ready
-from coordinator.errors import CoordinatorError
+from coordinator.errors import OPERATOR_ERRORS, CoordinatorError
 from coordinator.fanout import FanOut
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
@@ -231,7 +231,7 @@ class Coordinator:
         console = Console(self, self.console_listen, hosts=self.console_hosts)
         try:
             await console.start()
-        except CoordinatorError as exc:
+        except OPERATOR_ERRORS as exc:
             why = _bind_failure(exc, self.console_listen)
             if not self.console_optional:
                 raise CoordinatorError(f"the operator console cannot listen on {self.console_listen}: {why}; choose "

@@ -28,7 +28,7 @@ from coordinator import content_service, wire
 from coordinator.admission import MAX_MESSAGE_BYTES as MAX_PREAUTH_MESSAGE_BYTES
 from coordinator.admission import READ_TIMEOUT_S, REFUSED_OVER_BUDGET, Ticket
 from coordinator.api import Space
-from coordinator.errors import CoordinatorError
+from coordinator.errors import OPERATOR_ERRORS, CoordinatorError
 from coordinator.float_range import check_float_range
 from coordinator.rig import Content
 from coordinator.sessions import RpcRefusal
@@ -66,7 +66,7 @@ def _guard(fn):
             await context.abort(exc.code, exc.message)
         except (ValueError, codec.ImageCodecError) as exc:
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
-        except CoordinatorError as exc:
+        except OPERATOR_ERRORS as exc:
             await context.abort(grpc.StatusCode.FAILED_PRECONDITION, str(exc))
 
     return wrapper
@@ -548,7 +548,7 @@ class RigControlService(_Handshake):
             await context.abort(exc.code, exc.message)
         except (ValueError, codec.ImageCodecError) as exc:
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
-        except CoordinatorError as exc:
+        except OPERATOR_ERRORS as exc:
             await context.abort(grpc.StatusCode.FAILED_PRECONDITION, str(exc))
 
     async def Play(self, request_iterator, context):
@@ -587,7 +587,7 @@ class RigControlService(_Handshake):
             await context.abort(exc.code, exc.message)
         except (ValueError, codec.ImageCodecError) as exc:
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
-        except CoordinatorError as exc:
+        except OPERATOR_ERRORS as exc:
             await context.abort(grpc.StatusCode.FAILED_PRECONDITION, str(exc))
 
     @_guard
@@ -618,7 +618,7 @@ class RigControlService(_Handshake):
                 break
             try:
                 result = task.result()
-            except (CoordinatorError, ValueError, OSError) as exc:
+            except (*OPERATOR_ERRORS, ValueError, OSError) as exc:
                 log.error("job %s failed: %s", request.kind, exc)
                 await context.abort(grpc.StatusCode.FAILED_PRECONDITION, f"{request.kind}: {exc}")
             yield wire.job_result_message(result)

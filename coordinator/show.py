@@ -41,7 +41,7 @@ from typing import Callable, Iterable, Mapping, Protocol
 
 from coordinator.api import AssetProgress, ShowState
 from coordinator.errors import CoordinatorError
-from coordinator.store import atomic_write_json
+from protos.store import atomic_write_json
 from protos.asset_manifest import Manifest
 from protos.host import boot_id
 from protos.timeline import Schedule, Timeline, TimelineError, as_rate

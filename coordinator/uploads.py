@@ -32,7 +32,7 @@ from pathlib import Path
 
 from coordinator.assets import AssetStore, copy_hashing
 from coordinator.errors import AssetError
-from coordinator.store import atomic_write_bytes
+from protos.store import atomic_write_bytes
 from protos.asset_manifest import Manifest, is_sha256
 
 #: uploads without a new byte for this long are removed (by :meth:`Uploads.sweep`)

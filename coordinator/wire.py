@@ -3,7 +3,7 @@
 The coordinator's state, its jobs and the operator client's callers speak the plain types
 of :mod:`coordinator.api`, :mod:`coordinator.sessions`, :mod:`coordinator.fanout` and
 :mod:`coordinator.rig`; the gRPC services (:mod:`coordinator.services`) and the operator
-client (:mod:`coordinator.client`) call these functions at the edge.
+client (:mod:`rigctl.client`) call these functions at the edge.
 """
 from __future__ import annotations
 

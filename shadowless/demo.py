@@ -28,7 +28,7 @@ import numpy as np
 
 from bench.room import drop_statistics
 from coordinator.compensation.image_param import encode_image_param
-from coordinator.job_command import ProgressView, run_job
+from rigctl.job_command import ProgressView, run_job
 from protos import cli_types
 from protos.spaces import content_to_table
 from shadowless import exit_cleanup
@@ -113,8 +113,8 @@ def read_demo_image(path: str) -> np.ndarray:
     """An operator's picture for the demo as (H, W, 3) uint8 RGB, read through the coordinator's
     one decoder (any format it reads, its declared size checked first; 16-bit and float 0..1
     scaled to 8 bits, grey repeated, alpha dropped). SystemExit with one line when it is refused."""
-    from coordinator.client import OperatorError
-    from coordinator.commands import read_image
+    from rigctl.client import OperatorError
+    from rigctl.commands import read_image
 
     try:
         img = read_image(path)

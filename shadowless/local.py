@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.api import NodeState, PlaySettings, RigStatus
-from coordinator.client import Client, OperatorError
-from coordinator.commands import play_dict, read_image, status_dict
+from rigctl.client import Client, OperatorError
+from rigctl.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
 from protos import auth
 from protos import cli_types

@@ -1,4 +1,4 @@
-"""`shadowless rig`: the coordinator's command (:mod:`coordinator.rigcli`), given the room's builtin meshes.
+"""`shadowless rig`: the coordinator's command (:mod:`rigctl.rigcli`), given the room's builtin meshes.
 
 A layout may name the room's procedural bust (``[mesh] builtin = "bust"``: what ``shadowless plan
 --surface bust`` writes). The coordinator does not import the room, so this wiring hands
@@ -10,7 +10,7 @@ import argparse
 
 import numpy as np
 
-from coordinator import rigcli
+from rigctl import rigcli
 
 configure = rigcli.configure
 

@@ -4,7 +4,7 @@ tests and benchmarks run the coordinator's jobs on, without gRPC or node process
 What every node would output is computed with the node's own convention
 (:func:`protos.spaces.warp_content`: the warp through the slot's stored pose, its gain and
 LUT, ``round(255 v)``; on a 3x4 pose the mesh's texture as the node's mesh shader samples it,
-:func:`coordinator.compensation.texture_space.mesh_warp`) and given to the room; captures come
+:func:`imaging.compensation.texture_space.mesh_warp`) and given to the room; captures come
 from the room's cameras. So the figures measured through it are the method's, not the transport's.
 
     room = Room(reference_scene(...))
@@ -21,7 +21,7 @@ import numpy as np
 
 from coordinator.api import PlayResult
 from coordinator.camera import CameraError
-from coordinator.compensation.texture_space import DeviceView, MeshCaster, mesh_warp
+from imaging.compensation.texture_space import DeviceView, MeshCaster, mesh_warp
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
 from coordinator.rig import Content, ProjectionPose, Rig

@@ -1,7 +1,7 @@
 """`shadowless study ANALYSIS`: the perception studies' analyses and the virtual room's studies, one command.
 
 The statistical analyses (``scheffe``, ``paired``) belong to the coordinator
-(:mod:`coordinator.study.cli`, which registers them itself); the studies that read
+(:mod:`studies.cli`, which registers them itself); the studies that read
 the virtual room's ground truth belong to ``sim`` (which the coordinator may not
 import). This wiring offers both: the coordinator's subcommands as they are, and
 one line of :data:`ANALYSES` per room study, whose module has ``configure(parser)``
@@ -16,15 +16,15 @@ from __future__ import annotations
 import argparse
 import importlib
 
-from coordinator.study import cli as coordinator_study
+from studies import cli as coordinator_study
 
 #: room studies: subcommand -> (module with configure(parser) and run(args), one-line summary)
 ANALYSES: dict[str, tuple[str, str]] = {
-    "schedule": ("coordinator.study.schedule_cli", "a balanced, randomized pair schedule for P participants (CSV)"),
-    "run": ("coordinator.study.run_cli", "one participant's trials on the rig, side by side; answers appended to RATINGS"),
+    "schedule": ("studies.schedule_cli", "a balanced, randomized pair schedule for P participants (CSV)"),
+    "run": ("studies.run_cli", "one participant's trials on the rig, side by side; answers appended to RATINGS"),
     "motion": ("sim.motion_cli", "a hand moving over the table: light drop per frame, synthetic aperture vs reactive compensation"),
-    "proxies": ("sim.sop_cli", "geometric proxies of the sense of projection per layout, against the paper's orderings"),
-    "pointwise": ("sim.plan.pointwise_cli", "whether any pointwise shadow proxy fits the paper's orderings and keeps few projectors behind 25"),
+    "proxies": ("studies.proxies_cli", "geometric proxies of the sense of projection per layout, against the paper's orderings"),
+    "pointwise": ("planner.pointwise_cli", "whether any pointwise shadow proxy fits the paper's orderings and keeps few projectors behind 25"),
 }
 
 

@@ -1,11 +1,11 @@
 """Hard shadows of occluders on the table plane, as polygons and rasters, and each projector's light there.
 
-The sense-of-projection proxies (:mod:`sim.sop`) and the planner
-(:mod:`sim.plan`) need the shadow every projector casts of a hand on the table
+The sense-of-projection proxies (:mod:`studies.proxies`) and the planner
+(:mod:`planner`) need the shadow every projector casts of a hand on the table
 for many projectors and many hand poses; ray tests per table point
 (:func:`sim.occluders.segment_blocked`) are exact but cost a ray per point,
 primitive and projector. A projector is a point source (its lens aperture
-only blurs the edge, see :mod:`sim.sop`), every occluder primitive is convex,
+only blurs the edge, see :mod:`studies.proxies`), every occluder primitive is convex,
 and a central projection maps a convex solid to a convex region: the shadow
 of a primitive on the plane z = 0 is the convex hull of the projections of
 points on its surface. So a shadow is a handful of convex polygons, filled by

@@ -17,21 +17,36 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("coordinator", "node", "sim", "protos", "bench", "shadowless")
+PACKAGES = ("protos", "imaging", "coordinator", "node", "sim", "studies", "rigctl", "planner", "shadowless", "bench")
 
-#: which top-level packages each package may import (besides itself)
+#: each package's floor: a module may import only packages on a lower floor (and its own package)
+FLOORS = {
+    "protos": 0,
+    "imaging": 1,
+    "coordinator": 2, "node": 2, "sim": 2,
+    "rigctl": 3,
+    "studies": 4,
+    "planner": 5,
+    "shadowless": 6,
+    "bench": 7,
+}
+#: which packages on lower floors each package may import; a narrower rule than the floors
 ALLOWED = {
     "protos": set(),
+    "imaging": {"protos"},
     "node": {"protos"},
-    "coordinator": {"protos"},
+    "coordinator": {"protos", "imaging"},
     "sim": {"protos"},
-    "bench": {"coordinator", "node", "sim", "protos", "shadowless"},
-    "shadowless": {"coordinator", "node", "sim", "protos", "bench"},
+    "studies": {"rigctl", "coordinator", "sim", "protos", "imaging"},
+    "rigctl": {"coordinator", "protos", "imaging"},
+    "planner": {"studies", "sim", "protos"},
+    "shadowless": {"coordinator", "node", "sim", "protos", "imaging", "studies", "rigctl", "planner", "bench"},
+    "bench": set(PACKAGES) - {"bench"},
 }
 
 #: the only modules outside protos/ that may touch generated protobuf code
 WIRE_MODULES = {
-    "coordinator.wire", "coordinator.services", "coordinator.content_service", "coordinator.client",
+    "coordinator.wire", "coordinator.services", "coordinator.content_service", "rigctl.client",
     "coordinator.camera",
     "node.wire", "node.link", "node.outputs.room",
     "sim.wire", "sim.service", "sim.client",

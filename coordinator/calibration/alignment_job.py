@@ -2,7 +2,7 @@
 
 Every checked projector shows, at the same time, a lattice of dots drawn through its
 current pose; the camera measures where they land (the method and its numerics:
-:mod:`coordinator.calibration.alignment`). The result gives per projector the RMS, 95th
+:mod:`imaging.calibration.alignment`). The result gives per projector the RMS, 95th
 percentile and maximum residual (projector pixels) and where the worst one is, and heat
 maps saved as ``calibration/alignment.png`` (and ``alignment-mesh.png`` when a rig has
 both planar and 3D poses) beside ``calibration/alignment.json``. Each map is also drawn as a
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.calibration import multiplex, planar, threed
-from coordinator.calibration.alignment import (
+from imaging.calibration import multiplex, planar, threed
+from imaging.calibration.alignment import (
     HEATMAP_FULL_SCALE_PX,
     heatmap,
     plan_surface_lattice,
@@ -29,13 +29,13 @@ from coordinator.calibration.alignment import (
     residuals,
     sample_points,
 )
-from coordinator.calibration.errors import CalibrationError
-from coordinator.calibration.heatmap_figure import footprint_mm, heatmap_figure, pixel_mm
+from imaging.calibration.errors import CalibrationError
+from imaging.calibration.heatmap_figure import footprint_mm, heatmap_figure, pixel_mm
 from coordinator.calibration.options import AlignmentOptions
 from coordinator.calibration.runs import calibration_dir
 from coordinator.jobs import JobContext, JobError
 from coordinator.rig import HomographyPose, ProjectionPose
-from coordinator.store import atomic_write_bytes, atomic_write_json
+from protos.store import atomic_write_bytes, atomic_write_json
 from protos.spaces import content_to_table
 
 OPTIONS = AlignmentOptions

@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.calibration.errors import CalibrationError
-from coordinator.calibration.planar import CharucoSpec
-from coordinator.calibration.points import PointSet, inline_table_points, parse_points, read_points
+from imaging.calibration.errors import CalibrationError
+from imaging.calibration.planar import CharucoSpec
+from imaging.calibration.points import PointSet, inline_table_points, parse_points, read_points
 from coordinator.jobs import JobError, option
 
 __all__ = ["CalibrateOptions", "AlignmentOptions", "Inputs", "rig_defaults", "decide", "resolve"]

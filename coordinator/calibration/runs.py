@@ -23,7 +23,7 @@ import numpy as np
 
 from coordinator.calibration.options import CalibrateOptions, Inputs
 from coordinator.jobs import JobContext, JobError
-from coordinator.store import atomic_write_json
+from protos.store import atomic_write_json
 
 #: Files of ``calibration/`` that are not a projector's figures.
 _NOT_SLOTS = ("run.json", "cameras.json", "alignment.json")

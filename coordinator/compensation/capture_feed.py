@@ -1,6 +1,6 @@
 """Light transport recovered while the captures are still being taken.
 
-:func:`~coordinator.compensation.transport.transport_from_captures` consumes an iterator of
+:func:`~imaging.compensation.transport.transport_from_captures` consumes an iterator of
 captures; the job takes them on its event loop. :func:`transport_while_capturing` runs the
 recovery on a worker thread fed through a bounded :class:`CaptureFeed`, so each capture is
 used and dropped as it arrives (memory stays at a few captures whatever the dot grid) and
@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.transport import transport_from_captures
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.transport import transport_from_captures
 from coordinator.jobs.errors import JobError
 
 __all__ = ["CaptureFeed", "transport_while_capturing"]

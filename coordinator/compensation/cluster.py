@@ -56,12 +56,12 @@ from typing import Any
 from coordinator.assets import AssetStore
 from coordinator.compensation.cluster_segment import (SegmentResult, SegmentSpec, SequenceFrames, segments,
                                                       solve_segment, TOPIC)
-from coordinator.compensation.errors import CompensationError
+from imaging.compensation.errors import CompensationError
 from coordinator.compensation.frames import FrameSolver
 from coordinator.compensation.options import VideoOptions
 from coordinator.compensation.video_io import Ffv1Writer, segment_writer
 from coordinator.jobs import JobContext, JobError
-from coordinator.store import atomic_file
+from protos.store import atomic_file
 from protos.asset_manifest import Manifest
 
 __all__ = ["ClusterRun", "compensate_on_cluster", "import_distributed", "INSTALL"]

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from fractions import Fraction
 
 from coordinator.compensation.frames import FrameSolver, motion_warp
-from coordinator.compensation.ridge import ContentWarmStart, RidgeProblem
+from imaging.compensation.ridge import ContentWarmStart, RidgeProblem
 from coordinator.compensation.store import StoredTransport
 from coordinator.compensation.video_io import Ffv1Writer, SourceFrames
 from protos.asset_manifest import Manifest

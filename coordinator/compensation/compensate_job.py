@@ -1,7 +1,7 @@
 """The ``compensate`` job: one bounded least-squares solve for an image, stored and shown.
 
 ``p' = argmin ||L p - c'||^2 + lam ||p - p0||^2, 0 <= p <= 1``
-(:class:`~coordinator.compensation.ridge.RidgeProblem`; ``p0`` the uncompensated image, the
+(:class:`~imaging.compensation.ridge.RidgeProblem`; ``p0`` the uncompensated image, the
 small ridge keeps the measured ``L``'s noise out of the result) over the stored light
 transport (measured first when none is valid, :func:`~.transport_job.ensure_transport`). The
 result becomes the rig's content (float32) and is shown on every node. With ``evaluate``, the
@@ -14,7 +14,7 @@ by how well the camera sees each part of the surface: :mod:`coordinator.compensa
 
 Spaces: ``L`` maps ``content`` pixels to ``camera`` pixels; the target is the content as the
 camera would see it on a blur-free rig
-(:func:`~coordinator.compensation.geometry.camera_target`), scaled to a level the rig reaches.
+(:func:`~imaging.compensation.geometry.camera_target`), scaled to a level the rig reaches.
 """
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.geometry import (
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.geometry import (
     camera_target,
     inscribed_region,
     row_white,
@@ -37,9 +37,9 @@ from coordinator.compensation.jobkit import content_size, rounded, surface_of, t
 from coordinator.compensation.memory_check import check_solve
 from coordinator.compensation.mesh_compensate import run_mesh_compensate
 from coordinator.compensation.options import MESH_REGULARIZATION, REGULARIZATION, CompensateOptions
-from coordinator.compensation.quality import quality, side_by_side
-from coordinator.compensation.ridge import RidgeProblem, best_scale
-from coordinator.compensation.solver import SolveResult, solve
+from imaging.compensation.quality import quality, side_by_side
+from imaging.compensation.ridge import RidgeProblem, best_scale
+from imaging.compensation.solver import SolveResult, solve
 from coordinator.compensation.store import (
     SUBDIR,
     StoredTransport,
@@ -53,7 +53,7 @@ from coordinator.compensation.transport_job import (
     ensure_transport,
 )
 from coordinator.jobs import JobContext, JobError
-from coordinator.store import atomic_write_bytes
+from protos.store import atomic_write_bytes
 from protos.spaces import warp_content
 
 __all__ = ["OPTIONS", "run"]

@@ -4,7 +4,7 @@ the figures of the run.
 
 :func:`open_frame_solver` selects the planar projectors, takes the stored ``L`` (measured first
 only when asked), sets the target level and builds the
-:class:`~coordinator.compensation.ridge.ContentWarmStart`; :meth:`FrameSolver.solve` turns one
+:class:`~imaging.compensation.ridge.ContentWarmStart`; :meth:`FrameSolver.solve` turns one
 decoded picture into its compensated 16-bit frame, timing the solve; :meth:`FrameSolver.summary`
 gives the per-frame figures both jobs report.
 """
@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.compensation.geometry import camera_target, inscribed_region, row_white, target_level
+from imaging.compensation.geometry import camera_target, inscribed_region, row_white, target_level
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.jobkit import content_size
 from coordinator.compensation.memory_check import check_solve
-from coordinator.compensation.motion import MotionWarp
+from imaging.compensation.motion import MotionWarp
 from coordinator.compensation.options import TransportOptions
-from coordinator.compensation.ridge import ContentWarmStart, RidgeProblem
+from imaging.compensation.ridge import ContentWarmStart, RidgeProblem
 from coordinator.compensation.store import StoredTransport, transport_summary
 from coordinator.compensation.transport_job import ensure_transport
 from coordinator.jobs import JobContext

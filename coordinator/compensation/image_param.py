@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.compensation.errors import CompensationError
+from imaging.compensation.errors import CompensationError
 from protos.spaces import as_linear
 
 __all__ = ["encode_image_param", "encode_image_array", "decode_image_param", "decode_image_bytes", "load_image_param",
@@ -143,7 +143,7 @@ def prepare_image(image: np.ndarray, content_size: tuple[int, int], *, srgb: boo
     """
     import cv2  # lazy: OpenCV is heavy; only the coordinator prepares content
 
-    from coordinator.compensation.quality import srgb_to_linear  # lazy: imports scikit-image
+    from imaging.compensation.quality import srgb_to_linear  # lazy: imports scikit-image
 
     img = as_linear(image)
     if img.ndim == 2:

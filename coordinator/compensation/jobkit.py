@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.geometry import content_to_camera
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.geometry import content_to_camera
 from coordinator.compensation.store import StoredTransport, load_valid_transport
 from coordinator.jobs import JobContext, JobError
 from coordinator.rig import ProjectionPose

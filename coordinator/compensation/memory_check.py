@@ -3,7 +3,7 @@ with one :class:`~coordinator.jobs.JobError` line before it allocates, when it w
 coordinator may still take (:mod:`coordinator.memory_budget`)."""
 from __future__ import annotations
 
-from coordinator.compensation.memory_estimate import (
+from imaging.compensation.memory_estimate import (
     BUILD_PER_ENTRY,
     measure_bytes,
     ridge_bytes,

@@ -6,14 +6,14 @@ the cameras of a :class:`~coordinator.compensation.mesh_rig.MeshCameras` act as 
 image is theirs stacked top to bottom:
 
 * every camera captures every dot pattern (one schedule keeps each dot's window clear in every
-  camera that sees it: :func:`~coordinator.compensation.mesh_geometry.schedule_dots`), so the
+  camera that sees it: :func:`~imaging.compensation.mesh_geometry.schedule_dots`), so the
   captures grow with the cameras, never with the projectors;
 * a texel's column of ``L`` holds its window in each camera that sees it
-  (:func:`stacked_windows`: the windows of :func:`~coordinator.compensation.mesh_geometry.texel_windows`
+  (:func:`stacked_windows`: the windows of :func:`~imaging.compensation.mesh_geometry.texel_windows`
   placed in the stacked image), so the rows of the cameras that do not see it are empty, and its
   column in camera ``k``'s rows is what camera ``k`` alone would measure;
 * in the solve every camera pixel's residual weighs ``cos``, how squarely that camera sees the
-  surface there (:func:`~coordinator.compensation.mesh_geometry.row_weights`, one divisor for all
+  surface there (:func:`~imaging.compensation.mesh_geometry.row_weights`, one divisor for all
   cameras), times its texel's **share** of that camera (:func:`camera_shares`).
 
 Why shares and not the best camera alone: every camera's rows are a real measurement of the same
@@ -34,15 +34,15 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.mesh_geometry import (
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.mesh_geometry import (
     measured_texels,
     ring_energy,
     row_weights,
     texel_windows,
 )
 from coordinator.compensation.mesh_rig import MIN_COS, MeshCameras
-from coordinator.compensation.texture_space import texels_per_pixel
+from imaging.compensation.texture_space import texels_per_pixel
 
 __all__ = ["stacked_windows", "camera_blocks", "camera_shares", "stacked_row_weights", "stacked_ring_energy",
            "camera_summary"]
@@ -55,7 +55,7 @@ def stacked_windows(positions: Sequence[np.ndarray], seen: Sequence[np.ndarray],
     Parameters
     ----------
     positions : K arrays (n, 2) float
-        Each camera's position of every texel (:class:`~coordinator.compensation.texture_space.TexelMap`).
+        Each camera's position of every texel (:class:`~imaging.compensation.texture_space.TexelMap`).
     seen : K arrays (n,) bool
         The texels measured in each camera.
     part_shape : (Hc, Wc)
@@ -136,7 +136,7 @@ def camera_shares(cams: MeshCameras, measured: Sequence[np.ndarray]) -> np.ndarr
 def stacked_row_weights(cams: MeshCameras, L: sp.spmatrix, *, radius: int, min_cos: float = MIN_COS) -> np.ndarray:
     """The solve's weight of every pixel of the stacked image: ``(K Hc, Wc) float32``, 0 off the surface it uses.
 
-    Per camera :func:`~coordinator.compensation.mesh_geometry.row_weights` with that camera's
+    Per camera :func:`~imaging.compensation.mesh_geometry.row_weights` with that camera's
     measured texels (its rows of ``L``), times the share of the texel each pixel sees
     (:func:`camera_shares`); one divisor for all: the median of ``cos`` over the pixels used.
     One camera: exactly its :func:`row_weights`.
@@ -171,7 +171,7 @@ def stacked_row_weights(cams: MeshCameras, L: sp.spmatrix, *, radius: int, min_c
 
 
 def stacked_ring_energy(L: sp.spmatrix, base: np.ndarray, part_shape: Sequence[int], radius: int) -> float:
-    """:func:`~coordinator.compensation.mesh_geometry.ring_energy` of a stacked ``L`` (``base`` (K, n, 2), each
+    """:func:`~imaging.compensation.mesh_geometry.ring_energy` of a stacked ``L`` (``base`` (K, n, 2), each
     camera's window centres): the share of all squared entries on the outer ring of their windows."""
     blocks = camera_blocks(L, len(base))
     ring = total = 0.0

@@ -2,7 +2,7 @@
 
 ``p' = argmin ||W^1/2 (L p - c')||^2 + lam ||p - p0||^2, 0 <= p <= 1`` over the texels ``L``
 measured (:mod:`coordinator.compensation.mesh_transport`); ``W`` weighs each camera pixel by the
-cosine of its viewing angle (:func:`~coordinator.compensation.mesh_geometry.row_weights`: per pixel,
+cosine of its viewing angle (:func:`~imaging.compensation.mesh_geometry.row_weights`: per pixel,
 as the captures are scored); with several cameras the rows are all
 their pixels, each also weighed by its texel's share of that camera
 (:mod:`coordinator.compensation.mesh_cameras`). Texels no camera sees (or that
@@ -10,7 +10,7 @@ could not be measured) stay uncompensated: they keep ``p0``, the content at the 
 uncompensated start (``none``), and their count and share are reported.
 
 The target is the content as the camera would see it on the object without blur: sampled at each
-camera pixel's uv (:func:`~coordinator.compensation.texture_space.content_at_view`) times
+camera pixel's uv (:func:`~imaging.compensation.texture_space.content_at_view`) times
 ``level`` times the rig's white at that pixel (``L 1``). On an object the rig's white changes with
 the surface's orientation to the projectors; keeping it (removing the blur, not the shading)
 keeps the target within reach everywhere, where a flat target would dim the whole object to its
@@ -20,11 +20,11 @@ least lit part. The per-projector baseline asks each projector for its own share
 
 Quality is scored over the visible surface (the pixels the solve weighs): captures minus black
 and the target, both divided by the target's 99th percentile, PSNR and SSIM over those pixels only
-(:func:`~coordinator.compensation.mesh_geometry.masked_quality`); with several cameras over all
+(:func:`~imaging.compensation.mesh_geometry.masked_quality`); with several cameras over all
 their pixels together, and per camera. An object can be lit far brighter than the table the camera's
 exposure was set on (25 projectors on the bust's crown: 1.9 times the camera's full scale), and a
 clipped capture scores the sensor, not the compensation. ``L`` was measured at an exposure that keeps
-the rig's white in range (:mod:`coordinator.compensation.exposure`), and the evaluation captures at
+the rig's white in range (:mod:`imaging.compensation.exposure`), and the evaluation captures at
 that one, lowered further if the white on the scored surface still passes :data:`HEADROOM` of full
 scale (:func:`evaluation_exposure`; reported, and warned about on a camera that cannot change it).
 """
@@ -36,9 +36,9 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.exposure import HEADROOM
-from coordinator.compensation.geometry import row_white
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.exposure import HEADROOM
+from imaging.compensation.geometry import row_white
 from coordinator.compensation.image_param import prepare_image
 from coordinator.compensation.jobkit import (
     baseline_exposure,
@@ -47,7 +47,7 @@ from coordinator.compensation.jobkit import (
     throttled,
 )
 from coordinator.compensation.memory_check import check_stored
-from coordinator.compensation.mesh_geometry import masked_quality, measured_texels
+from imaging.compensation.mesh_geometry import masked_quality, measured_texels
 from coordinator.compensation.mesh_transport import (
     capture_cameras,
     ensure_mesh_baseline,
@@ -58,18 +58,18 @@ from coordinator.compensation.mesh_transport import (
     texel_summary,
 )
 from coordinator.compensation.options import CompensateOptions
-from coordinator.compensation.quality import side_by_side
-from coordinator.compensation.ridge import RidgeProblem, best_scale
-from coordinator.compensation.solver import SolveResult, solve
+from imaging.compensation.quality import side_by_side
+from imaging.compensation.ridge import RidgeProblem, best_scale
+from imaging.compensation.solver import SolveResult, solve
 from coordinator.compensation.store import (
     SUBDIR,
     compensation_dir,
     transport_summary,
     write_result,
 )
-from coordinator.compensation.texture_space import content_at_view, mesh_warp
+from imaging.compensation.texture_space import content_at_view, mesh_warp
 from coordinator.jobs import JobContext, JobError
-from coordinator.store import atomic_write_bytes
+from protos.store import atomic_write_bytes
 
 __all__ = ["run_mesh_compensate", "WeightedProblem", "weighted_solve", "solve_baseline", "evaluation_exposure"]
 

@@ -1,5 +1,5 @@
 """A mesh rig's geometry for the compensation jobs: the posed camera, the mesh, and the texture-space
-maps rendered from them (:mod:`coordinator.compensation.texture_space`).
+maps rendered from them (:mod:`imaging.compensation.texture_space`).
 
 The camera's pinhole comes from ``calibration/cameras.json`` (3D calibration poses every camera
 in the world); several cameras measure the rig together as one (:class:`MeshCameras`: their
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.texture_space import (
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.texture_space import (
     DeviceView,
     MeshCaster,
     TexelMap,
@@ -44,7 +44,7 @@ class MeshGeometry:
     ``P``: (3, 4) float64 camera projection; ``camera_shape``: (Hc, Wc); ``view``: the camera's
     view of the mesh; ``texels``: each texel's camera position and visibility; ``projectors``:
     each slot's view through its pose at its projector size (when asked for); ``padding``: the
-    texture's edge padding (:func:`~coordinator.compensation.texture_space.padding_index`), applied
+    texture's edge padding (:func:`~imaging.compensation.texture_space.padding_index`), applied
     to every image the nodes are sent (:meth:`pad`).
     """
 
@@ -136,7 +136,7 @@ class MeshCameras:
 
 def reaching_texels(texels: TexelMap, content_size: tuple[int, int]) -> np.ndarray:
     """The texels whose light reaches a camera: ``(n,) bool``, those it sees at any angle (``texels`` from
-    :func:`~coordinator.compensation.texture_space.texel_camera_map` with ``min_cos=0``) and their 8
+    :func:`~imaging.compensation.texture_space.texel_camera_map` with ``min_cos=0``) and their 8
     neighbours in the texture (on the mesh, with a camera position).
 
     A node samples the texture bilinearly, so a texel's light covers its neighbours' span on the surface:

@@ -3,17 +3,17 @@
 Each node renders the dot pattern as the mesh's texture through its own 3x4 pose, so every
 projector lights the same surface dots; ``sx * sy`` patterns (plus a few extra patterns for dots
 that would crowd in a camera, and four captures: the white that sets the exposure, the black, and
-the first pattern and the black that set the dots' longer one, :mod:`coordinator.compensation.exposure`)
-whatever the number of projectors (:class:`~coordinator.compensation.mesh_geometry.TexelGrid`). Several
+the first pattern and the black that set the dots' longer one, :mod:`imaging.compensation.exposure`)
+whatever the number of projectors (:class:`~imaging.compensation.mesh_geometry.TexelGrid`). Several
 cameras (``camera_indices``) measure together, each capturing every pattern, as one camera whose
 image is theirs stacked (:mod:`coordinator.compensation.mesh_cameras`). Each
 dot's window is centred where the camera sees its texel
-(:func:`~coordinator.compensation.texture_space.texel_camera_map`); dots that would crowd in a
-camera move to extra patterns (:mod:`coordinator.compensation.mesh_geometry`), and texels no camera
+(:func:`~imaging.compensation.texture_space.texel_camera_map`); dots that would crowd in a
+camera move to extra patterns (:mod:`imaging.compensation.mesh_geometry`), and texels no camera
 sees, or whose light is too wide for a window, get no column and are reported. The windows reach
 :data:`TAIL_FACTOR` times the PSF's core radius (from the geometry) unless ``radius`` is given: the
 core's entries are each texel's own, the tail's the mean over its neighbours
-(:mod:`coordinator.compensation.psf_tails`), so ``L 1`` holds the defocus's spill without the
+(:mod:`imaging.compensation.psf_tails`), so ``L 1`` holds the defocus's spill without the
 clipped noise of a single capture. Stored, reused and refused as the table's ``L``
 (:mod:`coordinator.compensation.transport_job`), with the cameras' projections and the mesh in
 its fingerprint. With ``baseline`` each projector's ``L_i`` is measured one at a time: the
@@ -29,13 +29,9 @@ import scipy.sparse as sp
 
 from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.memory_check import check_measure, check_stored
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.exposure import dot_exposure, exposure_for_white
-from coordinator.compensation.geometry import (
-    EDGE_WARNING,
-    psf_radius_at_scales,
-    row_white,
-)
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.exposure import dot_exposure, exposure_for_white
+from imaging.compensation.geometry import EDGE_WARNING, psf_radius_at_scales, row_white
 from coordinator.compensation.jobkit import (
     baseline_exposure,
     content_size,
@@ -49,7 +45,7 @@ from coordinator.compensation.mesh_cameras import (
     stacked_row_weights,
     stacked_windows,
 )
-from coordinator.compensation.mesh_geometry import (
+from imaging.compensation.mesh_geometry import (
     measured_texels,
     schedule_dots,
     texel_extent,
@@ -68,7 +64,7 @@ from coordinator.compensation.store import (
     transport_fingerprint,
     transport_summary,
 )
-from coordinator.compensation.texture_space import mesh_warp
+from imaging.compensation.texture_space import mesh_warp
 from coordinator.jobs import JobContext, JobError
 
 __all__ = ["run_mesh_transport", "ensure_mesh_transport", "ensure_mesh_baseline", "load_geometry", "texel_summary",
@@ -76,7 +72,7 @@ __all__ = ["run_mesh_transport", "ensure_mesh_transport", "ensure_mesh_baseline"
 
 
 #: default window radius over the PSF's core radius from the geometry: the outer part holds the lens's
-#: defocus tail, measured as the mean over neighbouring texels (:mod:`coordinator.compensation.psf_tails`)
+#: defocus tail, measured as the mean over neighbouring texels (:mod:`imaging.compensation.psf_tails`)
 TAIL_FACTOR = 2
 
 

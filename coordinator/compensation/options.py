@@ -18,9 +18,9 @@ from protos import cli_types
 __all__ = ["ResponseOptions", "TransportOptions", "CompensateOptions", "SequenceOptions", "VideoOptions",
            "METHODS", "REGULARIZATION", "MESH_REGULARIZATION"]
 
-#: the solver's methods (as :data:`coordinator.compensation.solver.METHODS`, without importing SciPy)
+#: the solver's methods (as :data:`imaging.compensation.solver.METHODS`, without importing SciPy)
 METHODS = ("apg", "steepest", "lbfgsb")
-#: default ridge weight of the solves, relative to ||L||^2 (:data:`coordinator.compensation.ridge.DEFAULT_REGULARIZATION`)
+#: default ridge weight of the solves, relative to ||L||^2 (:data:`imaging.compensation.ridge.DEFAULT_REGULARIZATION`)
 REGULARIZATION = 0.02
 #: the image solve's default on a mesh rig: on the room's bust the captured PSNR and SSIM rose as the ridge fell
 #: from 0.02 to 0.001 and no fitted noise showed; 0.002 keeps the solve near 100 iterations (0 took all 300)
@@ -225,7 +225,7 @@ def _cluster_address(value: Any) -> str:
     return text
 
 
-#: --motion's choices: off, or the DIS optical flow preset (coordinator.compensation.motion.PRESETS)
+#: --motion's choices: off, or the DIS optical flow preset (imaging.compensation.motion.PRESETS)
 MOTION_FLOWS = ("off", "ultrafast", "fast", "medium")
 
 #: frames per segment of a --cluster run when --segment-frames is not given (10 s at 24 fps: a cold

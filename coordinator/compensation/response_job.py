@@ -9,10 +9,10 @@ Per projector, the others black, grey levels are shown by that projector alone (
 space, LUT off). The default ``patches`` mode shows a white frame, then frames of grey patches
 (``rows x cols`` levels at once, each level at ``repeats`` positions); a patch's normalised
 response is ``mean(capture - black) / mean(white - black)`` over the camera pixels it covers
-(the pose and the table -> camera mapping place it, :mod:`~coordinator.compensation.patches`),
+(the pose and the table -> camera mapping place it, :mod:`~imaging.compensation.patches`),
 which cancels the projector's fall-off across the table. ``full`` mode shows one uniform grey
 level per capture. A monotone curve is fitted per channel
-(:func:`~coordinator.compensation.response.fit_response`), its inverse LUT stored and pushed,
+(:func:`~imaging.compensation.response.fit_response`), its inverse LUT stored and pushed,
 then one uniform gain is chosen so the rig matches a reference brightness, and the rig's light
 after the LUTs is checked to be a straight line of the requested level.
 
@@ -26,12 +26,12 @@ import zlib
 
 import numpy as np
 
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.geometry import inscribed_region
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.geometry import inscribed_region
 from coordinator.compensation.jobkit import content_size, rig_geometry, rounded
 from coordinator.compensation.options import ResponseOptions
-from coordinator.compensation.patches import camera_patch_labels, patch_labels, patch_layouts, patch_response
-from coordinator.compensation.response import (
+from imaging.compensation.patches import camera_patch_labels, patch_labels, patch_layouts, patch_response
+from imaging.compensation.response import (
     FittedResponse,
     brightness_scale,
     capture_means,

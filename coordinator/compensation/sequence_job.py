@@ -2,7 +2,7 @@
 
 Each frame is solved from the previous frame's solution moved by the content's change, its
 correction moved along the content's motion as far as that helps (``motion``,
-:class:`~coordinator.compensation.ridge.ContentWarmStart`, through
+:class:`~imaging.compensation.ridge.ContentWarmStart`, through
 :class:`~coordinator.compensation.frames.FrameSolver`): ``first_iterations`` for the first
 frame, ``iterations`` for each later one, so the time per frame is bounded. The frames are
 played as 16-bit content on every node (``play``), and the figures stored in
@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.compensation.errors import CompensationError
+from imaging.compensation.errors import CompensationError
 from coordinator.compensation.frames import open_frame_solver
 from coordinator.compensation.image_param import decode_image_param
 from coordinator.compensation.options import SequenceOptions

@@ -1,6 +1,6 @@
 """What the compensation jobs keep in the rig directory, and when it is still valid.
 
-Layout (every write atomic, :mod:`coordinator.store`)::
+Layout (every write atomic, :mod:`protos.store`)::
 
     compensation/responses/<slot>.json   fitted response of a projector (its LUT is in luts/)
     compensation/response.json           brightness match and linearity of the last run
@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.errors import TransportFileError
-from coordinator.compensation.response import FittedResponse
-from coordinator.compensation.transport import load_transport, save_transport
+from imaging.compensation.errors import TransportFileError
+from imaging.compensation.response import FittedResponse
+from imaging.compensation.transport import load_transport, save_transport
 from coordinator.rig import HomographyPose, Rig
-from coordinator.store import atomic_save_npy, atomic_write_json
+from protos.store import atomic_save_npy, atomic_write_json
 
 __all__ = [
     "SUBDIR",
@@ -156,7 +156,7 @@ def rig_state_fingerprint(rig: Rig, slots: Sequence[str], H: np.ndarray, camera:
 def transport_fingerprint(state: str, radius: int, spacing: int | None, frames: int, *, core: int | None = None) -> str:
     """One measurement: the rig's state and the dot grid it was measured with (names its black capture and
     ties the baseline's ``L_i`` to it); ``core``: the windows' radius kept per texel when the tails beyond it
-    are averaged over neighbours (:mod:`coordinator.compensation.psf_tails`)."""
+    are averaged over neighbours (:mod:`imaging.compensation.psf_tails`)."""
     key = (state, radius, spacing, frames) if core is None else (state, radius, spacing, frames, "tails", core)
     return hashlib.blake2b(repr(key).encode(), digest_size=10).hexdigest()
 

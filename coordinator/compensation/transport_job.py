@@ -5,12 +5,12 @@ pose (plus one black capture) give the summed light transport ``L`` (camera pixe
 pixels), stored in ``compensation/transport.npz``. A camera that can change its exposure per
 capture takes the dots longer than the white, as far as the first pattern allows (two more
 captures: that pattern at the camera's exposure, and the black at the longer one;
-:func:`~coordinator.compensation.exposure.dot_exposure`), and ``L``'s noise falls as much. The
-PSF radius follows the geometry (:func:`~coordinator.compensation.geometry.psf_radius`) and the
+:func:`~imaging.compensation.exposure.dot_exposure`), and ``L``'s noise falls as much. The
+PSF radius follows the geometry (:func:`~imaging.compensation.geometry.psf_radius`) and the
 spacing is the smallest that keeps the dots' windows apart
-(:func:`~coordinator.compensation.geometry.choose_spacing`); a measured ``L`` whose windows cut
+(:func:`~imaging.compensation.geometry.choose_spacing`); a measured ``L`` whose windows cut
 light is reported
-(:func:`~coordinator.compensation.geometry.edge_energy`). With ``baseline``, each projector's
+(:func:`~imaging.compensation.geometry.edge_energy`). With ``baseline``, each projector's
 ``L_i`` is measured too, one projector at a time (``N*S*S`` captures), for the conventional
 method only.
 
@@ -30,9 +30,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.capture_feed import transport_while_capturing
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.exposure import dot_exposure
-from coordinator.compensation.geometry import (
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.exposure import dot_exposure
+from imaging.compensation.geometry import (
     EDGE_WARNING,
     choose_spacing,
     edge_energy,
@@ -61,7 +61,7 @@ from coordinator.compensation.store import (
     transport_fingerprint,
     transport_summary,
 )
-from coordinator.compensation.transport import DotGrid
+from imaging.compensation.transport import DotGrid
 from coordinator.jobs import JobContext, JobError
 from protos.spaces import warp_content
 

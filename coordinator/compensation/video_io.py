@@ -29,7 +29,7 @@ import av
 import numpy as np
 
 from coordinator.assets import AssetStore
-from coordinator.compensation.errors import CompensationError
+from imaging.compensation.errors import CompensationError
 from coordinator.compensation.image_param import decode_image_bytes
 from protos.asset_manifest import Manifest
 

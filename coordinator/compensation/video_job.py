@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from coordinator.assets import AssetStore
-from coordinator.compensation.errors import CompensationError
+from imaging.compensation.errors import CompensationError
 from coordinator.compensation.frames import FrameSolver, SolvedFrame, open_frame_solver
 from coordinator.compensation.options import VideoOptions
 from coordinator.compensation.store import compensation_dir, write_result
@@ -52,7 +52,7 @@ from coordinator.compensation.video_io import AssetFrames, Ffv1Writer, join_segm
 from coordinator.errors import AssetError
 from coordinator.jobs import JobContext, JobError
 from coordinator.show import manifest_rate
-from coordinator.store import atomic_file
+from protos.store import atomic_file
 from protos.asset_manifest import Manifest
 
 __all__ = ["OPTIONS", "run", "compensated_name", "run_key"]

@@ -18,7 +18,7 @@ import numpy as np
 from aiohttp import web
 
 from coordinator.api import Space
-from coordinator.errors import CoordinatorError
+from coordinator.errors import OPERATOR_ERRORS, CoordinatorError
 from coordinator.fit import FIT_MODES
 from coordinator.float_range import check_float_range
 from coordinator.image_decode import MAX_PIXELS, decode_image
@@ -95,7 +95,7 @@ class Actions:
             status, result = 400, str(exc)
         except RpcRefusal as exc:
             status, result = 409, exc.message
-        except CoordinatorError as exc:
+        except OPERATOR_ERRORS as exc:
             status, result = 409, str(exc)
         except web.HTTPException:
             raise

@@ -1,6 +1,6 @@
 """`shadowless bench calibration`'s command line: the bust is a surface of its own, and mistakes are
 one-line errors before any room is built (the benchmark itself is too long for the suite; the
-multiplexed 3D mode it measures is tested in tests/coordinator/calibration/test_multiplex3d.py)."""
+multiplexed 3D mode it measures is tested in tests/imaging/calibration/test_multiplex3d.py)."""
 from __future__ import annotations
 
 import argparse

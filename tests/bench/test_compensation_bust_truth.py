@@ -15,7 +15,7 @@ from bench.compensation_bust import (
     mesh_transport_errors,
     truth_mesh_transport,
 )
-from coordinator.compensation.texture_space import MeshCaster, padded, padding_index
+from imaging.compensation.texture_space import MeshCaster, padded, padding_index
 from shadowless.room_driver import RoomDriver
 
 CONTENT = (128, 96)

@@ -20,7 +20,7 @@ import pytest
 av = pytest.importorskip("av")
 
 from coordinator import assets as assets_mod  # noqa: E402
-from coordinator import content_commands, content_format  # noqa: E402
+from rigctl import content_commands, content_format  # noqa: E402
 from coordinator.asset_probe import pixel_format_layout, probe_video  # noqa: E402
 from coordinator.assets import STAGING_LOCK, AssetStore  # noqa: E402
 from coordinator.errors import AssetError  # noqa: E402

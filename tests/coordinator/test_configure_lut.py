@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from coordinator.client import OperatorError
-from coordinator.commands import read_lut
+from rigctl.client import OperatorError
+from rigctl.commands import read_lut
 from coordinator.rig import Rig, init_rig
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from coordinator.assets import AssetStore
-from coordinator.content_format import human_bytes
+from rigctl.content_format import human_bytes
 from protos import control_pb2, control_pb2_grpc
 from shadowless.local import LocalRig
 
@@ -128,7 +128,7 @@ def test_a_folder_uploads_as_an_image_sequence_at_its_rate(rig, tmp_path):
 def test_compensate_uploads_a_video_file_from_another_machine(rig, tmp_path, capsys):
     import argparse
 
-    from coordinator.compensation import cli as compensate_cli
+    from rigctl import compensation_cli as compensate_cli
 
     clip = tmp_path / "scene.mp4"
     write_clip(clip, frames=10)

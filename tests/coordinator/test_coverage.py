@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.calibration.threed import Pinhole
+from imaging.calibration.threed import Pinhole
 from coordinator.coverage import (
     CoverageModel,
     Projector,

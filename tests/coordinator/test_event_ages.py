@@ -11,7 +11,7 @@ import numpy as np
 from coordinator import wire
 from coordinator.api import AssetProgress, NodeState
 from coordinator.assets import AssetStore
-from coordinator.commands import status_dict
+from rigctl.commands import status_dict
 from coordinator.distribution import note_ready
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.server import Coordinator

@@ -14,8 +14,8 @@ import pytest
 
 from coordinator.api import PlaySettings
 from coordinator.asset_probe import probe_still
-from coordinator.client import Client
-from coordinator.compensation.errors import CompensationError
+from rigctl.client import Client
+from imaging.compensation.errors import CompensationError
 from coordinator.compensation.image_param import decode_image_param, encode_image_array
 from coordinator.errors import AssetError
 from coordinator.float_range import check_float_range

@@ -23,7 +23,7 @@ from numpy.lib import format as npy_format
 import bench.image_headers as H
 from coordinator.camera import CameraError, read_png
 from coordinator.compensation.image_param import decode_image_bytes
-from coordinator.compensation.errors import CompensationError
+from imaging.compensation.errors import CompensationError
 from coordinator.console import auth
 from coordinator.image_decode import FORMATS as DECODER_FORMATS
 from coordinator.image_decode import MAX_PIXELS, ImageRefused, decode_image, declared_size, read_image_file

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from coordinator.jobs import JobContext, JobError, Progress, option, registry
-from coordinator.job_command import ProgressView, run_job
+from rigctl.job_command import ProgressView, run_job
 from coordinator.rig import Rig
 from coordinator.server import Coordinator
 from shadowless.local import LocalRig

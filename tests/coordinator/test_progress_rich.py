@@ -9,9 +9,9 @@ import threading
 import pytest
 import rich.console
 
-from coordinator import content_format
-from coordinator.content_format import Progress as ByteProgress
-from coordinator.job_command import ProgressView, run_job
+from rigctl import content_format
+from rigctl.content_format import Progress as ByteProgress
+from rigctl.job_command import ProgressView, run_job
 from coordinator.jobs.context import Progress
 
 

@@ -24,7 +24,7 @@ from coordinator.coverage import Coverage
 from coordinator.coverage_store import save_coverage, summary_behind
 from coordinator.distribution import Distribution
 from coordinator.recovery import QUARANTINE, recover
-from coordinator.store import is_temp_name
+from protos.store import is_temp_name
 from coordinator.rig import Content, HomographyPose, Rig, init_rig
 from coordinator.uploads import UploadFile, Uploads, upload_id
 

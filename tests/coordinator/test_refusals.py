@@ -189,7 +189,7 @@ def test_tls_channel(tmp_path):
         rig.start_node("r0c0")
 
         async def go():
-            from coordinator.client import Client
+            from rigctl.client import Client
 
             deadline = time.monotonic() + 60
             while True:

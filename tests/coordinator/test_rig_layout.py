@@ -11,12 +11,12 @@ import tomllib
 import numpy as np
 import pytest
 
-from coordinator import rigcli
+from rigctl import rigcli
 from coordinator.jobs import JobError
 from coordinator.rig import HomographyPose, Rig, parse_config
 from coordinator.rig_layout import content_size_of, table_mesh
 from protos.spaces import content_to_table
-from sim.plan import cli as plan_cli
+from planner import cli as plan_cli
 from sim.scene import load_layout
 
 

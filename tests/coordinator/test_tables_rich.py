@@ -8,8 +8,8 @@ import pytest
 
 from coordinator.api import (AssetProgress, NodeShow, NodeShowState, NodeState, NodeStatus, Refusal, RigStatus,
                              SyncSummary)
-from coordinator.commands import status_dict, status_table
-from coordinator.content_format import assets_table, print_assets
+from rigctl.commands import status_dict, status_table
+from rigctl.content_format import assets_table, print_assets
 from protos.asset_manifest import Blob, Manifest
 
 HOST = "projector-box-with-a-long-name.local"      # longer than the old 15-character cut

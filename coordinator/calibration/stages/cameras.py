@@ -2,7 +2,7 @@
 
 Per camera, the table -> camera homography comes from known table points, a ChArUco
 board found in the all-white capture, or the mapping an earlier run saved. On a mesh,
-each camera is also posed in the world (:func:`coordinator.calibration.threed.pose_camera`)
+each camera is also posed in the world (:func:`imaging.calibration.threed.pose_camera`)
 and the mesh is registered from landmarks given in its own frame. The result goes to
 ``calibration/cameras.json``.
 """
@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.calibration import planar, threed
-from coordinator.calibration.errors import CalibrationError
-from coordinator.calibration.points import PointSet
+from imaging.calibration import planar, threed
+from imaging.calibration.errors import CalibrationError
+from imaging.calibration.points import PointSet
 from coordinator.calibration.runs import rounded, save_cameras
 from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobError

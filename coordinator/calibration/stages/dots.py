@@ -1,15 +1,15 @@
 """Stage 3, multiplexed (planar): every projector at once, so the captures do not grow with
 their number. Coded dots give each projector a coarse pose; an interleaved lattice of dots
 planned through the coarse poses then gives the final one
-(:mod:`coordinator.calibration.multiplex`)."""
+(:mod:`imaging.calibration.multiplex`)."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from coordinator.calibration import multiplex, planar
-from coordinator.calibration.errors import CalibrationError
+from imaging.calibration import multiplex, planar
+from imaging.calibration.errors import CalibrationError
 from coordinator.calibration.runs import save_slot, slot_doc
 from coordinator.calibration.stages.state import SATURATED, Abort, State
 from coordinator.jobs import JobError

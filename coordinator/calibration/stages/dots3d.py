@@ -2,15 +2,15 @@
 with their number. Coded dots decoded in every posed camera and lifted onto the surface give
 each projector a coarse 3x4 pose; a lattice of dots planned on the surface through the coarse
 poses (so that no two overlap on the object) gives the final one
-(:mod:`coordinator.calibration.multiplex3d`)."""
+(:mod:`imaging.calibration.multiplex3d`)."""
 from __future__ import annotations
 
 import numpy as np
 
-from coordinator.calibration import multiplex, threed
-from coordinator.calibration.alignment import plan_surface_lattice
-from coordinator.calibration.errors import CalibrationError
-from coordinator.calibration.multiplex3d import fit_pose, lift
+from imaging.calibration import multiplex, threed
+from imaging.calibration.alignment import plan_surface_lattice
+from imaging.calibration.errors import CalibrationError
+from imaging.calibration.multiplex3d import fit_pose, lift
 from coordinator.calibration.runs import save_slot, slot_doc
 from coordinator.calibration.stages.dots import check_dot_saturation
 from coordinator.calibration.stages.state import State

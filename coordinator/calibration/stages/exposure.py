@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from coordinator.calibration import graycode
+from imaging.calibration import graycode
 from coordinator.calibration.stages.state import SATURATED, Abort, State, full
 
 UNDER_EXPOSED = 0.02        # every projector white must reach at least this (fraction of full scale)

@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
-from coordinator.calibration import graycode, planar
-from coordinator.calibration.errors import CalibrationError
+from imaging.calibration import graycode, planar
+from imaging.calibration.errors import CalibrationError
 from coordinator.calibration.runs import save_slot, slot_doc
 from coordinator.calibration.stages.state import SATURATED, Abort, CameraSetup, State, full
 from coordinator.jobs import JobError

@@ -1,6 +1,6 @@
 """Stage 3, sequential on a mesh (3D): per projector the Gray codes of :mod:`.gray`; every
 camera pixel's ray cast onto the mesh (and the table) turns decoded pixels into world <->
-projector correspondences, and :func:`coordinator.calibration.threed.calibrate_projector`
+projector correspondences, and :func:`imaging.calibration.threed.calibrate_projector`
 gives the projector's 3x4 pose."""
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 
-from coordinator.calibration import threed
-from coordinator.calibration.errors import CalibrationError
+from imaging.calibration import threed
+from imaging.calibration.errors import CalibrationError
 from coordinator.calibration.options import CalibrateOptions
 from coordinator.calibration.runs import save_slot, slot_doc
 from coordinator.calibration.stages.gray import decode_all, gray_captures, seen_check

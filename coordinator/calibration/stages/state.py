@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coordinator.calibration import threed
+from imaging.calibration import threed
 from coordinator.calibration.options import CalibrateOptions, Inputs
 from coordinator.calibration.runs import Run, rounded
 from coordinator.jobs import JobContext, JobError

@@ -21,8 +21,8 @@ from bench.calibration import (
     rig_slots,
     table_points_from_truth,
 )
-from coordinator.calibration.planar import CharucoSpec, homography_difference
-from coordinator.calibration.points import write_points
+from imaging.calibration.planar import CharucoSpec, homography_difference
+from imaging.calibration.points import write_points
 from coordinator.calibration.stages import dots
 from coordinator.camera import open_camera
 from coordinator.jobs import JobError, Progress

@@ -17,7 +17,7 @@ import numpy as np
 
 from bench.calibration import table_points_from_truth
 from bench.compensation_room import demo_image, truth_transport
-from coordinator.compensation.transport import load_transport, transport_error
+from imaging.compensation.transport import load_transport, transport_error
 from coordinator.rig import Rig
 from shadowless.cli import main
 from shadowless.local import LocalRig

@@ -14,10 +14,10 @@ import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
 from bench.compensation_room import bilinear_warp_matrix
-from coordinator.calibration.planar import apply_homography, content_to_table
+from imaging.calibration.planar import apply_homography, content_to_table
 from coordinator.compensation.capture_feed import transport_while_capturing
-from coordinator.compensation.errors import CompensationError
-from coordinator.compensation.geometry import (
+from imaging.compensation.errors import CompensationError
+from imaging.compensation.geometry import (
     camera_target,
     choose_spacing,
     content_to_camera,
@@ -32,11 +32,11 @@ from coordinator.compensation.image_param import (
     encode_image_param,
     prepare_image,
 )
-from coordinator.compensation.patches import camera_patch_labels, patch_labels, patch_layouts, patch_response
-from coordinator.compensation.ridge import RidgeProblem, best_scale
-from coordinator.compensation.solver import solve
-from coordinator.compensation.synthetic import simulate_captures, synthetic_rig, synthetic_transport
-from coordinator.compensation.transport import DotGrid, transport_error, transport_from_captures, transport_windows
+from imaging.compensation.patches import camera_patch_labels, patch_labels, patch_layouts, patch_response
+from imaging.compensation.ridge import RidgeProblem, best_scale
+from imaging.compensation.solver import solve
+from imaging.compensation.synthetic import simulate_captures, synthetic_rig, synthetic_transport
+from imaging.compensation.transport import DotGrid, transport_error, transport_from_captures, transport_windows
 from coordinator.jobs import JobError
 from protos.spaces import lut_lookup, warp_content
 

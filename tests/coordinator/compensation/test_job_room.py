@@ -15,13 +15,13 @@ import scipy.sparse as sp
 
 from bench.calibration import make_rig, table_points_from_truth
 from bench.compensation_room import demo_image, points_doc, truth_transport
-from coordinator.compensation.geometry import EDGE_WARNING, camera_target, inscribed_region, psf_radius
+from imaging.compensation.geometry import EDGE_WARNING, camera_target, inscribed_region, psf_radius
 from coordinator.compensation.image_param import encode_image_array, prepare_image
-from coordinator.compensation.quality import quality
-from coordinator.compensation.response import brightness_scale
-from coordinator.compensation.solver import objective, solve
+from imaging.compensation.quality import quality
+from imaging.compensation.response import brightness_scale
+from imaging.compensation.solver import objective, solve
 from coordinator.compensation.store import load_stored_response, response_path
-from coordinator.compensation.transport import load_transport, transport_error
+from imaging.compensation.transport import load_transport, transport_error
 from coordinator.jobs import JobError
 from coordinator.rig import Content, HomographyPose, Mesh, ProjectionPose
 from shadowless.room_driver import RoomCamera, RoomDriver

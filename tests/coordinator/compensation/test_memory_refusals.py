@@ -16,8 +16,8 @@ from bench.calibration import make_rig, table_points_from_truth
 from bench.compensation_room import demo_image, points_doc
 from coordinator.assets import AssetStore
 from coordinator.compensation.image_param import encode_image_array
-from coordinator.compensation.memory_estimate import measure_bytes, transport_bytes
-from coordinator.compensation.transport import load_transport
+from imaging.compensation.memory_estimate import measure_bytes, transport_bytes
+from imaging.compensation.transport import load_transport
 from coordinator.jobs import JobError
 from shadowless.room_driver import RoomDriver
 from sim.room import Room
@@ -126,7 +126,7 @@ def test_a_mesh_rigs_transport_is_refused_after_the_black_capture(tmp_path, monk
 
 
 def test_compensate_with_the_baseline_counts_its_transports(setup, monkeypatch):
-    from coordinator.compensation.memory_estimate import ridge_bytes, solve_bytes
+    from imaging.compensation.memory_estimate import ridge_bytes, solve_bytes
 
     work, rig, driver = setup
     L, meta = load_transport(rig.path / "compensation" / "transport.npz")

@@ -15,9 +15,9 @@ from bench.compensation_bust import bust_room, make_bust_rig, mesh_transport_err
 from bench.compensation_room import demo_image
 from coordinator.compensation.image_param import encode_image_array
 from coordinator.compensation.mesh_cameras import camera_blocks, camera_shares, stacked_row_weights
-from coordinator.compensation.mesh_geometry import measured_texels, row_weights
+from imaging.compensation.mesh_geometry import measured_texels, row_weights
 from coordinator.compensation.mesh_rig import mesh_cameras
-from coordinator.compensation.transport import load_transport, transport_error
+from imaging.compensation.transport import load_transport, transport_error
 from coordinator.jobs import JobError
 from shadowless.room_driver import RoomDriver
 

@@ -13,11 +13,11 @@ import scipy.sparse as sp
 from bench.compensation_bust import bust_room, make_bust_rig, truth_mesh_transport
 from bench.compensation_room import demo_image
 from coordinator.compensation.image_param import encode_image_array
-from coordinator.compensation.exposure import DOT_GAIN_MAX
+from imaging.compensation.exposure import DOT_GAIN_MAX
 from coordinator.compensation.mesh_compensate import evaluation_exposure
-from coordinator.compensation.mesh_geometry import measured_texels
-from coordinator.compensation.texture_space import MeshCaster, padding_index
-from coordinator.compensation.transport import load_transport, transport_error
+from imaging.compensation.mesh_geometry import measured_texels
+from imaging.compensation.texture_space import MeshCaster, padding_index
+from imaging.compensation.transport import load_transport, transport_error
 from coordinator.jobs import JobError
 from coordinator.rig import HomographyPose
 from shadowless.room_driver import RoomCamera, RoomDriver

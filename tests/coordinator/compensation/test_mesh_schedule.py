@@ -4,13 +4,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from coordinator.compensation.mesh_geometry import (
-    TexelGrid,
-    dot_conflicts,
-    schedule_dots,
-)
+from imaging.compensation.mesh_geometry import TexelGrid, dot_conflicts, schedule_dots
 from coordinator.compensation.mesh_rig import reaching_texels
-from coordinator.compensation.texture_space import TexelMap, padded, padding_index
+from imaging.compensation.texture_space import TexelMap, padded, padding_index
 
 
 def _positions(w: int, h: int, rng) -> np.ndarray:

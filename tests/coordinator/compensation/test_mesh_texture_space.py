@@ -9,7 +9,7 @@ import pytest
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from bench.compensation_bust import bust_room, mesh_lookup_matrix
-from coordinator.compensation.mesh_geometry import (
+from imaging.compensation.mesh_geometry import (
     TexelGrid,
     dot_conflicts,
     masked_quality,
@@ -18,7 +18,7 @@ from coordinator.compensation.mesh_geometry import (
     texel_transport_from_captures,
     texel_windows,
 )
-from coordinator.compensation.texture_space import (
+from imaging.compensation.texture_space import (
     MeshCaster,
     content_at_view,
     mesh_warp,
@@ -141,7 +141,7 @@ def test_transport_recovered_from_dot_captures_is_the_true_one():
     seen = rng.random(w * h) < 0.9
     base, rows, valid = texel_windows(pos, seen, cam, radius)
     truth_vals = rng.random(rows.shape).astype(np.float32) * valid
-    from coordinator.compensation.transport import assemble_transport
+    from imaging.compensation.transport import assemble_transport
 
     truth = assemble_transport(truth_vals, rows, valid, cam)
     grid = TexelGrid(w, h, 2, 2)

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from coordinator.compensation import cli
+from rigctl import compensation_cli as cli
 from coordinator.compensation.image_param import decode_image_param
 from coordinator.compensation.options import (
     METHODS,
@@ -20,8 +20,8 @@ from coordinator.compensation.options import (
     SequenceOptions,
     TransportOptions,
 )
-from coordinator.compensation.ridge import DEFAULT_REGULARIZATION
-from coordinator.compensation.solver import METHODS as SOLVER_METHODS
+from imaging.compensation.ridge import DEFAULT_REGULARIZATION
+from imaging.compensation.solver import METHODS as SOLVER_METHODS
 from coordinator.jobs import JobError, parse_options
 
 
@@ -94,7 +94,7 @@ def test_transport_and_compensate_flags(tmp_path):
 
 
 def test_the_command_line_side_does_not_load_the_numerical_stack():
-    code = ("import sys, coordinator.compensation.cli, coordinator.compensation.options, "
+    code = ("import sys, rigctl.compensation_cli, coordinator.compensation.options, "
             "coordinator.compensation.image_param; "
             "print(sorted(m for m in ('scipy', 'cv2', 'skimage') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

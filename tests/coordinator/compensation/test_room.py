@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from coordinator.compensation import (
+from imaging.compensation import (
     DotGrid,
     capture_means,
     fit_response,

@@ -6,14 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from coordinator.compensation.motion import MotionWarp
-from coordinator.compensation.ridge import ContentWarmStart, RidgeProblem
-from coordinator.compensation.solver import FrameCompensator, TransportOperator, solve
-from coordinator.compensation.synthetic import (
-    sample_image,
-    synthetic_rig,
-    synthetic_transport,
-)
+from imaging.compensation.motion import MotionWarp
+from imaging.compensation.ridge import ContentWarmStart, RidgeProblem
+from imaging.compensation.solver import FrameCompensator, TransportOperator, solve
+from imaging.compensation.synthetic import sample_image, synthetic_rig, synthetic_transport
 
 
 def texture(h, w, seed=0):

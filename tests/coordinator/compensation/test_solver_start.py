@@ -8,24 +8,20 @@ import scipy.ndimage as ndi
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from coordinator.compensation.solver import (
+from imaging.compensation.solver import (
     FrameCompensator,
     TransportOperator,
     objective,
     solve,
 )
-from coordinator.compensation.stencil import StencilTransport, stencil_from_csr
-from coordinator.compensation.stencil_start import (
+from imaging.compensation.stencil import StencilTransport, stencil_from_csr
+from imaging.compensation.stencil_start import (
     _transfer,
     deconvolved_start,
     mean_kernel,
     wiener_kernel,
 )
-from coordinator.compensation.synthetic import (
-    sample_image,
-    synthetic_rig,
-    synthetic_transport,
-)
+from imaging.compensation.synthetic import sample_image, synthetic_rig, synthetic_transport
 
 SHAPE = (24, 30)
 

@@ -6,13 +6,9 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from coordinator.compensation.solver import TransportOperator, objective, solve
-from coordinator.compensation.stencil import stencil_from_csr
-from coordinator.compensation.synthetic import (
-    sample_image,
-    synthetic_rig,
-    synthetic_transport,
-)
+from imaging.compensation.solver import TransportOperator, objective, solve
+from imaging.compensation.stencil import stencil_from_csr
+from imaging.compensation.synthetic import sample_image, synthetic_rig, synthetic_transport
 
 SHAPE = (26, 30)
 

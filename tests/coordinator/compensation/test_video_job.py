@@ -25,7 +25,7 @@ from bench.calibration import make_rig, table_points_from_truth
 from bench.compensation_room import demo_image, points_doc
 from coordinator.asset_probe import probe_video
 from coordinator.assets import AssetStore
-from coordinator.compensation import cli
+from rigctl import compensation_cli as cli
 from coordinator.compensation.image_param import encode_image_array
 from coordinator.compensation.options import VideoOptions
 from coordinator.compensation.video_io import Ffv1Writer, join_segments

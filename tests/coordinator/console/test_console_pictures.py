@@ -22,8 +22,8 @@ import pytest
 from bench.calibration import table_points_from_truth
 from bench.compensation_room import demo_image
 from bench.console import ConsoleRig, chromium, log_in, visible, wait_for
-from coordinator.calibration.alignment import heatmap
-from coordinator.calibration.heatmap_figure import colourise, footprint_mm, heatmap_figure, turbo_lut
+from imaging.calibration.alignment import heatmap
+from imaging.calibration.heatmap_figure import colourise, footprint_mm, heatmap_figure, turbo_lut
 from coordinator.camera import encode_png16, open_camera
 from coordinator.console import auth
 from coordinator.console.pictures import CAMERA_INTERVAL_S, to_srgb

@@ -1,2 +1,0 @@
-"""The rig in VESA's MPCDI (Multiple Projection Common Data Interchange) format: an archive other
-projection tools read. See :mod:`coordinator.mpcdi.archive`."""

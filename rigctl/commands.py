@@ -1,0 +1,603 @@
+"""Operator commands: `shadowless status`, `show`, `play`, `configure`, and the timeline show
+(`shadowless play ASSET`, `shadowless show pause|resume|seek FRAME|stop`).
+
+They talk to a running coordinator through :class:`rigctl.client.Client`, after the
+same rig-token handshake the nodes use, and print tables (or JSON for scripts).
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import signal
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+import grpc
+import numpy as np
+from rich.text import Text
+
+from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, ShowState, SyncSummary
+from rigctl.client import OperatorError, add_connection_args
+from rigctl.content_format import operator_table, rendered
+from coordinator.errors import RigError
+from coordinator.float_range import check_float_range
+from coordinator.image_decode import ImageRefused, drop_alpha, read_image_file
+from rigctl.job_command import run_job
+from rigctl.rig_target import open_client
+from coordinator.schema import read_npy, validate_lut
+from protos import auth, cli_types
+from protos.mesh_files import MeshFileError, read_mesh
+from protos.version import MAX_REQUEST_BYTES
+
+
+# ---------------------------------------------------------------- formatting
+def _num(x: float) -> float | None:
+    return None if math.isnan(x) else round(x, 4)
+
+
+def sync_dict(s: SyncSummary) -> dict:
+    """Swap figures as JSON (NaN as null)."""
+    return {"frames": s.frames, "skew_p50_ms": _num(s.skew_p50_ms), "skew_p99_ms": _num(s.skew_p99_ms),
+            "skew_max_ms": _num(s.skew_max_ms), "skew_source": s.skew_source,
+            "clock_error_p99_ms": _num(s.clock_error_p99_ms), "late": s.frames_late, "dropped": s.frames_dropped,
+            "out_of_order": s.out_of_order}
+
+
+def assets_dict(n: NodeStatus) -> dict:
+    """A node's readiness as JSON: counts, bytes, the percentage of the bytes it holds (null when
+    nothing is wanted) and one item per wanted asset."""
+    pct = None if not n.asset_bytes_total else round(100.0 * n.asset_bytes_have / n.asset_bytes_total, 1)
+    if n.assets_wanted and not n.asset_bytes_total:
+        pct = 100.0 if n.assets_ready == n.assets_wanted else 0.0
+    return {"wanted": n.assets_wanted, "ready": n.assets_ready, "bytes_have": n.asset_bytes_have,
+            "bytes_total": n.asset_bytes_total, "percent": pct,
+            "items": [{"id": a.asset_id, "name": a.name, "ready": a.ready, "have": a.have_bytes, "total": a.total_bytes,
+                       "ready_age_ms": _num(a.ready_age_ms), **({"error": a.error} if a.error else {})}
+                      for a in n.assets]}
+
+
+def assets_cell(a: dict) -> str:
+    """The status table's readiness column: ``2/3 41%`` (``-`` when nothing is wanted; ``!`` when
+    the node gave up on an asset)."""
+    if not a["wanted"]:
+        return "-"
+    failed = "!" if any("error" in i for i in a["items"]) else ""
+    pct = 100 if a["ready"] == a["wanted"] else min(99, int(a["percent"] or 0))   # 100 % only when all are ready
+    return f"{a['ready']}/{a['wanted']} {pct}%{failed}"
+
+
+def status_dict(st: RigStatus) -> dict:
+    """The rig's status as JSON (what `shadowless status --json` prints). A slot without a joined
+    or live node carries the newest refusal of a node claiming it (``refusal``): why it is not there."""
+    num = _num
+    refusals = [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1), "count": r.count}
+                for r in st.refusals]
+    refused: dict[str, dict] = {}
+    for r in refusals:                       # newest first
+        refused.setdefault(r["slot"], r)
+    adm = st.admission
+
+    return {
+        "rig": {"name": st.rig_name, "id": st.rig_id, "instance": st.instance_id, "dir": st.rig_dir,
+                "protocol": st.protocol_version, "uptime_s": round(st.uptime_s, 1), "showing": st.showing,
+                "latency_budget_ms": st.latency_budget_ms, "coordinator_cpu_s": round(st.cpu_s, 3)},
+        "nodes": [{
+            "slot": n.slot, "state": n.state.value, "host": n.hostname, "pid": n.pid,
+            "clock_offset_ms": round(n.clock_offset_ms, 3), "drift_ppm": round(n.clock_drift_ppm, 2),
+            "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": num(n.clock_error_ms),
+            "last_swap_frame": n.last_swap_frame, "last_swap_age_ms": num(n.last_swap_age_ms),
+            "live_age_ms": num(n.live_age_ms),
+            "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
+            "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
+            "software": n.software_version, "output": n.output, "gl": n.gl,
+            "show": {"state": n.show.state.value, "revision": n.show.revision, "last_frame": n.show.last_frame,
+                     "shown": n.show.frames_shown, "missed": n.show.frames_late, "alone_ms": round(n.show.alone_ms)},
+            "refusal": refused.get(n.slot) if n.state.value in ("expected", "lost") else None,
+        } for n in st.nodes],
+        "sync": sync_dict(st.sync),
+        "show": show_dict(st.show),
+        "sent": {"frame_packets": st.frame_packets_sent, "frame_bytes": st.frame_bytes_sent,
+                 "show_updates": st.show_updates_sent, "show_bytes": st.show_bytes_sent},
+        "refusals": refusals,
+        "console": st.console,
+        "before_auth": {"in_flight_calls": adm.in_flight_calls, "in_flight_bytes": adm.in_flight_bytes,
+                        "peak_bytes": adm.peak_bytes, "admitted": adm.admitted, "refused": adm.refused,
+                        "malformed": adm.malformed, "max_calls": adm.max_calls, "max_bytes": adm.max_bytes,
+                        "max_calls_per_address": adm.max_calls_per_address,
+                        "max_bytes_per_address": adm.max_bytes_per_address, "waited": adm.waited},
+    }
+
+
+def show_dict(s: ShowState) -> dict:
+    """The timeline show as JSON."""
+    d = asdict(s)
+    d["fps"] = round(s.fps, 6)
+    return d
+
+
+def show_line(s: ShowState) -> str:
+    """One line about the timeline show."""
+    if s.state == "none":
+        return "no show"
+    what = f"asset {s.name or s.asset_id[:12]} ({s.asset_id[:12]})"
+    frame = f" frame {s.frame}/{s.frames}" if s.frame >= 0 else ""
+    return (f"show: {what} {s.state}{frame} at {s.fps:.3f} fps{', looping' if s.loop else ''}, revision {s.revision}")
+
+
+def show_cell(s: dict) -> str:
+    """A node's own account of the show, in a few characters: its state and its last frame."""
+    if s["state"] == "none":
+        return "-"
+    return f"{s['state']} {s['last_frame']}" if s["last_frame"] >= 0 else s["state"]
+
+
+#: the colour of a node's state on a terminal (others: yellow)
+STATE_STYLES = {"live": "green", "lost": "red", "refused": "red"}
+
+
+def _grouped(nodes: list[dict], key: str, verb: str) -> list[str]:
+    """One line per distinct value of ``key`` among the nodes that reported one: which slots
+    render with which GL, run which version (a rig should show one line of each)."""
+    groups: dict[str, list[str]] = {}
+    for n in nodes:
+        if n.get(key):
+            groups.setdefault(n[key], []).append(n["slot"])
+    out = []
+    for value, slots in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        if len(slots) == len(nodes):
+            out.append(f"every node {verb} {value}")
+        else:
+            out.append(f"{verb} {value}: {', '.join(slots[:8])}{' …' if len(slots) > 8 else ''} ({len(slots)})")
+    return out
+
+
+def status_table(d: dict, *, tty: bool = False) -> str:
+    """`shadowless status` as text: the rig, a table of its nodes (their states coloured for a
+    terminal, ``tty``), then outages, failed assets, sync figures and refusals."""
+    r = d["rig"]
+    lines = [f"rig {r['name']} ({r['id']})  instance {r['instance']}  up {r['uptime_s']:.0f} s  showing: {r['showing']}"]
+    t = operator_table("slot", "state", "host", ">offset ms", ">drift ppm", ">rtt ms", ">last frame", ">shown", ">late",
+                       ">drop", "pose", "show", "assets")
+    for n in d["nodes"]:
+        state = "refused" if n.get("refusal") else n["state"]
+        t.add_row(n["slot"], Text(state, style=STATE_STYLES.get(state, "yellow")), n["host"] or "-",
+                  f"{n['clock_offset_ms']:.3f}", f"{n['drift_ppm']:.1f}", f"{n['rtt_ms']:.3f}",
+                  str(n["last_swap_frame"] or "-"), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
+                  show_cell(n["show"]), assets_cell(n["assets"]))
+    lines.append(rendered(t, tty=tty))
+    lines += _grouped(d["nodes"], "gl", "renders with") + _grouped(d["nodes"], "software", "runs shadowless")
+    for n in d["nodes"]:
+        if n["show"]["alone_ms"]:
+            lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "
+                         "(its last outage)")
+        for item in n["assets"]["items"]:
+            if "error" in item:
+                lines.append(f"{n['slot']}: asset {item['id'][:12]} ({item['name']}): {item['error']}")
+    s = d["sync"]
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    lines.append(f"sync: {s['frames']} frames, skew p50 {fmt(s['skew_p50_ms'])} ms, p99 {fmt(s['skew_p99_ms'])} ms, "
+                 f"max {fmt(s['skew_max_ms'])} ms ({s['skew_source'] or 'no data'}); late {s['late']}, dropped {s['dropped']}, "
+                 f"out of order {s['out_of_order']}")
+    for n in d["nodes"]:                      # why a slot has no node: its newest refused join
+        ref = n.get("refusal")
+        if ref:
+            times = f"{ref['count']}x, last " if ref.get("count", 1) > 1 else ""
+            lines.append(f"{n['slot']}: refused from {ref['peer']}: {ref['reason']} ({times}{ref['age_s']:.0f} s ago)")
+    for ref in d["refusals"][:5]:            # newest first, counted per address, slot and reason
+        times = f"{ref['count']}x, last " if ref.get("count", 1) > 1 else ""
+        lines.append(f"refused {ref['peer']} {ref['slot'] or '-'}: {ref['reason']} ({times}{ref['age_s']:.0f} s ago)")
+    lines += status_extra_lines(d)
+    return "\n".join(lines)
+
+
+def status_extra_lines(d: dict) -> list[str]:
+    """The console's address (loud when it is not served) and the calls refused before authentication."""
+    out = []
+    console = d.get("console", "")
+    if console and console != "off":
+        out.append(f"console: {console}")
+    b = d.get("before_auth")
+    if b and (b["refused"] or b["malformed"] or b["in_flight_calls"]):
+        mib = 1024 * 1024
+        out.append(f"before authentication: {b['refused']} calls refused over the budget, {b['malformed']} malformed, "
+                   f"{b['admitted']} admitted, {b.get('waited', 0)} waited for room; in flight {b['in_flight_calls']} calls, "
+                   f"{b['in_flight_bytes'] / mib:.1f} MiB (budget {b['max_calls']} calls, "
+                   f"{b['max_bytes'] / mib:.0f} MiB; per address {b['max_calls_per_address']}, "
+                   f"{b['max_bytes_per_address'] / mib:.0f} MiB)")
+    return out
+
+
+def _npy(path: Path, dtypes: tuple[str, ...], what: str) -> np.ndarray:
+    try:
+        return read_npy(path, dtypes, what)
+    except RigError as exc:
+        raise OperatorError(str(exc)) from None
+
+
+def read_image(path: str, *, clip: bool = False, hint: str = "clip it to 0..1 first") -> np.ndarray:
+    """Read an image file as (H, W, C) RGB (alpha dropped): any format of
+    :func:`coordinator.image_decode.decode_image` (8/16-bit integer, float32), or a float32/uint8/
+    uint16 .npy. Float pixels must lie in 0..1: ``clip`` clips them, else OperatorError names the
+    range found and ``hint``."""
+    p = Path(path)
+    if not p.is_file():
+        raise OperatorError(f"{p}: {'not a file' if p.exists() else 'no such file'}")
+    if p.suffix == ".npy":
+        img = _npy(p, ("float32", "float64", "uint8", "uint16"), "image")
+        img = img.astype(np.float32) if img.dtype == np.float64 else img
+    else:
+        try:
+            img = read_image_file(p)
+        except ImageRefused as exc:
+            raise OperatorError(str(exc)) from None
+        img = drop_alpha(img)
+        if img.dtype not in (np.uint8, np.uint16, np.float32):
+            img = img.astype(np.float32)
+    try:
+        return check_float_range(img, str(p), clip=clip, hint=hint)
+    except ValueError as exc:
+        raise OperatorError(str(exc)) from None
+
+
+#: what `show` and `play` say of float content outside 0..1
+CLIP_HINT = "pass --clip to clip it to 0..1"
+
+
+def read_lut(path: str | Path) -> np.ndarray:
+    """An inverse-response LUT from a .npy: (3, E) (a curve per channel, R G B) or (E,) (one
+    curve for every channel, sent as (1, E), which every node applies to each channel); float32
+    or float64, 2 <= E <= 65536, finite values in 0..1. Returns (C, E) float32, C in {1, 3}."""
+    p = Path(path)
+    lut = _npy(p, ("float32", "float64"), "LUT")
+    if lut.ndim == 1:
+        lut = lut[None, :]
+    elif lut.ndim == 2 and lut.shape[0] == 1:
+        pass                                    # (1, E): already one curve for every channel
+    elif lut.ndim != 2 or lut.shape[0] != 3:
+        hint = "; transpose it (lut.T)" if lut.ndim == 2 and lut.shape[1] == 3 and lut.shape[0] != 3 else ""
+        raise OperatorError(f"{p}: a LUT must be (3, E) (a curve per channel) or (E,) (one curve for all), "
+                            f"got shape {lut.shape}{hint}")
+    lut = lut.astype(np.float32)
+    try:
+        validate_lut(lut)
+    except ValueError as exc:
+        lo, hi = (float(np.nanmin(lut)), float(np.nanmax(lut))) if lut.size and not np.isnan(lut).all() else (0, 0)
+        found = f" (found {lo:.6g} to {hi:.6g})" if "values" in str(exc) else ""
+        raise OperatorError(f"{p}: {exc}{found}") from None
+    return lut
+
+
+# ---------------------------------------------------------------- commands
+def configure_status(p: argparse.ArgumentParser) -> None:
+    p.description = ("Show the rig: every slot's node state, clock offset, drift, last swap, late/dropped frames, its "
+                     "readiness (assets ready/wanted and the share of their bytes it holds), and the swap skew.")
+    p.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
+    add_connection_args(p)
+
+
+SHOW_ACTIONS = ("pause", "resume", "seek", "stop")
+
+
+def configure_show(p: argparse.ArgumentParser) -> None:
+    p.description = ("Show an image on every projector (warped by each one's pose). 16-bit PNGs and float32 .npy "
+                     "files keep their precision. `shadowless show pause|resume|seek FRAME|stop` controls the "
+                     "timeline show started by `shadowless play ASSET` (each change takes effect on every node at "
+                     "the same instant, the coordinator's lead from now, or --in SECONDS).")
+    p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1]), or pause, resume, seek, stop")
+    p.add_argument("frame", nargs="?", type=cli_types.int_range(0), help="with seek: the asset frame to show")
+    p.add_argument("--persist", action="store_true", help="make it the rig's content (shown again after a restart)")
+    p.add_argument("--clip", action="store_true",
+                   help="clip a float image's values to 0..1 (without it, values outside 0..1 are refused)")
+    p.add_argument("--fit", choices=["contain", "cover", "stretch"],
+                   help="an image of another aspect than the rig's content area: contain (whole, black bars), cover "
+                        "(fills it, cropped) or stretch (distorted); without --fit it is refused")
+    p.add_argument("--in", dest="in_s", type=cli_types.number(0, 86400), default=0.0, metavar="SECONDS",
+                   help="with pause/resume/seek/stop: take effect this long from now (default: the coordinator's lead)")
+    p.add_argument("--json", action="store_true", help="with pause/resume/seek/stop: print the show state as JSON")
+    add_connection_args(p)
+
+
+def configure_play(p: argparse.ArgumentParser) -> None:
+    p.description = ("Play an asset of the rig's store on a timeline (each node decodes it from its own cache and "
+                     "swaps every frame at its time; the coordinator sends only start, pause, seek, stop), or a "
+                     "sequence of images (a folder, sorted by name) or a generated counter pattern, frame by frame.")
+    p.add_argument("source", nargs="?", help="an asset (id, id prefix or name; see `shadowless content list`) or a "
+                   "folder of images (omit with --pattern)")
+    p.add_argument("--pattern", choices=["counter"], help="generate frames on the coordinator instead")
+    p.add_argument("--frames", type=cli_types.int_range(1, 1_000_000), default=150, help="with --pattern: how many frames (default 150)")
+    p.add_argument("--fps", type=cli_types.number(0, 1000, lo_open=True), default=None, help="frame rate (default: an asset's own, else 30)")
+    p.add_argument("--in", dest="in_s", type=cli_types.number(0, 86400), default=0.0, metavar="SECONDS",
+                   help="an asset starts this long from now (default: the coordinator's lead)")
+    p.add_argument("--loop", action="store_true", help="an asset plays in a loop until stopped")
+    p.add_argument("--start-without", action="store_true",
+                   help="start an asset even if some live node does not hold it yet (it joins once it does)")
+    p.add_argument("--loops", type=cli_types.int_range(0, 100_000), default=0, help="extra loops (default 0: once)")
+    p.add_argument("--fit", choices=["contain", "cover", "stretch"],
+                   help="a folder's images of another aspect than the rig's content area: contain (whole, black bars), cover "
+                        "(fills it, cropped) or stretch (distorted); without --fit it is refused")
+    p.add_argument("--no-wait", action="store_true", help="return at once instead of waiting for the figures")
+    p.add_argument("--clip", action="store_true",
+                   help="clip a folder's float images to 0..1 (without it, values outside 0..1 are refused)")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="exit 0 even if not every live node showed every frame of a played sequence (default: "
+                        "exit 1 and say what was missed)")
+    p.add_argument("--latency-ms", type=cli_types.number(0, 10000), default=0.0, metavar="MS",
+                   help="a played sequence's frames are sent this far ahead of their time (default: rig.toml's "
+                        "latency_ms)")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    p.add_argument("--compensate", action="store_true", help="compensate the rig's blur frame by frame (warm-started "
+                   "solves over the measured light transport, see `shadowless compensate`), then play")
+    p.add_argument("--iterations", type=cli_types.int_range(1, 1000), default=4, help="with --compensate: solver iterations per frame (default 4)")
+    add_connection_args(p)
+
+
+def configure_configure(p: argparse.ArgumentParser) -> None:
+    p.description = "Set a slot's pose, LUT, gain or output size by hand (calibration normally does this)."
+    p.add_argument("--slot", required=True)
+    pose = p.add_mutually_exclusive_group()
+    pose.add_argument("--homography", metavar="FILE_OR_9_NUMBERS",
+                      help="a table's pose, content px -> projector px: a .npy (3,3) file or 9 comma-separated "
+                           "numbers, row-major")
+    pose.add_argument("--projection", metavar="FILE_OR_12_NUMBERS",
+                      help="an object's pose, world mm -> projector px: a .npy (3,4) file or 12 comma-separated "
+                           "numbers, row-major; with --mesh or --mesh-id")
+    p.add_argument("--mesh", type=cli_types.existing_file, metavar="OBJ_OR_PLY",
+                   help="with --projection: the object's mesh, with texture coordinates (sent with the pose)")
+    p.add_argument("--mesh-id", metavar="ID", help="with --projection: a mesh the rig already holds (RIG/meshes/ID.npz)")
+    p.add_argument("--lut", type=cli_types.existing_file, metavar="NPY",
+                   help="inverse-response LUT .npy: (3, E) float (a curve per channel) or (E,) (one curve for every "
+                        "channel), 2 <= E <= 65536 entries in 0..1")
+    p.add_argument("--gain", type=cli_types.number(0, 16), help="linear gain, 0..16 (0 switches the projector's light off)")
+    p.add_argument("--resolution", type=cli_types.size, metavar="WxH", help="output size, e.g. 1920x1080")
+    p.add_argument("--clear-pose", action="store_true", help="remove the pose (the projector shows black)")
+    add_connection_args(p)
+
+
+def configure_stop(p: argparse.ArgumentParser) -> None:
+    p.description = ("Stop what plays (a played sequence or a timeline show): every projector shows the rig's "
+                     "content again, or black when it has none.")
+    add_connection_args(p)
+
+
+def configure_blackout(p: argparse.ArgumentParser) -> None:
+    p.description = ("Black on every projector at once, until the next show or `shadowless stop` (the rig's content "
+                     "is kept, and shown again after a coordinator restart).")
+    add_connection_args(p)
+
+
+async def _stop(args) -> int:
+    async with await open_client(args) as c:
+        showing = await c.stop(blackout=args.command == "blackout")
+    print(f"the rig shows {showing}")
+    return 0
+
+
+async def _status(args) -> int:
+    async with await open_client(args) as c:
+        d = status_dict(await c.status())
+    print(json.dumps(d, indent=2) if args.json else status_table(d, tty=sys.stdout.isatty()))
+    return 0
+
+
+async def _show_control(args) -> int:
+    action = args.image
+    if action == "seek" and args.frame is None:
+        raise OperatorError("seek needs the frame: shadowless show seek FRAME")
+    async with await open_client(args) as c:
+        if action == "seek":
+            st = await c.seek_show(args.frame, delay_s=args.in_s)
+        else:
+            st = await getattr(c, f"{action}_show")(delay_s=args.in_s)
+    print(json.dumps(show_dict(st), indent=2) if args.json else show_line(st))
+    return 0
+
+
+async def warn_unposed(c) -> None:
+    """Say on stderr which slots have no pose: content is warped by each slot's pose, so they show black."""
+    unposed = [n.slot for n in (await c.status()).nodes if n.pose_kind == "none"]
+    if unposed:
+        print(f"warning: {len(unposed)} slot(s) have no pose and show black: {', '.join(unposed)} (calibrate them "
+              "with `shadowless calibrate`, or set one with `shadowless configure --slot S --homography H`)",
+              file=sys.stderr)
+
+
+async def _show(args) -> int:
+    if args.image in SHOW_ACTIONS and not Path(args.image).exists():
+        return await _show_control(args)
+    img = read_image(args.image, clip=args.clip, hint=CLIP_HINT)
+    async with await open_client(args) as c:
+        r = await c.show(img, name=Path(args.image).name, persist=args.persist, fit=args.fit or "")
+        await warn_unposed(c)
+    print(f"showing {args.image} ({img.shape[1]}x{img.shape[0]} {img.dtype}) as frame {r.frame_id}, content {r.content_id}")
+    return 0
+
+
+def play_dict(r: PlayResult) -> dict:
+    """A played sequence's figures as JSON."""
+    s = sync_dict(r.sync)
+    return {"frames_sent": r.frames_sent, "frames_shown": r.frames_shown, "frames_late": r.frames_late,
+            "frames_dropped": r.frames_dropped, "nodes": r.nodes, "wall_s": round(r.wall_s, 3),
+            "coordinator_cpu_s": round(r.coordinator_cpu_s, 4), "encode_cpu_s": round(r.encode_cpu_s, 4), "sync": s}
+
+
+async def _play_asset(args) -> int:
+    async with await open_client(args) as c:
+        st = await c.play_asset(args.source, delay_s=args.in_s, loop=args.loop, fps=args.fps or 0.0,
+                                start_without=args.start_without)
+        await warn_unposed(c)
+    print(json.dumps(show_dict(st), indent=2) if args.json else
+          f"{show_line(st)}; starts in {max(0, st.anchor_ns - st.now_ns) / 1e9:.3f} s")
+    return 0
+
+
+async def _play_until_interrupted(c, st: PlaySettings, frames: list[np.ndarray]) -> PlayResult:
+    """``c.play``; Ctrl-C stops the sequence on the rig, not only here, and raises KeyboardInterrupt.
+
+    The interrupt is caught by a handler of its own rather than through the task's cancellation: a
+    gRPC stream-unary call can swallow a cancellation that lands while it sends (grpc/grpc#43502), and
+    the sequence would then play on with the command waiting for it."""
+    loop = asyncio.get_running_loop()
+    task = asyncio.ensure_future(c.play(st, frames))
+    interrupted = asyncio.Event()
+    waiter = asyncio.ensure_future(interrupted.wait())
+    loop.add_signal_handler(signal.SIGINT, interrupted.set)
+    try:
+        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        loop.remove_signal_handler(signal.SIGINT)
+        waiter.cancel()
+    if task.done():
+        return task.result()
+    task.cancel()
+    try:
+        showing = await asyncio.wait_for(c.stop(), 10)
+        print(f"stopped on the rig; it shows {showing}", file=sys.stderr)
+    except (asyncio.TimeoutError, grpc.aio.AioRpcError) as exc:
+        print(f"could not stop the sequence on the rig ({exc}); run `shadowless stop`", file=sys.stderr)
+    await asyncio.wait({task}, timeout=5)      # the call ends with the sequence
+    if task.done() and not task.cancelled():
+        task.exception()                       # retrieved: the call's own end is no news after Ctrl-C
+    raise KeyboardInterrupt
+
+
+async def _play(args) -> int:
+    frames: list[np.ndarray] = []
+    if args.source and not args.pattern and not args.compensate and not Path(args.source).is_dir():
+        if "/" in args.source or Path(args.source).exists():   # a path, not an asset's name
+            raise OperatorError(f"{args.source}: {'not a folder' if Path(args.source).exists() else 'no such folder'}"
+                                " (play takes a folder of images, or an asset's name or id)")
+        return await _play_asset(args)
+    args.fps = args.fps or 30.0
+    if not (args.latency_ms >= 0 and math.isfinite(args.latency_ms)):
+        raise OperatorError(f"--latency-ms must be a positive number of milliseconds, got {args.latency_ms:g}")
+    st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, latency_ms=args.latency_ms,
+                      fit=args.fit or "")
+    if args.compensate:
+        return await _play_compensated(args)
+    if args.pattern:
+        st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, pattern=args.pattern, frames=args.frames,
+                          latency_ms=args.latency_ms)
+    elif args.source:
+        files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
+        if not files:
+            raise OperatorError(f"no images in {args.source}")
+        frames = [read_image(str(f), clip=args.clip, hint=CLIP_HINT) for f in files]
+    else:
+        raise OperatorError("give a folder of images or --pattern counter")
+    async with await open_client(args) as c:
+        await warn_unposed(c)
+        r = await _play_until_interrupted(c, st, frames)
+    d = play_dict(r)
+    print(json.dumps(d, indent=2) if args.json else
+          f"played {d['frames_sent']} frames on {d['nodes']} nodes: shown by all {d['frames_shown']}, late {d['frames_late']}, "
+          f"dropped {d['frames_dropped']}; skew p99 {d['sync']['skew_p99_ms']} ms")
+    if args.no_wait or (r.nodes and r.frames_shown >= r.frames_sent):
+        return 0
+    missed = (f"{r.frames_sent - r.frames_shown} of {r.frames_sent} frames were not shown by every live node "
+              f"({r.frames_late} late, {r.frames_dropped} dropped)" if r.nodes else "no live node showed the sequence")
+    if args.allow_partial:
+        print(f"note: {missed}", file=sys.stderr)
+        return 0
+    print(f"error: {missed}; pass --allow-partial to accept that", file=sys.stderr)
+    return 1
+
+
+async def _play_compensated(args) -> int:
+    """`play --compensate`: the coordinator's compensate_sequence job (progress on stderr)."""
+    # only this command needs the compensation package (SciPy, OpenCV); status/show/play stay light
+    from coordinator.compensation.image_param import encode_image_param
+
+    if args.pattern or not args.source:
+        raise OperatorError("--compensate plays a folder of images (not a generated pattern)")
+    files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
+    if not files:
+        raise OperatorError(f"no images in {args.source}")
+    params = {"frames": [encode_image_param(f) for f in files], "fps": args.fps, "loops": args.loops,
+              "iterations": args.iterations}
+    async with await open_client(args) as c:
+        r = await run_job(c, "compensate_sequence", params)
+    print(json.dumps(r, indent=2) if args.json else
+          f"compensated {r['frames']} frames ({r['ms_per_frame_mean']} ms per frame after the first, {r['iterations_per_frame']} "
+          f"iterations each), played {r['play']['frames_sent']} frames on {r['play']['nodes']} nodes: late "
+          f"{r['play']['frames_late']}, dropped {r['play']['frames_dropped']}")
+    return 0
+
+
+def _matrix(text: str, rows: int, cols: int, what: str) -> np.ndarray:
+    """``--homography``/``--projection``: a .npy file of shape (rows, cols) or rows*cols numbers."""
+    n = rows * cols
+    if Path(text).exists():
+        m = _npy(Path(text), ("float32", "float64"), what).astype(np.float64)
+    else:
+        try:
+            m = np.array([float(v) for v in text.split(",")], dtype=np.float64)
+        except ValueError:
+            raise OperatorError(f"--{what}: not a .npy file nor {n} comma-separated numbers: {text!r}") from None
+    if m.size != n:
+        raise OperatorError(f"a {what} needs {n} numbers ({rows}x{cols}, row-major), got {m.size}")
+    if not np.all(np.isfinite(m)):
+        raise OperatorError(f"--{what}: every number must be finite")
+    return m.reshape(rows, cols)
+
+
+def _mesh_arrays(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """--mesh FILE (.obj/.ply with texture coordinates) as (vertices, uvs, faces), refused before
+    sending when it would not fit in one request."""
+    try:
+        m = read_mesh(path)
+    except MeshFileError as exc:
+        raise OperatorError(str(exc)) from None
+    if m.uvs is None:
+        raise OperatorError(f"mesh {path} has no texture coordinates: content is mapped through them (UV space)")
+    size = m.vertices.shape[0] * 20 + m.faces.shape[0] * 12
+    if size > MAX_REQUEST_BYTES - (64 << 10):
+        raise OperatorError(f"mesh {path} is {size / 2**20:.1f} MiB as sent ({m.vertices.shape[0]} vertices, "
+                            f"{m.faces.shape[0]} faces), more than one request may carry ({MAX_REQUEST_BYTES >> 20} MiB): "
+                            "decimate it, or name a mesh the rig already holds with --mesh-id")
+    return m.vertices, m.uvs, m.faces
+
+
+async def _configure(args) -> int:
+    h = proj = mesh = None
+    if args.homography:
+        h = _matrix(args.homography, 3, 3, "homography")
+    if args.projection is not None:
+        proj = _matrix(args.projection, 3, 4, "projection")
+        if bool(args.mesh) == bool(args.mesh_id):
+            raise OperatorError("a --projection pose needs its mesh: --mesh FILE (.obj/.ply) or --mesh-id ID "
+                                "(a mesh the rig holds)")
+        mesh = _mesh_arrays(args.mesh) if args.mesh else None
+    elif args.mesh or args.mesh_id:
+        raise OperatorError("--mesh and --mesh-id go with --projection")
+    lut = read_lut(args.lut) if args.lut else None
+    async with await open_client(args) as c:
+        revision = await c.configure(args.slot, homography=h, lut=lut, gain=args.gain, size=args.resolution,
+                                     clear_pose=args.clear_pose, projection=proj, mesh=mesh,
+                                     mesh_id=args.mesh_id or "")
+    print(f"slot {args.slot} now at revision {revision}")
+    return 0
+
+
+def _runner(coro_fn):
+    def run(args) -> int:
+        try:
+            return asyncio.run(coro_fn(args))
+        except (OperatorError, auth.TokenError) as exc:
+            print(f"shadowless {args.command}: {exc}", file=sys.stderr)
+            return 2
+        except grpc.aio.AioRpcError as exc:
+            print(f"shadowless {args.command}: {exc.details() or exc.code().name}", file=sys.stderr)
+            return 2
+
+    return run
+
+
+run_status = _runner(_status)
+run_show = _runner(_show)
+run_play = _runner(_play)
+run_configure = _runner(_configure)
+run_stop = _runner(_stop)
+run_blackout = _runner(_stop)
