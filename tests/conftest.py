@@ -13,7 +13,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -23,6 +22,7 @@ if os.environ.get("PYTEST_XDIST_WORKER"):  # workers side by side: rigs of one n
     os.environ["SHADOWLESS_MDNS_SERVICE"] = "_shadowless-" + os.environ["PYTEST_XDIST_WORKER"]
 
 from shadowless.netns import available as venue_available  # noqa: E402 - after the environment above
+from waits import WaitTimeout, wait_until  # noqa: E402 - tests/support is on pytest's pythonpath
 
 
 def child_pids(root: int | None = None, *, exclude: set[int] = frozenset()) -> set[int]:
@@ -101,15 +101,16 @@ def no_leaks(request):
     yield
     if request.node.get_closest_marker("allow_leaks"):
         return
-    deadline = time.monotonic() + 5.0
-    while True:
+    def leftovers() -> tuple[set[int], set[threading.Thread]]:
         pids = child_pids(exclude=before_pids)
         threads = {t for t in _live_threads() - before_threads if not _is_runtime_thread(t)}
-        if not pids and not threads:
-            break
-        if time.monotonic() > deadline:
-            break
-        time.sleep(0.1)
+        return pids, threads
+
+    try:   # a short grace: a child or thread that is already on its way out gets to finish
+        pids, threads = wait_until(leftovers, lambda left: not left[0] and not left[1],
+                                   what="no leaked child processes or threads", timeout=5.0)
+    except WaitTimeout:
+        pids, threads = leftovers()   # reported below, with the namespaces and temporary files
     namespaces = _owned_namespaces() - before_ns
     temps = _temp_entries() - before_tmp
     for name in temps:      # removed, so the next test starts clean
@@ -208,12 +209,14 @@ def coordinator_process():
                                  "127.0.0.1:0", "--no-mdns", "--no-console", "--port-file", str(port_file)],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         procs.append(proc)
-        deadline = time.monotonic() + 60
-        while not (port_file.exists() and port_file.read_text().strip()):
-            assert proc.poll() is None, f"the coordinator exited with {proc.returncode}"
-            assert time.monotonic() < deadline, "the coordinator wrote no port file within 60 s"
-            time.sleep(0.1)
-        return f"127.0.0.1:{int(port_file.read_text())}"
+        def port_or_exit() -> tuple[int | None, str]:
+            text = port_file.read_text().strip() if port_file.exists() else ""
+            return proc.poll(), text
+
+        status, text = wait_until(port_or_exit, lambda seen: seen[0] is not None or bool(seen[1]),
+                                  what="the coordinator to write its port file (or exit)")
+        assert text, f"the coordinator exited with {status} before writing its port file"
+        return f"127.0.0.1:{int(text)}"
 
     yield start
     for proc in procs:
