@@ -1,10 +1,13 @@
 """The node process's side of previews: the coordinator's requests reach the presenter at most
-twice a second whatever it asks (the newest one), a coordinator without previews is no error,
-and a preview travels in the next report batch (plain objects and a scripted link)."""
+once per PREVIEW_EVERY_S whatever it asks (the newest one), a coordinator without previews is no
+error, and a preview travels in the next report batch (plain objects and a scripted link)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
+
+from waits import wait_until_async
 
 from node.app import PREVIEW_EVERY_S, Node, NodeConfig
 from node.link import LinkError
@@ -20,19 +23,28 @@ class Presenter:
 
 
 class PreviewLink:
-    """Sends the request ids given, ``gap_s`` apart; then stays open (or raises ``error``)."""
+    """Sends the request ids the test asks with :meth:`ask` (or raises ``error``); the stream stays
+    open."""
 
-    def __init__(self, ids: list[int], gap_s: float, error: LinkError | None = None):
-        self.ids, self.gap_s, self.error = ids, gap_s, error
+    def __init__(self, error: LinkError | None = None):
+        self.error = error
+        self.requests: asyncio.Queue[int] = asyncio.Queue()
         self.batches = []
+
+    async def ask(self, *ids: int) -> None:
+        """Send ``ids`` at once and return when the node has handled every one (it asks for the
+        next request only after handling the last)."""
+        for rid in ids:
+            self.requests.put_nowait(rid)
+        await self.requests.join()
 
     async def previews(self):
         if self.error is not None:
             raise self.error
-        for rid in self.ids:
+        while True:
+            rid = await self.requests.get()
             yield rid
-            await asyncio.sleep(self.gap_s)
-        await asyncio.Event().wait()
+            self.requests.task_done()
 
     async def report(self, batches):
         async for b in batches:
@@ -45,62 +57,88 @@ def node(tmp_path) -> Node:
     return n
 
 
-def run_for(coro, seconds: float) -> None:
+def previews(n: Node) -> list[int]:
+    """The request ids the presenter was given, in order."""
+    return [rid for _, kind, rid in n.presenter.sent if kind == "preview"]
+
+
+def with_previews(n: Node, link_error: LinkError | None, body) -> None:
+    """Run ``n._previews`` on a scripted link while ``await body(link, task)`` drives it; the task
+    must not have failed when the body ends."""
     async def go():
-        task = asyncio.create_task(coro)
-        await asyncio.sleep(seconds)
-        assert not task.done() or task.exception() is None
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
+        link = PreviewLink(link_error)
+        task = asyncio.create_task(n._previews(link))
+        try:
+            await body(link, task)
+            assert not task.done() or task.exception() is None
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
 
     asyncio.run(go())
 
 
-def test_a_flood_of_requests_reaches_the_presenter_twice_a_second_the_newest_each_time(tmp_path):
+def test_a_flood_of_requests_reaches_the_presenter_once_a_window_the_newest_each_time(tmp_path):
     n = node(tmp_path)
-    t0 = time.monotonic()
-    run_for(n._previews(PreviewLink(list(range(1, 201)), 0.005)), 2.2)   # 200 requests in ~1 s
-    sent = [(t, rid) for t, kind, rid in n.presenter.sent if kind == "preview"]
-    gaps = [b[0] - a[0] for a, b in zip(sent, sent[1:])]
-    assert min(gaps) >= PREVIEW_EVERY_S - 0.01
-    assert len(sent) <= (sent[-1][0] - t0) / PREVIEW_EVERY_S + 1.5, sent
-    # the first at once, then the newest each time, the last one asked included
-    assert sent[0][1] == 1 and sent[-1][1] == 200 and [rid for _, rid in sent] == sorted({rid for _, rid in sent})
+
+    async def body(link, task):
+        await link.ask(1)
+        assert previews(n) == [1], "the first request passes at once"
+        await link.ask(*range(2, 201))       # handled within microseconds, far inside the window
+        assert previews(n) == [1], "requests inside the window are held back"
+        sent = await wait_until_async(lambda: previews(n), lambda s: len(s) >= 2,
+                                      what="the held-back request once the window has passed")
+        assert sent == [1, 200], "the newest one passes, the ones in between coalesce"
+        await link.ask(*range(201, 301))     # the window reopened with that send
+        assert previews(n) == [1, 200]
+        sent = await wait_until_async(lambda: previews(n), lambda s: len(s) >= 3, what="the next window's request")
+        assert sent == [1, 200, 300]
+
+    with_previews(n, None, body)
 
 
-def test_requests_a_second_apart_pass_at_once(tmp_path):
+def test_a_request_after_the_window_passes_at_once(tmp_path):
     n = node(tmp_path)
-    run_for(n._previews(PreviewLink([1, 2, 3], 0.6)), 1.5)
-    assert [rid for _, kind, rid in n.presenter.sent if kind == "preview"] == [1, 2, 3]
+
+    async def body(link, task):
+        await link.ask(1)
+        # the window is a span of time: only letting it pass shows a request after it going at once
+        await asyncio.sleep(PREVIEW_EVERY_S * 1.2)
+        await link.ask(2)
+        assert previews(n) == [1, 2], "handled without waiting for a timer"
+
+    with_previews(n, None, body)
 
 
-def test_a_coordinator_without_previews_is_no_error(tmp_path):
+def test_a_coordinator_without_previews_is_no_error(tmp_path, caplog):
     n = node(tmp_path)
-    run_for(n._previews(PreviewLink([], 0, LinkError("UNIMPLEMENTED", "no Previews"))), 0.2)
+    caplog.set_level(logging.INFO, logger="node")
+
+    async def body(link, task):
+        await wait_until_async(lambda: task.done() or "asks for no previews" in caplog.text,
+                               what="the node to note that this coordinator has no previews")
+        assert not task.done(), "the session goes on without previews"
+
+    with_previews(n, LinkError("UNIMPLEMENTED", "no Previews"), body)
     assert n.presenter.sent == []
 
 
 def test_a_preview_goes_in_the_next_batch(tmp_path):
     n = node(tmp_path)
     n._heartbeat = lambda: object()
-    link = PreviewLink([], 0)
+    link = PreviewLink()
     rec = PreviewRecord(request_id=4, frame_id=9, png=b"png", width=1, height=1, output_width=1, output_height=1)
 
     async def go():
         n._reports = asyncio.Queue()
         task = asyncio.create_task(n._report_stream(link, 60.0, batch_s=0.01))
         try:
-            for _ in range(100):
-                if link.batches:
-                    break
-                await asyncio.sleep(0.01)
+            await wait_until_async(lambda: list(link.batches), what="the stream's first batch (its heartbeat)")
             n._report(SwapRecord(9, 0, 0, 0))
             n._report(rec)
-            for _ in range(200):
-                if len(link.batches) >= 2:
-                    break
-                await asyncio.sleep(0.01)
-            b = link.batches[1]
+            batches = await wait_until_async(lambda: list(link.batches), lambda bs: len(bs) >= 2,
+                                             what="the batch after the swap and the preview")
+            b = batches[1]
             assert b.preview == rec and [s.frame_id for s in b.swaps] == [9] and b.heartbeat is None
         finally:
             task.cancel()
