@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import hashlib
+import hmac
 import logging
 import math
 import secrets
 import time
 import uuid
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, AsyncIterator, Callable, Mapping, Sequence
 
 import grpc
 import numpy as np
@@ -36,17 +38,18 @@ from coordinator.api import (
     RigStatus,
     ShowResult,
     ShowState,
+    Space,
 )
 from coordinator.admission import Budget, trim_memory
 from coordinator.assets import AssetStore
 from coordinator.camera import Camera, RoomCamera, open_camera
-from coordinator.distribution import Distribution, note_ready
+from coordinator.distribution import Distribution, WantedList, note_ready
 from coordinator.errors import OPERATOR_ERRORS, CoordinatorError
 from coordinator.fanout import FanOut
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
 from coordinator.identify import name_card
-from coordinator.jobs.tracker import JobTracker
+from coordinator.jobs.tracker import JobState, JobTracker
 from coordinator.mdns import Advertiser
 from coordinator.playback import Playback, cpu_seconds
 from coordinator.previews import Previews
@@ -55,9 +58,11 @@ from coordinator.rig import Content, Rig
 from coordinator.recovery import recover
 from coordinator.rig_lock import RigLock
 from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
-from coordinator.show import MIN_LEAD_NS, Show
-from coordinator.sync import SyncTracker, summarize
+from coordinator.ports import SlotLink
+from coordinator.show import MIN_LEAD_NS, Show, ShowUpdate
+from coordinator.sync import FrameResult, SyncTracker, summarize
 from protos import sd_notify
+from protos.asset_manifest import Manifest
 from protos.host import boot_id
 from protos.version import MAX_REQUEST_BYTES, PROTOCOL_VERSION
 
@@ -418,17 +423,13 @@ class Coordinator:
                 self.sync.expect(frame_id, pts, tag, slots)
 
     def _before_show(self) -> None:
-        if self._job_lock.locked():
-            raise CoordinatorError("a job is running on this rig (its patterns hold the projectors); wait for it "
-                                   "or cancel it before playing an asset")
+        self._refuse_while_job("wait for it or cancel it before playing an asset")
         self.playback.stop()    # a played sequence ends; its frames already sent are shown or dropped
 
     def stop_all(self, *, blackout: bool = False) -> str:
         """Stop a played sequence or a timeline show: the rig's content is shown again (black when
         there is none, or with ``blackout``). Returns what the rig shows now."""
-        if self._job_lock.locked():
-            raise CoordinatorError("a job is running on this rig (its patterns hold the projectors); cancel it "
-                                   "(Ctrl-C on its command) before stopping or blacking out")
+        self._refuse_while_job("cancel it (Ctrl-C on its command) before stopping or blacking out")
         self.playback.stop()
         if blackout or self.rig.content is None:
             self.playback.blackout()     # its still takes over from a timeline show
@@ -439,8 +440,7 @@ class Coordinator:
 
     async def identify(self) -> str:
         """Every projector shows its slot name, large, until the next show, stop or blackout."""
-        if self._job_lock.locked():
-            raise CoordinatorError("a job is running on this rig (its patterns hold the projectors); cancel it first")
+        self._refuse_while_job("cancel it first")
 
         def cards() -> dict[str, Content]:
             out = {name: Content(name_card(name, st.width, st.height), name=f"identify {name}")
@@ -504,6 +504,64 @@ class Coordinator:
             self.sync.on_drop(sess.slot, frame_id, reason)
             self.playback.retry_still(sess, frame_id)
 
+    # ------------------------------------------------------------------ what the edges ask (coordinator/ports.py)
+    @property
+    def content_size(self) -> tuple[int, int]:
+        return self.playback.content_size
+
+    @property
+    def asset_store(self) -> AssetStore:
+        return self.distribution.store
+
+    @property
+    def wanted(self) -> WantedList:
+        return self.distribution.wanted
+
+    def asset_manifests(self) -> Mapping[str, Manifest]:
+        return self.distribution.manifests
+
+    async def manifest_bytes(self, asset_id: str) -> bytes:
+        return await self.distribution.manifest_bytes(asset_id)
+
+    def blob_chunks(self, sha256: str, offset: int) -> AsyncIterator[bytes]:
+        return self.distribution.blob_chunks(sha256, offset)
+
+    def subscribe_show(self, event: asyncio.Event) -> Callable[[], None]:
+        return self.show_state.subscribe(event)
+
+    def show_update(self, *, beacon: bool = False) -> ShowUpdate | None:
+        return self.show_state.update(beacon=beacon)
+
+    def prepare_still(self, content: Content, space: Space = Space.CONTENT, *, fit: str = "") -> Content:
+        return self.playback.prepare_still(content, space, fit=fit)
+
+    def prepare_regions(self, content: Content, regions: Mapping[str, Sequence[Sequence[int]]]
+                        ) -> dict[str, Content | None]:
+        return self.playback.prepare_regions(content, regions)
+
+    def token_matches(self, given: str) -> bool:
+        """Whether pasted text is the rig token (surrounding whitespace ignored; constant time in its content)."""
+        return hmac.compare_digest(given.strip().encode("utf-8", "surrogateescape"), self.handshake.token.strip())
+
+    def token_key(self, purpose: bytes) -> bytes:
+        return hmac.new(self.handshake.token.strip(), purpose, hashlib.sha256).digest()
+
+    def slot_link(self, slot: str) -> SlotLink:
+        sess = self.by_slot.get(slot)
+        return "none" if sess is None else "closed" if sess.closed else "open"
+
+    def listen_frames(self, listener: Callable[[FrameResult], None]) -> Callable[[], None]:
+        return self.sync.add_listener(listener)
+
+    def listen_jobs(self, listener: Callable[[], None]) -> Callable[[], None]:
+        return self.jobs.subscribe(listener)
+
+    def current_job(self) -> JobState | None:
+        return self.jobs.current
+
+    def job_snapshot(self) -> dict[str, Any] | None:
+        return self.jobs.snapshot()
+
     # ------------------------------------------------------------------ RigDriver
     @property
     def rig(self) -> Rig:
@@ -546,11 +604,28 @@ class Coordinator:
     async def play_sequence(self, frames: Sequence[Content] | None, settings: PlaySettings) -> PlayResult:
         return await self.playback.play(frames, settings)
 
+    def running_job(self) -> str | None:
+        """The kind of the job that holds the rig (its patterns hold the projectors), or None."""
+        if not self._job_lock.locked():
+            return None
+        return self.jobs.current.kind if self.jobs.current is not None else "job"
+
+    def _refuse_while_job(self, then: str) -> None:
+        """CoordinatorError while a job holds the rig, saying which, and ``then`` what to do."""
+        kind = self.running_job()
+        if kind is not None:
+            raise CoordinatorError(f"a {kind} job is running on this rig (its patterns hold the projectors); {then}")
+
+    def start_job(self, kind: str, params: dict) -> "asyncio.Task[dict]":
+        """Start a job that runs on after the call (the console's way: its progress is followed by
+        :attr:`jobs`); refused at once while another holds the rig."""
+        self._refuse_while_job("wait for it or cancel it")
+        return asyncio.create_task(self.run_job(kind, params, lambda ev: None), name=f"console:{kind}")
+
     async def run_job(self, kind: str, params: dict, emit: Callable[[Event], None]) -> dict:
         """Run one job at a time; the rig's content is shown again afterwards. :attr:`jobs`
         follows it (stage, progress, time left, log) for the console and status."""
-        if self._job_lock.locked():
-            raise CoordinatorError("another job is running on this rig; wait for it or cancel it")
+        self._refuse_while_job("wait for it or cancel it")
         async with self._job_lock:
             self._job_task = asyncio.current_task()
             self.jobs.begin(kind, params)

@@ -16,7 +16,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
@@ -103,6 +103,10 @@ def ssl_context(tls: tuple[bytes, bytes]) -> ssl.SSLContext:
     return ctx
 
 
+def _nothing() -> None:
+    pass
+
+
 class Console:
     """The operator console of ``coordinator``, listening on ``listen`` (``HOST:PORT``)."""
 
@@ -121,6 +125,7 @@ class Console:
         self.secure = coordinator.tls is not None
         self.app: ConsoleApp | None = None
         self._runner: web.AppRunner | None = None
+        self._unlisten_jobs: Callable[[], None] = _nothing
 
     @property
     def url(self) -> str:
@@ -153,7 +158,7 @@ class Console:
                                    else "http", names=names, allowed=self.hosts)
         self.app.url = self.url.replace("//0.0.0.0:", "//127.0.0.1:").replace("//[::]:", "//[::1]:")
         live.start()
-        self.coord.jobs.on_change = live.poke      # a job's progress reaches the page as it happens
+        self._unlisten_jobs = self.coord.listen_jobs(live.poke)   # a job's progress reaches the page as it happens
         if not is_loopback(self.host):
             log.warning("the operator console at %s is reachable from other machines%s", self.url,
                         "" if self.secure else " WITHOUT TLS: the token and the session travel in clear; give the "
@@ -161,7 +166,8 @@ class Console:
         log.info("operator console at %s", self.url)
 
     async def stop(self) -> None:
-        self.coord.jobs.on_change = lambda: None
+        self._unlisten_jobs()
+        self._unlisten_jobs = _nothing
         if self.app is not None:
             await self.app.live.stop()      # the open event streams end
         if self._runner is not None:

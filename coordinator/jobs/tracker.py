@@ -66,16 +66,32 @@ class JobState:
 
 
 class JobTracker:
-    """Follows the current job (``begin`` / ``event`` / ``end``); ``clock`` is wall seconds."""
+    """Follows the current job (``begin`` / ``event`` / ``end``); ``clock`` is wall seconds.
 
-    def __init__(self, clock: Callable[[], float] = time.time, on_change: Callable[[], None] = lambda: None):
+    Whoever wants to hear of every change (the console's live view, several pages' worth of them)
+    calls :meth:`subscribe`; each listener is called with no argument after each change."""
+
+    def __init__(self, clock: Callable[[], float] = time.time):
         self.clock = clock
-        self.on_change = on_change
         self.current: JobState | None = None
+        self._listeners: list[Callable[[], None]] = []
+
+    def subscribe(self, listener: Callable[[], None]) -> Callable[[], None]:
+        """Call ``listener()`` after every change from now on; returns the function that stops it."""
+        self._listeners.append(listener)
+
+        def unsubscribe() -> None:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+        return unsubscribe
+
+    def _changed(self) -> None:
+        for listener in list(self._listeners):
+            listener()
 
     def begin(self, kind: str, params: dict[str, Any]) -> JobState:
         self.current = JobState(kind, summarize_params(params), self.clock())
-        self.on_change()
+        self._changed()
         return self.current
 
     def event(self, ev: Event) -> None:
@@ -94,7 +110,7 @@ class JobTracker:
             job.eta_s = (ev.total - ev.done) / rate if rate > 0 and ev.total >= ev.done else math.nan
         else:
             job.log.append(f"{time.strftime('%H:%M:%S', time.localtime(now))} {ev}")
-        self.on_change()
+        self._changed()
 
     def end(self, *, result: dict | None = None, error: str = "", cancelled: bool = False) -> None:
         job = self.current
@@ -104,7 +120,7 @@ class JobTracker:
         job.state = "cancelled" if cancelled else ("failed" if error else "done")
         job.error = error
         job.result = {k: v for k, v in (result or {}).items() if isinstance(v, (int, float, str, bool))}
-        self.on_change()
+        self._changed()
 
     def snapshot(self) -> dict[str, Any] | None:
         return None if self.current is None else self.current.as_dict(self.clock())
