@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 
 import numpy as np
 import pytest
+from waits import wait_until_async
 
 from node.asset_cache import AssetCache
 from node.asset_fetch import AssetFetcher
@@ -40,6 +40,7 @@ class FakeLink:
         self.break_at = break_at               # break the link after this many bytes in total
         self.refuse = set(refuse)
         self.sent = 0
+        self.handled = 0                       # wanted lists the fetcher has handled
         self.requests: list[tuple[str, int]] = []
         self.end = asyncio.Event()
         self.new_list = asyncio.Event()
@@ -54,6 +55,7 @@ class FakeLink:
             while i < len(self.lists):
                 yield self.lists[i]
                 i += 1
+                self.handled = i   # the fetcher asks for the next list once it has taken this one
             self.new_list.clear()
             waiters = [asyncio.ensure_future(self.end.wait()), asyncio.ensure_future(self.new_list.wait())]
             await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
@@ -79,17 +81,13 @@ class FakeLink:
                 raise LinkError("UNAVAILABLE", "connection reset")
             self.sent += len(piece)
             yield BlobChunkData(at, piece)
-            await asyncio.sleep(0)
 
 
-async def run_until(fetcher: AssetFetcher, link: FakeLink, done, timeout: float = 20.0) -> None:
+async def run_until(fetcher: AssetFetcher, link: FakeLink, done) -> None:
     """Run the fetcher on ``link`` until ``done(progress)``; then end the link's wanted stream."""
 
     async def watch():
-        deadline = time.monotonic() + timeout
-        while not done(fetcher.progress()):
-            assert time.monotonic() < deadline, f"not done: {fetcher.progress()}"
-            await asyncio.sleep(0.01)
+        await wait_until_async(fetcher.progress, done, what="the fetcher's progress to reach the test's goal")
         link.end.set()
 
     watcher = asyncio.create_task(watch())
@@ -139,7 +137,7 @@ def test_no_wanted_assets_never_touches_the_cache_directory(tmp_path, assets):
 
     async def go():
         task = asyncio.create_task(fetcher.run(link))
-        await asyncio.sleep(0.1)
+        await wait_until_async(lambda: link.handled, lambda n: n >= 1, what="the fetcher to take the empty list")
         link.end.set()
         await task
 
@@ -245,11 +243,27 @@ def test_a_cache_in_use_by_another_node_is_reported_per_asset(tmp_path, assets):
     assert "in use by another process" in p.error and "--cache-dir" in p.error and link.requests == []
 
 
-def test_the_rate_limit_holds(tmp_path):
-    aid, mbytes, blobs = make_asset("big", [1 << 20], 3)
-    fetcher = AssetFetcher(tmp_path / "cache", 10 << 20, rate=4 << 20)
-    link = FakeLink({aid: mbytes}, blobs, [aid])
-    t0 = time.monotonic()
-    asyncio.run(run_until(fetcher, link, lambda p: p and p[0].ready))
-    assert time.monotonic() - t0 >= 0.2   # 1 MiB at 4 MiB/s: the last chunk waits for 0.25 s less a chunk
-    fetcher.close()
+def test_the_rate_limit_holds_a_fetch_back(tmp_path):
+    """Two fetchers side by side on one loop: the one without a limit fetches eight times the bytes
+    and is done while the one held to 128 KiB/s (1.5 s for its 256 KiB) is still fetching. Without
+    the limit the small fetch would end first."""
+    big_id, big_manifest, big_blobs = make_asset("big", [2 << 20], 3)
+    small_id, small_manifest, small_blobs = make_asset("small", [256 << 10], 4)
+    free = AssetFetcher(tmp_path / "free", 10 << 20)
+    held = AssetFetcher(tmp_path / "held", 10 << 20, rate=128 << 10)
+    free_link = FakeLink({big_id: big_manifest}, big_blobs, [big_id])
+    held_link = FakeLink({small_id: small_manifest}, small_blobs, [small_id])
+    ready = lambda p: bool(p) and p[0].ready  # noqa: E731
+
+    async def go():
+        held_run = asyncio.create_task(run_until(held, held_link, ready))
+        await run_until(free, free_link, ready)
+        held_then = held.progress()
+        await held_run
+        return held_then
+
+    held_then = asyncio.run(go())
+    assert not ready(held_then), f"the rate-limited fetch ended before one eight times its size: {held_then}"
+    assert cached_bytes(held.cache, next(iter(small_blobs))) == next(iter(small_blobs.values()))
+    free.close()
+    held.close()
