@@ -6,11 +6,11 @@ test says so, or when the presenter sleeps until a frame's presentation time.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from waits import wait_until
 
 from node.clock import ClockEstimate, LocalClock
 from node.outputs import OffscreenOutput
@@ -338,12 +338,9 @@ def test_decoding_starts_when_the_show_and_its_asset_are_known_not_at_the_first_
     p.handle("show", _timeline_update(files, rig.rig_now() + 500 * MS))
     assert p.player.decode_stats() is None                # no asset yet: nothing to decode
     p.handle("asset", files)
-    for _ in range(500):                                  # the decoder thread, before any tick is due
-        st = p.player.decode_stats()
-        if st is not None and st.decoded >= 1:
-            break
-        time.sleep(0.01)
-    assert st is not None and st.decoded >= 1 and st.hits == st.misses == 0
+    st = wait_until(p.player.decode_stats, lambda st: st is not None and st.decoded >= 1,
+                    what="the decoder thread's first frame, before any tick is due")
+    assert st.hits == st.misses == 0
     p.timeline_step()
     st = p.player.decode_stats()
     assert [s.frame_id for s in rig.swaps] == [500] and st.hits == 1 and st.misses == 0
