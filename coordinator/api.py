@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
+from protos.records import DropReason  # noqa: F401 - why a node did not show a frame; one definition with the node's
+
 
 class NodeState(str, Enum):
     """Where a slot's node is in its life."""
@@ -47,16 +49,6 @@ class Space(str, Enum):
 
     CONTENT = "content"       # the shared image; each node warps it through its pose
     PROJECTOR = "projector"   # already in one projector's pixels (calibration patterns)
-
-
-class DropReason(str, Enum):
-    """Why a node did not show a frame."""
-
-    LATE = "late"                      # arrived or rendered after its presentation time
-    SUPERSEDED = "superseded"          # a newer frame was due first
-    MISSING_CONTENT = "missing content"
-    UNRENDERABLE = "unrenderable"      # e.g. content of the wrong size for the pose
-    OTHER = "other"
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from coordinator.refusals import MAX_SLOT_CHARS, clipped, peer_address
 from coordinator.schema import SLOT_RE
 from protos import auth
 from protos.host import boot_id
+from protos.records import NodeInfo  # what a node says about itself, one definition with the node's
 from protos.version import PROTOCOL_VERSION
 
 log = logging.getLogger(__name__)
@@ -43,19 +44,6 @@ class RpcRefusal(Exception):
     def __init__(self, code: grpc.StatusCode, message: str):
         super().__init__(message)
         self.code, self.message = code, message
-
-
-@dataclass(frozen=True)
-class NodeInfo:
-    """What a node says about itself when it joins."""
-
-    hostname: str = ""
-    pid: int = 0
-    host_boot_id: str = ""
-    native_size: tuple[int, int] = (0, 0)   # its display's resolution, (0, 0) when unknown
-    software_version: str = ""
-    output: str = ""
-    gl: str = ""                             # the GL it renders with
 
 
 @dataclass(frozen=True)

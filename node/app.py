@@ -491,7 +491,7 @@ class Node:
         size = self.presenter.native_size or (0, 0)
         info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
                         software_version=_version(), output=self.cfg.output.split("?")[0],
-                        native_width=size[0], native_height=size[1], gl=self.presenter.gl_info)
+                        native_size=(size[0], size[1]), gl=self.presenter.gl_info)
         reply = await link.join(JoinRequest(protocol_version=self.cfg.protocol_version, slot=self.cfg.slot,
                                             client_nonce=client_nonce, server_nonce=hello.server_nonce,
                                             client_proof=proof, info=info))

@@ -5,11 +5,13 @@ module of the node speaks only these (dataclasses, numpy arrays, plain values).
 """
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 
 import numpy as np
 
+# the records the coordinator speaks too are defined once, in protos.records; the node's parts
+# name them from here with the rest
+from protos.records import DropReason, NodeInfo
 from protos.timeline import Timeline
 
 
@@ -119,15 +121,6 @@ class AssetFiles:
 # ------------------------------------------------------------------ node -> coordinator
 
 
-class DropReason(enum.Enum):
-    """Why a frame was not shown (the wire's ``DropReason``)."""
-
-    LATE = "late"                        # arrived, or was rendered, after its presentation time
-    SUPERSEDED = "superseded"            # a newer frame was shown first
-    MISSING_CONTENT = "missing_content"  # its content never arrived (or was malformed)
-    UNRENDERABLE = "unrenderable"        # the renderer refused it (e.g. content of the wrong size)
-
-
 @dataclass(frozen=True)
 class SwapRecord:
     """A frame that was shown."""
@@ -136,7 +129,7 @@ class SwapRecord:
     pts_ns: int
     swap_rig_ns: int          # the node's estimate of the rig clock at the swap
     host_monotonic_ns: int    # the host's CLOCK_MONOTONIC at the swap
-    timeline: bool = False    # a tick of the show's timeline (its report may wait, see node.app)
+    timeline: bool = False    # a tick of the show's timeline (its report may wait, see node.report_batch)
 
 
 @dataclass(frozen=True)
@@ -218,18 +211,6 @@ class HelloReply:
     rig_name: str
     server_nonce: bytes
     server_proof: bytes
-
-
-@dataclass(frozen=True)
-class NodeInfo:
-    hostname: str
-    host_boot_id: str
-    pid: int
-    software_version: str
-    output: str
-    native_width: int = 0
-    native_height: int = 0
-    gl: str = ""              # what the presenter renders with (see node.presenter.Presenter.gl_info)
 
 
 @dataclass(frozen=True)

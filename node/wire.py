@@ -45,6 +45,7 @@ _DROP_REASONS = {
     DropReason.SUPERSEDED: node_pb2.DROP_REASON_SUPERSEDED,
     DropReason.MISSING_CONTENT: node_pb2.DROP_REASON_MISSING_CONTENT,
     DropReason.UNRENDERABLE: node_pb2.DROP_REASON_UNRENDERABLE,
+    DropReason.OTHER: node_pb2.DROP_REASON_UNSPECIFIED,     # a node never decides on it; kept total
 }
 
 
@@ -183,7 +184,7 @@ def join_request(req: JoinRequest) -> node_pb2.JoinRequest:
     i = req.info
     info = node_pb2.NodeInfo(hostname=i.hostname, host_boot_id=i.host_boot_id, pid=i.pid,
                              software_version=i.software_version, output=i.output,
-                             native_width=i.native_width, native_height=i.native_height, gl=i.gl)
+                             native_width=i.native_size[0], native_height=i.native_size[1], gl=i.gl)
     login = common_pb2.LoginRequest(protocol_version=req.protocol_version, role="node", slot=req.slot,
                                     client_nonce=req.client_nonce, server_nonce=req.server_nonce,
                                     client_proof=req.client_proof)

@@ -27,7 +27,8 @@ def test_reports_keep_the_wire_format():
                                                        host_monotonic_ns=[42, 33_333_333, 33_333_333])
     expected = {DropReason.LATE: node_pb2.DROP_REASON_LATE, DropReason.SUPERSEDED: node_pb2.DROP_REASON_SUPERSEDED,
                 DropReason.MISSING_CONTENT: node_pb2.DROP_REASON_MISSING_CONTENT,
-                DropReason.UNRENDERABLE: node_pb2.DROP_REASON_UNRENDERABLE}
+                DropReason.UNRENDERABLE: node_pb2.DROP_REASON_UNRENDERABLE,
+                DropReason.OTHER: node_pb2.DROP_REASON_UNSPECIFIED}
     assert set(expected) == set(DropReason)
     for reason, number in expected.items():
         assert wire.drop_message(DropRecord(3, reason, 9)) == node_pb2.FrameDrop(frame_id=3, reason=number, late_by_ns=9)
@@ -54,7 +55,7 @@ def test_handshake_messages():
     hello = wire.hello_request(protocol_version=3, client_nonce=b"n" * 32, slot="r1c1")
     assert hello == common_pb2.HelloRequest(protocol_version=3, client_nonce=b"n" * 32, role="node", slot="r1c1")
     info = NodeInfo(hostname="h", host_boot_id="b", pid=9, software_version="0.1.0", output="offscreen",
-                    native_width=640, native_height=480)
+                    native_size=(640, 480))
     req = wire.join_request(JoinRequest(protocol_version=3, slot="r1c1", client_nonce=b"c", server_nonce=b"s",
                                         client_proof=b"p", info=info))
     assert req.login == common_pb2.LoginRequest(protocol_version=3, role="node", slot="r1c1", client_nonce=b"c",
@@ -135,3 +136,19 @@ def test_asset_calls_and_progress_keep_the_wire_format():
     assert [(p.asset_id, p.have_bytes, p.total_bytes, p.ready, p.error, p.name) for p in msg.heartbeat.assets] == [
         (p.asset_id, p.have_bytes, p.total_bytes, p.ready, p.error, p.name) for p in progress]
     assert node_pb2.NodeReport.FromString(msg.SerializeToString()) == msg
+
+
+def test_the_records_both_sides_speak_come_back_the_same_from_the_coordinators_wire():
+    """NodeInfo and DropReason are one definition (protos.records): what a node sends, the
+    coordinator reads back as the very same records."""
+    from coordinator import wire as coordinator_wire
+
+    info = NodeInfo(hostname="pi-7", pid=4242, host_boot_id="boot", native_size=(1920, 1080), software_version="1.2.3",
+                    output="kms", gl="OpenGL ES 3.1")
+    req = wire.join_request(JoinRequest(protocol_version=3, slot="r0c0", client_nonce=b"c", server_nonce=b"s",
+                                        client_proof=b"p", info=info))
+    assert coordinator_wire.node_info_from_message(node_pb2.JoinRequest.FromString(req.SerializeToString()).info) == info
+
+    drops = tuple(DropRecord(i, reason) for i, reason in enumerate(DropReason))
+    back = coordinator_wire.report_from_message(wire.report_message(ReportBatch(drops=drops)))
+    assert back.drops == tuple((d.frame_id, d.reason) for d in drops)
