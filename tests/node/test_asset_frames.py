@@ -4,6 +4,7 @@ identified by their grey level), sequential decoding, seeks both ways, loops, 10
 and the decode-ahead thread (hits and misses counted, errors surfacing on get, joined on close)."""
 from __future__ import annotations
 
+import threading
 import time
 from fractions import Fraction
 from pathlib import Path
@@ -444,33 +445,43 @@ def test_decode_ahead_error_surfaces_on_get_naming_asset_and_frame(cache):
             ahead.get(3, timeout=1)
 
 
-class _SlowStill(FrameSource):
-    """A frame source whose frames take ``delay`` seconds to decode (frame k is filled with k)."""
+class _GatedStill(FrameSource):
+    """A frame source whose decodes wait until the test opens ``gate`` (open from the start when
+    ``open_gate``); frame k is filled with k, and ``started`` lists the frames whose decode began."""
 
-    def __init__(self, cache, delay):
+    def __init__(self, cache, open_gate=False):
         m = Manifest(kind="sequence", name="slow", blobs=tuple(Blob(sha256_hex(bytes([i])), 1, f"{i}.png")
                                                                  for i in range(5)),
                      width=4, height=2, channels=1, bit_depth=8, frames=5, fps=1.0)
         super().__init__(cache, m.asset_id, m)
-        self.delay = delay
+        self.gate = threading.Event()
+        if open_gate:
+            self.gate.set()
+        self.started: list[int] = []
 
     def _decode(self, k):
-        time.sleep(self.delay)
+        self.started.append(k)
+        self.gate.wait()
         return np.full((2, 4, 1), k, np.uint8)
 
 
 def test_decode_ahead_never_blocks_past_the_timeout_and_close_joins(cache):
-    ahead = DecodeAhead(_SlowStill(cache, 0.5), depth=2)
+    src = _GatedStill(cache)
+    ahead = DecodeAhead(src, depth=2)
     thread = ahead._thread
     assert thread.is_alive() and thread.name.startswith("decode-ahead-")
     try:
-        # raised, not returned: get() gave up before the 0.5 s decode could finish (no wall clock asserted)
+        # raised, not returned: no decode can finish while the gate is shut (no wall clock asserted)
         with pytest.raises(FrameNotReady, match="frame 3 was not decoded within 20 ms"):
             ahead.get(3, timeout=0.02)
-        assert ahead.get(3, timeout=10)[0, 0, 0] == 3       # it stayed first in line
         s = ahead.stats()
-        assert (s.misses, s.jumps, s.hits) == (2, 1, 0)
+        assert (s.misses, s.jumps, s.hits) == (1, 1, 0)
+        src.gate.set()
+        assert ahead.get(3, timeout=60)[0, 0, 0] == 3
+        # it stayed first in line: no other frame (but one already under way at the start) went before it
+        assert [k for k in src.started if k != 0][:1] == [3], src.started
     finally:
+        src.gate.set()
         ahead.close()
     assert not thread.is_alive()
     ahead.close()                                           # idempotent
@@ -478,11 +489,11 @@ def test_decode_ahead_never_blocks_past_the_timeout_and_close_joins(cache):
         ahead.get(0, timeout=0)
 
 
-class _StartTimes(_SlowStill):
+class _StartTimes(_GatedStill):
     """Records the host's monotonic clock each time a frame's decode starts."""
 
     def __init__(self, cache):
-        super().__init__(cache, 0.0)
+        super().__init__(cache, open_gate=True)
         self.starts: list[int] = []
 
     def _decode(self, k):
