@@ -62,7 +62,17 @@ shell completion (bash, zsh): eval "$(register-python-argcomplete shadowless)"
 
 class Parser(argparse.ArgumentParser):
     """argparse's parser whose mistakes cost one line (not the usage block) and exit status 2.
-    Every subcommand's parser is one too (argparse makes subparsers of the parent's class)."""
+    Every subcommand's parser is one too (argparse makes subparsers of the parent's class), and
+    each keeps the actions that hold its subcommands' parsers (:attr:`subcommand_actions`)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.subcommand_actions: list[argparse.Action] = []
+
+    def add_subparsers(self, **kwargs):
+        action = super().add_subparsers(**kwargs)
+        self.subcommand_actions.append(action)
+        return action
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
@@ -96,14 +106,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def _verbosity_everywhere(p: argparse.ArgumentParser) -> None:
-    """-v/-q/--log-level also after a sub-action (``shadowless content list -v``)."""
-    for action in p._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for sp in action.choices.values():
-                if "--verbose" not in sp._option_string_actions:
-                    add_verbosity_args(sp, nested=True)
-                _verbosity_everywhere(sp)
+def _verbosity_everywhere(p: argparse.ArgumentParser, seen: set[int] | None = None) -> None:
+    """-v/-q/--log-level also after a sub-action (``shadowless content list -v``), once per parser
+    (a parser with aliases is a choice under several names)."""
+    seen = set() if seen is None else seen
+    for action in getattr(p, "subcommand_actions", ()):
+        for sp in action.choices.values():
+            if id(sp) not in seen:
+                seen.add(id(sp))
+                add_verbosity_args(sp, nested=True)
+                _verbosity_everywhere(sp, seen)
 
 
 def _command_of(words: list[str]) -> str | None:

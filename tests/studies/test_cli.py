@@ -48,3 +48,26 @@ def test_bad_study_files_are_one_line_and_status_2(tmp_path):
         done = study(*args)
         assert done.returncode == 2 and "Traceback" not in done.stderr
         assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_study_help_loads_no_study_and_a_subcommand_loads_only_its_own():
+    """Every subcommand comes from one table and is imported only when it is the one given."""
+    code = ("import sys\nfrom shadowless.cli import main\nfrom shadowless.study import ANALYSES\n"
+            "for argv in (['study', '--help'], ['study', 'paired', '--help']):\n"
+            "    try:\n        main(argv)\n    except SystemExit:\n        pass\n"
+            "    print(sorted(name for name, (module, _) in ANALYSES.items() if module in sys.modules), file=sys.stderr)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.strip().splitlines()[-2:] == ["[]", "['paired']"], done.stderr[-2000:]
+
+
+def test_every_study_subcommand_explains_itself_and_takes_the_log_options():
+    from shadowless.study import ANALYSES
+
+    for name, (_, summary) in ANALYSES.items():
+        done = study(name, "--help")
+        assert done.returncode == 0, (name, done.stderr)
+        assert done.stdout.startswith(f"usage: shadowless study {name} ") and "--log-level" in done.stdout, name
+    listing = study("--help").stdout
+    for name, (_, summary) in ANALYSES.items():
+        assert f"shadowless study {name}" in listing and summary.split()[0] in listing, name
