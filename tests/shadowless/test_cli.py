@@ -4,10 +4,10 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
+from waits import wait_until
 
 from shadowless.cli import COMMANDS
 
@@ -59,13 +59,8 @@ def test_operator_commands_against_a_running_rig(tmp_path):
     with rig:
         rig.wait_ready()
         conn = ["--coordinator", f"127.0.0.1:{rig.port}", "--rig-dir", str(rig.rig_dir)]
-        deadline = time.monotonic() + 60
-        while True:
-            st = json.loads(sh("status", "--json", *conn).stdout)
-            if all(n["state"] == "live" for n in st["nodes"]):
-                break
-            assert time.monotonic() < deadline, st
-            time.sleep(0.5)
+        st = wait_until(lambda: json.loads(sh("status", "--json", *conn).stdout),
+                        lambda st: all(n["state"] == "live" for n in st["nodes"]), what="both nodes live")
         assert st["rig"]["name"] == rig.rig_name and {n["slot"] for n in st["nodes"]} == {"r0c0", "r0c1"}
         table = sh("status", *conn).stdout
         assert "r0c0" in table and "live" in table and "skew" in table

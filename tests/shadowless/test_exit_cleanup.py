@@ -7,11 +7,12 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
+
+from waits import wait_until
 
 SCRIPT = textwrap.dedent(
     """
-    import sys, time
+    import signal, sys
     from pathlib import Path
     from shadowless.local import LocalRig
 
@@ -20,7 +21,7 @@ SCRIPT = textwrap.dedent(
     rig.start_coordinator()
     rig.start_node("r0c0")
     print(rig.coordinator.pid, rig.nodes["r0c0"].pid, flush=True)
-    time.sleep(600)      # terminated long before
+    signal.pause()      # until the test's SIGTERM
     """
 )
 
@@ -45,10 +46,8 @@ def test_a_terminated_parent_stops_the_rig_it_started(tmp_path):
         assert len(children) == 2, "the script did not start its rig"
         parent.send_signal(signal.SIGTERM)
         assert parent.wait(60) == -signal.SIGTERM     # it still dies of the signal
-        deadline = time.monotonic() + 60
-        while any(_alive(p) for p in children) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert not [p for p in children if _alive(p)], "the rig outlived the process that started it"
+        wait_until(lambda: [p for p in children if _alive(p)], lambda alive: not alive,
+                   what="the rig's processes to end with the process that started them")
     finally:
         for pid in children + [parent.pid]:
             try:
