@@ -12,7 +12,8 @@ its on-disk cache (:mod:`node.asset_fetch`), reporting its progress in every hea
 turning ready (or given up on) sends a heartbeat at once instead of waiting for the next one.
 
 This module is the node's life cycle only: it speaks :mod:`node.records`
-dataclasses; the gRPC client is :mod:`node.link`.
+dataclasses; the gRPC client is :mod:`node.link`; the handshake, the clock estimate, pings and the
+report stream are :mod:`node.session`'s, which the swarm shares.
 """
 from __future__ import annotations
 
@@ -29,26 +30,14 @@ from pathlib import Path
 
 from node.asset_cache import default_cache_dir
 from node.asset_fetch import AssetFetcher
-from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimator, ClockSample, LocalClock
+from node.clock import ClockEstimate, LocalClock
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.link import CoordinatorLink, LinkError
 from node.presenter_process import PresenterProcess, PresenterSettings
+from node.records import AssetFiles, DropRecord, HeartbeatRecord, NodeInfo, PreviewRecord, SwapRecord
+from node.session import Joined, ReportStream, SessionCore
 from node.systemd import NodeNotifier
 from node.targets import Candidate, TargetBook, read_known_rig, write_known_rig
-from node.records import (
-    AssetFiles,
-    ClockStatus,
-    DropRecord,
-    HeartbeatRecord,
-    HelloReply,
-    JoinReply,
-    JoinRequest,
-    NodeInfo,
-    PreviewRecord,
-    ReportBatch,
-    SwapRecord,
-)
-from protos import auth
 from protos.discovery import Discovery
 from protos.discovery import DiscoveryError as MdnsUnusable
 from protos.host import boot_id
@@ -112,21 +101,20 @@ class Node:
     def __init__(self, config: NodeConfig):
         self.cfg = config
         self.clock = LocalClock(offset_ns=int(config.clock_offset_ms * 1e6), drift_ppm=config.clock_drift_ppm)
-        self.estimator = ClockEstimator(window_ns=CLOCK_WINDOW_NS)
-        self._clock_settled = False      # the estimate is good enough for sparse exchanges
+        # the handshake, the clock estimate (kept across sessions by the clock-id rule) and pings
+        self.session = SessionCore(slot=config.slot, token=config.token, clock=self.clock, info=self._info,
+                                   protocol_version=config.protocol_version, ping_hz=config.ping_hz,
+                                   ping_settled_s=config.ping_settled_s)
         self.presenter: PresenterProcess | None = None
         # systemd: readiness, status, and a watchdog fed by the network loop and the presenter
         self.notifier = NodeNotifier(lambda: self.presenter.seconds_since_alive() if self.presenter else math.inf)
-        self._reports: asyncio.Queue | None = None
+        self._stream: ReportStream | None = None   # the session's report stream, while it runs
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._instance = ""
-        self._clock_id = ""
         self._alone_since: float | None = None   # time.monotonic() when the coordinator was lost
         self._alone_ms = 0.0                       # how long the last time without it lasted
         self._stopping = asyncio.Event()
         self.joins = 0
         self._assets_passed: set[str] = set()    # assets whose files the presenter has
-        self._heartbeat_now = asyncio.Event()    # the fetcher has news for the operator: heartbeat at once
         self._show_asset: str | None = None      # the asset the current show plays
         cache_dir = config.cache_dir or default_cache_dir() / config.slot
         self.fetcher = AssetFetcher(cache_dir, config.cache_max_bytes, rate=config.fetch_rate,
@@ -139,25 +127,34 @@ class Node:
 
     # ---------------------------------------------------------------- reports
     def _report(self, rep: SwapRecord | DropRecord | PreviewRecord) -> None:
-        if self._reports is not None:
-            self._reports.put_nowait(rep)
+        """A swap, drop or preview from the presenter: into the session's report stream (between
+        sessions there is none: what happens then is stale by the next one)."""
+        if self._stream is not None:
+            self._stream.add(rep)
 
     def _fetch_news(self) -> None:
-        """An asset turned ready (or was given up on): tell the coordinator at once, and hand the show's
-        asset to the presenter as soon as it is there (not at the next beacon, a second later)."""
-        self._heartbeat_now.set()
+        """An asset turned ready (or was given up on): tell the coordinator at once (a session's first
+        heartbeat goes at once anyway), and hand the show's asset to the presenter as soon as it is
+        there (not at the next beacon, a second later)."""
+        if self._stream is not None:
+            self._stream.heartbeat_now()
         if self._show_asset is not None and self.presenter is not None:
             self._pass_asset(self._show_asset)
 
-    def _clock_sample(self, sample: ClockSample) -> None:
-        est = self.estimator.add(sample)
+    def _estimate(self, est: ClockEstimate | None) -> None:
         if est is not None and self.presenter is not None:
             self.presenter.submit("clock", est)
+
+    def _info(self) -> NodeInfo:
+        """What this node says about itself when it joins (its output's size once the presenter knows it)."""
+        size = (self.presenter.native_size if self.presenter is not None else None) or (0, 0)
+        return NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
+                        software_version=_version(), output=self.cfg.output.split("?")[0],
+                        native_size=(size[0], size[1]), gl=self.presenter.gl_info if self.presenter is not None else "")
 
     # ---------------------------------------------------------------- main loop
     async def run(self) -> int:
         self._loop = asyncio.get_running_loop()
-        self._reports = asyncio.Queue()
         discovery, early = None, None
         if self.cfg.coordinator is None:
             discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
@@ -284,43 +281,17 @@ class Node:
         elif isinstance(exc, LinkError):
             self._unreachable(cand, f"{exc.code}: {exc.details}")
 
-    async def _tell_not_trusted(self, target: str, hello: HelloReply, client_nonce: bytes) -> None:
-        """Let a coordinator that failed the token proof see why this node does not join: a Join whose
-        proof is random bytes, which a coordinator refuses as a token mismatch and lists in its status
-        next to the slot (else the slot shows only as expected there). Never this node's real proof:
-        the peer is unverified, and an impostor that relayed a real coordinator's server nonce (with a
-        bad server proof) could replay a real proof to that coordinator and join as this slot. The
-        answer changes nothing here (the node joins nowhere)."""
-        proof = os.urandom(auth.PROOF_BYTES)
-        info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
-                        software_version=_version(), output=self.cfg.output.split("?")[0])
-        try:
-            async with CoordinatorLink(target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
-                await asyncio.wait_for(link.join(JoinRequest(
-                    protocol_version=self.cfg.protocol_version, slot=self.cfg.slot, client_nonce=client_nonce,
-                    server_nonce=hello.server_nonce, client_proof=proof, info=info)), SCREEN_TIMEOUT_S)
-        except (LinkError, asyncio.TimeoutError, OSError):
-            pass
-
     async def _prove(self, cand: Candidate) -> Candidate:
         """``cand`` if it answers a Hello within SCREEN_TIMEOUT_S and proves the rig token; raises
         Refused, CoordinatorNotTrusted or LinkError otherwise."""
         async with CoordinatorLink(cand.target, tls_ca=self.cfg.tls_ca,
                                    tls_server_name=self.cfg.tls_server_name) as link:
-            nonce = auth.new_nonce()
             try:
-                hello = await link.hello(protocol_version=self.cfg.protocol_version, client_nonce=nonce,
-                                         slot=self.cfg.slot, timeout=SCREEN_TIMEOUT_S)
+                await self.session.hello(link, timeout=SCREEN_TIMEOUT_S)
             except LinkError as exc:
                 if exc.refused:
                     raise Refused(exc.details) from exc
                 raise
-        if not auth.verify(auth.coordinator_proof(self.cfg.token, hello.rig_id, nonce, hello.server_nonce),
-                           hello.server_proof):
-            await self._tell_not_trusted(cand.target, hello, nonce)
-            raise CoordinatorNotTrusted(
-                f"the coordinator at {cand.target} (rig {hello.rig_name!r}) could not prove it knows the rig token: "
-                "this node has the wrong token file, or that advertiser is not our coordinator")
         return cand
 
     async def _screen(self, due: list[Candidate], advertised: int,
@@ -403,16 +374,17 @@ class Node:
         target = cand.target
         async with CoordinatorLink(target, tls_ca=self.cfg.tls_ca, tls_server_name=self.cfg.tls_server_name) as link:
             try:
-                joined, hello = await self._handshake(link, target)
+                joined = await self.session.join(link)
             except LinkError as exc:
                 if exc.refused:
                     raise Refused(exc.details) from exc
                 log.debug("cannot join %s: %s", target, exc.code)
                 return False
             self.joins += 1
+            hello = joined.hello
             if self.book.joined(cand, hello.rig_id):
                 write_known_rig(self._rig_file, hello.rig_id)
-            session, hb_ms = joined.session, joined.heartbeat_interval_ms
+            session, hb_ms = joined.reply.session, joined.reply.heartbeat_interval_ms
             self._new_instance(joined)
             if self._alone_since is not None:
                 self._alone_ms = (time.monotonic() - self._alone_since) * 1e3
@@ -422,12 +394,12 @@ class Node:
                      self.cfg.slot, session[:6])
             self.notifier.status(f"{self.cfg.slot}: joined rig {hello.rig_name} at {target}")
             # a first clock estimate before any frame can be scheduled
-            await self._ping_burst(link, count=8)
+            await self.session.ping_burst(link, self._estimate)
             tasks = [
                 asyncio.create_task(self._assignments(link), name="assignments"),
                 asyncio.create_task(self._frames(link), name="frames"),
                 asyncio.create_task(self._report_stream(link, hb_ms / 1000.0), name="report"),
-                asyncio.create_task(self._pings(link), name="pings"),
+                asyncio.create_task(self.session.pings(link, self._estimate), name="pings"),
                 asyncio.create_task(self._stopping.wait(), name="stopping"),
                 asyncio.create_task(self._watch_presenter(), name="presenter"),
                 asyncio.create_task(self.fetcher.run(link), name="assets"),
@@ -455,78 +427,22 @@ class Node:
                                 show.revision, show.state)
             return True
 
-    def _new_instance(self, joined: JoinReply) -> None:
-        """A join's coordinator instance: the same rig clock keeps the clock estimate and the show
-        (a coordinator restarted on its host); another clock starts both afresh."""
-        if joined.instance_id == self._instance:
-            return
-        same_clock = bool(joined.clock_id) and joined.clock_id == self._clock_id
-        if self._instance:
-            log.info("coordinator instance changed (%s -> %s): %s", self._instance, joined.instance_id,
-                     "same rig clock, keeping the clock estimate and the show" if same_clock
+    def _new_instance(self, joined: Joined) -> None:
+        """A join's coordinator instance, after the session core's clock-id rule: the same rig clock
+        keeps the clock estimate and the show (a coordinator restarted on its host); another clock
+        starts both afresh, in the presenter too."""
+        instance = joined.reply.instance_id
+        if joined.previous_instance and joined.previous_instance != instance:
+            log.info("coordinator instance changed (%s -> %s): %s", joined.previous_instance, instance,
+                     "same rig clock, keeping the clock estimate and the show" if joined.clock_kept
                      else "a new rig clock, resyncing the clock and the show")
-        self._instance, self._clock_id = joined.instance_id, joined.clock_id
-        if not same_clock:
-            self.estimator.reset()
-            self._clock_settled = False
+        if not joined.clock_kept:
             self.presenter.submit("clock", None)
             self.presenter.submit("reset")
 
     async def _watch_presenter(self) -> None:
         while self.presenter.is_alive():
             await asyncio.sleep(0.5)
-
-    async def _handshake(self, link: CoordinatorLink, target: str) -> tuple[JoinReply, HelloReply]:
-        """Prove the token both ways and join; the join's reply and the (now verified) hello."""
-        client_nonce = auth.new_nonce()
-        hello = await link.hello(protocol_version=self.cfg.protocol_version, client_nonce=client_nonce,
-                                 slot=self.cfg.slot)
-        expected = auth.coordinator_proof(self.cfg.token, hello.rig_id, client_nonce, hello.server_nonce)
-        if not auth.verify(expected, hello.server_proof):
-            await self._tell_not_trusted(target, hello, client_nonce)
-            raise CoordinatorNotTrusted(
-                f"the coordinator at {target} (rig {hello.rig_name!r}) could not prove it knows the rig token: "
-                "this node has the wrong token file, or that advertiser is not our coordinator")
-        proof = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.cfg.slot, client_nonce, hello.server_nonce)
-        size = self.presenter.native_size or (0, 0)
-        info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
-                        software_version=_version(), output=self.cfg.output.split("?")[0],
-                        native_size=(size[0], size[1]), gl=self.presenter.gl_info)
-        reply = await link.join(JoinRequest(protocol_version=self.cfg.protocol_version, slot=self.cfg.slot,
-                                            client_nonce=client_nonce, server_nonce=hello.server_nonce,
-                                            client_proof=proof, info=info))
-        return reply, hello
-
-    async def _ping_once(self, link: CoordinatorLink) -> None:
-        t0 = self.clock.now()
-        rep = await link.ping(t0)
-        t3 = self.clock.now()
-        self._clock_sample(ClockSample(t0, rep.t1_rig_ns, rep.t2_rig_ns, t3))
-
-    async def _ping_burst(self, link: CoordinatorLink, *, count: int) -> None:
-        for _ in range(count):
-            await self._ping_once(link)
-            await asyncio.sleep(0.01)
-
-    async def _pings(self, link: CoordinatorLink) -> None:
-        """Clock exchanges: ``ping_hz`` until the estimate's drift is fitted over SETTLE_SPAN_NS, then
-        one every ``ping_settled_s`` (each exchange costs the coordinator about half a millisecond;
-        a settled drift carries the estimate between them)."""
-        while True:
-            await asyncio.sleep(self.ping_period() * random.uniform(0.8, 1.2))
-            await self._ping_once(link)
-
-    def ping_period(self) -> float:
-        """Seconds to the next clock exchange; the clock turns settled (for good, until the rig
-        clock changes) once the estimate's drift is fitted over SETTLE_SPAN_NS."""
-        est = self.estimator.estimate
-        if not self._clock_settled and est is not None and est.drift_fitted and est.span_ns >= SETTLE_SPAN_NS:
-            self._clock_settled = True
-            log.info("clock settled (drift %.2f ppm, best round trip %.2f ms): exchanges every %.0f s",
-                     est.drift * 1e6, est.best_rtt_ns / 1e6, self.cfg.ping_settled_s)
-        if self._clock_settled:
-            return min(60.0, max(1.0, self.cfg.ping_settled_s))
-        return 1.0 / max(0.1, self.cfg.ping_hz)
 
     async def _assignments(self, link: CoordinatorLink) -> None:
         async for assignment in link.assignments():
@@ -594,79 +510,19 @@ class Node:
 
     async def _report_stream(self, link: CoordinatorLink, heartbeat_s: float, *, batch_s: float = 0.05,
                              timeline_batch_s: float | None = None) -> None:
-        """Heartbeats every ``heartbeat_s`` and at once when the fetcher has news (an asset ready or
-        given up on; the next regular one then follows a full period later). Swaps and drops of
-        streamed frames (stills, patterns, sequences: callers wait for them) go within ``batch_s``;
-        those of the show's timeline ticks wait up to ``timeline_batch_s`` (default: the heartbeat
-        interval) and travel with the next heartbeat when it is due by then, so a node playing a
-        show sends one message per heartbeat (the coordinator's cost per node is mostly per
-        message). A preview goes like a streamed frame's report (the newest, if several)."""
-        if timeline_batch_s is None:
-            timeline_batch_s = heartbeat_s
-        q = self._reports
-        while not q.empty():  # reports from a previous session are stale
-            q.get_nowait()
-        now_event = self._heartbeat_now
-        now_event.clear()     # the session's first heartbeat goes at once anyway
-
-        async def batches():
-            next_hb = 0.0
-            pending: list[SwapRecord | DropRecord] = []
-            flush_at = math.inf
-            getter: asyncio.Future | None = None
-            try:
-                while True:
-                    now = time.monotonic()
-                    hb_due = now >= next_hb or now_event.is_set()
-                    if hb_due or now >= flush_at:
-                        heartbeat = None
-                        if hb_due:
-                            now_event.clear()
-                            next_hb = now + heartbeat_s
-                            heartbeat = self._heartbeat()
-                        if getter is not None and getter.done():   # taken off the queue before the rest
-                            pending.append(getter.result())
-                            getter = None
-                        pending += [q.get_nowait() for _ in range(q.qsize())]
-                        items, pending, flush_at = pending, [], math.inf
-                        previews = [i for i in items if isinstance(i, PreviewRecord)]
-                        yield ReportBatch(heartbeat=heartbeat,
-                                          swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
-                                          drops=tuple(i for i in items if isinstance(i, DropRecord)),
-                                          preview=previews[-1] if previews else None)
-                        continue
-                    if getter is None:
-                        getter = asyncio.ensure_future(q.get())
-                    news = asyncio.ensure_future(now_event.wait())
-                    try:
-                        await asyncio.wait((getter, news), timeout=max(0.005, min(next_hb, flush_at) - now),
-                                           return_when=asyncio.FIRST_COMPLETED)
-                    finally:
-                        news.cancel()
-                    if not getter.done():
-                        continue   # a heartbeat or a batch is due (or a heartbeat wanted at once)
-                    item, getter = getter.result(), None
-                    pending.append(item)
-                    if getattr(item, "timeline", False):   # with the heartbeat if it comes within the batch's wait
-                        due = next_hb if next_hb <= now + timeline_batch_s else now + timeline_batch_s
-                    else:                   # gather what follows into the same message
-                        due = now + batch_s
-                    flush_at = min(flush_at, due)
-            finally:
-                if getter is not None:
-                    getter.cancel()
-
-        await link.report(batches())
+        """The session's reports (:class:`node.session.ReportStream`): heartbeats every ``heartbeat_s``
+        and at once when the fetcher has news; swaps and drops of streamed frames within ``batch_s``,
+        those of the show's timeline ticks with the heartbeat (or within ``timeline_batch_s``); the
+        rules are :mod:`node.report_batch`'s."""
+        self._stream = ReportStream(self._heartbeat, heartbeat_s, batch_s=batch_s, timeline_batch_s=timeline_batch_s)
+        try:
+            await self._stream.run(link)
+        finally:
+            self._stream = None
 
     def _heartbeat(self) -> HeartbeatRecord:
-        est = self.estimator.estimate
-        host = self.clock.host_now()
-        local = self.clock.from_host(host)
+        host, clock = self.session.clock_status()
         st = self.presenter.stats
-        clock = None
-        if est is not None:
-            clock = ClockStatus(offset_ns=int(est.rig_time(local) - local), drift_ppm=est.drift * 1e6,
-                                rtt_ns=est.best_rtt_ns, samples=est.samples, rig_estimate_ns=est.rig_time(local))
         return HeartbeatRecord(assignment_revision=st.revision, frames_shown=st.shown, frames_late=st.late,
                                frames_dropped=st.dropped, render_ms_p50=st.render_ms_p50, host_monotonic_ns=host,
                                clock=clock, assets=self.fetcher.progress(),

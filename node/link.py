@@ -59,24 +59,32 @@ class CoordinatorLink:
         PEM of the CA to trust; None connects without TLS.
     tls_server_name : str, optional
         The name expected in the coordinator's certificate (if not the host).
+    own_connection : bool
+        Give this link's channel a TCP connection of its own. gRPC lets channels of one process to
+        one target share a connection; real nodes, one process each, do not, and a coordinator
+        serving 256 connections works more (reads, wake-ups) than one serving 256 nodes multiplexed
+        on one, so the swarm's links take this to load a coordinator as real nodes do. (The bulk
+        channel always has a connection of its own.)
     """
 
-    def __init__(self, target: str, *, tls_ca: bytes | None = None, tls_server_name: str | None = None):
+    def __init__(self, target: str, *, tls_ca: bytes | None = None, tls_server_name: str | None = None,
+                 own_connection: bool = False):
         self.target = target
         options = list(GRPC_OPTIONS)
         if tls_ca is not None and tls_server_name:
             options.append(("grpc.ssl_target_name_override", tls_server_name))
+        own = [("grpc.use_local_subchannel_pool", 1)]
 
         def channel(opts: list) -> grpc.aio.Channel:
             if tls_ca is not None:
                 return grpc.aio.secure_channel(target, grpc.ssl_channel_credentials(root_certificates=tls_ca), options=opts)
             return grpc.aio.insecure_channel(target, options=opts)
 
-        self._channel = channel(options)
+        self._channel = channel(options + own if own_connection else options)
         self._stub = node_pb2_grpc.NodeLinkStub(self._channel)
         # Asset downloads travel on a connection of their own (a channel connects on first use):
         # megabytes of blob chunks never queue in front of a frame packet on the frames' connection.
-        self._bulk_channel = channel(options + [("grpc.use_local_subchannel_pool", 1)])
+        self._bulk_channel = channel(options + own)
         self._bulk = node_pb2_grpc.NodeLinkStub(self._bulk_channel)
         # Frames, delivered as serialized FramePackets: the presenter process parses them
         self._frames_raw = self._channel.unary_stream(

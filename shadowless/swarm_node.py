@@ -1,15 +1,16 @@
 """One protocol-level node of a swarm (:mod:`shadowless.swarm`): everything a node does on the
 wire, nothing it does on a screen.
 
-A :class:`SwarmNode` proves the rig token and joins like :mod:`node.app` (same
-:class:`node.link.CoordinatorLink`, same :mod:`node.records`), keeps a
-:class:`node.clock.ClockEstimator` from pings, follows its assignments, fetches its share of the
-wanted assets, follows the show's timeline (:class:`protos.timeline.Schedule`) and receives live
-frame packets. It does not render: it *reports* a swap at each timeline tick and at each live
-frame's ``pts`` (on its estimate of the rig clock), through the swarm's shared
-:class:`Ticker`, so the coordinator's sync statistics see what they would see from real nodes.
-A tick the swarm wakes up for later than ``late_ms`` after its instant is reported as a late drop,
-as a real node drops a frame it cannot show on time.
+A :class:`SwarmNode` runs the real node's protocol core, :class:`node.session.SessionCore`, on
+the node's own client, :class:`node.link.CoordinatorLink`: the same handshake, the same clock-id
+rule across coordinator restarts, the same pings, heartbeats and report batching
+(:class:`node.session.ReportStream`). Around it, it follows its assignments, fetches its share of
+the wanted assets, follows the show's timeline (:class:`protos.timeline.Schedule`) and receives
+live frame packets. It does not render: it *reports* a swap at each timeline tick and at each live
+frame's ``pts`` (on its estimate of the rig clock), through the swarm's shared :class:`Ticker`, so
+the coordinator's sync statistics see what they would see from real nodes. A tick the swarm wakes
+up for later than ``late_ms`` after its instant is reported as a late drop, as a real node drops a
+frame it cannot show on time.
 """
 from __future__ import annotations
 
@@ -22,33 +23,26 @@ import random
 import socket
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
-import grpc
-
-from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimator, ClockSample, LocalClock
+from node.clock import ClockEstimate, LocalClock
+from node.errors import CoordinatorNotTrusted
 from node.link import CoordinatorLink, LinkError
 from node.records import (
     AssetProgressRecord,
-    ClockStatus,
     DropReason,
     DropRecord,
     HeartbeatRecord,
-    JoinRequest,
     NodeInfo,
     ReportBatch,
     SwapRecord,
 )
+from node.session import ReportStream, SessionCore
 from node.wire import packet_from_bytes
-from protos import auth
 from protos.asset_manifest import Manifest
 from protos.discovery import NothingAdvertised
 from protos.host import boot_id
 from protos.timeline import Schedule
-from protos.version import GRPC_OPTIONS, PROTOCOL_VERSION
-
-if TYPE_CHECKING:  # pragma: no cover - types only
-    from shadowless.swarm import SwarmConfig, SwarmStats
+from shadowless.swarm_config import SwarmConfig, SwarmStats
 
 log = logging.getLogger("shadowless.swarm")
 
@@ -101,33 +95,6 @@ class Ticker:
         self._heap.clear()
 
 
-class OwnConnectionLink(CoordinatorLink):
-    """A :class:`~node.link.CoordinatorLink` on a TCP connection of its own.
-
-    gRPC lets channels of one process to one target share a connection; real nodes, one process
-    each, do not, and a coordinator serving 256 connections works more (reads, wake-ups) than one
-    serving 256 nodes multiplexed on one. So each swarm node's channel gets a subchannel pool of its
-    own (as the link's bulk channel already has). Replaces the link's channel attributes: keep in
-    step with :mod:`node.link`.
-    """
-
-    def __init__(self, target: str):
-        super().__init__(target)
-        self._unused = self._channel      # never connected (channels connect on first use)
-        self._channel = grpc.aio.insecure_channel(
-            target, options=list(GRPC_OPTIONS) + [("grpc.use_local_subchannel_pool", 1)])
-        self._stub = type(self._stub)(self._channel)
-        self._frames_raw = self._channel.unary_stream(
-            "/shadowless.v1.NodeLink/Frames", request_serializer=lambda msg: msg.SerializeToString(),
-            response_deserializer=None)
-
-    async def __aexit__(self, *exc) -> None:
-        try:
-            await self._unused.close()
-        finally:
-            await super().__aexit__(*exc)
-
-
 def next_tick(schedule: Schedule, bases: dict[int, int], after_ns: int) -> tuple[int, int] | None:
     """``(frame_id, pts_ns)`` of the first timeline tick strictly after rig time ``after_ns``
     (None: nothing more is scheduled), as the coordinator expects it (:meth:`Schedule.ticks`)."""
@@ -144,11 +111,13 @@ class SwarmNode:
         self._targets, self._join_gate, self._fetch_gate = targets, join_gate, fetch_gate
         offset = cfg.clock_offset_ms * (2.0 * random.random() - 1.0) if cfg.clock_offset_ms else 0.0
         drift = cfg.clock_drift_ppm * (2.0 * random.random() - 1.0) if cfg.clock_drift_ppm else 0.0
-        self.clock = LocalClock(offset_ns=int(offset * 1e6), drift_ppm=drift)
-        self.estimator = ClockEstimator(window_ns=CLOCK_WINDOW_NS)
+        # the real node's protocol core: handshake, clock estimate (kept by the clock-id rule), pings
+        clock = LocalClock(offset_ns=int(offset * 1e6), drift_ppm=drift)
+        self.session = SessionCore(slot=slot, token=cfg.token, clock=clock, info=self._info, ping_hz=cfg.ping_hz,
+                                   ping_settled_s=cfg.ping_settled_s, quiet=True)
         self.loop = ticker.loop
         self.joined = False
-        self._instance = ""
+        self.reports: ReportStream | None = None   # the session's report stream, while joined
         self.gen = 0                  # ticker entries of an older generation (timeline ticks) are stale
         self.session_no = 0           # ticker entries of an older session (live frames) are stale
         self._reset_session()
@@ -162,14 +131,6 @@ class SwarmNode:
         self.revision = 0
         self.shown = self.late = self.dropped = 0
         self.assets: dict[str, AssetProgressRecord] = {}
-        self._pending: list = []      # swaps and drops not yet batched
-        self._outbox: list[ReportBatch] = []
-        self._flush_handle: asyncio.TimerHandle | None = None
-        self._flush_at = 0.0
-        self._next_hb = 0.0
-        self._heartbeat_s = 1.0
-        self._wake = asyncio.Event()
-        self._hb_now = False
 
     # ---------------------------------------------------------------- life cycle
     async def run(self, stopping: asyncio.Event) -> None:
@@ -188,6 +149,10 @@ class SwarmNode:
                 log.warning("%s: %s: %s", self.slot, exc.code, exc.details)
                 if exc.refused:
                     backoff = max(backoff, self.cfg.refusal_backoff_s)
+            except CoordinatorNotTrusted as exc:
+                self.stats.errors += 1
+                log.warning("%s: %s", self.slot, exc)
+                backoff = max(backoff, self.cfg.refusal_backoff_s)
             except Exception as exc:  # noqa: BLE001 - one node's failure is counted, the swarm goes on
                 self.stats.errors += 1
                 log.warning("%s: %s", self.slot, exc)
@@ -198,26 +163,29 @@ class SwarmNode:
                 pass
 
     async def _session(self, target: str, stopping: asyncio.Event) -> bool:
-        async with (OwnConnectionLink(target) if self.cfg.own_connections else CoordinatorLink(target)) as link:
+        async with CoordinatorLink(target, own_connection=self.cfg.own_connections) as link:
             async with self._join_gate:
-                hb_ms = await self._handshake(link, target)
-                for _ in range(8):   # a first clock estimate, as a real node does before anything else
-                    await self._ping(link)
-                    await asyncio.sleep(0.01)
+                joined = await self.session.join(link)
+                await self.session.ping_burst(link, self._pinged)   # a first estimate, as a real node's
             self._reset_session()
             self.session_no += 1
+            cfg = self.cfg
+            self.reports = ReportStream(
+                self._heartbeat, (cfg.heartbeat_ms or joined.reply.heartbeat_interval_ms) / 1000.0,
+                batch_s=cfg.report_batch_ms / 1000.0,
+                timeline_batch_s=None if cfg.timeline_batch_ms is None else cfg.timeline_batch_ms / 1000.0,
+                now=self.loop.time, sent=self._sent)
             self.joined = True
             self.stats.joins += 1
             tasks = [asyncio.create_task(c) for c in (
-                self._assignments(link), self._frames(link), self._report(link, (self.cfg.heartbeat_ms or hb_ms) / 1000.0),
-                self._pings(link), self._wanted(link), self._show(link), stopping.wait())]
+                self._assignments(link), self._frames(link), self.reports.run(link),
+                self.session.pings(link, self._pinged), self._wanted(link), self._show(link), stopping.wait())]
             try:
                 await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
             finally:
                 self.joined = False
+                self.reports = None
                 self.gen += 1
-                if self._flush_handle is not None:
-                    self._flush_handle.cancel()
                 for t in tasks:
                     t.cancel()
                 done = await asyncio.gather(*tasks, return_exceptions=True)
@@ -230,49 +198,19 @@ class SwarmNode:
                     log.warning("%s: session ended by %r", self.slot, exc)
             return True
 
-    async def _handshake(self, link: CoordinatorLink, target: str) -> int:
-        nonce = auth.new_nonce()
-        hello = await link.hello(protocol_version=PROTOCOL_VERSION, client_nonce=nonce, slot=self.slot)
-        if not auth.verify(auth.coordinator_proof(self.cfg.token, hello.rig_id, nonce, hello.server_nonce),
-                           hello.server_proof):
-            raise LinkError("UNAUTHENTICATED", f"the coordinator at {target} could not prove it knows the rig token",
-                            refused=True)
-        proof = auth.client_proof(self.cfg.token, "node", hello.rig_id, self.slot, nonce, hello.server_nonce)
-        info = NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
+    def _info(self) -> NodeInfo:
+        return NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
                         software_version="swarm", output="swarm")
-        reply = await link.join(JoinRequest(protocol_version=PROTOCOL_VERSION, slot=self.slot, client_nonce=nonce,
-                                            server_nonce=hello.server_nonce, client_proof=proof, info=info))
-        if reply.instance_id != self._instance:
-            self._instance = reply.instance_id
-            self.estimator.reset()
-        return reply.heartbeat_interval_ms
 
     # ---------------------------------------------------------------- clock
-    async def _ping(self, link: CoordinatorLink) -> None:
-        t0 = self.clock.now()
-        rep = await link.ping(t0)
-        t3 = self.clock.now()
-        self.estimator.add(ClockSample(t0, rep.t1_rig_ns, rep.t2_rig_ns, t3))
+    def _pinged(self, est: ClockEstimate | None) -> None:
         self.stats.pings += 1
 
-    async def _pings(self, link: CoordinatorLink) -> None:
-        cfg = self.cfg
-        settled = False     # as node.app: once the drift is fitted over SETTLE_SPAN_NS (sticky)
-        while True:
-            est = self.estimator.estimate
-            settled = settled or (cfg.ping_settled_s is not None and est is not None and est.drift_fitted
-                                  and est.span_ns >= SETTLE_SPAN_NS)
-            period = cfg.ping_settled_s if settled else 1.0 / cfg.ping_hz
-            await asyncio.sleep(random.uniform(0.8, 1.2) * period)
-            await self._ping(link)
-
     def _host_of_rig(self, rig_ns: int) -> int | None:
-        est = self.estimator.estimate
-        return None if est is None else self.clock.to_host(est.local_time(rig_ns))
+        return self.session.host_time(rig_ns)
 
     def _rig_now(self) -> int | None:
-        est = self.estimator.estimate
-        return None if est is None else est.rig_time(self.clock.now())
+        return self.session.rig_time(self.session.clock.host_now())
 
     # ---------------------------------------------------------------- what the coordinator sends
     async def _assignments(self, link: CoordinatorLink) -> None:
@@ -345,109 +283,41 @@ class SwarmNode:
             self.last_tick_pts = pts_ns
             self.stats.ticks += 1
         late_ns = max(0, now_ns - host_ns)
+        timeline = kind == TICK
         if frame_id <= self.last_frame:
-            self._pending.append(DropRecord(frame_id, DropReason.SUPERSEDED))
+            self.reports.add(DropRecord(frame_id, DropReason.SUPERSEDED, timeline=timeline))
             self.dropped += 1
             self.stats.superseded += 1
-            self._schedule_flush(kind == TICK)
         elif late_ns > self.cfg.late_ms * 1e6:   # the swarm woke up too late: it did not keep up
             self.last_frame = frame_id
             self.stats.woke_late += 1
-            self._drop(frame_id, late_ns, kind == TICK)
+            self._drop(frame_id, late_ns, timeline)
         else:
             self.last_frame = frame_id
-            est = self.estimator.estimate
-            local = self.clock.from_host(host_ns)
-            self._pending.append(SwapRecord(frame_id=frame_id, pts_ns=pts_ns,
-                                            swap_rig_ns=est.rig_time(local) if est is not None else pts_ns,
-                                            host_monotonic_ns=host_ns))
+            rig = self.session.rig_time(host_ns)
+            self.reports.add(SwapRecord(frame_id=frame_id, pts_ns=pts_ns, swap_rig_ns=pts_ns if rig is None else rig,
+                                        host_monotonic_ns=host_ns, timeline=timeline))
             self.shown += 1
             self.stats.swaps += 1
             self.stats.lateness(late_ns)
-            self._schedule_flush(kind == TICK)
-        if kind == TICK:
+        if timeline:
             self._reschedule()
 
     def _drop(self, frame_id: int, late_ns: int, timeline: bool) -> None:
-        self._pending.append(DropRecord(frame_id, DropReason.LATE, late_by_ns=int(late_ns)))
+        self.reports.add(DropRecord(frame_id, DropReason.LATE, late_by_ns=int(late_ns), timeline=timeline))
         self.late += 1
         self.stats.late += 1
-        self._schedule_flush(timeline)
-
-    def _schedule_flush(self, timeline: bool) -> None:
-        """As node.app: a streamed frame's report goes within report_batch_ms (with what waits), a
-        timeline tick's waits up to timeline_batch_ms (default: the heartbeat interval), or until
-        the heartbeat if that is due first."""
-        now = self.loop.time()
-        if timeline:
-            wait = self._heartbeat_s if self.cfg.timeline_batch_ms is None else self.cfg.timeline_batch_ms / 1000.0
-            due = self._next_hb if self._next_hb <= now + wait else now + wait
-        else:
-            due = now + self.cfg.report_batch_ms / 1000.0
-        if self._flush_handle is not None and self._flush_at <= due:
-            return
-        if self._flush_handle is not None:
-            self._flush_handle.cancel()
-        self._flush_at = due
-        self._flush_handle = self.loop.call_at(due, self._flush)
-
-    def _flush(self) -> None:
-        self._flush_handle = None
-        items, self._pending = self._pending, []
-        if items:
-            self._outbox.append(ReportBatch(swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
-                                            drops=tuple(i for i in items if isinstance(i, DropRecord))))
-            self._wake.set()
 
     # ---------------------------------------------------------------- reports
-    async def _report(self, link: CoordinatorLink, heartbeat_s: float) -> None:
-        self._heartbeat_s = heartbeat_s
-
-        async def batches():
-            self._next_hb = 0.0
-            while True:
-                now = self.loop.time()
-                if self._outbox:
-                    self.stats.reports += 1
-                    batch = self._outbox.pop(0)
-                    if now >= self._next_hb - 0.005:     # a due heartbeat rides along with the swaps
-                        self._next_hb = now + heartbeat_s
-                        self.stats.heartbeats += 1
-                        batch = ReportBatch(heartbeat=self._heartbeat(), swaps=batch.swaps, drops=batch.drops)
-                    yield batch
-                    continue
-                if now >= self._next_hb or self._hb_now:
-                    self._hb_now = False
-                    self._next_hb = now + heartbeat_s
-                    self.stats.heartbeats += 1
-                    items, self._pending = self._pending, []      # what waited for the heartbeat goes with it
-                    if self._flush_handle is not None:
-                        self._flush_handle.cancel()
-                        self._flush_handle = None
-                    if items:
-                        self.stats.reports += 1
-                    yield ReportBatch(heartbeat=self._heartbeat(),
-                                      swaps=tuple(i for i in items if isinstance(i, SwapRecord)),
-                                      drops=tuple(i for i in items if isinstance(i, DropRecord)))
-                    continue
-                self._wake.clear()
-                try:
-                    async with asyncio.timeout(self._next_hb - now):
-                        await self._wake.wait()
-                except TimeoutError:
-                    pass
-
-        await link.report(batches())
+    def _sent(self, batch: ReportBatch) -> None:
+        """Count a message of the report stream: its heartbeat, and whether it carries swaps or drops."""
+        if batch.heartbeat is not None:
+            self.stats.heartbeats += 1
+        if batch.swaps or batch.drops:
+            self.stats.reports += 1
 
     def _heartbeat(self) -> HeartbeatRecord:
-        est = self.estimator.estimate
-        host = self.clock.host_now()
-        local = self.clock.from_host(host)
-        clock = None
-        if est is not None:
-            rig = est.rig_time(local)
-            clock = ClockStatus(offset_ns=rig - local, drift_ppm=est.drift * 1e6, rtt_ns=est.best_rtt_ns,
-                                samples=est.samples, rig_estimate_ns=rig)
+        host, clock = self.session.clock_status()
         return HeartbeatRecord(assignment_revision=self.revision, frames_shown=self.shown, frames_late=self.late,
                                frames_dropped=self.dropped, render_ms_p50=0.0, host_monotonic_ns=host, clock=clock,
                                assets=tuple(self.assets.values()))
@@ -487,5 +357,5 @@ class SwarmNode:
                 self.stats.errors += 1
                 self.assets[aid] = AssetProgressRecord(asset_id=aid, error=str(exc))
                 log.warning("%s: %s", self.slot, exc)
-        self._hb_now = True
-        self._wake.set()
+        if self.reports is not None:      # news for the operator: a heartbeat at once, as a real node's
+            self.reports.heartbeat_now()

@@ -133,11 +133,11 @@ def test_a_node_exchanges_at_its_settled_rate_once_the_drift_spans_twenty_second
     samples, _ = simulate(0.0, 20e-6, seconds=30, hz=4, seed=9)
     periods = []
     for s in samples:
-        node.estimator.add(s)
-        periods.append(node.ping_period())
+        node.session.estimator.add(s)
+        periods.append(node.session.ping_period())
     settled_s = NodeConfig(slot="x", token=b"").ping_settled_s
     first_settled = periods.index(settled_s)
     assert set(periods[:first_settled]) == {0.25} and set(periods[first_settled:]) == {settled_s}
     assert 19 * 4 <= first_settled <= 22 * 4                     # after ~20 s of exchanges at 4 Hz
-    node.estimator.reset()
-    assert node.ping_period() == settled_s          # settled stays settled (the app clears it with the clock)
+    node.session.estimator.reset()
+    assert node.session.ping_period() == settled_s  # settled stays settled (the clock-id rule clears it with the clock)

@@ -130,7 +130,6 @@ def test_a_preview_goes_in_the_next_batch(tmp_path):
     rec = PreviewRecord(request_id=4, frame_id=9, png=b"png", width=1, height=1, output_width=1, output_height=1)
 
     async def go():
-        n._reports = asyncio.Queue()
         task = asyncio.create_task(n._report_stream(link, 60.0, batch_s=0.01))
         try:
             await wait_until_async(lambda: list(link.batches), what="the stream's first batch (its heartbeat)")

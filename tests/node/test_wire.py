@@ -141,7 +141,7 @@ def test_asset_calls_and_progress_keep_the_wire_format():
 def test_the_records_both_sides_speak_come_back_the_same_from_the_coordinators_wire():
     """NodeInfo and DropReason are one definition (protos.records): what a node sends, the
     coordinator reads back as the very same records."""
-    from coordinator import wire as coordinator_wire
+    from coordinator.wire import node_messages as coordinator_wire
 
     info = NodeInfo(hostname="pi-7", pid=4242, host_boot_id="boot", native_size=(1920, 1080), software_version="1.2.3",
                     output="kms", gl="OpenGL ES 3.1")
