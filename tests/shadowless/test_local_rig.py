@@ -13,6 +13,7 @@ import time
 import cv2
 import numpy as np
 import pytest
+from waits import wait_until, wait_until_async
 
 from shadowless.local import LocalRig, grid_names, spread, card_image
 from coordinator.api import NodeState, PlaySettings
@@ -42,6 +43,17 @@ def rig(tmp_path_factory):
 async def _status(rig):
     async with await rig.client() as c:
         return await c.status()
+
+
+def snapshot_metas(rig, slots) -> dict[str, dict]:
+    """The metadata of each slot's last snapshot (slots without one left out)."""
+    metas = {}
+    for slot in slots:
+        try:
+            metas[slot] = json.loads((rig.snapshot_dir / f"{slot}.json").read_text())
+        except (OSError, ValueError):   # not written yet, or caught between two writes
+            pass
+    return metas
 
 
 def test_every_node_discovers_and_joins(rig):
@@ -100,21 +112,20 @@ def test_rendered_output_matches_reference_warp(rig):
     async def go():
         async with await rig.client() as c:
             await rig.wait_live(c, timeout=180)
-            for i, slot in enumerate(rig.slots):
-                await c.configure(slot, gain=gain, homography=homography_for(i), lut=lut_for(i))
-            await asyncio.sleep(0.5)
+            revisions = {slot: await c.configure(slot, gain=gain, homography=homography_for(i), lut=lut_for(i))
+                         for i, slot in enumerate(rig.slots)}
+
+            async def applied():
+                return {n.slot: n.assignment_revision for n in (await c.status()).nodes}
+
+            await wait_until_async(applied, lambda got: all(got.get(s, 0) >= r for s, r in revisions.items()),
+                                   what=f"every node to apply its configuration (revisions {revisions})")
             return await c.show(img, name="card")
 
     shown = run(go())
-    deadline = time.monotonic() + 60
-    pending = set(rig.slots)
-    while pending and time.monotonic() < deadline:
-        for slot in list(pending):
-            meta = rig.snapshot_dir / f"{slot}.json"
-            if meta.exists() and json.loads(meta.read_text()).get("frame_id", 0) >= shown.frame_id:
-                pending.discard(slot)
-        time.sleep(0.2)
-    assert not pending, f"no snapshot of frame {shown.frame_id} from {sorted(pending)}"
+    wait_until(lambda: snapshot_metas(rig, rig.slots),
+               lambda metas: all(metas.get(s, {}).get("frame_id", 0) >= shown.frame_id for s in rig.slots),
+               what=f"a snapshot of frame {shown.frame_id} from every node")
     for i, slot in enumerate(rig.slots):
         got = cv2.cvtColor(cv2.imread(str(rig.snapshot_dir / f"{slot}.png"), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGR2RGB)
         want = reference(img, homography_for(i), lut_for(i), gain)
@@ -128,7 +139,9 @@ def test_swaps_align_despite_wrong_clocks(rig):
     async def go():
         async with await rig.client() as c:
             await rig.wait_live(c, timeout=180)
-            await asyncio.sleep(3.0)   # let every estimator see a few seconds of drift
+            # every estimator has seen enough exchanges to fit its drift (0 until then)
+            await wait_until_async(c.status, lambda st: all(n.clock_drift_ppm != 0.0 for n in st.nodes),
+                                   what="every node's clock estimate to fit its drift")
             return await c.play(PlaySettings(fps=10, pattern="counter", frames=40, wait=True, latency_ms=150))
 
     r = run(go())
@@ -154,14 +167,10 @@ def test_killed_node_is_lost_others_keep_running_and_it_rejoins(rig):
             await rig.wait_live(c, timeout=180)
             rig.nodes[victim].send_signal(signal.SIGKILL)
             rig.nodes[victim].wait()
-            deadline = time.monotonic() + 30
-            while True:
-                st = await c.status()
-                states = {n.slot: n.state for n in st.nodes}
-                if states[victim] == NodeState.LOST:
-                    break
-                assert time.monotonic() < deadline, "killed node never reported lost"
-                await asyncio.sleep(0.2)
+            st = await wait_until_async(c.status,
+                                        lambda st: {n.slot: n.state for n in st.nodes}[victim] == NodeState.LOST,
+                                        what=f"the killed node {victim} to be reported lost")
+            states = {n.slot: n.state for n in st.nodes}
             others = [s for s in rig.slots if s != victim]
             assert all(states[s] == NodeState.LIVE for s in others)
             r = await c.play(PlaySettings(fps=10, pattern="counter", frames=10,
@@ -197,7 +206,9 @@ def test_coordinator_restart_brings_every_node_back_with_the_same_rig(rig):
     revisions = {name: st.revision for name, st in Rig(rig.rig_dir).slots.items()}
     rig.stop_coordinator(signal.SIGKILL)      # a crash, not a clean exit
     tries_before = attempts(rig)
-    time.sleep(6.0)                           # the nodes are on their own now
+    # the nodes are on their own now; backoff is a rate (attempts in a span of time), so only letting a
+    # span pass shows it is no busy loop
+    time.sleep(6.0)
     tries = {s: n - tries_before[s] for s, n in attempts(rig).items()}
     # exponential backoff: a handful of attempts in 6 s, not a busy loop
     assert all(1 <= n <= 12 for n in tries.values()), tries
@@ -209,27 +220,18 @@ def test_coordinator_restart_brings_every_node_back_with_the_same_rig(rig):
             after = await rig.wait_live(c, timeout=180, min_joins={s: 1 for s in rig.slots})
             assert after.instance_id != before.instance_id
             # same rig: poses, LUTs and revisions were persisted, are served again and applied by every node
-            deadline = time.monotonic() + 30
-            while {n.slot: n.assignment_revision for n in after.nodes} != revisions:
-                assert time.monotonic() < deadline, {n.slot: n.assignment_revision for n in after.nodes}
-                await asyncio.sleep(0.3)
-                after = await c.status()
+            after = await wait_until_async(
+                c.status, lambda st: {n.slot: n.assignment_revision for n in st.nodes} == revisions,
+                what=f"every node to apply its persisted revision {revisions}")
             assert all(n.pose_kind == "homography" for n in after.nodes)
             return after
 
     run(after_restart())
     # the persisted still is shown again by every node without anyone asking
-    deadline = time.monotonic() + 60
-    pending = set(rig.slots)
-    while pending and time.monotonic() < deadline:
-        for slot in list(pending):
-            meta = rig.snapshot_dir / f"{slot}.json"
-            if meta.exists():
-                doc = json.loads(meta.read_text())
-                if doc.get("tag") == "show:restored" and doc.get("frame_id", 0) > shown.frame_id:
-                    pending.discard(slot)
-        time.sleep(0.2)
-    assert not pending, f"no restored still from {sorted(pending)}"
+    wait_until(lambda: snapshot_metas(rig, rig.slots),
+               lambda metas: all(metas.get(s, {}).get("tag") == "show:restored"
+                                 and metas[s].get("frame_id", 0) > shown.frame_id for s in rig.slots),
+               what="the restored still in a snapshot from every node")
     got = cv2.cvtColor(cv2.imread(str(rig.snapshot_dir / f"{rig.slots[0]}.png")), cv2.COLOR_BGR2RGB)
     want = reference(still, homography_for(0), lut_for(0), 0.9)
     assert np.abs(got.astype(int) - want.astype(int))[1:-1, 1:-1].mean() < 0.3
