@@ -1,12 +1,17 @@
-"""The node's report stream sends a heartbeat at once when the fetcher has news for the operator
-(an asset ready, or given up on), one per event and never per progress byte, and keeps its
-regular heartbeats; the fetcher calls ``on_change`` exactly for that news (plain objects, a real
-cache on disk, a scripted link)."""
+"""The node's report stream, end to end on an event loop: the fetcher's news (an asset ready, or
+given up on) sends one heartbeat at once, never one per progress byte; swaps go in batches; a
+show's ticks wait for the heartbeat unless a streamed frame takes them along. The fetcher calls
+``on_change`` exactly for that news (plain objects, a real cache on disk, a scripted link).
+
+When things are sent is :mod:`node.report_batch`'s to decide, and tests/node/test_report_batch.py
+checks it with the instants it chooses; here every step waits for the message it causes, and
+what came before is judged by what each message holds.
+"""
 from __future__ import annotations
 
 import asyncio
-import itertools
-import time
+
+from waits import wait_until_async
 
 from node.app import Node, NodeConfig
 from node.asset_fetch import AssetFetcher
@@ -29,70 +34,108 @@ class ReportLink:
         return sum(b.heartbeat is not None for b in self.batches)
 
 
-async def until(cond, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline
-        await asyncio.sleep(0.005)
+def a_node(tmp_path) -> Node:
+    node = Node(NodeConfig(slot="r0c0", token=b"x" * 32, cache_dir=tmp_path / "cache"))
+    node._heartbeat = object       # no presenter here: any object stands for the heartbeat's record
+    return node
+
+
+def with_stream(node: Node, body, heartbeat_s: float, **batching) -> None:
+    """Run the node's report stream on a collecting link while ``await body(link)`` drives it."""
+    async def go():
+        link = ReportLink()
+        task = asyncio.create_task(node._report_stream(link, heartbeat_s, **batching))
+        try:
+            await body(link)
+            assert not task.done(), task
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    asyncio.run(go())
+
+
+async def batches(link: ReportLink, n: int, what: str) -> list:
+    return await wait_until_async(lambda: list(link.batches), lambda bs: len(bs) >= n, what=what)
 
 
 def test_news_sends_one_heartbeat_at_once_and_swaps_none(tmp_path):
-    node = Node(NodeConfig(slot="r0c0", token=b"x" * 32, cache_dir=tmp_path / "cache"))
-    beats = []
-    node._heartbeat = lambda: beats.append(time.monotonic()) or object()
+    node = a_node(tmp_path)
 
-    async def go():
-        node._reports = asyncio.Queue()
-        link = ReportLink()
-        node.fetcher.on_change()               # news from before the session: its first heartbeat covers it
-        task = asyncio.create_task(node._report_stream(link, 60.0, batch_s=0.01))
-        try:
-            await until(lambda: link.heartbeats() == 1)
-            await asyncio.sleep(0.1)
-            assert link.heartbeats() == 1 and len(link.batches) == 1
+    async def body(link):
+        node.fetcher.on_change()              # news from before the session: its first heartbeat covers it
+        await batches(link, 1, "the session's first heartbeat")
+        node.fetcher.on_change()              # an asset ready: one heartbeat, long before the regular one (60 s)
+        node.fetcher.on_change()              # in the same instant: the same heartbeat
+        await wait_until_async(link.heartbeats, lambda n: n >= 2, what="the heartbeat the news sends")
 
-            node.fetcher.on_change()          # an asset ready: one heartbeat, long before the regular one
-            node.fetcher.on_change()          # in the same instant: the same heartbeat
-            await until(lambda: link.heartbeats() == 2)
+        node._report(SwapRecord(1, 0, 0, 0))
+        node._report(SwapRecord(2, 0, 0, 0))
+        got = await batches(link, 3, "the swaps' batch")
+        # had the double news, or the news before the session, sent a heartbeat of its own, it
+        # would have gone before the swaps were even reported
+        assert len(got) == 3 and link.heartbeats() == 2
+        assert got[2].heartbeat is None and [s.frame_id for s in got[2].swaps] == [1, 2]
 
-            node._report(SwapRecord(1, 0, 0, 0))
-            node._report(SwapRecord(2, 0, 0, 0))
-            await until(lambda: len(link.batches) == 3)
-            assert link.batches[2].heartbeat is None and [s.frame_id for s in link.batches[2].swaps] == [1, 2]
+        node.fetcher.on_change()              # given up on another: one more
+        node._report(SwapRecord(3, 0, 0, 0))  # reported in the same instant: it rides with that heartbeat
+        got = await batches(link, 4, "the next heartbeat")
+        assert got[3].heartbeat is not None and [s.frame_id for s in got[3].swaps] == [3]
+        node._report(SwapRecord(4, 0, 0, 0))
+        got = await batches(link, 5, "the batch after it")
+        assert len(got) == 5 and link.heartbeats() == 3 and [s.frame_id for s in got[4].swaps] == [4]
 
-            node.fetcher.on_change()          # given up on another: one more
-            await until(lambda: link.heartbeats() == 3)
-            await asyncio.sleep(0.1)
-            assert link.heartbeats() == 3 and len(link.batches) == 4
-        finally:
-            task.cancel()
-            await asyncio.gather(task, return_exceptions=True)
-
-    asyncio.run(go())
+    with_stream(node, body, 60.0, batch_s=0.01)
 
 
-def test_regular_heartbeats_go_on_and_news_restarts_the_period(tmp_path):
-    node = Node(NodeConfig(slot="r0c0", token=b"x" * 32, cache_dir=tmp_path / "cache"))
-    beats: list[float] = []
-    node._heartbeat = lambda: beats.append(time.monotonic()) or object()
+def test_regular_heartbeats_go_on_without_news(tmp_path):
+    node = a_node(tmp_path)
 
-    async def go():
-        node._reports = asyncio.Queue()
-        link = ReportLink()
-        task = asyncio.create_task(node._report_stream(link, 0.5))
-        try:
-            await until(lambda: len(beats) == 3)          # regular ones
-            node.fetcher.on_change()
-            await until(lambda: len(beats) == 4)
-            await until(lambda: len(beats) == 5)
-        finally:
-            task.cancel()
-            await asyncio.gather(task, return_exceptions=True)
-        gaps = [b - a for a, b in itertools.pairwise(beats)]
-        assert min(gaps[:2]) >= 0.49                      # the period holds between regular ones
-        assert gaps[3] >= 0.49                            # after the extra one, a full period again
+    async def body(link):
+        got = await batches(link, 3, "three regular heartbeats")
+        assert all(b.heartbeat is not None and not b.swaps for b in got[:3])
 
-    asyncio.run(go())
+    with_stream(node, body, 0.2)
+
+
+def test_timeline_ticks_wait_for_the_heartbeat_and_streamed_frames_do_not(tmp_path):
+    """A show's ticks travel with the next heartbeat (one message), a streamed frame's swap within
+    the short batch, carrying the ticks waiting with it; nothing is lost or reordered."""
+    node = a_node(tmp_path)
+
+    async def body(link):
+        await batches(link, 1, "the session's first heartbeat")
+        for k in range(5):
+            node._report(SwapRecord(100 + k, 0, 0, 0, timeline=True))
+        node.fetcher.on_change()                            # the next heartbeat (else 60 s away)
+        got = await batches(link, 2, "the heartbeat with the ticks")
+        assert got[1].heartbeat is not None and [s.frame_id for s in got[1].swaps] == [100, 101, 102, 103, 104]
+
+        node._report(SwapRecord(105, 0, 0, 0, timeline=True))
+        node._report(DropRecord(106, DropReason.LATE, timeline=True))
+        node._report(SwapRecord(900, 0, 0, 0))              # a still: it goes at once, with the ticks before it
+        got = await batches(link, 3, "the still's batch")
+        b = got[2]
+        assert len(got) == 3, "the ticks did not go alone before the still"
+        assert b.heartbeat is None and [s.frame_id for s in b.swaps] == [105, 900]
+        assert [d.frame_id for d in b.drops] == [106]
+
+    with_stream(node, body, 60.0, batch_s=0.01)
+
+
+def test_reports_between_sessions_are_not_sent_with_the_next(tmp_path):
+    node = a_node(tmp_path)
+    node._report(SwapRecord(1, 0, 0, 0))           # no session: stale by the next one
+
+    async def body(link):
+        await batches(link, 1, "the session's first heartbeat")
+        node._report(SwapRecord(2, 0, 0, 0))
+        got = await wait_until_async(lambda: list(link.batches),
+                                     lambda bs: [s.frame_id for b in bs for s in b.swaps] != [],
+                                     what="the session's swap")
+        assert [s.frame_id for b in got for s in b.swaps] == [2]
+
+    with_stream(node, body, 60.0, batch_s=0.01)
 
 
 # ---------------------------------------------------------------- the fetcher's news
@@ -114,7 +157,6 @@ class AssetLink:
         data = self.blobs[sha256]
         for at in range(offset, len(data), 16 << 10):     # many chunks: progress bytes are no news
             yield BlobChunkData(at, data[at: at + (16 << 10)])
-            await asyncio.sleep(0)
 
 
 def test_the_fetcher_calls_on_change_once_per_ready_or_given_up_asset(tmp_path):
@@ -128,9 +170,8 @@ def test_the_fetcher_calls_on_change_once_per_ready_or_given_up_asset(tmp_path):
 
     async def go(link):
         task = asyncio.create_task(fetcher.run(link))
-        await until(lambda: all(p.ready or p.error for p in fetcher.progress())
-                    and len(fetcher.progress()) == len(link.wanted_ids))
-        await asyncio.sleep(0.05)
+        await wait_until_async(fetcher.progress, lambda p: len(p) == len(link.wanted_ids)
+                               and all(a.ready or a.error for a in p), what="every wanted asset ready or given up on")
         link.end.set()
         await task
 
@@ -153,36 +194,3 @@ def test_the_fetcher_calls_on_change_once_per_ready_or_given_up_asset(tmp_path):
     asyncio.run(go(link()))
     assert len(calls) == 1 and calls[0][0].ready
     fetcher.close()
-
-
-def test_timeline_ticks_wait_for_the_heartbeat_and_streamed_frames_do_not(tmp_path):
-    """A show's ticks travel with the next heartbeat (one message), a streamed frame's swap within
-    the short batch, carrying the ticks waiting with it; nothing is lost or reordered."""
-    node = Node(NodeConfig(slot="r0c0", token=b"x" * 32, cache_dir=tmp_path / "cache"))
-    node._heartbeat = lambda: object()
-
-    async def go():
-        node._reports = asyncio.Queue()
-        link = ReportLink()
-        task = asyncio.create_task(node._report_stream(link, 0.6, batch_s=0.01, timeline_batch_s=5.0))
-        try:
-            await until(lambda: link.heartbeats() == 1)
-            for k in range(5):
-                node._report(SwapRecord(100 + k, 0, 0, 0, timeline=True))
-                await asyncio.sleep(0.02)
-            assert len(link.batches) == 1                  # the ticks wait ...
-            await until(lambda: link.heartbeats() == 2)    # ... for the heartbeat, and go with it
-            hb = link.batches[-1]
-            assert len(link.batches) == 2 and [s.frame_id for s in hb.swaps] == [100, 101, 102, 103, 104]
-            node._report(SwapRecord(105, 0, 0, 0, timeline=True))
-            node._report(DropRecord(106, DropReason.LATE, timeline=True))
-            node._report(SwapRecord(900, 0, 0, 0))         # a still: it goes at once, with the ticks before it
-            await until(lambda: len(link.batches) == 3)
-            b = link.batches[2]
-            assert b.heartbeat is None and [s.frame_id for s in b.swaps] == [105, 900]
-            assert [d.frame_id for d in b.drops] == [106]
-        finally:
-            task.cancel()
-            await asyncio.gather(task, return_exceptions=True)
-
-    asyncio.run(go())
