@@ -6,13 +6,14 @@ import time
 
 import numpy as np
 import pytest
+from waits import wait_until
 
 from node.outputs import OutputError, SwapInfo, open_output
-from node.outputs.room import RoomOutput
-from sim.client import RoomClient
+from node.outputs.room_link import RoomOutput
+from sim.link import RoomClient
 from sim.room import Room
 from sim.scene import reference_scene
-from sim.service import RoomServerThread
+from sim.wire.service import RoomServerThread
 
 
 class StandInRenderer:
@@ -46,15 +47,6 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def wait_for(predicate, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
-
-
 def test_frames_reach_the_room_and_change_what_the_camera_sees(tmp_path):
     with RoomServerThread(small_room()) as server, RoomClient(server.address) as client:
         out = open_output(f"room://{server.address}", slot="r2c2", snapshot_dir=tmp_path)
@@ -66,11 +58,14 @@ def test_frames_reach_the_room_and_change_what_the_camera_sees(tmp_path):
             renderer = StandInRenderer(160, 100)
             out.after_swap(renderer.show(0), info(1))
             assert out.flush()
-            assert wait_for(lambda: server.server.service.frames_received >= 1)
+            wait_until(lambda: server.server.service.frames_received, lambda n: n >= 1,
+                       what="the room to receive frame 1")
             dark = client.capture()
             assert dark.frames == {"r2c2": (1, dark.frames["r2c2"][1])}
             out.after_swap(renderer.show(255), info(2))
-            assert out.flush() and wait_for(lambda: server.server.service.frames_received >= 2)
+            assert out.flush()
+            wait_until(lambda: server.server.service.frames_received, lambda n: n >= 2,
+                       what="the room to receive frame 2")
             bright = client.capture()
             assert bright.frames["r2c2"][0] == 2
             assert bright.image.mean() > 10 * dark.image.mean() + 0.005  # one of the 25 units, full white
@@ -90,18 +85,25 @@ def test_a_slow_or_absent_room_costs_dropped_frames_not_waiting_and_the_output_r
         assert out.frames_queued == 10
         assert out.frames_dropped >= 5  # at most 2 wait in the queue, a few went to failed streams
         with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
-            assert wait_for(lambda: server.server.service.frames_received >= 1)
+            wait_until(lambda: server.server.service.frames_received, lambda n: n >= 1,
+                       what="the room to receive a frame")
             assert client.capture().frames["r2c2"][0] == 9  # the newest frame made it
         # The room goes away and comes back (a new process would do the same): the output follows.
+        opened = out.streams_opened
         out.after_swap(renderer.show(3), info(10))
-        time.sleep(0.3)
+        wait_until(lambda: out.streams_opened, lambda n: n > opened, what="the output to try the absent room again")
+
+        def shown() -> tuple:
+            """The room's frame id for r2c2, then the output's counters (what a failure shows)."""
+            frame_id = client.capture().frames.get("r2c2", (0, 0))[0]
+            return frame_id, out.streams_opened, out.frames_sent, out.frames_dropped, out.last_error
+
         with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
             out.after_swap(renderer.show(200), info(11))
-            ok = wait_for(lambda: client.capture().frames.get("r2c2", (0, 0))[0] == 11)
-            assert ok, (out.streams_opened, out.frames_sent, out.frames_dropped, out.last_error, client.capture().frames)
+            wait_until(shown, lambda seen: seen[0] == 11, what="frame 11 in the room that came back")
         # A room that restarts while the node shows a still frame gets that frame again.
         with RoomServerThread(small_room(), port=port) as server, RoomClient(server.address) as client:
-            assert wait_for(lambda: client.capture().frames.get("r2c2", (0, 0))[0] == 11)
+            wait_until(shown, lambda seen: seen[0] == 11, what="frame 11 again in the restarted room")
         assert out.streams_opened >= 3
     finally:
         out.close()
@@ -112,7 +114,7 @@ def test_wrong_frame_sizes_are_refused_with_the_expected_size():
         out = RoomOutput(f"room://{server.address}", slot="r2c2")
         try:
             out.after_swap(StandInRenderer(320, 200), info(1))
-            assert wait_for(lambda: out.last_error is not None)
+            wait_until(lambda: out.last_error, lambda e: e is not None, what="the room's refusal")
             assert "INVALID_ARGUMENT" in out.last_error and "160x100" in out.last_error
         finally:
             out.close()
