@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from protos import codec, room_pb2, room_pb2_grpc
-from sim.client import RoomClient
+from sim.link import RoomClient
 from sim.errors import FrameError, UnknownSlotError
-from sim.occluders import Hand, HandPath
+from sim.hand import Hand, HandPath
 from sim.room import Room
 from sim.scene import reference_scene
-from sim.service import RoomServerThread
+from sim.wire.service import RoomServerThread
 
 
 def make_room() -> Room:
@@ -64,6 +64,8 @@ def test_capture_waits_for_frames_swapped_after_an_instant(served):
     client.display({"r2c2": frame}, frame_id=1, swap_rig_ns=1_000)
 
     def later():
+        # the capture must be waiting on the server before frame 2 arrives, and the server shows no sign
+        # of a waiting capture that a test could wait for: only time puts the display after it
         time.sleep(0.4)
         client.display({"r2c2": frame}, frame_id=2, swap_rig_ns=2_000)
 
