@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from bench.machine import machine
-from sim.occluders import Hand
+from sim.hand import Hand
 from sim.room import Room
 from sim.scene import SUBSETS, reference_scene
 

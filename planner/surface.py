@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.mesh import Mesh
-from sim.occluders import Hand
+from sim.hand import Hand
 from sim.precompute import MeshMaps
 from sim.raster import MeshRaster
 from studies.proxies import PoseSet

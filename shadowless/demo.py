@@ -34,7 +34,7 @@ from protos.spaces import content_to_table
 from shadowless import exit_cleanup
 from shadowless.local import LocalRig, free_port
 from sim.client import RoomClient
-from sim.occluders import Hand
+from sim.hand import Hand
 from sim.scene import SUBSETS
 
 

@@ -9,7 +9,8 @@ Modules
 geometry   pinhole devices (K, R, t, look-at, projection, rays, GL projection)
 optics     projector response, pixel footprint + defocus kernels, irradiance, camera sensor
 mesh       OBJ/PLY reading and writing, the procedural bust
-occluders  analytic solids with exact ray tests, the hand with forearm, hand paths
+occluders  analytic solids with exact ray tests, the queries over many of them
+hand       the hand with forearm built from those solids, hand paths
 scene      projectors, cameras, table, mesh; the paper's 5x5 rig; subsets P1 ... P25; layout files
 raster     moderngl (EGL) rasterisation: camera G-buffers and projector depth maps of meshes
 precompute views and plans per camera and projector, mesh maps (the static precomputation)
@@ -23,5 +24,6 @@ Entry points::
 
     from sim.scene import reference_scene, load_layout, SUBSETS
     from sim.room import Room
-    from sim.occluders import Hand, HandPath, Box
+    from sim.hand import Hand, HandPath
+    from sim.occluders import Box
 """

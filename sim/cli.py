@@ -9,7 +9,7 @@ import time
 
 from protos import cli_types
 from sim.errors import SimError
-from sim.occluders import Hand, HandPath
+from sim.hand import Hand, HandPath
 from sim.room import Room
 from sim.scene import SUBSETS, load_layout, reference_scene, write_layout
 from sim.service import DEFAULT_PORT, serve

@@ -15,7 +15,7 @@ from protos import codec, room_pb2, room_pb2_grpc
 from protos.version import GRPC_OPTIONS
 from sim import wire
 from sim.errors import FrameError, SimError, UnknownSlotError
-from sim.occluders import HandPath
+from sim.hand import HandPath
 
 
 class RoomUnavailable(SimError, ConnectionError):

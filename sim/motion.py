@@ -46,7 +46,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sim.occluders import Hand, HandPath
+from sim.hand import Hand, HandPath
 from sim.precompute import TABLE
 from sim.reactive import PRIOR_RIGS, ReactiveSpec, reactive_light, rig_slots, shares
 from sim.scene import SUBSETS
@@ -82,7 +82,7 @@ _PROGRESS_EVERY = 30
 
 
 class Path(Protocol):
-    """Anything that places a hand at a time: :class:`WavePath`, :class:`sim.occluders.HandPath`."""
+    """Anything that places a hand at a time: :class:`WavePath`, :class:`sim.hand.HandPath`."""
 
     def hand_at(self, t: float) -> Hand: ...
 

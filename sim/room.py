@@ -44,7 +44,8 @@ import cv2
 import numpy as np
 
 from sim.errors import FrameError, UnknownSlotError
-from sim.occluders import HandPath, flatten
+from sim.hand import HandPath
+from sim.occluders import flatten
 from sim.occlusion import DynamicState, OccluderSamples, occlude, occluder_samples
 from sim.optics import gaussian_kernel
 from sim.precompute import (
@@ -202,9 +203,9 @@ class Room:
             self._active = [s for s in self.all_slots if s in wanted]
 
     def set_occluders(self, occluders: Iterable | HandPath | None) -> None:
-        """Place occluders: a list of :class:`~sim.occluders.Hand`, boxes, ...; ``[]`` or None for none.
+        """Place occluders: a list of :class:`~sim.hand.Hand`, boxes, ...; ``[]`` or None for none.
 
-        A :class:`~sim.occluders.HandPath` moves a hand: each capture places
+        A :class:`~sim.hand.HandPath` moves a hand: each capture places
         it at the time elapsed since this call (see :meth:`capture`'s ``time``).
         """
         if isinstance(occluders, HandPath):

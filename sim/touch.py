@@ -1,6 +1,6 @@
 """A hand whose index fingertip touches a surface point anywhere in 3D (on the bust, not only the table).
 
-:class:`sim.occluders.Hand` stands on the table: a position, a height and a yaw. Touching a
+:class:`sim.hand.Hand` stands on the table: a position, a height and a yaw. Touching a
 point of a 3D object needs any orientation: :class:`TouchingHand` builds the same pointing hand
 (``Hand(pose="point")``: palm, fingers, thumb, forearm) and moves it rigidly so that
 
@@ -26,7 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.occluders import Capsule, Hand, Primitive
+from sim.hand import Hand
+from sim.occluders import Capsule, Primitive
 
 __all__ = ["TouchingHand", "inside", "reach_direction"]
 
@@ -92,7 +93,7 @@ class TouchingHand:
         The upper arm's radius, mm at scale 1.
     gap : float
         Millimetres between the fingertip and the surface (0: touching exactly).
-    scale, side : as :class:`~sim.occluders.Hand`.
+    scale, side : as :class:`~sim.hand.Hand`.
     """
 
     point: np.ndarray

@@ -5,7 +5,8 @@ import numpy as np
 import scipy.sparse
 
 from protos import room_pb2
-from sim.occluders import Box, Hand, HandPath
+from sim.hand import Hand, HandPath
+from sim.occluders import Box
 
 
 def hand_to_msg(hand: Hand) -> room_pb2.HandSpec:

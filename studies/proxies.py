@@ -61,7 +61,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from sim.occluders import Hand
+from sim.hand import Hand
 from sim.sop_shadows import (
     Grid,
     Source,

@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.occluders import Hand, segment_blocked
+from sim.hand import Hand
+from sim.occluders import segment_blocked
 from sim.optics import irradiance_factor
 from planner import cli as plan_cli
 from planner.candidates import (

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from shadowless.cli import main
-from sim.occluders import Hand
+from sim.hand import Hand
 from planner.candidates import ProjectorModel, ceiling_grid, source_for
 from planner.evaluate import Evaluator
 from planner.pointwise import BEHIND, BandWeights, conflict, fit, reference_evaluator, search

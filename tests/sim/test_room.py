@@ -6,7 +6,8 @@ import pytest
 from scipy import ndimage
 
 from sim.errors import FrameError, UnknownSlotError
-from sim.occluders import Box, Hand, HandPath
+from sim.hand import Hand, HandPath
+from sim.occluders import Box
 from sim.room import Room
 from sim.scene import SUBSETS, reference_scene
 

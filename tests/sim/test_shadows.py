@@ -5,7 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.occluders import Box, Hand
+from sim.hand import Hand
+from sim.occluders import Box
 from sim.room import Room
 from sim.scene import SUBSETS, load_layout, reference_scene
 

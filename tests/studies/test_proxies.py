@@ -11,7 +11,8 @@ from scipy import ndimage
 
 from studies import proxies_cli as sop_cli
 from sim.geometry import Pinhole, intrinsics, look_at
-from sim.occluders import Hand, Sphere, segment_blocked
+from sim.hand import Hand
+from sim.occluders import Sphere, segment_blocked
 from sim.optics import irradiance_factor
 from studies.proxies import (
     UMBRA_WEIGHT,
