@@ -8,9 +8,9 @@ import importlib
 import os
 import subprocess
 import sys
-import time
 
 import pytest
+from waits import wait_until
 from zeroconf import BadTypeInNameException, service_type_name
 
 import protos.version
@@ -68,10 +68,7 @@ def test_a_rig_on_its_own_service_is_found_only_by_its_own(tmp_path):
         rig.start_coordinator()
         rig.wait_ready()
         line = f"advertising {rig.rig_name}.{own}._tcp.local."
-        deadline = time.monotonic() + 30
-        while line not in rig.log("coordinator") and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert line in rig.log("coordinator"), rig.log("coordinator")[-2000:]
+        wait_until(lambda: rig.log("coordinator"), lambda log: line in log, what=f"the coordinator's log line {line!r}")
 
         async def browse() -> list:  # this process browses its own service
             disc = Discovery(interfaces=["127.0.0.1"])
