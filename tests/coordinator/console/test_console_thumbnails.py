@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import time
 
 import aiohttp
 import numpy as np
@@ -18,6 +17,7 @@ from coordinator.previews import WANTED_FOR_S
 from coordinator.rig import Content
 from node.image_files import decode_png, read_png
 from node.preview import downscale
+from waits import wait_until, wait_until_async
 
 SLOTS = ["r0c0", "r0c1"]
 OUTPUT = (320, 180)          # area-averaged by 2: 160 x 90 thumbnails
@@ -53,7 +53,7 @@ def test_each_thumbnail_matches_what_its_node_rendered(tmp_path, browser_ready):
             wait_for(lambda: snapshot(rig, slot)[1].startswith("show") and snapshot(rig, slot)[2] is not None, 120,
                      f"{slot}'s snapshot of the card")
             shown[slot] = snapshot(rig, slot)
-        time.sleep(1.0)
+        # the nodes' preview streams were open while the card went through them: no page, no request
         assert rig.call(lambda: dict(rig.coord.previews.asked)) == {}, "no page open: no node is asked"
 
         driver = chromium(tmp_path / "chromium-profile")
@@ -80,19 +80,17 @@ def test_each_thumbnail_matches_what_its_node_rendered(tmp_path, browser_ready):
             a, b = (decode_png(thumbnail_png(page_thumbnails(driver)[s]["src"])) for s in SLOTS)
             assert np.abs(a.astype(float) - b).mean() > 10
 
-            # about once a second per node while the page looks
+            # previews keep coming from every node while the page looks (their rate: bench/console.py)
             before = rig.call(lambda: dict(rig.coord.previews.received))
-            time.sleep(4.0)
-            after = rig.call(lambda: dict(rig.coord.previews.received))
-            for slot in SLOTS:
-                assert after[slot] - before[slot] >= 3, (before, after)
+            wait_until(lambda: rig.call(lambda: dict(rig.coord.previews.received)),
+                       lambda after: all(after[s] - before[s] >= 3 for s in SLOTS),
+                       what=f"3 more previews from every node than {before}")
 
-            # the page closed: the nodes are no longer asked
+            # the page closed: no thumbnail is wanted any more, so no node is asked (that an unwanted
+            # slot is asked no more: test_nodes_are_asked_for_previews_only_while_someone_looks)
             driver.get("about:blank")
-            time.sleep(WANTED_FOR_S + 1.5)
-            asked = rig.call(lambda: dict(rig.coord.previews.asked))
-            time.sleep(2.5)
-            assert rig.call(lambda: dict(rig.coord.previews.asked)) == asked
+            wait_until(lambda: rig.call(lambda: {s: rig.coord.previews.wanted(s) for s in SLOTS}),
+                       lambda wanted: not any(wanted.values()), what="no thumbnail wanted once the page closed")
             logs = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
             assert not [e for e in logs if "Content Security Policy" in e.get("message", "")], logs
         finally:
@@ -106,8 +104,8 @@ def test_nodes_are_asked_for_previews_only_while_someone_looks(tmp_path):
     it has nothing, and is never cached."""
     with ConsoleRig(tmp_path / "rig", SLOTS) as rig:
         rig.wait_live(timeout=240)
-        time.sleep(2.0)
         asked = lambda: rig.call(lambda: dict(rig.coord.previews.asked))  # noqa: E731
+        # no page, no request (r0c1 stays unasked through r0c0's looks below, a longer window)
         assert asked() == {} and rig.call(lambda: dict(rig.coord.previews.latest)) == {}
         base = rig.url.rstrip("/")
 
@@ -116,24 +114,30 @@ def test_nodes_are_asked_for_previews_only_while_someone_looks(tmp_path):
             r = await s.post(base + "/login", json={"token": rig.token}, headers={"Origin": base})
             return s, {"Cookie": f"shadowless_console={r.cookies['shadowless_console'].value}"}
 
-        async def look(seconds: float) -> list[tuple[int, dict, bytes]]:
+        async def look(slot: str, asks: int) -> list[tuple[int, dict, bytes]]:
+            """Fetch ``slot``'s thumbnail as a page does, a few times a second, until its node was asked
+            ``asks`` times and one fetch brought a picture; every answer, in order."""
             s, cookie = await session()
             answers = []
             try:
-                r = await s.get(base + "/api/thumbnail/r0c0")
+                r = await s.get(base + "/api/thumbnail/" + slot)
                 assert r.status == 401
                 r = await s.get(base + "/api/thumbnail/%3Cimg%3E", headers=cookie)
                 assert r.status == 404 and "no slot '<img>'" in (await r.json())["error"]
-                deadline = time.monotonic() + seconds
-                while time.monotonic() < deadline:
-                    r = await s.get(base + "/api/thumbnail/r0c0", headers=cookie)
+
+                async def fetch() -> tuple[list[int], int]:
+                    r = await s.get(base + "/api/thumbnail/" + slot, headers=cookie)
                     answers.append((r.status, dict(r.headers), await r.read()))
-                    await asyncio.sleep(0.3)
+                    return [a[0] for a in answers[-5:]], asked().get(slot, 0)
+
+                await wait_until_async(fetch, lambda seen: seen[1] >= asks and any(a[0] == 200 for a in answers),
+                                       what=f"{slot}'s node asked {asks} times and a thumbnail fetched "
+                                            "(the last statuses, asks)", interval=0.3)
             finally:
                 await s.close()
             return answers
 
-        answers = asyncio.run(look(6.0))
+        answers = asyncio.run(look("r0c0", 3))
         first = answers[0]
         assert first[0] == 404 and "no thumbnail of r0c0 yet" in json.loads(first[2])["error"]
         ok = [a for a in answers if a[0] == 200]
@@ -144,7 +148,12 @@ def test_nodes_are_asked_for_previews_only_while_someone_looks(tmp_path):
         assert headers["X-Output-Size"] == "64x36" and decode_png(body).shape == (36, 64, 3)
         n = asked()
         assert n.get("r0c0", 0) >= 3 and "r0c1" not in n, n
-        time.sleep(WANTED_FOR_S + 1.5)     # nobody looks any more
+        # nobody looks any more: r0c0's thumbnail stops being wanted WANTED_FOR_S after the last fetch
+        wait_until(lambda: rig.call(lambda: rig.coord.previews.wanted("r0c0")), lambda wanted: not wanted,
+                   what=f"r0c0 no longer wanted, {WANTED_FOR_S} s after the last fetch")
         n = asked()
-        time.sleep(2.5)
-        assert asked() == n
+        # and its node is asked no more while r0c1's is asked three times, two of the coordinator's
+        # ask periods apart
+        asyncio.run(look("r0c1", 3))
+        later = asked()
+        assert later["r0c0"] == n["r0c0"] and later["r0c1"] >= 3, (n, later)
