@@ -9,12 +9,13 @@ import numpy as np
 import pytest
 
 from coordinator import previews as previews_mod
-from coordinator import wire
+from coordinator.wire import node_messages
 from coordinator.previews import MAX_PNG_BYTES, Preview, Previews, png_header
 from node import wire as node_wire
 from node.image_files import encode_png
 from node.records import PreviewRecord, ReportBatch
 from protos import node_pb2
+from waits import wait_until_async
 
 
 class Clock:
@@ -39,11 +40,11 @@ def test_a_preview_crosses_the_report_wire_as_the_node_made_it():
     rec = PreviewRecord(request_id=12, frame_id=3456, png=data, width=64, height=36, output_width=1920,
                         output_height=1080)
     msg = node_pb2.NodeReport.FromString(node_wire.report_message(ReportBatch(preview=rec)).SerializeToString())
-    rep = wire.report_from_message(msg)
+    rep = node_messages.report_from_message(msg)
     assert rep.preview == Preview(12, 3456, data, 64, 36, 1920, 1080)
     assert rep.heartbeat is None and len(rep.swaps) == 0
-    assert wire.report_from_message(node_pb2.NodeReport()).preview is None     # an older node: none
-    assert node_wire.preview_request_from_message(wire.preview_request_message(7)) == 7
+    assert node_messages.report_from_message(node_pb2.NodeReport()).preview is None     # an older node: none
+    assert node_wire.preview_request_from_message(node_messages.preview_request_message(7)) == 7
 
 
 def test_only_bounded_pngs_answering_a_request_are_kept():
@@ -84,27 +85,34 @@ def test_nodes_are_asked_only_while_a_thumbnail_is_wanted(monkeypatch):
             async for rid in p.asks("r0c0", wake, lambda: closed[0]):
                 got.append(rid)
 
+        async def one_pass(what: str) -> None:
+            """Wake the stream and wait until it went to sleep again: it looked at the clock and
+            the wanted slots once more (it clears ``wake`` whenever it decides not to ask now)."""
+            wake.set()
+            await wait_until_async(lambda: not wake.is_set(), what=f"the stream asleep again ({what})")
+
         task = asyncio.create_task(node())
-        await asyncio.sleep(0.3)
+        await one_pass("nobody looks")
         assert got == [] and p.asked == {}, "nobody looks: nothing asked"
         p.want("r0c0")
-        await asyncio.sleep(0.01)
+        await wait_until_async(lambda: list(got), lambda g: len(g) >= 1, what="the first request")
         assert got == [1]
-        for _ in range(3):                  # about once per ASK_EVERY_S while wanted
-            clock.t += 0.05
-            await asyncio.sleep(0.08)
-        assert 3 <= len(got) <= 4 and got == sorted(got)
+        for k in range(3):                  # once per ASK_EVERY_S while wanted
+            await one_pass("the clock not moved")
+            assert len(got) == 1 + k, "asked again before ASK_EVERY_S passed"
+            clock.t += previews_mod.ASK_EVERY_S
+            await wait_until_async(lambda: list(got), lambda g, k=k: len(g) >= 2 + k, what=f"request {2 + k}")
+        assert got == [1, 2, 3, 4]
         clock.t += previews_mod.WANTED_FOR_S     # nobody fetched it since: the node is no longer asked
-        await asyncio.sleep(0.2)
-        n = len(got)
+        await one_pass("the thumbnail no longer wanted")
         clock.t += 1.0
-        await asyncio.sleep(0.2)
-        assert len(got) == n and p.asked["r0c0"] == n
+        await one_pass("a second later")
+        assert got == [1, 2, 3, 4] and p.asked["r0c0"] == 4
         p.want("r0c1")                      # another slot's thumbnail: not this node's business
-        await asyncio.sleep(0.1)
-        assert len(got) == n
+        await one_pass("another slot wanted")
+        assert len(got) == 4
         closed[0] = True                    # the session ends: so does the stream
         wake.set()
-        await asyncio.wait_for(task, 1.0)
+        await asyncio.wait_for(task, 60.0)
 
     asyncio.run(go())
