@@ -36,6 +36,7 @@ from bench.workdir import run_dir
 from coordinator.api import NodeState, PlayResult, PlaySettings
 from coordinator.previews import WANTED_FOR_S
 from coordinator.rig import HomographyPose, Rig
+from coordinator.app import CoordinatorApp
 from coordinator.server import Coordinator
 from shadowless.local import LocalRig, grid_names
 
@@ -83,7 +84,8 @@ class ConsoleRig:
         self.local = LocalRig(self.slots, Path(workdir), output_size=output_size, content_size=content_size, mdns=False,
                               snapshots=snapshots)
         self.posed = self.slots if posed is None else list(posed)
-        self.coord: Coordinator | None = None
+        self.app: CoordinatorApp | None = None
+        self.coord: Coordinator | None = None       # the app's core
         self.url = ""
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
@@ -122,22 +124,23 @@ class ConsoleRig:
             self._loop = asyncio.get_running_loop()
             self._stop = asyncio.Event()
             try:
-                self.coord = Coordinator(Rig(self.local.rig_dir), self.local.token,
-                                         listen=f"127.0.0.1:{self.local.port}", advertise=False,
-                                         console="127.0.0.1:0", cameras=self.cameras)
-                await self.coord.start()
-                self.url = f"http://127.0.0.1:{self.coord.console_port}/"
+                self.app = CoordinatorApp(Rig(self.local.rig_dir), self.local.token,
+                                          listen=f"127.0.0.1:{self.local.port}", advertise=False,
+                                          console="127.0.0.1:0", cameras=self.cameras)
+                self.coord = self.app.coordinator
+                await self.app.start()
+                self.url = f"http://127.0.0.1:{self.app.console_port}/"
             except BaseException as exc:
                 self._error = exc
                 self._ready.set()
-                if self.coord is not None:
-                    await self.coord.stop()
+                if self.app is not None:
+                    await self.app.stop()
                 return
             self._ready.set()
             try:
                 await self._stop.wait()
             finally:
-                await self.coord.stop(grace=1.0)
+                await self.app.stop(grace=1.0)
 
         asyncio.run(main())
 
@@ -458,7 +461,7 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
                 lost.append(1e3 * (time.monotonic() - t))
             out["lost_latency_ms"] = [round(v, 1) for v in lost]
             out["update_latency_ms_p99"] = _p99(gains + lost)
-            out["snapshots_pushed"] = rig.call(lambda: rig.coord._console.app.live.pushes)
+            out["snapshots_pushed"] = rig.call(lambda: rig.app.console.app.live.pushes)
         finally:
             driver.quit()
     return out

@@ -139,16 +139,16 @@ async def _operator(base: str, until: float, cookie: str | None, device_cookie: 
 async def _run(args: argparse.Namespace, rig_dir) -> dict:
     from coordinator.console import auth
     from coordinator.rig import Rig, grid_slots, init_rig
-    from coordinator.server import Coordinator
+    from coordinator.app import CoordinatorApp
 
     rig = Rig(init_rig(rig_dir / "rig", name="login-bench", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
-    coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-    await coord.start()
-    base = f"http://127.0.0.1:{coord.console_port}"
+    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+    await app.start()
+    base = f"http://127.0.0.1:{app.console_port}"
     device_name = getattr(auth, "DEVICE_COOKIE", None)      # absent before device cookies existed
     if args.no_reserve:
-        coord._console.app.limiter.reserve = 0.0
+        app.console.app.limiter.reserve = 0.0
     try:
         cookie = None
         async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
@@ -157,7 +157,7 @@ async def _run(args: argparse.Namespace, rig_dir) -> dict:
                 if device_name and device_name in r.cookies:
                     cookie = r.cookies[device_name].value
         mistyped = await _mistyped(base, "127.0.0.254", 5)
-        malformed = await asyncio.to_thread(_malformed, coord.console_port, 100)
+        malformed = await asyncio.to_thread(_malformed, app.console_port, 100)
         codes: Counter = Counter()
         start = time.monotonic()
         until = start + args.seconds
@@ -171,7 +171,7 @@ async def _run(args: argparse.Namespace, rig_dir) -> dict:
         await asyncio.gather(*attackers)
         elapsed = time.monotonic() - start
     finally:
-        await coord.stop()
+        await app.stop()
     budget = getattr(auth, "GLOBAL_BUDGET", None)
     window = getattr(auth, "GLOBAL_WINDOW_S", 60.0)
     return {

@@ -11,7 +11,7 @@ from pathlib import Path
 from coordinator.console.hosts import allowed_host
 from coordinator.errors import OPERATOR_ERRORS, CoordinatorError, RigError
 from coordinator.rig import Rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 from protos.store import atomic_write_text
 from protos.auth import TokenError, resolve_token
 
@@ -73,22 +73,22 @@ async def serve(args: argparse.Namespace) -> int:
         if not (args.tls_cert and args.tls_key):
             raise CoordinatorError("TLS needs both --tls-cert and --tls-key")
         tls = (Path(args.tls_cert).read_bytes(), Path(args.tls_key).read_bytes())
-    coord = Coordinator(rig, token, listen=args.listen, mdns_interfaces=args.mdns_interface,
-                        advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms,
-                        cameras=args.camera, console=None if args.no_console else args.console,
-                        console_hosts=args.console_host, console_optional=args.console_optional)
-    await coord.start()
+    app = CoordinatorApp(rig, token, listen=args.listen, mdns_interfaces=args.mdns_interface,
+                         advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms,
+                         cameras=args.camera, console=None if args.no_console else args.console,
+                         console_hosts=args.console_host, console_optional=args.console_optional)
+    await app.start()
     if args.port_file:
-        atomic_write_text(args.port_file, f"{coord.port}\n")
-    if args.console_port_file and coord.console_port:
-        atomic_write_text(args.console_port_file, f"{coord.console_port}\n")
+        atomic_write_text(args.port_file, f"{app.port}\n")
+    if args.console_port_file and app.console_port:
+        atomic_write_text(args.console_port_file, f"{app.console_port}\n")
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     await stop.wait()
     log.info("shutting down")
-    await coord.stop()
+    await app.stop()
     return 0
 
 

@@ -29,11 +29,9 @@ import threading
 from dataclasses import dataclass
 from typing import AsyncIterator, BinaryIO, Iterable, Mapping
 
-import grpc
-
 from coordinator.api import AssetProgress
 from coordinator.assets import AssetStore
-from coordinator.sessions import RpcRefusal
+from coordinator.errors import Refusal, RefusalKind
 from protos.asset_manifest import Manifest, ManifestError, is_sha256
 
 log = logging.getLogger(__name__)
@@ -196,7 +194,7 @@ class Distribution:
     # ------------------------------------------------------------ serving
     def _manifest_bytes(self, asset_id: str) -> bytes:
         if not is_sha256(asset_id):
-            raise RpcRefusal(grpc.StatusCode.INVALID_ARGUMENT,
+            raise Refusal(RefusalKind.INVALID,
                              f"{asset_id!r} is not an asset id (64 lowercase hex digits)")
         m = self.manifests.get(asset_id)
         if m is not None:
@@ -204,11 +202,11 @@ class Distribution:
         try:   # added since the last poll
             return self.store.manifest_path(asset_id).read_bytes()
         except FileNotFoundError:
-            raise RpcRefusal(grpc.StatusCode.NOT_FOUND,
+            raise Refusal(RefusalKind.NOT_FOUND,
                              f"no asset {asset_id} in the rig's store (removed?)") from None
 
     async def manifest_bytes(self, asset_id: str) -> bytes:
-        """An asset's canonical manifest bytes; RpcRefusal (INVALID_ARGUMENT, NOT_FOUND) otherwise."""
+        """An asset's canonical manifest bytes; a Refusal (INVALID, NOT_FOUND) otherwise."""
         return await asyncio.to_thread(self._manifest_bytes, asset_id)
 
     async def blob_chunks(self, sha256: str, offset: int) -> AsyncIterator[tuple[int, bytes]]:
@@ -218,21 +216,20 @@ class Distribution:
 
 
 def open_blob_at(store: AssetStore, sha256: str, offset: int) -> tuple[BinaryIO, int]:
-    """A store blob opened for reading, and its size; RpcRefusal for a malformed name
-    (INVALID_ARGUMENT), a blob the store does not hold (NOT_FOUND) or an offset past its end
-    (INVALID_ARGUMENT)."""
+    """A store blob opened for reading, and its size; a Refusal for a malformed name (INVALID), a
+    blob the store does not hold (NOT_FOUND) or an offset past its end (INVALID)."""
     if not is_sha256(sha256):
-        raise RpcRefusal(grpc.StatusCode.INVALID_ARGUMENT,
+        raise Refusal(RefusalKind.INVALID,
                          f"{sha256!r} is not a blob name (64 lowercase hex digits)")
     try:
         f = open(store.blob_path(sha256), "rb")
     except FileNotFoundError:
-        raise RpcRefusal(grpc.StatusCode.NOT_FOUND,
+        raise Refusal(RefusalKind.NOT_FOUND,
                          f"no blob {sha256} in the rig's asset store (its asset was removed?)") from None
     size = os.fstat(f.fileno()).st_size
     if offset < 0 or offset > size:
         f.close()
-        raise RpcRefusal(grpc.StatusCode.INVALID_ARGUMENT,
+        raise Refusal(RefusalKind.INVALID,
                          f"offset {offset} is past the end of blob {sha256[:12]}… ({size} bytes): "
                          f"resume at most at {size}")
     return f, size

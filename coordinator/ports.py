@@ -1,6 +1,6 @@
 """How the coordinator's edges see its core: one Protocol per consumer.
 
-The gRPC services (:mod:`coordinator.services`) see a :class:`ServiceRig`, the operator console
+The gRPC services (:mod:`coordinator.wire`) see a :class:`ServiceRig`, the operator console
 (:mod:`coordinator.console`) a :class:`ConsoleRig`, as jobs see a
 :class:`coordinator.jobs.driver.RigDriver`. Each lists exactly what its consumer calls, so a
 consumer cannot reach further into the core than its Protocol says, and a test may drive it with
@@ -101,7 +101,9 @@ class ServiceRig(RigOperations, Protocol):
 
     async def manifest_bytes(self, asset_id: str) -> bytes: ...
 
-    def blob_chunks(self, sha256: str, offset: int) -> AsyncIterator[bytes]: ...
+    def blob_chunks(self, sha256: str, offset: int) -> AsyncIterator[tuple[int, bytes]]:
+        """``(offset, bytes)`` chunks of a store blob from ``offset`` (a Refusal before the first)."""
+        ...
 
     def subscribe_show(self, event: asyncio.Event) -> Callable[[], None]:
         """Set ``event`` whenever the timeline show changes; returns the unsubscribe."""

@@ -1,11 +1,12 @@
-"""The coordinator process: the rig's single source of truth and its life cycle.
+"""The coordinator's core: the rig's single source of truth.
 
 :class:`Coordinator` owns the rig state and composes the parts: the handshake and sessions
 (:mod:`coordinator.sessions`), the frame fan-out (:mod:`coordinator.fanout`), what the rig
-shows (:mod:`coordinator.playback`), the swap bookkeeping (:mod:`coordinator.sync`), the
-assets nodes fetch ahead (:mod:`coordinator.distribution`) and the gRPC services
-(:mod:`coordinator.services`). It implements
-:class:`coordinator.jobs.driver.RigDriver`, so jobs run on it through a
+shows (:mod:`coordinator.playback`), the swap bookkeeping (:mod:`coordinator.sync`) and the
+assets nodes fetch ahead (:mod:`coordinator.distribution`). It serves nothing itself: the
+composition root (:mod:`coordinator.app`) builds the gRPC services, the console and the mDNS
+advertiser beside it, and they see it through the Protocols of :mod:`coordinator.ports`. It
+implements :class:`coordinator.jobs.driver.RigDriver`, so jobs run on it through a
 :class:`~coordinator.jobs.context.JobContext` and never see it.
 
 One asyncio loop owns all state. The rig clock is the coordinator's monotonic clock,
@@ -14,7 +15,6 @@ injectable (``clock_ns``) so tests decide when time passes.
 from __future__ import annotations
 
 import asyncio
-import errno
 import hashlib
 import hmac
 import logging
@@ -24,10 +24,8 @@ import time
 import uuid
 from typing import Any, AsyncIterator, Callable, Mapping, Sequence
 
-import grpc
 import numpy as np
 
-from coordinator import services, wire
 from coordinator.api import (
     AssetProgress,
     DropReason,
@@ -44,20 +42,19 @@ from coordinator.admission import Budget, trim_memory
 from coordinator.assets import AssetStore
 from coordinator.camera import Camera, RoomCamera, open_camera
 from coordinator.distribution import Distribution, WantedList, note_ready
-from coordinator.errors import OPERATOR_ERRORS, CoordinatorError
-from coordinator.fanout import FanOut
+from coordinator.errors import CoordinatorError, Refusal, RefusalKind
+from coordinator.fanout import FanOut, PacketEncoding
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
 from coordinator.identify import name_card
 from coordinator.jobs.tracker import JobState, JobTracker
-from coordinator.mdns import Advertiser
 from coordinator.playback import Playback, cpu_seconds
 from coordinator.previews import Previews
 from coordinator.refusals import Refusals
 from coordinator.rig import Content, Rig
 from coordinator.recovery import recover
 from coordinator.rig_lock import RigLock
-from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report, RpcRefusal
+from coordinator.sessions import Handshake, NodeInfo, NodeSession, Report
 from coordinator.ports import SlotLink
 from coordinator.show import MIN_LEAD_NS, Show, ShowUpdate
 from coordinator.sync import FrameResult, SyncTracker, summarize
@@ -95,49 +92,36 @@ class _AfterLastPattern:
 
 
 class Coordinator:
-    """The rig's single source of truth. Create, ``await start()``, ``await stop()``.
+    """The rig's single source of truth. Create, :meth:`open`, :meth:`start` once the edges serve;
+    :meth:`end_sessions` and ``await close()`` to stop (the composition root does all of it).
+
+    It takes no transport: the composition root (:mod:`coordinator.app`) builds the gRPC
+    services, the console and the mDNS advertiser beside it, and they see it through the
+    Protocols of :mod:`coordinator.ports`.
 
     Parameters
     ----------
     rig : Rig
     token : bytes
         The rig's secret.
-    listen : str
-        gRPC address, e.g. ``0.0.0.0:7600`` (port 0: any free port, see :attr:`port`).
-    mdns_interfaces : list of str, optional
-        Advertise on these IPv4 addresses only.
-    advertise : bool
-        Advertise over mDNS.
-    tls : (cert, key), optional
+    encoding : callable
+        Makes the fan-out's packet encoding (the wire's; see :class:`coordinator.fanout.FanOut`).
     latency_ms : float, optional
         How far ahead frames are sent (default: rig.toml's).
     cameras : list of str, optional
         Camera specs for jobs (default: rig.toml's).
     clock_ns : callable
         The rig clock, monotonic nanoseconds (injectable for tests).
-    console : str, optional
-        Serve the operator console (a web page) on this ``HOST:PORT`` (see :attr:`console_port`).
-    console_hosts : list of str, optional
-        Names (``NAME`` or ``NAME:PORT``) a browser may use for the console besides the addresses it listens on.
-    console_optional : bool
-        A console that cannot listen is said loudly (the log, ``status``) and the rig runs on;
-        by default :meth:`start` refuses with one line instead.
+    console_state : callable
+        What ``status`` says of the operator console: its address, "NOT SERVED (why)" or "off"
+        (the composition root knows; the core serves no console).
     """
 
-    def __init__(self, rig: Rig, token: bytes, *, listen: str = "0.0.0.0:7600", mdns_interfaces: list[str] | None = None,
-                 advertise: bool = True, tls: tuple[bytes, bytes] | None = None, latency_ms: float | None = None,
+    def __init__(self, rig: Rig, token: bytes, *, encoding: Callable[[], PacketEncoding], latency_ms: float | None = None,
                  cameras: list[str] | None = None, clock_ns: Callable[[], int] = time.monotonic_ns,
-                 console: str | None = None, console_hosts: list[str] | None = None, console_optional: bool = False):
+                 console_state: Callable[[], str] = lambda: "off"):
         self._rig = rig
-        self.console_listen, self.console_port, self._console = console, 0, None   # the operator console (web)
-        self.console_optional = console_optional
-        #: what `status` says of the console: its address, "NOT SERVED (why)" or "off"
-        self.console_state = "off" if console is None else "starting"
-        self.console_hosts = list(console_hosts or ())
-        self.listen = listen
-        self.mdns_interfaces = mdns_interfaces
-        self.advertise = advertise
-        self.tls = tls
+        self._console_state = console_state
         self.clock_ns = clock_ns
         self.latency_ns = int((latency_ms if latency_ms is not None else rig.config.latency_ms) * 1e6)
         self.instance_id = uuid.uuid4().hex[:12]
@@ -146,7 +130,6 @@ class Coordinator:
         self.clock_id = (f"monotonic:{boot_id()}" if clock_ns is time.monotonic_ns and boot_id()
                          else f"instance:{self.instance_id}")
         self.started = self.now()
-        self.port = 0
         self.sessions: dict[str, NodeSession] = {}      # session id -> node session
         self.by_slot: dict[str, NodeSession] = {}
         self.joins: dict[str, int] = {}
@@ -163,7 +146,7 @@ class Coordinator:
                                    on_refusal=lambda peer, slot, msg: self.refusals.record(peer, slot, msg, self.now()))
         # a show's ticks are reported with the node's next heartbeat: wait at least two intervals and a second
         self.sync = SyncTracker(clock=self.now, timeout_s=max(3.0, 1.0 + 2.0 * rig.config.heartbeat_ms / 1000.0))
-        self.fanout = FanOut(self.sync, wire.PacketEncoder)
+        self.fanout = FanOut(self.sync, encoding)
         self.playback = Playback(rig, self.fanout, self.sync, live_sessions=self.live_sessions, clock_ns=self.clock_ns,
                                  latency_ns=self.latency_ns)
         self.distribution = Distribution(AssetStore(rig.path))
@@ -178,98 +161,43 @@ class Coordinator:
         self.show_updates_sent = self.show_bytes_sent = 0
         self._camera_specs: list[str] = list(cameras if cameras is not None else rig.config.cameras)
         self._job_lock = asyncio.Lock()
-        self._server: grpc.aio.Server | None = None
-        self._health: Any = None
-        self._advertiser: Advertiser | None = None
         self._tasks: list[asyncio.Task] = []
         self._rig_lock = RigLock(rig.path)   # one coordinator (or `rig import`) per rig directory
 
     # ------------------------------------------------------------------ lifecycle
-    async def start(self) -> None:
-        """Listen, register the services (health and reflection too), advertise, watch the nodes.
-        Takes the rig directory's lock first: RigLockError if another coordinator serves it."""
-        # made first: a mistyped --mdns-interface is refused before anything starts
-        advertiser = (Advertiser(rig_name=self.rig.config.name, rig_id=self.rig.config.rig_id,
-                                 instance_id=self.instance_id, interfaces=self.mdns_interfaces)
-                      if self.advertise else None)
+    def open(self) -> None:
+        """Take the rig directory's lock (RigLockError if another coordinator serves it), settle
+        what a crash left (:mod:`coordinator.recovery`) and read the asset store: before anything
+        serves. :meth:`close` undoes it."""
         self._rig_lock.acquire()
         try:
-            recover(self._rig.path)     # settle what a crash left (coordinator/recovery.py) before serving
+            recover(self._rig.path)
             self.distribution.load()
-            self._server, self._health, self.port = await services.serve(self, self.listen, tls=self.tls)
-            if self.console_listen is not None:
-                await self._start_console()
-            if advertiser is not None:
-                self._advertiser = advertiser
-                await advertiser.start(self.port)
         except BaseException:
-            # a start refused part-way (a port taken, mDNS on a wrong interface) undoes what it began,
-            # so nothing outlives the loop and the next try (other options) may take the rig
-            await self._undo_start()
+            self._rig_lock.release()
             raise
+
+    def start(self) -> None:
+        """Watch the nodes and the show (call once the edges serve: :meth:`open` first)."""
         self._tasks.append(asyncio.create_task(self._watchdog(), name="watchdog"))
         self._tasks.append(asyncio.create_task(self._follow_show(), name="show"))
-        log.info("coordinator for rig %r (%s) listening on port %d, instance %s",
-                 self.rig.config.name, self.rig.config.rig_id, self.port, self.instance_id)
-        # under systemd (Type=notify): ready now; keep-alives from the loop that serves everything
+        # under systemd (Type=notify): keep-alives from the loop that serves everything
         self._systemd.expect("loop")
-        sd_notify.notify("READY=1", f"STATUS=rig {self.rig.config.name} on port {self.port}")
 
-    async def _undo_start(self) -> None:
-        """Stop what a refused :meth:`start` had begun (mDNS, console, gRPC server) and free the rig's lock."""
-        if self._advertiser is not None:
-            await self._advertiser.stop()
-            self._advertiser = None
-        if self._console is not None:
-            await self._console.stop()
-            self._console = None
-        if self._server is not None:
-            await self._server.stop(0)
-            self._server = None
-        self._rig_lock.release()
-
-    async def _start_console(self) -> None:
-        """Serve the operator console. One that cannot listen (its port taken: the operator's browser
-        would reach whatever holds it) stops the start with one line, unless it is optional: then
-        the rig runs on and says so in the log and in ``status``."""
-        from coordinator.console import Console   # aiohttp only when the console is wanted
-        console = Console(self, self.console_listen, hosts=self.console_hosts)
-        try:
-            await console.start()
-        except OPERATOR_ERRORS as exc:
-            why = _bind_failure(exc, self.console_listen)
-            if not self.console_optional:
-                raise CoordinatorError(f"the operator console cannot listen on {self.console_listen}: {why}; choose "
-                                       "another --console HOST:PORT, --no-console, or --console-optional to run "
-                                       "without it") from None
-            self.console_state = f"NOT SERVED ({why})"
-            log.error("console: NOT SERVED (%s): the rig runs on without its page (--console-optional)", why)
-        else:
-            self._console, self.console_port = console, console.port
-            host = self.console_listen.rpartition(":")[0].strip("[]") or "0.0.0.0"
-            scheme = "https" if self.tls is not None else "http"
-            self.console_state = f"{scheme}://{host}:{console.port}/"
-
-    async def stop(self, grace: float = 2.0) -> None:
-        """Graceful shutdown: health NOT_SERVING, mDNS unregister, streams closed, server stopped."""
-        sd_notify.notify("STOPPING=1")
-        if self._console is not None:
-            await self._console.stop()
-        if self._health is not None:
-            await self._health.enter_graceful_shutdown()
-        if self._advertiser is not None:
-            try:
-                await self._advertiser.stop()
-            except Exception:  # pragma: no cover - best effort on shutdown
-                log.exception("mDNS unregister failed")
+    def end_sessions(self) -> None:
+        """Stop watching and close every node session (their streams end): the first half of a stop."""
         for t in self._tasks:
             t.cancel()
         for sess in list(self.sessions.values()):
             sess.close()
-        if self._server is not None:
-            await self._server.stop(grace)
+
+    async def close(self) -> None:
+        """The second half of a stop (after the edges stopped): playback ends, the watchers are
+        gone and the rig's lock is free. Also undoes an :meth:`open` whose start was refused."""
+        self.end_sessions()
         await self.playback.close()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks.clear()
         self._rig_lock.release()
 
     # ------------------------------------------------------------------ clocks
@@ -292,7 +220,7 @@ class Coordinator:
         node rejoining (the same process, or a new process on the holder's machine: a restart)
         takes over, and so does anyone once the holder went silent."""
         if slot not in self.rig.slots:
-            raise self.handshake.refuse(peer, slot, grpc.StatusCode.NOT_FOUND,
+            raise self.handshake.refuse(peer, slot, RefusalKind.NOT_FOUND,
                                         f"slot {slot!r} is not in rig {self.rig.config.name!r} "
                                         f"(slots: {', '.join(self.rig.slots)}); add it to rig.toml or start the node "
                                         "with one of these")
@@ -302,7 +230,7 @@ class Coordinator:
             if self._holds_slot(old, info):
                 h = old.info
                 raise self.handshake.refuse(
-                    peer, slot, grpc.StatusCode.ALREADY_EXISTS,
+                    peer, slot, RefusalKind.CONFLICT,
                     f"slot {slot!r} is taken by the live node at {old.peer} ({h.hostname or 'unknown host'}, pid {h.pid}); "
                     "stop one of the two, or start this one with another --slot")
             if _same_machine(old.info, info) and old.info.pid != info.pid:
@@ -340,8 +268,8 @@ class Coordinator:
     def node_session(self, session_id: str) -> NodeSession:
         sess = self.sessions.get(session_id)
         if sess is None or sess.closed:
-            raise RpcRefusal(grpc.StatusCode.UNAUTHENTICATED,
-                             f"unknown or closed session (coordinator instance {self.instance_id}): join again")
+            raise Refusal(RefusalKind.UNAUTHENTICATED,
+                          f"unknown or closed session (coordinator instance {self.instance_id}): join again")
         return sess
 
     def live_sessions(self) -> list[NodeSession]:
@@ -523,7 +451,7 @@ class Coordinator:
     async def manifest_bytes(self, asset_id: str) -> bytes:
         return await self.distribution.manifest_bytes(asset_id)
 
-    def blob_chunks(self, sha256: str, offset: int) -> AsyncIterator[bytes]:
+    def blob_chunks(self, sha256: str, offset: int) -> AsyncIterator[tuple[int, bytes]]:
         return self.distribution.blob_chunks(sha256, offset)
 
     def subscribe_show(self, event: asyncio.Event) -> Callable[[], None]:
@@ -695,20 +623,7 @@ class Coordinator:
             frame_bytes_sent=self.frame_bytes_sent, show_updates_sent=self.show_updates_sent,
             show_bytes_sent=self.show_bytes_sent, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
-            refusals=self.refusals.summary(now), admission=self.admission.figures(), console=self.console_state)
-
-
-def _bind_failure(exc: BaseException, listen: str) -> str:
-    """Why a listener could not bind, in a few words: ``port 7680 in use`` for the usual case."""
-    cause = exc.__cause__
-    port = listen.rpartition(":")[2]
-    if isinstance(cause, OSError) and cause.errno == errno.EADDRINUSE:
-        return f"port {port} in use"
-    if isinstance(cause, OSError) and cause.errno == errno.EADDRNOTAVAIL:
-        return f"address {listen.rpartition(':')[0]} is not on this host"
-    if isinstance(cause, OSError) and cause.strerror:
-        return cause.strerror.lower()
-    return str(exc)
+            refusals=self.refusals.summary(now), admission=self.admission.figures(), console=self._console_state())
 
 
 def _same_machine(a: NodeInfo, b: NodeInfo) -> bool:

@@ -16,10 +16,10 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
-import grpc
 import numpy as np
 
 from coordinator.api import AssetProgress, NodeShow, NodeState
+from coordinator.errors import Refusal, RefusalKind
 from coordinator.previews import Preview
 from coordinator.refusals import MAX_SLOT_CHARS, clipped, peer_address
 from coordinator.schema import SLOT_RE
@@ -36,14 +36,6 @@ MAX_USED_NONCES = 1024
 MAX_OPERATOR_SESSIONS = 256
 OPERATOR_SESSION_TTL_S = 12 * 3600.0
 MAX_PENDING_PACKETS = 512
-
-
-class RpcRefusal(Exception):
-    """A call the coordinator refuses: the gRPC status and a message the caller can act on."""
-
-    def __init__(self, code: grpc.StatusCode, message: str):
-        super().__init__(message)
-        self.code, self.message = code, message
 
 
 @dataclass(frozen=True)
@@ -191,11 +183,12 @@ class Handshake:
         self.used: dict[bytes, float] = {}                    # server nonces of proven logins -> expiry
         self.operators: dict[str, float] = {}                 # operator session -> last use
 
-    def refuse(self, peer: str, slot: str, code: grpc.StatusCode, message: str) -> RpcRefusal:
+    def refuse(self, peer: str, slot: str, kind: RefusalKind, message: str) -> Refusal:
+        """A :class:`~coordinator.errors.Refusal` to raise, counted (and logged as ``on_refusal`` says)."""
         line = self._on_refusal(peer, slot, message)
         if line:
             log.warning("%s", line)
-        return RpcRefusal(code, message)
+        return Refusal(kind, message)
 
     def _nonce_mac(self, client_nonce: bytes, head: bytes) -> bytes:
         return hmac.new(self._secret, head + client_nonce, hashlib.sha256).digest()[:16]
@@ -219,19 +212,19 @@ class Handshake:
         replies, refusals and the log."""
         if slot and not SLOT_RE.match(slot):
             shown = clipped(slot, MAX_SLOT_CHARS)
-            raise self.refuse(peer, shown, grpc.StatusCode.INVALID_ARGUMENT,
+            raise self.refuse(peer, shown, RefusalKind.INVALID,
                               f"{shown!r} is not a slot name (1-32 letters, digits, '_', '-' or '.')")
 
     def hello(self, *, protocol_version: int, client_nonce: bytes, role: str, slot: str, peer: str) -> HelloResult:
         """The first half: prove the coordinator knows the token and hand out a server nonce."""
         if protocol_version != PROTOCOL_VERSION:
-            raise self.refuse(peer, slot, grpc.StatusCode.FAILED_PRECONDITION,
+            raise self.refuse(peer, slot, RefusalKind.FAILED_PRECONDITION,
                               f"protocol version mismatch: {clipped(role, 16) or 'client'} "
                               f"{clipped(slot, MAX_SLOT_CHARS)} speaks shadowless protocol "
                               f"{protocol_version}, coordinator of rig {self.rig_name!r} speaks {PROTOCOL_VERSION}; "
                               f"install the same shadowless release on both")
         if len(client_nonce) != auth.NONCE_BYTES:
-            raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT, "client nonce must be 32 bytes")
+            raise self.refuse(peer, slot, RefusalKind.INVALID, "client nonce must be 32 bytes")
         self._check_slot_name(peer, slot)
         server_nonce = self._server_nonce(client_nonce, self.clock())
         return HelloResult(rig_id=self.rig_id, rig_name=self.rig_name, server_nonce=server_nonce,
@@ -242,22 +235,22 @@ class Handshake:
                     client_proof: bytes, peer: str, expected_role: str) -> None:
         """The second half: the client proves it knows the token (each nonce once)."""
         if protocol_version != PROTOCOL_VERSION:
-            raise self.refuse(peer, slot, grpc.StatusCode.FAILED_PRECONDITION,
+            raise self.refuse(peer, slot, RefusalKind.FAILED_PRECONDITION,
                               f"protocol version mismatch: {expected_role} speaks {protocol_version}, "
                               f"coordinator speaks {PROTOCOL_VERSION}")
         if role != expected_role:
-            raise self.refuse(peer, slot, grpc.StatusCode.INVALID_ARGUMENT,
+            raise self.refuse(peer, slot, RefusalKind.INVALID,
                               f"this call is for role {clipped(expected_role, 16)!r}, not {clipped(role, 16)!r}")
         self._check_slot_name(peer, slot)
         now = self.clock()
         expiry = self._nonce_expiry(server_nonce, client_nonce)
         if expiry is None or expiry < now or server_nonce in self.used:
-            raise self.refuse(peer, slot, grpc.StatusCode.UNAUTHENTICATED,
+            raise self.refuse(peer, slot, RefusalKind.UNAUTHENTICATED,
                               "handshake expired or unknown: call Hello again (nonces are single use)")
         expected = auth.client_proof(self.token, expected_role, self.rig_id, slot, client_nonce, server_nonce)
         if not auth.verify(expected, client_proof):
             who = f"node {slot}" if expected_role == "node" else "operator"
-            raise self.refuse(peer, slot, grpc.StatusCode.UNAUTHENTICATED,
+            raise self.refuse(peer, slot, RefusalKind.UNAUTHENTICATED,
                               f"rig token mismatch: {who} at {peer_address(peer)} does not know the token of rig "
                               f"{self.rig_name!r} (id {self.rig_id}); give it this rig's token file")
         if len(self.used) >= MAX_USED_NONCES:   # only proven logins get here: forget the expired ones
@@ -280,5 +273,5 @@ class Handshake:
         now = self.clock()
         if session not in self.operators or now - self.operators[session] > OPERATOR_SESSION_TTL_S:
             self.operators.pop(session, None)
-            raise RpcRefusal(grpc.StatusCode.UNAUTHENTICATED, "not logged in: call Hello and Login with the rig token")
+            raise Refusal(RefusalKind.UNAUTHENTICATED, "not logged in: call Hello and Login with the rig token")
         self.operators[session] = now

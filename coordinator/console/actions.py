@@ -1,9 +1,10 @@
 """The console's actions: each POST endpoint calls the same :class:`Coordinator` method as its
-gRPC handler (``coordinator/services.py``), so nothing the console does skips validation.
+gRPC handler (``coordinator/wire/control_service.py``), so nothing the console does skips validation.
 
 Every action is logged (:mod:`coordinator.console.audit`) with its result or the reason it was
 refused, and answers JSON: ``{"ok": true, "result": ...}`` or ``{"ok": false, "error": ...}``
-with 400 (bad input), 409 (the rig refuses now, e.g. a job holds the projectors) or 500.
+with 400 (bad input), 409 (the rig refuses now, e.g. a job holds the projectors), the status
+:data:`REFUSAL_STATUS` gives a :class:`~coordinator.errors.Refusal`'s kind, or 500.
 The caller (``app.py``) has already checked the session, the CSRF token and the Origin.
 """
 from __future__ import annotations
@@ -18,19 +19,18 @@ import numpy as np
 from aiohttp import web
 
 from coordinator.api import Space
-from coordinator.errors import OPERATOR_ERRORS, CoordinatorError
+from coordinator.errors import OPERATOR_ERRORS, Refusal, RefusalKind
 from coordinator.fit import FIT_MODES
 from coordinator.float_range import check_float_range
 from coordinator.image_decode import MAX_PIXELS, decode_image
 from coordinator.jobs.registry import JOBS
 from coordinator.rig import Content
-from coordinator.sessions import RpcRefusal
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.audit import ActionLog
     from coordinator.console.auth import Session
     from coordinator.console.live import Live
-    from coordinator.server import Coordinator
+    from coordinator.ports import ConsoleRig
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,19 @@ log = logging.getLogger(__name__)
 MAX_UPLOAD_BYTES = 200 * 1024 * 1024
 #: the largest JSON body of an action
 MAX_JSON_BYTES = 16 * 1024
+
+
+#: the HTTP status of each kind of refusal (the gRPC edge has its own table of status codes)
+REFUSAL_STATUS: dict[RefusalKind, int] = {
+    RefusalKind.INVALID: 400,
+    RefusalKind.NOT_FOUND: 404,
+    RefusalKind.CONFLICT: 409,
+    RefusalKind.UNAUTHENTICATED: 401,
+    RefusalKind.FAILED_PRECONDITION: 409,
+    RefusalKind.RESOURCE_EXHAUSTED: 429,
+    RefusalKind.DEADLINE_EXCEEDED: 408,
+    RefusalKind.UNAVAILABLE: 503,
+}
 
 
 class BadRequest(ValueError):
@@ -80,7 +93,7 @@ async def _json_body(request: web.Request) -> dict[str, Any]:
 class Actions:
     """The POST endpoints. ``run`` performs one action and logs it."""
 
-    def __init__(self, coord: "Coordinator", audit: "ActionLog", live: "Live"):
+    def __init__(self, coord: "ConsoleRig", audit: "ActionLog", live: "Live"):
         self.coord, self.audit, self.live = coord, audit, live
 
     async def run(self, request: web.Request, session: "Session", action: str,
@@ -93,8 +106,8 @@ class Actions:
             ok = True
         except (BadRequest, ValueError) as exc:
             status, result = 400, str(exc)
-        except RpcRefusal as exc:
-            status, result = 409, exc.message
+        except Refusal as exc:
+            status, result = REFUSAL_STATUS[exc.kind], exc.message
         except OPERATOR_ERRORS as exc:
             status, result = 409, str(exc)
         except web.HTTPException:
@@ -155,7 +168,7 @@ class Actions:
             params["size"] = f"{img.shape[1]}x{img.shape[0]}"
             # fitted and packed for the nodes in a worker thread, as the gRPC Show does
             content = await asyncio.to_thread(
-                lambda: self.coord.playback.prepare_still(Content(img, name=filename), Space.CONTENT, fit=fit))
+                lambda: self.coord.prepare_still(Content(img, name=filename), Space.CONTENT, fit=fit))
             res = self.coord.show(content, space=Space.CONTENT, apply_lut=True, persist=persist)
             return f"showing {filename or 'the upload'} (frame {res.frame_id}, content {res.content_id[:12]})"
         return await self.run(request, session, "show", act)
@@ -185,9 +198,7 @@ class Actions:
                 raise BadRequest(f"unknown job {kind!r}: choose one of {', '.join(JOBS)}")
             if not isinstance(opts, dict):
                 raise BadRequest("the job's options must be a JSON object")
-            if self.coord.jobs.current is not None and self.coord.jobs.current.state == "running":
-                raise CoordinatorError(f"a {self.coord.jobs.current.kind} job is running; wait for it or cancel it")
-            task = asyncio.create_task(self.coord.run_job(kind, dict(opts), lambda ev: None), name=f"console:{kind}")
+            task = self.coord.start_job(kind, dict(opts))       # refused at once while a job holds the rig
             task.add_done_callback(_job_finished)
             await asyncio.sleep(0)      # let it take the job lock, so a second start is refused at once
             return f"{kind} started"

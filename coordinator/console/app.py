@@ -43,7 +43,7 @@ from coordinator.jobs.registry import JOBS, resolve
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.audit import ActionLog
     from coordinator.console.live import Live
-    from coordinator.server import Coordinator
+    from coordinator.ports import ConsoleRig
 
 log = logging.getLogger(__name__)
 
@@ -84,12 +84,12 @@ def _error(cls: type[web.HTTPException], message: str, **kw) -> web.HTTPExceptio
 class ConsoleApp:
     """The handlers, sharing the console's sessions, limiter, live view, actions and log."""
 
-    def __init__(self, coord: "Coordinator", audit: "ActionLog", live: "Live", *, secure: bool,
+    def __init__(self, coord: "ConsoleRig", audit: "ActionLog", live: "Live", *, secure: bool,
                  idle_s: float = auth.IDLE_S):
         self.coord, self.audit, self.live, self.secure = coord, audit, live, secure
         self.sessions = auth.Sessions(idle_s=idle_s)
         self.limiter = auth.LoginLimiter()
-        self.devices = auth.DeviceCookies(coord.handshake.token)
+        self.devices = auth.DeviceCookies(coord.token_key(auth.DEVICE_KEY_PURPOSE))
         self.hosts: HostCheck | None = None     # set once the console knows where it listens
         self.url = ""                           # where it does, for the refusal of a foreign Host
         self.foreign_hosts: set[str] = set()    # the Hosts refused so far (each logged once)
@@ -186,7 +186,7 @@ class ConsoleApp:
                 token = doc["token"]
         except ValueError:
             pass
-        if not token or not auth.token_matches(token, self.coord.handshake.token):
+        if not token or not self.coord.token_matches(token):
             self.limiter.failed(address, device)
             self.logins["failed"] += 1
             self.logins["last_failed_at"] = round(time.time())

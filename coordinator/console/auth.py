@@ -72,10 +72,8 @@ MAX_SESSIONS = 64
 MAX_ADDRESSES = 4096
 
 
-def token_matches(given: str, token: bytes) -> bool:
-    """Whether the pasted ``given`` text is the rig token (surrounding whitespace ignored;
-    constant time in the token's content)."""
-    return hmac.compare_digest(given.strip().encode("utf-8", "surrogateescape"), token.strip())
+#: what the device cookies' key is derived from the rig token for (the coordinator's ``token_key``)
+DEVICE_KEY_PURPOSE = b"shadowless console device cookie v1"
 
 
 @dataclass
@@ -147,10 +145,11 @@ def csrf_ok(session: Session, header: str | None) -> bool:
 class DeviceCookies:
     """The device cookie of browsers that logged in: ``<id>.<mac>``, where ``id`` is 16 random
     bytes and ``mac`` their HMAC-SHA256 under a key derived from the rig token (so a new token
-    voids every device cookie, and a restarted coordinator still knows them; nothing is stored)."""
+    voids every device cookie, and a restarted coordinator still knows them; nothing is stored).
+    ``key`` is that key: the coordinator's ``token_key(DEVICE_KEY_PURPOSE)``."""
 
-    def __init__(self, token: bytes):
-        self._key = hmac.new(token.strip(), b"shadowless console device cookie v1", hashlib.sha256).digest()
+    def __init__(self, key: bytes):
+        self._key = key
 
     def _mac(self, device: str) -> str:
         mac = hmac.new(self._key, device.encode("ascii"), hashlib.sha256).digest()

@@ -29,7 +29,7 @@ from protos.spaces import output_outline
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.audit import ActionLog
-    from coordinator.server import Coordinator
+    from coordinator.ports import ConsoleRig
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ def footprint(st: SlotState, content_size: tuple[int, int]) -> list[list[float]]
     return [[round(float(x), 1), round(float(y), 1)] for x, y in xy]
 
 
-def snapshot(status: RigStatus, coord: "Coordinator", actions: list[dict[str, Any]],
+def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any]],
              footprints: dict[tuple, list[list[float]] | None] | None = None,
              logins: dict[str, Any] | None = None) -> dict[str, Any]:
     """The page's view of the rig (JSON-able, stable while nothing changes). ``footprints`` caches
@@ -109,9 +109,9 @@ def snapshot(status: RigStatus, coord: "Coordinator", actions: list[dict[str, An
         "before_auth": _before_auth(status),
         "logins": logins or {},
         "assets": [{"id": aid, "name": m.name, "kind": m.kind, "frames": m.frames}
-                   for aid, m in sorted(coord.distribution.manifests.items(), key=lambda t: (t[1].name, t[0]))],
+                   for aid, m in sorted(coord.asset_manifests().items(), key=lambda t: (t[1].name, t[0]))],
         "actions": actions,
-        "job": coord.jobs.snapshot(),
+        "job": coord.job_snapshot(),
         "job_kinds": list(JOBS),
     }
 
@@ -139,7 +139,7 @@ def _cached_footprint(cache: dict, st: SlotState, content: tuple[int, int]) -> l
 class Live:
     """Keeps the snapshot and the plot samples; wakes the open event streams when either changes."""
 
-    def __init__(self, coord: "Coordinator", audit: "ActionLog", *, max_hz: float = MAX_HZ,
+    def __init__(self, coord: "ConsoleRig", audit: "ActionLog", *, max_hz: float = MAX_HZ,
                  history_s: int = HISTORY_S):
         self.coord, self.audit = coord, audit
         self.period_s = 1.0 / max_hz
@@ -160,7 +160,7 @@ class Live:
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
-        self._unlisten = self.coord.sync.add_listener(self._frames.append)
+        self._unlisten = self.coord.listen_frames(self._frames.append)
         self._task = asyncio.create_task(self._run(), name="console-live")
 
     async def stop(self) -> None:

@@ -39,7 +39,7 @@ from coordinator.camera import CameraError, RoomCamera, open_camera, parse_spec
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.auth import Session
-    from coordinator.server import Coordinator
+    from coordinator.ports import ConsoleRig
 
 log = logging.getLogger(__name__)
 
@@ -229,19 +229,15 @@ class _Frame:
 class Pictures:
     """The handlers (``app.py`` wires them behind the session check)."""
 
-    def __init__(self, coord: "Coordinator", *, camera_interval_s: float = CAMERA_INTERVAL_S):
+    def __init__(self, coord: "ConsoleRig", *, camera_interval_s: float = CAMERA_INTERVAL_S):
         self.coord = coord
         self.camera_interval_s = camera_interval_s
         self.captures = 0                       # camera captures attempted (tests, benchmarks)
         self._last: _Frame | None = None
         self._camera_lock = asyncio.Lock()
 
-    def _running_job(self) -> str | None:
-        job = self.coord.jobs.current
-        return job.kind if job is not None and job.state == "running" else None
-
     def _job(self) -> dict | None:
-        job = self.coord.jobs.current
+        job = self.coord.current_job()
         if job is None:
             return None
         return {"kind": job.kind, "state": job.state, "started": round(job.started, 3),
@@ -289,7 +285,7 @@ class Pictures:
                                            "\"/dev/video0\"] to rig.toml, or start the coordinator with --camera")
         spec = specs[0]
         async with self._camera_lock:
-            kind = self._running_job()
+            kind = self.coord.running_job()
             if kind is not None:
                 raise _error(web.HTTPConflict, f"the camera is in use by the running {kind} job: its view comes "
                                                "back when the job ends")

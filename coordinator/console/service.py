@@ -1,8 +1,9 @@
 """The operator console's web server, in the coordinator's event loop.
 
-``Console(coordinator, "127.0.0.1:7680")``, ``await start()``, ``await stop()``; :attr:`port`
-is the port it listens on (port 0 picks a free one). It serves HTTPS with the coordinator's
-certificate when the coordinator has one (``Coordinator.tls``), plain HTTP otherwise. It answers
+``Console(rig, "127.0.0.1:7680", tls=...)``, ``await start()``, ``await stop()``; :attr:`port`
+is the port it listens on (port 0 picks a free one). ``rig`` is the coordinator as the console
+sees it (:class:`coordinator.ports.ConsoleRig`). It serves HTTPS with the coordinator's
+certificate when it is given one (``tls``), plain HTTP otherwise. It answers
 only requests whose Host names it: an address it listens on, or one of ``hosts`` (the
 ``--console-host`` allow-list; :mod:`coordinator.console.hosts`).
 """
@@ -16,7 +17,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
@@ -27,9 +28,7 @@ from coordinator.console.audit import ActionLog
 from coordinator.console.hosts import HostCheck, check_allowed
 from coordinator.console.live import Live
 from coordinator.errors import CoordinatorError
-
-if TYPE_CHECKING:  # pragma: no cover - types only
-    from coordinator.server import Coordinator
+from coordinator.ports import ConsoleRig
 
 log = logging.getLogger(__name__)
 
@@ -108,11 +107,13 @@ def _nothing() -> None:
 
 
 class Console:
-    """The operator console of ``coordinator``, listening on ``listen`` (``HOST:PORT``)."""
+    """The operator console of ``coordinator``, listening on ``listen`` (``HOST:PORT``); with
+    ``tls`` (PEM certificate chain and key) it serves HTTPS."""
 
-    def __init__(self, coordinator: "Coordinator", listen: str = DEFAULT_LISTEN, *, idle_s: float = auth.IDLE_S,
-                 hosts: list[str] | tuple[str, ...] = ()):
+    def __init__(self, coordinator: ConsoleRig, listen: str = DEFAULT_LISTEN, *, idle_s: float = auth.IDLE_S,
+                 hosts: list[str] | tuple[str, ...] = (), tls: tuple[bytes, bytes] | None = None):
         self.coord = coordinator
+        self.tls = tls
         self.listen = listen
         self.host, self._port = parse_listen(listen)
         try:
@@ -122,7 +123,7 @@ class Console:
         self.http_log = HttpLog(logging.getLogger("coordinator.console.http"))
         self.idle_s = idle_s
         self.port = 0
-        self.secure = coordinator.tls is not None
+        self.secure = tls is not None
         self.app: ConsoleApp | None = None
         self._runner: web.AppRunner | None = None
         self._unlisten_jobs: Callable[[], None] = _nothing
@@ -133,7 +134,7 @@ class Console:
         return f"{'https' if self.secure else 'http'}://{host}:{self.port}/"
 
     async def start(self) -> None:
-        ctx = ssl_context(self.coord.tls) if self.coord.tls is not None else None
+        ctx = ssl_context(self.tls) if self.tls is not None else None
         audit = ActionLog(self.coord.rig.path)
         live = Live(self.coord, audit)
         self.app = ConsoleApp(self.coord, audit, live, secure=self.secure, idle_s=self.idle_s)

@@ -16,7 +16,7 @@ from aiohttp import web
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.auth import Session
-    from coordinator.server import Coordinator
+    from coordinator.ports import ConsoleRig
 
 
 def _not_found(message: str) -> web.HTTPNotFound:
@@ -26,7 +26,7 @@ def _not_found(message: str) -> web.HTTPNotFound:
 class Thumbnails:
     """The thumbnail route's handler, on ``coord.previews``."""
 
-    def __init__(self, coord: "Coordinator"):
+    def __init__(self, coord: "ConsoleRig"):
         self.coord = coord
 
     async def thumbnail(self, request: web.Request, session: "Session") -> web.Response:
@@ -37,9 +37,9 @@ class Thumbnails:
         previews.want(slot)
         thumb = previews.thumbnail(slot)
         if thumb is None:
-            sess = self.coord.by_slot.get(slot)
-            why = ("no node has joined it" if sess is None else
-                   "its node is not connected" if sess.closed else
+            link = self.coord.slot_link(slot)
+            why = ("no node has joined it" if link == "none" else
+                   "its node is not connected" if link == "closed" else
                    "its node was just asked for one (it comes within a second or two; a node of an older "
                    "version never sends one)")
             raise _not_found(f"no thumbnail of {slot} yet: {why}")

@@ -28,8 +28,9 @@ from coordinator.api import AssetProgress, NodeState  # noqa: E402
 from coordinator.assets import AssetStore  # noqa: E402
 from coordinator.distribution import Distribution, ManifestWatcher, blob_chunks  # noqa: E402
 from coordinator.rig import Rig, grid_slots, init_rig  # noqa: E402
-from coordinator.server import Coordinator  # noqa: E402
-from coordinator.sessions import Heartbeat, NodeInfo, NodeSession, RpcRefusal  # noqa: E402
+from coordinator.app import CoordinatorApp  # noqa: E402
+from coordinator.errors import Refusal, RefusalKind  # noqa: E402
+from coordinator.sessions import Heartbeat, NodeInfo, NodeSession  # noqa: E402
 from protos import auth, common_pb2, node_pb2, node_pb2_grpc  # noqa: E402
 from protos.asset_manifest import sha256_hex  # noqa: E402
 from protos.version import PROTOCOL_VERSION, SESSION_KEY  # noqa: E402
@@ -136,13 +137,13 @@ def test_blob_chunks_stream_from_an_offset_and_refuse_clearly(store, tmp_path):
     tail = asyncio.run(collect(size - 1000, chunk_bytes=300))
     assert [len(c) for _, c in tail] == [300, 300, 300, 100] and b"".join(c for _, c in tail) == data[-1000:]
     assert asyncio.run(collect(size)) == []
-    for blob, offset, code, text in [("0" * 64, 0, grpc.StatusCode.NOT_FOUND, "no blob 0000"),
-                                     ("xyz", 0, grpc.StatusCode.INVALID_ARGUMENT, "not a blob name"),
-                                     (sha, size + 1, grpc.StatusCode.INVALID_ARGUMENT,
+    for blob, offset, kind, text in [("0" * 64, 0, RefusalKind.NOT_FOUND, "no blob 0000"),
+                                     ("xyz", 0, RefusalKind.INVALID, "not a blob name"),
+                                     (sha, size + 1, RefusalKind.INVALID,
                                       f"past the end of blob {sha[:12]}… ({size} bytes)")]:
-        with pytest.raises(RpcRefusal) as err:
+        with pytest.raises(Refusal) as err:
             asyncio.run(collect(offset, blob=blob))
-        assert err.value.code == code and text in err.value.message
+        assert err.value.kind == kind and text in err.value.message
 
 
 def test_the_coordinator_pushes_a_changed_store_and_reports_readiness(tmp_path):
@@ -151,7 +152,7 @@ def test_the_coordinator_pushes_a_changed_store_and_reports_readiness(tmp_path):
     store = AssetStore(rig.path)
 
     async def go():
-        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False)
+        coord = CoordinatorApp(rig, b"x" * 32, advertise=False).coordinator
         coord.distribution.load()
         s = NodeSession(session="s", slot="r0c0", peer="test", info=NodeInfo(), instance_joins=1, joined=0.0,
                         last_seen=0.0)

@@ -8,13 +8,13 @@ import math
 
 import numpy as np
 
-from coordinator import wire
+from coordinator.wire import control_messages
 from coordinator.api import AssetProgress, NodeState
 from coordinator.assets import AssetStore
 from rigctl.commands import status_dict
 from coordinator.distribution import note_ready
 from coordinator.rig import Rig, grid_slots, init_rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 from coordinator.sessions import Heartbeat, NodeInfo, Report
 
 MS = 1_000_000
@@ -52,7 +52,7 @@ def test_live_and_ready_ages_on_the_injected_clock(tmp_path):
         return {n.slot: n for n in coord.status().nodes}
 
     async def go():
-        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False, clock_ns=lambda: now[0])
+        coord = CoordinatorApp(rig, b"x" * 32, advertise=False, clock_ns=lambda: now[0]).coordinator
         coord.distribution.load()
         s = coord.join(slot="r0c0", info=NodeInfo(), peer="test")
         n = nodes(coord)
@@ -81,7 +81,7 @@ def test_live_and_ready_ages_on_the_injected_clock(tmp_path):
         assert [p.ready_age_ms for p in n.assets] == [125.0, 5.0] and n.assets_ready == 2
 
         # through the wire and the JSON the operator's command prints
-        back = wire.status_from_message(wire.status_message(coord.status()))
+        back = control_messages.status_from_message(control_messages.status_message(coord.status()))
         got = {x.slot: x for x in back.nodes}
         assert got["r0c0"].live_age_ms == 375.0 and [p.ready_age_ms for p in got["r0c0"].assets] == [125.0, 5.0]
         assert math.isnan(got["r0c1"].live_age_ms) and all(math.isnan(p.ready_age_ms) for p in got["r0c1"].assets)

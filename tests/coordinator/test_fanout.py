@@ -7,7 +7,7 @@ import asyncio
 import numpy as np
 
 from coordinator.rig import Content, Rig, grid_slots, init_rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 from coordinator.sessions import NodeInfo, NodeSession, Report, Swaps
 from protos import common_pb2, node_pb2
 
@@ -17,7 +17,7 @@ def make(tmp_path, n=3):
                        content_width=32, content_height=32))
 
     async def build():
-        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False)
+        coord = CoordinatorApp(rig, b"x" * 32, advertise=False).coordinator
         sessions = []
         for slot in rig.slots:
             s = NodeSession(session=slot, slot=slot, peer="test", info=NodeInfo(), instance_joins=1, joined=0.0,
@@ -94,7 +94,7 @@ def test_a_silent_node_is_marked_lost_on_the_injected_clock(tmp_path):
     now = [5_000_000_000]
 
     async def go():
-        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False, clock_ns=lambda: now[0])
+        coord = CoordinatorApp(rig, b"x" * 32, advertise=False, clock_ns=lambda: now[0]).coordinator
         a = coord.join(slot="r0c0", info=NodeInfo(), peer="test")
         b = coord.join(slot="r0c1", info=NodeInfo(), peer="test")
         for s in (a, b):
@@ -126,7 +126,7 @@ def test_a_node_that_lost_its_backlog_asks_the_live_video_for_a_keyframe(tmp_pat
                        content_width=32, content_height=32))
 
     async def go():
-        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False)
+        coord = CoordinatorApp(rig, b"x" * 32, advertise=False).coordinator
         sess = coord.join(slot="r0c0", info=NodeInfo(), peer="test")
         live = LiveStream(width=32, height=32, channels=3, bit_depth=8, fps=30)
         coord.playback._live = live
@@ -143,3 +143,18 @@ def test_a_node_that_lost_its_backlog_asks_the_live_video_for_a_keyframe(tmp_pat
             live.close()
 
     asyncio.run(go())
+
+
+def test_each_fan_out_owns_its_cache_of_encoded_contents(tmp_path):
+    """Two coordinators in one process share nothing: what one's fan-out encoded is in its own
+    cache only, and the other encodes it again into its own."""
+    (a, a_sessions), (b, _) = make(tmp_path / "a"), make(tmp_path / "b")
+    img = Content(np.full((32, 32, 3), 9, np.uint8))
+    a.show(img)
+    assert len(node_pb2.FramePacket.FromString(packets(a_sessions[0])[0]).contents) == 1
+    kept = a.fanout.encoding.contents.get(img.content_id)
+    assert kept is not None and b.fanout.encoding.contents.get(img.content_id) is None
+    b.fanout.prepare([img])
+    again = b.fanout.encoding.contents.get(img.content_id)
+    assert again is not None and again is not kept and again == kept      # encoded anew, to the same bytes
+    assert a.fanout.encoding.contents.get(img.content_id) is kept

@@ -8,19 +8,19 @@ import asyncio
 import subprocess
 import sys
 
-import grpc
 import numpy as np
 import pytest
 
 from coordinator.api import PlaySettings
 from coordinator.asset_probe import probe_still
-from rigctl.client import Client
+from rigctl.client import CallRefused
+from rigctl.link import Client
 from imaging.compensation.errors import CompensationError
 from coordinator.compensation.image_param import decode_image_param, encode_image_array
 from coordinator.errors import AssetError
 from coordinator.float_range import check_float_range
 from coordinator.rig import Rig, init_rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 
 TOKEN = b"f" * 32
 
@@ -77,23 +77,23 @@ def test_grpc_show_and_play_refuse_floats_outside_0_1_from_any_client(tmp_path):
     async def go():
         rig = Rig(init_rig(tmp_path / "rig", name="floats", slots=["r0c0"], width=32, height=24,
                            content_width=32, content_height=24))
-        coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False)
-        await coord.start()
+        app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False)
+        await app.start()
         try:
-            async with await Client.connect(f"127.0.0.1:{coord.port}", TOKEN) as c:
+            async with await Client.connect(f"127.0.0.1:{app.port}", TOKEN) as c:
                 hot = np.full((24, 32, 3), 0.5, np.float32)
                 hot[0, 0] = 7.0
-                with pytest.raises(grpc.aio.AioRpcError) as exc:
+                with pytest.raises(CallRefused) as exc:
                     await c.show(hot, name="hot")
-                assert exc.value.code() == grpc.StatusCode.INVALID_ARGUMENT
-                assert "holds values from 0.5 to 7" in exc.value.details() and "--clip" in exc.value.details()
-                with pytest.raises(grpc.aio.AioRpcError) as exc:
+                assert exc.value.code == "INVALID_ARGUMENT"
+                assert "holds values from 0.5 to 7" in exc.value.details and "--clip" in exc.value.details
+                with pytest.raises(CallRefused) as exc:
                     await c.play(PlaySettings(fps=30, wait=False), [hot])
-                assert exc.value.code() == grpc.StatusCode.INVALID_ARGUMENT and "0.5 to 7" in exc.value.details()
+                assert exc.value.code == "INVALID_ARGUMENT" and "0.5 to 7" in exc.value.details
                 r = await c.show(np.clip(hot, 0, 1), name="clipped")
                 assert r.frame_id > 0
         finally:
-            await coord.stop()
+            await app.stop()
 
     asyncio.run(go())
 

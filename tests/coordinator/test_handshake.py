@@ -2,14 +2,14 @@
 nonces are single use and expire; refusals are counted per address, slot and reason."""
 from __future__ import annotations
 
-import grpc
 import numpy as np
 import pytest
 
-from coordinator import wire
+from coordinator.wire import image_parts
 from coordinator.api import Space
+from coordinator.errors import Refusal, RefusalKind
 from coordinator.refusals import MAX_KEYS, RELOG_S, Refusals, peer_address
-from coordinator.sessions import NONCE_TTL_S, Handshake, RpcRefusal
+from coordinator.sessions import NONCE_TTL_S, Handshake
 from protos import auth, codec
 from protos.version import PROTOCOL_VERSION
 
@@ -59,16 +59,16 @@ def test_nonces_are_single_use():
     hs, refusals, _ = make()
     cn, sn = hello(hs)
     login(hs, cn, sn)
-    with pytest.raises(RpcRefusal) as err:
+    with pytest.raises(Refusal) as err:
         login(hs, cn, sn)
-    assert err.value.code == grpc.StatusCode.UNAUTHENTICATED and "single use" in err.value.message
+    assert err.value.kind == RefusalKind.UNAUTHENTICATED and "single use" in err.value.message
 
 
 def test_nonces_expire():
     hs, _, clock = make()
     cn, sn = hello(hs)
     clock.t += NONCE_TTL_S + 1
-    with pytest.raises(RpcRefusal, match="expired"):
+    with pytest.raises(Refusal, match="expired"):
         login(hs, cn, sn)
 
 
@@ -85,7 +85,7 @@ def test_a_nonce_not_issued_for_this_client_by_this_instance_is_refused(tamper):
         cn, sn = hello(other)
     else:
         sn = sn[:16]
-    with pytest.raises(RpcRefusal, match="expired or unknown"):
+    with pytest.raises(Refusal, match="expired or unknown"):
         login(hs, cn, sn)
 
 
@@ -94,7 +94,7 @@ def test_a_wrong_token_is_refused_and_counted_per_address():
     bad = auth.new_token().encode()
     for port in range(3):
         cn, sn = hello(hs)
-        with pytest.raises(RpcRefusal, match="rig token mismatch"):
+        with pytest.raises(Refusal, match="rig token mismatch"):
             login(hs, cn, sn, token=bad, peer=f"ipv4:10.0.0.7:{5000 + port}")
     (r,) = refusals.summary(clock())
     assert (r.peer, r.slot, r.count) == ("10.0.0.7", "p1", 3) and "rig token mismatch" in r.reason
@@ -128,16 +128,16 @@ def test_refusals_are_bounded_and_newest_first():
 def test_image_parts_reassemble_exactly_and_refuse_overflow():
     rng = np.random.default_rng(3)
     img = rng.integers(0, 65535, (700, 900, 3), dtype=np.uint16)   # incompressible: several parts
-    parts = wire.show_request_parts(img, name="x", persist=False, space=Space.CONTENT, apply_lut=True, fit="cover")
-    assert len(parts) > 2 and all(p.ByteSize() <= wire.IMAGE_PART_BYTES + 1024 for p in parts)
-    asm = wire.ImageParts()
+    parts = image_parts.show_request_parts(img, name="x", persist=False, space=Space.CONTENT, apply_lut=True, fit="cover")
+    assert len(parts) > 2 and all(p.ByteSize() <= image_parts.IMAGE_PART_BYTES + 1024 for p in parts)
+    asm = image_parts.ImageParts()
     asm.start(parts[0].image)
     for p in parts[1:]:
         asm.add(p.more)
     np.testing.assert_array_equal(codec.decode_image(asm.finish()), img)
     assert parts[0].fit == "cover"
 
-    small = wire.show_request_parts(np.zeros((4, 4, 1), np.uint8), name="", persist=False, space=Space.CONTENT,
+    small = image_parts.show_request_parts(np.zeros((4, 4, 1), np.uint8), name="", persist=False, space=Space.CONTENT,
                                     apply_lut=True)
     asm.start(small[0].image)
     with pytest.raises(ValueError, match="sent more than"):
@@ -145,13 +145,13 @@ def test_image_parts_reassemble_exactly_and_refuse_overflow():
 
 
 def ImagePartsMargin() -> int:
-    return wire.ImageParts.MARGIN
+    return image_parts.ImageParts.MARGIN
 
 
 def test_image_parts_check_the_header_before_any_data():
     msg = codec.encode_image(np.zeros((4, 4, 1), np.uint8))
     msg.width = 100_000
     with pytest.raises(codec.ImageCodecError, match="outside"):
-        wire.ImageParts().start(msg)
+        image_parts.ImageParts().start(msg)
     with pytest.raises(ValueError, match="before the image"):
-        wire.ImageParts().add(b"x")
+        image_parts.ImageParts().add(b"x")

@@ -1,5 +1,6 @@
 """Jobs on the coordinator: per-slot patterns shown and swapped by every node before
-the job goes on, progress streamed to the client, errors named, cancellation."""
+the job goes on, progress streamed to the client, errors named, cancellation; a job's typed
+result reaches the client as its wire dict."""
 from __future__ import annotations
 
 import asyncio
@@ -8,15 +9,17 @@ import sys
 import types
 from dataclasses import dataclass
 
-import grpc
 import numpy as np
 import pytest
 
 from coordinator.jobs import JobContext, JobError, Progress, option, registry
+from coordinator.jobs.results import JobResult, optional
+from rigctl.client import CallRefused
 from rigctl.job_command import ProgressView, run_job
 from coordinator.rig import Rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 from shadowless.local import LocalRig
+from waits import wait_until_async
 
 SLOTS = ["r0c0", "r0c1", "r0c2"]
 SIZE = (40, 24)
@@ -32,7 +35,14 @@ class NoOptions:
     pass
 
 
-async def pattern_job(ctx: JobContext, opts: CountOptions) -> dict:
+@dataclass(frozen=True, kw_only=True)
+class Shown(JobResult):
+    shown: int
+    slots: list[str]
+    note: str | None = optional()
+
+
+async def pattern_job(ctx: JobContext, opts: CountOptions) -> Shown:
     slots = ctx.live_slots()
     for i in range(opts.count):
         images = {s: np.full((SIZE[1], SIZE[0], 3), (40 * i + 10 * k) % 256, np.uint8) for k, s in enumerate(slots)}
@@ -40,17 +50,17 @@ async def pattern_job(ctx: JobContext, opts: CountOptions) -> dict:
         await ctx.show(images, settle_s=0.01, require=slots)   # returns once every node swapped it in
         ctx.progress("patterns", "all", i + 1, opts.count)
     ctx.log("done")
-    return {"shown": opts.count, "slots": slots}
+    return Shown(shown=opts.count, slots=slots)
 
 
-async def failing_job(ctx: JobContext, opts: NoOptions) -> dict:
+async def failing_job(ctx: JobContext, opts: NoOptions) -> Shown:
     raise JobError("projector r0c9 not seen by the camera")
 
 
-async def slow_job(ctx: JobContext, opts: NoOptions) -> dict:
+async def slow_job(ctx: JobContext, opts: NoOptions) -> Shown:
     ctx.progress("waiting", "", 0, 1)
-    await asyncio.sleep(60)
-    return {}
+    await asyncio.Event().wait()     # until cancelled
+    return Shown(shown=0, slots=[])
 
 
 def _job_module(name: str, options: type, run) -> str:
@@ -88,8 +98,10 @@ def nodes_rig(tmp_path, monkeypatch):
 
 def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
     async def go():
-        coord = Coordinator(Rig(nodes_rig.rig_dir), nodes_rig.token, listen=f"127.0.0.1:{nodes_rig.port}", advertise=False)
-        await coord.start()
+        app = CoordinatorApp(Rig(nodes_rig.rig_dir), nodes_rig.token, listen=f"127.0.0.1:{nodes_rig.port}",
+                             advertise=False)
+        await app.start()
+        coord = app.coordinator
         try:
             for s in SLOTS:
                 nodes_rig.start_node(s)
@@ -97,35 +109,34 @@ def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
                 await nodes_rig.wait_live(c, timeout=120)
                 view = Capture()
                 result = await run_job(c, "test-patterns", {"count": 4}, view=view)
-                assert result == {"shown": 4, "slots": SLOTS}
+                assert result == {"shown": 4, "slots": SLOTS}   # the typed result's wire dict, its None note left out
                 assert ("progress", "patterns", 4, 4) in view.events and ("log", "done") in view.events
 
-                with pytest.raises(grpc.aio.AioRpcError) as err:
+                with pytest.raises(CallRefused) as err:
                     await run_job(c, "test-fail", {}, view=Capture())
-                assert "r0c9 not seen by the camera" in err.value.details()
+                assert "r0c9 not seen by the camera" in err.value.details
 
-                with pytest.raises(grpc.aio.AioRpcError) as err:
+                with pytest.raises(CallRefused) as err:
                     await run_job(c, "no-such-job", {}, view=Capture())
-                assert "unknown job" in err.value.details()
+                assert "unknown job" in err.value.details
 
-                with pytest.raises(grpc.aio.AioRpcError) as err:   # options are checked before the job runs
+                with pytest.raises(CallRefused) as err:   # options are checked before the job runs
                     await run_job(c, "test-patterns", {"count": 0, "colour": 1}, view=Capture())
-                assert "unknown test-patterns parameter(s) colour" in err.value.details()
+                assert "unknown test-patterns parameter(s) colour" in err.value.details
 
                 # cancelling the call cancels the job and frees the rig for the next one
-                slow = asyncio.ensure_future(run_job(c, "test-slow", {}, view=Capture()))
-                await asyncio.sleep(1.0)
+                view = Capture()
+                slow = asyncio.ensure_future(run_job(c, "test-slow", {}, view=view))
+                await wait_until_async(lambda: list(view.events), lambda ev: ("progress", "waiting", 0, 1) in ev,
+                                       what="the slow job's first progress")
                 slow.cancel()
                 await asyncio.gather(slow, return_exceptions=True)
-                for _ in range(50):
-                    if not coord._job_lock.locked():
-                        break
-                    await asyncio.sleep(0.1)
-                assert not coord._job_lock.locked()
+                await wait_until_async(lambda: coord._job_lock.locked(), lambda locked: not locked,
+                                       what="the cancelled job to free the rig")
                 assert (await run_job(c, "test-patterns", {"count": 1}, view=Capture()))["shown"] == 1
         finally:
             nodes_rig.close()
-            await coord.stop()
+            await app.stop()
 
     asyncio.run(go())
 

@@ -88,17 +88,17 @@ def test_a_refused_start_lets_the_next_start_take_the_rig(rig, held_port):
 
     from coordinator.errors import CoordinatorError
     from coordinator.rig import Rig
-    from coordinator.server import Coordinator
+    from coordinator.app import CoordinatorApp
 
     async def go():
-        coord = Coordinator(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{held_port}", advertise=False)
+        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{held_port}", advertise=False)
         with pytest.raises(CoordinatorError, match=f"port {held_port} is in use"):
-            await coord.start()
-        coord = Coordinator(Rig(rig.rig_dir), rig.token, listen="127.0.0.1:0", advertise=False)
-        await coord.start()
+            await app.start()
+        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen="127.0.0.1:0", advertise=False)
+        await app.start()
         try:
-            assert coord.port and coord.status().console == "off"
+            assert app.port and app.coordinator.status().console == "off"
         finally:
-            await coord.stop()
+            await app.stop()
 
     asyncio.run(go())

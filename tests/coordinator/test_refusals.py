@@ -189,7 +189,7 @@ def test_tls_channel(tmp_path):
         rig.start_node("r0c0")
 
         async def go():
-            from rigctl.client import Client
+            from rigctl.link import Client
 
             deadline = time.monotonic() + 60
             while True:
@@ -246,19 +246,20 @@ def test_a_live_slot_is_not_given_to_another_machine_until_its_node_goes_silent(
     heard from; a restart on the holder's machine takes over; the process it replaced is refused;
     anyone takes a silent slot."""
     from coordinator.rig import Rig, grid_slots, init_rig
-    from coordinator.server import Coordinator
-    from coordinator.sessions import NodeInfo, Report, RpcRefusal
+    from coordinator.app import CoordinatorApp
+    from coordinator.errors import Refusal, RefusalKind
+    from coordinator.sessions import NodeInfo, Report
 
     rig = Rig(init_rig(tmp_path / "rig", name="t", slots=grid_slots(1, 1), width=32, height=32))
     now = [1_000_000_000]
 
     async def go():
-        coord = Coordinator(rig, b"x" * 32, listen="127.0.0.1:0", advertise=False, clock_ns=lambda: now[0])
+        coord = CoordinatorApp(rig, b"x" * 32, advertise=False, clock_ns=lambda: now[0]).coordinator
         a = NodeInfo(hostname="pi-a", pid=10, host_boot_id="boot-a")
         held = coord.join(slot="r0c0", info=a, peer="10.0.0.2:5000")
-        with pytest.raises(RpcRefusal) as refused:
+        with pytest.raises(Refusal) as refused:
             coord.join(slot="r0c0", info=NodeInfo(hostname="pi-b", pid=10, host_boot_id="boot-b"), peer="10.0.0.3:5000")
-        assert refused.value.code == grpc.StatusCode.ALREADY_EXISTS
+        assert refused.value.kind == RefusalKind.CONFLICT
         assert "10.0.0.2:5000 (pi-a, pid 10)" in refused.value.message
         assert not held.closed and coord.by_slot["r0c0"] is held
         assert any("is taken" in r.reason for r in coord.status().refusals)
@@ -266,12 +267,12 @@ def test_a_live_slot_is_not_given_to_another_machine_until_its_node_goes_silent(
         again = coord.join(slot="r0c0", info=a, peer="10.0.0.2:5001")           # the same process rejoins
         restart = coord.join(slot="r0c0", info=NodeInfo("pi-a", 11, "boot-a"), peer="10.0.0.2:5002")
         assert again.closed and coord.by_slot["r0c0"] is restart
-        with pytest.raises(RpcRefusal):                                         # the replaced process
+        with pytest.raises(Refusal):                                         # the replaced process
             coord.join(slot="r0c0", info=a, peer="10.0.0.2:5003")
 
         now[0] += rig.config.lost_after_ms * 1_000_000 // 2
         coord.on_report(restart, Report())                                       # heard from: still held
-        with pytest.raises(RpcRefusal):
+        with pytest.raises(Refusal):
             coord.join(slot="r0c0", info=NodeInfo("pi-b", 10, "boot-b"), peer="10.0.0.3:5001")
         now[0] += rig.config.lost_after_ms * 1_000_000 + 1
         taken = coord.join(slot="r0c0", info=NodeInfo("pi-b", 10, "boot-b"), peer="10.0.0.3:5002")

@@ -16,7 +16,7 @@ import pytest
 
 from coordinator.console import auth
 from coordinator.rig import Rig, grid_slots, init_rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 
 TOKEN = b"c" * 32
 
@@ -73,25 +73,25 @@ def console_port(tmp_path):
 
     def run():
         async def main():
-            coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-            await coord.start()
-            box["coord"] = coord
+            app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+            await app.start()
+            box["app"] = app
             ready.set()
             while not stop.is_set():
                 await asyncio.sleep(0.05)
-            await coord.stop()
+            await app.stop()
         asyncio.run(main())
 
     t = threading.Thread(target=run, name="corpus-coordinator")
     t.start()
     assert ready.wait(60), "the coordinator did not start"
-    yield box["coord"].console_port, box["coord"]
+    yield box["app"].console_port, box["app"]
     stop.set()
     t.join(60)
 
 
 def test_bad_requests_get_one_line(console_port, corpus_table, caplog):
-    port, coord = console_port
+    port, app = console_port
     caplog.set_level(logging.DEBUG)
     for name, host, origin, path, status, words in HTTP_CASES:
         host = host.format(port=port) if host else None
@@ -163,8 +163,8 @@ MALFORMED = [
 def test_malformed_http_costs_one_log_line_and_no_traceback(console_port, corpus_table, caplog):
     """aiohttp refuses what it cannot parse with 400; the coordinator's log says so in one line per
     request (here: none held back), instead of an ERROR with a traceback each."""
-    port, coord = console_port
-    coord._console.http_log.every_s = 0.0
+    port, app = console_port
+    app.console.http_log.every_s = 0.0
     caplog.set_level(logging.DEBUG, logger="coordinator.console.http")
     for name, data, reason in MALFORMED:
         caplog.clear()

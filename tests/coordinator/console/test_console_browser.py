@@ -71,7 +71,7 @@ def test_the_console_in_a_browser(tmp_path, browser_ready, silent_camera):
             wait_for(lambda: "1 wrong token since the coordinator started" in text_of(driver, "logins"), 60,
                      f"the wrong token counted on the page, which says {text_of(driver, 'logins')!r}")
             # a Hello of bytes that are no Hello, from a peer without the token: counted on the page
-            with grpc.insecure_channel(f"127.0.0.1:{rig.coord.port}") as ch:
+            with grpc.insecure_channel(f"127.0.0.1:{rig.app.port}") as ch:
                 with pytest.raises(grpc.RpcError):
                     ch.unary_unary("/shadowless.v1.NodeLink/Hello")(b"\xff" * 1000, timeout=30)
             wait_for(lambda: "0 refused over the budget, 1 malformed" in text_of(driver, "before-auth"), 60,

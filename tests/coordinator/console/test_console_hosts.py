@@ -21,7 +21,7 @@ from coordinator.console.hosts import HostCheck, allowed_host, is_local_address,
 from coordinator.console.service import Console
 from coordinator.errors import CoordinatorError
 from coordinator.rig import Rig, grid_slots, init_rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 
 TOKEN = b"h" * 32
 
@@ -95,13 +95,13 @@ def test_the_allow_list_option_refuses_what_is_not_a_name():
 async def console(tmp_path: Path, hosts: list[str] | None = None):
     rig = Rig(init_rig(tmp_path / "rig", name="hosts", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
-    coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0",
-                        console_hosts=hosts)
-    await coord.start()
+    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0",
+                         console_hosts=hosts)
+    await app.start()
     try:
-        yield coord, coord.console_port
+        yield app.coordinator, app.console_port
     finally:
-        await coord.stop()
+        await app.stop()
 
 
 def client() -> aiohttp.ClientSession:
@@ -182,7 +182,7 @@ def test_its_own_addresses_and_allowed_names_work_with_their_own_origin(tmp_path
 def test_a_malformed_allowed_name_stops_the_console_with_one_line(tmp_path):
     rig = Rig(init_rig(tmp_path / "rig", name="hosts", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
-    coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False)
+    coord = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False).coordinator
     with pytest.raises(CoordinatorError, match=r"^console host 'bad name' is not a host name or IP address; give a"):
         Console(coord, "127.0.0.1:0", hosts=["bad name"])
 

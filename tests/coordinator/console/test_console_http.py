@@ -24,6 +24,7 @@ from coordinator.console.audit import FILE_NAME
 from coordinator.console.service import parse_listen
 from coordinator.errors import CoordinatorError
 from coordinator.rig import Content, HomographyPose, Rig, grid_slots, init_rig
+from coordinator.app import CoordinatorApp
 from coordinator.server import Coordinator
 
 TOKEN = b"t" * 32
@@ -34,13 +35,13 @@ EVIL = "<script>alert(1)</script>"
 async def console(tmp_path: Path, *, tls: tuple[bytes, bytes] | None = None):
     rig = Rig(init_rig(tmp_path / "rig", name="web", slots=grid_slots(1, 2), width=32, height=32,
                        content_width=64, content_height=32))
-    coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0", tls=tls)
-    await coord.start()
+    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0", tls=tls)
+    await app.start()
     try:
         scheme = "https" if tls else "http"
-        yield coord, f"{scheme}://127.0.0.1:{coord.console_port}"
+        yield app.coordinator, f"{scheme}://127.0.0.1:{app.console_port}"
     finally:
-        await coord.stop()
+        await app.stop()
 
 
 def client(**kw) -> aiohttp.ClientSession:
@@ -365,18 +366,18 @@ def test_the_coordinator_stops_with_an_event_stream_open(tmp_path):
     async def go():
         rig = Rig(init_rig(tmp_path / "rig", name="web", slots=["a"], width=32, height=32, content_width=32,
                            content_height=32))
-        coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-        await coord.start()
-        base = f"http://127.0.0.1:{coord.console_port}"
+        app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+        await app.start()
+        base = f"http://127.0.0.1:{app.console_port}"
         try:
             async with client() as s:
                 headers, _ = await login(s, base)
                 async with s.get(base + "/api/events", headers={"Cookie": headers["Cookie"]}) as stream:
                     assert (await stream.content.readline()).startswith(b"event: history")
-                    await asyncio.wait_for(coord.stop(), 60)
+                    await asyncio.wait_for(app.stop(), 60)
                     await asyncio.wait_for(stream.content.read(), 30)    # ended by the server
         finally:
-            await coord.stop()
+            await app.stop()
 
     asyncio.run(go())
 
@@ -480,18 +481,18 @@ def test_a_taken_console_port_stops_the_start_unless_the_console_is_optional(tmp
         try:
             rig = Rig(init_rig(tmp_path / "rig", name="web", slots=grid_slots(1, 1), width=32, height=32,
                                content_width=32, content_height=32))
-            coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}")
+            app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}")
             with pytest.raises(CoordinatorError, match=f"cannot listen on 127.0.0.1:{port}: port {port} in use"):
-                await coord.start()
-            coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}",
-                                console_optional=True)
-            await coord.start()        # the refused start released the rig's lock
+                await app.start()
+            app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}",
+                                 console_optional=True)
+            await app.start()        # the refused start released the rig's lock
             try:
-                assert coord.port and coord.console_port == 0
-                st = coord.status()
+                assert app.port and app.console_port == 0
+                st = app.coordinator.status()
                 assert st.rig_name == "web" and st.console == f"NOT SERVED (port {port} in use)"
             finally:
-                await coord.stop()
+                await app.stop()
         finally:
             holder.close()
 

@@ -13,24 +13,26 @@ import pytest
 
 from coordinator.console import auth
 from coordinator.rig import Rig, grid_slots, init_rig
-from coordinator.server import Coordinator
+from coordinator.app import CoordinatorApp
 
 TOKEN = b"t" * 32
+#: a device cookies' key (the coordinator derives it from the rig token: Coordinator.token_key)
+KEY = b"k" * 32
 
 GUESS = {"token": "a-wrong-guess"}
 
 
 @contextlib.asynccontextmanager
 async def console(tmp_path: Path):
-    """A coordinator with its console on 127.0.0.1 (no nodes): (coordinator, the console's base URL)."""
+    """A coordinator with its console on 127.0.0.1 (no nodes): (the app, the console's base URL)."""
     rig = Rig(init_rig(tmp_path / "rig", name="limits", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
-    coord = Coordinator(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-    await coord.start()
+    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+    await app.start()
     try:
-        yield coord, f"http://127.0.0.1:{coord.console_port}"
+        yield app, f"http://127.0.0.1:{app.console_port}"
     finally:
-        await coord.stop()
+        await app.stop()
 
 
 def client() -> aiohttp.ClientSession:
@@ -140,7 +142,7 @@ def test_once_a_guessing_pool_has_failed_a_clean_address_gets_the_next_turn():
 def test_a_browser_with_a_device_cookie_gets_in_during_a_distributed_attack():
     clock = Clock()
     lim = auth.LoginLimiter(clock=clock)
-    devices = auth.DeviceCookies(TOKEN)
+    devices = auth.DeviceCookies(KEY)
     mine = devices.verify(devices.issue())
     assert mine
     for i in range(5000):                     # the budget is spent, by many addresses
@@ -158,7 +160,7 @@ def test_a_browser_with_a_device_cookie_gets_in_during_a_distributed_attack():
 
 
 def test_device_cookies_cannot_be_forged_or_carried_to_another_token():
-    devices = auth.DeviceCookies(TOKEN)
+    devices = auth.DeviceCookies(KEY)
     value = devices.issue()
     device, mac = value.split(".")
     assert devices.verify(value) == device
@@ -166,7 +168,7 @@ def test_device_cookies_cannot_be_forged_or_carried_to_another_token():
     for bad in (None, "", device, f"{device}.", f"{device}.{mac[:-1]}", f"{device}x.{mac}", "é.é", "a" * 200,
                 f".{mac}"):
         assert devices.verify(bad) is None, bad
-    assert auth.DeviceCookies(b"another rig token, 32 bytes long").verify(value) is None
+    assert auth.DeviceCookies(b"the key of another rig's token..").verify(value) is None
 
 
 def _post_login(s: aiohttp.ClientSession, base: str, body: dict, *, device: str | None = None):
@@ -180,9 +182,9 @@ def test_login_limits_over_http(tmp_path, caplog):
     """A real console: a mistyping operator waits seconds, not a minute, and is told how long; a
     spent global budget holds back every browser but one that logged in before."""
     async def go():
-        async with console(tmp_path) as (coord, base), client() as s:
+        async with console(tmp_path) as (app, base), client() as s:
             clock = Clock()
-            limiter = coord._console.app.limiter
+            limiter = app.console.app.limiter
             limiter.clock = clock
             r = await _post_login(s, base, GUESS)
             assert r.status == 401, "the first mistake is free"
@@ -198,7 +200,7 @@ def test_login_limits_over_http(tmp_path, caplog):
             device = r.cookies[auth.DEVICE_COOKIE]
             assert device["path"] == "/login" and device["httponly"] and device["samesite"] == "Strict"
             assert int(device["max-age"]) == auth.DEVICE_MAX_AGE_S
-            assert coord._console.app.devices.verify(device.value)
+            assert app.console.app.devices.verify(device.value)
 
             # the global budget spent (as by many addresses): every other browser waits its turn
             limiter.budget, limiter.window_s = 3, 60.0
