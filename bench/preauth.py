@@ -30,7 +30,7 @@ from pathlib import Path
 from bench.machine import load, machine
 from bench.workdir import run_dir
 from coordinator.api import NodeState
-from coordinator.services import BUDGET_OFF_ENV
+from coordinator.wire.serve import BUDGET_OFF_ENV
 from shadowless.local import LocalRig, grid_names
 
 MIB = 1024 * 1024
@@ -77,36 +77,6 @@ class _Sampler(threading.Thread):
             self.stop.wait(self.period)
 
 
-#: the attacking process: CALLS concurrent calls of SIZE garbage bytes over CHANNELS connections,
-#: each given 120 s at most; prints its status codes as JSON
-ATTACK = r"""
-import asyncio, collections, json, sys
-import grpc
-target, method, calls, size, channels = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
-if sys.argv[6] == "hello":        # a well-formed HelloRequest whose slot name fills the size
-    from protos import auth, common_pb2
-    from protos.version import PROTOCOL_VERSION
-    payload = common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, role="node", client_nonce=auth.new_nonce(),
-                                      slot="x" * (size - 64)).SerializeToString()
-else:
-    payload = b"\xff" * size      # not a protobuf message: it fails to parse
-async def main():
-    chans = [grpc.aio.insecure_channel(target, options=[("grpc.max_send_message_length", size + 1024)])
-             for _ in range(channels)]
-    codes = collections.Counter()
-    async def one(i):
-        call = chans[i % channels].unary_unary(method)
-        try:
-            await call(payload, timeout=120)
-            codes["OK"] += 1
-        except grpc.aio.AioRpcError as exc:
-            codes[exc.code().name] += 1
-    await asyncio.gather(*(one(i) for i in range(calls)))
-    for c in chans:
-        await c.close()
-    print(json.dumps(dict(codes)))
-asyncio.run(main())
-"""
 
 
 async def _status_probe(client, stop: threading.Event, times: list[float]) -> None:
@@ -148,7 +118,7 @@ def measure(workdir: Path, *, calls: int, size: int, channels: int, nodes: int, 
                 probe = asyncio.create_task(_status_probe(c, stop, times))
                 t0 = time.monotonic()
                 attack = await asyncio.create_subprocess_exec(
-                    sys.executable, "-c", ATTACK, rig.target, method, str(calls), str(size), str(channels), payload,
+                    sys.executable, "-m", "bench.preauth_wire", rig.target, method, str(calls), str(size), str(channels), payload,
                     stdout=subprocess.PIPE, stderr=subprocess.PIPE)
                 out, err = await asyncio.wait_for(attack.communicate(), 300)
                 result["burst_s"] = round(time.monotonic() - t0, 2)

@@ -3,7 +3,7 @@ token can make the coordinator hold.
 
 gRPC receives a unary call's whole message (up to ``protos.version.MAX_REQUEST_BYTES``) and
 parses it before a handler runs, so a budget checked in the handler comes too late: 400
-concurrent 3 MiB Hellos held hundreds of MiB. The gRPC edge (``coordinator/services.py:
+concurrent 3 MiB Hellos held hundreds of MiB. The gRPC edge (``coordinator/wire/admission_interceptor.py:
 Admission``) therefore asks :meth:`Budget.admit` before any byte of the message is read. An
 admitted call reserves the largest message it may send until its message arrived, then holds
 the message's real size until it ends. A call over the budget is refused at once, unread, and

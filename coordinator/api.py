@@ -1,5 +1,5 @@
 """The plain types the coordinator speaks to its callers: the operator client, jobs,
-commands and benchmarks. Only ``coordinator/wire.py`` turns them into messages.
+commands and benchmarks. Only ``coordinator/wire/`` turns them into messages.
 
 Every figure is a float or int; NaN means "not measured" (e.g. a clock error for a node on
 another host). :func:`dataclasses.asdict` gives their JSON form.

@@ -33,19 +33,16 @@ from __future__ import annotations
 import math
 import re
 import threading
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 from urllib.parse import parse_qsl
 
-import grpc
 import numpy as np
 
 from coordinator.errors import CoordinatorError
+from coordinator.wire.room_camera import RoomCallError, RoomCaptureLink, RoomFailure
 from protos.store import atomic_write_bytes
-from protos import codec, room_pb2, room_pb2_grpc
-from protos.version import GRPC_OPTIONS
 
 #: File names of a recorded/replayed sequence: 000001.png, 000002.png, ...
 FRAME_NAME = "{:06d}.png"
@@ -217,8 +214,7 @@ class RoomCamera(_SizeCheck):
         self.timeout_s = float(spec.options.get("timeout", timeout_s or 60.0))
         self.wait = spec.options.get("wait", "1") == "1"
         self._last_ns = 0
-        self._channel = grpc.insecure_channel(self.target, options=GRPC_OPTIONS)
-        self._stub = room_pb2_grpc.RoomStub(self._channel)
+        self._link = RoomCaptureLink(self.target)
         self._lock = threading.Lock()
 
     def not_before(self, rig_ns: int) -> None:
@@ -228,33 +224,30 @@ class RoomCamera(_SizeCheck):
     def capture(self, *, exposure: float | None = None) -> np.ndarray:
         if exposure is not None and not (math.isfinite(exposure) and exposure > 0):
             raise CameraError(f"camera {self.spec}: exposure must be a positive factor, got {exposure}")
-        req = room_pb2.CaptureRequest(camera=self.index, not_before_rig_ns=self._last_ns if self.wait else 0,
-                                      timeout_ms=int(min(self.timeout_s, 30.0) * 1000), exposure=exposure or 0.0)
+        timeout_ms = int(min(self.timeout_s, 30.0) * 1000)
         try:
             with self._lock:
-                reply = self._stub.Capture(req, timeout=self.timeout_s + 5.0)
-                self._last_ns = time.monotonic_ns()
-        except grpc.RpcError as exc:
-            code = exc.code() if hasattr(exc, "code") else None
-            if code == grpc.StatusCode.UNAVAILABLE:
+                got = self._link.capture(camera=self.index, not_before_rig_ns=self._last_ns if self.wait else 0,
+                                         timeout_ms=timeout_ms, exposure=exposure or 0.0,
+                                         deadline_s=self.timeout_s + 5.0)
+                self._last_ns = got.received_ns
+        except RoomCallError as exc:
+            if exc.failure is RoomFailure.UNREACHABLE:
                 raise CameraError(f"camera {self.spec}: the room at {self.target} is not reachable "
                                   "(is `shadowless room` running there?)") from exc
-            if code == grpc.StatusCode.DEADLINE_EXCEEDED:
+            if exc.failure is RoomFailure.TIMEOUT:
                 raise CameraError(f"camera {self.spec}: the room did not answer within {self.timeout_s:g} s") from exc
-            details = exc.details() if hasattr(exc, "details") else str(exc)
-            raise CameraError(f"camera {self.spec}: the room refused the capture: {details}") from exc
-        if reply.late_slots:
-            raise CameraError(f"camera {self.spec}: projector(s) {', '.join(reply.late_slots)} had not shown the current "
-                              f"pattern in the room when it captured (waited {req.timeout_ms / 1000:g} s): are their nodes "
+            if exc.failure is RoomFailure.MALFORMED:
+                raise CameraError(f"camera {self.spec}: the room sent a malformed image: {exc.details}") from exc
+            raise CameraError(f"camera {self.spec}: the room refused the capture: {exc.details}") from exc
+        if got.late_slots:
+            raise CameraError(f"camera {self.spec}: projector(s) {', '.join(got.late_slots)} had not shown the current "
+                              f"pattern in the room when it captured (waited {timeout_ms / 1000:g} s): are their nodes "
                               "sending to this room (--output room://...)?")
-        try:
-            image = codec.decode_image(reply.image)
-        except codec.ImageCodecError as exc:
-            raise CameraError(f"camera {self.spec}: the room sent a malformed image: {exc}") from exc
-        return self._check_size(to_float_image(image, source=f"camera {self.spec}"), f"camera {self.spec}: a capture")
+        return self._check_size(to_float_image(got.image, source=f"camera {self.spec}"), f"camera {self.spec}: a capture")
 
     def close(self) -> None:
-        self._channel.close()
+        self._link.close()
 
 
 # ---------------------------------------------------------------------- opencv

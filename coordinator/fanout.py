@@ -37,21 +37,32 @@ class Frame:
 
 
 class PacketEncoder(Protocol):
+    """Serializes the packets of one send (each content encoded once for all of them)."""
+
     def prepare(self, contents: Iterable[Content]) -> None: ...
 
     def packet(self, *, frame: Frame | None, contents: Sequence[Content], evict: Sequence[str] = (),
                video: EncodedPicture | None = None) -> bytes: ...
 
 
+class PacketEncoding(Protocol):
+    """The packet encoding a fan-out owns: what it keeps between sends (contents already encoded)
+    and a :class:`PacketEncoder` per send."""
+
+    def encoder(self) -> PacketEncoder: ...
+
+
 class FanOut:
     """Queues frames and their contents for node sessions and tells the sync tracker what to expect.
 
-    ``encoder`` makes a packet encoder per send (the wire's), so contents are encoded once per send.
+    ``encoding`` is a factory (the wire's :class:`coordinator.wire.frame_packets.FramePackets`): the
+    fan-out makes its own encoding from it, so what one fan-out keeps encoded is nobody else's, and
+    asks it for an encoder per send, so contents are encoded once per send.
     """
 
-    def __init__(self, sync: SyncTracker, encoder: Callable[[], PacketEncoder]):
+    def __init__(self, sync: SyncTracker, encoding: Callable[[], PacketEncoding]):
         self.sync = sync
-        self._encoder = encoder
+        self.encoding = encoding()
         #: CPU seconds spent building and serializing packets
         self.encode_cpu_s = 0.0
 
@@ -59,7 +70,7 @@ class FanOut:
         """Encode ``contents`` for the wire ahead of their send (thread-safe: run it on a worker
         thread, so a large still or pattern is not encoded on the event loop after its frame's
         presentation time was fixed)."""
-        self._encoder().prepare(contents)
+        self.encoding.encoder().prepare(contents)
 
     def send(self, sessions: Iterable[NodeSession], *, frame: Frame | None = None,
              contents: Mapping[str, Content] | None = None, evict: Sequence[str] = (),
@@ -72,7 +83,7 @@ class FanOut:
             needed = ({frame.content_for(s.slot)} & contents.keys()) if frame is not None else set(contents)
             missing = frozenset(cid for cid in needed if cid not in s.sent_content)
             groups.setdefault(missing, []).append(s)
-        encoder = self._encoder()
+        encoder = self.encoding.encoder()
         for missing, members in groups.items():
             data = encoder.packet(frame=frame, contents=[contents[cid] for cid in sorted(missing)], evict=evict,
                                   video=video)

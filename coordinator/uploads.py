@@ -15,7 +15,7 @@ refuses (a corrupt video) is refused naming the operator's file, and its upload 
 once. Uploads left unfinished are removed after :data:`STALE_UPLOAD_S` without a byte; what a
 crash leaves of one is settled at start (:mod:`coordinator.recovery`).
 
-Everything here blocks on the disk: the gRPC edge (:mod:`coordinator.content_service`) calls it
+Everything here blocks on the disk: the gRPC edge (:mod:`coordinator.wire.content_service`) calls it
 from worker threads. One lock per upload orders its writes.
 """
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Everything the coordinator sends becomes a :mod:`node.records` dataclass (numpy arrays
 inside) here, and every report the node sends is built here from one. Only this module,
-:mod:`node.link` (the gRPC client) and :mod:`node.outputs.room` (the virtual room's
+:mod:`node.link` (the gRPC client) and :mod:`node.outputs.room_link` (the virtual room's
 client) touch protobuf.
 """
 from __future__ import annotations

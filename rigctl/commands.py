@@ -1,7 +1,7 @@
 """Operator commands: `shadowless status`, `show`, `play`, `configure`, and the timeline show
 (`shadowless play ASSET`, `shadowless show pause|resume|seek FRAME|stop`).
 
-They talk to a running coordinator through :class:`rigctl.client.Client`, after the
+They talk to a running coordinator through :class:`rigctl.link.Client`, after the
 same rig-token handshake the nodes use, and print tables (or JSON for scripts).
 """
 from __future__ import annotations
@@ -15,7 +15,6 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-import grpc
 import numpy as np
 from rich.text import Text
 
@@ -455,7 +454,7 @@ async def _play_until_interrupted(c, st: PlaySettings, frames: list[np.ndarray])
     try:
         showing = await asyncio.wait_for(c.stop(), 10)
         print(f"stopped on the rig; it shows {showing}", file=sys.stderr)
-    except (asyncio.TimeoutError, grpc.aio.AioRpcError) as exc:
+    except (asyncio.TimeoutError, OperatorError) as exc:
         print(f"could not stop the sequence on the rig ({exc}); run `shadowless stop`", file=sys.stderr)
     await asyncio.wait({task}, timeout=5)      # the call ends with the sequence
     if task.done() and not task.cancelled():
@@ -585,11 +584,8 @@ def _runner(coro_fn):
     def run(args) -> int:
         try:
             return asyncio.run(coro_fn(args))
-        except (OperatorError, auth.TokenError) as exc:
+        except (OperatorError, auth.TokenError) as exc:     # a refused call too (CallRefused)
             print(f"shadowless {args.command}: {exc}", file=sys.stderr)
-            return 2
-        except grpc.aio.AioRpcError as exc:
-            print(f"shadowless {args.command}: {exc.details() or exc.code().name}", file=sys.stderr)
             return 2
 
     return run

@@ -280,8 +280,7 @@ def upload_video(args: argparse.Namespace, path: Path) -> str:
     add --coordinator`: resumable, checked by hash); its asset id."""
     import asyncio
 
-    import grpc
-
+    from rigctl.client import CallRefused
     from rigctl.rig_target import open_client
     from rigctl.content_remote import upload
 
@@ -299,8 +298,8 @@ def upload_video(args: argparse.Namespace, path: Path) -> str:
 
     try:
         return asyncio.run(go())
-    except grpc.aio.AioRpcError as exc:
-        raise SystemExit(f"shadowless compensate: the coordinator refused the upload: {exc.details()}") from None
+    except CallRefused as exc:
+        raise SystemExit(f"shadowless compensate: the coordinator refused the upload: {exc.details}") from None
     except (*OPERATOR_ERRORS, OSError) as exc:
         raise SystemExit(f"shadowless compensate: {exc}") from None
 

@@ -2,7 +2,7 @@
 
 ``add`` picks the files the way the store does (a file; or a folder's images sorted by name,
 :func:`coordinator.asset_probe.sequence_files`), hashes them here, announces them
-(:meth:`rigctl.client.Client.begin_upload`), sends each file from the offset the
+(:meth:`rigctl.link.Client.begin_upload`), sends each file from the offset the
 coordinator already holds, in 1 MiB chunks read in a worker thread, and asks the coordinator
 to check the hashes and add the asset. A cut (Ctrl-C, a dropped link, a restarted coordinator)
 loses nothing: the same command run again announces the same files, gets the same upload
@@ -16,11 +16,9 @@ import sys
 from pathlib import Path
 from typing import AsyncIterator
 
-import grpc
-
 from coordinator.asset_probe import sequence_files
 from coordinator.assets import copy_hashing
-from rigctl.client import OperatorError
+from rigctl.client import CallRefused, OperatorError
 from rigctl.rig_target import open_client
 from rigctl.content_format import Progress, added_line, human_bytes, print_assets
 from coordinator.errors import AssetError, OPERATOR_ERRORS
@@ -115,8 +113,8 @@ async def _run(args: argparse.Namespace) -> int:
 def run_remote(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(_run(args))
-    except grpc.aio.AioRpcError as exc:
-        print(f"shadowless content: the coordinator refused: {exc.details() or exc.code().name}", file=sys.stderr)
+    except CallRefused as exc:
+        print(f"shadowless content: the coordinator refused: {exc}", file=sys.stderr)
         return 2
     except (*OPERATOR_ERRORS, OSError) as exc:
         print(f"shadowless content: {exc}", file=sys.stderr)

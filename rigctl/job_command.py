@@ -15,12 +15,12 @@ import sys
 from dataclasses import dataclass
 from typing import Callable, TextIO
 
-import grpc
 from rich.progress import (BarColumn, MofNCompleteColumn, TaskID, TaskProgressColumn, TextColumn, TimeElapsedColumn,
                            TimeRemainingColumn)
 from rich.progress import Progress as Bars
 
-from rigctl.client import Client, OperatorError
+from rigctl.client import CallRefused, OperatorError
+from rigctl.link import Client
 from rigctl.content_format import clock, operator_console
 from rigctl.rig_target import open_client
 from coordinator.jobs.context import Event, Progress
@@ -136,12 +136,12 @@ def run_job_command(args, kind: str, params: dict, *, report: Callable[[dict], s
 
     try:
         result = asyncio.run(go())
+    except CallRefused as exc:          # the job refused or failed on the coordinator
+        print(f"shadowless {args.command}: {exc}", file=sys.stderr)
+        return 1
     except (OperatorError, auth.TokenError) as exc:
         print(f"shadowless {args.command}: {exc}", file=sys.stderr)
         return 2
-    except grpc.aio.AioRpcError as exc:
-        print(f"shadowless {args.command}: {exc.details() or exc.code().name}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print(f"shadowless {args.command}: cancelled; finished parts are kept and a new run resumes", file=sys.stderr)
         return 130

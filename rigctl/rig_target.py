@@ -16,7 +16,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from rigctl.client import Client, OperatorError
+from rigctl.client import OperatorError
+from rigctl.link import Client
 from coordinator.errors import RigError
 from coordinator.rig import parse_config
 from coordinator.schema import read_text

@@ -33,7 +33,7 @@ from protos import cli_types
 from protos.spaces import content_to_table
 from shadowless import exit_cleanup
 from shadowless.local import LocalRig, free_port
-from sim.client import RoomClient
+from sim.link import RoomClient
 from sim.hand import Hand
 from sim.scene import SUBSETS
 

@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.api import NodeState, PlaySettings, RigStatus
-from rigctl.client import Client, OperatorError
+from rigctl.client import OperatorError
+from rigctl.link import Client
 from rigctl.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
 from protos import auth

@@ -17,7 +17,7 @@ precompute views and plans per camera and projector, mesh maps (the static preco
 occlusion  occluder visibility and sampling in a precomputed view
 room       the Room: facade, light fields, fast linear captures
 truth      ground truth: poses, homographies, correspondences, light transport, light drop
-service    the Room and RoomTruth gRPC services; client: a synchronous client; wire: messages
+wire       the Room and RoomTruth gRPC services and their messages; link: a synchronous client
 cli        ``shadowless room``
 
 Entry points::

@@ -12,7 +12,7 @@ from sim.errors import SimError
 from sim.hand import Hand, HandPath
 from sim.room import Room
 from sim.scene import SUBSETS, load_layout, reference_scene, write_layout
-from sim.service import DEFAULT_PORT, serve
+from sim.wire.service import DEFAULT_PORT, serve
 
 EPILOG = """\
 what it serves (one port, 127.0.0.1 by default):

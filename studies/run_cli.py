@@ -6,8 +6,6 @@ import asyncio
 import sys
 from pathlib import Path
 
-import grpc
-
 from rigctl.client import OperatorError, add_connection_args
 from rigctl.commands import read_image
 from coordinator.errors import RigError
@@ -110,7 +108,5 @@ async def _run(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(_run(args))
-    except (OperatorError, auth.TokenError) as exc:
+    except (OperatorError, auth.TokenError) as exc:     # a refused call too (CallRefused)
         raise SystemExit(f"shadowless study run: {exc}") from None
-    except grpc.aio.AioRpcError as exc:
-        raise SystemExit(f"shadowless study run: {exc.details() or exc.code().name}") from None

@@ -1,7 +1,7 @@
 """Running one participant's trials on a rig: show each pair of configurations side by side, take
 the participant's answer from the operator's keyboard, append it to the ratings file at once.
 
-Every trial goes through the operator API like any show (:meth:`rigctl.client.Client.show`
+Every trial goes through the operator API like any show (:meth:`rigctl.link.Client.show`
 with per-slot regions): the trial's content is the picture on both halves of the table, and
 each slot of the rig is told which halves it lights (the left configuration's slots the left
 half, the right one's the right half, slots in both both, every other slot none). Between trials

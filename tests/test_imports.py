@@ -1,13 +1,19 @@
 """The import rules of docs/architecture.md, checked on every module of the project.
 
-Every import counts, including those inside functions; only imports under
-``if TYPE_CHECKING:`` (never executed) are left out. The rules:
+Every import counts, including those inside functions and those under ``if TYPE_CHECKING:``
+(never executed, but a type named there ties the two modules as much as a run-time import). The rules:
 
 * no import cycles between modules;
 * node -> protos only; coordinator -> protos only; sim -> protos only (plus themselves);
 * nothing imports ``bench`` but the CLI wiring (``shadowless``) and ``bench`` itself;
 * nothing in coordinator/node/sim/protos imports the CLI wiring (``shadowless``);
-* generated ``*_pb2`` modules only in the wire, service and client modules listed here.
+* generated ``*_pb2`` modules only in the wire and link modules listed here;
+* ``import grpc`` (or any ``grpc_*`` package) only in wire and link modules: a module one of whose
+  dotted name's parts is ``wire`` or ``link``, or ends with ``_wire`` or ``_link``
+  (``coordinator.wire.node_service``, ``node.link``, ``rigctl.link``, ``node.outputs.room_link``,
+  ``bench.preauth_wire``). For this rule every import counts, under ``if TYPE_CHECKING`` too.
+  Generated ``*_pb2_grpc`` modules are the wire themselves, and ``grpc_tools`` (the protobuf
+  compiler that ``protos.generate`` runs) is no gRPC at run time.
 """
 from __future__ import annotations
 
@@ -44,13 +50,21 @@ ALLOWED = {
     "bench": set(PACKAGES) - {"bench"},
 }
 
-#: the only modules outside protos/ that may touch generated protobuf code
+#: the only modules outside protos/ that may touch generated protobuf code: the coordinator's
+#: messages, services and room camera; the operator's, the node's and the room's links; the room's wire;
+#: the preauth benchmark's attacker
 WIRE_MODULES = {
-    "coordinator.wire", "coordinator.services", "coordinator.content_service", "rigctl.client",
-    "coordinator.camera",
-    "node.wire", "node.link", "node.outputs.room",
-    "sim.wire", "sim.service", "sim.client",
+    "coordinator.wire.node_messages", "coordinator.wire.control_messages", "coordinator.wire.image_parts",
+    "coordinator.wire.frame_packets", "coordinator.wire.handshake_service", "coordinator.wire.node_service",
+    "coordinator.wire.control_service", "coordinator.wire.content_service", "coordinator.wire.serve",
+    "coordinator.wire.room_camera",
+    "rigctl.link",
+    "node.wire", "node.link", "node.outputs.room_link",
+    "sim.wire.messages", "sim.wire.service", "sim.link",
+    "bench.preauth_wire",
 }
+#: packages named grpc_* that are no gRPC at run time (the protobuf compiler)
+NOT_GRPC = {"grpc_tools"}
 
 
 def _modules() -> dict[str, Path]:
@@ -75,23 +89,14 @@ def _resolve(name: str) -> str | None:
     return None
 
 
-def _is_type_checking(node: ast.If) -> bool:
-    t = node.test
-    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
-        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING")
-
-
 def _imports(module: str, path: Path) -> set[str]:
-    """Every project module ``module`` imports (anywhere but under ``if TYPE_CHECKING``)."""
+    """Every project module ``module`` imports, anywhere in it (in functions and under ``if
+    TYPE_CHECKING`` too)."""
     tree = ast.parse(path.read_text(), filename=str(path))
     found: set[str] = set()
     is_pkg = path.name == "__init__.py"
 
     def visit(node: ast.AST) -> None:
-        if isinstance(node, ast.If) and _is_type_checking(node):
-            for child in node.orelse:
-                visit(child)
-            return
         if isinstance(node, ast.Import):
             for alias in node.names:
                 if (r := _resolve(alias.name)) is not None:
@@ -164,13 +169,13 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return out
 
 
-def test_the_checker_sees_cycles_and_type_checking_blocks(tmp_path):
+def test_the_checker_sees_cycles_and_every_import(tmp_path):
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
     f = tmp_path / "m.py"
     f.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import coordinator.server\n"
                  "def f():\n    import coordinator.rig\n")
-    assert _imports("x.m", f) == {"coordinator.rig"}
+    assert _imports("x.m", f) == {"coordinator.server", "coordinator.rig"}
 
 
 def test_there_are_modules_to_check():
@@ -193,4 +198,41 @@ def test_protobuf_only_at_the_wire_edges():
                                                      for o in outs)}
     outside = {m for m in users if not m.startswith("protos")}
     assert outside <= WIRE_MODULES, sorted(outside - WIRE_MODULES)
-    assert len(WIRE_MODULES) <= 11
+    assert WIRE_MODULES <= outside, f"no longer using generated code: {sorted(WIRE_MODULES - outside)}"
+    assert all(is_wire_or_link(m) for m in WIRE_MODULES), sorted(m for m in WIRE_MODULES if not is_wire_or_link(m))
+
+
+def is_wire_or_link(module: str) -> bool:
+    """Whether ``module`` may import grpc: one of its name's parts is ``wire`` or ``link`` or ends
+    with ``_wire`` or ``_link``."""
+    return any(p in ("wire", "link") or p.endswith(("_wire", "_link")) for p in module.split("."))
+
+
+def grpc_imports(path: Path) -> set[str]:
+    """The gRPC packages (``grpc``, ``grpc_*`` but :data:`NOT_GRPC`) a file imports anywhere in it."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                 else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+        for name in names:
+            top = name.split(".")[0]
+            if (top == "grpc" or top.startswith("grpc_")) and top not in NOT_GRPC:
+                found.add(top)
+    return found
+
+
+def test_the_grpc_checker_sees_every_import_and_knows_the_edge_names(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import grpc.aio\n"
+                 "def f():\n    from grpc_health.v1 import health\n    import grpc_tools\n    import grpcio_other\n")
+    assert grpc_imports(f) == {"grpc", "grpc_health"}
+    assert all(map(is_wire_or_link, ["coordinator.wire.node_service", "node.link", "rigctl.link", "sim.wire.service",
+                                     "node.outputs.room_link", "bench.preauth_wire"]))
+    assert not any(map(is_wire_or_link, ["coordinator.server", "node.linker", "rigctl.wired", "sim.rewire"]))
+
+
+def test_grpc_only_in_wire_and_link_modules():
+    users = {m for m, path in MODULES.items() if grpc_imports(path)}
+    generated = {m for m in users if m.startswith("protos.") and m.endswith("_pb2_grpc")}
+    assert len(users) > 15 and generated, "the checker sees the modules that do import grpc"
+    assert sorted(m for m in users - generated if not is_wire_or_link(m)) == []

@@ -2,7 +2,7 @@
 
 Specs understood by :func:`open_output`: ``offscreen`` (default), ``window[:MONITOR]``
 and ``room://HOST:PORT``. The contract every output fulfils is :class:`Output`
-(see :mod:`node.outputs.base`). The room output, :class:`node.outputs.room.RoomOutput`,
+(see :mod:`node.outputs.base`). The room output, :class:`node.outputs.room_link.RoomOutput`,
 is imported only when a ``room://`` spec is opened.
 """
 from __future__ import annotations

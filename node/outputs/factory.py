@@ -42,6 +42,6 @@ def open_output(spec: str, *, slot: str, snapshot_dir: Path | None = None) -> Ou
     check_slot(slot)
     # Lazy: the room output brings grpc and the room's protobuf messages, which only a node
     # driving the virtual room needs (the presenter process of a real projector never loads them).
-    from node.outputs.room import RoomOutput
+    from node.outputs.room_link import RoomOutput
 
     return RoomOutput(spec.strip(), slot=slot, snapshot_dir=snapshot_dir)

@@ -12,7 +12,7 @@ import grpc
 import numpy as np
 import pytest
 
-from coordinator import wire
+from coordinator.wire import image_parts
 from coordinator.api import Space
 from protos import auth, codec, common_pb2, control_pb2, control_pb2_grpc, node_pb2, node_pb2_grpc
 from protos.version import MAX_REQUEST_BYTES, PROTOCOL_VERSION, SESSION_KEY
@@ -47,7 +47,7 @@ def _image(shape=(32, 32, 3), dtype=np.uint8):
 def _show_parts(img=None, **kw):
     args = dict(name="t", persist=False, space=Space.CONTENT, apply_lut=True, fit="")
     args.update(kw)
-    return wire.show_request_parts(_image() if img is None else img, **args)
+    return image_parts.show_request_parts(_image() if img is None else img, **args)
 
 
 async def _stream(*items):
@@ -127,14 +127,14 @@ def _operator_cases():
          S.INVALID_ARGUMENT, ["unknown fit 'zoom'"]),
         ("Show larger than a message", lambda st, md: st.Show(_stream(control_pb2.ShowRequest(
             more=b"\0" * (MAX_REQUEST_BYTES + 1))), metadata=md), S.RESOURCE_EXHAUSTED, ["larger than max"]),
-        ("Play without settings", lambda st, md: st.Play(_stream(*wire.play_frame_items(_image())), metadata=md),
+        ("Play without settings", lambda st, md: st.Play(_stream(*image_parts.play_frame_items(_image())), metadata=md),
          S.INVALID_ARGUMENT, ["settings"]),
         ("Play bytes before a frame", lambda st, md: st.Play(_stream(
             control_pb2.PlayItem(settings=control_pb2.PlaySettings(fps=30)), control_pb2.PlayItem(more=b"x")),
             metadata=md), S.INVALID_ARGUMENT, ["before the image"]),
         ("Play at -5 fps", lambda st, md: st.Play(_stream(
             control_pb2.PlayItem(settings=control_pb2.PlaySettings(fps=-5, wait=True)),
-            *wire.play_frame_items(_image())), metadata=md), S.INVALID_ARGUMENT, ["fps", "-5"]),
+            *image_parts.play_frame_items(_image())), metadata=md), S.INVALID_ARGUMENT, ["fps", "-5"]),
         ("Play an unknown pattern", lambda st, md: st.Play(_stream(
             control_pb2.PlayItem(settings=control_pb2.PlaySettings(fps=30, pattern="plaid"))), metadata=md),
          S.INVALID_ARGUMENT, ["unknown pattern 'plaid'"]),

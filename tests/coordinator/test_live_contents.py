@@ -6,7 +6,7 @@ import threading
 
 import numpy as np
 
-from coordinator import wire
+from coordinator.wire.frame_packets import EncodedContents, FramePackets
 from coordinator.live_video import LiveEncoder
 from coordinator.rig import Content
 from protos import codec, common_pb2, node_pb2
@@ -20,17 +20,18 @@ def photo() -> np.ndarray:
 
 def test_contents_travel_losslessly_compressed_and_are_encoded_once():
     c = Content(photo())
+    packets = FramePackets()
     done = threading.Event()
 
     def prepare():
-        wire.PacketEncoder().prepare([c])
+        packets.encoder().prepare([c])
         done.set()
 
     threading.Thread(target=prepare).start()
     assert done.wait(30)
-    cached = wire.ENCODED_CONTENTS.get(c.content_id)
+    cached = packets.contents.get(c.content_id)
     assert cached is not None and cached.image.encoding == common_pb2.ENCODING_ZSTD_GRADIENT
-    pkt = node_pb2.FramePacket.FromString(wire.PacketEncoder().packet(frame=None, contents=[c]))
+    pkt = node_pb2.FramePacket.FromString(packets.encoder().packet(frame=None, contents=[c]))
     assert pkt.contents[0] == cached                      # the prepared form, not a second encoding
     back = codec.decode_image(pkt.contents[0].image)
     assert back.tobytes() == c.image.tobytes()            # bit-exact
@@ -38,7 +39,7 @@ def test_contents_travel_losslessly_compressed_and_are_encoded_once():
 
 
 def test_the_cache_of_encoded_contents_is_bounded_least_recently_used_first():
-    cache = wire._EncodedContents(max_bytes=1000)
+    cache = EncodedContents(max_bytes=1000)
     msgs = {k: node_pb2.Content(content_id=k, image=common_pb2.Image(data=bytes(400))) for k in "abc"}
     cache.put("a", msgs["a"])
     cache.put("b", msgs["b"])
@@ -49,7 +50,7 @@ def test_the_cache_of_encoded_contents_is_bounded_least_recently_used_first():
 
 def test_a_live_picture_rides_in_the_packet_with_its_frame():
     pic = LiveEncoder(width=64, height=48, channels=3, bit_depth=8, fps=30).encode(np.zeros((48, 64, 3), np.uint8))
-    enc = wire.PacketEncoder()
+    enc = FramePackets().encoder()
     data = enc.packet(frame=None, contents=[], video=pic)
     v = node_pb2.FramePacket.FromString(data).video
     assert (v.stream_id, v.sequence, v.keyframe, v.data, v.content_id) == \

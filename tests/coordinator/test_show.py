@@ -174,20 +174,20 @@ def test_helpers():
 
 
 def test_show_updates_cross_the_wire_as_the_node_reads_them(rig):
-    from coordinator import wire
+    from coordinator.wire import control_messages, node_messages
     from node import wire as node_wire
     from protos import node_pb2
 
     s = rig.show()
     s.play("clip", loop=True, fps=29.97)
-    msg = node_pb2.ShowUpdate.FromString(wire.show_update_message(s.update(beacon=True)).SerializeToString())
+    msg = node_pb2.ShowUpdate.FromString(node_messages.show_update_message(s.update(beacon=True)).SerializeToString())
     got = node_wire.show_update_from_message(msg)
     assert got.timeline == s.timeline and got.frame_id_base == s.frame_id_base and got.beacon
     assert got.timeline.rate == Fraction(30000, 1001)
     assert msg.ByteSize() < 150          # what a beacon costs per node per second
     s.stop()
     got = node_wire.show_update_from_message(
-        node_pb2.ShowUpdate.FromString(wire.show_update_message(s.update()).SerializeToString()))
+        node_pb2.ShowUpdate.FromString(node_messages.show_update_message(s.update()).SerializeToString()))
     assert got.timeline is None and (got.stop_at_ns, got.stop_revision) == (s.stop_at_ns, s.stop_revision)
     state = s.state()
-    assert wire.show_state_from_message(wire.show_state_message(state)) == state
+    assert control_messages.show_state_from_message(control_messages.show_state_message(state)) == state

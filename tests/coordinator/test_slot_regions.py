@@ -7,9 +7,8 @@ import pytest
 
 from coordinator.api import Space
 from coordinator.rig import Content
-from coordinator.services import regions_from_request
+from coordinator.wire.image_parts import regions_from_request, show_request_parts
 from coordinator.slot_regions import check_regions, mask_image, masked_contents
-from coordinator.wire import show_request_parts
 from protos import control_pb2
 
 

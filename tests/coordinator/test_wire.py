@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coordinator import wire
+from coordinator.wire import node_messages
 from node import wire as node_wire
 from node.records import ReportBatch, SwapRecord
 from protos import node_pb2
@@ -17,7 +17,7 @@ def test_a_nodes_swaps_come_back_as_the_columns_it_sent():
     host = rig - 123_456_789_000 + rng.integers(-50_000, 50_000, size=ids.size)
     batch = ReportBatch(swaps=tuple(SwapRecord(int(f), 0, int(r), int(h)) for f, r, h in zip(ids, rig, host)))
     data = node_wire.report_message(batch).SerializeToString()
-    rep = wire.report_from_message(node_pb2.NodeReport.FromString(data))
+    rep = node_messages.report_from_message(node_pb2.NodeReport.FromString(data))
     assert len(rep.swaps) == ids.size and rep.heartbeat is None and rep.drops == ()
     for got, want in ((rep.swaps.frame_id, ids), (rep.swaps.swap_rig_ns, rig), (rep.swaps.host_monotonic_ns, host)):
         assert got.dtype == np.int64 and got.tolist() == want.tolist()
@@ -26,8 +26,8 @@ def test_a_nodes_swaps_come_back_as_the_columns_it_sent():
 
 
 def test_a_report_without_swaps_has_none_and_columns_of_unequal_length_are_refused():
-    rep = wire.report_from_message(node_pb2.NodeReport())
+    rep = node_messages.report_from_message(node_pb2.NodeReport())
     assert len(rep.swaps) == 0 and rep.swaps.frame_id.dtype == np.int64
     bad = node_pb2.NodeReport(swaps=node_pb2.Swaps(frame_id=[1, 1], swap_rig_ns=[5], host_monotonic_ns=[5, 5]))
     with pytest.raises(ValueError, match="differ in length"):
-        wire.report_from_message(bad)
+        node_messages.report_from_message(bad)

@@ -32,7 +32,7 @@ class Block(importlib.abc.MetaPathFinder):
             raise ImportError('blocked for this test: ' + name)
 sys.meta_path.insert(0, Block())
 import node.app, node.cli, node.link, node.wire, node.presenter, node.presenter_process, node.outputs
-import node.outputs.room, node.render.renderer, node.image_files, protos.discovery
+import node.outputs.room_link, node.render.renderer, node.image_files, protos.discovery
 from shadowless.cli import main
 sys.argv = ['shadowless', 'node', '--help']
 try:

@@ -148,13 +148,13 @@ def test_unusable_slot_names_are_refused(slot, tmp_path):
 
 
 def test_room_output_is_imported_lazily(monkeypatch):
-    code = "import sys, node.outputs as o; o.open_output('offscreen', slot='r0c0').close(); print('node.outputs.room' in sys.modules, 'grpc' in sys.modules)"
+    code = "import sys, node.outputs as o; o.open_output('offscreen', slot='r0c0').close(); print('node.outputs.room_link' in sys.modules, 'grpc' in sys.modules)"
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "False False"
 
     calls = []
-    fake = types.ModuleType("node.outputs.room")
+    fake = types.ModuleType("node.outputs.room_link")
 
     class RoomOutput(outputs.Output):
         def __init__(self, *args, **kwargs):
@@ -164,7 +164,7 @@ def test_room_output_is_imported_lazily(monkeypatch):
             raise AssertionError
 
     fake.RoomOutput = RoomOutput
-    monkeypatch.setitem(sys.modules, "node.outputs.room", fake)
+    monkeypatch.setitem(sys.modules, "node.outputs.room_link", fake)
     out = open_output("room://127.0.0.1:50071", slot="r3c4", snapshot_dir=Path("/tmp/x"))
     assert isinstance(out, RoomOutput)
     assert calls == [(("room://127.0.0.1:50071",), {"slot": "r3c4", "snapshot_dir": Path("/tmp/x")})]

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.client import RoomClient
+from sim.link import RoomClient
 from sim.scene import load_layout
 
 ROOT = Path(__file__).resolve().parents[2]

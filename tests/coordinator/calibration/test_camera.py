@@ -19,7 +19,7 @@ from coordinator.camera import (
 )
 from sim.room import Room
 from sim.scene import reference_scene
-from sim.service import RoomServerThread
+from sim.wire.service import RoomServerThread
 
 
 def test_specs_parse_with_their_options_and_bad_ones_are_named():

@@ -23,7 +23,7 @@ from shadowless.cli import main
 from shadowless.local import LocalRig
 from sim.room import Room
 from sim.scene import reference_scene
-from sim.service import RoomServerThread
+from sim.wire.service import RoomServerThread
 
 SLOTS = ["r1c1", "r3c3"]
 CONTENT = (200, 100)

@@ -1,5 +1,5 @@
-"""The ContentStore gRPC service: the rig's assets listed, uploaded and removed from an
-operator's machine (``shadowless content … --coordinator HOST:PORT``).
+"""The ContentStore service: the rig's assets listed, uploaded and removed from an operator's
+machine (``shadowless content … --coordinator HOST:PORT``).
 
 The wire edge of :mod:`coordinator.uploads` and :class:`coordinator.assets.AssetStore`: every
 call needs an operator session (RigControl's Login); disk work runs in worker threads, so the
@@ -10,19 +10,16 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import grpc
 
 from coordinator.assets import AssetStore
-from coordinator.errors import AssetError
-from coordinator.sessions import RpcRefusal
+from coordinator.errors import AssetError, Refusal
+from coordinator.sessions import Handshake
 from coordinator.uploads import UploadFile, Uploads
+from coordinator.wire.calls import abort, session_id
 from protos import control_pb2, control_pb2_grpc
-from protos.version import SESSION_KEY
-
-if TYPE_CHECKING:  # pragma: no cover - types only
-    from coordinator.sessions import Handshake
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +34,7 @@ def _info(asset_id: str, manifest_bytes: bytes, *, existed: bool = False, notes=
 class ContentStoreService(control_pb2_grpc.ContentStoreServicer):
     """See the module docstring. ``handshake`` checks operator sessions."""
 
-    def __init__(self, store: AssetStore, handshake: "Handshake"):
+    def __init__(self, store: AssetStore, handshake: Handshake):
         self.store = store
         self.uploads = Uploads(store)
         self.handshake = handshake
@@ -48,10 +45,10 @@ class ContentStoreService(control_pb2_grpc.ContentStoreServicer):
     async def _call(self, context: Any, fn, *args, **kwargs):
         """Check the operator's session, run ``fn`` in a thread, turn errors into statuses."""
         try:
-            self.handshake.check_operator(dict(context.invocation_metadata() or ()).get(SESSION_KEY, ""))
+            self.handshake.check_operator(session_id(context))
             return await asyncio.to_thread(fn, *args, **kwargs)
-        except RpcRefusal as exc:
-            await context.abort(exc.code, exc.message)
+        except Refusal as exc:
+            await abort(context, exc)
         except AssetError as exc:
             code = grpc.StatusCode.NOT_FOUND if str(exc).startswith("no asset") else grpc.StatusCode.FAILED_PRECONDITION
             await context.abort(code, str(exc))
@@ -104,7 +101,7 @@ class ContentStoreService(control_pb2_grpc.ContentStoreServicer):
         return _info(aid, data)
 
 
-def add_to_server(server: grpc.aio.Server, store: AssetStore, handshake: "Handshake") -> ContentStoreService:
+def add_to_server(server: grpc.aio.Server, store: AssetStore, handshake: Handshake) -> ContentStoreService:
     service = ContentStoreService(store, handshake)
     control_pb2_grpc.add_ContentStoreServicer_to_server(service, server)
     return service

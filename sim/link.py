@@ -1,7 +1,7 @@
 """A synchronous client of a running room (``shadowless room``), for tests, benchmarks and the demo.
 
 The coordinator does not use this module (nothing outside sim/ imports sim);
-it speaks the ``Room`` service of ``protos/room.proto`` directly.
+it speaks the ``Room`` service of ``protos/room.proto`` itself (:mod:`coordinator.wire.room_camera`).
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import scipy.sparse
 
 from protos import codec, room_pb2, room_pb2_grpc
 from protos.version import GRPC_OPTIONS
-from sim import wire
+from sim.wire import messages as wire
 from sim.errors import FrameError, SimError, UnknownSlotError
 from sim.hand import HandPath
 

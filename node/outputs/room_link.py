@@ -8,8 +8,9 @@ instants. The presenter is never held up: the queue is bounded and, if the room
 is slow or away, the oldest frames are dropped and counted. The stream is
 reopened whenever the room restarts.
 
-This output is a gRPC client of the room's service, so it is one of the node's
-three modules that use protobuf messages (with :mod:`node.wire` and :mod:`node.link`).
+This output is a gRPC client of the room's service, so it is a link module by name: with
+:mod:`node.wire` and :mod:`node.link`, one of the node's three modules that use protobuf messages
+and the only others that import grpc.
 """
 from __future__ import annotations
 

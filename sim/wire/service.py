@@ -25,7 +25,7 @@ from grpc_reflection.v1alpha import reflection
 
 from protos import codec, room_pb2, room_pb2_grpc
 from protos.version import SERVER_GRPC_OPTIONS
-from sim import wire
+from sim.wire import messages as wire
 from sim.errors import FrameError, SimError, UnknownSlotError
 from sim.occluders import flatten
 from sim.room import Room
