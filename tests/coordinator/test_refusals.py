@@ -4,7 +4,6 @@ from __future__ import annotations
 import asyncio
 import json
 import subprocess
-import time
 
 import grpc
 import pytest
@@ -13,6 +12,7 @@ from shadowless.local import LocalRig
 from coordinator.api import NodeState
 from protos import auth, common_pb2, node_pb2, node_pb2_grpc
 from protos.version import PROTOCOL_VERSION
+from waits import wait_until, wait_until_async
 
 
 def run(coro):
@@ -20,13 +20,9 @@ def run(coro):
 
 
 def wait_for_log(rig: LocalRig, name: str, text: str, timeout: float = 60.0) -> str:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        log = rig.log(name)
-        if text in log:
-            return log
-        time.sleep(0.2)
-    raise AssertionError(f"{name} never logged {text!r}:\n{rig.log(name)[-2000:]}")
+    """``name``'s log once it holds ``text`` (the failure shows the log's tail)."""
+    return wait_until(lambda: rig.log(name), lambda log: text in log, what=f"{name} to log {text!r}",
+                      timeout=timeout)
 
 
 @pytest.fixture
@@ -62,13 +58,9 @@ def test_node_with_wrong_token_does_not_trust_the_coordinator(small_rig, tmp_pat
     # the coordinator lists the node as refused next to its slot, with why (not as expected)
     async def refused():
         async with await small_rig.client() as c:
-            deadline = time.monotonic() + 30
-            while True:
-                st = await c.status()
-                mine = [r for r in st.refusals if r.slot == "r0c0"]
-                if mine or time.monotonic() > deadline:
-                    return mine, st
-                await asyncio.sleep(0.2)
+            st = await wait_until_async(c.status, lambda st: any(r.slot == "r0c0" for r in st.refusals),
+                                        what="a refusal listed for r0c0")
+            return [r for r in st.refusals if r.slot == "r0c0"], st
 
     mine, st = run(refused())
     assert mine and "rig token mismatch" in mine[0].reason and mine[0].peer == "127.0.0.1", st.refusals
@@ -191,15 +183,15 @@ def test_tls_channel(tmp_path):
         async def go():
             from rigctl.link import Client
 
-            deadline = time.monotonic() + 60
-            while True:
+            async def connect():
                 try:
-                    c = await Client.connect(f"127.0.0.1:{rig.port}", rig.token, tls_ca=cert.read_bytes(),
-                                             tls_server_name="shadowless-test")
-                    break
-                except Exception:
-                    assert time.monotonic() < deadline
-                    await asyncio.sleep(0.3)
+                    return await Client.connect(f"127.0.0.1:{rig.port}", rig.token, tls_ca=cert.read_bytes(),
+                                                tls_server_name="shadowless-test")
+                except Exception as exc:       # not listening yet; the failure shows the last one
+                    return exc
+
+            c = await wait_until_async(connect, lambda r: not isinstance(r, Exception),
+                                       what="a TLS client connected to the coordinator")
             async with c:
                 await rig.wait_live(c, timeout=60)
 
@@ -223,17 +215,22 @@ def test_a_second_node_for_a_taken_slot_is_refused_and_the_first_keeps_it(small_
         log = wait_for_log(small_rig, "node-r0c0", "is taken by the live node")
         assert f"pid {twin.pid}" in log and "another --slot" in log
 
-        async def holder():
+        async def holder(refusals: int = 1):
+            """The slot's node and the count of refusals for it being taken, once that count is reached."""
             async with await small_rig.client() as c:
-                st = await c.status()
+                st = await wait_until_async(c.status, lambda st: taken(st) >= refusals,
+                                            what=f"{refusals} refusals of r0c0 as taken")
                 (n,) = [n for n in st.nodes if n.slot == "r0c0"]
-                return n, [r.reason for r in st.refusals]
+                return n, taken(st)
 
-        node, reasons = run(holder())
-        assert node.pid == twin.pid and any("is taken by the live node" in r for r in reasons)
+        def taken(st) -> int:
+            return sum(r.count for r in st.refusals if r.slot == "r0c0" and "is taken by the live node" in r.reason)
+
+        node, count = run(holder())
+        assert node.pid == twin.pid
         joins = node.joins
-        time.sleep(3.0)                           # the refused node retries slowly; nothing changes hands
-        node, _ = run(holder())
+        # the refused node retries (slowly): once that retry was refused too, nothing changed hands
+        node, _ = run(holder(count + 1))
         assert (node.pid, node.joins) == (twin.pid, joins)
         assert first.poll() is None and twin.poll() is None
     finally:
