@@ -15,7 +15,6 @@ import math
 import os
 import re
 import signal
-import time
 from pathlib import Path
 
 import grpc
@@ -35,6 +34,7 @@ from protos import auth, common_pb2, node_pb2, node_pb2_grpc  # noqa: E402
 from protos.asset_manifest import sha256_hex  # noqa: E402
 from protos.version import PROTOCOL_VERSION, SESSION_KEY  # noqa: E402
 from shadowless.local import LocalRig  # noqa: E402
+from waits import wait_until, wait_until_async  # noqa: E402
 
 
 # ---------------------------------------------------------------- helpers
@@ -183,19 +183,17 @@ def make_rig(tmp_path: Path, slots: list[str]) -> LocalRig:
 
 async def wait_ready(rig: LocalRig, client, count: int, *, timeout: float = 120.0):
     """Until every node holds ``count`` wanted assets, all ready; the status then."""
-    deadline = time.monotonic() + timeout
-    while True:
-        st = await client.status()
-        if all(n.assets_wanted == count and n.assets_ready == count for n in st.nodes):
-            return st
-        if time.monotonic() > deadline:
-            tails = "\n".join(f"--- node {s}:\n{rig.log('node-' + s)[-2000:]}" for s in rig.slots)
-            raise TimeoutError(f"not ready: {[(n.slot, n.assets_ready, n.assets_wanted, n.assets) for n in st.nodes]}"
-                               f"\n{tails}")
+    async def seen():
         for s, p in rig.nodes.items():
             if p.poll() is not None:
                 raise RuntimeError(f"node {s} exited with {p.returncode}:\n{rig.log('node-' + s)[-3000:]}")
-        await asyncio.sleep(0.25)
+        st = await client.status()
+        return [(n.slot, n.assets_ready, n.assets_wanted, n.asset_bytes_have) for n in st.nodes], st
+
+    _, st = await wait_until_async(seen, lambda s: all(ready == wanted == count for _, ready, wanted, _ in s[0]),
+                                   what=f"every node holding {count} assets, ready (slot, ready, wanted, bytes)",
+                                   timeout=timeout)
+    return st
 
 
 def assert_caches_hold(store: AssetStore, dirs: dict[str, Path], manifests) -> None:
@@ -294,11 +292,11 @@ def test_a_node_killed_mid_blob_resumes_after_its_restart(tmp_path, capsys):
         rig.start_coordinator()
         rig.start_node("r0c0", ["--fetch-rate", "6M"])   # slow enough to be caught in the middle
         rig.start_node("r0c1")
-        deadline = time.monotonic() + 90
-        while not (part.exists() and part.stat().st_size >= 6_000_000):
-            assert time.monotonic() < deadline, rig.log("node-r0c0")[-3000:]
+        def partial() -> int:
             assert rig.nodes["r0c0"].poll() is None, rig.log("node-r0c0")[-3000:]
-            time.sleep(0.02)
+            return part.stat().st_size if part.exists() else -1
+
+        wait_until(partial, lambda n: n >= 6_000_000, what="6 MB of the blob's partial file on r0c0", timeout=90)
         rig.stop_node("r0c0", signal.SIGKILL)
         killed_at = part.stat().st_size
         assert 0 < killed_at < size
@@ -400,13 +398,12 @@ def test_a_corrupt_store_blob_is_reported_then_fetched_once_repaired(tmp_path):
 
         async def failing():
             async with await rig.client() as c:
-                deadline = time.monotonic() + 60
-                while True:
+                async def node():
                     (n,) = (await c.status()).nodes
-                    if n.assets and n.assets[0].error:
-                        return n
-                    assert time.monotonic() < deadline, rig.log("node-r0c0")[-3000:]
-                    await asyncio.sleep(0.25)
+                    return n
+
+                return await wait_until_async(node, lambda n: n.assets and n.assets[0].error,
+                                              what="r0c0 reporting an error for its asset")
 
         n = asyncio.run(failing())
         assert (n.assets_wanted, n.assets_ready) == (1, 0) and "failed its hash check 3 times" in n.assets[0].error
