@@ -28,16 +28,15 @@ TCP and bandwidth behave as between machines on one switch::
   namespaces are killed, the namespaces (and with them veths and bridge) and files deleted. A
   namespace ``sl`` + 6 hex + ``-`` with no marker is a leftover too.
 * **Reaching in from outside.** The caller's namespace has no route into a venue, by design.
-  :meth:`Venue.unix_relay` runs a TCP relay inside a namespace that listens on a Unix socket
-  *path*: filesystem sockets do not belong to a network namespace, so ``unix:/run/.../x.sock``
-  reaches e.g. the coordinator's gRPC port from anywhere on the machine.
+  :meth:`Venue.unix_relay` runs a TCP relay (:mod:`shadowless.netns_relay`) inside a namespace that
+  listens on a Unix socket *path*: filesystem sockets do not belong to a network namespace, so
+  ``unix:/run/.../x.sock`` reaches e.g. the coordinator's gRPC port from anywhere on the machine.
 
 ``python -m shadowless.netns check|cleanup``: can venues be built here; remove crashed runs' leftovers.
 """
 from __future__ import annotations
 
 import argparse
-import asyncio
 import atexit
 import ipaddress
 import json
@@ -53,6 +52,8 @@ import threading
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+
+from shadowless import netns_relay
 
 __all__ = ["COORDINATOR", "NAME_RE", "STATE_DIR", "Venue", "VenueError", "available", "cleanup_leftovers",
            "close_owned", "owned_namespaces", "parse_rate"]
@@ -491,9 +492,8 @@ class Venue:
         if len(str(path)) > 100:
             raise VenueError(f"Unix socket path too long: {path}")
         path.unlink(missing_ok=True)
-        proc = self.run(host, [sys.executable, "-I", os.path.abspath(__file__), "relay", "--unix", str(path),
-                               "--to", f"{target}:{port}"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                        stderr=subprocess.PIPE, start_new_session=True)
+        proc = self.run(host, netns_relay.relay_command(path, target, port), stdin=subprocess.DEVNULL,
+                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
         deadline = time.monotonic() + timeout
         while True:
             if proc.poll() is not None:
@@ -543,45 +543,12 @@ class Venue:
         return "\n".join(lines)
 
 
-# ---------------------------------------------------------------- the relay (runs inside a namespace)
-async def _relay(unix_path: str, host: str, port: int) -> None:
-    async def pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        try:
-            while data := await reader.read(1 << 16):
-                writer.write(data)
-                await writer.drain()
-        except (ConnectionError, OSError):
-            pass
-
-    async def handle(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
-        try:
-            ur, uw = await asyncio.open_connection(host, port)
-        except OSError:     # not listening (yet): the client sees the connection closed and retries
-            w.close()
-            return
-        tasks = [asyncio.create_task(pipe(r, uw)), asyncio.create_task(pipe(ur, w))]
-        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-        for t in tasks:
-            t.cancel()
-        w.close()
-        uw.close()
-
-    server = await asyncio.start_unix_server(handle, path=unix_path)
-    stop = asyncio.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-        asyncio.get_running_loop().add_signal_handler(sig, stop.set)
-    async with server:
-        await stop.wait()
-    Path(unix_path).unlink(missing_ok=True)
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m shadowless.netns", description="Virtual venue networks (namespaces).")
     sub = p.add_subparsers(dest="cmd", required=True)
     sub.add_parser("check", help="say whether venues can be built here")
     sub.add_parser("cleanup", help="remove the namespaces of crashed runs")
-    r = sub.add_parser("relay", help="(internal) Unix socket -> TCP relay, run inside a namespace")
-    r.add_argument("--unix", required=True), r.add_argument("--to", required=True, metavar="HOST:PORT")
+    netns_relay.add_arguments(sub.add_parser("relay", help="(internal) Unix socket -> TCP relay, run inside a namespace"))
     args = p.parse_args(argv)
     if args.cmd == "check":
         ok, reason = available()
@@ -590,9 +557,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "cleanup":
         print("removed:", " ".join(cleanup_leftovers()) or "nothing")
         return 0
-    host, _, port = args.to.rpartition(":")
-    asyncio.run(_relay(args.unix, host, int(port)))
-    return 0
+    return netns_relay.serve(args)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The virtual venue network (`shadowless/netns.py`) and a whole rig on it.
+"""The virtual venue network (`shadowless/netns.py`, its relay `shadowless/netns_relay.py`) and a whole rig on it.
 
 Everything is measured on real namespaces: a TCP transfer over a rate-limited link takes at
 least bytes / rate (a lower bound only: a busy machine may be slower, never faster), multicast
@@ -14,11 +14,12 @@ import json
 import signal
 import subprocess
 import sys
+import socket
 import textwrap
-import time
 from pathlib import Path
 
 import pytest
+from waits import wait_until
 
 from protos.version import SERVICE_TYPE
 from shadowless import netns
@@ -80,16 +81,9 @@ RECEIVER = """
 """
 
 SENDER = """
-    import socket, sys, time
-    deadline = time.monotonic() + 20
-    while True:
-        try:
-            c = socket.create_connection((sys.argv[1], int(sys.argv[2])), timeout=5)
-            break
-        except OSError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.05)
+    import socket, sys
+    # the receiver listens before this starts (transfer() reads its "ready"): one connection attempt
+    c = socket.create_connection((sys.argv[1], int(sys.argv[2])), timeout=20)
     left, chunk = int(sys.argv[3]), b"x" * (1 << 16)
     while left > 0:
         c.sendall(chunk[:left])
@@ -204,19 +198,30 @@ MCAST_RECEIVER = """
     s.settimeout(20)
     print("ready", flush=True)
     while True:
-        data, (src, _) = s.recvfrom(2048)
+        data, (src, sport) = s.recvfrom(2048)
         if data.startswith(b"venue-hello"):
+            s.sendto(b"heard", (src, sport))       # unicast back: the sender stops once all have heard
             print(src, data.decode(), flush=True)
             break
 """
 
 MCAST_SENDER = """
-    import socket, time
+    import socket, sys
+    receivers = int(sys.argv[1])
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 255)
-    for i in range(200):                 # no IP_MULTICAST_IF: the route picks the venue interface
+    s.settimeout(0.2)                    # a datagram may be lost: say hello again when no answer came
+    heard = set()
+    for i in range(300):                 # no IP_MULTICAST_IF: the route picks the venue interface
         s.sendto(b"venue-hello %d" % i, ("224.0.0.251", 5353))
-        time.sleep(0.05)
+        try:
+            while len(heard) < receivers:
+                data, (src, _) = s.recvfrom(64)
+                heard.add(src)
+        except socket.timeout:
+            continue
+        break
+    print(" ".join(sorted(heard)), flush=True)
 """
 
 
@@ -226,14 +231,47 @@ def test_multicast_reaches_every_other_namespace(ns):
                for h, arg in (("a", v.address("a")), ("b", "any"), (COORDINATOR, v.address(COORDINATOR)))}
         for p in rxs.values():
             assert p.stdout.readline().strip() == "ready"
-        tx = v.run("c", py(MCAST_SENDER))
-        try:
-            got = {h: finish(p, timeout=30).split() for h, p in rxs.items()}
-        finally:
-            tx.terminate()
-            tx.wait(10)
+        tx = v.run("c", py(MCAST_SENDER, len(rxs)), stdout=subprocess.PIPE, text=True)
+        got = {h: finish(p, timeout=30).split() for h, p in rxs.items()}
+        answered = finish(tx, timeout=30).split()
     for h, (src, word, _) in got.items():
         assert src == v.address("c") and word == "venue-hello", (h, src, word)
+    assert sorted(answered) == sorted(v.address(h) for h in rxs), answered
+
+
+ECHO = """
+    import socket, sys
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind((sys.argv[1], int(sys.argv[2])))
+    s.listen(4)
+    print("ready", flush=True)
+    while True:
+        c, _ = s.accept()
+        with c:
+            while data := c.recv(1 << 16):
+                c.sendall(data.upper())
+"""
+
+
+def test_unix_relay_reaches_a_port_inside_the_venue(ns):
+    """The relay's Unix socket reaches a port inside the venue (where the caller's namespace has no
+    route), both ways, for one connection after another, and goes away with the venue."""
+    with Venue(["a"]) as v:
+        server = v.run(COORDINATOR, py(ECHO, v.address(COORDINATOR), 7611), stdout=subprocess.PIPE, text=True)
+        assert server.stdout.readline().strip() == "ready"
+        path = v.unix_relay(COORDINATOR, 7611)
+        assert path.startswith(str(v.runtime_dir))
+        for word in (b"venue", b"relay" * 4000):
+            with socket.socket(socket.AF_UNIX) as c:
+                c.settimeout(30)
+                c.connect(path)
+                c.sendall(word)
+                got = b""
+                while len(got) < len(word) and (chunk := c.recv(1 << 16)):
+                    got += chunk
+            assert got == word.upper()
+    assert not Path(path).exists()
 
 
 # ---------------------------------------------------------------- nothing left behind
@@ -265,13 +303,13 @@ def test_a_failed_create_removes_what_it_built(ns, monkeypatch):
 
 
 CRASHER = """
-    import sys, time
+    import signal
     from shadowless.netns import Venue
     v = Venue(["x", "y"]).create()
     p = v.run("x", ["sleep", "300"])
     v.unix_relay("coordinator", 7600)
     print(v.prefix, p.pid, flush=True)
-    time.sleep(300)
+    signal.pause()                       # until the test kills this process
 """
 
 
@@ -294,22 +332,21 @@ def test_cleanup_leftovers_removes_what_a_killed_process_left(ns):
         assert set(removed) == left
         assert set(mine.namespaces) <= netns_names()
     assert netns_names() == ns_before
-    deadline = time.monotonic() + 10
-    while netns._proc_start(sleeper) is not None and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert netns._proc_start(sleeper) is None, "the leftover's processes were stopped"
+    # killed by cleanup_leftovers(); gone from /proc once its new parent has reaped it
+    wait_until(lambda: netns._proc_start(sleeper), lambda start: start is None,
+               what=f"the leftover's process {sleeper} to be stopped")
     assert not (STATE_DIR / f"{prefix}.json").exists() and not (STATE_DIR / prefix).exists()
     assert cleanup_leftovers() == []
 
 
 FORGETFUL = """
-    import sys, time
+    import signal, sys
     from shadowless.netns import Venue
     v = Venue(["x"]).create()
     p = v.run("x", ["sleep", "300"])
     print(v.prefix, p.pid, flush=True)
     if sys.argv[1] == "wait":
-        time.sleep(300)
+        signal.pause()                   # until the test's SIGTERM
 """
 
 
