@@ -145,9 +145,10 @@ class NodeStatus:
 
 
 @dataclass(frozen=True)
-class Refusal:
+class RefusedPeer:
     """Joins or calls the coordinator refused, and why: ``count`` of them from ``peer`` (an
-    address) for ``slot`` with ``reason``, the last ``age_s`` seconds ago."""
+    address) for ``slot`` with ``reason``, the last ``age_s`` seconds ago. (A refusal itself is
+    :class:`coordinator.errors.Refusal`; this is what ``status`` tells of them.)"""
 
     peer: str
     slot: str
@@ -221,7 +222,7 @@ class RigStatus:
     cpu_s: float = 0.0
     nodes: tuple[NodeStatus, ...] = ()
     sync: SyncSummary = field(default_factory=SyncSummary)
-    refusals: tuple[Refusal, ...] = ()
+    refusals: tuple[RefusedPeer, ...] = ()
     show: ShowState = field(default_factory=ShowState)
     frame_packets_sent: int = 0     # FramePackets handed to the nodes' Frames streams since start
     frame_bytes_sent: int = 0

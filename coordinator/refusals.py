@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from coordinator.api import Refusal
+from coordinator.api import RefusedPeer
 
 #: distinct (address, slot, reason) kept; the least recently refused are forgotten first
 MAX_KEYS = 256
@@ -71,11 +71,11 @@ class Refusals:
         e.logged_at, e.logged_count = now, e.count
         return f"refused {peer} (slot {slot or '-'}) {since} more times in {span:.0f} s, {e.count} in all: {reason}"
 
-    def summary(self, now: float, limit: int = 64) -> tuple[Refusal, ...]:
+    def summary(self, now: float, limit: int = 64) -> tuple[RefusedPeer, ...]:
         """The ``limit`` most recently refused keys, newest first."""
         out = []
         for (address, slot, reason), e in reversed(self._entries.items()):
-            out.append(Refusal(address, slot, reason, now - e.last, e.count))
+            out.append(RefusedPeer(address, slot, reason, now - e.last, e.count))
             if len(out) == limit:
                 break
         return tuple(out)

@@ -236,3 +236,35 @@ def test_grpc_only_in_wire_and_link_modules():
     generated = {m for m in users if m.startswith("protos.") and m.endswith("_pb2_grpc")}
     assert len(users) > 15 and generated, "the checker sees the modules that do import grpc"
     assert sorted(m for m in users - generated if not is_wire_or_link(m)) == []
+
+
+def _reach(module: str) -> set[str]:
+    """Every module ``module`` imports, directly or through others."""
+    seen: set[str] = set()
+    todo = [module]
+    while todo:
+        for o in GRAPH.get(todo.pop(), ()):
+            if o not in seen:
+                seen.add(o)
+                todo.append(o)
+    return seen
+
+
+#: the coordinator's edges: what the composition root (coordinator.app) builds beside the core
+EDGES = ("coordinator.wire", "coordinator.console", "coordinator.mdns", "coordinator.app")
+#: in the wire package but no edge of the core: the client a job's room camera captures through
+NOT_EDGES = {"coordinator.wire.room_camera"}
+
+
+def _is_edge(module: str) -> bool:
+    return module not in NOT_EDGES and any(module == e or module.startswith(e + ".") for e in EDGES)
+
+
+def test_the_core_reaches_no_edge_and_the_edges_see_it_only_through_its_protocols():
+    core = _reach("coordinator.server") | {"coordinator.server"}
+    assert sorted(m for m in core if _is_edge(m)) == []
+    # the console and the gRPC edge import the Protocols (coordinator.ports), never the core's module
+    edges = [m for m in MODULES if _is_edge(m) and m != "coordinator.app"]
+    assert len(edges) > 10
+    assert sorted(f"{m} -> coordinator.server" for m in edges if "coordinator.server" in _reach(m)) == []
+    assert "coordinator.server" in GRAPH["coordinator.app"], "the root builds the core"

@@ -45,7 +45,7 @@ REFUSAL_STATUS: dict[RefusalKind, int] = {
     RefusalKind.INVALID: 400,
     RefusalKind.NOT_FOUND: 404,
     RefusalKind.CONFLICT: 409,
-    RefusalKind.UNAUTHENTICATED: 401,
+    RefusalKind.UNAUTHENTICATED: 403,      # not 401: that is the console's own "log in again"
     RefusalKind.FAILED_PRECONDITION: 409,
     RefusalKind.RESOURCE_EXHAUSTED: 429,
     RefusalKind.DEADLINE_EXCEEDED: 408,

@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from coordinator.api import (AdmissionFigures, NodeState, NodeStatus, PlayResult, PlaySettings, Refusal, RigStatus,
+from coordinator.api import (AdmissionFigures, NodeState, NodeStatus, PlayResult, PlaySettings, RefusedPeer, RigStatus,
                              ShowResult, ShowState, SyncSummary)
 from coordinator.jobs.context import Event, Progress
 from coordinator.rig import Mesh, ProjectionPose, mesh_with_id
@@ -84,7 +84,7 @@ def status_from_message(m: control_pb2.RigStatus) -> RigStatus:
                      protocol_version=m.protocol_version, uptime_s=m.uptime_s, showing=m.showing,
                      latency_budget_ms=m.latency_budget_ms, cpu_s=m.cpu_s,
                      nodes=tuple(_node_status_from_message(n) for n in m.nodes), sync=_sync_from_message(m.sync),
-                     refusals=tuple(Refusal(r.peer, r.slot, r.reason, r.age_s, r.count) for r in m.refusals),
+                     refusals=tuple(RefusedPeer(r.peer, r.slot, r.reason, r.age_s, r.count) for r in m.refusals),
                      show=show_state_from_message(m.show) if m.HasField("show") else ShowState(),
                      frame_packets_sent=m.frame_packets_sent, frame_bytes_sent=m.frame_bytes_sent,
                      show_updates_sent=m.show_updates_sent, show_bytes_sent=m.show_bytes_sent, console=m.console,

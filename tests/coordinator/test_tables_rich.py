@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from coordinator.api import (AssetProgress, NodeShow, NodeShowState, NodeState, NodeStatus, Refusal, RigStatus,
+from coordinator.api import (AssetProgress, NodeShow, NodeShowState, NodeState, NodeStatus, RefusedPeer, RigStatus,
                              SyncSummary)
 from rigctl.commands import status_dict, status_table
 from rigctl.content_format import assets_table, print_assets
@@ -30,7 +30,7 @@ def rig_status() -> RigStatus:
     return RigStatus(rig_id="rig-1", rig_name="hall", instance_id="i-9", uptime_s=61.0, showing="image logo",
                      nodes=nodes, sync=SyncSummary(frames=50, skew_p50_ms=0.25, skew_p99_ms=0.5, skew_max_ms=0.75,
                                                    skew_source="estimates", frames_late=3),
-                     refusals=(Refusal(peer="10.0.0.9", slot="r9c9", reason="not in the rig", age_s=4.0, count=2),))
+                     refusals=(RefusedPeer(peer="10.0.0.9", slot="r9c9", reason="not in the rig", age_s=4.0, count=2),))
 
 
 def test_the_status_table_has_every_node_and_fact_in_plain_text():

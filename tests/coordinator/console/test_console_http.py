@@ -497,3 +497,32 @@ def test_a_taken_console_port_stops_the_start_unless_the_console_is_optional(tmp
             holder.close()
 
     asyncio.run(go())
+
+
+def test_each_kind_of_refusal_gets_its_http_status(tmp_path):
+    """A Refusal from the rig answers with its kind's status (and its message, logged as refused);
+    a rig refusing a credential answers 403, never the 401 that makes the page ask for a login."""
+    from coordinator.errors import Refusal, RefusalKind
+
+    expected = {RefusalKind.INVALID: 400, RefusalKind.NOT_FOUND: 404, RefusalKind.CONFLICT: 409,
+                RefusalKind.UNAUTHENTICATED: 403, RefusalKind.FAILED_PRECONDITION: 409,
+                RefusalKind.RESOURCE_EXHAUSTED: 429, RefusalKind.DEADLINE_EXCEEDED: 408,
+                RefusalKind.UNAVAILABLE: 503}
+    assert set(expected) == set(RefusalKind), "every kind has its status here"
+
+    async def go():
+        async with console(tmp_path) as (coord, base), client() as s:
+            headers, _ = await login(s, base)
+            for kind, status in expected.items():
+                def refuse(*, blackout: bool = False, kind=kind):
+                    raise Refusal(kind, f"refused as {kind.value}")
+                coord.stop_all = refuse
+                r = await s.post(base + "/api/blackout", headers=headers)
+                body = await r.json()
+                assert (r.status, body["ok"], body["error"]) == (status, False, f"refused as {kind.value}"), kind
+                assert log_lines(coord)[-1]["ok"] is False
+            # the console's own session is untouched by the rig's refusals
+            r = await s.get(base + "/api/session", headers={"Cookie": headers["Cookie"]})
+            assert r.status == 200
+
+    asyncio.run(go())
