@@ -34,6 +34,7 @@ from shadowless.cli import main
 from sim.room import Room
 from sim.scene import reference_scene
 from sim.wire.service import RoomServerThread
+from waits import wait_until, wait_until_async
 
 TOKEN = b"p" * 32
 SLOTS = ["r1c1", "r3c3"]
@@ -198,12 +199,8 @@ def test_pictures_need_a_session_and_say_what_to_run_when_there_are_none(tmp_pat
 
 async def finished(coord: Coordinator) -> dict:
     """The current job's snapshot once it is no longer running (bounded: 120 s)."""
-    for _ in range(1200):
-        job = coord.jobs.snapshot()
-        if job is not None and job["state"] != "running":
-            return job
-        await asyncio.sleep(0.1)
-    raise AssertionError(f"the job still runs: {coord.jobs.snapshot()}")
+    return await wait_until_async(coord.jobs.snapshot, lambda job: job is not None and job["state"] != "running",
+                                  what="the job ended", timeout=120)
 
 
 def test_the_coverage_job_from_the_page_leaves_its_picture_and_per_slot_reach(tmp_path):
@@ -261,9 +258,18 @@ def test_the_camera_view_is_rate_limited_and_scaled_down(tmp_path):
             view = decode(body1)
             assert view.shape == (480, 960, 3)                            # at most 960 px wide
             assert abs(int(view[240, 200, 0]) - 128) <= 1 and view[240, 700].max() == 0   # as recorded (not linear)
-            await asyncio.sleep(CAMERA_INTERVAL_S + 0.1)
-            r3 = await s.get(base + "/api/camera.png", headers=headers)
-            assert r3.status == 200 and r3.headers["X-Capture"] == "fresh"
+            # a fresh capture once CAMERA_INTERVAL_S passed; every answer before it is the cached one
+            answers = []
+
+            async def fetch() -> tuple:
+                r = await s.get(base + "/api/camera.png", headers=headers)
+                answers.append((r.status, r.headers.get("X-Capture"), r.headers.get("X-Captured-At"), await r.read()))
+                return answers[-1][:3]
+
+            await wait_until_async(fetch, lambda a: a[1] != "cached", what=f"a fresh capture after {CAMERA_INTERVAL_S} s")
+            *cached, fresh = answers
+            assert fresh[:2] == (200, "fresh"), fresh[:3]
+            assert all(a[1:] == ("cached", r1.headers["X-Captured-At"], body1) for a in cached), [a[:3] for a in cached]
 
     asyncio.run(go())
 
@@ -451,7 +457,11 @@ def test_the_jobs_pictures_and_the_camera_view_on_the_page(tmp_path, browser_rea
 
                 # a new alignment check from the page's job form: the heat map is loaded again when it ends
                 before = img_state(driver, sel_map)["url"]
-                time.sleep(1.1)                                   # a new file time, whatever the file system's resolution
+                # the new map needs a new file time at a file system's one-second resolution: the clock has
+                # left the second of the shown map's (its URL carries it); at once, unless it was just written
+                shown_at = float(before.rpartition("v=")[2])
+                wait_until(time.time, lambda now: int(now) > int(shown_at),
+                           what=f"the clock past the second of the shown map's file time {shown_at}")
                 driver.execute_script("document.getElementById('job-kind').value = 'alignment';"
                                       "document.getElementById('job-kind').dispatchEvent(new Event('change'));")
                 since = time.time()
