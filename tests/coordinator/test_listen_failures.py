@@ -5,11 +5,11 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-import time
 
 import pytest
 
 from shadowless.local import LocalRig
+from waits import wait_until
 
 
 @pytest.fixture
@@ -74,10 +74,8 @@ def test_an_optional_console_that_cannot_listen_is_named_in_status(rig, held_por
     rig.coordinator_args = ["--console", f"127.0.0.1:{held_port}", "--console-optional"]
     rig.start_coordinator()
     rig.wait_ready()
-    deadline = time.monotonic() + 30
-    while "console: NOT SERVED" not in rig.log("coordinator") and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert f"console: NOT SERVED (port {held_port} in use)" in rig.log("coordinator")
+    wait_until(lambda: rig.log("coordinator"), lambda log: f"console: NOT SERVED (port {held_port} in use)" in log,
+               what="the coordinator's log naming the console it could not serve")
     assert f"console: NOT SERVED (port {held_port} in use)" in rig.run_cli(["status"])
 
 

@@ -9,12 +9,12 @@ import os
 import re
 import subprocess
 import sys
-import time
 
 from coordinator.mdns import free_instance_name
 from coordinator.rig import parse_config
 from protos.discovery import Discovery
 from shadowless.local import LocalRig
+from waits import wait_until
 
 SERVICE = "_x._tcp.local."
 
@@ -27,13 +27,13 @@ def test_free_instance_name_takes_the_first_free_suffix():
 
 
 def _advertised(rig: LocalRig, timeout: float = 60.0) -> str:
-    deadline = time.monotonic() + timeout
-    while True:
-        m = re.search(r"advertising (\S+) on \S+ port \d+", rig.log("coordinator"))
-        if m:
-            return m.group(1)
-        assert time.monotonic() < deadline and rig.coordinator.poll() is None, rig.log("coordinator")[-2000:]
-        time.sleep(0.1)
+    def log() -> str:
+        assert rig.coordinator.poll() is None, rig.log("coordinator")[-2000:]
+        return rig.log("coordinator")
+
+    pattern = r"advertising (\S+) on \S+ port \d+"
+    return re.search(pattern, wait_until(log, lambda text: re.search(pattern, text), what="the coordinator advertising",
+                                         timeout=timeout)).group(1)
 
 
 def test_a_second_rig_of_the_same_name_renames_itself_and_both_stay_found(tmp_path):

@@ -6,13 +6,13 @@ import asyncio
 import signal
 import subprocess
 import sys
-import time
 
 import cv2
 import numpy as np
 import pytest
 
 from shadowless.local import LocalRig
+from waits import wait_until
 
 
 @pytest.fixture(scope="module")
@@ -67,10 +67,11 @@ def test_ctrl_c_on_play_stops_the_sequence_on_the_rig(rig):
             "--coordinator", rig.coordinator_target, "--rig-dir", str(rig.rig_dir)]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
-        while "play:" not in showing(rig):
-            assert time.monotonic() < deadline and proc.poll() is None, "the sequence never started"
-            time.sleep(0.2)
+        def playing() -> str:
+            assert proc.poll() is None, "play exited before the sequence started"
+            return showing(rig)
+
+        wait_until(playing, lambda shown: "play:" in shown, what="the sequence playing on the rig", timeout=120)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
     finally:
