@@ -11,7 +11,7 @@ imports no edge.
 from __future__ import annotations
 
 import asyncio
-from typing import Any, AsyncIterator, Callable, Literal, Mapping, Protocol, Sequence
+from typing import Any, AsyncIterator, Callable, Literal, Mapping, Protocol, Sequence, runtime_checkable
 
 from coordinator.admission import Budget
 from coordinator.api import PlayResult, PlaySettings, RigStatus, ShowResult, ShowState, Space
@@ -51,11 +51,10 @@ class RigOperations(Protocol):
     def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
                    fps: float | None = None, start_without: bool = False) -> ShowState: ...
 
-    async def run_job(self, kind: str, params: dict, emit: Callable[[Event], None]) -> dict: ...
-
     def cancel_job(self) -> str: ...
 
 
+@runtime_checkable
 class ServiceRig(RigOperations, Protocol):
     """What the gRPC services (NodeLink, RigControl, ContentStore) call on the coordinator."""
 
@@ -112,6 +111,10 @@ class ServiceRig(RigOperations, Protocol):
     def show_update(self, *, beacon: bool = False) -> ShowUpdate | None: ...
 
     # the operators
+    async def run_job(self, kind: str, params: dict, emit: Callable[[Event], None]) -> dict:
+        """Run a job to its end, each of its events to ``emit``; its result."""
+        ...
+
     def prepare_regions(self, content: Content, regions: Mapping[str, Sequence[Sequence[int]]]
                         ) -> dict[str, Content | None]: ...
 
@@ -121,6 +124,7 @@ class ServiceRig(RigOperations, Protocol):
                      frame: int = 0) -> ShowState: ...
 
 
+@runtime_checkable
 class ConsoleRig(RigOperations, Protocol):
     """What the operator console (its pages, actions and live view) calls on the coordinator."""
 

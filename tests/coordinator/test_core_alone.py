@@ -15,6 +15,7 @@ from coordinator.api import NodeState, Space
 from coordinator.errors import Refusal, RefusalKind
 from coordinator.jobs.context import Progress
 from coordinator.jobs.tracker import JobTracker
+from coordinator.ports import ConsoleRig, ServiceRig
 from coordinator.rig import Content, Rig, grid_slots, init_rig
 from coordinator.server import Coordinator
 from coordinator.sessions import NodeInfo, Report, Swaps
@@ -63,6 +64,7 @@ def test_the_core_serves_a_still_to_its_nodes_without_a_network(tmp_path):
     async def go():
         sockets = _sockets()
         coord = Coordinator(rig, TOKEN, encoding=Packets, clock_ns=lambda: now[0])
+        assert isinstance(coord, ServiceRig) and isinstance(coord, ConsoleRig), "it has what its edges call"
         coord.open()
         try:
             packets: Packets = coord.fanout.encoding
