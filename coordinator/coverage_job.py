@@ -17,8 +17,9 @@ from coordinator.coverage_run import compute_coverage, view
 from coordinator.errors import RigError
 from coordinator.jobs import JobContext, JobError
 from coordinator.jobs.options import option
+from coordinator.jobs.results import Figures, JobResult, spread
 
-__all__ = ["OPTIONS", "CoverageOptions", "run"]
+__all__ = ["OPTIONS", "CoverageOptions", "CoverageResult", "run"]
 
 
 def _views(value) -> list[str]:
@@ -54,7 +55,31 @@ class CoverageOptions:
 OPTIONS = CoverageOptions
 
 
-async def run(ctx: JobContext, opts: CoverageOptions) -> dict:
+@dataclass(frozen=True, kw_only=True)
+class CoverageResult(JobResult):
+    """The ``coverage`` job's result: the coverage's figures (:meth:`coordinator.coverage.Coverage.summary`)
+    at the top, then the rig, mesh and poses they are of, when and how fast they were computed, the
+    picture, its views and the files written. (The picture's layout stays in the stored file.)"""
+
+    coverage: Figures = spread()
+    rig: str
+    mesh: str
+    poses: str
+    computed_at: float
+    seconds: float
+    picture: str
+    views: list[str]
+    files: list[str]
+
+    @classmethod
+    def from_doc(cls, doc: Figures) -> CoverageResult:
+        """The result of :func:`~coordinator.coverage_run.compute_coverage`'s document, its layout left out."""
+        named = ("rig", "mesh", "poses", "computed_at", "seconds", "picture", "views", "files")
+        return cls(coverage={k: v for k, v in doc.items() if k not in named and k != "layout"},
+                   **{k: doc[k] for k in named})
+
+
+async def run(ctx: JobContext, opts: CoverageOptions) -> CoverageResult:
     steps = iter(range(1, 4))
 
     def progress(text: str) -> None:
@@ -71,5 +96,4 @@ async def run(ctx: JobContext, opts: CoverageOptions) -> dict:
     ctx.progress("coverage", "", 3, 3, "done")
     ctx.log(f"{doc['lit_pct']} % of the surface reached by at least one of {doc['slots']} projectors; "
             f"projectors per point: mean {doc['count_mean']}, min {doc['count_min']}; wrote {', '.join(doc['files'])}")
-    doc.pop("layout", None)             # the picture's geometry is for the console's file, not the result
-    return doc
+    return CoverageResult.from_doc(doc)     # without the layout: the picture's geometry is for the console's file

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,11 +35,31 @@ from imaging.calibration.heatmap_figure import footprint_mm, heatmap_figure, pix
 from coordinator.calibration.options import AlignmentOptions
 from coordinator.calibration.runs import calibration_dir
 from coordinator.jobs import JobContext, JobError
+from coordinator.jobs.results import Figures, JobResult
 from coordinator.rig import HomographyPose, ProjectionPose
 from protos.store import atomic_write_bytes, atomic_write_json
 from protos.spaces import content_to_table
 
 OPTIONS = AlignmentOptions
+
+
+@dataclass(frozen=True, kw_only=True)
+class AlignmentResult(JobResult):
+    """The ``alignment`` job's result (also ``calibration/alignment.json``): per projector its residuals
+    (``dots``, ``planned``, ``rms_px``, ``p95_px``, ``max_px``, ...), those skipped for want of a pose, the
+    worst projector, and per heat map (planar: table mm; mesh: camera px) its files, frame and extent;
+    ``heatmap`` is the first one's file."""
+
+    slots: dict[str, Figures]
+    skipped: list[str]
+    worst_slot: str | None
+    worst_rms_px: float | None
+    heatmap_full_scale_px: float
+    captures: int
+    wall_s: float
+    checked_at: float
+    heatmaps: list[Figures]
+    heatmap: str
 
 #: One heat map: file name, the map, its extent (left, right, top, bottom).
 HeatMap = tuple[str, np.ndarray, tuple[float, float, float, float]]
@@ -158,7 +179,7 @@ async def _check_mesh(check: _Check, solid: dict[str, ProjectionPose], entry: di
     return name, await ctx.compute(heatmap, pts, mags, extent=extent, width=min(opts.heatmap_width, W)), extent
 
 
-async def run(ctx: JobContext, opts: AlignmentOptions) -> dict:
+async def run(ctx: JobContext, opts: AlignmentOptions) -> AlignmentResult:
     """Measure every checked projector's residual misalignment (see the module docstring)."""
     t0 = time.monotonic()
     rig = ctx.rig
@@ -186,12 +207,8 @@ async def run(ctx: JobContext, opts: AlignmentOptions) -> dict:
     cdir = calibration_dir(rig.path)
     worst_slot = max((s for s in per_slot if per_slot[s]["rms_px"] is not None), key=lambda s: per_slot[s]["rms_px"],
                      default=None)
-    result = {
-        "slots": per_slot, "skipped": skipped, "worst_slot": worst_slot,
-        "worst_rms_px": per_slot[worst_slot]["rms_px"] if worst_slot else None,
-        "heatmap_full_scale_px": HEATMAP_FULL_SCALE_PX, "captures": ctx.captures,
-        "wall_s": round(time.monotonic() - t0, 3), "checked_at": time.time(), "heatmaps": [],
-    }
+    captures, wall_s, checked_at = ctx.captures, round(time.monotonic() - t0, 3), time.time()
+    heatmaps: list[Figures] = []
     outlines = _outlines(ctx, flat, cams)
     for name, hm, extent in maps:
         atomic_write_bytes(cdir / name, render_heatmap(hm))
@@ -209,10 +226,13 @@ async def run(ctx: JobContext, opts: AlignmentOptions) -> dict:
             left, right, top, bottom = extent
             entry_map["peak_at"] = [round(left + (ix + 0.5) / hm.shape[1] * (right - left), 1),
                                     round(top + (iy + 0.5) / hm.shape[0] * (bottom - top), 1)]
-        result["heatmaps"].append(entry_map)
-    result["heatmap"] = result["heatmaps"][0]["file"]
+        heatmaps.append(entry_map)
+    result = AlignmentResult(slots=per_slot, skipped=skipped, worst_slot=worst_slot,
+                             worst_rms_px=per_slot[worst_slot]["rms_px"] if worst_slot else None,
+                             heatmap_full_scale_px=HEATMAP_FULL_SCALE_PX, captures=captures, wall_s=wall_s,
+                             checked_at=checked_at, heatmaps=heatmaps, heatmap=heatmaps[0]["file"])
     ctx.progress("alignment", "", 1, 1, "done")
-    atomic_write_json(cdir / "alignment.json", result)
+    atomic_write_json(cdir / "alignment.json", result.to_wire())
     return result
 
 

@@ -27,6 +27,7 @@ The options, and rig.toml's ``[calibration]`` table that sets their defaults for
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from coordinator.calibration import runs
@@ -39,9 +40,28 @@ from coordinator.calibration.stages.gray import sequential
 from coordinator.calibration.stages.mesh import sequential_3d
 from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobContext, JobError
+from coordinator.jobs.results import Figures, JobResult
 from coordinator.rig import Rig
 
 OPTIONS = CalibrateOptions
+
+
+@dataclass(frozen=True, kw_only=True)
+class CalibrateResult(JobResult):
+    """The ``calibrate`` job's result: the run (its id, mode, surface, whether it resumed), its captures and
+    cameras, per projector its figures (:func:`~coordinator.calibration.runs.slot_doc`; ``resumed`` for those
+    an earlier part of the run calibrated), those that failed and why, and each camera's set-up."""
+
+    run: str
+    mode: str
+    surface: str
+    resumed: bool
+    captures: int
+    cameras: int
+    wall_s: float
+    slots: dict[str, Figures]
+    failed: dict[str, str]
+    camera_setup: list[Figures]
 
 
 def _saved_table(opts: CalibrateOptions, inputs: Inputs, rig_dir: Path) -> dict[int, dict]:
@@ -62,7 +82,7 @@ def option_defaults(rig: Rig) -> tuple[dict, str]:
     return rig_defaults(rig.path)
 
 
-async def run(ctx: JobContext, opts: CalibrateOptions) -> dict:
+async def run(ctx: JobContext, opts: CalibrateOptions) -> CalibrateResult:
     """Calibrate the rig's projectors (see the module docstring); returns per-slot figures."""
     t0 = time.monotonic()
     rig = ctx.rig
@@ -107,13 +127,13 @@ async def run(ctx: JobContext, opts: CalibrateOptions) -> dict:
     finally:
         runs.finish_run(rig_dir, current, status)
     results = {**runs.resumed_results(rig_dir, [s for s in slots if s in done and s not in st.results]), **st.results}
-    summary = {
-        "run": current.run_id, "mode": opts.mode, "surface": opts.surface, "resumed": current.resumed,
-        "captures": st.shots, "cameras": len(st.cameras), "wall_s": round(time.monotonic() - t0, 3),
-        "slots": {s: results[s] for s in slots if s in results}, "failed": st.failed,
-        "camera_setup": st.setup.summary(),
-    }
+    summary = CalibrateResult(
+        run=current.run_id, mode=opts.mode, surface=opts.surface, resumed=current.resumed,
+        captures=st.shots, cameras=len(st.cameras), wall_s=round(time.monotonic() - t0, 3),
+        slots={s: results[s] for s in slots if s in results}, failed=st.failed,
+        camera_setup=st.setup.summary(),
+    )
     if st.failed:
-        raise JobError(f"calibrated {len(summary['slots'])} of {len(slots)} projector(s) (saved; run again to retry "
+        raise JobError(f"calibrated {len(summary.slots)} of {len(slots)} projector(s) (saved; run again to retry "
                        "the others); " + "; ".join(st.failed.values()))
     return summary

@@ -3,7 +3,8 @@ the stored light transport turned into a warm-started solver, one frame solved a
 the figures of the run.
 
 :func:`open_frame_solver` selects the planar projectors, takes the stored ``L`` (measured first
-only when asked), sets the target level and builds the
+only when asked, through the table's :class:`~coordinator.compensation.planar_surface.PlanarSurface`),
+sets the target level and builds the
 :class:`~imaging.compensation.ridge.ContentWarmStart`; :meth:`FrameSolver.solve` turns one
 decoded picture into its compensated 16-bit frame, timing the solve; :meth:`FrameSolver.summary`
 gives the per-frame figures both jobs report.
@@ -22,9 +23,9 @@ from coordinator.compensation.jobkit import content_size
 from coordinator.compensation.memory_check import check_solve
 from imaging.compensation.motion import MotionWarp
 from coordinator.compensation.options import TransportOptions
+from coordinator.compensation.planar_surface import PlanarSurface
 from imaging.compensation.ridge import ContentWarmStart, RidgeProblem
 from coordinator.compensation.store import StoredTransport, transport_summary
-from coordinator.compensation.transport_job import ensure_transport
 from coordinator.jobs import JobContext
 
 __all__ = ["FrameSolver", "SolvedFrame", "open_frame_solver", "motion_warp", "to_uint16", "psnr"]
@@ -180,7 +181,7 @@ async def open_frame_solver(ctx: JobContext, *, camera: int, measure: bool, leve
     none is valid and ``measure``; otherwise a :class:`~coordinator.jobs.JobError` says to run
     `shadowless transport`)."""
     slots = ctx.select_slots(None, need_pose=True, planar=True)
-    tr = await ensure_transport(ctx, TransportOptions(camera=camera), slots, measure=measure)
+    tr = await PlanarSurface().transport(ctx, TransportOptions(camera=camera), slots, measure=measure)
     cw, ch = content_size(ctx)
     region = inscribed_region(tr.H, (cw, ch), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)
     s = target_level(row_white(tr.L, tr.camera_shape), region, level)

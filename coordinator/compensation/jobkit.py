@@ -12,9 +12,8 @@ from imaging.compensation.errors import CompensationError
 from imaging.compensation.geometry import content_to_camera
 from coordinator.compensation.store import StoredTransport, load_valid_transport
 from coordinator.jobs import JobContext, JobError
-from coordinator.rig import ProjectionPose
 
-__all__ = ["content_size", "rig_geometry", "rounded", "throttled", "baseline_exposure", "surface_of"]
+__all__ = ["content_size", "rig_geometry", "rounded", "throttled", "baseline_exposure", "stored_transport"]
 
 
 def content_size(ctx: JobContext) -> tuple[int, int]:
@@ -57,19 +56,6 @@ def baseline_exposure(ctx: JobContext, opts: Any) -> float | None:
         raise JobError(f"camera {opts.camera} ({ctx.camera_spec(opts.camera)}) cannot change exposure per capture; "
                        "average frames instead (baseline_frames)")
     return opts.baseline_exposure
-
-
-def surface_of(ctx: JobContext, slots: list[str]) -> str:
-    """``"table"`` when every slot has a homography pose, ``"mesh"`` when every one has a 3D pose; a rig
-    with both is refused (its light transport would mix two content spaces)."""
-    solid = [s for s in slots if isinstance(ctx.rig.slot(s).pose, ProjectionPose)]
-    if not solid:
-        return "table"
-    if len(solid) == len(slots):
-        return "mesh"
-    flat = [s for s in slots if s not in solid]
-    raise JobError(f"projector {solid[0]} has a 3D pose and {flat[0]} a homography: this job supports planar rigs "
-                   "(a table) or a mesh, not both at once (choose the projectors with --slots)")
 
 
 def stored_transport(ctx: JobContext, state: str, given: dict[str, Any], key: np.ndarray, slots: list[str], *,

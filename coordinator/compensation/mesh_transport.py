@@ -1,4 +1,4 @@
-"""The ``transport`` job on a mesh rig: ``L`` in texture space, every projector at once.
+"""A mesh rig's light transport: ``L`` in texture space, every projector at once.
 
 Each node renders the dot pattern as the mesh's texture through its own 3x4 pose, so every
 projector lights the same surface dots; ``sx * sy`` patterns (plus a few extra patterns for dots
@@ -15,7 +15,7 @@ sees, or whose light is too wide for a window, get no column and are reported. T
 core's entries are each texel's own, the tail's the mean over its neighbours
 (:mod:`imaging.compensation.psf_tails`), so ``L 1`` holds the defocus's spill without the
 clipped noise of a single capture. Stored, reused and refused as the table's ``L``
-(:mod:`coordinator.compensation.transport_job`), with the cameras' projections and the mesh in
+(:mod:`coordinator.compensation.planar_transport`), with the cameras' projections and the mesh in
 its fingerprint. With ``baseline`` each projector's ``L_i`` is measured one at a time: the
 coordinator renders the texture through that projector's pose (:func:`~coordinator.compensation.
 texture_space.mesh_warp`, the node's mesh shader in numpy) and shows it on that projector alone.
@@ -31,7 +31,7 @@ from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.memory_check import check_measure, check_stored
 from imaging.compensation.errors import CompensationError
 from imaging.compensation.exposure import dot_exposure, exposure_for_white
-from imaging.compensation.geometry import EDGE_WARNING, psf_radius_at_scales, row_white
+from imaging.compensation.geometry import EDGE_WARNING, psf_radius_at_scales
 from coordinator.compensation.jobkit import (
     baseline_exposure,
     content_size,
@@ -62,12 +62,11 @@ from coordinator.compensation.store import (
     save_measured_transport,
     stored_baselines,
     transport_fingerprint,
-    transport_summary,
 )
 from imaging.compensation.texture_space import mesh_warp
 from coordinator.jobs import JobContext, JobError
 
-__all__ = ["run_mesh_transport", "ensure_mesh_transport", "ensure_mesh_baseline", "load_geometry", "texel_summary",
+__all__ = ["ensure_mesh_transport", "ensure_mesh_baseline", "load_geometry", "texel_summary",
            "solve_weights", "stored_cameras", "capture_cameras"]
 
 
@@ -118,28 +117,6 @@ def texel_summary(tr: StoredTransport, cams: MeshCameras) -> dict:
             "left_out": seen - measured, "unseen": on - seen,
             "unseen_share": rounded(1 - seen / on if on else 1.0, 4),
             "measured_share": rounded(measured / on if on else 0.0, 4), **camera_summary(cams, tr.L)}
-
-
-async def run_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: list[str]) -> dict:
-    """The ``transport`` job's work and figures on a mesh rig."""
-    t0 = time.monotonic()
-    if opts.baseline:
-        baseline_exposure(ctx, opts)  # refused before any capture
-    tr, geo = await ensure_mesh_transport(ctx, opts, slots)
-    white = row_white(tr.L, tr.camera_shape)
-    try:
-        region = await ctx.compute(solve_weights, geo, tr)
-    except CompensationError as exc:
-        raise JobError(str(exc)) from exc
-    vals = white[region > 0]
-    summary = {**transport_summary(tr), "surface": "mesh", "texture": texel_summary(tr, geo),
-               "white": {"p2": rounded(float(np.percentile(vals, 2)), 5), "median": rounded(float(np.median(vals)), 5),
-                         "max": rounded(float(vals.max()), 5)},
-               "visible_surface_pixels": int(np.count_nonzero(region))}
-    if opts.baseline:
-        _, summary["baseline"] = await ensure_mesh_baseline(ctx, tr, opts)
-    summary["wall_s"] = round(time.monotonic() - t0, 3)
-    return summary
 
 
 async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: list[str], *,
@@ -258,7 +235,7 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
 async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
                                opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], dict]:
     """The per-projector ``L_i`` on the mesh (baseline only), as
-    :func:`coordinator.compensation.transport_job.ensure_baseline`: stored ones reused, the rest measured one
+    :func:`coordinator.compensation.planar_transport.ensure_baseline`: stored ones reused, the rest measured one
     projector at a time, each shown the texture pattern through its own pose by the coordinator."""
     rig = ctx.rig
     measured_at = float(tr.meta.get("exposure", 1.0))        # L's captures' exposure: the L_i's units too

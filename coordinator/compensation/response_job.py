@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 import zlib
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,10 +50,26 @@ from coordinator.compensation.store import (
     write_result,
 )
 from coordinator.jobs import JobContext, JobError
+from coordinator.jobs.results import Figures, JobResult
 
-__all__ = ["OPTIONS", "run"]
+__all__ = ["OPTIONS", "run", "ResponseResult"]
 
 OPTIONS = ResponseOptions
+
+
+@dataclass(frozen=True, kw_only=True)
+class ResponseResult(JobResult):
+    """The ``response`` job's result (also ``compensation/response.json``): per projector its fitted
+    curve's figures (``gamma``, ``black``, ``peak`` per channel; ``patches``, ``captures``, ``resumed``),
+    those that failed and why, the brightness match and the linearity check."""
+
+    mode: str
+    captures: int
+    wall_s: float
+    slots: dict[str, Figures]
+    failed: dict[str, str]
+    brightness: Figures
+    linearity: Figures
 
 
 def _fingerprint(ctx: JobContext, slot: str, opts: ResponseOptions, H: np.ndarray | None) -> str:
@@ -61,7 +78,7 @@ def _fingerprint(ctx: JobContext, slot: str, opts: ResponseOptions, H: np.ndarra
                                 camera=opts.camera, frames=opts.frames, homography=H)
 
 
-async def run(ctx: JobContext, opts: ResponseOptions) -> dict:
+async def run(ctx: JobContext, opts: ResponseOptions) -> ResponseResult:
     """Measure the responses still missing, push their LUTs, match brightness, check linearity."""
     t0 = time.monotonic()
     rig = ctx.rig
@@ -106,16 +123,16 @@ async def run(ctx: JobContext, opts: ResponseOptions) -> dict:
         raise JobError("no projector's response could be measured: " + "; ".join(failed.values()))
     match = await _brightness(ctx, responses, opts)
     linearity = await _verify(ctx, opts, H)
-    summary = {
-        "mode": opts.mode, "captures": ctx.captures, "wall_s": round(time.monotonic() - t0, 3),
-        "slots": {s: {"gamma": [round(float(g), 4) for g in responses[s].gamma],
+    summary = ResponseResult(
+        mode=opts.mode, captures=ctx.captures, wall_s=round(time.monotonic() - t0, 3),
+        slots={s: {"gamma": [round(float(g), 4) for g in responses[s].gamma],
                       "black": [rounded(float(b), 6) for b in responses[s].black],
                       "peak": [rounded(float(p), 6) for p in responses[s].peak],
                       "patches": docs[s].get("patches"), "captures": docs[s].get("captures"),
                       "resumed": bool(docs[s].get("resumed"))} for s in slots if s in responses},
-        "failed": failed, "brightness": match, "linearity": linearity,
-    }
-    write_result(rig, "response.json", summary)
+        failed=failed, brightness=match, linearity=linearity,
+    )
+    write_result(rig, "response.json", summary.to_wire())
     if failed:
         raise JobError(f"measured {len(responses)} of {len(slots)} projector(s) (saved; run again to retry the others); "
                        + "; ".join(failed.values()))

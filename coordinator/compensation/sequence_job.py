@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,13 +23,25 @@ from coordinator.compensation.image_param import decode_image_param
 from coordinator.compensation.options import SequenceOptions
 from coordinator.compensation.store import write_result
 from coordinator.jobs import JobContext, JobError
+from coordinator.jobs.results import Figures, JobResult, optional, spread
 
-__all__ = ["OPTIONS", "run"]
+__all__ = ["OPTIONS", "run", "SequenceResult"]
 
 OPTIONS = SequenceOptions
 
 
-async def run(ctx: JobContext, opts: SequenceOptions) -> dict:
+@dataclass(frozen=True, kw_only=True)
+class SequenceResult(JobResult):
+    """The ``compensate_sequence`` job's result (also ``compensation/sequence.json``): the frames' figures
+    (:meth:`~coordinator.compensation.frames.FrameSolver.summary`) at the top, how they played when
+    played, and the job's wall time."""
+
+    frame_figures: Figures = spread()
+    play: Figures | None = optional()
+    wall_s: float
+
+
+async def run(ctx: JobContext, opts: SequenceOptions) -> SequenceResult:
     """Compensate every frame (warm starts), then play them unless ``play`` is off."""
     t0 = time.monotonic()
     solver = await open_frame_solver(ctx, camera=opts.camera, measure=opts.measure, level=opts.level,
@@ -45,11 +57,12 @@ async def run(ctx: JobContext, opts: SequenceOptions) -> dict:
         out = await ctx.compute(solver.solve, image)
         frames.append(out.frame)
         ctx.progress("compensate", "", k + 1, len(opts.frames), f"{1000 * out.seconds:.0f} ms", out.objective)
-    summary: dict[str, Any] = solver.summary()
+    figures = solver.summary()
+    play = None
     if opts.play:
         ctx.progress("play", "", 0, len(frames) * (opts.loops + 1), f"{opts.fps:g} fps")
         played = await ctx.play(frames, fps=opts.fps, loops=opts.loops)
-        summary["play"] = dataclasses.asdict(played)
-    summary["wall_s"] = round(time.monotonic() - t0, 3)
-    write_result(ctx.rig, "sequence.json", summary)
+        play = dataclasses.asdict(played)
+    summary = SequenceResult(frame_figures=figures, play=play, wall_s=round(time.monotonic() - t0, 3))
+    write_result(ctx.rig, "sequence.json", summary.to_wire())
     return summary

@@ -1,215 +1,57 @@
 """The ``transport`` job: the rig's light transport ``L`` from dot-grid captures.
 
-``S*S`` dot-grid captures with every projector showing the same content pattern through its
-pose (plus one black capture) give the summed light transport ``L`` (camera pixels x content
-pixels), stored in ``compensation/transport.npz``. A camera that can change its exposure per
-capture takes the dots longer than the white, as far as the first pattern allows (two more
-captures: that pattern at the camera's exposure, and the black at the longer one;
-:func:`~imaging.compensation.exposure.dot_exposure`), and ``L``'s noise falls as much. The
-PSF radius follows the geometry (:func:`~imaging.compensation.geometry.psf_radius`) and the
-spacing is the smallest that keeps the dots' windows apart
-(:func:`~imaging.compensation.geometry.choose_spacing`); a measured ``L`` whose windows cut
-light is reported
-(:func:`~imaging.compensation.geometry.edge_energy`). With ``baseline``, each projector's
-``L_i`` is measured too, one projector at a time (``N*S*S`` captures), for the conventional
-method only.
+Every projector shows the same dot pattern at once, so the captures do not grow with their
+number; ``L`` (camera pixels x content pixels) is stored in ``compensation/transport.npz`` and
+reused while the rig is as it was measured (``force`` measures again). With ``baseline``, each
+projector's ``L_i`` is measured too, one projector at a time, for the conventional method only.
 
-On a mesh rig (every projector with a 3D pose) the content is the mesh's texture and the same
-measurement runs in texture space: :mod:`coordinator.compensation.mesh_transport`.
-
-A stored ``L`` is reused while the rig is as it was measured (poses, LUTs, gains, content
-size, camera, table mapping) and its dot grid matches whatever radius, spacing or frames the
-caller sets; ``force`` measures again. :func:`ensure_transport` and :func:`ensure_baseline`
-are what the ``compensate`` and ``compensate_sequence`` jobs use too.
+How the dots are laid out and recovered depends on the surface
+(:class:`~coordinator.compensation.surface.Surface`): on a table content pixels through each
+projector's homography (:mod:`coordinator.compensation.planar_transport`); on a mesh its texture's
+texels, through each projector's 3x4 pose, seen by one or several cameras
+(:mod:`coordinator.compensation.mesh_transport`). This job has one body for both.
 """
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
-import numpy as np
-import scipy.sparse as sp
-
-from coordinator.compensation.capture_feed import transport_while_capturing
-from imaging.compensation.errors import CompensationError
-from imaging.compensation.exposure import dot_exposure
-from imaging.compensation.geometry import (
-    EDGE_WARNING,
-    choose_spacing,
-    edge_energy,
-    inscribed_region,
-    psf_radius,
-    row_white,
-)
-from coordinator.compensation.jobkit import (
-    baseline_exposure,
-    content_size,
-    rig_geometry,
-    rounded,
-    stored_transport,
-    surface_of,
-)
-from coordinator.compensation.memory_check import check_baseline, check_measure
-from coordinator.compensation.mesh_transport import run_mesh_transport
+from coordinator.compensation.jobkit import baseline_exposure
 from coordinator.compensation.options import TransportOptions
-from coordinator.compensation.store import (
-    StoredTransport,
-    baseline_fingerprint,
-    rig_state_fingerprint,
-    save_baseline_transport,
-    save_measured_transport,
-    stored_baselines,
-    transport_fingerprint,
-    transport_summary,
-)
-from imaging.compensation.transport import DotGrid
-from coordinator.jobs import JobContext, JobError
-from protos.spaces import warp_content
+from coordinator.compensation.store import transport_summary
+from coordinator.compensation.surface import TransportFigures
+from coordinator.compensation.surfaces import surface_for
+from coordinator.jobs import JobContext
+from coordinator.jobs.results import Figures, JobResult, optional, spread
 
-__all__ = ["OPTIONS", "run", "ensure_transport", "ensure_baseline", "baseline_exposure"]
+__all__ = ["OPTIONS", "run", "TransportResult"]
 
 OPTIONS = TransportOptions
 
 
-async def run(ctx: JobContext, opts: TransportOptions) -> dict:
+@dataclass(frozen=True, kw_only=True)
+class TransportResult(JobResult):
+    """The ``transport`` job's result: the measurement's stored figures
+    (:func:`~coordinator.compensation.store.transport_summary`) and the surface's
+    (:class:`~coordinator.compensation.surface.TransportFigures`) side by side at the top, the baseline's
+    measurement when asked, and the job's wall time."""
+
+    measurement: Figures = spread()
+    figures: TransportFigures = spread()
+    baseline: Figures | None = optional()
+    wall_s: float
+
+
+async def run(ctx: JobContext, opts: TransportOptions) -> TransportResult:
     """Measure (or reuse) ``L``, and with ``baseline`` each projector's ``L_i``; their figures."""
     t0 = time.monotonic()
     slots = ctx.select_slots(opts.slots, need_pose=True)
-    if surface_of(ctx, slots) == "mesh":
-        return await run_mesh_transport(ctx, opts, slots)
-    if opts.camera_indices is not None:
-        raise JobError("camera_indices (several cameras measuring L together) is for a mesh rig; a table's L is "
-                       "measured with one camera (camera, --camera-index)")
+    surface = surface_for(ctx, slots)
+    surface.refuse(opts)
     if opts.baseline:
         baseline_exposure(ctx, opts)  # refused before any capture
-    tr = await ensure_transport(ctx, opts, slots)
-    white = row_white(tr.L, tr.camera_shape)
-    rows, cols = inscribed_region(tr.H, content_size(ctx), tr.camera_shape, margin=int(tr.meta["radius"]) + 2)
-    region = white[rows, cols]
-    summary = {**transport_summary(tr), "white": {"p2": rounded(float(np.percentile(region, 2)), 5),
-                                                  "median": rounded(float(np.median(region)), 5),
-                                                  "max": rounded(float(region.max()), 5)}}
-    if opts.baseline:
-        _, summary["baseline"] = await ensure_baseline(ctx, tr, opts)
-    summary["wall_s"] = round(time.monotonic() - t0, 3)
-    return summary
-
-
-async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[str], *,
-                           measure: bool = True) -> StoredTransport:
-    """The stored ``L`` when its fingerprint matches (and not ``force``), else a new measurement
-    (``measure=False``: a :class:`JobError` instead)."""
-    rig = ctx.rig
-    H, cal_size = rig_geometry(ctx, opts.camera)
-    cw, ch = content_size(ctx)
-    radius = opts.radius
-    if radius is None:
-        radius = psf_radius(H, [rig.slot(s).pose.matrix for s in slots], (cw, ch))
-    state = rig_state_fingerprint(rig, slots, H, opts.camera)
-    fp = transport_fingerprint(state, radius, opts.spacing, opts.frame_count)
-    found = stored_transport(ctx, state, opts.given, H, slots, force=opts.force, measure=measure)
-    if found is not None:
-        return found
-    spec = ctx.camera_spec(opts.camera)
-    t0 = time.monotonic()
-    c0 = ctx.captures
-    frames = opts.frame_count
-    ctx.progress("transport", "", 0, 1, "every projector black")
-    await ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s)
-    black = await ctx.capture(opts.camera, frames=frames)
-    cam = black.shape[:2]
-    if cal_size != (0, 0) and tuple(cal_size) != (cam[1], cam[0]):
-        raise JobError(f"camera {opts.camera} delivers {cam[1]}x{cam[0]} images but was calibrated at "
-                       f"{cal_size[0]}x{cal_size[1]}: calibrate again")
-    check_measure((cw, ch), cam, radius)  # the camera's size is known now; nothing large is held yet
-    spacing = opts.spacing
-    if spacing is None:
-        try:
-            spacing = choose_spacing(H, (ch, cw), cam, radius, guard=1)
-        except CompensationError as exc:
-            raise JobError(str(exc)) from exc
-    grid = DotGrid(cw, ch, spacing)
-    ctx.log(f"light transport: {len(grid)} dot patterns (spacing {spacing}, radius {radius}, "
-            f"{frames} frame(s) each), every projector at once")
-
-    async def show_pattern(k: int) -> None:
-        await ctx.show_content(grid.pattern(k, value=255, dtype=np.uint8), settle_s=opts.settle_s)
-
-    async def capture(e: float | None, n: int) -> np.ndarray:
-        return await ctx.capture(opts.camera, frames=n, exposure=e)
-
-    # the dots light a few content pixels apart: captured longer than the white, as far as the first pattern allows
-    dots = await dot_exposure(capture, show_first=lambda: show_pattern(0),
-                              show_black=lambda: ctx.show_content(np.zeros((ch, cw), np.uint8), settle_s=opts.settle_s),
-                              black=black, exposure=None, frames=frames, log=ctx.log,
-                              adjustable=ctx.supports_exposure(opts.camera))
-
-    async def patterns():
-        for k in range(len(grid)):
-            await show_pattern(k)
-            yield await dots.take(k, capture, frames)
-            ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
-
-    L = await transport_while_capturing(ctx, patterns(), black, grid=grid, homography=H, radius=radius)
-    dots.report(len(grid), ctx.log)
-    seconds = time.monotonic() - t0
-    edge = await ctx.compute(edge_energy, L, H, (ch, cw), cam, radius)
-    if edge > EDGE_WARNING:
-        ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * radius + 1}-pixel "
-                f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")
-    meta = {"fingerprint": fp, "rig_state": state, "radius": radius, "spacing": spacing, "frames": frames,
-            "captures": ctx.captures - c0, "patterns": len(grid), "content_size": [cw, ch],
-            "camera_size": [cam[1], cam[0]], "content_to_camera": np.asarray(H).tolist(), "camera": opts.camera,
-            "camera_spec": spec, "slots": sorted(slots), "measured_at": time.time(),
-            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "seconds": round(seconds, 3), "nnz": int(L.nnz),
-            "black_file": f"black-{fp}.npy", "edge_energy": round(edge, 5), "dot_gain": round(dots.gain, 4),
-            "patterns_captured_again": len(dots.again)}
-    await ctx.compute(save_measured_transport, rig, L, meta, black)
-    return StoredTransport(L, meta, black, H, cam, slots, False)
-
-
-async def ensure_baseline(ctx: JobContext, tr: StoredTransport,
-                          opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], dict]:
-    """The per-projector ``L_i`` (baseline only): stored ones with a matching fingerprint, the rest measured
-    one projector at a time; projectors that add no light are left out. Returns them and their figures."""
-    rig = ctx.rig
-    exposure = baseline_exposure(ctx, opts)
-    frames = opts.baseline_frame_count
-    fp = baseline_fingerprint(tr.meta["fingerprint"], frames, opts.baseline_exposure)
-    cw, ch = content_size(ctx)
-    grid = DotGrid(cw, ch, int(tr.meta["spacing"]))
-    radius = int(tr.meta["radius"])
-    check_baseline((cw, ch), tr.camera_shape, radius, len(tr.slots))  # stored or measured, every L_i is held
-    out, todo = stored_baselines(rig, tr.slots, fp, tr.L.shape)
-    t0 = time.monotonic()
-    c0 = ctx.captures
-    if todo:
-        ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
-                f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
-        await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])
-        black = await ctx.capture(opts.camera, frames=frames, exposure=exposure)
-        for n, s in enumerate(todo):
-            st = rig.slot(s)
-
-            async def patterns(s=s, st=st):
-                for k in range(len(grid)):
-                    frame = await ctx.compute(warp_content, grid.pattern(k, value=255, dtype=np.uint8), st.pose.matrix,
-                                              (st.width, st.height), lut=st.lut, gain=st.gain)
-                    await ctx.show({s: frame}, settle_s=opts.settle_s, require=[s])
-                    yield await ctx.capture(opts.camera, frames=frames, exposure=exposure)
-                    ctx.progress("baseline transport", s, k + 1, len(grid), f"projector {n + 1}/{len(todo)}")
-
-            Li = await transport_while_capturing(ctx, patterns(), black, grid=grid, homography=tr.H, radius=radius,
-                                                 dot_value=opts.baseline_exposure)
-            await ctx.compute(save_baseline_transport, rig, s, Li,
-                              {"fingerprint": fp, "slot": s, "frames": frames, "exposure": opts.baseline_exposure,
-                               "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
-            out[s] = Li
-    total = float(tr.L.sum())
-    excluded = [s for s in tr.slots if float(out[s].sum()) < 1e-3 * total / max(len(tr.slots), 1)]
-    for s in excluded:
-        ctx.log(f"baseline: {s} adds no light to the camera image (powered off?); left out")
-        out.pop(s)
-    summary = {"slots": sorted(out), "excluded": excluded, "measured": todo, "captures": ctx.captures - c0,
-               "captures_per_projector": len(grid) * frames, "frames": frames,
-               "exposure": opts.baseline_exposure, "seconds": round(time.monotonic() - t0, 3)}
-    return out, summary
+    tr = await surface.transport(ctx, opts, slots)
+    figures = await surface.transport_figures(ctx, tr)
+    baseline = (await surface.baselines(ctx, tr, opts))[1] if opts.baseline else None
+    return TransportResult(measurement=transport_summary(tr), figures=figures, baseline=baseline,
+                           wall_s=round(time.monotonic() - t0, 3))

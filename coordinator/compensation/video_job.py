@@ -37,9 +37,9 @@ import re
 import shutil
 import threading
 import time
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -51,11 +51,12 @@ from coordinator.compensation.store import compensation_dir, write_result
 from coordinator.compensation.video_io import AssetFrames, Ffv1Writer, join_segments
 from coordinator.errors import AssetError
 from coordinator.jobs import JobContext, JobError
+from coordinator.jobs.results import Figures, JobResult, optional, spread
 from coordinator.show import manifest_rate
 from protos.store import atomic_file
 from protos.asset_manifest import Manifest
 
-__all__ = ["OPTIONS", "run", "compensated_name", "run_key"]
+__all__ = ["OPTIONS", "run", "compensated_name", "run_key", "VideoResult"]
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +67,27 @@ TMP_DIR = "video-tmp"
 #: a stopped run's folder untouched this long is removed by the next run
 STALE_S = 7 * 24 * 3600.0
 STATE = "state.npz"
+
+
+@dataclass(frozen=True, kw_only=True)
+class VideoResult(JobResult):
+    """The ``compensate_video`` job's result (also ``compensation/video.json``): the source and the stored
+    asset, the frames' figures (:meth:`~coordinator.compensation.frames.FrameSolver.summary`) at the top,
+    how the run went (segments, resumption, decoding and encoding time), the cluster's figures on a
+    cluster, a note when fewer frames than the source's were compensated, and the job's wall time."""
+
+    source: Figures
+    asset: Figures
+    frame_figures: Figures = spread()
+    segment_frames: int | None
+    resumed_from: int
+    seconds_per_frame: float | None
+    decode_s: float
+    encode_s: float
+    truncated: bool
+    cluster: Figures | None = optional()
+    note: str | None = optional()
+    wall_s: float
 
 
 def compensated_name(source: str) -> str:
@@ -276,7 +298,7 @@ async def _here(ctx: JobContext, opts: VideoOptions, *, store: AssetStore, src: 
     return pipe, pipe.done
 
 
-async def run(ctx: JobContext, opts: VideoOptions) -> dict:
+async def run(ctx: JobContext, opts: VideoOptions) -> VideoResult:
     """Compensate every frame of the source asset (warm starts) and store the result as a new asset."""
     t0 = time.monotonic()
     store = AssetStore(ctx.rig.path)
@@ -299,7 +321,7 @@ async def run(ctx: JobContext, opts: VideoOptions) -> dict:
     path = folder / _file_name(name)
     stage = f"compensate {src.name}"
     started = time.monotonic()
-    extra: dict[str, Any] = {}
+    cluster: Figures | None = None
     if opts.cluster:
         from coordinator.compensation.cluster import compensate_on_cluster
 
@@ -314,7 +336,7 @@ async def run(ctx: JobContext, opts: VideoOptions) -> dict:
         if ran.frames == 0:
             raise JobError(f"asset {src.name!r}: no frame could be decoded")
         done, resumed_from, decode_s, encode_s = ran.frames, ran.resumed_from, ran.decode_s, ran.encode_s
-        extra = {"cluster": ran.cluster}
+        cluster = ran.cluster
         discard = functools.partial(shutil.rmtree, folder, ignore_errors=True)
     else:
         pipe, done = await _here(ctx, opts, store=store, src=src, solver=solver, folder=folder, path=path, rate=rate,
@@ -330,27 +352,24 @@ async def run(ctx: JobContext, opts: VideoOptions) -> dict:
     await ctx.compute(discard)
     solved = done - resumed_from
     loop_s = time.monotonic() - started
-    summary: dict[str, Any] = {
-        "source": {"id": source_id, "name": src.name, "kind": src.kind, "frames": src.frames,
-                   "size": [src.width, src.height], "rate": f"{rate.numerator}/{rate.denominator}"},
-        "asset": {"id": made.asset_id, "name": made.name, "frames": made.frames, "size": [made.width, made.height],
-                  "channels": made.channels, "bit_depth": made.bit_depth, "rate": made.extra.get("rate"),
-                  "bytes": made.total_bytes, "codec": made.extra.get("codec"), "pix_fmt": made.extra.get("pix_fmt"),
-                  "already_stored": made.asset_id in before},
-        **solver.summary(),
-        "segment_frames": opts.segment_length,
-        "resumed_from": resumed_from,
-        "seconds_per_frame": round(loop_s / solved, 4) if solved else None,
-        "decode_s": round(decode_s, 3), "encode_s": round(encode_s, 3),
-        "truncated": done < total,
-        **extra,
-    }
+    figures = solver.summary()
     if opts.cluster:
-        summary["scale"] = ran.cluster["scale_last_segment"]   # the coordinator's own solver never ran
+        figures["scale"] = ran.cluster["scale_last_segment"]   # the coordinator's own solver never ran
+    note = None
     if done < src.frames:
-        summary["note"] = (f"{done} of the source's {src.frames} frames compensated"
-                           + (" (max_frames)" if opts.max_frames is not None and done == opts.max_frames else
-                              " (the video ended early)"))
-    summary["wall_s"] = round(time.monotonic() - t0, 3)
-    write_result(ctx.rig, "video.json", summary)
+        note = (f"{done} of the source's {src.frames} frames compensated"
+                + (" (max_frames)" if opts.max_frames is not None and done == opts.max_frames else
+                   " (the video ended early)"))
+    summary = VideoResult(
+        source={"id": source_id, "name": src.name, "kind": src.kind, "frames": src.frames,
+                "size": [src.width, src.height], "rate": f"{rate.numerator}/{rate.denominator}"},
+        asset={"id": made.asset_id, "name": made.name, "frames": made.frames, "size": [made.width, made.height],
+               "channels": made.channels, "bit_depth": made.bit_depth, "rate": made.extra.get("rate"),
+               "bytes": made.total_bytes, "codec": made.extra.get("codec"), "pix_fmt": made.extra.get("pix_fmt"),
+               "already_stored": made.asset_id in before},
+        frame_figures=figures, segment_frames=opts.segment_length, resumed_from=resumed_from,
+        seconds_per_frame=round(loop_s / solved, 4) if solved else None,
+        decode_s=round(decode_s, 3), encode_s=round(encode_s, 3), truncated=done < total, cluster=cluster,
+        note=note, wall_s=round(time.monotonic() - t0, 3))
+    write_result(ctx.rig, "video.json", summary.to_wire())
     return summary

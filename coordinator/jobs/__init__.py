@@ -5,6 +5,8 @@ that see only a :class:`JobContext`, backed by a :class:`RigDriver`.
 * :mod:`coordinator.jobs.driver`: the :class:`RigDriver` protocol.
 * :mod:`coordinator.jobs.options`: one definition per job option (validation, CLI, docs).
 * :mod:`coordinator.jobs.registry`: which jobs exist, and :func:`~coordinator.jobs.registry.run_job`.
+* :mod:`coordinator.jobs.results`: :class:`~coordinator.jobs.results.JobResult`, the base of every
+  job's typed result, and the one rule that turns a result into its wire dict.
 
 The option helpers and :class:`JobError` load at once (a command line needs only them); the
 context and the driver protocol, which bring the cameras and gRPC along, load on first use.

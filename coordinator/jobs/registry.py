@@ -1,8 +1,9 @@
 """Which jobs exist, and running one on a rig.
 
 Each job lives in a module of its own that defines ``OPTIONS`` (its option dataclass, see
-:mod:`coordinator.jobs.options`) and ``async def run(ctx: JobContext, opts) -> dict`` (a
-JSON-able result). It may define ``option_defaults(rig) -> (dict, source)``: values (e.g. a
+:mod:`coordinator.jobs.options`) and ``async def run(ctx: JobContext, opts) -> Result``, where
+``Result`` is a frozen :class:`~coordinator.jobs.results.JobResult` dataclass; :func:`run_job`
+hands its callers the result's :meth:`~coordinator.jobs.results.JobResult.to_wire` dict. It may define ``option_defaults(rig) -> (dict, source)``: values (e.g. a
 table of rig.toml) that fill in what a request leaves out, and where they come from. Job modules are imported when a job of their kind first runs, so a
 coordinator starts without loading every numerical library.
 """
@@ -18,6 +19,7 @@ from coordinator.jobs.context import Event, JobContext
 from coordinator.jobs.driver import RigDriver
 from coordinator.jobs.errors import JobError
 from coordinator.jobs.options import parse_options
+from coordinator.jobs.results import JobResult
 
 #: job kind -> module defining OPTIONS and run()
 JOBS: dict[str, str] = {
@@ -36,7 +38,7 @@ JOBS: dict[str, str] = {
 class JobSpec:
     kind: str
     options: type
-    run: Callable[[JobContext, Any], Awaitable[dict]]
+    run: Callable[[JobContext, Any], Awaitable[JobResult]]
     defaults: Callable[[Rig], tuple[Mapping[str, Any], str]] | None = None
 
 
@@ -57,7 +59,8 @@ async def run_job(driver: RigDriver, kind: str, params: Mapping[str, Any], *,
     """Validate ``params`` against the job's options and run it on ``driver``.
 
     ``params`` may carry ``cameras`` (a list of camera specs for this run only); the rest must
-    be the job's options. Cameras the job opened are closed when it ends, however it ends.
+    be the job's options. Cameras the job opened are closed when it ends, however it ends. Returns the
+    job's result as its wire dict (:meth:`JobResult.to_wire`).
     """
     params = dict(params)
     cameras: Sequence[str] | None = params.pop("cameras", None)
@@ -68,6 +71,9 @@ async def run_job(driver: RigDriver, kind: str, params: Mapping[str, Any], *,
     opts = parse_options(spec.options, params, what=kind, defaults=defaults, defaults_source=source)
     ctx = JobContext(driver, emit=emit, cameras=cameras)
     try:
-        return await spec.run(ctx, opts)
+        result = await spec.run(ctx, opts)
     finally:
         ctx.close()
+    if not isinstance(result, JobResult):
+        raise TypeError(f"job {kind!r} returned a {type(result).__name__}, not a JobResult")
+    return result.to_wire()

@@ -11,6 +11,7 @@ import numpy as np
 from imaging.calibration import multiplex, planar
 from imaging.calibration.errors import CalibrationError
 from coordinator.calibration.runs import save_slot, slot_doc
+from coordinator.calibration.stages.loops import coded_dot_rounds, refuse_unfound
 from coordinator.calibration.stages.state import SATURATED, Abort, State
 from coordinator.jobs import JobError
 from coordinator.rig import HomographyPose
@@ -39,17 +40,9 @@ async def _coded_dots(st: State, cam: int) -> tuple[dict[str, np.ndarray], dict[
     k_cam = st.cameras.index(cam)
     coarse: dict[str, np.ndarray] = {}
     seen: dict[str, int] = {s: 0 for s in st.todo}
-    pending = list(st.todo)
-    for attempt in range(2):
-        if not pending:
-            break
-        plan = multiplex.plan_coded_dots({s: st.sizes[s] for s in pending}, seed=opts.seed + attempt)
-        caps = []
-        stage = "coded dots" if attempt == 0 else "coded dots (retry)"
-        for k in range(plan.captures):
-            ctx.progress(stage, "", k, plan.captures, f"{len(pending)} projectors at once")
-            caps.append((await st.shoot(plan.frames(k), require=pending))[k_cam])
-        ctx.progress(stage, "", plan.captures, plan.captures, "decoding")
+
+    async def decide(plan: multiplex.CodedDots, shots: list[list[np.ndarray]], pending: list[str]) -> list[str]:
+        caps = [c[k_cam] for c in shots]
         dec = await ctx.compute(multiplex.decode_coded_dots, caps, st.dark[k_cam], plan)
         ctx.log(f"coded dots: {dec.blobs} blobs, {dec.collisions} overlapping, {dec.unknown} unknown codes")
         check_dot_saturation(caps, dec, cam, opts.max_saturated)
@@ -67,17 +60,12 @@ async def _coded_dots(st: State, cam: int) -> tuple[dict[str, np.ndarray], dict[
                 except CalibrationError:
                     pass
             still.append(s)
-        pending = still
-    for s in pending:
-        if seen[s] == 0:
-            st.failed[s] = (f"projector {s} not seen by the camera (none of its coded dots was found): check that it "
-                            "is on, shows the patterns and is aimed at the table")
-        else:
-            st.failed[s] = (f"too few dots decoded for {s} ({seen[s]} < {MIN_COARSE_DOTS}): is most of its image off "
-                            "the table or blocked?")
-        ctx.log(st.failed[s])
-    if pending and not opts.keep_going:
-        raise JobError("; ".join(st.failed[s] for s in pending))
+        return still
+
+    pending = await coded_dot_rounds(st, decide)
+    refuse_unfound(st, pending, seen, aimed_at="table",
+                   too_few=lambda s: f"too few dots decoded for {s} ({seen[s]} < {MIN_COARSE_DOTS}): is most of its "
+                                     "image off the table or blocked?")
     return coarse, seen
 
 

@@ -13,6 +13,7 @@ from imaging.calibration.errors import CalibrationError
 from imaging.calibration.multiplex3d import fit_pose, lift
 from coordinator.calibration.runs import save_slot, slot_doc
 from coordinator.calibration.stages.dots import check_dot_saturation
+from coordinator.calibration.stages.loops import coded_dot_rounds, refuse_unfound
 from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobError
 from coordinator.rig import ProjectionPose
@@ -68,18 +69,8 @@ async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], d
     # lifted dots of every attempt: a retry adds to what the first one found
     X: dict[str, list[np.ndarray]] = {s: [] for s in st.todo}
     x: dict[str, list[np.ndarray]] = {s: [] for s in st.todo}
-    pending = list(st.todo)
-    for attempt in range(2):
-        if not pending:
-            break
-        plan = multiplex.plan_coded_dots({s: st.sizes[s] for s in pending}, seed=opts.seed + attempt,
-                                         max_dots=COARSE_DOTS)
-        caps: list[list[np.ndarray]] = []
-        stage = "coded dots" if attempt == 0 else "coded dots (retry)"
-        for k in range(plan.captures):
-            ctx.progress(stage, "", k, plan.captures, f"{len(pending)} projectors at once")
-            caps.append(await st.shoot(plan.frames(k), require=pending))
-        ctx.progress(stage, "", plan.captures, plan.captures, "decoding")
+
+    async def decide(plan: multiplex.CodedDots, caps: list[list[np.ndarray]], pending: list[str]) -> list[str]:
         for i in surfaces:
             k_cam = st.cameras.index(i)
             mine = [c[k_cam] for c in caps]
@@ -106,18 +97,14 @@ async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], d
                 except CalibrationError:
                     pass
             still.append(s)
-        pending = still
-    for s in pending:
-        if seen[s] == 0:
-            st.failed[s] = (f"projector {s} not seen by the camera (none of its coded dots was found): check that it "
-                            "is on, shows the patterns and is aimed at the object")
-        else:
-            st.failed[s] = (f"too few dots on the surface for {s} ({sum(map(len, X[s]))} of {seen[s]} decoded dots on the mesh"
-                            f"{' or the table' if opts.use_table else ''}, need {MIN_COARSE_DOTS} that agree with one "
-                            "projection): is most of its image off the object or blocked, or the mesh registration off?")
-        ctx.log(st.failed[s])
-    if pending and not opts.keep_going:
-        raise JobError("; ".join(st.failed[s] for s in pending))
+        return still
+
+    pending = await coded_dot_rounds(st, decide, max_dots=COARSE_DOTS)
+    refuse_unfound(st, pending, seen, aimed_at="object",
+                   too_few=lambda s: f"too few dots on the surface for {s} ({sum(map(len, X[s]))} of {seen[s]} decoded "
+                                     f"dots on the mesh{' or the table' if opts.use_table else ''}, need "
+                                     f"{MIN_COARSE_DOTS} that agree with one projection): is most of its image off the "
+                                     "object or blocked, or the mesh registration off?")
     return coarse, seen
 
 

@@ -12,8 +12,8 @@ import math
 import numpy as np
 
 from imaging.calibration import graycode, planar
-from imaging.calibration.errors import CalibrationError
-from coordinator.calibration.runs import save_slot, slot_doc
+from coordinator.calibration.runs import slot_doc
+from coordinator.calibration.stages.loops import one_by_one
 from coordinator.calibration.stages.state import SATURATED, Abort, CameraSetup, State, full
 from coordinator.jobs import JobError
 from coordinator.memory_budget import MemoryBudgetError, ensure_fits
@@ -111,24 +111,18 @@ async def sequential(st: State) -> None:
     """Calibrate ``st.todo`` one after another on the table."""
     ctx, opts = st.ctx, st.opts
     H_c2t = content_to_table(st.content_size, opts.table_mm)
-    for n, slot in enumerate(st.todo):
-        before = st.shots
-        try:
-            white, black, caps = await gray_captures(st, slot)
-            decodes = await ctx.compute(decode_all, white, black, caps, st.sizes[slot], opts.min_contrast)
-            fit, r, count = await ctx.compute(fit_planar, decodes, st.setup, slot, opts.min_pixels, opts.min_contrast)
-        except Abort:
-            raise
-        except (JobError, CalibrationError) as exc:
-            if not opts.keep_going:
-                raise JobError(str(exc)) from exc
-            st.failed[slot] = str(exc)
-            ctx.log(f"{slot}: {exc}")
-            continue
+
+    async def measure(slot: str):
+        white, black, caps = await gray_captures(st, slot)
+        decodes = await ctx.compute(decode_all, white, black, caps, st.sizes[slot], opts.min_contrast)
+        return await ctx.compute(fit_planar, decodes, st.setup, slot, opts.min_pixels, opts.min_contrast)
+
+    def pose_of(slot: str, measured, before: int) -> tuple[HomographyPose, dict]:
+        fit, r, count = measured
         pose = planar.normalise(fit.H @ H_c2t)
         doc = slot_doc(st.run, slot, opts, rms=float(np.sqrt(np.mean(r ** 2))) if len(r) else math.nan,
                        mx=float(r.max()) if len(r) else math.nan, points=len(r), raw_rms=fit.rms,
                        decoded=count, inliers=fit.count, captures=st.shots - before)
-        save_slot(ctx, slot, HomographyPose(pose), doc)
-        st.results[slot] = doc
-        ctx.progress("projectors", slot, n + 1, len(st.todo), "calibrated", value=doc["rms_px"] or math.nan)
+        return HomographyPose(pose), doc
+
+    await one_by_one(st, measure, pose_of)

@@ -11,9 +11,10 @@ import numpy as np
 from imaging.calibration import threed
 from imaging.calibration.errors import CalibrationError
 from coordinator.calibration.options import CalibrateOptions
-from coordinator.calibration.runs import save_slot, slot_doc
+from coordinator.calibration.runs import slot_doc
 from coordinator.calibration.stages.gray import decode_all, gray_captures, seen_check
-from coordinator.calibration.stages.state import Abort, CameraSetup, State
+from coordinator.calibration.stages.loops import one_by_one
+from coordinator.calibration.stages.state import CameraSetup, State
 from coordinator.jobs import JobError
 from coordinator.rig import ProjectionPose
 
@@ -63,28 +64,23 @@ async def sequential_3d(st: State) -> None:
         surfaces = await ctx.compute(cast_surfaces, setup, opts.table_mm if opts.use_table else None)
     except CalibrationError as exc:
         raise JobError(str(exc)) from exc
-    for n, slot in enumerate(st.todo):
-        before = st.shots
+
+    async def measure(slot: str):
         size = st.sizes[slot]
-        try:
-            white, black, caps = await gray_captures(st, slot)
-            decodes = await ctx.compute(decode_all, white, black, caps, size, opts.min_contrast)
-            fit, r, count, per_camera = await ctx.compute(fit_3d, decodes, surfaces, slot, size, opts)
-            near, far = threed.depth_range(fit.device.P, setup.rig_mesh.vertices)
-        except Abort:
-            raise
-        except (JobError, CalibrationError) as exc:
-            if not opts.keep_going:
-                raise JobError(str(exc)) from exc
-            st.failed[slot] = str(exc)
-            ctx.log(f"{slot}: {exc}")
-            continue
+        white, black, caps = await gray_captures(st, slot)
+        decodes = await ctx.compute(decode_all, white, black, caps, size, opts.min_contrast)
+        fit, r, count, per_camera = await ctx.compute(fit_3d, decodes, surfaces, slot, size, opts)
+        near, far = threed.depth_range(fit.device.P, setup.rig_mesh.vertices)
+        return fit, r, count, per_camera, near, far
+
+    def pose_of(slot: str, measured, before: int) -> tuple[ProjectionPose, dict]:
+        fit, r, count, per_camera, near, far = measured
         P = fit.device.P / np.linalg.norm(fit.device.P[2, :3])
         pose = ProjectionPose(P, setup.rig_mesh, near_mm=near, far_mm=far)
         doc = slot_doc(st.run, slot, opts, rms=float(np.sqrt(np.mean(r ** 2))) if len(r) else math.nan,
                        mx=float(r.max()) if len(r) else math.nan, points=len(r), raw_rms=fit.rms, decoded=count,
                        inliers=fit.count, captures=st.shots - before, cameras=per_camera,
                        K=fit.device.K.tolist(), center_mm=fit.device.center.tolist())
-        save_slot(ctx, slot, pose, doc)
-        st.results[slot] = doc
-        ctx.progress("projectors", slot, n + 1, len(st.todo), "calibrated", value=doc["rms_px"] or math.nan)
+        return pose, doc
+
+    await one_by_one(st, measure, pose_of)

@@ -14,7 +14,8 @@ from shadowless.cli import main
 from shadowless.local import LocalRig
 from sim.room import Room
 from sim.scene import reference_scene
-from sim.service import RoomServerThread
+from sim.wire.service import RoomServerThread
+from waits import wait_until_async
 
 SLOTS = ["r1c1", "r3c3"]
 
@@ -48,16 +49,15 @@ def test_calibrate_and_check_alignment_through_nodes_and_the_room_service(tmp_pa
             # the nodes have the new poses (their heartbeats report the calibrated revision)
             async def revisions():
                 async with await rig.client() as c:
-                    for _ in range(100):
+                    async def seen():
                         st = await c.status()
-                        got = {n.slot: (n.pose_kind, n.assignment_revision) for n in st.nodes}
-                        if all(got[s] == ("homography", state.slot(s).revision) for s in SLOTS):
-                            return got
-                        await asyncio.sleep(0.1)
-                    return got
+                        return {n.slot: (n.pose_kind, n.assignment_revision) for n in st.nodes}
 
-            got = asyncio.run(revisions())
-            assert all(got[s] == ("homography", state.slot(s).revision) for s in SLOTS), got
+                    return await wait_until_async(
+                        seen, lambda got: all(got.get(s) == ("homography", state.slot(s).revision) for s in SLOTS),
+                        what="every node's heartbeat to report its calibrated revision")
+
+            asyncio.run(revisions())
 
             # the reference mode on one projector, through the same nodes: Gray codes pass pixel-exact
             assert main(["calibrate", *common, "--table-points", str(points), "--mode", "sequential",

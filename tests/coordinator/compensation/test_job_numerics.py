@@ -275,6 +275,8 @@ def test_recovering_while_capturing_equals_recovering_afterwards():
 
     async def shots():
         for c in caps:
+            # not a wait: yields to the loop between captures, as a camera's await does, so the feed
+            # consumes each one while the generator is suspended (nothing else makes it suspend)
             await asyncio.sleep(0)
             yield c
 

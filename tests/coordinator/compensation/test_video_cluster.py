@@ -36,6 +36,7 @@ from node.asset_decode import VideoDecoder, video_demuxer
 from shadowless.room_driver import RoomDriver
 from sim.room import Room
 from sim.scene import reference_scene
+from waits import wait_until_async
 
 distributed = pytest.importorskip("distributed")
 
@@ -208,8 +209,9 @@ def test_a_cancelled_cluster_run_resumes_without_solving_its_finished_segments(s
 
     async def cancel_after_a_segment():
         task = asyncio.create_task(driver.run("compensate_video", params))
-        while not any((rig.path / "compensation" / "video-tmp").glob("*-cluster/seg-*.mkv")):
-            await asyncio.sleep(0.005)
+        # the segment's file is the event; polled finely, as the run's second segment follows soon after
+        await wait_until_async(lambda: list((rig.path / "compensation" / "video-tmp").glob("*-cluster/seg-*.mkv")),
+                               what="a finished segment of the cluster run", timeout=300, interval=0.005)
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task

@@ -14,7 +14,6 @@ import asyncio
 import io
 import json
 import re
-import time
 from fractions import Fraction
 
 import av
@@ -37,6 +36,7 @@ from shadowless.local import LocalRig
 from shadowless.room_driver import RoomDriver
 from sim.room import Room
 from sim.scene import reference_scene
+from waits import wait_until_async
 
 SLOTS = ["r1c1", "r1c3", "r3c1", "r3c3"]
 CONTENT = (160, 80)
@@ -44,6 +44,20 @@ RATE = Fraction(24000, 1001)
 FRAMES = 8
 SOURCE = (192, 96)   # not the content size: frames are resized as the other jobs do
 SWAP = re.compile(r"timing frame (\d+): swap")
+
+
+class WatchedEvents(list):
+    """A driver's event list that sets :attr:`seen` once an event satisfies ``done`` (a job delivers its
+    events on the loop, so the test's coroutine wakes on the very event)."""
+
+    def __init__(self, done) -> None:
+        super().__init__()
+        self.done, self.seen = done, asyncio.Event()
+
+    def append(self, event) -> None:
+        super().append(event)
+        if self.done(event):
+            self.seen.set()
 
 
 def write_source(path, frames: list[np.ndarray], rate: Fraction = RATE) -> None:
@@ -184,15 +198,18 @@ def test_a_cancelled_run_leaves_no_asset_and_resumes_to_the_same_bytes(setup):
     params = {"asset": "clip", "name": "resumed", "iterations": 3, "first_iterations": 40, "checkpoint_s": 0}
 
     async def cancel_after_three_frames():
+        events = driver.events = WatchedEvents(lambda e: getattr(e, "stage", "") == "compensate clip" and e.done >= 3)
         task = asyncio.create_task(driver.run("compensate_video", params))
-        while not any(getattr(e, "stage", "") == "compensate clip" and e.done >= 3 for e in driver.events):
-            await asyncio.sleep(0.005)
+        try:
+            await asyncio.wait_for(events.seen.wait(), timeout=120)
+        except TimeoutError:
+            raise AssertionError(f"no third compensated frame in 120 s; events: {events[-5:]}") from None
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
 
-    driver.events.clear()
     asyncio.run(cancel_after_three_frames())
+    driver.events = []
     assert {aid for aid, _ in store.list()} == before   # nothing in the store
     runs = list((rig.path / "compensation" / "video-tmp").iterdir())
     assert len(runs) == 1 and (runs[0] / "state.npz").is_file()
@@ -311,21 +328,22 @@ def test_nodes_play_the_compensated_asset_by_timeline(setup):
 
     async def go():
         async with await local.client() as c:
-            deadline = time.monotonic() + 60
-            while True:
-                st = await local.wait_live(c, ["r0c0"], timeout=60)
-                n = st.nodes[0]
-                if n.assets_wanted == 1 and n.assets_ready == 1:
-                    break
-                assert time.monotonic() < deadline, n
-                await asyncio.sleep(0.2)
+            async def node():
+                return (await local.wait_live(c, ["r0c0"], timeout=60)).nodes[0]
+
+            await wait_until_async(node, lambda n: n.assets_wanted == 1 and n.assets_ready == 1,
+                                   what="the node to have the compensated asset")
             since = len(local.log("node-r0c0"))
             play = await c.play_asset(made.asset_id[:12], delay_s=0.5)
             assert play.frames == FRAMES and play.fps == pytest.approx(float(RATE))
-            await asyncio.sleep(0.5 + FRAMES / float(RATE) + 1.0)
-            ids = [int(m.group(1)) for m in SWAP.finditer(local.log("node-r0c0")[since:])]
-            ticks = [i - play.frame_id_base for i in ids if play.frame_id_base <= i < play.frame_id_base + FRAMES]
-            assert ticks == sorted(set(ticks)) and len(ticks) >= FRAMES - 1, (ticks, local.log("node-r0c0")[-2000:])
+
+            def played() -> list[int]:
+                ids = [int(m.group(1)) for m in SWAP.finditer(local.log("node-r0c0")[since:])]
+                return [i - play.frame_id_base for i in ids if play.frame_id_base <= i < play.frame_id_base + FRAMES]
+
+            ticks = await wait_until_async(played, lambda t: len(t) >= FRAMES - 1,
+                                           what=f"at least {FRAMES - 1} of the asset's {FRAMES} frames swapped")
+            assert ticks == sorted(set(ticks)), (ticks, local.log("node-r0c0")[-2000:])
             assert "rror" not in local.log("node-r0c0")[since:], local.log("node-r0c0")[since:][-2000:]
 
     with local:
