@@ -14,6 +14,7 @@ from coordinator.api import NodeState
 from protos import auth, common_pb2, node_pb2
 from protos.version import PROTOCOL_VERSION
 from shadowless.local import LocalRig
+from waits import wait_until_async
 
 
 class FakeClock:
@@ -201,8 +202,7 @@ def test_calls_over_the_budget_wait_their_turn_within_limits():
         b = Budget(reserve_bytes=4 * MIB, max_bytes_per_address=9 * MIB, max_waiting_per_address=2, max_waiting=3)
         held = [await b.enter("ipv4:10.0.0.1:1"), await b.enter("ipv4:10.0.0.1:2")]
         waiters = [asyncio.ensure_future(b.enter(f"ipv4:10.0.0.1:{p}", wait_s=5)) for p in (3, 4)]
-        await asyncio.sleep(0)
-        assert b.waiting == {"10.0.0.1": 2}
+        await wait_until_async(lambda: dict(b.waiting), lambda w: w == {"10.0.0.1": 2}, what="two calls waiting")
         assert await b.enter("ipv4:10.0.0.1:5") is None, "a third waiter from one address is refused at once"
         b.received(held[0], 200)                 # a small message: room for one more
         first = await asyncio.wait_for(asyncio.shield(asyncio.wait(waiters, return_when="FIRST_COMPLETED")), 5)

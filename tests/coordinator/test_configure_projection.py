@@ -12,6 +12,7 @@ import pytest
 
 from coordinator.api import NodeState
 from shadowless.local import LocalRig
+from waits import wait_until_async
 
 QUAD_OBJ = """# a 600 x 300 mm quad on the table, textured across
 v 0 0 0
@@ -65,15 +66,14 @@ def test_a_projection_pose_with_its_mesh_reaches_the_rig_and_the_node(rig, tmp_p
 
     async def live_pose():
         async with await rig.client() as c:
-            st = await rig.wait_live(c, timeout=120)
-            deadline = asyncio.get_running_loop().time() + 60
-            while True:
-                n = st.nodes[0]
-                if n.state is NodeState.LIVE and n.pose_kind == "projection" and n.assignment_revision == doc["revision"]:
-                    return n
-                assert asyncio.get_running_loop().time() < deadline, n
-                await asyncio.sleep(0.2)
-                st = await c.status()
+            await rig.wait_live(c, timeout=120)
+
+            async def node():
+                return (await c.status()).nodes[0]
+
+            return await wait_until_async(node, lambda n: n.state is NodeState.LIVE and n.pose_kind == "projection"
+                                          and n.assignment_revision == doc["revision"],
+                                          what=f"r0c0 live on the projection pose of revision {doc['revision']}")
 
     assert asyncio.run(live_pose()).pose_kind == "projection", "the node applied the 3x4 pose on the mesh"
 

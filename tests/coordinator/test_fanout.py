@@ -10,6 +10,7 @@ from coordinator.rig import Content, Rig, grid_slots, init_rig
 from coordinator.app import CoordinatorApp
 from coordinator.sessions import NodeInfo, NodeSession, Report, Swaps
 from protos import common_pb2, node_pb2
+from waits import wait_until_async
 
 
 def make(tmp_path, n=3):
@@ -72,7 +73,8 @@ def test_per_slot_patterns_carry_only_each_nodes_own_image(tmp_path):
 
     async def go():
         task = asyncio.ensure_future(coord.playback.show_patterns(images, settle_s=0))
-        await asyncio.sleep(0.01)
+        await wait_until_async(lambda: [len(s.packets) for s in sessions], lambda queued: all(queued),
+                               what="a packet queued for every node")
         got = {s.slot: node_pb2.FramePacket.FromString(packets(s)[0]) for s in sessions}
         task.cancel()
         return got

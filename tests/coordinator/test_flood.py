@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import threading
-import time
 from pathlib import Path
 
 import grpc
@@ -14,6 +13,7 @@ from coordinator.api import NodeState
 from protos import auth, common_pb2, node_pb2_grpc
 from protos.version import MAX_REQUEST_BYTES, PROTOCOL_VERSION
 from shadowless.local import LocalRig
+from waits import wait_until
 
 HUGE = 200 * 1024 * 1024
 #: How much the coordinator's resident peak may grow while 4 peers send 200 MiB messages 3 times
@@ -43,8 +43,10 @@ def _huge_sender(port: int, payload: bytes, tries: int, codes: list) -> None:
                 codes.append(exc.code().name)
 
 
-async def _hello_flood(port: int, stop: threading.Event, *, total: int = 6000, concurrency: int = 24) -> int:
-    """One peer flooding valid Hello calls (bounded in count and by ``stop``); how many answered."""
+async def _hello_flood(port: int, stop: threading.Event, answering: threading.Event, *, total: int = 6000,
+                       concurrency: int = 24) -> int:
+    """One peer flooding valid Hello calls (bounded in count and by ``stop``); how many answered.
+    ``answering`` is set at the first answer."""
     answered = 0
     async with grpc.aio.insecure_channel(f"127.0.0.1:{port}") as ch:
         stub = node_pb2_grpc.NodeLinkStub(ch)
@@ -59,6 +61,7 @@ async def _hello_flood(port: int, stop: threading.Event, *, total: int = 6000, c
                     await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, role="node",
                                                              client_nonce=auth.new_nonce(), slot="r0c0"), timeout=30)
                     answered += 1
+                    answering.set()
                 except grpc.aio.AioRpcError:
                     pass
 
@@ -85,11 +88,14 @@ def test_unauthenticated_floods_do_not_swell_the_coordinator_or_drop_nodes(tmp_p
         codes: list[str] = []
         senders = [threading.Thread(target=_huge_sender, args=(rig.port, payload, 3, codes)) for _ in range(4)]
         flood_result: list[int] = []
-        flooder = threading.Thread(target=lambda: flood_result.append(asyncio.run(_hello_flood(rig.port, stop))))
+        answering = threading.Event()
+        flooder = threading.Thread(target=lambda: flood_result.append(
+            asyncio.run(_hello_flood(rig.port, stop, answering))))
         for t in [*senders, flooder]:
             t.start()
         try:
-            time.sleep(1.0)
+            wait_until(lambda: (list(codes), answering.is_set()), lambda seen: seen[0] and seen[1],
+                       what="a huge message refused and a flooding Hello answered (codes, answering)")
             rig.start_node("r0c1")                        # a new node joins during the floods
 
             async def during():
