@@ -69,16 +69,15 @@ def console_port(tmp_path):
 
     rig = Rig(init_rig(tmp_path / "rig", name="corpus", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
-    ready, stop, box = threading.Event(), threading.Event(), {}
+    ready, box = threading.Event(), {}
 
     def run():
         async def main():
             app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
             await app.start()
-            box["app"] = app
+            box["app"], box["loop"], box["stop"] = app, asyncio.get_running_loop(), asyncio.Event()
             ready.set()
-            while not stop.is_set():
-                await asyncio.sleep(0.05)
+            await box["stop"].wait()
             await app.stop()
         asyncio.run(main())
 
@@ -86,7 +85,7 @@ def console_port(tmp_path):
     t.start()
     assert ready.wait(60), "the coordinator did not start"
     yield box["app"].console_port, box["app"]
-    stop.set()
+    box["loop"].call_soon_threadsafe(box["stop"].set)
     t.join(60)
 
 

@@ -14,6 +14,7 @@ from bench.console import (ConsoleRig, all_shown, chromium, log_in, page_gains, 
 from coordinator.rig import Content
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import Select
+from waits import wait_until
 
 EVIL = "<script>document.title='pwned'</script><img src=x onerror=\"document.title='pwned'\">"
 SLOTS = ["r0c0", "r0c1"]
@@ -150,7 +151,6 @@ def test_identify_and_stop_act_on_the_nodes(tmp_path):
     each node rendered), and Stop dismisses it."""
     import asyncio
     import json
-    import time
 
     import aiohttp
     import cv2
@@ -183,11 +183,9 @@ def test_identify_and_stop_act_on_the_nodes(tmp_path):
         assert asyncio.run(post("/api/identify"))["ok"]
         w, h = rig.local.output_size
         for slot in SLOTS:
-            deadline = time.monotonic() + 120
-            while shown(slot)[0] != "show:identify":
-                assert time.monotonic() < deadline, f"{slot} never showed its name card"
-                time.sleep(0.2)
-            np.testing.assert_array_equal(shown(slot)[1], name_card(slot, w, h))
+            _, img = wait_until(lambda: shown(slot), lambda tagged: tagged[0] == "show:identify",
+                                what=f"{slot} showing its name card", timeout=120)
+            np.testing.assert_array_equal(img, name_card(slot, w, h))
         assert rig.call(lambda: rig.coord.status().showing) == "slot names (identify)"
         assert asyncio.run(post("/api/stop"))["ok"]
         wait_for(lambda: rig.call(lambda: rig.coord.status().showing) == "black (blackout)", 60, "identify dismissed")

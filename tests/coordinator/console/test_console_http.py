@@ -10,7 +10,6 @@ import json
 import ssl
 import struct
 import subprocess
-import time
 import zlib
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from coordinator.errors import CoordinatorError
 from coordinator.rig import Content, HomographyPose, Rig, grid_slots, init_rig
 from coordinator.app import CoordinatorApp
 from coordinator.server import Coordinator
+from waits import wait_until_async
 
 TOKEN = b"t" * 32
 EVIL = "<script>alert(1)</script>"
@@ -406,13 +406,11 @@ def test_an_asset_of_the_store_plays_by_name(tmp_path):
 # ---------------------------------------------------------------------- jobs
 async def wait_job(s, base, headers, state_not="running", guard_s=120.0) -> dict:
     """The job's view once it is no longer ``state_not`` (the guard only bounds a broken run)."""
-    deadline = time.monotonic() + guard_s
-    while True:
-        job = (await (await s.get(base + "/api/status", headers=headers)).json())["job"]
-        if job is not None and job["state"] != state_not:
-            return job
-        assert time.monotonic() < deadline, f"the job stayed {state_not}: {job}"
-        await asyncio.sleep(0.1)
+    async def job():
+        return (await (await s.get(base + "/api/status", headers=headers)).json())["job"]
+
+    return await wait_until_async(job, lambda j: j is not None and j["state"] != state_not,
+                                  what=f"the job no longer {state_not}", timeout=guard_s)
 
 
 def test_job_options_start_and_outcome(tmp_path):
