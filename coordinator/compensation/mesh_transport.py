@@ -27,6 +27,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from coordinator.compensation.baselines import BaselineScan, lit_baselines, measure_baselines
 from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.memory_check import check_measure, check_stored
 from imaging.compensation.errors import CompensationError
@@ -58,7 +59,6 @@ from coordinator.compensation.store import (
     StoredTransport,
     baseline_fingerprint,
     rig_state_fingerprint,
-    save_baseline_transport,
     save_measured_transport,
     stored_baselines,
     transport_fingerprint,
@@ -261,36 +261,19 @@ async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
         grid = await ctx.compute(schedule_dots, base, np.stack(use), (ch, cw), radius, spacing=tr.meta["spacing"],
                                  present=np.stack(present))
         _, rows, valid = stacked_windows(positions, use, cams.part_shape, radius)
-        ctx.log(f"baseline: measuring {len(todo)} projector(s) one at a time ({len(grid)} patterns x "
-                f"{frames} frame(s) each, exposure x{opts.baseline_exposure:g})")
-        await ctx.show({s: None for s in tr.slots}, settle_s=opts.settle_s, require=[])
-        black = await capture_cameras(ctx, cameras, frames=frames, exposure=exposure)
-        for n, s in enumerate(todo):
+
+        async def frame(s: str, k: int) -> np.ndarray:
             st = rig.slot(s)
+            return await ctx.compute(mesh_warp, cams.pad(grid.pattern(k, value=255, dtype=np.uint8)),
+                                     cams.projectors[s], lut=st.lut, gain=st.gain)
 
-            async def patterns(s=s, st=st):
-                for k in range(len(grid)):
-                    frame = await ctx.compute(mesh_warp, cams.pad(grid.pattern(k, value=255, dtype=np.uint8)),
-                                              cams.projectors[s],
-                                              lut=st.lut, gain=st.gain)
-                    await ctx.show({s: frame}, settle_s=opts.settle_s, require=[s])
-                    yield await capture_cameras(ctx, cameras, frames=frames, exposure=exposure)
-                    ctx.progress("baseline transport", s, k + 1, len(grid), f"projector {n + 1}/{len(todo)}")
+        async def capture() -> np.ndarray:
+            return await capture_cameras(ctx, cameras, frames=frames, exposure=exposure)
 
-            Li = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures,
-                                                 grid=grid, rows=rows, valid=valid, dot_value=opts.baseline_exposure,
-                                                 core=tails, radius=radius)
-            await ctx.compute(save_baseline_transport, rig, s, Li,
-                              {"fingerprint": fp, "slot": s, "frames": frames, "exposure": opts.baseline_exposure,
-                               "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
-            out[s] = Li
-    total = float(tr.L.sum())
-    excluded = [s for s in tr.slots if float(out[s].sum()) < 1e-3 * total / max(len(tr.slots), 1)]
-    for s in excluded:
-        ctx.log(f"baseline: {s} adds no light to the camera image (powered off, or it does not see the surface the "
-                "camera sees); left out")
-        out.pop(s)
-    summary = {"slots": sorted(out), "excluded": excluded, "measured": todo, "captures": ctx.captures - c0,
-               "captures_per_projector": (len(grid) * frames) if todo else None, "frames": frames,
-               "exposure": opts.baseline_exposure, "seconds": round(time.monotonic() - t0, 3)}
-    return out, summary
+        scan = BaselineScan(len(grid), frame, capture,
+                            {"recover": texel_transport_from_captures, "grid": grid, "rows": rows, "valid": valid,
+                             "core": tails, "radius": radius})
+        await measure_baselines(ctx, tr, opts, scan, fingerprint=fp, todo=todo, out=out)
+    return lit_baselines(ctx, tr, opts, out, todo=todo, captures=ctx.captures - c0, seconds=time.monotonic() - t0,
+                         captures_per_projector=(len(grid) * frames) if todo else None,
+                         unlit="powered off, or it does not see the surface the camera sees")
