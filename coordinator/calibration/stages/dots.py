@@ -11,7 +11,7 @@ import numpy as np
 from imaging.calibration import multiplex, planar
 from imaging.calibration.errors import CalibrationError
 from coordinator.calibration.runs import save_slot, slot_doc
-from coordinator.calibration.stages.loops import coded_dot_rounds, refuse_unfound
+from coordinator.calibration.stages.loops import coarse_fits, coded_dot_rounds, refuse_unfound
 from coordinator.calibration.stages.state import SATURATED, Abort, State
 from coordinator.jobs import JobError
 from coordinator.rig import HomographyPose
@@ -46,21 +46,17 @@ async def _coded_dots(st: State, cam: int) -> tuple[dict[str, np.ndarray], dict[
         dec = await ctx.compute(multiplex.decode_coded_dots, caps, st.dark[k_cam], plan)
         ctx.log(f"coded dots: {dec.blobs} blobs, {dec.collisions} overlapping, {dec.unknown} unknown codes")
         check_dot_saturation(caps, dec, cam, opts.max_saturated)
-        still = []
         for s in pending:
+            seen[s] += dec.matches[s].count
+
+        async def fit(s: str) -> np.ndarray | None:
             m = dec.matches[s]
-            seen[s] += m.count
-            if m.count >= MIN_COARSE_DOTS:
-                try:
-                    fit = planar.fit_homography(planar.apply_homography(H_cam_to_table, m.camera), m.projector,
-                                                threshold=2.0)
-                    if fit.count >= MIN_COARSE_DOTS:
-                        coarse[s] = fit.H
-                        continue
-                except CalibrationError:
-                    pass
-            still.append(s)
-        return still
+            if m.count < MIN_COARSE_DOTS:
+                return None
+            got = planar.fit_homography(planar.apply_homography(H_cam_to_table, m.camera), m.projector, threshold=2.0)
+            return got.H if got.count >= MIN_COARSE_DOTS else None
+
+        return await coarse_fits(pending, fit, coarse)
 
     pending = await coded_dot_rounds(st, decide)
     refuse_unfound(st, pending, seen, aimed_at="table",

@@ -13,7 +13,7 @@ from imaging.calibration.errors import CalibrationError
 from imaging.calibration.multiplex3d import fit_pose, lift
 from coordinator.calibration.runs import save_slot, slot_doc
 from coordinator.calibration.stages.dots import check_dot_saturation
-from coordinator.calibration.stages.loops import coded_dot_rounds, refuse_unfound
+from coordinator.calibration.stages.loops import coarse_fits, coded_dot_rounds, refuse_unfound
 from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobError
 from coordinator.rig import ProjectionPose
@@ -85,19 +85,15 @@ async def _coded_dots(st: State, surfaces) -> tuple[dict[str, threed.Pinhole], d
                 good = np.isfinite(W).all(axis=1)
                 X[s].append(W[good])
                 x[s].append(m.projector[good])
-        still = []
-        for s in pending:
+
+        async def fit(s: str) -> threed.Pinhole | None:
             Xs, xs = np.vstack(X[s]), np.vstack(x[s])
-            if len(Xs) >= MIN_COARSE_DOTS:
-                try:
-                    fit, _ = await ctx.compute(fit_pose, Xs, xs, st.sizes[s], threshold=2.0, seed=opts.seed)
-                    if fit.count >= MIN_COARSE_DOTS:
-                        coarse[s] = fit.device
-                        continue
-                except CalibrationError:
-                    pass
-            still.append(s)
-        return still
+            if len(Xs) < MIN_COARSE_DOTS:
+                return None
+            got, _ = await ctx.compute(fit_pose, Xs, xs, st.sizes[s], threshold=2.0, seed=opts.seed)
+            return got.device if got.count >= MIN_COARSE_DOTS else None
+
+        return await coarse_fits(pending, fit, coarse)
 
     pending = await coded_dot_rounds(st, decide, max_dots=COARSE_DOTS)
     refuse_unfound(st, pending, seen, aimed_at="object",

@@ -3,9 +3,10 @@
 * :func:`one_by_one`: the sequential modes, one projector after another; a projector that fails
   is skipped with ``keep_going`` and stops the run otherwise; a camera problem (:class:`Abort`)
   always stops it.
-* :func:`coded_dot_rounds` and :func:`refuse_unfound`: the multiplexed modes' first stage, coded
-  dots from every projector at once, with one more round (another seed) for the projectors still
-  short of dots, and the failure of those left.
+* :func:`coded_dot_rounds`, :func:`coarse_fits` and :func:`refuse_unfound`: the multiplexed modes'
+  first stage, coded dots from every projector at once, each projector's coarse pose fitted from
+  its dots, one more round (another seed) for the projectors still short of dots, and the failure
+  of those left.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from coordinator.jobs import JobError
 from imaging.calibration import multiplex
 from imaging.calibration.errors import CalibrationError
 
-__all__ = ["one_by_one", "coded_dot_rounds", "refuse_unfound"]
+__all__ = ["one_by_one", "coded_dot_rounds", "coarse_fits", "refuse_unfound"]
 
 T = TypeVar("T")
 
@@ -71,6 +72,22 @@ async def coded_dot_rounds(st: State, decide: Callable[[multiplex.CodedDots, lis
         ctx.progress(stage, "", dots.captures, dots.captures, "decoding")
         pending = await decide(dots, caps, pending)
     return pending
+
+
+async def coarse_fits(pending: list[str], fit: Callable[[str], Awaitable[T | None]], into: dict[str, T]) -> list[str]:
+    """Each pending projector's coarse pose, ``fit(slot)``, put in ``into``; the projectors whose fit is None
+    (too few dots) or fails (:class:`CalibrationError`) are returned, still short of dots."""
+    still = []
+    for s in pending:
+        try:
+            got = await fit(s)
+        except CalibrationError:
+            got = None
+        if got is None:
+            still.append(s)
+        else:
+            into[s] = got
+    return still
 
 
 def refuse_unfound(st: State, pending: list[str], seen: dict[str, int], *, aimed_at: str,
