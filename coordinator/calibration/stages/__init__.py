@@ -11,4 +11,7 @@ Each stage is ``async def stage(st: State) -> ...`` on the job's :class:`~.state
 * :mod:`.dots`: the multiplexed mode on the table, every projector at once.
 * :mod:`.mesh`: sequential Gray codes cast onto the mesh (3D poses).
 * :mod:`.dots3d`: the multiplexed mode on the mesh, every projector at once (3D poses).
+
+The table's and the mesh's modes share their loops (:mod:`.loops`): one projector after another
+in the sequential modes; the coded-dot rounds, coarse fits and failures of the multiplexed ones.
 """
