@@ -37,7 +37,8 @@ class NodeLinkService(HandshakeService):
     @guard
     async def Join(self, request, context):
         self._check_login(request.login, context, "node")
-        sess = self.c.join(slot=request.login.slot, info=node_messages.node_info_from_message(request.info), peer=peer(context))
+        sess = self.c.join(slot=request.login.slot, info=node_messages.node_info_from_message(request.info),
+                           peer=peer(context))
         return node_pb2.JoinReply(session=sess.session, slot=sess.slot, rig_id=self.c.rig.config.rig_id,
                                   instance_id=self.c.instance_id, heartbeat_interval_ms=self.c.rig.config.heartbeat_ms,
                                   clock_id=self.c.clock_id)
@@ -129,7 +130,6 @@ class NodeLinkService(HandshakeService):
                         return
         except Refusal as exc:
             await abort(context, exc)
-
 
     async def Show(self, request, context):
         """The show's timeline: the state at once, every change, a beacon every BEACON_S."""
