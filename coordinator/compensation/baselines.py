@@ -22,8 +22,25 @@ from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.store import StoredTransport, save_baseline_transport
 from coordinator.jobs import JobContext
+from coordinator.jobs.results import JobResult
 
-__all__ = ["BaselineScan", "measure_baselines", "lit_baselines"]
+__all__ = ["BaselineScan", "BaselineFigures", "measure_baselines", "lit_baselines"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class BaselineFigures(JobResult):
+    """The baseline's measurement: the projectors kept, those left out (no light), those measured now (the
+    rest were stored), its captures (in all, and per projector when any was measured), the frames averaged
+    per capture, the exposure relative to ``L``'s, and its time."""
+
+    slots: list[str]
+    excluded: list[str]
+    measured: list[str]
+    captures: int
+    captures_per_projector: int | None
+    frames: int
+    exposure: float
+    seconds: float
 
 
 @dataclass(frozen=True)
@@ -69,7 +86,7 @@ async def measure_baselines(ctx: JobContext, tr: StoredTransport, opts: Transpor
 
 def lit_baselines(ctx: JobContext, tr: StoredTransport, opts: TransportOptions, out: dict[str, sp.csr_matrix], *,
                   todo: list[str], captures: int, seconds: float, captures_per_projector: int | None,
-                  unlit: str) -> tuple[dict[str, sp.csr_matrix], dict]:
+                  unlit: str) -> tuple[dict[str, sp.csr_matrix], BaselineFigures]:
     """``out`` without the projectors that add no light to the camera image (below 1/1000 of their share of
     ``L``'s light; logged with ``unlit``, the likely reason), and the figures of the measurement."""
     total = float(tr.L.sum())
@@ -77,7 +94,6 @@ def lit_baselines(ctx: JobContext, tr: StoredTransport, opts: TransportOptions, 
     for s in excluded:
         ctx.log(f"baseline: {s} adds no light to the camera image ({unlit}); left out")
         out.pop(s)
-    summary = {"slots": sorted(out), "excluded": excluded, "measured": todo, "captures": captures,
-               "captures_per_projector": captures_per_projector, "frames": opts.baseline_frame_count,
-               "exposure": opts.baseline_exposure, "seconds": round(seconds, 3)}
-    return out, summary
+    return out, BaselineFigures(slots=sorted(out), excluded=excluded, measured=todo, captures=captures,
+                                captures_per_projector=captures_per_projector, frames=opts.baseline_frame_count,
+                                exposure=opts.baseline_exposure, seconds=round(seconds, 3))

@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from coordinator.compensation.baselines import BaselineFigures
 from coordinator.compensation.evaluation import evaluate
 from coordinator.compensation.image_param import load_image_param, prepare_image
 from coordinator.compensation.jobkit import baseline_exposure, content_size
@@ -28,7 +29,7 @@ from coordinator.compensation.store import transport_summary, write_result
 from coordinator.compensation.surface import SolveFigures
 from coordinator.compensation.surfaces import surface_for
 from coordinator.jobs import JobContext, JobError
-from coordinator.jobs.results import Figures, JobResult, optional
+from coordinator.jobs.results import Figures, JobResult, optional, spread
 from imaging.compensation.errors import CompensationError
 
 __all__ = ["OPTIONS", "run", "CompensateResult"]
@@ -38,6 +39,17 @@ OPTIONS = CompensateOptions
 
 #: the name a compensated image is shown under (see :func:`run`)
 COMPENSATED_PREFIX = "compensated "
+
+
+@dataclass(frozen=True, kw_only=True)
+class BaselineSolve(JobResult):
+    """The per-projector baseline of a ``compensate`` result: its measurement's figures, then its solves'
+    wall time, iterations and the sum of their own times."""
+
+    measurement: BaselineFigures = spread()
+    solve_seconds: float
+    iterations: int
+    solve_seconds_sum: float
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -62,7 +74,7 @@ class CompensateResult(JobResult):
     texture: Figures | None = optional()
     weights: str | None = optional()
     saturated_fraction: Figures
-    baseline: Figures | None = optional()
+    baseline: BaselineSolve | None = optional()
     baseline_over_ours_seconds: float | None = optional()
     quality: Figures | None = optional()
     wall_s: float
@@ -109,10 +121,10 @@ async def run(ctx: JobContext, opts: CompensateOptions) -> CompensateResult:
         base_L, base_summary = await surface.solution_baselines(ctx, sol, opts)
         t_b = time.monotonic()
         base_x, results = await surface.solve_baselines(ctx, sol, base_L, opts)
-        baseline = {**base_summary, "solve_seconds": round(time.monotonic() - t_b, 3),
-                    "iterations": sum(r.iterations for r in results),
-                    "solve_seconds_sum": round(sum(r.seconds for r in results), 3)}
-        over = round(baseline["solve_seconds_sum"] / max(sol.seconds, 1e-9), 2)
+        baseline = BaselineSolve(measurement=base_summary, solve_seconds=round(time.monotonic() - t_b, 3),
+                                 iterations=sum(r.iterations for r in results),
+                                 solve_seconds_sum=round(sum(r.seconds for r in results), 3))
+        over = round(baseline.solve_seconds_sum / max(sol.seconds, 1e-9), 2)
     quality = None
     if opts.evaluate:
         quality = await evaluate(ctx, await surface.scoring(ctx, sol, opts), sol.none, sol.x, base_x, opts, name)

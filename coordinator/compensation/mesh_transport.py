@@ -27,7 +27,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.baselines import BaselineScan, lit_baselines, measure_baselines
+from coordinator.compensation.baselines import BaselineFigures, BaselineScan, lit_baselines, measure_baselines
 from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.memory_check import check_measure, check_stored
 from imaging.compensation.errors import CompensationError
@@ -233,7 +233,7 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
 
 
 async def ensure_mesh_baseline(ctx: JobContext, tr: StoredTransport,
-                               opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], dict]:
+                               opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], BaselineFigures]:
     """The per-projector ``L_i`` on the mesh (baseline only), as
     :func:`coordinator.compensation.planar_transport.ensure_baseline`: stored ones reused, the rest measured one
     projector at a time, each shown the texture pattern through its own pose by the coordinator."""

@@ -27,7 +27,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.compensation.baselines import BaselineScan, lit_baselines, measure_baselines
+from coordinator.compensation.baselines import BaselineFigures, BaselineScan, lit_baselines, measure_baselines
 from coordinator.compensation.capture_feed import transport_while_capturing
 from coordinator.compensation.jobkit import (
     baseline_exposure,
@@ -129,7 +129,7 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
 
 
 async def ensure_baseline(ctx: JobContext, tr: StoredTransport,
-                          opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], dict]:
+                          opts: TransportOptions) -> tuple[dict[str, sp.csr_matrix], BaselineFigures]:
     """The per-projector ``L_i`` (baseline only): stored ones with a matching fingerprint, the rest measured
     one projector at a time; projectors that add no light are left out. Returns them and their figures."""
     rig = ctx.rig

@@ -52,21 +52,33 @@ from coordinator.compensation.store import (
 from coordinator.jobs import JobContext, JobError
 from coordinator.jobs.results import Figures, JobResult
 
-__all__ = ["OPTIONS", "run", "ResponseResult"]
+__all__ = ["OPTIONS", "run", "ResponseResult", "SlotResponse"]
 
 OPTIONS = ResponseOptions
 
 
 @dataclass(frozen=True, kw_only=True)
+class SlotResponse(JobResult):
+    """One projector's fitted response: per channel its gamma, black and peak (camera units), the patches
+    it was fitted from (patches mode), its captures, and whether an earlier run measured it."""
+
+    gamma: list[float]
+    black: list[float | None]
+    peak: list[float | None]
+    patches: int | None
+    captures: int | None
+    resumed: bool
+
+
+@dataclass(frozen=True, kw_only=True)
 class ResponseResult(JobResult):
     """The ``response`` job's result (also ``compensation/response.json``): per projector its fitted
-    curve's figures (``gamma``, ``black``, ``peak`` per channel; ``patches``, ``captures``, ``resumed``),
-    those that failed and why, the brightness match and the linearity check."""
+    response, those that failed and why, the brightness match and the linearity check."""
 
     mode: str
     captures: int
     wall_s: float
-    slots: dict[str, Figures]
+    slots: dict[str, SlotResponse]
     failed: dict[str, str]
     brightness: Figures
     linearity: Figures
@@ -125,11 +137,11 @@ async def run(ctx: JobContext, opts: ResponseOptions) -> ResponseResult:
     linearity = await _verify(ctx, opts, H)
     summary = ResponseResult(
         mode=opts.mode, captures=ctx.captures, wall_s=round(time.monotonic() - t0, 3),
-        slots={s: {"gamma": [round(float(g), 4) for g in responses[s].gamma],
-                      "black": [rounded(float(b), 6) for b in responses[s].black],
-                      "peak": [rounded(float(p), 6) for p in responses[s].peak],
-                      "patches": docs[s].get("patches"), "captures": docs[s].get("captures"),
-                      "resumed": bool(docs[s].get("resumed"))} for s in slots if s in responses},
+        slots={s: SlotResponse(gamma=[round(float(g), 4) for g in responses[s].gamma],
+                               black=[rounded(float(b), 6) for b in responses[s].black],
+                               peak=[rounded(float(p), 6) for p in responses[s].peak],
+                               patches=docs[s].get("patches"), captures=docs[s].get("captures"),
+                               resumed=bool(docs[s].get("resumed"))) for s in slots if s in responses},
         failed=failed, brightness=match, linearity=linearity,
     )
     write_result(rig, "response.json", summary.to_wire())

@@ -23,6 +23,7 @@ from coordinator.jobs import JobError
 from coordinator.jobs.results import Figures, JobResult, optional
 
 if TYPE_CHECKING:
+    from coordinator.compensation.baselines import BaselineFigures
     from coordinator.compensation.evaluation import Scoring
     from coordinator.compensation.options import CompensateOptions, TransportOptions
     from coordinator.compensation.store import StoredTransport
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 __all__ = ["Surface", "Solution", "SolveFigures", "TransportFigures", "Baselines", "nonempty"]
 
 #: the per-projector ``L_i`` by slot, and the figures of their measurement
-Baselines = tuple[dict[str, sp.csr_matrix], Figures]
+Baselines = tuple[dict[str, sp.csr_matrix], "BaselineFigures"]
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+from coordinator.compensation.baselines import BaselineFigures
 from coordinator.compensation.jobkit import baseline_exposure
 from coordinator.compensation.options import TransportOptions
 from coordinator.compensation.store import transport_summary
@@ -38,7 +39,7 @@ class TransportResult(JobResult):
 
     measurement: Figures = spread()
     figures: TransportFigures = spread()
-    baseline: Figures | None = optional()
+    baseline: BaselineFigures | None = optional()
     wall_s: float
 
 

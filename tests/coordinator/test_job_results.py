@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import pytest
 
+from coordinator.compensation.baselines import BaselineFigures
+from coordinator.compensation.compensate_job import BaselineSolve
 from coordinator.compensation.surface import SolveFigures, TransportFigures
 from coordinator.compensation.transport_job import TransportResult
 from coordinator.coverage_job import CoverageResult
@@ -80,3 +82,12 @@ def test_coverage_result_is_the_stored_document_without_its_layout():
     wire = CoverageResult.from_doc(doc).to_wire()
     assert wire == {k: v for k, v in doc.items() if k != "layout"}
     assert list(wire) == [k for k in doc if k != "layout"]
+
+
+def test_a_compensate_results_baseline_puts_its_measurement_before_its_solves():
+    measured = BaselineFigures(slots=["r0c0", "r0c1"], excluded=["r0c2"], measured=["r0c1"], captures=50,
+                               captures_per_projector=25, frames=1, exposure=1.0, seconds=3.2)
+    wire = BaselineSolve(measurement=measured, solve_seconds=0.4, iterations=60, solve_seconds_sum=0.35).to_wire()
+    assert list(wire) == ["slots", "excluded", "measured", "captures", "captures_per_projector", "frames", "exposure",
+                          "seconds", "solve_seconds", "iterations", "solve_seconds_sum"]
+    assert wire["excluded"] == ["r0c2"] and wire["iterations"] == 60
