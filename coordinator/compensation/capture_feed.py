@@ -4,23 +4,27 @@
 captures; the job takes them on its event loop. :func:`transport_while_capturing` runs the
 recovery on a worker thread fed through a bounded :class:`CaptureFeed`, so each capture is
 used and dropped as it arrives (memory stays at a few captures whatever the dot grid) and
-the recovery overlaps the next pattern's capture.
+the recovery overlaps the next pattern's capture. :func:`dot_captures` is what it consumes while
+``L`` is measured (each dot pattern shown and captured at the dots' exposure), and
+:func:`warn_cut_windows` says when the recovered windows cut light, on a table and on a mesh alike.
 """
 from __future__ import annotations
 
 import asyncio
 import queue
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from imaging.compensation.errors import CompensationError
+from imaging.compensation.exposure import DotExposure
+from imaging.compensation.geometry import EDGE_WARNING
 from imaging.compensation.transport import transport_from_captures
 from coordinator.jobs.errors import JobError
 
-__all__ = ["CaptureFeed", "transport_while_capturing"]
+__all__ = ["CaptureFeed", "transport_while_capturing", "dot_captures", "warn_cut_windows"]
 
 
 class CaptureFeed:
@@ -91,3 +95,23 @@ async def transport_while_capturing(ctx: Any, captures: AsyncIterator[np.ndarray
         if isinstance(exc, ValueError):
             raise JobError(f"light transport: {exc}") from exc
         raise
+
+
+async def dot_captures(ctx: Any, patterns: int, show: Callable[[int], Awaitable[None]], dots: DotExposure,
+                       capture: Callable[[float | None, int], Awaitable[np.ndarray]], frames: int
+                       ) -> AsyncIterator[np.ndarray]:
+    """Dot pattern ``k`` of ``patterns`` shown (``show(k)``) and captured at the dots' exposure
+    (:meth:`~imaging.compensation.exposure.DotExposure.take`), one after the other, with the
+    ``transport`` progress: the captures :func:`transport_while_capturing` consumes."""
+    for k in range(patterns):
+        await show(k)
+        yield await dots.take(k, capture, frames)
+        ctx.progress("transport", "", k + 1, patterns, "dot patterns")
+
+
+def warn_cut_windows(log: Callable[[str], None], edge: float, radius: int) -> None:
+    """Warn when more than :data:`~imaging.compensation.geometry.EDGE_WARNING` of the measured light
+    (``edge``, a share) lies on the edge of the ``2 radius + 1``-pixel windows: the PSFs are wider."""
+    if edge > EDGE_WARNING:
+        log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * radius + 1}-pixel "
+            f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")

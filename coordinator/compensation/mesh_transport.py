@@ -28,11 +28,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.baselines import BaselineFigures, BaselineScan, lit_baselines, measure_baselines
-from coordinator.compensation.capture_feed import transport_while_capturing
+from coordinator.compensation.capture_feed import dot_captures, transport_while_capturing, warn_cut_windows
 from coordinator.compensation.memory_check import check_measure, check_stored
 from imaging.compensation.errors import CompensationError
 from imaging.compensation.exposure import dot_exposure, exposure_for_white
-from imaging.compensation.geometry import EDGE_WARNING, psf_radius_at_scales
+from imaging.compensation.geometry import psf_radius_at_scales
 from coordinator.compensation.jobkit import (
     baseline_exposure,
     content_size,
@@ -201,20 +201,13 @@ async def ensure_mesh_transport(ctx: JobContext, opts: TransportOptions, slots: 
                               black=black, exposure=white_exposure, frames=frames, log=ctx.log,
                               adjustable=len(grid) > 0 and all(ctx.supports_exposure(c) for c in cameras))
 
-    async def patterns():
-        for k in range(len(grid)):
-            await show_pattern(k)
-            yield await dots.take(k, capture, frames)
-            ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
-
-    L = await transport_while_capturing(ctx, patterns(), black, recover=texel_transport_from_captures, grid=grid,
-                                        rows=rows, valid=valid, core=tails, radius=radius)
+    L = await transport_while_capturing(ctx, dot_captures(ctx, len(grid), show_pattern, dots, capture, frames), black,
+                                        recover=texel_transport_from_captures, grid=grid, rows=rows, valid=valid,
+                                        core=tails, radius=radius)
     dots.report(len(grid), ctx.log)
     seconds = time.monotonic() - t0
     edge = await ctx.compute(stacked_ring_energy, L, base, cams.part_shape, radius)
-    if edge > EDGE_WARNING:
-        ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * radius + 1}-pixel "
-                f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")
+    warn_cut_windows(ctx.log, edge, radius)
     spacing = grid.spacing[0] if grid.spacing[0] == grid.spacing[1] else grid.spacing
     projection = np.asarray(P).tolist() if one else [np.asarray(g.P).tolist() for g in cams.parts]
     meta = {"fingerprint": fp, "rig_state": state, "surface": "mesh", "radius": radius, "core": core,

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.compensation.baselines import BaselineFigures, BaselineScan, lit_baselines, measure_baselines
-from coordinator.compensation.capture_feed import transport_while_capturing
+from coordinator.compensation.capture_feed import dot_captures, transport_while_capturing, warn_cut_windows
 from coordinator.compensation.jobkit import (
     baseline_exposure,
     content_size,
@@ -48,7 +48,7 @@ from coordinator.compensation.store import (
 from coordinator.jobs import JobContext, JobError
 from imaging.compensation.errors import CompensationError
 from imaging.compensation.exposure import dot_exposure
-from imaging.compensation.geometry import EDGE_WARNING, choose_spacing, edge_energy, psf_radius
+from imaging.compensation.geometry import choose_spacing, edge_energy, psf_radius
 from imaging.compensation.transport import DotGrid
 from protos.spaces import warp_content
 
@@ -104,19 +104,12 @@ async def ensure_transport(ctx: JobContext, opts: TransportOptions, slots: list[
                               black=black, exposure=None, frames=frames, log=ctx.log,
                               adjustable=ctx.supports_exposure(opts.camera))
 
-    async def patterns():
-        for k in range(len(grid)):
-            await show_pattern(k)
-            yield await dots.take(k, capture, frames)
-            ctx.progress("transport", "", k + 1, len(grid), "dot patterns")
-
-    L = await transport_while_capturing(ctx, patterns(), black, grid=grid, homography=H, radius=radius)
+    L = await transport_while_capturing(ctx, dot_captures(ctx, len(grid), show_pattern, dots, capture, frames), black,
+                                        grid=grid, homography=H, radius=radius)
     dots.report(len(grid), ctx.log)
     seconds = time.monotonic() - t0
     edge = await ctx.compute(edge_energy, L, H, (ch, cw), cam, radius)
-    if edge > EDGE_WARNING:
-        ctx.log(f"warning: {100 * edge:.1f} % of the measured light lies on the edge of the {2 * radius + 1}-pixel "
-                f"windows: the PSFs are larger (defocus?); measure again with a larger radius (--radius {radius + 1})")
+    warn_cut_windows(ctx.log, edge, radius)
     meta = {"fingerprint": fp, "rig_state": state, "radius": radius, "spacing": spacing, "frames": frames,
             "captures": ctx.captures - c0, "patterns": len(grid), "content_size": [cw, ch],
             "camera_size": [cam[1], cam[0]], "content_to_camera": np.asarray(H).tolist(), "camera": opts.camera,
