@@ -127,8 +127,8 @@ class PlanarSurface:
             content=content, T=T, s=s, target=target, region=region, base=base)
 
     async def solution_baselines(self, ctx: JobContext, sol: PlanarSolution, opts: CompensateOptions) -> Baselines:
-        assert sol.base is not None, "a table's baseline is measured while solving, for its level"
-        return sol.base
+        # measured while solving, for the target's level (the baseline's projectors must reach it)
+        return sol.base if sol.base is not None else nonempty(await self.baselines(ctx, sol.tr, opts))
 
     async def solve_baselines(self, ctx: JobContext, sol: PlanarSolution, base_L: dict[str, sp.csr_matrix],
                               opts: CompensateOptions) -> tuple[dict[str, np.ndarray], list[SolveResult]]:
