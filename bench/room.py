@@ -36,8 +36,9 @@ import json
 import statistics
 import time
 
-import cv2
 import numpy as np
+
+from sim.drop_figures import drop_statistics
 
 from bench.machine import machine
 from sim.hand import Hand
@@ -89,37 +90,6 @@ def capture_speed(*, camera_scale: float, repeat: int, seed: int) -> dict:
             t["ratio_to_1"] = round(t["seconds"] / base, 2) if base > 0 else None
         out[mode] = timings
     return out
-
-
-def drop_statistics(drop: np.ndarray, on_table: np.ndarray, px_area: np.ndarray) -> dict:
-    """Figures of one light-drop map (see the module docstring). ``px_area``: mm^2 per camera pixel."""
-    d = np.where(on_table, drop.astype(np.float64), 0.0)
-    peak = float(d.max())
-    affected = d > 0.01
-    # Steps between neighbouring pixels that both see the table (not across its border).
-    both_y = on_table[1:] & on_table[:-1]
-    both_x = on_table[:, 1:] & on_table[:, :-1]
-    step = max(float(np.abs(np.diff(d, axis=0))[both_y].max(initial=0.0)), float(np.abs(np.diff(d, axis=1))[both_x].max(initial=0.0)))
-    stats = {
-        "max": round(peak, 4),
-        "mean": round(float(d[affected].mean()), 4) if affected.any() else 0.0,
-        "area_below_50_mm2": round(float(px_area[d > 0.5].sum()), 1),
-        "umbra_mm2": round(float(px_area[d >= 0.9].sum()), 1),
-        "transition_mm": None,
-        "max_step": round(step, 4),
-    }
-    if peak > 0.02:
-        core = (d >= 0.9 * peak).astype(np.uint8)
-        outer = d >= 0.1 * peak
-        # The contour of the 10 % region inside the table (the table's own border is no contour).
-        eroded = cv2.erode((outer | ~on_table).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-        edge = outer & ~eroded
-        dist = cv2.distanceTransform((1 - core).astype(np.uint8), cv2.DIST_L2, 5)
-        pitch = np.sqrt(px_area)
-        vals = (dist * pitch)[edge.astype(bool) & on_table]
-        if len(vals):
-            stats["transition_mm"] = round(float(np.median(vals)), 2)
-    return stats
 
 
 def _pixel_areas(points: np.ndarray) -> np.ndarray:

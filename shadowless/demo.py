@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.room import drop_statistics
+from sim.drop_figures import drop_statistics
 from coordinator.compensation.image_param import encode_image_param
 from rigctl.job_command import ProgressView, run_job
 from protos import cli_types

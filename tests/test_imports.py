@@ -4,9 +4,10 @@ Every import counts, including those inside functions and those under ``if TYPE_
 (never executed, but a type named there ties the two modules as much as a run-time import). The rules:
 
 * no import cycles between modules;
-* node -> protos only; coordinator -> protos only; sim -> protos only (plus themselves);
-* nothing imports ``bench`` but the CLI wiring (``shadowless``) and ``bench`` itself;
-* nothing in coordinator/node/sim/protos imports the CLI wiring (``shadowless``);
+* every package stands on a floor (``FLOORS``) and imports only packages on lower floors, and of
+  those only the ones ``ALLOWED`` lists (node, sim -> protos; coordinator -> imaging, protos; ...);
+  nothing imports ``bench`` (the ``shadowless bench`` command loads it by name, lazily);
+* the coordinator's core reaches no edge, and no edge imports the core's module;
 * generated ``*_pb2`` modules only in the wire and link modules listed here;
 * ``import grpc`` (or any ``grpc_*`` package) only in wire and link modules: a module one of whose
   dotted name's parts is ``wire`` or ``link``, or ends with ``_wire`` or ``_link``
@@ -46,7 +47,7 @@ ALLOWED = {
     "studies": {"rigctl", "coordinator", "sim", "protos", "imaging"},
     "rigctl": {"coordinator", "protos", "imaging"},
     "planner": {"studies", "sim", "protos"},
-    "shadowless": {"coordinator", "node", "sim", "protos", "imaging", "studies", "rigctl", "planner", "bench"},
+    "shadowless": {"coordinator", "node", "sim", "protos", "imaging", "studies", "rigctl", "planner"},
     "bench": set(PACKAGES) - {"bench"},
 }
 
@@ -268,3 +269,9 @@ def test_the_core_reaches_no_edge_and_the_edges_see_it_only_through_its_protocol
     assert len(edges) > 10
     assert sorted(f"{m} -> coordinator.server" for m in edges if "coordinator.server" in _reach(m)) == []
     assert "coordinator.server" in GRAPH["coordinator.app"], "the root builds the core"
+
+
+def test_every_allowed_import_goes_down_a_floor():
+    up = sorted(f"{p} -> {q}" for p, allowed in ALLOWED.items() for q in allowed if FLOORS[q] >= FLOORS[p])
+    assert up == [], f"ALLOWED lets a package import one on its own floor or above: {up}"
+    assert set(FLOORS) == set(PACKAGES) == set(ALLOWED)

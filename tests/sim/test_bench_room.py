@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.room import drop_statistics
+from sim.drop_figures import drop_statistics
 
 ROOT = Path(__file__).resolve().parents[2]
 
