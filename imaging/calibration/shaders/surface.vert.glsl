@@ -1,6 +1,6 @@
 #version 330
 // World position per camera pixel: the surface (mesh and table) seen through a pinhole camera.
-uniform mat4 mvp;        // world mm -> clip (coordinator.calibration.threed.gl_projection)
+uniform mat4 mvp;        // world mm -> clip (imaging.calibration.threed.gl_projection)
 in vec3 in_position;     // world mm
 in float in_kind;        // 1 = table plane, 2 = mesh
 out vec3 v_position;
