@@ -25,3 +25,9 @@ def test_wait_until_async_awaits_a_coroutine_probe():
         return next(counter)
 
     assert asyncio.run(wait_until_async(probe, lambda n: n == 2, what="two", interval=0)) == 2
+
+
+def test_a_long_state_is_shown_by_its_end():
+    log = "started\n" + "x" * 2000 + "\nthe line that matters"
+    with pytest.raises(WaitTimeout, match="the line that matters"):
+        wait_until(lambda: log, lambda s: False, what="a line", timeout=0.01, interval=0.01)

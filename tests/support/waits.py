@@ -31,8 +31,9 @@ class WaitTimeout(AssertionError):
 
 
 def _clip(value: object, limit: int = 600) -> str:
+    """``repr(value)``, its end kept when it is long: a log or a list grows at its end, where the news is."""
     text = repr(value)
-    return text if len(text) <= limit else text[: limit - 1] + "…"
+    return text if len(text) <= limit else "…" + text[-(limit - 1):]
 
 
 def wait_until(probe: Callable[[], T], done: Callable[[T], bool] = bool, *, what: str,
