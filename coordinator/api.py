@@ -208,6 +208,22 @@ class ShowState:
 
 
 @dataclass(frozen=True)
+class BlendStatus:
+    """The rig's per-pixel blend and any failover, as operators see it."""
+
+    state: str = "none"            # "none" | "blended" | "failover"
+    blend_id: str = ""
+    created_at: float = 0.0         # unix time the blend was measured
+    headroom: float = 0.0           # fraction of each point's light held in reserve
+    brightness_cost: float = 0.0    # fraction of brightness that reserve costs against none
+    lost: tuple[str, ...] = ()      # slots out of the blend (node lost, or lamp named by the watchdog)
+    since: float = 0.0              # unix time the current failover began (0: none)
+    covered: bool = True            # the remaining projectors cover every lost footprint, uniformity kept
+    lamps: tuple[tuple[str, float], ...] = ()   # the watchdog's gain estimates that differ from 1
+    message: str = ""               # one line, e.g. "r2c3 lost 12 s ago: 24 projectors cover its footprint"
+
+
+@dataclass(frozen=True)
 class RigStatus:
     """The whole rig at one instant."""
 

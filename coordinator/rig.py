@@ -33,6 +33,7 @@ from coordinator.schema import (MAX_GAIN, MAX_SIDE, MIN_SIDE, SLOT_RE, ContentMe
                                 parse_toml, read_bytes, read_json, read_npy, read_text, valid_gain, validate, validate_lut)
 from protos.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
 from protos.auth import new_token
+from protos.blend import BlendMaps
 from protos.spaces import scale_intrinsics
 
 __all__ = ["MAX_GAIN", "MAX_SIDE", "MIN_SIDE", "SLOT_RE", "Content", "HomographyPose", "Mesh", "ProjectionPose", "Rig",
@@ -127,6 +128,12 @@ class SlotState:
     #: surface; not part of the node's assignment, and no job reads it: only ``coverage --planned``.
     #: Setting a pose (calibration, ``configure``) drops it.
     planned: ProjectionPose | None = None
+    #: per-pixel blend maps (alpha gain, beta black offset) this projector applies before its LUT;
+    #: None: none. Stored by the blend store, not in rig.toml.
+    blend: BlendMaps | None = None
+    #: rig-clock ns from which the nodes show ``blend`` (0: as soon as they have it), so that every
+    #: node of a failover switches at one common swap instant
+    blend_at_ns: int = 0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,103 @@
+"""Per-pixel blend maps: the record a coordinator sends and a node applies, defined once.
+
+A projector's blend is two maps over its own output frame, at a reduced resolution:
+
+* ``alpha`` (h, w, 3) float32 in [0, 1]: a gain per channel on the linear content;
+* ``beta`` (h, w) float32 in [0, 1]: a black offset added in linear luminance.
+
+The node's luminance pipeline becomes ``LUT(clamp(gain * (alpha * value + beta)))``. The maps
+are a downscaled image of the frame: texel (i, j) has its centre at projector pixel
+``((j + 0.5) * W / w - 0.5, (i + 0.5) * H / h - 0.5)`` for an output of W x H pixels, row 0 is
+the top row (OpenCV's convention), and between texel centres the maps are interpolated
+bilinearly, clamped at the edges.
+
+Only numpy: a node installs no OpenCV.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["BlendMapError", "BlendMaps", "MAX_MAP_SIDE"]
+
+#: the largest map side a node accepts (a quarter of 16k)
+MAX_MAP_SIDE = 4096
+
+
+class BlendMapError(ValueError):
+    """Blend maps of the wrong shape, type or range; the message is one line for an operator."""
+
+
+def _digest(alpha: np.ndarray, beta: np.ndarray) -> str:
+    h = hashlib.blake2b(digest_size=8)
+    h.update(np.asarray(alpha.shape, np.int64).tobytes())
+    h.update(alpha.astype("<f2").tobytes())
+    h.update(beta.astype("<f2").tobytes())
+    return h.hexdigest()
+
+
+@dataclass(frozen=True, eq=False)
+class BlendMaps:
+    """One projector's blend maps (see the module docstring for the grid).
+
+    Attributes
+    ----------
+    alpha : (h, w, 3) float32 in [0, 1]
+    beta : (h, w) float32 in [0, 1]
+    blend_id : str
+        A digest of the maps as sent (float16); computed when empty.
+    """
+
+    alpha: np.ndarray
+    beta: np.ndarray
+    blend_id: str = ""
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.alpha)
+        b = np.asarray(self.beta)
+        if a.ndim != 3 or a.shape[2] != 3:
+            raise BlendMapError(f"alpha map must be (h, w, 3), got shape {a.shape}")
+        if b.shape != a.shape[:2]:
+            raise BlendMapError(f"beta map must be (h, w) = {a.shape[:2]} like alpha, got {b.shape}")
+        h, w = b.shape
+        if not (1 <= h <= MAX_MAP_SIDE and 1 <= w <= MAX_MAP_SIDE):
+            raise BlendMapError(f"blend maps must be 1..{MAX_MAP_SIDE} texels per side, got {w}x{h}")
+        a = a.astype(np.float32, copy=False)
+        b = b.astype(np.float32, copy=False)
+        for name, arr in (("alpha", a), ("beta", b)):
+            if not np.all(np.isfinite(arr)):
+                raise BlendMapError(f"{name} map holds NaN or infinite values")
+            lo, hi = float(arr.min()), float(arr.max())
+            if lo < 0.0 or hi > 1.0:
+                raise BlendMapError(f"{name} map must lie in 0..1, got {lo:.4g}..{hi:.4g}")
+        a = np.ascontiguousarray(a)
+        b = np.ascontiguousarray(b)
+        a.setflags(write=False)
+        b.setflags(write=False)
+        object.__setattr__(self, "alpha", a)
+        object.__setattr__(self, "beta", b)
+        if not self.blend_id:
+            object.__setattr__(self, "blend_id", _digest(a, b))
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(w, h) texels."""
+        return int(self.beta.shape[1]), int(self.beta.shape[0])
+
+    def encode(self) -> tuple[bytes, bytes]:
+        """(alpha, beta) as little-endian float16 bytes, row-major, for the wire."""
+        return self.alpha.astype("<f2").tobytes(), self.beta.astype("<f2").tobytes()
+
+    @classmethod
+    def decode(cls, width: int, height: int, alpha: bytes, beta: bytes, blend_id: str = "") -> "BlendMaps":
+        """The inverse of :meth:`encode`; :class:`BlendMapError` when the sizes disagree."""
+        if not (1 <= width <= MAX_MAP_SIDE and 1 <= height <= MAX_MAP_SIDE):
+            raise BlendMapError(f"blend maps must be 1..{MAX_MAP_SIDE} texels per side, got {width}x{height}")
+        if len(alpha) != width * height * 3 * 2 or len(beta) != width * height * 2:
+            raise BlendMapError(f"blend maps of {width}x{height} need {width * height * 6} + {width * height * 2} bytes, "
+                                f"got {len(alpha)} + {len(beta)}")
+        a = np.frombuffer(alpha, "<f2").reshape(height, width, 3).astype(np.float32)
+        b = np.frombuffer(beta, "<f2").reshape(height, width).astype(np.float32)
+        return cls(a, b, blend_id)
