@@ -297,6 +297,7 @@ class Playback:
         # encode them for the wire off the event loop, before the frame's time is fixed
         await asyncio.to_thread(self.fanout.prepare, list(contents.values()))
         result: FrameResult | None = None
+        timed_out: list[str] = []
         for _ in range(attempts):
             frame = self._frame(default, tag="pattern", space=space, apply_lut=apply_lut, slot_content=slot_content,
                                 pts_ns=self.clock_ns() + budget)
@@ -308,14 +309,17 @@ class Playback:
             self.showing = "calibration pattern"
             try:
                 result = await asyncio.wait_for(fut, timeout_s)
+            except TimeoutError:    # no verdict in time (a node silent): try again, as for a late one
+                result = None
+                timed_out = sorted(s.slot for s in sessions)
             finally:
                 self._waiters.pop(frame.frame_id, None)
-            if result.shown_by_all:
+            if result is not None and result.shown_by_all:
                 break
             budget = min(4 * budget, MAX_BUDGET_NS)
             sessions = self.live_sessions()
         else:
-            missing = ", ".join(result.missing) if result is not None else "?"
+            missing = ", ".join(result.missing if result is not None else timed_out)
             raise CoordinatorError(f"node(s) {missing} did not show the pattern after {attempts} tries "
                                    "(late or disconnected); check `shadowless status`")
         self._pattern_ids = set(contents)

@@ -145,3 +145,27 @@ def test_the_core_tells_its_job_listeners_of_a_job_it_ran(tmp_path):
             await coord.close()
 
     asyncio.run(go())
+
+
+def test_a_pattern_no_node_answers_for_fails_naming_the_silent_nodes(tmp_path):
+    """A node that joins and opens its frames but never reports: each try times out, and after the
+    last the call fails with the coordinator's own error naming that node (a bare TimeoutError
+    used to escape, which an operator saw as an empty message)."""
+    from coordinator.errors import CoordinatorError
+    rig = _rig(tmp_path)
+
+    async def go():
+        coord = Coordinator(rig, TOKEN, encoding=Packets)
+        coord.open()
+        try:
+            for slot, pid in (("r0c0", 1), ("r0c1", 2)):
+                s = coord.join(slot=slot, info=NodeInfo(hostname=f"pi-{pid}", pid=pid), peer=f"ipv4:10.0.0.{pid}:5000")
+                coord.on_frames_open(s)
+            with pytest.raises(CoordinatorError) as failed:
+                await coord.playback.show_patterns({}, content=np.zeros((32, 32, 3), np.uint8), attempts=2,
+                                                   timeout_s=0.05, settle_s=0)
+            assert "r0c0, r0c1" in str(failed.value) and "2 tries" in str(failed.value), str(failed.value)
+        finally:
+            await coord.close()
+
+    asyncio.run(go())
