@@ -248,6 +248,8 @@ class RigStatus:
     #: where the operator console is served (``http://HOST:PORT/``), ``NOT SERVED (why)`` when it
     #: could not be and the coordinator was told to run on, or ``off`` (``--no-console``)
     console: str = ""
+    #: the per-pixel blend and any failover (``state`` "none" when the rig was never blended)
+    blend: BlendStatus = field(default_factory=BlendStatus)
 
 
 @dataclass(frozen=True)

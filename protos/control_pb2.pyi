@@ -191,7 +191,7 @@ class Refusal(_message.Message):
     def __init__(self, peer: _Optional[str] = ..., slot: _Optional[str] = ..., reason: _Optional[str] = ..., age_s: _Optional[float] = ..., count: _Optional[int] = ...) -> None: ...
 
 class RigStatus(_message.Message):
-    __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s", "show", "frame_packets_sent", "frame_bytes_sent", "show_updates_sent", "show_bytes_sent", "admission", "console")
+    __slots__ = ("rig_id", "rig_name", "instance_id", "rig_dir", "protocol_version", "uptime_s", "nodes", "sync", "showing", "refusals", "latency_budget_ms", "cpu_s", "show", "frame_packets_sent", "frame_bytes_sent", "show_updates_sent", "show_bytes_sent", "admission", "console", "blend")
     RIG_ID_FIELD_NUMBER: _ClassVar[int]
     RIG_NAME_FIELD_NUMBER: _ClassVar[int]
     INSTANCE_ID_FIELD_NUMBER: _ClassVar[int]
@@ -211,6 +211,7 @@ class RigStatus(_message.Message):
     SHOW_BYTES_SENT_FIELD_NUMBER: _ClassVar[int]
     ADMISSION_FIELD_NUMBER: _ClassVar[int]
     CONSOLE_FIELD_NUMBER: _ClassVar[int]
+    BLEND_FIELD_NUMBER: _ClassVar[int]
     rig_id: str
     rig_name: str
     instance_id: str
@@ -230,7 +231,40 @@ class RigStatus(_message.Message):
     show_bytes_sent: int
     admission: Admission
     console: str
-    def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ..., show: _Optional[_Union[ShowState, _Mapping]] = ..., frame_packets_sent: _Optional[int] = ..., frame_bytes_sent: _Optional[int] = ..., show_updates_sent: _Optional[int] = ..., show_bytes_sent: _Optional[int] = ..., admission: _Optional[_Union[Admission, _Mapping]] = ..., console: _Optional[str] = ...) -> None: ...
+    blend: BlendStatus
+    def __init__(self, rig_id: _Optional[str] = ..., rig_name: _Optional[str] = ..., instance_id: _Optional[str] = ..., rig_dir: _Optional[str] = ..., protocol_version: _Optional[int] = ..., uptime_s: _Optional[float] = ..., nodes: _Optional[_Iterable[_Union[NodeStatus, _Mapping]]] = ..., sync: _Optional[_Union[SyncStats, _Mapping]] = ..., showing: _Optional[str] = ..., refusals: _Optional[_Iterable[_Union[Refusal, _Mapping]]] = ..., latency_budget_ms: _Optional[float] = ..., cpu_s: _Optional[float] = ..., show: _Optional[_Union[ShowState, _Mapping]] = ..., frame_packets_sent: _Optional[int] = ..., frame_bytes_sent: _Optional[int] = ..., show_updates_sent: _Optional[int] = ..., show_bytes_sent: _Optional[int] = ..., admission: _Optional[_Union[Admission, _Mapping]] = ..., console: _Optional[str] = ..., blend: _Optional[_Union[BlendStatus, _Mapping]] = ...) -> None: ...
+
+class BlendStatus(_message.Message):
+    __slots__ = ("state", "blend_id", "created_at", "headroom", "brightness_cost", "lost", "since", "covered", "lamps", "message")
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    BLEND_ID_FIELD_NUMBER: _ClassVar[int]
+    CREATED_AT_FIELD_NUMBER: _ClassVar[int]
+    HEADROOM_FIELD_NUMBER: _ClassVar[int]
+    BRIGHTNESS_COST_FIELD_NUMBER: _ClassVar[int]
+    LOST_FIELD_NUMBER: _ClassVar[int]
+    SINCE_FIELD_NUMBER: _ClassVar[int]
+    COVERED_FIELD_NUMBER: _ClassVar[int]
+    LAMPS_FIELD_NUMBER: _ClassVar[int]
+    MESSAGE_FIELD_NUMBER: _ClassVar[int]
+    state: str
+    blend_id: str
+    created_at: float
+    headroom: float
+    brightness_cost: float
+    lost: _containers.RepeatedScalarFieldContainer[str]
+    since: float
+    covered: bool
+    lamps: _containers.RepeatedCompositeFieldContainer[LampGain]
+    message: str
+    def __init__(self, state: _Optional[str] = ..., blend_id: _Optional[str] = ..., created_at: _Optional[float] = ..., headroom: _Optional[float] = ..., brightness_cost: _Optional[float] = ..., lost: _Optional[_Iterable[str]] = ..., since: _Optional[float] = ..., covered: _Optional[bool] = ..., lamps: _Optional[_Iterable[_Union[LampGain, _Mapping]]] = ..., message: _Optional[str] = ...) -> None: ...
+
+class LampGain(_message.Message):
+    __slots__ = ("slot", "gain")
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    GAIN_FIELD_NUMBER: _ClassVar[int]
+    slot: str
+    gain: float
+    def __init__(self, slot: _Optional[str] = ..., gain: _Optional[float] = ...) -> None: ...
 
 class Admission(_message.Message):
     __slots__ = ("in_flight_calls", "in_flight_bytes", "peak_bytes", "admitted", "refused", "malformed", "max_calls", "max_bytes", "max_calls_per_address", "max_bytes_per_address", "waited")

@@ -12,6 +12,7 @@ import json
 import math
 import signal
 import sys
+import time
 from dataclasses import asdict
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import numpy as np
 from rich.text import Text
 
 from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, ShowState, SyncSummary
+from rigctl.blend_status import blend_dict, blend_lines
 from rigctl.client import OperatorError, add_connection_args
 from rigctl.content_format import operator_table, rendered
 from coordinator.errors import RigError
@@ -68,9 +70,10 @@ def assets_cell(a: dict) -> str:
     return f"{a['ready']}/{a['wanted']} {pct}%{failed}"
 
 
-def status_dict(st: RigStatus) -> dict:
+def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
     """The rig's status as JSON (what `shadowless status --json` prints). A slot without a joined
-    or live node carries the newest refusal of a node claiming it (``refusal``): why it is not there."""
+    or live node carries the newest refusal of a node claiming it (``refusal``): why it is not there.
+    ``now``: the unix time the blend's ages count to (default: this machine's clock)."""
     num = _num
     refusals = [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1), "count": r.count}
                 for r in st.refusals]
@@ -102,6 +105,7 @@ def status_dict(st: RigStatus) -> dict:
                  "show_updates": st.show_updates_sent, "show_bytes": st.show_bytes_sent},
         "refusals": refusals,
         "console": st.console,
+        "blend": blend_dict(st.blend, now=time.time() if now is None else now),
         "before_auth": {"in_flight_calls": adm.in_flight_calls, "in_flight_bytes": adm.in_flight_bytes,
                         "peak_bytes": adm.peak_bytes, "admitted": adm.admitted, "refused": adm.refused,
                         "malformed": adm.malformed, "max_calls": adm.max_calls, "max_bytes": adm.max_bytes,
@@ -168,6 +172,8 @@ def status_table(d: dict, *, tty: bool = False) -> str:
                   show_cell(n["show"]), assets_cell(n["assets"]))
     lines.append(rendered(t, tty=tty))
     lines += _grouped(d["nodes"], "gl", "renders with") + _grouped(d["nodes"], "software", "runs shadowless")
+    if "blend" in d:                          # the per-pixel blend, and a failover as an alarm under the table
+        lines += blend_lines(d["blend"])
     for n in d["nodes"]:
         if n["show"]["alone_ms"]:
             lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "

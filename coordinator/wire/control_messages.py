@@ -14,8 +14,8 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from coordinator.api import (AdmissionFigures, NodeState, NodeStatus, PlayResult, PlaySettings, RefusedPeer, RigStatus,
-                             ShowResult, ShowState, SyncSummary)
+from coordinator.api import (AdmissionFigures, BlendStatus, NodeState, NodeStatus, PlayResult, PlaySettings, RefusedPeer,
+                             RigStatus, ShowResult, ShowState, SyncSummary)
 from coordinator.jobs.context import Event, Progress
 from coordinator.rig import Mesh, ProjectionPose, mesh_with_id
 from coordinator.wire.node_messages import (asset_progress_from_message, asset_progress_message,
@@ -71,7 +71,7 @@ def status_message(st: RigStatus) -> control_pb2.RigStatus:
         show=show_state_message(st.show), frame_packets_sent=st.frame_packets_sent,
         frame_bytes_sent=st.frame_bytes_sent, show_updates_sent=st.show_updates_sent,
         show_bytes_sent=st.show_bytes_sent, console=st.console,
-        admission=control_pb2.Admission(**asdict(st.admission)),
+        admission=control_pb2.Admission(**asdict(st.admission)), blend=blend_status_message(st.blend),
     )
     msg.nodes.extend(_node_status_message(n) for n in st.nodes)
     msg.refusals.extend(control_pb2.Refusal(peer=r.peer, slot=r.slot, reason=r.reason, age_s=r.age_s,
@@ -89,7 +89,21 @@ def status_from_message(m: control_pb2.RigStatus) -> RigStatus:
                      frame_packets_sent=m.frame_packets_sent, frame_bytes_sent=m.frame_bytes_sent,
                      show_updates_sent=m.show_updates_sent, show_bytes_sent=m.show_bytes_sent, console=m.console,
                      admission=AdmissionFigures(**{f.name: getattr(m.admission, f.name)
-                                                   for f in fields(AdmissionFigures)}))
+                                                   for f in fields(AdmissionFigures)}),
+                     blend=blend_status_from_message(m.blend) if m.HasField("blend") else BlendStatus())
+
+
+def blend_status_message(b: BlendStatus) -> control_pb2.BlendStatus:
+    return control_pb2.BlendStatus(
+        state=b.state, blend_id=b.blend_id, created_at=b.created_at, headroom=b.headroom,
+        brightness_cost=b.brightness_cost, lost=list(b.lost), since=b.since, covered=b.covered,
+        lamps=[control_pb2.LampGain(slot=s, gain=g) for s, g in b.lamps], message=b.message)
+
+
+def blend_status_from_message(m: control_pb2.BlendStatus) -> BlendStatus:
+    return BlendStatus(state=m.state or "none", blend_id=m.blend_id, created_at=m.created_at, headroom=m.headroom,
+                       brightness_cost=m.brightness_cost, lost=tuple(m.lost), since=m.since, covered=m.covered,
+                       lamps=tuple((x.slot, x.gain) for x in m.lamps), message=m.message)
 
 
 _SHOW_FIELDS = ("state", "asset_id", "name", "frames", "rate_num", "rate_den", "anchor_ns", "anchor_frame", "loop",
