@@ -166,6 +166,17 @@ def content_id_of(image: np.ndarray) -> str:
 
 
 @dataclass(frozen=True)
+class BlendConfig:
+    """rig.toml's ``[blend]``: ``headroom`` None ("auto": enough that losing any one projector is
+    covered where others reach) or a fraction 0..0.9 of each point's light held in reserve; whether
+    the photometric watchdog runs during a show, and every how many seconds."""
+
+    headroom: float | None = None
+    watchdog: bool = True
+    watchdog_interval_s: float = 1.0
+
+
+@dataclass(frozen=True)
 class RigConfig:
     name: str
     rig_id: str
@@ -176,6 +187,7 @@ class RigConfig:
     heartbeat_ms: int = 1000
     lost_after_ms: int = 5000
     cameras: tuple[str, ...] = ()
+    blend: BlendConfig = BlendConfig()
 
 
 #: rigs with more projectors than this default to a heartbeat every 2 s instead of every second
@@ -208,6 +220,8 @@ def parse_config(text: str, *, source: str = "rig.toml") -> RigConfig:
     return RigConfig(
         name=doc.name, rig_id=doc.id, slots=slots, content_width=doc.content_width, content_height=doc.content_height,
         latency_ms=doc.latency_ms, heartbeat_ms=hb, lost_after_ms=lost, cameras=tuple(doc.cameras),
+        blend=BlendConfig(headroom=None if doc.blend.headroom == "auto" else float(doc.blend.headroom),
+                          watchdog=doc.blend.watchdog, watchdog_interval_s=doc.blend.watchdog_interval_s),
     )
 
 
@@ -428,16 +442,30 @@ class Rig:
 
     def update_slot(self, name: str, *, pose: Pose | None | object = _UNSET, gain: float | None = None,
                     lut: np.ndarray | None | object = _UNSET, size: tuple[int, int] | None = None,
-                    planned: ProjectionPose | None | object = _UNSET, source: str = "manual") -> SlotState:
+                    planned: ProjectionPose | None | object = _UNSET, blend: BlendMaps | None | object = _UNSET,
+                    blend_at_ns: int | None = None, source: str = "manual") -> SlotState:
         """Change a slot's assignment; bump its revision; persist; return the new state.
 
         A pose replaces the slot's planned pose (calibration supersedes the plan). A new ``size``
         resamples the planned pose's optics to it (:func:`protos.spaces.scale_intrinsics`: a plan
         is optics, not a measurement; a calibrated pose at another size is stale and stays as is).
+        ``blend`` (with ``blend_at_ns``, the rig-clock instant the nodes switch to it, 0 at once)
+        lives in memory only: the blend store keeps blends (:mod:`coordinator.blend_store`), so a
+        change of the blend alone writes nothing here (a failover costs no file write); the revision
+        it bumps is written with the slot's next other change.
         """
         self._writable()
         st = self.slot(name)
         changes: dict = {}
+        if blend is not Rig._UNSET:
+            if blend is not None and not isinstance(blend, BlendMaps):
+                raise ValueError("a slot's blend is a BlendMaps (protos.blend)")
+            changes["blend"] = blend
+        if blend_at_ns is not None:
+            if isinstance(blend_at_ns, bool) or not isinstance(blend_at_ns, (int, np.integer)) or blend_at_ns < 0:
+                raise ValueError(f"blend_at_ns must be a rig-clock instant in ns (>= 0), got {blend_at_ns!r}")
+            changes["blend_at_ns"] = int(blend_at_ns)
+        blend_only = bool(changes) and (pose, lut, planned) == (Rig._UNSET,) * 3 and gain is None and size is None
         if pose is not Rig._UNSET:
             changes["pose"] = pose
             if pose is not None:
@@ -460,8 +488,11 @@ class Rig:
             if "planned" not in changes and st.planned is not None and (st.width, st.height) != tuple(size):
                 S = scale_intrinsics(np.eye(3), (st.width, st.height), tuple(size))
                 changes["planned"] = replace(st.planned, matrix=S @ st.planned.matrix)
-        st = replace(st, **changes, revision=st.revision + 1, source=source, updated_at=time.time())
-        self._save_slot(st)
+        if blend_only:      # the slot file holds nothing of the blend: only the revision moves, in memory
+            st = replace(st, **changes, revision=st.revision + 1)
+        else:
+            st = replace(st, **changes, revision=st.revision + 1, source=source, updated_at=time.time())
+            self._save_slot(st)
         self.slots[name] = st
         return st
 

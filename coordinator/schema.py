@@ -176,6 +176,35 @@ class SizeDoc(_Strict):
     height: Side | None = None
 
 
+#: the most of each point's light a blend may hold in reserve for failover (rig.toml [blend] headroom)
+MAX_HEADROOM = 0.9
+
+
+def _headroom(v: object, info: ValidationInfo) -> str | float:
+    if v == "auto" or (is_number(v) and 0.0 <= float(v) <= MAX_HEADROOM):
+        return v if v == "auto" else float(v)
+    raise ValueError(f"headroom must be \"auto\" or a number in 0..{MAX_HEADROOM:g} (the fraction of light held "
+                     f"in reserve for failover), got {v!r}")
+
+
+def _flag(v: object, info: ValidationInfo) -> bool:
+    if not isinstance(v, bool):
+        raise ValueError(f"{info.field_name} must be true or false, got {v!r}")
+    return v
+
+
+class BlendDoc(_Strict):
+    """``[blend]`` in rig.toml: the per-pixel blend's reserve and the photometric watchdog.
+
+    ``headroom``: "auto" (enough that losing any one projector is covered where others reach) or
+    a fraction 0..0.9 of each point's light held back; ``watchdog``: whether the coordinator checks
+    the lamps through the camera during a show; ``watchdog_interval_s``: how often."""
+
+    headroom: Annotated[str | float, BeforeValidator(_headroom)] = "auto"
+    watchdog: Annotated[bool, BeforeValidator(_flag)] = True
+    watchdog_interval_s: Annotated[float, _num_in(0.2, 86_400)] = 1.0
+
+
 class RigToml(_Strict):
     """``rig.toml``. heartbeat/lost-after defaults depend on the slot count and are filled in
     by :func:`coordinator.rig.parse_config`."""
@@ -193,6 +222,7 @@ class RigToml(_Strict):
     #: the calibrate job's defaults for this rig; its keys are that job's options, checked by
     #: coordinator.calibration.options when a job reads them
     calibration: dict[str, Any] | None = None
+    blend: BlendDoc = BlendDoc()
 
     @model_validator(mode="after")
     def _check(self) -> RigToml:
