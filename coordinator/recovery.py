@@ -23,7 +23,12 @@ one plus files nothing names. This pass removes those files and settles the rest
   captures ``compensation/transport.*`` does not name are removed;
 * **pairs written one after the other**: ``compensation/transport.json`` and
   ``coverage/coverage.json`` are completed from the metadata ``transport.npz`` and
-  ``coverage.npz`` carry when a crash came between the two writes.
+  ``coverage.npz`` carry when a crash came between the two writes;
+* **generations committed by a pointer** (``blend/`` and ``blend/contributions/``,
+  :mod:`coordinator.blend_store`): folders the pointer does not name (a save cut before its commit,
+  or the older set's clean-up) are removed; a pointer that is damaged or names a missing folder, and
+  a live set a file of which is missing or fails its checksum, are quarantined: the rig starts
+  without a stored blend and the operator blends again.
 
 Quarantined files move to ``quarantine/<UTC time>/<their path>`` inside the rig, never deleted.
 Each thing done is one log line (WARNING for quarantine, INFO otherwise). Nothing here raises: a
@@ -47,6 +52,8 @@ from typing import Callable
 
 
 from coordinator.assets import STAGING_LOCK
+from coordinator.blend_store import (CONTRIBUTIONS_DIR, POINTER, BlendStoreError, blend_dir, generation_names,
+                                     load_blend, load_contributions, read_pointer)
 from coordinator.calibration.runs import mark_interrupted
 from coordinator.rig import parse_config
 from coordinator.show import SHOW_FILE
@@ -397,6 +404,42 @@ def _coverage(r: Recovery) -> None:
         r.did("completed", js, "rewritten from coverage.npz's summary (a save cut between the two files)")
 
 
+def _blend(r: Recovery) -> None:
+    root = blend_dir(r.rig_dir)
+    if not root.is_dir() or root.is_symlink():
+        return
+    for folder, prefix, kind, load in ((root, "g", "blend", load_blend),
+                                       (root / CONTRIBUTIONS_DIR, "c", "contributions", load_contributions)):
+        if folder.is_dir() and not folder.is_symlink():
+            with flocked(folder / ".lock", fcntl.LOCK_EX):     # the store's own: no save meanwhile
+                _generations(r, folder, prefix, kind, load)
+
+
+def _generations(r: Recovery, folder: Path, prefix: str, kind: str, load: Callable) -> None:
+    pointer = folder / POINTER
+    try:
+        live = read_pointer(folder, prefix)
+    except BlendStoreError as exc:
+        r.quarantine(pointer, f"{exc}; the rig starts without a stored {kind}")
+        for g in generation_names(folder, prefix):
+            r.quarantine(folder / g, f"a {kind} the damaged pointer may have named")
+        return
+    if live is not None and not (folder / live).is_dir():
+        r.quarantine(pointer, f"it names {live}, which is missing; the rig starts without a stored {kind}")
+        live = None
+    for g in generation_names(folder, prefix):
+        if g != live:
+            r.remove(folder / g, f"a {kind} no pointer names (a save cut before its commit, or the older "
+                                 f"{kind}'s clean-up)", verb="rolled back")
+    if live is None:
+        return
+    try:
+        load(r.rig_dir)
+    except BlendStoreError as exc:
+        r.quarantine(folder / live, str(exc))
+        r.quarantine(pointer, f"it named the damaged {kind} {live}; the rig starts without a stored {kind}")
+
+
 # ---------------------------------------------------------------- the pass
 def recover(rig_dir: str | os.PathLike[str]) -> Recovery:
     """Settle what a crash left in ``rig_dir`` (see the module docstring); never raises.
@@ -408,6 +451,6 @@ def recover(rig_dir: str | os.PathLike[str]) -> Recovery:
     for name, fn in (("temp files", _temps), ("uploads", _uploads), ("staged assets", _staged),
                      ("assets", _assets), ("LUTs", _slot_luts), ("content", _content),
                      ("calibration run", _calibration), ("show.json", _show),
-                     ("compensation", _compensation), ("coverage", _coverage)):
+                     ("compensation", _compensation), ("coverage", _coverage), ("blend", _blend)):
         r.step(name, lambda fn=fn: fn(r))
     return r
