@@ -1,0 +1,125 @@
+"""`shadowless status` on the blend: none (and how to make one), blended (when, the headroom and its
+cost), in failover (who, since when, whether uniformity is kept) with the lamps the watchdog named;
+as text and as JSON, through the wire, and from the command against a running coordinator."""
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+
+from coordinator.api import BlendStatus, RigStatus
+from coordinator.app import CoordinatorApp
+from coordinator.rig import Rig, grid_slots, init_rig
+from coordinator.wire import control_messages
+from protos.auth import read_token
+from rigctl.blend_status import ago, blend_lines
+from rigctl.commands import status_dict, status_table
+
+NOW = 1_800_000_000.0
+BLENDED = BlendStatus(state="blended", blend_id="b1", created_at=NOW - 7200, headroom=0.08, brightness_cost=0.08)
+FAILOVER = BlendStatus(state="failover", blend_id="b2", created_at=NOW - 7200, headroom=0.08, brightness_cost=0.0775,
+                       lost=("r2c3",), since=NOW - 12, covered=True,
+                       message="r2c3 lost 12 s ago: 24 projectors cover its footprint")
+LAMPS = BlendStatus(state="failover", blend_id="b3", created_at=NOW - 600, headroom=0.2, brightness_cost=0.2,
+                    lost=("r0c0", "r1c1"), since=NOW - 75, covered=False, lamps=(("r0c0", 0.5), ("r1c1", 0.0)))
+
+
+def text_and_json(b: BlendStatus) -> tuple[list[str], dict]:
+    st = control_messages.status_from_message(control_messages.status_message(RigStatus("id", "hall", blend=b)))
+    d = status_dict(st, now=NOW)
+    return status_table(d).splitlines(), json.loads(json.dumps(d))["blend"]
+
+
+def test_no_blend_says_how_to_make_one():
+    lines, d = text_and_json(BlendStatus())
+    blend = [line for line in lines if line.startswith(("blend", "failover", "lamp"))]
+    assert blend == ["blend: none (each projector at one gain, no failover): measure one with "
+                     "`shadowless blend --rig-dir DIR`"]
+    assert d == {"state": "none", "blend_id": "", "created_at": None, "age_s": None, "headroom": 0.0,
+                 "brightness_cost": 0.0, "lost": [], "since": None, "lost_for_s": None, "covered": True, "lamps": [],
+                 "message": ""}
+
+
+def test_a_blend_says_when_it_was_measured_and_what_its_headroom_costs():
+    lines, d = text_and_json(BLENDED)
+    assert "blend: measured 2.0 h ago, headroom 8 % (costs 8 % of brightness)" in lines
+    assert not [line for line in lines if line.startswith(("failover", "lamp"))]
+    assert (d["state"], d["blend_id"], d["created_at"], d["age_s"]) == ("blended", "b1", NOW - 7200, 7200.0)
+    assert (d["headroom"], d["brightness_cost"], d["lost"], d["since"]) == (0.08, 0.08, [], None)
+
+
+def test_a_failover_is_one_line_with_the_coordinators_count_and_the_verdict():
+    lines, d = text_and_json(FAILOVER)
+    assert "blend: measured 2.0 h ago, headroom 8 % (costs 7.8 % of brightness)" in lines
+    assert "failover: r2c3 lost 12 s ago: 24 projectors cover its footprint, uniformity kept" in lines
+    assert d["state"] == "failover" and d["lost"] == ["r2c3"] and d["since"] == NOW - 12
+    assert d["lost_for_s"] == 12.0 and d["covered"] is True and d["message"] == FAILOVER.message
+
+
+def test_lamps_named_by_the_watchdog_and_a_footprint_not_covered():
+    lines, d = text_and_json(LAMPS)
+    assert ("failover: r0c0, r1c1 lost 75 s ago: the others do not cover all of their footprints, "
+            "uniformity NOT kept: part of the lost light has no other projector") in lines
+    assert "lamp r0c0 dimmed: estimated gain 0.50 (photometric watchdog)" in lines
+    assert "lamp r1c1 dark: estimated gain 0.00 (photometric watchdog)" in lines
+    assert d["lamps"] == [{"slot": "r0c0", "gain": 0.5}, {"slot": "r1c1", "gain": 0.0}] and d["covered"] is False
+
+
+@pytest.mark.parametrize("seconds, said", [(0, "0 s"), (12.4, "12 s"), (89, "89 s"), (90, "2 min"),
+                                           (5399, "90 min"), (5400, "1.5 h"), (47 * 3600, "47.0 h"),
+                                           (3 * 86400, "3 d"), (-5, "0 s")])
+def test_ages_read_as_an_operator_reads_them(seconds, said):
+    assert ago(seconds) == said
+
+
+def test_an_older_coordinator_without_a_blend_reads_as_none():
+    msg = control_messages.status_message(RigStatus("id", "hall", blend=FAILOVER))
+    msg.ClearField("blend")
+    back = control_messages.status_from_message(msg)
+    assert back.blend == BlendStatus()
+    assert blend_lines(status_dict(back, now=NOW)["blend"])[0].startswith("blend: none")
+
+
+def sh(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_the_status_command_prints_the_coordinators_blend(tmp_path):
+    """A running coordinator (no nodes needed) and the real `shadowless status` process: first as the
+    core reports a rig never blended, then in failover (the core's blend status set to it)."""
+    rig = Rig(init_rig(tmp_path / "rig", name="hall", slots=grid_slots(1, 2), width=32, height=32))
+
+    async def go():
+        app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
+        await app.start()
+        try:
+            conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
+            r = await asyncio.to_thread(sh, "status", "--json", *conn)
+            assert r.returncode == 0, r.stderr
+            assert json.loads(r.stdout)["blend"]["state"] == "none"
+            r = await asyncio.to_thread(sh, "status", *conn)
+            assert "blend: none" in r.stdout and "shadowless blend" in r.stdout, r.stdout
+            since = time.time() - 30
+            failover = BlendStatus(state="failover", blend_id="bb", created_at=since - 3600, headroom=0.1,
+                                   brightness_cost=0.1, lost=("r0c1",), since=since, covered=True,
+                                   lamps=(("r0c0", 0.52),), message="r0c1 lost: 1 projector covers its footprint")
+            app.coordinator.blend_status = lambda: failover
+            r = await asyncio.to_thread(sh, "status", "--json", *conn)
+            assert r.returncode == 0, r.stderr
+            d = json.loads(r.stdout)["blend"]
+            assert d["state"] == "failover" and d["lost"] == ["r0c1"] and d["since"] == pytest.approx(since)
+            assert 30 <= d["lost_for_s"] < 600 and d["lamps"] == [{"slot": "r0c0", "gain": 0.52}]
+            r = await asyncio.to_thread(sh, "status", *conn)
+            lines = r.stdout.splitlines()
+            assert "failover: r0c1 lost: 1 projector covers its footprint, uniformity kept" in lines, r.stdout
+            assert "lamp r0c0 dimmed: estimated gain 0.52 (photometric watchdog)" in lines
+            assert any(line.startswith("blend: measured 6") and line.endswith(" min ago, headroom 10 % (costs 10 % of "
+                                                                            "brightness)") for line in lines), r.stdout
+        finally:
+            await app.stop()
+
+    asyncio.run(go())
