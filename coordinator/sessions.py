@@ -50,6 +50,8 @@ class Heartbeat:
     rig_estimate_ns: int = 0
     assets: tuple[AssetProgress, ...] = ()   # the node's progress with the assets it was told it wants
     show: NodeShow = NodeShow()              # the show as the node follows it
+    blend_id: str = ""                       # the blend maps on the node's screen ("": none)
+    blend_since_rig_ns: int = 0              # pts of the first frame the node showed with them (0: none)
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,6 +129,16 @@ class NodeSession:
     still_retries: int = 0
     #: called when the node's backlog was dropped (it lost pictures of a live video: it needs a keyframe)
     on_backlog_dropped: Callable[[], None] = field(default=lambda: None, repr=False)
+
+    @property
+    def blend_id(self) -> str:
+        """The blend on the node's screen as its last heartbeat said ("" none, or no heartbeat yet)."""
+        return self.heartbeat.blend_id if self.heartbeat is not None else ""
+
+    @property
+    def blend_since_rig_ns(self) -> int:
+        """The pts (rig clock) of the first frame the node showed with :attr:`blend_id` (0: none)."""
+        return self.heartbeat.blend_since_rig_ns if self.heartbeat is not None else 0
 
     @property
     def same_host(self) -> bool:

@@ -526,4 +526,5 @@ class Node:
         return HeartbeatRecord(assignment_revision=st.revision, frames_shown=st.shown, frames_late=st.late,
                                frames_dropped=st.dropped, render_ms_p50=st.render_ms_p50, host_monotonic_ns=host,
                                clock=clock, assets=self.fetcher.progress(),
-                               show=replace(st.show, alone_ms=self._alone_ms))
+                               show=replace(st.show, alone_ms=self._alone_ms), blend_id=st.blend_id,
+                               blend_since_rig_ns=st.blend_since_rig_ns)

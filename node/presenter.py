@@ -7,6 +7,13 @@ clock, swaps, and reports the swap. Which frames are dropped instead (late,
 superseded, missing content) is decided by :class:`node.pacing.FramePacer`; a
 frame is never shown late and never out of order.
 
+A slot's blend maps (:mod:`protos.blend`) arrive with its assignment, each with the rig instant
+from which it is shown. The presenter uploads them ahead and switches the renderer to them for the
+first frame whose pts is at or after that instant (a streamed frame or a show's tick), so every
+node of the rig switches at one common swap instant; when no frame is due then (a still, a paused
+show), it shows the frame on screen again with them at that instant. Maps that cannot be used are
+refused in one log line, and the blend on screen stays.
+
 Between frames it also makes the previews the coordinator asks for (:mod:`node.preview`):
 right after a swap, or while idle, when the renderer's framebuffer holds what the projector
 shows and the preview fits before the next frame is due; never between a render and its swap.
@@ -39,6 +46,7 @@ from node.render.renderer import Mesh, Renderer
 from node.render.shaders import gl_description
 from node.timeline_player import TimelineEvent, TimelinePlayer, fit_frame
 from node.wire import live_packet_from_bytes
+from protos.blend import BlendMaps
 
 log = logging.getLogger(__name__)
 
@@ -133,6 +141,10 @@ class Presenter:
         self._work_from_ns = 0           # when the current message's (or tick's) work began
         self._work_ns: deque[int] = deque(maxlen=30)   # per frame shown: its work until ready to swap
         self._swapped_at_ns = 0          # local time of the last frame swapped in
+        # blend maps: the next ones (maps or None, rig instant from which they show), None: no change due
+        self._blend_next: tuple[BlendMaps | None, int] | None = None
+        self._blend_unshown = False      # the renderer switched maps; no frame shown with them yet
+        self.blend_since_rig_ns = 0      # pts of the first frame shown with the maps on screen
 
     @property
     def estimate(self) -> ClockEstimate | None:
@@ -147,9 +159,11 @@ class Presenter:
         now = est.rig_time(self.clock.now()) if est is not None else None
         show = ShowStatus(revision=max(0, self.player.schedule.revision), state=self.player.state(now),
                           last_frame=self.timeline_last_frame, shown=self.timeline_shown, late=self.timeline_missed)
+        blend_id = "" if self._blend_unshown else self.renderer.blend_id
         return PresenterStatus(shown=self.shown, late=self.late, dropped=self.dropped,
                                render_ms_p50=self.render_ms_p50(),
-                               revision=self.assignment.revision if self.assignment else 0, show=show)
+                               revision=self.assignment.revision if self.assignment else 0, show=show,
+                               blend_id=blend_id, blend_since_rig_ns=self.blend_since_rig_ns if blend_id else 0)
 
     def open(self) -> None:
         ctx = self.out.make_context()
@@ -291,6 +305,7 @@ class Presenter:
             log.error("assignment r%d cannot be rendered (%s); this projector shows black until the next one",
                       a.revision, exc)
             renderer.clear_pose()
+        at_once = self._offer_blend(renderer, a)
         self.assignment = a
         # a video asset decodes straight to the content size the homography maps (see fit_frame)
         self.player.content_size = (tuple(a.content_size) if a.pose_kind == "homography" and all(a.content_size)
@@ -307,7 +322,109 @@ class Presenter:
                 renderer.render(None)
             out.prepare(renderer)
             out.swap()
-            self._fbo_shown = True
+            self._shown_again(out, renderer)
+        if at_once:
+            self._blend_shown(self._rig_now())
+            self._send_stats()
+
+    # ---------------------------------------------------------------- blend maps
+    def _rig_now(self) -> int:
+        est = self.pacer.estimate
+        return est.rig_time(self.clock.now()) if est is not None else 0
+
+    def _offer_blend(self, renderer, a: NodeAssignment) -> bool:
+        """Take the blend an assignment asks for: refused maps are logged and change nothing; new
+        maps are uploaded ahead and wait for their instant, or are switched to at once (0, or an
+        instant already past). Whether the renderer switched now."""
+        if a.blend_error:
+            log.error("assignment r%d: blend maps refused (%s); the blend on screen stays", a.revision, a.blend_error)
+            return False
+        maps, at = a.blend, a.blend_at_ns
+        want = maps.blend_id if maps is not None else ""
+        nxt = self._blend_next
+        if nxt is not None and (nxt[0].blend_id if nxt[0] is not None else "") == want:
+            self._blend_next = (nxt[0], at)
+        elif want == renderer.blend_id:
+            self._blend_next = None      # what is on screen already (a switch back before the instant)
+            return False
+        else:
+            if maps is not None:
+                try:
+                    renderer.load_blend(maps)
+                except ValueError as exc:
+                    log.error("assignment r%d: blend maps refused (%s); the blend on screen stays", a.revision, exc)
+                    return False
+            self._blend_next = (maps, at)
+            log.info("assignment r%d: blend %s %s", a.revision, want or "none",
+                     "at once" if at <= 0 else f"from rig instant {at}")
+        if at <= 0 or (self.pacer.estimate is not None and at <= self._rig_now()):
+            self._switch_blend(renderer)
+            return True
+        return False
+
+    def _switch_blend(self, renderer) -> None:
+        """The renderer draws with the next maps from now on; the first frame swapped in stamps them."""
+        maps, _at = self._blend_next
+        self._blend_next = None
+        renderer.set_blend(maps)
+        self._blend_unshown = True
+
+    def _blend_shown(self, pts_ns: int) -> None:
+        if self._blend_unshown:
+            self._blend_unshown = False
+            self.blend_since_rig_ns = pts_ns
+            log.info("blend %s on screen from rig instant %d", self.renderer.blend_id or "none", pts_ns)
+
+    def _blend_due_local(self) -> int | None:
+        """When (local ns) to show the frame on screen again with the next maps, when no frame will:
+        None when no switch is due, the clock is unknown, or a show's tick at or after the instant will
+        switch them. While streamed frames come, the first one at or after the instant switches them: the
+        fallback waits until one is overdue (the stream stopped)."""
+        nxt, est = self._blend_next, self.pacer.estimate
+        if nxt is None or est is None or self._next_event() is not None:
+            return None
+        due = est.local_time(nxt[1])
+        if self._stream_next_ns is not None:
+            due = max(due, self._stream_next_ns + self.STILL_AFTER_NS)
+        return due
+
+    def _blend_step(self) -> None:
+        """Show the frame on screen again with the next maps, swapped in at their instant (or at once,
+        when a stream that stopped made it wait past it)."""
+        due = self._blend_due_local()
+        if due is None or due - self.clock.now() > self.PREPARE_NS:
+            return      # not yet (the loop asks timeline_wait again)
+        renderer, out, est = self.renderer, self.out, self.pacer.estimate
+        self._switch_blend(renderer)
+        frame = self._current
+        if frame is not None:
+            try:
+                self._render(renderer, frame)
+            except ValueError as exc:
+                log.error("cannot show the current frame with the new blend: %s", exc)
+                renderer.render(None)
+            out.prepare(renderer)
+            self._ctx.finish()
+        with self._rt:
+            self.clock.sleep_until(due)
+            if frame is not None:
+                out.swap()
+            host = self.clock.host_now()
+        if frame is not None:
+            self._shown_again(out, renderer, est.rig_time(self.clock.from_host(host)), host)
+        self._blend_shown(est.rig_time(due))
+        self._send_stats()
+
+    def _shown_again(self, out: Output, renderer, swap_rig_ns: int | None = None, host: int | None = None) -> None:
+        """The frame on screen was rendered again (a new assignment, or blend) and swapped in: the
+        output hears of it as of a swap (the room shows it; a snapshot is written)."""
+        self._fbo_shown = True
+        f = self._current
+        host = self.clock.host_now() if host is None else host
+        if swap_rig_ns is None:
+            swap_rig_ns = self._rig_now()
+        out.after_swap(renderer, SwapInfo(slot=self.slot, frame_id=f.frame_id, tag=f.tag, pts_ns=f.pts_ns,
+                                          swap_rig_ns=swap_rig_ns, host_monotonic_ns=host))
 
     def _on_content(self, renderer, out, content: tuple[str, np.ndarray]) -> None:
         cid, image = content
@@ -368,16 +485,24 @@ class Presenter:
         return ev
 
     def timeline_wait(self) -> float | None:
-        """Seconds the loop may wait for messages before :meth:`timeline_step` (None: no timeline work)."""
+        """Seconds the loop may wait for messages before :meth:`timeline_step` (None: no timeline work,
+        and no blend switch due with no frame to make it)."""
         ev = self._next_event()
         if ev is None:
-            return None
+            due = self._blend_due_local()
+            if due is None:
+                return None
+            return max(0.0, (due - self.clock.now() - self.PREPARE_NS) / 1e9)
         until = self.pacer.estimate.local_time(ev.pts_ns) - self.clock.now()
         return max(0.0, (until - self.PREPARE_NS) / 1e9)
 
     def timeline_step(self) -> None:
         """Prepare the next timeline frame (or the stop), swap it in at its time, report it (its
-        swap and drop records marked ``timeline``)."""
+        swap and drop records marked ``timeline``); with no timeline work, show the frame on screen
+        with the next blend maps at their instant."""
+        if self._next_event() is None:
+            self._blend_step()
+            return
         self._timeline_reports = True
         try:
             self._timeline_step()
@@ -486,6 +611,8 @@ class Presenter:
 
     def _render(self, renderer, frame: FrameOrder) -> None:
         self._fbo_shown = False
+        if self._blend_next is not None and frame.pts_ns >= self._blend_next[1]:
+            self._switch_blend(renderer)      # the first frame at or after the blend's instant
         t = time.perf_counter()
         renderer.render(frame.content_id or None, space=frame.space, apply_lut=frame.apply_lut)
         self._render_ms.append((time.perf_counter() - t) * 1e3)
@@ -536,6 +663,7 @@ class Presenter:
             log.info("timing frame %d: swap %.3f ms after deadline", frame.frame_id,
                      (host - self.clock.to_host(deadline)) / 1e6)
         swap = pacer.shown(frame, host)
+        self._blend_shown(frame.pts_ns)
         if self._timeline_reports:
             swap = replace(swap, timeline=True)
         previous = self._current

@@ -11,6 +11,7 @@ import numpy as np
 
 # the records the coordinator speaks too are defined once, in protos.records; the node's parts
 # name them from here with the rest
+from protos.blend import BlendMaps
 from protos.records import DropReason, NodeInfo
 from protos.timeline import Timeline
 
@@ -41,6 +42,9 @@ class NodeAssignment:
     lut: np.ndarray | None               # (C, E) float32
     gain: float
     content_size: tuple[int, int]
+    blend: BlendMaps | None = None       # the slot's blend maps (None: none)
+    blend_at_ns: int = 0                 # rig instant from which they are shown (0: at once)
+    blend_error: str = ""                # the assignment carried maps that cannot be used: why ("" none)
 
 
 @dataclass(frozen=True)
@@ -176,6 +180,8 @@ class HeartbeatRecord:
     clock: ClockStatus | None = None      # None until the node has a clock estimate
     assets: tuple[AssetProgressRecord, ...] = ()
     show: ShowStatus | None = None
+    blend_id: str = ""                    # the blend on screen ("" none)
+    blend_since_rig_ns: int = 0           # pts of the first frame shown with it (0: none)
 
 
 @dataclass(frozen=True)
@@ -263,3 +269,5 @@ class PresenterStatus:
     render_ms_p50: float = 0.0
     revision: int = 0          # of the assignment in use (0: none yet)
     show: ShowStatus = ShowStatus()
+    blend_id: str = ""         # the blend maps on screen ("" none)
+    blend_since_rig_ns: int = 0   # pts (rig clock) of the first frame shown with them (0: none)

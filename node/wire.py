@@ -35,6 +35,7 @@ from node.records import (
 )
 from node.live_video import VideoChunk
 from protos import codec, common_pb2, node_pb2
+from protos.blend import BlendMapError, BlendMaps
 from protos.timeline import Timeline
 
 #: DropReason <-> the wire's enum
@@ -53,7 +54,9 @@ _DROP_REASONS = {
 
 
 def assignment_from_message(msg: node_pb2.Assignment) -> NodeAssignment:
-    """ValueError if the message is inconsistent (wrong matrix sizes, mesh or LUT arrays)."""
+    """ValueError if the message is inconsistent (wrong matrix sizes, mesh or LUT arrays). Blend maps
+    that cannot be used do not refuse the assignment: it carries why in ``blend_error`` (the presenter
+    keeps the blend it shows and applies the rest)."""
     kind = msg.WhichOneof("pose") or "none"
     homography = projection = None
     mesh = None
@@ -80,10 +83,19 @@ def assignment_from_message(msg: node_pb2.Assignment) -> NodeAssignment:
         if lut.size != msg.lut.channels * msg.lut.entries or msg.lut.channels not in (1, 3) or msg.lut.entries < 2:
             raise ValueError("LUT message is inconsistent")
         lut = lut.reshape(msg.lut.channels, msg.lut.entries)
+    blend, blend_at, blend_error = None, 0, ""
+    if msg.HasField("blend"):
+        b = msg.blend
+        try:
+            blend = BlendMaps.decode(b.width, b.height, b.alpha, b.beta, b.blend_id[:64])
+            blend_at = max(0, b.at_rig_ns)
+        except BlendMapError as exc:
+            blend_error = str(exc)
     return NodeAssignment(
         revision=msg.revision, slot=msg.slot, width=msg.output_width, height=msg.output_height, pose_kind=kind,
         homography=homography, projection=projection, mesh=mesh, near_mm=near, far_mm=far, lut=lut,
         gain=msg.gain if msg.gain > 0 else 1.0, content_size=(msg.content_width, msg.content_height),
+        blend=blend, blend_at_ns=blend_at, blend_error=blend_error,
     )
 
 
@@ -233,6 +245,7 @@ def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
     msg = node_pb2.Heartbeat(
         assignment_revision=hb.assignment_revision, frames_shown=hb.frames_shown, frames_late=hb.frames_late,
         frames_dropped=hb.frames_dropped, render_ms_p50=hb.render_ms_p50, host_monotonic_ns=hb.host_monotonic_ns,
+        blend_id=hb.blend_id, blend_since_rig_ns=hb.blend_since_rig_ns,
     )
     if hb.clock is not None:
         msg.clock_offset_ns = hb.clock.offset_ns

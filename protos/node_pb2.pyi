@@ -143,7 +143,7 @@ class Lut(_message.Message):
     def __init__(self, channels: _Optional[int] = ..., entries: _Optional[int] = ..., values: _Optional[bytes] = ...) -> None: ...
 
 class Assignment(_message.Message):
-    __slots__ = ("revision", "slot", "output_width", "output_height", "homography", "projection", "lut", "gain", "content_width", "content_height")
+    __slots__ = ("revision", "slot", "output_width", "output_height", "homography", "projection", "lut", "gain", "content_width", "content_height", "blend")
     REVISION_FIELD_NUMBER: _ClassVar[int]
     SLOT_FIELD_NUMBER: _ClassVar[int]
     OUTPUT_WIDTH_FIELD_NUMBER: _ClassVar[int]
@@ -154,6 +154,7 @@ class Assignment(_message.Message):
     GAIN_FIELD_NUMBER: _ClassVar[int]
     CONTENT_WIDTH_FIELD_NUMBER: _ClassVar[int]
     CONTENT_HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    BLEND_FIELD_NUMBER: _ClassVar[int]
     revision: int
     slot: str
     output_width: int
@@ -164,7 +165,24 @@ class Assignment(_message.Message):
     gain: float
     content_width: int
     content_height: int
-    def __init__(self, revision: _Optional[int] = ..., slot: _Optional[str] = ..., output_width: _Optional[int] = ..., output_height: _Optional[int] = ..., homography: _Optional[_Union[Homography, _Mapping]] = ..., projection: _Optional[_Union[ProjectionPose, _Mapping]] = ..., lut: _Optional[_Union[Lut, _Mapping]] = ..., gain: _Optional[float] = ..., content_width: _Optional[int] = ..., content_height: _Optional[int] = ...) -> None: ...
+    blend: Blend
+    def __init__(self, revision: _Optional[int] = ..., slot: _Optional[str] = ..., output_width: _Optional[int] = ..., output_height: _Optional[int] = ..., homography: _Optional[_Union[Homography, _Mapping]] = ..., projection: _Optional[_Union[ProjectionPose, _Mapping]] = ..., lut: _Optional[_Union[Lut, _Mapping]] = ..., gain: _Optional[float] = ..., content_width: _Optional[int] = ..., content_height: _Optional[int] = ..., blend: _Optional[_Union[Blend, _Mapping]] = ...) -> None: ...
+
+class Blend(_message.Message):
+    __slots__ = ("width", "height", "alpha", "beta", "blend_id", "at_rig_ns")
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    ALPHA_FIELD_NUMBER: _ClassVar[int]
+    BETA_FIELD_NUMBER: _ClassVar[int]
+    BLEND_ID_FIELD_NUMBER: _ClassVar[int]
+    AT_RIG_NS_FIELD_NUMBER: _ClassVar[int]
+    width: int
+    height: int
+    alpha: bytes
+    beta: bytes
+    blend_id: str
+    at_rig_ns: int
+    def __init__(self, width: _Optional[int] = ..., height: _Optional[int] = ..., alpha: _Optional[bytes] = ..., beta: _Optional[bytes] = ..., blend_id: _Optional[str] = ..., at_rig_ns: _Optional[int] = ...) -> None: ...
 
 class Content(_message.Message):
     __slots__ = ("content_id", "image")
@@ -262,7 +280,7 @@ class FrameDrop(_message.Message):
     def __init__(self, frame_id: _Optional[int] = ..., reason: _Optional[_Union[DropReason, str]] = ..., late_by_ns: _Optional[int] = ...) -> None: ...
 
 class Heartbeat(_message.Message):
-    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets", "show")
+    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets", "show", "blend_id", "blend_since_rig_ns")
     ASSIGNMENT_REVISION_FIELD_NUMBER: _ClassVar[int]
     CLOCK_OFFSET_NS_FIELD_NUMBER: _ClassVar[int]
     CLOCK_DRIFT_PPM_FIELD_NUMBER: _ClassVar[int]
@@ -276,6 +294,8 @@ class Heartbeat(_message.Message):
     RIG_ESTIMATE_NS_FIELD_NUMBER: _ClassVar[int]
     ASSETS_FIELD_NUMBER: _ClassVar[int]
     SHOW_FIELD_NUMBER: _ClassVar[int]
+    BLEND_ID_FIELD_NUMBER: _ClassVar[int]
+    BLEND_SINCE_RIG_NS_FIELD_NUMBER: _ClassVar[int]
     assignment_revision: int
     clock_offset_ns: int
     clock_drift_ppm: float
@@ -289,7 +309,9 @@ class Heartbeat(_message.Message):
     rig_estimate_ns: int
     assets: _containers.RepeatedCompositeFieldContainer[AssetProgress]
     show: NodeShow
-    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ..., show: _Optional[_Union[NodeShow, _Mapping]] = ...) -> None: ...
+    blend_id: str
+    blend_since_rig_ns: int
+    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ..., show: _Optional[_Union[NodeShow, _Mapping]] = ..., blend_id: _Optional[str] = ..., blend_since_rig_ns: _Optional[int] = ...) -> None: ...
 
 class NodeShow(_message.Message):
     __slots__ = ("revision", "state", "last_frame", "frames_shown", "frames_late", "alone_ms")

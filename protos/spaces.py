@@ -17,6 +17,11 @@ where the coordinator, the node, the room and the benchmarks may all read it:
 * :func:`lut_lookup`: the node's luminance pipeline, ``LUT(clip(gain * value))`` per channel
   with linear interpolation between the ``E`` LUT samples at ``k / (E - 1)``, output
   quantised to ``round(255 * value)``.
+* :func:`blend_sample`, :func:`dither_thresholds` and :func:`blended_output`: the same pipeline
+  with a projector's blend maps (:mod:`protos.blend`), ``LUT(clip(gain * (alpha * value +
+  beta)))``, the maps interpolated bilinearly from their grid and the output quantised with a 4x4
+  ordered (Bayer) dither, ``floor(255 * value + t)``, so that a slow ramp scaled by the maps does
+  not band in 8 bits.
 * :func:`look_at`, :func:`intrinsics`, :func:`scale_intrinsics`: a pinhole device in the world
   (``x ~ K (R X + t)``, OpenCV's axes, pixel centres at integers) aimed at a point, and the same
   optics sampled at another resolution; the room builds its devices with them and the
@@ -31,7 +36,8 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["content_to_table", "output_outline", "projector_samples", "bilinear_taps", "warp_content", "lut_lookup",
-           "quantise", "as_linear", "intrinsics", "scale_intrinsics", "look_at"]
+           "quantise", "as_linear", "blend_sample", "dither_thresholds", "blended_output", "intrinsics",
+           "scale_intrinsics", "look_at"]
 
 
 def content_to_table(content_size: Sequence[int], table_mm: Sequence[float]) -> np.ndarray:
@@ -175,12 +181,14 @@ def quantise(values: np.ndarray) -> np.ndarray:
 
 
 def warp_content(content: np.ndarray, pose: np.ndarray, projector_size: Sequence[int], *,
-                 lut: np.ndarray | None = None, gain: float = 1.0, apply_lut: bool = True) -> np.ndarray:
+                 lut: np.ndarray | None = None, gain: float = 1.0, apply_lut: bool = True,
+                 blend: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """What a node outputs for ``content``, computed with numpy: ``(h, w, 3) uint8``.
 
     The content lookup of :func:`projector_samples` / :func:`bilinear_taps`, then, when
-    ``apply_lut``, ``gain`` and the inverse-response LUT (:func:`lut_lookup`); otherwise just
-    ``round(255 * clip(value))``. Grey content (1 or 2 channels) is replicated to RGB.
+    ``apply_lut``, ``gain`` and the inverse-response LUT (:func:`lut_lookup`), or with ``blend``
+    the blended pipeline of :func:`blended_output`; otherwise just ``round(255 * clip(value))``
+    (no blend either). Grey content (1 or 2 channels) is replicated to RGB.
 
     Parameters
     ----------
@@ -191,6 +199,8 @@ def warp_content(content: np.ndarray, pose: np.ndarray, projector_size: Sequence
     projector_size : (w, h)
     lut : (C, E) float, optional
         Inverse-response LUT (None: identity).
+    blend : (alpha (m, n, 3), beta (m, n)) float, optional
+        The projector's blend maps on their own grid (see :func:`blend_sample`).
     """
     img = as_linear(content)
     if img.ndim == 2:
@@ -215,7 +225,105 @@ def warp_content(content: np.ndarray, pose: np.ndarray, projector_size: Sequence
         table = np.repeat(table, 3, axis=0)
     if table is None:
         table = np.array([[0.0, 1.0]] * 3, np.float32)
+    if blend is not None:
+        return blended_output(warped, blend[0], blend[1], lut=table, gain=gain)
     return lut_lookup(table, warped, gain=gain)
+
+
+# ---------------------------------------------------------------- blend maps
+
+
+def blend_sample(alpha: np.ndarray, beta: np.ndarray, projector_size: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """A projector's blend maps at every one of its pixels, as its node samples them.
+
+    The maps are a downscaled image of the output frame (:mod:`protos.blend`): texel ``(i, j)`` of an
+    ``(m, n)`` map has its centre at projector pixel ``((j + 0.5) W / n - 0.5, (i + 0.5) H / m - 0.5)``,
+    so projector pixel ``(x, y)`` reads the map at ``((x + 0.5) n / W - 0.5, (y + 0.5) m / H - 0.5)``,
+    interpolated bilinearly between the four texels around it, indices clamped to the map (its edge
+    texels extend to the frame's border). The node holds the maps as float16, as the wire carries
+    them: they are rounded to float16 here too.
+
+    Parameters
+    ----------
+    alpha : (m, n, 3) float
+    beta : (m, n) float
+    projector_size : (W, H)
+
+    Returns
+    -------
+    alpha : (H, W, 3) float64
+    beta : (H, W) float64
+    """
+    a = np.asarray(alpha, np.float16).astype(np.float64)
+    b = np.asarray(beta, np.float16).astype(np.float64)
+    if a.ndim != 3 or a.shape[2] != 3 or b.shape != a.shape[:2]:
+        raise ValueError(f"blend maps must be alpha (m, n, 3) and beta (m, n), got {a.shape} and {b.shape}")
+    m, n = b.shape
+    w, h = (int(v) for v in projector_size)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"projector size must be positive, got {tuple(projector_size)}")
+    # float32, as the shader computes the map coordinates of a fragment
+    mx = (np.arange(w, dtype=np.float32) + np.float32(0.5)) * np.float32(n / w) - np.float32(0.5)
+    my = (np.arange(h, dtype=np.float32) + np.float32(0.5)) * np.float32(m / h) - np.float32(0.5)
+    x0, y0 = np.floor(mx), np.floor(my)
+    fx, fy = (mx - x0).astype(np.float64), (my - y0).astype(np.float64)
+    xa, xb = np.clip(x0.astype(np.int64), 0, n - 1), np.clip(x0.astype(np.int64) + 1, 0, n - 1)
+    ya, yb = np.clip(y0.astype(np.int64), 0, m - 1), np.clip(y0.astype(np.int64) + 1, 0, m - 1)
+    stack = np.concatenate([a, b[:, :, None]], axis=2)                       # (m, n, 4)
+    top = stack[ya][:, xa] * (1 - fx)[None, :, None] + stack[ya][:, xb] * fx[None, :, None]
+    bottom = stack[yb][:, xa] * (1 - fx)[None, :, None] + stack[yb][:, xb] * fx[None, :, None]
+    out = top * (1 - fy)[:, None, None] + bottom * fy[:, None, None]
+    return out[:, :, :3], out[:, :, 3]
+
+
+#: the 4x4 Bayer matrix: the order in which a 4x4 block's pixels step up to the next level
+BAYER4 = np.array([[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]], np.int64)
+
+
+def dither_thresholds(projector_size: Sequence[int]) -> np.ndarray:
+    """(H, W) float64: the ordered dither's threshold at each projector pixel, ``(B + 0.5) / 16``
+    with ``B = BAYER4[y % 4, x % 4]`` (rows counted from the top of the output), in (0, 1)."""
+    w, h = (int(v) for v in projector_size)
+    y, x = np.mgrid[0:h, 0:w]
+    return (BAYER4[y % 4, x % 4] + 0.5) / 16.0
+
+
+def blended_output(values: np.ndarray, alpha: np.ndarray, beta: np.ndarray, *, lut: np.ndarray | None = None,
+                   gain: float = 1.0) -> np.ndarray:
+    """What a node with blend maps outputs for linear ``values`` already in its pixels: ``(H, W, 3) uint8``.
+
+    ``v = LUT(clip(gain * (alpha * values + beta)))`` per channel (the maps through
+    :func:`blend_sample`, the LUT as :func:`lut_lookup` interpolates it), then the 8-bit level
+    ``floor(255 * clip(v) + t)`` with ``t`` the ordered dither's threshold at the pixel
+    (:func:`dither_thresholds`): a value ``k + f`` levels up shows ``k + 1`` on a share ``f`` of
+    each 4x4 block, so the block's mean keeps the fraction that rounding would lose.
+
+    Parameters
+    ----------
+    values : (H, W, 3) float
+        Linear content in projector pixels (the output of the warp).
+    alpha : (m, n, 3) float in [0, 1]
+    beta : (m, n) float in [0, 1]
+    lut : (C, E) float, optional
+        Inverse-response LUT, C in {1, 3} (None: identity).
+    """
+    vals = np.asarray(values, np.float64)
+    if vals.ndim != 3 or vals.shape[2] != 3:
+        raise ValueError(f"values must be (H, W, 3), got {vals.shape}")
+    h, w = vals.shape[:2]
+    a, b = blend_sample(alpha, beta, (w, h))
+    lin = np.clip(gain * (a * vals + b[:, :, None]), 0.0, 1.0)
+    table = np.array([[0.0, 1.0]] * 3) if lut is None else np.asarray(lut, np.float64)
+    if table.ndim != 2 or table.shape[0] not in (1, 3) or table.shape[1] < 2:
+        raise ValueError(f"lut must be (C, E) with C in {{1, 3}} and E >= 2, got {table.shape}")
+    if table.shape[0] == 1:
+        table = np.repeat(table, 3, axis=0)
+    grid = np.linspace(0.0, 1.0, table.shape[1])
+    out = np.empty_like(lin)
+    for ch in range(3):
+        out[..., ch] = np.interp(lin[..., ch], grid, table[ch])
+    t = dither_thresholds((w, h))
+    return np.floor(np.clip(out, 0.0, 1.0) * 255.0 + t[:, :, None]).astype(np.uint8)
 
 
 # ---------------------------------------------------------------- devices in the world

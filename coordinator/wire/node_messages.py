@@ -19,6 +19,7 @@ from coordinator.rig import HomographyPose, ProjectionPose, SlotState, validate_
 from coordinator.sessions import NO_SWAPS, Heartbeat, NodeInfo, Report, Swaps
 from coordinator.show import ShowUpdate
 from protos import node_pb2
+from protos.blend import BlendMaps
 
 _SPACE = {Space.CONTENT: node_pb2.SPACE_CONTENT, Space.PROJECTOR: node_pb2.SPACE_PROJECTOR}
 _SPACE_BACK = {v: k for k, v in _SPACE.items()}
@@ -54,7 +55,16 @@ def assignment_message(st: SlotState, *, content_size: tuple[int, int]) -> node_
         msg.projection.mesh.faces = mesh.faces.astype("<u4").tobytes()
     if st.lut is not None:
         msg.lut.CopyFrom(lut_message(st.lut))
+    if st.blend is not None:
+        msg.blend.CopyFrom(blend_message(st.blend, at_ns=st.blend_at_ns))
     return msg
+
+
+def blend_message(maps: BlendMaps, *, at_ns: int = 0) -> node_pb2.Blend:
+    """A slot's blend maps as the node receives them (float16, protos/blend.py's encoding)."""
+    alpha, beta = maps.encode()
+    w, h = maps.size
+    return node_pb2.Blend(width=w, height=h, alpha=alpha, beta=beta, blend_id=maps.blend_id, at_rig_ns=int(at_ns))
 
 
 def lut_message(lut: np.ndarray) -> node_pb2.Lut:
@@ -131,7 +141,8 @@ def report_from_message(msg: node_pb2.NodeReport) -> Report:
                        clock_drift_ppm=h.clock_drift_ppm, clock_rtt_ns=h.clock_rtt_ns,
                        host_monotonic_ns=h.host_monotonic_ns, rig_estimate_ns=h.rig_estimate_ns,
                        assets=tuple(asset_progress_from_message(a) for a in h.assets),
-                       show=node_show_from_message(h.show))
+                       show=node_show_from_message(h.show), blend_id=h.blend_id[:64],
+                       blend_since_rig_ns=h.blend_since_rig_ns)
     swaps = swaps_from_message(msg.swaps) if msg.HasField("swaps") else NO_SWAPS
     drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
     preview = None

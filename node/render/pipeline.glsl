@@ -8,6 +8,11 @@
 //
 // Then the node's luminance pipeline: value = LUT(clamp(gain * value)) per channel,
 // or clamp(value) when apply_lut is 0; quantised to round(255 * value).
+//
+// With blend maps (blend_on 1; protos/blend.py, protos/spaces.py's blended_output), frames that
+// apply the LUT become LUT(clamp(gain * (alpha * value + beta))) and are quantised with a 4x4
+// ordered dither, floor(255 * value + t), so that a slow ramp scaled by the maps does not band.
+// Without them (or for patterns, apply_lut 0) the output is what it was without blending, bit for bit.
 
 uniform sampler2D content;      // (H, W) texels, row 0 = top row of the image, never filtered
 uniform int content_grey;       // 1: content has 1 or 2 channels, replicate .r to RGB
@@ -15,6 +20,10 @@ uniform sampler2D lut;          // (3, E) R32F: row c = channel c, sample k at l
 uniform int lut_size;           // E >= 2
 uniform float gain;
 uniform int apply_lut;
+uniform sampler2D blend;        // (h, w) RGBA16F: rgb = alpha, a = beta; row 0 = top row of the output
+uniform int blend_on;           // 1: blend maps are set
+uniform vec4 blend_xform;       // (w / W, h / H, H, 0): fragment -> map coordinates (see blend_at)
+uniform int out_rows;           // H, the output's rows (the dither counts rows from the top)
 
 vec3 content_rgb(vec4 t) {
     return content_grey != 0 ? t.rrr : t.rgb;
@@ -49,15 +58,46 @@ float lut_channel(float v, int channel) {
     return mix(y0, y1, t - float(i));
 }
 
+// The blend maps at this fragment: projector pixel (x, y) (OpenCV, rows from the top) reads the
+// map at ((x + 0.5) w / W - 0.5, (y + 0.5) h / H - 0.5), bilinear between the four texels around
+// it with their indices clamped to the map. x + 0.5 is gl_FragCoord.x, y + 0.5 is H - gl_FragCoord.y.
+vec4 blend_at() {
+    ivec2 size = textureSize(blend, 0);
+    vec2 m = vec2(gl_FragCoord.x, blend_xform.z - gl_FragCoord.y) * blend_xform.xy - 0.5;
+    vec2 base = floor(m);
+    vec2 f = m - base;
+    ivec2 p0 = clamp(ivec2(base), ivec2(0), size - 1);
+    ivec2 p1 = clamp(ivec2(base) + 1, ivec2(0), size - 1);
+    vec4 top = (1.0 - f.x) * texelFetch(blend, p0, 0) + f.x * texelFetch(blend, ivec2(p1.x, p0.y), 0);
+    vec4 bottom = (1.0 - f.x) * texelFetch(blend, ivec2(p0.x, p1.y), 0) + f.x * texelFetch(blend, p1, 0);
+    return (1.0 - f.y) * top + f.y * bottom;
+}
+
+// The 4x4 Bayer threshold (B + 0.5) / 16 at this fragment, B = BAYER4[y % 4][x % 4] with y counted
+// from the top row: B = 4 b(y & 1, x & 1) + b(y >> 1 & 1, x >> 1 & 1), b(y, x) = 2 (x ^ y) + y.
+float dither_threshold() {
+    int x = int(gl_FragCoord.x);
+    int y = out_rows - 1 - int(gl_FragCoord.y);
+    int lo = (((x ^ y) & 1) << 1) | (y & 1);
+    int hi = ((((x ^ y) >> 1) & 1) << 1) | ((y >> 1) & 1);
+    return (float(4 * lo + hi) + 0.5) / 16.0;
+}
+
 vec4 finish(vec3 value) {
     vec3 v = value;
+    bool blended = apply_lut != 0 && blend_on != 0;
     if (apply_lut != 0) {
+        if (blended) {
+            vec4 ab = blend_at();
+            v = ab.rgb * v + ab.a;
+        }
         v = clamp(v * gain, 0.0, 1.0);
         v = vec3(lut_channel(v.r, 0), lut_channel(v.g, 1), lut_channel(v.b, 2));
     }
     v = clamp(v, 0.0, 1.0);
     // Quantise here, to round(255 * v) (halves up), so the unorm8 framebuffer stores exactly
     // that level whether the driver's float->unorm conversion rounds or truncates
-    // (+0.25 keeps k/255 from landing a hair below k under truncation).
-    return vec4((floor(v * 255.0 + 0.5) + 0.25) / 255.0, 1.0);
+    // (+0.25 keeps k/255 from landing a hair below k under truncation). Blended: dithered.
+    vec3 level = blended ? floor(v * 255.0 + dither_threshold()) : floor(v * 255.0 + 0.5);
+    return vec4((level + 0.25) / 255.0, 1.0);
 }

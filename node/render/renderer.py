@@ -6,6 +6,12 @@ fragment shader warps the content through the homography pose, or the textured m
 of a projection pose with depth test. The same shader then applies the node's gain
 and inverse-response LUT and quantises to 8 bits. See ``pipeline.glsl``.
 
+Blend maps (:class:`protos.blend.BlendMaps`, :meth:`Renderer.set_blend`) live in one RGBA16F
+texture (rgb = alpha, a = beta, as the wire's float16); frames that apply the LUT are then
+``LUT(clamp(gain * (alpha * value + beta)))``, dithered before the 8-bit output
+(:func:`protos.spaces.blended_output` is the reference). Maps may be uploaded ahead of the frame
+that first shows them (:meth:`Renderer.load_blend`).
+
 Conventions (shared with the whole project)
 --------------------------------------------
 * Pixel (x, y) has its centre at integer (x, y) (OpenCV); images are numpy arrays with
@@ -33,6 +39,7 @@ from node.errors import NodeError
 from node.render.mesh import Mesh
 from node.render.shaders import (MIN_GL_VERSION, MIN_GLES_VERSION, glsl_header, has_norm16_textures, is_gles,
                                   load_shader, shading_language)
+from protos.blend import BlendMaps
 
 __all__ = ["Mesh", "RenderError", "Renderer", "SPACES"]
 
@@ -132,6 +139,13 @@ class Renderer:
         for prog in (self._warp, self._mesh_prog):
             prog["content"].value = 0
             prog["lut"].value = 1
+            prog["blend"].value = 2
+            prog["blend_on"].value = 0
+        # the blend maps in use (None: none) and those uploaded ahead of use, by blend id
+        self._blend: tuple[str, Any, tuple[int, int]] | None = None
+        self._blend_ahead: tuple[str, Any, tuple[int, int]] | None = None
+        # bound to the blend's unit while no maps are set (never sampled then: blend_on is 0)
+        self._blend_none = ctx.texture((1, 1), 4, np.array([1, 1, 1, 0], np.float16).tobytes(), dtype="f2")
         self._contents: dict[str, _Content] = {}
         # forgotten textures kept for reuse, by ((H, W, C), dtype); at most SPARE_TEXTURES
         self._spare: dict[tuple[tuple[int, ...], np.dtype], Any] = {}
@@ -192,6 +206,7 @@ class Renderer:
         # projector space: GL window coords -> OpenCV projector pixels (the content *is* in projector pixels)
         self._warp_identity_bytes = _mat_bytes(self._window_to_pixels())
         self._update_pose_uniforms()
+        self._update_blend_uniforms()
 
     def _attach_depth(self, depth: bool) -> None:
         """(Re)build the framebuffer, with a depth buffer only once a mesh needs one (a homography
@@ -405,6 +420,72 @@ class Renderer:
     def gain(self) -> float:
         return self._gain
 
+    # ------------------------------------------------------------------ blend maps
+    def _blend_texture(self, maps: BlendMaps) -> tuple[str, Any, tuple[int, int]]:
+        if not isinstance(maps, BlendMaps):
+            raise ValueError(f"blend maps must be a BlendMaps, got {type(maps).__name__}")
+        w, h = maps.size
+        if w > self._max_texture or h > self._max_texture:
+            raise ValueError(f"blend maps of {w}x{h} texels exceed this GPU's {self._max_texture} per side")
+        data = np.concatenate([maps.alpha, maps.beta[:, :, None]], axis=2).astype("<f2")
+        tex = self.ctx.texture((w, h), 4, np.ascontiguousarray(data).tobytes(), dtype="f2", alignment=1)
+        tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+        tex.repeat_x = tex.repeat_y = False
+        return maps.blend_id, tex, (w, h)
+
+    def load_blend(self, maps: BlendMaps) -> None:
+        """Upload blend maps ahead of the frame that first shows them (:meth:`set_blend` then switches
+        without a transfer). One set is kept ahead: loading another releases it. ValueError if the maps
+        are not a :class:`~protos.blend.BlendMaps` or exceed the GPU's texture size."""
+        if self._blend_ahead is not None and self._blend_ahead[0] == maps.blend_id:
+            return
+        if self._blend is not None and self._blend[0] == maps.blend_id:
+            return
+        entry = self._blend_texture(maps)
+        if self._blend_ahead is not None:
+            self._blend_ahead[1].release()
+        self._blend_ahead = entry
+
+    def set_blend(self, maps: BlendMaps | None) -> None:
+        """Render with ``maps`` from the next frame on (None: no blend, the output as without one,
+        bit for bit). Maps loaded ahead under the same blend id are used without a transfer; the
+        maps replaced are released.
+
+        Parameters
+        ----------
+        maps : BlendMaps or None
+            ``alpha`` (h, w, 3) and ``beta`` (h, w) on a grid over this renderer's output
+            (:mod:`protos.blend`), held as float16.
+        """
+        if maps is None:
+            new = None
+        elif self._blend is not None and self._blend[0] == maps.blend_id:
+            return
+        elif self._blend_ahead is not None and self._blend_ahead[0] == maps.blend_id:
+            new, self._blend_ahead = self._blend_ahead, None
+        else:
+            new = self._blend_texture(maps)
+        if self._blend is not None:
+            self._blend[1].release()
+        self._blend = new
+        self._update_blend_uniforms()
+
+    @property
+    def blend_id(self) -> str:
+        """The id of the blend maps in use ("" none)."""
+        return self._blend[0] if self._blend is not None else ""
+
+    def _update_blend_uniforms(self) -> None:
+        """The blend's uniforms (they depend on the output size too)."""
+        w, h = self._blend[2] if self._blend is not None else (1, 1)
+        for prog in (self._warp, self._mesh_prog):
+            prog["blend_on"].value = int(self._blend is not None)
+            prog["blend_xform"].value = (w / self._width, h / self._height, float(self._height), 0.0)
+            prog["out_rows"].value = self._height
+
+    def _bind_blend(self) -> None:
+        (self._blend[1] if self._blend is not None else self._blend_none).use(2)
+
     # ------------------------------------------------------------------ content
     def upload(self, content_id: str, image: np.ndarray) -> None:
         """Upload content once under ``content_id`` (content ids are immutable).
@@ -498,8 +579,9 @@ class Renderer:
             the content already is in projector pixels and must be exactly
             ``width`` x ``height`` (ValueError otherwise).
         apply_lut : bool
-            True: value = LUT(clamp(gain * value)); False: value = clamp(value)
-            (no gain, no LUT; e.g. calibration patterns).
+            True: value = LUT(clamp(gain * value)), or with blend maps LUT(clamp(gain * (alpha *
+            value + beta))) dithered; False: value = clamp(value) (no gain, no LUT, no blend; e.g.
+            calibration patterns).
         """
         if space not in SPACES:
             raise ValueError(f"space must be one of {SPACES}, got {space!r}")
@@ -536,6 +618,7 @@ class Renderer:
         prog["apply_lut"].value = int(apply_lut)
         entry.texture.use(0)
         self._lut_tex.use(1)
+        self._bind_blend()
         fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
         self.ctx.enable_only(self._mgl.DEPTH_TEST)
         self.ctx.depth_func = "<"
@@ -551,6 +634,7 @@ class Renderer:
         prog["apply_lut"].value = int(apply_lut)
         entry.texture.use(0)
         self._lut_tex.use(1)
+        self._bind_blend()
         self.ctx.enable_only(self._mgl.NOTHING)
         self._warp_vao.render(self._mgl.TRIANGLES, vertices=3)
 
@@ -580,6 +664,11 @@ class Renderer:
         for tex in self._spare.values():
             tex.release()
         self._spare.clear()
+        for entry in (self._blend, self._blend_ahead):
+            if entry is not None:
+                entry[1].release()
+        self._blend = self._blend_ahead = None
+        self._blend_none.release()
         for obj in (
             self._mesh_vao, self._mesh_vbo, self._mesh_ibo, self._warp_vao, self._warp, self._mesh_prog,
             self._lut_tex, self._fbo, self._color, self._depth,
