@@ -6,7 +6,9 @@ builds its scene from it (``shadowless room --layout``, :func:`sim.scene.load_la
 adds the photometry: responses, peaks, apertures), and the coordinator a rig directory with
 one slot per projector and each slot's planned pose (``shadowless rig init DIR --layout``).
 The schema (millimetres; every key but ``position`` has a default) is documented with
-:func:`sim.scene.load_layout`; what both sides need of it is parsed and checked here, once.
+:func:`sim.scene.load_layout`; what both sides need of it is parsed and checked here, once. The
+photometry a layout may carry (a ``[photometry]`` section, a projector's ``white`` or ``hotspot``)
+is the room's alone: it is passed through here and read by :mod:`sim.photometry`.
 
 Only numpy and tomllib: the devices are built with :mod:`protos.spaces`' conventions.
 """
@@ -29,7 +31,7 @@ PROJECTOR_NATIVE = (1280, 800)
 CAMERA_NATIVE = (2592, 1944)
 TABLE_SIZE = (1200.0, 600.0)
 
-_TOP_LEVEL = {"name", "table", "mesh", "projector", "camera"}
+_TOP_LEVEL = {"name", "table", "mesh", "projector", "camera", "photometry"}
 
 
 class LayoutFileError(ValueError):
@@ -96,12 +98,17 @@ class DeviceSpec:
 
 @dataclass(frozen=True, eq=False)
 class Layout:
+    """A parsed layout. ``photometry`` is the file's ``[photometry]`` table as written (uneven light:
+    brightness and white-point spread, hot spot, vignetting), which only the room reads and checks
+    (:mod:`sim.photometry`); empty when the file has none."""
+
     name: str
     table: TableSpec | None
     mesh: MeshSpec | None
     projectors: tuple[DeviceSpec, ...]
     cameras: tuple[DeviceSpec, ...]
     path: Path | None = None
+    photometry: dict = field(default_factory=dict)
 
 
 def read_layout(path: str | Path) -> Layout:
@@ -200,4 +207,7 @@ def parse_layout(doc: dict, *, base: Path, path: Path | None = None) -> Layout:
     for i, e in enumerate(_table(doc.get("camera", []), "camera")):
         cameras.append(_device(e, name=str(e.get("name", f"camera{i}")), where=f"[[camera]] #{i + 1}", native=CAMERA_NATIVE,
                                focal_of=lambda e, res: float(e.get("focal_px", 1.02 * res[0]))))
-    return Layout(str(doc.get("name", "room")), table, mesh, tuple(projectors), tuple(cameras), path)
+    photometry = doc.get("photometry", {})
+    if not isinstance(photometry, dict):
+        raise LayoutFileError("[photometry] must be a table")
+    return Layout(str(doc.get("name", "room")), table, mesh, tuple(projectors), tuple(cameras), path, dict(photometry))

@@ -132,7 +132,7 @@ class CameraRequest(_message.Message):
     def __init__(self, camera: _Optional[int] = ...) -> None: ...
 
 class ProjectorTruth(_message.Message):
-    __slots__ = ("slot", "k", "r", "t", "p", "width", "height", "native_width", "native_height", "center", "gamma", "black", "peak", "aperture_mm", "focus_mm", "falloff", "powered")
+    __slots__ = ("slot", "k", "r", "t", "p", "width", "height", "native_width", "native_height", "center", "gamma", "black", "peak", "aperture_mm", "focus_mm", "falloff", "powered", "white", "lamp", "hotspot", "hotspot_width", "hotspot_center", "vignetting")
     SLOT_FIELD_NUMBER: _ClassVar[int]
     K_FIELD_NUMBER: _ClassVar[int]
     R_FIELD_NUMBER: _ClassVar[int]
@@ -150,6 +150,12 @@ class ProjectorTruth(_message.Message):
     FOCUS_MM_FIELD_NUMBER: _ClassVar[int]
     FALLOFF_FIELD_NUMBER: _ClassVar[int]
     POWERED_FIELD_NUMBER: _ClassVar[int]
+    WHITE_FIELD_NUMBER: _ClassVar[int]
+    LAMP_FIELD_NUMBER: _ClassVar[int]
+    HOTSPOT_FIELD_NUMBER: _ClassVar[int]
+    HOTSPOT_WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HOTSPOT_CENTER_FIELD_NUMBER: _ClassVar[int]
+    VIGNETTING_FIELD_NUMBER: _ClassVar[int]
     slot: str
     k: _containers.RepeatedScalarFieldContainer[float]
     r: _containers.RepeatedScalarFieldContainer[float]
@@ -167,7 +173,13 @@ class ProjectorTruth(_message.Message):
     focus_mm: float
     falloff: float
     powered: bool
-    def __init__(self, slot: _Optional[str] = ..., k: _Optional[_Iterable[float]] = ..., r: _Optional[_Iterable[float]] = ..., t: _Optional[_Iterable[float]] = ..., p: _Optional[_Iterable[float]] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., native_width: _Optional[int] = ..., native_height: _Optional[int] = ..., center: _Optional[_Iterable[float]] = ..., gamma: _Optional[_Iterable[float]] = ..., black: _Optional[_Iterable[float]] = ..., peak: _Optional[float] = ..., aperture_mm: _Optional[float] = ..., focus_mm: _Optional[float] = ..., falloff: _Optional[float] = ..., powered: _Optional[bool] = ...) -> None: ...
+    white: _containers.RepeatedScalarFieldContainer[float]
+    lamp: _containers.RepeatedScalarFieldContainer[float]
+    hotspot: float
+    hotspot_width: float
+    hotspot_center: _containers.RepeatedScalarFieldContainer[float]
+    vignetting: float
+    def __init__(self, slot: _Optional[str] = ..., k: _Optional[_Iterable[float]] = ..., r: _Optional[_Iterable[float]] = ..., t: _Optional[_Iterable[float]] = ..., p: _Optional[_Iterable[float]] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., native_width: _Optional[int] = ..., native_height: _Optional[int] = ..., center: _Optional[_Iterable[float]] = ..., gamma: _Optional[_Iterable[float]] = ..., black: _Optional[_Iterable[float]] = ..., peak: _Optional[float] = ..., aperture_mm: _Optional[float] = ..., focus_mm: _Optional[float] = ..., falloff: _Optional[float] = ..., powered: _Optional[bool] = ..., white: _Optional[_Iterable[float]] = ..., lamp: _Optional[_Iterable[float]] = ..., hotspot: _Optional[float] = ..., hotspot_width: _Optional[float] = ..., hotspot_center: _Optional[_Iterable[float]] = ..., vignetting: _Optional[float] = ...) -> None: ...
 
 class CameraTruth(_message.Message):
     __slots__ = ("k", "r", "t", "p", "width", "height", "center", "gain", "exposure", "full_well", "read_noise", "bits")
@@ -208,6 +220,22 @@ class SetActiveReply(_message.Message):
     ACTIVE_FIELD_NUMBER: _ClassVar[int]
     active: _containers.RepeatedScalarFieldContainer[str]
     def __init__(self, active: _Optional[_Iterable[str]] = ...) -> None: ...
+
+class SetLampRequest(_message.Message):
+    __slots__ = ("slot", "gain")
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    GAIN_FIELD_NUMBER: _ClassVar[int]
+    slot: str
+    gain: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, slot: _Optional[str] = ..., gain: _Optional[_Iterable[float]] = ...) -> None: ...
+
+class SetLampReply(_message.Message):
+    __slots__ = ("slot", "lamp")
+    SLOT_FIELD_NUMBER: _ClassVar[int]
+    LAMP_FIELD_NUMBER: _ClassVar[int]
+    slot: str
+    lamp: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, slot: _Optional[str] = ..., lamp: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class HandSpec(_message.Message):
     __slots__ = ("x", "y", "height", "yaw_deg", "pose", "scale", "side")

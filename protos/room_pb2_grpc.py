@@ -281,6 +281,16 @@ class RoomTruthStub:
                 request_serializer=protos_dot_room__pb2.SlotRequest.SerializeToString,
                 response_deserializer=protos_dot_room__pb2.SparseMatrix.FromString,
                 _registered_method=True)
+        self.SetLamp = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/SetLamp',
+                request_serializer=protos_dot_room__pb2.SetLampRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.SetLampReply.FromString,
+                _registered_method=True)
+        self.GetContribution = channel.unary_unary(
+                '/shadowless.v1.RoomTruth/GetContribution',
+                request_serializer=protos_dot_room__pb2.SlotRequest.SerializeToString,
+                response_deserializer=protos_dot_room__pb2.TruthImage.FromString,
+                _registered_method=True)
 
 
 class RoomTruthServicer:
@@ -342,6 +352,23 @@ class RoomTruthServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def SetLamp(self, request, context):
+        """Dim or kill a projector's lamp while its node keeps streaming frames (a bench
+        switch): gain 1 = as new, 0 = dead; one value or three (r, g, b), each 0..1.
+        An unknown slot is NOT_FOUND, a bad gain INVALID_ARGUMENT; neither changes anything.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetContribution(self, request, context):
+        """(H, W, 3) float32: the camera signal the projector alone adds at full white
+        above its black (lamp, white point, hot spot, vignetting, occluders included).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_RoomTruthServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -384,6 +411,16 @@ def add_RoomTruthServicer_to_server(servicer, server):
                     servicer.GetTransport,
                     request_deserializer=protos_dot_room__pb2.SlotRequest.FromString,
                     response_serializer=protos_dot_room__pb2.SparseMatrix.SerializeToString,
+            ),
+            'SetLamp': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetLamp,
+                    request_deserializer=protos_dot_room__pb2.SetLampRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.SetLampReply.SerializeToString,
+            ),
+            'GetContribution': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetContribution,
+                    request_deserializer=protos_dot_room__pb2.SlotRequest.FromString,
+                    response_serializer=protos_dot_room__pb2.TruthImage.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -604,6 +641,60 @@ class RoomTruth:
             '/shadowless.v1.RoomTruth/GetTransport',
             protos_dot_room__pb2.SlotRequest.SerializeToString,
             protos_dot_room__pb2.SparseMatrix.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetLamp(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/SetLamp',
+            protos_dot_room__pb2.SetLampRequest.SerializeToString,
+            protos_dot_room__pb2.SetLampReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetContribution(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RoomTruth/GetContribution',
+            protos_dot_room__pb2.SlotRequest.SerializeToString,
+            protos_dot_room__pb2.TruthImage.FromString,
             options,
             channel_credentials,
             insecure,

@@ -6,10 +6,13 @@ import asyncio
 import signal
 import sys
 import time
+from pathlib import Path
 
 from protos import cli_types
 from sim.errors import SimError
 from sim.hand import Hand, HandPath
+from sim.photometry import Photometry
+from sim.rigs import LAYOUTS, layout_path
 from sim.room import Room
 from sim.scene import SUBSETS, load_layout, reference_scene, write_layout
 from sim.wire.service import DEFAULT_PORT, serve
@@ -31,6 +34,21 @@ examples:
   shadowless room --subset P9D                      # only the dense central 3x3 projectors lit
   shadowless room --write-layout my-room.toml       # dump the reference layout, edit it, then:
   shadowless room --layout my-room.toml
+  shadowless room --layout wall-3x1                 # 3 projectors side by side, footprints overlapping by 20 %
+  shadowless room --layout bust-walls               # 6 projectors on the walls around the bust, 3 cameras
+  shadowless room --brightness-spread 0.15 --white-spread 0.15 --hotspot 0.2 --vignetting 0.3
+                                                    # units that differ, and uneven light across each image
+
+uneven light (all off by default; the room is then exactly as even as it always was):
+  --brightness-spread F  each projector's peak output times a factor uniform in 1 +- F (0.15: +-15 %)
+  --white-spread F       each projector's red, green and blue gains, each uniform in 1 +- F (its white point)
+  --hotspot F            F more light at each image's centre (0.2: +20 %), a Gaussian bump ...
+  --hotspot-width W      ... of sigma W in half-diagonals of the image (default 0.35)
+  --vignetting F         F less light in each image's corners (0.3: -30 %), falling as the squared radius
+  The spreads are drawn from --seed and each slot's name. A layout's [photometry] section sets the same
+  (brightness_spread, white_spread, hotspot, hotspot_width, vignetting); these flags replace its keys.
+  A lamp is dimmed or killed while its node keeps running with RoomTruth's SetLamp
+  (sim.link.RoomClient.set_lamp(slot, 0.5)).
 
 subsets (paper section 5.2): P1 (one bright unit at the centre), P9D, P9W, P13, P17, P20, P25;
 see `python -c "import sim.scene; help(sim.scene)"` for the pictures.
@@ -48,7 +66,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.epilog = EPILOG
     g = parser.add_argument_group("the room")
-    g.add_argument("--layout", metavar="FILE", help="room layout (TOML: any projectors, cameras, surfaces); default: the paper's 5x5 rig")
+    g.add_argument("--layout", metavar="FILE|NAME",
+                   help="room layout (TOML: any projectors, cameras, surfaces), or a shipped one by name: "
+                        f"{', '.join(LAYOUTS)}; default: the paper's 5x5 rig")
     g.add_argument("--surface", default="table", metavar="table|bust|MESH",
                    help="what the reference rig projects on: the table (default), the procedural bust on it, or an OBJ/PLY mesh in mm")
     g.add_argument("--projector-scale", type=_scale, default=0.25, metavar="S",
@@ -65,6 +85,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    help="cameras of the reference rig: 1 (on the ceiling) or 3 (plus front-left and back-right of the "
                         "bust, cameras 1 and 2: room://HOST:PORT?camera=N); a layout file lists its own")
     g.add_argument("--write-layout", metavar="FILE", help="write the room's layout as TOML and exit (a starting point for --layout)")
+    u = parser.add_argument_group("uneven light (off by default; see below)")
+    u.add_argument("--brightness-spread", type=cli_types.number(0, 0.9), default=None, metavar="F",
+                   help="unit-to-unit brightness: each projector's peak times 1 +- F, uniform (0.15 = +-15 %%; default 0)")
+    u.add_argument("--white-spread", type=cli_types.number(0, 0.9), default=None, metavar="F",
+                   help="unit-to-unit white point: each channel's gain 1 +- F, uniform, per projector (default 0)")
+    u.add_argument("--hotspot", type=cli_types.number(0, 4), default=None, metavar="F",
+                   help="a hot spot: F more light at the image centre, as a fraction (0.2 = +20 %%; default 0)")
+    u.add_argument("--hotspot-width", type=cli_types.number(0.05, 4), default=None, metavar="W",
+                   help="the hot spot's sigma in half-diagonals of the image (default 0.35)")
+    u.add_argument("--vignetting", type=cli_types.number(0, 0.95), default=None, metavar="F",
+                   help="light lost in the image corners beyond the lens's cos fall-off, as a fraction (0.3 = -30 %%; default 0)")
     h = parser.add_argument_group("a hand over the table")
     h.add_argument("--hand", type=cli_types.pair, metavar="X,Y", help="place a hand (palm centre, or fingertip with --hand-pose point) at table mm X,Y")
     h.add_argument("--hand-height", type=cli_types.number(0, 2000), default=200.0, metavar="MM", help="height of the hand's lowest point (default 200; 0 touches)")
@@ -78,14 +109,29 @@ def configure(parser: argparse.ArgumentParser) -> None:
     n.add_argument("--no-truth", action="store_true", help="do not serve the RoomTruth service")
 
 
+def photometry_args(args: argparse.Namespace) -> dict:
+    """The uneven-light flags given (name -> value), for :class:`sim.photometry.Photometry`."""
+    names = ("brightness_spread", "white_spread", "hotspot", "hotspot_width", "vignetting")
+    return {n: getattr(args, n) for n in names if getattr(args, n, None) is not None}
+
+
+def layout_file(text: str) -> Path:
+    """The layout file ``--layout`` names: a path, or a shipped layout's name when no such file exists."""
+    path = Path(text)
+    if not path.exists() and text in LAYOUTS:
+        return layout_path(text)
+    return path
+
+
 def build_room(args: argparse.Namespace):
     """The Room the arguments describe (shared with the demo wiring)."""
     ps, cs = (1.0, 1.0) if args.full_resolution else (args.projector_scale, args.camera_scale)
+    light = photometry_args(args)
     if args.layout:
-        scene = load_layout(args.layout, projector_scale=ps, camera_scale=cs, seed=args.seed)
+        scene = load_layout(layout_file(args.layout), projector_scale=ps, camera_scale=cs, seed=args.seed, photometry=light)
     else:
         scene = reference_scene(ps, cs, args.surface, args.seed, pitch=args.pitch, aperture=args.aperture,
-                                cameras=args.cameras)
+                                cameras=args.cameras, photometry=Photometry(**light) if light else None)
     room = Room(scene, seed=args.seed, noise=not args.no_noise)
     if args.subset:
         if args.subset not in SUBSETS:

@@ -123,6 +123,21 @@ class RoomClient:
         """Place hands and boxes (or a moving hand); returns the number of primitives."""
         return self._call(self._truth.SetOccluders, wire.occluders_to_msg(occluders, path=path)).primitives
 
+    def set_lamp(self, slot: str, gain) -> np.ndarray:
+        """Dim or kill ``slot``'s lamp while its node keeps streaming (a bench switch).
+
+        ``gain``: one number or three (r, g, b), each 0..1 (1 = as new, 0 = dead). Returns the
+        lamp now, (3,) float64. An unknown slot raises UnknownSlotError, a bad gain FrameError
+        (a ValueError); the lamp is then unchanged.
+        """
+        values = np.asarray(gain, np.float64).reshape(-1).tolist()
+        reply = self._call(self._truth.SetLamp, room_pb2.SetLampRequest(slot=slot, gain=values))
+        return np.asarray(list(reply.lamp), np.float64)
+
+    def contribution(self, slot: str, camera: int = 0) -> np.ndarray:
+        """(H, W, 3) float32: the signal ``slot`` alone adds at full white above its black (:meth:`sim.truth.Truth.contribution`)."""
+        return codec.decode_image(self._call(self._truth.GetContribution, room_pb2.SlotRequest(slot=slot, camera=camera)).image)
+
     def light_drop(self, camera: int = 0) -> np.ndarray:
         """(H, W) float32."""
         return codec.decode_image(self._call(self._truth.GetLightDrop, room_pb2.CameraRequest(camera=camera)).image)[..., 0]

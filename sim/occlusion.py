@@ -229,7 +229,11 @@ def occluder_samples(
     s, pad = plan.upsample, plan.pad
     mapx = np.where(lit, s * (u + 0.5) - 0.5 + pad, -10.0).astype(np.float32)[None, :]
     mapy = np.where(lit, s * (v + 0.5) - 0.5 + pad, -10.0).astype(np.float32)[None, :]
-    weight = np.where(lit, hand_albedo * spec.peak * e, 0.0).astype(np.float32)
+    light = hand_albedo * spec.peak * e
+    profile = spec.profile_at(u, v)  # a hot spot and vignetting, as in the static plan
+    if profile is not None:
+        light = light * profile
+    weight = np.where(lit, light, 0.0).astype(np.float32)
     lo8 = lo.astype(np.int8)
     alpha = np.where(lit, alpha, 0.0).astype(np.float32)
     coef = {L: c[0] for L, c in blend_coefficients(weight[None, :], lo8[None, :], alpha[None, :], len(plan.sigmas), three=False).items()}

@@ -8,7 +8,8 @@ occluders:
   Arrays cover the view's ROI, the bounding box of the pixels that see a surface.
 * :class:`Plan`, per projector and view: where each surface point falls in the
   projector's image (sub-pixel, as field coordinates for ``cv2.remap``), how much
-  light reaches it (distance, incidence, lens fall-off, mesh self-occlusion) and
+  light reaches it (distance, incidence, lens fall-off, the projector's hot spot and
+  vignetting at that image point, mesh self-occlusion) and
   how blurred it is (defocus + the camera pixel's footprint), plus a tile index
   of the projector image that :mod:`sim.occlusion` culls occluder tests with.
 * :class:`MeshMaps`: rasterised mesh visibility (camera G-buffers, projector
@@ -86,7 +87,7 @@ class Plan:
     sigmas: tuple[float, ...]  # blur of each level, projector px
     mapx: np.ndarray  # (hr, wr) float32 field coordinates (-10: unlit)
     mapy: np.ndarray
-    weight: np.ndarray  # (hr, wr) float32 albedo * peak * irradiance * static visibility
+    weight: np.ndarray  # (hr, wr) float32 albedo * peak * irradiance * profile * static visibility
     lo: np.ndarray  # (hr, wr) int8 level
     alpha: np.ndarray  # (hr, wr) float32 blend towards level lo + 1
     coef: dict[int, np.ndarray]  # level -> (hr, wr, 3) or (hr, wr) float32
@@ -332,7 +333,11 @@ def build_plan(view: View, spec: ProjectorSpec, *, upsample: int | None = None, 
     fy = np.where(lit, s * (v + 0.5) - 0.5 + pad, -10.0)
     mapx = roi_map(fx, -10.0, np.float32)
     mapy = roi_map(fy, -10.0, np.float32)
-    weight = roi_map(np.where(lit, view.s_albedo * spec.peak * e, 0.0), 0.0, np.float32)
+    light = view.s_albedo * spec.peak * e
+    profile = spec.profile_at(u, v)  # a hot spot and vignetting (sim.photometry); None when even
+    if profile is not None:
+        light = light * profile
+    weight = roi_map(np.where(lit, light, 0.0), 0.0, np.float32)
     lo_map = roi_map(lo, 0, np.int8)
     alpha_map = roi_map(np.where(lit, alpha, 0.0), 0.0, np.float32)
     coef = blend_coefficients(weight, lo_map, alpha_map, len(sigmas), three=n_roi <= _COEF3_LIMIT)

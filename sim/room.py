@@ -5,10 +5,13 @@ For every camera the room precomputes, once, what each camera pixel looks at
 in the projector's image (sub-pixel), how much light reaches it (distance,
 incidence, lens fall-off, mesh self-occlusion) and how blurred it is
 (defocus + the camera pixel's footprint): :mod:`sim.precompute`. A capture is
-then, per powered projector: response(frame) -> footprint/blur-filtered light
-field (cached while the frame is unchanged) -> ``cv2.remap`` at the camera
-pixels -> x irradiance x visibility; summed; then exposure, sensor noise and
-quantisation (:class:`sim.optics.Sensor`).
+then, per powered projector: response(frame) x white point x lamp ->
+footprint/blur-filtered light field (cached while the frame and the lamp are
+unchanged) -> ``cv2.remap`` at the camera pixels -> x irradiance (with the
+projector's hot spot and vignetting) x visibility; summed; then exposure, sensor
+noise and quantisation (:class:`sim.optics.Sensor`). Uneven light is
+:mod:`sim.photometry`'s; :meth:`Room.set_lamp` dims or kills a lamp while its
+projector keeps showing its frames.
 
 Occluders (hands, boxes) only change visibility (:mod:`sim.occlusion`). Per
 projector, the camera pixels whose line of sight to it crosses an occluder are
@@ -48,6 +51,7 @@ from sim.hand import HandPath
 from sim.occluders import flatten
 from sim.occlusion import DynamicState, OccluderSamples, occlude, occluder_samples
 from sim.optics import gaussian_kernel
+from sim.photometry import check_lamp
 from sim.precompute import (
     CAMERA_SIGMA_LIMIT,
     MESH,
@@ -114,6 +118,7 @@ class Room:
         self._dynamic: dict[int, DynamicState] = {}
         self._fields: dict[tuple, tuple[int, dict[int, np.ndarray]]] = {}
         self._spec = {p.slot: p for p in scene.projectors}
+        self._lamp: dict[str, np.ndarray] = {p.slot: np.ones(3) for p in scene.projectors}
         self.truth = Truth(self)
         self._mesh_maps: MeshMaps | None = MeshMaps.render(scene) if scene.mesh is not None else None
 
@@ -192,6 +197,44 @@ class Room:
         self.projector(slot)
         with self._lock:
             return self._frames[slot]
+
+    def set_lamp(self, slot: str, gain) -> np.ndarray:
+        """Dim or kill the lamp of projector ``slot`` while it keeps showing its frames.
+
+        Parameters
+        ----------
+        gain : float or (3,) floats in 0..1
+            The lamp's output now relative to new, per channel: 1 as new, 0.5 half, 0 dead.
+            It scales everything the projector emits, its black level too.
+
+        Returns
+        -------
+        (3,) float64: the lamp now.
+
+        Raises
+        ------
+        UnknownSlotError, ValueError (nothing changes)
+        """
+        self.projector(slot)
+        lamp = check_lamp(gain)
+        with self._lock:
+            self._lamp[slot] = lamp
+        return lamp.copy()
+
+    def lamp(self, slot: str) -> np.ndarray:
+        """(3,) float64: the lamp of ``slot`` (1 = as new, 0 = dead)."""
+        self.projector(slot)
+        with self._lock:
+            return self._lamp[slot].copy()
+
+    def emission_gains(self, slot: str) -> np.ndarray | None:
+        """(3,) float32 per-channel gains of what ``slot`` emits (white point x lamp); None when all are 1."""
+        spec = self.projector(slot)
+        with self._lock:
+            lamp = self._lamp[slot]
+        if spec.white is None and np.all(lamp == 1.0):
+            return None
+        return (spec.white_gains * lamp).astype(np.float32)
 
     def set_active(self, slots: Iterable[str]) -> None:
         """Power exactly ``slots`` (e.g. ``SUBSETS["P9D"]``); the others emit nothing."""
@@ -324,58 +367,112 @@ class Room:
 
         Returns
         -------
-        (H, W, 3) float32: ``sum_i transport_i @ luminance_i`` (see :meth:`sim.truth.Truth.transport`).
+        (H, W, 3) float32: ``sum_i transport_i @ luminance_i``, with ``luminance_i`` what projector
+        i emits, its response times its :meth:`emission_gains` (see :meth:`sim.truth.Truth.transport`).
         """
         with self._lock:
-            cam = self.scene.camera(camera)
+            self.scene.camera(camera)
             view = self.view(camera)
             dyn = self.dynamic_state(view, time=time)
-            x0, y0, x1, y1 = view.roi
-            W, H = cam.size
             acc = np.zeros((*view.shape, 3), np.float32)
-            sample = view.scratch
             hand_acc = np.zeros((len(dyn.hand_index), 3), np.float32)
             for slot in self._active:
                 if self._frames[slot] is None:
                     continue
                 plan = view.plans[slot]
-                fields = self._field(slot, plan)
-                blocked = dyn.blocked.get(slot)
-                for level, coef in plan.coef.items():
-                    cv2.remap(fields[level], plan.mapx, plan.mapy, cv2.INTER_LINEAR, dst=sample, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-                    if blocked is not None and len(blocked):
-                        sample.reshape(-1, 3)[blocked] = 0.0
-                    if coef.ndim == 3:
-                        cv2.accumulateProduct(sample, coef, acc)
-                    else:
-                        np.multiply(sample, coef[:, :, None], out=sample)
-                        acc += sample
-                if len(dyn.hand_index):
-                    hs = self.occluder_samples(view, dyn, slot)
-                    for level, coef in hs.coef.items():
-                        hand = cv2.remap(fields[level], hs.mapx, hs.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-                        hand_acc += hand[0] * coef[:, None]
-            if len(dyn.hand_roi):
-                acc.reshape(-1, 3)[dyn.hand_roi] = 0.0
-            out = np.zeros((H, W, 3), np.float32)
-            out[y0:y1, x0:x1] = acc
-            if len(dyn.hand_index):
-                out.reshape(-1, 3)[dyn.hand_index] = hand_acc
-            out *= np.float32(cam.gain * (cam.exposure if exposure is None else exposure))
-            return out
+                self._accumulate(view, dyn, slot, plan, self._field(slot, plan), acc, hand_acc)
+            return self._finish(camera, view, dyn, acc, hand_acc, exposure)
+
+    def render_projector(self, slot: str, luminance: np.ndarray, camera: int = 0, *, exposure: float | None = None, time: float | None = None) -> np.ndarray:
+        """The linear sensor signal of ``slot`` alone emitting ``luminance`` (its response's output).
+
+        What :meth:`render_linear` gives with only ``slot`` powered and a frame whose response is
+        ``luminance``, whatever the room shows now; the lamp, white point, profile and the current
+        occluders apply, as in a capture. ``slot`` need not be powered.
+
+        Parameters
+        ----------
+        luminance : (h, w, 3) float32
+            Relative luminance per projector pixel, before the white point and the lamp.
+
+        Returns
+        -------
+        (H, W, 3) float32
+        """
+        spec = self.projector(slot)
+        w, h = spec.size
+        lum = np.asarray(luminance, np.float32)
+        if lum.shape != (h, w, 3):
+            raise FrameError(f"luminance for {slot} must be shape ({h}, {w}, 3), got {lum.shape}")
+        with self._lock:
+            view = self.view(camera)
+            dyn = self.dynamic_state(view, time=time)
+            acc = np.zeros((*view.shape, 3), np.float32)
+            hand_acc = np.zeros((len(dyn.hand_index), 3), np.float32)
+            plan = view.plans[slot]
+            gains = self.emission_gains(slot)
+            if gains is not None:
+                lum = lum * gains
+            self._accumulate(view, dyn, slot, plan, self._fields_of(lum, plan), acc, hand_acc)
+            return self._finish(camera, view, dyn, acc, hand_acc, exposure)
+
+    def _accumulate(self, view: View, dyn: DynamicState, slot: str, plan: Plan, fields: dict[int, np.ndarray], acc: np.ndarray, hand_acc: np.ndarray) -> None:
+        """Add ``slot``'s light (its blurred fields) to the ROI accumulator and the occluders' samples."""
+        sample = view.scratch
+        blocked = dyn.blocked.get(slot)
+        for level, coef in plan.coef.items():
+            cv2.remap(fields[level], plan.mapx, plan.mapy, cv2.INTER_LINEAR, dst=sample, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+            if blocked is not None and len(blocked):
+                sample.reshape(-1, 3)[blocked] = 0.0
+            if coef.ndim == 3:
+                cv2.accumulateProduct(sample, coef, acc)
+            else:
+                np.multiply(sample, coef[:, :, None], out=sample)
+                acc += sample
+        if len(dyn.hand_index):
+            hs = self.occluder_samples(view, dyn, slot)
+            for level, coef in hs.coef.items():
+                hand = cv2.remap(fields[level], hs.mapx, hs.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+                hand_acc += hand[0] * coef[:, None]
+
+    def _finish(self, camera: int, view: View, dyn: DynamicState, acc: np.ndarray, hand_acc: np.ndarray, exposure: float | None) -> np.ndarray:
+        """The full camera image of an accumulated ROI: occluder pixels, then the camera's gain and exposure."""
+        cam = self.scene.camera(camera)
+        W, H = cam.size
+        x0, y0, x1, y1 = view.roi
+        if len(dyn.hand_roi):
+            acc.reshape(-1, 3)[dyn.hand_roi] = 0.0
+        out = np.zeros((H, W, 3), np.float32)
+        out[y0:y1, x0:x1] = acc
+        if len(dyn.hand_index):
+            out.reshape(-1, 3)[dyn.hand_index] = hand_acc
+        out *= np.float32(cam.gain * (cam.exposure if exposure is None else exposure))
+        return out
 
     # ------------------------------------------------------------ fields
 
     def _field(self, slot: str, plan: Plan) -> dict[int, np.ndarray]:
         """Blurred light fields (level -> (Hf, Wf, 3) float32) of ``slot``'s current frame."""
         ckey = (slot, plan.upsample, plan.pad, plan.sigmas)
-        version = self._frame_version[slot]
+        gains = self.emission_gains(slot)
+        version = self._frame_version[slot] if gains is None else (self._frame_version[slot], gains.tobytes())
         cached = self._fields.get(ckey)
         if cached is not None and cached[0] == version:
             return cached[1]
         spec = self._spec[slot]
         frame = self._frames[slot]
-        lum = cv2.LUT(frame, spec.response.table_u8().reshape(1, 256, 3))
+        table = spec.response.table_u8()
+        if gains is not None:
+            table = table * gains  # white point x lamp, per channel: (256, 3) float32
+        fields = self._fields_of(cv2.LUT(frame, table.reshape(1, 256, 3)), plan)
+        self._fields.pop(ckey, None)
+        total = sum(f.nbytes for _, fs in self._fields.values() for f in fs.values())
+        if total + sum(f.nbytes for f in fields.values()) <= CACHE_BUDGET_BYTES:
+            self._fields[ckey] = (version, fields)
+        return fields
+
+    def _fields_of(self, lum: np.ndarray, plan: Plan) -> dict[int, np.ndarray]:
+        """Blurred light fields (level -> (Hf, Wf, 3) float32) of emitted luminance ``lum`` (h, w, 3) float32."""
         h, w = lum.shape[:2]
         s, pad = plan.upsample, plan.pad
         base = np.zeros((h * s + 2 * pad, w * s + 2 * pad, 3), np.float32)
@@ -390,8 +487,4 @@ class Room:
             else:
                 k = gaussian_kernel(sigma * s).astype(np.float32)
                 fields[level] = cv2.sepFilter2D(base, cv2.CV_32F, k, k, borderType=cv2.BORDER_CONSTANT)
-        self._fields.pop(ckey, None)
-        total = sum(f.nbytes for _, fs in self._fields.values() for f in fs.values())
-        if total + sum(f.nbytes for f in fields.values()) <= CACHE_BUDGET_BYTES:
-            self._fields[ckey] = (version, fields)
         return fields

@@ -48,6 +48,7 @@ from sim.errors import LayoutError, UnknownSlotError
 from sim.geometry import Pinhole, intrinsics, look_at, rotation_about
 from sim.mesh import Mesh, bust, load_mesh
 from sim.optics import Response, Sensor, irradiance_factor, random_response
+from sim.photometry import PROJECTOR_KEYS, Photometry, Profile, apply_photometry, parse_photometry, projector_photometry
 
 # PROJECTOR_NATIVE, CAMERA_NATIVE (the reference devices' native resolutions, a layout's defaults)
 # and TABLE_SIZE come from protos.layout, which reads layout files for the room and the coordinator.
@@ -103,6 +104,11 @@ class ProjectorSpec:
         Lens fall-off exponent (``cos(off-axis angle) ** falloff``).
     powered : bool
         Part of the rig by default (``p1`` is not).
+    white : (3,) float64 or None
+        Per-channel gains of the emitted light, the unit's white point (None: 1, 1, 1).
+    profile : Profile or None
+        The light across the image, a hot spot and vignetting (None: even;
+        :mod:`sim.photometry`).
     """
 
     slot: str
@@ -114,10 +120,23 @@ class ProjectorSpec:
     focus: float = 1500.0
     falloff: float = 1.0
     powered: bool = True
+    white: np.ndarray | None = None
+    profile: Profile | None = None
 
     @property
     def size(self) -> tuple[int, int]:
         return self.pinhole.size
+
+    @property
+    def white_gains(self) -> np.ndarray:
+        """(3,) float64: the per-channel gains (ones when the unit has none)."""
+        return np.ones(3) if self.white is None else np.asarray(self.white, np.float64)
+
+    def profile_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray | None:
+        """The profile at projector coordinates (u, v) of :attr:`pinhole` ((...) float64), or None when even."""
+        if self.profile is None or self.profile.identity:
+            return None
+        return self.profile.factor(u, v, self.pinhole.size)
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,7 +239,7 @@ def _device(position, target, up, native_size, focal, principal, roll_deg: float
     return Pinhole(intrinsics(native_size, focal=focal, principal=principal), R, t, native_size)
 
 
-def _fit_focal(positions, target, up, size, points, *, margin: float) -> float:
+def fit_focal(positions, target, up, size, points, *, margin: float) -> float:
     """Largest focal length (px) for which ``points`` fall inside the image from every position."""
     best = np.inf
     w, h = size
@@ -254,7 +273,14 @@ def auto_gain(projectors, camera: Pinhole, *, albedo: float, level: float = TARG
     total = 0.0
     for p in projectors:
         if p.powered:
-            total += p.peak * float(irradiance_factor(p.native.center, p.native.axis, point, normal, falloff=p.falloff))
+            e = p.peak * float(irradiance_factor(p.native.center, p.native.axis, point, normal, falloff=p.falloff))
+            # uneven light (sim.photometry), only when a unit has it: the level holds with it too
+            if p.white is not None:
+                e *= float(np.mean(p.white))
+            if p.profile is not None and not p.profile.identity and e > 0:
+                pix, _ = p.native.project(point[None, :])
+                e *= float(p.profile.factor(pix[0, 0], pix[0, 1], p.native.size))
+            total += e
     if total <= 0:
         raise LayoutError(
             f"no powered projector lights the point on the camera's axis ({point.round(1).tolist()} mm); "
@@ -274,6 +300,7 @@ def reference_scene(
     jitter: bool = True,
     aperture: float = 10.0,
     cameras: int = 1,
+    photometry: Photometry | None = None,
 ) -> Scene:
     """The paper's rig: 5 x 5 projectors 1.4 m above a 1200 x 600 mm table, one ceiling camera (or three).
 
@@ -295,6 +322,10 @@ def reference_scene(
         Lens aperture diameter (mm) of every projector (defocus blur).
     cameras : 1 or 3
         The ceiling camera alone, or with the two of :data:`RING_CAMERAS` (cameras 1 and 2).
+    photometry : Photometry, optional
+        Uneven light (:mod:`sim.photometry`: brightness and white-point spread, a hot spot,
+        vignetting), drawn from ``seed``; none by default. The cameras' gains follow, so the
+        powered projectors still reach :data:`TARGET_LEVEL` on the camera's axis.
     """
     if cameras not in (1, 3):
         raise ValueError(f"the reference rig has 1 or 3 cameras, not {cameras}")
@@ -304,7 +335,7 @@ def reference_scene(
     target = np.zeros(3)
     grid = [(r, c, np.array([(c - 2) * px, (r - 2) * py, ceiling])) for r in range(5) for c in range(5)]
     corners = _table_corners(TABLE_SIZE, 40.0)
-    focal = _fit_focal([g[2] for g in grid], target, up, PROJECTOR_NATIVE, corners, margin=0.04)
+    focal = fit_focal([g[2] for g in grid], target, up, PROJECTOR_NATIVE, corners, margin=0.04)
     proj_size = _scaled_size(PROJECTOR_NATIVE, projector_scale)
     projectors: list[ProjectorSpec] = []
 
@@ -329,9 +360,11 @@ def reference_scene(
     total = sum(p.peak * float(irradiance_factor(p.native.center, p.native.axis, centre, up_n, falloff=p.falloff)) for p in projectors)
     own = float(irradiance_factor(bright.native.center, bright.native.axis, centre, up_n, falloff=bright.falloff))
     projectors.append(replace(bright, peak=total / own))
+    if photometry is not None and not photometry.none:
+        projectors = list(apply_photometry(projectors, photometry, seed=seed))
 
     cam_pos = np.array([0.0, -py / 2, ceiling])
-    cam_focal = _fit_focal([cam_pos], target, up, CAMERA_NATIVE, _table_corners(TABLE_SIZE, 30.0), margin=0.05)
+    cam_focal = fit_focal([cam_pos], target, up, CAMERA_NATIVE, _table_corners(TABLE_SIZE, 30.0), margin=0.05)
     cam_native = _device(cam_pos, target, up, CAMERA_NATIVE, cam_focal, None)
     table = Table()
     gain = auto_gain(projectors, cam_native, albedo=table.albedo)
@@ -341,7 +374,7 @@ def reference_scene(
     seen = np.array([[x, y, z] for x in (-160, 160) for y in (-140, 140) for z in (0, 600)]
                     + [[x, y, 0.0] for x in (-450, 450) for y in (-250, 250)])
     for name, pos in RING_CAMERAS[:cameras - 1]:
-        f = _fit_focal([np.asarray(pos)], middle, (0.0, 0.0, 1.0), CAMERA_NATIVE, seen, margin=0.05)
+        f = fit_focal([np.asarray(pos)], middle, (0.0, 0.0, 1.0), CAMERA_NATIVE, seen, margin=0.05)
         native = _device(np.asarray(pos), middle, (0.0, 0.0, 1.0), CAMERA_NATIVE, f, None)
         devices.append(CameraSpec(name, native, native.scaled(cam_size), auto_gain(projectors, native, albedo=table.albedo)))
 
@@ -365,7 +398,8 @@ def _surface_mesh(surface, base: Path | None = None) -> tuple[Mesh | None, str |
 # ---------------------------------------------------------------- layout files
 
 
-def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale: float = 0.25, seed: int = 0) -> Scene:
+def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale: float = 0.25, seed: int = 0,
+                photometry: Photometry | dict | None = None) -> Scene:
     """Read a room from a TOML layout file (any number of projectors, anywhere, aimed anywhere).
 
     Schema (millimetres; every key but ``position`` has a default)::
@@ -392,6 +426,11 @@ def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale
         focus_mm = 1450             # default: distance to the target
         falloff = 1.0
         powered = true
+        white = [1.0, 0.95, 1.05]   # optional: per-channel gains, the unit's white point
+        hotspot = 0.2               # optional: this unit's own profile (replaces [photometry]'s, key by key)
+        hotspot_width = 0.35
+        hotspot_center = [0, 0]     # normalised image coordinates, -1..1
+        vignetting = 0.3
         [[camera]]
         position = [0, -125, 1400]
         target = [0, 0, 0]
@@ -402,6 +441,18 @@ def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale
         full_well = 10000
         read_noise = 2.5
         bits = 12
+        [photometry]                # optional: uneven light for every projector (sim.photometry)
+        brightness_spread = 0.15    # each unit's peak times 1 +- 0.15 (uniform, drawn from the seed)
+        white_spread = 0.15         # each unit's channel gains 1 +- 0.15
+        hotspot = 0.2               # 20 % more light at the image centre, a Gaussian ...
+        hotspot_width = 0.35        # ... of this sigma, in half-diagonals of the image
+        vignetting = 0.3            # 30 % less light in the image corners (quadratic in the radius)
+
+    Photometry: a projector's ``peak`` or ``white`` stated in the file is that unit's truth, and
+    the spreads leave it alone; its profile keys replace the ``[photometry]`` ones. ``photometry``
+    replaces the file's ``[photometry]`` section (a :class:`~sim.photometry.Photometry`) or some of
+    its keys (a dict, e.g. what ``shadowless room --hotspot`` gives). Every key defaults to 0: the
+    light of a layout without them is even, as it always was.
 
     Raises
     ------
@@ -410,7 +461,8 @@ def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale
     """
     try:
         layout = read_layout(path)
-        return _scene_from_layout(layout, projector_scale=projector_scale, camera_scale=camera_scale, seed=seed)
+        return scene_from_layout(layout, projector_scale=projector_scale, camera_scale=camera_scale, seed=seed,
+                                  photometry=photometry)
     except LayoutFileError as exc:
         raise LayoutError(str(exc)) from None
     except LayoutError as exc:
@@ -419,9 +471,17 @@ def load_layout(path: str | Path, *, projector_scale: float = 0.25, camera_scale
         raise LayoutError(f"layout {path}: {exc}") from exc
 
 
-def _scene_from_layout(layout: Layout, *, projector_scale: float, camera_scale: float, seed: int) -> Scene:
+def scene_from_layout(layout: Layout, *, projector_scale: float = 0.25, camera_scale: float = 0.25, seed: int = 0,
+                      photometry: Photometry | dict | None = None) -> Scene:
     """The room of a parsed layout (:mod:`protos.layout`): its devices, plus the photometry only the
-    room models (responses, peaks, apertures, sensors)."""
+    room models (responses, peaks, apertures, sensors, uneven light). Arguments as :func:`load_layout`;
+    raises ValueError (or LayoutError) naming the entry."""
+    if isinstance(photometry, Photometry):
+        rig_light = photometry
+    else:
+        rig_light = parse_photometry(layout.photometry or None)
+        if photometry:
+            rig_light = rig_light.merged(**photometry)
     rng = np.random.default_rng(seed)
     table = None if layout.table is None else Table(layout.table.size, layout.table.albedo)
     mesh, source, mesh_albedo = None, None, 0.8
@@ -432,8 +492,14 @@ def _scene_from_layout(layout: Layout, *, projector_scale: float, camera_scale: 
             mesh = Mesh(spec.place(mesh.vertices), mesh.faces, mesh.uvs)
         mesh_albedo = spec.albedo
     projectors = []
-    for d in layout.projectors:
+    own: dict = {}
+    explicit_peak = set()
+    for i, d in enumerate(layout.projectors):
         e = d.entry
+        if any(k in e for k in PROJECTOR_KEYS):
+            own[d.name] = projector_photometry(e, rig_light, where=f"[[projector]] #{i + 1} ({d.name})")
+        if "peak" in e:
+            explicit_peak.add(d.name)
         native = Pinhole(d.K, d.R, d.t, d.size)
         unit = random_response(rng)
         gamma = e.get("gamma", unit.gamma)
@@ -445,6 +511,8 @@ def _scene_from_layout(layout: Layout, *, projector_scale: float, camera_scale: 
         projectors.append(
             ProjectorSpec(d.name, native, native.scaled(size), response, peak, float(e.get("aperture_mm", 10.0)), focus, float(e.get("falloff", 1.0)), bool(e.get("powered", True)))
         )
+    if own or not rig_light.none:
+        projectors = list(apply_photometry(projectors, rig_light, seed=seed, own=own, explicit_peak=frozenset(explicit_peak)))
     cameras = []
     for d in layout.cameras:
         e = d.entry
@@ -498,8 +566,14 @@ def write_layout(scene: Scene, path: str | Path) -> None:
             f"focus_mm = {fmt(p.focus)}",
             f"falloff = {fmt(p.falloff)}",
             f"powered = {fmt(p.powered)}",
-            "",
         ]
+        if p.white is not None:
+            lines.append(f"white = {fmt(p.white)}")
+        if p.profile is not None and not p.profile.identity:
+            pr = p.profile
+            lines += [f"hotspot = {fmt(pr.hotspot)}", f"hotspot_width = {fmt(pr.hotspot_width)}",
+                      f"hotspot_center = {fmt(list(pr.hotspot_center))}", f"vignetting = {fmt(pr.vignetting)}"]
+        lines.append("")
     for c in scene.cameras:
         n = c.native
         up = -n.R[1]

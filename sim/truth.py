@@ -20,6 +20,7 @@ from protos.spaces import content_to_table
 from sim.geometry import plane_homography
 from sim.occlusion import DynamicState, OccluderSamples
 from sim.optics import Sensor, remap_fractions, sample_weights_1d
+from sim.photometry import Profile
 from sim.precompute import NOTHING, View
 from sim.scene import ProjectorSpec, Scene
 
@@ -49,6 +50,12 @@ class RoomState(Protocol):
     def occluder_samples(self, view: View, dyn: DynamicState, slot: str) -> OccluderSamples:
         """How ``slot`` lights the occluder surface the camera of ``view`` sees."""
 
+    def lamp(self, slot: str) -> np.ndarray:
+        """(3,) the lamp of ``slot`` now (1 = as new, 0 = dead)."""
+
+    def render_projector(self, slot: str, luminance: np.ndarray, camera: int = 0) -> np.ndarray:
+        """(H, W, 3) the linear signal of ``slot`` alone emitting ``luminance`` (h, w, 3)."""
+
 
 @dataclass(frozen=True, eq=False)
 class ProjectorTruth:
@@ -56,7 +63,10 @@ class ProjectorTruth:
 
     ``P = K [R | t]`` maps world mm to projector pixels; the response maps an
     input value v in [0, 1] to ``black + (1 - black) v**gamma`` (per channel),
-    times ``peak``.
+    times ``peak`` (the unit's brightness), ``white`` (its per-channel gains, the
+    white point), ``lamp`` (the lamp now, per channel: 1 as new, 0 dead) and the
+    profile at the pixel (``profile``: hot spot and vignetting,
+    :class:`sim.photometry.Profile`, the identity when even). See :mod:`sim.photometry`.
     """
 
     slot: str
@@ -75,6 +85,25 @@ class ProjectorTruth:
     focus: float
     falloff: float
     powered: bool
+    white: np.ndarray = None       # (3,) float64
+    lamp: np.ndarray = None        # (3,) float64
+    profile: Profile = Profile()
+
+    @property
+    def hotspot(self) -> float:
+        return self.profile.hotspot
+
+    @property
+    def hotspot_width(self) -> float:
+        return self.profile.hotspot_width
+
+    @property
+    def hotspot_center(self) -> tuple[float, float]:
+        return self.profile.hotspot_center
+
+    @property
+    def vignetting(self) -> float:
+        return self.profile.vignetting
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,6 +159,7 @@ class Truth:
         return ProjectorTruth(
             slot, d.K.copy(), d.R.copy(), d.t.copy(), d.P, d.size, p.native.K.copy(), p.native.size, d.center,
             p.response.gamma.copy(), p.response.black.copy(), p.peak, p.aperture, p.focus, p.falloff, p.powered,
+            p.white_gains, self._room.lamp(slot), p.profile if p.profile is not None else Profile(),
         )
 
     def camera(self, camera: int = 0) -> CameraTruth:
@@ -275,6 +305,25 @@ class Truth:
                 drop = np.where(total > 0, 1.0 - kept / total, 0.0)
             return self._full(camera, np.clip(drop, 0.0, 1.0).astype(np.float32), np.float32(0.0))
 
+    def contribution(self, slot: str, camera: int = 0) -> np.ndarray:
+        """The camera signal ``slot`` alone adds at full white, above its black.
+
+        What :meth:`sim.room.Room.render_linear` gives with only ``slot`` powered showing input
+        255, minus the same with input 0: ``(1 - black)`` per channel through the projector's
+        white point, lamp, profile, irradiance and blur, with the current occluders, the camera's
+        gain and exposure (the units of ``render_linear``). Whether ``slot`` is powered now does
+        not matter. Zero outside its footprint.
+
+        Returns
+        -------
+        (H, W, 3) float32
+        """
+        room = self._room
+        spec = room.projector(slot)
+        w, h = spec.size
+        lum = np.broadcast_to((1.0 - spec.response.black).astype(np.float32), (h, w, 3))
+        return room.render_projector(slot, np.ascontiguousarray(lum), camera)
+
     def illumination_count(self, camera: int = 0, *, occluders: bool = False) -> np.ndarray:
         """(H, W) int32: how many powered projectors light each pixel's surface point (the paper's heat map).
 
@@ -305,7 +354,9 @@ class Truth:
         (x, y) (fraction of full scale, before noise and quantisation) per unit
         of relative luminance emitted by projector pixel (u, v); channels do
         not mix, so the same matrix serves R, G and B. With ``lum_i`` the
-        emitted luminance of every powered projector (``response(frame)``),
+        emitted luminance of every powered projector (``response(frame)`` times the
+        per-channel white point and lamp, :meth:`sim.room.Room.emission_gains`; the
+        hot spot and vignetting are in the matrix),
         ``Room.render_linear()[..., c].ravel() == sum_i transport_i @ lum_i[..., c].ravel()``.
         Current occluders and the exposure are included.
 

@@ -235,6 +235,8 @@ class TruthService(room_pb2_grpc.RoomTruthServicer):
                 slot=t.slot, k=t.K.ravel(), r=t.R.ravel(), t=t.t, p=t.P.ravel(), width=t.size[0], height=t.size[1],
                 native_width=t.native_size[0], native_height=t.native_size[1], center=t.center, gamma=t.gamma, black=t.black,
                 peak=t.peak, aperture_mm=t.aperture, focus_mm=t.focus, falloff=t.falloff, powered=t.slot in self.room.active,
+                white=t.white, lamp=t.lamp, hotspot=t.hotspot, hotspot_width=t.hotspot_width,
+                hotspot_center=list(t.hotspot_center), vignetting=t.vignetting,
             )
 
         return await self._call(context, job)
@@ -263,6 +265,18 @@ class TruthService(room_pb2_grpc.RoomTruthServicer):
             return room_pb2.SetOccludersReply(primitives=len(flatten(self.room.occluders())))
 
         return await self._call(context, job)
+
+    async def SetLamp(self, request, context):
+        def job():
+            gain = list(request.gain)
+            lamp = self.room.set_lamp(request.slot, gain[0] if len(gain) == 1 else gain)
+            log.info("room: lamp of %s set to %s", request.slot, ", ".join(f"{v:g}" for v in lamp))
+            return room_pb2.SetLampReply(slot=request.slot, lamp=lamp)
+
+        return await self._call(context, job)
+
+    async def GetContribution(self, request, context):
+        return await self._call(context, lambda: room_pb2.TruthImage(image=codec.encode_image(self.room.truth.contribution(request.slot, request.camera))))
 
     async def GetLightDrop(self, request, context):
         return await self._call(context, lambda: room_pb2.TruthImage(image=codec.encode_image(self.room.truth.light_drop(request.camera))))
