@@ -168,7 +168,8 @@ class RoomDriver:
                 frame = mesh_warp(img, self.mesh_view(s), lut=st.lut, gain=st.gain, apply_lut=apply_lut)
             else:
                 frame = warp_content(img, st.pose.matrix, (st.width, st.height), lut=st.lut, gain=st.gain,
-                                     apply_lut=apply_lut)
+                                     apply_lut=apply_lut,
+                                     blend=None if st.blend is None else (st.blend.alpha, st.blend.beta))
             self.room.set_frame(s, frame)
 
     def mesh_view(self, slot: str) -> DeviceView:
