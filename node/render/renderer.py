@@ -421,9 +421,12 @@ class Renderer:
         return self._gain
 
     # ------------------------------------------------------------------ blend maps
-    def _blend_texture(self, maps: BlendMaps) -> tuple[str, Any, tuple[int, int]]:
+    @staticmethod
+    def _check_maps(maps: object) -> None:
         if not isinstance(maps, BlendMaps):
             raise ValueError(f"blend maps must be a BlendMaps, got {type(maps).__name__}")
+
+    def _blend_texture(self, maps: BlendMaps) -> tuple[str, Any, tuple[int, int]]:
         w, h = maps.size
         if w > self._max_texture or h > self._max_texture:
             raise ValueError(f"blend maps of {w}x{h} texels exceed this GPU's {self._max_texture} per side")
@@ -437,6 +440,7 @@ class Renderer:
         """Upload blend maps ahead of the frame that first shows them (:meth:`set_blend` then switches
         without a transfer). One set is kept ahead: loading another releases it. ValueError if the maps
         are not a :class:`~protos.blend.BlendMaps` or exceed the GPU's texture size."""
+        self._check_maps(maps)
         if self._blend_ahead is not None and self._blend_ahead[0] == maps.blend_id:
             return
         if self._blend is not None and self._blend[0] == maps.blend_id:
@@ -457,6 +461,8 @@ class Renderer:
             ``alpha`` (h, w, 3) and ``beta`` (h, w) on a grid over this renderer's output
             (:mod:`protos.blend`), held as float16.
         """
+        if maps is not None:
+            self._check_maps(maps)
         if maps is None:
             new = None
         elif self._blend is not None and self._blend[0] == maps.blend_id:
