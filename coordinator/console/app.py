@@ -59,7 +59,7 @@ SECURITY_HEADERS = {
     "Cross-Origin-Resource-Policy": "same-origin",
 }
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css",
-          "pictures.js": "text/javascript"}
+          "pictures.js": "text/javascript", "blend.js": "text/javascript"}
 MAX_LOGIN_BYTES = 4096
 #: foreign Host headers logged (each once); later ones are refused without a log line
 MAX_FOREIGN_HOSTS = 64

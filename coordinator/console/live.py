@@ -105,6 +105,7 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
                  "clock_error_p99_ms": _num(s.clock_error_p99_ms, 3), "frames_late": s.frames_late,
                  "frames_dropped": s.frames_dropped},
         "slots": slots,
+        "blend": _blend(status),
         "refusals": refusals,
         "before_auth": _before_auth(status),
         "logins": logins or {},
@@ -114,6 +115,16 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
         "job": coord.job_snapshot(),
         "job_kinds": list(JOBS),
     }
+
+
+def _blend(status: RigStatus) -> dict[str, Any]:
+    """The blend and any failover: instants as unix times (the page counts the time since itself,
+    so the snapshot does not change every second)."""
+    b = status.blend
+    return {"state": b.state, "blend_id": b.blend_id, "created_at": _num(b.created_at, 3) if b.created_at else None,
+            "headroom": _num(b.headroom, 4), "brightness_cost": _num(b.brightness_cost, 4), "lost": list(b.lost),
+            "since": _num(b.since, 3) if b.since else None, "covered": b.covered,
+            "lamps": [{"slot": s, "gain": _num(g, 3)} for s, g in b.lamps], "message": b.message}
 
 
 def _before_auth(status: RigStatus) -> dict[str, Any]:

@@ -4,12 +4,15 @@
   alignment.json``: extent, frame, per-slot residuals, projector outlines in table mm, the
   figure's layout) and the compensation quality picture with its PSNR/SSIM (``compensation/
   quality.json``) and the coverage heat map with its per-slot summary (``coverage/coverage.json``),
-  each with its file's modification time; whether a camera is configured; the
+  each with its file's modification time; the stored blend's figures (``blend/``: headroom,
+  its brightness cost, uniformity before and after; :mod:`coordinator.console.blend_view`); whether
+  a camera is configured; the
   current job (the page refreshes a picture when its file changes, and leaves the camera alone
   while a job runs).
 * ``GET /api/pictures/alignment.png`` (``alignment-mesh.png`` for a rig with planar and 3D
   poses), ``/api/pictures/compensation.png`` and ``/api/pictures/coverage.png`` (how many
-  projectors reach each point of the object, ``shadowless coverage``): the files, never cached;
+  projectors reach each point of the object, ``shadowless coverage``) and ``/api/pictures/blend.png``
+  (the blend's before/after ratio pictures with a colour bar, drawn once per stored blend): never cached;
   404 with what to run when there is none yet. The alignment figure (colour bar, axes, outlines) is served when the
   job drew one, else the bare map (an older run).
 * ``GET /api/camera.png``: one frame of the rig's first camera (``rig.toml`` ``cameras`` or the
@@ -36,6 +39,7 @@ import numpy as np
 from aiohttp import web
 
 from coordinator.camera import CameraError, RoomCamera, open_camera, parse_spec
+from coordinator.console.blend_view import NO_BLEND, BlendView
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.auth import Session
@@ -235,6 +239,7 @@ class Pictures:
         self.captures = 0                       # camera captures attempted (tests, benchmarks)
         self._last: _Frame | None = None
         self._camera_lock = asyncio.Lock()
+        self.blend = BlendView()
 
     def _job(self) -> dict | None:
         job = self.coord.current_job()
@@ -245,11 +250,12 @@ class Pictures:
 
     async def listing(self, request: web.Request, session: "Session") -> web.Response:
         rig_dir = Path(self.coord.rig.path)
-        alignment, compensation, coverage = await asyncio.to_thread(
-            lambda: (describe_alignment(rig_dir), describe_compensation(rig_dir), describe_coverage(rig_dir)))
+        alignment, compensation, coverage, blend = await asyncio.to_thread(
+            lambda: (describe_alignment(rig_dir), describe_compensation(rig_dir), describe_coverage(rig_dir),
+                     self.blend.describe(rig_dir)))
         specs = self.coord.camera_specs
         last = self._last
-        doc = {"ok": True, "alignment": alignment, "compensation": compensation, "coverage": coverage,
+        doc = {"ok": True, "alignment": alignment, "compensation": compensation, "coverage": coverage, "blend": blend,
                "camera": {"configured": bool(specs), "spec": specs[0] if specs else None, "url": "/api/camera.png",
                           "interval_s": self.camera_interval_s,
                           "captured_at": round(last.wall, 3) if last is not None and last.png else None},
@@ -267,9 +273,16 @@ class Pictures:
             path, missing = rig_dir / "compensation" / "quality.png", NO_COMPENSATION
         elif name == "coverage.png":
             path, missing = rig_dir / "coverage" / "coverage.png", NO_COVERAGE
+        elif name == "blend.png":
+            png = await asyncio.to_thread(self.blend.png, rig_dir)
+            if png is None:
+                doc = await asyncio.to_thread(self.blend.describe, rig_dir)
+                raise _error(web.HTTPNotFound, (doc or {}).get("problem") or
+                             (NO_BLEND if doc is None else "the stored blend has no before/after pictures"))
+            return web.Response(body=png, content_type="image/png", headers={"Cache-Control": "no-store"})
         else:
             raise _error(web.HTTPNotFound, f"no picture {name!r}: there are alignment.png, alignment-mesh.png, "
-                                           "compensation.png and coverage.png")
+                                           "compensation.png, coverage.png and blend.png")
         try:
             data = await asyncio.to_thread(path.read_bytes) if path is not None else None
         except FileNotFoundError:

@@ -161,6 +161,8 @@ function render(s) {
   renderAssets(s.assets);
   renderActions(s.actions);
   renderJob(s.job);
+  // other scripts of the page (blend.js) follow the snapshot too
+  document.dispatchEvent(new CustomEvent("rig-snapshot", { detail: s }));
 }
 
 function drawLayout(s) {

@@ -1,5 +1,6 @@
 // The console's pictures: the alignment heat map, the compensation before/after picture (with
-// their figures), the coverage of an object (shown once `shadowless coverage` ran) and the camera's view. Its own scope, beside console.js (loaded first), whose
+// their figures), the coverage of an object (shown once `shadowless coverage` ran), the blend's
+// before/after uniformity picture (in the blend panel) and the camera's view. Its own scope, beside console.js (loaded first), whose
 // page helpers ($, el, clear, fmt) it uses; every piece of rig data is put on the page with
 // textContent or setAttribute, never as HTML.
 // What exists comes from GET /api/pictures, polled while the page is open and asked again soon after
@@ -51,6 +52,7 @@
     renderAlignment(p.alignment);
     renderCompensation(p.compensation);
     renderCoverage(p.coverage);
+    renderBlendPicture(p.blend);
     renderCamera(p.camera);
   }
 
@@ -173,6 +175,55 @@
       tr.append(el("td", {}, slot), el("td", { class: "num" }, fmt(cm2(d.reach_mm2), 1)),
                 el("td", { class: "num" }, fmt(d.reach_pct, 1)), el("td", { class: "num" }, fmt(d.mean_share_pct, 2)),
                 el("td", { class: "num" }, fmt(cm2(d.sole_mm2), 1)));
+      tbody.appendChild(tr);
+    }
+    table.hidden = !tbody.rows.length;
+  }
+
+  // The blend job's captures of flat white over their target, before and after blending, on one
+  // colour scale, and the figures beside them; where there is no blend, how to make one.
+  const BLEND_FIGURES = [
+    ["uniformity_before", "non-uniformity before (p99 |I/target − 1|)", "pct"],
+    ["uniformity_after", "non-uniformity after", "pct"],
+    ["colour_after", "colour deviation after (worst channel)", "pct"],
+    ["headroom", "headroom held for a lost projector", "pct"],
+    ["brightness_cost", "brightness that headroom costs", "pct"],
+    ["captures", "camera captures", "int"],
+  ];
+
+  function renderBlendPicture(b) {
+    const img = $("pic-blend-img"), table = $("pic-blend-table"), summary = $("pic-blend-summary");
+    const tbody = table.tBodies[0];
+    clear(tbody);
+    table.hidden = true;
+    if (!b || !b.url) {
+      img.hidden = true;
+      $("pic-blend-when").textContent = "";
+      summary.textContent = !b ? "No blend yet: run the blend job (Jobs: blend) or `shadowless blend --rig-dir DIR` " +
+        "once the projectors are calibrated; its before/after picture appears here."
+        : (b.problem || "The stored blend has no before/after pictures.");
+      summary.dataset.state = !b ? "none" : "problem";
+      if (!b) return;
+    }
+    if (b.url) {
+      showImage(img, b.url);
+      $("pic-blend-link").setAttribute("href", b.url);
+      const [lo, hi] = b.range;
+      summary.textContent = `Colour bar ${fmt(lo, 2)} (blue, darker than the target) to ${fmt(hi, 2)} ` +
+        "(red, brighter); light grey is on target, dark grey no projector reaches." + (b.problem ? ` ${b.problem}` : "");
+      summary.dataset.state = "shown";
+    }
+    $("pic-blend-when").textContent = b.created_at ? `measured ${when(b.created_at)}` : "";
+    for (const [key, label, kind] of BLEND_FIGURES) {
+      const v = b[key];
+      if (v === null || v === undefined) continue;
+      const tr = el("tr", { "data-figure": key });
+      tr.append(el("td", {}, label), el("td", { class: "num" }, kind === "pct" ? `${fmt(100 * v, 2)} %` : String(v)));
+      tbody.appendChild(tr);
+    }
+    if (b.slots && b.slots.length) {
+      const tr = el("tr", { "data-figure": "slots" });
+      tr.append(el("td", {}, "projectors blended"), el("td", { class: "num" }, String(b.slots.length)));
       tbody.appendChild(tr);
     }
     table.hidden = !tbody.rows.length;

@@ -1,0 +1,221 @@
+"""The console's blend: the stored blend's figures and its before/after picture over HTTP (none, then
+one, then a newer one, then a damaged store), the blend and any failover in the live snapshot, and
+the page in a real browser (headless Chromium through Selenium) against a real coordinator and real
+node processes: how to make a blend when there is none, the picture loading beside its figures, and
+the failover alarm with its time since counting up, then gone."""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import time
+from pathlib import Path
+
+import aiohttp
+import cv2
+import numpy as np
+import pytest
+
+from bench.console import ConsoleRig, chromium, log_in, text_of, visible, wait_for
+from coordinator.api import BlendStatus
+from coordinator.app import CoordinatorApp
+from coordinator.blend_store import StoredBlend, blend_dir, save_blend
+from coordinator.console import auth
+from coordinator.console.blend_figure import diverging_lut, figure_png
+from coordinator.rig import Rig, grid_slots, init_rig
+from protos.blend import BlendMaps
+
+TOKEN = b"b" * 32
+SLOTS = ["r0c0", "r0c1"]
+
+
+def stored_blend(seed: int, spread: float = 0.15) -> StoredBlend:
+    """A blend as the blend job stores it: maps for two slots, its figures and its ratio pictures."""
+    rng = np.random.default_rng(seed)
+    maps = {s: BlendMaps(rng.uniform(0.5, 1.0, (9, 16, 3)).astype(np.float32),
+                         rng.uniform(0.0, 0.02, (9, 16)).astype(np.float32)) for s in SLOTS}
+    yy, xx = np.mgrid[0:45, 0:80]
+    before = (1 + spread * np.sin(xx / 9.0) * np.cos(yy / 13.0)).astype(np.float32)
+    before[:5, :5] = np.nan                                   # a corner no projector reaches
+    after = (1 + 0.008 * np.sin(xx / 5.0)).astype(np.float32)
+    after[:5, :5] = np.nan
+    info = {"created_at": time.time() - 3600, "headroom": 0.08, "brightness_cost": 0.075,
+            "uniformity_before": 0.143 + seed / 1000, "uniformity_after": 0.012, "captures": 7, "colour_after": 0.009}
+    return StoredBlend(maps, info, {"before": before, "after": after})
+
+
+def decode(png: bytes) -> np.ndarray:
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    assert img is not None, "not a PNG"
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+@contextlib.asynccontextmanager
+async def console(tmp_path: Path):
+    rig = Rig(init_rig(tmp_path / "rig", name="blend", slots=grid_slots(1, 2), width=32, height=32))
+    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+    await app.start()
+    try:
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
+            base = f"http://127.0.0.1:{app.console_port}"
+            r = await s.post(base + "/login", json={"token": TOKEN.decode()}, headers={"Origin": base})
+            assert r.status == 200, await r.text()
+            headers = {"Cookie": f"{auth.COOKIE}={r.cookies[auth.COOKIE].value}"}
+            yield app.coordinator, rig, s, base, headers
+    finally:
+        await app.stop()
+
+
+def test_the_stored_blend_and_its_picture_over_http(tmp_path):
+    async def go():
+        async with console(tmp_path) as (coord, rig, s, base, headers):
+            async def pictures() -> dict:
+                r = await s.get(base + "/api/pictures", headers=headers)
+                assert r.status == 200
+                return (await r.json())["blend"]
+
+            async def picture(url: str = "/api/pictures/blend.png") -> tuple[int, bytes]:
+                r = await s.get(base + url, headers=headers)
+                return r.status, await r.read()
+
+            # none yet: the picture's 404 says how to make one
+            assert await pictures() is None
+            status, body = await picture()
+            assert status == 404 and "shadowless blend" in json.loads(body)["error"]
+            r = await s.get(base + "/api/pictures/blend.png")
+            assert r.status == 401                                # a session is needed, as for every picture
+
+            # the blend job's result: its figures, and the picture drawn from its ratio images
+            first = stored_blend(1)
+            save_blend(rig.path, first)
+            b = await pictures()
+            for k in ("created_at", "headroom", "brightness_cost", "uniformity_before", "uniformity_after", "captures",
+                      "colour_after"):
+                assert b[k] == pytest.approx(first.info[k]), k
+            assert b["slots"] == SLOTS and b["pictures"] == ["after", "before"] and b["problem"] is None
+            assert b["span"] == 0.2 and b["range"] == [0.8, 1.2]
+            status, png = await picture(b["url"])
+            assert status == 200
+            fig = decode(png)
+            assert [fig.shape[1], fig.shape[0]] == b["layout"]["size"]
+            expected, _ = figure_png(first.pictures)
+            assert np.array_equal(fig, decode(expected))          # the stored pictures, as drawn
+            x0, y0, x1, y1 = b["layout"]["colorbar"]              # red at the top of the bar, blue at its bottom
+            lut = diverging_lut()
+            assert (fig[y0, (x0 + x1) // 2] == lut[255]).all() and (fig[y1 - 1, (x0 + x1) // 2] == lut[0]).all()
+            assert await pictures() == b                          # the same blend, the same answer
+
+            # a newer blend: a new picture address and its own figures
+            second = stored_blend(2, spread=0.03)
+            save_blend(rig.path, second)
+            b2 = await pictures()
+            assert b2["url"] != b["url"] and b2["uniformity_before"] == pytest.approx(0.145) and b2["span"] == 0.05
+            status, png2 = await picture(b2["url"])
+            assert status == 200 and png2 != png
+
+            # a damaged store: one line saying so, no picture, nothing written
+            gen = blend_dir(rig.path) / (blend_dir(rig.path) / "current").read_text().strip()
+            (gen / "info.json").write_text('{"headroom": 0.5}')
+            files = sorted(p.name for p in blend_dir(rig.path).rglob("*"))
+            b3 = await pictures()
+            # (the pointer did not change, so the blend read before is still shown; a new pointer is read anew)
+            assert b3 == b2
+            (blend_dir(rig.path) / "current").write_text(gen.name + "\n")   # the same name, a new pointer file
+            b3 = await pictures()
+            assert b3["problem"] and "info.json" in b3["problem"] and "url" not in b3, b3
+            status, body = await picture()
+            assert status == 404 and "info.json" in json.loads(body)["error"]
+            assert sorted(p.name for p in blend_dir(rig.path).rglob("*")) == files
+
+    asyncio.run(go())
+
+
+def test_the_live_snapshot_carries_the_blend_and_a_failover(tmp_path):
+    async def go():
+        async with console(tmp_path) as (coord, rig, s, base, headers):
+            async def snap() -> dict:
+                r = await s.get(base + "/api/status", headers=headers)
+                assert r.status == 200
+                return (await r.json())["blend"]
+
+            assert (await snap())["state"] == "none"
+            since = time.time() - 20
+            coord.blend_status = lambda: BlendStatus(
+                state="failover", blend_id="x1", created_at=since - 100, headroom=0.1, brightness_cost=0.09,
+                lost=("r0c1",), since=since, covered=False, lamps=(("r0c0", 0.4567),),
+                message="r0c1 lost: its footprint is not covered")
+            b = await snap()
+            assert b == {"state": "failover", "blend_id": "x1", "created_at": round(since - 100, 3), "headroom": 0.1,
+                         "brightness_cost": 0.09, "lost": ["r0c1"], "since": round(since, 3), "covered": False,
+                         "lamps": [{"slot": "r0c0", "gain": 0.457}], "message": "r0c1 lost: its footprint is not covered"}
+
+    asyncio.run(go())
+
+
+def alarm(driver) -> tuple[bool, str]:
+    return visible(driver, "blend-alarm"), text_of(driver, "blend-alarm-text")
+
+
+@pytest.mark.slow
+def test_the_blend_panel_in_a_browser(tmp_path, browser_ready):
+    with ConsoleRig(tmp_path / "rig", SLOTS) as rig:
+        rig.wait_live(timeout=240)
+        driver = chromium(tmp_path / "chromium-profile")
+        try:
+            driver.get(rig.url)
+            log_in(driver, rig.token)
+            wait_for(lambda: visible(driver, "main-view"), 60, "the console after login")
+            # no blend: the panel and the picture's place say how to make one; no alarm
+            wait_for(lambda: "No blend yet" in text_of(driver, "blend-line"), 60, "the blend line")
+            assert "shadowless blend" in text_of(driver, "blend-line")
+            wait_for(lambda: "shadowless blend" in text_of(driver, "pic-blend-summary"), 60, "how to make a blend")
+            assert not alarm(driver)[0]
+
+            # a blend stored and reported: the line, the picture (loaded, not broken) and its figures
+            blend = stored_blend(3)
+            save_blend(rig.local.rig_dir, blend)
+            blended = BlendStatus(state="blended", blend_id="b3", created_at=blend.info["created_at"], headroom=0.08,
+                                  brightness_cost=0.075)
+            rig.call(lambda: setattr(rig.coord, "blend_status", lambda: blended))
+            _, layout = figure_png(blend.pictures)
+            wait_for(lambda: text_of(driver, "blend-line").startswith("Blended: measured"), 60, "the blend's line")
+            assert "headroom 8 % (costs 7.5 % of brightness)" in text_of(driver, "blend-line")
+            driver.execute_script("document.getElementById('blend-panel').scrollIntoView();")
+            img = lambda: driver.execute_script(  # noqa: E731
+                "const i = document.getElementById('pic-blend-img');"
+                "return {w: i.naturalWidth, h: i.naturalHeight, complete: i.complete, hidden: i.hidden};")
+            wait_for(lambda: img()["w"] == layout["size"][0] and img()["complete"], 60, f"the picture loaded: {img()}")
+            assert img()["h"] == layout["size"][1] and not img()["hidden"]
+            figures = dict(driver.execute_script(
+                "return Array.from(document.querySelectorAll('#pic-blend-table tbody tr'))"
+                ".map(tr => [tr.dataset.figure, tr.cells[1].textContent]);"))
+            assert figures["uniformity_before"] == "14.60 %" and figures["uniformity_after"] == "1.20 %", figures
+            assert figures["captures"] == "7" and figures["slots"] == "2", figures
+            summary = text_of(driver, "pic-blend-summary")
+            assert "Colour bar 0.80" in summary and "1.20" in summary, summary
+            assert not alarm(driver)[0]
+
+            # a failover: the alarm line at the top, its time since counting up while nothing else changes
+            rig.kill_node("r0c1")
+            since = time.time() - 3
+            failover = BlendStatus(state="failover", blend_id="b3f", created_at=blend.info["created_at"], headroom=0.08,
+                                   brightness_cost=0.075, lost=("r0c1",), since=since, covered=True,
+                                   message="r0c1 lost: 1 projector covers its footprint")
+            rig.call(lambda: setattr(rig.coord, "blend_status", lambda: failover))
+            wait_for(lambda: alarm(driver)[0], 60, "the failover alarm")
+            first = alarm(driver)[1]
+            assert first.startswith("r0c1 out of the blend ") and first.endswith(
+                " s ago: the others cover its footprint, uniformity kept"), first
+            wait_for(lambda: alarm(driver)[1] != first, 30, f"the time since counting up from {first!r}")
+            assert text_of(driver, "blend-failover") == "r0c1 lost: 1 projector covers its footprint"
+            shot = tmp_path / "blend.png"
+            assert driver.save_screenshot(str(shot))
+            print(f"console screenshot: {shot}")
+
+            # the projector back: the alarm goes
+            rig.call(lambda: setattr(rig.coord, "blend_status", lambda: blended))
+            wait_for(lambda: not alarm(driver)[0], 60, "the alarm gone")
+            logs = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
+            assert not [e for e in logs if "Content Security Policy" in e.get("message", "")], logs
+        finally:
+            driver.quit()
