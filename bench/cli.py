@@ -27,6 +27,8 @@ BENCHMARKS: dict[str, str] = {
     "plan": "the layout planner: 25 of 100 ceiling positions (time), proxy curve and knee, the paper's guidelines, bust walls",
     "preauth": "unauthenticated calls under the size cap: coordinator memory (peak, after), status time, nodes live, log",
     "crash": "kill -9 of the coordinator during every write path: rigs that fail to start, writes lost, files left over",
+    "uniformity": "per-pixel blending in the virtual room: flat-white uniformity before/after (table, wall seams, bust), "
+                  "failover and lamp watchdog with real processes, blend captures, the node's cost",
     "image_bombs": "small files declaring 100-megapixel images, console decoder before/after: peak memory, time, outcome",
 }
 

@@ -1,0 +1,329 @@
+"""`bench uniformity`'s live parts: failover and the photometric watchdog with real processes.
+
+The room runs in this process behind its gRPC service (:class:`sim.wire.service.RoomServerThread`),
+one node process per projector sends it what it shows, and the coordinator runs in this process
+too (:class:`coordinator.app.CoordinatorApp`, listening on 127.0.0.1 like ``shadowless
+coordinator``), so the benchmark reads what the core knows -- the blend status and each node's
+heartbeat (the blend on its screen and the pts of the first frame shown with it) -- without a
+status call's rounding. The rig's poses and LUTs are the room's truth (calibration and responses
+are measured by the in-process parts and by ``bench compensation_room``); the camera is mapped to
+the table by the ``calibrate`` job from clicked marks; the ``blend`` job measures through the room's
+camera.
+
+* **Failover**: with a flat white still on every projector, one node (the centre's) is killed
+  with SIGKILL and its projector goes dark (no signal). Reported: the time until the coordinator
+  declares the loss (``BlendStatus.since``), the non-uniformity in the lost footprint right after
+  the kill (the old maps: what failover saves) and once every remaining node shows its new maps,
+  how many frame periods (at ``--fps``) after the declaration those maps were on screen (the
+  latest of the nodes' first frames with them) and how far apart the nodes switched; then the
+  node is started again and the time until the maps switched back.
+* **Watchdog**: one lamp dimmed to 50 % and another to 0 through the room's lamp switch while
+  their nodes stay live; the time until the watchdog names each, its gain estimates against the
+  room's truth, and the non-uniformity over both footprints once re-blended.
+
+Non-uniformity is :func:`bench.uniformity_measure.nonuniformity` against the blend's target with
+all projectors (recomputed from the stored contributions), scored in the footprint with the scale
+of the whole covered area: a footprint that went darker as a whole counts.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.calibration import table_points_from_truth
+from bench.compensation_room import points_doc
+from bench.uniformity_measure import nonuniformity
+from bench.uniformity_room import blend_params, stored_target, truth_luts
+from bench.uniformity_scenes import Light, Missing, slots_of, table_room
+from coordinator.rig import HomographyPose, Rig
+from shadowless.local import LocalRig
+from sim.room import Room
+
+__all__ = ["part_failover", "part_watchdog"]
+
+
+def _log(msg: str) -> None:
+    print(f"[bench uniformity] {msg}", file=sys.stderr, flush=True)
+
+
+@dataclass
+class Live:
+    """A running rig: the room, its server, the node processes and the coordinator in this process."""
+
+    room: Room
+    server: object
+    local: LocalRig
+    app: object
+    client: object
+    slots: list[str]
+    content_size: tuple[int, int]
+    exposure: float = 1.0
+    shown_pts: int = 0                 # the rig instant the flat white went on screen
+    result: dict | None = None         # the blend job's result
+
+    @property
+    def core(self):
+        return self.app.coordinator
+
+    def blend_status(self):
+        fn = getattr(self.core, "blend_status", None)
+        if fn is None:
+            raise Missing("the coordinator reports no blend status (Coordinator.blend_status, failover) in this build")
+        return fn()
+
+    def session(self, slot: str):
+        s = self.core.by_slot.get(slot)
+        return None if s is None or s.closed else s
+
+    def slot_blend_id(self, slot: str) -> str:
+        b = self.core.rig.slot(slot).blend
+        return "" if b is None else b.blend_id
+
+    def showing_assigned(self, slots) -> bool:
+        """Every one of ``slots`` has a live node whose heartbeat says it shows its slot's current blend."""
+        for s in slots:
+            sess = self.session(s)
+            want = self.slot_blend_id(s)
+            if sess is None or not want or getattr(sess, "blend_id", None) != want:
+                return False
+        return True
+
+    def since_ns(self, slots) -> list[int]:
+        return [int(self.session(s).blend_since_rig_ns) for s in slots]
+
+    def capture(self, frames: int, *, not_before_ns: int = 0) -> np.ndarray:
+        """The mean of ``frames`` captures through the room's service, each taken once every active projector
+        swapped a frame at or after ``not_before_ns`` (rig clock = this host's monotonic clock)."""
+        from sim.link import RoomClient
+        acc = None
+        with RoomClient(self.server.address) as rc:
+            for _ in range(max(1, frames)):
+                cap = rc.capture(0, not_before_rig_ns=not_before_ns, timeout_ms=20000, exposure=self.exposure)
+                img = np.asarray(cap.image, np.float64)
+                acc = img if acc is None else acc + img
+        return (acc / max(1, frames)).astype(np.float32)
+
+
+async def _wait(what: str, pred, timeout: float, *, step: float = 0.005):
+    """Poll ``pred`` until it returns something truthy; TimeoutError naming ``what``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        v = pred()
+        if v:
+            return v
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what} did not happen within {timeout:.0f} s")
+        await asyncio.sleep(step)
+
+
+@contextlib.asynccontextmanager
+async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog: bool):
+    """A room, its server, a coordinator in this process and one node process per slot, blended."""
+    from coordinator.app import CoordinatorApp
+    from rigctl.job_command import ProgressView, run_job
+    from sim.wire.service import RoomServerThread
+
+    room = table_room(light, projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed)
+    room.set_active(slots)
+    tw, th = room.scene.table.size
+    content = (int(round(tw / 4)), int(round(th / 4)))
+    params = blend_params({"headroom": "auto" if args.headroom is None else args.headroom,
+                           **({} if args.map_scale is None else {"map_scale": args.map_scale})})
+    with RoomServerThread(room) as server:
+        local = LocalRig(slots, work, output_size=room.projector_size(slots[0]), content_size=content,
+                         node_output=f"room://{server.address}", mdns=False, latency_ms=80.0)
+        local.create()
+        rig = Rig(local.rig_dir)
+        for s, lut in truth_luts(room, slots).items():
+            H = room.truth.content_to_projector_homography(s, content)
+            rig.update_slot(s, pose=HomographyPose(H / H[2, 2]), lut=lut, source="truth")
+        _set_watchdog(local.rig_dir, watchdog)
+        rig = Rig(local.rig_dir)
+        app = CoordinatorApp(rig, local.token, listen=f"127.0.0.1:{local.port}", advertise=False,
+                             cameras=[f"room://{server.address}"])
+        await app.start()
+        try:
+            t = time.perf_counter()
+            for s in slots:
+                local.start_node(s)
+            async with await local.client() as c:
+                await local.wait_live(c, timeout=600)
+                _log(f"{len(slots)} nodes live ({time.perf_counter() - t:.0f} s)")
+                view = ProgressView()         # progress on stderr
+                await run_job(c, "calibrate", {"table_only": True, "table_points": points_doc(
+                    table_points_from_truth(room, click_noise_px=0.3)), "settle_s": 0.0}, view=view)
+                t = time.perf_counter()
+                result = await run_job(c, "blend", params, view=ProgressView())
+                _log(f"{len(slots)} projectors blended through the nodes ({time.perf_counter() - t:.0f} s)")
+                live = Live(room, server, local, app, c, list(slots), content)
+                white = np.full((content[1], content[0], 3), 65535, np.uint16)
+                shown = await c.show(white, name="flat white")
+                await _wait("every node showing the blend", lambda: live.showing_assigned(slots), 60)
+                base = room.truth.camera(0).exposure
+                linear = room.render_linear(0, exposure=base)
+                top = float(np.percentile(linear.max(axis=-1), 99.9))
+                live.exposure = min(1.0, 0.85 / top) if top > 0 else 1.0
+                live.shown_pts = getattr(shown, "pts_ns", 0)
+                live.result = result
+                yield live
+        finally:
+            local.close()
+            await app.stop()
+
+
+def _set_watchdog(rig_dir: Path, on: bool) -> None:
+    """rig.toml's ``[blend] watchdog`` (the failover part runs without it, so nothing else re-blends)."""
+    toml = rig_dir / "rig.toml"
+    text = toml.read_text()
+    if "[blend]" in text:
+        lines = [ln for ln in text.splitlines() if not ln.strip().startswith("watchdog =")]
+        text = "\n".join(lines).replace("[blend]", f"[blend]\nwatchdog = {'true' if on else 'false'}") + "\n"
+    else:
+        text = text.rstrip("\n") + f"\n\n[blend]\nwatchdog = {'true' if on else 'false'}\n"
+    toml.write_text(text)
+
+
+def _target(live: Live, headroom):
+    size = live.room.camera_size(0)
+    target, covered = stored_target(live.local.rig_dir, size, headroom=headroom)
+    lit = live.room.truth.illumination_count(0) > 0
+    if covered is None:
+        return None, lit
+    return target, covered & lit
+
+
+async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str]) -> dict:
+    victim = "r2c2" if "r2c2" in slots else slots[len(slots) // 2]
+    period_ns = 1e9 / args.fps
+    async with live_rig(args, work / name, light, slots, watchdog=False) as live:
+        headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
+        target, covered = _target(live, headroom)
+        footprint = live.room.truth.irradiance(victim, 0, occluders=False) > 0
+        old_ids = {s: live.slot_blend_id(s) for s in slots}
+        before = live.capture(args.frames, not_before_ns=live.shown_pts)
+        out: dict = {"slots": len(slots), "lost": victim, "headroom": headroom,
+                     "before_loss": _r(nonuniformity(before, target, covered, within=footprint))}
+        st = live.blend_status()
+        out["state_before"] = st.state
+        # the kill: the node process dies, its projector loses its signal
+        t_kill = time.monotonic_ns()
+        live.local.nodes[victim].send_signal(signal.SIGKILL)
+        live.room.set_active([s for s in slots if s != victim])
+        dark = live.capture(1)
+        out["old_maps"] = _r(nonuniformity(dark, target, covered, within=footprint))
+        st = await _wait(f"{victim} declared lost", lambda: (lambda b: b if victim in b.lost else None)(
+            live.blend_status()), 120)
+        seen_ns = time.monotonic_ns()
+        declared_ns = _declared_ns(st.since, seen_ns)
+        out["detect_s"] = _r((declared_ns - t_kill) / 1e9, 3)
+        out["message"] = st.message
+        out["covered"] = st.covered
+        rest = [s for s in slots if s != victim]
+        await _wait("the remaining nodes showing new maps", lambda: all(
+            live.slot_blend_id(s) != old_ids[s] for s in rest) and live.showing_assigned(rest), 60)
+        since = live.since_ns(rest)
+        out["frames_after_declared"] = _r(max(0.0, (max(since) - declared_ns) / period_ns), 2)
+        out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
+        out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
+        after = live.capture(args.frames, not_before_ns=max(since))
+        out["after"] = _r(nonuniformity(after, target, covered, within=footprint))
+        out["after_whole"] = _r(nonuniformity(after, target, covered))
+        _log(f"{name}: {victim} declared lost {out['detect_s']} s after the kill; new maps {out['frames_after_declared']} "
+             f"frames later; footprint {out['old_maps']} with the old maps -> {out['after']}")
+        # the node returns: the maps switch back
+        t_back = time.monotonic_ns()
+        live.local.start_node(victim)
+        live.room.set_active(slots)
+        await _wait(f"{victim} back in the blend", lambda: victim not in live.blend_status().lost
+                    and live.showing_assigned(slots), 180, step=0.05)
+        since = live.since_ns(slots)
+        out["switch_back_s"] = _r((max(since) - t_back) / 1e9, 2)
+        back = live.capture(args.frames, not_before_ns=max(since))
+        out["after_return"] = _r(nonuniformity(back, target, covered, within=footprint))
+        out["frame_period_ms"] = _r(period_ns / 1e6, 3)
+    return out
+
+
+def _declared_ns(since_unix: float, seen_ns: int) -> int:
+    """The rig-clock instant of a failover's start from its unix time (the status's ``since``), or the instant
+    the benchmark saw it when the status carries none."""
+    if since_unix and since_unix > 0:
+        return int(time.monotonic_ns() - (time.time() - since_unix) * 1e9)
+    return seen_ns
+
+
+async def part_failover(args, work: Path, light: Light) -> dict:
+    out = {}
+    for name in [n.strip() for n in args.failover_rigs.split(",") if n.strip()]:
+        slots = slots_of(name)
+        _log(f"failover: {name}, {len(slots)} node processes")
+        out["P9" if name in ("P9", "P9W") else name] = await _failover_one(args, work, light, name, slots)
+    return out
+
+
+async def part_watchdog(args, work: Path, light: Light) -> dict:
+    slots = slots_of("P25" if not args.quick else args.failover_rigs.split(",")[0])
+    dim, dead = ("r1c1", "r3c3") if "r3c3" in slots else (slots[0], slots[-1])
+    truth = {dim: 0.5, dead: 0.0}
+    async with live_rig(args, work / "watchdog", light, slots, watchdog=True) as live:
+        headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
+        target, covered = _target(live, headroom)
+        fp = (live.room.truth.irradiance(dim, 0, occluders=False) > 0) | (live.room.truth.irradiance(dead, 0, occluders=False) > 0)
+        cfg = live.core.rig.config.blend
+        out: dict = {"slots": len(slots), "interval_s": cfg.watchdog_interval_s, "truth": truth}
+        live.blend_status()
+        t0 = time.monotonic_ns()
+        for s, g in truth.items():
+            live.room.set_lamp(s, g)
+        named: dict[str, float] = {}
+        gains: dict[str, float | None] = {}
+
+        def check():
+            st = live.blend_status()
+            lamps = dict(st.lamps)
+            for s in truth:
+                if s not in named and (s in lamps or s in st.lost):
+                    named[s] = (time.monotonic_ns() - t0) / 1e9
+                if s in lamps:
+                    gains[s] = float(lamps[s])
+            return len(named) == len(truth)
+
+        try:
+            await _wait("the watchdog naming both lamps", check, 30, step=0.02)
+        except TimeoutError as exc:
+            out["timeout"] = str(exc)
+        st = live.blend_status()
+        out["named_s"] = {s: _r(v, 3) for s, v in named.items()}
+        out["estimates"] = {s: _r(gains.get(s), 4) for s in truth}
+        out["message"] = st.message
+        out["detect_s"] = _r(max(named.values()), 3) if len(named) == len(truth) else None
+        errs = [abs(gains[s] - truth[s]) for s in truth if gains.get(s) is not None]
+        out["gain_error"] = _r(max(errs), 4) if len(errs) == len(truth) else None
+        if len(errs) < len(truth):
+            out["gain_note"] = "a lamp named without a gain estimate (only as lost) has no gain error"
+        try:
+            await _wait("nodes showing the re-blended maps", lambda: live.showing_assigned(
+                [s for s in slots if s not in st.lost]), 60)
+            rest = [s for s in slots if s not in st.lost]
+            since = live.since_ns(rest)
+            after = live.capture(args.frames, not_before_ns=max(since))
+            out["after"] = _r(nonuniformity(after, target, covered, within=fp))
+        except TimeoutError as exc:
+            out["after"] = None
+            out["after_note"] = str(exc)
+        _log(f"watchdog: named {out['named_s']}, estimates {out['estimates']}, footprints {out.get('after')}")
+    return out
+
+
+def _r(v, nd: int = 5):
+    if v is None:
+        return None
+    v = float(v)
+    return None if np.isnan(v) else round(v, nd)
