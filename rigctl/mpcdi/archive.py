@@ -16,22 +16,29 @@ content) and a region per projector, and names the files of each region. Two pro
 What MPCDI cannot carry exactly (the poses at full precision, 3x4 matrices with skew, the node's
 gain and inverse-response LUT, the mesh) goes into an extension, ``shadowless``, that other tools
 ignore and :func:`import_mpcdi` prefers: the round trip is exact.
+
+A rig with a stored blend also gets each region's alphaMap and betaMap (16-bit PNGs) and the
+float32 maps in the extension (:mod:`rigctl.mpcdi.blend_maps`); a rig without one is written as
+before.
 """
 from __future__ import annotations
 
 import datetime as _dt
 import math
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 from xml.etree import ElementTree as ET
 
 import numpy as np
 
+from rigctl.mpcdi.blend_maps import read_blend, write_blend
 from rigctl.mpcdi.frustum import Frustum, from_frustum, to_frustum
 from rigctl.mpcdi.pfm import decode_pfm, encode_pfm
+from coordinator.blend_store import StoredBlend
 from coordinator.rig import HomographyPose, Mesh, ProjectionPose, SlotState
+from protos.blend import BlendMaps
 from protos.mesh_files import MeshFileError, format_obj, parse_mesh
 
 EXTENSION = "shadowless"
@@ -51,6 +58,11 @@ class ImportedRig:
     #: sl regions read without the extension: their (3, 4) matrices (normalised); the mesh they
     #: render is not part of standard MPCDI, so these slots carry no pose
     projections: tuple[tuple[str, np.ndarray], ...] = ()
+    #: the blend maps the archive carries, by slot (empty: none), the blend's figures, and whether
+    #: every map came from the extension's float32 maps (else from the standard PNGs' levels)
+    blend: dict[str, BlendMaps] = field(default_factory=dict)
+    blend_info: dict = field(default_factory=dict)
+    blend_exact: bool = True
 
 
 def _num(x: float) -> str:
@@ -103,10 +115,12 @@ def _region_box(pts: np.ndarray, content_size: tuple[int, int]) -> tuple[float, 
 
 
 def export_mpcdi(path: str | Path, *, rig_name: str, content_size: tuple[int, int], slots: Sequence[SlotState],
-                 warp_step: int = WARP_STEP) -> str:
+                 warp_step: int = WARP_STEP, blend: StoredBlend | None = None) -> str:
     """Write the rig's geometry (and, in the extension, gains, LUTs and exact poses) to ``path``.
 
     ``slots`` are the rig's slot states; slots without a pose are listed in the extension only.
+    ``blend``: the rig's stored blend; its maps for these slots go into the regions' alphaMap and
+    betaMap and the extension.
     Returns the profile written ("2d" or "sl"). ValueError if the poses mix tables and objects.
     """
     posed = [s for s in slots if s.pose is not None]
@@ -170,6 +184,10 @@ def export_mpcdi(path: str | Path, *, rig_name: str, content_size: tuple[int, in
                                                               exact=True).encode()
             _sub(xs, "mesh", id=pose.mesh.mesh_id, path=meshes[pose.mesh.mesh_id], near=_num(pose.near_mm),
                  far=_num(pose.far_mm))
+    if blend is not None and blend.maps:
+        names = {s.name for s in slots}
+        write_blend(root, ext, blobs, {k: v for k, v in blend.maps.items() if k in names}, blend.info,
+                    {s.name for s in posed})
     ET.indent(root)
     xml = b'<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="utf-8")
     tmp = Path(path).with_name(Path(path).name + ".partial")
@@ -248,6 +266,11 @@ def _read_archive(z: zipfile.ZipFile, p: Path) -> ImportedRig:
         content = (int(buffer.get("Xresolution")), int(buffer.get("Yresolution")))
     slots: list[SlotState] = []
     projections: list[tuple[str, np.ndarray]] = []
+    frames = {sid: (int(r.get("Xresolution")), int(r.get("Yresolution"))) for sid, r in regions.items()}
+    if ext is not None:
+        frames.update({xs.get("id"): (int(xs.get("width")), int(xs.get("height"))) for xs in ext.findall("slot")})
+    maps, info, maps_exact = read_blend(root, ext, blob, frames)
+    blend = {"blend": maps, "blend_info": info, "blend_exact": maps_exact}
     if ext is not None:
         meshes: dict[str, Mesh] = {}
         for xs in ext.findall("slot"):
@@ -272,7 +295,7 @@ def _read_archive(z: zipfile.ZipFile, p: Path) -> ImportedRig:
                     pose = ProjectionPose(m.reshape(3, 4), meshes[mid], float(me.get("near")), float(me.get("far")))
             slots.append(SlotState(name=sid, width=w, height=h, gain=float(xs.get("gain", "1")), pose=pose,
                                    lut=lut, source="mpcdi"))
-        return ImportedRig(name, content, tuple(slots), profile, exact=True)
+        return ImportedRig(name, content, tuple(slots), profile, exact=True, **blend)
     for sid, r in regions.items():
         w, h = int(r.get("Xresolution")), int(r.get("Yresolution"))
         if profile == "2d":
@@ -293,4 +316,4 @@ def _read_archive(z: zipfile.ZipFile, p: Path) -> ImportedRig:
                         (val(cf, "posx"), val(cf, "posy"), val(cf, "posz")))
             slots.append(SlotState(name=sid, width=w, height=h, source="mpcdi"))
             projections.append((sid, from_frustum(f, w, h)))
-    return ImportedRig(name, content, tuple(slots), profile, exact=False, projections=tuple(projections))
+    return ImportedRig(name, content, tuple(slots), profile, exact=False, projections=tuple(projections), **blend)

@@ -6,6 +6,9 @@ archive through a temp file and a rename. ``import`` writes poses (and, from arc
 the ``shadowless`` extension, gains and LUTs) into the slots through :meth:`Rig.update_slot`, so
 revisions bump and every write is atomic; it holds the rig directory's lock
 (:mod:`coordinator.rig_lock`) throughout, and so is refused while a coordinator serves the rig.
+Blend maps travel too: ``export`` writes the rig's stored blend (:mod:`coordinator.blend_store`)
+as each region's alphaMap and betaMap, and ``import`` stores an archive's maps as the rig's
+blend, for the slots it imports (the other slots keep the maps they had).
 Errors raise RigError/ValueError/OSError, which `shadowless rig` prints as one line (exit 2).
 """
 from __future__ import annotations
@@ -15,11 +18,13 @@ import hashlib
 import os
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from coordinator.blend_store import StoredBlend, load_blend, save_blend
 from coordinator.errors import RigError
 from rigctl.mpcdi.archive import ImportedRig, export_mpcdi, import_mpcdi
 from coordinator.rig import HomographyPose, Mesh, Pose, ProjectionPose, Rig, SlotState, valid_gain, validate_lut
@@ -88,12 +93,13 @@ def run_export(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise RigError(f"{out.parent}: no such folder for the archive")
     slots = list(rig.slots.values())
+    blend = load_blend(rig.path)
     fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
     os.close(fd)
     tmp = Path(name)
     try:
         profile = export_mpcdi(tmp, rig_name=rig.config.name, content_size=(rig.config.content_width,
-                               rig.config.content_height), slots=slots)
+                               rig.config.content_height), slots=slots, blend=blend)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         size = tmp.stat().st_size
@@ -104,7 +110,9 @@ def run_export(args: argparse.Namespace) -> int:
         tmp.with_name(tmp.name + ".partial").unlink(missing_ok=True)
     unposed = [s.name for s in slots if s.pose is None]
     missing = f"{len(unposed)} without a pose ({', '.join(unposed)})" if unposed else "all with a pose"
-    print(f"wrote {out}: MPCDI profile {profile}, {len(slots)} slots, {missing}; {_kib(size)}")
+    blended = len([s for s in slots if blend is not None and s.name in blend.maps])
+    maps = f", blend maps for {blended}" if blended else ""
+    print(f"wrote {out}: MPCDI profile {profile}, {len(slots)} slots, {missing}{maps}; {_kib(size)}")
     return 0
 
 
@@ -262,6 +270,20 @@ def _describe(plan: _Plan, revision: int, dry_run: bool) -> str:
     return f"  {plan.name}: {plan.kind}, {verb} ({what}; revision {revision} -> {revision + 1}{note})"
 
 
+def _blend_to_store(rig: Rig, imp: ImportedRig, archive: Path, plans: list[_Plan]) -> StoredBlend | None:
+    """The blend to store after importing ``plans``: the archive's maps for the imported slots
+    that were not refused, the stored maps of the other slots; None when the archive has none."""
+    taken = {p.name for p in plans if not p.refused}
+    new = {n: m for n, m in imp.blend.items() if n in taken}
+    if not new:
+        return None
+    old = load_blend(rig.path)
+    kept = {n: m for n, m in (old.maps.items() if old is not None else ()) if n not in taken and n in rig.slots}
+    info = {**imp.blend_info, "source": "mpcdi", "archive": archive.name, "imported_at": time.time(),
+            "exact": imp.blend_exact, "kept_slots": sorted(kept)}
+    return StoredBlend({**kept, **new}, info)
+
+
 def run_import(args: argparse.Namespace) -> int:
     """Import archive ``args.archive`` into rig directory ``args.dir``; a line per slot, exit 2 if
     a slot was refused (the others are imported)."""
@@ -284,6 +306,7 @@ def run_import(args: argparse.Namespace) -> int:
         archived = {s.name: s for s in imp.slots}
         projections = dict(imp.projections)
         plans = [_plan(rig, imp, archived[n], projections.get(n)) for n in names]
+        blend = _blend_to_store(rig, imp, archive, plans)      # a damaged stored blend refuses before any write
         print(f"{'dry run: ' if args.dry_run else ''}{archive} (MPCDI profile {imp.profile}) into rig "
               f"{rig.config.name!r} ({rig.path}):")
         changed = 0
@@ -293,6 +316,13 @@ def run_import(args: argparse.Namespace) -> int:
                 changed += 1
                 if not args.dry_run:
                     rig.update_slot(plan.name, **plan.changes, source="mpcdi")
+        if blend is not None:
+            new = len(blend.maps) - len(blend.info["kept_slots"])
+            how = "the extension's float32 maps" if imp.blend_exact else "the alpha and beta maps' levels"
+            print(f"  blend maps: {'would store' if args.dry_run else 'stored'} for {new} slot{'s' * (new != 1)} "
+                  f"(from {how})" + (f"; kept for {', '.join(blend.info['kept_slots'])}" if blend.info["kept_slots"] else ""))
+            if not args.dry_run:
+                save_blend(rig.path, blend)
     finally:
         if lock is not None:
             lock.release()
