@@ -68,3 +68,12 @@ def test_write_layout_and_argument_errors(tmp_path):
     assert bad.returncode == 2 and "X,Y" in bad.stderr
     bad = shadowless("room", "--layout", str(tmp_path / "missing.toml"))
     assert bad.returncode == 2 and "missing.toml" in bad.stderr
+
+
+def test_help_explains_uneven_light_with_units():
+    text = shadowless("room", "--help").stdout
+    for needle in ("--brightness-spread F", "--white-spread F", "--hotspot F", "--hotspot-width W", "--vignetting F",
+                   "1 +- F", "half-diagonals", "0.2 = +20 %", "[photometry]", "set_lamp", "wall-3x1", "bust-walls"):
+        assert needle in text, needle
+    bad = shadowless("room", "--hotspot", "-1", "--write-layout", "/dev/null")
+    assert bad.returncode == 2 and "--hotspot" in bad.stderr
