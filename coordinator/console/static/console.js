@@ -185,19 +185,25 @@ function drawLayout(s) {
                         `table: content ${w}×${h} px`));
   const unposed = $("unposed");
   clear(unposed);
+  // a slot out of the blend (node lost, or a lamp the watchdog named) is outlined dashed and says so
+  const out = new Set((s.blend && s.blend.lost) || []);
+  const lamps = new Map(((s.blend && s.blend.lamps) || []).map((l) => [l.slot, l.gain]));
+  const note = (slot) => (lamps.has(slot) ? `, lamp at ${fmt(lamps.get(slot), 2)}` : "") +
+    (out.has(slot) ? ", out of the blend" : "");
   for (const n of s.slots) {
     if (n.footprint) {
-      const g = svgEl("g", { "data-slot": n.slot, class: `fp state-${n.state}` });
+      const g = svgEl("g", { "data-slot": n.slot, class: `fp state-${n.state}${out.has(n.slot) ? " out-of-blend" : ""}` });
       g.appendChild(svgEl("polygon", { class: `footprint state-${n.state}`,
         points: n.footprint.map(([x, y]) => `${x},${y}`).join(" ") }));
       const cx = n.footprint.reduce((a, p) => a + p[0], 0) / 4;
       const cy = n.footprint.reduce((a, p) => a + p[1], 0) / 4;
       const label = svgEl("text", { class: "fp-label", x: cx, y: cy, "font-size": fontSize }, `${n.slot}: ${n.state}`);
       g.appendChild(label);
-      g.appendChild(svgEl("title", {}, `${n.slot}: ${n.state}`));
+      g.appendChild(svgEl("title", {}, `${n.slot}: ${n.state}${note(n.slot)}`));
       svg.appendChild(g);
     } else {
-      const tile = el("div", { class: `tile state-${n.state}`, "data-slot": n.slot, title: n.state }, n.slot);
+      const tile = el("div", { class: `tile state-${n.state}${out.has(n.slot) ? " out-of-blend" : ""}`,
+                               "data-slot": n.slot, title: `${n.state}${note(n.slot)}` }, n.slot);
       unposed.appendChild(tile);
     }
   }

@@ -200,7 +200,7 @@ def test_the_blend_panel_in_a_browser(tmp_path, browser_ready):
             since = time.time() - 3
             failover = BlendStatus(state="failover", blend_id="b3f", created_at=blend.info["created_at"], headroom=0.08,
                                    brightness_cost=0.075, lost=("r0c1",), since=since, covered=True,
-                                   message="r0c1 lost: 1 projector covers its footprint")
+                                   lamps=(("r0c0", 0.5),), message="r0c1 lost: 1 projector covers its footprint")
             rig.call(lambda: setattr(rig.coord, "blend_status", lambda: failover))
             wait_for(lambda: alarm(driver)[0], 60, "the failover alarm")
             first = alarm(driver)[1]
@@ -208,6 +208,11 @@ def test_the_blend_panel_in_a_browser(tmp_path, browser_ready):
                 " s ago: the others cover its footprint, uniformity kept"), first
             wait_for(lambda: alarm(driver)[1] != first, 30, f"the time since counting up from {first!r}")
             assert text_of(driver, "blend-failover") == "r0c1 lost: 1 projector covers its footprint"
+            assert text_of(driver, "blend-lamps") == "lamp r0c0 dimmed: estimated gain 0.50 (photometric watchdog)"
+            outlines = driver.execute_script(
+                "return ['r0c0', 'r0c1'].map(s => document.querySelector(`#layout g[data-slot=\"${s}\"]`)"
+                ".getAttribute('class'));")
+            assert "out-of-blend" not in outlines[0] and "out-of-blend" in outlines[1], outlines
             shot = tmp_path / "blend.png"
             assert driver.save_screenshot(str(shot))
             print(f"console screenshot: {shot}")
@@ -215,6 +220,7 @@ def test_the_blend_panel_in_a_browser(tmp_path, browser_ready):
             # the projector back: the alarm goes
             rig.call(lambda: setattr(rig.coord, "blend_status", lambda: blended))
             wait_for(lambda: not alarm(driver)[0], 60, "the alarm gone")
+            assert not visible(driver, "blend-lamps") and not visible(driver, "blend-failover")
             logs = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
             assert not [e for e in logs if "Content Security Policy" in e.get("message", "")], logs
         finally:
