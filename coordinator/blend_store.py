@@ -214,9 +214,28 @@ def _open_generation(root: Path, prefix: str, kind: str) -> tuple[Path, dict] | 
         f = gen / str(fname)
         if Path(str(fname)).name != fname or not f.is_file():
             raise BlendStoreError(f"{f}: missing (named by {gen / INDEX})")
-        if _sha256(f) != digest:
+        try:
+            same = _sha256(f) == digest
+        except OSError as exc:
+            raise BlendStoreError(f"{f}: cannot read it ({exc.strerror})") from None
+        if not same:
             raise BlendStoreError(f"{f}: damaged (its checksum differs from the one {gen / INDEX} holds)")
     return gen, index
+
+
+def _read_live(root: Path, prefix: str, kind: str, read):
+    """``read(gen, index)`` of the live generation, None when nothing is stored. A reader beside a
+    save can see the generation it opened removed once the save commits: it reads again, from the
+    new one, when the pointer moved meanwhile."""
+    for attempt in range(3):
+        before = read_pointer(root, prefix)
+        try:
+            found = _open_generation(root, prefix, kind)
+            return None if found is None else read(*found)
+        except BlendStoreError:
+            if attempt == 2 or read_pointer(root, prefix) == before:
+                raise
+    raise AssertionError("unreachable")
 
 
 def _read_json(path: Path) -> object:
@@ -293,10 +312,10 @@ def save_blend(rig_dir: str | os.PathLike[str], blend: StoredBlend) -> Path:
 def load_blend(rig_dir: str | os.PathLike[str]) -> StoredBlend | None:
     """The rig's stored blend, None when it has none; BlendStoreError (one line naming the file)
     when a file of it is missing, damaged or malformed."""
-    found = _open_generation(blend_dir(rig_dir), "g", "blend")
-    if found is None:
-        return None
-    gen, index = found
+    return _read_live(blend_dir(rig_dir), "g", "blend", _read_blend)
+
+
+def _read_blend(gen: Path, index: dict) -> StoredBlend:
     slots, names = index.get("slots"), index.get("pictures")
     if not isinstance(slots, dict) or not isinstance(names, list):
         raise BlendStoreError(f"{gen / INDEX}: its slots or pictures are missing")
@@ -357,10 +376,10 @@ def save_contributions(rig_dir: str | os.PathLike[str], arrays: Mapping[str, np.
 def load_contributions(rig_dir: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict] | None:
     """The stored ``(arrays, meta)``, None when there are none; BlendStoreError (one line naming
     the file) when a file is missing, damaged or malformed."""
-    found = _open_generation(_contributions_dir(rig_dir), "c", "contributions")
-    if found is None:
-        return None
-    gen, index = found
+    return _read_live(_contributions_dir(rig_dir), "c", "contributions", _read_contributions)
+
+
+def _read_contributions(gen: Path, index: dict) -> tuple[dict[str, np.ndarray], dict]:
     names = index.get("arrays")
     if not isinstance(names, dict) or not all(isinstance(v, str) for v in names.values()):
         raise BlendStoreError(f"{gen / INDEX}: its arrays are missing")

@@ -229,6 +229,37 @@ def test_recovery_removes_generations_no_pointer_names_and_keeps_the_live_one(tm
     assert load_blend(tmp_path) is None
 
 
+def test_a_reader_beside_a_saving_thread_always_reads_one_whole_blend(tmp_path):
+    """The console and a failover read while a job saves: each read is one whole blend."""
+    import threading
+
+    save_blend(tmp_path, _blend(0))
+    done = threading.Event()
+    errors: list[BaseException] = []
+
+    def writer():
+        try:
+            for n in range(1, 25):
+                save_blend(tmp_path, _blend(n))
+        except BaseException as exc:       # noqa: BLE001 - reported by the test
+            errors.append(exc)
+        finally:
+            done.set()
+
+    t = threading.Thread(target=writer)
+    t.start()
+    reads = []
+    try:
+        while not done.is_set() or not reads:
+            got = load_blend(tmp_path)
+            assert _same_blend(got, _blend(got.info["n"])), "a mix of blends"
+            reads.append(got.info["n"])
+    finally:
+        t.join(60)
+    assert errors == [] and reads == sorted(reads)
+    assert load_blend(tmp_path).info["n"] == 24
+
+
 _WRITER = """
 import sys
 sys.path[:0] = [{root!r}, {support!r}, {here!r}]
