@@ -120,6 +120,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--failover-rigs", default=None,
                         help="rigs of the failover part, comma-separated (default P25,P9W; P9W with --quick)")
     parser.add_argument("--fps", type=float, default=30.0, help="the show's frame rate in the live parts (default 30)")
+    parser.add_argument("--show", choices=("timeline", "still"), default="timeline",
+                        help="what the live parts show: a looping flat-white timeline show at --fps (default) or a "
+                             "still (then a frame is a period of --fps)")
     parser.add_argument("--node-frames", type=int, default=None, help="frames per profile of `bench node` (default 120; "
                                                                       "20 with --quick)")
     parser.add_argument("--keep", metavar="DIR", help="keep rig directories and logs here")

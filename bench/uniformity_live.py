@@ -145,6 +145,8 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
             H = room.truth.content_to_projector_homography(s, content)
             rig.update_slot(s, pose=HomographyPose(H / H[2, 2]), lut=lut, source="truth")
         _set_watchdog(local.rig_dir, watchdog)
+        if args.show == "timeline":
+            _add_white_clip(local.rig_dir, work / "white", content, args.fps)
         rig = Rig(local.rig_dir)
         app = CoordinatorApp(rig, local.token, listen=f"127.0.0.1:{local.port}", advertise=False,
                              cameras=[f"room://{server.address}"])
@@ -163,19 +165,59 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                 result = await run_job(c, "blend", params, view=ProgressView())
                 _log(f"{len(slots)} projectors blended through the nodes ({time.perf_counter() - t:.0f} s)")
                 live = Live(room, server, local, app, c, list(slots), content)
-                white = np.full((content[1], content[0], 3), 65535, np.uint16)
-                shown = await c.show(white, name="flat white")
+                if args.show == "timeline":
+                    await _wait_holding(c, slots)
+                    play = await c.play_asset("white", loop=True, delay_s=0.5)
+                    live.shown_pts = int(getattr(play, "anchor_ns", 0) or 0)
+                    await _wait("every node playing the show", lambda: _playing(live, slots), 120, step=0.05)
+                else:
+                    white = np.full((content[1], content[0], 3), 65535, np.uint16)
+                    shown = await c.show(white, name="flat white")
+                    live.shown_pts = int(getattr(shown, "pts_ns", 0))
                 await _wait("every node showing the blend", lambda: live.showing_assigned(slots), 60)
                 base = room.truth.camera(0).exposure
                 linear = room.render_linear(0, exposure=base)
                 top = float(np.percentile(linear.max(axis=-1), 99.9))
                 live.exposure = min(1.0, 0.85 / top) if top > 0 else 1.0
-                live.shown_pts = getattr(shown, "pts_ns", 0)
                 live.result = result
                 yield live
         finally:
             local.close()
             await app.stop()
+
+
+def _add_white_clip(rig_dir: Path, folder: Path, content: tuple[int, int], fps: float) -> None:
+    """A looping show of flat white (two identical frames as an image sequence) among the rig's assets."""
+    import cv2
+    from coordinator.assets import AssetStore
+    folder.mkdir(parents=True, exist_ok=True)
+    frame = np.full((content[1], content[0], 3), 255, np.uint8)
+    for k in range(2):
+        cv2.imwrite(str(folder / f"{k:03d}.png"), frame)
+    AssetStore(rig_dir).add(folder, name="white", fps=fps, note=lambda *_: None)
+
+
+async def _wait_holding(client, slots: list[str], timeout: float = 300.0) -> None:
+    """Until every node of ``slots`` holds the show's asset."""
+    deadline = time.monotonic() + timeout
+    while True:
+        st = await client.status()
+        ok = {n.slot for n in st.nodes if n.assets_wanted >= 1 and n.assets_ready >= n.assets_wanted}
+        if set(slots) <= ok:
+            return
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"nodes {sorted(set(slots) - ok)} never held the show's asset")
+        await asyncio.sleep(0.2)
+
+
+def _playing(live: Live, slots: list[str]) -> bool:
+    """Every node's heartbeat says it plays the show."""
+    for s in slots:
+        sess = live.session(s)
+        hb = None if sess is None else sess.heartbeat
+        if hb is None or getattr(getattr(hb.show, "state", None), "value", hb.show.state) != "playing":
+            return False
+    return True
 
 
 def _set_watchdog(rig_dir: Path, on: bool) -> None:
@@ -212,6 +254,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
                      "before_loss": _r(nonuniformity(before, target, covered, within=footprint))}
         st = live.blend_status()
         out["state_before"] = st.state
+        late0 = _late(live, slots)
         # the kill: the node process dies, its projector loses its signal
         t_kill = time.monotonic_ns()
         live.local.nodes[victim].send_signal(signal.SIGKILL)
@@ -232,6 +275,8 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["frames_after_declared"] = _r(max(0.0, (max(since) - declared_ns) / period_ns), 2)
         out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
         out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
+        late1 = _late(live, rest)
+        out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
         after = live.capture(args.frames, not_before_ns=max(since))
         out["after"] = _r(nonuniformity(after, target, covered, within=footprint))
         out["after_whole"] = _r(nonuniformity(after, target, covered))
@@ -248,6 +293,16 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         back = live.capture(args.frames, not_before_ns=max(since))
         out["after_return"] = _r(nonuniformity(back, target, covered, within=footprint))
         out["frame_period_ms"] = _r(period_ns / 1e6, 3)
+    return out
+
+
+def _late(live: Live, slots: list[str]) -> dict[str, int]:
+    """Each node's count of timeline ticks it missed, from its last heartbeat (how loaded the machine was)."""
+    out = {}
+    for s in slots:
+        sess = live.session(s)
+        hb = None if sess is None else sess.heartbeat
+        out[s] = 0 if hb is None else int(hb.show.frames_late)
     return out
 
 
