@@ -12,6 +12,9 @@ mesh       OBJ/PLY reading and writing, the procedural bust
 occluders  analytic solids with exact ray tests, the queries over many of them
 hand       the hand with forearm built from those solids, hand paths
 scene      projectors, cameras, table, mesh; the paper's 5x5 rig; subsets P1 ... P25; layout files
+photometry uneven light: brightness and white-point spread, hot spot, vignetting, the lamp's checks
+rigs       rigs that partly overlap (the 3x1 wall, projectors on the walls around the bust), shipped
+           layouts (sim/layouts/), one call for any room in process or as `shadowless room` arguments
 raster     moderngl (EGL) rasterisation: camera G-buffers and projector depth maps of meshes
 precompute views and plans per camera and projector, mesh maps (the static precomputation)
 occlusion  occluder visibility and sampling in a precomputed view
@@ -23,6 +26,8 @@ cli        ``shadowless room``
 Entry points::
 
     from sim.scene import reference_scene, load_layout, SUBSETS
+    from sim.rigs import scene, room_argv, wall_scene, BENCH_LIGHT
+    from sim.photometry import Photometry
     from sim.room import Room
     from sim.hand import Hand, HandPath
     from sim.occluders import Box

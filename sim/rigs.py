@@ -15,6 +15,11 @@ on the walls around the bust. Each is a layout document (what a layout file hold
   the flanks; the table around it, and the reference rig's three cameras (their exposure 0.8 of
   the automatic one, which leaves room for a spread and a hot spot).
 
+One call builds any of these rooms, or the reference rig, with or without uneven light:
+:func:`scene` in this process, :func:`room_argv` as the arguments of a ``shadowless room``
+process that serves the very same room (:data:`ROOMS` names them; :data:`BENCH_LIGHT` is the
+uneven light of issue 37's benchmark).
+
 Shipped files (:func:`layout_path`): ``wall-3x1.toml`` (3 columns, 20 % overlap) and
 ``bust-walls.toml`` (6 projectors), exactly what the builders give by default; use them with
 ``shadowless room --layout FILE`` (or the bare name, ``--layout wall-3x1``) and
@@ -30,10 +35,10 @@ import numpy as np
 
 from protos.layout import CAMERA_NATIVE, PROJECTOR_NATIVE, parse_layout
 from sim.photometry import Photometry
-from sim.scene import RING_CAMERAS, Scene, fit_focal, scene_from_layout
+from sim.scene import RING_CAMERAS, Scene, fit_focal, reference_scene, scene_from_layout
 
-__all__ = ["LAYOUTS_DIR", "LAYOUTS", "layout_path", "wall_layout", "wall_scene", "bust_walls_layout", "bust_walls_scene",
-           "layout_toml"]
+__all__ = ["LAYOUTS_DIR", "LAYOUTS", "ROOMS", "BENCH_LIGHT", "layout_path", "wall_layout", "wall_scene", "bust_walls_layout",
+           "bust_walls_scene", "scene", "room_argv", "layout_toml"]
 
 #: where the shipped layout files are
 LAYOUTS_DIR = Path(__file__).parent / "layouts"
@@ -51,6 +56,14 @@ WALL_CAMERA_HEIGHT_MM = 1400.0
 #: the wall camera's gain: one projector alone gives about 0.4 of full scale (0.45 x albedo 0.85 x
 #: irradiance about 1 at 1 m), two where they overlap about 0.8, with room for a spread and a hot spot
 WALL_CAMERA_GAIN = 0.45
+
+
+#: the rooms :func:`scene` and :func:`room_argv` build: the reference 5 x 5 rig over the table or the
+#: bust, the 3 x 1 wall, the projectors on the walls around the bust
+ROOMS = ("table", "bust", "wall", "bust-walls")
+
+#: issue 37's uneven light: units +-15 % in brightness and in white point, a 15 % hot spot, 20 % vignetting
+BENCH_LIGHT = Photometry(brightness_spread=0.15, white_spread=0.15, hotspot=0.15, vignetting=0.2)
 
 
 def layout_path(name: str) -> Path:
@@ -191,3 +204,40 @@ def layout_toml(doc: dict, *, header: str = "") -> str:
                 lines += [f"{kk} = {_toml_value(vv)}" for kk, vv in entry.items()]
                 lines.append("")
     return "\n".join(lines)
+
+
+def scene(name: str, *, photometry: Photometry | None = None, projector_scale: float = 0.25, camera_scale: float = 0.25,
+          seed: int = 0, cameras: int = 1) -> Scene:
+    """One of :data:`ROOMS` as a scene, with ``photometry`` (none by default).
+
+    ``"table"`` and ``"bust"`` are :func:`sim.scene.reference_scene` (``cameras`` 1 or 3),
+    ``"wall"`` the shipped ``wall-3x1`` (:func:`wall_scene`), ``"bust-walls"`` the shipped
+    ``bust-walls`` (:func:`bust_walls_scene`). ``Room(scene(...), seed=seed)`` is the room a
+    ``shadowless room`` process started with :func:`room_argv` of the same arguments serves.
+    """
+    if name in ("table", "bust"):
+        return reference_scene(projector_scale, camera_scale, name, seed, cameras=cameras, photometry=photometry)
+    if name == "wall":
+        return wall_scene(projector_scale=projector_scale, camera_scale=camera_scale, seed=seed, photometry=photometry)
+    if name == "bust-walls":
+        return bust_walls_scene(projector_scale=projector_scale, camera_scale=camera_scale, seed=seed, photometry=photometry)
+    raise ValueError(f"no room {name!r}; there are {', '.join(ROOMS)}")
+
+
+def room_argv(name: str, *, photometry: Photometry | None = None, projector_scale: float = 0.25, camera_scale: float = 0.25,
+              seed: int = 0, cameras: int = 1) -> list[str]:
+    """The arguments after ``shadowless room`` that serve :func:`scene` of the same arguments.
+
+    Add ``--port``, ``--no-noise`` and the like as needed.
+    """
+    if name not in ROOMS:
+        raise ValueError(f"no room {name!r}; there are {', '.join(ROOMS)}")
+    argv = ["--projector-scale", repr(float(projector_scale)), "--camera-scale", repr(float(camera_scale)), "--seed", str(int(seed))]
+    if name in ("table", "bust"):
+        argv += ["--surface", name, "--cameras", str(int(cameras))]
+    else:
+        argv += ["--layout", str(layout_path("wall-3x1" if name == "wall" else "bust-walls"))]
+    if photometry is not None:
+        for key in ("brightness_spread", "white_spread", "hotspot", "hotspot_width", "vignetting"):
+            argv += ["--" + key.replace("_", "-"), repr(float(getattr(photometry, key)))]
+    return argv

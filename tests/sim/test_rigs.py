@@ -87,3 +87,24 @@ def test_rig_init_of_the_wall_makes_a_three_slot_rig(tmp_path, shadowless_main):
     assert code == 0, err
     assert list(parse_config((tmp_path / "lit" / "rig.toml").read_text()).slots) == ["r0c0", "r0c1", "r0c2"]
     assert load_layout(tmp_path / "lit.toml").projector("r0c1").profile.hotspot == 0.2
+
+
+@pytest.mark.parametrize("name", ["table", "wall"])
+def test_one_call_builds_the_same_room_in_process_and_as_a_process(name):
+    import argparse
+
+    from sim import cli
+    from sim.rigs import BENCH_LIGHT, room_argv, scene
+
+    parser = argparse.ArgumentParser()
+    cli.configure(parser)
+    argv = room_argv(name, photometry=BENCH_LIGHT, seed=3, **SCALE)
+    served = cli.build_room(parser.parse_args(argv)).scene
+    built = scene(name, photometry=BENCH_LIGHT, seed=3, **SCALE)
+    assert [p.slot for p in served.projectors] == [p.slot for p in built.projectors]
+    for a, b in zip(served.projectors, built.projectors):
+        np.testing.assert_array_equal(a.pinhole.P, b.pinhole.P)
+        assert a.peak == b.peak and a.white.tolist() == b.white.tolist() and a.profile == b.profile
+    assert [c.gain for c in served.cameras] == [c.gain for c in built.cameras]
+    with pytest.raises(ValueError, match="no room 'hall'"):
+        scene("hall")
