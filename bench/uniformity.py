@@ -165,12 +165,13 @@ async def part_table(args, work: Path) -> dict:
                       seed=args.seed)
     b = await blended_rig(room, slots, work / "table", content_size=_content_for(room), poses=args.poses,
                           luts=args.luts, frames=args.frames, headroom=args.headroom, map_scale=args.map_scale)
-    colour_before = channel_deviation(b.grey_before, b.target, b.covered)
-    colour_after = channel_deviation(b.grey_after, b.target, b.covered)
+    white, grey = b.expected(1.0), b.expected(0.5)
+    colour_before = channel_deviation(b.grey_before, grey, b.covered)
+    colour_after = channel_deviation(b.grey_after, grey, b.covered)
     out = {
         "slots": len(slots),
-        "before": _r(nonuniformity(b.white_before, b.target, b.covered)),
-        "after": _r(nonuniformity(b.white_after, b.target, b.covered)),
+        "before": _r(nonuniformity(b.white_before, white, b.covered)),
+        "after": _r(nonuniformity(b.white_after, white, b.covered)),
         "before_flat_target": _r(nonuniformity(b.white_before, None, b.covered)),
         "after_flat_target": _r(nonuniformity(b.white_after, None, b.covered)),
         "colour_before": _r(colour_before["max"]),
@@ -207,8 +208,8 @@ async def part_wall(args, work: Path) -> dict:
            "seam_before": _r(before[0]["step"]) if before else None,
            "seam_after": _r(after[0]["step"]) if after else None,
            "seams": [{**s, "step": _r(s["step"])} for s in after[:8]],
-           "non_uniformity_before": _r(nonuniformity(b.white_before, b.target, b.covered)),
-           "non_uniformity_after": _r(nonuniformity(b.white_after, b.target, b.covered)),
+           "non_uniformity_before": _r(nonuniformity(b.white_before, b.expected(1.0), b.covered)),
+           "non_uniformity_after": _r(nonuniformity(b.white_after, b.expected(1.0), b.covered)),
            "blend_captures": b.captures, "job": _job_figures(b.result), "notes": b.notes}
     if not before:
         out["notes"].append("no seam found: the room's footprints do not partly overlap under the camera")
@@ -233,8 +234,8 @@ async def part_bust(args, work: Path) -> dict:
     on_mesh = room.truth.surface(0).kind == 2
     mask = b.covered & on_mesh & (b.count >= 3)
     out = {"source": source, "slots": len(slots), "pixels": int(mask.sum()),
-           "before": _r(nonuniformity(b.white_before, b.target, mask, block=4)),
-           "after": _r(nonuniformity(b.white_after, b.target, mask, block=4)),
+           "before": _r(nonuniformity(b.white_before, b.expected(1.0), mask, block=4)),
+           "after": _r(nonuniformity(b.white_after, b.expected(1.0), mask, block=4)),
            "reach_min_max": [int(b.count[mask].min()), int(b.count[mask].max())] if mask.any() else None,
            "blend_captures": b.captures, "job": _job_figures(b.result), "notes": b.notes + ["4x4 blocks on the bust"]}
     _log(f"bust: non-uniformity where >= 3 reach {out['before']} -> {out['after']}")

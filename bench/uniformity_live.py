@@ -233,12 +233,13 @@ def _set_watchdog(rig_dir: Path, on: bool) -> None:
 
 
 def _target(live: Live, headroom):
+    """The flat white the blend of the whole rig means the camera to see, and where (``headroom`` as asked)."""
     size = live.room.camera_size(0)
-    target, covered = stored_target(live.local.rig_dir, size, headroom=headroom)
+    target, black, covered = stored_target(live.local.rig_dir, size, headroom=headroom)
     lit = live.room.truth.illumination_count(0) > 0
     if covered is None:
         return None, lit
-    return target, covered & lit
+    return target + black, covered & lit
 
 
 async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str]) -> dict:
@@ -246,7 +247,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
     period_ns = 1e9 / args.fps
     async with live_rig(args, work / name, light, slots, watchdog=False) as live:
         headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
-        target, covered = _target(live, headroom)
+        target, covered = _target(live, args.headroom)
         footprint = live.room.truth.irradiance(victim, 0, occluders=False) > 0
         old_ids = {s: live.slot_blend_id(s) for s in slots}
         before = live.capture(args.frames, not_before_ns=live.shown_pts)
@@ -328,8 +329,7 @@ async def part_watchdog(args, work: Path, light: Light) -> dict:
     dim, dead = ("r1c1", "r3c3") if "r3c3" in slots else (slots[0], slots[-1])
     truth = {dim: 0.5, dead: 0.0}
     async with live_rig(args, work / "watchdog", light, slots, watchdog=True) as live:
-        headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
-        target, covered = _target(live, headroom)
+        target, covered = _target(live, args.headroom)
         fp = (live.room.truth.irradiance(dim, 0, occluders=False) > 0) | (live.room.truth.irradiance(dead, 0, occluders=False) > 0)
         cfg = live.core.rig.config.blend
         out: dict = {"slots": len(slots), "interval_s": cfg.watchdog_interval_s, "truth": truth}

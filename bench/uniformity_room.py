@@ -48,11 +48,18 @@ class Blended:
     white_after: np.ndarray
     grey_before: np.ndarray
     grey_after: np.ndarray
-    target: np.ndarray | None          # the blend's target (None: the stored contributions cannot give it)
+    target: np.ndarray | None          # the blend's white target above black (None: the stored contributions cannot give it)
+    black: np.ndarray | None           # the black floor the blend raises every point to
     covered: np.ndarray                # (H, W) bool: the blend covers it and the room lights it
     count: np.ndarray                  # (H, W) int: projectors reaching each pixel (the room's truth)
     applied: float                     # largest relative change of a noise-free white render with maps on/off
     notes: list[str] = field(default_factory=list)
+
+    def expected(self, level: float) -> np.ndarray | None:
+        """What the blend means the camera to see for flat content ``level``: ``level * target + black``."""
+        if self.target is None:
+            return None
+        return level * self.target + (0.0 if self.black is None else self.black)
 
 
 def truth_luts(room: Room, slots: list[str]) -> dict[str, np.ndarray]:
@@ -94,29 +101,36 @@ def blend_params(wanted: dict) -> dict:
 
 
 def stored_target(rig_path: Path, camera_size: tuple[int, int], *, headroom, lost=frozenset(),
-                  lamp_gains=None) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The blend's target and covered region, recomputed from the contributions the job stored (no capture),
-    at the camera's size: ((H, W, 3) float32, (H, W) bool), or (None, None) when the store or the numerics
-    are not in this build."""
-    try:
-        store = importlib_optional("coordinator.blend_store")
-        blending = importlib_optional("imaging.blending.solve") or importlib_optional("imaging.blending")
-        contributions = importlib_optional("imaging.blending.contributions") or blending
-        if store is None or blending is None or not hasattr(blending, "compute_blend"):
-            return None, None
-        loaded = store.load_contributions(rig_path)
-        if loaded is None:
-            return None, None
-        c = contributions.Contributions.from_arrays(*loaded)
-        kw = {"lost": frozenset(lost), "headroom": headroom}
-        if lamp_gains:
-            kw["lamp_gains"] = lamp_gains
-        sol = blending.compute_blend(c, **kw)
-    except Missing:
-        return None, None
+                  lamp_gains=None) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """What the blend expects the camera to see, recomputed from the contributions the job stored (no
+    capture), at the camera's size: the white target above black ((H, W, 3) float32), the black floor
+    the maps raise it to ((H, W, 3) float32, the floor's luminance in the blend's white) and the covered
+    region ((H, W) bool); (None, None, None) when the store or the numerics are not in this build.
+
+    A flat level ``v`` is expected to give ``v * target + black``. ``headroom`` is the one asked of
+    the job (None: "auto"), so the same target comes out."""
+    store = importlib_optional("coordinator.blend_store")
+    solve = importlib_optional("imaging.blending.solve")
+    contributions = importlib_optional("imaging.blending.contributions")
+    if store is None or solve is None or contributions is None:
+        return None, None, None
+    loaded = store.load_contributions(rig_path)
+    if loaded is None:
+        return None, None, None
+    c = contributions.Contributions.from_arrays(*loaded)
+    kw = {"lost": frozenset(lost), "headroom": headroom}
+    if lamp_gains:
+        kw["lamp_gains"] = lamp_gains
+    sol = solve.compute_blend(c, **kw)
     target = resize_to(np.asarray(sol.target, np.float32), camera_size)
+    black = getattr(sol, "black_target", None)
+    if black is None:
+        black = np.zeros(target.shape, np.float32)
+    else:
+        wp = np.asarray(getattr(sol, "white_point", np.ones(3)), np.float32)
+        black = resize_to(np.asarray(black, np.float32), camera_size)[:, :, None] * wp[None, None, :]
     covered = resize_to(np.asarray(sol.covered, bool), camera_size)
-    return target, covered
+    return target, black.astype(np.float32), covered
 
 
 def importlib_optional(name: str):
@@ -211,11 +225,10 @@ async def blended_rig(room: Room, slots: list[str], path: Path, *, content_size:
     _flat(driver, rig, 0.5)
     grey_after = mean_capture(room, frames, exposure)
     size = room.camera_size(0)
-    used = result.get("headroom", headroom) if isinstance(result, dict) else headroom
-    target, covered = stored_target(rig.path, size, headroom=used)
+    target, black, covered = stored_target(rig.path, size, headroom=headroom)
     if covered is None:
         covered = lit
         notes.append("target: flat over the lit region (the stored contributions could not give the blend's target)")
     return Blended(slots=list(slots), result=result, captures=captures, seconds=seconds, exposure=exposure,
                    white_before=white_before, white_after=white_after, grey_before=grey_before, grey_after=grey_after,
-                   target=target, covered=covered & lit, count=count, applied=applied, notes=notes)
+                   target=target, black=black, covered=covered & lit, count=count, applied=applied, notes=notes)
