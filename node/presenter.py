@@ -375,26 +375,32 @@ class Presenter:
             self.blend_since_rig_ns = pts_ns
             log.info("blend %s on screen from rig instant %d", self.renderer.blend_id or "none", pts_ns)
 
-    def _blend_due_local(self) -> int | None:
-        """When (local ns) to show the frame on screen again with the next maps, when no frame will:
-        None when no switch is due, the clock is unknown, or a show's tick at or after the instant will
-        switch them. While streamed frames come, the first one at or after the instant switches them: the
-        fallback waits until one is overdue (the stream stopped)."""
+    def _blend_due(self) -> tuple[int, int] | None:
+        """When to show the frame on screen again with the next maps, when no frame will: (local ns,
+        rig ns); None when no switch is due, the clock is unknown, or a show's tick at or after the
+        instant will switch them. While streamed frames come, the first one at or after the instant
+        switches them: this waits until one is overdue (the stream stopped)."""
         nxt, est = self._blend_next, self.pacer.estimate
         if nxt is None or est is None or self._next_event() is not None:
             return None
-        due = est.local_time(nxt[1])
-        if self._stream_next_ns is not None:
-            due = max(due, self._stream_next_ns + self.STILL_AFTER_NS)
-        return due
+        due, pts = est.local_time(nxt[1]), nxt[1]
+        if self._stream_next_ns is not None and self._stream_next_ns + self.STILL_AFTER_NS > due:
+            due = self._stream_next_ns + self.STILL_AFTER_NS
+            pts = est.rig_time(due)
+        return due, pts
+
+    def _blend_due_local(self) -> int | None:
+        when = self._blend_due()
+        return None if when is None else when[0]
 
     def _blend_step(self) -> None:
         """Show the frame on screen again with the next maps, swapped in at their instant (or at once,
         when a stream that stopped made it wait past it)."""
-        due = self._blend_due_local()
-        if due is None or due - self.clock.now() > self.PREPARE_NS:
+        when = self._blend_due()
+        if when is None or when[0] - self.clock.now() > self.PREPARE_NS:
             return      # not yet (the loop asks timeline_wait again)
-        renderer, out, est = self.renderer, self.out, self.pacer.estimate
+        (due, pts), est = when, self.pacer.estimate
+        renderer, out = self.renderer, self.out
         self._switch_blend(renderer)
         frame = self._current
         if frame is not None:
@@ -412,7 +418,7 @@ class Presenter:
             host = self.clock.host_now()
         if frame is not None:
             self._shown_again(out, renderer, est.rig_time(self.clock.from_host(host)), host)
-        self._blend_shown(est.rig_time(due))
+        self._blend_shown(pts)
         self._send_stats()
 
     def _shown_again(self, out: Output, renderer, swap_rig_ns: int | None = None, host: int | None = None) -> None:
