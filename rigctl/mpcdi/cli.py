@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.blend_store import StoredBlend, load_blend, save_blend
+from coordinator.blend_store import BlendStoreError, StoredBlend, load_blend, save_blend
 from coordinator.errors import RigError
 from rigctl.mpcdi.archive import ImportedRig, export_mpcdi, import_mpcdi
 from coordinator.rig import HomographyPose, Mesh, Pose, ProjectionPose, Rig, SlotState, valid_gain, validate_lut
@@ -93,7 +93,11 @@ def run_export(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise RigError(f"{out.parent}: no such folder for the archive")
     slots = list(rig.slots.values())
-    blend = load_blend(rig.path)
+    try:
+        blend = load_blend(rig.path)
+    except BlendStoreError as exc:
+        print(f"{PREFIX}: warning: the archive gets no blend maps: {exc}", file=sys.stderr)
+        blend = None
     fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
     os.close(fd)
     tmp = Path(name)
@@ -292,6 +296,8 @@ def run_import(args: argparse.Namespace) -> int:
     imp = import_mpcdi(archive)            # the whole archive is read and checked before any write
     names = _select(rig, imp, archive, args.slots)
     _check_content(rig, imp, names)
+    if imp.blend:
+        load_blend(rig.path)               # a damaged stored blend refuses here, before anything is touched
     lock = None
     if args.dry_run:
         who = holder(rig.path)
@@ -306,7 +312,7 @@ def run_import(args: argparse.Namespace) -> int:
         archived = {s.name: s for s in imp.slots}
         projections = dict(imp.projections)
         plans = [_plan(rig, imp, archived[n], projections.get(n)) for n in names]
-        blend = _blend_to_store(rig, imp, archive, plans)      # a damaged stored blend refuses before any write
+        blend = _blend_to_store(rig, imp, archive, plans)
         print(f"{'dry run: ' if args.dry_run else ''}{archive} (MPCDI profile {imp.profile}) into rig "
               f"{rig.config.name!r} ({rig.path}):")
         changed = 0

@@ -118,3 +118,19 @@ def test_an_archive_with_a_malformed_blend_map_changes_nothing(tmp_path):
     line = one_line_error(rig_cli("import", bad, fresh.path))
     assert "bad.mpcdi" in line and "beta-p2.png: beta map declares bitDepth 8, its PNG has 16-bit samples" in line
     assert tree_digest(fresh.path) == before
+
+
+def test_a_damaged_stored_blend_is_said_on_export_and_refuses_an_import_into_it(tmp_path):
+    rig = blended_table(tmp_path / "table")
+    live = rig.path / "blend" / (rig.path / "blend" / "current").read_text().strip()
+    (live / "alpha-p2.npy").write_bytes(b"\x93NUMPY broken")
+    out = tmp_path / "table.mpcdi"
+    r = rig_cli("export", rig.path, out)
+    assert r.returncode == 0 and "blend maps" not in r.stdout
+    assert "warning: the archive gets no blend maps" in r.stderr and "alpha-p2.npy: damaged" in r.stderr
+    other = blended_table(tmp_path / "other")
+    assert rig_cli("export", other.path, tmp_path / "other.mpcdi").returncode == 0
+    before = tree_digest(rig.path)
+    line = one_line_error(rig_cli("import", tmp_path / "other.mpcdi", rig.path))
+    assert "alpha-p2.npy: damaged" in line
+    assert tree_digest(rig.path) == before
