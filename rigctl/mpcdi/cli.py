@@ -40,8 +40,9 @@ PREFIX = "shadowless rig"
 
 def configure_export(p: argparse.ArgumentParser) -> None:
     p.description = ("Write a rig directory's calibration (poses; gains, LUTs and meshes in the shadowless "
-                     "extension) to an MPCDI archive that other projection tools read. Reads the rig "
-                     "directory only, so it works while a coordinator serves it.")
+                     "extension) and its stored blend (each projector's alphaMap and betaMap, 16-bit PNGs) to an "
+                     "MPCDI archive that other projection tools read. Reads the rig directory only, so it works "
+                     "while a coordinator serves it.")
     p.add_argument("dir", metavar="DIR", help="the rig directory")
     p.add_argument("out", metavar="OUT.mpcdi", help="the archive to write")
     p.add_argument("--format", choices=FORMATS, default="mpcdi", help="archive format (default mpcdi)")
@@ -50,7 +51,8 @@ def configure_export(p: argparse.ArgumentParser) -> None:
 
 def configure_import(p: argparse.ArgumentParser) -> None:
     p.description = ("Write the poses of an MPCDI archive (and its gains and LUTs, when it carries the shadowless "
-                     "extension) into the slots of a rig directory. Only slots in the rig's rig.toml are "
+                     "extension) into the slots of a rig directory, and its alpha and beta maps into the rig's "
+                     "blend store (the other slots keep theirs). Only slots in the rig's rig.toml are "
                      "imported; each changed slot's revision bumps. Refused while a coordinator serves the rig.")
     p.add_argument("archive", metavar="IN.mpcdi", type=cli_types.existing_file, help="the archive to read")
     p.add_argument("dir", metavar="DIR", help="the rig directory to write into")
