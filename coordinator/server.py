@@ -39,7 +39,10 @@ from coordinator.api import (
     Space,
 )
 from coordinator.admission import Budget, trim_memory
+from coordinator.api import BlendStatus
 from coordinator.assets import AssetStore
+from coordinator.blending.state import BlendState
+from coordinator.blending.watchdog import LampWatchdog
 from coordinator.camera import Camera, RoomCamera, open_camera
 from coordinator.distribution import Distribution, WantedList, note_ready
 from coordinator.errors import CoordinatorError, Refusal, RefusalKind
@@ -163,6 +166,11 @@ class Coordinator:
         self._job_lock = asyncio.Lock()
         self._tasks: list[asyncio.Task] = []
         self._rig_lock = RigLock(rig.path)   # one coordinator (or `rig import`) per rig directory
+        # the per-pixel blend: its failover switches take effect a latency budget ahead, on every node at once
+        self.blending = BlendState(rig, update_slot=self.update_slot, clock_ns=self.clock_ns, lead_ns=self.latency_ns)
+        self.lamp_watchdog = LampWatchdog(self.blending, camera_specs=lambda: self._camera_specs, busy=self.running_job,
+                                          on_screen=self.still_on_screen, live_slots=self.live_slots,
+                                          interval_s=rig.config.blend.watchdog_interval_s, clock_ns=self.clock_ns)
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
@@ -173,6 +181,7 @@ class Coordinator:
         try:
             recover(self._rig.path)
             self.distribution.load()
+            self.blending.load()
         except BaseException:
             self._rig_lock.release()
             raise
@@ -181,6 +190,9 @@ class Coordinator:
         """Watch the nodes and the show (call once the edges serve: :meth:`open` first)."""
         self._tasks.append(asyncio.create_task(self._watchdog(), name="watchdog"))
         self._tasks.append(asyncio.create_task(self._follow_show(), name="show"))
+        self.blending.start(self.jobs)
+        if self.rig.config.blend.watchdog:
+            self._tasks.append(asyncio.create_task(self.lamp_watchdog.run(), name="lamp-watchdog"))
         # under systemd (Type=notify): keep-alives from the loop that serves everything
         self._systemd.expect("loop")
 
@@ -188,6 +200,7 @@ class Coordinator:
         """Stop watching and close every node session (their streams end): the first half of a stop."""
         for t in self._tasks:
             t.cancel()
+        self.blending.close()
         for sess in list(self.sessions.values()):
             sess.close()
 
@@ -281,6 +294,7 @@ class Coordinator:
         if lost:
             sess.state = NodeState.LOST
             log.warning("node %s lost (last seen %.1f s ago)", sess.slot, self.now() - sess.last_seen)
+            self.blending.node_lost(sess.slot)      # the others' maps take over its footprint
         self.sync.forget_slot(sess.slot)
 
     def mark_lost(self, sess: NodeSession) -> None:
@@ -408,6 +422,7 @@ class Coordinator:
         if sess.state == NodeState.JOINED:
             sess.state = NodeState.LIVE
             self.live_at[sess.session] = now_ns
+            self.blending.node_live(sess.slot)      # a lost projector is back: the full blend again
         if rep.heartbeat is not None:
             sess.heartbeat = rep.heartbeat
             note_ready(self.ready_at.setdefault(sess.session, {}), rep.heartbeat.assets, now_ns)
@@ -576,6 +591,21 @@ class Coordinator:
             finally:
                 self._job_task = None
                 self.playback.restore_content()
+
+    def blend_status(self) -> BlendStatus:
+        """The rig's blend and any failover (:mod:`coordinator.blending.state`)."""
+        return self.blending.status()
+
+    def still_on_screen(self) -> tuple[np.ndarray, int] | None:
+        """The still every projector shows through its pose, as (content image, presentation time
+        ns), or None (nothing, a timeline show, a played sequence, a pattern, black, per-slot regions)."""
+        pb = self.playback
+        frame = pb.current_frame
+        if (frame is None or pb.playing or self.show_state.active or frame.space != Space.CONTENT
+                or not frame.apply_lut or frame.slot_content or self.running_job() is not None):
+            return None
+        content = pb.current_contents.get(frame.content_id)
+        return None if content is None else (content.image, frame.pts_ns)
 
     def cancel_job(self) -> str:
         """Cancel the running job, whoever started it (its own call ends as cancelled)."""

@@ -1,0 +1,347 @@
+"""The rig's blend as the coordinator holds it: the stored blend, what the slots show of it, and
+the failover state, with the one-line status operators read.
+
+:class:`BlendState` belongs to the core (:class:`coordinator.server.Coordinator`). When the
+coordinator opens the rig it reads the stored blend and contributions
+(:mod:`coordinator.blend_store`) and gives each slot its maps; it reloads them when a ``blend``
+job succeeds (it follows the :class:`~coordinator.jobs.tracker.JobTracker`). The core tells it
+when a node is lost and when one is live again, and the watchdog when a lamp changed; each
+changes the wanted *variant* (:mod:`coordinator.blending.failover`), and the slots switch to it
+together: every changed slot gets its maps with one common rig-clock instant, a lead ahead (the
+rig's latency budget), so every node shows the new maps from the same swap on. One log line per
+switch. A variant not computed ahead is computed in a worker thread, never on the event loop.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from typing import Any, Callable, Mapping
+
+from coordinator.api import BlendStatus
+from coordinator.blend_store import BlendStoreError, StoredBlend, load_blend, load_contributions
+from coordinator.blending.failover import MAX_PRECOMPUTED_BYTES, Variant, VariantKey, Variants, variant_key
+from coordinator.rig import Rig
+from imaging.blending.contributions import Contributions
+from imaging.blending.errors import BlendError
+
+__all__ = ["BlendState", "DEAD_GAIN", "age_text"]
+
+log = logging.getLogger(__name__)
+
+#: a lamp whose gain the watchdog puts below this is dead: its projector is left out as if lost
+DEAD_GAIN = 0.1
+#: the kept fraction of the affected footprints above which the status says "uniformity kept"
+KEPT_ENOUGH = 0.99
+
+
+def age_text(seconds: float) -> str:
+    """``12 s``, ``5 min``, ``3 h``, ``2 d``."""
+    s = max(0.0, float(seconds))
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 7200:
+        return f"{s / 60:.0f} min"
+    if s < 172800:
+        return f"{s / 3600:.0f} h"
+    return f"{s / 86400:.0f} d"
+
+
+class BlendState:
+    """The stored blend, the failover state and the switches between them.
+
+    Parameters
+    ----------
+    rig : Rig
+    update_slot : callable
+        ``update_slot(slot, blend=..., blend_at_ns=..., source=...)``: the core's, which pushes the
+        slot's new assignment to its node.
+    clock_ns : callable
+        The rig clock (ns).
+    lead_ns : int
+        How far ahead of now a switch takes effect (the rig's latency budget).
+    wall_clock : callable
+        Unix seconds (the status's times).
+    budget_bytes : int
+        What the variants computed ahead may hold.
+    """
+
+    def __init__(self, rig: Rig, *, update_slot: Callable[..., Any], clock_ns: Callable[[], int], lead_ns: int,
+                 wall_clock: Callable[[], float] = time.time, budget_bytes: int = MAX_PRECOMPUTED_BYTES):
+        self.rig = rig
+        self._update_slot = update_slot
+        self.clock_ns = clock_ns
+        self.lead_ns = int(lead_ns)
+        self.wall_clock = wall_clock
+        self.budget_bytes = budget_bytes
+        self.stored: StoredBlend | None = None
+        self.contributions: Contributions | None = None
+        self.variants: Variants | None = None
+        self.problem = ""                      # why there is no blend (a store that cannot be read), or ""
+        self.lost_nodes: dict[str, float] = {}     # slot -> unix time its node was lost
+        self.lamp_gains: dict[str, float] = {}     # slot -> the watchdog's estimate (named lamps only)
+        self.lamps_since: dict[str, float] = {}    # slot -> unix time the lamp was named
+        self.applied: VariantKey = variant_key(())
+        self.switched_at_ns = 0                # the rig instant of the last switch
+        self.switches = 0
+        self._pending: asyncio.Task | None = None
+        self._suspended = False                # a blend job measures: nothing is pushed
+        self._job_seen: object | None = None
+        self._unsubscribe: Callable[[], None] | None = None
+        #: called after each switch with (key, variant, at_ns): tests and benchmarks follow it
+        self.on_switch: Callable[[VariantKey, Variant, int], None] | None = None
+
+    # ------------------------------------------------------------------ loading
+    def load(self) -> None:
+        """Read the stored blend and contributions (blocking, small) and give each slot its maps
+        at once. A store that cannot be read is logged in one line and leaves the rig unblended."""
+        try:
+            stored = load_blend(self.rig.path)
+            contrib = load_contributions(self.rig.path) if stored is not None else None
+            contributions = Contributions.from_arrays(*contrib) if contrib is not None else None
+        except (BlendStoreError, BlendError) as exc:
+            self.problem = str(exc)
+            log.warning("blend: %s; the rig runs unblended until `shadowless blend` measures again", exc)
+            stored, contributions = None, None
+        self._take(stored, contributions)
+        if stored is not None:
+            for slot, maps in stored.maps.items():
+                if slot in self.rig.slots and self.rig.slot(slot).blend is not maps:
+                    self._update_slot(slot, blend=maps, blend_at_ns=0, source="blend")
+            log.info("blend %s loaded: %d projectors%s", self.blend_id[:8], len(stored.maps),
+                     "" if contributions is not None else " (no contributions stored: no failover)")
+
+    def _take(self, stored: StoredBlend | None, contributions: Contributions | None) -> None:
+        if self.variants is not None:
+            self.variants.stop_ahead()
+        self.stored = stored
+        self.contributions = contributions
+        blended = {s: m for s, m in (stored.maps.items() if stored else ()) if s in self.rig.slots}
+        self.variants = Variants(contributions, blended, budget_bytes=self.budget_bytes) \
+            if stored is not None and contributions is not None and blended else None
+        self.applied = variant_key(())
+        if stored is not None:
+            self.problem = ""
+
+    @property
+    def blend_id(self) -> str:
+        if self.stored is None:
+            return ""
+        return str(self.stored.info.get("blend_id") or self.stored.blend_id)
+
+    @property
+    def slots(self) -> list[str]:
+        """The slots of the blend (present in the rig)."""
+        return [s for s in (self.stored.maps if self.stored else ()) if s in self.rig.slots]
+
+    # ------------------------------------------------------------------ life
+    def start(self, jobs=None) -> None:
+        """Follow the job tracker (a blend job's end reloads) and compute the variants one loss
+        away in a worker thread (call from the event loop)."""
+        if jobs is not None and self._unsubscribe is None:
+            self._unsubscribe = jobs.subscribe(lambda: self._job_changed(jobs))
+        self._ahead()
+
+    def close(self) -> None:
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+            self._unsubscribe = None
+        if self.variants is not None:
+            self.variants.stop_ahead()
+        if self._pending is not None:
+            self._pending.cancel()
+
+    def _ahead(self) -> None:
+        if self.variants is None:
+            return
+        try:
+            asyncio.get_running_loop()
+        except RuntimeError:
+            return
+
+        def done(made: int, seconds: float) -> None:
+            if made:
+                log.info("blend: %d failover variants computed ahead in %.1f s (%.0f MiB)", made, seconds,
+                         self.variants.held_bytes() / 2 ** 20 if self.variants else 0)
+        self.variants.start_ahead(self.applied, on_done=done)
+
+    def _job_changed(self, jobs) -> None:
+        job = jobs.current
+        if job is None or job.kind != "blend":
+            return
+        if job.state == "running":
+            self._suspended = True
+            return
+        if job is self._job_seen:
+            return
+        self._job_seen = job
+        self._suspended = False
+        asyncio.get_running_loop().create_task(self.reload(measured=job.state == "done"), name="blend-reload")
+
+    async def reload(self, *, measured: bool = True) -> None:
+        """After a blend job: read what it stored (``measured``) and switch to the state the rig is
+        in (lost nodes, named lamps); after a job that failed, put the maps back as they were."""
+        if measured:
+            def read():
+                stored = load_blend(self.rig.path)
+                contrib = load_contributions(self.rig.path) if stored is not None else None
+                return stored, Contributions.from_arrays(*contrib) if contrib is not None else None
+            try:
+                stored, contributions = await asyncio.to_thread(read)
+            except (BlendStoreError, BlendError) as exc:
+                self.problem = str(exc)
+                log.warning("blend: the new blend cannot be read (%s); keeping the maps on the projectors", exc)
+                return
+            self._take(stored, contributions)
+            # the measurement is the lamps' new reference: the watchdog's gains start again from 1
+            self.lamp_gains.clear()
+            self.lamps_since.clear()
+            log.info("blend %s measured: %d projectors", self.blend_id[:8], len(self.slots))
+        self._want(force=True)
+
+    # ------------------------------------------------------------------ events
+    def node_lost(self, slot: str) -> None:
+        """The core declared ``slot``'s node lost: switch to the others' maps."""
+        if slot not in self.slots or slot in self.lost_nodes:
+            return
+        self.lost_nodes[slot] = self.wall_clock()
+        self._want()
+
+    def node_live(self, slot: str) -> None:
+        """``slot``'s node is live again: switch back."""
+        if self.lost_nodes.pop(slot, None) is None:
+            return
+        self._want()
+
+    def set_lamps(self, gains: Mapping[str, float]) -> None:
+        """The watchdog's named lamps (slot -> effective gain; absent: as measured): re-blend."""
+        now = self.wall_clock()
+        new = {s: round(float(g), 2) for s, g in gains.items() if s in self.slots}
+        for s in new:
+            self.lamps_since.setdefault(s, now)
+        for s in list(self.lamps_since):
+            if s not in new:
+                del self.lamps_since[s]
+        self.lamp_gains = new
+        self._want()
+
+    def wanted_key(self) -> VariantKey:
+        dead = {s for s, g in self.lamp_gains.items() if g < DEAD_GAIN}
+        return variant_key(set(self.lost_nodes) | dead, {s: g for s, g in self.lamp_gains.items() if s not in dead})
+
+    def _want(self, *, force: bool = False) -> None:
+        """Switch to the wanted variant now if it is ready, else once a worker thread made it."""
+        if self.variants is None or self._suspended:
+            return
+        key = self.wanted_key()
+        if key == self.applied and not force:
+            return
+        v = self.variants.get(key)
+        if v is not None:
+            self._switch(v, force=force)
+            return
+        if self.variants.failure(key) is not None:
+            self._report_failure(key, self.variants.failure(key))
+            return
+        if self._pending is not None and not self._pending.done():
+            self._pending.cancel()
+        self._pending = asyncio.get_running_loop().create_task(self._compute_then_switch(key, force),
+                                                               name="blend-variant")
+
+    async def _compute_then_switch(self, key: VariantKey, force: bool) -> None:
+        variants = self.variants
+        t0 = time.perf_counter()
+        try:
+            v = await asyncio.to_thread(variants.compute, key)
+        except BlendError as exc:
+            self._report_failure(key, str(exc))
+            return
+        if variants is self.variants and key == self.wanted_key() and not self._suspended:
+            log.info("blend: variant for %s computed on demand in %.2f s", _describe_key(key), time.perf_counter() - t0)
+            self._switch(v, force=force)
+
+    async def settled(self) -> None:
+        """Until a variant being computed on demand was switched to (or failed)."""
+        if self._pending is not None:
+            await asyncio.gather(self._pending, return_exceptions=True)
+
+    def _report_failure(self, key: VariantKey, why: str) -> None:
+        log.error("blend: cannot re-blend for %s: %s; the projectors keep their maps", _describe_key(key), why)
+
+    def _switch(self, v: Variant, *, force: bool = False) -> None:
+        at = self.clock_ns() + self.lead_ns
+        changed = 0
+        for slot, maps in v.maps.items():
+            if slot not in self.rig.slots:
+                continue
+            st = self.rig.slot(slot)
+            same = st.blend is not None and st.blend.blend_id == maps.blend_id
+            if same and not force:
+                continue
+            self._update_slot(slot, blend=maps, blend_at_ns=at, source="blend")
+            changed += 1
+        self.applied = v.key
+        self.switched_at_ns = at
+        self.switches += 1
+        lost, gains = v.key
+        if not lost and not gains:
+            log.info("blend: every projector back in the blend; %d switch to the full blend at rig %d", changed, at)
+        else:
+            log.warning("blend: %s; %d projectors switch to new maps at rig %d (%s)", _describe_key(v.key), changed,
+                        at, "uniformity kept" if v.kept >= KEPT_ENOUGH else f"{v.kept:.0%} of the footprint kept")
+        if self.on_switch is not None:
+            self.on_switch(v.key, v, at)
+        self._ahead()
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> BlendStatus:
+        """The blend and any failover, with one line for operators."""
+        if self.stored is None:
+            return BlendStatus(state="none", message=self.problem or "no blend: run `shadowless blend` to measure one")
+        info = self.stored.info
+        now = self.wall_clock()
+        headroom = float(info.get("headroom", 0.0) or 0.0)
+        cost = float(info.get("brightness_cost", 0.0) or 0.0)
+        created = float(info.get("created_at", 0.0) or 0.0)
+        lamps = tuple(sorted((s, float(g)) for s, g in self.lamp_gains.items()))
+        common = dict(blend_id=self.blend_id, created_at=created, headroom=headroom, brightness_cost=cost, lamps=lamps)
+        key = self.wanted_key()
+        lost, gains = key
+        if not lost and not gains:
+            when = f"measured {age_text(now - created)} ago" if created else "measured"
+            msg = f"blended ({when}): headroom {headroom:.0%} held for failover costs {cost:.0%} of brightness"
+            if self.variants is None:
+                msg += "; no contributions stored, so no failover"
+            return BlendStatus(state="blended", message=msg, **common)
+        since = min([*self.lost_nodes.values(), *(t for s, t in self.lamps_since.items())] or [now])
+        v = self.variants.get(key) if self.variants is not None else None
+        failure = self.variants.failure(key) if self.variants is not None else "no contributions stored"
+        parts = []
+        for s in sorted(lost):
+            t = self.lost_nodes.get(s, self.lamps_since.get(s, now))
+            what = f"{s} lost" if s in self.lost_nodes else f"lamp of {s} dead"
+            parts.append(f"{what} {age_text(now - t)} ago")
+        for s, g in gains:
+            parts.append(f"lamp of {s} at {g:.0%} for {age_text(now - self.lamps_since.get(s, now))}")
+        head = ", ".join(parts)
+        if failure is not None and v is None:
+            return BlendStatus(state="failover", lost=tuple(sorted(lost)), since=since, covered=False,
+                               message=f"{head}: cannot re-blend ({failure})", **common)
+        if v is None or self.applied != key:
+            return BlendStatus(state="failover", lost=tuple(sorted(lost)), since=since, covered=False,
+                               message=f"{head}: computing the others' maps", **common)
+        helpers = min(v.helpers.values()) if v.helpers else 0
+        covered = v.kept >= KEPT_ENOUGH
+        whose = "its footprint" if len(v.helpers) == 1 else "their footprints"
+        tail = (f"{helpers} projectors cover {whose}, uniformity kept" if covered else
+                f"{helpers} projectors cover {v.kept:.0%} of {whose}")
+        return BlendStatus(state="failover", lost=tuple(sorted(lost)), since=since, covered=covered,
+                           message=f"{head}: {tail}", **common)
+
+
+def _describe_key(key: VariantKey) -> str:
+    lost, gains = key
+    parts = [f"{', '.join(sorted(lost))} out"] if lost else []
+    parts += [f"lamp of {s} at {g:.0%}" for s, g in gains]
+    return "; ".join(parts) or "full blend"
+

@@ -1,0 +1,266 @@
+"""The photometric watchdog: during a show, the coordinator now and then captures the camera and
+fits each projector's effective gain; a dimmed or dead lamp is named and the rig re-blended.
+
+It checks soon after a new still is on screen and then every ``interval_s`` (rig.toml's
+``[blend] watchdog_interval_s``), when everything it needs holds: a camera (rig.toml's first),
+no job (a job holds the camera and the projectors), a stored blend with its contributions, a
+still shown through the poses of a planar rig (a timeline show or a played sequence changes
+under the capture, and a mesh rig's contributions have no homography to predict from), and no
+switch of maps under way. The fit is :func:`imaging.blending.watchdog.fit_gains` on the
+contributions' camera grid, each live projector's predicted light built from its measured white
+and black, its maps on screen and the content it shows; the capture runs in a worker thread.
+
+A lamp is named when its gain is off 1 by more than :data:`NAME_TOLERANCE` and by more than three
+standard errors; a named lamp's gain is updated when it moved by more than
+:data:`CHANGE_TOLERANCE`; each change is one log line and re-blends the rig
+(:meth:`coordinator.blending.state.BlendState.set_lamps`): a dimmed lamp by its gain, a dead one
+(gain below :data:`coordinator.blending.state.DEAD_GAIN`) as a lost projector.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from coordinator.blending.state import DEAD_GAIN, BlendState
+from coordinator.camera import Camera, CameraError, open_camera
+from coordinator.rig import HomographyPose
+from imaging.blending.watchdog import content_on_grid, fit_gains, grid_mean, maps_on_grid, predicted_light
+
+__all__ = ["CHANGE_TOLERANCE", "NAME_TOLERANCE", "LampWatchdog", "WatchdogCheck"]
+
+log = logging.getLogger(__name__)
+
+#: a lamp is named when its gain is off 1 by more than this (and by more than 3 standard errors)
+NAME_TOLERANCE = 0.1
+#: a named lamp's gain is updated (and the rig re-blended) when it moved by more than this
+CHANGE_TOLERANCE = 0.05
+#: after a still's presentation time or a switch of maps, the camera waits this long (ns)
+SETTLE_NS = 100_000_000
+#: the loop's tick (s): how soon a new still is checked
+TICK_S = 0.2
+
+
+@dataclass(frozen=True)
+class WatchdogCheck:
+    """One check: the fit's figures, or why it was skipped.
+
+    ``gains``/``stderr``: slot -> effective gain and its standard error; ``condition``: the
+    design's condition number (:class:`imaging.blending.watchdog.GainFit`); ``named``: the lamps
+    named after it (slot -> gain); ``at_ns``: the rig instant of the capture; ``seconds``: the
+    check's time, capture included."""
+
+    at_ns: int
+    skipped: str = ""
+    gains: dict[str, float] = field(default_factory=dict)
+    stderr: dict[str, float] = field(default_factory=dict)
+    condition: float = float("nan")
+    inliers: float = float("nan")
+    residual: float = float("nan")
+    named: dict[str, float] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def _grid_to_camera_matrix(camera_size: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+    """(3, 3): camera-grid pixel -> camera pixel (the grid convention of
+    :func:`imaging.blending.contributions.grid_to_camera`)."""
+    W, H = camera_size
+    h, w = shape
+    sx, sy = W / w, H / h
+    return np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
+
+
+class LampWatchdog:
+    """Checks the lamps now and then (see the module docstring).
+
+    Parameters
+    ----------
+    state : BlendState
+    camera_specs : callable
+        The rig's camera specs (the first is used).
+    busy : callable
+        The running job's kind, or None.
+    on_screen : callable
+        ``(content image, its presentation time ns)`` of the still shown through the poses, or None.
+    live_slots : callable
+    interval_s : float
+    clock_ns : callable
+        The rig clock.
+    open_camera : callable
+        ``spec -> Camera`` (tests may hand another).
+    """
+
+    def __init__(self, state: BlendState, *, camera_specs: Callable[[], list[str]], busy: Callable[[], str | None],
+                 on_screen: Callable[[], tuple[np.ndarray, int] | None], live_slots: Callable[[], list[str]],
+                 interval_s: float, clock_ns: Callable[[], int],
+                 open_camera: Callable[[str], Camera] = open_camera):
+        self.state = state
+        self.camera_specs = camera_specs
+        self.busy = busy
+        self.on_screen = on_screen
+        self.live_slots = live_slots
+        self.interval_s = float(interval_s)
+        self.clock_ns = clock_ns
+        self.open_camera = open_camera
+        self.last: WatchdogCheck | None = None
+        self.checks = 0
+        self._checked_pts = 0
+        self._warned: set[str] = set()
+
+    async def run(self) -> None:
+        """Check whenever a new still settled, and every ``interval_s``; forever."""
+        next_at = 0.0
+        while True:
+            await asyncio.sleep(TICK_S)
+            screen = self.on_screen()
+            fresh = screen is not None and screen[1] != self._checked_pts
+            if not fresh and time.monotonic() < next_at:
+                continue
+            result = await self.check()
+            if not result.skipped:
+                next_at = time.monotonic() + self.interval_s
+                self._checked_pts = screen[1] if screen is not None else 0
+
+    def _skip(self, why: str) -> WatchdogCheck:
+        if why not in self._warned and why.startswith("!"):
+            self._warned.add(why)
+            log.info("watchdog: %s", why[1:])
+        return WatchdogCheck(at_ns=self.clock_ns(), skipped=why.lstrip("!"))
+
+    def why_not(self) -> str:
+        """Why a check cannot run now ("" when it can)."""
+        st = self.state
+        if not self.camera_specs():
+            return "!off: the rig has no camera"
+        if self.busy() is not None:
+            return f"a {self.busy()} job holds the camera"
+        if st.variants is None or st.contributions is None:
+            return "no blend with contributions"
+        if self.clock_ns() < st.switched_at_ns + SETTLE_NS:
+            return "maps are switching"
+        screen = self.on_screen()
+        if screen is None:
+            return "no still shown through the poses"
+        if self.clock_ns() < screen[1] + SETTLE_NS:
+            return "the still is not on screen yet"
+        slots = self.slots()
+        if not slots:
+            return "no live projector of the blend"
+        if any(not isinstance(self.state.rig.slot(s).pose, HomographyPose) for s in slots):
+            return "!off: the watchdog predicts light through planar poses only (this rig has a mesh)"
+        return ""
+
+    def slots(self) -> list[str]:
+        """The projectors the fit is over: live, blended, measured, their node not lost."""
+        st = self.state
+        live = set(self.live_slots())
+        c = st.contributions
+        return [s for s in st.slots if s in live and c is not None and s in c.white and s not in st.lost_nodes]
+
+    async def check(self) -> WatchdogCheck:
+        """One check now (skipped with a reason when it cannot run); names lamps and re-blends."""
+        why = self.why_not()
+        if why:
+            self.last = self._skip(why)
+            return self.last
+        t0 = time.perf_counter()
+        st = self.state
+        screen = self.on_screen()
+        assert screen is not None
+        content, pts = screen
+        not_before = max(pts, st.switched_at_ns)
+        slots = self.slots()
+        maps = {s: st.rig.slot(s).blend for s in slots}
+        poses = {s: st.rig.slot(s).pose.matrix for s in slots}
+        spec = self.camera_specs()[0]
+        contributions = st.contributions
+        try:
+            result = await asyncio.to_thread(self._measure, spec, not_before, contributions, content, slots, maps, poses)
+        except CameraError as exc:
+            log.warning("watchdog: %s", exc)
+            self.last = WatchdogCheck(at_ns=self.clock_ns(), skipped=f"camera: {exc}")
+            return self.last
+        except ValueError as exc:
+            self.last = WatchdogCheck(at_ns=self.clock_ns(), skipped=f"no fit: {exc}")
+            return self.last
+        if self.busy() is not None or contributions is not st.contributions:
+            self.last = WatchdogCheck(at_ns=self.clock_ns(), skipped="the rig changed during the check")
+            return self.last
+        at_ns, fit = result
+        gains = {s: float(g) for s, g in zip(slots, fit.gains)}
+        stderr = {s: float(e) for s, e in zip(slots, fit.stderr)}
+        named = self._decide(gains, stderr)
+        self.checks += 1
+        self.last = WatchdogCheck(at_ns=at_ns, gains=gains, stderr=stderr, condition=fit.condition,
+                                  inliers=fit.inliers, residual=fit.residual, named=named,
+                                  seconds=time.perf_counter() - t0)
+        return self.last
+
+    def _measure(self, spec: str, not_before: int, contributions, content: np.ndarray, slots: list[str],
+                 maps: dict, poses: dict):
+        """Capture and fit (worker thread): (rig ns of the capture, GainFit)."""
+        cam = self.open_camera(spec)
+        try:
+            if hasattr(cam, "not_before"):
+                cam.not_before(not_before)
+            image = cam.capture()
+            at_ns = self.clock_ns()
+        finally:
+            cam.close()
+        c = contributions
+        shape = c.shape
+        capture = grid_mean(np.asarray(image, np.float32), shape)
+        value = _linear(content)
+        G2C = _grid_to_camera_matrix(c.camera_size, shape)
+        columns = []
+        for s in slots:
+            G2P = c.camera_to_projector[s] @ G2C
+            seen = content_on_grid(value, np.linalg.inv(poses[s]) @ G2P, shape)
+            m = maps.get(s)
+            alpha, beta = (None, None) if m is None else maps_on_grid(m, G2P, c.projector_size[s], shape)[:2]
+            columns.append(predicted_light(c.white[s], c.black[s], seen, alpha, beta))
+        valid = np.any(sum(c.white[s] for s in slots) > 0, axis=-1)
+        return at_ns, fit_gains(capture, columns, valid=valid)
+
+    def _decide(self, gains: dict[str, float], stderr: dict[str, float]) -> dict[str, float]:
+        """The named lamps after a fit; tells the blend state (one log line per change)."""
+        current = dict(self.state.lamp_gains)
+        named: dict[str, float] = {}
+        for s, g in gains.items():
+            off = abs(g - 1.0)
+            if off > NAME_TOLERANCE and off > 3.0 * stderr.get(s, 0.0):
+                old = current.get(s)
+                named[s] = round(g, 2) if old is None or abs(g - old) > CHANGE_TOLERANCE else old
+        for s in current:           # a lamp not in the fit (its node lost) stays as it was
+            if s not in gains:
+                named[s] = current[s]
+        if named == current:
+            return named
+        for s, g in sorted(named.items()):
+            if current.get(s) == g:
+                continue
+            err = stderr.get(s, 0.0)
+            if g < DEAD_GAIN:
+                log.warning("watchdog: lamp of %s is dead (gain %.2f ± %.2f): re-blending without it", s, g, err)
+            else:
+                log.warning("watchdog: lamp of %s at %.0f %% (± %.0f %%) of its measured light: re-blending",
+                            s, 100 * g, 100 * err)
+        for s in sorted(set(current) - set(named)):
+            log.info("watchdog: lamp of %s is back at %.0f %%: re-blending", s, 100 * gains.get(s, 1.0))
+        self.state.set_lamps(named)
+        return named
+
+
+def _linear(content: np.ndarray) -> np.ndarray:
+    """A content image as the nodes' linear values: (H, W, C) float32 in 0..1."""
+    a = np.asarray(content)
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / 65535.0
+    return np.clip(a.astype(np.float32), 0.0, 1.0)
+

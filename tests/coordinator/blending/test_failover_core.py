@@ -1,0 +1,193 @@
+"""Failover in the coordinator's core, driven through its own methods (what the edges call), with a
+stored blend of a synthetic rig whose light is known exactly: the slots get the stored maps when the
+rig opens, a lost node switches the others to maps computed ahead (in the same call, with one common
+instant a latency budget ahead), the light those maps make in the lost footprint is checked against
+the full blend's through the forward model, the node's return switches back, several losses and no
+projector left are handled, and a bad [blend] section is one line."""
+from __future__ import annotations
+
+import asyncio
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coordinator.blend_store import StoredBlend, save_blend, save_contributions
+from coordinator.blending.failover import BLACK_MAPS, variant_key
+from coordinator.errors import RigError
+from coordinator.rig import Rig, grid_slots, init_rig
+from coordinator.server import Coordinator
+from coordinator.sessions import NodeInfo, Report
+from imaging.blending.contributions import luma
+from imaging.blending.predict import predict
+from imaging.blending.solve import compute_blend
+from imaging.blending.synthetic import rectangle_rig, tiled_rects, wall_rects
+from protos.blend import BlendMaps
+
+TOKEN = b"f" * 32
+CAMERA = (320, 240)
+PROJECTOR = (160, 90)
+
+
+class Packets:
+    """A packet encoding that sends nothing anyone reads."""
+
+    def encoder(self) -> "Packets":
+        return self
+
+    def prepare(self, contents) -> None:
+        pass
+
+    def packet(self, *, frame=None, contents=(), evict=(), video=None) -> bytes:
+        return b""
+
+
+def blended_rig(tmp_path: Path, slots: list[str], rects, *, toml_extra: str = "") -> tuple[Rig, object, dict]:
+    """A rig of ``slots`` with a stored blend of the synthetic rig ``rects`` (its contributions too)."""
+    path = init_rig(tmp_path / "rig", name="blended", slots=slots, width=PROJECTOR[0], height=PROJECTOR[1],
+                    content_width=64, content_height=48, latency_ms=40)
+    if toml_extra:
+        (path / "rig.toml").write_text((path / "rig.toml").read_text() + toml_extra)
+    peaks = np.random.default_rng(3).uniform(0.85, 1.15, len(slots))
+    c = rectangle_rig(rects, camera_size=CAMERA, scale=4, projector_size=PROJECTOR, peaks=peaks, names=slots)
+    sol = compute_blend(c, map_scale=1)     # map texels finer than the camera grid, as on a real rig
+    maps = {s: BlendMaps(a, b) for s, (a, b) in sol.maps.items()}
+    save_contributions(path, *c.to_arrays())
+    save_blend(path, StoredBlend(maps, {"headroom": sol.headroom, "brightness_cost": sol.brightness_cost,
+                                        "created_at": 1.0e9}))
+    return Rig(path), c, maps
+
+
+def white_of(c, maps: dict[str, BlendMaps], lost=()) -> np.ndarray:
+    """Luminance above black on the camera grid when every projector shows white with ``maps`` (a
+    projector without maps shows white unblended; ``lost`` ones nothing)."""
+    pairs = {s: (m.alpha, m.beta) for s, m in maps.items()}
+    return luma(predict(c, pairs, 1.0, lost=tuple(lost)) - predict(c, pairs, 0.0, lost=tuple(lost)))
+
+
+def test_a_lost_node_switches_the_others_at_one_instant_and_its_return_switches_back(tmp_path, caplog):
+    slots = grid_slots(2, 2)
+    rig, contributions, stored = blended_rig(tmp_path, slots, tiled_rects(2, 2, CAMERA, seed=2))
+    now = [7_000_000_000]
+
+    async def go():
+        coord = Coordinator(rig, TOKEN, encoding=Packets, clock_ns=lambda: now[0])
+        coord.open()
+        try:
+            # the stored maps are on the slots as soon as the rig opens
+            assert {s: rig.slot(s).blend.blend_id for s in slots} == {s: stored[s].blend_id for s in slots}
+            st = coord.blend_status()
+            assert st.state == "blended" and st.blend_id and "headroom" in st.message, st
+            coord.start()
+            await coord.blending.variants.wait_ahead()     # the single losses, computed in a worker thread
+            assert all(coord.blending.variants.get(variant_key({s})) for s in slots)
+            sessions = {s: coord.join(slot=s, info=NodeInfo(hostname=f"pi-{s}", pid=i + 1), peer=f"ipv4:10.0.0.{i}:1")
+                        for i, s in enumerate(slots)}
+            for sess in sessions.values():
+                coord.on_report(sess, Report())            # live
+            revisions = {s: rig.slot(s).revision for s in slots}
+
+            caplog.set_level(logging.INFO)
+            coord.mark_lost(sessions["r0c1"])
+            # in the same call, every slot switched, the same instant a latency budget ahead
+            after = {s: rig.slot(s) for s in slots}
+            assert all(after[s].revision == revisions[s] + 1 for s in slots)
+            assert {after[s].blend_at_ns for s in slots} == {now[0] + coord.latency_ns}
+            assert after["r0c1"].blend is BLACK_MAPS
+            assert all(after[s].blend.blend_id != stored[s].blend_id for s in slots if s != "r0c1")
+            assert sum("switch to new maps" in r.getMessage() for r in caplog.records) == 1
+            st = coord.blend_status()
+            assert st.state == "failover" and st.lost == ("r0c1",) and st.covered, st
+            assert st.message.startswith("r0c1 lost 0 s ago: 3 projectors cover its footprint, uniformity kept"), st
+
+            # the light: with the old maps the lost footprint is dark by the lost share; with the new
+            # ones it is the full blend's, within 2 % (p1..p99), over the footprint the others reach
+            full = white_of(contributions, stored)
+            new = {s: after[s].blend for s in slots if s != "r0c1"}
+            fp = contributions.footprint("r0c1") & (full > 0.05 * full.max())
+            old_ratio = white_of(contributions, stored, lost=("r0c1",))[fp] / full[fp]
+            new_ratio = white_of(contributions, new, lost=("r0c1",))[fp] / full[fp]
+            assert np.median(old_ratio) < 0.85, np.median(old_ratio)
+            assert np.percentile(new_ratio, 1) > 0.97 and np.percentile(new_ratio, 99) < 1.03, \
+                np.percentile(new_ratio, [1, 50, 99])
+
+            # the node returns (a new session turns live): the full blend again, at one instant
+            now[0] += 2_000_000_000
+            back = coord.join(slot="r0c1", info=NodeInfo(hostname="pi-r0c1", pid=99), peer="ipv4:10.0.0.1:2")
+            assert rig.slot("r0c1").blend is BLACK_MAPS        # it joins dark
+            coord.on_report(back, Report())
+            assert {s: rig.slot(s).blend.blend_id for s in slots} == {s: stored[s].blend_id for s in slots}
+            assert {rig.slot(s).blend_at_ns for s in slots} == {now[0] + coord.latency_ns}
+            assert coord.blend_status().state == "blended"
+
+            # two lost at once: computed on demand in a worker thread, then switched
+            coord.mark_lost(sessions["r0c0"])
+            coord.mark_lost(back)
+            await coord.blending.settled()
+            st = coord.blend_status()
+            assert st.lost == ("r0c0", "r0c1") and st.state == "failover", st
+            assert rig.slot("r0c0").blend is BLACK_MAPS and rig.slot("r0c1").blend is BLACK_MAPS
+            assert rig.slot("r1c0").blend.blend_id not in {stored["r1c0"].blend_id}
+
+            # no projector left: reported, not crashed on, and the maps stay as they were
+            held = {s: rig.slot(s).blend for s in slots}
+            for s in ("r1c0", "r1c1"):
+                coord.mark_lost(sessions[s])
+            await coord.blending.settled()
+            st = coord.blend_status()
+            assert st.state == "failover" and not st.covered and "cannot re-blend" in st.message \
+                and "no projector left" in st.message, st
+            assert {s: rig.slot(s).blend for s in slots} == held
+        finally:
+            await coord.close()
+
+    asyncio.run(go())
+
+
+def test_a_footprint_the_others_do_not_reach_is_reported(tmp_path):
+    slots = ["left", "mid", "right"]
+    rig, contributions, stored = blended_rig(tmp_path, slots, wall_rects(3, 0.2, CAMERA))
+    now = [1_000_000_000]
+
+    async def go():
+        coord = Coordinator(rig, TOKEN, encoding=Packets, clock_ns=lambda: now[0])
+        coord.open()
+        try:
+            coord.start()
+            sess = coord.join(slot="mid", info=NodeInfo(hostname="pi", pid=1), peer="ipv4:10.0.0.9:1")
+            coord.on_report(sess, Report())
+            coord.mark_lost(sess)
+            await coord.blending.settled()
+            st = coord.blend_status()
+            assert st.state == "failover" and not st.covered, st
+            assert "2 projectors cover" in st.message and "of its footprint" in st.message, st
+            # the neighbours still light their share of the seams brighter than before
+            full = white_of(contributions, stored)
+            new = {s: rig.slot(s).blend for s in ("left", "right")}
+            seam = contributions.footprint("mid") & (contributions.footprint("left") | contributions.footprint("right"))
+            seam &= full > 0.05 * full.max()
+            assert np.median(white_of(contributions, new, lost=("mid",))[seam] / full[seam]) > \
+                np.median(white_of(contributions, stored, lost=("mid",))[seam] / full[seam]) + 0.2
+        finally:
+            await coord.close()
+
+    asyncio.run(go())
+
+
+@pytest.mark.parametrize("value", ["1.2", "-0.1", '"most"', "true"])
+def test_a_headroom_outside_0_to_0_9_is_one_line_and_changes_nothing(tmp_path, value):
+    path = init_rig(tmp_path / "rig", name="bad", slots=["a"], width=32, height=32)
+    good = (path / "rig.toml").read_text()
+    (path / "rig.toml").write_text(good + f"\n[blend]\nheadroom = {value}\n")
+    before = sorted(p.name for p in path.rglob("*"))
+    with pytest.raises(RigError) as err:
+        Rig(path)
+    msg = str(err.value)
+    assert "\n" not in msg and "rig.toml" in msg and "headroom" in msg and "0..0.9" in msg, msg
+    assert sorted(p.name for p in path.rglob("*")) == before
+    # the good values read
+    for ok, want in (('"auto"', None), ("0.25", 0.25), ("0", 0.0)):
+        (path / "rig.toml").write_text(good + f"\n[blend]\nheadroom = {ok}\nwatchdog = false\nwatchdog_interval_s = 5\n")
+        cfg = Rig(path).config.blend
+        assert (cfg.headroom, cfg.watchdog, cfg.watchdog_interval_s) == (want, False, 5.0)
