@@ -3,6 +3,7 @@ bit, a save is all or nothing even under kill -9, malformed files are refused in
 the file, and start-up recovery settles what a crash left."""
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import random
@@ -262,10 +263,13 @@ def test_a_reader_beside_a_saving_thread_always_reads_one_whole_blend(tmp_path):
 
 _WRITER = """
 import sys
-sys.path[:0] = [{root!r}, {support!r}, {here!r}]
+sys.path.insert(0, {root!r})
 from pathlib import Path
-from coordinator.blend_store import save_blend, save_contributions
-from test_blend_store import _blend, _contributions
+import numpy as np
+from coordinator.blend_store import StoredBlend, save_blend, save_contributions
+from protos.blend import BlendMaps
+SLOTS = {slots!r}
+{generators}
 rig = Path(sys.argv[1])
 n = int(sys.argv[2])
 while True:
@@ -280,7 +284,9 @@ def test_kill_9_during_saves_leaves_the_old_or_the_new_blend_whole(tmp_path):
     new generation holds a random number of files); what is read is one whole blend, never a mix,
     recovery leaves only it, and the next save works. Six kills."""
     rng = random.Random(37)
-    script = _WRITER.format(root=str(ROOT), support=str(ROOT / "tests" / "support"), here=str(Path(__file__).parent))
+    # the writer runs this module's own generators, without importing the test module (and pytest)
+    script = _WRITER.format(root=str(ROOT), slots=SLOTS,
+                            generators="\n".join(inspect.getsource(f) for f in (_blend, _contributions)))
     rig = tmp_path / "rig"
     save_contributions(rig, *_contributions(0))
     save_blend(rig, _blend(0, h=96, w=128))
