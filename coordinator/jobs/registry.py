@@ -31,6 +31,7 @@ JOBS: dict[str, str] = {
     "compensate_sequence": "coordinator.compensation.sequence_job",
     "compensate_video": "coordinator.compensation.video_job",
     "coverage": "coordinator.coverage_job",
+    "blend": "coordinator.blending.blend_job",
 }
 
 

@@ -74,27 +74,38 @@ def uniformity(capture: np.ndarray, target: np.ndarray, covered: np.ndarray, *, 
 
 
 def seam_step(image: np.ndarray, contributions: Contributions, covered: np.ndarray, *, slots=None,
-              distance: float = 2.0, block: int = 3, percentile: float = 100.0) -> float:
+              distance: float | None = None, block: int = 3, along: int | None = None,
+              target: np.ndarray | None = None) -> float:
     """The largest relative luminance step across a projector's frame edge inside the covered area.
 
-    At every grid pixel on the edge of a slot's footprint (and at least ``distance + block`` px inside the
-    covered area) the luminance's ``block`` means are compared ``distance`` px to either side along the edge's
-    normal: ``|L_in / L_out - 1|``. Returns the ``percentile`` (default: the largest) over every edge pixel of
-    ``slots`` (default: every slot); 0.0 when no edge lies inside the covered area.
+    At every grid pixel on the edge of a slot's footprint (at least ``distance + block`` px inside the
+    covered area) the luminance's ``block`` x ``block`` means ``distance`` px to either side along the edge's
+    normal give a signed step ``L_in / L_out - 1``; the steps are averaged along the edge over ``along`` px
+    (a seam is a step all along an edge; the camera's noise is not), and the largest magnitude over every
+    edge of ``slots`` (default: every slot) is returned; 0.0 when no edge lies inside the covered area.
 
     Parameters
     ----------
     image : (h, w, 3) or (H, W, 3) float
         Light above black.
+    distance : grid px (default: ``block``, so the two means do not straddle the edge)
+    along : grid px (default: 2 ``block``)
+    target : (h, w, 3) float, optional
+        Steps of ``image / target`` instead of ``image`` (a target that rises across an edge is no seam).
     """
     c = contributions
     L = luma(to_grid(image, c.shape)) if np.asarray(image).ndim == 3 else to_grid(image, c.shape)
     k = max(int(block), 1)
+    d = float(k if distance is None else distance)
+    span = 2 * k if along is None else max(int(along), 1)
+    if target is not None:
+        t = luma(np.asarray(target, np.float32))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            L = np.where(t > 0, L / np.where(t > 0, t, 1.0), 0.0)
     Lb = cv2.blur(np.ascontiguousarray(L, np.float32), (k, k))
     cov = np.asarray(covered, bool)
-    reach = int(np.ceil(distance)) + k
-    inner = ndimage.binary_erosion(cov, iterations=reach, border_value=0)
-    steps = []
+    inner = ndimage.binary_erosion(cov, iterations=int(np.ceil(d)) + k, border_value=0)
+    worst = 0.0
     for s in (slots or c.slots):
         fp = c.footprint(s)
         edge = fp & ~ndimage.binary_erosion(fp, border_value=1) & inner
@@ -109,13 +120,19 @@ def seam_step(image: np.ndarray, contributions: Contributions, covered: np.ndarr
         ey, ex, nx, ny = ey[ok], ex[ok], nx[ok] / norm[ok], ny[ok] / norm[ok]
         if not len(ey):
             continue
-        px = np.concatenate([ex + distance * nx, ex - distance * nx]).astype(np.float32)[None, :]
-        py = np.concatenate([ey + distance * ny, ey - distance * ny]).astype(np.float32)[None, :]
+        px = np.concatenate([ex + d * nx, ex - d * nx]).astype(np.float32)[None, :]
+        py = np.concatenate([ey + d * ny, ey - d * ny]).astype(np.float32)[None, :]
         vals = cv2.remap(Lb, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
         a, b = vals[:len(ey)], vals[len(ey):]
         good = (a > 0) & (b > 0)
-        if good.any():
-            steps.append(np.abs(a[good] / b[good] - 1.0))
-    if not steps:
-        return 0.0
-    return float(np.percentile(np.concatenate(steps), percentile))
+        if not good.any():
+            continue
+        steps = np.zeros(c.shape, np.float32)
+        count = np.zeros(c.shape, np.float32)
+        steps[ey[good], ex[good]] = a[good] / b[good] - 1.0
+        count[ey[good], ex[good]] = 1.0
+        win = 2 * span + 1
+        mean = cv2.boxFilter(steps, -1, (win, win), normalize=False) / np.maximum(
+            cv2.boxFilter(count, -1, (win, win), normalize=False), 1e-9)
+        worst = max(worst, float(np.abs(mean[ey[good], ex[good]]).max()))
+    return worst

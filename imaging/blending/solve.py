@@ -103,9 +103,9 @@ class BlendSolution:
     info: dict = field(default_factory=dict)
 
 
-def validate_headroom(headroom: float | None) -> float | None:
-    """``headroom`` as a float in 0..0.9 or None ("auto"); :class:`BlendError` (one line) otherwise."""
-    if headroom is None:
+def validate_headroom(headroom: float | str | None) -> float | None:
+    """``headroom`` as a float in 0..0.9, or None for None or "auto"; :class:`BlendError` (one line) otherwise."""
+    if headroom is None or (isinstance(headroom, str) and headroom.strip().lower() == "auto"):
         return None
     try:
         h = float(headroom)
@@ -249,7 +249,7 @@ def _plan(c: Contributions, active: list[str], h_fixed: float | None, slope: flo
     return _Plan(r, S, S_y, covered, lift, black_target, white, L, used, max(cost, 0.0))
 
 
-def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozenset(), headroom: float | None = None,
+def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozenset(), headroom: float | str | None = None,
                   map_scale: int = 4, lamp_gains: Mapping[str, float] | None = None,
                   smoothness: float = DEFAULT_SMOOTHNESS, ramp: float = DEFAULT_RAMP) -> BlendSolution:
     """The blend of the projectors not ``lost`` (see the module docstring).
@@ -263,7 +263,7 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
     ----------
     contributions : Contributions
     lost : slots left out (a lost node, a dead lamp); no capture is needed.
-    headroom : None ("auto") or 0..0.9
+    headroom : None or "auto", or 0..0.9
     map_scale : int
         Map grid = projector size / map_scale (rounded up).
     lamp_gains : slot -> measured lamp gain (scales that slot's contribution).

@@ -1,0 +1,143 @@
+"""Each projector's contribution from its blob samples: a smooth model in its own pixels.
+
+**White.** A projector's light at full white, seen on a planar surface, is smooth in its own
+pixels: lens fall-off and vignetting toward the corners, a hot spot, the distance and angle to
+the surface, its brightness and white point. Per channel, ``log T_c(u)`` is fitted with a
+polynomial of total degree ``degree`` in the projector's normalised coordinates (``degree`` 4: 15
+terms; lowered when a projector has fewer than three samples per term), by least squares with
+two reweighting rounds that drop samples more than 4 MADs off (a hand, a speck). The model is
+evaluated at every grid point inside the projector's frame and on the surface, clamped to the
+range its samples span (a polynomial is not trusted far beyond them), and 0 elsewhere.
+
+**Black.** One black capture measures the rig's total black. Assumed: every projector's black is
+the same fraction of its white, per channel (the same contrast ratio for units of one model), so
+``black_i = k_c T_ic`` with ``k_c`` the median of ``black_c / sum_i T_ic`` over the well-lit
+surface. A unit whose black is brighter than its peers' makes the beta floor a little uneven
+where it reaches; measure it alone to see (`shadowless response` reports each black).
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import cv2
+import numpy as np
+
+from imaging.blending.contributions import Contributions, apply_homography_grid, grid_shape, grid_to_camera, luma
+from imaging.blending.errors import BlendError
+from imaging.blending.sample_plan import SamplePlan
+from imaging.blending.samples import Samples
+
+__all__ = ["fit_contributions", "poly_basis", "MIN_SAMPLES"]
+
+#: fewer samples than this and a projector's light cannot be modelled
+MIN_SAMPLES = 6
+
+
+def poly_basis(a: np.ndarray, b: np.ndarray, degree: int) -> np.ndarray:
+    """``(n, terms)`` monomials ``a^p b^q``, ``p + q <= degree``, of normalised coordinates."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    pa, pb = [np.ones_like(a)], [np.ones_like(b)]
+    for _ in range(degree):
+        pa.append(pa[-1] * a)
+        pb.append(pb[-1] * b)
+    return np.stack([pa[p] * pb[d - p] for d in range(degree + 1) for p in range(d, -1, -1)], axis=-1)
+
+
+def _terms(degree: int) -> int:
+    return (degree + 1) * (degree + 2) // 2
+
+
+def _normalised(u: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    W, H = size
+    return (u[..., 0] + 0.5) / W * 2.0 - 1.0, (u[..., 1] + 0.5) / H * 2.0 - 1.0
+
+
+def _fit_log(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Robust least squares of ``A x = y`` (y: (n, 3)); returns x (terms, 3) and the inlier mask."""
+    keep = np.ones(len(y), bool)
+    x = None
+    for _ in range(3):
+        x, *_ = np.linalg.lstsq(A[keep], y[keep], rcond=None)
+        res = np.abs(A @ x - y).max(axis=1)
+        mad = float(np.median(res[keep])) * 1.4826 + 1e-4
+        new = res <= 4.0 * mad
+        if new.sum() < A.shape[1] or np.array_equal(new, keep):
+            break
+        keep = new
+    return x, keep
+
+
+def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, camera_to_projector: Mapping[str, np.ndarray],
+                      *, scale: int, surface: np.ndarray | None = None, degree: int = 4) -> tuple[Contributions, dict]:
+    """The rig's :class:`Contributions` from the blob samples and the black capture.
+
+    Parameters
+    ----------
+    plan : SamplePlan
+    samples : Samples
+    black : (H, W, 3) float32
+        The black capture (every projector black), full camera resolution.
+    scale : int
+        Grid = camera / scale.
+    surface : (h, w) bool, optional
+        The surface on the grid (default: everywhere).
+    degree : int
+        The polynomial's total degree (lowered for a projector with few samples).
+    camera_to_projector : slot -> (3, 3) float64
+        Full-camera pixels -> projector pixels (those the plan placed the blobs with).
+
+    Returns
+    -------
+    Contributions, and per slot its figures (samples, inliers, degree, rms log residual).
+    """
+    Hc, Wc = black.shape[:2]
+    shape = grid_shape((Wc, Hc), scale)
+    pts = grid_to_camera((Wc, Hc), shape)
+    surf = np.ones(shape, bool) if surface is None else np.asarray(surface, bool)
+    if surf.shape != shape:
+        raise ValueError(f"surface must be {shape} (the grid), got {surf.shape}")
+    mats = {s: np.asarray(camera_to_projector[s], np.float64) for s in plan.slots}
+    white: dict[str, np.ndarray] = {}
+    figures: dict[str, dict] = {}
+    for s in plan.slots:
+        M = mats[s]
+        size = plan.projector_size[s]
+        sites, values = samples.arrays(s)
+        lum = luma(values.astype(np.float32))
+        ok = np.all(values > 0, axis=1)
+        if ok.sum() >= MIN_SAMPLES:
+            ok &= lum > 0.05 * float(np.median(lum[ok]))
+        n = int(ok.sum())
+        if n < MIN_SAMPLES:
+            raise BlendError(f"projector {s}: only {n} usable blob samples (at least {MIN_SAMPLES} needed): is it "
+                             "powered, and does the camera see its light? (try a smaller --blob-spacing)")
+        deg = int(degree)
+        while deg > 0 and n < 3 * _terms(deg):
+            deg -= 1
+        a, b = _normalised(plan.projector_xy[s][sites[ok]], size)
+        y = np.log(values[ok])
+        x, inl = _fit_log(poly_basis(a, b, deg), y)
+        u = apply_homography_grid(M, pts)
+        ga, gb = _normalised(u, size)
+        inside = np.isfinite(ga) & np.isfinite(gb) & (np.abs(ga) <= 1.0) & (np.abs(gb) <= 1.0) & surf
+        logt = np.zeros((*shape, 3))
+        if inside.any():
+            vals = poly_basis(ga[inside], gb[inside], deg) @ x
+            lo, hi = y[inl].min(axis=0) - 0.5, y[inl].max(axis=0) + 0.2
+            logt[inside] = np.clip(vals, lo, hi)
+        white[s] = np.where(inside[..., None], np.exp(logt), 0.0).astype(np.float32)
+        rms = float(np.sqrt(np.mean((poly_basis(a, b, deg)[inl] @ x - y[inl]) ** 2))) if inl.any() else math.nan
+        figures[s] = {"samples": n, "inliers": int(inl.sum()), "degree": deg, "rms_log": round(rms, 5)}
+    total = sum(white.values())
+    bgrid = cv2.resize(np.asarray(black, np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    lit = surf & (luma(total) > 0.2 * float(luma(total).max()))
+    k = np.zeros(3)
+    if lit.any():
+        k = np.maximum(np.median(bgrid[lit] / np.maximum(total[lit], 1e-9), axis=0), 0.0)
+    blk = {s: (white[s] * k[None, None, :].astype(np.float32)).astype(np.float32) for s in plan.slots}
+    sizes = {s: plan.projector_size[s] for s in plan.slots}
+    contributions = Contributions((Wc, Hc), scale, white, blk, mats, sizes)
+    return contributions, {"slots": figures, "black_fraction": [round(float(v), 6) for v in k]}
+
