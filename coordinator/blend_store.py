@@ -252,9 +252,18 @@ def _read_npy(path: Path, dtypes: tuple[str, ...], what: str) -> np.ndarray:
         raise BlendStoreError(str(exc)) from None
 
 
-def _json_text(doc: object, what: str) -> None:
+def _numpy_plain(value: object) -> object:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-able")
+
+
+def _plain_json(doc: Mapping, what: str) -> dict:
+    """``doc`` as plain JSON types (NumPy scalars and arrays become numbers and lists)."""
     try:
-        json.dumps(doc)
+        return json.loads(json.dumps(dict(doc), default=_numpy_plain))
     except (TypeError, ValueError) as exc:
         raise BlendStoreError(one_line(f"the {what} must be JSON-able ({exc})")) from None
 
@@ -272,7 +281,6 @@ def _check_blend(blend: StoredBlend) -> dict[str, np.ndarray]:
             raise BlendStoreError(f"blend maps for slot {slot}: expected BlendMaps, got {type(maps).__name__}")
     if not isinstance(blend.info, Mapping):
         raise BlendStoreError("a stored blend's info must be a dict")
-    _json_text(dict(blend.info), "blend's info")
     pictures = {}
     for name, pic in blend.pictures.items():
         if not isinstance(name, str) or not _NAME.match(name):
@@ -291,7 +299,7 @@ def save_blend(rig_dir: str | os.PathLike[str], blend: StoredBlend) -> Path:
     (nothing is written) and OSError when the disk refuses (the stored blend stays).
     """
     pictures = _check_blend(blend)
-    info = dict(blend.info)
+    info = _plain_json(blend.info, "blend's info")
 
     def write(gen: Path) -> tuple[dict, dict]:
         files = {}
@@ -359,7 +367,7 @@ def save_contributions(rig_dir: str | os.PathLike[str], arrays: Mapping[str, np.
         checked[key] = arr
     if not isinstance(meta, Mapping):
         raise BlendStoreError("the contributions' meta must be a dict")
-    _json_text(dict(meta), "contributions' meta")
+    meta = _plain_json(meta, "contributions' meta")
 
     def write(gen: Path) -> tuple[dict, dict]:
         files, names = {}, {}
@@ -367,7 +375,7 @@ def save_contributions(rig_dir: str | os.PathLike[str], arrays: Mapping[str, np.
             fname = f"array-{i:04d}.npy"
             files[fname] = _save_npy(gen / fname, checked[key])
             names[key] = fname
-        files["meta.json"] = _save_json(gen / "meta.json", dict(meta))
+        files["meta.json"] = _save_json(gen / "meta.json", meta)
         return files, {"kind": "contributions", "arrays": names}
 
     return _commit(_contributions_dir(rig_dir), "c", write)

@@ -93,6 +93,11 @@ def test_a_blend_and_contributions_round_trip_bit_for_bit(tmp_path):
     assert sorted(p.name for p in blend_dir(tmp_path).iterdir() if p.name.startswith("g")) == [_generation(tmp_path).name]
     assert len([p for p in (blend_dir(tmp_path) / "contributions").iterdir() if p.name[1:].isdigit()]) == 1
 
+    # the figures may be NumPy numbers (what a job computes): they are stored as plain JSON
+    save_blend(tmp_path, StoredBlend(_blend(4).maps, {"headroom": np.float32(0.25), "gains": np.array([1.0, 0.5]),
+                                                      "captures": np.int64(4)}))
+    assert load_blend(tmp_path).info == {"headroom": 0.25, "gains": [1.0, 0.5], "captures": 4}
+
     # clearing the blend alone keeps the contributions; clearing all removes both
     clear_blend(tmp_path, contributions=False)
     assert load_blend(tmp_path) is None and load_contributions(tmp_path) is not None
@@ -100,6 +105,23 @@ def test_a_blend_and_contributions_round_trip_bit_for_bit(tmp_path):
     clear_blend(tmp_path)
     assert load_blend(tmp_path) is None and load_contributions(tmp_path) is None
     assert not [p for p in blend_dir(tmp_path).rglob("*") if p.is_dir() and p.name[0] in "gc" and p.name[1:].isdigit()]
+
+
+def test_the_blend_jobs_contributions_come_back_whole(tmp_path):
+    """What the blend job stores (imaging.blending.Contributions.to_arrays) reads back as the same
+    Contributions: the failover recomputes from it."""
+    from imaging.blending.contributions import Contributions
+
+    rng = np.random.default_rng(5)
+    c = Contributions((64, 48), 4, {s: rng.random((12, 16, 3), dtype=np.float32) for s in SLOTS},
+                      {s: rng.random((12, 16, 3), dtype=np.float32) * 0.01 for s in SLOTS},
+                      {s: rng.random((3, 3)) + np.eye(3) for s in SLOTS}, {s: (32, 24) for s in SLOTS})
+    save_contributions(tmp_path, *c.to_arrays())
+    back = Contributions.from_arrays(*load_contributions(tmp_path))
+    assert (back.camera_size, back.scale, back.projector_size) == (c.camera_size, c.scale, c.projector_size)
+    for s in SLOTS:
+        for a, b in ((back.white, c.white), (back.black, c.black), (back.camera_to_projector, c.camera_to_projector)):
+            assert a[s].dtype == b[s].dtype and np.array_equal(a[s], b[s])
 
 
 @pytest.mark.parametrize("bad, words", [
