@@ -134,3 +134,33 @@ def test_a_damaged_stored_blend_is_said_on_export_and_refuses_an_import_into_it(
     line = one_line_error(rig_cli("import", tmp_path / "other.mpcdi", rig.path))
     assert "alpha-p2.npy: damaged" in line
     assert tree_digest(rig.path) == before
+
+
+def test_a_coordinator_started_on_the_imported_rig_gives_each_slot_its_maps(tmp_path):
+    """After an import, the coordinator serving the rig (its own start, no nodes) assigns each slot
+    the imported maps and reports the rig blended."""
+    import asyncio
+
+    from coordinator.app import CoordinatorApp
+    from protos.auth import read_token
+
+    rig = blended_table(tmp_path / "table")
+    out = tmp_path / "table.mpcdi"
+    assert rig_cli("export", rig.path, out).returncode == 0
+    fresh = new_rig(tmp_path / "fresh")
+    assert rig_cli("import", out, fresh.path).returncode == 0
+    want = load_blend(rig.path).maps
+
+    async def go():
+        app = CoordinatorApp(Rig(fresh.path), read_token(fresh.path / "token"), listen="127.0.0.1:0", advertise=False)
+        await app.start()
+        try:
+            served = {n: app.coordinator.rig.slot(n).blend for n in ("p1", "p2", "p3", "spare")}
+            return served, app.coordinator.blend_status()
+        finally:
+            await app.stop()
+
+    served, status = asyncio.run(go())
+    assert served["spare"] is None
+    assert all(served[n] is not None and same(served[n], want[n]) for n in ("p1", "p2", "p3"))
+    assert status.state == "blended" and status.blend_id
