@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "response": ("rigctl.compensation_cli", "measure each projector's luminance response; LUTs, brightness match"),
     "transport": ("rigctl.compensation_cli", "measure the rig's light transport (dot grids, all projectors at once)"),
     "compensate": ("rigctl.compensation_cli", "compensate the rig's blur for an image (shown) or a video (a new 16-bit asset)"),
+    "blend": ("rigctl.blend_cli", "blend the rig: per-pixel gain and black maps so every projector's light adds up evenly"),
     "room": ("sim.cli", "run the virtual room (simulated projectors, camera, table, hands)"),
     "demo": ("shadowless.demo", "the whole rig in the virtual room: what `make demo` runs"),
     "study": ("shadowless.study", "studies: Scheffé paired comparison, paired task times; in the room: a moving hand (motion), "
