@@ -15,7 +15,7 @@ from sim.photometry import Photometry
 from sim.rigs import LAYOUTS, layout_path
 from sim.room import Room
 from sim.scene import SUBSETS, load_layout, reference_scene, write_layout
-from sim.wire.service import DEFAULT_PORT, serve
+from sim.wire.service import DEFAULT_PORT, NO_SIGNAL, serve
 
 EPILOG = """\
 what it serves (one port, 127.0.0.1 by default):
@@ -107,6 +107,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     n.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     n.add_argument("--port", type=cli_types.int_range(0, 65535), default=None, help="port (default 50070; 0 picks a free one, printed at start)")
     n.add_argument("--no-truth", action="store_true", help="do not serve the RoomTruth service")
+    n.add_argument("--no-signal", choices=NO_SIGNAL, default="keep",
+                   help="what a projector shows once no stream feeds it (its node died or stopped): keep its last frame "
+                        "(default) or black, as a real projector that lost its source (its black level stays)")
 
 
 def photometry_args(args: argparse.Namespace) -> dict:
@@ -183,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
                 loop.add_signal_handler(sig, stop.set)
             except (NotImplementedError, RuntimeError):  # pragma: no cover - non-main thread / platform
                 pass
-        await serve(room, host=args.host, port=port, truth=not args.no_truth, on_ready=ready, stop=stop)
+        await serve(room, host=args.host, port=port, truth=not args.no_truth, on_ready=ready, stop=stop, no_signal=args.no_signal)
 
     try:
         asyncio.run(main())

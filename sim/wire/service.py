@@ -41,6 +41,14 @@ DEFAULT_CAPTURE_TIMEOUT_MS = 2000
 #: A node without an open stream still counts as streaming this long after its last frame (s).
 RECENT_S = 10.0
 
+#: What a projector shows once no Display stream feeds it any more (its node died or stopped: a
+#: node streams for as long as it runs): "keep" its last frame (the default, as the room always
+#: did), or "black" (input 0, as a projector that lost its source; its black level stays). With
+#: "black", frames sent by a one-shot stream (:meth:`sim.link.RoomClient.display`) go black as soon
+#: as it ends: keep a stream open (a node) for as long as its frames are to be seen. A killed
+#: process's stream ends as a clean one does, so the two cannot be told apart.
+NO_SIGNAL = ("keep", "black")
+
 
 @dataclass(frozen=True)
 class _Shown:
@@ -74,9 +82,12 @@ class _Worker:
 class RoomService(room_pb2_grpc.RoomServicer):
     """Projectors that show what nodes stream, and cameras that capture."""
 
-    def __init__(self, room: Room, worker: _Worker) -> None:
+    def __init__(self, room: Room, worker: _Worker, *, no_signal: str = "keep") -> None:
+        if no_signal not in NO_SIGNAL:
+            raise ValueError(f"no_signal must be one of {', '.join(NO_SIGNAL)}, got {no_signal!r}")
         self.room = room
         self._worker = worker
+        self.no_signal = no_signal
         self._pending: dict[str, tuple[np.ndarray, _Shown]] = {}
         self._pending_lock = threading.Lock()
         self._latest: dict[str, _Shown] = {}  # what arrived (loop thread)
@@ -166,7 +177,18 @@ class RoomService(room_pb2_grpc.RoomServicer):
         finally:
             for slot in opened:
                 self._streams[slot] -= 1
+            if self.no_signal == "black":
+                self._lose_signal([s for s in opened if self._streams[s] == 0])
         return room_pb2.DisplayAck(frames=accepted)
+
+    def _lose_signal(self, slots: list[str]) -> None:
+        """Show black on ``slots``, which no stream feeds any more (``no_signal="black"``)."""
+        for slot in slots:
+            w, h = self.room.projector_size(slot)
+            last = self._latest.get(slot, _Shown(0, 0, 0, ""))
+            with self._pending_lock:
+                self._pending[slot] = (np.zeros((h, w, 3), np.uint8), _Shown(last.frame_id, last.swap_rig_ns, last.host_monotonic_ns, "no-signal"))
+            log.info("room: no stream feeds %s any more; it shows black", slot)
 
     async def Capture(self, request, context):
         room = self.room
@@ -303,9 +325,14 @@ class RoomServer:
         0 picks a free port (see :attr:`port` after :meth:`start`).
     truth : bool
         Also serve ``RoomTruth`` (ground truth and hand control).
+    no_signal : "keep" or "black"
+        What a projector shows when its node's stream breaks off (:data:`NO_SIGNAL`).
     """
 
-    def __init__(self, room: Room, *, host: str = "127.0.0.1", port: int = DEFAULT_PORT, truth: bool = True) -> None:
+    def __init__(self, room: Room, *, host: str = "127.0.0.1", port: int = DEFAULT_PORT, truth: bool = True, no_signal: str = "keep") -> None:
+        if no_signal not in NO_SIGNAL:
+            raise ValueError(f"no_signal must be one of {', '.join(NO_SIGNAL)}, got {no_signal!r}")
+        self.no_signal = no_signal
         self.room = room
         self.host = host
         self.requested_port = port
@@ -323,7 +350,7 @@ class RoomServer:
     async def start(self) -> int:
         self._worker = _Worker()
         self._server = grpc.aio.server(options=SERVER_GRPC_OPTIONS)
-        self.service = RoomService(self.room, self._worker)
+        self.service = RoomService(self.room, self._worker, no_signal=self.no_signal)
         room_pb2_grpc.add_RoomServicer_to_server(self.service, self._server)
         names = [room_pb2.DESCRIPTOR.services_by_name["Room"].full_name]
         if self.truth:
@@ -366,8 +393,8 @@ class RoomServerThread:
     ``with RoomServerThread(room) as server: ... server.address ...``
     """
 
-    def __init__(self, room: Room, *, host: str = "127.0.0.1", port: int = 0, truth: bool = True) -> None:
-        self.server = RoomServer(room, host=host, port=port, truth=truth)
+    def __init__(self, room: Room, *, host: str = "127.0.0.1", port: int = 0, truth: bool = True, no_signal: str = "keep") -> None:
+        self.server = RoomServer(room, host=host, port=port, truth=truth, no_signal=no_signal)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
 
@@ -417,9 +444,10 @@ class RoomServerThread:
         self.stop()
 
 
-async def serve(room: Room, *, host: str = "127.0.0.1", port: int = DEFAULT_PORT, truth: bool = True, on_ready: Callable[[RoomServer], None] | None = None, stop: asyncio.Event | None = None) -> None:
+async def serve(room: Room, *, host: str = "127.0.0.1", port: int = DEFAULT_PORT, truth: bool = True, on_ready: Callable[[RoomServer], None] | None = None, stop: asyncio.Event | None = None,
+                no_signal: str = "keep") -> None:
     """Serve ``room`` until ``stop`` is set (or forever), then shut down gracefully."""
-    server = RoomServer(room, host=host, port=port, truth=truth)
+    server = RoomServer(room, host=host, port=port, truth=truth, no_signal=no_signal)
     await server.start()
     try:
         if on_ready is not None:

@@ -75,3 +75,62 @@ def test_a_lamp_switched_over_the_wire_changes_captures_and_truth(wall_room):
     assert list(client.projector_truth("r0c1").lamp) == [0.0, 0.0, 0.0]    # the refusals changed nothing
     client.set_lamp("r0c1", 1)
     np.testing.assert_array_equal(client.capture().image, before)
+
+
+STREAMER = """
+import sys, threading
+import numpy as np
+from sim.link import RoomClient
+address, slot, w, h = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+hold = threading.Event()
+
+def frames():
+    from protos import codec, room_pb2
+    yield room_pb2.DisplayedFrame(slot=slot, frame_id=7, image=codec.encode_image(np.full((h, w, 3), 255, np.uint8)))
+    print("sent", flush=True)
+    hold.wait()                      # a node that streams on until it is killed
+
+with RoomClient(address) as client:
+    client._call(client._room.Display, frames(), timeout=600)
+"""
+
+
+def test_a_killed_node_leaves_its_projector_black_when_asked():
+    """`--no-signal black`: a projector no stream feeds any more (its node was killed) shows black,
+    its black level staying, while the others keep theirs (without the flag every projector keeps
+    its last frame, as the room always did)."""
+    from waits import wait_until
+
+    room = subprocess.Popen(
+        [sys.executable, "-m", "shadowless", "room", "--layout", "wall-3x1", "--port", "0", "--no-noise",
+         "--projector-scale", "0.125", "--camera-scale", "0.125", "--no-signal", "black"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    nodes = {}
+    try:
+        m = re.search(r"listening on (127\.0\.0\.1:\d+)", room.stdout.readline())
+        assert m
+        with RoomClient(m.group(1)) as client:
+            w, h = client.projector_size("r0c1")
+            alone = {s: client.contribution(s)[..., 1] for s in ("r0c0", "r0c1")}
+            mid, left = (alone["r0c1"] > 0.2) & (alone["r0c0"] == 0), (alone["r0c0"] > 0.2) & (alone["r0c1"] == 0)
+            assert mid.sum() > 1000 and left.sum() > 1000
+            for slot in ("r0c0", "r0c1"):
+                nodes[slot] = subprocess.Popen([sys.executable, "-c", STREAMER, m.group(1), slot, str(w), str(h)],
+                                               stdout=subprocess.PIPE, text=True, cwd=ROOT)
+                assert nodes[slot].stdout.readline().strip() == "sent"
+            wait_until(lambda: client.capture().image, lambda img: img[mid].min() > 0.2 and img[left].min() > 0.2,
+                       what="r0c0's and r0c1's white on the wall")
+            nodes["r0c1"].kill()
+            nodes["r0c1"].wait()
+            dark = wait_until(lambda: client.capture().image, lambda img: img[mid].max() < 0.05,
+                              what="r0c1 black once its node is killed")
+            assert dark[mid].min() > 0                            # black, not off: its black level stays
+            assert dark[left].min() > 0.2                         # the live node's frame stays
+        room.send_signal(signal.SIGTERM)
+        assert room.wait(timeout=30) == 0
+    finally:
+        for p in (*nodes.values(), room):
+            if p.poll() is None:
+                p.kill()
+                p.wait()
