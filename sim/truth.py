@@ -236,7 +236,8 @@ class Truth:
             return self._full(camera, uv.reshape(*view.shape, 2), np.nan)
 
     def irradiance(self, slot: str, camera: int = 0, *, occluders: bool = True) -> np.ndarray:
-        """Albedo x peak x irradiance of ``slot`` at full white at each camera pixel's surface point.
+        """Albedo x peak x irradiance x profile (hot spot, vignetting) of ``slot`` at full white at each
+        camera pixel's surface point; the white point and the lamp are not in it (see :meth:`contribution`).
 
         Returns
         -------

@@ -206,3 +206,19 @@ def test_transport_with_a_white_point_is_the_capture():
         for c in range(3):
             total[..., c] += (T @ lum[..., c].ravel()).reshape(total.shape[:2])
     np.testing.assert_allclose(room.render_linear(), total, atol=2e-5)
+
+
+def test_the_camera_level_holds_with_uneven_light():
+    """The reference rig's camera is set so the powered projectors at full white reach 0.8 on its
+    axis; with spread units and hot spots it still is (or a hot spot would clip)."""
+    from sim.rigs import BENCH_LIGHT, scene
+
+    for light in (None, BENCH_LIGHT):
+        room = Room(scene("table", photometry=light, **SCALE), noise=False)
+        for s in room.slots:
+            room.set_frame(s, np.full((*room.projector_size(s)[::-1], 3), 255, np.uint8))
+        img = room.render_linear()
+        K = room.scene.cameras[0].pinhole.K
+        axis = img[int(round(K[1, 2])), int(round(K[0, 2]))]
+        np.testing.assert_allclose(axis.mean(), 0.8, atol=0.003)
+        assert img.max() < 0.85
