@@ -645,8 +645,6 @@ class Coordinator:
                 last_seen_age_ms=(now - sess.last_seen) * 1e3, last_swap_frame=sess.last_swap_frame,
                 last_swap_age_ms=(now - sess.last_swap_at) * 1e3 if sess.last_swap_at else math.nan,
                 frames_late=sess.late, frames_dropped=sess.dropped, frames_shown=sess.shown))
-        # the blend and any failover (Coordinator.blend_status, which the blending work adds; until then none)
-        blend = {"blend": self.blend_status()} if hasattr(self, "blend_status") else {}
         return RigStatus(
             rig_id=self.rig.config.rig_id, rig_name=self.rig.config.name, instance_id=self.instance_id,
             rig_dir=str(self.rig.path), protocol_version=PROTOCOL_VERSION, uptime_s=now - self.started,
@@ -656,7 +654,7 @@ class Coordinator:
             show_bytes_sent=self.show_bytes_sent, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
             refusals=self.refusals.summary(now), admission=self.admission.figures(), console=self._console_state(),
-            **blend)
+            blend=self.blend_status())
 
 
 def _same_machine(a: NodeInfo, b: NodeInfo) -> bool:

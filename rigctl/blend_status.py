@@ -12,7 +12,7 @@ from __future__ import annotations
 from coordinator.api import BlendStatus
 
 #: what an operator runs to measure a blend (said wherever there is none)
-MAKE_BLEND = "shadowless blend --rig-dir DIR"
+MAKE_BLEND = "shadowless blend RIG"
 
 
 def ago(seconds: float) -> str:
@@ -63,10 +63,16 @@ def failover_line(d: dict) -> str:
 
 def blend_lines(d: dict) -> list[str]:
     """`shadowless status`'s lines about the blend (``d``: :func:`blend_dict`)."""
+    message = d["message"].strip()
     if d["state"] == "none":
-        return [f"blend: none (each projector at one gain, no failover): measure one with `{MAKE_BLEND}`"]
+        lines = [f"blend: none (each projector at one gain, no failover): measure one with `{MAKE_BLEND}`"]
+        if message and "shadowless blend" not in message:        # why a stored blend is not in use
+            lines.append(f"blend: {message}")
+        return lines
     measured = f"measured {ago(d['age_s'])} ago" if d["age_s"] is not None else "measured (time unknown)"
-    lines = [f"blend: {measured}, headroom {_pct(d['headroom'])} (costs {_pct(d['brightness_cost'])} of brightness)"]
+    note = message.partition("; ")[2] if d["state"] == "blended" else ""    # e.g. no contributions: no failover
+    lines = [f"blend: {measured}, headroom {_pct(d['headroom'])} (costs {_pct(d['brightness_cost'])} of brightness)"
+             + (f"; {note}" if note else "")]
     if d["state"] == "failover" or d["lost"]:
         lines.append(failover_line(d))
     for lamp in d["lamps"]:

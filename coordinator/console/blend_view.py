@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 INFO_KEYS = ("created_at", "headroom", "brightness_cost", "uniformity_before", "uniformity_after", "captures",
              "colour_after", "map_scale")
 #: what the page says where there is no blend
-NO_BLEND = ("no blend in this rig yet: run the blend job (Jobs: blend here, or `shadowless blend --rig-dir DIR`) "
+NO_BLEND = ("no blend in this rig yet: run the blend job (Jobs: blend here, or `shadowless blend RIG`) "
             "once the projectors are calibrated")
 
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 from aiohttp import web
 
-from coordinator.api import NodeState, RigStatus
+from coordinator.api import BlendStatus, NodeState, RigStatus
 from coordinator.jobs.registry import JOBS
 from coordinator.rig import HomographyPose, SlotState
 from coordinator.sync import FrameResult, percentile
@@ -119,12 +119,27 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
 
 def _blend(status: RigStatus) -> dict[str, Any]:
     """The blend and any failover: instants as unix times (the page counts the time since itself,
-    so the snapshot does not change every second)."""
+    so the snapshot does not change every second), and of the coordinator's line only what does
+    not count time (:func:`stable_message`)."""
     b = status.blend
     return {"state": b.state, "blend_id": b.blend_id, "created_at": _num(b.created_at, 3) if b.created_at else None,
             "headroom": _num(b.headroom, 4), "brightness_cost": _num(b.brightness_cost, 4), "lost": list(b.lost),
             "since": _num(b.since, 3) if b.since else None, "covered": b.covered,
-            "lamps": [{"slot": s, "gain": _num(g, 3)} for s, g in b.lamps], "message": b.message}
+            "lamps": [{"slot": s, "gain": _num(g, 3)} for s, g in b.lamps], "message": stable_message(b)}
+
+
+def stable_message(b: BlendStatus) -> str:
+    """The part of the blend's line (``coordinator.blending.state``) that does not count time.
+
+    In failover the line is ``WHO AND SINCE WHEN: VERDICT`` (``r2c3 lost 12 s ago: 24 projectors
+    cover its footprint, uniformity kept``): the verdict. Blended, it is ``measured 2 h ago ...;
+    NOTE``: the note, if any. With no blend it holds no age: all of it.
+    """
+    if b.state == "failover":
+        return b.message.partition(": ")[2].strip()
+    if b.state == "blended":
+        return b.message.partition("; ")[2].strip()
+    return b.message
 
 
 def _before_auth(status: RigStatus) -> dict[str, Any]:

@@ -11,11 +11,15 @@ import time
 
 import pytest
 
+import numpy as np
+
 from coordinator.api import BlendStatus, RigStatus
+from coordinator.blend_store import StoredBlend, save_blend
 from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.wire import control_messages
 from protos.auth import read_token
+from protos.blend import BlendMaps
 from rigctl.blend_status import ago, blend_lines
 from rigctl.commands import status_dict, status_table
 
@@ -38,7 +42,7 @@ def test_no_blend_says_how_to_make_one():
     lines, d = text_and_json(BlendStatus())
     blend = [line for line in lines if line.startswith(("blend", "failover", "lamp"))]
     assert blend == ["blend: none (each projector at one gain, no failover): measure one with "
-                     "`shadowless blend --rig-dir DIR`"]
+                     "`shadowless blend RIG`"]
     assert d == {"state": "none", "blend_id": "", "created_at": None, "age_s": None, "headroom": 0.0,
                  "brightness_cost": 0.0, "lost": [], "since": None, "lost_for_s": None, "covered": True, "lamps": [],
                  "message": ""}
@@ -50,6 +54,21 @@ def test_a_blend_says_when_it_was_measured_and_what_its_headroom_costs():
     assert not [line for line in lines if line.startswith(("failover", "lamp"))]
     assert (d["state"], d["blend_id"], d["created_at"], d["age_s"]) == ("blended", "b1", NOW - 7200, 7200.0)
     assert (d["headroom"], d["brightness_cost"], d["lost"], d["since"]) == (0.08, 0.08, [], None)
+
+
+def test_a_note_on_the_blend_and_a_blend_not_in_use_are_said():
+    noted = BlendStatus(state="blended", created_at=NOW - 60, headroom=0.1, brightness_cost=0.1,
+                        message="blended (measured 1 min ago): headroom 10% held for failover costs 10% of "
+                                "brightness; no contributions stored, so no failover")
+    lines, _ = text_and_json(noted)
+    assert ("blend: measured 60 s ago, headroom 10 % (costs 10 % of brightness); no contributions stored, so no "
+            "failover") in lines
+    unusable = BlendStatus(message="blend/g000003/info.json: damaged (its checksum differs)")
+    lines, d = text_and_json(unusable)
+    assert [line for line in lines if line.startswith("blend")] == [
+        "blend: none (each projector at one gain, no failover): measure one with `shadowless blend RIG`",
+        "blend: blend/g000003/info.json: damaged (its checksum differs)"]
+    assert d["message"] == unusable.message
 
 
 def test_a_failover_is_one_line_with_the_coordinators_count_and_the_verdict():
@@ -88,37 +107,60 @@ def sh(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=120)
 
 
+async def status_both(conn: list[str]) -> tuple[dict, str]:
+    """`shadowless status --json` and `shadowless status`, run side by side: the JSON's blend, the text."""
+    as_json, as_text = await asyncio.gather(asyncio.to_thread(sh, "status", "--json", *conn),
+                                            asyncio.to_thread(sh, "status", *conn))
+    assert as_json.returncode == 0 and as_text.returncode == 0, (as_json.stderr, as_text.stderr)
+    return json.loads(as_json.stdout)["blend"], as_text.stdout
+
+
 def test_the_status_command_prints_the_coordinators_blend(tmp_path):
-    """A running coordinator (no nodes needed) and the real `shadowless status` process: first as the
-    core reports a rig never blended, then in failover (the core's blend status set to it)."""
+    """A running coordinator (no nodes needed) and the real `shadowless status` process: as the core
+    reports a rig never blended, then one opened with a stored blend, then in failover (the core's
+    blend status set to it: the failover itself is the core's and its tests')."""
+    never = Rig(init_rig(tmp_path / "never", name="never", slots=grid_slots(1, 2), width=32, height=32))
+
+    async def never_blended():
+        app = CoordinatorApp(never, read_token(never.path / "token"), listen="127.0.0.1:0", advertise=False)
+        await app.start()
+        try:
+            conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(never.path)]
+            d, text = await status_both(conn)
+            assert d["state"] == "none" and "blend: none" in text and "`shadowless blend RIG`" in text, text
+        finally:
+            await app.stop()
+
+    asyncio.run(never_blended())
     rig = Rig(init_rig(tmp_path / "rig", name="hall", slots=grid_slots(1, 2), width=32, height=32))
+    rng = np.random.default_rng(0)
+    save_blend(rig.path, StoredBlend({s: BlendMaps(rng.uniform(0.5, 1, (4, 8, 3)).astype(np.float32),
+                                                   np.zeros((4, 8), np.float32)) for s in rig.slots},
+                                     {"created_at": time.time() - 7300, "headroom": 0.125, "brightness_cost": 0.11}))
 
     async def go():
         app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
         await app.start()
         try:
             conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
-            r = await asyncio.to_thread(sh, "status", "--json", *conn)
-            assert r.returncode == 0, r.stderr
-            assert json.loads(r.stdout)["blend"]["state"] == "none"
-            r = await asyncio.to_thread(sh, "status", *conn)
-            assert "blend: none" in r.stdout and "shadowless blend" in r.stdout, r.stdout
+            d, text = await status_both(conn)
+            assert d["state"] == "blended" and d["headroom"] == 0.125 and d["brightness_cost"] == 0.11, d
+            assert 7300 <= d["age_s"] < 7900 and d["lost"] == [] and d["since"] is None, d
+            assert ("blend: measured 2.0 h ago, headroom 12 % (costs 11 % of brightness); no contributions stored, "
+                    "so no failover") in text.splitlines(), text
             since = time.time() - 30
             failover = BlendStatus(state="failover", blend_id="bb", created_at=since - 3600, headroom=0.1,
                                    brightness_cost=0.1, lost=("r0c1",), since=since, covered=True,
                                    lamps=(("r0c0", 0.52),), message="r0c1 lost: 1 projector covers its footprint")
             app.coordinator.blend_status = lambda: failover
-            r = await asyncio.to_thread(sh, "status", "--json", *conn)
-            assert r.returncode == 0, r.stderr
-            d = json.loads(r.stdout)["blend"]
+            d, text = await status_both(conn)
             assert d["state"] == "failover" and d["lost"] == ["r0c1"] and d["since"] == pytest.approx(since)
             assert 30 <= d["lost_for_s"] < 600 and d["lamps"] == [{"slot": "r0c0", "gain": 0.52}]
-            r = await asyncio.to_thread(sh, "status", *conn)
-            lines = r.stdout.splitlines()
-            assert "failover: r0c1 lost: 1 projector covers its footprint, uniformity kept" in lines, r.stdout
+            lines = text.splitlines()
+            assert "failover: r0c1 lost: 1 projector covers its footprint, uniformity kept" in lines, text
             assert "lamp r0c0 dimmed: estimated gain 0.52 (photometric watchdog)" in lines
             assert any(line.startswith("blend: measured 6") and line.endswith(" min ago, headroom 10 % (costs 10 % of "
-                                                                            "brightness)") for line in lines), r.stdout
+                                                                            "brightness)") for line in lines), text
         finally:
             await app.stop()
 

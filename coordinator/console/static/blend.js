@@ -7,7 +7,7 @@
 (() => {
   "use strict";
 
-  const MAKE = "shadowless blend --rig-dir DIR";
+  const MAKE = "shadowless blend RIG";
   let blend = null;               // the snapshot's blend
   let ticker = null;
 
@@ -26,13 +26,17 @@
     return Math.abs(p) < 10 && Math.round(p * 10) % 10 !== 0 ? `${p.toFixed(1)} %` : `${Math.round(p)} %`;
   }
 
+  // Who is out and since when (counted here), then the coordinator's verdict (how many projectors
+  // cover the footprint; the snapshot's message) or one made from the flags; whether uniformity is
+  // kept is said either way.
   function failoverText(b) {
     const lost = b.lost.length ? b.lost.join(", ") : "a projector";
     const when = b.since ? ` ${since(b.since)} ago` : "";
     const whose = b.lost.length > 1 ? "their footprints" : "its footprint";
-    const cover = b.covered ? `the others cover ${whose}, uniformity kept`
-      : `uniformity NOT kept: part of ${whose} has no other projector`;
-    return `${lost} out of the blend${when}: ${cover}`;
+    const kept = b.covered ? "uniformity kept" : "uniformity NOT kept: part of the lost light has no other projector";
+    let verdict = b.message || (b.covered ? `the others cover ${whose}` : `the others do not cover all of ${whose}`);
+    if (!verdict.includes("uniformity")) verdict += `, ${kept}`;
+    return `${lost} out of the blend${when}: ${verdict}`;
   }
 
   function lampText(l) {
@@ -47,11 +51,13 @@
     const line = $("blend-line");
     if (b.state === "none") {
       line.textContent = `No blend yet: each projector shows at one gain and nothing covers a lost one. ` +
-        `Run the blend job (Jobs: blend, above) or \`${MAKE}\` once the projectors are calibrated.`;
+        `Run the blend job (Jobs: blend, above) or \`${MAKE}\` once the projectors are calibrated.` +
+        (b.message && !b.message.includes("shadowless blend") ? ` (${b.message})` : "");
     } else {
       const measured = b.created_at ? `measured ${since(b.created_at)} ago` : "measured (time unknown)";
       line.textContent = `Blended: ${measured}, headroom ${pct(b.headroom)} ` +
-        `(costs ${pct(b.brightness_cost)} of brightness)`;
+        `(costs ${pct(b.brightness_cost)} of brightness)` +
+        (b.state === "blended" && b.message ? `; ${b.message}` : "");
     }
     line.dataset.state = b.state;
     const failing = b.state === "failover" || b.lost.length > 0;
@@ -61,7 +67,7 @@
     $("blend-alarm-text").textContent = failing ? failoverText(b) : "";
     const detail = $("blend-failover");
     detail.hidden = !failing;
-    detail.textContent = failing ? (b.message || failoverText(b)) : "";
+    detail.textContent = failing ? failoverText(b) : "";
   }
 
   function render(b) {

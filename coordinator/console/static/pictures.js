@@ -199,7 +199,7 @@
     if (!b || !b.url) {
       img.hidden = true;
       $("pic-blend-when").textContent = "";
-      summary.textContent = !b ? "No blend yet: run the blend job (Jobs: blend) or `shadowless blend --rig-dir DIR` " +
+      summary.textContent = !b ? "No blend yet: run the blend job (Jobs: blend) or `shadowless blend RIG` " +
         "once the projectors are calibrated; its before/after picture appears here."
         : (b.problem || "The stored blend has no before/after pictures.");
       summary.dataset.state = !b ? "none" : "problem";
