@@ -80,7 +80,7 @@ def blob_exposure(white: np.ndarray, plan: SamplePlan, *, level: float = 0.6, lo
     xs = np.clip(np.rint(plan.sites[:, 0]).astype(np.int64), 0, W - 1)
     ys = np.clip(np.rint(plan.sites[:, 1]).astype(np.int64), 0, H - 1)
     share = img[ys, xs].max(axis=1) / np.maximum(plan.candidates, 1)
-    top = float(np.percentile(share, 99)) if len(share) else 0.0
+    top = float(np.percentile(share, 90)) if len(share) else 0.0
     if not top > 0:
         return 1.0
     return float(np.clip(level / (1.5 * top), 1.0, longest))

@@ -26,7 +26,7 @@ def projector_light(u: np.ndarray, size: tuple[int, int], *, peak: float = 1.0, 
     b = (u[..., 1] + 0.5) / H * 2 - 1
     inside = (np.abs(a) <= 1) & (np.abs(b) <= 1)
     rho2 = (a * a + b * b) / 2
-    shape = (1 - falloff * rho2) * (1 + hotspot * np.exp(-((a - 0.1) ** 2 + (b + 0.05) ** 2) / 0.18))
+    shape = (1 - falloff * rho2) * (1 + hotspot * np.exp(-((a - 0.1) ** 2 + (b + 0.05) ** 2) / 0.5))
     light = peak * np.nan_to_num(shape)[..., None] * np.asarray(white, np.float64)[None, None, :]
     return np.where(inside[..., None], light, 0.0).astype(np.float32)
 
