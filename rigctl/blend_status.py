@@ -50,7 +50,6 @@ def failover_line(d: dict) -> str:
     """The failover in one line: the coordinator's own words when it gave them (they count the
     projectors that cover the lost footprints), else made from the fields; whether uniformity is
     kept is said either way."""
-    lost = ", ".join(d["lost"]) or "a projector"
     kept = "uniformity kept" if d["covered"] else "uniformity NOT kept: part of the lost light has no other projector"
     message = d["message"].strip()
     if message:
@@ -58,7 +57,9 @@ def failover_line(d: dict) -> str:
     when = f" {ago(d['lost_for_s'])} ago" if d["lost_for_s"] is not None else ""
     whose = "its footprint" if len(d["lost"]) <= 1 else "their footprints"
     cover = f"the others cover {whose}" if d["covered"] else f"the others do not cover all of {whose}"
-    return f"failover: {lost} lost{when}: {cover}, {kept}"
+    dimmed = [f"lamp of {x['slot']} at {_pct(x['gain'])}" for x in d["lamps"] if x["slot"] not in d["lost"]]
+    who = ", ".join(([f"{', '.join(d['lost'])} lost"] if d["lost"] else []) + dimmed) or "a projector lost"
+    return f"failover: {who}{when}: {cover}, {kept}"
 
 
 def blend_lines(d: dict) -> list[str]:

@@ -88,6 +88,14 @@ def test_lamps_named_by_the_watchdog_and_a_footprint_not_covered():
     assert d["lamps"] == [{"slot": "r0c0", "gain": 0.5}, {"slot": "r1c1", "gain": 0.0}] and d["covered"] is False
 
 
+def test_a_dimmed_lamp_still_in_the_blend_is_named_with_its_gain():
+    dimmed = BlendStatus(state="failover", created_at=NOW - 60, headroom=0.1, brightness_cost=0.1, since=NOW - 10,
+                         covered=True, lamps=(("r1c1", 0.5),))
+    lines, d = text_and_json(dimmed)
+    assert "failover: lamp of r1c1 at 50 % 10 s ago: the others cover its footprint, uniformity kept" in lines
+    assert "lamp r1c1 dimmed: estimated gain 0.50 (photometric watchdog)" in lines and d["lost"] == []
+
+
 @pytest.mark.parametrize("seconds, said", [(0, "0 s"), (12.4, "12 s"), (89, "89 s"), (90, "2 min"),
                                            (5399, "90 min"), (5400, "1.5 h"), (47 * 3600, "47.0 h"),
                                            (3 * 86400, "3 d"), (-5, "0 s")])

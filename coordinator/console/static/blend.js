@@ -30,13 +30,16 @@
   // cover the footprint; the snapshot's message) or one made from the flags; whether uniformity is
   // kept is said either way.
   function failoverText(b) {
-    const lost = b.lost.length ? b.lost.join(", ") : "a projector";
+    // who: the slots out of the blend, then the lamps the watchdog found dimmed (but still in it)
+    const dimmed = (b.lamps || []).filter((l) => !b.lost.includes(l.slot)).map((l) => `lamp of ${l.slot} dimmed to ${pct(l.gain)}`);
+    const lost = [b.lost.length ? `${b.lost.join(", ")} out of the blend` : "", ...dimmed].filter(Boolean).join(", ") ||
+      "a projector out of the blend";
     const when = b.since ? ` ${since(b.since)} ago` : "";
     const whose = b.lost.length > 1 ? "their footprints" : "its footprint";
     const kept = b.covered ? "uniformity kept" : "uniformity NOT kept: part of the lost light has no other projector";
     let verdict = b.message || (b.covered ? `the others cover ${whose}` : `the others do not cover all of ${whose}`);
     if (!verdict.includes("uniformity")) verdict += `, ${kept}`;
-    return `${lost} out of the blend${when}: ${verdict}`;
+    return `${lost}${when}: ${verdict}`;
   }
 
   function lampText(l) {
