@@ -12,6 +12,15 @@ image uploaded and rendered, then waited for (``finish``: the GPU's work counts,
 swap). Printed: upload and render time per frame (p50/p99), CPU per frame, resident memory
 (peak), and the installed size of the node's dependencies (``shadowless[node]``), which must not
 include SciPy, OpenCV or scikit-image.
+
+What a blend costs (``blend``): each worker then renders as many frames again, in blocks of
+``BLEND_BLOCK`` that take turns without and with blend maps of a quarter of the output's resolution
+(one RGBA16F texture, the node's dithered pipeline), so the two share the machine's drift; the
+render times' medians give ``blend.render_ratio`` (with / without; target <= 1.05 at 1080p) and the
+resident memory grown by the blended shader's first draw (the driver compiles its variant:
+``rss_shader_variant_mb``), making the maps, uploading them and rendering with them
+(``rss_maps_mb``) gives ``blend.rss_delta_mb``, both together (target <= 10 MB). The top-level figures are the default profile's; each
+profile's are under ``blend.profiles``.
 """
 from __future__ import annotations
 
@@ -39,6 +48,10 @@ PROFILES = {
                     "MESA_EXTENSION_OVERRIDE": "-GL_EXT_texture_norm16 -GL_EXT_color_buffer_float "
                                                "-GL_EXT_color_buffer_half_float -GL_OES_texture_float_linear"},
 }
+#: frames in a row with, then without, blend maps (the blend figures' interleaving)
+BLEND_BLOCK = 4
+#: the blend maps' resolution: the output's divided by this (a quarter, as a blend job makes them)
+BLEND_SCALE = 4
 FORBIDDEN = ("scipy", "opencv-python", "opencv-contrib-python", "opencv-contrib-python-headless",
              "opencv-python-headless", "scikit-image")
 
@@ -112,9 +125,66 @@ def _worker(args: argparse.Namespace) -> dict:
                 # array once uploaded (node/presenter.py), unlike the bench's rotating set of images
                 "node_rss_mb": round(_rss_mb() - sum(i.nbytes for i in images) / 2**20, 1),
                 "renderer": str(r.ctx.info.get("GL_RENDERER", "")), "fallbacks": list(fallbacks(r.ctx)),
-                "frame_mean_level": round(float(image.mean()), 2)}
+                "frame_mean_level": round(float(image.mean()), 2),
+                "blend": _blend_cost(r, images, args.frames)}
     finally:
         r.release()
+
+
+def _blend_cost(r, images: list[np.ndarray], frames: int) -> dict:
+    """Render ``frames`` more frames, in blocks of BLEND_BLOCK without and with blend maps of a
+    BLEND_SCALE-th of the output's resolution: the render times with and without (ms, their medians
+    and ratio), and the resident memory the maps cost (made, uploaded, rendered with)."""
+    from protos.blend import BlendMaps
+
+    # the maps as the wire brings them (float16 bytes), made before the count starts
+    w, h = max(1, r.width // BLEND_SCALE), max(1, r.height // BLEND_SCALE)
+    x = np.linspace(0.0, 1.0, w, dtype=np.float32)
+    y = np.linspace(0.0, 1.0, h, dtype=np.float32)[:, None]
+    alpha = np.stack([np.clip(1.2 - x + 0 * y, 0, 1), np.clip(1.1 - x + 0 * y, 0, 1), 0.9 - 0.2 * x * y], axis=2)
+    wire = BlendMaps(alpha.astype(np.float32), (0.02 + 0.03 * x * y).astype(np.float32)).encode()
+    del x, y, alpha
+    rss_before = _rss_mb()
+    # the blended shader's first draw compiles the driver's variant of it (a node's presenter does
+    # that at its start, see node/presenter.py's warm-up): counted apart, and in the total
+    r.set_blend(BlendMaps(np.ones((1, 1, 3), np.float32), np.zeros((1, 1), np.float32)))
+    r.upload("warm", images[0])
+    r.render("warm")
+    r.ctx.finish()
+    r.forget("warm")
+    r.set_blend(None)
+    rss_compiled = _rss_mb()
+    maps = BlendMaps.decode(w, h, *wire)      # what the node decodes and keeps
+    r.set_blend(maps)
+    for i in range(2):                                     # its first draws, not counted
+        r.upload(f"b{i}", images[i % len(images)])
+        r.render(f"b{i}")
+        r.ctx.finish()
+        r.forget(f"b{i}")
+    rss_delta = _rss_mb() - rss_before
+    times: dict[bool, list[float]] = {False: [], True: []}
+    for i in range(max(2 * BLEND_BLOCK, frames)):
+        blended = (i // BLEND_BLOCK) % 2 == 1
+        if i % BLEND_BLOCK == 0:
+            r.set_blend(maps if blended else None)
+        r.upload(f"b{i}", images[i % len(images)])
+        t0 = time.perf_counter()
+        r.render(f"b{i}")
+        r.ctx.finish()
+        times[blended].append((time.perf_counter() - t0) * 1e3)
+        r.forget(f"b{i}")
+    r.set_blend(None)
+    return {"maps": [w, h], "rss_delta_mb": round(rss_delta, 2),
+            "rss_shader_variant_mb": round(rss_compiled - rss_before, 2),
+            "rss_maps_mb": round(rss_delta - (rss_compiled - rss_before), 2),
+            "samples_ms": {"without": times[False], "with": times[True]}}
+
+
+def _blend_ratio(blend: dict, without: list[float], with_maps: list[float]) -> dict:
+    """A profile's blend figures with the render times pooled over the rounds (ms, medians and ratio)."""
+    plain, blended = float(np.median(without)), float(np.median(with_maps))
+    return {**blend, "render_ms_p50_without": round(plain, 3), "render_ms_p50_with": round(blended, 3),
+            "render_ratio": round(blended / plain, 3) if plain > 0 else None, "frames": len(without) + len(with_maps)}
 
 
 def _percentiles(upload: list[float], render: list[float], cpu: list[float]) -> dict:
@@ -160,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(_worker(args)))
         return 0
     profiles: dict[str, dict] = {}
-    pooled = {name: {"upload": [], "render": [], "cpu": []} for name in PROFILES}
+    pooled = {name: {"upload": [], "render": [], "cpu": [], "without": [], "with": []} for name in PROFILES}
     if args.rounds is None:
         args.rounds = min(3, max(1, args.frames // 40))
     per_round = max(2, -(-args.frames // args.rounds))
@@ -177,10 +247,13 @@ def run(args: argparse.Namespace) -> int:
             result = json.loads(done.stdout.strip().splitlines()[-1])
             for key, values in result.pop("samples_ms").items():
                 pooled[name][key] += values
+            for key, values in result["blend"].pop("samples_ms").items():
+                pooled[name][key] += values
             profiles[name] = result   # memory and the picture: the last round's (they do not drift)
     for name, p in profiles.items():
         p.update(_percentiles(pooled[name]["upload"], pooled[name]["render"], pooled[name]["cpu"]))
         p["frames"] = len(pooled[name]["render"])
+        p["blend"] = _blend_ratio(p["blend"], pooled[name]["without"], pooled[name]["with"])
     d = profiles["default"]
 
     def vs_default(name: str, key: str) -> float | None:
@@ -196,6 +269,9 @@ def run(args: argparse.Namespace) -> int:
         "gles_vs_default_upload_p50": vs_default("gles", "upload_ms_p50"),
         "gles30_bare_vs_default_upload_p50": vs_default("gles30_bare", "upload_ms_p50"),
         "same_picture": len({p["frame_mean_level"] for p in profiles.values()}) == 1,
+        "blend": {"render_ratio": d["blend"]["render_ratio"], "rss_delta_mb": d["blend"]["rss_delta_mb"],
+                  "targets": {"render_ratio": 1.05, "rss_delta_mb": 10.0}, "maps": d["blend"]["maps"],
+                  "profiles": {name: p["blend"] for name, p in profiles.items()}},
         "node_install": node_install(),
     }, indent=2))
     return 0

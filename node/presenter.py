@@ -144,7 +144,8 @@ class Presenter:
         # blend maps: the next ones (maps or None, rig instant from which they show), None: no change due
         self._blend_next: tuple[BlendMaps | None, int] | None = None
         self._blend_unshown = False      # the renderer switched maps; no frame shown with them yet
-        self.blend_since_rig_ns = 0      # pts of the first frame shown with the maps on screen
+        self.blend_on_screen = ""        # the id of the maps on screen ("" none)
+        self.blend_since_rig_ns = 0      # pts of the first frame shown with them
 
     @property
     def estimate(self) -> ClockEstimate | None:
@@ -159,7 +160,7 @@ class Presenter:
         now = est.rig_time(self.clock.now()) if est is not None else None
         show = ShowStatus(revision=max(0, self.player.schedule.revision), state=self.player.state(now),
                           last_frame=self.timeline_last_frame, shown=self.timeline_shown, late=self.timeline_missed)
-        blend_id = "" if self._blend_unshown else self.renderer.blend_id
+        blend_id = self.blend_on_screen
         return PresenterStatus(shown=self.shown, late=self.late, dropped=self.dropped,
                                render_ms_p50=self.render_ms_p50(),
                                revision=self.assignment.revision if self.assignment else 0, show=show,
@@ -183,7 +184,8 @@ class Presenter:
 
     def _warm_up(self) -> None:
         """Draw once with every shader path so the driver compiles them now (llvmpipe JITs a
-        shader at its first draw, ~0.1 s), not while the first real frame waits for its deadline."""
+        shader at its first draw, ~0.1 s), not while the first real frame waits for its deadline
+        (nor the first frame shown with blend maps, at the instant every node switches)."""
         r = self.renderer
         img = np.zeros((r.height, r.width, 3), np.uint8)
         r.upload("__warm__", img)
@@ -193,6 +195,10 @@ class Presenter:
             r.render("__warm__", space="content", apply_lut=True)
             r.render("__warm__", space="content", apply_lut=False)
         r.render("__warm__", space="projector", apply_lut=False)
+        # the blended pipeline too: the first frame shown with blend maps must not wait for it
+        r.set_blend(BlendMaps(np.ones((1, 1, 3), np.float32), np.zeros((1, 1), np.float32)))
+        r.render("__warm__", space="content", apply_lut=True)
+        r.set_blend(None)
         self._ctx.finish()
         r.forget("__warm__")
         r.set_lut(None)
@@ -372,6 +378,7 @@ class Presenter:
     def _blend_shown(self, pts_ns: int) -> None:
         if self._blend_unshown:
             self._blend_unshown = False
+            self.blend_on_screen = self.renderer.blend_id
             self.blend_since_rig_ns = pts_ns
             log.info("blend %s on screen from rig instant %d", self.renderer.blend_id or "none", pts_ns)
 

@@ -91,7 +91,7 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
             # messages first; the show's timeline is followed between them (see Presenter.timeline_wait)
             wait = p.timeline_wait()
             if not conn_in.poll(0.5 if wait is None else min(wait, 0.5)):
-                if wait is not None:
+                if wait is not None and wait <= 0.5:    # its time came (else: idle, and ask again)
                     p.timeline_step()
                 else:
                     p.idle()

@@ -430,8 +430,10 @@ class Renderer:
         w, h = maps.size
         if w > self._max_texture or h > self._max_texture:
             raise ValueError(f"blend maps of {w}x{h} texels exceed this GPU's {self._max_texture} per side")
-        data = np.concatenate([maps.alpha, maps.beta[:, :, None]], axis=2).astype("<f2")
-        tex = self.ctx.texture((w, h), 4, np.ascontiguousarray(data).tobytes(), dtype="f2", alignment=1)
+        data = np.empty((h, w, 4), "<f2")      # the wire's float16, without a float32 copy of both maps
+        data[:, :, :3] = maps.alpha
+        data[:, :, 3] = maps.beta
+        tex = self.ctx.texture((w, h), 4, data, dtype="f2", alignment=1)
         tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
         tex.repeat_x = tex.repeat_y = False
         return maps.blend_id, tex, (w, h)

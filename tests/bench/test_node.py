@@ -1,5 +1,6 @@
 """`shadowless bench node`: both profiles run, on the contexts they claim, and render the same
-picture; the node's install is measured and holds no SciPy, OpenCV or scikit-image."""
+picture; the node's install is measured and holds no SciPy, OpenCV or scikit-image; what blend maps
+cost (render time with and without, resident memory) is measured in the same run."""
 from __future__ import annotations
 
 import json
@@ -21,6 +22,14 @@ def test_bench_node_measures_every_profile():
     for p in (default, gl31, gles, bare):
         assert p["render_ms_p50"] > 0 and p["upload_ms_p50"] > 0 and p["rss_mb"] > p["rss_interpreter_mb"] > 0
         assert 0 < p["node_rss_mb"] <= p["rss_mb"]
+    blend = d["blend"]
+    assert blend["maps"] == [24, 16], "a quarter of the output's resolution"
+    assert blend["render_ratio"] == blend["profiles"]["default"]["render_ratio"] > 0
+    assert blend["rss_delta_mb"] == blend["profiles"]["default"]["rss_delta_mb"]
+    for p in blend["profiles"].values():
+        assert p["render_ms_p50_with"] > 0 and p["render_ms_p50_without"] > 0 and p["frames"] >= 8
+        assert abs(p["render_ratio"] - p["render_ms_p50_with"] / p["render_ms_p50_without"]) <= 0.01
+        assert abs(p["rss_delta_mb"] - p["rss_shader_variant_mb"] - p["rss_maps_mb"]) <= 0.011
     install = d["node_install"]
     assert install["forbidden_present"] == []
     assert {"numpy", "grpcio", "moderngl", "av"} <= set(install["distributions"])
