@@ -30,7 +30,7 @@ from imaging.blending.predict import predict
 from imaging.blending.solve import compute_blend
 from protos.blend import BlendMaps
 
-__all__ = ["BLACK_MAPS", "MAX_PRECOMPUTED_BYTES", "Variant", "VariantKey", "Variants", "base_white", "compute_variant",
+__all__ = ["BLACK_MAPS", "DEAD_GAIN", "MAX_PRECOMPUTED_BYTES", "Variant", "VariantKey", "Variants", "base_white", "compute_variant",
            "map_scale_of", "variant_key"]
 
 log = logging.getLogger(__name__)
@@ -38,6 +38,9 @@ log = logging.getLogger(__name__)
 #: the maps a lost node's slot holds: it shows nothing until the rig switches back (a node that
 #: restarts joins dark, and the others still cover its footprint)
 BLACK_MAPS = BlendMaps(np.zeros((1, 1, 3), np.float32), np.zeros((1, 1), np.float32))
+#: a lamp whose gain is below this is dead: its projector is left out of the blend as if lost (its
+#: node, live, keeps the full blend's maps, so the watchdog sees the lamp come back)
+DEAD_GAIN = 0.1
 #: the most the precomputed variants' maps may hold (bytes); beyond it a variant is computed on a loss
 MAX_PRECOMPUTED_BYTES = 256 * 2 ** 20
 #: a point counts as kept when the variant's light reaches this fraction of the full blend's
@@ -45,7 +48,7 @@ KEPT_RATIO = 0.98
 #: passes of the correction toward the full blend's light (see :func:`compute_variant`)
 CORRECTIONS = 3
 
-#: (lost slots, lamp gains other than 1 as sorted (slot, gain) pairs)
+#: (slots whose node is lost, lamp gains other than 1 as sorted (slot, gain) pairs; below DEAD_GAIN: dead)
 VariantKey = tuple[frozenset, tuple]
 
 
@@ -65,8 +68,9 @@ class Variant:
     ----------
     key : VariantKey
     maps : dict slot -> BlendMaps
-        Every slot of the blend: the remaining ones' new maps, a lost node's :data:`BLACK_MAPS`
-        (a dead lamp's slot keeps its full-blend maps: its node is live and shows them).
+        Every slot of the blend: the remaining ones' new maps, a lost node's :data:`BLACK_MAPS`,
+        a dead lamp's slot its full-blend maps (its node is live and shows them: when the lamp
+        comes back, the watchdog sees it).
     kept : float
         Fraction of the affected footprints (those of the lost and dimmed slots, within the full
         blend's covered area) where the variant's light is within 2 % of the full blend's.
@@ -147,10 +151,12 @@ def compute_variant(contributions: Contributions, base_maps: Mapping[str, BlendM
         return Variant(key, dict(base_maps), 1.0, {}, time.perf_counter() - t0)
     scale = map_scale or map_scale_of(base_maps, contributions)
     measured = [s for s in contributions.slots if s in base_maps]
-    lost_measured = frozenset(s for s in lost if s in contributions.white)
+    dead = {s for s, g in gains if g < DEAD_GAIN}
+    dim = {s: g for s, g in gains if s not in dead}
+    lost_measured = frozenset(s for s in set(lost) | dead if s in contributions.white)
     sol = compute_blend(contributions.without([s for s in contributions.slots if s not in base_maps]),
-                        lost=lost_measured, headroom=0.0, map_scale=scale, lamp_gains=dict(gains) or None)
-    dimmed = contributions.with_gains(dict(gains)) if gains else contributions
+                        lost=lost_measured, headroom=0.0, map_scale=scale, lamp_gains=dim or None)
+    dimmed = contributions.with_gains(dim) if dim else contributions
     pairs = {s: sol.maps[s] for s in sol.maps}
     gone = tuple(lost_measured)
 
@@ -176,12 +182,14 @@ def compute_variant(contributions: Contributions, base_maps: Mapping[str, BlendM
             maps[s] = BlendMaps(*pairs[s])
         elif s in lost:
             maps[s] = BLACK_MAPS
+        elif s in dead:
+            maps[s] = base_maps[s]
     for s in lost:          # a lost slot the contributions never measured (added since): dark too
         if s in base_maps and s not in maps:
             maps[s] = BLACK_MAPS
     # what is kept: the variant's light against the full blend's over the affected footprints
     got = light({s: (m.alpha, m.beta) for s, m in maps.items() if s in pairs})
-    affected_slots = [s for s in set(lost_measured) | {s for s, _ in gains} if s in contributions.white]
+    affected_slots = [s for s in set(lost_measured) | set(dim) if s in contributions.white]
     affected = np.zeros(contributions.shape, bool)
     for s in affected_slots:
         affected |= contributions.footprint(s)

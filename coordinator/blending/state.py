@@ -20,7 +20,7 @@ from typing import Any, Callable, Mapping
 
 from coordinator.api import BlendStatus
 from coordinator.blend_store import BlendStoreError, StoredBlend, load_blend, load_contributions
-from coordinator.blending.failover import MAX_PRECOMPUTED_BYTES, Variant, VariantKey, Variants, variant_key
+from coordinator.blending.failover import DEAD_GAIN, MAX_PRECOMPUTED_BYTES, Variant, VariantKey, Variants, variant_key
 from coordinator.rig import Rig
 from imaging.blending.contributions import Contributions
 from imaging.blending.errors import BlendError
@@ -29,8 +29,6 @@ __all__ = ["BlendState", "DEAD_GAIN", "age_text"]
 
 log = logging.getLogger(__name__)
 
-#: a lamp whose gain the watchdog puts below this is dead: its projector is left out as if lost
-DEAD_GAIN = 0.1
 #: the kept fraction of the affected footprints above which the status says "uniformity kept"
 KEPT_ENOUGH = 0.99
 
@@ -226,8 +224,8 @@ class BlendState:
         self._want()
 
     def wanted_key(self) -> VariantKey:
-        dead = {s for s, g in self.lamp_gains.items() if g < DEAD_GAIN}
-        return variant_key(set(self.lost_nodes) | dead, {s: g for s, g in self.lamp_gains.items() if s not in dead})
+        """(lost nodes, named lamps' gains): the variant the rig should show now."""
+        return variant_key(self.lost_nodes, self.lamp_gains)
 
     def _want(self, *, force: bool = False) -> None:
         """Switch to the wanted variant now if it is ready, else once a worker thread made it."""
@@ -306,7 +304,9 @@ class BlendState:
         lamps = tuple(sorted((s, float(g)) for s, g in self.lamp_gains.items()))
         common = dict(blend_id=self.blend_id, created_at=created, headroom=headroom, brightness_cost=cost, lamps=lamps)
         key = self.wanted_key()
-        lost, gains = key
+        lost_nodes, gains = key
+        dead = {s for s, g in gains if g < DEAD_GAIN}
+        lost = set(lost_nodes) | dead
         if not lost and not gains:
             when = f"measured {age_text(now - created)} ago" if created else "measured"
             msg = f"blended ({when}): headroom {headroom:.0%} held for failover costs {cost:.0%} of brightness"
@@ -322,7 +322,8 @@ class BlendState:
             what = f"{s} lost" if s in self.lost_nodes else f"lamp of {s} dead"
             parts.append(f"{what} {age_text(now - t)} ago")
         for s, g in gains:
-            parts.append(f"lamp of {s} at {g:.0%} for {age_text(now - self.lamps_since.get(s, now))}")
+            if s not in dead:
+                parts.append(f"lamp of {s} at {g:.0%} for {age_text(now - self.lamps_since.get(s, now))}")
         head = ", ".join(parts)
         if failure is not None and v is None:
             return BlendStatus(state="failover", lost=tuple(sorted(lost)), since=since, covered=False,
@@ -341,7 +342,7 @@ class BlendState:
 
 def _describe_key(key: VariantKey) -> str:
     lost, gains = key
-    parts = [f"{', '.join(sorted(lost))} out"] if lost else []
-    parts += [f"lamp of {s} at {g:.0%}" for s, g in gains]
+    parts = [f"{', '.join(sorted(lost))} lost"] if lost else []
+    parts += [f"lamp of {s} dead" if g < DEAD_GAIN else f"lamp of {s} at {g:.0%}" for s, g in gains]
     return "; ".join(parts) or "full blend"
 

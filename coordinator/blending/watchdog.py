@@ -6,15 +6,17 @@ It checks soon after a new still is on screen and then every ``interval_s`` (rig
 no job (a job holds the camera and the projectors), a stored blend with its contributions, a
 still shown through the poses of a planar rig (a timeline show or a played sequence changes
 under the capture, and a mesh rig's contributions have no homography to predict from), and no
-switch of maps under way. The fit is :func:`imaging.blending.watchdog.fit_gains` on the
-contributions' camera grid, each live projector's predicted light built from its measured white
-and black, its maps on screen and the content it shows; the capture runs in a worker thread.
+switch of maps under way. The fit is :func:`imaging.blending.watchdog.fit_changes` on the
+contributions' camera grid, away from footprint edges: which one or two lamps changed from what
+the last check found (all others held), each live projector's predicted light built from its
+measured white and black, its maps on screen and the content it shows. The capture (the mean of
+:data:`FRAMES` frames) and the fit run in a worker thread.
 
-A lamp is named when its gain is off 1 by more than :data:`NAME_TOLERANCE` and by more than three
-standard errors; a named lamp's gain is updated when it moved by more than
-:data:`CHANGE_TOLERANCE`; each change is one log line and re-blends the rig
+A lamp whose gain is off 1 by more than :data:`NAME_TOLERANCE` is named; a named lamp's gain is
+updated when the fit finds it moved by more than :data:`CHANGE_TOLERANCE`, and forgotten when it
+is back within the tolerance of 1. Each change is one log line and re-blends the rig
 (:meth:`coordinator.blending.state.BlendState.set_lamps`): a dimmed lamp by its gain, a dead one
-(gain below :data:`coordinator.blending.state.DEAD_GAIN`) as a lost projector.
+(gain below :data:`coordinator.blending.failover.DEAD_GAIN`) as a lost projector.
 """
 from __future__ import annotations
 
@@ -26,19 +28,23 @@ from typing import Callable
 
 import numpy as np
 
-from coordinator.blending.state import DEAD_GAIN, BlendState
+from coordinator.blending.failover import DEAD_GAIN
+from coordinator.blending.state import BlendState
 from coordinator.camera import Camera, CameraError, open_camera
 from coordinator.rig import HomographyPose
-from imaging.blending.watchdog import content_on_grid, fit_gains, grid_mean, maps_on_grid, predicted_light
+from imaging.blending.watchdog import (content_on_grid, fit_changes, grid_mean, maps_on_grid, predicted_light,
+                                       steady_cells)
 
 __all__ = ["CHANGE_TOLERANCE", "NAME_TOLERANCE", "LampWatchdog", "WatchdogCheck"]
 
 log = logging.getLogger(__name__)
 
-#: a lamp is named when its gain is off 1 by more than this (and by more than 3 standard errors)
+#: a lamp is named when its gain is off 1 by more than this
 NAME_TOLERANCE = 0.1
 #: a named lamp's gain is updated (and the rig re-blended) when it moved by more than this
 CHANGE_TOLERANCE = 0.05
+#: captures averaged per check
+FRAMES = 2
 #: after a still's presentation time or a switch of maps, the camera waits this long (ns)
 SETTLE_NS = 100_000_000
 #: the loop's tick (s): how soon a new still is checked
@@ -176,10 +182,12 @@ class LampWatchdog:
         slots = self.slots()
         maps = {s: st.rig.slot(s).blend for s in slots}
         poses = {s: st.rig.slot(s).pose.matrix for s in slots}
+        baseline = [st.lamp_gains.get(s, 1.0) for s in slots]
         spec = self.camera_specs()[0]
         contributions = st.contributions
         try:
-            result = await asyncio.to_thread(self._measure, spec, not_before, contributions, content, slots, maps, poses)
+            result = await asyncio.to_thread(self._measure, spec, not_before, contributions, content, slots, maps, poses,
+                                             baseline)
         except CameraError as exc:
             log.warning("watchdog: %s", exc)
             self.last = WatchdogCheck(at_ns=self.clock_ns(), skipped=f"camera: {exc}")
@@ -201,19 +209,26 @@ class LampWatchdog:
         return self.last
 
     def _measure(self, spec: str, not_before: int, contributions, content: np.ndarray, slots: list[str],
-                 maps: dict, poses: dict):
+                 maps: dict, poses: dict, baseline: list[float]):
         """Capture and fit (worker thread): (rig ns of the capture, GainFit)."""
-        cam = self.open_camera(spec)
-        try:
-            if hasattr(cam, "not_before"):
-                cam.not_before(not_before)
-            image = cam.capture()
-            at_ns = self.clock_ns()
-        finally:
-            cam.close()
         c = contributions
         shape = c.shape
-        capture = grid_mean(np.asarray(image, np.float32), shape)
+
+        def grab() -> list[np.ndarray]:
+            cam = self.open_camera(spec)
+            try:
+                if hasattr(cam, "not_before"):     # a room camera: one capture per opening, of frames
+                    cam.not_before(not_before)      # swapped in after the still and the maps
+                    return [cam.capture()]
+                return [cam.capture() for _ in range(FRAMES)]
+            finally:
+                cam.close()
+
+        frames: list[np.ndarray] = []
+        while len(frames) < FRAMES:
+            frames += [grid_mean(np.asarray(f, np.float32), shape) for f in grab()]
+        at_ns = self.clock_ns()
+        capture = np.mean(frames, axis=0)
         value = _linear(content)
         G2C = _grid_to_camera_matrix(c.camera_size, shape)
         columns = []
@@ -223,16 +238,15 @@ class LampWatchdog:
             m = maps.get(s)
             alpha, beta = (None, None) if m is None else maps_on_grid(m, G2P, c.projector_size[s], shape)[:2]
             columns.append(predicted_light(c.white[s], c.black[s], seen, alpha, beta))
-        valid = np.any(sum(c.white[s] for s in slots) > 0, axis=-1)
-        return at_ns, fit_gains(capture, columns, valid=valid)
+        valid = np.any(sum(c.white[s] for s in slots) > 0, axis=-1) & steady_cells([c.white[s] for s in slots])
+        return at_ns, fit_changes(capture, columns, valid=valid, baseline=baseline)
 
     def _decide(self, gains: dict[str, float], stderr: dict[str, float]) -> dict[str, float]:
         """The named lamps after a fit; tells the blend state (one log line per change)."""
         current = dict(self.state.lamp_gains)
         named: dict[str, float] = {}
         for s, g in gains.items():
-            off = abs(g - 1.0)
-            if off > NAME_TOLERANCE and off > 3.0 * stderr.get(s, 0.0):
+            if abs(g - 1.0) > NAME_TOLERANCE:
                 old = current.get(s)
                 named[s] = round(g, 2) if old is None or abs(g - old) > CHANGE_TOLERANCE else old
         for s in current:           # a lamp not in the fit (its node lost) stays as it was

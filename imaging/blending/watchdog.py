@@ -25,7 +25,13 @@ columns ``P_i`` are nearly parallel and only their sum is measured: the gains ar
 ill-conditioned. What separates them is each footprint's edge, fall-off and hot spot, and the
 blend maps themselves (which shape each projector's light differently). :class:`GainFit` reports
 the condition number of the (weighted, column-normalised) design and a standard error per gain,
-so a caller names a lamp only when its gain is off by more than its uncertainty allows.
+so a caller names a lamp only when its gain is off by more than its uncertainty allows. On the
+5x5 table (every projector reaches almost all of it) the condition number is in the thousands:
+:func:`fit_gains` cannot separate 25 gains from one capture. :func:`fit_changes` asks a
+question the capture can answer: which one or two lamps changed, all others as measured (a
+lamp dims or dies rarely, and one at a time); each hypothesis has one or two unknowns, and the
+hypotheses compete on their residuals. Footprint edges, where the light steps within a grid
+cell and the model is least exact, are left out (:func:`steady_cells`).
 
 Everything here is NumPy and SciPy (``scipy.optimize.lsq_linear``) on small arrays; OpenCV warps
 the maps and the content onto the camera grid.
@@ -41,8 +47,8 @@ from scipy.optimize import lsq_linear
 
 from protos.blend import BlendMaps
 
-__all__ = ["GainFit", "camera_grid_to_camera", "columns_for", "content_on_grid", "fit_gains", "gain_objective",
-           "grid_mean", "maps_on_grid", "predicted_light"]
+__all__ = ["GainFit", "camera_grid_to_camera", "columns_for", "content_on_grid", "fit_changes", "fit_gains",
+           "gain_objective", "grid_mean", "maps_on_grid", "predicted_light", "steady_cells"]
 
 #: Tukey's biweight constant (95 % efficiency under Gaussian noise), in robust standard deviations
 TUKEY_C = 4.685
@@ -68,6 +74,8 @@ class GainFit:
     iterations : int
     prior : float
         The weight the prior had on the mean squared relative residual (see :func:`fit_gains`).
+    changed : tuple of int
+        :func:`fit_changes` only: the columns whose gain it found changed (the others are 1).
     """
 
     gains: np.ndarray
@@ -76,7 +84,8 @@ class GainFit:
     inliers: float
     residual: float
     iterations: int
-    prior: float
+    prior: float = 0.0
+    changed: tuple[int, ...] = ()
 
 
 # ---------------------------------------------------------------------- grids
@@ -306,6 +315,131 @@ def fit_gains(capture: np.ndarray, columns: Sequence[np.ndarray], *, prior_sd: f
         condition = float("inf")
     return GainFit(gains=g, stderr=stderr, condition=condition, inliers=float(np.mean(w > 0)), residual=sigma,
                    iterations=done, prior=prior)
+
+
+def steady_cells(whites: Sequence[np.ndarray], *, drop: float = 0.15, size: int = 3) -> np.ndarray:
+    """(h, w) bool: grid cells away from every footprint edge, where each projector's light (its
+    white's luminance) varies over the ``size`` x ``size`` cells around by less than ``drop`` of
+    its largest value there, or is 0 throughout. At an edge the light steps inside a cell, and a
+    prediction sampled at the cell's centre is least exact."""
+    if not len(whites):
+        raise ValueError("at least one projector's light is needed")
+    ok = None
+    for wt in whites:
+        y = np.asarray(wt, np.float32).sum(axis=-1)
+        lo = cv2.erode(y, np.ones((size, size), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        hi = cv2.dilate(y, np.ones((size, size), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        here = ~((hi > 0) & (lo < (1.0 - drop) * hi))
+        ok = here if ok is None else ok & here
+    return ok
+
+
+def _bounded(G: np.ndarray, rhs: np.ndarray, hi: float) -> np.ndarray:
+    """argmin h'Gh - 2 h'rhs over 0 <= h <= hi, for a small positive-definite G."""
+    try:
+        h = np.linalg.solve(G, rhs)
+    except np.linalg.LinAlgError:
+        h = np.full(len(rhs), np.nan)
+    if np.all(np.isfinite(h)) and np.all(h >= 0) and np.all(h <= hi):
+        return h
+    L = np.linalg.cholesky(G + 1e-12 * np.trace(G) * np.eye(len(rhs)))
+    return lsq_linear(L.T, np.linalg.solve(L, rhs), bounds=(0.0, hi), method="bvls").x
+
+
+def fit_changes(capture: np.ndarray, columns: Sequence[np.ndarray], *, valid: np.ndarray | None = None,
+                baseline: Sequence[float] | None = None, max_changes: int = 2, threshold: float = 25.0, min_change: float = 0.05, max_gain: float = 1.5,
+                robust: bool = True, iterations: int = 3, floor: float = 0.02,
+                noise_floor: float = 0.002) -> GainFit:
+    """Which lamps changed, and their gains: every other projector's gain is its ``baseline`` (1:
+as measured; or what an earlier check found).
+
+    For k = 1 .. ``max_changes`` every set of k projectors is tried, each with its gains free in
+    0..``max_gain`` (a small bounded least-squares problem over the normal equations of the
+    relative residuals, as :func:`fit_gains` weighs them); the best set of k is taken when it
+    lowers the residual below the best of k - 1 by more than ``threshold`` times the residuals'
+    robust variance (25: five standard deviations for one unknown) and each of its gains moved by
+    at least ``min_change``. Robust (Tukey) weights are refitted ``iterations`` times.
+
+    Parameters
+    ----------
+    capture : (h, w, C) float32
+    columns : sequence of N (h, w, C) float32
+        As for :func:`fit_gains`.
+    valid : (h, w) bool, optional
+        Cells to use (e.g. :func:`steady_cells` within the covered region).
+    baseline : (N,) floats, optional
+        The gains held by the projectors that did not change (default all 1); a change is a move
+        away from it by at least ``min_change``.
+
+    Returns
+    -------
+    GainFit
+        ``gains`` the baseline but for ``changed``; ``stderr`` each gain's standard error were it the one
+        to change (the others held); ``condition`` that of the whole design, for the record.
+    """
+    if not (max_changes >= 1 and threshold > 0 and max_gain > 0 and iterations >= 1 and noise_floor > 0):
+        raise ValueError("max_changes >= 1, threshold, max_gain and noise_floor > 0, iterations >= 1")
+    A, b = _design(capture, columns, valid, floor)
+    M, N = A.shape
+    if M < N:
+        raise ValueError(f"{M} usable measurements cannot fit {N} gains (is the camera seeing the projectors?)")
+    from itertools import combinations
+
+    base = np.ones(N) if baseline is None else np.asarray(baseline, np.float64)
+    if base.shape != (N,) or not np.all(np.isfinite(base)):
+        raise ValueError(f"baseline must hold {N} finite gains, got shape {base.shape}")
+    w = np.ones(M)
+    g = base.copy()
+    changed: tuple[int, ...] = ()
+    sigma = noise_floor
+    for _ in range(iterations):
+        Aw = A * w[:, None]
+        G = Aw.T @ A
+        c = Aw.T @ b
+        bb = float(np.sum(w * b * b))
+        Gb = G @ base
+
+        def rss(x: np.ndarray) -> float:
+            return bb - 2.0 * float(x @ c) + float(x @ G @ x)
+
+        r = A @ g - b
+        kept = w > 0
+        sigma = max(1.4826 * float(np.median(np.abs(r[kept] - np.median(r[kept])))), noise_floor) if kept.any() \
+            else noise_floor
+        best_g, best_set, best_rss = base.copy(), (), rss(base)
+        for k in range(1, min(max_changes, N) + 1):
+            found = None
+            for T in combinations(range(N), k):
+                idx = list(T)
+                # the others held at their baseline: the right-hand side loses their light
+                rhs = c[idx] - (Gb[idx] - G[np.ix_(idx, idx)] @ base[idx])
+                h = _bounded(G[np.ix_(idx, idx)], rhs, max_gain)
+                x = base.copy()
+                x[idx] = h
+                v = rss(x)
+                if found is None or v < found[0]:
+                    found = (v, T, x)
+            v, T, x = found
+            if (best_rss - v) / sigma ** 2 < threshold or np.any(np.abs(x[list(T)] - base[list(T)]) < min_change):
+                break
+            best_g, best_set, best_rss = x, T, v
+        g, changed = best_g, best_set
+        if not robust:
+            break
+        r = A @ g - b
+        u = r / (TUKEY_C * sigma)
+        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+    Aw = A * np.sqrt(w)[:, None]
+    diag = np.einsum("ij,ij->j", Aw, Aw)
+    stderr = sigma / np.sqrt(np.maximum(diag, 1e-30))
+    norms = np.sqrt(diag)
+    if np.all(norms > 0):
+        sv = np.linalg.svd(Aw / norms, compute_uv=False)
+        condition = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    else:
+        condition = float("inf")
+    return GainFit(gains=g, stderr=stderr, condition=condition, inliers=float(np.mean(w > 0)), residual=sigma,
+                   iterations=iterations, changed=tuple(int(i) for i in changed))
 
 
 def columns_for(slots: Sequence[str], white: Mapping[str, np.ndarray], black: Mapping[str, np.ndarray],

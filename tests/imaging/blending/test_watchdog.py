@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imaging.blending.watchdog import (camera_grid_to_camera, content_on_grid, fit_gains, gain_objective, grid_mean,
-                                       maps_on_grid, predicted_light)
+from imaging.blending.watchdog import (camera_grid_to_camera, content_on_grid, fit_changes, fit_gains, gain_objective,
+                                       grid_mean, maps_on_grid, predicted_light, steady_cells)
 from protos.blend import BlendMaps
 
 H, W = 36, 48
@@ -153,3 +153,51 @@ def test_predicted_light_and_grid_mean():
     assert np.allclose(predicted_light(white, black, value), 0.5 * 0.8 + 0.01)
     img = np.arange(8 * 12 * 3, dtype=np.float32).reshape(8, 12, 3)
     assert np.allclose(grid_mean(img, (2, 3)), img.reshape(2, 4, 3, 4, 3).mean(axis=(1, 3)))
+
+
+def test_changed_lamps_are_found_where_the_dense_fit_cannot_separate_the_gains():
+    """Sixteen projectors with nearly the same footprint: one capture cannot give sixteen gains, but
+    it can say which one or two lamps moved. Checked against an exhaustive search over the single
+    changes, each gain on a fine grid."""
+    n = 16
+    rng = np.random.default_rng(9)
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    cols = []
+    for i in range(n):          # the same disc, each shifted by at most a cell or two, its own fall-off
+        cx, cy = W / 2 + rng.uniform(-1.5, 1.5), H / 2 + rng.uniform(-1.5, 1.5)
+        r2 = ((xx - cx) / (0.6 * W)) ** 2 + ((yy - cy) / (0.6 * H)) ** 2
+        light = np.clip(1.0 - r2 * (0.5 + 0.3 * rng.random()), 0.0, None)
+        cols.append((light[:, :, None] * np.ones(3) * 0.05).astype(np.float32))
+    truth = np.ones(n)
+    truth[3] = 0.5
+    capture = sum(g * col for g, col in zip(truth, cols))
+    capture = (capture * (1.0 + 0.005 * rng.standard_normal(capture.shape))).astype(np.float32)
+    dense = fit_gains(capture, cols)
+    assert dense.condition > 100 and np.max(np.abs(dense.gains - truth)) > 0.1, dense
+    found = fit_changes(capture, cols)
+    assert found.changed == (3,) and abs(found.gains[3] - 0.5) < 0.02, found
+    assert np.all(np.delete(found.gains, 3) == 1.0)
+    # brute force: every single change, its gain on a grid (0.01, then 0.001 around the best), by the same
+    # objective without the prior
+    def obj(j: int, g: float) -> float:
+        return gain_objective(np.where(np.arange(n) == j, g, 1.0), capture, cols, prior=0.0)
+
+    coarse = min((obj(j, g), j, g) for j in range(n) for g in np.arange(0.3, 0.71, 0.01))
+    best = min((obj(coarse[1], g), coarse[1], g) for g in coarse[2] + np.arange(-0.01, 0.0101, 0.001))
+    assert best[1] == 3 and abs(best[2] - found.gains[3]) < 0.002, best
+    # nothing changed: nothing found; two changed: both
+    assert fit_changes((sum(cols) * 1.0).astype(np.float32), cols).changed == ()
+    truth[11] = 0.0
+    two = fit_changes(sum(g * col for g, col in zip(truth, cols)).astype(np.float32), cols)
+    assert two.changed == (3, 11) and abs(two.gains[3] - 0.5) < 0.02 and two.gains[11] < 0.02, two
+    # a baseline: what an earlier check found is held, and only a move from it is a change
+    held = fit_changes(sum(g * col for g, col in zip(truth, cols)).astype(np.float32), cols,
+                       baseline=np.where(np.arange(n) == 3, 0.5, 1.0))
+    assert held.changed == (11,) and held.gains[3] == 0.5
+
+
+def test_steady_cells_leave_out_footprint_edges():
+    a = np.zeros((10, 10, 3), np.float32)
+    a[:, :5] = 1.0
+    steady = steady_cells([a])
+    assert steady[:, :3].all() and steady[:, 7:].all() and not steady[:, 4:6].any()
