@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-from dataclasses import replace
-
 import numpy as np
 
 from coordinator.app import CoordinatorApp
@@ -42,12 +40,7 @@ def expected(content: np.ndarray, maps: BlendMaps | None) -> np.ndarray:
 
 def set_blend(coord, slot: str, maps: BlendMaps | None, at_ns: int) -> None:
     """Change a slot's blend as any slot field changes: a new revision, pushed to its node."""
-    try:
-        coord.update_slot(slot, blend=maps, blend_at_ns=at_ns)
-    except TypeError:      # a core whose update_slot does not take the blend yet: the same, by hand
-        st = coord.rig.slots[slot]
-        coord.rig.slots[slot] = replace(st, blend=maps, blend_at_ns=at_ns, revision=st.revision + 1)
-        coord.by_slot[slot].assignment_event.set()
+    coord.update_slot(slot, blend=maps, blend_at_ns=at_ns)
 
 
 def snapshot(rig: LocalRig, slot: str) -> tuple[np.ndarray | None, dict]:
