@@ -10,8 +10,9 @@ are measured by the in-process parts and by ``bench compensation_room``); the ca
 the table by the ``calibrate`` job from clicked marks; the ``blend`` job measures through the room's
 camera.
 
-* **Failover**: with a flat white still on every projector, one node (the centre's) is killed
-  with SIGKILL and its projector goes dark (no signal). Reported: the time until the coordinator
+* **Failover**: during a looping flat-white timeline show (``--show still``: a still), one node
+  (the centre's) is killed with SIGKILL and its projector goes dark (no signal), once the
+  coordinator has computed every single loss's maps ahead (as it has long before a loss in a show). Reported: the time until the coordinator
   declares the loss (``BlendStatus.since``), the non-uniformity in the lost footprint right after
   the kill (the old maps: what failover saves) and once every remaining node shows its new maps,
   how many frame periods (at ``--fps``) after the declaration those maps were on screen (the
@@ -19,11 +20,14 @@ camera.
   node is started again and the time until the maps switched back.
 * **Watchdog**: one lamp dimmed to 50 % and another to 0 through the room's lamp switch while
   their nodes stay live; the time until the watchdog names each, its gain estimates against the
-  room's truth, and the non-uniformity over both footprints once re-blended.
+  room's truth, and the non-uniformity over both footprints once re-blended. The rig shows a flat
+  white still: the watchdog predicts the light of a still (a show would change under its capture).
 
-Non-uniformity is :func:`bench.uniformity_measure.nonuniformity` against the blend's target with
-all projectors (recomputed from the stored contributions), scored in the footprint with the scale
-of the whole covered area: a footprint that went darker as a whole counts.
+Non-uniformity is :func:`bench.uniformity_measure.nonuniformity` against what the blend of all
+projectors means the camera to see (recomputed from the stored contributions), scored in the
+footprint with the scale ``k`` of the capture before the change (same camera, same exposure), so
+light lost everywhere at once counts as well as an uneven footprint (``after_own_scale`` fits ``k``
+to the capture itself); ``light_kept`` is the footprint's light after over before.
 """
 from __future__ import annotations
 
@@ -39,7 +43,7 @@ import numpy as np
 
 from bench.calibration import table_points_from_truth
 from bench.compensation_room import points_doc
-from bench.uniformity_measure import nonuniformity
+from bench.uniformity_measure import nonuniformity, scale_of
 from bench.uniformity_room import blend_params, stored_target, truth_luts
 from bench.uniformity_scenes import Light, Missing, slots_of, table_room
 from coordinator.rig import HomographyPose, Rig
@@ -67,6 +71,7 @@ class Live:
     exposure: float = 1.0
     shown_pts: int = 0                 # the rig instant the flat white went on screen
     result: dict | None = None         # the blend job's result
+    ahead_s: float | None = None       # how long the coordinator took to compute the failover variants ahead
 
     @property
     def core(self):
@@ -124,8 +129,9 @@ async def _wait(what: str, pred, timeout: float, *, step: float = 0.005):
 
 
 @contextlib.asynccontextmanager
-async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog: bool):
-    """A room, its server, a coordinator in this process and one node process per slot, blended."""
+async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog: bool, show: str):
+    """A room, its server, a coordinator in this process and one node process per slot, blended, showing
+    flat white (``show``: "timeline", a looping show at ``args.fps``, or "still")."""
     from coordinator.app import CoordinatorApp
     from rigctl.job_command import ProgressView, run_job
     from sim.wire.service import RoomServerThread
@@ -145,7 +151,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
             H = room.truth.content_to_projector_homography(s, content)
             rig.update_slot(s, pose=HomographyPose(H / H[2, 2]), lut=lut, source="truth")
         _set_watchdog(local.rig_dir, watchdog)
-        if args.show == "timeline":
+        if show == "timeline":
             _add_white_clip(local.rig_dir, work / "white", content, args.fps)
         rig = Rig(local.rig_dir)
         app = CoordinatorApp(rig, local.token, listen=f"127.0.0.1:{local.port}", advertise=False,
@@ -165,7 +171,8 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                 result = await run_job(c, "blend", params, view=ProgressView())
                 _log(f"{len(slots)} projectors blended through the nodes ({time.perf_counter() - t:.0f} s)")
                 live = Live(room, server, local, app, c, list(slots), content)
-                if args.show == "timeline":
+                await _wait("the coordinator holding the new blend", lambda: _loaded(live, result), 60)
+                if show == "timeline":
                     await _wait_holding(c, slots)
                     play = await c.play_asset("white", loop=True, delay_s=0.5)
                     live.shown_pts = int(getattr(play, "anchor_ns", 0) or 0)
@@ -175,6 +182,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                     shown = await c.show(white, name="flat white")
                     live.shown_pts = int(getattr(shown, "pts_ns", 0))
                 await _wait("every node showing the blend", lambda: live.showing_assigned(slots), 60)
+                live.ahead_s = await _variants_ahead(live)
                 base = room.truth.camera(0).exposure
                 linear = room.render_linear(0, exposure=base)
                 top = float(np.percentile(linear.max(axis=-1), 99.9))
@@ -184,6 +192,35 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
         finally:
             local.close()
             await app.stop()
+
+
+def _switched(live: Live) -> bool:
+    """The coordinator shows the maps its state wants (no variant still being computed)."""
+    state = getattr(live.core, "blending", None)
+    if state is None or not hasattr(state, "wanted_key"):
+        return True
+    return state.applied == state.wanted_key()
+
+
+def _loaded(live: Live, result: dict) -> bool:
+    """The core took the blend the job stored (it reloads after the job; content shown before that reload
+    would be followed by a switch of maps that changes nothing on screen)."""
+    state = getattr(live.core, "blending", None)
+    want = result.get("blend_id") if isinstance(result, dict) else None
+    if state is None or not want:
+        return True
+    return state.blend_id == want and _switched(live)
+
+
+async def _variants_ahead(live: Live) -> float | None:
+    """Wait until the coordinator computed the maps of every single loss ahead (as it has long before a
+    loss in a running show); the seconds it took from here, or None when this build has no such step."""
+    variants = getattr(getattr(live.core, "blending", None), "variants", None)
+    if variants is None or not hasattr(variants, "wait_ahead"):
+        return None
+    t = time.perf_counter()
+    await variants.wait_ahead()
+    return round(time.perf_counter() - t, 2)
 
 
 def _add_white_clip(rig_dir: Path, folder: Path, content: tuple[int, int], fps: float) -> None:
@@ -245,13 +282,14 @@ def _target(live: Live, headroom):
 async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str]) -> dict:
     victim = "r2c2" if "r2c2" in slots else slots[len(slots) // 2]
     period_ns = 1e9 / args.fps
-    async with live_rig(args, work / name, light, slots, watchdog=False) as live:
+    async with live_rig(args, work / name, light, slots, watchdog=False, show=args.show) as live:
         headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
         target, covered = _target(live, args.headroom)
         footprint = live.room.truth.irradiance(victim, 0, occluders=False) > 0
         old_ids = {s: live.slot_blend_id(s) for s in slots}
         before = live.capture(args.frames, not_before_ns=live.shown_pts)
-        out: dict = {"slots": len(slots), "lost": victim, "headroom": headroom,
+        k = scale_of(before, target, covered)
+        out: dict = {"slots": len(slots), "lost": victim, "headroom": headroom, "variants_ahead_s": live.ahead_s,
                      "before_loss": _r(nonuniformity(before, target, covered, within=footprint))}
         st = live.blend_status()
         out["state_before"] = st.state
@@ -261,7 +299,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         live.local.nodes[victim].send_signal(signal.SIGKILL)
         live.room.set_active([s for s in slots if s != victim])
         dark = live.capture(1)
-        out["old_maps"] = _r(nonuniformity(dark, target, covered, within=footprint))
+        out["old_maps"] = _r(nonuniformity(dark, target, covered, within=footprint, scale=k))
         st = await _wait(f"{victim} declared lost", lambda: (lambda b: b if victim in b.lost else None)(
             live.blend_status()), 120)
         seen_ns = time.monotonic_ns()
@@ -276,11 +314,13 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["frames_after_declared"] = _r(max(0.0, (max(since) - declared_ns) / period_ns), 2)
         out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
         out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
+        out["message_after"] = live.blend_status().message
         late1 = _late(live, rest)
         out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
         after = live.capture(args.frames, not_before_ns=max(since))
-        out["after"] = _r(nonuniformity(after, target, covered, within=footprint))
-        out["after_whole"] = _r(nonuniformity(after, target, covered))
+        out["after"] = _r(nonuniformity(after, target, covered, within=footprint, scale=k))
+        out["after_own_scale"] = _r(nonuniformity(after, target, covered, within=footprint))
+        out["light_kept"] = _r(scale_of(after, target, covered & footprint) / scale_of(before, target, covered & footprint), 4)
         _log(f"{name}: {victim} declared lost {out['detect_s']} s after the kill; new maps {out['frames_after_declared']} "
              f"frames later; footprint {out['old_maps']} with the old maps -> {out['after']}")
         # the node returns: the maps switch back
@@ -292,8 +332,21 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         since = live.since_ns(slots)
         out["switch_back_s"] = _r((max(since) - t_back) / 1e9, 2)
         back = live.capture(args.frames, not_before_ns=max(since))
-        out["after_return"] = _r(nonuniformity(back, target, covered, within=footprint))
+        out["after_return"] = _r(nonuniformity(back, target, covered, within=footprint, scale=k))
         out["frame_period_ms"] = _r(period_ns / 1e6, 3)
+    return out
+
+
+def _last_check(live: Live) -> dict | None:
+    """The watchdog's last check: why it was skipped, or its fit's figures."""
+    dog = getattr(live.core, "lamp_watchdog", None)
+    last = getattr(dog, "last", None)
+    if last is None:
+        return None
+    out = {"skipped": last.skipped, "checks": getattr(dog, "checks", None)}
+    if not last.skipped:
+        out.update(gains={s: _r(g, 4) for s, g in last.gains.items()}, condition=_r(last.condition, 2),
+                   inliers=_r(last.inliers, 3), seconds=_r(last.seconds, 3))
     return out
 
 
@@ -328,48 +381,66 @@ async def part_watchdog(args, work: Path, light: Light) -> dict:
     slots = slots_of("P25" if not args.quick else args.failover_rigs.split(",")[0])
     dim, dead = ("r1c1", "r3c3") if "r3c3" in slots else (slots[0], slots[-1])
     truth = {dim: 0.5, dead: 0.0}
-    async with live_rig(args, work / "watchdog", light, slots, watchdog=True) as live:
+    # the watchdog predicts the light of a still shown through the poses (a show changes under its capture)
+    async with live_rig(args, work / "watchdog", light, slots, watchdog=True, show="still") as live:
+        dog = getattr(live.core, "lamp_watchdog", None)
+        if dog is None:
+            raise Missing("the coordinator has no photometric watchdog (Coordinator.lamp_watchdog) in this build")
         target, covered = _target(live, args.headroom)
         fp = (live.room.truth.irradiance(dim, 0, occluders=False) > 0) | (live.room.truth.irradiance(dead, 0, occluders=False) > 0)
+        k = scale_of(live.capture(args.frames, not_before_ns=live.shown_pts), target, covered)
         cfg = live.core.rig.config.blend
         out: dict = {"slots": len(slots), "interval_s": cfg.watchdog_interval_s, "truth": truth}
-        live.blend_status()
-        t0 = time.monotonic_ns()
+        # a check of the unchanged rig first: what the watchdog says with every lamp as new
+        t = time.monotonic_ns()
+        await _wait("a first watchdog check", lambda: dog.last is not None and dog.last.at_ns > t
+                    and not dog.last.skipped, 60, step=0.02)
+        out["before_change"] = _last_check(live)
+        out["named_before_change"] = {s: _r(g, 4) for s, g in live.blend_status().lamps}
+        t0 = time.monotonic_ns()         # the rig clock: this host's monotonic clock
         for s, g in truth.items():
             live.room.set_lamp(s, g)
         named: dict[str, float] = {}
-        gains: dict[str, float | None] = {}
+        gains: dict[str, float] = {}
+        seen: set[int] = set()
 
-        def check():
-            st = live.blend_status()
-            lamps = dict(st.lamps)
-            for s in truth:
-                if s not in named and (s in lamps or s in st.lost):
-                    named[s] = (time.monotonic_ns() - t0) / 1e9
-                if s in lamps:
-                    gains[s] = float(lamps[s])
+        def poll():
+            last = dog.last
+            if last is not None and last.at_ns > t0 and not last.skipped and last.at_ns not in seen:
+                seen.add(last.at_ns)
+                for s in truth:        # named by a check whose capture came after the change
+                    if s not in named and s in last.named:
+                        named[s] = (time.monotonic_ns() - t0) / 1e9
+                        gains[s] = float(last.named[s])
             return len(named) == len(truth)
 
         try:
-            await _wait("the watchdog naming both lamps", check, 30, step=0.02)
+            await _wait("the watchdog naming both lamps", poll, 30, step=0.01)
         except TimeoutError as exc:
             out["timeout"] = str(exc)
         st = live.blend_status()
+        out["last_check"] = _last_check(live)
+        out["checks_after_change"] = len(seen)
         out["named_s"] = {s: _r(v, 3) for s, v in named.items()}
         out["estimates"] = {s: _r(gains.get(s), 4) for s in truth}
         out["message"] = st.message
         out["detect_s"] = _r(max(named.values()), 3) if len(named) == len(truth) else None
-        errs = [abs(gains[s] - truth[s]) for s in truth if gains.get(s) is not None]
+        errs = [abs(gains[s] - truth[s]) for s in truth if s in gains]
         out["gain_error"] = _r(max(errs), 4) if len(errs) == len(truth) else None
-        if len(errs) < len(truth):
-            out["gain_note"] = "a lamp named without a gain estimate (only as lost) has no gain error"
         try:
-            await _wait("nodes showing the re-blended maps", lambda: live.showing_assigned(
-                [s for s in slots if s not in st.lost]), 60)
+            if not named:
+                raise TimeoutError("no lamp named: nothing re-blended")
+            t = time.monotonic_ns()
+            await _wait("the re-blend switched", lambda: _switched(live), 60)
+            out["reblend_after_named_s"] = _r((time.monotonic_ns() - t) / 1e9, 3)
+            st = live.blend_status()
             rest = [s for s in slots if s not in st.lost]
+            await _wait("nodes showing the re-blended maps", lambda: live.showing_assigned(rest), 60)
             since = live.since_ns(rest)
             after = live.capture(args.frames, not_before_ns=max(since))
-            out["after"] = _r(nonuniformity(after, target, covered, within=fp))
+            out["after"] = _r(nonuniformity(after, target, covered, within=fp, scale=k))
+            out["after_own_scale"] = _r(nonuniformity(after, target, covered, within=fp))
+            out["light_kept"] = _r(scale_of(after, target, covered & fp) / k, 4)
         except TimeoutError as exc:
             out["after"] = None
             out["after_note"] = str(exc)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["LUMA", "luminance", "block_means", "nonuniformity", "nonuniformity_map", "channel_deviation",
+__all__ = ["LUMA", "luminance", "block_means", "scale_of", "nonuniformity", "nonuniformity_map", "channel_deviation",
            "seam_steps", "resize_to"]
 
 #: Rec. 709 luminance weights of linear R, G, B
@@ -94,8 +94,14 @@ def _ratios(capture: np.ndarray, target: np.ndarray | None, mask: np.ndarray, bl
     return r, ok
 
 
+def scale_of(capture: np.ndarray, target: np.ndarray | None, mask: np.ndarray, *, block: int = 8) -> float:
+    """``k``, the median block ratio of luminance ``I / target`` over ``mask`` (NaN when no block counts)."""
+    r, ok = _ratios(luminance(capture), None if target is None else luminance(target), mask, block)
+    return float(np.median(r[ok])) if ok.any() else float("nan")
+
+
 def nonuniformity(capture: np.ndarray, target: np.ndarray | None, mask: np.ndarray, *, block: int = 8,
-                  quantile: float = 99.0, within: np.ndarray | None = None) -> float:
+                  quantile: float = 99.0, within: np.ndarray | None = None, scale: float | None = None) -> float:
     """p``quantile`` of ``|I / (k * target) - 1|`` on block means of luminance over ``mask``.
 
     Parameters
@@ -108,6 +114,9 @@ def nonuniformity(capture: np.ndarray, target: np.ndarray | None, mask: np.ndarr
     within : (H, W) bool, optional
         Score only the tiles wholly inside this region (e.g. a lost projector's footprint), with
         ``k`` still the median over all of ``mask``: a footprint that went darker as a whole counts.
+    scale : float, optional
+        ``k`` given (e.g. :func:`scale_of` of a capture before a change, same camera and exposure):
+        then light lost everywhere at once counts too.
 
     Returns
     -------
@@ -118,8 +127,8 @@ def nonuniformity(capture: np.ndarray, target: np.ndarray | None, mask: np.ndarr
     r, ok = _ratios(Y, T, mask, block)
     if not ok.any():
         return float("nan")
-    k = float(np.median(r[ok]))
-    if k <= 0:
+    k = float(np.median(r[ok])) if scale is None else float(scale)
+    if not k > 0:
         return float("nan")
     sel = ok
     if within is not None:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.uniformity_measure import (block_means, channel_deviation, luminance, nonuniformity, nonuniformity_map,
-                                      resize_to, seam_steps)
+                                      resize_to, scale_of, seam_steps)
 
 
 def test_block_means_match_a_loop_and_drop_partial_tiles():
@@ -57,6 +57,17 @@ def test_within_scores_a_region_against_the_scale_of_the_whole():
     fp[:40, :40] = True
     assert nonuniformity(img, None, mask, within=fp) == pytest.approx(0.04, abs=1e-9)
     assert nonuniformity(img, None, fp) == pytest.approx(0.0, abs=1e-12)     # alone it is even
+
+
+def test_a_given_scale_counts_light_lost_everywhere():
+    target = np.linspace(0.5, 1.0, 80)[None, :] * np.ones((80, 1))
+    mask = np.ones((80, 80), bool)
+    before = 2.0 * target
+    k = scale_of(before, target, mask)
+    assert k == pytest.approx(2.0)
+    after = before * (8 / 9)                  # one projector of nine gone, everywhere at once
+    assert nonuniformity(after, target, mask) == pytest.approx(0.0, abs=1e-12)
+    assert nonuniformity(after, target, mask, scale=k) == pytest.approx(1 / 9)
 
 
 def test_luminance_weights():
