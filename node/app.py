@@ -141,6 +141,11 @@ class Node:
         if self._show_asset is not None and self.presenter is not None:
             self._pass_asset(self._show_asset)
 
+    def _news(self) -> None:
+        """Other blend maps on the projector: the coordinator hears of it in a heartbeat at once."""
+        if self._stream is not None:
+            self._stream.heartbeat_now()
+
     def _estimate(self, est: ClockEstimate | None) -> None:
         if est is not None and self.presenter is not None:
             self.presenter.submit("clock", est)
@@ -182,6 +187,7 @@ class Node:
             self.presenter.stop()
             return 3
         self.presenter.attach(self._loop, self._report)
+        self.presenter.on_blend_change = self._news
         self.notifier.ready(f"{self.cfg.slot}: output {self.cfg.output} open, looking for the coordinator")
         watchdog = asyncio.create_task(self.notifier.run(), name="watchdog")
         backoff = self.cfg.backoff_min_s

@@ -145,6 +145,8 @@ class PresenterProcess:
         self.stats = PresenterStatus()
         self._ready = threading.Event()
         self._on_report: Callable[[SwapRecord | DropRecord | PreviewRecord], None] | None = None
+        #: called when the presenter's stats name other blend maps on screen (the node's heartbeat goes at once)
+        self.on_blend_change: Callable[[], None] | None = None
         self._alive_at = time.monotonic()
 
     def start(self) -> None:
@@ -196,7 +198,10 @@ class PresenterProcess:
             self.failed = payload
             self._ready.set()
         elif kind == "stats":
+            before = (self.stats.blend_id, self.stats.blend_since_rig_ns)
             self.stats = payload
+            if (payload.blend_id, payload.blend_since_rig_ns) != before and self.on_blend_change is not None:
+                self.on_blend_change()
         elif kind in ("swap", "drop", "preview") and self._on_report:
             self._on_report(payload)
 

@@ -194,3 +194,33 @@ def test_the_fetcher_calls_on_change_once_per_ready_or_given_up_asset(tmp_path):
     asyncio.run(go(link()))
     assert len(calls) == 1 and calls[0][0].ready
     fetcher.close()
+
+
+# ---------------------------------------------------------------- the blend on screen
+def test_other_maps_on_screen_send_one_heartbeat_at_once(tmp_path):
+    """The presenter's stats naming other blend maps (or the same maps from another instant) make
+    the node send a heartbeat at once; stats that change nothing of the blend do not."""
+    from node.presenter_process import PresenterProcess, PresenterSettings
+    from node.records import PresenterStatus
+
+    node = a_node(tmp_path)
+    proc = PresenterProcess(PresenterSettings(slot="r0c0", output_spec="offscreen", clock_offset_ns=0,
+                                              clock_drift_ppm=0.0, clock_anchor_ns=0))
+    proc.on_blend_change = node._news      # as Node.run wires it (the process itself is never started)
+    try:
+        async def body(link):
+            await batches(link, 1, "the session's first heartbeat")
+            proc._dispatch("stats", PresenterStatus(shown=5))                     # no blend news
+            proc._dispatch("stats", PresenterStatus(shown=6, blend_id="a", blend_since_rig_ns=10))
+            await wait_until_async(link.heartbeats, lambda n: n >= 2, what="the heartbeat the new maps send")
+            proc._dispatch("stats", PresenterStatus(shown=7, blend_id="a", blend_since_rig_ns=10))   # the same
+            node._report(SwapRecord(1, 0, 0, 0))
+            got = await batches(link, 3, "the swap's batch")
+            assert link.heartbeats() == 2 and got[2].heartbeat is None, "unchanged maps send no heartbeat"
+            proc._dispatch("stats", PresenterStatus(shown=8))                     # back to none
+            await wait_until_async(link.heartbeats, lambda n: n >= 3, what="the heartbeat for no maps")
+
+        with_stream(node, body, 60.0, batch_s=0.01)
+    finally:
+        for conn in (proc._to_child, proc._from_child, *proc._child_ends):
+            conn.close()
