@@ -151,8 +151,13 @@ class Contributions:
         return hit
 
     def footprint(self, slot: str) -> np.ndarray:
-        """``(h, w) bool``: where ``slot`` adds light."""
-        return np.any(self.white[slot] > 0, axis=-1)
+        """``(h, w) bool``: where ``slot`` adds light (computed once; do not modify it)."""
+        key = ("footprint", slot)
+        hit = self._coords.get(key)
+        if hit is None:
+            hit = self._coords[key] = np.any(self.white[slot] > 0, axis=-1)
+            hit.setflags(write=False)
+        return hit
 
     # ------------------------------------------------------------------ variants
     def without(self, slots: Iterable[str]) -> "Contributions":

@@ -46,7 +46,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from imaging.blending.contributions import LUMA, Contributions, apply_homography_grid, luma
+from imaging.blending.contributions import LUMA, Contributions, apply_homography_grid
 from imaging.blending.envelope import lower_envelope, upper_envelope
 from imaging.blending.errors import BlendError
 
@@ -136,6 +136,34 @@ def frame_weight(u: np.ndarray, size: tuple[int, int], ramp: float) -> np.ndarra
     return np.where(inside, np.maximum(r, WEIGHT_FLOOR), 0.0).astype(np.float32)
 
 
+def _weight(c: Contributions, slot: str, ramp: float) -> np.ndarray:
+    """``slot``'s weight on the grid (cached on ``c``: failover variants share it)."""
+    key = ("weight", slot, float(ramp))
+    hit = c._coords.get(key)
+    if hit is None:
+        hit = c._coords[key] = frame_weight(c.projector_coords(slot), c.projector_size[slot], ramp) * c.footprint(slot)
+    return hit
+
+
+def _texel_grid(c: Contributions, slot: str, map_scale: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(mapx, mapy)`` float32 (mh, mw): the grid position of each of ``slot``'s map texels (cached on ``c``)."""
+    key = ("texels", slot, int(map_scale))
+    hit = c._coords.get(key)
+    if hit is None:
+        W, H = c.projector_size[slot]
+        gh, gw = c.shape
+        cam_W, cam_H = c.camera_size
+        mw, mh = map_size((W, H), map_scale)
+        ux = (np.arange(mw) + 0.5) * (W / mw) - 0.5
+        uy = (np.arange(mh) + 0.5) * (H / mh) - 0.5
+        x = apply_homography_grid(np.linalg.inv(c.camera_to_projector[slot]), np.stack(np.meshgrid(ux, uy), axis=-1))
+        gx = (x[..., 0] + 0.5) * (gw / cam_W) - 0.5
+        gy = (x[..., 1] + 0.5) * (gh / cam_H) - 0.5
+        ok = np.isfinite(gx) & np.isfinite(gy)
+        hit = c._coords[key] = (np.where(ok, gx, 0).astype(np.float32), np.where(ok, gy, 0).astype(np.float32))
+    return hit
+
+
 def _fill_nearest(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """``values`` with every invalid pixel set to its nearest valid pixel's value (leading axes (h, w))."""
     if valid.all() or not valid.any():
@@ -173,7 +201,7 @@ def _plan(c: Contributions, active: list[str], h_fixed: float | None, slope: flo
     shape = c.shape
     gh, gw = shape
     luma64 = LUMA.astype(np.float64)
-    r = {s: frame_weight(c.projector_coords(s), c.projector_size[s], ramp) * c.footprint(s) for s in active}
+    r = {s: _weight(c, s, ramp) for s in active}
     S = np.zeros((gh, gw, 3), np.float64)
     B = np.zeros((gh, gw, 3), np.float64)
     M1 = np.zeros(shape, np.float64)  # the largest weight and the second largest (a lost slot's reach)
@@ -308,7 +336,6 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
     with np.errstate(divide="ignore", invalid="ignore"):
         Q = np.where(covered[..., None], target / np.where(S > 0, S, np.inf), 0.0).astype(np.float32)
         P = np.where(covered, lift / np.where(S_y > 0, S_y, np.inf), 0.0).astype(np.float32)
-    cam_W, cam_H = c.camera_size
     maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     uncovered: dict[str, float] = {}
     count = np.zeros(shape, np.int32)
@@ -319,16 +346,8 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
         valid = fp & covered
         grid_maps = np.concatenate([r[s][..., None] * Q, (r[s] * P)[..., None]], axis=-1)
         grid_maps = np.ascontiguousarray(_fill_nearest(grid_maps, valid) if valid.any() else np.zeros_like(grid_maps))
-        W, H = c.projector_size[s]
-        mw, mh = map_size((W, H), map_scale)
-        ux = (np.arange(mw) + 0.5) * (W / mw) - 0.5
-        uy = (np.arange(mh) + 0.5) * (H / mh) - 0.5
-        x = apply_homography_grid(np.linalg.inv(c.camera_to_projector[s]), np.stack(np.meshgrid(ux, uy), axis=-1))
-        gx = (x[..., 0] + 0.5) * (gw / cam_W) - 0.5
-        gy = (x[..., 1] + 0.5) * (gh / cam_H) - 0.5
-        ok = np.isfinite(gx) & np.isfinite(gy)
-        sampled = cv2.remap(grid_maps, np.where(ok, gx, 0).astype(np.float32), np.where(ok, gy, 0).astype(np.float32),
-                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        mapx, mapy = _texel_grid(c, s, map_scale)
+        sampled = cv2.remap(grid_maps, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         maps[s] = (np.clip(sampled[..., :3], 0.0, 1.0).astype(np.float32),
                    np.clip(sampled[..., 3], 0.0, 1.0).astype(np.float32))
         n = int(fp.sum())
