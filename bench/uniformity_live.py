@@ -166,7 +166,8 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                 _log(f"{len(slots)} nodes live ({time.perf_counter() - t:.0f} s)")
                 view = ProgressView()         # progress on stderr
                 await run_job(c, "calibrate", {"table_only": True, "table_points": points_doc(
-                    table_points_from_truth(room, click_noise_px=0.3)), "settle_s": 0.0}, view=view)
+                    table_points_from_truth(room, click_noise_px=0.3)), "settle_s": 0.0,
+                    "table_mm": [float(v) for v in room.scene.table.size]}, view=view)
                 t = time.perf_counter()
                 result = await run_job(c, "blend", params, view=ProgressView())
                 _log(f"{len(slots)} projectors blended through the nodes ({time.perf_counter() - t:.0f} s)")

@@ -184,15 +184,19 @@ async def blended_rig(room: Room, slots: list[str], path: Path, *, content_size:
     driver = RoomDriver(room, rig)
     if mesh_rig is None:
         points = points_doc(table_points_from_truth(room, click_noise_px=0.3))
+        # the content spans the room's surface (the wall's is not the 5x5 table's 1200 x 600 mm)
+        table_mm = [float(v) for v in room.scene.table.size]
         if poses == "calibrate":
             t = time.perf_counter()
-            cal = await driver.run("calibrate", {"mode": "multiplexed", "table_points": points, "settle_s": 0.0})
+            cal = await driver.run("calibrate", {"mode": "multiplexed", "table_points": points, "settle_s": 0.0,
+                                                "table_mm": table_mm})
             _log(f"{len(slots)} projectors: calibrated ({cal['captures']} captures, {time.perf_counter() - t:.0f} s)")
         else:
             for s in slots:
                 H = room.truth.content_to_projector_homography(s, content_size)
                 rig.update_slot(s, pose=HomographyPose(H / H[2, 2]), source="truth")
-            await driver.run("calibrate", {"table_only": True, "table_points": points, "settle_s": 0.0})
+            await driver.run("calibrate", {"table_only": True, "table_points": points, "settle_s": 0.0,
+                                           "table_mm": table_mm})
             notes.append("poses: the room's truth (the table mapped into the camera from clicked marks)")
     if luts == "response":
         t = time.perf_counter()
