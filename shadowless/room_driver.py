@@ -21,11 +21,11 @@ import numpy as np
 
 from coordinator.api import PlayResult
 from coordinator.camera import CameraError
-from imaging.compensation.texture_space import DeviceView, MeshCaster, mesh_warp
+from imaging.compensation.texture_space import DeviceView, MeshCaster, content_at_view, mesh_warp
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
 from coordinator.rig import Content, ProjectionPose, Rig
-from protos.spaces import warp_content
+from protos.spaces import blended_output, warp_content
 from sim.room import Room
 
 __all__ = ["RoomDriver", "RoomCamera"]
@@ -165,7 +165,14 @@ class RoomDriver:
             if img is None or st.pose is None:
                 frame = np.zeros((st.height, st.width, 3), np.uint8)
             elif isinstance(st.pose, ProjectionPose):
-                frame = mesh_warp(img, self.mesh_view(s), lut=st.lut, gain=st.gain, apply_lut=apply_lut)
+                view = self.mesh_view(s)
+                if apply_lut and st.blend is not None:      # the node's blended pipeline on the mesh's pixels
+                    vals = content_at_view(img, view)
+                    vals = np.repeat(vals, 3, axis=2) if vals.shape[2] == 1 else vals[:, :, :3]
+                    frame = blended_output(vals, st.blend.alpha, st.blend.beta, lut=st.lut, gain=st.gain)
+                    frame[~view.on_mesh] = 0
+                else:
+                    frame = mesh_warp(img, view, lut=st.lut, gain=st.gain, apply_lut=apply_lut)
             else:
                 frame = warp_content(img, st.pose.matrix, (st.width, st.height), lut=st.lut, gain=st.gain,
                                      apply_lut=apply_lut,

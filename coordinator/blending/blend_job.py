@@ -19,9 +19,14 @@ sets every slot's maps, which the nodes apply from their next frame. A projector
 response job's brightness match) multiplies what the blend asks of it, so the contributions are
 stored with it folded in.
 
-Planar rigs (a table, a wall) only for now: the contributions live on a camera grid and each
-projector's pixels are placed on it through its homography; a mesh rig needs another placement
-(:meth:`imaging.blending.contributions.Contributions.projector_coords`).
+The contributions live on a grid over the camera image. On a planar rig (a table, a wall) each
+projector's pixels are placed on it through its homography. A mesh rig (``experimental_mesh``)
+places them through the texture (:mod:`imaging.blending.mesh`: the camera's view of the mesh and
+each texel's point through each projector's 3x4 pose, from the 3D calibration), over the part of
+the image where the camera sees the mesh, and models each projector's light as a smooth function of
+its pixels times the cosine of its incidence over the squared distance. It is experimental: on the
+room's bust its own model predicts a non-uniformity near 30 % after blending (the shading varies
+faster than the maps and the blob samples follow), so it is off unless asked for.
 """
 from __future__ import annotations
 
@@ -38,9 +43,11 @@ from coordinator.compensation.jobkit import content_size, rig_geometry
 from coordinator.jobs import JobContext, JobError
 from coordinator.jobs.results import JobResult
 from coordinator.rig import HomographyPose
-from imaging.blending.contributions import Contributions, apply_homography_grid, grid_shape
+from imaging.blending.contributions import Contributions, apply_homography_grid, grid_shape, grid_to_camera
 from imaging.blending.errors import BlendError
 from imaging.blending.fit import fit_contributions
+from imaging.blending.mesh import mesh_projector_xy, texel_projector_table
+from imaging.compensation.texture_space import MeshCaster
 from imaging.blending.metrics import ratio_image, seam_step, to_grid, uniformity
 from imaging.blending.predict import predict
 from imaging.blending.sample_plan import plan_samples
@@ -104,14 +111,17 @@ def _surface(H: np.ndarray, content: tuple[int, int], camera: tuple[int, int], s
 
 
 def _check(ctx: JobContext, opts: BlendOptions) -> list[str]:
-    """The slots to blend; refusals (no pose, a 3D pose, no LUT) before anything is shown."""
+    """The slots to blend; refusals (no pose, planar and 3D poses mixed, no LUT) before anything is shown."""
     rig = ctx.rig
     ctx.camera_spec(opts.camera)
     slots = ctx.select_slots(opts.slots, need_pose=True)
     mesh = [s for s in slots if not isinstance(rig.slot(s).pose, HomographyPose)]
-    if mesh:
-        raise JobError(f"projector(s) {', '.join(mesh)} have a 3D pose: the blend job measures planar rigs (a table, "
-                       "a wall) only for now")
+    if mesh and len(mesh) < len(slots):
+        raise JobError(f"projector(s) {', '.join(mesh)} have a 3D pose and the others a planar one: blend a table "
+                       "rig's or a mesh rig's projectors, not both at once (--slots)")
+    if mesh and not opts.experimental_mesh:
+        raise JobError(f"projector(s) {', '.join(mesh)} have a 3D pose: the blend measures planar rigs (a table, a "
+                       "wall); a mesh rig's blend is experimental (experimental_mesh, --experimental-mesh)")
     no_lut = [s for s in slots if rig.slot(s).lut is None]
     if no_lut:
         raise JobError(f"projector(s) {', '.join(no_lut)} have no inverse-response LUT: the blend works in linear "
@@ -140,6 +150,41 @@ async def run(ctx: JobContext, opts: BlendOptions) -> BlendResult:
         raise
 
 
+async def _mesh_placement(ctx: JobContext, opts: BlendOptions, slots: list[str], cam: tuple[int, int], scale: int,
+                          content: tuple[int, int]) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """A mesh rig: the surface on the grid (where the camera sees the mesh) and each slot's projector
+    coordinates there, through the texture (:mod:`imaging.blending.mesh`), and the geometric factor of each
+    one's light there (:func:`imaging.blending.fit.fit_contributions`' ``shading``)."""
+    from coordinator.compensation.mesh_rig import mesh_geometry
+    from imaging.compensation.errors import CompensationError
+
+    try:
+        geo = await ctx.compute(mesh_geometry, ctx.rig, slots, opts.camera, projectors=True, camera_size=cam)
+    except CompensationError as exc:
+        raise JobError(str(exc)) from exc
+    shape = grid_shape(cam, scale)
+
+    def tables() -> dict[str, np.ndarray]:
+        mesh = geo.mesh
+        with MeshCaster(mesh.vertices, mesh.uvs, mesh.faces) as caster:
+            atlas = caster.atlas(content)
+        return {s: texel_projector_table(atlas, ctx.rig.slot(s).pose.matrix, geo.projectors[s]) for s in slots}
+
+    xy = await ctx.compute(mesh_projector_xy, geo.view.x, geo.view.y, await ctx.compute(tables), shape)
+    pts = grid_to_camera(cam, shape)
+    on = geo.view.on_mesh[np.clip(np.rint(pts[..., 1]).astype(int), 0, cam[1] - 1),
+                          np.clip(np.rint(pts[..., 0]).astype(int), 0, cam[0] - 1)]
+    surface = cv2.erode(on.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    shading = {}
+    for s in slots:   # irradiance's geometric factor: cos(incidence) / depth^2, through each projector's view
+        v = geo.projectors[s]
+        g = np.where(v.on_mesh, v.cos / np.maximum(v.depth, 1.0) ** 2, 0.0).astype(np.float32)
+        g /= max(float(np.median(g[v.on_mesh])) if v.on_mesh.any() else 1.0, 1e-30)
+        u = np.nan_to_num(xy[s], nan=-10.0).astype(np.float32)
+        shading[s] = cv2.remap(g, u[..., 0], u[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return surface, xy, shading
+
+
 async def _white(ctx: JobContext, opts: BlendOptions, shape: tuple[int, int]) -> np.ndarray:
     cw, ch = shape
     await ctx.show_content(np.ones((ch, cw), np.float32), apply_lut=True, settle_s=opts.settle_s)
@@ -150,23 +195,29 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
     t0 = time.monotonic()
     c0 = ctx.captures
     rig = ctx.rig
-    H, cal_size = rig_geometry(ctx, opts.camera)
     content = content_size(ctx)
+    if isinstance(rig.slot(slots[0]).pose, HomographyPose):
+        rig_geometry(ctx, opts.camera)          # refused before anything is shown when the table mapping is missing
 
     ctx.progress("white", "", 0, 1, "flat white, no blend")
     before = await _white(ctx, opts, content)
     cam = (before.shape[1], before.shape[0])
-    if cal_size != (0, 0) and tuple(cal_size) != cam:
-        raise JobError(f"camera {opts.camera} delivers {cam[0]}x{cam[1]} images but was calibrated at "
-                       f"{cal_size[0]}x{cal_size[1]}: calibrate again")
     ctx.progress("white", "", 1, 1, "flat white, no blend")
     scale = opts.grid_scale or max(1, int(math.ceil(max(cam) / GRID_TARGET)))
-    surface = _surface(H, content, cam, scale)
-    Hinv = np.linalg.inv(H)
-    c2p = {}
-    for s in slots:
-        m = rig.slot(s).pose.matrix @ Hinv
-        c2p[s] = m / m[2, 2]
+    shading = None
+    if isinstance(rig.slot(slots[0]).pose, HomographyPose):
+        H, cal_size = rig_geometry(ctx, opts.camera)
+        if cal_size != (0, 0) and tuple(cal_size) != cam:
+            raise JobError(f"camera {opts.camera} delivers {cam[0]}x{cam[1]} images but was calibrated at "
+                           f"{cal_size[0]}x{cal_size[1]}: calibrate again")
+        surface = _surface(H, content, cam, scale)
+        Hinv = np.linalg.inv(H)
+        c2p = {}
+        for s in slots:
+            m = rig.slot(s).pose.matrix @ Hinv
+            c2p[s] = m / m[2, 2]
+    else:
+        surface, c2p, shading = await _mesh_placement(ctx, opts, slots, cam, scale, content)
     sizes = {s: ctx.projector_size(s) for s in slots}
     try:
         plan = await ctx.compute(plan_samples, cam, c2p, sizes, surface=surface, radius=opts.blob_radius,
@@ -197,13 +248,14 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
     tc = time.monotonic()
     try:
         measured, fit_figs = await ctx.compute(fit_contributions, plan, samples, black, c2p, scale=scale,
-                                               surface=surface, degree=opts.degree)
+                                               surface=surface, degree=opts.degree, shading=shading)
     except BlendError as exc:
         raise JobError(str(exc)) from exc
     gains = {s: float(rig.slot(s).gain) for s in slots}
     contributions = Contributions(measured.camera_size, measured.scale,
                                   {s: measured.white[s] * np.float32(gains[s]) for s in slots},
-                                  dict(measured.black), dict(measured.camera_to_projector), dict(measured.projector_size))
+                                  dict(measured.black), dict(measured.camera_to_projector), dict(measured.projector_size),
+                                  measured.projector_xy)
     headroom = None if opts.headroom == "auto" else float(opts.headroom)
     try:
         sol = await ctx.compute(compute_blend, contributions, headroom=headroom, map_scale=opts.map_scale,
@@ -214,7 +266,9 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
     ctx.progress("blend", "", 1, 1, f"headroom {sol.headroom:.3f}, brightness cost {sol.brightness_cost:.3f}",
                  value=sol.brightness_cost)
     maps = {s: BlendMaps(a, b) for s, (a, b) in sol.maps.items()}
-    predicted = await ctx.compute(lambda: predict(contributions, sol.maps, 1.0) - predict(contributions, sol.maps, 0.0))
+    # what a viewer should see of a flat white: the target on the even black floor (both on the grid)
+    seen = sol.target + sol.black_target[..., None] * sol.white_point[None, None, :]
+    predicted = await ctx.compute(lambda: predict(contributions, sol.maps, 1.0))
 
     # set the blend on the projectors, then see it
     for s in slots:
@@ -226,17 +280,17 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
     def figures() -> dict:
         shape = sol.target.shape[:2]
         k = max(3, int(round(max(shape) / BLOCKS)))  # block means: the rig's evenness, not the camera's noise
-        b = to_grid(black, shape)
-        lit_before, lit_after = to_grid(before, shape) - b, to_grid(after, shape) - b
-        rb, _ = ratio_image(lit_before, sol.target, sol.covered, block=k)
-        ra, _ = ratio_image(lit_after, sol.target, sol.covered, block=k)
+        # the captures as they are, black included, against the target on its black floor: what is seen
+        lit_before, lit_after = to_grid(before, shape), to_grid(after, shape)
+        rb, _ = ratio_image(lit_before, seen, sol.covered, block=k)
+        ra, _ = ratio_image(lit_after, seen, sol.covered, block=k)
         return {
-            "before": uniformity(lit_before, sol.target, sol.covered, block=k),
-            "after": uniformity(lit_after, sol.target, sol.covered, block=k),
-            "predicted": uniformity(predicted, sol.target, sol.covered, block=k),
-            "colour": [uniformity(lit_after, sol.target, sol.covered, block=k, channel=c) for c in range(3)],
-            "seam_before": seam_step(lit_before, contributions, sol.covered, block=k, target=sol.target),
-            "seam_after": seam_step(lit_after, contributions, sol.covered, block=k, target=sol.target),
+            "before": uniformity(lit_before, seen, sol.covered, block=k),
+            "after": uniformity(lit_after, seen, sol.covered, block=k),
+            "predicted": uniformity(predicted, seen, sol.covered, block=k),
+            "colour": [uniformity(lit_after, seen, sol.covered, block=k, channel=c) for c in range(3)],
+            "seam_before": seam_step(lit_before, contributions, sol.covered, block=k, target=seen),
+            "seam_after": seam_step(lit_after, contributions, sol.covered, block=k, target=seen),
             "pictures": {"before": np.nan_to_num(rb, nan=0.0).astype(np.float32),
                          "after": np.nan_to_num(ra, nan=0.0).astype(np.float32)},
         }

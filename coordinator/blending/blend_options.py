@@ -79,6 +79,10 @@ class BlendOptions:
                                  help="the blobs are captured up to X times longer than the camera's exposure (one "
                                       "projector's blob is much darker than the whole rig's white), when the camera "
                                       "can change its exposure")
+    experimental_mesh: bool = option(False, group=MEASURE,
+                                     help="blend a mesh rig (3D poses) too: experimental, its figures are not yet "
+                                          "good (on the room's bust the light's shading varies faster than the "
+                                          "measurement follows)")
     settle_s: float = option(0.05, lo=0.0, hi=30.0, flag="--settle", metavar="S", group=CAMERA,
                              help="wait after every swap before capturing, seconds")
 

@@ -11,9 +11,11 @@ The grid: for a camera image of ``W x H`` pixels and a grid of ``w x h`` (``w = 
 grid pixel ``(gx, gy)`` has its centre at camera pixel ``((gx + 0.5) W / w - 0.5, (gy + 0.5) H / h -
 0.5)``, the same convention as the blend maps' texels (:mod:`protos.blend`).
 
-Planar rigs map camera pixels to projector pixels with a homography; :meth:`Contributions.
-projector_coords` is the one place that asks, so a mesh rig only needs another way to give each
-grid point its projector coordinates.
+Planar rigs map camera pixels to projector pixels with a homography. A mesh rig gives each grid
+point its projector coordinates instead (``projector_xy``: where the projector shows the surface
+point the camera sees there, NaN where it does not reach it); :meth:`Contributions.projector_coords`
+is the one place that asks, and :func:`projector_mapper` turns either into a function of camera
+pixels.
 """
 from __future__ import annotations
 
@@ -21,11 +23,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
+import cv2
 import numpy as np
 
 from imaging.blending.errors import BlendError
 
-__all__ = ["Contributions", "LUMA", "luma", "grid_shape", "grid_to_camera", "apply_homography_grid"]
+__all__ = ["Contributions", "LUMA", "luma", "grid_shape", "grid_to_camera", "apply_homography_grid", "projector_mapper"]
 
 #: Rec. 709 luminance weights, applied to the camera's linear RGB
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
@@ -68,6 +71,36 @@ def apply_homography_grid(H: np.ndarray, points: np.ndarray) -> np.ndarray:
     return out
 
 
+def projector_mapper(mapping: np.ndarray, camera_size: tuple[int, int]):
+    """A function from camera pixels ``(..., 2)`` to projector pixels ``(..., 2) float64`` (NaN where none).
+
+    ``mapping``: a ``(3, 3)`` homography (full-camera pixels -> projector pixels), or an ``(h, w, 2)`` map of
+    projector coordinates on a grid over the camera image (grid convention of this module), interpolated
+    bilinearly (NaN next to a point without coordinates)."""
+    m = np.asarray(mapping)
+    if m.shape == (3, 3):
+        return lambda p: apply_homography_grid(m, p)
+    if m.ndim != 3 or m.shape[2] != 2:
+        raise ValueError(f"a camera -> projector mapping is a (3, 3) homography or an (h, w, 2) map, got {m.shape}")
+    W, H = (int(v) for v in camera_size)
+    h, w = m.shape[:2]
+    table = np.ascontiguousarray(m, np.float32)
+
+    def f(points: np.ndarray) -> np.ndarray:
+        p = np.asarray(points, np.float64)
+        n = int(np.prod(p.shape[:-1]))
+        rows = max(1, -(-n // 1024))     # remap takes maps of at most 32767 a side: lay the points out 1024 wide
+        gx = np.full(rows * 1024, -10.0, np.float32)
+        gy = np.full(rows * 1024, -10.0, np.float32)
+        gx[:n] = ((p[..., 0] + 0.5) * (w / W) - 0.5).reshape(-1)
+        gy[:n] = ((p[..., 1] + 0.5) * (h / H) - 0.5).reshape(-1)
+        out = cv2.remap(table, gx.reshape(rows, 1024), gy.reshape(rows, 1024), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan, np.nan))
+        return out.reshape(-1, 2)[:n].reshape(*p.shape[:-1], 2).astype(np.float64)
+
+    return f
+
+
 @dataclass(frozen=True, eq=False)
 class Contributions:
     """Per-projector light on a camera grid (see the module docstring).
@@ -83,8 +116,10 @@ class Contributions:
     black : dict slot -> (h, w, 3) float32
         The projector's share of the black level.
     camera_to_projector : dict slot -> (3, 3) float64
-        Full-camera pixels -> projector pixels (a planar rig's homography).
+        Full-camera pixels -> projector pixels (a planar rig's homography; unused for a slot of ``projector_xy``).
     projector_size : dict slot -> (W, H)
+    projector_xy : dict slot -> (h, w, 2) float32, optional
+        A mesh rig's projector coordinates of every grid point (NaN where the projector does not reach it).
     """
 
     camera_size: tuple[int, int]
@@ -93,6 +128,7 @@ class Contributions:
     black: Mapping[str, np.ndarray]
     camera_to_projector: Mapping[str, np.ndarray]
     projector_size: Mapping[str, tuple[int, int]]
+    projector_xy: Mapping[str, np.ndarray] | None = None
     _coords: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -128,6 +164,17 @@ class Contributions:
         object.__setattr__(self, "black", black)
         object.__setattr__(self, "camera_to_projector", c2p)
         object.__setattr__(self, "projector_size", sizes)
+        if self.projector_xy is not None:
+            xy = {}
+            for s, a in self.projector_xy.items():
+                if s not in white:
+                    raise ValueError(f"projector_xy names {s}, which has no contribution")
+                a = np.ascontiguousarray(np.asarray(a, np.float32))
+                if a.shape != (*shape, 2):
+                    raise ValueError(f"projector_xy[{s}] must be {(*shape, 2)} (the camera grid), got {a.shape}")
+                a.setflags(write=False)
+                xy[s] = a
+            object.__setattr__(self, "projector_xy", xy or None)
 
     # ------------------------------------------------------------------ the grid
     @property
@@ -147,8 +194,18 @@ class Contributions:
         """``(h, w, 2) float64``: ``slot``'s projector pixel of every grid point (NaN where none)."""
         hit = self._coords.get(slot)
         if hit is None:
-            hit = self._coords[slot] = apply_homography_grid(self.camera_to_projector[slot], self.camera_points())
+            if self.projector_xy is not None and slot in self.projector_xy:
+                hit = self.projector_xy[slot].astype(np.float64)
+            else:
+                hit = apply_homography_grid(self.camera_to_projector[slot], self.camera_points())
+            self._coords[slot] = hit
         return hit
+
+    def mapping(self, slot: str) -> np.ndarray:
+        """What places ``slot``'s pixels: its (h, w, 2) projector coordinates on a mesh rig, else its homography."""
+        if self.projector_xy is not None and slot in self.projector_xy:
+            return self.projector_xy[slot]
+        return self.camera_to_projector[slot]
 
     def footprint(self, slot: str) -> np.ndarray:
         """``(h, w) bool``: where ``slot`` adds light (computed once; do not modify it)."""
@@ -164,9 +221,10 @@ class Contributions:
         """The same rig without ``slots`` (a lost node, a dead lamp)."""
         drop = set(slots)
         keep = [s for s in self.slots if s not in drop]
+        xy = None if self.projector_xy is None else {s: a for s, a in self.projector_xy.items() if s in keep}
         return Contributions(self.camera_size, self.scale, {s: self.white[s] for s in keep},
                              {s: self.black[s] for s in keep}, {s: self.camera_to_projector[s] for s in keep},
-                             {s: self.projector_size[s] for s in keep})
+                             {s: self.projector_size[s] for s in keep}, xy or None)
 
     def with_gains(self, gains: Mapping[str, float]) -> "Contributions":
         """Each named slot's light (white and black alike: both come from its lamp) scaled by its gain."""
@@ -178,7 +236,7 @@ class Contributions:
         white = {s: self.white[s] * np.float32(gains.get(s, 1.0)) for s in self.slots}
         black = {s: self.black[s] * np.float32(gains.get(s, 1.0)) for s in self.slots}
         return Contributions(self.camera_size, self.scale, white, black, dict(self.camera_to_projector),
-                             dict(self.projector_size))
+                             dict(self.projector_size), self.projector_xy)
 
     # ------------------------------------------------------------------ storage
     def to_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -188,8 +246,11 @@ class Contributions:
             arrays[f"white.{s}"] = np.asarray(self.white[s])
             arrays[f"black.{s}"] = np.asarray(self.black[s])
             arrays[f"camera_to_projector.{s}"] = np.asarray(self.camera_to_projector[s])
+            if self.projector_xy is not None and s in self.projector_xy:
+                arrays[f"projector_xy.{s}"] = np.asarray(self.projector_xy[s])
         meta = {"camera_size": list(self.camera_size), "scale": self.scale, "slots": self.slots,
-                "projector_size": {s: list(self.projector_size[s]) for s in self.slots}}
+                "projector_size": {s: list(self.projector_size[s]) for s in self.slots},
+                "mesh": self.projector_xy is not None}
         return arrays, meta
 
     @classmethod
@@ -203,10 +264,13 @@ class Contributions:
             white = {s: arrays[f"white.{s}"] for s in slots}
             black = {s: arrays[f"black.{s}"] for s in slots}
             c2p = {s: arrays[f"camera_to_projector.{s}"] for s in slots}
+            xy = {s: arrays[f"projector_xy.{s}"] for s in slots if f"projector_xy.{s}" in arrays}
+            if meta.get("mesh") and len(xy) != len(slots):
+                raise KeyError("projector_xy of every slot of a mesh rig")
         except (KeyError, TypeError, ValueError) as exc:
             raise BlendError(f"stored contributions are incomplete ({type(exc).__name__}: {exc}); "
                              "run `shadowless blend` again") from exc
         try:
-            return cls(camera_size, scale, white, black, c2p, sizes)  # type: ignore[arg-type]
+            return cls(camera_size, scale, white, black, c2p, sizes, xy or None)  # type: ignore[arg-type]
         except ValueError as exc:
             raise BlendError(f"stored contributions are inconsistent: {exc}; run `shadowless blend` again") from exc

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
-from imaging.blending.contributions import Contributions, apply_homography_grid, grid_shape, grid_to_camera, luma
+from imaging.blending.contributions import Contributions, grid_shape, grid_to_camera, luma, projector_mapper
 from imaging.blending.errors import BlendError
 from imaging.blending.sample_plan import SamplePlan
 from imaging.blending.samples import Samples
@@ -58,6 +58,16 @@ def _normalised(u: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.nd
     return (u[..., 0] + 0.5) / W * 2.0 - 1.0, (u[..., 1] + 0.5) / H * 2.0 - 1.0
 
 
+def _grid_at(grid: np.ndarray, points: np.ndarray, camera_size: tuple[int, int]) -> np.ndarray:
+    """``grid`` ((h, w) over the camera image) at camera pixels ``points`` ((n, 2)), bilinear, 0 outside."""
+    W, H = camera_size
+    h, w = grid.shape
+    gx = ((points[:, 0] + 0.5) * (w / W) - 0.5).astype(np.float32)[None, :]
+    gy = ((points[:, 1] + 0.5) * (h / H) - 0.5).astype(np.float32)[None, :]
+    return cv2.remap(np.nan_to_num(grid).astype(np.float32), gx, gy, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)[0].astype(np.float64)
+
+
 def _fit_log(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Robust least squares of ``A x = y`` (y: (n, 3)); returns x (terms, 3) and the inlier mask."""
     keep = np.ones(len(y), bool)
@@ -75,7 +85,8 @@ def _fit_log(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, camera_to_projector: Mapping[str, np.ndarray],
                       *, scale: int, surface: np.ndarray | None = None, degree: int = 4,
-                      smoothing: float | None = None) -> tuple[Contributions, dict]:
+                      smoothing: float | None = None, shading: Mapping[str, np.ndarray] | None = None
+                      ) -> tuple[Contributions, dict]:
     """The rig's :class:`Contributions` from the blob samples and the black capture.
 
     Parameters
@@ -92,8 +103,13 @@ def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, cam
         The screening polynomial's total degree (lowered for a projector with few samples).
     smoothing : float
         The thin-plate spline's smoothing (0: it passes through every inlier; None: the polynomial alone).
-    camera_to_projector : slot -> (3, 3) float64
-        Full-camera pixels -> projector pixels (those the plan placed the blobs with).
+    shading : slot -> (h, w) float, optional
+        A known factor of each projector's light on the grid (a mesh: the cosine of the light's incidence
+        over the squared distance, which changes with the surface's shape, not smoothly in the projector's
+        pixels); the smooth model is fitted to the light divided by it and multiplied back.
+    camera_to_projector : slot -> (3, 3) float64 or (h', w', 2)
+        Full-camera pixels -> projector pixels (those the plan placed the blobs with): a homography, or a mesh
+        rig's projector coordinates on a grid over the camera image (the result then holds them on its grid).
 
     Returns
     -------
@@ -105,13 +121,20 @@ def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, cam
     surf = np.ones(shape, bool) if surface is None else np.asarray(surface, bool)
     if surf.shape != shape:
         raise ValueError(f"surface must be {shape} (the grid), got {surf.shape}")
-    mats = {s: np.asarray(camera_to_projector[s], np.float64) for s in plan.slots}
+    mats = {s: np.asarray(camera_to_projector[s]) for s in plan.slots}
+    mesh = {s for s in plan.slots if mats[s].shape != (3, 3)}
+    xy: dict[str, np.ndarray] = {}
     white: dict[str, np.ndarray] = {}
     figures: dict[str, dict] = {}
     for s in plan.slots:
         M = mats[s]
         size = plan.projector_size[s]
         sites, values = samples.arrays(s)
+        shade = None
+        if shading is not None and s in shading:
+            shade = np.asarray(shading[s], np.float32)
+            at = _grid_at(shade, plan.sites[sites], (Wc, Hc))
+            values = np.where((at > 0)[:, None], values / np.maximum(at, 1e-12)[:, None], 0.0)
         lum = luma(values.astype(np.float32))
         ok = np.all(values > 0, axis=1)
         if ok.sum() >= MIN_SAMPLES:
@@ -126,7 +149,9 @@ def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, cam
         a, b = _normalised(plan.projector_xy[s][sites[ok]], size)
         y = np.log(values[ok])
         x, inl = _fit_log(poly_basis(a, b, deg), y)
-        u = apply_homography_grid(M, pts)
+        u = projector_mapper(M, (Wc, Hc))(pts)
+        if s in mesh:
+            xy[s] = u.astype(np.float32)
         ga, gb = _normalised(u, size)
         inside = np.isfinite(ga) & np.isfinite(gb) & (np.abs(ga) <= 1.0) & (np.abs(gb) <= 1.0) & surf
         logt = np.zeros((*shape, 3))
@@ -139,7 +164,10 @@ def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, cam
             vals = spline(pts_in) if spline is not None else poly_basis(ga[inside], gb[inside], deg) @ x
             lo, hi = y[inl].min(axis=0) - 0.5, y[inl].max(axis=0) + 0.2
             logt[inside] = np.clip(vals, lo, hi)
-        white[s] = np.where(inside[..., None], np.exp(logt), 0.0).astype(np.float32)
+        light = np.exp(logt) if shade is None else np.exp(logt) * np.nan_to_num(shade)[..., None]
+        if shade is not None:
+            inside &= np.nan_to_num(shade) > 0
+        white[s] = np.where(inside[..., None], light, 0.0).astype(np.float32)
         rms = float(np.sqrt(np.mean((poly_basis(a, b, deg)[inl] @ x - y[inl]) ** 2))) if inl.any() else math.nan
         figures[s] = {"samples": n, "inliers": int(inl.sum()), "degree": deg, "rms_log": round(rms, 5),
                       "spline": spline is not None}
@@ -149,8 +177,38 @@ def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, cam
     k = np.zeros(3)
     if lit.any():
         k = np.maximum(np.median(bgrid[lit] / np.maximum(total[lit], 1e-9), axis=0), 0.0)
-    blk = {s: (white[s] * k[None, None, :].astype(np.float32)).astype(np.float32) for s in plan.slots}
+    ks = _black_shares(white, bgrid, lit, k, plan.slots)
+    blk = {s: (white[s] * ks[s][None, None, :].astype(np.float32)).astype(np.float32) for s in plan.slots}
     sizes = {s: plan.projector_size[s] for s in plan.slots}
-    contributions = Contributions((Wc, Hc), scale, white, blk, mats, sizes)
+    homographies = {s: np.eye(3) if s in mesh else mats[s].astype(np.float64) for s in plan.slots}
+    contributions = Contributions((Wc, Hc), scale, white, blk, homographies, sizes, xy or None)
+    for s in plan.slots:
+        figures[s]["black_fraction"] = [round(float(v), 6) for v in ks[s]]
     return contributions, {"slots": figures, "black_fraction": [round(float(v), 6) for v in k]}
+
+
+def _black_shares(white: Mapping[str, np.ndarray], black: np.ndarray, lit: np.ndarray, common: np.ndarray,
+                  slots: list[str], *, prior: float = 0.01) -> dict[str, np.ndarray]:
+    """Each projector's black as a fraction of its white, per channel: the least-squares split of the
+    measured black ``sum_i k_i T_i`` over the lit surface, pulled toward the ``common`` fraction with a weight
+    of ``prior`` of the data's (units of one model differ in contrast: where footprints differ, as on a
+    wall, the data tell them apart; where every projector covers the same area they cannot, and the
+    common fraction stands). Never negative."""
+    n = len(slots)
+    if n == 0 or not lit.any():
+        return {s: common.copy() for s in slots}
+    A = np.stack([white[s][lit] for s in slots], axis=1).astype(np.float64)   # (m, n, 3)
+    b = black[lit].astype(np.float64)                                        # (m, 3)
+    out = np.zeros((n, 3))
+    for c in range(3):
+        M = A[:, :, c]
+        G = M.T @ M
+        lam = prior * float(np.trace(G)) / n
+        rhs = M.T @ b[:, c] + lam * common[c]
+        try:
+            out[:, c] = np.linalg.solve(G + lam * np.eye(n), rhs)
+        except np.linalg.LinAlgError:
+            out[:, c] = common[c]
+    out = np.maximum(out, 0.0)
+    return {s: out[i] for i, s in enumerate(slots)}
 

@@ -22,7 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
-from imaging.blending.contributions import apply_homography_grid
+from imaging.blending.contributions import projector_mapper
 from imaging.blending.errors import BlendError
 
 __all__ = ["SamplePlan", "plan_samples", "default_blob", "draw_discs"]
@@ -36,12 +36,12 @@ def default_blob(camera_size: tuple[int, int]) -> tuple[float, float]:
     return radius, 2.0 * radius + max(4.0, radius * 0.8)
 
 
-def _local_scale(M: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Projector pixels per camera pixel around each point (square root of the Jacobian's determinant)."""
-    e = 0.5
-    c = apply_homography_grid(M, points)
-    dx = apply_homography_grid(M, points + [e, 0.0]) - c
-    dy = apply_homography_grid(M, points + [0.0, e]) - c
+def _local_scale(f, points: np.ndarray, e: float = 1.0) -> np.ndarray:
+    """Projector pixels per camera pixel around each point (square root of the Jacobian's determinant of
+    ``f``, camera -> projector pixels)."""
+    c = f(points)
+    dx = f(points + [e, 0.0]) - c
+    dy = f(points + [0.0, e]) - c
     det = np.abs(dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0]) / (e * e)
     return np.sqrt(det)
 
@@ -119,7 +119,8 @@ def plan_samples(camera_size: tuple[int, int], camera_to_projector: Mapping[str,
     Parameters
     ----------
     camera_size : (W, H)
-    camera_to_projector : slot -> (3, 3) float64, full-camera pixels -> projector pixels
+    camera_to_projector : slot -> (3, 3) float64 homography (full-camera pixels -> projector pixels), or
+        (h, w, 2) projector coordinates on a grid over the camera image (a mesh rig)
     projector_size : slot -> (W, H)
     surface : (h, w) bool, optional
         Where the surface is, on any grid over the camera image (default: everywhere).
@@ -158,10 +159,10 @@ def plan_samples(camera_size: tuple[int, int], camera_to_projector: Mapping[str,
         sites, ix, iy = sites[ok], ix[ok], iy[ok]
     pxy, prad, fits = {}, {}, []
     for s in slots:
-        M = np.asarray(camera_to_projector[s], np.float64)
+        f = projector_mapper(camera_to_projector[s], (W, H))
         pw, ph = (int(v) for v in projector_size[s])
-        u = apply_homography_grid(M, sites[:, None, :])[:, 0]
-        rad = radius * _local_scale(M, sites[:, None, :])[:, 0]
+        u = f(sites[:, None, :])[:, 0]
+        rad = radius * _local_scale(f, sites[:, None, :])[:, 0]
         inside = np.isfinite(u).all(axis=1) & (u[:, 0] - rad >= 0.5) & (u[:, 0] + rad <= pw - 1.5) \
             & (u[:, 1] - rad >= 0.5) & (u[:, 1] + rad <= ph - 1.5) & np.isfinite(rad)
         pxy[s], prad[s] = u, rad

@@ -59,6 +59,8 @@ HEADROOM_MAX = 0.9
 DEFAULT_SMOOTHNESS = 1.0
 #: the weights' ramp, as a fraction of a projector's smaller side
 DEFAULT_RAMP = 0.15
+#: points reaching less than this fraction of the median reach are left out of the target
+DEFAULT_MIN_REACH = 0.2
 #: the weight's floor inside a projector's frame (keeps alpha defined where it alone reaches)
 WEIGHT_FLOOR = 1e-3
 
@@ -141,7 +143,14 @@ def _weight(c: Contributions, slot: str, ramp: float) -> np.ndarray:
     key = ("weight", slot, float(ramp))
     hit = c._coords.get(key)
     if hit is None:
-        hit = c._coords[key] = frame_weight(c.projector_coords(slot), c.projector_size[slot], ramp) * c.footprint(slot)
+        fp = c.footprint(slot)
+        hit = frame_weight(c.projector_coords(slot), c.projector_size[slot], ramp) * fp
+        if c.projector_xy is not None and slot in c.projector_xy and fp.any():
+            # a mesh: the footprint also ends where the object hides the surface from the projector; ramp there too
+            d = ndimage.distance_transform_edt(fp)
+            t = np.clip(d / max(ramp * math.sqrt(float(fp.sum())), 1.0), 0.0, 1.0)
+            hit = np.where(fp, np.maximum(hit * (t * t * (3.0 - 2.0 * t)), WEIGHT_FLOOR), 0.0).astype(np.float32)
+        c._coords[key] = hit
     return hit
 
 
@@ -154,6 +163,9 @@ def _texel_grid(c: Contributions, slot: str, map_scale: int) -> tuple[np.ndarray
         gh, gw = c.shape
         cam_W, cam_H = c.camera_size
         mw, mh = map_size((W, H), map_scale)
+        if c.projector_xy is not None and slot in c.projector_xy:
+            hit = c._coords[key] = _texels_from_points(c.projector_xy[slot], (W, H), (mw, mh))
+            return hit
         ux = (np.arange(mw) + 0.5) * (W / mw) - 0.5
         uy = (np.arange(mh) + 0.5) * (H / mh) - 0.5
         x = apply_homography_grid(np.linalg.inv(c.camera_to_projector[slot]), np.stack(np.meshgrid(ux, uy), axis=-1))
@@ -162,6 +174,31 @@ def _texel_grid(c: Contributions, slot: str, map_scale: int) -> tuple[np.ndarray
         ok = np.isfinite(gx) & np.isfinite(gy)
         hit = c._coords[key] = (np.where(ok, gx, 0).astype(np.float32), np.where(ok, gy, 0).astype(np.float32))
     return hit
+
+
+def _texels_from_points(xy: np.ndarray, size: tuple[int, int], msize: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh rig's texel -> grid positions: the mean grid position of the grid points each texel holds
+    (``xy``: (h, w, 2) projector coordinates of the grid points), the nearest such texel's elsewhere."""
+    W, H = size
+    mw, mh = msize
+    gh, gw = xy.shape[:2]
+    gy, gx = np.mgrid[0:gh, 0:gw]
+    tx = np.floor((xy[..., 0] + 0.5) * (mw / W))
+    ty = np.floor((xy[..., 1] + 0.5) * (mh / H))
+    ok = np.isfinite(tx) & np.isfinite(ty) & (tx >= 0) & (tx < mw) & (ty >= 0) & (ty < mh)
+    mapx = np.full((mh, mw), -1.0, np.float32)
+    mapy = np.full((mh, mw), -1.0, np.float32)
+    if not ok.any():
+        return mapx, mapy
+    idx = (ty[ok].astype(np.int64) * mw + tx[ok].astype(np.int64))
+    n = np.bincount(idx, minlength=mw * mh).reshape(mh, mw)
+    sx = np.bincount(idx, weights=gx[ok], minlength=mw * mh).reshape(mh, mw)
+    sy = np.bincount(idx, weights=gy[ok], minlength=mw * mh).reshape(mh, mw)
+    held = n > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        both = np.stack([sx / n, sy / n], axis=-1)
+    both = _fill_nearest(both, held)
+    return np.ascontiguousarray(both[..., 0], np.float32), np.ascontiguousarray(both[..., 1], np.float32)
 
 
 def _fill_nearest(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -197,7 +234,7 @@ class _Plan:
 
 
 def _plan(c: Contributions, active: list[str], h_fixed: float | None, slope: float, ramp: float,
-          reference: _Plan | None = None) -> _Plan:
+          reference: _Plan | None = None, min_reach: float = 0.0) -> _Plan:
     shape = c.shape
     gh, gw = shape
     luma64 = LUMA.astype(np.float64)
@@ -252,8 +289,10 @@ def _plan(c: Contributions, active: list[str], h_fixed: float | None, slope: flo
         white = np.median(R[covered] / R_y[covered][:, None], axis=0)
         white = white / float(white @ luma64)
     reach_all = np.min(R / white[None, None, :], axis=-1)
-    floor = 1e-3 * float(np.median(reach_all[covered]))
-    covered &= reach_all > floor  # a fringe the weights cannot light constrains nothing
+    # points that reach too little to be held to the target (a fringe, a surface turned away from every
+    # projector) are left out of it: they get all they can, and do not drag the whole target down
+    floor = max(float(min_reach), 1e-3) * float(np.median(reach_all[covered]))
+    covered &= reach_all > floor
     if not covered.any():
         raise BlendError("the projectors of the blend reach no point the camera sees with light to spare")
 
@@ -279,7 +318,8 @@ def _plan(c: Contributions, active: list[str], h_fixed: float | None, slope: flo
 
 def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozenset(), headroom: float | str | None = None,
                   map_scale: int = 4, lamp_gains: Mapping[str, float] | None = None,
-                  smoothness: float = DEFAULT_SMOOTHNESS, ramp: float = DEFAULT_RAMP) -> BlendSolution:
+                  smoothness: float = DEFAULT_SMOOTHNESS, ramp: float = DEFAULT_RAMP,
+                  min_reach: float = DEFAULT_MIN_REACH) -> BlendSolution:
     """The blend of the projectors not ``lost`` (see the module docstring).
 
     With ``lost`` or ``lamp_gains`` (a failover), the blend of the whole rig as measured is computed first
@@ -299,6 +339,9 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
         Log-luminance change the target may make over the grid's diagonal.
     ramp : float in (0, 0.5]
         The weights' ramp as a fraction of each projector's smaller side.
+    min_reach : float in 0..0.9
+        Points whose reach is below this fraction of the median reach are left out of the target (not
+        ``covered``): they get all the light they can (a surface turned away from every projector).
     """
     t0 = time.perf_counter()
     h_fixed = validate_headroom(headroom)
@@ -308,6 +351,8 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
         raise BlendError(f"smoothness must be in (0, 100], got {smoothness!r}")
     if not (0.0 < float(ramp) <= 0.5):
         raise BlendError(f"ramp must be in (0, 0.5], got {ramp!r}")
+    if not (0.0 <= float(min_reach) <= 0.9):
+        raise BlendError(f"min_reach must be in 0..0.9, got {min_reach!r}")
     lost = tuple(sorted(set(lost)))
     unknown = [s for s in lost if s not in contributions.slots]
     if unknown:
@@ -323,11 +368,11 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
     slope = float(smoothness) / max(math.hypot(gh, gw), 1.0)
     gains_differ = bool(lamp_gains) and any(abs(float(g) - 1.0) > 1e-9 for g in lamp_gains.values())
     if lost or gains_differ:
-        reference = _plan(contributions, contributions.slots, h_fixed, slope, ramp)
-        plan = _plan(c, active, 0.0, slope, ramp, reference=reference)
+        reference = _plan(contributions, contributions.slots, h_fixed, slope, ramp, min_reach=min_reach)
+        plan = _plan(c, active, 0.0, slope, ramp, reference=reference, min_reach=min_reach)
         plan.used, plan.cost = reference.used, reference.cost
     else:
-        plan = _plan(c, active, h_fixed, slope, ramp)
+        plan = _plan(c, active, h_fixed, slope, ramp, min_reach=min_reach)
     covered = plan.covered
     target = plan.L[..., None] * plan.white[None, None, :]
     S, S_y, lift, r = plan.S, plan.S_y, plan.lift, plan.r

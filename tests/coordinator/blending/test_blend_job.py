@@ -126,7 +126,9 @@ def test_the_partly_overlapping_wall_loses_its_seams(tmp_path):
     driver, rig = calibrated(room, tmp_path / "wall", room.slots)
     run(driver, "response", {"settle_s": 0.0})
     out = run(driver, "blend", {"settle_s": 0.0})
-    assert out["seam_before"] > 0.2 and out["seam_after"] < 0.01, out
+    # (the captures as seen, black included: a unit's own black ends at its frame's edge, a step of a
+    # fraction of a percent the others' beta maps can only approach)
+    assert out["seam_before"] > 0.2 and out["seam_after"] < 0.015, out
     assert out["uniformity_before"] > 0.3 and out["uniformity_after"] < 0.02, out
     # the outer projectors are alone on most of their footprint: a loss there is not covered
     assert out["uncovered"]["r0c0"] > 0.5 and out["uncovered"]["r0c2"] > 0.5 and out["uncovered"]["r0c1"] < 0.7
