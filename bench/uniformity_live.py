@@ -1,11 +1,12 @@
 """`bench uniformity`'s live parts: failover and the photometric watchdog with real processes.
 
-The room runs in this process behind its gRPC service (:class:`sim.wire.service.RoomServerThread`),
-one node process per projector sends it what it shows, and the coordinator runs in this process
-too (:class:`coordinator.app.CoordinatorApp`, listening on 127.0.0.1 like ``shadowless
-coordinator``), so the benchmark reads what the core knows -- the blend status and each node's
+The room runs as a process of its own (``shadowless room``, the same room as the in-process
+parts' with ``--no-signal black``: a projector whose node died goes dark), one node process per
+projector sends it what it shows, and the coordinator runs in this process
+(:class:`coordinator.app.CoordinatorApp`, listening on 127.0.0.1 like ``shadowless coordinator``;
+the benchmark's own work runs in worker threads so that its event loop keeps serving), so the benchmark reads what the core knows -- the blend status and each node's
 heartbeat (the blend on its screen and the pts of the first frame shown with it) -- without a
-status call's rounding. The rig's poses and LUTs are the room's truth (calibration and responses
+status call's rounding. A twin of the room built here gives the truth (footprints). The rig's poses and LUTs are the room's truth (calibration and responses
 are measured by the in-process parts and by ``bench compensation_room``); the camera is mapped to
 the table by the ``calibrate`` job from clicked marks; the ``blend`` job measures through the room's
 camera.
@@ -13,8 +14,8 @@ camera.
 * **Failover**: during a looping flat-white timeline show (``--show still``: a still), one node
   (the centre's) is killed with SIGKILL and its projector goes dark (no signal), once the
   coordinator has computed every single loss's maps ahead (as it has long before a loss in a show). Reported: the time until the coordinator
-  declares the loss (``BlendStatus.since``), the non-uniformity in the lost footprint right after
-  the kill (the old maps: what failover saves) and once every remaining node shows its new maps,
+  declares the loss (``BlendStatus.since``), the non-uniformity in the lost footprint once every
+  remaining node shows its new maps,
   how many frame periods (at ``--fps``) after the declaration those maps were on screen (the
   latest of the nodes' first frames with them) and how far apart the nodes switched; then the
   node is started again and the time until the maps switched back.
@@ -34,6 +35,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import signal
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -59,10 +61,10 @@ def _log(msg: str) -> None:
 
 @dataclass
 class Live:
-    """A running rig: the room, its server, the node processes and the coordinator in this process."""
+    """A running rig: the room's process (and its twin here), the node processes, the coordinator in this process."""
 
-    room: Room
-    server: object
+    room: Room                         # a twin of the room process, for its truth
+    address: str                       # the room process
     local: LocalRig
     app: object
     client: object
@@ -103,12 +105,22 @@ class Live:
     def since_ns(self, slots) -> list[int]:
         return [int(self.session(s).blend_since_rig_ns) for s in slots]
 
+    async def acapture(self, frames: int, *, not_before_ns: int = 0) -> np.ndarray:
+        """:meth:`capture` in a worker thread: the coordinator's event loop, in this process, keeps serving."""
+        return await asyncio.to_thread(self.capture, frames, not_before_ns=not_before_ns)
+
+    def set_lamp(self, slot: str, gain: float) -> None:
+        """The room process's lamp switch: ``slot``'s lamp at ``gain`` while its node stays live."""
+        from sim.link import RoomClient
+        with RoomClient(self.address) as rc:
+            rc.set_lamp(slot, gain)
+
     def capture(self, frames: int, *, not_before_ns: int = 0) -> np.ndarray:
         """The mean of ``frames`` captures through the room's service, each taken once every active projector
         swapped a frame at or after ``not_before_ns`` (rig clock = this host's monotonic clock)."""
         from sim.link import RoomClient
         acc = None
-        with RoomClient(self.server.address) as rc:
+        with RoomClient(self.address) as rc:
             for _ in range(max(1, frames)):
                 cap = rc.capture(0, not_before_rig_ns=not_before_ns, timeout_ms=20000, exposure=self.exposure)
                 img = np.asarray(cap.image, np.float64)
@@ -128,23 +140,62 @@ async def _wait(what: str, pred, timeout: float, *, step: float = 0.005):
         await asyncio.sleep(step)
 
 
+def _room_command(args, light: Light, port: int) -> list[str]:
+    """``shadowless room`` for the same room :func:`bench.uniformity_scenes.table_room` builds (same scales,
+    seed and uneven light), a projector whose node's stream breaks off going black as a real one that
+    lost its source."""
+    return [sys.executable, "-m", "shadowless", "room", "--host", "127.0.0.1", "--port", str(port),
+            "--projector-scale", str(args.projector_scale), "--camera-scale", str(args.camera_scale),
+            "--seed", str(args.seed), "--brightness-spread", str(light.brightness_spread),
+            "--white-spread", str(light.white_spread), "--hotspot", str(light.hotspot),
+            "--vignetting", str(light.vignetting), "--no-signal", "black"]
+
+
+@contextlib.contextmanager
+def room_process(args, light: Light, work: Path, slots: list[str]):
+    """The room as a process of its own (25 nodes' frames would starve a coordinator sharing its process),
+    powering ``slots``; yields its address."""
+    from shadowless.local import free_port
+    from sim.link import RoomClient
+    port = free_port()
+    work.mkdir(parents=True, exist_ok=True)
+    log = open(work / "room.log", "ab")
+    proc = subprocess.Popen(_room_command(args, light, port), stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+    try:
+        address = f"127.0.0.1:{port}"
+        with RoomClient(address) as rc:
+            rc.wait_ready(300)
+            rc.set_active(list(slots))
+        yield address
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+
+
 @contextlib.asynccontextmanager
 async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog: bool, show: str):
-    """A room, its server, a coordinator in this process and one node process per slot, blended, showing
-    flat white (``show``: "timeline", a looping show at ``args.fps``, or "still")."""
+    """The room (a process), a coordinator in this process and one node process per slot, blended, showing
+    flat white (``show``: "timeline", a looping show at ``args.fps``, or "still"). ``Live.room`` is a twin
+    of the room process built here the same way, for the truth only (footprints, what reaches where)."""
     from coordinator.app import CoordinatorApp
     from rigctl.job_command import ProgressView, run_job
-    from sim.wire.service import RoomServerThread
 
-    room = table_room(light, projector_scale=args.projector_scale, camera_scale=args.camera_scale, seed=args.seed)
+    room = await asyncio.to_thread(table_room, light, projector_scale=args.projector_scale,
+                                   camera_scale=args.camera_scale, seed=args.seed)
     room.set_active(slots)
     tw, th = room.scene.table.size
     content = (int(round(tw / 4)), int(round(th / 4)))
     params = blend_params({"headroom": "auto" if args.headroom is None else args.headroom,
                            **({} if args.map_scale is None else {"map_scale": args.map_scale})})
-    with RoomServerThread(room) as server:
+    with room_process(args, light, work, slots) as address:
         local = LocalRig(slots, work, output_size=room.projector_size(slots[0]), content_size=content,
-                         node_output=f"room://{server.address}", mdns=False, latency_ms=80.0)
+                         node_output=f"room://{address}", mdns=False, latency_ms=80.0)
         local.create()
         rig = Rig(local.rig_dir)
         for s, lut in truth_luts(room, slots).items():
@@ -155,7 +206,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
             _add_white_clip(local.rig_dir, work / "white", content, args.fps)
         rig = Rig(local.rig_dir)
         app = CoordinatorApp(rig, local.token, listen=f"127.0.0.1:{local.port}", advertise=False,
-                             cameras=[f"room://{server.address}"])
+                             cameras=[f"room://{address}"])
         await app.start()
         try:
             t = time.perf_counter()
@@ -171,7 +222,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                 t = time.perf_counter()
                 result = await run_job(c, "blend", params, view=ProgressView())
                 _log(f"{len(slots)} projectors blended through the nodes ({time.perf_counter() - t:.0f} s)")
-                live = Live(room, server, local, app, c, list(slots), content)
+                live = Live(room, address, local, app, c, list(slots), content)
                 await _wait("the coordinator holding the new blend", lambda: _loaded(live, result), 60)
                 if show == "timeline":
                     await _wait_holding(c, slots)
@@ -184,15 +235,25 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                     live.shown_pts = int(getattr(shown, "pts_ns", 0))
                 await _wait("every node showing the blend", lambda: live.showing_assigned(slots), 60)
                 live.ahead_s = await _variants_ahead(live)
-                base = room.truth.camera(0).exposure
-                linear = room.render_linear(0, exposure=base)
-                top = float(np.percentile(linear.max(axis=-1), 99.9))
-                live.exposure = min(1.0, 0.85 / top) if top > 0 else 1.0
+                live.exposure = await asyncio.to_thread(_exposure, live)
                 live.result = result
                 yield live
         finally:
             local.close()
             await app.stop()
+
+
+def _exposure(live: Live) -> float:
+    """A relative exposure at which the brightest lit pixel of the flat white sits near 0.85 of full scale."""
+    e = 1.0
+    for _ in range(6):
+        live.exposure = e
+        img = live.capture(1, not_before_ns=live.shown_pts)
+        top = float(np.percentile(img.max(axis=-1), 99.9))
+        if top < 0.95:
+            return e * min(1.0, 0.85 / top) if top > 0 else e
+        e /= 2
+    return e
 
 
 def _switched(live: Live) -> bool:
@@ -285,10 +346,10 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
     period_ns = 1e9 / args.fps
     async with live_rig(args, work / name, light, slots, watchdog=False, show=args.show) as live:
         headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
-        target, covered = _target(live, args.headroom)
-        footprint = live.room.truth.irradiance(victim, 0, occluders=False) > 0
+        target, covered = await asyncio.to_thread(_target, live, args.headroom)
+        footprint = await asyncio.to_thread(lambda: live.room.truth.irradiance(victim, 0, occluders=False) > 0)
         old_ids = {s: live.slot_blend_id(s) for s in slots}
-        before = live.capture(args.frames, not_before_ns=live.shown_pts)
+        before = await live.acapture(args.frames, not_before_ns=live.shown_pts)
         k = scale_of(before, target, covered)
         out: dict = {"slots": len(slots), "lost": victim, "headroom": headroom, "variants_ahead_s": live.ahead_s,
                      "before_loss": _r(nonuniformity(before, target, covered, within=footprint))}
@@ -298,9 +359,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         # the kill: the node process dies, its projector loses its signal
         t_kill = time.monotonic_ns()
         live.local.nodes[victim].send_signal(signal.SIGKILL)
-        live.room.set_active([s for s in slots if s != victim])
-        dark = live.capture(1)
-        out["old_maps"] = _r(nonuniformity(dark, target, covered, within=footprint, scale=k))
+        # the room process blacks the dead node's projector out when its stream breaks off (--no-signal black)
         st = await _wait(f"{victim} declared lost", lambda: (lambda b: b if victim in b.lost else None)(
             live.blend_status()), 120)
         seen_ns = time.monotonic_ns()
@@ -309,16 +368,18 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["message"] = st.message
         out["covered"] = st.covered
         rest = [s for s in slots if s != victim]
-        await _wait("the remaining nodes showing new maps", lambda: all(
+        await _wait("the remaining nodes showing new maps", lambda: _switched(live) and any(
             live.slot_blend_id(s) != old_ids[s] for s in rest) and live.showing_assigned(rest), 60)
-        since = live.since_ns(rest)
+        changed = [s for s in rest if live.slot_blend_id(s) != old_ids[s]]
+        out["maps_changed"] = len(changed)
+        since = live.since_ns(changed)
         out["frames_after_declared"] = _r(max(0.0, (max(since) - declared_ns) / period_ns), 2)
         out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
         out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
         out["message_after"] = live.blend_status().message
         late1 = _late(live, rest)
         out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
-        after = live.capture(args.frames, not_before_ns=max(since))
+        after = await live.acapture(args.frames, not_before_ns=max(since))
         out["after"] = _r(nonuniformity(after, target, covered, within=footprint, scale=k))
         out["after_own_scale"] = _r(nonuniformity(after, target, covered, within=footprint))
         out["light_kept"] = _r(scale_of(after, target, covered & footprint) / scale_of(before, target, covered & footprint), 4)
@@ -327,12 +388,12 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         # the node returns: the maps switch back
         t_back = time.monotonic_ns()
         live.local.start_node(victim)
-        live.room.set_active(slots)
+
         await _wait(f"{victim} back in the blend", lambda: victim not in live.blend_status().lost
                     and live.showing_assigned(slots), 180, step=0.05)
         since = live.since_ns(slots)
         out["switch_back_s"] = _r((max(since) - t_back) / 1e9, 2)
-        back = live.capture(args.frames, not_before_ns=max(since))
+        back = await live.acapture(args.frames, not_before_ns=max(since))
         out["after_return"] = _r(nonuniformity(back, target, covered, within=footprint, scale=k))
         out["frame_period_ms"] = _r(period_ns / 1e6, 3)
     return out
@@ -387,9 +448,10 @@ async def part_watchdog(args, work: Path, light: Light) -> dict:
         dog = getattr(live.core, "lamp_watchdog", None)
         if dog is None:
             raise Missing("the coordinator has no photometric watchdog (Coordinator.lamp_watchdog) in this build")
-        target, covered = _target(live, args.headroom)
-        fp = (live.room.truth.irradiance(dim, 0, occluders=False) > 0) | (live.room.truth.irradiance(dead, 0, occluders=False) > 0)
-        k = scale_of(live.capture(args.frames, not_before_ns=live.shown_pts), target, covered)
+        target, covered = await asyncio.to_thread(_target, live, args.headroom)
+        fp = await asyncio.to_thread(lambda: (live.room.truth.irradiance(dim, 0, occluders=False) > 0)
+                                     | (live.room.truth.irradiance(dead, 0, occluders=False) > 0))
+        k = scale_of(await live.acapture(args.frames, not_before_ns=live.shown_pts), target, covered)
         cfg = live.core.rig.config.blend
         out: dict = {"slots": len(slots), "interval_s": cfg.watchdog_interval_s, "truth": truth}
         # a check of the unchanged rig first: what the watchdog says with every lamp as new
@@ -400,7 +462,7 @@ async def part_watchdog(args, work: Path, light: Light) -> dict:
         out["named_before_change"] = {s: _r(g, 4) for s, g in live.blend_status().lamps}
         t0 = time.monotonic_ns()         # the rig clock: this host's monotonic clock
         for s, g in truth.items():
-            live.room.set_lamp(s, g)
+            await asyncio.to_thread(live.set_lamp, s, g)
         named: dict[str, float] = {}
         gains: dict[str, float] = {}
         seen: set[int] = set()
@@ -438,7 +500,7 @@ async def part_watchdog(args, work: Path, light: Light) -> dict:
             rest = [s for s in slots if s not in st.lost]
             await _wait("nodes showing the re-blended maps", lambda: live.showing_assigned(rest), 60)
             since = live.since_ns(rest)
-            after = live.capture(args.frames, not_before_ns=max(since))
+            after = await live.acapture(args.frames, not_before_ns=max(since))
             out["after"] = _r(nonuniformity(after, target, covered, within=fp, scale=k))
             out["after_own_scale"] = _r(nonuniformity(after, target, covered, within=fp))
             out["light_kept"] = _r(scale_of(after, target, covered & fp) / k, 4)
