@@ -384,7 +384,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["after_own_scale"] = _r(nonuniformity(after, target, covered, within=footprint))
         out["light_kept"] = _r(scale_of(after, target, covered & footprint) / scale_of(before, target, covered & footprint), 4)
         _log(f"{name}: {victim} declared lost {out['detect_s']} s after the kill; new maps {out['frames_after_declared']} "
-             f"frames later; footprint {out['old_maps']} with the old maps -> {out['after']}")
+             f"frames later; non-uniformity in its footprint {out['after']}, light kept {out['light_kept']}")
         # the node returns: the maps switch back
         t_back = time.monotonic_ns()
         live.local.start_node(victim)
