@@ -48,6 +48,9 @@ def mesh_projector_xy(camera_x: np.ndarray, camera_y: np.ndarray, tables: Mappin
     out = {}
     for s, table in tables.items():
         xy = cv2.remap(table, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan, np.nan))
+        # next to a texel the projector does not light (an island's edge in the atlas), the nearest texel's
+        near = cv2.remap(table, gx, gy, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan, np.nan))
+        xy = np.where(np.isfinite(xy), xy, near)
         xy[bad] = np.nan
         out[s] = xy.astype(np.float32)
     return out
