@@ -132,3 +132,16 @@ def test_the_partly_overlapping_wall_loses_its_seams(tmp_path):
     assert out["uniformity_before"] > 0.3 and out["uniformity_after"] < 0.02, out
     # the outer projectors are alone on most of their footprint: a loss there is not covered
     assert out["uncovered"]["r0c0"] > 0.5 and out["uncovered"]["r0c2"] > 0.5 and out["uncovered"]["r0c1"] < 0.7
+
+
+def test_a_mesh_rig_is_blended_only_when_asked_for(tmp_path):
+    from bench.compensation_bust import make_bust_rig
+    from sim.rigs import bust_walls_scene
+
+    room = Room(bust_walls_scene(2, projector_scale=0.125, camera_scale=0.125), seed=1)
+    rig = make_bust_rig(tmp_path / "bust", room, room.slots, luts=True)
+    driver = RoomDriver(room, rig)
+    c0 = driver.captures
+    with pytest.raises(JobError, match="have a 3D pose: .*experimental") as info:
+        run(driver, "blend", {})
+    assert "\n" not in str(info.value) and driver.captures == c0
