@@ -166,11 +166,13 @@ class Coordinator:
         self._job_lock = asyncio.Lock()
         self._tasks: list[asyncio.Task] = []
         self._rig_lock = RigLock(rig.path)   # one coordinator (or `rig import`) per rig directory
+        self._swapped_ns: dict[str, int] = {}     # slot -> rig instant of the last swap its node reported
         # the per-pixel blend: its failover switches take effect a latency budget ahead, on every node at once
         self.blending = BlendState(rig, update_slot=self.update_slot, clock_ns=self.clock_ns, lead_ns=self.latency_ns)
         self.lamp_watchdog = LampWatchdog(self.blending, camera_specs=lambda: self._camera_specs, busy=self.running_job,
                                           on_screen=self.still_on_screen, live_slots=self.live_slots,
-                                          interval_s=rig.config.blend.watchdog_interval_s, clock_ns=self.clock_ns)
+                                          interval_s=rig.config.blend.watchdog_interval_s, clock_ns=self.clock_ns,
+                                          last_swap_ns=self._last_swap_ns)
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
@@ -422,7 +424,6 @@ class Coordinator:
         if sess.state == NodeState.JOINED:
             sess.state = NodeState.LIVE
             self.live_at[sess.session] = now_ns
-            self.blending.node_live(sess.slot)      # a lost projector is back: the full blend again
         if rep.heartbeat is not None:
             sess.heartbeat = rep.heartbeat
             note_ready(self.ready_at.setdefault(sess.session, {}), rep.heartbeat.assets, now_ns)
@@ -437,6 +438,9 @@ class Coordinator:
             sess.last_swap_frame = int(ids[-1])
             sess.last_swap_at = now_ns / 1e9
             sess.shown += n
+            self._swapped_ns[sess.slot] = int(rep.swaps.swap_rig_ns[-1])
+            # a lost projector shows frames again: the full blend, from an instant it has a frame on screen
+            self.blending.node_live(sess.slot)
         if rep.preview is not None:
             self.previews.accept(sess.slot, rep.preview)
         for frame_id, reason in rep.drops:
@@ -595,6 +599,11 @@ class Coordinator:
     def blend_status(self) -> BlendStatus:
         """The rig's blend and any failover (:mod:`coordinator.blending.state`)."""
         return self.blending.status()
+
+    def _last_swap_ns(self, slot: str) -> int:
+        """The rig instant the slot's node last swapped a frame in, as it reported (0: no node, or none yet)."""
+        sess = self.by_slot.get(slot)
+        return self._swapped_ns.get(slot, 0) if sess is not None and not sess.closed else 0
 
     def still_on_screen(self) -> tuple[np.ndarray, int] | None:
         """The still every projector shows through its pose, as (content image, presentation time

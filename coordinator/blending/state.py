@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 
 #: the kept fraction of the affected footprints above which the status says "uniformity kept"
 KEPT_ENOUGH = 0.99
+#: after a switch's instant, how long before the variants one more loss away are computed (s)
+AHEAD_AFTER_SWITCH_S = 0.5
 
 
 def age_text(seconds: float) -> str:
@@ -77,6 +79,7 @@ class BlendState:
         self.variants: Variants | None = None
         self.problem = ""                      # why there is no blend (a store that cannot be read), or ""
         self.lost_nodes: dict[str, float] = {}     # slot -> unix time its node was lost
+        self.lost_at_ns: dict[str, int] = {}       # slot -> rig instant the core declared its node lost
         self.lamp_gains: dict[str, float] = {}     # slot -> the watchdog's estimate (named lamps only)
         self.lamps_since: dict[str, float] = {}    # slot -> unix time the lamp was named
         self.applied: VariantKey = variant_key(())
@@ -84,6 +87,7 @@ class BlendState:
         self.switches = 0
         self._pending: asyncio.Task | None = None
         self._suspended = False                # a blend job measures: nothing is pushed
+        self._closed = False
         self._job_seen: object | None = None
         self._unsubscribe: Callable[[], None] | None = None
         #: called after each switch with (key, variant, at_ns): tests and benchmarks follow it
@@ -141,6 +145,7 @@ class BlendState:
         self._ahead()
 
     def close(self) -> None:
+        self._closed = True
         if self._unsubscribe is not None:
             self._unsubscribe()
             self._unsubscribe = None
@@ -150,7 +155,7 @@ class BlendState:
             self._pending.cancel()
 
     def _ahead(self) -> None:
-        if self.variants is None:
+        if self.variants is None or self._closed:
             return
         try:
             asyncio.get_running_loop()
@@ -203,12 +208,15 @@ class BlendState:
         if slot not in self.slots or slot in self.lost_nodes:
             return
         self.lost_nodes[slot] = self.wall_clock()
+        self.lost_at_ns[slot] = self.clock_ns()
         self._want()
 
     def node_live(self, slot: str) -> None:
-        """``slot``'s node is live again: switch back."""
+        """``slot``'s node is back and shows frames again (the core calls this on its swaps):
+        switch back, from an instant the node has a frame on screen to show the maps with."""
         if self.lost_nodes.pop(slot, None) is None:
             return
+        self.lost_at_ns.pop(slot, None)
         self._want()
 
     def set_lamps(self, gains: Mapping[str, float]) -> None:
@@ -289,7 +297,10 @@ class BlendState:
                         at, "uniformity kept" if v.kept >= KEPT_ENOUGH else f"{v.kept:.0%} of the footprint kept")
         if self.on_switch is not None:
             self.on_switch(v.key, v, at)
-        self._ahead()
+        # the next variants are computed once the switch is on screen: until then the event loop
+        # and the cores belong to sending the new maps
+        delay = max(0.0, (at - self.clock_ns()) / 1e9) + AHEAD_AFTER_SWITCH_S
+        asyncio.get_running_loop().call_later(delay, self._ahead)
 
     # ------------------------------------------------------------------ status
     def status(self) -> BlendStatus:

@@ -93,6 +93,9 @@ class LampWatchdog:
     on_screen : callable
         ``(content image, its presentation time ns)`` of the still shown through the poses, or None.
     live_slots : callable
+    last_swap_ns : callable
+        ``slot -> rig ns`` of the last frame its node swapped in (0: none); a node that has not
+        swapped the still in yet is waited for.
     interval_s : float
     clock_ns : callable
         The rig clock.
@@ -102,13 +105,14 @@ class LampWatchdog:
 
     def __init__(self, state: BlendState, *, camera_specs: Callable[[], list[str]], busy: Callable[[], str | None],
                  on_screen: Callable[[], tuple[np.ndarray, int] | None], live_slots: Callable[[], list[str]],
-                 interval_s: float, clock_ns: Callable[[], int],
+                 interval_s: float, clock_ns: Callable[[], int], last_swap_ns: Callable[[str], int] | None = None,
                  open_camera: Callable[[str], Camera] = open_camera):
         self.state = state
         self.camera_specs = camera_specs
         self.busy = busy
         self.on_screen = on_screen
         self.live_slots = live_slots
+        self.last_swap_ns = last_swap_ns
         self.interval_s = float(interval_s)
         self.clock_ns = clock_ns
         self.open_camera = open_camera
@@ -156,6 +160,14 @@ class LampWatchdog:
         slots = self.slots()
         if not slots:
             return "no live projector of the blend"
+        live = set(self.live_slots())
+        unknown = [s for s in st.slots if s not in live and s not in st.lost_nodes]
+        if unknown:     # a projector with no node in the rig (yet): what it shows is not known
+            return f"waiting for the node of {', '.join(sorted(unknown))}"
+        if self.last_swap_ns is not None:
+            behind = [s for s in slots if self.last_swap_ns(s) < screen[1]]
+            if behind:
+                return f"waiting for {', '.join(sorted(behind))} to show the still"
         if any(not isinstance(self.state.rig.slot(s).pose, HomographyPose) for s in slots):
             return "!off: the watchdog predicts light through planar poses only (this rig has a mesh)"
         return ""

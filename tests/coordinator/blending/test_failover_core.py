@@ -18,7 +18,7 @@ from coordinator.blending.failover import BLACK_MAPS, variant_key
 from coordinator.errors import RigError
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.server import Coordinator
-from coordinator.sessions import NodeInfo, Report
+from coordinator.sessions import NodeInfo, Report, Swaps
 from imaging.blending.contributions import luma
 from imaging.blending.predict import predict
 from imaging.blending.solve import compute_blend
@@ -117,6 +117,8 @@ def test_a_lost_node_switches_the_others_at_one_instant_and_its_return_switches_
             back = coord.join(slot="r0c1", info=NodeInfo(hostname="pi-r0c1", pid=99), peer="ipv4:10.0.0.1:2")
             assert rig.slot("r0c1").blend is BLACK_MAPS        # it joins dark
             coord.on_report(back, Report())
+            assert rig.slot("r0c1").blend is BLACK_MAPS        # live, but nothing on its screen yet
+            coord.on_report(back, Report(swaps=Swaps.of([(1, now[0], now[0])])))
             assert {s: rig.slot(s).blend.blend_id for s in slots} == {s: stored[s].blend_id for s in slots}
             assert {rig.slot(s).blend_at_ns for s in slots} == {now[0] + coord.latency_ns}
             assert coord.blend_status().state == "blended"

@@ -18,32 +18,17 @@ from coordinator.blend_store import StoredBlend, save_blend, save_contributions
 from coordinator.blending.state import BlendState
 from coordinator.blending.watchdog import LampWatchdog
 from coordinator.rig import HomographyPose, Rig
-from imaging.blending.contributions import Contributions, grid_shape, luma
+from imaging.blending.contributions import luma
 from imaging.blending.solve import compute_blend
 from imaging.blending.watchdog import grid_mean
 from protos.blend import BlendMaps
 from shadowless.room_driver import RoomDriver
 from sim.room import Room
 from sim.scene import SUBSETS, reference_scene
+from room_light import truth_contributions
 
 CONTENT = (300, 150)
 LEVEL = 0.9
-
-
-def truth_contributions(room: Room, slots: list[str], scale: int = 2) -> Contributions:
-    """Each projector's light from the room's truth (its full white above black, its black share,
-    camera -> projector through the table)."""
-    cam = room.camera_size(0)
-    shape = grid_shape(cam, scale)
-    t2c = room.truth.table_to_camera_homography(0)
-    white, black, c2p, sizes = {}, {}, {}, {}
-    for s in slots:
-        white[s] = grid_mean(room.truth.contribution(s), shape)
-        b = room.truth.projector(s).black
-        black[s] = (white[s] * (b / (1.0 - b))[None, None, :]).astype(np.float32)
-        c2p[s] = room.truth.table_to_projector_homography(s) @ np.linalg.inv(t2c)
-        sizes[s] = room.projector_size(s)
-    return Contributions(cam, scale, white, black, c2p, sizes)
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +60,9 @@ def test_dimmed_and_dead_lamps_are_named_and_the_rig_re_blended(table, caplog):
         return luma(np.mean([grid_mean(room.capture(0), c.shape) for _ in range(4)], axis=0))
 
     async def go():
-        state = BlendState(rig, update_slot=rig.update_slot, clock_ns=lambda: now[0], lead_ns=50_000_000)
+        # no variants computed ahead (budget 0): each re-blend is computed when the watchdog asks for it
+        state = BlendState(rig, update_slot=rig.update_slot, clock_ns=lambda: now[0], lead_ns=50_000_000,
+                           budget_bytes=0)
         state.load()
         watchdog = LampWatchdog(state, camera_specs=driver.camera_specs.copy, busy=lambda: None,
                                 on_screen=lambda: (content, 0), live_slots=lambda: slots, interval_s=1.0,
