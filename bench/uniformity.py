@@ -120,9 +120,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--failover-rigs", default=None,
                         help="rigs of the failover part, comma-separated (default P25,P9W; P9W with --quick)")
     parser.add_argument("--fps", type=float, default=30.0, help="the show's frame rate in the live parts (default 30)")
-    parser.add_argument("--show", choices=("timeline", "still"), default="timeline",
-                        help="what the live parts show: a looping flat-white timeline show at --fps (default) or a "
-                             "still (then a frame is a period of --fps)")
+    parser.add_argument("--show", choices=("auto", "timeline", "still"), default="auto",
+                        help="what the failover part shows: a looping flat-white timeline show at --fps, or a still "
+                             "(then a frame is a period of --fps); auto (default): the show for rigs of up to 9 "
+                             "nodes, the still for more (25 nodes each rendering and sending 30 frames a second to "
+                             "the room are more than two cores carry: the coordinator starves and loses them)")
     parser.add_argument("--node-frames", type=int, default=None, help="frames per profile of `bench node` (default 120; "
                                                                       "20 with --quick)")
     parser.add_argument("--keep", metavar="DIR", help="keep rig directories and logs here")

@@ -11,7 +11,8 @@ are measured by the in-process parts and by ``bench compensation_room``); the ca
 the table by the ``calibrate`` job from clicked marks; the ``blend`` job measures through the room's
 camera.
 
-* **Failover**: during a looping flat-white timeline show (``--show still``: a still), one node
+* **Failover**: during a looping flat-white timeline show (a still with ``--show still``, and by
+  default on rigs of more than 9 nodes, whose 30 frames a second each two cores cannot carry), one node
   (the centre's) is killed with SIGKILL and its projector goes dark (no signal), once the
   coordinator has computed every single loss's maps ahead (as it has long before a loss in a show). Reported: the time until the coordinator
   declares the loss (``BlendStatus.since``), the non-uniformity in the lost footprint once every
@@ -344,14 +345,16 @@ def _target(live: Live, headroom):
 async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str]) -> dict:
     victim = "r2c2" if "r2c2" in slots else slots[len(slots) // 2]
     period_ns = 1e9 / args.fps
-    async with live_rig(args, work / name, light, slots, watchdog=False, show=args.show) as live:
+    show = args.show if args.show != "auto" else ("timeline" if len(slots) <= 9 else "still")
+    async with live_rig(args, work / name, light, slots, watchdog=False, show=show) as live:
         headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
         target, covered = await asyncio.to_thread(_target, live, args.headroom)
         footprint = await asyncio.to_thread(lambda: live.room.truth.irradiance(victim, 0, occluders=False) > 0)
         old_ids = {s: live.slot_blend_id(s) for s in slots}
         before = await live.acapture(args.frames, not_before_ns=live.shown_pts)
         k = scale_of(before, target, covered)
-        out: dict = {"slots": len(slots), "lost": victim, "headroom": headroom, "variants_ahead_s": live.ahead_s,
+        out: dict = {"slots": len(slots), "show": show, "lost": victim, "headroom": headroom,
+                     "variants_ahead_s": live.ahead_s,
                      "before_loss": _r(nonuniformity(before, target, covered, within=footprint))}
         st = live.blend_status()
         out["state_before"] = st.state
