@@ -138,7 +138,7 @@ def test_a_mesh_rig_is_blended_only_when_asked_for(tmp_path):
     from bench.compensation_bust import make_bust_rig
     from sim.rigs import bust_walls_scene
 
-    room = Room(bust_walls_scene(2, projector_scale=0.125, camera_scale=0.125), seed=1)
+    room = Room(bust_walls_scene(3, projector_scale=0.125, camera_scale=0.125), seed=1)
     rig = make_bust_rig(tmp_path / "bust", room, room.slots, luts=True)
     driver = RoomDriver(room, rig)
     c0 = driver.captures
