@@ -37,7 +37,7 @@ from node.asset_frames import FrameError, FrameNotReady
 from node.clock import ClockEstimate
 from node.live_video import LiveDecoder
 from node.outputs.base import Output, SwapInfo
-from node.pacing import FramePacer
+from node.pacing import LATE_TOLERANCE_NS, FramePacer
 from node.preview import PreviewMaker
 from node.realtime import RealtimeWindow
 from node.records import (AssetFiles, DropReason, DropRecord, FrameOrder, NodeAssignment, PresenterStatus, ShowStatus,
@@ -397,14 +397,20 @@ class Presenter:
         return due, pts
 
     def _blend_due_local(self) -> int | None:
+        """When the loop must step for the blend: its instant less the time to render the frame again."""
         when = self._blend_due()
-        return None if when is None else when[0]
+        return None if when is None else when[0] - self._blend_lead_ns() + self.PREPARE_NS
+
+    def _blend_lead_ns(self) -> int:
+        """How long before a blend's instant the frame on screen is rendered again: PREPARE_NS, or twice
+        the longest recent frame's work when that is longer (a 1080p frame on a slow GPU)."""
+        return max(self.PREPARE_NS, 2 * max(self._work_ns, default=0))
 
     def _blend_step(self) -> None:
         """Show the frame on screen again with the next maps, swapped in at their instant (or at once,
         when a stream that stopped made it wait past it)."""
         when = self._blend_due()
-        if when is None or when[0] - self.clock.now() > self.PREPARE_NS:
+        if when is None or when[0] - self.clock.now() > self._blend_lead_ns():
             return      # not yet (the loop asks timeline_wait again)
         (due, pts), est = when, self.pacer.estimate
         renderer, out = self.renderer, self.out
@@ -418,13 +424,18 @@ class Presenter:
                 renderer.render(None)
             out.prepare(renderer)
             self._ctx.finish()
+        late = self.clock.now() - due > LATE_TOLERANCE_NS    # rendered too slowly for its instant (as a frame)
         with self._rt:
             self.clock.sleep_until(due)
             if frame is not None:
                 out.swap()
             host = self.clock.host_now()
+        swap_rig = est.rig_time(self.clock.from_host(host))
         if frame is not None:
-            self._shown_again(out, renderer, est.rig_time(self.clock.from_host(host)), host)
+            self._shown_again(out, renderer, swap_rig, host)
+        if late:          # shown all the same (it would be, a moment later): on screen from its swap
+            log.warning("blend %s shown %.1f ms after its instant", renderer.blend_id or "none", (swap_rig - pts) / 1e6)
+            pts = swap_rig
         self._blend_shown(pts)
         self._send_stats()
 

@@ -197,3 +197,41 @@ def test_malformed_maps_are_refused_in_one_line_and_nothing_on_screen_changes(ri
     # the rest of such an assignment applies: a new gain, the maps kept
     rig.p.handle("assignment", replace(assignment(4, None, 0, error="beta map must lie in 0..1"), gain=0.5))
     close(rig.shown(), blended_output(np.full((H, W, 3), GREY), m.alpha, m.beta, gain=0.5))
+
+
+class SlowPrepare(OffscreenOutput):
+    """An output whose prepare() takes ``prepare_ns`` of the test's clock (a slow GPU's frame)."""
+
+    def __init__(self, host: ManualClock, **kwargs):
+        super().__init__(**kwargs)
+        self.host, self.prepare_ns = host, 0
+
+    def prepare(self, renderer) -> None:
+        self.host.t += self.prepare_ns
+
+
+def test_a_slow_frame_is_rendered_again_early_enough_and_one_too_slow_says_when_it_was_shown(rig, caplog):
+    rig.out = rig.p.out = SlowPrepare(rig.host, slot="r0c0", keep_last=True)
+    rig.out.prepare_ns = 80 * MS
+    rig.frame(1, rig.rig_now() + 200 * MS)          # its work: 80 ms
+    m = maps(6)
+    at = rig.rig_now() + 400 * MS
+    rig.p.handle("assignment", assignment(2, m, at))       # (its frame on screen rendered again: 80 ms)
+    wait = rig.p.timeline_wait()
+    assert wait == pytest.approx((at - rig.rig_now() - 160 * MS) / 1e9)    # twice the frame's work ahead
+    rig.host.t += int(wait * 1e9)
+    rig.p.timeline_step()
+    assert rig.rig_now() == at and rig.status.blend_since_rig_ns == at
+    close(rig.shown(), blended(m))
+
+    slower = maps(7)                                  # this time the frame takes longer than ever before
+    at = rig.rig_now() + 400 * MS
+    rig.p.handle("assignment", assignment(3, slower, at))
+    rig.out.prepare_ns = 300 * MS
+    rig.host.t += int(rig.p.timeline_wait() * 1e9)
+    with caplog.at_level(logging.WARNING, logger="node.presenter"):
+        rig.p.timeline_step()
+    assert rig.rig_now() > at and rig.status.blend_since_rig_ns == rig.rig_now(), "on screen from its swap"
+    assert rig.out.last_info.swap_rig_ns == rig.rig_now()
+    assert "shown 140.0 ms after its instant" in caplog.text
+    close(rig.shown(), blended(slower))
