@@ -310,6 +310,10 @@ class Coordinator:
         for sess in list(self.by_slot.values()):
             if not sess.closed and now - sess.last_seen > lost_after:
                 self.mark_lost(sess)
+        if now - self.started > lost_after:     # a projector of the blend whose node never came: as lost
+            for slot in self.blending.slots:
+                if slot not in self.by_slot:
+                    self.blending.node_lost(slot)
         self.sync.sweep()
 
     async def _watchdog(self) -> None:

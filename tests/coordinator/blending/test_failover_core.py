@@ -193,3 +193,31 @@ def test_a_headroom_outside_0_to_0_9_is_one_line_and_changes_nothing(tmp_path, v
         (path / "rig.toml").write_text(good + f"\n[blend]\nheadroom = {ok}\nwatchdog = false\nwatchdog_interval_s = 5\n")
         cfg = Rig(path).config.blend
         assert (cfg.headroom, cfg.watchdog, cfg.watchdog_interval_s) == (want, False, 5.0)
+
+
+def test_a_projector_whose_node_never_joins_is_covered_once_it_would_count_as_lost(tmp_path):
+    slots = grid_slots(2, 2)
+    rig, contributions, stored = blended_rig(tmp_path, slots, tiled_rects(2, 2, CAMERA, seed=2))
+    now = [3_000_000_000]
+
+    async def go():
+        coord = Coordinator(rig, TOKEN, encoding=Packets, clock_ns=lambda: now[0])
+        coord.open()
+        try:
+            coord.start()
+            sessions = [coord.join(slot=s, info=NodeInfo(hostname=f"pi-{s}", pid=i + 1), peer=f"ipv4:10.0.0.{i}:1")
+                        for i, s in enumerate(slots[1:])]
+            coord.sweep()
+            assert coord.blend_status().state == "blended"      # r0c0's node may still be starting
+            now[0] += rig.config.lost_after_ms * 1_000_000 + 1
+            for sess in sessions:
+                sess.last_seen = coord.now()
+            coord.sweep()
+            await coord.blending.settled()
+            st = coord.blend_status()
+            assert st.state == "failover" and st.lost == ("r0c0",), st
+            assert rig.slot("r0c0").blend is BLACK_MAPS and rig.slot("r0c1").blend.blend_id != stored["r0c1"].blend_id
+        finally:
+            await coord.close()
+
+    asyncio.run(go())
