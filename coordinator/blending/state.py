@@ -291,10 +291,14 @@ class BlendState:
         self.switches += 1
         lost, gains = v.key
         if not lost and not gains:
-            log.info("blend: every projector back in the blend; %d switch to the full blend at rig %d", changed, at)
+            log.info("blend: every projector back in the blend; %d switch to the full blend from rig instant %d",
+                     changed, at)
         else:
-            log.warning("blend: %s; %d projectors switch to new maps at rig %d (%s)", _describe_key(v.key), changed,
-                        at, "uniformity kept" if v.kept >= KEPT_ENOUGH else f"{v.kept:.0%} of the footprint kept")
+            out = set(lost) | {s for s, g in gains if g < DEAD_GAIN}
+            taking_over = sum(1 for s in v.maps if s not in out)
+            log.warning("blend: %s; %d projectors take over with new maps from rig instant %d (%s)",
+                        _describe_key(v.key), taking_over, at,
+                        "uniformity kept" if v.kept >= KEPT_ENOUGH else f"{v.kept:.0%} of the footprint kept")
         if self.on_switch is not None:
             self.on_switch(v.key, v, at)
         # the next variants are computed once the switch is on screen: until then the event loop

@@ -96,7 +96,8 @@ def test_a_lost_node_switches_the_others_at_one_instant_and_its_return_switches_
             assert {after[s].blend_at_ns for s in slots} == {now[0] + coord.latency_ns}
             assert after["r0c1"].blend is BLACK_MAPS
             assert all(after[s].blend.blend_id != stored[s].blend_id for s in slots if s != "r0c1")
-            assert sum("switch to new maps" in r.getMessage() for r in caplog.records) == 1
+            assert [r.getMessage().split(" from rig")[0] for r in caplog.records if "take over" in r.getMessage()] == \
+                ["blend: r0c1 lost; 3 projectors take over with new maps"], "one line per switch"
             st = coord.blend_status()
             assert st.state == "failover" and st.lost == ("r0c1",) and st.covered, st
             assert st.message.startswith("r0c1 lost 0 s ago: 3 projectors cover its footprint, uniformity kept"), st
