@@ -131,7 +131,8 @@ class LampWatchdog:
             if not fresh and time.monotonic() < next_at:
                 continue
             result = await self.check()
-            if not result.skipped:
+            if not result.skipped or result.skipped.startswith(("camera:", "no fit:")):
+                # checked, or the camera or the fit failed: the next try waits an interval (no retry storm)
                 next_at = time.monotonic() + self.interval_s
                 self._checked_pts = screen[1] if screen is not None else 0
 
@@ -201,7 +202,8 @@ class LampWatchdog:
             result = await asyncio.to_thread(self._measure, spec, not_before, contributions, content, slots, maps, poses,
                                              baseline)
         except CameraError as exc:
-            log.warning("watchdog: %s", exc)
+            if self.last is None or self.last.skipped != f"camera: {exc}":     # once until something changes
+                log.warning("watchdog: %s", exc)
             self.last = WatchdogCheck(at_ns=self.clock_ns(), skipped=f"camera: {exc}")
             return self.last
         except ValueError as exc:

@@ -111,3 +111,31 @@ def test_dimmed_and_dead_lamps_are_named_and_the_rig_re_blended(table, caplog):
         state.close()
 
     asyncio.run(go())
+
+
+def test_the_watchdog_is_off_without_a_camera_and_waits_while_a_job_holds_it(table):
+    room, rig, c, slots = table
+    driver = RoomDriver(room, rig)
+    content = np.full((CONTENT[1], CONTENT[0], 3), LEVEL, np.float32)
+    captures = driver.captures
+
+    async def go():
+        state = BlendState(rig, update_slot=rig.update_slot, clock_ns=lambda: 10**12, lead_ns=0, budget_bytes=0)
+        state.load()
+
+        def dog(**kw):
+            args = dict(camera_specs=driver.camera_specs.copy, busy=lambda: None, on_screen=lambda: (content, 0),
+                        live_slots=lambda: slots, interval_s=1.0, clock_ns=lambda: 10**12,
+                        open_camera=driver.open_camera)
+            return LampWatchdog(state, **{**args, **kw})
+
+        assert (await dog(camera_specs=list).check()).skipped == "off: the rig has no camera"
+        assert (await dog(busy=lambda: "calibrate").check()).skipped == "a calibrate job holds the camera"
+        assert (await dog(on_screen=lambda: None).check()).skipped == "no still shown through the poses"
+        waiting = await dog(live_slots=lambda: slots[1:]).check()
+        assert waiting.skipped == f"waiting for the node of {slots[0]}"
+        assert driver.captures == captures, "no capture was taken"
+        assert not (await dog().check()).skipped and driver.captures > captures
+        state.close()
+
+    asyncio.run(go())
