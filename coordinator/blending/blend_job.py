@@ -129,6 +129,12 @@ def _check(ctx: JobContext, opts: BlendOptions) -> list[str]:
     return slots
 
 
+def option_defaults(rig) -> tuple[dict, str]:
+    """rig.toml's ``[blend] headroom`` is the blend's headroom when a request sets none ("auto" when absent)."""
+    h = rig.config.blend.headroom
+    return ({} if h is None else {"headroom": h}), f"{rig.path / 'rig.toml'} [blend]"
+
+
 async def run(ctx: JobContext, opts: BlendOptions) -> BlendResult:
     """Clear the blends, measure, compute, store, set the new blends and verify (see the module docstring)."""
     slots = _check(ctx, opts)

@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 
 from coordinator.blend_store import StoredBlend, save_blend, save_contributions
+from coordinator.blending import blend_job
 from coordinator.blending.failover import BLACK_MAPS, variant_key
 from coordinator.errors import RigError
+from coordinator.jobs.options import parse_options
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.server import Coordinator
 from coordinator.sessions import NodeInfo, Report, Swaps
@@ -194,6 +196,12 @@ def test_a_headroom_outside_0_to_0_9_is_one_line_and_changes_nothing(tmp_path, v
         (path / "rig.toml").write_text(good + f"\n[blend]\nheadroom = {ok}\nwatchdog = false\nwatchdog_interval_s = 5\n")
         cfg = Rig(path).config.blend
         assert (cfg.headroom, cfg.watchdog, cfg.watchdog_interval_s) == (want, False, 5.0)
+        # the blend job takes it when a request sets no headroom
+        defaults, source = blend_job.option_defaults(Rig(path))
+        opts = parse_options(blend_job.OPTIONS, {}, what="blend", defaults=defaults, defaults_source=source)
+        assert opts.headroom == ("auto" if want is None else want)
+        assert parse_options(blend_job.OPTIONS, {"headroom": 0.5}, what="blend", defaults=defaults,
+                             defaults_source=source).headroom == 0.5
 
 
 def test_a_projector_whose_node_never_joins_is_covered_once_it_would_count_as_lost(tmp_path):
