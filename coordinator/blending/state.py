@@ -200,7 +200,11 @@ class BlendState:
             self.lamp_gains.clear()
             self.lamps_since.clear()
             log.info("blend %s measured: %d projectors", self.blend_id[:8], len(self.slots))
-        self._want(force=True)
+        # the job set the new maps itself; after a failed job its maps may not be ours: push them again
+        switches = self.switches
+        self._want(force=not measured)
+        if self.switches == switches:
+            self._ahead()
 
     # ------------------------------------------------------------------ events
     def node_lost(self, slot: str) -> None:

@@ -26,6 +26,7 @@ from imaging.blending.predict import predict
 from imaging.blending.solve import compute_blend
 from imaging.blending.synthetic import rectangle_rig, tiled_rects, wall_rects
 from protos.blend import BlendMaps
+from waits import wait_until_async
 
 TOKEN = b"f" * 32
 CAMERA = (320, 240)
@@ -226,6 +227,45 @@ def test_a_projector_whose_node_never_joins_is_covered_once_it_would_count_as_lo
             st = coord.blend_status()
             assert st.state == "failover" and st.lost == ("r0c0",), st
             assert rig.slot("r0c0").blend is BLACK_MAPS and rig.slot("r0c1").blend.blend_id != stored["r0c1"].blend_id
+        finally:
+            await coord.close()
+
+    asyncio.run(go())
+
+
+def test_a_blend_job_suspends_the_failover_and_its_new_blend_is_taken_when_it_ends(tmp_path):
+    slots = grid_slots(2, 2)
+    rig, contributions, stored = blended_rig(tmp_path, slots, tiled_rects(2, 2, CAMERA, seed=2))
+    now = [3_000_000_000]
+
+    async def go():
+        coord = Coordinator(rig, TOKEN, encoding=Packets, clock_ns=lambda: now[0])
+        coord.open()
+        try:
+            coord.start()
+            sessions = {s: coord.join(slot=s, info=NodeInfo(hostname=f"pi-{s}", pid=i + 1), peer=f"ipv4:10.0.0.{i}:1")
+                        for i, s in enumerate(slots)}
+            old_id = coord.blend_status().blend_id
+            coord.jobs.begin("blend", {})          # the job clears the maps and measures: nothing is pushed meanwhile
+            for s in slots:
+                coord.update_slot(s, blend=None, blend_at_ns=0)
+            coord.mark_lost(sessions["r1c1"])
+            assert all(rig.slot(s).blend is None for s in slots), "no failover push during a blend job"
+            # the job stores a new blend (here: the same light, other maps) and sets it
+            sol = compute_blend(contributions, map_scale=1, headroom=0.5)
+            new = {s: BlendMaps(a, b) for s, (a, b) in sol.maps.items()}
+            save_blend(rig.path, StoredBlend(new, {"headroom": 0.5, "brightness_cost": sol.brightness_cost}))
+            for s in slots:
+                coord.update_slot(s, blend=new[s], blend_at_ns=0)
+            coord.jobs.end(result={})
+            await wait_until_async(lambda: coord.blend_status(), lambda st: st.blend_id != old_id,
+                                   what="the new blend taken")
+            await coord.blending.settled()
+            st = coord.blend_status()
+            assert st.headroom == 0.5 and st.state == "failover" and st.lost == ("r1c1",), st
+            assert rig.slot("r1c1").blend is BLACK_MAPS       # the loss during the job is covered now
+            assert all(rig.slot(s).blend.blend_id not in (new[s].blend_id, stored[s].blend_id)
+                       for s in slots if s != "r1c1")
         finally:
             await coord.close()
 
