@@ -15,6 +15,7 @@ injectable (``clock_ns``) so tests decide when time passes.
 from __future__ import annotations
 
 import asyncio
+import functools
 import hashlib
 import hmac
 import logging
@@ -22,6 +23,7 @@ import math
 import secrets
 import time
 import uuid
+from functools import partial
 from typing import Any, AsyncIterator, Callable, Mapping, Sequence
 
 import numpy as np
@@ -609,13 +611,23 @@ class Coordinator:
         sess = self.by_slot.get(slot)
         return self._swapped_ns.get(slot, 0) if sess is not None and not sess.closed else 0
 
-    def still_on_screen(self) -> tuple[np.ndarray, int] | None:
-        """The still every projector shows through its pose, as (content image, presentation time
-        ns), or None (nothing, a timeline show, a played sequence, a pattern, black, per-slot regions)."""
+    def still_on_screen(self) -> tuple[np.ndarray | Callable[[], np.ndarray], int] | None:
+        """The still every projector shows through its pose, as (content image, the rig instant it
+        is on screen from), or None (nothing, a played sequence, a pattern, black, per-slot regions,
+        a timeline show of a video or a sequence). A timeline show of a still asset gives a function
+        that reads its image at the content size (blocking: the watchdog calls it in a worker thread)."""
         pb = self.playback
+        if self.running_job() is not None or pb.playing:
+            return None
+        if self.show_state.active:
+            tl = self.show_state.timeline
+            m = self._manifest(tl.asset_id) if tl is not None else None
+            if m is None or m.kind != "still":
+                return None
+            path = self.distribution.store.blob_path(m.blobs[0].sha256)
+            return partial(_still_asset_image, path, self.content_size), tl.anchor_ns
         frame = pb.current_frame
-        if (frame is None or pb.playing or self.show_state.active or frame.space != Space.CONTENT
-                or not frame.apply_lut or frame.slot_content or self.running_job() is not None):
+        if frame is None or frame.space != Space.CONTENT or not frame.apply_lut or frame.slot_content:
             return None
         content = pb.current_contents.get(frame.content_id)
         return None if content is None else (content.image, frame.pts_ns)
@@ -668,6 +680,19 @@ class Coordinator:
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
             refusals=self.refusals.summary(now), admission=self.admission.figures(), console=self._console_state(),
             blend=self.blend_status())
+
+
+@functools.lru_cache(maxsize=2)
+def _still_asset_image(path, size: tuple[int, int]) -> np.ndarray:
+    """A still asset's image at the content size (H, W, C), as a node warps it (bilinear)."""
+    import cv2
+
+    from coordinator.image_decode import read_image_file
+
+    image = np.asarray(read_image_file(path))
+    if image.shape[1::-1] != tuple(size):
+        image = cv2.resize(image, tuple(size), interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
+    return image
 
 
 def _same_machine(a: NodeInfo, b: NodeInfo) -> bool:

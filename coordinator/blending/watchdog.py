@@ -4,9 +4,9 @@ fits each projector's effective gain; a dimmed or dead lamp is named and the rig
 It checks soon after a new still is on screen and then every ``interval_s`` (rig.toml's
 ``[blend] watchdog_interval_s``), when everything it needs holds: a camera (rig.toml's first),
 no job (a job holds the camera and the projectors), a stored blend with its contributions, a
-still shown through the poses of a planar rig (a timeline show or a played sequence changes
-under the capture, and a mesh rig's contributions have no homography to predict from), and no
-switch of maps under way. The fit is :func:`imaging.blending.watchdog.fit_changes` on the
+still shown through the poses of a planar rig (an operator's still, or a timeline show of a still
+asset: a video, a sequence or a played sequence changes under the capture, and a mesh rig's
+contributions have no homography to predict from), and no switch of maps under way. The fit is :func:`imaging.blending.watchdog.fit_changes` on the
 contributions' camera grid, away from footprint edges: which one or two lamps changed from what
 the last check found (all others held), each live projector's predicted light built from its
 measured white and black, its maps on screen and the content it shows. The capture (the mean of
@@ -91,7 +91,8 @@ class LampWatchdog:
     busy : callable
         The running job's kind, or None.
     on_screen : callable
-        ``(content image, its presentation time ns)`` of the still shown through the poses, or None.
+        ``(content image, its presentation time ns)`` of the still shown through the poses, or None;
+        the image may be a function that reads it (called in the worker thread).
     live_slots : callable
     last_swap_ns : callable
         ``slot -> rig ns`` of the last frame its node swapped in (0: none); a node that has not
@@ -243,7 +244,7 @@ class LampWatchdog:
             frames += [grid_mean(np.asarray(f, np.float32), shape) for f in grab()]
         at_ns = self.clock_ns()
         capture = np.mean(frames, axis=0)
-        value = _linear(content)
+        value = _linear(content() if callable(content) else content)
         G2C = _grid_to_camera_matrix(c.camera_size, shape)
         columns = []
         for s in slots:

@@ -270,3 +270,36 @@ def test_a_blend_job_suspends_the_failover_and_its_new_blend_is_taken_when_it_en
             await coord.close()
 
     asyncio.run(go())
+
+
+def test_the_watchdog_sees_a_timeline_show_of_a_still_asset_and_not_of_a_sequence(tmp_path):
+    import cv2
+
+    rig, _, _ = blended_rig(tmp_path, ["a"], [(20, 20, 300, 220)])
+    picture = np.random.default_rng(4).integers(0, 255, (24, 32, 3), np.uint8)      # half the content's size
+    cv2.imwrite(str(tmp_path / "card.png"), picture[:, :, ::-1])
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(2):
+        cv2.imwrite(str(frames / f"{k}.png"), picture[:, :, ::-1])
+
+    async def go():
+        coord = Coordinator(rig, TOKEN, encoding=Packets)
+        coord.open()
+        try:
+            still = coord.asset_store.add(tmp_path / "card.png", name="card")
+            seq = coord.asset_store.add(frames, name="frames", fps=10)
+            await coord.refresh_assets()
+            coord.play_asset("card")
+            image, at = coord.still_on_screen()
+            assert callable(image) and at == coord.show_state.timeline.anchor_ns
+            got = image()
+            assert got.shape == (48, 64, 3)
+            assert np.abs(got.astype(int) - cv2.resize(picture, (64, 48), interpolation=cv2.INTER_LINEAR)).max() <= 1
+            coord.play_asset("frames")
+            assert coord.still_on_screen() is None          # a sequence changes under the capture
+            assert still.kind == "still" and seq.kind == "sequence"
+        finally:
+            await coord.close()
+
+    asyncio.run(go())
