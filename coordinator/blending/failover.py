@@ -166,7 +166,10 @@ def compute_variant(contributions: Contributions, base_maps: Mapping[str, BlendM
     # per grid point and channel, the factor that brings the remaining projectors' light back to the
     # full blend's, applied in each map's own grid; a second pass corrects what resampling the factor
     # into the maps missed near footprint edges, where the light changes fast
-    for _ in range(CORRECTIONS):
+    # a mesh rig's grid points reach the projectors through the texture, not a homography: its maps
+    # are the remaining projectors' own blend (their target, not the full blend's light)
+    passes = 0 if getattr(contributions, "projector_xy", None) else CORRECTIONS
+    for _ in range(passes):
         made = light(pairs)
         with np.errstate(divide="ignore", invalid="ignore"):
             factor = np.where(made > 1e-9, white / made, 1.0)
