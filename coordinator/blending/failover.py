@@ -8,6 +8,8 @@ point to the light the full blend made (its *white*, predicted from the stored c
 maps): the rig keeps the brightness and white point it had, and only the lost footprint's
 neighbours change. Where the others cannot reach the full blend's light, they give what they
 can, and :attr:`Variant.kept` says what fraction of the affected footprints stays on target.
+(On a mesh rig, whose grid reaches the projectors through the texture, the scaling back is left
+out: the remaining projectors show their own blend.)
 
 :class:`Variants` keeps the variants computed so far, computes the single-loss variants of the
 current state ahead in a worker thread (so that a loss costs no computation on the event loop),
