@@ -275,14 +275,18 @@ def _loaded(live: Live, result: dict) -> bool:
     return state.blend_id == want and _switched(live)
 
 
-async def _variants_ahead(live: Live) -> float | None:
-    """Wait until the coordinator computed the maps of every single loss ahead (as it has long before a
-    loss in a running show); the seconds it took from here, or None when this build has no such step."""
+async def _variants_ahead(live: Live, timeout: float = 600.0) -> float | None:
+    """Wait until the coordinator holds the maps of every single loss (computed ahead in its worker
+    threads, as it has long before a loss in a running show); the seconds it took from here, or None when
+    this build computes none ahead."""
     variants = getattr(getattr(live.core, "blending", None), "variants", None)
-    if variants is None or not hasattr(variants, "wait_ahead"):
+    if variants is None or not hasattr(variants, "get"):
         return None
+    from coordinator.blending.failover import variant_key
     t = time.perf_counter()
-    await variants.wait_ahead()
+    await _wait("the failover maps computed ahead", lambda: all(
+        variants.get(variant_key({s})) is not None or variants.failure(variant_key({s})) is not None
+        for s in live.slots), timeout, step=0.1)
     return round(time.perf_counter() - t, 2)
 
 
@@ -359,6 +363,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         st = live.blend_status()
         out["state_before"] = st.state
         late0 = _late(live, slots)
+        out["precomputed"] = _precomputed(live, victim)
         # the kill: the node process dies, its projector loses its signal
         t_kill = time.monotonic_ns()
         live.local.nodes[victim].send_signal(signal.SIGKILL)
@@ -413,6 +418,17 @@ def _last_check(live: Live) -> dict | None:
         out.update(gains={s: _r(g, 4) for s, g in last.gains.items()}, condition=_r(last.condition, 2),
                    inliers=_r(last.inliers, 3), seconds=_r(last.seconds, 3))
     return out
+
+
+def _precomputed(live: Live, victim: str) -> dict | None:
+    """Whether the coordinator holds the maps for losing ``victim`` before the loss, and what its variants
+    computed ahead hold (MiB)."""
+    variants = getattr(getattr(live.core, "blending", None), "variants", None)
+    if variants is None or not hasattr(variants, "get"):
+        return None
+    from coordinator.blending.failover import variant_key
+    return {"loss_ready": variants.get(variant_key({victim})) is not None,
+            "held_mib": _r(variants.held_bytes() / 2 ** 20, 1)}
 
 
 def _late(live: Live, slots: list[str]) -> dict[str, int]:
