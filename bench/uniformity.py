@@ -13,11 +13,11 @@ Parts (``--only`` picks some; each prints progress lines on stderr):
   three or more projectors reach, before and after;
 * ``captures`` -- the blend job's captures for 1 projector and for 25 (planar);
 * ``failover`` -- real coordinator and node processes in the room on P25 and P9: a node killed
-  during a show, the time until the coordinator declares it lost, the non-uniformity in its
+  during a flat-white show (a still on rigs of more than 9 nodes, ``--show``), the time until the coordinator declares it lost, the non-uniformity in its
   footprint once the remaining nodes show their new maps, and how many frames after the
   declaration those maps were on screen (the nodes' heartbeats: the pts of the first frame
   shown with them); then the node returns and the maps switch back;
-* ``watchdog`` -- the same rig (P25) with one lamp dimmed to 50 % and one to 0 through the room's
+* ``watchdog`` -- the same rig (P25) showing a flat-white still, with one lamp dimmed to 50 % and one to 0 through the room's
   lamp switch while the nodes stay live: the time until the watchdog names each, its gain
   estimate against the room's truth, and the non-uniformity once re-blended;
 * ``node`` -- ``bench node``'s figures of a 1080p blend: render time ratio and resident memory.
