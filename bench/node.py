@@ -15,12 +15,14 @@ include SciPy, OpenCV or scikit-image.
 
 What a blend costs (``blend``): each worker then renders as many frames again, in blocks of
 ``BLEND_BLOCK`` that take turns without and with blend maps of a quarter of the output's resolution
-(one RGBA16F texture, the node's dithered pipeline), so the two share the machine's drift; the
-render times' medians give ``blend.render_ratio`` (with / without; target <= 1.05 at 1080p) and the
-resident memory grown by the blended shader's first draw (the driver compiles its variant:
-``rss_shader_variant_mb``), making the maps, uploading them and rendering with them
-(``rss_maps_mb``) gives ``blend.rss_delta_mb``, both together (target <= 10 MB). The top-level figures are the default profile's; each
-profile's are under ``blend.profiles``.
+(one RGBA16F texture, the node's dithered pipeline). Each block with maps is compared with the
+blocks without on either side, so a shared machine's changing load moves both alike; the median of
+these ratios over the rounds is ``blend.render_ratio`` (target <= 1.05 at 1080p; the ratio of the
+pooled medians, ``median_ratio``, mixes busy and quiet moments). The resident memory grown by the
+blended shader's first draw (the driver compiles its variant: ``rss_shader_variant_mb``) and by
+decoding, uploading and rendering with the maps (``rss_maps_mb``) is ``blend.rss_delta_mb``
+(target <= 10 MB). The top-level figures are the default profile's; each profile's are under
+``blend.profiles``.
 """
 from __future__ import annotations
 
@@ -163,28 +165,41 @@ def _blend_cost(r, images: list[np.ndarray], frames: int) -> dict:
         r.forget(f"b{i}")
     rss_delta = _rss_mb() - rss_before
     times: dict[bool, list[float]] = {False: [], True: []}
-    for i in range(max(2 * BLEND_BLOCK, frames)):
+    blocks: list[list[float]] = []                        # block k: with maps when k is odd
+    for i in range(max(3 * BLEND_BLOCK, frames)):
         blended = (i // BLEND_BLOCK) % 2 == 1
         if i % BLEND_BLOCK == 0:
             r.set_blend(maps if blended else None)
+            blocks.append([])
         r.upload(f"b{i}", images[i % len(images)])
         t0 = time.perf_counter()
         r.render(f"b{i}")
         r.ctx.finish()
-        times[blended].append((time.perf_counter() - t0) * 1e3)
+        ms = (time.perf_counter() - t0) * 1e3
+        times[blended].append(ms)
+        blocks[-1].append(ms)
         r.forget(f"b{i}")
     r.set_blend(None)
+    # each block with maps against the blocks without on either side: a machine whose load changes
+    # within seconds moves both alike, so the pairs' ratios keep the maps' cost where the pooled
+    # medians would mix busy and quiet moments
+    med = [float(np.median(b)) for b in blocks]
+    pairs = [med[k] / float(np.mean([med[j] for j in (k - 1, k + 1) if j < len(med)]))
+             for k in range(1, len(med), 2)]
     return {"maps": [w, h], "rss_delta_mb": round(rss_delta, 2),
             "rss_shader_variant_mb": round(rss_compiled - rss_before, 2),
             "rss_maps_mb": round(rss_delta - (rss_compiled - rss_before), 2),
-            "samples_ms": {"without": times[False], "with": times[True]}}
+            "samples_ms": {"without": times[False], "with": times[True]}, "pair_ratios": pairs}
 
 
-def _blend_ratio(blend: dict, without: list[float], with_maps: list[float]) -> dict:
-    """A profile's blend figures with the render times pooled over the rounds (ms, medians and ratio)."""
+def _blend_ratio(blend: dict, without: list[float], with_maps: list[float], pairs: list[float]) -> dict:
+    """A profile's blend figures pooled over the rounds: the render times' medians without and with
+    maps (ms) and their ratio, and ``render_ratio``, the median of each block's ratio to its neighbours."""
     plain, blended = float(np.median(without)), float(np.median(with_maps))
     return {**blend, "render_ms_p50_without": round(plain, 3), "render_ms_p50_with": round(blended, 3),
-            "render_ratio": round(blended / plain, 3) if plain > 0 else None, "frames": len(without) + len(with_maps)}
+            "median_ratio": round(blended / plain, 3) if plain > 0 else None,
+            "render_ratio": round(float(np.median(pairs)), 3), "blocks": len(pairs),
+            "frames": len(without) + len(with_maps)}
 
 
 def _percentiles(upload: list[float], render: list[float], cpu: list[float]) -> dict:
@@ -230,7 +245,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(_worker(args)))
         return 0
     profiles: dict[str, dict] = {}
-    pooled = {name: {"upload": [], "render": [], "cpu": [], "without": [], "with": []} for name in PROFILES}
+    pooled = {name: {"upload": [], "render": [], "cpu": [], "without": [], "with": [], "pairs": []}
+              for name in PROFILES}
     if args.rounds is None:
         args.rounds = min(3, max(1, args.frames // 40))
     per_round = max(2, -(-args.frames // args.rounds))
@@ -249,11 +265,12 @@ def run(args: argparse.Namespace) -> int:
                 pooled[name][key] += values
             for key, values in result["blend"].pop("samples_ms").items():
                 pooled[name][key] += values
+            pooled[name]["pairs"] += result["blend"].pop("pair_ratios")
             profiles[name] = result   # memory and the picture: the last round's (they do not drift)
     for name, p in profiles.items():
         p.update(_percentiles(pooled[name]["upload"], pooled[name]["render"], pooled[name]["cpu"]))
         p["frames"] = len(pooled[name]["render"])
-        p["blend"] = _blend_ratio(p["blend"], pooled[name]["without"], pooled[name]["with"])
+        p["blend"] = _blend_ratio(p["blend"], pooled[name]["without"], pooled[name]["with"], pooled[name]["pairs"])
     d = profiles["default"]
 
     def vs_default(name: str, key: str) -> float | None:
