@@ -228,10 +228,10 @@ async def part_bust(args, work: Path) -> dict:
     _log(f"bust: {len(slots)} projectors from {source}")
     content = (128, 96) if args.quick else (256, 192)
 
-    def mesh_rig(path, room_, slots_):
-        return make_bust_rig(path, room_, slots_, content_size=content, luts=args.luts == "truth")
+    def mesh_rig(path, room_, slots_):     # the true poses and LUTs (the response job measures planar rigs)
+        return make_bust_rig(path, room_, slots_, content_size=content, luts=True)
 
-    b = await blended_rig(room, slots, work / "bust", content_size=content, poses="truth", luts=args.luts,
+    b = await blended_rig(room, slots, work / "bust", content_size=content, poses="truth", luts="truth",
                           frames=args.frames, headroom=args.headroom, map_scale=args.map_scale, mesh_rig=mesh_rig)
     on_mesh = room.truth.surface(0).kind == 2
     mask = b.covered & on_mesh & (b.count >= 3)
