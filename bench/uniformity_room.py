@@ -176,7 +176,11 @@ async def blended_rig(room: Room, slots: list[str], path: Path, *, content_size:
     notes: list[str] = []
     room.set_active(slots)
     params = blend_params({"settle_s": 0.0, "headroom": "auto" if headroom is None else headroom,
-                           **({} if map_scale is None else {"map_scale": map_scale})})
+                           **({} if map_scale is None else {"map_scale": map_scale}),
+                           # a mesh rig's blend, where the job offers it on request
+                           **({"experimental_mesh": True} if mesh_rig is not None else {})})
+    if mesh_rig is not None and "experimental_mesh" in params:
+        notes.append("the blend job's experimental mesh mode (experimental_mesh)")
     if mesh_rig is not None:
         rig = mesh_rig(path, room, slots)
     else:
