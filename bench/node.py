@@ -189,6 +189,9 @@ def _blend_cost(r, images: list[np.ndarray], frames: int) -> dict:
     return {"maps": [w, h], "rss_delta_mb": round(rss_delta, 2),
             "rss_shader_variant_mb": round(rss_compiled - rss_before, 2),
             "rss_maps_mb": round(rss_delta - (rss_compiled - rss_before), 2),
+            # what the node holds for the maps by construction (decoded float32 arrays, float16 texture):
+            # the measured growth can be smaller where the heap reuses memory freed before
+            "held_mb": round((maps.alpha.nbytes + maps.beta.nbytes + w * h * 4 * 2) / 2**20, 2),
             "samples_ms": {"without": times[False], "with": times[True]}, "pair_ratios": pairs}
 
 
