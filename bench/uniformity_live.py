@@ -493,7 +493,8 @@ async def part_watchdog(args, work: Path, light: Light) -> dict:
                 for s in truth:        # named by a check whose capture came after the change
                     if s not in named and s in last.named:
                         named[s] = (time.monotonic_ns() - t0) / 1e9
-                        gains[s] = float(last.named[s])
+                        # the fit's own estimate (the named gain is rounded to the re-blend's 1 % steps)
+                        gains[s] = float(last.gains.get(s, last.named[s]))
             return len(named) == len(truth)
 
         try:
