@@ -430,6 +430,9 @@ class Coordinator:
         if sess.state == NodeState.JOINED:
             sess.state = NodeState.LIVE
             self.live_at[sess.session] = now_ns
+            if self.playback.current_frame is None and not self.playback.playing and not self.show_state.active:
+                # nothing on screen for its maps to wait for: a returning projector rejoins the blend now
+                self.blending.node_live(sess.slot)
         if rep.heartbeat is not None:
             sess.heartbeat = rep.heartbeat
             note_ready(self.ready_at.setdefault(sess.session, {}), rep.heartbeat.assets, now_ns)

@@ -291,7 +291,8 @@ class BlendState:
             self._update_slot(slot, blend=maps, blend_at_ns=at, source="blend")
             changed += 1
         self.applied = v.key
-        self.switched_at_ns = at
+        if changed:     # a switch that changed no slot puts nothing new on screen to wait for
+            self.switched_at_ns = at
         self.switches += 1
         lost, gains = v.key
         if not lost and not gains:
@@ -300,8 +301,8 @@ class BlendState:
         else:
             out = set(lost) | {s for s, g in gains if g < DEAD_GAIN}
             taking_over = sum(1 for s in v.maps if s not in out)
-            log.warning("blend: %s; %d projectors take over with new maps from rig instant %d (%s)",
-                        _describe_key(v.key), taking_over, at,
+            log.warning("blend: %s; %s take over with new maps from rig instant %d (%s)",
+                        _describe_key(v.key), _projectors(taking_over), at,
                         "uniformity kept" if v.kept >= KEPT_ENOUGH else f"{v.kept:.0%} of the footprint kept")
         if self.on_switch is not None:
             self.on_switch(v.key, v, at)
@@ -353,8 +354,9 @@ class BlendState:
         helpers = min(v.helpers.values()) if v.helpers else 0
         covered = v.kept >= KEPT_ENOUGH
         whose = "its footprint" if len(v.helpers) == 1 else "their footprints"
-        tail = (f"{helpers} projectors cover {whose}, uniformity kept" if covered else
-                f"{helpers} projectors cover {v.kept:.0%} of {whose}")
+        cover = "covers" if helpers == 1 else "cover"
+        tail = (f"{_projectors(helpers)} {cover} {whose}, uniformity kept" if covered else
+                f"{_projectors(helpers)} {cover} {v.kept:.0%} of {whose}")
         return BlendStatus(state="failover", lost=tuple(sorted(lost)), since=since, covered=covered,
                            message=f"{head}: {tail}", **common)
 
@@ -365,3 +367,7 @@ def _describe_key(key: VariantKey) -> str:
     parts += [f"lamp of {s} dead" if g < DEAD_GAIN else f"lamp of {s} at {g:.0%}" for s, g in gains]
     return "; ".join(parts) or "full blend"
 
+
+def _projectors(n: int) -> str:
+    """"1 projector", "24 projectors"."""
+    return f"{n} projector" if n == 1 else f"{n} projectors"

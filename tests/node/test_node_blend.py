@@ -44,9 +44,15 @@ def set_blend(coord, slot: str, maps: BlendMaps | None, at_ns: int) -> None:
 
 
 def snapshot(rig: LocalRig, slot: str) -> tuple[np.ndarray | None, dict]:
+    """The slot's snapshot and its metadata, read as one: the node writes the picture and its
+    metadata as two files, so a read between the two writes (metadata read before, picture after)
+    is told apart by reading the metadata again, and counts as no snapshot yet."""
     try:
         meta = json.loads((rig.snapshot_dir / f"{slot}.json").read_text())
-        return read_png(rig.snapshot_dir / f"{slot}.png"), meta
+        image = read_png(rig.snapshot_dir / f"{slot}.png")
+        if json.loads((rig.snapshot_dir / f"{slot}.json").read_text()) != meta:
+            return None, {}
+        return image, meta
     except (OSError, ValueError):
         return None, {}
 

@@ -15,10 +15,11 @@ import pytest
 
 from coordinator.blend_store import StoredBlend, save_blend, save_contributions
 from coordinator.blending import blend_job
+from coordinator.api import Space
 from coordinator.blending.failover import BLACK_MAPS, variant_key
 from coordinator.errors import RigError
 from coordinator.jobs.options import parse_options
-from coordinator.rig import Rig, grid_slots, init_rig
+from coordinator.rig import Content, Rig, grid_slots, init_rig
 from coordinator.server import Coordinator
 from coordinator.sessions import NodeInfo, Report, Swaps
 from imaging.blending.contributions import luma
@@ -116,12 +117,15 @@ def test_a_lost_node_switches_the_others_at_one_instant_and_its_return_switches_
             assert np.percentile(new_ratio, 1) > 0.97 and np.percentile(new_ratio, 99) < 1.03, \
                 np.percentile(new_ratio, [1, 50, 99])
 
-            # the node returns (a new session turns live): the full blend again, at one instant
+            # the node returns while a still is on screen (a new session turns live): the full blend
+            # again once it swaps a frame, at one instant
+            coord.show(coord.prepare_still(Content(np.full((48, 64, 3), 200, np.uint8)), Space.CONTENT),
+                       space=Space.CONTENT, apply_lut=True)
             now[0] += 2_000_000_000
             back = coord.join(slot="r0c1", info=NodeInfo(hostname="pi-r0c1", pid=99), peer="ipv4:10.0.0.1:2")
             assert rig.slot("r0c1").blend is BLACK_MAPS        # it joins dark
             coord.on_report(back, Report())
-            assert rig.slot("r0c1").blend is BLACK_MAPS        # live, but nothing on its screen yet
+            assert rig.slot("r0c1").blend is BLACK_MAPS        # live, but the still not on its screen yet
             coord.on_report(back, Report(swaps=Swaps.of([(1, now[0], now[0])])))
             assert {s: rig.slot(s).blend.blend_id for s in slots} == {s: stored[s].blend_id for s in slots}
             assert {rig.slot(s).blend_at_ns for s in slots} == {now[0] + coord.latency_ns}
@@ -175,6 +179,12 @@ def test_a_footprint_the_others_do_not_reach_is_reported(tmp_path):
             seam &= full > 0.05 * full.max()
             assert np.median(white_of(contributions, new, lost=("mid",))[seam] / full[seam]) > \
                 np.median(white_of(contributions, stored, lost=("mid",))[seam] / full[seam]) + 0.2
+            # back with nothing on screen: no frame to wait for, so the full blend at its first report
+            back = coord.join(slot="mid", info=NodeInfo(hostname="pi", pid=2), peer="ipv4:10.0.0.9:2")
+            assert coord.blend_status().state == "failover"
+            coord.on_report(back, Report())
+            assert coord.blend_status().state == "blended", coord.blend_status()
+            assert {s: rig.slot(s).blend.blend_id for s in slots} == {s: stored[s].blend_id for s in slots}
         finally:
             await coord.close()
 

@@ -146,12 +146,12 @@ def test_the_live_snapshot_carries_the_blend_and_a_failover(tmp_path):
             coord.blend_status = lambda: BlendStatus(
                 state="failover", blend_id="x1", created_at=since - 100, headroom=0.1, brightness_cost=0.09,
                 lost=("r0c1",), since=since, covered=False, lamps=(("r0c0", 0.4567),),
-                message="r0c1 lost 20 s ago, lamp of r0c0 at 46% for 3 s: 1 projectors cover 80% of its footprint")
+                message="r0c1 lost 20 s ago, lamp of r0c0 at 46% for 3 s: 1 projector covers 80% of its footprint")
             b = await snap()
             # of the coordinator's line, what does not count time: the page counts the time since itself
             assert b == {"state": "failover", "blend_id": "x1", "created_at": round(since - 100, 3), "headroom": 0.1,
                          "brightness_cost": 0.09, "lost": ["r0c1"], "since": round(since, 3), "covered": False,
-                         "lamps": [{"slot": "r0c0", "gain": 0.457}], "message": "1 projectors cover 80% of its footprint"}
+                         "lamps": [{"slot": "r0c0", "gain": 0.457}], "message": "1 projector covers 80% of its footprint"}
             coord.blend_status = lambda: BlendStatus(
                 state="blended", blend_id="x1", created_at=since - 100, headroom=0.1, brightness_cost=0.09,
                 message="blended (measured 2 min ago): headroom 10% held for failover costs 9% of brightness; "
@@ -236,7 +236,7 @@ def test_the_blend_panel_in_a_browser(tmp_path, browser_ready):
             rig.kill_node("r0c1")
             wait_for(lambda: alarm(driver)[0], 90, "the failover alarm")
             first = alarm(driver)[1]
-            assert first.startswith("r0c1 out of the blend ") and " s ago: 1 projectors cover its footprint" in first \
+            assert first.startswith("r0c1 out of the blend ") and " s ago: 1 projector covers its footprint" in first \
                 and first.endswith("uniformity kept"), first
             wait_for(lambda: alarm(driver)[1] != first, 30, f"the time since counting up from {first!r}")
             assert rig.call(lambda: rig.coord.blend_status().lost) == ("r0c1",)
