@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from coordinator.blending.geometry_check import slot_digests
 from coordinator.blend_store import StoredBlend, save_blend, save_contributions
 from coordinator.blending.blend_options import BlendOptions
 from coordinator.compensation.jobkit import content_size, rig_geometry
@@ -316,7 +317,7 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
         grid=[int(sol.target.shape[1]), int(sol.target.shape[0])], map_scale=opts.map_scale,
         compute_s=_r(compute_s, 3), wall_s=_r(time.monotonic() - t0, 3), blend_id=blend_id, created_at=created)
     info = {**result.to_wire(), "smoothness": opts.smoothness, "ramp": opts.ramp, "fit": fit_figs["slots"],
-            "camera": opts.camera, "gains_folded": gains}
+            "camera": opts.camera, "gains_folded": gains, "slot_digests": slot_digests(rig, slots)}
     arrays, meta = contributions.to_arrays()
     meta = {**meta, "gains_folded": gains, "measured_at": created}
     try:

@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping
 from coordinator.api import BlendStatus
 from coordinator.blend_store import BlendStoreError, StoredBlend, load_blend, load_contributions
 from coordinator.blending.failover import DEAD_GAIN, MAX_PRECOMPUTED_BYTES, Variant, VariantKey, Variants, variant_key
+from coordinator.blending.geometry_check import changed_since
 from coordinator.rig import Rig
 from imaging.blending.contributions import Contributions
 from imaging.blending.errors import BlendError
@@ -332,6 +333,10 @@ class BlendState:
             msg = f"blended ({when}): headroom {headroom:.0%} held for failover costs {cost:.0%} of brightness"
             if self.variants is None:
                 msg += "; no contributions stored, so no failover"
+            stale = changed_since(self.rig, info.get("slot_digests"))
+            if stale:
+                msg += (f"; the pose, LUT or gain of {', '.join(stale)} changed since it was measured: "
+                        "run `shadowless blend` again")
             return BlendStatus(state="blended", message=msg, **common)
         since = min([*self.lost_nodes.values(), *(t for s, t in self.lamps_since.items())] or [now])
         v = self.variants.get(key) if self.variants is not None else None

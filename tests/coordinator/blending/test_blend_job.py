@@ -13,6 +13,7 @@ import pytest
 from bench.calibration import make_rig, table_points_from_truth
 from bench.compensation_room import points_doc
 from coordinator.blend_store import load_blend, load_contributions
+from coordinator.blending.geometry_check import slot_digests
 from coordinator.jobs import JobError
 from imaging.blending.contributions import Contributions
 from imaging.blending.metrics import uniformity
@@ -78,6 +79,7 @@ def test_the_blend_evens_the_table_and_the_nodes_show_what_was_stored(table):
     for key in ("headroom", "brightness_cost", "uniformity_before", "uniformity_after", "captures", "created_at"):
         assert stored.info[key] == out[key]
     assert set(stored.pictures) == {"before", "after"}
+    assert stored.info["slot_digests"] == slot_digests(rig, SLOTS), "what the measurement depended on, per slot"
     contributions = Contributions.from_arrays(*load_contributions(rig.path))
     assert contributions.slots == SLOTS
     sol = compute_blend(contributions)          # what a failover recomputes from the store: the same maps

@@ -313,3 +313,32 @@ def test_the_watchdog_sees_a_timeline_show_of_a_still_asset_and_not_of_a_sequenc
             await coord.close()
 
     asyncio.run(go())
+
+
+def test_a_blend_says_it_is_stale_once_a_pose_lut_or_gain_changes_after_its_measurement(tmp_path):
+    """The blend job stores a digest of each slot's pose, LUT and gain; once one changes (a new
+    response run, a gain set by hand, a recalibration), status names the slot and says to measure
+    again. A blend stored without digests (older, or imported) is not judged."""
+    from coordinator.blend_store import load_blend
+    from coordinator.blending.geometry_check import slot_digests
+    slots = grid_slots(1, 2)
+    rig, _, _ = blended_rig(tmp_path, slots, tiled_rects(1, 2, CAMERA, seed=4))
+    stored = load_blend(rig.path)
+    save_blend(rig.path, StoredBlend(stored.maps, {**stored.info, "slot_digests": slot_digests(rig, slots)}))
+
+    async def go():
+        coord = Coordinator(Rig(rig.path), TOKEN, encoding=Packets)
+        coord.open()
+        try:
+            st = coord.blend_status()
+            assert st.state == "blended" and "changed since" not in st.message, st
+            coord.rig.update_slot("r0c1", gain=0.8)
+            st = coord.blend_status()
+            assert st.state == "blended" and "of r0c1 changed since it was measured" in st.message \
+                and "shadowless blend" in st.message, st
+            coord.rig.update_slot("r0c1", gain=1.0)     # back as measured: nothing to say
+            assert "changed since" not in coord.blend_status().message
+        finally:
+            await coord.close()
+
+    asyncio.run(go())

@@ -1,0 +1,40 @@
+"""Whether a stored blend still describes the rig: what each projector's measured light depends on.
+
+A blend is measured through each slot's pose (where its pixels land), its LUT (the light is linear
+only through it) and its gain (folded into the measured contributions). When any of them changes
+after the measurement (a recalibration, a new response run, a gain set by hand), the maps no longer
+even the light, and the operator should measure again. The blend job stores one digest per slot;
+the core compares it with the slot as it is now.
+"""
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+
+import numpy as np
+
+from coordinator.rig import Rig, SlotState
+
+__all__ = ["slot_digest", "slot_digests", "changed_since"]
+
+
+def slot_digest(st: SlotState) -> str:
+    """A digest of what a slot's measured light depends on: its size, gain, pose and LUT."""
+    h = hashlib.blake2b(digest_size=8)
+    h.update(f"{st.width}x{st.height}:{st.gain!r}".encode())
+    h.update(np.ascontiguousarray(st.pose.matrix, np.float64).tobytes() if st.pose is not None else b"-")
+    h.update(np.ascontiguousarray(st.lut, np.float32).tobytes() if st.lut is not None else b"identity")
+    return h.hexdigest()
+
+
+def slot_digests(rig: Rig, slots) -> dict[str, str]:
+    """``{slot: slot_digest}`` for ``slots`` of ``rig`` as they are now."""
+    return {s: slot_digest(rig.slot(s)) for s in slots if s in rig.slots}
+
+
+def changed_since(rig: Rig, measured: Mapping[str, str] | None) -> list[str]:
+    """The slots whose pose, LUT, gain or size changed since ``measured`` (a blend's stored digests;
+    a blend stored without them, or a slot the rig no longer has, is not judged)."""
+    if not measured:
+        return []
+    return sorted(s for s, d in measured.items() if s in rig.slots and slot_digest(rig.slot(s)) != d)
