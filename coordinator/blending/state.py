@@ -209,8 +209,9 @@ class BlendState:
 
     # ------------------------------------------------------------------ events
     def node_lost(self, slot: str) -> None:
-        """The core declared ``slot``'s node lost: switch to the others' maps."""
-        if slot not in self.slots or slot in self.lost_nodes:
+        """The core declared ``slot``'s node lost: switch to the others' maps (not once closed: a
+        coordinator that stops ends every session, and that is no loss to cover)."""
+        if self._closed or slot not in self.slots or slot in self.lost_nodes:
             return
         self.lost_nodes[slot] = self.wall_clock()
         self.lost_at_ns[slot] = self.clock_ns()
