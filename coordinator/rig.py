@@ -136,6 +136,15 @@ class SlotState:
     blend_at_ns: int = 0
 
 
+def hash_slot_state(h, st: SlotState) -> None:
+    """Feed ``h`` (a hashlib object) what light measured through a slot depends on: its size, gain,
+    pose and LUT. The transport's fingerprint and a blend's per-slot digests both use it, so they
+    go stale on the same changes."""
+    h.update(f"{st.width}x{st.height}:{st.gain!r}".encode())
+    h.update(st.pose.matrix.tobytes() if st.pose is not None else b"-")
+    h.update(np.ascontiguousarray(st.lut, np.float32).tobytes() if st.lut is not None else b"identity")
+
+
 @dataclass(frozen=True)
 class Content:
     """An image the rig shows: ``image`` (H, W, C) uint8/uint16/float32, with a stable id."""

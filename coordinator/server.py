@@ -15,7 +15,6 @@ injectable (``clock_ns``) so tests decide when time passes.
 from __future__ import annotations
 
 import asyncio
-import functools
 import hashlib
 import hmac
 import logging
@@ -23,7 +22,7 @@ import math
 import secrets
 import time
 import uuid
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any, AsyncIterator, Callable, Mapping, Sequence
 
 import numpy as np
@@ -685,7 +684,7 @@ class Coordinator:
             blend=self.blend_status())
 
 
-@functools.lru_cache(maxsize=2)
+@lru_cache(maxsize=2)
 def _still_asset_image(path, size: tuple[int, int]) -> np.ndarray:
     """A still asset's image at the content size (H, W, C), as a node warps it (bilinear)."""
     import cv2

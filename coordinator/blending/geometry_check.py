@@ -11,19 +11,15 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Mapping
 
-import numpy as np
-
-from coordinator.rig import Rig, SlotState
+from coordinator.rig import Rig, SlotState, hash_slot_state
 
 __all__ = ["slot_digest", "slot_digests", "changed_since"]
 
 
 def slot_digest(st: SlotState) -> str:
-    """A digest of what a slot's measured light depends on: its size, gain, pose and LUT."""
+    """A digest of what a slot's measured light depends on (:func:`coordinator.rig.hash_slot_state`)."""
     h = hashlib.blake2b(digest_size=8)
-    h.update(f"{st.width}x{st.height}:{st.gain!r}".encode())
-    h.update(np.ascontiguousarray(st.pose.matrix, np.float64).tobytes() if st.pose is not None else b"-")
-    h.update(np.ascontiguousarray(st.lut, np.float32).tobytes() if st.lut is not None else b"identity")
+    hash_slot_state(h, st)
     return h.hexdigest()
 
 

@@ -36,7 +36,7 @@ import scipy.sparse as sp
 from imaging.compensation.errors import TransportFileError
 from imaging.compensation.response import FittedResponse
 from imaging.compensation.transport import load_transport, save_transport
-from coordinator.rig import HomographyPose, Rig
+from coordinator.rig import HomographyPose, Rig, hash_slot_state
 from protos.store import atomic_save_npy, atomic_write_json
 
 __all__ = [
@@ -146,10 +146,8 @@ def rig_state_fingerprint(rig: Rig, slots: Sequence[str], H: np.ndarray, camera:
     h.update(repr((rig.config.content_width, rig.config.content_height, camera)).encode())
     h.update(np.asarray(H, np.float64).tobytes())
     for s in sorted(slots):
-        st = rig.slot(s)
-        h.update(f"{s}:{st.width}x{st.height}:{st.gain!r}".encode())
-        h.update(st.pose.matrix.tobytes() if st.pose is not None else b"-")
-        h.update(np.ascontiguousarray(st.lut, np.float32).tobytes() if st.lut is not None else b"identity")
+        h.update(f"{s}:".encode())
+        hash_slot_state(h, rig.slot(s))
     return h.hexdigest()
 
 

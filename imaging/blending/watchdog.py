@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from imaging.blending.predict import sample_map
 from protos.blend import BlendMaps
 
 __all__ = ["GainFit", "camera_grid_to_camera", "columns_for", "content_on_grid", "fit_changes", "fit_gains",
@@ -135,21 +136,16 @@ def maps_on_grid(maps: BlendMaps, grid_to_projector: np.ndarray, projector_size:
         Grid texels whose projector pixel lies on the projector's frame.
     """
     W, H = int(projector_size[0]), int(projector_size[1])
-    mw, mh = maps.size
-    # projector px -> map texel: the inverse of the maps' texel-centre convention
-    P2M = np.array([[mw / W, 0.0, 0.5 * mw / W - 0.5], [0.0, mh / H, 0.5 * mh / H - 0.5], [0.0, 0.0, 1.0]])
-    G2M = P2M @ np.asarray(grid_to_projector, np.float64)
     h, w = int(shape[0]), int(shape[1])
-    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    alpha = cv2.warpPerspective(maps.alpha, G2M, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
-    beta = cv2.warpPerspective(maps.beta, G2M, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
     ii, jj = np.mgrid[0:h, 0:w]
     pts = np.stack([jj.ravel(), ii.ravel(), np.ones(h * w)]).astype(np.float64)
     u = np.asarray(grid_to_projector, np.float64) @ pts
     with np.errstate(divide="ignore", invalid="ignore"):
         x, y = u[0] / u[2], u[1] / u[2]
     inside = ((u[2] > 0) & (x >= -0.5) & (x <= W - 0.5) & (y >= -0.5) & (y <= H - 0.5)).reshape(h, w)
-    return alpha.reshape(h, w, 3).astype(np.float32), beta.reshape(h, w).astype(np.float32), inside
+    # the maps at those projector pixels, sampled as the blend's forward model samples them
+    xy = np.stack([x, y], axis=1).reshape(h, w, 2)
+    return sample_map(maps.alpha, xy, (W, H)), sample_map(maps.beta, xy, (W, H)), inside
 
 
 def content_on_grid(content: np.ndarray, grid_to_content: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
