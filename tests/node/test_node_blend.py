@@ -19,7 +19,7 @@ import numpy as np
 from coordinator.app import CoordinatorApp
 from coordinator.rig import Content, HomographyPose, Rig
 from coordinator.wire import node_messages
-from node.image_files import read_png
+from node.image_files import decode_png, decode_png_text
 from protos.blend import BlendMaps
 from protos.spaces import warp_content
 from shadowless.local import LocalRig
@@ -44,15 +44,16 @@ def set_blend(coord, slot: str, maps: BlendMaps | None, at_ns: int) -> None:
 
 
 def snapshot(rig: LocalRig, slot: str) -> tuple[np.ndarray | None, dict]:
-    """The slot's snapshot and its metadata, read as one: the node writes the picture and its
-    metadata as two files, so a read between the two writes (metadata read before, picture after)
-    is told apart by reading the metadata again, and counts as no snapshot yet."""
+    """The slot's snapshot and its metadata, as one: the node writes the picture and its metadata as
+    two files, so the picture's own ``tEXt`` chunks (written with its pixels) must name the frame and
+    swap the metadata names; a read between the two writes counts as no snapshot yet."""
     try:
         meta = json.loads((rig.snapshot_dir / f"{slot}.json").read_text())
-        image = read_png(rig.snapshot_dir / f"{slot}.png")
-        if json.loads((rig.snapshot_dir / f"{slot}.json").read_text()) != meta:
+        data = (rig.snapshot_dir / f"{slot}.png").read_bytes()
+        text = decode_png_text(data)
+        if any(text.get(k) != str(meta.get(k)) for k in ("frame_id", "swap_rig_ns")):
             return None, {}
-        return image, meta
+        return decode_png(data), meta
     except (OSError, ValueError):
         return None, {}
 
@@ -117,7 +118,10 @@ def test_nodes_show_their_maps_from_their_instant_and_refuse_bad_ones(tmp_path, 
                 assert near(snapshot(rig, "r0c1")[0], plain)
                 assert coord.by_slot["r0c0"].blend_id == first.blend_id and coord.by_slot["r0c1"].blend_id == ""
             metas = await pictures(rig, {s: expected(content, new[s]) for s in SLOTS}, "both nodes on the new maps")
-            assert all(m["swap_rig_ns"] >= at - 2_000_000 for m in metas.values()), (metas, at)
+            assert all(m["swap_rig_ns"] >= at - 2_000_000 for m in metas.values()), \
+                ({s: (m.get("swap_rig_ns"), m.get("frame_id")) for s, m in metas.items()}, at,
+                 {s: [ln for ln in rig.log(f"node-{s}").splitlines() if "blend" in ln][-6:]
+                  for s in SLOTS})
             since = await wait_until_async(
                 lambda: {s: (coord.by_slot[s].blend_id, coord.by_slot[s].blend_since_rig_ns) for s in SLOTS},
                 lambda b: all(b[s][0] == new[s].blend_id for s in SLOTS), what="both heartbeats naming the new maps")

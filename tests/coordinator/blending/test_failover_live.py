@@ -118,7 +118,10 @@ def test_a_killed_node_is_covered_by_the_others_and_a_dimmed_lamp_is_named(tmp_p
                     local.start_node(s)
                 async with await local.client() as c:
                     await local.wait_live(c, timeout=120)
-                assert coord.blend_status().state == "blended"
+                # blended, once every node is live: a node slower to start than lost_after_ms (a loaded
+                # machine) was rightly covered for until its first report, so wait, with a deadline
+                await wait_until_async(coord.blend_status, lambda b: b.state == "blended",
+                                       what="the stored blend on every projector")
                 # each node got the maps as it joined, at once
                 await switched(coord, SLOTS, "every node on the stored maps", common=False)
                 full = await capture()
