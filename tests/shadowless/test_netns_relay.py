@@ -34,6 +34,15 @@ def _exchange(path: str, data: bytes) -> bytes:
         return got
 
 
+def _refused(path: str, data: bytes) -> bytes:
+    """What comes back when the relay cannot reach its target: it closes the connection, which the
+    client sees as an empty read, or, when the close beats the send, as a broken pipe or a reset."""
+    try:
+        return _exchange(path, data)
+    except (BrokenPipeError, ConnectionResetError):
+        return b""
+
+
 def test_the_relay_forwards_each_connection_both_ways_and_removes_its_socket_on_sigterm(tmp_path):
     server = socket.create_server(("127.0.0.1", 0))
     port = server.getsockname()[1]
@@ -86,9 +95,9 @@ def test_a_connection_to_a_port_nobody_listens_on_is_closed_and_the_relay_keeps_
     try:
         wait_until(lambda: relay.poll() is None and _connects(path), what=f"the relay to listen on {path}",
                    timeout=30)
-        assert _exchange(path, b"anyone?") == b""
+        assert _refused(path, b"anyone?") == b""
         assert relay.poll() is None, "the relay is still running"
-        assert _exchange(path, b"again") == b""
+        assert _refused(path, b"again") == b""
     finally:
         relay.terminate()
         relay.wait(30)
