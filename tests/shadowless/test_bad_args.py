@@ -1,9 +1,13 @@
 """Every CLI mistake costs one line naming what is wrong, exit status 2, and no traceback; a rig
 directory named in the mistake is left exactly as it was (checksums before and after).
 
-The corpus runs as real `python -m shadowless` processes, a few at a time, none of which reaches
-a coordinator: each mistake is caught before anything is sent (the token, the files and the
-arguments are checked first). Each row goes to the closing note's table (SHADOWLESS_CORPUS_TABLE).
+Each case runs `shadowless` in this process (``shadowless.cli.main``), its output captured at the
+file descriptors, so a line a C library writes to stderr (OpenCV's log) counts as much as Python's;
+none of them reaches a coordinator: each mistake is caught before anything is sent (the token, the
+files and the arguments are checked first). A few cases (:data:`REAL_PROCESS`: the parser's refusal,
+a command's own refusal, a decoder's) also run as real `python -m shadowless` processes, which proves
+what an operator's shell sees: the exit status, and stderr as the interpreter leaves it. Each row
+goes to the closing note's table (SHADOWLESS_CORPUS_TABLE).
 """
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ import io
 import os
 import subprocess
 import sys
+import traceback
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -135,6 +140,12 @@ CASES = [
 ]
 
 
+#: the cases that also run as real processes: the parser's refusal, a command's refusal of a value,
+#: and a decoder's (whose library would write its own lines to the process's stderr)
+REAL_PROCESS = ("unknown command", "configure: NaN gain",
+                "show: a PNG cut inside its pixels (OpenCV's own log stays quiet)")
+
+
 def digest(folder: Path) -> dict[str, str]:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}
@@ -182,33 +193,66 @@ def results(tmp_path_factory):
     npy_format.write_array_header_1_0(vast, {"descr": "<f4", "fortran_order": False, "shape": (100000, 100000, 3)})
     (d / "vast.npy").write_bytes(vast.getvalue() + bytes(64))
     values = {"rig": str(rig), "dir": str(d), "ok": str(ok), "loose": str(loose), "pickle": str(pickle)}
-    before = digest(rig)
     env = {k: v for k, v in os.environ.items() if k != "SHADOWLESS_TOKEN_FILE"}
 
     def one(case):
         argv = [a.format(**values) for a in case[1]]
         r = subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True,
                            timeout=120, env=env, cwd=d)
-        return case[0], argv, r
+        return case[0], r
 
-    with ThreadPoolExecutor(3) as pool:
-        out = {name: (argv, r) for name, argv, r in pool.map(one, CASES)}
-    return out, before, digest(rig)
+    before = digest(rig)
+    with ThreadPoolExecutor(len(REAL_PROCESS)) as pool:
+        processes = dict(pool.map(one, [c for c in CASES if c[0] in REAL_PROCESS]))
+    return d, rig, values, processes, before, digest(rig)
+
+
+def run_in_process(argv: list[str], capfd) -> tuple[int, str]:
+    """`shadowless ARGV...` in this process: (exit status, stderr); an exception that escapes the
+    command is written out as a traceback, as the interpreter would."""
+    from shadowless.cli import main
+
+    capfd.readouterr()
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    except Exception:   # noqa: BLE001 - the interpreter would print it and exit 1
+        traceback.print_exc()
+        code = 1
+    return code, capfd.readouterr().err
 
 
 @pytest.mark.parametrize("name, argv, expected", CASES, ids=[c[0] for c in CASES])
-def test_a_mistake_is_one_line_and_status_2(results, corpus_table, name, argv, expected):
-    out, _, _ = results
-    args, r = out[name]
+def test_a_mistake_is_one_line_and_status_2(results, corpus_table, capfd, monkeypatch, name, argv, expected):
+    d, rig, values, _, _, _ = results
+    args = [a.format(**values) for a in argv]
+    monkeypatch.chdir(d)
+    monkeypatch.delenv("SHADOWLESS_TOKEN_FILE", raising=False)
+    before = digest(rig)
+    code, stderr = run_in_process(args, capfd)
+    err = stderr.strip()
+    corpus_table("CLI", "shadowless " + " ".join(Path(a).name if "/" in a else a for a in args), err, code)
+    assert "Traceback" not in stderr, stderr
+    assert code == 2, (code, stderr)
+    assert len(err.splitlines()) == 1, err
+    assert expected in err, err
+    assert digest(rig) == before, "a refused command changed the rig directory"
+
+
+@pytest.mark.parametrize("name", REAL_PROCESS)
+def test_a_real_process_refuses_in_one_line_with_status_2(results, name):
+    expected = next(c[2] for c in CASES if c[0] == name)
+    r = results[3][name]
     err = r.stderr.strip()
-    corpus_table("CLI", "shadowless " + " ".join(Path(a).name if "/" in a else a for a in args), err, r.returncode)
     assert "Traceback" not in r.stderr, r.stderr
     assert r.returncode == 2, (r.returncode, r.stderr)
     assert len(err.splitlines()) == 1, err
-    assert expected in err, err
+    assert expected in err and err.startswith("shadowless"), err
+    assert r.stdout == "", r.stdout
 
 
 def test_the_corpus_is_large_enough_and_nothing_stored_changed(results):
-    out, before, after = results
-    assert len(CASES) >= 50 + 33 and len(out) == len(CASES)
+    _, _, _, processes, before, after = results
+    assert len(CASES) >= 50 + 33 and len(processes) == len(REAL_PROCESS)
     assert before == after, "a refused command changed the rig directory"
