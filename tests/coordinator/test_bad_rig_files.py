@@ -1,6 +1,10 @@
 """A corpus of damaged rig files: each is refused with one line naming the file and what is wrong,
 with no traceback, exit status 2 from the CLI, and nothing stored changed.
 
+The CLI runs in the test's interpreter (``shadowless.cli.main``, output captured at the file
+descriptors); the first case of each kind (:data:`REAL_PROCESS`) also runs as a real `python -m
+shadowless` process, which shows the exit status and stderr an operator's shell sees.
+
 Set ``SHADOWLESS_CORPUS_TABLE=path`` to append the corpus as markdown rows (input | message | exit status).
 """
 from __future__ import annotations
@@ -8,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -16,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_inprocess import run_shadowless
 from coordinator.assets import AssetStore
 from coordinator.errors import RigError
 from coordinator.rig import Content, HomographyPose, Rig, init_rig
@@ -204,10 +210,23 @@ def checksums(root: Path) -> dict[str, str]:
     return out
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
+#: cases whose CLI check also runs as a real process (one per kind of file: rig, manifest, token)
+REAL_PROCESS = {"toml-misspelled-latency", "manifest-truncated", "token-world-readable", "nope"}
+
+
+def run_cli(capfd, case: str, *args: str) -> subprocess.CompletedProcess:
+    """`shadowless ARGS...` in this interpreter; for the cases of :data:`REAL_PROCESS`, also in a real
+    process, whose result must be the in-process one (the real process's is returned)."""
+    code, out, err = run_shadowless(list(args), capfd)
+    here = subprocess.CompletedProcess(["shadowless", *args], code, out, err)
+    if case not in REAL_PROCESS:
+        return here
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=60,
+    proc = subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=60,
                           cwd=ROOT, env=env)
+    stamp = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} ", re.M)   # a log line's time
+    assert (proc.returncode, proc.stdout, stamp.sub("", proc.stderr)) == (code, out, stamp.sub("", err)), (proc, here)
+    return proc
 
 
 def record(case: str, message: str, status: object) -> None:
@@ -227,21 +246,21 @@ def assert_one_line(message: str, names: str, says: list[str]) -> None:
 
 
 @pytest.mark.parametrize("case,damage,names,says", RIG_CASES, ids=[c[0] for c in RIG_CASES])
-def test_damaged_rig_file_is_refused_in_one_line(tmp_path, good_rig, case, damage, names, says):
+def test_damaged_rig_file_is_refused_in_one_line(tmp_path, good_rig, capfd, case, damage, names, says):
     rig_dir = tmp_path / "rig"
     shutil.copytree(good_rig, rig_dir)
     damage(rig_dir)
     before = checksums(rig_dir)
     if says is None:                       # the control: still loads
         Rig(rig_dir)
-        assert run_cli("rig", "show", str(rig_dir)).returncode == 0
+        assert run_cli(capfd, case, "rig", "show", str(rig_dir)).returncode == 0
         return
     with pytest.raises(RigError) as exc:
         Rig(rig_dir)
     assert_one_line(str(exc.value), names, says)
     assert checksums(rig_dir) == before
     # the public CLI in a real process: exit 2, one line on stderr, no traceback, nothing changed
-    proc = run_cli("rig", "show", str(rig_dir))
+    proc = run_cli(capfd, case, "rig", "show", str(rig_dir))
     assert proc.returncode == 2, proc
     assert proc.stdout == ""
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
@@ -265,14 +284,14 @@ MANIFEST_CASES = [
 
 
 @pytest.mark.parametrize("case,damage,says", MANIFEST_CASES, ids=[c[0] for c in MANIFEST_CASES])
-def test_damaged_asset_manifest_is_refused_in_one_line(tmp_path, good_rig, case, damage, says):
+def test_damaged_asset_manifest_is_refused_in_one_line(tmp_path, good_rig, capfd, case, damage, says):
     rig_dir = tmp_path / "rig"
     shutil.copytree(good_rig, rig_dir)
     name = manifest(rig_dir).name
     damage(rig_dir)
     before = checksums(rig_dir)
     # `content list` skips a damaged manifest with one warning line and lists the rest (exit 0, by design)
-    proc = run_cli("content", "list", "--rig-dir", str(rig_dir))
+    proc = run_cli(capfd, case, "content", "list", "--rig-dir", str(rig_dir))
     assert proc.returncode == 0 and "grey" not in proc.stdout, proc
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert_one_line(proc.stderr, name, says)
@@ -305,7 +324,7 @@ def make_token(path: Path, content, mode: int) -> None:
 
 
 @pytest.mark.parametrize("case,content,mode,says", TOKEN_CASES, ids=[c[0] for c in TOKEN_CASES])
-def test_bad_token_file_is_refused_in_one_line(tmp_path, good_rig, case, content, mode, says):
+def test_bad_token_file_is_refused_in_one_line(tmp_path, good_rig, capfd, case, content, mode, says):
     rig_dir = tmp_path / "rig"
     shutil.copytree(good_rig, rig_dir)
     token = rig_dir / "token"
@@ -315,7 +334,7 @@ def test_bad_token_file_is_refused_in_one_line(tmp_path, good_rig, case, content
         read_token(token)
     assert_one_line(str(exc.value), str(token), says)
     before = checksums(rig_dir)
-    proc = run_cli("coordinator", "--rig", str(rig_dir), "--no-mdns", "--listen", "127.0.0.1:0",
+    proc = run_cli(capfd, case, "coordinator", "--rig", str(rig_dir), "--no-mdns", "--listen", "127.0.0.1:0",
                    "--port-file", str(tmp_path / "port"))
     assert proc.returncode == 2, proc
     lines = proc.stderr.strip().splitlines()
@@ -343,13 +362,13 @@ def test_refused_slot_updates_leave_every_file_byte_identical(tmp_path, good_rig
     assert rig.slot("r0c0").revision == 1 and Rig(rig_dir).slot("r0c0").gain == 0.5
 
 
-def test_missing_and_file_rig_dirs_are_one_line(tmp_path):
+def test_missing_and_file_rig_dirs_are_one_line(tmp_path, capfd):
     for path, says in ((tmp_path / "nope", "no such directory"), (tmp_path / "file", "not a directory")):
         if path.name == "file":
             path.write_text("x")
         with pytest.raises(RigError, match=says):
             Rig(path)
-        proc = run_cli("rig", "show", str(path))
+        proc = run_cli(capfd, path.name, "rig", "show", str(path))
         assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr
         record(f"rig dir {path.name} (`rig show`)", proc.stderr.strip().replace(str(tmp_path), "TMP"), proc.returncode)
 

@@ -16,7 +16,6 @@ import io
 import os
 import subprocess
 import sys
-import traceback
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import pytest
 from numpy.lib import format as npy_format
 
 import bench.image_headers as HEADERS
+from cli_inprocess import run_shadowless
 from coordinator.rig import init_rig
 from protos import auth
 
@@ -207,22 +207,6 @@ def results(tmp_path_factory):
     return d, rig, values, processes, before, digest(rig)
 
 
-def run_in_process(argv: list[str], capfd) -> tuple[int, str]:
-    """`shadowless ARGV...` in this process: (exit status, stderr); an exception that escapes the
-    command is written out as a traceback, as the interpreter would."""
-    from shadowless.cli import main
-
-    capfd.readouterr()
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    except Exception:   # noqa: BLE001 - the interpreter would print it and exit 1
-        traceback.print_exc()
-        code = 1
-    return code, capfd.readouterr().err
-
-
 @pytest.mark.parametrize("name, argv, expected", CASES, ids=[c[0] for c in CASES])
 def test_a_mistake_is_one_line_and_status_2(results, corpus_table, capfd, monkeypatch, name, argv, expected):
     d, rig, values, _, _, _ = results
@@ -230,7 +214,7 @@ def test_a_mistake_is_one_line_and_status_2(results, corpus_table, capfd, monkey
     monkeypatch.chdir(d)
     monkeypatch.delenv("SHADOWLESS_TOKEN_FILE", raising=False)
     before = digest(rig)
-    code, stderr = run_in_process(args, capfd)
+    code, _, stderr = run_shadowless(args, capfd)
     err = stderr.strip()
     corpus_table("CLI", "shadowless " + " ".join(Path(a).name if "/" in a else a for a in args), err, code)
     assert "Traceback" not in stderr, stderr
