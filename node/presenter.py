@@ -35,6 +35,7 @@ import numpy as np
 
 from node.asset_frames import FrameError, FrameNotReady
 from node.clock import ClockEstimate
+from node.fade import Crossfade
 from node.live_video import LiveDecoder
 from node.outputs.base import Output, SwapInfo
 from node.pacing import LATE_TOLERANCE_NS, FramePacer
@@ -146,6 +147,7 @@ class Presenter:
         self._blend_unshown = False      # the renderer switched maps; no frame shown with them yet
         self.blend_on_screen = ""        # the id of the maps on screen ("" none)
         self.blend_since_rig_ns = 0      # pts of the first frame shown with them
+        self._fade: Crossfade | None = None   # a crossfade under way (node/fade.py)
 
     @property
     def estimate(self) -> ClockEstimate | None:
@@ -467,6 +469,7 @@ class Presenter:
         times are not comparable with the old ones; the timeline is sent again."""
         self.pacer.reset()
         self.player.reset()
+        self._end_fade()
         self.live.reset()
         self._last_event_pts = None
 
@@ -511,6 +514,10 @@ class Presenter:
     def timeline_wait(self) -> float | None:
         """Seconds the loop may wait for messages before :meth:`timeline_step` (None: no timeline work,
         and no blend switch due with no frame to make it)."""
+        if self._fade is not None:      # a crossfade's next step, unless a show's tick takes over
+            if self._next_event() is None:
+                return self._fade_wait()
+            self._end_fade()
         ev = self._next_event()
         if ev is None:
             due = self._blend_due_local()
@@ -524,6 +531,9 @@ class Presenter:
         """Prepare the next timeline frame (or the stop), swap it in at its time, report it (its
         swap and drop records marked ``timeline``); with no timeline work, show the frame on screen
         with the next blend maps at their instant."""
+        if self._fade is not None and self._next_event() is None:
+            self._fade_step()
+            return
         if self._next_event() is None:
             self._blend_step()
             return
@@ -560,6 +570,12 @@ class Presenter:
             return
         self.player.mark_done(ev)
         if ev.kind == "stop":
+            cur = self._current
+            if cur is not None and not cur.content_id.startswith("timeline:") and cur.pts_ns >= ev.pts_ns:
+                # the still the stop makes way for (Stop restoring the content) came on the Frames
+                # stream before the stop on the Show stream and is on screen: it stays there
+                self._forget_timeline_content()
+                return
             renderer.render(None)
             out.prepare(renderer)
             self._ctx.finish()
@@ -638,7 +654,17 @@ class Presenter:
         if self._blend_next is not None and frame.pts_ns >= self._blend_next[1]:
             self._switch_blend(renderer)      # the first frame at or after the blend's instant
         t = time.perf_counter()
-        renderer.render(frame.content_id or None, space=frame.space, apply_lut=frame.apply_lut)
+        apply_lut, fade = frame.apply_lut, None
+        if self._fade is not None and self._fade.covers(frame):
+            apply_lut, fade = self._fade.render_args(frame)
+        try:
+            renderer.render(frame.content_id or None, space=frame.space, apply_lut=apply_lut, fade=fade)
+        except (KeyError, ValueError) as exc:
+            if fade is None:
+                raise
+            log.error("cannot crossfade into frame %d (%s): cut to it", frame.frame_id, exc)
+            self._end_fade()
+            renderer.render(frame.content_id or None, space=frame.space, apply_lut=frame.apply_lut)
         self._render_ms.append((time.perf_counter() - t) * 1e3)
 
     def _on_frame(self, renderer, out: Output, frame: FrameOrder) -> None:
@@ -651,6 +677,7 @@ class Presenter:
         if _DEBUG_TIMING:
             log.info("timing: frame %d reached the presenter %.1f ms before its deadline", frame.frame_id,
                      -pacer.late_by(frame) / 1e6)
+        self._start_fade(frame)
         try:
             self._render(renderer, frame)
         except ValueError as exc:   # the renderer refuses what it cannot show correctly
@@ -658,6 +685,64 @@ class Presenter:
             self._drop(DropRecord(frame.frame_id, DropReason.UNRENDERABLE))
             return
         self._swap_at_pts(renderer, out, frame)
+
+    # ---------------------------------------------------------------- crossfades (node/fade.py)
+    def _start_fade(self, frame: FrameOrder) -> None:
+        """A frame admitted: a fade under way ends where it is; the frame's own fade (if any) starts
+        from what is on screen, which is kept until the fade ends."""
+        self._end_fade()
+        fade = Crossfade.start(frame, self._current, self.renderer.has)
+        if fade is None:
+            return
+        before = fade.before_id
+        if before and before == self._timeline_cid:      # a show's frame: the fade forgets it
+            self._timeline_cid, fade.forget_before = None, True
+        elif before in self._evicted:
+            self._evicted.discard(before)
+            fade.forget_before = True
+        self._fade = fade
+
+    def _end_fade(self) -> None:
+        fade, self._fade = self._fade, None
+        if fade is not None and fade.forget_before and (self._current is None
+                                                        or self._current.content_id != fade.before_id):
+            self.renderer.forget(fade.before_id)
+
+    def _fade_wait(self) -> float | None:
+        est = self.pacer.estimate
+        if est is None:
+            return None
+        until = est.local_time(self._fade.next_order().pts_ns) - self.clock.now()
+        return max(0.0, (until - self.PREPARE_NS) / 1e9)
+
+    def _fade_step(self) -> None:
+        """Render the fade's next step and swap it in at its instant; a late step is dropped, except
+        the last, which is shown at once (the fade ends on the new picture)."""
+        fade = self._fade
+        order = fade.next_order()
+        fade.next_k += 1
+        last = fade.is_last(order)
+        self._work_from_ns = self.clock.now()
+        renderer, out = self.renderer, self.out
+        drop = self.pacer.admit(order, renderer.has)
+        if drop is not None and not last:
+            self._drop(drop)
+            return
+        if drop is None:
+            self._render(renderer, order)
+            self._swap_at_pts(renderer, out, order)
+        if self._current is not order and self._fade is fade:     # the last step missed its instant
+            if drop is not None:
+                self._drop(drop)
+            self._render(renderer, order)
+            out.prepare(renderer)
+            out.swap()
+            self._current = order
+            self._shown_again(out, renderer)
+            log.warning("crossfade into frame %d ended %.1f ms after its instant", fade.frame.frame_id,
+                        (self._rig_now() - order.pts_ns) / 1e6)
+        if last:
+            self._end_fade()
 
     def _forget_timeline_content(self, keep: str | None = None) -> None:
         if self._timeline_cid is not None and self._timeline_cid != keep:
