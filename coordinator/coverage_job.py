@@ -18,6 +18,7 @@ from coordinator.errors import RigError
 from coordinator.jobs import JobContext, JobError
 from coordinator.jobs.options import option
 from coordinator.jobs.results import Figures, JobResult, spread
+from protos.wording import count
 
 __all__ = ["OPTIONS", "CoverageOptions", "CoverageResult", "run"]
 
@@ -94,6 +95,6 @@ async def run(ctx: JobContext, opts: CoverageOptions) -> CoverageResult:
     except (RigError, CalibrationError) as exc:
         raise JobError(" ".join(str(exc).split())) from None
     ctx.progress("coverage", "", 3, 3, "done")
-    ctx.log(f"{doc['lit_pct']} % of the surface reached by at least one of {doc['slots']} projectors; "
+    ctx.log(f"{doc['lit_pct']} % of the surface reached by at least one of {count(doc['slots'], 'projector')}; "
             f"projectors per point: mean {doc['count_mean']}, min {doc['count_min']}; wrote {', '.join(doc['files'])}")
     return CoverageResult.from_doc(doc)     # without the layout: the picture's geometry is for the console's file

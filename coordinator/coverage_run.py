@@ -24,6 +24,7 @@ from coordinator.coverage_store import coverage_dir, rig_camera, rig_projectors,
 from coordinator.rig import Rig
 from protos.store import atomic_write_bytes
 from protos import cli_types
+from protos.wording import count
 
 __all__ = ["View", "view", "default_views", "compute_coverage"]
 
@@ -81,7 +82,7 @@ def compute_coverage(rig: Rig, *, slots: Sequence[str] | None = None, planned: b
         else:
             az, el = value
             chosen.append((f"az {az:g} el {el:g}", orbit_camera(mesh.vertices, az, el, size=panel)))
-    progress(f"{len(projectors)} projectors{' as planned' if planned else ''} onto mesh {mesh.mesh_id} "
+    progress(f"{count(len(projectors), 'projector')}{' as planned' if planned else ''} onto mesh {mesh.mesh_id} "
              f"({len(mesh.vertices)} vertices, {len(mesh.faces)} triangles): shadow maps")
     with CoverageModel(mesh.vertices, mesh.faces, mesh.uvs, projectors, shadow_scale=shadow_scale,
                        falloff=falloff) as model:

@@ -30,6 +30,7 @@ from rigctl.job_command import run_job
 from rigctl.rig_target import open_client
 from coordinator.schema import read_npy, validate_lut
 from protos import auth, cli_types
+from protos.wording import ago, duration, wall_time, count
 from protos.mesh_files import MeshFileError, read_mesh
 from protos.version import MAX_REQUEST_BYTES
 
@@ -73,8 +74,10 @@ def assets_cell(a: dict) -> str:
 def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
     """The rig's status as JSON (what `shadowless status --json` prints). A slot without a joined
     or live node carries the newest refusal of a node claiming it (``refusal``): why it is not there.
-    ``now``: the unix time the blend's ages count to (default: this machine's clock)."""
+    ``now``: the unix time ages count to (default: this machine's clock): the blend's, and each node's
+    last swap as a unix time (``last_swap_at``; its frame id is ``last_swap_frame``)."""
     num = _num
+    clock_now = time.time() if now is None else now
     refusals = [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1), "count": r.count}
                 for r in st.refusals]
     refused: dict[str, dict] = {}
@@ -91,6 +94,8 @@ def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
             "clock_offset_ms": round(n.clock_offset_ms, 3), "drift_ppm": round(n.clock_drift_ppm, 2),
             "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": num(n.clock_error_ms),
             "last_swap_frame": n.last_swap_frame, "last_swap_age_ms": num(n.last_swap_age_ms),
+            "last_swap_at": (None if math.isnan(n.last_swap_age_ms) or not n.last_swap_frame
+                             else round(clock_now - n.last_swap_age_ms / 1e3, 3)),
             "live_age_ms": num(n.live_age_ms),
             "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
@@ -105,7 +110,7 @@ def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
                  "show_updates": st.show_updates_sent, "show_bytes": st.show_bytes_sent},
         "refusals": refusals,
         "console": st.console,
-        "blend": blend_dict(st.blend, now=time.time() if now is None else now),
+        "blend": blend_dict(st.blend, now=clock_now),
         "before_auth": {"in_flight_calls": adm.in_flight_calls, "in_flight_bytes": adm.in_flight_bytes,
                         "peak_bytes": adm.peak_bytes, "admitted": adm.admitted, "refused": adm.refused,
                         "malformed": adm.malformed, "max_calls": adm.max_calls, "max_bytes": adm.max_bytes,
@@ -137,6 +142,19 @@ def show_cell(s: dict) -> str:
     return f"{s['state']} {s['last_frame']}" if s["last_frame"] >= 0 else s["state"]
 
 
+def last_swap_cell(n: dict, *, now: float | None = None) -> str:
+    """When a node last swapped a frame in, for people: ``frame 123 at 14:02:03, 0.2 s ago`` (the
+    frame of the show it follows, when it follows one; a streamed frame's id is a number for
+    machines and stays in the JSON), ``at 14:02:03, 0.2 s ago``, or ``-`` when it never swapped."""
+    show = n.get("show") or {}
+    frame = f"frame {show['last_frame']}" if show.get("state", "none") != "none" and show.get("last_frame", -1) >= 0 else ""
+    at = n.get("last_swap_at")
+    if at is None:
+        return frame or "-"
+    now = time.time() if now is None else now
+    return f"{frame + ' ' if frame else ''}at {wall_time(at, now=now)}, {ago(max(0.0, now - at))}"
+
+
 #: the colour of a node's state on a terminal (others: yellow)
 STATE_STYLES = {"live": "green", "lost": "red", "refused": "red"}
 
@@ -161,14 +179,14 @@ def status_table(d: dict, *, tty: bool = False) -> str:
     """`shadowless status` as text: the rig, a table of its nodes (their states coloured for a
     terminal, ``tty``), then outages, failed assets, sync figures and refusals."""
     r = d["rig"]
-    lines = [f"rig {r['name']} ({r['id']})  instance {r['instance']}  up {r['uptime_s']:.0f} s  showing: {r['showing']}"]
-    t = operator_table("slot", "state", "host", ">offset ms", ">drift ppm", ">rtt ms", ">last frame", ">shown", ">late",
+    lines = [f"rig {r['name']} ({r['id']})  instance {r['instance']}  up {duration(r['uptime_s'])}  showing: {r['showing']}"]
+    t = operator_table("slot", "state", "host", ">offset ms", ">drift ppm", ">rtt ms", "last swap", ">shown", ">late",
                        ">drop", "pose", "show", "assets")
     for n in d["nodes"]:
         state = "refused" if n.get("refusal") else n["state"]
         t.add_row(n["slot"], Text(state, style=STATE_STYLES.get(state, "yellow")), n["host"] or "-",
                   f"{n['clock_offset_ms']:.3f}", f"{n['drift_ppm']:.1f}", f"{n['rtt_ms']:.3f}",
-                  str(n["last_swap_frame"] or "-"), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
+                  last_swap_cell(n), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
                   show_cell(n["show"]), assets_cell(n["assets"]))
     lines.append(rendered(t, tty=tty))
     lines += _grouped(d["nodes"], "gl", "renders with") + _grouped(d["nodes"], "software", "runs shadowless")
@@ -497,7 +515,7 @@ async def _play(args) -> int:
         r = await _play_until_interrupted(c, st, frames)
     d = play_dict(r)
     print(json.dumps(d, indent=2) if args.json else
-          f"played {d['frames_sent']} frames on {d['nodes']} nodes: shown by all {d['frames_shown']}, late {d['frames_late']}, "
+          f"played {d['frames_sent']} frames on {count(d['nodes'], 'node')}: shown by all {d['frames_shown']}, late {d['frames_late']}, "
           f"dropped {d['frames_dropped']}; skew p99 {d['sync']['skew_p99_ms']} ms")
     if args.no_wait or (r.nodes and r.frames_shown >= r.frames_sent):
         return 0
@@ -526,7 +544,7 @@ async def _play_compensated(args) -> int:
         r = await run_job(c, "compensate_sequence", params)
     print(json.dumps(r, indent=2) if args.json else
           f"compensated {r['frames']} frames ({r['ms_per_frame_mean']} ms per frame after the first, {r['iterations_per_frame']} "
-          f"iterations each), played {r['play']['frames_sent']} frames on {r['play']['nodes']} nodes: late "
+          f"iterations each), played {r['play']['frames_sent']} frames on {count(r['play']['nodes'], 'node')}: late "
           f"{r['play']['frames_late']}, dropped {r['play']['frames_dropped']}")
     return 0
 

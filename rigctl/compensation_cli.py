@@ -22,6 +22,7 @@ from coordinator.compensation.image_param import encode_image_param
 from coordinator.compensation.options import CAMERA, CompensateOptions, ResponseOptions, TransportOptions, VideoOptions
 from rigctl.job_command import run_job_command
 from coordinator.jobs.options import add_arguments, params_from_args
+from protos.wording import count
 
 EXAMPLES = """\
 a planar rig, after `shadowless calibrate`:
@@ -95,7 +96,7 @@ def response_report(result: dict) -> str:
         lines.append(f"{slot:<10} failed: {msg}")
     b = result.get("brightness", {})
     if b:
-        lines.append(f"brightness: reference {b['reference']}; gain {b['gain']:.4f}, headroom {b['headroom']:.3f}"
+        lines.append(f"brightness: reference {b['reference']}; gain {b['gain']:.4f}, headroom {b['headroom']:.3f} x"
                      + ("" if b.get("reachable", True) else " (reference not reachable)"))
     lin = result.get("linearity", {})
     if lin:
@@ -139,14 +140,14 @@ def _tail_note(result: dict) -> str:
 def transport_report(result: dict) -> str:
     lines = [f"light transport {'reused (unchanged rig)' if result.get('reused') else 'measured'}: "
              f"{result.get('captures')} captures ({result.get('patterns')} dot patterns, spacing {result.get('spacing')}, "
-             f"radius {result.get('radius')}{_tail_note(result)}), {result.get('nnz')} non-zeros, {result.get('slots')} projectors",
+             f"radius {result.get('radius')}{_tail_note(result)}), {result.get('nnz')} non-zeros, {count(result.get('slots') or 0, 'projector')}",
              f"stored in the rig directory: {result.get('file')} ({result.get('date')})"]
     w = result.get("white")
     if w:
         lines.append(f"rig white inside the content: 2nd percentile {w['p2']}, median {w['median']} (camera units)")
     b = result.get("baseline")
     if b:
-        lines.append(f"baseline: {len(b['slots'])} projectors, {b['captures']} captures this run "
+        lines.append(f"baseline: {count(len(b['slots']), 'projector')}, {b['captures']} captures this run "
                      f"({b['captures_per_projector']} per projector) in {_fmt(b['seconds'], 1)} s"
                      + (f"; left out (no light): {', '.join(b['excluded'])}" if b.get("excluded") else ""))
     return "\n".join(lines)

@@ -19,6 +19,7 @@ from coordinator.coverage_run import compute_coverage, view
 from coordinator.errors import RigError
 from coordinator.rig import Rig
 from protos import cli_types
+from protos.wording import count
 
 EXAMPLES = """\
 examples:
@@ -99,7 +100,7 @@ def _fmt(v: float | None, nd: int = 1) -> str:
 def summary_text(doc: dict, *, tty: bool = False) -> str:
     """The summary for an operator: the surface, the count over it, then one row per slot."""
     planned = " (as planned)" if doc.get("poses") == "planned" else ""
-    lines = [f"rig {doc['rig']}  mesh {doc['mesh']}  {doc['slots']} projectors{planned}  texture "
+    lines = [f"rig {doc['rig']}  mesh {doc['mesh']}  {count(doc['slots'], 'projector')}{planned}  texture "
              f"{doc['texture'][0]}x{doc['texture'][1]}  surface {doc['surface_mm2'] / 100:.0f} cm^2, "
              f"{_fmt(doc['lit_pct'])}% reached by at least one projector"]
     lines.append(f"projectors per point (by area): mean {_fmt(doc['count_mean'], 2)}, min {doc['count_min']}, "

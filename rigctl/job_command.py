@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import math
 import sys
 from dataclasses import dataclass
 from typing import Callable, TextIO
@@ -66,7 +65,7 @@ class ProgressView:
                               disable=not self.tty, speed_estimate_period=600)
             self._bars.start()
         desc = f"{p.stage} {p.item}".rstrip()
-        note = ("" if math.isnan(p.value) or p.value == 0 else f"{p.value:.6g} ") + p.message
+        note = p.message        # the emitter labels its figures there; the bare value is for machines
         total = p.total if p.total > 0 else None
         bar = self._stages.get(p.stage)
         if bar is not None and bar.task is None and p.item == bar.item and total is not None and p.done >= total:

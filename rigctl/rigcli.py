@@ -11,6 +11,7 @@ from rigctl.mpcdi import cli as mpcdi_cli
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.rig_layout import BuiltinMesh, init_from_layout
 from protos import cli_types
+from protos.wording import count
 
 INIT_EXAMPLES = """\
 examples:
@@ -68,7 +69,7 @@ def _init_from_layout(args: argparse.Namespace, builtin_mesh: BuiltinMesh | None
                                   resolution=args.resolution, content_size=args.content_size,
                                   latency_ms=args.latency_ms, force=args.force)
     sizes = sorted({f"{w}x{h}" for w, h in plan.slots.values()})
-    _created(path, f"{len(plan.slots)} slots from layout {args.layout} ({', '.join(sizes)}), content "
+    _created(path, f"{count(len(plan.slots), 'slot')} from layout {args.layout} ({', '.join(sizes)}), content "
                    f"{plan.content_size[0]}x{plan.content_size[1]}, planned poses onto the {plan.surface}")
     if plan.unpowered:
         print(f"left out, unpowered in the layout: {', '.join(plan.unpowered)} (set powered = true there to make "
@@ -90,7 +91,7 @@ def run(args: argparse.Namespace, *, builtin_mesh: BuiltinMesh | None = None) ->
             path = init_rig(args.dir, name=args.name or Path(args.dir).resolve().name, slots=slots,
                             width=width, height=height, content_width=cw, content_height=ch,
                             latency_ms=args.latency_ms, force=args.force)
-            _created(path, f"{len(slots)} slots")
+            _created(path, count(len(slots), "slot"))
             return 0
         if args.rig_command in ("export", "import"):
             return (mpcdi_cli.run_export if args.rig_command == "export" else mpcdi_cli.run_import)(args)

@@ -270,7 +270,7 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
     except BlendError as exc:
         raise JobError(str(exc)) from exc
     compute_s = time.monotonic() - tc
-    ctx.progress("blend", "", 1, 1, f"headroom {sol.headroom:.3f}, brightness cost {sol.brightness_cost:.3f}",
+    ctx.progress("blend", "", 1, 1, f"headroom {sol.headroom:.0%}, brightness cost {sol.brightness_cost:.0%}",
                  value=sol.brightness_cost)
     maps = {s: BlendMaps(a, b) for s, (a, b) in sol.maps.items()}
     # what a viewer should see of a flat white: the target on the even black floor (both on the grid)

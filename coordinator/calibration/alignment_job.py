@@ -39,6 +39,7 @@ from coordinator.jobs.results import Figures, JobResult
 from coordinator.rig import HomographyPose, ProjectionPose
 from protos.store import atomic_write_bytes, atomic_write_json
 from protos.spaces import content_to_table
+from protos.wording import count
 
 OPTIONS = AlignmentOptions
 
@@ -96,7 +97,7 @@ class _Check:
         dark = await self.shoot({s: np.zeros((sizes[s][1], sizes[s][0]), np.uint8) for s in slots}, slots)
         found: dict[str, tuple[list, list]] = {s: ([], []) for s in slots}
         for r in range(len(lattice.rounds)):
-            ctx.progress(stage, "", r + 1, len(lattice.rounds) + 1, f"{len(slots)} projectors at once")
+            ctx.progress(stage, "", r + 1, len(lattice.rounds) + 1, f"{count(len(slots), 'projector')} at once")
             ms = await ctx.compute(multiplex.measure_lattice, await self.shoot(lattice.frames(r), slots), dark, lattice, r)
             for s in slots:
                 found[s][0].append(ms[s].camera)

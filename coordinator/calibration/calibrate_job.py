@@ -42,6 +42,7 @@ from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobContext, JobError
 from coordinator.jobs.results import Figures, JobResult
 from coordinator.rig import Rig
+from protos.wording import count
 
 OPTIONS = CalibrateOptions
 
@@ -101,7 +102,7 @@ async def run(ctx: JobContext, opts: CalibrateOptions) -> CalibrateResult:
     done = current.done & set(slots)
     todo = [s for s in slots if s not in done]
     ctx.log(f"calibration run {current.run_id} ({'resumed' if current.resumed else 'new'}): {opts.mode} mode, "
-            f"{opts.surface} surface, {len(specs)} camera(s), {len(todo)} of {len(slots)} projector(s) to do"
+            f"{opts.surface} surface, {count(len(specs), 'camera')}, {len(todo)} of {count(len(slots), 'projector')} to do"
             + (f" ({', '.join(sorted(done))} already done in this run)" if done else ""))
     if opts.record:
         ctx.record_captures(opts.record)
@@ -134,6 +135,6 @@ async def run(ctx: JobContext, opts: CalibrateOptions) -> CalibrateResult:
         camera_setup=st.setup.summary(),
     )
     if st.failed:
-        raise JobError(f"calibrated {len(summary.slots)} of {len(slots)} projector(s) (saved; run again to retry "
+        raise JobError(f"calibrated {len(summary.slots)} of {count(len(slots), 'projector')} (saved; run again to retry "
                        "the others); " + "; ".join(st.failed.values()))
     return summary

@@ -122,10 +122,11 @@ class MeshSurface:
         target = np.ascontiguousarray(np.float32(opts.level) * white[:, :, None] * T)
         wp = WeightedProblem(w, measured)
         ctx.progress("solve", "", 0, opts.max_iter, "objective")
-        progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, "objective", f))
+        progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, f"objective {f:.4g}", f))
         res, x, none, alpha = await ctx.compute(weighted_solve, wp, tr.L, target, content, opts, progress)
         x, none = cams.pad(x), cams.pad(none)        # the chart edges the nodes sample, as the dots were shown
-        ctx.progress("solve", "", res.iterations, res.iterations, res.reason, res.objective)
+        ctx.progress("solve", "", res.iterations, res.iterations, f"{res.reason}, objective {res.objective:.4g}",
+                     res.objective)
         solved = np.zeros(cw * ch, bool)
         solved[wp.cols[np.diff(sp.csc_matrix(wp.matrix(tr.L)).indptr) > 0]] = True
         tex = texel_summary(tr, cams)

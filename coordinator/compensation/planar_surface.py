@@ -107,11 +107,12 @@ class PlanarSurface:
         alpha = best_scale(await ctx.compute(problem.data.matvec, flat), target.reshape(-1, target.shape[2]))
         none = np.clip(content * np.float32(alpha), 0, 1).astype(np.float32)
         ctx.progress("solve", "", 0, opts.max_iter, "objective")
-        progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, "objective", f))
+        progress = throttled(lambda k, f: ctx.progress("solve", "", k, opts.max_iter, f"objective {f:.4g}", f))
         res = await ctx.compute(solve, problem.op, problem.target(target, none), x0=none, content_shape=(ch, cw),
                                 max_iter=opts.max_iter, tol=opts.tol, est_tol=opts.est_tol, method=opts.method,
                                 progress=progress)
-        ctx.progress("solve", "", res.iterations, res.iterations, res.reason, res.objective)
+        ctx.progress("solve", "", res.iterations, res.iterations, f"{res.reason}, objective {res.objective:.4g}",
+                     res.objective)
         x = np.clip(res.x, 0, 1).astype(np.float32).reshape(ch, cw, -1)
         data_objective = await ctx.compute(problem.data_objective, x, target)
         initial_objective = await ctx.compute(problem.data_objective, none, target)

@@ -51,6 +51,7 @@ from coordinator.compensation.store import (
 )
 from coordinator.jobs import JobContext, JobError
 from coordinator.jobs.results import Figures, JobResult
+from protos.wording import count
 
 __all__ = ["OPTIONS", "run", "ResponseResult", "SlotResponse"]
 
@@ -108,7 +109,7 @@ async def run(ctx: JobContext, opts: ResponseOptions) -> ResponseResult:
             responses[s], docs[s] = stored[0], {**stored[1], "resumed": True}
         else:
             todo.append(s)
-    ctx.log(f"luminance response: {len(todo)} of {len(slots)} projector(s) to measure ({opts.mode} mode)"
+    ctx.log(f"luminance response: {len(todo)} of {count(len(slots), 'projector')} to measure ({opts.mode} mode)"
             + (f"; {len(slots) - len(todo)} kept from an earlier run" if len(todo) < len(slots) else ""))
     black = None
     if todo:
@@ -130,7 +131,8 @@ async def run(ctx: JobContext, opts: ResponseOptions) -> ResponseResult:
         doc = {"slot": s, "fingerprint": _fingerprint(ctx, s, opts, H), "mode": opts.mode,
                "captures": ctx.captures - before, "measured_at": time.time(), "lut_entries": opts.lut_entries, **extra}
         responses[s], docs[s] = resp, save_response(rig, s, resp, doc)
-        ctx.progress("response", s, n + 1, len(todo), "fitted", value=float(np.mean(resp.gamma)))
+        gamma = float(np.mean(resp.gamma))
+        ctx.progress("response", s, n + 1, len(todo), f"fitted, gamma {gamma:.2f}", value=gamma)
     if not responses:
         raise JobError("no projector's response could be measured: " + "; ".join(failed.values()))
     match = await _brightness(ctx, responses, opts)
@@ -146,7 +148,7 @@ async def run(ctx: JobContext, opts: ResponseOptions) -> ResponseResult:
     )
     write_result(rig, "response.json", summary.to_wire())
     if failed:
-        raise JobError(f"measured {len(responses)} of {len(slots)} projector(s) (saved; run again to retry the others); "
+        raise JobError(f"measured {len(responses)} of {count(len(slots), 'projector')} (saved; run again to retry the others); "
                        + "; ".join(failed.values()))
     return summary
 
@@ -232,7 +234,7 @@ async def _brightness(ctx: JobContext, responses: dict[str, FittedResponse], opt
     for s in rig_slots:
         if abs(ctx.rig.slot(s).gain - gain) > 1e-9:
             ctx.set_slot(s, gain=gain, source="response")
-    ctx.progress("brightness", "", 1, 1, f"gain {gain:.4f}, headroom {match.headroom:.3f}", value=gain)
+    ctx.progress("brightness", "", 1, 1, f"gain {gain:.4f}, headroom {match.headroom:.3f} x", value=gain)
     return {"reference": kind, "gain": round(gain, 6), "headroom": round(match.headroom, 4),
             "reachable": match.reachable, "channel_headroom": [round(float(v), 4) for v in match.channel_headroom],
             "rig_white": [rounded(float(v), 6) for v in match.rig_peak],

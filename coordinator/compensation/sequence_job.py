@@ -56,7 +56,8 @@ async def run(ctx: JobContext, opts: SequenceOptions) -> SequenceResult:
             raise JobError(f"frame {k}: {exc}") from exc
         out = await ctx.compute(solver.solve, image)
         frames.append(out.frame)
-        ctx.progress("compensate", "", k + 1, len(opts.frames), f"{1000 * out.seconds:.0f} ms", out.objective)
+        ctx.progress("compensate", "", k + 1, len(opts.frames), f"solved in {1000 * out.seconds:.0f} ms, objective {out.objective:.4g}",
+                     out.objective)
     figures = solver.summary()
     play = None
     if opts.play:

@@ -51,7 +51,7 @@ def test_a_job_in_a_log_gets_a_line_per_tenth_with_its_eta(clock):
     view.event("camera exposure fine")
     for n in range(4):                                     # one count over the slots, each named in turn
         clock.now = 1100.0 + 5 * n
-        view.event(Progress(stage="response", item=f"r0c{n}", done=n + 1, total=4, message="fitted", value=2.2))
+        view.event(Progress(stage="response", item=f"r0c{n}", done=n + 1, total=4, message="fitted, gamma 2.20", value=2.2))
     view.close()
     lines = out.getvalue().splitlines()
     assert "\r" not in out.getvalue() and "\x1b" not in out.getvalue()
@@ -59,10 +59,10 @@ def test_a_job_in_a_log_gets_a_line_per_tenth_with_its_eta(clock):
     assert "gray codes r0c0: 5/10 (50%), 0:00:10 elapsed, ETA 0:00:10  gray codes" in lines
     assert "gray codes r0c0: 9/10 (90%), 0:00:18 elapsed, ETA 0:00:02  gray codes" in lines
     assert lines[10:12] == ["gray codes r0c0: 10/10 (100%), in 0:00:20  gray codes", "camera exposure fine"]
-    assert lines[12:] == ["response r0c0: 1/4 (25%), 0:00:00 elapsed, ETA ?  2.2 fitted",
-                          "response r0c1: 2/4 (50%), 0:00:05 elapsed, ETA ?  2.2 fitted",
-                          "response r0c2: 3/4 (75%), 0:00:10 elapsed, ETA 0:00:05  2.2 fitted",
-                          "response r0c3: 4/4 (100%), in 0:00:15  2.2 fitted"]
+    assert lines[12:] == ["response r0c0: 1/4 (25%), 0:00:00 elapsed, ETA ?  fitted, gamma 2.20",
+                          "response r0c1: 2/4 (50%), 0:00:05 elapsed, ETA ?  fitted, gamma 2.20",
+                          "response r0c2: 3/4 (75%), 0:00:10 elapsed, ETA 0:00:05  fitted, gamma 2.20",
+                          "response r0c3: 4/4 (100%), in 0:00:15  fitted, gamma 2.20"]
 
 
 def test_a_log_gets_at_most_a_line_per_tenth_and_a_stage_said_done_again_once(clock):

@@ -38,11 +38,11 @@ def test_the_status_table_has_every_node_and_fact_in_plain_text():
     text = status_table(d)
     assert "\x1b" not in text and "\r" not in text
     lines = text.splitlines()
-    assert lines[0] == "rig hall (rig-1)  instance i-9  up 61 s  showing: image logo"
-    assert lines[1].split() == ["slot", "state", "host", "offset", "ms", "drift", "ppm", "rtt", "ms", "last", "frame",
+    assert lines[0] == "rig hall (rig-1)  instance i-9  up 1 min 1 s  showing: image logo"
+    assert lines[1].split() == ["slot", "state", "host", "offset", "ms", "drift", "ppm", "rtt", "ms", "last", "swap",
                                 "shown", "late", "drop", "pose", "show", "assets"]
     row = next(line for line in lines if line.startswith("r0c0"))
-    assert row.split() == ["r0c0", "live", HOST, "1.234", "2.5", "0.321", "1234", "100", "1", "2", "homography",
+    assert row.split() == ["r0c0", "live", HOST, "1.234", "2.5", "0.321", "frame", "17", "100", "1", "2", "homography",
                            "playing", "17", "1/2", "35%!"]
     assert next(line for line in lines if line.startswith("r0c1")).split()[:3] == ["r0c1", "lost", "b"]
     assert next(line for line in lines if line.startswith("r1c0")).split()[:3] == ["r1c0", "expected", "-"]

@@ -16,6 +16,7 @@ from coordinator.calibration.stages.state import SATURATED, Abort, State
 from coordinator.jobs import JobError
 from coordinator.rig import HomographyPose
 from protos.spaces import content_to_table
+from protos.wording import count
 
 MIN_COARSE_DOTS = 6         # stage 1: fewest decoded dots for a coarse pose
 MIN_LATTICE_DOTS = 12       # stage 2: fewest measured dots for the final pose
@@ -85,7 +86,7 @@ async def _lattice(st: State, cam: int, ok: list[str], coarse: dict[str, np.ndar
     found: dict[str, list[multiplex.DotMatches]] = {s: [] for s in ok}
     start = st.shots
     for r in range(len(lattice.rounds)):
-        ctx.progress("lattice", "", r, len(lattice.rounds), f"{len(ok)} projectors at once")
+        ctx.progress("lattice", "", r, len(lattice.rounds), f"{count(len(ok), 'projector')} at once")
         cap = (await st.shoot(lattice.frames(r), require=ok))[k_cam]
         ms = await ctx.compute(multiplex.measure_lattice, cap, st.dark[k_cam], lattice, r)
         for s in ok:
@@ -110,7 +111,7 @@ async def _lattice(st: State, cam: int, ok: list[str], coarse: dict[str, np.ndar
                        captures=st.shots - start)
         save_slot(ctx, s, HomographyPose(pose), doc)
         st.results[s] = doc
-        ctx.progress("projectors", s, n + 1, len(ok), "calibrated", value=fit.rms)
+        ctx.progress("projectors", s, n + 1, len(ok), f"calibrated, reprojection error {fit.rms:.3f} px", value=fit.rms)
 
 
 def check_dot_saturation(caps: list[np.ndarray], dec: multiplex.CodedDecode, camera: int, max_saturated: float) -> None:

@@ -17,6 +17,7 @@ from coordinator.calibration.stages.loops import coarse_fits, coded_dot_rounds, 
 from coordinator.calibration.stages.state import State
 from coordinator.jobs import JobError
 from coordinator.rig import ProjectionPose
+from protos.wording import plural
 
 MIN_COARSE_DOTS = 6         # stage 1: fewest lifted dots for a coarse pose (7 degrees of freedom with a fixed principal point)
 MIN_LATTICE_DOTS = 20       # stage 2: fewest measured dots for the final pose
@@ -143,7 +144,7 @@ async def _measure(st: State, lattice: multiplex.Lattice, count: int, *, done: i
     pts, usable = surfaces[cam]
     ok = list(lattice.slots)
     for r in range(count):
-        ctx.progress("lattice", "", done + r, total, f"{len(ok)} projectors at once")
+        ctx.progress("lattice", "", done + r, total, f"{len(ok)} {plural(len(ok), 'projector')} at once")
         cap = (await st.shoot(lattice.frames(r), require=ok))[k_cam]
         ms = await ctx.compute(multiplex.measure_lattice, cap, st.dark[k_cam], lattice, r)
         for s in ok:
@@ -208,4 +209,4 @@ async def _lattice(st: State, ok: list[str], coarse: dict[str, threed.Pinhole], 
                        K=fit.device.K.tolist(), center_mm=fit.device.center.tolist())
         save_slot(ctx, s, pose, doc)
         st.results[s] = doc
-        ctx.progress("projectors", s, n + 1, len(ok), "calibrated", value=fit.rms)
+        ctx.progress("projectors", s, n + 1, len(ok), f"calibrated, reprojection error {fit.rms:.3f} px", value=fit.rms)

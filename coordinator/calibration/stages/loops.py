@@ -21,6 +21,7 @@ from coordinator.calibration.stages.state import Abort, State
 from coordinator.jobs import JobError
 from imaging.calibration import multiplex
 from imaging.calibration.errors import CalibrationError
+from protos.wording import count
 
 __all__ = ["one_by_one", "coded_dot_rounds", "coarse_fits", "refuse_unfound"]
 
@@ -48,7 +49,9 @@ async def one_by_one(st: State, measure: Callable[[str], Awaitable[T]],
         pose, doc = pose_of(slot, measured, before)
         save_slot(ctx, slot, pose, doc)
         st.results[slot] = doc
-        ctx.progress("projectors", slot, n + 1, len(st.todo), "calibrated", value=doc["rms_px"] or math.nan)
+        rms = doc["rms_px"] or math.nan
+        ctx.progress("projectors", slot, n + 1, len(st.todo),
+                     "calibrated" + ("" if math.isnan(rms) else f", reprojection error {rms:.3f} px"), value=rms)
 
 
 async def coded_dot_rounds(st: State, decide: Callable[[multiplex.CodedDots, list[list[np.ndarray]], list[str]],
@@ -67,7 +70,7 @@ async def coded_dot_rounds(st: State, decide: Callable[[multiplex.CodedDots, lis
         caps: list[list[np.ndarray]] = []
         stage = "coded dots" if attempt == 0 else "coded dots (retry)"
         for k in range(dots.captures):
-            ctx.progress(stage, "", k, dots.captures, f"{len(pending)} projectors at once")
+            ctx.progress(stage, "", k, dots.captures, f"{count(len(pending), 'projector')} at once")
             caps.append(await st.shoot(dots.frames(k), require=pending))
         ctx.progress(stage, "", dots.captures, dots.captures, "decoding")
         pending = await decide(dots, caps, pending)
