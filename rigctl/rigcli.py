@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from coordinator.errors import RigError
+from rigctl import user_cli
 from rigctl.mpcdi import cli as mpcdi_cli
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.rig_layout import BuiltinMesh, init_from_layout
@@ -56,6 +57,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     show.add_argument("dir")
     mpcdi_cli.configure_export(sub.add_parser("export", help="write a rig directory's calibration to an MPCDI archive"))
     mpcdi_cli.configure_import(sub.add_parser("import", help="read an MPCDI archive's calibration into a rig directory"))
+    user_cli.configure(sub.add_parser("user", help="who may log in to the console, by name and password, and their role"))
 
 
 def _created(path: Path, what: str) -> None:
@@ -93,6 +95,8 @@ def run(args: argparse.Namespace, *, builtin_mesh: BuiltinMesh | None = None) ->
                             latency_ms=args.latency_ms, force=args.force)
             _created(path, count(len(slots), "slot"))
             return 0
+        if args.rig_command == "user":
+            return user_cli.run(args)
         if args.rig_command in ("export", "import"):
             return (mpcdi_cli.run_export if args.rig_command == "export" else mpcdi_cli.run_import)(args)
         rig = Rig(args.dir, read_only=True)

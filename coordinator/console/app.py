@@ -3,8 +3,9 @@ and the security headers every response carries.
 
 * ``GET /`` and ``/static/*``: the page (plain files shipped with the package; the HTML embeds
   no rig data, everything arrives as JSON and is put on the page with ``textContent``).
-* ``POST /login`` (the rig token), ``POST /logout``, ``GET /api/session`` (the CSRF token of
-  the browser's session, for a reloaded page).
+* ``POST /login`` (a user's name and password, or the rig token), ``POST /logout``,
+  ``GET /api/session`` (who is logged in, their role, and the CSRF token of the browser's
+  session, for a reloaded page), ``GET /api/users`` (admins: the rig's users and open sessions).
 * ``GET /api/status`` (the snapshot, JSON), ``GET /api/events`` (server-sent events) and
   ``GET /api/job/options`` (every job's options, for the job form).
 * ``GET /api/pictures``, ``/api/pictures/{name}`` and ``/api/camera.png``: the jobs' pictures and
@@ -17,8 +18,9 @@ Every request must name the console in its ``Host`` header (an address it listen
 allowed name: :mod:`coordinator.console.hosts`), else it is answered 421 (a DNS-rebinding page
 names its own). Every POST must come from the console's own origin (``Origin`` header equal to
 this scheme and Host) and, but the login, carry the session's CSRF token in ``X-CSRF-Token``;
-everything under ``/api/`` needs a session. Logins are limited as :mod:`coordinator.console.auth`
-says.
+everything under ``/api/`` needs a session. Every POST but the logout also needs the operator role
+(a viewer is answered 403 with one line, which the action log records), managing users the admin
+role (:meth:`ConsoleApp.guard`). Logins are limited as :mod:`coordinator.console.auth` says.
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ import asyncio
 import json
 import logging
 import time
+import warnings
 from importlib import resources
 from typing import TYPE_CHECKING, Awaitable, Callable
 
@@ -39,6 +42,7 @@ from coordinator.console.thumbnails import Thumbnails
 from coordinator.jobs.errors import JobError
 from coordinator.jobs.options import form_fields
 from coordinator.jobs.registry import JOBS, resolve
+from coordinator.users import TOKEN_WHO, Role, UserStore
 
 if TYPE_CHECKING:  # pragma: no cover - types only
     from coordinator.console.audit import ActionLog
@@ -59,7 +63,7 @@ SECURITY_HEADERS = {
     "Cross-Origin-Resource-Policy": "same-origin",
 }
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css",
-          "pictures.js": "text/javascript", "blend.js": "text/javascript"}
+          "pictures.js": "text/javascript", "blend.js": "text/javascript", "people.js": "text/javascript"}
 MAX_LOGIN_BYTES = 4096
 #: foreign Host headers logged (each once); later ones are refused without a log line
 MAX_FOREIGN_HOSTS = 64
@@ -96,6 +100,8 @@ class ConsoleApp:
         self._global_said: float | None = None  # when the spent global login budget was last logged
         # logins since start, for the page: wrong tokens, refused while a limit held, the last wrong one
         self.logins = {"failed": 0, "refused": 0, "last_failed_at": None}
+        self.users = UserStore(coord.rig.path)     # re-read whenever users.json changes on disk
+        self._login_lock = asyncio.Lock()          # one login decided at a time (the limiter's rule)
         self.actions = Actions(coord, audit, live)
         self.static = _load_static()
         self._job_options: str | None = None
@@ -132,8 +138,20 @@ class ConsoleApp:
     def session_of(self, request: web.Request, *, touch: bool = True) -> auth.Session | None:
         return self.sessions.get(request.cookies.get(auth.COOKIE), touch=touch)
 
-    def guard(self, handler: Callable[[web.Request, auth.Session], Awaitable[web.StreamResponse]]):
-        """A handler that needs a session; for POST also the Origin and the CSRF token."""
+    def role_now(self, session: auth.Session) -> Role | None:
+        """The role ``session``'s person holds now (users.json is re-read when it changed): a
+        token login is an admin; None when the user was removed."""
+        if session.who == TOKEN_WHO:
+            return Role.ADMIN
+        return self.users.role_of(session.who)
+
+    def guard(self, handler: Callable[[web.Request, auth.Session], Awaitable[web.StreamResponse]], *,
+              role: str | None = None):
+        """A handler that needs a session; for POST also the Origin and the CSRF token. ``role`` is
+        the least role it needs: by default ``operator`` for a POST (an action) and ``viewer``
+        otherwise. The handler finds who acted in ``request["who"]`` and their role in
+        ``request["role"]``."""
+        fixed = Role(role) if role is not None else None
 
         async def wrapped(request: web.Request) -> web.StreamResponse:
             if request.method == "POST" and not self.origin_ok(request):
@@ -144,6 +162,24 @@ class ConsoleApp:
                 raise _error(web.HTTPUnauthorized, "log in first (no session, or it expired)")
             if request.method == "POST" and not auth.csrf_ok(session, request.headers.get(auth.CSRF_HEADER)):
                 raise _error(web.HTTPForbidden, f"refused: missing or wrong {auth.CSRF_HEADER} header; reload the page")
+            now = self.role_now(session)
+            if now is None:
+                self.sessions.close(session.sid)
+                raise _error(web.HTTPUnauthorized, f"user {session.who} no longer exists on this rig: log in again")
+            session.role = now.value
+            need = fixed or (Role.OPERATOR if request.method == "POST" else Role.VIEWER)
+            if not now.allows(need):
+                what = request.path.removeprefix("/api/") or request.path
+                why = (f"refused: {session.who} is a {now}, and {what} needs the {need} role (an admin grants it: "
+                       f"shadowless rig user role {session.who} {need})")
+                if request.method == "POST":
+                    await self.audit.record(who=session.who, address=client_address(request), action=what, ok=False,
+                                            result=why)
+                    self.live.poke()
+                raise _error(web.HTTPForbidden, why)
+            with warnings.catch_warnings():     # plain string keys on purpose: every handler module reads them
+                warnings.simplefilter("ignore", web.NotAppKeyWarning)
+                request["who"], request["role"] = session.who, session.role
             return await handler(request, session)
 
         return wrapped
@@ -164,41 +200,62 @@ class ConsoleApp:
 
     # ------------------------------------------------------------------ login
     async def login(self, request: web.Request) -> web.Response:
+        """``{"name": ..., "password": ...}`` (a user of the rig) or ``{"token": ...}`` (the rig
+        token: an admin named ``token``)."""
         address = client_address(request)
         if not self.origin_ok(request):
             raise _error(web.HTTPForbidden, "refused: the login does not come from the console's own page")
         raw = await request.content.read(MAX_LOGIN_BYTES + 1)
-        # from here to the verdict nothing awaits: no other login slips past the same check
-        device = self.devices.verify(request.cookies.get(auth.DEVICE_COOKIE))
-        wait, limit = self.limiter.wait(address, device)
-        if wait:
-            self.logins["refused"] += 1
-            if limit == "global":
-                self._say_global_limit()
-            why = {"address": f"too many failed logins from {address}",
-                   "device": "too many failed logins from this browser",
-                   "global": "too many failed logins from many addresses"}[limit]
-            raise _error(web.HTTPTooManyRequests, f"{why}: try again in {wait} s", headers={"Retry-After": str(wait)})
-        token = ""
+        token, name, password = "", None, ""
         try:
             doc = json.loads(raw) if len(raw) <= MAX_LOGIN_BYTES else None
-            if isinstance(doc, dict) and isinstance(doc.get("token"), str):
+            if isinstance(doc, dict) and isinstance(doc.get("name"), str) and doc["name"].strip():
+                name = doc["name"].strip().lower()[:64]
+                password = doc["password"] if isinstance(doc.get("password"), str) else ""
+            elif isinstance(doc, dict) and isinstance(doc.get("token"), str):
                 token = doc["token"]
         except ValueError:
             pass
-        if not token or not self.coord.token_matches(token):
-            self.limiter.failed(address, device)
-            self.logins["failed"] += 1
-            self.logins["last_failed_at"] = round(time.time())
-            await self.audit.record(who="-", address=address, action="login", ok=False, result="wrong token")
-            self.live.poke()
-            raise _error(web.HTTPUnauthorized, "wrong token: paste the rig's token (the file `token` in the rig "
-                                               "directory)")
-        self.limiter.succeeded(address, device)
-        session = self.sessions.open(address)
-        await self.audit.record(who=session.who, address=address, action="login", ok=True, result="logged in")
+        # one login at a time from the limiter's check to its verdict: none slips past the same check
+        async with self._login_lock:
+            device = self.devices.verify(request.cookies.get(auth.DEVICE_COOKIE))
+            wait, limit = self.limiter.wait(address, device, name)
+            if wait:
+                self.logins["refused"] += 1
+                if limit == "global":
+                    self._say_global_limit()
+                why = {"address": f"too many failed logins from {address}",
+                       "device": "too many failed logins from this browser",
+                       "name": f"too many failed logins for {name}",
+                       "global": "too many failed logins from many addresses"}[limit]
+                raise _error(web.HTTPTooManyRequests, f"{why}: try again in {wait} s",
+                             headers={"Retry-After": str(wait)})
+            if name is not None:
+                # a scrypt hash, off the event loop (an unknown name costs the same)
+                role = await asyncio.to_thread(self.users.verify, name, password) if password else None
+                who = name
+            else:
+                role = Role.ADMIN if token and self.coord.token_matches(token) else None
+                who = TOKEN_WHO
+            if role is None:
+                self.limiter.failed(address, device, name)
+                self.logins["failed"] += 1
+                self.logins["last_failed_at"] = round(time.time())
+                await self.audit.record(who="-", address=address, action="login", ok=False,
+                                        result="wrong name or password" if name is not None else "wrong token",
+                                        params={"name": name} if name is not None else None)
+                self.live.poke()
+                if name is not None:
+                    raise _error(web.HTTPUnauthorized, "wrong name or password (or paste the rig's token with the "
+                                                       "name left empty)")
+                raise _error(web.HTTPUnauthorized, "wrong token: paste the rig's token (the file `token` in the rig "
+                                                   "directory), or log in with your name and password")
+            self.limiter.succeeded(address, device, name)
+        session = self.sessions.open(address, who=who, role=role.value)
+        await self.audit.record(who=session.who, address=address, action="login", ok=True,
+                                result=f"logged in as {role}")
         self.live.poke()
-        resp = web.json_response({"ok": True, "csrf": session.csrf, "who": session.who})
+        resp = web.json_response({"ok": True, "csrf": session.csrf, "who": session.who, "role": session.role})
         resp.set_cookie(auth.COOKIE, session.sid, httponly=True, samesite="Strict", secure=self.secure, path="/")
         # this browser's logins are then limited by its own failures only (auth's module docstring)
         resp.set_cookie(auth.DEVICE_COOKIE, self.devices.issue(device), httponly=True, samesite="Strict",
@@ -215,7 +272,18 @@ class ConsoleApp:
         return resp
 
     async def session_info(self, request: web.Request, session: auth.Session) -> web.Response:
-        return web.json_response({"ok": True, "csrf": session.csrf, "who": session.who})
+        return web.json_response({"ok": True, "csrf": session.csrf, "who": session.who, "role": session.role})
+
+    async def users_list(self, request: web.Request, session: auth.Session) -> web.Response:
+        """(admins) The rig's users with their roles, and the open sessions: who, role, address,
+        seconds since their last request. Never a hash."""
+        now = self.sessions.clock()
+        users = [{"name": u.name, "role": u.role.value, "created": u.created, "changed": u.changed}
+                 for u in await asyncio.to_thread(self.users.list)]
+        sessions = sorted(({"who": s.who, "role": s.role, "address": s.address, "idle_s": round(now - s.last_used)}
+                           for s in self.sessions.open_sessions()), key=lambda d: (d["who"], d["idle_s"]))
+        return web.json_response({"ok": True, "users": users, "sessions": sessions,
+                                  "file_error": self.users.error})
 
     # ------------------------------------------------------------------ the rig
     async def status(self, request: web.Request, session: auth.Session) -> web.Response:
@@ -281,8 +349,9 @@ def make_app(console: ConsoleApp) -> web.Application:
     app.router.add_get("/", c.index)
     app.router.add_get("/static/{name}", c.static_file)
     app.router.add_post("/login", c.login)
-    app.router.add_post("/logout", c.guard(c.logout))
+    app.router.add_post("/logout", c.guard(c.logout, role="viewer"))
     app.router.add_get("/api/session", c.guard(c.session_info))
+    app.router.add_get("/api/users", c.guard(c.users_list, role="admin"))
     app.router.add_get("/api/status", c.guard(c.status))
     app.router.add_get("/api/events", c.guard(c.events))
     app.router.add_get("/api/job/options", c.guard(c.job_options))

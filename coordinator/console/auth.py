@@ -1,15 +1,19 @@
-"""Who may use the console: login with the rig token, sessions, CSRF and the login limits.
+"""Who may use the console: logins by name and password or with the rig token, sessions and
+their roles, CSRF and the login limits.
 
-The operator pastes the rig's token into the login form; it is compared in constant time
-(:func:`hmac.compare_digest`) with the coordinator's. A login opens a session: a random id in
+An operator logs in with their name and password (a user of the rig, :mod:`coordinator.users`),
+or pastes the rig's token, compared in constant time (:func:`hmac.compare_digest`) with the
+coordinator's; a token login is an admin named ``token``. A login opens a session: a random id in
 an HttpOnly, SameSite=Strict cookie (Secure when the console serves TLS) and a random CSRF
-token the page keeps in memory and sends in the ``X-CSRF-Token`` header of every POST. A
-session ends after :data:`IDLE_S` without a request, or on logout.
+token the page keeps in memory and sends in the ``X-CSRF-Token`` header of every POST. The
+session carries who logged in and their role (:class:`~coordinator.users.Role`); the console
+looks the role up again at every request, so a role changed or a user removed from the command
+line holds at once. A session ends after :data:`IDLE_S` without a request, or on logout.
 
 Failed logins are limited twice (:class:`LoginLimiter`):
 
 * **per source**: after a failed login, the next one from the same client address (IPv6: the
-  same /64, which one host commonly holds) waits
+  same /64, which one host commonly holds), and the next one for the same user name, waits
   (the first failure is free, then 1 s, 2 s, 4 s … up to :data:`BACKOFF_CAP_S`); a login that
   succeeds, or :data:`FORGET_S` without a failure, starts the address again from nothing. An
   operator who mistypes five times waits 8 s, not a minute.
@@ -78,18 +82,17 @@ DEVICE_KEY_PURPOSE = b"shadowless console device cookie v1"
 
 @dataclass
 class Session:
-    """One logged-in browser."""
+    """One logged-in browser: who logged in (a user's name, or ``token`` for the rig token) and
+    the role they hold (``viewer``, ``operator`` or ``admin``), which the action log and the
+    console's checks use."""
 
     sid: str
     csrf: str
     address: str
     created: float
     last_used: float
-
-    @property
-    def who(self) -> str:
-        """How the action log names this session: a prefix of its id (never the whole id)."""
-        return self.sid[:8]
+    who: str = "token"
+    role: str = "admin"
 
 
 @dataclass
@@ -100,14 +103,14 @@ class Sessions:
     clock: Callable[[], float] = time.monotonic
     _by_id: dict[str, Session] = field(default_factory=dict)
 
-    def open(self, address: str) -> Session:
+    def open(self, address: str, *, who: str = "token", role: str = "admin") -> Session:
         self.expire()
         while len(self._by_id) >= MAX_SESSIONS:
             oldest = min(self._by_id.values(), key=lambda s: s.last_used)
             del self._by_id[oldest.sid]
         now = self.clock()
         s = Session(sid=secrets.token_urlsafe(32), csrf=secrets.token_urlsafe(32), address=address, created=now,
-                    last_used=now)
+                    last_used=now, who=who, role=role)
         self._by_id[s.sid] = s
         return s
 
@@ -136,6 +139,11 @@ class Sessions:
 
     def __len__(self) -> int:
         return len(self._by_id)
+
+    def open_sessions(self) -> list[Session]:
+        """The live sessions (expired ones closed first)."""
+        self.expire()
+        return list(self._by_id.values())
 
 
 def csrf_ok(session: Session, header: str | None) -> bool:
@@ -185,9 +193,9 @@ class LoginLimiter:
     global token bucket of failures for logins without a device cookie. ``clock`` is monotonic
     seconds (injectable).
 
-    Call :meth:`wait` before looking at the token, then :meth:`failed` or :meth:`succeeded`, with
-    no ``await`` in between (the console's event loop then never lets two logins slip past one
-    check).
+    Call :meth:`wait` before looking at the token or password, then :meth:`failed` or
+    :meth:`succeeded`, with no ``await`` in between, or all of it under one lock that every login
+    takes (the console's event loop then never lets two logins slip past one check).
     """
 
     free_failures: int = FREE_FAILURES
@@ -221,14 +229,26 @@ class LoginLimiter:
         self._stamp = now
         return self._tokens
 
-    def wait(self, address: str, device: str | None = None) -> tuple[int, str]:
+    @staticmethod
+    def _name_key(name: str | None, device: str | None) -> str | None:
+        """The key of a user name's failures: only for logins without a device cookie (a browser
+        that logged in before is limited by its own failures only)."""
+        return f"name {name}" if name and not device else None
+
+    def wait(self, address: str, device: str | None = None, name: str | None = None) -> tuple[int, str]:
         """(whole seconds to wait before this login is tried, 0: now; which limit holds:
-        ``"address"``, ``"device"``, ``"global"`` or ``""``)."""
+        ``"address"``, ``"device"``, ``"name"``, ``"global"`` or ``""``). ``name``: the user name
+        the login is for (None for the rig token)."""
         now = self.clock()
         own = 0.0
         b = self._by_key.get(self._key(address, device))
         if b is not None and now - b.last < self.forget_s:
             own = max(0.0, b.until - now)
+        own_kind = "device" if device else "address"
+        nk = self._name_key(name, device)
+        nb = self._by_key.get(nk) if nk else None
+        if nb is not None and now - nb.last < self.forget_s and nb.until - now > own:
+            own, own_kind = nb.until - now, "name"
         glob = 0.0
         if not device:
             # the bucket's last failure is kept for sources without a recent failure of their own
@@ -241,17 +261,23 @@ class LoginLimiter:
             return 0, ""
         if glob > own:
             return max(1, math.ceil(glob)), "global"
-        return max(1, math.ceil(own)), "device" if device else "address"
+        return max(1, math.ceil(own)), own_kind
 
     def held_back(self) -> bool:
         """Whether the global budget is spent now for sources that failed recently (they wait their turn)."""
         return self._bucket(self.clock()) < 1.0 + self.reserve
 
-    def failed(self, address: str, device: str | None = None) -> None:
-        """A login with a wrong token: the source's wait doubles; without a device cookie, it
-        draws one failure from the global budget."""
+    def failed(self, address: str, device: str | None = None, name: str | None = None) -> None:
+        """A login with a wrong token or password: the source's wait doubles (and, without a device
+        cookie, the user name's); without a device cookie, it draws one failure from the global budget."""
         now = self.clock()
-        key = self._key(address, device)
+        for key in (self._key(address, device), self._name_key(name, device)):
+            if key:
+                self._bump(key, now)
+        if not device:
+            self._tokens = max(-float(self.budget), self._bucket(now) - 1.0)
+
+    def _bump(self, key: str, now: float) -> None:
         b = self._by_key.pop(key, None)
         if b is None or now - b.last >= self.forget_s:
             b = _Backoff(count=0, last=now, until=now)
@@ -261,9 +287,9 @@ class LoginLimiter:
         b.last = now
         b.until = now + self.lock_s(b.count)
         self._by_key[key] = b       # re-inserted last: the dict stays in order of last failure
-        if not device:
-            self._tokens = max(-float(self.budget), self._bucket(now) - 1.0)
 
-    def succeeded(self, address: str, device: str | None = None) -> None:
-        """The right token: this address's (or browser's) failures are forgotten."""
+    def succeeded(self, address: str, device: str | None = None, name: str | None = None) -> None:
+        """The right token or password: this address's (or browser's) failures, and the name's, are forgotten."""
         self._by_key.pop(self._key(address, device), None)
+        if name:
+            self._by_key.pop(f"name {name}", None)

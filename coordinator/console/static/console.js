@@ -86,14 +86,14 @@ function showLogin(message) {
   $("conn").classList.remove("ok");
   $("login-view").hidden = false;
   $("login-error").textContent = message || "";
-  $("token").focus();
+  $("login-name").focus();
 }
 
-function showMain(who) {
+function showMain(who, role) {
   $("login-view").hidden = true;
   $("main-view").hidden = false;
   $("logout").hidden = false;
-  $("who").textContent = `session ${who}`;
+  applyRole(who, role);      // people.js: the name and role, a viewer's page
   connect();
   startThumbs();
 }
@@ -104,10 +104,10 @@ async function login(ev) {
   button.disabled = true;
   $("login-error").textContent = "";
   try {
-    const r = await postJSON("/login", { token: $("token").value });
+    const r = await postJSON("/login", loginBody());
     $("token").value = "";
     csrf = r.csrf;
-    showMain(r.who);
+    showMain(r.who, r.role);
   } catch (e) {
     let msg = e.message;
     if (e.status === 429 && e.retryAfter) msg += ` (retry after ${e.retryAfter} s)`;
@@ -597,7 +597,7 @@ document.addEventListener("DOMContentLoaded", async () => {
   try {
     const r = await api("/api/session");
     csrf = r.csrf;
-    showMain(r.who);
+    showMain(r.who, r.role);
   } catch (e) {
     showLogin("");
   }
