@@ -73,6 +73,7 @@ class CoordinatorApp:
         self.coordinator = Coordinator(rig, token, encoding=FramePackets, latency_ms=latency_ms, cameras=cameras,
                                        clock_ns=clock_ns, console_state=lambda: self.console_state)
         self.console: Any = None    # the Console, once it listens (coordinator.console.Console)
+        self.osc: Any = None        # show control over OSC, once it listens (coordinator.osc.service.OscService)
         self._server: Any = None      # the gRPC server (coordinator.wire.serve)
         self._health: Any = None
         self._advertiser: Advertiser | None = None
@@ -92,6 +93,7 @@ class CoordinatorApp:
             self._server, self._health, self.port = await serve(coord, self.listen, tls=self.tls)
             if self.console_listen is not None:
                 await self._start_console()
+            await self._start_osc()
             if advertiser is not None:
                 self._advertiser = advertiser
                 await advertiser.start(self.port)
@@ -105,7 +107,10 @@ class CoordinatorApp:
         sd_notify.notify("READY=1", f"STATUS=rig {config.name} on port {self.port}")
 
     async def _undo_start(self) -> None:
-        """Stop what a refused :meth:`start` had begun (mDNS, console, gRPC server) and free the rig's lock."""
+        """Stop what a refused :meth:`start` had begun (mDNS, OSC, console, gRPC server) and free the rig's lock."""
+        if self.osc is not None:
+            await self.osc.stop()
+            self.osc = None
         if self._advertiser is not None:
             await self._advertiser.stop()
             self._advertiser = None
@@ -140,9 +145,26 @@ class CoordinatorApp:
             scheme = "https" if self.tls is not None else "http"
             self.console_state = f"{scheme}://{host}:{console.port}/"
 
+    async def _start_osc(self) -> None:
+        """Show control over OSC, when rig.toml's ``[osc]`` names where to listen (a bad table or a
+        port it cannot take stops the start with one line). Its commands go to the console's action log."""
+        from coordinator.osc.config import load_osc
+        config = load_osc(self.coordinator.rig.path)
+        if config.listen is None:
+            return
+        from coordinator.console.audit import ActionLog
+        from coordinator.osc.service import OscService     # python-osc only when OSC is wanted
+        page = self.console.app if self.console is not None else None      # one action log for both
+        audit = page.audit if page is not None else ActionLog(self.coordinator.rig.path)
+        osc = OscService(self.coordinator, config, audit, poke=page.live.poke if page is not None else (lambda: None))
+        await osc.start()
+        self.osc = osc
+
     async def stop(self, grace: float = 2.0) -> None:
         """Graceful shutdown: health NOT_SERVING, mDNS unregister, streams closed, server stopped."""
         sd_notify.notify("STOPPING=1")
+        if self.osc is not None:
+            await self.osc.stop()
         if self.console is not None:
             await self.console.stop()
         if self._health is not None:

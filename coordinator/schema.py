@@ -223,6 +223,8 @@ class RigToml(_Strict):
     #: coordinator.calibration.options when a job reads them
     calibration: dict[str, Any] | None = None
     blend: BlendDoc = BlendDoc()
+    #: show control over OSC (off unless it names ``listen``); its keys are checked by coordinator.osc.config
+    osc: dict[str, Any] | None = None
 
     @model_validator(mode="after")
     def _check(self) -> RigToml:

@@ -252,7 +252,7 @@ def _reach(module: str) -> set[str]:
 
 
 #: the coordinator's edges: what the composition root (coordinator.app) builds beside the core
-EDGES = ("coordinator.wire", "coordinator.console", "coordinator.mdns", "coordinator.app")
+EDGES = ("coordinator.wire", "coordinator.console", "coordinator.osc", "coordinator.mdns", "coordinator.app")
 #: in the wire package but no edge of the core: the client a job's room camera captures through
 NOT_EDGES = {"coordinator.wire.room_camera"}
 

@@ -1,0 +1,159 @@
+"""The OSC address space: what each address does to the rig, and the rig's side of it.
+
+Every command calls the same :class:`~coordinator.server.Coordinator` method as the console and
+the command line (through :class:`OscRig`), so OSC validates nothing of its own; :func:`run`
+returns the line the action log keeps, or raises the rig's refusal. The table :data:`ADDRESSES`
+is the documentation too (``--help``-like text for the README and the refusal of an unknown
+address).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol, Sequence
+
+from coordinator.api import RigStatus, ShowState
+from coordinator.rig import Rig, SlotState
+
+PREFIX = "/shadowless"
+
+
+class OscRig(Protocol):
+    """What the OSC edge calls on the coordinator (the cue methods are looked up when called:
+    a core without a cue list refuses those commands in one line)."""
+
+    @property
+    def rig(self) -> Rig: ...
+
+    def status(self) -> RigStatus: ...
+
+    def rig_now(self) -> int: ...
+
+    def stop_all(self, *, blackout: bool = False) -> str: ...
+
+    def update_slot(self, slot: str, **changes: Any) -> SlotState: ...
+
+    def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
+                   fps: float | None = None, start_without: bool = False) -> ShowState: ...
+
+    def show_control(self, action: str, *, at_ns: int | None = None, delay_ns: int | None = None,
+                     frame: int = 0) -> ShowState: ...
+
+
+class OscError(ValueError):
+    """A command that cannot be run as sent (unknown address, wrong arguments): one line."""
+
+
+@dataclass(frozen=True)
+class Address:
+    """One address: its arguments as the operator types them, and what it does."""
+
+    path: str
+    args: str
+    does: str
+    logged: bool = True         # whether each message is an entry of the action log
+
+
+#: the address space, in the order the README lists it
+ADDRESSES: tuple[Address, ...] = (
+    Address(f"{PREFIX}/go", "", "fire the next cue (the first one when none fired yet)"),
+    Address(f"{PREFIX}/back", "", "fire the cue before the current one"),
+    Address(f"{PREFIX}/jump", "CUE_ID", "fire the cue with this id"),
+    Address(f"{PREFIX}/play", "ASSET [LOOP]", "play an asset (its id, id prefix or name) from its start; LOOP 1 loops"),
+    Address(f"{PREFIX}/pause", "", "hold the playing asset on its frame"),
+    Address(f"{PREFIX}/resume", "", "go on from the held frame"),
+    Address(f"{PREFIX}/stop", "", "stop what plays: the rig's content again (black if it has none)"),
+    Address(f"{PREFIX}/blackout", "", "stop what plays and show black"),
+    Address(f"{PREFIX}/gain", "SLOT|* VALUE", "set one projector's gain (or every one's with *), 0..16"),
+    Address(f"{PREFIX}/status", "", "reply with the status messages (below) to the sender", logged=False),
+    Address(f"{PREFIX}/subscribe", "[PORT]", "send the sender (at PORT, default its own) the status on every "
+                                             "change for the next 10 minutes; send again to stay subscribed",
+            logged=False),
+    Address(f"{PREFIX}/unsubscribe", "[PORT]", "stop sending the sender the status", logged=False),
+    Address(f"{PREFIX}/timecode", "HH:MM:SS:FF|SECONDS", "the external clock: a playing show seeks when it is "
+                                                        "further off than chase_threshold_ms", logged=False),
+)
+BY_PATH = {a.path: a for a in ADDRESSES}
+
+
+def usage() -> str:
+    """The addresses' last parts in one line (``go, back, ...``), for the refusal of an unknown one."""
+    return ", ".join(a.path.removeprefix(PREFIX + "/") for a in ADDRESSES)
+
+
+def _no_args(address: str, args: Sequence[Any]) -> None:
+    if args:
+        raise OscError(f"{address} takes no arguments, got {len(args)}")
+
+
+def _text(address: str, args: Sequence[Any], what: str) -> str:
+    if not args or not isinstance(args[0], str) or not args[0].strip():
+        raise OscError(f"{address} needs {what} as its first argument (a string)")
+    return args[0].strip()
+
+
+def _flag(value: Any, address: str) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, (int, float)) and value in (0, 1):
+        return bool(value)
+    if isinstance(value, str) and value.strip().lower() in ("0", "1", "true", "false", "loop"):
+        return value.strip().lower() in ("1", "true", "loop")
+    raise OscError(f"{address}: LOOP must be 0 or 1, got {value!r}")
+
+
+def _cue_method(coord: OscRig, name: str) -> Callable[..., str]:
+    method = getattr(coord, name, None)
+    if method is None:
+        raise OscError("this coordinator has no cue list: cues arrive with `shadowless cue`")
+    return method
+
+
+def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str:
+    """Run the command at ``address`` with ``args`` as ``who`` (``osc:<ip>``); the result line.
+    Raises :class:`OscError` for a malformed message, and whatever the rig refuses with."""
+    if address == f"{PREFIX}/go":
+        _no_args(address, args)
+        return _cue_method(coord, "cue_go")(who=who)
+    if address == f"{PREFIX}/back":
+        _no_args(address, args)
+        return _cue_method(coord, "cue_back")(who=who)
+    if address == f"{PREFIX}/jump":
+        cue_id = _text(address, args, "the cue's id")
+        return _cue_method(coord, "cue_jump")(cue_id, who=who)
+    if address == f"{PREFIX}/play":
+        key = _text(address, args, "the asset (id, id prefix or name)")
+        if len(args) > 2:
+            raise OscError(f"{address} takes ASSET and an optional LOOP, got {len(args)} arguments")
+        loop = _flag(args[1], address) if len(args) > 1 else False
+        st = coord.play_asset(key, loop=loop)
+        return f"{st.state}: {st.name or st.asset_id[:12]} ({st.frames} frames at {st.fps:g} fps" \
+               f"{', looped' if loop else ''})"
+    if address in (f"{PREFIX}/pause", f"{PREFIX}/resume"):
+        _no_args(address, args)
+        action = address.rsplit("/", 1)[1]
+        st = coord.show_control(action)
+        return f"{action}: {st.name or st.asset_id[:12]} {st.state} at frame {st.frame}"
+    if address in (f"{PREFIX}/stop", f"{PREFIX}/blackout"):
+        _no_args(address, args)
+        return f"showing {coord.stop_all(blackout=address.endswith('blackout'))}"
+    if address == f"{PREFIX}/gain":
+        if len(args) != 2 or not isinstance(args[0], str):
+            raise OscError(f"{address} takes SLOT (a string, * for every slot) and VALUE, got {list(args)!r}")
+        value = args[1]
+        if isinstance(value, str):
+            try:
+                value = float(value)
+            except ValueError:
+                raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}") from None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}")
+        slots = list(coord.rig.slots) if args[0].strip() == "*" else [args[0].strip()]
+        done = [coord.update_slot(s, gain=float(value)) for s in slots]
+        if len(done) == 1:
+            return f"slot {slots[0]} gain {done[0].gain:g} (revision {done[0].revision})"
+        return f"gain {float(value):g} on {len(done)} slots"
+    known = BY_PATH.get(address)
+    if known is not None:       # answered by the service itself (status, subscriptions, timecode)
+        raise OscError(f"{address} is not a rig command")
+    raise OscError(f"unknown address {address[:80]!r}: shadowless answers {PREFIX}/ followed by one of {usage()}")
