@@ -673,6 +673,8 @@ class Presenter:
         drop = pacer.admit(frame, renderer.has)
         if drop is not None:
             self._drop(drop)
+            if frame.fade_steps and drop.reason is DropReason.LATE:
+                self._start_fade(frame)     # a crossfade goes on from its steps still ahead
             return
         if _DEBUG_TIMING:
             log.info("timing: frame %d reached the presenter %.1f ms before its deadline", frame.frame_id,
@@ -731,7 +733,7 @@ class Presenter:
         if drop is None:
             self._render(renderer, order)
             self._swap_at_pts(renderer, out, order)
-        if self._current is not order and self._fade is fade:     # the last step missed its instant
+        if last and self._current is not order and self._fade is fade:     # the last step missed its instant
             if drop is not None:
                 self._drop(drop)
             self._render(renderer, order)

@@ -55,6 +55,8 @@ class FrameOrder:
     space: str                           # "content" or "projector"
     apply_lut: bool
     tag: str
+    fade_ns: int = 0                     # a crossfade from what is on screen (protos/fade.py)
+    fade_steps: int = 0
 
 
 @dataclass(frozen=True)

@@ -103,7 +103,8 @@ def frame_for_slot(msg: node_pb2.Frame, slot: str) -> FrameOrder:
     cid = msg.slot_content[slot] if slot in msg.slot_content else msg.content_id
     space = "projector" if msg.space == node_pb2.SPACE_PROJECTOR else "content"
     return FrameOrder(frame_id=msg.frame_id, pts_ns=msg.pts_ns, content_id=cid, space=space,
-                      apply_lut=msg.apply_lut, tag=msg.tag)
+                      apply_lut=msg.apply_lut, tag=msg.tag, fade_ns=max(0, msg.fade_ns),
+                      fade_steps=msg.fade_steps if msg.fade_ns > 0 else 0)
 
 
 def packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], bool] = lambda cid: False) -> FramePacketData:

@@ -193,7 +193,7 @@ class Content(_message.Message):
     def __init__(self, content_id: _Optional[str] = ..., image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ...) -> None: ...
 
 class Frame(_message.Message):
-    __slots__ = ("frame_id", "pts_ns", "content_id", "space", "apply_lut", "slot_content", "tag")
+    __slots__ = ("frame_id", "pts_ns", "content_id", "space", "apply_lut", "slot_content", "tag", "fade_ns", "fade_steps")
     class SlotContentEntry(_message.Message):
         __slots__ = ("key", "value")
         KEY_FIELD_NUMBER: _ClassVar[int]
@@ -208,6 +208,8 @@ class Frame(_message.Message):
     APPLY_LUT_FIELD_NUMBER: _ClassVar[int]
     SLOT_CONTENT_FIELD_NUMBER: _ClassVar[int]
     TAG_FIELD_NUMBER: _ClassVar[int]
+    FADE_NS_FIELD_NUMBER: _ClassVar[int]
+    FADE_STEPS_FIELD_NUMBER: _ClassVar[int]
     frame_id: int
     pts_ns: int
     content_id: str
@@ -215,7 +217,9 @@ class Frame(_message.Message):
     apply_lut: bool
     slot_content: _containers.ScalarMap[str, str]
     tag: str
-    def __init__(self, frame_id: _Optional[int] = ..., pts_ns: _Optional[int] = ..., content_id: _Optional[str] = ..., space: _Optional[_Union[Space, str]] = ..., apply_lut: _Optional[bool] = ..., slot_content: _Optional[_Mapping[str, str]] = ..., tag: _Optional[str] = ...) -> None: ...
+    fade_ns: int
+    fade_steps: int
+    def __init__(self, frame_id: _Optional[int] = ..., pts_ns: _Optional[int] = ..., content_id: _Optional[str] = ..., space: _Optional[_Union[Space, str]] = ..., apply_lut: _Optional[bool] = ..., slot_content: _Optional[_Mapping[str, str]] = ..., tag: _Optional[str] = ..., fade_ns: _Optional[int] = ..., fade_steps: _Optional[int] = ...) -> None: ...
 
 class Evict(_message.Message):
     __slots__ = ("content_ids",)

@@ -6,5 +6,5 @@ in vec2 uv;
 out vec4 colour;
 
 void main() {
-    colour = finish(sample_content(uv * vec2(textureSize(content, 0)) - 0.5));
+    colour = finish(sample_faded(uv * vec2(textureSize(content, 0)) - 0.5));
 }

@@ -24,13 +24,20 @@ uniform sampler2D blend;        // (h, w) RGBA16F: rgb = alpha, a = beta; row 0 
 uniform int blend_on;           // 1: blend maps are set
 uniform vec4 blend_xform;       // (w / W, h / H, H, 0): fragment -> map coordinates (see blend_at)
 uniform int out_rows;           // H, the output's rows (the dither counts rows from the top)
+// A crossfade (node/fade.py, protos/fade.py): the picture shown before is mixed in, on the linear
+// content values, before the gain, the blend and the LUT: mix(before, value, fade_mix).
+uniform sampler2D content_from; // the picture before, sampled as content is (same size and space)
+uniform int from_grey;          // 1: it has 1 or 2 channels
+uniform int from_on;            // 1: content_from holds it; 0: it was black
+uniform int fade_on;            // 1: a fade is under way
+uniform float fade_mix;         // the new picture's share, 0..1
 
 vec3 content_rgb(vec4 t) {
     return content_grey != 0 ? t.rrr : t.rgb;
 }
 
-vec3 sample_content(vec2 xy) {
-    ivec2 size = textureSize(content, 0);
+vec3 sample_texture(sampler2D tex, int grey, vec2 xy) {
+    ivec2 size = textureSize(tex, 0);
     // At or beyond one pixel outside (or not a number) all four texels are outside: 0.
     // Inside, p0 is in -1..size-1 and p1 in 0..size, so only those two tests remain.
     if (!(all(greaterThan(xy, vec2(-1.0))) && all(lessThan(xy, vec2(size))))) {
@@ -45,9 +52,24 @@ vec3 sample_content(vec2 xy) {
     vec2 w1 = f * vec2(lessThan(p1, size));
     ivec2 q0 = max(p0, ivec2(0));
     ivec2 q1 = min(p1, size - 1);
-    vec4 top = w0.x * texelFetch(content, q0, 0) + w1.x * texelFetch(content, ivec2(q1.x, q0.y), 0);
-    vec4 bottom = w0.x * texelFetch(content, ivec2(q0.x, q1.y), 0) + w1.x * texelFetch(content, q1, 0);
-    return content_rgb(w0.y * top + w1.y * bottom);
+    vec4 top = w0.x * texelFetch(tex, q0, 0) + w1.x * texelFetch(tex, ivec2(q1.x, q0.y), 0);
+    vec4 bottom = w0.x * texelFetch(tex, ivec2(q0.x, q1.y), 0) + w1.x * texelFetch(tex, q1, 0);
+    vec4 t = w0.y * top + w1.y * bottom;
+    return grey != 0 ? t.rrr : t.rgb;
+}
+
+vec3 sample_content(vec2 xy) {
+    return sample_texture(content, content_grey, xy);
+}
+
+// The frame's own content at xy, with the picture before mixed in while a fade is under way.
+vec3 sample_faded(vec2 xy) {
+    vec3 value = sample_content(xy);
+    if (fade_on == 0) {
+        return value;
+    }
+    vec3 before = from_on != 0 ? sample_texture(content_from, from_grey, xy) : vec3(0.0);
+    return mix(before, value, fade_mix);
 }
 
 float lut_channel(float v, int channel) {

@@ -141,6 +141,8 @@ class Renderer:
             prog["lut"].value = 1
             prog["blend"].value = 2
             prog["blend_on"].value = 0
+            prog["content_from"].value = 3    # a crossfade's picture before (render(fade=...))
+            prog["fade_on"].value = 0
         # the blend maps in use (None: none) and those uploaded ahead of use, by blend id
         self._blend: tuple[str, Any, tuple[int, int]] | None = None
         self._blend_ahead: tuple[str, Any, tuple[int, int]] | None = None
@@ -575,7 +577,8 @@ class Renderer:
         return tuple(self._contents)
 
     # ------------------------------------------------------------------ drawing
-    def render(self, content_id: str | None, *, space: str = "content", apply_lut: bool = True) -> None:
+    def render(self, content_id: str | None, *, space: str = "content", apply_lut: bool = True,
+               fade: tuple[str, float] | None = None) -> None:
         """Draw one frame into :attr:`framebuffer` (one draw call).
 
         Parameters
@@ -590,6 +593,11 @@ class Renderer:
             True: value = LUT(clamp(gain * value)), or with blend maps LUT(clamp(gain * (alpha *
             value + beta))) dithered; False: value = clamp(value) (no gain, no LUT, no blend; e.g.
             calibration patterns).
+        fade : (str, float), optional
+            A crossfade's step: ``(before_id, m)`` mixes the uploaded content ``before_id`` ("":
+            black) into this frame's, ``before * (1 - m) + content * m`` on the linear values
+            before the gain, blend and LUT (:func:`protos.fade.mix_reference`). Content space
+            only; ``before_id`` must have the pose's content size (ValueError otherwise).
         """
         if space not in SPACES:
             raise ValueError(f"space must be one of {SPACES}, got {space!r}")
@@ -607,11 +615,13 @@ class Renderer:
                     f"projector-space content is {entry.size[0]}x{entry.size[1]} but the output is "
                     f"{self._width}x{self._height}; they must match"
                 )
+            self._set_fade(None)
             self._draw_warp(entry, self._warp_identity_bytes, apply_lut)
             return
         if self._pose is None:
             fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
             return
+        self._set_fade(fade)
         if self._pose[0] == "homography":
             if entry.size != self._pose_content_size:
                 cw, ch = self._pose_content_size
@@ -634,6 +644,29 @@ class Renderer:
             self._mesh_vao.render(self._mgl.TRIANGLES)
         finally:
             self.ctx.enable_only(self._mgl.NOTHING)
+
+    def _set_fade(self, fade: tuple[str, float] | None) -> None:
+        """The fade's uniforms and texture for the next draw (None: no fade)."""
+        on = fade is not None
+        before = None
+        if on:
+            before_id, m = fade
+            if not 0.0 <= float(m) <= 1.0:
+                raise ValueError(f"a fade's mix must be in 0..1, got {m!r}")
+            if before_id:
+                before = self._contents.get(before_id)
+                if before is None:
+                    raise KeyError(f"content {before_id!r} to fade from is not uploaded")
+                if self._pose_content_size is not None and before.size != self._pose_content_size:
+                    raise ValueError(f"content {before_id!r} to fade from is {before.size[0]}x{before.size[1]}, "
+                                     f"the pose's content is {self._pose_content_size[0]}x{self._pose_content_size[1]}")
+        for prog in (self._warp, self._mesh_prog):
+            prog["fade_on"].value = int(on)
+            if on:
+                prog["fade_mix"].value = float(fade[1])
+                prog["from_on"].value = int(before is not None)
+                prog["from_grey"].value = int(before.grey) if before is not None else 0
+        (before.texture if before is not None else self._blend_none).use(3)
 
     def _draw_warp(self, entry: _Content, matrix: bytes, apply_lut: bool) -> None:
         prog = self._warp

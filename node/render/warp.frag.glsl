@@ -12,6 +12,6 @@ out vec4 colour;
 
 void main() {
     vec3 q = frag_to_content * vec3(gl_FragCoord.xy, 1.0);
-    vec3 value = q.z > 0.0 ? sample_content(q.xy / q.z) : vec3(0.0);  // beyond the horizon: no content
+    vec3 value = q.z > 0.0 ? sample_faded(q.xy / q.z) : vec3(0.0);  // beyond the horizon: no content
     colour = finish(value);
 }
