@@ -1,7 +1,8 @@
 """The operator action log: who did what, when, and what came of it.
 
-Every console action (and every login, failed or not) is one entry: the time (UTC, ISO 8601),
-who (a prefix of the session id, or ``-`` before a login), the client's address, the action,
+Every console action (and every login, failed or not), and every show-control command over OSC,
+is one entry: the time (UTC, ISO 8601), who (the user's name, ``token`` for a login with the rig
+token, ``osc:<address>`` for OSC, ``-`` before a login), the client's address, the action,
 its parameters, whether it worked and the result or the refusal's reason. Entries are
 appended as JSON lines to ``console-actions.jsonl`` in the rig directory (one ``write`` on a
 file opened for appending, flushed and fsynced, in a worker thread so the event loop keeps

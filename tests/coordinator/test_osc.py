@@ -15,6 +15,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from pythonosc.osc_packet import OscPacket
 
 from coordinator.api import ShowState
 from coordinator.app import CoordinatorApp
@@ -100,8 +101,27 @@ def test_show_control_from_another_process(tmp_path, caplog):
                                                                 ("osc nope", False)]
             assert "black" in log[1]["result"]
 
+            # a subscriber hears the status at once, then again when it changes (here from elsewhere)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sub:
+                sub.bind(("127.0.0.1", 0))
+                sub.setblocking(False)
+                sub.sendto(encode("/shadowless/subscribe", ()), ("127.0.0.1", osc.port))
+                heard: list[str] = []
+
+                def show_states() -> list[str]:
+                    try:
+                        while True:
+                            for m in OscPacket(sub.recv(65536)).messages:
+                                if m.message.address == "/shadowless/show":
+                                    heard.append(m.message.params[0])
+                    except BlockingIOError:
+                        return heard
+                assert (await wait_until_async(show_states, what="the status for a new subscriber")) == ["none"]
+                coord.play_asset("clip")
+                await wait_until_async(show_states, lambda h: {"scheduled", "playing"} & set(h[1:]),
+                                       what="the status pushed when the show starts")
+
             # an external clock 2 s ahead of a playing show makes it seek there
-            coord.play_asset("clip")
             await wait_until_async(lambda: coord.status().show.state, lambda s: s == "playing",
                                    what="the clip playing")
             frame_now = coord.status().show.frame
