@@ -125,6 +125,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "(then a frame is a period of --fps); auto (default): the show for rigs of up to 9 "
                              "nodes, the still for more (25 nodes each rendering and sending 30 frames a second to "
                              "the room are more than two cores carry: the coordinator starves and loses them)")
+    parser.add_argument("--switch-lead-ms", type=float, default=None,
+                        help="failover: rig.toml's [blend] switch_lead_ms, how far ahead the new maps are set "
+                             "(default: the rig's); 1 shows what pushing and uploading the maps take")
+    parser.add_argument("--cpu-budget", type=float, default=None, metavar="FRACTION",
+                        help="failover: run each rig again with each node process held to FRACTION of a core "
+                             "(a cgroup v1 group per node; needs root), e.g. 0.06 for P25 on 2 cores")
+    parser.add_argument("--cpu-period-ms", type=float, default=20.0,
+                        help="the budget's CFS period (default 20 ms: a node out of quota waits at most that long)")
     parser.add_argument("--node-frames", type=int, default=None, help="frames per profile of `bench node` (default 120; "
                                                                       "20 with --quick)")
     parser.add_argument("--keep", metavar="DIR", help="keep rig directories and logs here")

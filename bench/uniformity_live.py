@@ -18,8 +18,12 @@ camera.
   declares the loss (``BlendStatus.since``), the non-uniformity in the lost footprint once every
   remaining node shows its new maps,
   how many frame periods (at ``--fps``) after the declaration those maps were on screen (the
-  latest of the nodes' first frames with them) and how far apart the nodes switched; then the
-  node is started again and the time until the maps switched back.
+  latest of the nodes' first frames with them) and how far apart the nodes switched; the switch lead
+  (``[blend] switch_lead_ms``, ``--switch-lead-ms``) and how many nodes heard of the maps too late for
+  the common instant (``late_nodes``: they show them from their next frame); then the node is started
+  again and the time until the maps switched back. With ``--cpu-budget F`` each rig runs a second
+  time with every node process held to ``F`` of a core (:mod:`bench.cpu_budget`, one cgroup per node;
+  under ``cpu_budget``), so that starved CPU and the protocol can be told apart.
 * **Watchdog**: one lamp dimmed to 50 % and another to 0 through the room's lamp switch while
   their nodes stay live; the time until the watchdog names each, its gain estimates against the
   room's truth, and the non-uniformity over both footprints once re-blended. The rig shows a flat
@@ -180,10 +184,12 @@ def room_process(args, light: Light, work: Path, slots: list[str]):
 
 
 @contextlib.asynccontextmanager
-async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog: bool, show: str):
+async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog: bool, show: str,
+                   budgets: dict | None = None):
     """The room (a process), a coordinator in this process and one node process per slot, blended, showing
     flat white (``show``: "timeline", a looping show at ``args.fps``, or "still"). ``Live.room`` is a twin
-    of the room process built here the same way, for the truth only (footprints, what reaches where)."""
+    of the room process built here the same way, for the truth only (footprints, what reaches where).
+    ``budgets``: slot -> :class:`bench.cpu_budget.CpuBudget` each node process is put in."""
     from coordinator.app import CoordinatorApp
     from rigctl.job_command import ProgressView, run_job
 
@@ -202,7 +208,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
         for s, lut in truth_luts(room, slots).items():
             H = room.truth.content_to_projector_homography(s, content)
             rig.update_slot(s, pose=HomographyPose(H / H[2, 2]), lut=lut, source="truth")
-        _set_watchdog(local.rig_dir, watchdog)
+        _set_watchdog(local.rig_dir, watchdog, switch_lead_ms=getattr(args, "switch_lead_ms", None))
         if show == "timeline":
             _add_white_clip(local.rig_dir, work / "white", content, args.fps)
         rig = Rig(local.rig_dir)
@@ -212,7 +218,9 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
         try:
             t = time.perf_counter()
             for s in slots:
-                local.start_node(s)
+                proc = local.start_node(s)
+                if budgets:
+                    budgets[s].add(proc.pid)
             async with await local.client() as c:
                 await local.wait_live(c, timeout=600)
                 _log(f"{len(slots)} nodes live ({time.perf_counter() - t:.0f} s)")
@@ -284,8 +292,9 @@ async def _variants_ahead(live: Live, timeout: float = 600.0) -> float | None:
         return None
     from coordinator.blending.failover import variant_key
     t = time.perf_counter()
+    held = getattr(variants, "held", variants.get)
     await _wait("the failover maps computed ahead", lambda: all(
-        variants.get(variant_key({s})) is not None or variants.failure(variant_key({s})) is not None
+        held(variant_key({s})) is not None or variants.failure(variant_key({s})) is not None
         for s in live.slots), timeout, step=0.1)
     return round(time.perf_counter() - t, 2)
 
@@ -324,15 +333,19 @@ def _playing(live: Live, slots: list[str]) -> bool:
     return True
 
 
-def _set_watchdog(rig_dir: Path, on: bool) -> None:
-    """rig.toml's ``[blend] watchdog`` (the failover part runs without it, so nothing else re-blends)."""
+def _set_watchdog(rig_dir: Path, on: bool, *, switch_lead_ms: float | None = None) -> None:
+    """rig.toml's ``[blend] watchdog`` (the failover part runs without it, so nothing else re-blends) and
+    ``switch_lead_ms`` when given."""
     toml = rig_dir / "rig.toml"
     text = toml.read_text()
+    keys = f"watchdog = {'true' if on else 'false'}"
+    if switch_lead_ms is not None:
+        keys += f"\nswitch_lead_ms = {float(switch_lead_ms)}"
     if "[blend]" in text:
-        lines = [ln for ln in text.splitlines() if not ln.strip().startswith("watchdog =")]
-        text = "\n".join(lines).replace("[blend]", f"[blend]\nwatchdog = {'true' if on else 'false'}") + "\n"
+        lines = [ln for ln in text.splitlines() if not ln.strip().startswith(("watchdog =", "switch_lead_ms ="))]
+        text = "\n".join(lines).replace("[blend]", f"[blend]\n{keys}") + "\n"
     else:
-        text = text.rstrip("\n") + f"\n\n[blend]\nwatchdog = {'true' if on else 'false'}\n"
+        text = text.rstrip("\n") + f"\n\n[blend]\n{keys}\n"
     toml.write_text(text)
 
 
@@ -346,11 +359,12 @@ def _target(live: Live, headroom):
     return target + black, covered & lit
 
 
-async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str]) -> dict:
+async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str], *,
+                        budgets: dict | None = None) -> dict:
     victim = "r2c2" if "r2c2" in slots else slots[len(slots) // 2]
     period_ns = 1e9 / args.fps
     show = args.show if args.show != "auto" else ("timeline" if len(slots) <= 9 else "still")
-    async with live_rig(args, work / name, light, slots, watchdog=False, show=show) as live:
+    async with live_rig(args, work / name, light, slots, watchdog=False, show=show, budgets=budgets) as live:
         headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
         target, covered = await asyncio.to_thread(_target, live, args.headroom)
         footprint = await asyncio.to_thread(lambda: live.room.truth.irradiance(victim, 0, occluders=False) > 0)
@@ -384,6 +398,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["frames_after_declared"] = _r(max(0.0, (max(since) - declared_ns) / period_ns), 2)
         out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
         out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
+        out.update(_switch_timing(live, since, declared_ns, show, period_ns))
         out["message_after"] = live.blend_status().message
         late1 = _late(live, rest)
         out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
@@ -395,7 +410,9 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
              f"frames later; non-uniformity in its footprint {out['after']}, light kept {out['light_kept']}")
         # the node returns: the maps switch back
         t_back = time.monotonic_ns()
-        live.local.start_node(victim)
+        proc = live.local.start_node(victim)
+        if budgets:
+            budgets[victim].add(proc.pid)
 
         await _wait(f"{victim} back in the blend", lambda: victim not in live.blend_status().lost
                     and live.showing_assigned(slots), 180, step=0.05)
@@ -404,7 +421,29 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         back = await live.acapture(args.frames, not_before_ns=max(since))
         out["after_return"] = _r(nonuniformity(back, target, covered, within=footprint, scale=k))
         out["frame_period_ms"] = _r(period_ns / 1e6, 3)
+        if budgets:
+            stats = [b.stats() for b in budgets.values()]
+            out["budget"] = {"fraction": args.cpu_budget, "period_ms": args.cpu_period_ms,
+                             "nodes_throttled": sum(1 for st in stats if st.get("throttled")),
+                             "throttled_s": _r(sum(st.get("throttled_s", 0.0) for st in stats), 3)}
     return out
+
+
+def _switch_timing(live: Live, since: list[int], declared_ns: int, show: str, period_ns: float) -> dict:
+    """The switch's lead and its common instant against what each node showed: how many heard too late
+    (a still's node in time shows the maps at exactly the instant; a show's, from the first tick at or
+    after it), how long after the declaration the coordinator set the switch, and how far after the
+    instant the last node showed the maps."""
+    state = getattr(live.core, "blending", None)
+    at = int(getattr(state, "switched_at_ns", 0) or 0)
+    if state is None or not at:
+        return {}
+    slack = 1_000_000 if show == "still" else period_ns
+    late = [s - at for s in since if s - at > slack]
+    return {"switch_lead_ms": _r(state.lead_ns / 1e6, 3), "instant_after_declared_ms": _r((at - declared_ns) / 1e6, 2),
+            "late_nodes": len(late), "nodes_switched": len(since),
+            "last_after_instant_ms": _r((max(since) - at) / 1e6, 2),
+            "late_after_instant_ms": sorted(_r(v / 1e6, 1) for v in late)}
 
 
 def _last_check(live: Live) -> dict | None:
@@ -427,8 +466,11 @@ def _precomputed(live: Live, victim: str) -> dict | None:
     if variants is None or not hasattr(variants, "get"):
         return None
     from coordinator.blending.failover import variant_key
-    return {"loss_ready": variants.get(variant_key({victim})) is not None,
-            "held_mib": _r(variants.held_bytes() / 2 ** 20, 1)}
+    out = {"loss_ready": variants.get(variant_key({victim})) is not None,
+           "held_mib": _r(variants.held_bytes() / 2 ** 20, 1)}
+    if hasattr(variants, "ahead_counts"):
+        out["ahead"] = variants.ahead_counts()
+    return out
 
 
 def _late(live: Live, slots: list[str]) -> dict[str, int]:
@@ -451,11 +493,33 @@ def _declared_ns(since_unix: float, seen_ns: int) -> int:
 
 async def part_failover(args, work: Path, light: Light) -> dict:
     out = {}
+    fraction = getattr(args, "cpu_budget", None)
     for name in [n.strip() for n in args.failover_rigs.split(",") if n.strip()]:
         slots = slots_of(name)
+        key = "P9" if name in ("P9", "P9W") else name
         _log(f"failover: {name}, {len(slots)} node processes")
-        out["P9" if name in ("P9", "P9W") else name] = await _failover_one(args, work, light, name, slots)
+        out[key] = await _failover_one(args, work, light, name, slots)
+        if fraction:
+            out[key]["cpu_budget"] = await _failover_budgeted(args, work, light, name, slots, fraction)
     return out
+
+
+async def _failover_budgeted(args, work: Path, light: Light, name: str, slots: list[str], fraction: float) -> dict:
+    """The same failover with each node process held to ``fraction`` of a core; or why it could not run."""
+    from bench.cpu_budget import CpuBudget, CpuBudgetError, unavailable
+    why = unavailable()
+    if why:
+        _log(f"failover: {why}")
+        return {"skipped": why}
+    _log(f"failover: {name} again, each node held to {fraction:g} of a core")
+    try:
+        with contextlib.ExitStack() as stack:
+            budgets = {s: stack.enter_context(CpuBudget(fraction, period_us=int(args.cpu_period_ms * 1000), name=s))
+                       for s in slots}
+            return await _failover_one(args, work, light, f"{name}-budget", slots, budgets=budgets)
+    except CpuBudgetError as exc:
+        _log(f"failover: {exc}")
+        return {"skipped": str(exc)}
 
 
 async def part_watchdog(args, work: Path, light: Light) -> dict:

@@ -183,6 +183,8 @@ class BlendConfig:
     headroom: float | None = None
     watchdog: bool = True
     watchdog_interval_s: float = 1.0
+    #: how far ahead of now a failover's new maps take effect on every node at once (ms)
+    switch_lead_ms: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -230,7 +232,8 @@ def parse_config(text: str, *, source: str = "rig.toml") -> RigConfig:
         name=doc.name, rig_id=doc.id, slots=slots, content_width=doc.content_width, content_height=doc.content_height,
         latency_ms=doc.latency_ms, heartbeat_ms=hb, lost_after_ms=lost, cameras=tuple(doc.cameras),
         blend=BlendConfig(headroom=None if doc.blend.headroom == "auto" else float(doc.blend.headroom),
-                          watchdog=doc.blend.watchdog, watchdog_interval_s=doc.blend.watchdog_interval_s),
+                          watchdog=doc.blend.watchdog, watchdog_interval_s=doc.blend.watchdog_interval_s,
+                          switch_lead_ms=doc.blend.switch_lead_ms),
     )
 
 

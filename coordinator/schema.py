@@ -203,6 +203,8 @@ class BlendDoc(_Strict):
     headroom: Annotated[str | float, BeforeValidator(_headroom)] = "auto"
     watchdog: Annotated[bool, BeforeValidator(_flag)] = True
     watchdog_interval_s: Annotated[float, _num_in(0.2, 86_400)] = 1.0
+    #: how far ahead a failover's switch of maps is set (ms): the push to every node and one texture upload
+    switch_lead_ms: Annotated[float, _num_in(1, 1000)] = 30.0
 
 
 class RigToml(_Strict):

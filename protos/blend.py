@@ -16,6 +16,7 @@ Only numpy: a node installs no OpenCV.
 from __future__ import annotations
 
 import hashlib
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,13 +82,78 @@ class BlendMaps:
         if not self.blend_id:
             object.__setattr__(self, "blend_id", _digest(a, b))
 
+    # ---------------------------------------------------------------- packed maps
+    # A packed instance holds only its wire encoding (``_packed``: w, h, alpha bytes, beta bytes,
+    # compressed or not): ``alpha`` and ``beta`` are decoded from it on each access (see __getattr__).
+
+    def packed(self, *, compress: bool = False) -> "BlendMaps":
+        """The same maps (same ``blend_id``, same values on the wire) held only as their float16
+        encoding: half the memory of the float32 arrays, or with ``compress`` about a seventh
+        (zlib over the float16 bytes split into high and low bytes; smooth maps compress well), at
+        the cost of inflating them before use (:meth:`inflated`). The arrays read back from a
+        packed instance are the float16 values, as a node sees them."""
+        p = self.__dict__.get("_packed")
+        if p is not None and p[4] == compress:
+            return self
+        alpha, beta = self.encode()
+        w, h = self.size
+        if compress:
+            alpha, beta = zlib.compress(_shuffle(alpha), 6), zlib.compress(_shuffle(beta), 6)
+        out = object.__new__(type(self))
+        object.__setattr__(out, "blend_id", self.blend_id)
+        object.__setattr__(out, "_packed", (w, h, alpha, beta, compress))
+        return out
+
+    def inflated(self) -> "BlendMaps":
+        """A compressed packed instance as a packed one ready for the wire (itself otherwise)."""
+        p = self.__dict__.get("_packed")
+        return self.packed() if p is not None and p[4] else self
+
+    @property
+    def compressed(self) -> bool:
+        p = self.__dict__.get("_packed")
+        return p is not None and p[4]
+
+    @property
+    def nbytes(self) -> int:
+        """What the maps hold in memory (bytes): the arrays, or a packed instance's encoding."""
+        p = self.__dict__.get("_packed")
+        if p is not None:
+            return len(p[2]) + len(p[3])
+        return int(self.alpha.nbytes + self.beta.nbytes)
+
+    def __getattr__(self, name: str):
+        p = self.__dict__.get("_packed")
+        if p is None or name not in ("alpha", "beta"):
+            raise AttributeError(name)
+        w, h, alpha, beta, compressed = p
+        raw = _unshuffle(zlib.decompress(alpha if name == "alpha" else beta)) if compressed else \
+            (alpha if name == "alpha" else beta)
+        shape = (h, w, 3) if name == "alpha" else (h, w)
+        a = np.frombuffer(raw, "<f2").reshape(shape).astype(np.float32)
+        a.setflags(write=False)
+        return a
+
+    def __repr__(self) -> str:
+        w, h = self.size
+        return f"BlendMaps({w}x{h}, blend_id={self.blend_id!r}{', packed' if '_packed' in self.__dict__ else ''})"
+
     @property
     def size(self) -> tuple[int, int]:
         """(w, h) texels."""
+        p = self.__dict__.get("_packed")
+        if p is not None:
+            return int(p[0]), int(p[1])
         return int(self.beta.shape[1]), int(self.beta.shape[0])
 
     def encode(self) -> tuple[bytes, bytes]:
-        """(alpha, beta) as little-endian float16 bytes, row-major, for the wire."""
+        """(alpha, beta) as little-endian float16 bytes, row-major, for the wire (a packed instance's
+        own bytes, inflated first when compressed)."""
+        p = self.__dict__.get("_packed")
+        if p is not None:
+            if p[4]:
+                return _unshuffle(zlib.decompress(p[2])), _unshuffle(zlib.decompress(p[3]))
+            return p[2], p[3]
         return self.alpha.astype("<f2").tobytes(), self.beta.astype("<f2").tobytes()
 
     @classmethod
@@ -101,3 +167,15 @@ class BlendMaps:
         a = np.frombuffer(alpha, "<f2").reshape(height, width, 3).astype(np.float32)
         b = np.frombuffer(beta, "<f2").reshape(height, width).astype(np.float32)
         return cls(a, b, blend_id)
+
+
+def _shuffle(f16: bytes) -> bytes:
+    """float16 bytes as all low bytes, then all high bytes (the high bytes of a smooth map repeat)."""
+    return np.frombuffer(f16, np.uint8).reshape(-1, 2).T.tobytes()
+
+
+def _unshuffle(data: bytes) -> bytes:
+    lo, hi = np.frombuffer(data, np.uint8).reshape(2, -1).astype("<u2")
+    hi <<= 8
+    hi |= lo
+    return hi.tobytes()

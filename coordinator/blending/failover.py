@@ -13,14 +13,20 @@ out: the remaining projectors show their own blend.)
 
 :class:`Variants` keeps the variants computed so far, computes the single-loss variants of the
 current state ahead in a worker thread (so that a loss costs no computation on the event loop),
-within a memory budget beyond which a variant is computed when it is needed.
+within a memory budget beyond which a variant is computed when it is needed. The maps are held as
+their float16 wire encoding (:meth:`protos.blend.BlendMaps.packed`: half of float32, and nothing to
+encode when a loss pushes them); the losses most likely first (nodes lost before in this run), then
+those that carry the most light. The first are held ready to push; when the rest would not fit the
+budget that way, they are held compressed (about a seventh at 1080p; a loss inflates them in a
+worker thread, tens of milliseconds instead of seconds of computation), so that at 1080p map sizes
+the single losses of 25 projectors fit in 256 MiB.
 """
 from __future__ import annotations
 
 import asyncio
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable, Mapping
 
 import cv2
@@ -90,7 +96,24 @@ class Variant:
 
     @property
     def nbytes(self) -> int:
-        return sum(m.alpha.nbytes + m.beta.nbytes for m in self.maps.values())
+        """What its maps hold in memory (bytes)."""
+        return sum(m.nbytes for m in self.maps.values())
+
+    @property
+    def compressed(self) -> bool:
+        """Its maps are held compressed (:meth:`inflated` before they are pushed)."""
+        return any(m.compressed for m in self.maps.values())
+
+    def packed(self, *, compress: bool = False) -> "Variant":
+        """The same variant with its maps held as their float16 encoding (compressed or not)."""
+        return replace(self, maps={s: m.packed(compress=compress) if m is not BLACK_MAPS else m
+                                   for s, m in self.maps.items()})
+
+    def inflated(self) -> "Variant":
+        """The same variant ready to push (itself when not compressed)."""
+        if not self.compressed:
+            return self
+        return replace(self, maps={s: m.inflated() for s, m in self.maps.items()})
 
 
 def map_scale_of(maps: Mapping[str, BlendMaps], contributions: Contributions) -> int:
@@ -225,10 +248,14 @@ class Variants:
         self.map_scale = map_scale_of(self.base_maps, contributions)
         self.budget_bytes = budget_bytes
         self._white: np.ndarray | None = None
+        self._shares: dict[str, float] | None = None
+        self._ratio: float | None = None       # packed bytes over compressed bytes, once measured
         base = variant_key(())
         self._cache: dict[VariantKey, Variant] = {base: Variant(base, dict(self.base_maps))}
         self._failed: dict[VariantKey, str] = {}
         self._ahead: asyncio.Task | None = None
+        #: the order of the last run ahead (its keys), for reports
+        self.planned: list[VariantKey] = []
 
     @property
     def white(self) -> np.ndarray:
@@ -236,8 +263,24 @@ class Variants:
             self._white = base_white(self.contributions, self.base_maps)
         return self._white
 
+    def light_shares(self) -> dict[str, float]:
+        """slot -> the fraction of the full blend's light it carries (its measured white over the
+        camera grid times its mean gain in the blend): how much a loss of it takes away."""
+        if self._shares is None:
+            c = self.contributions
+            raw = {s: float(luma(c.white[s]).sum()) * float(np.mean(m.alpha)) for s, m in self.base_maps.items()
+                   if s in c.white}
+            total = sum(raw.values()) or 1.0
+            self._shares = {s: v / total for s, v in raw.items()}
+        return self._shares
+
     def get(self, key: VariantKey) -> Variant | None:
-        """The variant if it is ready (no computation)."""
+        """The variant if it is ready to push (no computation; None when held compressed)."""
+        v = self._cache.get(key)
+        return None if v is None or v.compressed else v
+
+    def held(self, key: VariantKey) -> Variant | None:
+        """The variant if it is held, ready or compressed."""
         return self._cache.get(key)
 
     def failure(self, key: VariantKey) -> str | None:
@@ -245,52 +288,94 @@ class Variants:
         return self._failed.get(key)
 
     def compute(self, key: VariantKey) -> Variant:
-        """The variant, computed now if needed (blocking: a worker thread). BlendError: none possible."""
+        """The variant ready to push: inflated when held compressed, computed now if not held
+        (blocking: a worker thread). BlendError: none possible."""
         hit = self._cache.get(key)
         if hit is not None:
-            return hit
+            return hit.inflated()
         try:
             v = compute_variant(self.contributions, self.base_maps, self.white, key, map_scale=self.map_scale)
         except BlendError as exc:
             self._failed[key] = str(exc)
             raise
+        v = v.packed()
         self._keep(v)
         return v
 
-    def _keep(self, v: Variant) -> None:
-        used = sum(x.nbytes for k, x in self._cache.items() if k != variant_key(()))
-        if used + v.nbytes <= self.budget_bytes:
+    def _keep(self, v: Variant, *, remaining: int = 0) -> None:
+        """Hold ``v`` (packed) ready when that leaves room for the ``remaining`` variants planned
+        after it, held compressed; else compressed; else not at all."""
+        used = self.held_bytes()
+        reserve = 0
+        if remaining:
+            if self._ratio is None:
+                self._ratio = max(1.0, v.nbytes / max(1, v.packed(compress=True).nbytes))
+            reserve = int(remaining * v.nbytes / self._ratio)
+        if used + v.nbytes + reserve <= self.budget_bytes:
             self._cache[v.key] = v
+            return
+        small = v.packed(compress=True)
+        self._ratio = max(1.0, v.nbytes / max(1, small.nbytes))
+        if used + small.nbytes <= self.budget_bytes:
+            self._cache[v.key] = small
 
     def held_bytes(self) -> int:
         return sum(x.nbytes for k, x in self._cache.items() if k != variant_key(()))
 
-    def start_ahead(self, current: VariantKey, *, on_done: Callable[[int, float], None] | None = None) -> None:
-        """Compute, in a worker thread, the variants one more loss away from ``current`` (each slot
-        of the blend not lost yet), the state it came from first; the previous run stops."""
-        self.stop_ahead()
+    def ahead_counts(self) -> dict[str, int]:
+        """Of the last run ahead's variants: how many are held ready, held compressed, not held."""
+        ready = sum(1 for k in self.planned if self.get(k) is not None)
+        small = sum(1 for k in self.planned if k in self._cache and self._cache[k].compressed)
+        return {"planned": len(self.planned), "ready": ready, "compressed": small,
+                "not_held": len(self.planned) - ready - small}
+
+    def order(self, current: VariantKey, likely: Mapping[str, int] | None = None) -> list[VariantKey]:
+        """The variants one change away from ``current``, in the order they are computed ahead: the
+        state it came from first (each loss undone), then each further loss, the most likely first
+        (``likely``: slot -> how often its node was lost in this run), then the most light lost."""
         lost, gains = current
+        likely = likely or {}
+        shares = self.light_shares()
         keys = [variant_key(lost - {s}, dict(gains)) for s in sorted(lost)]
-        keys += [variant_key(lost | {s}, dict(gains)) for s in self.base_maps if s not in lost]
+        rest = sorted((s for s in self.base_maps if s not in lost),
+                      key=lambda s: (-int(likely.get(s, 0)), -shares.get(s, 0.0), s))
+        return keys + [variant_key(lost | {s}, dict(gains)) for s in rest]
+
+    def start_ahead(self, current: VariantKey, *, likely: Mapping[str, int] | None = None,
+                    on_done: Callable[[int, float], None] | None = None) -> None:
+        """Compute, in a worker thread, the variants one change away from ``current`` in
+        :meth:`order`; the previous run stops."""
+        self.stop_ahead()
+        keys = self.order(current, likely)
+        self.planned = keys
         self._ahead = asyncio.get_running_loop().create_task(self._run_ahead(keys, on_done), name="blend-variants")
 
     async def _run_ahead(self, keys: list[VariantKey], on_done: Callable[[int, float], None] | None) -> None:
         t0 = time.perf_counter()
         made = 0
-        for key in keys:
+        for i, key in enumerate(keys):
             if key in self._cache or key in self._failed:
                 continue
             if self.held_bytes() >= self.budget_bytes:
                 log.info("blend: precomputed variants hold %.0f MiB, the budget: the next losses are computed "
                          "when they happen", self.held_bytes() / 2 ** 20)
                 break
+            left = sum(1 for k in keys[i + 1:] if k not in self._cache and k not in self._failed)
             try:
-                await asyncio.to_thread(self.compute, key)
+                await asyncio.to_thread(self._compute_ahead, key, left)
                 made += 1
             except BlendError:
                 continue
         if on_done is not None:
             on_done(made, time.perf_counter() - t0)
+
+    def _compute_ahead(self, key: VariantKey, remaining: int) -> None:
+        try:
+            v = compute_variant(self.contributions, self.base_maps, self.white, key, map_scale=self.map_scale)
+        except BlendError as exc:
+            self._failed[key] = str(exc)
+            raise
+        self._keep(v.packed(), remaining=remaining)
 
     def stop_ahead(self) -> None:
         if self._ahead is not None and not self._ahead.done():

@@ -7,9 +7,12 @@ coordinator opens the rig it reads the stored blend and contributions
 job succeeds (it follows the :class:`~coordinator.jobs.tracker.JobTracker`). The core tells it
 when a node is lost and when one is live again, and the watchdog when a lamp changed; each
 changes the wanted *variant* (:mod:`coordinator.blending.failover`), and the slots switch to it
-together: every changed slot gets its maps with one common rig-clock instant, a lead ahead (the
-rig's latency budget), so every node shows the new maps from the same swap on. One log line per
-switch. A variant not computed ahead is computed in a worker thread, never on the event loop.
+together: every changed slot gets its maps with one common rig-clock instant, a lead ahead (rig.toml's
+``[blend] switch_lead_ms``: what pushing the maps to every node and a node's upload of them take, far
+less than the content's latency budget), so every node shows the new maps from the same swap on; a
+node that hears of them after that instant shows them from its next frame. One log line per switch.
+A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
+compressed is inflated there).
 """
 from __future__ import annotations
 
@@ -60,7 +63,7 @@ class BlendState:
     clock_ns : callable
         The rig clock (ns).
     lead_ns : int
-        How far ahead of now a switch takes effect (the rig's latency budget).
+        How far ahead of now a switch takes effect (rig.toml's ``[blend] switch_lead_ms``).
     wall_clock : callable
         Unix seconds (the status's times).
     budget_bytes : int
@@ -81,6 +84,7 @@ class BlendState:
         self.problem = ""                      # why there is no blend (a store that cannot be read), or ""
         self.lost_nodes: dict[str, float] = {}     # slot -> unix time its node was lost
         self.lost_at_ns: dict[str, int] = {}       # slot -> rig instant the core declared its node lost
+        self.loss_counts: dict[str, int] = {}      # slot -> how often its node was lost in this run (likely again)
         self.lamp_gains: dict[str, float] = {}     # slot -> the watchdog's estimate (named lamps only)
         self.lamps_since: dict[str, float] = {}    # slot -> unix time the lamp was named
         self.applied: VariantKey = variant_key(())
@@ -164,10 +168,12 @@ class BlendState:
             return
 
         def done(made: int, seconds: float) -> None:
-            if made:
-                log.info("blend: %d failover variants computed ahead in %.1f s (%.0f MiB)", made, seconds,
-                         self.variants.held_bytes() / 2 ** 20 if self.variants else 0)
-        self.variants.start_ahead(self.applied, on_done=done)
+            if made and self.variants is not None:
+                n = self.variants.ahead_counts()
+                log.info("blend: %d failover variants computed ahead in %.1f s: of the %d one change away, %d ready, "
+                         "%d compressed, %d left to compute when needed (%.0f MiB)", made, seconds, n["planned"],
+                         n["ready"], n["compressed"], n["not_held"], self.variants.held_bytes() / 2 ** 20)
+        self.variants.start_ahead(self.applied, likely=self.loss_counts, on_done=done)
 
     def _job_changed(self, jobs) -> None:
         job = jobs.current
@@ -214,6 +220,7 @@ class BlendState:
         if self._closed or slot not in self.slots or slot in self.lost_nodes:
             return
         self.lost_nodes[slot] = self.wall_clock()
+        self.loss_counts[slot] = self.loss_counts.get(slot, 0) + 1
         self.lost_at_ns[slot] = self.clock_ns()
         self._want()
 
@@ -263,13 +270,14 @@ class BlendState:
     async def _compute_then_switch(self, key: VariantKey, force: bool) -> None:
         variants = self.variants
         t0 = time.perf_counter()
+        how = "inflated" if variants.held(key) is not None else "computed on demand"
         try:
             v = await asyncio.to_thread(variants.compute, key)
         except BlendError as exc:
             self._report_failure(key, str(exc))
             return
         if variants is self.variants and key == self.wanted_key() and not self._suspended:
-            log.info("blend: variant for %s computed on demand in %.2f s", _describe_key(key), time.perf_counter() - t0)
+            log.info("blend: variant for %s %s in %.2f s", _describe_key(key), how, time.perf_counter() - t0)
             self._switch(v, force=force)
 
     async def settled(self) -> None:
@@ -340,7 +348,7 @@ class BlendState:
                         "run `shadowless blend` again")
             return BlendStatus(state="blended", message=msg, **common)
         since = min([*self.lost_nodes.values(), *(t for s, t in self.lamps_since.items())] or [now])
-        v = self.variants.get(key) if self.variants is not None else None
+        v = self.variants.held(key) if self.variants is not None else None
         failure = self.variants.failure(key) if self.variants is not None else "no contributions stored"
         parts = []
         for s in sorted(lost):
