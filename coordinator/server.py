@@ -168,8 +168,9 @@ class Coordinator:
         self._tasks: list[asyncio.Task] = []
         self._rig_lock = RigLock(rig.path)   # one coordinator (or `rig import`) per rig directory
         self._swapped_ns: dict[str, int] = {}     # slot -> rig instant of the last swap its node reported
-        # the per-pixel blend: its failover switches take effect a latency budget ahead, on every node at once
-        self.blending = BlendState(rig, update_slot=self.update_slot, clock_ns=self.clock_ns, lead_ns=self.latency_ns)
+        # the per-pixel blend: its failover switches take effect a switch lead ahead, on every node at once
+        self.blending = BlendState(rig, update_slot=self.update_slot, clock_ns=self.clock_ns,
+                                   lead_ns=int(rig.config.blend.switch_lead_ms * 1e6))
         self.lamp_watchdog = LampWatchdog(self.blending, camera_specs=lambda: self._camera_specs, busy=self.running_job,
                                           on_screen=self.still_on_screen, live_slots=self.live_slots,
                                           interval_s=rig.config.blend.watchdog_interval_s, clock_ns=self.clock_ns,
