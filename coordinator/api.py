@@ -250,6 +250,13 @@ class RigStatus:
     console: str = ""
     #: the per-pixel blend and any failover (``state`` "none" when the rig was never blended)
     blend: BlendStatus = field(default_factory=BlendStatus)
+    #: frames each node missed (late or dropped) lately: slot -> count over the last
+    #: ``late_window_s`` seconds (only slots that missed any; :mod:`coordinator.late_window`)
+    late_recent: tuple[tuple[str, int], ...] = ()
+    late_window_s: float = 0.0
+    #: the warning content shown now draws for slots without a pose ("" when every slot has one),
+    #: worded as the command line words it (:func:`coordinator.unposed.unposed_warning`)
+    unposed_warning: str = ""
 
 
 @dataclass(frozen=True)
@@ -259,3 +266,24 @@ class ShowResult:
     frame_id: int
     content_id: str
     pts_ns: int
+
+
+@dataclass(frozen=True)
+class CueState:
+    """The cue list and where the show is in it (:mod:`coordinator.cues`). ``cues`` holds
+    :class:`protos.cues.Cue` records; ``current`` and ``next`` are indices into it (None: no cue
+    fired yet, or none after the current one); ``fired_at`` the wall time (Unix s) the current cue
+    fired; ``fading`` whether its crossfade is still under way; ``follow_at`` the wall time its
+    auto-follow fires the next cue (None: it waits for GO)."""
+
+    cues: tuple = ()
+    current: int | None = None
+    next: int | None = None
+    fired_at: float | None = None
+    fading: bool = False
+    follow_at: float | None = None
+
+    def to_json(self) -> dict:
+        """What the console and scripts read (``GET /api/cues``)."""
+        return {"cues": [c.to_json() for c in self.cues], "current": self.current, "next": self.next,
+                "fired_at": self.fired_at, "fading": self.fading, "follow_at": self.follow_at}

@@ -18,6 +18,7 @@ from coordinator.live_video import EncodedPicture
 from coordinator.rig import Content
 from coordinator.sessions import NodeSession
 from coordinator.sync import SyncTracker
+from protos.fade import step_pts
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,8 @@ class Frame:
     apply_lut: bool
     tag: str                            # what it belongs to: "show", "play:…", "pattern"
     slot_content: Mapping[str, str] = field(default_factory=dict)   # slot -> content id ("" = black)
+    fade_ns: int = 0                    # a crossfade from what is on screen (protos/fade.py)
+    fade_steps: int = 0                 # reported as frame_id + 1 .. frame_id + fade_steps
 
     def content_for(self, slot: str) -> str:
         return self.slot_content[slot] if slot in self.slot_content else self.content_id
@@ -96,3 +99,6 @@ class FanOut:
             t0 = time.thread_time()
         if frame is not None:
             self.sync.expect(frame.frame_id, frame.pts_ns, frame.tag, {s.slot for s in sessions})
+            for k in range(1, frame.fade_steps + 1):      # a crossfade's steps, each a frame of its own
+                self.sync.expect(frame.frame_id + k, step_pts(frame.pts_ns, frame.fade_ns, k, frame.fade_steps),
+                                 frame.tag, {s.slot for s in sessions})

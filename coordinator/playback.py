@@ -33,6 +33,7 @@ from coordinator.rig import Content, Rig
 from coordinator.slot_regions import check_regions, masked_contents
 from coordinator.sessions import NodeSession
 from coordinator.sync import FrameResult, SyncTracker, summarize
+from protos.fade import step_count
 
 log = logging.getLogger(__name__)
 
@@ -129,9 +130,13 @@ class Playback:
         self._next_frame_id = max(self._next_frame_id, int(last_id))
 
     def _frame(self, content_id: str, *, tag: str, space: Space, apply_lut: bool, pts_ns: int | None = None,
-               slot_content: Mapping[str, str] | None = None) -> Frame:
-        return Frame(frame_id=self.new_frame_id(), pts_ns=pts_ns or self.clock_ns() + self.latency_ns,
-                     content_id=content_id, space=space, apply_lut=apply_lut, tag=tag, slot_content=dict(slot_content or {}))
+               slot_content: Mapping[str, str] | None = None, fade_ns: int = 0) -> Frame:
+        steps = step_count(fade_ns) if fade_ns > 0 and space == Space.CONTENT else 0
+        frame = Frame(frame_id=self.new_frame_id(), pts_ns=pts_ns or self.clock_ns() + self.latency_ns,
+                      content_id=content_id, space=space, apply_lut=apply_lut, tag=tag,
+                      slot_content=dict(slot_content or {}), fade_ns=int(fade_ns) if steps else 0, fade_steps=steps)
+        self.reserve_ids_through(frame.frame_id + steps)     # a crossfade's steps are frames of their own
+        return frame
 
     @property
     def playing(self) -> bool:
@@ -154,7 +159,7 @@ class Playback:
 
     def _send_still_to(self, sess: NodeSession, *, budget_ns: int | None = None) -> None:
         assert self.current_frame is not None
-        frame = replace(self.current_frame, frame_id=self.new_frame_id(),
+        frame = replace(self.current_frame, frame_id=self.new_frame_id(), fade_ns=0, fade_steps=0,
                         pts_ns=self.clock_ns() + (budget_ns or self.latency_ns))
         sess.still_frames = {frame.frame_id}
         self.fanout.send([sess], frame=frame, contents=self.current_contents)
@@ -163,6 +168,8 @@ class Playback:
         """A still must end up on every projector: a node that dropped it gets it again, with more time."""
         if frame_id not in sess.still_frames or self.current_frame is None or not self.current_frame.tag.startswith("show"):
             return
+        if self.current_frame.fade_steps and frame_id == self.current_frame.frame_id:
+            return      # a crossfade's first step: the node fades on, and its last step decides
         if self.show_active():
             return
         sess.still_retries += 1
@@ -171,13 +178,13 @@ class Playback:
         self._send_still_to(sess, budget_ns=budget)
 
     def _set_still(self, content: Content, *, tag: str, space: Space, apply_lut: bool, publish: bool = True,
-                   slot_contents: Mapping[str, Content | None] | None = None) -> Frame:
+                   slot_contents: Mapping[str, Content | None] | None = None, fade_ns: int = 0) -> Frame:
         if publish:
             self.takeover()
         per_slot = slot_contents or {}
         self.current_contents = {content.content_id: content, **{c.content_id: c for c in per_slot.values() if c}}
         frame = self._frame(content.content_id, tag=tag, space=space, apply_lut=apply_lut,
-                            slot_content={s: c.content_id if c else "" for s, c in per_slot.items()})
+                            slot_content={s: c.content_id if c else "" for s, c in per_slot.items()}, fade_ns=fade_ns)
         self.current_frame = frame
         self.showing = f"{tag} {content.name or content.content_id}"
         if publish:
@@ -187,7 +194,7 @@ class Playback:
     def _publish_still(self, frame: Frame) -> None:
         sessions = self.live_sessions()
         for sess in sessions:
-            sess.still_frames = {frame.frame_id}
+            sess.still_frames = {frame.frame_id, frame.frame_id + frame.fade_steps}
             sess.still_retries = 0
         self.fanout.send(sessions, frame=frame, contents=self.current_contents)
 
@@ -205,11 +212,28 @@ class Playback:
         self._publish_still(frame)
         return ShowResult(frame_id=frame.frame_id, content_id="", pts_ns=frame.pts_ns)
 
+    def reshow_slots(self, base: Frame, contents: Mapping[str, Content], slot_content: Mapping[str, str], *,
+                     showing: str) -> Frame:
+        """Show the still of frame ``base`` (its contents ``contents``) again with another choice per
+        slot (``slot_content``: slot -> content id, "" black), held as any still (the solo of
+        :mod:`coordinator.slot_tools`). Returns the frame now on screen."""
+        self.stop()
+        self.takeover()
+        self.current_contents = dict(contents)
+        frame = self._frame(base.content_id, tag=base.tag, space=base.space, apply_lut=base.apply_lut,
+                            slot_content=slot_content)
+        self.current_frame = frame
+        self.showing = showing
+        self._publish_still(frame)
+        return frame
+
     def show(self, content: Content, *, space: Space = Space.CONTENT, apply_lut: bool = True, persist: bool = False,
-             tag: str = "show", slot_contents: Mapping[str, Content | None] | None = None) -> ShowResult:
+             tag: str = "show", slot_contents: Mapping[str, Content | None] | None = None,
+             fade_ns: int = 0) -> ShowResult:
         """Show a still on every node (content through the poses, or projector pixels); ``persist``
         makes it the rig's content. ``slot_contents``: what some slots show instead (None: black),
-        content-space images of the content's size, e.g. from :meth:`prepare_regions`."""
+        content-space images of the content's size, e.g. from :meth:`prepare_regions`. ``fade_ns``: the
+        nodes crossfade from what they show into it over that long (:mod:`protos.fade`)."""
         if slot_contents and (persist or space != Space.CONTENT):
             raise ValueError("slot regions apply to a content-space show that is not persisted: the rig's content "
                              "is one picture for every slot")
@@ -218,7 +242,8 @@ class Playback:
             content = fit_content(content, self.content_size)
         if persist:
             self.rig.set_content(content)
-        frame = self._set_still(content, tag=tag, space=space, apply_lut=apply_lut, slot_contents=slot_contents)
+        frame = self._set_still(content, tag=tag, space=space, apply_lut=apply_lut, slot_contents=slot_contents,
+                                fade_ns=fade_ns)
         return ShowResult(frame_id=frame.frame_id, content_id=content.content_id, pts_ns=frame.pts_ns)
 
     def prepare_still(self, content: Content, space: Space = Space.CONTENT, *, fit: str = "") -> Content:
@@ -240,11 +265,12 @@ class Playback:
         self.fanout.prepare([c for c in out.values() if c is not None])
         return out
 
-    def blackout(self) -> None:
-        """Black on every projector (held until the next show; the rig's content is kept)."""
+    def blackout(self, *, fade_ns: int = 0, tag: str = "blackout") -> None:
+        """Black on every projector (held until the next show; the rig's content is kept), faded
+        to over ``fade_ns`` (0: at once)."""
         w, h = self.content_size
-        self._set_still(Content(np.zeros((h, w, 1), np.uint8), name="black"), tag="blackout", space=Space.CONTENT,
-                        apply_lut=False)
+        self._set_still(Content(np.zeros((h, w, 1), np.uint8), name="black"), tag=tag, space=Space.CONTENT,
+                        apply_lut=False, fade_ns=fade_ns)
         self.showing = "black (blackout)"
 
     def restore_content(self) -> None:

@@ -46,11 +46,15 @@ from coordinator.blending.state import BlendState
 from coordinator.blending.watchdog import LampWatchdog
 from coordinator.camera import Camera, RoomCamera, open_camera
 from coordinator.distribution import Distribution, WantedList, note_ready
+from coordinator import cues
 from coordinator.errors import CoordinatorError, Refusal, RefusalKind
 from coordinator.fanout import FanOut, PacketEncoding
 from coordinator.jobs.context import Event
 from coordinator.jobs.registry import run_job
-from coordinator.identify import name_card
+from coordinator.identify import identify_cards
+from coordinator.late_window import LateWindow
+from coordinator import slot_tools
+from coordinator.unposed import unposed_warning
 from coordinator.jobs.tracker import JobState, JobTracker
 from coordinator.playback import Playback, cpu_seconds
 from coordinator.previews import Previews
@@ -168,6 +172,7 @@ class Coordinator:
         self._tasks: list[asyncio.Task] = []
         self._rig_lock = RigLock(rig.path)   # one coordinator (or `rig import`) per rig directory
         self._swapped_ns: dict[str, int] = {}     # slot -> rig instant of the last swap its node reported
+        self._late_window = LateWindow()          # frames each node missed lately, for status
         # the per-pixel blend: its failover switches take effect a switch lead ahead, on every node at once
         self.blending = BlendState(rig, update_slot=self.update_slot, clock_ns=self.clock_ns,
                                    lead_ns=int(rig.config.blend.switch_lead_ms * 1e6))
@@ -195,6 +200,7 @@ class Coordinator:
         self._tasks.append(asyncio.create_task(self._watchdog(), name="watchdog"))
         self._tasks.append(asyncio.create_task(self._follow_show(), name="show"))
         self.blending.start(self.jobs)
+        cues.start_cues(self)       # the current cue on screen again after a restart
         if self.rig.config.blend.watchdog:
             self._tasks.append(asyncio.create_task(self.lamp_watchdog.run(), name="lamp-watchdog"))
         # under systemd (Type=notify): keep-alives from the loop that serves everything
@@ -393,8 +399,8 @@ class Coordinator:
         self._refuse_while_job("cancel it first")
 
         def cards() -> dict[str, Content]:
-            out = {name: Content(name_card(name, st.width, st.height), name=f"identify {name}")
-                   for name, st in self.rig.slots.items()}
+            cards = identify_cards({name: (st.width, st.height) for name, st in self.rig.slots.items()})
+            out = {name: Content(card, name=f"identify {name}") for name, card in cards.items()}
             self.fanout.prepare(list(out.values()))
             return out
 
@@ -402,6 +408,10 @@ class Coordinator:
         self.playback.show_per_slot(contents, tag="show:identify", showing="slot names (identify)")
         log.info("identify: every projector shows its slot name")
         return self.playback.showing
+
+    # test patterns on chosen slots, and solo (coordinator/slot_tools.py)
+    show_test_pattern = slot_tools.show_test_pattern
+    solo = slot_tools.solo
 
     def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
                    fps: float | None = None, start_without: bool = False) -> ShowState:
@@ -418,6 +428,10 @@ class Coordinator:
         if action in ("pause", "resume", "stop"):
             return getattr(s, action)(at_ns=at_ns, delay_ns=delay_ns)
         raise ValueError(f"unknown show action {action!r}")
+
+    # the cue list: GO, back, jump, auto-follow (coordinator/cues.py)
+    cue_state, set_cues, cue_engine = cues.cue_state, cues.set_cues, cues.cue_engine
+    cue_go, cue_back, cue_jump = cues.cue_go, cues.cue_back, cues.cue_jump
 
     def on_frames_open(self, sess: NodeSession) -> None:
         sess.frames_open = True
@@ -673,6 +687,8 @@ class Coordinator:
                 last_seen_age_ms=(now - sess.last_seen) * 1e3, last_swap_frame=sess.last_swap_frame,
                 last_swap_age_ms=(now - sess.last_swap_at) * 1e3 if sess.last_swap_at else math.nan,
                 frames_late=sess.late, frames_dropped=sess.dropped, frames_shown=sess.shown))
+        late_s, late = self._late_window.observe(now, {n.slot: n.frames_late + n.frames_dropped for n in nodes
+                                                       if n.state in (NodeState.LIVE, NodeState.JOINED)})
         return RigStatus(
             rig_id=self.rig.config.rig_id, rig_name=self.rig.config.name, instance_id=self.instance_id,
             rig_dir=str(self.rig.path), protocol_version=PROTOCOL_VERSION, uptime_s=now - self.started,
@@ -682,7 +698,8 @@ class Coordinator:
             show_bytes_sent=self.show_bytes_sent, latency_budget_ms=self.latency_ns / 1e6, cpu_s=cpu_seconds(),
             nodes=tuple(nodes), sync=summarize(list(self.sync.results), self.sync.out_of_order),
             refusals=self.refusals.summary(now), admission=self.admission.figures(), console=self._console_state(),
-            blend=self.blend_status())
+            blend=self.blend_status(), late_window_s=late_s, late_recent=tuple(sorted(late.items())),
+            unposed_warning=unposed_warning([n.slot for n in nodes if n.pose_kind == "none"]))
 
 
 @lru_cache(maxsize=2)

@@ -25,6 +25,7 @@ from rigctl.client import OperatorError, add_connection_args
 from rigctl.content_format import operator_table, rendered
 from coordinator.errors import RigError
 from coordinator.float_range import check_float_range
+from coordinator.unposed import unposed_warning
 from coordinator.image_decode import ImageRefused, drop_alpha, read_image_file
 from rigctl.job_command import run_job
 from rigctl.rig_target import open_client
@@ -421,10 +422,8 @@ async def _show_control(args) -> int:
 async def warn_unposed(c) -> None:
     """Say on stderr which slots have no pose: content is warped by each slot's pose, so they show black."""
     unposed = [n.slot for n in (await c.status()).nodes if n.pose_kind == "none"]
-    if unposed:
-        print(f"warning: {len(unposed)} slot(s) have no pose and show black: {', '.join(unposed)} (calibrate them "
-              "with `shadowless calibrate`, or set one with `shadowless configure --slot S --homography H`)",
-              file=sys.stderr)
+    if unposed:     # the console shows the same line (coordinator/unposed.py)
+        print(f"warning: {unposed_warning(unposed)}", file=sys.stderr)
 
 
 async def _show(args) -> int:

@@ -35,9 +35,11 @@ from typing import TYPE_CHECKING, Awaitable, Callable
 from aiohttp import web
 
 from coordinator.console import auth
+from coordinator.console import cues as cue_routes
 from coordinator.console.actions import MAX_UPLOAD_BYTES, Actions
 from coordinator.console.hosts import HostCheck
 from coordinator.console.pictures import Pictures
+from coordinator.console.slot_routes import SlotRoutes
 from coordinator.console.thumbnails import Thumbnails
 from coordinator.jobs.errors import JobError
 from coordinator.jobs.options import form_fields
@@ -63,7 +65,8 @@ SECURITY_HEADERS = {
     "Cross-Origin-Resource-Policy": "same-origin",
 }
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css",
-          "pictures.js": "text/javascript", "blend.js": "text/javascript", "people.js": "text/javascript"}
+          "pictures.js": "text/javascript", "blend.js": "text/javascript", "people.js": "text/javascript",
+          "health.js": "text/javascript", "layout.js": "text/javascript", "confirm.js": "text/javascript"}
 MAX_LOGIN_BYTES = 4096
 #: foreign Host headers logged (each once); later ones are refused without a log line
 MAX_FOREIGN_HOSTS = 64
@@ -363,9 +366,13 @@ def make_app(console: ConsoleApp) -> web.Application:
     app.router.add_post("/api/play", c.guard(a.play))
     app.router.add_post("/api/job", c.guard(a.job))
     app.router.add_post("/api/job/cancel", c.guard(a.cancel_job))
+    tools = SlotRoutes(a)
+    app.router.add_post("/api/solo", c.guard(tools.solo))
+    app.router.add_post("/api/pattern", c.guard(tools.pattern))
     p = Pictures(console.coord)
     app.router.add_get("/api/pictures", c.guard(p.listing))
     app.router.add_get("/api/pictures/{name}", c.guard(p.picture))
     app.router.add_get("/api/camera.png", c.guard(p.camera))
     app.router.add_get("/api/thumbnail/{slot}", c.guard(Thumbnails(console.coord).thumbnail))
+    cue_routes.register(app, console)
     return app

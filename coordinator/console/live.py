@@ -22,6 +22,7 @@ import numpy as np
 from aiohttp import web
 
 from coordinator.api import BlendStatus, NodeState, RigStatus
+from coordinator.console.health import health_view
 from coordinator.jobs.registry import JOBS
 from coordinator.rig import HomographyPose, SlotState
 from coordinator.sync import FrameResult, percentile
@@ -106,6 +107,8 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
                  "frames_dropped": s.frames_dropped},
         "slots": slots,
         "blend": _blend(status),
+        "health": health_view(status, now=now),
+        "cues": coord.cue_state().to_json() if hasattr(coord, "cue_state") else None,   # console/cues.py
         "refusals": refusals,
         "before_auth": _before_auth(status),
         "logins": logins or {},

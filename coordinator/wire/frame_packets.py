@@ -103,7 +103,8 @@ class PacketEncoder:
         if frame is not None:
             pkt.frame.CopyFrom(node_pb2.Frame(frame_id=frame.frame_id, pts_ns=frame.pts_ns, content_id=frame.content_id,
                                               space=space_message(frame.space), apply_lut=frame.apply_lut,
-                                              tag=frame.tag, slot_content=frame.slot_content))
+                                              tag=frame.tag, slot_content=frame.slot_content,
+                                              fade_ns=frame.fade_ns, fade_steps=frame.fade_steps))
         if evict:
             pkt.evict.content_ids.extend(evict)
         return pkt.SerializeToString()

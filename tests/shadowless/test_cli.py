@@ -86,7 +86,7 @@ def test_operator_commands_against_a_running_rig(tmp_path):
         r = sh("show", str(tmp_path / "grey.png"), "--persist", *conn)
         assert r.returncode == 0, r.stderr
         # r0c0 was never calibrated: it shows black, and the operator is told so
-        assert "warning: 1 slot(s) have no pose and show black: r0c0" in r.stderr and "shadowless calibrate" in r.stderr
+        assert "warning: 1 slot has no pose and shows black: r0c0" in r.stderr and "shadowless calibrate" in r.stderr
         r = sh("play", "--pattern", "counter", "--frames", "15", "--fps", "15", "--json", "--allow-partial", *conn)
         assert r.returncode == 0, r.stderr
         played = json.loads(r.stdout)

@@ -153,7 +153,6 @@ function render(s) {
   const y = s.sync;
   $("sync-line").textContent = `skew p50 ${fmt(y.skew_p50_ms, 2)} ms, p99 ${fmt(y.skew_p99_ms, 2)} ms over ` +
     `${y.frames} frames (${y.skew_source || "no frames yet"}); late ${y.frames_late}, dropped ${y.frames_dropped}`;
-  drawLayout(s);
   renderNodes(s.slots);
   renderRefusals(s.refusals);
   renderLogins(s.logins);
@@ -163,50 +162,6 @@ function render(s) {
   renderJob(s.job);
   // other scripts of the page (blend.js) follow the snapshot too
   document.dispatchEvent(new CustomEvent("rig-snapshot", { detail: s }));
-}
-
-function drawLayout(s) {
-  const svg = $("layout");
-  const [w, h] = s.rig.content_size;
-  const m = 0.08 * Math.max(w, h);
-  let x0 = -m, y0 = -m, x1 = w + m, y1 = h + m;
-  for (const n of s.slots) {
-    if (!n.footprint) continue;
-    for (const [x, y] of n.footprint) {
-      x0 = Math.min(x0, x - m / 2); y0 = Math.min(y0, y - m / 2);
-      x1 = Math.max(x1, x + m / 2); y1 = Math.max(y1, y + m / 2);
-    }
-  }
-  svg.setAttribute("viewBox", `${x0} ${y0} ${x1 - x0} ${y1 - y0}`);
-  clear(svg);
-  svg.appendChild(svgEl("rect", { class: "table-area", x: -0.5, y: -0.5, width: w, height: h }));
-  const fontSize = 0.045 * Math.max(w, h);
-  svg.appendChild(svgEl("text", { class: "fp-label", x: w / 2, y: h + m / 2, "font-size": fontSize * 0.8 },
-                        `table: content ${w}×${h} px`));
-  const unposed = $("unposed");
-  clear(unposed);
-  // a slot out of the blend (node lost, or a lamp the watchdog named) is outlined dashed and says so
-  const out = new Set((s.blend && s.blend.lost) || []);
-  const lamps = new Map(((s.blend && s.blend.lamps) || []).map((l) => [l.slot, l.gain]));
-  const note = (slot) => (lamps.has(slot) ? `, lamp at ${fmt(lamps.get(slot), 2)}` : "") +
-    (out.has(slot) ? ", out of the blend" : "");
-  for (const n of s.slots) {
-    if (n.footprint) {
-      const g = svgEl("g", { "data-slot": n.slot, class: `fp state-${n.state}${out.has(n.slot) ? " out-of-blend" : ""}` });
-      g.appendChild(svgEl("polygon", { class: `footprint state-${n.state}`,
-        points: n.footprint.map(([x, y]) => `${x},${y}`).join(" ") }));
-      const cx = n.footprint.reduce((a, p) => a + p[0], 0) / 4;
-      const cy = n.footprint.reduce((a, p) => a + p[1], 0) / 4;
-      const label = svgEl("text", { class: "fp-label", x: cx, y: cy, "font-size": fontSize }, `${n.slot}: ${n.state}`);
-      g.appendChild(label);
-      g.appendChild(svgEl("title", {}, `${n.slot}: ${n.state}${note(n.slot)}`));
-      svg.appendChild(g);
-    } else {
-      const tile = el("div", { class: `tile state-${n.state}${out.has(n.slot) ? " out-of-blend" : ""}`,
-                               "data-slot": n.slot, title: `${n.state}${note(n.slot)}` }, n.slot);
-      unposed.appendChild(tile);
-    }
-  }
 }
 
 function renderNodes(slots) {
@@ -571,9 +526,7 @@ function drawPlots() {
 document.addEventListener("DOMContentLoaded", async () => {
   $("login-form").addEventListener("submit", login);
   $("logout").addEventListener("click", logout);
-  $("stop").addEventListener("click", () => act($("stop"), $("stop-error"), () => api("/api/stop", { method: "POST" })));
-  $("blackout").addEventListener("click",
-    () => act($("blackout"), $("stop-error"), () => api("/api/blackout", { method: "POST" })));
+  // Stop and Blackout ask first: confirm.js; the layout is drawn by layout.js, the health banner by health.js
   $("identify").addEventListener("click",
     () => act($("identify"), $("stop-error"), () => api("/api/identify", { method: "POST" })));
   $("show-form").addEventListener("submit", (ev) => {

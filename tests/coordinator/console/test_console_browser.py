@@ -85,11 +85,15 @@ def test_the_console_in_a_browser(tmp_path, browser_ready, silent_camera):
                 "return document.querySelectorAll('main script, main [onerror], main img[src=\"x\"]').length;") == 0
             assert driver.title != "pwned"
 
-            # Blackout and Stop act on the rig
+            # Blackout and Stop act on the rig, once confirmed on the page
             driver.find_element("id", "blackout").click()
+            wait_for(lambda: visible(driver, "confirm-bar"), 60, "the blackout's confirmation")
+            driver.find_element("id", "confirm-go").click()
             wait_for(lambda: rig.call(lambda: rig.coord.status().showing) == "black (blackout)", 60, "blackout on the rig")
             wait_for(lambda: "blackout" in text_of(driver, "showing"), 60, "blackout on the page")
             driver.find_element("id", "stop").click()
+            wait_for(lambda: visible(driver, "confirm-bar"), 60, "the stop's confirmation")
+            driver.find_element("id", "confirm-go").click()
             wait_for(lambda: "grey card" in rig.call(lambda: rig.coord.status().showing), 60, "the content restored")
             wait_for(lambda: "grey card" in text_of(driver, "showing"), 60, "the content on the page")
 
@@ -155,7 +159,7 @@ def test_identify_and_stop_act_on_the_nodes(tmp_path):
     import aiohttp
     import cv2
 
-    from coordinator.identify import name_card
+    from coordinator.identify import identify_cards
 
     with ConsoleRig(tmp_path / "rig", SLOTS, snapshots=True) as rig:
         rig.wait_live(timeout=240)
@@ -185,7 +189,7 @@ def test_identify_and_stop_act_on_the_nodes(tmp_path):
         for slot in SLOTS:
             _, img = wait_until(lambda: shown(slot), lambda tagged: tagged[0] == "show:identify",
                                 what=f"{slot} showing its name card", timeout=120)
-            np.testing.assert_array_equal(img, name_card(slot, w, h))
+            np.testing.assert_array_equal(img, identify_cards({s: (w, h) for s in SLOTS})[slot])
         assert rig.call(lambda: rig.coord.status().showing) == "slot names (identify)"
         assert asyncio.run(post("/api/stop"))["ok"]
         wait_for(lambda: rig.call(lambda: rig.coord.status().showing) == "black (blackout)", 60, "identify dismissed")
