@@ -1,0 +1,124 @@
+"""The console's per-slot tools and health banner against a coordinator in this process and real
+node processes: a test pattern and a solo asked over HTTP end up on the projectors (read back from
+what each node rendered, not from the coordinator's flags), and in Chromium the layout's selection
+highlights one slot, Blackout asks before it acts, and the banner names a lost node."""
+from __future__ import annotations
+
+import asyncio
+import json
+
+import aiohttp
+import cv2
+import numpy as np
+import pytest
+
+from bench.console import ConsoleRig, chromium, log_in, text_of, visible, wait_for
+from coordinator import test_patterns
+from coordinator.rig import Content
+from waits import wait_until
+
+SLOTS = ["r0c0", "r0c1"]
+
+
+class Page:
+    """The console's HTTP API as a logged-in page uses it (token login, CSRF header, Origin)."""
+
+    def __init__(self, rig: ConsoleRig):
+        self.base = rig.url.rstrip("/")
+        self.token = rig.token
+
+    async def _post(self, path: str, doc: dict) -> tuple[int, dict]:
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
+            r = await s.post(self.base + "/login", json={"token": self.token}, headers={"Origin": self.base})
+            body = await r.json()
+            headers = {"Cookie": f"shadowless_console={r.cookies['shadowless_console'].value}", "Origin": self.base,
+                       "X-CSRF-Token": body["csrf"]}
+            r = await s.post(self.base + path, json=doc, headers=headers)
+            return r.status, await r.json()
+
+    def post(self, path: str, doc: dict) -> tuple[int, dict]:
+        return asyncio.run(self._post(path, doc))
+
+
+def shown(snaps, slot: str) -> tuple[int, np.ndarray | None]:
+    """(frame id, RGB picture) a node last rendered a still, from its snapshot files ((0, None): none yet)."""
+    try:
+        frame = json.loads((snaps / f"{slot}.json").read_text())["frame_id"]
+        img = cv2.imread(str(snaps / f"{slot}.png"), cv2.IMREAD_UNCHANGED)
+    except (OSError, ValueError, KeyError):
+        return 0, None
+    return frame, None if img is None else cv2.cvtColor(img[:, :, :3], cv2.COLOR_BGR2RGB)
+
+
+def wait_shows(snaps, slot: str, what: str, check) -> np.ndarray:
+    return wait_until(lambda: shown(snaps, slot), lambda fi: fi[1] is not None and check(fi[1]),
+                      what=f"{slot} showing {what}", timeout=120)[1]
+
+
+@pytest.mark.slow
+def test_patterns_solo_selection_confirmation_and_banner(tmp_path, browser_ready):
+    with ConsoleRig(tmp_path / "rig", SLOTS, snapshots=True) as rig:
+        rig.wait_live(timeout=240)
+        snaps, (w, h) = rig.local.snapshot_dir, rig.local.output_size
+        page = Page(rig)
+        black = lambda img: img.max() == 0  # noqa: E731
+
+        # a grid on r0c1 only: exactly the pattern there, black on r0c0
+        status, body = page.post("/api/pattern", {"name": "grid", "slots": ["r0c1"]})
+        assert status == 200 and body["ok"], body
+        grid = test_patterns.test_pattern("grid", (w, h), label="r0c1")
+        wait_shows(snaps, "r0c1", "the grid", lambda img: np.array_equal(img, grid))
+        wait_shows(snaps, "r0c0", "black", black)
+        assert "test pattern grid on r0c1" in body["result"]
+        status, body = page.post("/api/pattern", {"name": "zebra"})
+        assert status == 400 and "choose one of white, grid, crosshair, bars" in body["error"]
+
+        # solo: white content on both, then only r0c0 lit, then both again
+        white = Content(np.full((90, 160, 3), 255, np.uint8), name="white card")
+        rig.call(lambda: rig.coord.show(white, persist=True))
+        lit = lambda img: img.mean() > 100  # noqa: E731
+        for s in SLOTS:
+            wait_shows(snaps, s, "the white card", lit)
+        status, body = page.post("/api/solo", {"slots": ["r0c0"]})
+        assert status == 200 and body["result"].startswith("solo r0c0"), body
+        wait_shows(snaps, "r0c1", "black (solo r0c0)", black)
+        assert lit(shown(snaps, "r0c0")[1])
+        status, body = page.post("/api/solo", {"slots": []})
+        assert status == 200, body
+        wait_shows(snaps, "r0c1", "the white card again", lit)
+        status, body = page.post("/api/solo", {"slots": ["nope"]})
+        assert status == 400 and "no slot 'nope'" in body["error"]
+
+        driver = chromium(tmp_path / "chromium-profile")
+        try:
+            driver.get(rig.url)
+            log_in(driver, rig.token)
+            wait_for(lambda: visible(driver, "health"), 60, "the health banner")
+            # the layout: selecting r0c0 in the list draws it on top, the other faded, one label
+            wait_for(lambda: driver.find_elements("css selector", '#slot-list li[data-slot="r0c0"]'), 60, "the slot list")
+            driver.find_element("css selector", '#slot-list li[data-slot="r0c0"]').click()
+            classes = lambda: driver.execute_script(  # noqa: E731
+                "return Object.fromEntries(Array.from(document.querySelectorAll('#layout g[data-slot]'))"
+                ".map(g => [g.getAttribute('data-slot'), g.getAttribute('class')]));")
+            wait_for(lambda: "selected" in classes().get("r0c0", ""), 60, f"r0c0 selected: {classes()}")
+            assert "faded" in classes()["r0c1"] and "selected" not in classes()["r0c1"]
+            labels = driver.execute_script(
+                "return Array.from(document.querySelectorAll('#layout text.fp-name')).map(t => t.textContent);")
+            assert labels == ["1 r0c0: live"], labels
+
+            # Blackout asks on the page first; only the confirmation acts
+            driver.find_element("id", "blackout").click()
+            wait_for(lambda: visible(driver, "confirm-bar"), 60, "the confirmation")
+            assert driver.switch_to.active_element.get_attribute("id") == "confirm-cancel"
+            assert "white card" in rig.call(lambda: rig.coord.status().showing)
+            driver.find_element("id", "confirm-go").click()
+            wait_for(lambda: rig.call(lambda: rig.coord.status().showing) == "black (blackout)", 60, "blackout")
+
+            # a node killed: the banner turns to an alarm naming it, with how long ago
+            rig.kill_node("r0c1")
+            wait_for(lambda: driver.execute_script("return document.getElementById('health').dataset.level;")
+                     == "alarm" and "r0c1 lost" in text_of(driver, "health"), 60,
+                     f"the lost node on the banner: {text_of(driver, 'health')!r}")
+            assert " s ago)" in text_of(driver, "health")
+        finally:
+            driver.quit()
