@@ -542,3 +542,25 @@ class ShowState(_message.Message):
     now_ns: int
     change_at_ns: int
     def __init__(self, state: _Optional[str] = ..., asset_id: _Optional[str] = ..., name: _Optional[str] = ..., frames: _Optional[int] = ..., rate_num: _Optional[int] = ..., rate_den: _Optional[int] = ..., anchor_ns: _Optional[int] = ..., anchor_frame: _Optional[int] = ..., loop: _Optional[bool] = ..., paused: _Optional[bool] = ..., revision: _Optional[int] = ..., frame_id_base: _Optional[int] = ..., frame: _Optional[int] = ..., now_ns: _Optional[int] = ..., change_at_ns: _Optional[int] = ...) -> None: ...
+
+class CueListRequest(_message.Message):
+    __slots__ = ("cues_json",)
+    CUES_JSON_FIELD_NUMBER: _ClassVar[int]
+    cues_json: str
+    def __init__(self, cues_json: _Optional[str] = ...) -> None: ...
+
+class CueActionRequest(_message.Message):
+    __slots__ = ("action", "cue_id")
+    ACTION_FIELD_NUMBER: _ClassVar[int]
+    CUE_ID_FIELD_NUMBER: _ClassVar[int]
+    action: str
+    cue_id: str
+    def __init__(self, action: _Optional[str] = ..., cue_id: _Optional[str] = ...) -> None: ...
+
+class CueReply(_message.Message):
+    __slots__ = ("state_json", "result")
+    STATE_JSON_FIELD_NUMBER: _ClassVar[int]
+    RESULT_FIELD_NUMBER: _ClassVar[int]
+    state_json: str
+    result: str
+    def __init__(self, state_json: _Optional[str] = ..., result: _Optional[str] = ...) -> None: ...

@@ -105,6 +105,21 @@ class RigControlStub:
                 request_serializer=protos_dot_control__pb2.ShowControlRequest.SerializeToString,
                 response_deserializer=protos_dot_control__pb2.ShowState.FromString,
                 _registered_method=True)
+        self.GetCues = channel.unary_unary(
+                '/shadowless.v1.RigControl/GetCues',
+                request_serializer=protos_dot_control__pb2.StatusRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.CueReply.FromString,
+                _registered_method=True)
+        self.SetCues = channel.unary_unary(
+                '/shadowless.v1.RigControl/SetCues',
+                request_serializer=protos_dot_control__pb2.CueListRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.CueReply.FromString,
+                _registered_method=True)
+        self.FireCue = channel.unary_unary(
+                '/shadowless.v1.RigControl/FireCue',
+                request_serializer=protos_dot_control__pb2.CueActionRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.CueReply.FromString,
+                _registered_method=True)
 
 
 class RigControlServicer:
@@ -206,6 +221,25 @@ class RigControlServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def GetCues(self, request, context):
+        """The cue list (coordinator/cues.py): read it, replace it, and fire GO, back or a cue by id.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SetCues(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def FireCue(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_RigControlServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -278,6 +312,21 @@ def add_RigControlServicer_to_server(servicer, server):
                     servicer.StopShow,
                     request_deserializer=protos_dot_control__pb2.ShowControlRequest.FromString,
                     response_serializer=protos_dot_control__pb2.ShowState.SerializeToString,
+            ),
+            'GetCues': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetCues,
+                    request_deserializer=protos_dot_control__pb2.StatusRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.CueReply.SerializeToString,
+            ),
+            'SetCues': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetCues,
+                    request_deserializer=protos_dot_control__pb2.CueListRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.CueReply.SerializeToString,
+            ),
+            'FireCue': grpc.unary_unary_rpc_method_handler(
+                    servicer.FireCue,
+                    request_deserializer=protos_dot_control__pb2.CueActionRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.CueReply.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -658,6 +707,87 @@ class RigControl:
             '/shadowless.v1.RigControl/StopShow',
             protos_dot_control__pb2.ShowControlRequest.SerializeToString,
             protos_dot_control__pb2.ShowState.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetCues(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/GetCues',
+            protos_dot_control__pb2.StatusRequest.SerializeToString,
+            protos_dot_control__pb2.CueReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetCues(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/SetCues',
+            protos_dot_control__pb2.CueListRequest.SerializeToString,
+            protos_dot_control__pb2.CueReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def FireCue(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/FireCue',
+            protos_dot_control__pb2.CueActionRequest.SerializeToString,
+            protos_dot_control__pb2.CueReply.FromString,
             options,
             channel_credentials,
             insecure,

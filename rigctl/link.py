@@ -167,6 +167,26 @@ class Client:
     async def stop_show(self, *, delay_s: float = 0.0, at_ns: int = 0) -> ShowState:
         return await self._show_control(self.stub.StopShow, delay_s=delay_s, at_ns=at_ns)
 
+    # ---------------------------------------------------------------- the cue list
+    @_translated
+    async def cues(self) -> tuple[dict, str]:
+        """The cue state as JSON (cues, current, next, fired_at, fading, follow_at) and ""."""
+        reply = await self.stub.GetCues(control_pb2.StatusRequest(), metadata=self.md, timeout=10)
+        return control_messages.cue_reply_from_message(reply)
+
+    @_translated
+    async def set_cues(self, cues_json: str) -> tuple[dict, str]:
+        """Replace the cue list (protos/cues.py's JSON); the new state and the coordinator's line."""
+        reply = await self.stub.SetCues(control_pb2.CueListRequest(cues_json=cues_json), metadata=self.md, timeout=10)
+        return control_messages.cue_reply_from_message(reply)
+
+    @_translated
+    async def fire_cue(self, action: str, cue_id: str = "") -> tuple[dict, str]:
+        """``go``, ``back`` or ``jump`` (to ``cue_id``); the new state and what fired."""
+        reply = await self.stub.FireCue(control_pb2.CueActionRequest(action=action, cue_id=cue_id), metadata=self.md,
+                                        timeout=10)
+        return control_messages.cue_reply_from_message(reply)
+
     @_translated
     async def configure(self, slot: str, *, homography: np.ndarray | None = None, lut: np.ndarray | None = None,
                         gain: float | None = None, size: tuple[int, int] | None = None,

@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "blackout": ("rigctl.commands", "black on every projector until the next show"),
     "configure": ("rigctl.commands", "set a slot's pose, LUT, gain or output size by hand"),
     "content": ("rigctl.content_commands", "add, list, remove and verify content assets (stills, sequences, videos)"),
+    "cue": ("rigctl.cue_cli", "the show's cue list: add, list, move; GO, back, jump (crossfades, auto-follow)"),
     "local": ("shadowless.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
     "swarm": ("shadowless.swarm", "load-test a coordinator: N protocol-level nodes in one process (no rendering)"),
     "calibrate": ("rigctl.calibration_cli", "calibrate the projectors with the camera (poses pushed to the nodes)"),

@@ -287,3 +287,26 @@ def job_event_from_message(m: control_pb2.JobEvent) -> Event | dict:
     if which == "log":
         return m.log
     return json.loads(m.result_json or "{}")
+
+
+# ---------------------------------------------------------------- the cue list (coordinator/cues.py)
+def cue_reply(state: Any, result: str = "") -> control_pb2.CueReply:
+    """A :class:`~coordinator.api.CueState` (its JSON) and one line of result."""
+    return control_pb2.CueReply(state_json=json.dumps(state.to_json()), result=result)
+
+
+def cue_reply_from_message(m: control_pb2.CueReply) -> tuple[dict, str]:
+    """The cue state's JSON (see :meth:`coordinator.api.CueState.to_json`) and the result line."""
+    return json.loads(m.state_json or "{}"), m.result
+
+
+def cli_who(peer: str) -> str:
+    """Who acted, for the action log, from a gRPC peer (``ipv4:10.0.0.5:41234``): ``cli@10.0.0.5``."""
+    kind, _, rest = peer.partition(":")
+    if kind == "ipv6":
+        host = rest.rpartition(":")[0].strip("[]") or rest
+    elif kind == "ipv4":
+        host = rest.rpartition(":")[0] or rest
+    else:
+        host = kind or "?"
+    return f"cli@{host}"

@@ -25,6 +25,7 @@ from coordinator.wire.handshake_service import HandshakeService
 from coordinator.wire.image_parts import ImageParts, regions_from_request
 from coordinator.wire.node_messages import space_from_message
 from protos import codec, common_pb2, control_pb2
+from protos.cues import CueList
 
 log = logging.getLogger(__name__)
 
@@ -200,3 +201,29 @@ class RigControlService(HandshakeService):
     @guard
     async def StopShow(self, request, context):
         return await self._control("stop", request, context)
+
+    # ---------------------------------------------------------------- the cue list (coordinator/cues.py)
+    @guard
+    async def GetCues(self, request, context):
+        self._operator(context)
+        return control_messages.cue_reply(self.c.cue_state())
+
+    @guard
+    async def SetCues(self, request, context):
+        self._operator(context)
+        result = self.c.set_cues(CueList.loads(request.cues_json), who=control_messages.cli_who(context.peer()))
+        return control_messages.cue_reply(self.c.cue_state(), result)
+
+    @guard
+    async def FireCue(self, request, context):
+        self._operator(context)
+        who = control_messages.cli_who(context.peer())
+        if request.action == "go":
+            result = self.c.cue_go(who=who)
+        elif request.action == "back":
+            result = self.c.cue_back(who=who)
+        elif request.action == "jump":
+            result = self.c.cue_jump(request.cue_id, who=who)
+        else:
+            raise ValueError(f"unknown cue action {request.action!r} (go, back or jump)")
+        return control_messages.cue_reply(self.c.cue_state(), result)

@@ -19,6 +19,7 @@ from protos.cues import Cue, CueList
 from protos.fade import mix_reference, step_mix
 from protos.spaces import as_linear, warp_content
 from shadowless.local import LocalRig
+from cli_inprocess import run_shadowless
 from waits import wait_until_async
 
 SLOTS = ["r0c0", "r0c1"]
@@ -57,7 +58,7 @@ async def pictures(rig: LocalRig, want: np.ndarray, what: str) -> dict[str, dict
     return {s: meta for s, (_, meta) in got.items()}
 
 
-def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path):
+def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path, capfd):
     rig = LocalRig(SLOTS, tmp_path, output_size=(W, H), content_size=(W, H), mdns=False, snapshots=True).create()
     y, x = np.mgrid[0:H, 0:W]
     first = np.stack([x * 255 // (W - 1), y * 255 // (H - 1), np.full_like(x, 60)], axis=2).astype(np.uint8)
@@ -139,11 +140,32 @@ def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path):
         finally:
             await app.stop()
 
-        # a restarted coordinator shows the current cue (4, black) again
+        # a restarted coordinator shows the current cue (4, black) again; the command line drives it
         app = await start()
         try:
             assert app.coordinator.cue_state().current == 3
             await pictures(rig, black, "cue 4 on screen again after the restart")
+            where = ["--coordinator", f"127.0.0.1:{rig.port}", "--rig-dir", rig.rig_dir]
+
+            async def cli(*argv):
+                return await asyncio.to_thread(run_shadowless, ["cue", *argv, *where], capfd)
+
+            code, out, err = await cli("list")
+            assert code == 0, err
+            assert [ln.split()[:2] for ln in out.splitlines() if ln.startswith(("▶", "→"))] == [["▶", "4"], ["→", "5"]]
+            assert "5 cues; current: cue 4" in out
+            code, out, err = await cli("add", "--kind", "still")
+            assert (code, err.strip()) == (2, "shadowless cue add: cue '6': a still cue needs a target (a still's name, "
+                                                "e.g. content)"), err
+            code, out, err = await cli("add", "--kind", "still", "--target", "content", "--at", "1", "--name", "Top")
+            assert code == 0 and "added cue 6 'Top' (still content) at position 1" in out, err
+            assert [c.id for c in app.coordinator.cue_state().cues] == ["6", "1", "2", "3", "4", "5"]
+            code, out, err = await cli("jump", "9")
+            assert code == 2 and err.startswith("shadowless cue jump: ") and "no cue '9' in the list" in err, err
+            code, out, err = await cli("jump", "6")
+            assert code == 0 and out.startswith("cue 6 'Top' (still content) fires; next: 1"), out + err
+            await pictures(rig, shown(first), "cue 6 fired from the command line")
+            assert fires[-1]["who"] == "cli@127.0.0.1" and fires[-1]["params"]["cue"] == "6"
         finally:
             await app.stop()
 
