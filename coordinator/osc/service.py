@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import ipaddress
 import logging
 import math
 import socket
@@ -68,6 +69,13 @@ def encode(address: str, args: tuple[Any, ...]) -> bytes:
         else:
             b.add_arg(str(a)[:1000])
     return b.build().dgram
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
 
 
 class _Protocol(asyncio.DatagramProtocol):
@@ -129,6 +137,9 @@ class OscService:
         self.port = int(transport.get_extra_info("sockname")[1])
         self._task = asyncio.create_task(self._tick_loop(), name="osc feedback")
         allow = ", ".join(str(n) for n in self.config.allow)
+        if not _loopback(host) and all(n.is_loopback for n in self.config.allow):
+            log.warning("OSC listens on %s but hears this machine only: name the show controllers in [osc] allow "
+                        "of rig.toml (e.g. allow = [\"10.0.0.0/24\"])", self.url)
         log.info("show control over OSC on %s, hearing %s (OSC has no authentication: anyone who can send from "
                  "those addresses drives the show)", self.url, allow)
 
