@@ -31,7 +31,9 @@ from coordinator.compensation.image_param import encode_image_param
 from rigctl.job_command import ProgressView, run_job
 from protos import cli_types
 from protos.spaces import content_to_table
+from protos.wording import count
 from shadowless import exit_cleanup
+from shadowless.hold import console_lines, hold
 from shadowless.local import LocalRig, free_port
 from sim.link import RoomClient
 from sim.hand import Hand
@@ -53,6 +55,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="shared image size in content px over the 1200x600 mm table (default 600x300: 2 mm/px)")
     p.add_argument("--no-compensate", dest="compensate", action="store_false",
                    help="skip the blur-compensation stage (responses, light transport, solve; about a minute)")
+    p.add_argument("--serve", action="store_true",
+                   help="then keep the room, the calibrated rig and its operator console up until Ctrl-C (or "
+                        "SIGTERM), to try the console on it; every process stops at the end, the results stay")
 
 
 def _say(msg: str) -> None:
@@ -191,19 +196,20 @@ async def _demo(args) -> int:
         cam = room.camera_truth(0)
         cam_p = np.array(cam.p).reshape(3, 4)
         cam_size = (cam.width, cam.height)
-        _say(f"virtual room on 127.0.0.1:{room_port}: {len(slots)} projectors, camera {cam.width}x{cam.height}")
+        _say(f"virtual room on 127.0.0.1:{room_port}: {count(len(slots), 'projector')}, camera {cam.width}x{cam.height}")
 
         size = room.projector_size(slots[0])
         rig = LocalRig(slots, work, output_size=size, content_size=(cw, ch), node_output=f"room://127.0.0.1:{room_port}",
                        mdns=True, rig_name="demo", latency_ms=80.0, console=True,
                        coordinator_args=["--camera", f"room://127.0.0.1:{room_port}"])
         with rig:
-            _say(f"coordinator on 127.0.0.1:{rig.port}; starting {len(slots)} node processes (one per projector)")
+            _say(f"coordinator on 127.0.0.1:{rig.port}; starting {count(len(slots), 'node process', 'node processes')} "
+                 "(one per projector)")
             _say(f"operator console: {rig.console_url()} (log in with the token in {rig.rig_dir / 'token'})")
             async with await rig.client(timeout=60) as c:
                 await rig.wait_live(c, timeout=300)
                 report["startup_s"] = round(time.monotonic() - t_start, 1)
-                _say(f"all {len(slots)} nodes live after {report['startup_s']} s")
+                _say(f"{count(len(slots), 'node')} live after {report['startup_s']} s")
 
                 t0 = time.monotonic()
                 if args.poses == "truth":
@@ -251,6 +257,10 @@ async def _demo(args) -> int:
                 if args.compensate:
                     report["compensation"] = await _compensate(c, img, work, SUBSETS["P25"])
                     shutil.copy(rig.rig_dir / "compensation" / "quality.png", out / "compensation.png")
+                _write_results(args, out, report, shots, drops, on, t_start)
+                if args.serve:
+                    await hold(console_lines(rig.console_url(), rig.rig_dir),
+                               then=f"the room, the coordinator and every node stop; the results stay in {out}/")
     finally:
         exit_cleanup.unregister(room_proc.terminate)
         room_proc.terminate()
@@ -259,7 +269,14 @@ async def _demo(args) -> int:
         except subprocess.TimeoutExpired:
             room_proc.kill()
         room_log.close()
+    if not args.serve:
+        _say("to keep this rig up and try its operator console: shadowless demo --serve (Ctrl-C stops it)")
+    return 0
 
+
+def _write_results(args, out: Path, report: dict, shots: dict, drops: dict, on: np.ndarray, t_start: float) -> None:
+    """The pictures (teaser.png, light_drop.png) and the report (report.json, report.md, printed)."""
+    hx, hy = args.hand
     # exposure: both setups are equally bright (p1 is the paper's high-luminance unit)
     tiles = [[_label(_to8(shots[(n, h)]), f"{n}{' + hand 0.2 m' if h else ''}") for h in (False, True)] for n in ("P1", "P25")]
     teaser = np.vstack([np.hstack(row) for row in tiles])
@@ -290,7 +307,6 @@ async def _demo(args) -> int:
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     _say(f"results in {out}/ ({report['total_s']} s)")
-    return 0
 
 
 async def _compensate(c, img: np.ndarray, work: Path, slots: list[str]) -> dict:

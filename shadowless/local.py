@@ -18,6 +18,7 @@ import asyncio
 import json
 import math
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -35,7 +36,9 @@ from rigctl.commands import play_dict, read_image, status_dict
 from coordinator.rig import init_rig
 from protos import auth
 from protos import cli_types
+from protos.wording import count
 from shadowless import exit_cleanup
+from shadowless.hold import console_lines, hold
 from shadowless.netns import COORDINATOR, Venue, VenueError, available, parse_rate
 
 
@@ -236,7 +239,10 @@ class LocalRig:
                 proc.wait()
 
     def close(self) -> None:
+        """Stop every process: the coordinator first, so that it ends its node sessions as closed (nodes
+        stopped first would each be logged as lost by a coordinator still running), then the nodes."""
         exit_cleanup.unregister(self.close)
+        self.stop_coordinator()
         for slot in list(self.nodes):
             if self.nodes[slot].poll() is None:
                 self.nodes[slot].send_signal(signal.SIGTERM)
@@ -326,13 +332,17 @@ def card_image(width: int, height: int) -> np.ndarray:
 
 # ---------------------------------------------------------------- `shadowless local`
 def configure(p: argparse.ArgumentParser) -> None:
-    p.description = ("Start a coordinator and N offscreen nodes on 127.0.0.1 (mDNS on loopback), show an image on all "
-                     "of them, play a counter sequence, print the sync figures, and stop everything.\n"
+    p.description = ("Start a coordinator and N offscreen nodes on 127.0.0.1 (mDNS on loopback), give each node a pose "
+                     "(the identity: the whole content on every projector), show an image on all of them, play a counter "
+                     "sequence, print the sync figures, and stop everything (--hold: keep the rig and its console up "
+                     "until Ctrl-C). Its temporary directory (rig, token, logs, snapshots) is removed at the end "
+                     "unless --keep names one.\n"
                      "With --netns the processes run on a virtual venue network instead: one network namespace per "
                      "process, joined by a rate-limited bridge, discovery by real multicast mDNS (needs root and "
                      "iproute2; see shadowless/netns.py).")
     p.epilog = ("examples:\n"
                 "  shadowless local --nodes 4\n"
+                "  shadowless local --nodes 4 --hold                        # then log in to the console it prints\n"
                 "  sudo shadowless local --nodes 4 --netns                  # 1 Gbit/s links\n"
                 "  sudo shadowless local --nodes 9 --netns --link 100mbit   # a Wi-Fi-class venue\n"
                 "  python -m shadowless.netns cleanup                       # remove what a crashed run left")
@@ -346,6 +356,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clock-drift-ppm", type=cli_types.number(0, 10000), default=0.0, help="inject drifts spread over ±this many ppm")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory, logs and snapshots in DIR")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    p.add_argument("--hold", action="store_true",
+                   help="keep the rig and its operator console up after the figures, until Ctrl-C or SIGTERM")
     v = p.add_argument_group("virtual venue network")
     v.add_argument("--netns", action="store_true",
                    help="run every process in its own network namespace on a rate-limited bridge (root)")
@@ -364,8 +376,42 @@ async def _local(args) -> int:
         picture = read_image(args.image) if args.image else None
     except OperatorError as exc:
         raise SystemExit(f"--image {exc}") from None
+    if args.hold and args.netns:
+        raise SystemExit("--hold serves the console on 127.0.0.1, which a --netns venue cannot reach: drop one of them")
     slots = grid_names(args.nodes)
     workdir = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="shadowless-local-"))
+    remove = _Remover(None if args.keep else workdir)
+    exit_cleanup.register(remove)     # registered before the rig's closer, so it runs after it
+    try:
+        return await _run_local(args, picture, slots, workdir, (w, h))
+    finally:
+        exit_cleanup.unregister(remove)
+        remove()
+
+
+class _Remover:
+    """Removes a temporary directory (token included) once, at the end or when the process is terminated."""
+
+    def __init__(self, path: Path | None):
+        self.path = path
+
+    def __call__(self) -> None:
+        if self.path is not None:
+            shutil.rmtree(self.path, ignore_errors=True)
+            self.path = None
+
+
+async def give_poses(c: Client, slots: list[str]) -> str:
+    """Give every slot the identity pose (content px = projector px: the rig's content and outputs have
+    one size here), so each node shows the whole content instead of black; what was done, in one line."""
+    for s in slots:
+        await c.configure(s, homography=np.eye(3))
+    return (f"poses: the identity on {count(len(slots), 'node')} (each shows the whole content; a real rig "
+            "calibrates with `shadowless calibrate`)")
+
+
+async def _run_local(args, picture, slots: list[str], workdir: Path, size: tuple[int, int]) -> int:
+    w, h = size
     offsets = dict(zip(slots, spread(len(slots), args.clock_offset_ms, 1)))
     drifts = dict(zip(slots, spread(len(slots), args.clock_drift_ppm, 2)))
     with LocalRig(slots, workdir, output_size=(w, h), content_size=(w, h), clock_offsets_ms=offsets,
@@ -373,33 +419,44 @@ async def _local(args) -> int:
                   coordinator_link=args.coordinator_link, console=not args.netns) as rig:
         if rig.venue is not None:
             print(rig.venue.describe(), file=sys.stderr)
-        print(f"rig {rig.rig_name}: coordinator on {rig.coordinator_target}, {len(slots)} nodes; logs in {rig.log_dir}",
-              file=sys.stderr)
-        if rig.console:
-            print(f"operator console: {rig.console_url()} (log in with the token in {rig.rig_dir / 'token'})",
-                  file=sys.stderr)
+        print(f"rig {rig.rig_name}: coordinator on {rig.coordinator_target}, {count(len(slots), 'node')}; "
+              f"logs in {rig.log_dir}", file=sys.stderr, flush=True)
+        url = rig.console_url() if rig.console else ""
+        if url and not args.hold:
+            print(f"operator console: {url} (log in with the token in {rig.rig_dir / 'token'})", file=sys.stderr)
         async with await rig.client() as c:
             await rig.wait_live(c)
+            print(await give_poses(c, slots), file=sys.stderr, flush=True)
             img = picture if picture is not None else card_image(w, h)
-            await c.show(img, name=args.image or "test card", fit="contain")   # an image of any aspect, whole
+            await c.show(img, name=args.image or "test card", fit="contain", persist=True)   # any aspect, whole
             await asyncio.sleep(1.0)
             frames = max(1, int(args.fps * args.seconds))
             reply = await c.play(PlaySettings(fps=args.fps, pattern="counter", frames=frames, wait=True))
             status = status_dict(await c.status())
-    result = {"nodes": len(slots), "fps": args.fps, **play_dict(reply), "node_table": status["nodes"],
-              "workdir": str(workdir)}
-    if args.netns:
-        result["venue"] = {"link": args.link, "coordinator_link": args.coordinator_link or args.link}
-    if args.json:
-        print(json.dumps(result, indent=2))
-    else:
-        s = result["sync"]
-        print(f"{result['nodes']} nodes, {result['frames_sent']} frames at {args.fps:g} fps: shown by all "
-              f"{result['frames_shown']}, late {result['frames_late']}, dropped {result['frames_dropped']}")
-        print(f"swap skew p50 {s['skew_p50_ms']} ms, p99 {s['skew_p99_ms']} ms, max {s['skew_max_ms']} ms "
-              f"({s['skew_source']}); clock error p99 {s['clock_error_p99_ms']} ms; out of order {s['out_of_order']}")
-        print(f"snapshots of the still: {workdir / 'snapshots'}")
+            result = {"nodes": len(slots), "fps": args.fps, **play_dict(reply), "node_table": status["nodes"],
+                      "workdir": str(workdir) if args.keep else None}
+            if args.netns:
+                result["venue"] = {"link": args.link, "coordinator_link": args.coordinator_link or args.link}
+            _print_result(args, result, workdir)
+            if args.hold:
+                then = ("every process stops" if args.keep
+                        else f"every process stops and {workdir} (rig, token, logs, snapshots) is removed")
+                await hold(console_lines(url, rig.rig_dir), then=then)
     return 0
+
+
+def _print_result(args, result: dict, workdir: Path) -> None:
+    if args.json:
+        print(json.dumps(result, indent=2), flush=True)
+        return
+    s = result["sync"]
+    print(f"{count(result['nodes'], 'node')}, {result['frames_sent']} frames at {args.fps:g} fps: shown by all "
+          f"{result['frames_shown']}, late {result['frames_late']}, dropped {result['frames_dropped']}")
+    print(f"swap skew p50 {s['skew_p50_ms']} ms, p99 {s['skew_p99_ms']} ms, max {s['skew_max_ms']} ms "
+          f"({s['skew_source']}); clock error p99 {s['clock_error_p99_ms']} ms; out of order {s['out_of_order']}")
+    print(f"snapshots of the still: {workdir / 'snapshots'}" + ("" if args.keep or args.hold else
+                                                                 " (removed with the rig; keep them with --keep DIR)"),
+          flush=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,27 +2,57 @@
 it short; `make demo` calibrates and compensates): room + coordinator + 26 node processes, the
 image on every projector, the hand 0.2 m above the table. The demo's compensation step runs the
 response, transport and compensate jobs, which tests/coordinator/compensation/test_job_end_to_end.py
-runs through nodes, the coordinator and the room service the same way."""
+runs through nodes, the coordinator and the room service the same way. With --serve the rig then
+stays up with its console until Ctrl-C, and every process it started stops with it."""
 from __future__ import annotations
 
 import json
+import re
+import signal
 import subprocess
 import sys
+import urllib.request
 
 import cv2
+import psutil
+from waits import wait_until
 
 
-def test_demo_writes_the_comparison_and_shows_the_papers_observation(tmp_path):
+def test_demo_writes_the_comparison_shows_the_papers_observation_and_serves_its_console(tmp_path):
     out = tmp_path / "demo"
-    r = subprocess.run([sys.executable, "-m", "shadowless", "demo", "--poses", "truth", "--no-compensate", "--out", str(out)],
-                       capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert "ground truth" in r.stdout, "the demo must say when poses were not calibrated"
-    report = json.loads((out / "report.json").read_text())
-    p1, p25 = report["light_drop"]["P1"], report["light_drop"]["P25"]
-    assert p1["umbra_mm2"] > 1000 and p1["max"] > 0.99        # one projector: a hard shadow
-    assert p25["umbra_mm2"] == 0 and p25["max"] < 0.6         # 25 projectors: no umbra at all
-    teaser = cv2.imread(str(out / "teaser.png"))
-    assert teaser is not None and teaser.shape[0] > 400 and teaser.shape[1] > 800
-    assert (out / "light_drop.png").exists() and (out / "report.md").read_text().startswith("# shadowless demo")
-    assert "compensation" not in report and not (out / "compensation.png").exists()
+    log = tmp_path / "demo.txt"
+    with open(log, "wb") as f:
+        proc = subprocess.Popen([sys.executable, "-m", "shadowless", "demo", "--poses", "truth", "--no-compensate",
+                                 "--out", str(out), "--serve"], stdout=f, stderr=subprocess.STDOUT)
+    try:
+        text = wait_until(log.read_text, lambda t: "stays up until Ctrl-C" in t or proc.poll() is not None,
+                          what="the demo's rig held up", timeout=600)
+        assert proc.poll() is None, text[-3000:]
+        assert "ground truth" in text, "the demo must say when poses were not calibrated"
+        report = json.loads((out / "report.json").read_text())
+        p1, p25 = report["light_drop"]["P1"], report["light_drop"]["P25"]
+        assert p1["umbra_mm2"] > 1000 and p1["max"] > 0.99        # one projector: a hard shadow
+        assert p25["umbra_mm2"] == 0 and p25["max"] < 0.6         # 25 projectors: no umbra at all
+        teaser = cv2.imread(str(out / "teaser.png"))
+        assert teaser is not None and teaser.shape[0] > 400 and teaser.shape[1] > 800
+        assert (out / "light_drop.png").exists() and (out / "report.md").read_text().startswith("# shadowless demo")
+        assert "compensation" not in report and not (out / "compensation.png").exists()
+        url = re.search(r"operator console: (http://127\.0\.0\.1:\d+/)", text).group(1)
+        assert f"paste the contents of {out / 'rig' / 'rig' / 'token'}" in text
+        with urllib.request.urlopen(url, timeout=30) as page:
+            assert page.status == 200
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert len(children) >= 28, len(children)       # the room, the coordinator and 26 nodes
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=180) == 0, log.read_text()[-3000:]
+    finally:
+        if proc.poll() is None:        # a failed check: SIGTERM still stops what it started
+            proc.terminate()
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+    _, alive = psutil.wait_procs(children, timeout=30)
+    assert not alive, alive
+    assert "SIGINT: stopping the rig" in log.read_text()

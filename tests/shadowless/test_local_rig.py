@@ -242,3 +242,14 @@ def test_coordinator_restart_brings_every_node_back_with_the_same_rig(rig):
 
     r = run(play_after())
     assert r.nodes == N_NODES and r.sync.out_of_order == 0
+
+
+def test_a_clean_stop_ends_every_session_as_closed_not_lost(rig):
+    """Stopping the rig stops its coordinator first: it ends the node sessions itself and logs no loss
+    (nodes stopped first were each logged "node … lost" by a coordinator still running). Runs last."""
+    before = len(rig.log("coordinator"))
+    rig.close()
+    assert rig.coordinator.poll() is not None and all(p.poll() is not None for p in rig.nodes.values())
+    stop = rig.log("coordinator")[before:]
+    assert "shutting down" in stop, stop
+    assert " lost" not in stop, stop
