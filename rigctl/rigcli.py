@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from coordinator.errors import RigError
-from rigctl import user_cli
+from rigctl import board_cli, user_cli
 from rigctl.mpcdi import cli as mpcdi_cli
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.rig_layout import BuiltinMesh, init_from_layout
@@ -58,6 +58,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     mpcdi_cli.configure_export(sub.add_parser("export", help="write a rig directory's calibration to an MPCDI archive"))
     mpcdi_cli.configure_import(sub.add_parser("import", help="read an MPCDI archive's calibration into a rig directory"))
     user_cli.configure(sub.add_parser("user", help="who may log in to the console, by name and password, and their role"))
+    board_cli.configure(sub.add_parser("board", help="write a printable ChArUco board (PDF, PNG) and its JSON for calibrate"))
 
 
 def _created(path: Path, what: str) -> None:
@@ -97,6 +98,8 @@ def run(args: argparse.Namespace, *, builtin_mesh: BuiltinMesh | None = None) ->
             return 0
         if args.rig_command == "user":
             return user_cli.run(args)
+        if args.rig_command == "board":
+            return board_cli.run(args)
         if args.rig_command in ("export", "import"):
             return (mpcdi_cli.run_export if args.rig_command == "export" else mpcdi_cli.run_import)(args)
         rig = Rig(args.dir, read_only=True)

@@ -66,16 +66,12 @@ class CalibrateResult(JobResult):
 
 
 def _saved_table(opts: CalibrateOptions, inputs: Inputs, rig_dir: Path) -> dict[int, dict]:
-    """Without known points or a board, the table mappings an earlier run saved; refuse when
-    there are none (or when this run is to map the table)."""
-    if inputs.table_points or inputs.charuco is not None:
+    """Without known points or a board given, the table mappings an earlier run saved: each camera
+    uses its own unless it sees a board on the table (the cameras stage looks for one), and none
+    when this run is to map the table afresh (``table_only``)."""
+    if inputs.table_points or inputs.charuco is not None or opts.table_only:
         return {}
-    saved = runs.saved_table(rig_dir)
-    if opts.table_only or not (saved or (opts.surface == "mesh" and inputs.landmarks)):
-        raise JobError("the table -> camera mapping needs known points: set table_points (a points file, or "
-                       "[calibration] table_points = [[x_mm, y_mm, u_px, v_px], ...] in rig.toml) or a charuco "
-                       "board (e.g. a first run with --charuco board.json --table-only, then remove the board)")
-    return saved
+    return runs.saved_table(rig_dir)
 
 
 def option_defaults(rig: Rig) -> tuple[dict, str]:

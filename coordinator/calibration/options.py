@@ -21,6 +21,7 @@ This module is what the command line imports: it needs neither OpenCV nor SciPy.
 from __future__ import annotations
 
 import dataclasses
+import json
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,11 +30,16 @@ from typing import Any
 import numpy as np
 
 from imaging.calibration.errors import CalibrationError
+from imaging.calibration.board import DEFAULT_BOARD
 from imaging.calibration.planar import CharucoSpec
 from imaging.calibration.points import PointSet, inline_table_points, parse_points, read_points
 from coordinator.jobs import JobError, option
 
 __all__ = ["CalibrateOptions", "AlignmentOptions", "Inputs", "rig_defaults", "decide", "resolve"]
+
+#: the board description in a rig directory that calibrate looks for on the table when it is given no
+#: table points nor board (what `shadowless rig board RIG` writes)
+BOARD_FILE = "board.json"
 
 WHAT = "what to calibrate"
 CAPTURES = "cameras and captures"
@@ -98,13 +104,13 @@ class CalibrateOptions:
     surface: str | None = option(None, choices=("table", "mesh"), group=WHAT,
                                  help="what the projectors light (default: mesh when a mesh is given, else table)")
     slots: list[str] | None = option(None, group=WHAT, help="only these projectors (default: every connected one)")
-    table_mm: tuple[float, float] = option((1200.0, 600.0), lo=1, metavar="WxH", group=WHAT,
+    table_mm: tuple[float, float] = option((1200.0, 600.0), lo=1, metavar="WxH", group=WHAT, label="Table size (mm)",
                                            help="table size in mm; the content spans it")
     table_points: str | dict | list | None = option(
         None, parse=_path_or_document("table_points", rows=True), metavar="FILE", group=WHAT,
         help="known table points: a points file (read by the command line and sent with the job), or in "
              "rig.toml [[x_mm, y_mm, u_px, v_px], ...] seen by camera 0")
-    charuco: dict | None = option(None, parse=_board, metavar="FILE", group=WHAT,
+    charuco: dict | None = option(None, parse=_board, metavar="FILE", group=WHAT, label="ChArUco board",
                                   help="a ChArUco board lying on the table: JSON or TOML with squares_x, squares_y, "
                                        "square_mm, marker_mm, dictionary, origin_mm (read by the command line)")
     mesh: str | None = option(None, parse=_file_path("mesh"), metavar="PATH", group=WHAT,
@@ -128,12 +134,12 @@ class CalibrateOptions:
                              help="sequential: fewest decoded camera pixels a projector needs")
     min_contrast: float = option(0.004, lo=0, hi=1, group=CAPTURES,
                                  help="white - black below this (fraction of full scale) is shadow")
-    max_saturated: float = option(0.02, lo=0, hi=1, group=CAPTURES,
+    max_saturated: float = option(0.02, lo=0, hi=1, group=CAPTURES, label="Saturated pixels allowed (fraction)",
                                   help="over-exposure limit: fraction of the lit camera pixels that may saturate")
     rounds: int = option(4, lo=1, hi=16, group=CAPTURES,
                          help="multiplexed: lattice captures (more are added when a projector would get too few dots)")
     seed: int = option(0, group=CAPTURES, help="multiplexed: dot placement seed")
-    force: bool = option(False, help="start a new run instead of resuming an interrupted one")
+    force: bool = option(False, label="Start a new run", help="start a new run instead of resuming an interrupted one")
     keep_going: bool = option(True, help="go on with the other projectors when one fails (--stop-on-error: stop)")
 
     def validate(self) -> None:
@@ -189,6 +195,10 @@ class Inputs:
     mesh_path: str | None
     landmarks: list[PointSet]
     intrinsics: dict[int, np.ndarray]
+    #: without table points nor a board given: the board looked for on the table (the rig's
+    #: board.json, else :data:`~imaging.calibration.board.DEFAULT_BOARD`), and where it came from
+    auto_board: CharucoSpec | None = None
+    auto_board_source: str = ""
 
 
 def _path(value: str, rig_dir: Path) -> Path:
@@ -218,13 +228,28 @@ def resolve(opts: CalibrateOptions, rig_dir: str | Path) -> Inputs:
             if any(s.frame != "world" for s in table_points):
                 raise JobError("table_points must be in the world frame (points on the table)")
         charuco = CharucoSpec.from_dict(opts.charuco) if opts.charuco is not None else None
+        auto, source = (None, "") if table_points or charuco is not None else _auto_board(rig_dir)
         landmarks = _point_sets(opts.landmarks, "landmarks", rig_dir) if opts.landmarks is not None else []
     except CalibrationError as exc:
         raise JobError(str(exc)) from exc
     except (TypeError, ValueError) as exc:
         raise JobError(f"bad calibration parameter: {exc or 'a value has the wrong type'}") from exc
     mesh_path = str(_path(opts.mesh, rig_dir)) if opts.mesh else None
-    return Inputs(table_points, charuco, mesh_path, landmarks, dict(opts.intrinsics or {}))
+    return Inputs(table_points, charuco, mesh_path, landmarks, dict(opts.intrinsics or {}), auto, source)
+
+
+def _auto_board(rig_dir: Path) -> tuple[CharucoSpec, str]:
+    """The board calibrate looks for on the table when it is given neither points nor a board."""
+    f = rig_dir / BOARD_FILE
+    if not f.exists():
+        return DEFAULT_BOARD, "the default board of `shadowless rig board`"
+    try:
+        doc = json.loads(f.read_text())
+    except (OSError, ValueError) as exc:
+        raise JobError(f"{f}: not a board description ({exc})") from None
+    if not isinstance(doc, dict):
+        raise JobError(f"{f}: not a board description (a JSON object with squares_x, squares_y, square_mm, ...)")
+    return CharucoSpec.from_dict(doc), f"the board of {f}"
 
 
 # ---------------------------------------------------------------------- alignment

@@ -46,6 +46,9 @@ async def map_cameras(st: State) -> None:
                 raise JobError(f"camera {i}: {exc}") from exc
             world_sets[i].append(PointSet("world", i, tuple(f"charuco {k}" for k in range(len(txy))),
                                           np.column_stack([txy, np.zeros(len(txy))]), px))
+    if inputs.auto_board is not None:
+        for i in st.cameras:
+            await _look_for_board(st, i, world_sets[i])
     for i in st.cameras:
         for s in world_sets[i]:
             check_points_inside(s.pixels, setup.sizes[i], i)
@@ -74,6 +77,32 @@ async def map_cameras(st: State) -> None:
         await _pose_cameras_and_mesh(st, world_sets)
     ctx.progress("cameras", "", ncam, ncam, "ok")
     save_cameras(ctx.rig.path, _cameras_doc(st))
+
+
+async def _look_for_board(st: State, i: int, found: list[PointSet]) -> None:
+    """Without known points or a board given: look for the board on the table in camera ``i``'s white
+    capture (the rig's board.json, or the default printed board). Found, its corners map the table;
+    not found, the mapping an earlier run saved serves (or, on a mesh, the landmarks), and with
+    neither the job ends with one line saying what to do."""
+    ctx, opts, inputs = st.ctx, st.opts, st.inputs
+    try:
+        txy, px = await ctx.compute(planar.detect_charuco, st.white[i], inputs.auto_board)
+    except CalibrationError as exc:
+        if i in st.saved_table or (opts.surface == "mesh" and inputs.landmarks and not opts.table_only):
+            return                  # the saved mapping (logged when used) or the landmarks
+        raise JobError(f"camera {i}: the table -> camera mapping needs known points or a ChArUco board on the table, "
+                       f"and no board was found ({inputs.auto_board_source}: {_first_clause(exc)}); lay the printed "
+                       "board (`shadowless rig board`) flat on the table in the camera's view, or give table points "
+                       "clicked in the camera image") from exc
+    ctx.log(f"camera {i}: found {inputs.auto_board_source} on the table ({len(txy)} corners): the table is mapped "
+            "from it" + ("" if opts.table_only else "; remove it before calibrating if projectors fail over it"))
+    found.append(PointSet("world", i, tuple(f"charuco {k}" for k in range(len(txy))),
+                          np.column_stack([txy, np.zeros(len(txy))]), px))
+
+
+def _first_clause(exc: Exception) -> str:
+    """``the ChArUco board was not found in the camera image (0 corners, need 6)`` of a longer message."""
+    return str(exc).split(":")[0]
 
 
 def _cameras_doc(st: State) -> dict:
