@@ -26,10 +26,45 @@ from waits import WaitTimeout, wait_until  # noqa: E402 - tests/support is on py
 
 
 def child_pids(root: int | None = None, *, exclude: set[int] = frozenset()) -> set[int]:
-    """All live descendants of ``root`` (default: this process), read from /proc,
-    not descending into the subtrees of ``exclude`` (processes a longer-lived
-    fixture owns; their own children are theirs to manage)."""
+    """All live descendants of ``root`` (default: this process), not descending into the subtrees
+    of ``exclude`` (processes a longer-lived fixture owns; their own children are theirs to manage).
+
+    Read from each process's ``/proc/PID/task/*/children`` (a few files for a few descendants; this
+    runs twice a test), or, where the kernel has no such files, from every process's parent in
+    ``/proc/*/stat``; zombies are left out either way."""
     root = os.getpid() if root is None else root
+    if not Path(f"/proc/{root}/task/{root}/children").exists():
+        return _child_pids_by_scan(root, exclude)
+    found: set[int] = set()
+    frontier = [root]
+    while frontier:
+        p = frontier.pop()
+        try:
+            tasks = list(Path(f"/proc/{p}/task").iterdir())
+        except OSError:
+            continue
+        for task in tasks:
+            try:
+                kids = (task / "children").read_text().split()
+            except OSError:
+                continue
+            for kid in map(int, kids):
+                if kid not in found and kid not in exclude and _state(kid) not in ("Z", None):
+                    found.add(kid)
+                    frontier.append(kid)
+    return found
+
+
+def _state(pid: int) -> str | None:
+    """A process's state letter (``R``, ``S``, ``Z``...), or None once it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat[stat.rfind(")") + 2 :].split(maxsplit=1)[0]    # comm may contain spaces and parentheses
+
+
+def _child_pids_by_scan(root: int, exclude: set[int]) -> set[int]:
     parents: dict[int, int] = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -138,6 +173,36 @@ def no_leaks(request):
     if temps:
         problems.append(f"leaked temporary files {sorted(temps)} (in {_SESSION_TMP})")
     pytest.fail("; ".join(problems), pytrace=False)
+
+
+#: ``SHADOWLESS_TEST_COSTS=FILE``: every test's cost appended to FILE as a JSON line (see below)
+_COSTS = os.environ.get("SHADOWLESS_TEST_COSTS")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With ``SHADOWLESS_TEST_COSTS=FILE``, each test (setup, call and teardown) appends
+    ``{"test", "wall_s", "cpu_s", "children_cpu_s"}`` to FILE: the wall time, this interpreter's CPU
+    time and that of the child processes it waited for (a module-scoped rig's processes count at the
+    teardown that stops them). Summed per module, it tells what a module costs the machine, which its
+    wall time on a busy machine does not."""
+    if not _COSTS:
+        yield
+        return
+    import json
+    import resource
+    import time
+
+    def children() -> float:
+        r = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return r.ru_utime + r.ru_stime
+
+    wall, cpu, kids = time.monotonic(), time.process_time(), children()
+    yield
+    line = json.dumps({"test": item.nodeid, "wall_s": round(time.monotonic() - wall, 3),
+                       "cpu_s": round(time.process_time() - cpu, 3), "children_cpu_s": round(children() - kids, 3)})
+    with open(_COSTS, "a") as f:
+        f.write(line + "\n")
 
 
 def pytest_configure(config):
