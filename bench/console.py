@@ -8,7 +8,9 @@ the coordinator; a node killed until it is shown lost), the coordinator's CPU ti
 second with the page open and closed, the swap skew (p99) and late frames of sequences played with
 the page closed, open, and open with the thumbnails of what each projector shows (the node rows
 scrolled off screen: no node is asked; on screen: about one per second per node), and how many
-thumbnails arrive per second per node. A screenshot of the page is saved.
+thumbnails arrive per second per node. A screenshot of the page is saved. Cues: the time from GO to
+the cue's first swap on every node, and the skew across the nodes of a crossfade's steps
+(:mod:`bench.console_cues`).
 
 :class:`ConsoleRig` and the page helpers are shared with the browser tests.
 """
@@ -31,6 +33,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench.console_cues import cue_figures
 from bench.machine import machine
 from bench.workdir import run_dir
 from coordinator.api import NodeState, PlayResult, PlaySettings
@@ -307,6 +310,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--screenshot", metavar="PNG", help="where to save the page's screenshot "
                                                        "(default: a file in the temporary directory)")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory and logs here")
+    p.add_argument("--cue-rounds", type=int, default=10,
+                   help="cuts and crossfades each fired with GO for go_to_swap_ms_p99 and crossfade_skew_ms_p99 "
+                        "(default 10; 0: none)")
+    p.add_argument("--cue-fade", type=float, default=1.0, metavar="S", help="the crossfades' length (default 1 s)")
 
 
 def _p99(values: list[float]) -> float | None:
@@ -452,6 +459,10 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
             driver.save_screenshot(str(screenshot))
             out["screenshot"] = str(screenshot)
 
+            # cues: GO until every projector swaps; a crossfade's skew across the nodes (bench/console_cues.py)
+            if args.cue_rounds > 0:
+                out.update(cue_figures(rig, slots, rounds=args.cue_rounds, fade_s=args.cue_fade))
+
             # a node killed until the page shows it lost
             lost = []
             for slot in slots[-min(args.kills, n):]:
@@ -480,7 +491,8 @@ def run(args: argparse.Namespace) -> int:
     doc = {"benchmark": "console", "machine": machine(),
            "parameters": {"nodes": args.nodes, "gain_changes": args.gain_changes, "kills": args.kills,
                           "cpu_seconds": args.cpu_seconds, "warmup_s": args.warmup,
-                          "thumbnail_seconds": args.thumbnail_seconds},
+                          "thumbnail_seconds": args.thumbnail_seconds, "cue_rounds": args.cue_rounds,
+                          "cue_fade_s": args.cue_fade},
            **result}
     print(json.dumps(doc, indent=2))
     return 0
