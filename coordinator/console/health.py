@@ -28,6 +28,13 @@ def _plural(n: int, word: str, many: str | None = None) -> str:
     return f"{n} {word if n == 1 else (many or word + 's')}"
 
 
+def _names(slots: list[str]) -> str:
+    """"r1c1, r1c2" or, past :data:`MAX_LISTED`, "24 projectors (r1c1, r1c2, … and 16 more)"."""
+    if len(slots) <= MAX_LISTED:
+        return ", ".join(slots)
+    return f"{len(slots)} projectors ({', '.join(slots[:MAX_LISTED])} and {len(slots) - MAX_LISTED} more)"
+
+
 def _alarm(level: str, kind: str, text: str, *, slots: list[str] | None = None,
            since: float | None = None) -> dict[str, Any]:
     return {"level": level, "kind": kind, "text": text, "slots": slots or [],
@@ -53,7 +60,7 @@ def health_view(status: RigStatus, *, now: float | None = None) -> dict[str, Any
     if b.state == "failover":
         verdict = b.message.partition(": ")[2].strip() or b.message
         alarms.append(_alarm("alarm" if not b.covered else "warn", "failover",
-                             f"failover: {', '.join(b.lost)} out of the blend; {verdict}", slots=list(b.lost),
+                             f"failover: {_names(list(b.lost))} out of the blend; {verdict}", slots=list(b.lost),
                              since=b.since or None))
 
     lost = sorted(by_state[NodeState.LOST], key=lambda n: -n.last_seen_age_ms)
@@ -68,7 +75,7 @@ def health_view(status: RigStatus, *, now: float | None = None) -> dict[str, Any
     missing = [n.slot for n in by_state[NodeState.EXPECTED]]
     if missing:
         alarms.append(_alarm("warn", "missing", f"{_plural(len(missing), 'projector')} never connected: "
-                             f"{', '.join(missing)} (start their nodes, or check the network)", slots=missing))
+                             f"{_names(missing)} (start their nodes, or check the network)", slots=missing))
 
     if status.late_recent:
         window = "minute" if status.late_window_s >= 55 else f"{max(1, round(status.late_window_s))} s"
@@ -84,10 +91,10 @@ def health_view(status: RigStatus, *, now: float | None = None) -> dict[str, Any
         elif math.isfinite(n.clock_error_ms) and abs(n.clock_error_ms) > CLOCK_ERROR_MS:
             off.append(n.slot)
     if unsettled:
-        alarms.append(_alarm("warn", "clock", f"clock not settled yet on {', '.join(unsettled)} (a node fits its "
+        alarms.append(_alarm("warn", "clock", f"clock not settled yet on {_names(unsettled)} (a node fits its "
                              "clock over about 20 s after it joins)", slots=unsettled))
     if off:
-        alarms.append(_alarm("alarm", "clock", f"clock off by more than {CLOCK_ERROR_MS:g} ms on {', '.join(off)}",
+        alarms.append(_alarm("alarm", "clock", f"clock off by more than {CLOCK_ERROR_MS:g} ms on {_names(off)}",
                              slots=off))
 
     fetching = []

@@ -124,8 +124,8 @@
       f.g.setAttribute("class", cls.join(" "));
       f.polygon.setAttribute("class", `footprint state-${n.state}`);
       f.polygon.setAttribute("points", n.footprint.map(([x, y]) => `${x},${y}`).join(" "));
-      if (on || hot) f.polygon.setAttribute("fill", mark(s, n.slot).colour);   // the colour Identify puts on it
-      else f.polygon.removeAttribute("fill");
+      // the colour Identify puts on that projector (a style: the state's colour comes from the style sheet)
+      f.polygon.style.fill = on || hot ? mark(s, n.slot).colour : "";
       f.title.textContent = `${mark(s, n.slot).number} ${n.slot}: ${n.state}${out.has(n.slot) ? ", out of the blend" : ""}`;
       if (on || hot) {
         const [cx, cy] = centre(n.footprint);
@@ -172,6 +172,8 @@
     const unposed = document.getElementById("unposed");
     const out = new Set((s.blend && s.blend.lost) || []);
     const want = s.slots.filter((n) => !n.footprint);
+    const head = unposed.previousElementSibling;
+    if (head && head.tagName === "H3") head.hidden = !want.length;    // "Without a pose", when there are any
     const keep = new Set(want.map((n) => n.slot));
     for (const [slot, t] of tiles) if (!keep.has(slot)) { t.remove(); tiles.delete(slot); }
     for (const n of want) {
