@@ -28,6 +28,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "stop": ("rigctl.commands", "stop what plays: the rig's content (or black) comes back"),
     "blackout": ("rigctl.commands", "black on every projector until the next show"),
     "configure": ("rigctl.commands", "set a slot's pose, LUT, gain or output size by hand"),
+    "pattern": ("rigctl.slot_cli", "a test pattern (white, grid, crosshair, colour bars) on some projectors"),
+    "solo": ("rigctl.slot_cli", "only some projectors keep the picture, the others black (--end ends it)"),
     "content": ("rigctl.content_commands", "add, list, remove and verify content assets (stills, sequences, videos)"),
     "cue": ("rigctl.cue_cli", "the show's cue list: add, list, move; GO, back, jump (crossfades, auto-follow)"),
     "local": ("shadowless.local", "run a coordinator and N nodes on this machine (offscreen) and report sync"),
@@ -138,19 +140,62 @@ def _complete() -> None:
     argcomplete.autocomplete(build_parser(command if command in COMMANDS else None))
 
 
+class ReaderGone(BaseException):
+    """stdout's reader has gone. Not an OSError, so that no command's ``except OSError`` (a file it
+    could not write, say) takes it for its own failure and prints one: it ends the command."""
+
+
+class _Stdout:
+    """sys.stdout for one command: a write or flush into a pipe whose reader has gone points the
+    file at /dev/null (so the interpreter's last flush cannot fail again) and raises ReaderGone."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def _gone(self) -> ReaderGone:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, self._stream.fileno())
+        os.close(devnull)
+        return ReaderGone()
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            raise self._gone() from None
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            raise self._gone() from None
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit status. Output into a pipe whose reader has gone (``shadowless
     status | head -1``) ends the command quietly, as Python's documentation advises (its "Note on
     SIGPIPE"): stdout is pointed at /dev/null so the interpreter's last flush cannot fail again,
-    and the exit status is 1, with nothing on stderr."""
+    and the exit status is 1, with nothing on stderr. This holds for every command, also one that
+    catches OSError around its printing: the failed write raises :class:`ReaderGone` instead."""
+    real = sys.stdout
+    sys.stdout = _Stdout(real) if real is not None and not isinstance(real, _Stdout) else real
     try:
         code = _main(argv)
         sys.stdout.flush()        # what is still buffered fails here, not in the interpreter's exit
         return code
-    except BrokenPipeError:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+    except (ReaderGone, BrokenPipeError):
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, real.fileno())
+            os.close(devnull)
+        except (OSError, ValueError):
+            pass
         return 1
+    finally:
+        sys.stdout = real
 
 
 def _main(argv: list[str] | None) -> int:
