@@ -189,6 +189,7 @@ class CueEngine:
         if cue.kind == "blackout":
             async def black():
                 core.playback.stop()
+                self._hand_over(fade_ns)
                 core.playback.blackout(fade_ns=fade_ns, tag=tag)
                 core.playback.showing = f"black (cue {cue.id})"
                 return core.playback.current_frame.pts_ns
@@ -225,8 +226,16 @@ class CueEngine:
 
         async def show():
             prepared = await asyncio.to_thread(lambda: core.prepare_still(content()))
+            self._hand_over(fade_ns)
             return core.playback.show(prepared, tag=tag, slot_contents=others, fade_ns=fade_ns).pts_ns
         return show
+
+    def _hand_over(self, fade_ns: int) -> None:
+        """A crossfade out of a timeline show fades from its frame on screen: the show plays on until
+        the fade's first step (a still stops a show at once otherwise, and the nodes would go black)."""
+        show = self.core.show_state
+        if fade_ns and show.active:
+            show.stop(at_ns=self.core.clock_ns() + self.core.latency_ns)
 
     def _still(self, asset_id: str, manifest) -> Content:
         """A still asset as content (blocking: called in a worker thread); the last few are kept."""

@@ -515,8 +515,12 @@ class Presenter:
         """Seconds the loop may wait for messages before :meth:`timeline_step` (None: no timeline work,
         and no blend switch due with no frame to make it)."""
         if self._fade is not None:      # a crossfade's next step, unless a show's tick takes over
-            if self._next_event() is None:
+            ev = self._next_event()
+            if ev is None:
                 return self._fade_wait()
+            if ev.kind == "stop":       # a show stopped for the fade: it leaves the fade's frame on screen
+                until = self.pacer.estimate.local_time(ev.pts_ns) - self.clock.now()
+                return min(self._fade_wait(), max(0.0, (until - self.PREPARE_NS) / 1e9))
             self._end_fade()
         ev = self._next_event()
         if ev is None:
@@ -531,9 +535,13 @@ class Presenter:
         """Prepare the next timeline frame (or the stop), swap it in at its time, report it (its
         swap and drop records marked ``timeline``); with no timeline work, show the frame on screen
         with the next blend maps at their instant."""
-        if self._fade is not None and self._next_event() is None:
-            self._fade_step()
-            return
+        if self._fade is not None:
+            ev = self._next_event()
+            if ev is None or (ev.kind == "stop" and self._fade.next_order().pts_ns <= ev.pts_ns):
+                self._fade_step()
+                return
+            if ev.kind != "stop":
+                self._end_fade()
         if self._next_event() is None:
             self._blend_step()
             return
