@@ -43,7 +43,7 @@ from coordinator.admission import Budget, trim_memory
 from coordinator.api import BlendStatus
 from coordinator.assets import AssetStore
 from coordinator.blending.state import BlendState
-from coordinator.blending.watchdog import LampWatchdog
+from coordinator.blending.watchdog import LampWatchdog, steady_span
 from coordinator.camera import Camera, RoomCamera, open_camera
 from coordinator.distribution import Distribution, WantedList, note_ready
 from coordinator import cues
@@ -631,14 +631,22 @@ class Coordinator:
     def still_on_screen(self) -> tuple[np.ndarray | Callable[[], np.ndarray], int] | None:
         """The still every projector shows through its pose, as (content image, the rig instant it
         is on screen from), or None (nothing, a played sequence, a pattern, black, per-slot regions,
-        a timeline show of a video or a sequence). A timeline show of a still asset gives a function
-        that reads its image at the content size (blocking: the watchdog calls it in a worker thread)."""
+        a timeline show of a video, or of a sequence whose frames change). A timeline show of a still
+        asset gives a function that reads its image at the content size (blocking: the watchdog calls
+        it in a worker thread); a span of a sequence's show whose frames are one file gives that frame
+        and the instant it ends as a third item (:func:`coordinator.blending.watchdog.steady_span`)."""
         pb = self.playback
         if self.running_job() is not None or pb.playing:
             return None
         if self.show_state.active:
             tl = self.show_state.timeline
             m = self._manifest(tl.asset_id) if tl is not None else None
+            if m is not None and m.kind == "sequence":       # a span of frames that are one picture
+                span = steady_span(tl, [b.sha256 for b in m.blobs], self.clock_ns())
+                if span is None:
+                    return None
+                path = self.distribution.store.blob_path(m.blobs[span[0]].sha256)
+                return partial(_still_asset_image, path, self.content_size), span[1], span[2]
             if m is None or m.kind != "still":
                 return None
             path = self.distribution.store.blob_path(m.blobs[0].sha256)

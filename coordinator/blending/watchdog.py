@@ -3,10 +3,17 @@ fits each projector's effective gain; a dimmed or dead lamp is named and the rig
 
 It checks soon after a new still is on screen and then every ``interval_s`` (rig.toml's
 ``[blend] watchdog_interval_s``), when everything it needs holds: a camera (rig.toml's first),
-no job (a job holds the camera and the projectors), a stored blend with its contributions, a
-still shown through the poses of a planar rig (an operator's still, or a timeline show of a still
-asset: a video, a sequence or a played sequence changes under the capture, and a mesh rig's
-contributions have no homography to predict from), and no switch of maps under way. The fit is :func:`imaging.blending.watchdog.fit_changes` on the
+no job (a job holds the camera and the projectors), a stored blend with its contributions, content
+it knows shown through the poses of a planar rig, and no switch of maps under way. Known content is
+a still (an operator's, or a timeline show of a still asset), or a span of a timeline show of an
+image sequence whose frames are one and the same file (:func:`steady_span`: the manifest names
+each frame's SHA-256, so identical frames are known without decoding; the capture must fall in the
+span, which is checked after it). A video is not watched: which of its frames a camera exposed is
+not known to within a frame (a real camera's frames reach the coordinator a few frames late by an
+amount it does not report, and an exposure may span a swap), so only spans whose frames do not
+change could be used, and finding them means decoding and comparing every frame of the video on
+the coordinator; a played sequence is not either (its frames are streamed, not an asset). A mesh
+rig's contributions have no homography to predict from. The fit is :func:`imaging.blending.watchdog.fit_changes` on the
 contributions' camera grid, away from footprint edges: which one or two lamps changed from what
 the last check found (all others held), each live projector's predicted light built from its
 measured white and black, its maps on screen and the content it shows. The capture (the mean of
@@ -24,7 +31,7 @@ import asyncio
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -34,8 +41,9 @@ from coordinator.camera import Camera, CameraError, open_camera
 from coordinator.rig import HomographyPose
 from imaging.blending.watchdog import (content_on_grid, fit_changes, grid_mean, maps_on_grid, predicted_light,
                                        steady_cells)
+from protos.timeline import Timeline
 
-__all__ = ["CHANGE_TOLERANCE", "NAME_TOLERANCE", "LampWatchdog", "WatchdogCheck"]
+__all__ = ["CHANGE_TOLERANCE", "NAME_TOLERANCE", "LampWatchdog", "WatchdogCheck", "steady_span"]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +79,34 @@ class WatchdogCheck:
     seconds: float = 0.0
 
 
+def steady_span(timeline: Timeline, shas: Sequence[str], now_ns: int) -> tuple[int, int, int | None] | None:
+    """Where a timeline show of an image sequence (``shas``: each frame's SHA-256, in order) shows
+    one unchanging picture around rig time ``now_ns``: ``(frame, since_ns, until_ns)``, the frame on
+    screen and the rig span over which the frames shown are that same file (``until_ns`` None: as long
+    as the show runs); a show that starts later is taken at its anchor; None after its end."""
+    tick = timeline.tick_at(max(now_ns, timeline.anchor_ns))
+    k = None if tick is None else timeline.frame_of_tick(tick)
+    if k is None:
+        return None
+    if timeline.paused:
+        return k, timeline.anchor_ns, None
+    if len(set(shas)) == 1:         # every frame the same picture: steady while the show runs
+        return k, timeline.anchor_ns, timeline.end_ns()
+    sha = shas[k]
+
+    def same(t: int) -> bool:
+        f = timeline.frame_of_tick(t)
+        return f is not None and shas[f] == sha
+
+    t0 = tick
+    while t0 > 0 and same(t0 - 1):
+        t0 -= 1
+    t1 = tick + 1
+    while same(t1):
+        t1 += 1
+    return k, timeline.pts(t0), timeline.pts(t1)
+
+
 def _grid_to_camera_matrix(camera_size: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
     """(3, 3): camera-grid pixel -> camera pixel (the grid convention of
     :func:`imaging.blending.contributions.grid_to_camera`)."""
@@ -91,8 +127,10 @@ class LampWatchdog:
     busy : callable
         The running job's kind, or None.
     on_screen : callable
-        ``(content image, its presentation time ns)`` of the still shown through the poses, or None;
-        the image may be a function that reads it (called in the worker thread).
+        ``(content image, the rig instant it is on screen from)`` of the still shown through the
+        poses, or ``(image, from, until)`` for a picture shown until rig instant ``until`` (a
+        steady span of a sequence), or None; the image may be a function that reads it (called in
+        the worker thread).
     live_slots : callable
     last_swap_ns : callable
         ``slot -> rig ns`` of the last frame its node swapped in (0: none); a node that has not
@@ -159,6 +197,9 @@ class LampWatchdog:
             return "no still shown through the poses"
         if self.clock_ns() < screen[1] + SETTLE_NS:
             return "the still is not on screen yet"
+        until = screen[2] if len(screen) > 2 else None
+        if until is not None and self.clock_ns() + SETTLE_NS + int(TICK_S * 1e9) > until:
+            return "the sequence changes its picture before a capture would end"
         slots = self.slots()
         if not slots:
             return "no live projector of the blend"
@@ -191,7 +232,8 @@ class LampWatchdog:
         st = self.state
         screen = self.on_screen()
         assert screen is not None
-        content, pts = screen
+        content, pts = screen[:2]
+        until = screen[2] if len(screen) > 2 else None
         not_before = max(pts, st.switched_at_ns)
         slots = self.slots()
         maps = {s: st.rig.slot(s).blend for s in slots}
@@ -214,6 +256,9 @@ class LampWatchdog:
             self.last = WatchdogCheck(at_ns=self.clock_ns(), skipped="the rig changed during the check")
             return self.last
         at_ns, fit = result
+        if until is not None and at_ns >= until:
+            self.last = WatchdogCheck(at_ns=self.clock_ns(), skipped="the sequence changed its picture during the capture")
+            return self.last
         gains = {s: float(g) for s, g in zip(slots, fit.gains)}
         stderr = {s: float(e) for s, e in zip(slots, fit.stderr)}
         named = self._decide(gains, stderr)

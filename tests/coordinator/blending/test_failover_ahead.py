@@ -149,3 +149,26 @@ def test_packed_maps_are_the_maps_as_the_wire_carries_them():
     assert maps.packed().nbytes == 27 * 48 * 8 == maps.nbytes // 2
     assert maps.packed(compress=True).nbytes < maps.packed().nbytes
     assert maps.packed(compress=True).inflated().compressed is False
+
+
+def test_a_sequence_steadies_where_consecutive_frames_are_one_file():
+    from fractions import Fraction
+
+    from coordinator.blending.watchdog import steady_span
+    from protos.timeline import Timeline
+
+    shas = ["a", "a", "a", "b", "c", "c", "a"]
+    ms = 1_000_000
+    tl = Timeline("x", frames=len(shas), rate=Fraction(10), anchor_ns=1000 * ms, loop=True)
+    # frame on screen, since, until: a run of "a" for three periods, "b" for one, "c" for two
+    assert steady_span(tl, shas, 0) == (0, 1000 * ms, 1300 * ms)          # before the anchor: taken at it
+    assert steady_span(tl, shas, 1250 * ms) == (2, 1000 * ms, 1300 * ms)
+    assert steady_span(tl, shas, 1300 * ms) == (3, 1300 * ms, 1400 * ms)
+    assert steady_span(tl, shas, 1450 * ms) == (4, 1400 * ms, 1600 * ms)
+    # the loop joins the last "a" to the first three of the next pass
+    assert steady_span(tl, shas, 1650 * ms) == (6, 1600 * ms, 2000 * ms)
+    once = Timeline("x", frames=len(shas), rate=Fraction(10), anchor_ns=1000 * ms)
+    assert steady_span(once, shas, 1650 * ms) == (6, 1600 * ms, 1700 * ms)
+    assert steady_span(once, shas, 1700 * ms) is None                    # the show ended
+    assert steady_span(once, ["s"] * 7, 1200 * ms) == (2, 1000 * ms, 1700 * ms)
+    assert steady_span(tl.paused_at(1450 * ms), shas, 9000 * ms) == (4, 1450 * ms, None)

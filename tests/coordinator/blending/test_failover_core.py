@@ -282,7 +282,7 @@ def test_a_blend_job_suspends_the_failover_and_its_new_blend_is_taken_when_it_en
     asyncio.run(go())
 
 
-def test_the_watchdog_sees_a_timeline_show_of_a_still_asset_and_not_of_a_sequence(tmp_path):
+def test_the_watchdog_sees_a_timeline_show_of_a_still_asset_or_of_a_sequence_of_one_picture(tmp_path):
     import cv2
 
     rig, _, _ = blended_rig(tmp_path, ["a"], [(20, 20, 300, 220)])
@@ -292,6 +292,10 @@ def test_the_watchdog_sees_a_timeline_show_of_a_still_asset_and_not_of_a_sequenc
     frames.mkdir()
     for k in range(2):
         cv2.imwrite(str(frames / f"{k}.png"), picture[:, :, ::-1])
+    changing = tmp_path / "changing"
+    changing.mkdir()
+    for k in range(2):
+        cv2.imwrite(str(changing / f"{k}.png"), (picture // (k + 1))[:, :, ::-1])
 
     async def go():
         coord = Coordinator(rig, TOKEN, encoding=Packets)
@@ -306,9 +310,19 @@ def test_the_watchdog_sees_a_timeline_show_of_a_still_asset_and_not_of_a_sequenc
             got = image()
             assert got.shape == (48, 64, 3)
             assert np.abs(got.astype(int) - cv2.resize(picture, (64, 48), interpolation=cv2.INTER_LINEAR)).max() <= 1
-            coord.play_asset("frames")
-            assert coord.still_on_screen() is None          # a sequence changes under the capture
-            assert still.kind == "still" and seq.kind == "sequence"
+            moving = coord.asset_store.add(changing, name="changing", fps=10)
+            await coord.refresh_assets()
+            # a sequence whose frames are one file shows one picture for as long as the show runs
+            coord.play_asset("frames", loop=True)
+            image, at, until = coord.still_on_screen()
+            assert at == coord.show_state.timeline.anchor_ns and until is None
+            assert np.array_equal(image(), got)
+            # one whose frames change: each picture for its frame's period only (the watchdog needs longer)
+            coord.play_asset("changing", loop=True)
+            tl = coord.show_state.timeline
+            screen = coord.still_on_screen()
+            assert screen is not None and screen[1:] == (tl.anchor_ns, tl.anchor_ns + 100_000_000)
+            assert still.kind == "still" and seq.kind == "sequence" and moving.kind == "sequence"
         finally:
             await coord.close()
 
