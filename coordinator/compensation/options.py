@@ -89,7 +89,7 @@ class _CaptureOptions:
                          help="which calibrated camera to use")
     settle_s: float = option(0.05, lo=0.0, hi=30.0, flag="--settle", metavar="S", group=CAMERA,
                              help="wait after every swap before capturing, seconds")
-    force: bool = option(False, help="measure again instead of reusing stored results")
+    force: bool = option(False, label="Measure again", help="measure again instead of reusing stored results")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -192,7 +192,7 @@ class CompensateOptions(TransportOptions):
                                           help=f"ridge weight towards the uncompensated image, relative to ||L||^2 (0 "
                                                f"fits the measured L exactly, noise included; default {REGULARIZATION} "
                                                f"on a table, {MESH_REGULARIZATION} on a mesh)")
-    persist: bool = option(True, flag="--show", group=SOLVE,
+    persist: bool = option(True, flag="--show", group=SOLVE, label="Show the result",
                            help="make the result the rig's content and show it (--no-show: solve and store figures "
                                 "only)")
     measure: bool = option(True, group=SOLVE, help="measure L when no valid one is stored (--no-measure: fail instead)")

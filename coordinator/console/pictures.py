@@ -17,7 +17,8 @@
   job drew one, else the bare map (an older run).
 * ``GET /api/camera.png``: one frame of the rig's first camera (``rig.toml`` ``cameras`` or the
   coordinator's ``--camera``), at most one capture per :data:`CAMERA_INTERVAL_S` (the last frame,
-  or its error, is served in between), at most :data:`CAMERA_MAX_WIDTH` px wide; 404 without a
+  or its error, is served in between), at most :data:`CAMERA_MAX_WIDTH` px wide (the capture's own
+  size is ``camera.size`` in the listing and ``X-Capture-Size``, for the page's point picking); 404 without a
   camera, 409 while a job runs (jobs own the camera), 503 when the camera fails.
 
 Only file names known here are ever read, from the rig directory (the paths in the jobs' JSON
@@ -210,15 +211,16 @@ def view_png(image: np.ndarray, *, srgb: bool, max_width: int = CAMERA_MAX_WIDTH
     return buf.tobytes()
 
 
-def capture_view(spec: str) -> bytes:
-    """Open the camera ``spec`` names, capture one frame, close it; the frame as :func:`view_png` (blocking)."""
+def capture_view(spec: str) -> tuple[bytes, tuple[int, int]]:
+    """Open the camera ``spec`` names, capture one frame, close it; the frame as :func:`view_png`
+    and the capture's own (width, height) in camera px, before any scaling (blocking)."""
     parsed = parse_spec(spec)
     cam = RoomCamera(parsed, timeout_s=CAMERA_TIMEOUT_S) if parsed.kind == "room" else open_camera(spec)
     try:
         image = cam.capture()
     finally:
         cam.close()
-    return view_png(image, srgb=parsed.kind == "room")
+    return view_png(image, srgb=parsed.kind == "room"), (int(image.shape[1]), int(image.shape[0]))
 
 
 @dataclass
@@ -228,6 +230,7 @@ class _Frame:
     wall: float                 # unix time of the same
     png: bytes | None
     error: str | None
+    size: tuple[int, int] | None = None     # the capture's (width, height) in camera px, before scaling
 
 
 class Pictures:
@@ -258,7 +261,8 @@ class Pictures:
         doc = {"ok": True, "alignment": alignment, "compensation": compensation, "coverage": coverage, "blend": blend,
                "camera": {"configured": bool(specs), "spec": specs[0] if specs else None, "url": "/api/camera.png",
                           "interval_s": self.camera_interval_s,
-                          "captured_at": round(last.wall, 3) if last is not None and last.png else None},
+                          "captured_at": round(last.wall, 3) if last is not None and last.png else None,
+                          "size": list(last.size) if last is not None and last.png and last.size else None},
                "job": self._job()}
         return web.Response(text=json.dumps(_finite(doc), allow_nan=False), content_type="application/json")
 
@@ -306,19 +310,20 @@ class Pictures:
             if last is None or last.spec != spec or time.monotonic() - last.at >= self.camera_interval_s:
                 wall = time.time()
                 self.captures += 1
-                png, error = None, None
+                png, error, size = None, None, None
                 try:
-                    png = await asyncio.to_thread(capture_view, spec)
+                    png, size = await asyncio.to_thread(capture_view, spec)
                 except CameraError as exc:
                     error = str(exc)
                 except Exception as exc:  # noqa: BLE001 - the operator sees that it failed, the log says why
                     log.exception("console: the camera view failed")
                     error = f"camera {spec}: capture failed ({type(exc).__name__}: {exc}); see the coordinator's log"
-                last = self._last = _Frame(spec, time.monotonic(), wall, png, error)
+                last = self._last = _Frame(spec, time.monotonic(), wall, png, error, size)
                 fresh = True
         if last.png is None:
             raise _error(web.HTTPServiceUnavailable, last.error or "the camera delivered nothing",
                          headers={"Retry-After": str(math.ceil(self.camera_interval_s))})
         return web.Response(body=last.png, content_type="image/png",
                             headers={"Cache-Control": "no-store", "X-Captured-At": f"{last.wall:.3f}",
+                                     **({"X-Capture-Size": "%dx%d" % last.size} if last.size else {}),
                                      "X-Capture": "fresh" if fresh else "cached"})

@@ -18,7 +18,10 @@ A job declares its options as a frozen dataclass whose fields are made with
 * :func:`add_arguments` adds one ``--flag`` per field to an argparse parser (help text with
   the default and range), and :func:`params_from_args` collects only what the operator gave,
   so the defaults live in one place, the job's dataclass, applied on the coordinator.
-* :func:`describe` lists the options (name, type, default, help) for documentation.
+* :func:`describe` lists the options (name, type, default, help) for documentation, and
+  :func:`form_fields` describes them for a form (the operator console): a human label
+  (``label=``, else derived from the name by :func:`derive_label`: ``keep_going`` -> "Keep
+  going", ``settle_s`` -> "Settle (s)"), the unit, the range, the default and the help text.
 
 Supported field types: ``bool``, ``int``, ``float``, ``str``, ``list[str]``, ``tuple[int, int]``,
 ``tuple[float, float]``, any of them ``| None``, and anything else through ``parse=``.
@@ -35,9 +38,19 @@ from typing import Any, Callable, Mapping, Sequence
 from coordinator.jobs.errors import JobError
 from protos import cli_types
 
-__all__ = ["option", "parse_options", "add_arguments", "params_from_args", "describe", "form_fields", "OptionInfo"]
+__all__ = ["option", "parse_options", "add_arguments", "params_from_args", "describe", "form_fields", "OptionInfo",
+           "derive_label", "derive_unit"]
 
 _META = "shadowless.option"
+
+#: a name's last word that is a unit: the label shows it in brackets ("settle_s" -> "Settle (s)")
+UNIT_SUFFIXES = {"s": "s", "ms": "ms", "ns": "ns", "mm": "mm", "mm2": "mm²", "px": "px", "pct": "%", "db": "dB",
+                 "hz": "Hz", "mb": "MB", "mib": "MiB", "deg": "°"}
+#: words of option names written out, or spelled as people write them
+LABEL_WORDS = {"min": "minimum", "max": "maximum", "tol": "tolerance", "est": "estimate", "iter": "iterations",
+               "eval": "evaluation", "lut": "LUT", "luts": "LUTs", "psnr": "PSNR", "srgb": "sRGB",
+               "charuco": "ChArUco", "fps": "frame rate (fps)", "obj": "OBJ", "id": "ID", "ids": "IDs", "gl": "GL",
+               "3d": "3D"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,20 +67,45 @@ class OptionInfo:
     metavar: str | None = None
     cli_type: Callable[[str], Any] | None = None   # command-line text -> JSON value
     group: str | None = None
+    label: str | None = None                       # the form's label; default: derived from the name
+    unit: str | None = None                        # shown beside the value; default: from the name's suffix
+
+
+def derive_unit(name: str) -> str:
+    """The unit a name's last word states (``settle_s`` -> ``s``, ``table_mm`` -> ``mm``); "" when none."""
+    head, _, last = name.rpartition("_")
+    return UNIT_SUFFIXES.get(last.lower(), "") if head else ""
+
+
+def derive_label(name: str) -> str:
+    """A human label from an option's name: words split at ``_``, abbreviations written out, the
+    unit suffix in brackets, the first letter capitalised (``keep_going`` -> "Keep going",
+    ``max_iter`` -> "Maximum iterations", ``settle_s`` -> "Settle (s)")."""
+    unit = derive_unit(name)
+    words = [w for w in name.split("_") if w]
+    if unit:
+        words = words[:-1]
+    words = [LABEL_WORDS.get(w.lower(), w) for w in words]
+    text = " ".join(words) or name
+    if text[:2].islower() or text[1:2] in ("", " "):      # "sRGB", "LUT" keep their letters
+        text = text[:1].upper() + text[1:]
+    return f"{text} ({unit})" if unit else text
 
 
 def option(default: Any = dataclasses.MISSING, *, help: str, lo: float | None = None, hi: float | None = None,
            choices: Sequence[Any] | None = None, parse: Callable[[Any], Any] | None = None, cli: bool = True,
            flag: str | None = None, metavar: str | None = None, cli_type: Callable[[str], Any] | None = None,
-           group: str | None = None, default_factory: Callable[[], Any] | None = None) -> Any:
+           group: str | None = None, default_factory: Callable[[], Any] | None = None, label: str | None = None,
+           unit: str | None = None) -> Any:
     """A dataclass field that is a job option (see the module docstring).
 
     ``lo``/``hi`` bound numbers (inclusive), ``choices`` restricts values, ``parse`` converts
     a JSON value the generic rules do not cover, ``cli=False`` keeps it off the command line,
-    ``flag``/``metavar``/``cli_type``/``group`` shape the command-line argument.
+    ``flag``/``metavar``/``cli_type``/``group`` shape the command-line argument; ``label`` and
+    ``unit`` are what a form shows (default: :func:`derive_label`, :func:`derive_unit`).
     """
     info = OptionInfo(help=help, lo=lo, hi=hi, choices=tuple(choices) if choices is not None else None, parse=parse,
-                      cli=cli, flag=flag, metavar=metavar, cli_type=cli_type, group=group)
+                      cli=cli, flag=flag, metavar=metavar, cli_type=cli_type, group=group, label=label, unit=unit)
     if default_factory is not None:
         return dataclasses.field(default_factory=default_factory, metadata={_META: info})
     return dataclasses.field(default=default, metadata={_META: info})
@@ -344,9 +382,11 @@ def _json_default(f: dataclasses.Field) -> Any:
 
 
 def form_fields(cls: type) -> list[dict[str, Any]]:
-    """One entry per option, for a form (the operator console): name, ``kind`` (``bool``,
-    ``int``, ``float``, ``str``, ``choice``, ``list``, ``pair`` or ``json``), the default as
-    JSON, the choices, the bounds, whether it may be null, its group and help."""
+    """One entry per option, for a form (the operator console): name, ``label`` (human, see
+    :func:`derive_label`), ``unit`` ("" when none), ``kind`` (``bool``, ``int``, ``float``,
+    ``str``, ``choice``, ``list``, ``pair`` or ``json``), the default as JSON, the choices, the
+    bounds, whether it may be null, its group, its help and ``flag`` (its command-line flag,
+    "" when it has none: a page names the label instead)."""
     out = []
     for f, info, tp in _fields(cls):
         base, optional = _split_optional(tp)
@@ -361,9 +401,12 @@ def form_fields(cls: type) -> list[dict[str, Any]]:
             kind = "pair"
         else:
             kind = "json"
-        out.append({"name": f.name, "kind": kind, "default": _json_default(f), "optional": optional,
+        unit = derive_unit(f.name) if info.unit is None else info.unit
+        out.append({"name": f.name, "label": info.label or derive_label(f.name), "unit": unit, "kind": kind,
+                    "default": _json_default(f), "optional": optional,
                     "choices": list(info.choices) if info.choices is not None else None, "lo": info.lo,
-                    "hi": info.hi, "group": info.group or "", "help": info.help})
+                    "hi": info.hi, "group": info.group or "", "help": info.help,
+                    "flag": (info.flag or "--" + f.name.replace("_", "-")) if info.cli else ""})
     return out
 
 
