@@ -23,6 +23,10 @@ examples:
   shadowless rig board rigs/table --paper A1            # larger squares for a camera far away
   shadowless rig board prints --paper A4 --squares 9x6 --square-mm 20 --at 100,50
 
+a square should span about 30 camera pixels or more: the larger the table in the image, the smaller the sheet
+may be (the virtual room's 648x486 camera sees about 0.5 px per mm of its 1200x600 mm table: A3's 35 mm squares
+span 17 px there, A1's 73 mm squares 35 px).
+
 then: lay the sheet flat on the table, its centre at --at (default the table's centre), the caption
 edge towards the front (-y); `shadowless calibrate --rig-dir rigs/table --table-only` maps the table
 (it finds the board itself), remove the sheet, and `shadowless calibrate --rig-dir rigs/table`.

@@ -126,7 +126,8 @@ def test_calibrate_finds_the_rigs_board_on_the_table_without_being_told(room, tm
                                        r"board`: the ChArUco board was not found in the camera image"):
         asyncio.run(bare.run("calibrate", {"table_only": True, "settle_s": 0}))
     assert not (rig.path / "calibration" / "cameras.json").exists()
-    # an A1 sheet: the room's 648x486 camera sees 0.48 px per mm of table, too few for the A3 default's markers
+    # an A1 sheet: the room's 648x486 camera sees 0.48 px per mm of table, so the A3 default's 35 mm squares
+    # span 17 px and map the table to about 0.5 px; A1's 73 mm squares map it to a few hundredths
     assert shadowless(["rig", "board", str(rig.path), "--paper", "A1", "--dpi", "72"]) == 0
     capsys.readouterr()
     albedo = board_albedo(room, CharucoSpec.from_dict(json.loads((rig.path / "board.json").read_text())))
