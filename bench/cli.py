@@ -30,6 +30,7 @@ BENCHMARKS: dict[str, str] = {
     "crash": "kill -9 of the coordinator during every write path: rigs that fail to start, writes lost, files left over",
     "uniformity": "per-pixel blending in the virtual room: flat-white uniformity before/after (table, wall seams, bust), "
                   "failover and lamp watchdog with real processes, blend captures, the node's cost",
+    "show_control": "what people and OSC cost: a login's password check (CPU), OSC status round trip, gain to applied",
     "image_bombs": "small files declaring 100-megapixel images, console decoder before/after: peak memory, time, outcome",
 }
 

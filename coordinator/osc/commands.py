@@ -8,9 +8,10 @@ address).
 """
 from __future__ import annotations
 
+import asyncio
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Awaitable, Callable, Protocol, Sequence
 
 from coordinator.api import RigStatus, ShowState
 from coordinator.rig import Rig, SlotState
@@ -109,9 +110,21 @@ def _cue_method(coord: OscRig, name: str) -> Callable[..., str]:
     return method
 
 
-def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str:
-    """Run the command at ``address`` with ``args`` as ``who`` (``osc:<ip>``); the result line.
-    Raises :class:`OscError` for a malformed message, and whatever the rig refuses with."""
+async def _gain_everywhere(coord: OscRig, value: float) -> str:
+    """Every slot's gain, one slot after the other (each is written to the rig directory first),
+    letting the event loop run between them."""
+    slots = list(coord.rig.slots)
+    coord.update_slot(slots[0], gain=value)     # a refused value is refused before any other slot changes
+    for s in slots[1:]:
+        await asyncio.sleep(0)
+        coord.update_slot(s, gain=value)
+    return f"gain {value:g} on {len(slots)} slots"
+
+
+def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str | Awaitable[str]:
+    """Run the command at ``address`` with ``args`` as ``who`` (``osc:<ip>``); the result line (or
+    an awaitable of it, for a command that lets the event loop run meanwhile). Raises
+    :class:`OscError` for a malformed message, and whatever the rig refuses with."""
     if address == f"{PREFIX}/go":
         _no_args(address, args)
         return _cue_method(coord, "cue_go")(who=who)
@@ -148,11 +161,10 @@ def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str:
                 raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}") from None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}")
-        slots = list(coord.rig.slots) if args[0].strip() == "*" else [args[0].strip()]
-        done = [coord.update_slot(s, gain=float(value)) for s in slots]
-        if len(done) == 1:
-            return f"slot {slots[0]} gain {done[0].gain:g} (revision {done[0].revision})"
-        return f"gain {float(value):g} on {len(done)} slots"
+        if args[0].strip() != "*":
+            st = coord.update_slot(args[0].strip(), gain=float(value))
+            return f"slot {args[0].strip()} gain {st.gain:g} (revision {st.revision})"
+        return _gain_everywhere(coord, float(value))
     known = BY_PATH.get(address)
     if known is not None:       # answered by the service itself (status, subscriptions, timecode)
         raise OscError(f"{address} is not a rig command")
