@@ -21,9 +21,11 @@ from coordinator.jobs import add_arguments, params_from_args
 
 EXAMPLES = """\
 examples:
+  shadowless rig board rigs/table                                # print its board.pdf, lay it on the table:
+  shadowless calibrate --rig-dir rigs/table --table-only          # finds the board; then remove the board:
+  shadowless calibrate --rig-dir rigs/table                       # reuses the saved table mapping
   shadowless calibrate --rig-dir rigs/table --table-points marks.json
-  shadowless calibrate --rig-dir rigs/table --charuco board.json --table-only   # then remove the board:
-  shadowless calibrate --rig-dir rigs/table                                      # reuses the saved table mapping
+  shadowless calibrate --rig-dir rigs/table --charuco my-board.json --table-only   # a board of your own
   shadowless calibrate --rig-dir rigs/table --mode sequential --slots r0c0,r0c1
   shadowless calibrate --rig-dir rigs/table --table-points marks.json --record /var/lib/shadowless/records/cal-run1
   shadowless calibrate --rig-dir rigs/table --camera folder:/var/lib/shadowless/records/cal-run1/camera0 --force   # replay offline
@@ -39,6 +41,9 @@ Any option may also be set for the rig in rig.toml, e.g.
   mode = "sequential"
   table_points = [[x_mm, y_mm, u_px, v_px], ...]
 (the command line wins). An interrupted run resumes where it stopped; --force starts afresh.
+Without table points or --charuco, calibrate looks for the rig's board (RIG/board.json, what
+`shadowless rig board RIG` writes; else the default printed board) in the camera image; when it
+is not on the table, the table mapping an earlier run saved serves.
 """
 
 ALIGNMENT_EXAMPLES = """\

@@ -112,7 +112,9 @@ class CalibrateOptions:
              "rig.toml [[x_mm, y_mm, u_px, v_px], ...] seen by camera 0")
     charuco: dict | None = option(None, parse=_board, metavar="FILE", group=WHAT, label="ChArUco board",
                                   help="a ChArUco board lying on the table: JSON or TOML with squares_x, squares_y, "
-                                       "square_mm, marker_mm, dictionary, origin_mm (read by the command line)")
+                                       "square_mm, marker_mm, dictionary, origin_mm (read by the command line); "
+                                       "without it nor table points, the rig's board.json (`shadowless rig board`) "
+                                       "or the default printed board is looked for on the table")
     mesh: str | None = option(None, parse=_file_path("mesh"), metavar="PATH", group=WHAT,
                               help="OBJ/PLY mesh of the object (a path on the coordinator's machine)")
     landmarks: str | dict | None = option(None, parse=_path_or_document("landmarks"), metavar="FILE", group=WHAT,
