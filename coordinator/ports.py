@@ -53,6 +53,14 @@ class RigOperations(Protocol):
 
     def cancel_job(self) -> str: ...
 
+    async def show_test_pattern(self, name: str, slots: Sequence[str] | None = None) -> str:
+        """Test pattern ``name`` on the chosen slots (None: all), the others black (coordinator/slot_tools.py)."""
+        ...
+
+    def solo(self, slots: Sequence[str]) -> str:
+        """Only the chosen slots show the still on screen, the others black; ``[]`` ends the solo."""
+        ...
+
 
 @runtime_checkable
 class ServiceRig(RigOperations, Protocol):
@@ -148,14 +156,6 @@ class ConsoleRig(RigOperations, Protocol):
     def slot_link(self, slot: str) -> SlotLink: ...
 
     async def identify(self) -> str: ...
-
-    async def show_test_pattern(self, name: str, slots: Sequence[str] | None = None) -> str:
-        """Test pattern ``name`` on the chosen slots (None: all), the others black (coordinator/slot_tools.py)."""
-        ...
-
-    def solo(self, slots: Sequence[str]) -> str:
-        """Only the chosen slots show the still on screen, the others black; ``[]`` ends the solo."""
-        ...
 
     def running_job(self) -> str | None:
         """The kind of the job that holds the rig now, or None."""

@@ -557,6 +557,14 @@ class CueActionRequest(_message.Message):
     cue_id: str
     def __init__(self, action: _Optional[str] = ..., cue_id: _Optional[str] = ...) -> None: ...
 
+class SlotToolRequest(_message.Message):
+    __slots__ = ("pattern", "slots")
+    PATTERN_FIELD_NUMBER: _ClassVar[int]
+    SLOTS_FIELD_NUMBER: _ClassVar[int]
+    pattern: str
+    slots: _containers.RepeatedScalarFieldContainer[str]
+    def __init__(self, pattern: _Optional[str] = ..., slots: _Optional[_Iterable[str]] = ...) -> None: ...
+
 class CueReply(_message.Message):
     __slots__ = ("state_json", "result")
     STATE_JSON_FIELD_NUMBER: _ClassVar[int]

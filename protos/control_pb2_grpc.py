@@ -120,6 +120,16 @@ class RigControlStub:
                 request_serializer=protos_dot_control__pb2.CueActionRequest.SerializeToString,
                 response_deserializer=protos_dot_control__pb2.CueReply.FromString,
                 _registered_method=True)
+        self.ShowTestPattern = channel.unary_unary(
+                '/shadowless.v1.RigControl/ShowTestPattern',
+                request_serializer=protos_dot_control__pb2.SlotToolRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.StopReply.FromString,
+                _registered_method=True)
+        self.Solo = channel.unary_unary(
+                '/shadowless.v1.RigControl/Solo',
+                request_serializer=protos_dot_control__pb2.SlotToolRequest.SerializeToString,
+                response_deserializer=protos_dot_control__pb2.StopReply.FromString,
+                _registered_method=True)
 
 
 class RigControlServicer:
@@ -240,6 +250,20 @@ class RigControlServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def ShowTestPattern(self, request, context):
+        """Per-slot tools (coordinator/slot_tools.py): a test pattern on some slots, the others black;
+        solo (only some slots go on showing the still on screen, the others black; no slots: it ends).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def Solo(self, request, context):
+        """Missing associated documentation comment in .proto file."""
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_RigControlServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -327,6 +351,16 @@ def add_RigControlServicer_to_server(servicer, server):
                     servicer.FireCue,
                     request_deserializer=protos_dot_control__pb2.CueActionRequest.FromString,
                     response_serializer=protos_dot_control__pb2.CueReply.SerializeToString,
+            ),
+            'ShowTestPattern': grpc.unary_unary_rpc_method_handler(
+                    servicer.ShowTestPattern,
+                    request_deserializer=protos_dot_control__pb2.SlotToolRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.StopReply.SerializeToString,
+            ),
+            'Solo': grpc.unary_unary_rpc_method_handler(
+                    servicer.Solo,
+                    request_deserializer=protos_dot_control__pb2.SlotToolRequest.FromString,
+                    response_serializer=protos_dot_control__pb2.StopReply.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -788,6 +822,60 @@ class RigControl:
             '/shadowless.v1.RigControl/FireCue',
             protos_dot_control__pb2.CueActionRequest.SerializeToString,
             protos_dot_control__pb2.CueReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ShowTestPattern(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/ShowTestPattern',
+            protos_dot_control__pb2.SlotToolRequest.SerializeToString,
+            protos_dot_control__pb2.StopReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def Solo(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/shadowless.v1.RigControl/Solo',
+            protos_dot_control__pb2.SlotToolRequest.SerializeToString,
+            protos_dot_control__pb2.StopReply.FromString,
             options,
             channel_credentials,
             insecure,

@@ -167,6 +167,19 @@ class Client:
     async def stop_show(self, *, delay_s: float = 0.0, at_ns: int = 0) -> ShowState:
         return await self._show_control(self.stub.StopShow, delay_s=delay_s, at_ns=at_ns)
 
+    # ---------------------------------------------------------------- per-slot tools
+    @_translated
+    async def show_test_pattern(self, pattern: str, slots: list[str] | None = None) -> str:
+        """Test pattern ``pattern`` on ``slots`` (None: every slot), the others black; what the rig shows now."""
+        req = control_pb2.SlotToolRequest(pattern=pattern, slots=list(slots or ()))
+        return (await self.stub.ShowTestPattern(req, metadata=self.md, timeout=30)).showing
+
+    @_translated
+    async def solo(self, slots: list[str]) -> str:
+        """Only ``slots`` go on showing the still on screen, the others black (``[]``: the solo ends)."""
+        req = control_pb2.SlotToolRequest(slots=list(slots))
+        return (await self.stub.Solo(req, metadata=self.md, timeout=10)).showing
+
     # ---------------------------------------------------------------- the cue list
     @_translated
     async def cues(self) -> tuple[dict, str]:

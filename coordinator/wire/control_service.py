@@ -227,3 +227,15 @@ class RigControlService(HandshakeService):
         else:
             raise ValueError(f"unknown cue action {request.action!r} (go, back or jump)")
         return control_messages.cue_reply(self.c.cue_state(), result)
+
+    # ---------------------------------------------------------------- per-slot tools (coordinator/slot_tools.py)
+    @guard
+    async def ShowTestPattern(self, request, context):
+        self._operator(context)
+        showing = await self.c.show_test_pattern(request.pattern, list(request.slots) or None)
+        return control_pb2.StopReply(showing=showing)
+
+    @guard
+    async def Solo(self, request, context):
+        self._operator(context)
+        return control_pb2.StopReply(showing=self.c.solo(list(request.slots)))

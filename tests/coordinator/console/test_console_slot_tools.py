@@ -15,6 +15,7 @@ import pytest
 from bench.console import ConsoleRig, chromium, log_in, text_of, visible, wait_for
 from coordinator import test_patterns
 from coordinator.rig import Content
+from shadowless.cli import main
 from waits import wait_until
 
 SLOTS = ["r0c0", "r0c1"]
@@ -56,7 +57,7 @@ def wait_shows(snaps, slot: str, what: str, check) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_patterns_solo_selection_confirmation_and_banner(tmp_path, browser_ready):
+def test_patterns_solo_selection_confirmation_and_banner(tmp_path, browser_ready, capsys):
     with ConsoleRig(tmp_path / "rig", SLOTS, snapshots=True) as rig:
         rig.wait_live(timeout=240)
         snaps, (w, h) = rig.local.snapshot_dir, rig.local.output_size
@@ -88,6 +89,18 @@ def test_patterns_solo_selection_confirmation_and_banner(tmp_path, browser_ready
         wait_shows(snaps, "r0c1", "the white card again", lit)
         status, body = page.post("/api/solo", {"slots": ["nope"]})
         assert status == 400 and "no slot 'nope'" in body["error"]
+
+        # the command line's pattern and solo call the same methods
+        common = ["--coordinator", f"127.0.0.1:{rig.local.port}", "--rig-dir", str(rig.local.rig_dir)]
+        assert main(["pattern", "white", "--slots", "r0c0", *common]) == 0
+        white_r0c0 = test_patterns.test_pattern("white", (w, h), label="r0c0")
+        wait_shows(snaps, "r0c0", "white", lambda img: np.array_equal(img, white_r0c0))
+        wait_shows(snaps, "r0c1", "black beside the pattern", black)
+        capsys.readouterr()
+        assert main(["solo", "nope", *common]) == 2
+        err = capsys.readouterr().err
+        assert "no slot 'nope'" in err and len(err.strip().splitlines()) == 1, err
+        rig.call(lambda: rig.coord.show(white, persist=True))
 
         driver = chromium(tmp_path / "chromium-profile")
         try:
