@@ -5,7 +5,8 @@ and the security headers every response carries.
   no rig data, everything arrives as JSON and is put on the page with ``textContent``).
 * ``POST /login`` (a user's name and password, or the rig token), ``POST /logout``,
   ``GET /api/session`` (who is logged in, their role, and the CSRF token of the browser's
-  session, for a reloaded page), ``GET /api/users`` (admins: the rig's users and open sessions).
+  session, for a reloaded page); admins list and manage the rig's users under ``/api/users``
+  (:mod:`coordinator.console.people`).
 * ``GET /api/status`` (the snapshot, JSON), ``GET /api/events`` (server-sent events) and
   ``GET /api/job/options`` (every job's options, for the job form).
 * ``GET /api/pictures``, ``/api/pictures/{name}`` and ``/api/camera.png``: the jobs' pictures and
@@ -38,6 +39,7 @@ from coordinator.console import auth
 from coordinator.console import cues as cue_routes
 from coordinator.console.actions import MAX_UPLOAD_BYTES, Actions
 from coordinator.console.hosts import HostCheck
+from coordinator.console.people import People
 from coordinator.console.pictures import Pictures
 from coordinator.console.slot_routes import SlotRoutes
 from coordinator.console.thumbnails import Thumbnails
@@ -277,17 +279,6 @@ class ConsoleApp:
     async def session_info(self, request: web.Request, session: auth.Session) -> web.Response:
         return web.json_response({"ok": True, "csrf": session.csrf, "who": session.who, "role": session.role})
 
-    async def users_list(self, request: web.Request, session: auth.Session) -> web.Response:
-        """(admins) The rig's users with their roles, and the open sessions: who, role, address,
-        seconds since their last request. Never a hash."""
-        now = self.sessions.clock()
-        users = [{"name": u.name, "role": u.role.value, "created": u.created, "changed": u.changed}
-                 for u in await asyncio.to_thread(self.users.list)]
-        sessions = sorted(({"who": s.who, "role": s.role, "address": s.address, "idle_s": round(now - s.last_used)}
-                           for s in self.sessions.open_sessions()), key=lambda d: (d["who"], d["idle_s"]))
-        return web.json_response({"ok": True, "users": users, "sessions": sessions,
-                                  "file_error": self.users.error})
-
     # ------------------------------------------------------------------ the rig
     async def status(self, request: web.Request, session: auth.Session) -> web.Response:
         return web.Response(text=self.live.current(), content_type="application/json")
@@ -354,7 +345,11 @@ def make_app(console: ConsoleApp) -> web.Application:
     app.router.add_post("/login", c.login)
     app.router.add_post("/logout", c.guard(c.logout, role="viewer"))
     app.router.add_get("/api/session", c.guard(c.session_info))
-    app.router.add_get("/api/users", c.guard(c.users_list, role="admin"))
+    people = People(c.users, c.sessions, a)
+    app.router.add_get("/api/users", c.guard(people.listing, role="admin"))
+    app.router.add_post("/api/users", c.guard(people.add, role="admin"))
+    app.router.add_post("/api/users/role", c.guard(people.set_role, role="admin"))
+    app.router.add_post("/api/users/remove", c.guard(people.remove, role="admin"))
     app.router.add_get("/api/status", c.guard(c.status))
     app.router.add_get("/api/events", c.guard(c.events))
     app.router.add_get("/api/job/options", c.guard(c.job_options))

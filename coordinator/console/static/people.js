@@ -1,7 +1,8 @@
 // Who is logged in: the login form's body (a name and a password, or the rig token with the name
 // left empty), the name and role beside the Log out button, a viewer's page (every action button
 // disabled: the coordinator refuses a viewer's actions with 403 anyway) and, for admins, the rig's
-// users and open sessions. Beside console.js (loaded first), whose helpers ($, el, clear, api) it uses.
+// users (added, given another role, removed here) and open sessions. Beside console.js (loaded
+// first), whose helpers ($, el, clear, api, postJSON, showLogin) it uses.
 "use strict";
 
 // buttons that change nothing on the rig: a viewer keeps them
@@ -73,17 +74,58 @@ function peopleTable(id, heads) {
   return t;
 }
 
+const ROLES = ["viewer", "operator", "admin"];
+
+function roleSelect(id, value) {
+  const sel = el("select", id ? { id: id } : {});
+  for (const r of ROLES) {
+    const o = el("option", { value: r }, r);
+    if (r === value) o.selected = true;
+    sel.append(o);
+  }
+  return sel;
+}
+
+// Run a user change (POST), say any refusal in the panel, then show the list again.
+async function peopleChange(path, doc) {
+  $("people-error").textContent = "";
+  try {
+    await postJSON(path, doc);
+  } catch (e) {
+    $("people-error").textContent = e.message;
+    if (e.status === 401) showLogin("Your session ended: log in again.");
+    return false;
+  }
+  await showPeople();
+  return true;
+}
+
 function peoplePanel() {
   let panel = $("people-panel");
   if (panel) return panel;
   panel = el("section", { class: "panel", id: "people-panel" });
   panel.append(el("h2", {}, "People"),
-    el("p", { class: "muted" }, "Users are managed on the coordinator's machine: shadowless rig user add NAME " +
-       "--role operator (or viewer, admin), user role, user rm, user list. Changes hold at the next request."),
+    el("p", { class: "muted" }, "Who may log in by name, and what they may do: a viewer sees, an operator acts, an " +
+       "admin also manages the users. On the coordinator's machine: shadowless rig user add NAME --role operator. " +
+       "Changes hold at the user's next request."),
     el("p", { id: "people-error", class: "error", role: "alert" }));
-  const users = peopleTable("people-users", ["user", "role", "changed"]);
+  const users = peopleTable("people-users", ["user", "role", "changed", ""]);
+  const form = el("form", { id: "people-add", class: "controls", autocomplete: "off" });
+  const name = el("input", { id: "people-name", type: "text", placeholder: "name", spellcheck: "false",
+                             autocapitalize: "none", required: "" });
+  const pw = el("input", { id: "people-password", type: "password", placeholder: "password (8 characters or more)",
+                           autocomplete: "new-password", required: "" });
+  form.append(el("label", { for: "people-name" }, "add"), name, roleSelect("people-role", "operator"), pw,
+              el("button", { id: "people-add-button", type: "submit" }, "Add user"));
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    if (await peopleChange("/api/users", { name: name.value, role: $("people-role").value, password: pw.value })) {
+      name.value = "";
+      pw.value = "";
+    }
+  });
   const sessions = peopleTable("people-sessions", ["logged in", "role", "address", "idle (s)"]);
-  panel.append(users, el("h3", {}, "Open sessions"), sessions);
+  panel.append(users, form, el("h3", {}, "Open sessions"), sessions);
   $("main-view").append(panel);
   return panel;
 }
@@ -98,13 +140,26 @@ async function showPeople() {
     const ub = panel.querySelector("#people-users tbody");
     clear(ub);
     for (const u of r.users) {
-      const tr = el("tr");
-      tr.append(el("td", {}, u.name), el("td", {}, u.role), el("td", {}, (u.changed || "").replace("T", " ")));
+      const tr = el("tr", { "data-user": u.name });
+      const sel = roleSelect("", u.role);
+      sel.setAttribute("aria-label", `role of ${u.name}`);
+      sel.addEventListener("change", () => peopleChange("/api/users/role", { name: u.name, role: sel.value }));
+      const rm = el("button", { type: "button", class: "danger" }, "Remove");
+      rm.addEventListener("click", () => {
+        if (window.confirm(`Remove ${u.name}? Their open sessions end at their next request.`)) {
+          peopleChange("/api/users/remove", { name: u.name });
+        }
+      });
+      const roleCell = el("td");
+      roleCell.append(sel);
+      const rmCell = el("td");
+      rmCell.append(rm);
+      tr.append(el("td", {}, u.name), roleCell, el("td", {}, (u.changed || "").replace("T", " ")), rmCell);
       ub.append(tr);
     }
     if (!r.users.length) {
       const tr = el("tr");
-      tr.append(el("td", { colspan: "3", class: "muted" }, "no users yet: everyone logs in with the rig token"));
+      tr.append(el("td", { colspan: "4", class: "muted" }, "no users yet: everyone logs in with the rig token"));
       ub.append(tr);
     }
     const sb = panel.querySelector("#people-sessions tbody");

@@ -95,6 +95,20 @@ def test_roles_decide_who_acts_and_the_log_names_them(tmp_path):
                 assert "hash" not in json.dumps(listing)
                 assert {x["who"] for x in listing["sessions"]} == {"vera", "token"}
 
+                # an admin manages the users from the page's side too; nobody else may
+                for path, body in (("/api/users", {"name": "Pia", "role": "operator", "password": PW}),
+                                   ("/api/users/role", {"name": "pia", "role": "viewer"})):
+                    r = await s.post(base + path, json=body, headers=viewer)
+                    assert r.status == 403, "an operator is no admin"
+                    r = await s.post(base + path, json=body, headers=admin)
+                    assert r.status == 200, await r.text()
+                assert store.role_of("pia").value == "viewer" and PW not in log_file.read_text()
+                r = await s.post(base + "/api/users", json={"name": "pia", "role": "admin", "password": PW}, headers=admin)
+                assert r.status == 400 and "exists already" in (await r.json())["error"]
+                r = await s.post(base + "/api/users/remove", json={"name": "pia"}, headers=admin)
+                assert r.status == 200 and store.role_of("pia") is None
+                assert entries()[-1]["who"] == "token" and entries()[-1]["action"] == "remove user"
+
                 # wrong passwords and unknown names: one answer for both, logged without the password
                 _, doc = await _login(s, base, {"name": "vera", "password": "not it at all"}, status=401)
                 assert doc["error"].startswith("wrong name or password")

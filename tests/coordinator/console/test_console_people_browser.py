@@ -1,6 +1,6 @@
 """The login form and the roles in a real browser (Debian's headless Chromium): a viewer logs in by
 name and password and finds every action disabled, with their name and role shown; the rig token
-logs in as an admin, whose page acts and lists the rig's users."""
+logs in as an admin, whose page acts, lists the rig's users and adds one."""
 from __future__ import annotations
 
 import asyncio
@@ -89,6 +89,11 @@ def test_a_viewers_page_acts_on_nothing_and_an_admin_sees_the_users(tmp_path, br
                      f"an admin's actions enabled: {_disabled(driver, actions)}")
             wait_for(lambda: visible(driver, "people-panel") and "vera" in text_of(driver, "people-users"), 60,
                      "the users listed for an admin")
-            assert "viewer" in text_of(driver, "people-users")
+            # an admin adds an operator from the page
+            driver.find_element(By.ID, "people-name").send_keys("Pia")
+            driver.find_element(By.ID, "people-password").send_keys(PW)
+            driver.find_element(By.ID, "people-add-button").click()
+            wait_for(lambda: "pia" in text_of(driver, "people-users"), 60, "the new user listed")
+            assert UserStore(rig_dir).role_of("pia").value == "operator"
         finally:
             driver.quit()
