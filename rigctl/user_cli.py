@@ -20,7 +20,8 @@ EXAMPLES = f"""\
 roles:
   viewer    sees everything the console shows, acts on nothing
   operator  acts: shows, plays, stops, blacks out, fires cues, runs jobs
-  admin     an operator who also sees the users (a login with the rig token is an admin)
+  admin     an operator who also manages the users, here or in the console's People panel
+            (a login with the rig token is an admin)
 
 examples:
   shadowless rig user add alice --role operator --rig-dir rigs/table     # asks for the password twice
