@@ -8,7 +8,7 @@ itself back from ``show.json``). Firing a cue:
 * ``still``: ``content`` is the rig's content; any other target is a still asset of the store
   (decoded and fitted off the event loop, kept for the next time). ``asset``: a still asset is
   shown as a still; a video or sequence plays as a timeline show (:mod:`coordinator.show`) on
-  every projector, cut in (a crossfade into a moving picture is not done). ``blackout``: black.
+  every projector, its first frames mixed with what was on screen during a fade. ``blackout``: black.
   ``pattern``: a test pattern (:mod:`coordinator.slot_tools`). A cue's ``slots`` show it, the
   others black.
 * **Crossfades** (``fade_s``) are done by the nodes from what they show, every node from the same
@@ -217,7 +217,7 @@ class CueEngine:
             raise CueError(f"cue {cue.id}: a {m.kind} plays on every projector; leave the cue's slots out")
 
         async def play():
-            st = core.play_asset(asset_id)
+            st = core.play_asset(asset_id, fade_ns=fade_ns)
             return st.anchor_ns
         return play
 

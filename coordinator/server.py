@@ -414,10 +414,10 @@ class Coordinator:
     solo = slot_tools.solo
 
     def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
-                   fps: float | None = None, start_without: bool = False) -> ShowState:
+                   fps: float | None = None, start_without: bool = False, fade_ns: int = 0) -> ShowState:
         self._before_show()
         return self.show_state.play(key, at_ns=at_ns, delay_ns=delay_ns, loop=loop, fps=fps,
-                                    start_without=start_without)
+                                    start_without=start_without, fade_ns=fade_ns)
 
     def show_control(self, action: str, *, at_ns: int | None = None, delay_ns: int | None = None,
                      frame: int = 0) -> ShowState:

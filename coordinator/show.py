@@ -229,8 +229,9 @@ class Show:
         return out
 
     def play(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
-             fps: float | None = None, start_without: bool = False) -> ShowState:
-        """Start asset ``key`` (id, prefix or name) at ``at_ns`` (or ``delay_ns`` / the lead from now).
+             fps: float | None = None, start_without: bool = False, fade_ns: int = 0) -> ShowState:
+        """Start asset ``key`` (id, prefix or name) at ``at_ns`` (or ``delay_ns`` / the lead from now);
+        ``fade_ns``: the nodes crossfade into it from what they show (a cue's fade, :mod:`protos.fade`).
 
         Raises :class:`~coordinator.errors.AssetError` for an unknown asset, :class:`ShowError`
         when a live node lacks it (unless ``start_without``), ValueError for a bad ``fps``.
@@ -246,7 +247,7 @@ class Show:
                                 "(--start-without)")
         t = self._when(at_ns, delay_ns)
         tl = Timeline(asset_id=asset_id, frames=m.frames, rate=rate, anchor_ns=t, anchor_frame=0, loop=loop,
-                      paused=False, revision=self._next_revision())
+                      paused=False, revision=self._next_revision(), fade_ns=max(0, int(fade_ns)))
         self.name = m.name
         self._apply(tl)
         log.info("show: asset %s (%s) plays at %s fps%s from rig time %d (revision %d)", asset_id[:12], m.name,

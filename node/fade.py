@@ -75,3 +75,28 @@ class Crossfade:
 
     def is_last(self, order: FrameOrder) -> bool:
         return order.frame_id - self.frame.frame_id >= self.steps
+
+
+@dataclass
+class ShowFade:
+    """A timeline show's crossfade in (``Timeline.fade_ns``): its ticks from ``anchor_ns`` on mix
+    the picture on screen before the show into theirs, ``(pts - anchor) / fade`` of theirs, until
+    ``anchor_ns + fade_ns``. The ticks are the steps: a video at its own rate."""
+
+    revision: int
+    anchor_ns: int
+    fade_ns: int
+    before_id: str = ""
+    forget_before: bool = False
+    started: bool = False
+
+    @property
+    def end_ns(self) -> int:
+        return self.anchor_ns + self.fade_ns
+
+    def covers(self, order: FrameOrder) -> bool:
+        return self.started and order.tag == f"timeline:{self.revision}" and order.pts_ns < self.end_ns
+
+    def render_args(self, order: FrameOrder) -> tuple[bool, tuple[str, float]]:
+        m = min(1.0, max(0.0, (order.pts_ns - self.anchor_ns) / self.fade_ns))
+        return True, (self.before_id, m)

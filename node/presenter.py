@@ -35,7 +35,7 @@ import numpy as np
 
 from node.asset_frames import FrameError, FrameNotReady
 from node.clock import ClockEstimate
-from node.fade import Crossfade
+from node.fade import Crossfade, ShowFade
 from node.live_video import LiveDecoder
 from node.outputs.base import Output, SwapInfo
 from node.pacing import LATE_TOLERANCE_NS, FramePacer
@@ -148,6 +148,7 @@ class Presenter:
         self.blend_on_screen = ""        # the id of the maps on screen ("" none)
         self.blend_since_rig_ns = 0      # pts of the first frame shown with them
         self._fade: Crossfade | None = None   # a crossfade under way (node/fade.py)
+        self._show_fade: ShowFade | None = None   # a timeline show's crossfade in
 
     @property
     def estimate(self) -> ClockEstimate | None:
@@ -470,6 +471,7 @@ class Presenter:
         self.pacer.reset()
         self.player.reset()
         self._end_fade()
+        self._end_show_fade()
         self.live.reset()
         self._last_event_pts = None
 
@@ -482,6 +484,10 @@ class Presenter:
                          tl.anchor_ns, " paused" if tl.paused else "", " loop" if tl.loop else "")
             else:
                 log.info("timeline r%d: stop at %d", update.stop_revision, update.stop_at_ns)
+            self._end_show_fade()
+            tl = update.timeline
+            if tl is not None and tl.fade_ns > 0:     # its first tick fades in from what is on screen then
+                self._show_fade = ShowFade(tl.revision, tl.anchor_ns, tl.fade_ns)
             self._prepare_timeline()
             self._send_stats()
 
@@ -621,6 +627,7 @@ class Presenter:
         a = self.assignment
         if a is not None and a.pose_kind == "homography" and all(a.content_size):
             image = fit_frame(image, a.content_size)
+        self._begin_show_fade(ev)
         try:
             renderer.upload(order.content_id, image)
             self._render(renderer, order)
@@ -634,6 +641,8 @@ class Presenter:
         self.timeline_shown += 1
         self.timeline_last_frame = ev.frame
         self._swap_at_pts(renderer, out, order)
+        if self._show_fade is not None and self._show_fade.started and ev.pts_ns >= self._show_fade.end_ns:
+            self._end_show_fade()
         if self._current is not order:
             self.timeline_shown -= 1
             self.timeline_last_frame = before
@@ -665,6 +674,8 @@ class Presenter:
         apply_lut, fade = frame.apply_lut, None
         if self._fade is not None and self._fade.covers(frame):
             apply_lut, fade = self._fade.render_args(frame)
+        elif self._show_fade is not None and self._show_fade.covers(frame):
+            apply_lut, fade = self._show_fade.render_args(frame)
         try:
             renderer.render(frame.content_id or None, space=frame.space, apply_lut=apply_lut, fade=fade)
         except (KeyError, ValueError) as exc:
@@ -672,6 +683,7 @@ class Presenter:
                 raise
             log.error("cannot crossfade into frame %d (%s): cut to it", frame.frame_id, exc)
             self._end_fade()
+            self._end_show_fade()
             renderer.render(frame.content_id or None, space=frame.space, apply_lut=frame.apply_lut)
         self._render_ms.append((time.perf_counter() - t) * 1e3)
 
@@ -701,6 +713,7 @@ class Presenter:
         """A frame admitted: a fade under way ends where it is; the frame's own fade (if any) starts
         from what is on screen, which is kept until the fade ends."""
         self._end_fade()
+        self._end_show_fade()
         fade = Crossfade.start(frame, self._current, self.renderer.has)
         if fade is None:
             return
@@ -717,6 +730,28 @@ class Presenter:
         if fade is not None and fade.forget_before and (self._current is None
                                                         or self._current.content_id != fade.before_id):
             self.renderer.forget(fade.before_id)
+
+    def _begin_show_fade(self, ev: TimelineEvent) -> None:
+        """The show's first tick: its fade in starts from what is on screen now (a pattern: a cut)."""
+        sf = self._show_fade
+        if sf is None or sf.started or ev.revision != sf.revision:
+            return
+        cur = self._current
+        if cur is not None and cur.content_id and (cur.space != "content" or not self.renderer.has(cur.content_id)):
+            self._show_fade = None
+            return
+        sf.started, sf.before_id = True, cur.content_id if cur is not None else ""
+        if sf.before_id and sf.before_id == self._timeline_cid:      # the previous show's frame
+            self._timeline_cid, sf.forget_before = None, True
+        elif sf.before_id and sf.before_id in self._evicted:
+            self._evicted.discard(sf.before_id)
+            sf.forget_before = True
+
+    def _end_show_fade(self) -> None:
+        sf, self._show_fade = self._show_fade, None
+        if sf is not None and sf.forget_before and (self._current is None
+                                                    or self._current.content_id != sf.before_id):
+            self.renderer.forget(sf.before_id)
 
     def _fade_wait(self) -> float | None:
         est = self.pacer.estimate

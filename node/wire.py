@@ -159,7 +159,8 @@ def show_update_from_message(msg: node_pb2.ShowUpdate) -> ShowUpdateData:
     if not t.rate_den:
         raise ValueError("timeline without a rate")
     tl = Timeline(asset_id=t.asset_id, frames=t.frames, rate=Fraction(t.rate_num, t.rate_den), anchor_ns=t.anchor_ns,
-                  anchor_frame=t.anchor_frame, loop=t.loop, paused=t.paused, revision=t.revision)
+                  anchor_frame=t.anchor_frame, loop=t.loop, paused=t.paused, revision=t.revision,
+                  fade_ns=max(0, t.fade_ns))
     return ShowUpdateData(timeline=tl, frame_id_base=t.frame_id_base, beacon=msg.beacon)
 
 

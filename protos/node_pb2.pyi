@@ -448,7 +448,7 @@ class AssetProgress(_message.Message):
     def __init__(self, asset_id: _Optional[str] = ..., have_bytes: _Optional[int] = ..., total_bytes: _Optional[int] = ..., ready: _Optional[bool] = ..., error: _Optional[str] = ..., name: _Optional[str] = ..., ready_age_ms: _Optional[float] = ...) -> None: ...
 
 class Timeline(_message.Message):
-    __slots__ = ("asset_id", "frames", "rate_num", "rate_den", "anchor_ns", "anchor_frame", "loop", "paused", "revision", "frame_id_base")
+    __slots__ = ("asset_id", "frames", "rate_num", "rate_den", "anchor_ns", "anchor_frame", "loop", "paused", "revision", "frame_id_base", "fade_ns")
     ASSET_ID_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     RATE_NUM_FIELD_NUMBER: _ClassVar[int]
@@ -459,6 +459,7 @@ class Timeline(_message.Message):
     PAUSED_FIELD_NUMBER: _ClassVar[int]
     REVISION_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_BASE_FIELD_NUMBER: _ClassVar[int]
+    FADE_NS_FIELD_NUMBER: _ClassVar[int]
     asset_id: str
     frames: int
     rate_num: int
@@ -469,7 +470,8 @@ class Timeline(_message.Message):
     paused: bool
     revision: int
     frame_id_base: int
-    def __init__(self, asset_id: _Optional[str] = ..., frames: _Optional[int] = ..., rate_num: _Optional[int] = ..., rate_den: _Optional[int] = ..., anchor_ns: _Optional[int] = ..., anchor_frame: _Optional[int] = ..., loop: _Optional[bool] = ..., paused: _Optional[bool] = ..., revision: _Optional[int] = ..., frame_id_base: _Optional[int] = ...) -> None: ...
+    fade_ns: int
+    def __init__(self, asset_id: _Optional[str] = ..., frames: _Optional[int] = ..., rate_num: _Optional[int] = ..., rate_den: _Optional[int] = ..., anchor_ns: _Optional[int] = ..., anchor_frame: _Optional[int] = ..., loop: _Optional[bool] = ..., paused: _Optional[bool] = ..., revision: _Optional[int] = ..., frame_id_base: _Optional[int] = ..., fade_ns: _Optional[int] = ...) -> None: ...
 
 class ShowUpdate(_message.Message):
     __slots__ = ("timeline", "stop", "stop_at_ns", "stop_revision", "beacon")

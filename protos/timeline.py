@@ -52,7 +52,9 @@ class Timeline:
 
     ``frames`` is the asset's frame count; ``loop`` wraps around at the end (otherwise the show
     has ended after the last frame); ``paused`` holds ``anchor_frame`` from ``anchor_ns`` on.
-    ``revision`` orders changes (a node keeps the newest it has seen).
+    ``revision`` orders changes (a node keeps the newest it has seen). ``fade_ns`` > 0: the show
+    crossfades in from what the projectors showed before, over that long from ``anchor_ns``
+    (:mod:`protos.fade`; a start's own, which no later change carries).
     """
 
     asset_id: str
@@ -63,6 +65,7 @@ class Timeline:
     loop: bool = False
     paused: bool = False
     revision: int = 0
+    fade_ns: int = 0
 
     def __post_init__(self) -> None:
         if not isinstance(self.frames, int) or self.frames < 1:
@@ -120,23 +123,23 @@ class Timeline:
         k = self.frame_at(max(t_ns, self.anchor_ns))
         if k is None:
             k = self.frames - 1
-        return replace(self, anchor_ns=t_ns, anchor_frame=k, paused=True, revision=self.revision + 1)
+        return replace(self, anchor_ns=t_ns, anchor_frame=k, paused=True, revision=self.revision + 1, fade_ns=0)
 
     def resumed_at(self, t_ns: int) -> "Timeline":
         """Go on from the held frame at ``t_ns`` (it is shown for one more period first)."""
-        return replace(self, anchor_ns=t_ns, paused=False, revision=self.revision + 1)
+        return replace(self, anchor_ns=t_ns, paused=False, revision=self.revision + 1, fade_ns=0)
 
     def seeked(self, frame: int, t_ns: int) -> "Timeline":
         """Show ``frame`` at ``t_ns`` and go on from there (paused stays paused)."""
         if not 0 <= frame < self.frames:
             raise TimelineError(f"cannot seek to frame {frame}: the asset has frames 0..{self.frames - 1}")
-        return replace(self, anchor_ns=t_ns, anchor_frame=frame, revision=self.revision + 1)
+        return replace(self, anchor_ns=t_ns, anchor_frame=frame, revision=self.revision + 1, fade_ns=0)
 
     # ------------------------------------------------------------------ on the wire
     def to_json(self) -> dict:
         return {"asset_id": self.asset_id, "frames": self.frames, "rate": [self.rate.numerator, self.rate.denominator],
                 "anchor_ns": self.anchor_ns, "anchor_frame": self.anchor_frame, "loop": self.loop,
-                "paused": self.paused, "revision": self.revision}
+                "paused": self.paused, "revision": self.revision, "fade_ns": self.fade_ns}
 
     @classmethod
     def from_json(cls, doc: dict) -> "Timeline":
@@ -145,7 +148,7 @@ class Timeline:
             return cls(asset_id=str(doc["asset_id"]), frames=int(doc["frames"]), rate=Fraction(num, den),
                        anchor_ns=int(doc["anchor_ns"]), anchor_frame=int(doc.get("anchor_frame", 0)),
                        loop=bool(doc.get("loop", False)), paused=bool(doc.get("paused", False)),
-                       revision=int(doc.get("revision", 0)))
+                       revision=int(doc.get("revision", 0)), fade_ns=max(0, int(doc.get("fade_ns", 0))))
         except (KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
             if isinstance(exc, TimelineError):
                 raise

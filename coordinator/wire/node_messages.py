@@ -178,5 +178,5 @@ def show_update_message(u: ShowUpdate) -> node_pb2.ShowUpdate:
         msg.timeline.CopyFrom(node_pb2.Timeline(
             asset_id=tl.asset_id, frames=tl.frames, rate_num=tl.rate.numerator, rate_den=tl.rate.denominator,
             anchor_ns=tl.anchor_ns, anchor_frame=tl.anchor_frame, loop=tl.loop, paused=tl.paused,
-            revision=tl.revision, frame_id_base=u.frame_id_base))
+            revision=tl.revision, frame_id_base=u.frame_id_base, fade_ns=tl.fade_ns))
     return msg
