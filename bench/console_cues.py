@@ -29,7 +29,8 @@ SKEW_TARGET_MS = 2.0
 
 class SwapLog:
     """Every swap the nodes report to the core: (slot, frame id) -> host monotonic ns. Installed on
-    the core's ``on_report`` (the node service calls it for each report) until :meth:`close`."""
+    the core's ``on_report`` (the node service calls it for each report) until :meth:`close`; read
+    it in the core's loop (``rig.call``), where it is written."""
 
     def __init__(self, coord: Any):
         self.coord = coord
@@ -71,7 +72,8 @@ def cue_figures(rig: Any, slots: list[str], *, rounds: int = 10, fade_s: float =
     coord = rig.coord
     w, h = coord.content_size
     y, x = np.mgrid[0:h, 0:w]
-    image = np.stack([x * 255 // max(1, w - 1), y * 255 // max(1, h - 1), np.full_like(x, 128)], axis=2).astype(np.uint8)
+    image = np.stack([x * 255 // max(1, w - 1), y * 255 // max(1, h - 1), np.full_like(x, 128)], axis=2)
+    image = image.astype(np.uint8)
     rig.call(lambda: coord.show(Content(image, name="bench cues"), persist=True))
     cues = []
     for k in range(rounds):
@@ -97,17 +99,17 @@ def cue_figures(rig: Any, slots: list[str], *, rounds: int = 10, fade_s: float =
                     raise TimeoutError(f"cue {cue.id} sent no frame in {timeout_s:g} s")
                 time.sleep(0.002)
             last = frame.frame_id + frame.fade_steps
-            while log.first_from(last, slots) is None:     # until its last step is on every projector
+            while rig.call(lambda: log.first_from(last, slots)) is None:     # its last step on every projector
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"cue {cue.id}: not every node showed frame {last} in {timeout_s:g} s")
                 time.sleep(0.01)
             time.sleep(0.05)
             if not cue.fade_s:
-                go_ms.append((max(log.first_from(frame.frame_id, slots)) - t_go) / 1e6)
+                go_ms.append((max(rig.call(lambda: log.first_from(frame.frame_id, slots))) - t_go) / 1e6)
             if cue.fade_s:
                 for k in range(frame.fade_steps + 1):
                     steps_all += 1
-                    got = log.swapped(frame.frame_id + k, slots)
+                    got = rig.call(lambda: log.swapped(frame.frame_id + k, slots))
                     if got is not None:
                         steps_seen += 1
                         skews.append((max(got) - min(got)) / 1e6)

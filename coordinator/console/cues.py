@@ -92,7 +92,8 @@ class CueRoutes:
 
 
 def register(app: web.Application, console: Any) -> None:
-    """Add the cue routes to the console's ``app`` (``console``: its ConsoleApp) (guarded as every route: a POST needs an operator) and log every fire."""
+    """Add the cue routes to the console's ``app`` (``console``: its ConsoleApp), guarded as every route
+    (a POST needs an operator), and log every fire."""
     routes = CueRoutes(console.actions)
     c = console
     app.router.add_get("/api/cues", c.guard(routes.state))

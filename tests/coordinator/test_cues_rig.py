@@ -152,11 +152,12 @@ def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path, capfd):
 
             code, out, err = await cli("list")
             assert code == 0, err
-            assert [ln.split()[:2] for ln in out.splitlines() if ln.startswith(("▶", "→"))] == [["▶", "4"], ["→", "5"]]
+            marked = [ln.split()[:2] for ln in out.splitlines() if ln.startswith(("▶", "→"))]
+            assert marked == [["▶", "4"], ["→", "5"]], out
             assert "5 cues; current: cue 4" in out
             code, out, err = await cli("add", "--kind", "still")
-            assert (code, err.strip()) == (2, "shadowless cue add: cue '6': a still cue needs a target (a still's name, "
-                                                "e.g. content)"), err
+            assert (code, err.strip()) == (
+                2, "shadowless cue add: cue '6': a still cue needs a target (a still's name, e.g. content)"), err
             code, out, err = await cli("add", "--kind", "still", "--target", "content", "--at", "1", "--name", "Top")
             assert code == 0 and "added cue 6 'Top' (still content) at position 1" in out, err
             assert [c.id for c in app.coordinator.cue_state().cues] == ["6", "1", "2", "3", "4", "5"]

@@ -60,7 +60,8 @@ def test_cue_routes_store_fire_and_log_who_acted(tmp_path):
             assert r.status == 200 and (await r.json())["result"] == "2 cues stored"
             r = await s.post(base + "/api/cues", json={"cues": [{"id": "1", "kind": "still"}]}, headers=op)
             doc = await r.json()
-            assert r.status == 400 and doc["error"] == "cue '1': a still cue needs a target (a still's name, e.g. content)"
+            assert r.status == 400
+            assert doc["error"] == "cue '1': a still cue needs a target (a still's name, e.g. content)"
             r = await s.get(base + "/api/cues", headers=op)
             state = await r.json()
             assert [c["id"] for c in state["cues"]] == ["1", "2"] and (state["current"], state["next"]) == (None, 0)
