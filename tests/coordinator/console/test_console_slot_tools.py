@@ -1,7 +1,8 @@
 """The console's per-slot tools and health banner against a coordinator in this process and real
 node processes: a test pattern and a solo asked over HTTP end up on the projectors (read back from
 what each node rendered, not from the coordinator's flags), and in Chromium the layout's selection
-highlights one slot, Blackout asks before it acts, and the banner names a lost node."""
+highlights one slot, a slot without a pose is warned of as the command line does, Blackout asks
+before it acts, and the banner names a lost node."""
 from __future__ import annotations
 
 import asyncio
@@ -15,6 +16,7 @@ import pytest
 from bench.console import ConsoleRig, chromium, log_in, text_of, visible, wait_for
 from coordinator import test_patterns
 from coordinator.rig import Content
+from coordinator.unposed import unposed_warning
 from shadowless.cli import main
 from waits import wait_until
 
@@ -118,6 +120,13 @@ def test_patterns_solo_selection_confirmation_and_banner(tmp_path, browser_ready
             labels = driver.execute_script(
                 "return Array.from(document.querySelectorAll('#layout text.fp-name')).map(t => t.textContent);")
             assert labels == ["1 r0c0: live"], labels
+
+            # a slot loses its pose: the page warns beside Show and Play with the command line's line
+            assert not visible(driver, "unposed-warning")
+            rig.call(lambda: rig.coord.update_slot("r0c1", pose=None))
+            wait_for(lambda: visible(driver, "unposed-warning"), 60, "the warning of a slot without a pose")
+            assert text_of(driver, "unposed-warning") == f"warning: {unposed_warning(['r0c1'])}"
+            assert driver.find_elements("css selector", '#unposed .tile[data-slot="r0c1"]')
 
             # Blackout asks on the page first; only the confirmation acts
             driver.find_element("id", "blackout").click()
