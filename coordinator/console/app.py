@@ -69,6 +69,8 @@ SECURITY_HEADERS = {
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css",
           "pictures.js": "text/javascript", "blend.js": "text/javascript", "people.js": "text/javascript",
           "health.js": "text/javascript", "layout.js": "text/javascript", "confirm.js": "text/javascript"}
+# the calibration tools on the camera view, the cue panel, and their styles (console/static)
+STATIC.update({"calibrate.js": "text/javascript", "cues.js": "text/javascript", "panels.css": "text/css"})
 MAX_LOGIN_BYTES = 4096
 #: foreign Host headers logged (each once); later ones are refused without a log line
 MAX_FOREIGN_HOSTS = 64

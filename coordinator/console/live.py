@@ -23,6 +23,7 @@ from aiohttp import web
 
 from coordinator.api import BlendStatus, NodeState, RigStatus
 from coordinator.console.health import health_view
+from coordinator.console.page_wording import job_for_the_page
 from coordinator.jobs.registry import JOBS
 from coordinator.rig import HomographyPose, SlotState
 from coordinator.sync import FrameResult, percentile
@@ -107,15 +108,15 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
                  "frames_dropped": s.frames_dropped},
         "slots": slots,
         "blend": _blend(status),
-        "health": health_view(status, now=now),
         "cues": coord.cue_state().to_json() if hasattr(coord, "cue_state") else None,   # console/cues.py
+        "health": health_view(status, now=now),
         "refusals": refusals,
         "before_auth": _before_auth(status),
         "logins": logins or {},
         "assets": [{"id": aid, "name": m.name, "kind": m.kind, "frames": m.frames}
                    for aid, m in sorted(coord.asset_manifests().items(), key=lambda t: (t[1].name, t[0]))],
         "actions": actions,
-        "job": coord.job_snapshot(),
+        "job": job_for_the_page(coord.job_snapshot()),      # refusals in the form's words, not flags
         "job_kinds": list(JOBS),
     }
 

@@ -149,7 +149,9 @@ function render(s) {
   $("rig-name").textContent = `${s.rig.name} (${s.rig.id})`;
   $("showing").textContent = s.showing || "nothing";
   const sh = s.show;
-  $("show-state").textContent = sh.state !== "none" ? `show ${sh.state}: ${sh.name || sh.asset_id.slice(0, 12)}` : "";
+  // only a show that is on (a stopped one is history: the line would sit beside every later still)
+  const on = ["scheduled", "playing", "paused"].includes(sh.state);
+  $("show-state").textContent = on ? `show ${sh.state}: ${sh.name || (sh.asset_id || "").slice(0, 12)}` : "";
   const y = s.sync;
   $("sync-line").textContent = `skew p50 ${fmt(y.skew_p50_ms, 2)} ms, p99 ${fmt(y.skew_p99_ms, 2)} ms over ` +
     `${y.frames} frames (${y.skew_source || "no frames yet"}); late ${y.frames_late}, dropped ${y.frames_dropped}`;
@@ -394,10 +396,44 @@ function fieldInput(f) {
   input.dataset.kind = f.kind;
   input.dataset.name = f.name;
   input.dataset.initial = f.kind === "bool" ? String(!!f.default) : "";
-  const label = el("label", { for: id, title: f.help }, f.name);
-  const wrap = el("div", {});
-  wrap.append(label, input);
+  const helpId = `${id}-help`;
+  input.setAttribute("aria-describedby", helpId);
+  const label = el("label", { for: id, class: "opt-label" }, fieldLabel(f));
+  const wrap = el("div", { class: "job-field", "data-option": f.name });
+  if (f.kind === "bool") {
+    label.prepend(input);          // a checkbox sits before its label
+    wrap.append(label);
+  } else {
+    wrap.append(label, input);
+  }
+  const hint = fieldHint(f);
+  const help = el("p", { id: helpId, class: "opt-help" }, f.help || "");
+  if (hint) help.prepend(el("span", { class: "opt-range" }, hint + " · "));
+  wrap.appendChild(help);
   return wrap;
+}
+
+// "Settle (s)": the option's own label (the server derives one from the name where none is declared)
+function fieldLabel(f) {
+  return f.label || f.name;
+}
+
+// What the value may be: its range with the unit, and the default ("0–30 s · default 0.1").
+function fieldHint(f) {
+  const unit = f.unit ? ` ${f.unit}` : "";
+  const parts = [];
+  if (f.lo !== null && f.lo !== undefined && f.hi !== null && f.hi !== undefined) parts.push(`${f.lo}–${f.hi}${unit}`);
+  else if (f.lo !== null && f.lo !== undefined) parts.push(`at least ${f.lo}${unit}`);
+  else if (f.hi !== null && f.hi !== undefined) parts.push(`at most ${f.hi}${unit}`);
+  else if (f.unit) parts.push(`in ${f.unit}`);
+  if (f.kind !== "bool" && f.default !== null && f.default !== undefined && f.default !== "" &&
+      !(Array.isArray(f.default) && !f.default.length)) {
+    const d = Array.isArray(f.default) ? f.default.join(f.kind === "pair" ? "×" : ", ") : String(f.default);
+    parts.push(`default ${d}${unit}`);
+  } else if (f.kind === "bool") {
+    parts.push(f.default ? "on unless unticked" : "off unless ticked");
+  }
+  return parts.join(" · ");
 }
 
 function renderJobFields() {

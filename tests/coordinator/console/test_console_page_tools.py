@@ -61,7 +61,8 @@ def camera_folder(path) -> str:
 def broken_images(driver) -> list[str]:
     """The ids (or alts) of pictures shown as a broken-image icon: displayed, with no picture."""
     return driver.execute_script(
-        "return Array.from(document.images).filter(i => getComputedStyle(i).display !== 'none' && i.offsetParent !== null"
+        "return Array.from(document.images).filter(i => getComputedStyle(i).display !== 'none'"
+        " && i.offsetParent !== null"
         " && (!i.getAttribute('src') || (i.complete && i.naturalWidth === 0))).map(i => i.id || i.alt);")
 
 
@@ -106,7 +107,8 @@ def test_the_page_tools_in_a_browser(tmp_path, browser_ready):
 
             # the job form: labels, units, ranges and help from the options' declarations
             Select(driver.find_element("id", "job-kind")).select_by_value("calibrate")
-            wait_for(lambda: driver.find_elements("css selector", '[data-option="keep_going"]'), 60, "the calibrate form")
+            wait_for(lambda: driver.find_elements("css selector", '[data-option="keep_going"]'), 60,
+                     "the calibrate form")
             field = lambda name: driver.execute_script(  # noqa: E731
                 "const d = document.querySelector(`[data-option='${arguments[0]}']`);"
                 "return [d.querySelector('label').textContent, d.querySelector('.opt-help').textContent];", name)
@@ -121,7 +123,8 @@ def test_the_page_tools_in_a_browser(tmp_path, browser_ready):
                                   "window.__clicks = [];"
                                   "document.addEventListener('click', e => window.__clicks.push("
                                   "  [e.clientX, e.clientY, (() => { const r = document.getElementById('camera-img')"
-                                  "  .getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()]), true);")
+                                  "  .getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()]),"
+                                  " true);")
             driver.find_element("id", "calib-pick").click()
             for _ in range(2):
                 driver.find_element("id", "calib-zoom-in").click()
@@ -140,11 +143,23 @@ def test_the_page_tools_in_a_browser(tmp_path, browser_ready):
                 # the pointer's fraction of the picture, times the capture's size; (0, 0) the first pixel's centre
                 want = ((cx - left) / width * CAPTURE[0] - 0.5, (cy - top) / height * CAPTURE[1] - 0.5)
                 assert abs(u - want[0]) <= 0.051 and abs(v - want[1]) <= 0.051, (u, v, want)
+            # a mark dragged: its row follows, by the drag over the picture's scale
+            scale = driver.execute_script(
+                "return document.getElementById('camera-img').getBoundingClientRect().width;") / CAPTURE[0]
+            before = rows[0]
+            mark = driver.find_element("css selector", "#camera-marks circle[data-index='0']")
+            ActionChains(driver).drag_and_drop_by_offset(mark, 30, 12).perform()
+            u, v = driver.execute_script("const tr = document.querySelector('#calib-points tbody tr');"
+                                         "return [Number(tr.dataset.u), Number(tr.dataset.v)];")
+            assert len(driver.find_elements("css selector", "#calib-points tbody tr")) == 3, "a drag adds no point"
+            slack = 1.5 / scale + 0.06          # the pointer's whole screen pixels, the table's 0.1 px
+            assert abs(u - before[0] - 30 / scale) < slack and abs(v - before[1] - 12 / scale) < slack, (u, v, before)
             # a point deleted from its row; too few points are refused on the page, nothing sent
             driver.find_elements("css selector", "#calib-points button.calib-delete")[1].click()
             assert len(driver.find_elements("css selector", "#calib-points tbody tr")) == 2
             driver.find_element("id", "calib-start").click()
-            wait_for(lambda: "click at least 4 table points" in text_of(driver, "calib-error"), 30, "the page's refusal")
+            wait_for(lambda: "click at least 4 table points" in text_of(driver, "calib-error"), 30,
+                     "the page's refusal")
             assert rig.call(lambda: rig.coord.job_snapshot()) is None
             # the board way: the job's own refusal, in the page's words (test_page_wording.py: which words)
             driver.find_element("id", "calib-way-board").click()
@@ -171,7 +186,8 @@ def test_the_page_tools_in_a_browser(tmp_path, browser_ready):
             mark = lambda k: driver.execute_script(  # noqa: E731
                 "const td = document.querySelector(`#cues tr[data-index='${arguments[0]}'] .cue-mark`);"
                 "return td ? td.textContent : '';", k)
-            wait_for(lambda: mark(0).startswith("now") and mark(1) == "next", 30, "the first cue current, the next next")
+            wait_for(lambda: mark(0).startswith("now") and mark(1) == "next", 30,
+                     "the first cue current, the second next")
             driver.execute_script("document.getElementById('cues-panel').focus();")
             ActionChains(driver).send_keys(Keys.SPACE).perform()
             wait_for(lambda: rig.call(lambda: rig.coord.cue_state().current) == 1, 30, "the space bar fired GO")
@@ -179,6 +195,13 @@ def test_the_page_tools_in_a_browser(tmp_path, browser_ready):
             click_again_if_redrawn(driver, "#cues tr[data-index='0'] td:nth-child(3)")
             wait_for(lambda: rig.call(lambda: rig.coord.cue_state().current) == 0, 30, "a click on a row jumped")
             wait_for(lambda: "cue jump" in text_of(driver, "actions"), 30, "the fires in the action log")
+            # reordered, then one removed, from the rows' buttons
+            names = lambda: [c.name for c in rig.call(lambda: rig.coord.cue_state().cues)]  # noqa: E731
+            click_again_if_redrawn(driver, "#cues tr[data-index='0'] button.cue-down")
+            wait_for(lambda: names() == ["dark two", "dark one"], 30, "the cues reordered")
+            wait_for(driver.find_element("id", "cue-save").is_enabled, 30, "the cue form's button enabled")
+            click_again_if_redrawn(driver, "#cues tr[data-index='1'] button.cue-remove")
+            wait_for(lambda: names() == ["dark two"], 30, "a cue removed")
             assert "token" in text_of(driver, "actions")
 
             assert broken_images(driver) == []
