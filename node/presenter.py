@@ -28,7 +28,7 @@ import os
 import statistics
 import time
 from collections import deque
-from dataclasses import replace
+from dataclasses import fields, replace
 from typing import Callable, Protocol
 
 import numpy as np
@@ -50,6 +50,28 @@ from node.wire import live_packet_from_bytes
 from protos.blend import BlendMaps
 
 log = logging.getLogger(__name__)
+
+#: the fields of an assignment a blend switch alone changes
+_BLEND_FIELDS = frozenset({"revision", "blend", "blend_at_ns", "blend_error"})
+
+
+def _same_but_blend(a: NodeAssignment, b: NodeAssignment) -> bool:
+    """Whether two assignments differ in their revision and blend alone (arrays compared by value,
+    a mesh by its id)."""
+    for f in fields(NodeAssignment):
+        if f.name in _BLEND_FIELDS:
+            continue
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if not (isinstance(x, np.ndarray) and isinstance(y, np.ndarray) and x.shape == y.shape
+                    and np.array_equal(x, y)):
+                return False
+        elif f.name == "mesh":
+            if (x is None) != (y is None) or (x is not None and x.mesh_id != y.mesh_id):
+                return False
+        elif x != y:
+            return False
+    return True
 
 #: log each swap's distance from its deadline (diagnostics)
 _DEBUG_TIMING = bool(os.environ.get("SHADOWLESS_DEBUG_TIMING"))
@@ -314,7 +336,11 @@ class Presenter:
             log.error("assignment r%d cannot be rendered (%s); this projector shows black until the next one",
                       a.revision, exc)
             renderer.clear_pose()
+        # a failover's push changes the blend alone, for a later instant: the frame on screen is shown
+        # again with the new maps then (_blend_step), not now with the old ones as well
+        blend_later = self.assignment is not None and _same_but_blend(self.assignment, a)
         at_once = self._offer_blend(renderer, a)
+        blend_later = blend_later and not at_once
         self.assignment = a
         # a video asset decodes straight to the content size the homography maps (see fit_frame)
         self.player.content_size = (tuple(a.content_size) if a.pose_kind == "homography" and all(a.content_size)
@@ -323,7 +349,7 @@ class Presenter:
                  "yes" if a.lut is not None else "identity")
         self._send_stats()
         # what is on screen now follows the new assignment at once
-        if self._current is not None:
+        if self._current is not None and not blend_later:
             try:
                 self._render(renderer, self._current)
             except ValueError as exc:

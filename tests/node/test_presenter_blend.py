@@ -126,7 +126,9 @@ def test_a_still_is_shown_again_with_the_maps_at_their_instant(rig):
     assert (rig.shown() == blended(None)).all()
     m = maps(2)
     at = rig.rig_now() + 300 * MS
+    before = rig.out.last_info
     rig.p.handle("assignment", assignment(2, m, at))
+    assert rig.out.last_info is before, "maps due later: the frame is not shown again before their instant"
     wait = rig.p.timeline_wait()
     assert wait is not None and wait == pytest.approx(0.25)        # 50 ms ahead of the instant
     rig.p.timeline_step()                                          # too early: nothing happens
