@@ -6,7 +6,8 @@
 "use strict";
 
 // buttons that change nothing on the rig: a viewer keeps them
-const VIEWER_KEEPS = new Set(["logout", "camera-refresh", "calib-zoom-out", "calib-zoom-in", "calib-zoom-fit"]);
+const VIEWER_KEEPS = new Set(["logout", "camera-refresh", "calib-zoom-out", "calib-zoom-in", "calib-zoom-fit",
+                              "select-all", "select-none"]);   // the layout's selection (layout.js) is the page's own
 const VIEWER_TITLE = "a viewer sees everything and acts on nothing: ask an admin for the operator role";
 let myRole = "";
 let viewerWatch = null;
