@@ -197,9 +197,9 @@ class OscService:
         if address == f"{PREFIX}/timecode":
             self._timecode(args, sender, who)
             return
-        params = {"address": address, "args": [a if isinstance(a, (int, float, str, bool)) else repr(a)
-                                                for a in args][:8]}
-        action = address.removeprefix(PREFIX + "/") if address.startswith(PREFIX + "/") else address[:80]
+        params = {"address": address[:200], "args": [a[:200] if isinstance(a, str) else a if isinstance(
+            a, (int, float, bool)) else repr(a)[:200] for a in args[:8]]}
+        action = address.removeprefix(PREFIX + "/")[:80] if address.startswith(PREFIX + "/") else address[:80]
         try:
             result = commands.run(self.coord, address, args, who=who)
         except (commands.OscError, ValueError) as exc:
