@@ -121,7 +121,8 @@ def _fmt(v, nd: int = 3) -> str:
 
 def calibrate_report(result: dict) -> str:
     if not result.get("slots") and not result.get("failed"):
-        cams = ", ".join(f"camera {c['camera']} ({_fmt(c.get('table_rms_px'))} px)" for c in result.get("camera_setup", []))
+        cams = ", ".join(f"camera {c['camera']} (fit residual {_fmt(c.get('table_rms_px'))} px rms)"
+                         for c in result.get("camera_setup", []))
         return f"table mapped and saved: {cams}; remove any board from the table, then run `shadowless calibrate` again"
     lines = [f"calibration run {result.get('run')}: {result.get('mode')} mode on the {result.get('surface')}, "
              f"{result.get('captures')} captures in {_fmt(result.get('wall_s'), 1)} s"
