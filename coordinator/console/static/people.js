@@ -5,7 +5,7 @@
 // first), whose helpers ($, el, clear, api, postJSON, showLogin) it uses.
 "use strict";
 
-// buttons that change nothing on the rig: a viewer keeps them
+// buttons that change nothing on the rig: a viewer keeps them (as any button marked data-viewer="keep")
 const VIEWER_KEEPS = new Set(["logout", "camera-refresh", "calib-zoom-out", "calib-zoom-in", "calib-zoom-fit",
                               "select-all", "select-none"]);   // the layout's selection (layout.js) is the page's own
 const VIEWER_TITLE = "a viewer sees everything and acts on nothing: ask an admin for the operator role";
@@ -20,7 +20,7 @@ function loginBody() {
 }
 
 function lockButton(b) {
-  if (VIEWER_KEEPS.has(b.id) || b.dataset.viewerLocked) return;
+  if (VIEWER_KEEPS.has(b.id) || b.dataset.viewer === "keep" || b.dataset.viewerLocked) return;
   b.dataset.viewerLocked = "1";
   b.disabled = true;
   b.title = VIEWER_TITLE;
