@@ -44,8 +44,9 @@ def _alarm(level: str, kind: str, text: str, *, slots: list[str] | None = None,
 def health_view(status: RigStatus, *, now: float | None = None) -> dict[str, Any]:
     """The banner's data: ``level`` ("ok", "warn", "alarm": the worst alarm's), ``counts``,
     ``alarms`` (worst first; each ``level``, ``kind``, one line of ``text``, the ``slots`` it is
-    about and ``since``, a Unix time or None), the ``unposed_warning`` line (as the command line
-    prints it) and each slot's identify ``marks`` (number and colour)."""
+    about and ``since``, a Unix time or None; a solo, a test pattern or name cards on the
+    projectors are a warning too), the ``unposed_warning`` line (as the command line prints it)
+    and each slot's identify ``marks`` (number and colour)."""
     now = time.time() if now is None else now
     nodes = status.nodes
     by_state = {s: [n for n in nodes if n.state == s] for s in NodeState}
@@ -118,6 +119,15 @@ def health_view(status: RigStatus, *, now: float | None = None) -> dict[str, Any
         alarms.append(_alarm("warn", "refusals", f"{_plural(total, 'refusal')} in the last 5 min, the newest from "
                              f"{newest.peer}{' for ' + newest.slot if newest.slot else ''}: {newest.reason}",
                              slots=sorted({r.slot for r in recent if r.slot}), since=now - newest.age_s))
+
+    # the operator's own tools leave projectors dark or showing what the audience should not see
+    showing = status.showing
+    if showing.startswith("solo "):
+        alarms.append(_alarm("warn", "solo", f"{showing} (the others are black: End solo, or the next show, ends it)"))
+    elif showing.startswith("test pattern "):
+        alarms.append(_alarm("warn", "pattern", f"{showing} (Stop or the next show ends it)"))
+    elif showing == "slot names (identify)":
+        alarms.append(_alarm("warn", "identify", "every projector shows its name card (Stop or the next show ends it)"))
 
     alarms.sort(key=lambda a: -LEVELS.index(a["level"]))
     level = alarms[0]["level"] if alarms else "ok"

@@ -137,5 +137,7 @@ def test_health_view_names_what_needs_the_operator():
     assert "1 refusal in the last 5 min" in by_kind["refusals"]["text"]
     assert "3 projectors cover its footprint" in by_kind["failover"]["text"]
     assert h["unposed_warning"].startswith("1 slot has no pose and shows black: r1c3")
-    calm = health_view(RigStatus(rig_id="x", rig_name="x", nodes=(nodes[0],)), now=now)
+    calm = health_view(RigStatus(rig_id="x", rig_name="x", nodes=(nodes[0],), showing="show grey card"), now=now)
     assert calm["level"] == "ok" and calm["alarms"] == []
+    solo = health_view(RigStatus(rig_id="x", rig_name="x", nodes=(nodes[0],), showing="solo r1c1: show grey card"))
+    assert solo["level"] == "warn" and solo["alarms"][0]["kind"] == "solo"
