@@ -23,9 +23,10 @@ def console_lines(url: str, rig_dir: Path) -> list[str]:
 
 
 async def hold(lines: list[str], *, then: str = "every process stops", stream: TextIO | None = None) -> str:
-    """Print ``lines`` and a last one saying how to stop and what happens ``then``, then wait for SIGINT or SIGTERM; returns the
-    signal's name. The signals are this coroutine's only while it waits (the loop's handlers are
-    removed afterwards, so a second Ctrl-C during the clean-up interrupts as usual)."""
+    """Print ``lines`` and a last one saying how to stop and what happens ``then``, then wait for
+    SIGINT or SIGTERM; returns the signal's name. The signals are this coroutine's only while it waits: the handlers the process had
+    before (a second Ctrl-C interrupts the clean-up as usual; SIGTERM still runs
+    :mod:`shadowless.exit_cleanup`) are put back afterwards."""
     out = stream or sys.stderr
     loop = asyncio.get_running_loop()
     got = loop.create_future()
@@ -34,7 +35,8 @@ async def hold(lines: list[str], *, then: str = "every process stops", stream: T
         if not got.done():
             got.set_result(sig.name)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    for sig in before:
         loop.add_signal_handler(sig, on, sig)
     try:
         for line in lines:
@@ -42,7 +44,8 @@ async def hold(lines: list[str], *, then: str = "every process stops", stream: T
         print(f"the rig stays up until Ctrl-C (or SIGTERM); then {then}", file=out, flush=True)
         name = await got
     finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig, handler in before.items():     # the process's own again (its clean-up on SIGTERM among them)
             loop.remove_signal_handler(sig)
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
     print(f"{name}: stopping the rig", file=out, flush=True)
     return name
