@@ -13,8 +13,9 @@ written atomically (a temp file renamed over it, mode 0600, like the token) unde
 lock (``.users.lock``), so two ``shadowless rig user`` commands never lose each other's change,
 and a coordinator reading it never sees half a file. A :class:`UserStore` re-reads the file
 whenever it changed on disk (its size, inode or modification time), so a running coordinator
-applies a change made from the command line at the next request: a removed user's sessions end,
-a new role holds at once, a new password at the next login.
+applies a change made from the command line at the next request: a new role holds at once; a
+removed user's sessions end, and so do a user's sessions opened before their password was set
+(or before their name was given to someone new).
 
 Names are 1-32 characters: letters, digits, ``_``, ``.``, ``-`` and ``@``, starting with a letter
 or a digit; they are kept in lower case (``Alice`` and ``alice`` are one person). ``token`` is
@@ -156,16 +157,23 @@ def _dummy_hash() -> str:
 
 @dataclass(frozen=True)
 class User:
-    """One person: their name, role, and when the entry was made and last changed (UTC, ISO 8601)."""
+    """One person: their name, role, when the entry was made and last changed, and when its
+    password was set (UTC, ISO 8601; a console session opened before that ends)."""
 
     name: str
     role: Role
     created: str = ""
     changed: str = ""
+    password_set: str = ""
 
 
 def _now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _now_iso_us() -> str:
+    """Now to the microsecond: what tells one setting of a password (or one user of a name) from the next."""
+    return datetime.now(timezone.utc).isoformat(timespec="microseconds")
 
 
 class UserStore:
@@ -238,10 +246,20 @@ class UserStore:
         self._fresh()
         return self._error
 
+    @staticmethod
+    def _user(name: str, e: dict) -> User:
+        return User(name, Role(e["role"]), e.get("created", ""), e.get("changed", ""),
+                    e.get("password_set", e.get("created", "")))
+
     def list(self) -> list[User]:
         """Every user, by name."""
-        return [User(n, Role(e["role"]), e.get("created", ""), e.get("changed", ""))
-                for n, e in sorted(self._fresh().items())]
+        return [self._user(n, e) for n, e in sorted(self._fresh().items())]
+
+    def get(self, name: str) -> User | None:
+        """The user ``name`` as stored now, or None."""
+        key = name.strip().lower() if isinstance(name, str) else ""
+        e = self._fresh().get(key)
+        return self._user(key, e) if e else None
 
     def __len__(self) -> int:
         return len(self._fresh())
@@ -287,8 +305,8 @@ class UserStore:
                                 f"`shadowless rig user role {name} ROLE` or `... user password {name}`")
             if len(users) >= MAX_USERS:
                 raise UserError(f"a rig holds at most {MAX_USERS} users; remove one first")
-            now = _now_iso()
-            users[name] = {"role": role.value, "hash": digest, "created": now, "changed": now}
+            now = _now_iso_us()
+            users[name] = {"role": role.value, "hash": digest, "created": now, "changed": now, "password_set": now}
             return f"added {name} ({role})"
         return self._change(change)
 
@@ -321,6 +339,7 @@ class UserStore:
         def change(users: dict) -> str:
             if name not in users:
                 raise UserError(f"no user {name!r}; add one with `shadowless rig user add {name}`")
-            users[name] = {**users[name], "hash": digest, "changed": _now_iso()}
+            now = _now_iso_us()
+            users[name] = {**users[name], "hash": digest, "changed": now, "password_set": now}
             return f"new password for {name}"
         return self._change(change)

@@ -2,8 +2,8 @@
 
 Works on the rig directory itself (``users.json``, :mod:`coordinator.users`), so it needs no
 running coordinator; one that serves the rig re-reads the file when it changes, so a new user
-may log in at once, a changed role or a removal holds at that user's next request, and a new
-password at their next login. Each command says which of these applies.
+may log in at once, and a changed role, a removal or a new password holds at that user's next
+request (a removal or a new password ends their open sessions). Each command says which of these applies.
 """
 from __future__ import annotations
 
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{said}; {_served(path, 'at their next request')}")
         else:
             said = store.set_password(args.name, _password(args.password_file))
-            print(f"{said}; {_served(path, 'at their next login (open sessions stay)')}")
+            print(f"{said}; {_served(path, 'at once: their open sessions end')}")
         return 0
     except BrokenPipeError:
         raise

@@ -147,10 +147,12 @@ class ConsoleApp:
 
     def role_now(self, session: auth.Session) -> Role | None:
         """The role ``session``'s person holds now (users.json is re-read when it changed): a
-        token login is an admin; None when the user was removed."""
+        token login is an admin; None when the user was removed, or their password set again
+        since this session's login."""
         if session.who == TOKEN_WHO:
             return Role.ADMIN
-        return self.users.role_of(session.who)
+        user = self.users.get(session.who)
+        return user.role if user is not None and user.password_set == session.stamp else None
 
     def guard(self, handler: Callable[[web.Request, auth.Session], Awaitable[web.StreamResponse]], *,
               role: str | None = None):
@@ -172,7 +174,8 @@ class ConsoleApp:
             now = self.role_now(session)
             if now is None:
                 self.sessions.close(session.sid)
-                raise _error(web.HTTPUnauthorized, f"user {session.who} no longer exists on this rig: log in again")
+                raise _error(web.HTTPUnauthorized, f"log in again: user {session.who} was removed or given a new "
+                                                   "password")
             session.role = now.value
             need = fixed or (Role.OPERATOR if request.method == "POST" else Role.VIEWER)
             if not now.allows(need):
@@ -258,7 +261,8 @@ class ConsoleApp:
                 raise _error(web.HTTPUnauthorized, "wrong token: paste the rig's token (the file `token` in the rig "
                                                    "directory), or log in with your name and password")
             self.limiter.succeeded(address, device, name)
-        session = self.sessions.open(address, who=who, role=role.value)
+        user = self.users.get(who) if name is not None else None
+        session = self.sessions.open(address, who=who, role=role.value, stamp=user.password_set if user else "")
         await self.audit.record(who=session.who, address=address, action="login", ok=True,
                                 result=f"logged in as {role}")
         self.live.poke()

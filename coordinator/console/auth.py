@@ -93,6 +93,8 @@ class Session:
     last_used: float
     who: str = "token"
     role: str = "admin"
+    #: when the user's password was set at login (their sessions end when it is set again)
+    stamp: str = ""
 
 
 @dataclass
@@ -103,14 +105,14 @@ class Sessions:
     clock: Callable[[], float] = time.monotonic
     _by_id: dict[str, Session] = field(default_factory=dict)
 
-    def open(self, address: str, *, who: str = "token", role: str = "admin") -> Session:
+    def open(self, address: str, *, who: str = "token", role: str = "admin", stamp: str = "") -> Session:
         self.expire()
         while len(self._by_id) >= MAX_SESSIONS:
             oldest = min(self._by_id.values(), key=lambda s: s.last_used)
             del self._by_id[oldest.sid]
         now = self.clock()
         s = Session(sid=secrets.token_urlsafe(32), csrf=secrets.token_urlsafe(32), address=address, created=now,
-                    last_used=now, who=who, role=role)
+                    last_used=now, who=who, role=role, stamp=stamp)
         self._by_id[s.sid] = s
         return s
 

@@ -1,8 +1,9 @@
 """People, not sessions: console logins by name and password with roles, against a real coordinator
 in this process. A viewer sees and is refused every action (403, one line, nothing changed, the
-refusal logged with their name); an operator acts and the action log names them; a role changed or
-a user removed on the command line's side (the store) holds at the next request; only admins list
-the users; failed logins are limited per user name across addresses."""
+refusal logged with their name); an operator acts and the action log names them; a role changed,
+a user removed or a password set again on the command line's side (the store) holds at the next
+request; only admins list and manage the users; failed logins are limited per user name across
+addresses."""
 from __future__ import annotations
 
 import asyncio
@@ -85,7 +86,7 @@ def test_roles_decide_who_acts_and_the_log_names_them(tmp_path):
                 assert r.status == 200 and entries()[-1]["who"] == "vera"
                 store.remove("otto")
                 r = await s.get(base + "/api/status", headers=operator)
-                assert r.status == 401 and "no longer exists" in (await r.json())["error"]
+                assert r.status == 401 and "log in again" in (await r.json())["error"]
 
                 admin, doc = await _login(s, base, {"token": TOKEN.decode()})
                 assert (doc["who"], doc["role"]) == ("token", "admin")
@@ -113,7 +114,11 @@ def test_roles_decide_who_acts_and_the_log_names_them(tmp_path):
                 _, doc = await _login(s, base, {"name": "vera", "password": "not it at all"}, status=401)
                 assert doc["error"].startswith("wrong name or password")
                 assert "not it at all" not in log_file.read_text()
-                r = await s.post(base + "/logout", headers=viewer)
+                # a new password ends the sessions opened with the old one
+                store.set_password("vera", PW + "!")
+                r = await s.get(base + "/api/status", headers=viewer)
+                assert r.status == 401
+                r = await s.post(base + "/logout", headers=admin)
                 assert r.status == 200
         finally:
             await app.stop()
