@@ -440,7 +440,8 @@ def _switch_timing(live: Live, since: list[int], declared_ns: int, show: str, pe
         return {}
     slack = 1_000_000 if show == "still" else period_ns
     late = [s - at for s in since if s - at > slack]
-    return {"switch_lead_ms": _r(state.lead_ns / 1e6, 3), "instant_after_declared_ms": _r((at - declared_ns) / 1e6, 2),
+    lead = getattr(state, "last_lead_ns", None) or getattr(state, "lead_ns", 0) or 0
+    return {"switch_lead_ms": _r(lead / 1e6, 3), "lead_setting": "auto" if getattr(state, "lead_ns", 1) is None else "fixed", "instant_after_declared_ms": _r((at - declared_ns) / 1e6, 2),
             "late_nodes": len(late), "nodes_switched": len(since),
             "last_after_instant_ms": _r((max(since) - at) / 1e6, 2),
             "late_after_instant_ms": sorted(_r(v / 1e6, 1) for v in late)}

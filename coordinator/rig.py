@@ -183,8 +183,9 @@ class BlendConfig:
     headroom: float | None = None
     watchdog: bool = True
     watchdog_interval_s: float = 1.0
-    #: how far ahead of now a failover's new maps take effect on every node at once (ms)
-    switch_lead_ms: float = 30.0
+    #: how far ahead of now a failover's new maps take effect on every node at once (ms); None: "auto"
+    #: (:func:`coordinator.blending.state.auto_lead_ns`, from the bytes the switch pushes)
+    switch_lead_ms: float | None = None
 
 
 @dataclass(frozen=True)
@@ -233,7 +234,8 @@ def parse_config(text: str, *, source: str = "rig.toml") -> RigConfig:
         latency_ms=doc.latency_ms, heartbeat_ms=hb, lost_after_ms=lost, cameras=tuple(doc.cameras),
         blend=BlendConfig(headroom=None if doc.blend.headroom == "auto" else float(doc.blend.headroom),
                           watchdog=doc.blend.watchdog, watchdog_interval_s=doc.blend.watchdog_interval_s,
-                          switch_lead_ms=doc.blend.switch_lead_ms),
+                          switch_lead_ms=(None if doc.blend.switch_lead_ms == "auto"
+                                          else float(doc.blend.switch_lead_ms))),
     )
 
 

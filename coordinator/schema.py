@@ -187,6 +187,13 @@ def _headroom(v: object, info: ValidationInfo) -> str | float:
                      f"in reserve for failover), got {v!r}")
 
 
+def _switch_lead(v: object, info: ValidationInfo) -> str | float:
+    if v == "auto" or (is_number(v) and 1.0 <= float(v) <= 1000.0):
+        return v if v == "auto" else float(v)
+    raise ValueError(f"switch_lead_ms must be \"auto\" or a number of ms in 1..1000 (how far ahead a failover's "
+                     f"new maps are set), got {v!r}")
+
+
 def _flag(v: object, info: ValidationInfo) -> bool:
     if not isinstance(v, bool):
         raise ValueError(f"{info.field_name} must be true or false, got {v!r}")
@@ -203,8 +210,8 @@ class BlendDoc(_Strict):
     headroom: Annotated[str | float, BeforeValidator(_headroom)] = "auto"
     watchdog: Annotated[bool, BeforeValidator(_flag)] = True
     watchdog_interval_s: Annotated[float, _num_in(0.2, 86_400)] = 1.0
-    #: how far ahead a failover's switch of maps is set (ms): the push to every node and one texture upload
-    switch_lead_ms: Annotated[float, _num_in(1, 1000)] = 30.0
+    #: how far ahead a failover's switch of maps is set (ms), or "auto": from the bytes it pushes
+    switch_lead_ms: Annotated[str | float, BeforeValidator(_switch_lead)] = "auto"
 
 
 class RigToml(_Strict):

@@ -8,9 +8,10 @@ job succeeds (it follows the :class:`~coordinator.jobs.tracker.JobTracker`). The
 when a node is lost and when one is live again, and the watchdog when a lamp changed; each
 changes the wanted *variant* (:mod:`coordinator.blending.failover`), and the slots switch to it
 together: every changed slot gets its maps with one common rig-clock instant, a lead ahead (rig.toml's
-``[blend] switch_lead_ms``: what pushing the maps to every node and a node's upload of them take, far
-less than the content's latency budget), so every node shows the new maps from the same swap on; a
-node that hears of them after that instant shows them from its next frame. One log line per switch.
+``[blend] switch_lead_ms``; by default :func:`auto_lead_ns`: what pushing the maps to every node and
+a node's taking them take, far less than the content's latency budget for small maps, more for
+1080p maps to 25 nodes), so every node shows the new maps from the same swap on; a node that hears
+of them after that instant shows them from its next frame. One log line per switch.
 A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
 compressed is inflated there).
 """
@@ -29,7 +30,7 @@ from coordinator.rig import Rig
 from imaging.blending.contributions import Contributions
 from imaging.blending.errors import BlendError
 
-__all__ = ["BlendState", "DEAD_GAIN", "age_text"]
+__all__ = ["BlendState", "DEAD_GAIN", "age_text", "auto_lead_ns", "wire_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +38,23 @@ log = logging.getLogger(__name__)
 KEPT_ENOUGH = 0.99
 #: after a switch's instant, how long before the variants one more loss away are computed (s)
 AHEAD_AFTER_SWITCH_S = 0.5
+#: the automatic switch lead: a node's share (the assignment through its session core and presenter,
+#: one texture upload, the frame on screen rendered again), and the link the maps are pushed over
+AUTO_LEAD_BASE_NS = 20_000_000
+AUTO_LEAD_LINK_BITS_PER_S = 1e9
+
+
+def auto_lead_ns(wire_bytes: int) -> int:
+    """The switch lead when rig.toml does not set one: :data:`AUTO_LEAD_BASE_NS` plus the time the
+    switch's maps (``wire_bytes``, float16, every changed slot's) take on a 1 Gbit/s link from the
+    coordinator (a 1080p rig's maps are about 1 MB a projector: 25 of them add 200 ms)."""
+    return AUTO_LEAD_BASE_NS + int(wire_bytes * 8 / AUTO_LEAD_LINK_BITS_PER_S * 1e9)
+
+
+def wire_bytes(maps) -> int:
+    """What a slot's maps weigh on the wire: float16 alpha (3 channels) and beta per texel."""
+    w, h = maps.size
+    return w * h * 8
 
 
 def age_text(seconds: float) -> str:
@@ -62,20 +80,22 @@ class BlendState:
         slot's new assignment to its node.
     clock_ns : callable
         The rig clock (ns).
-    lead_ns : int
-        How far ahead of now a switch takes effect (rig.toml's ``[blend] switch_lead_ms``).
+    lead_ns : int or None
+        How far ahead of now a switch takes effect (rig.toml's ``[blend] switch_lead_ms``); None:
+        :func:`auto_lead_ns` of the maps each switch pushes.
     wall_clock : callable
         Unix seconds (the status's times).
     budget_bytes : int
         What the variants computed ahead may hold.
     """
 
-    def __init__(self, rig: Rig, *, update_slot: Callable[..., Any], clock_ns: Callable[[], int], lead_ns: int,
+    def __init__(self, rig: Rig, *, update_slot: Callable[..., Any], clock_ns: Callable[[], int], lead_ns: int | None,
                  wall_clock: Callable[[], float] = time.time, budget_bytes: int = MAX_PRECOMPUTED_BYTES):
         self.rig = rig
         self._update_slot = update_slot
         self.clock_ns = clock_ns
-        self.lead_ns = int(lead_ns)
+        self.lead_ns = None if lead_ns is None else int(lead_ns)
+        self.last_lead_ns = 0                  # the lead of the last switch
         self.wall_clock = wall_clock
         self.budget_bytes = budget_bytes
         self.stored: StoredBlend | None = None
@@ -289,8 +309,7 @@ class BlendState:
         log.error("blend: cannot re-blend for %s: %s; the projectors keep their maps", _describe_key(key), why)
 
     def _switch(self, v: Variant, *, force: bool = False) -> None:
-        at = self.clock_ns() + self.lead_ns
-        changed = 0
+        todo = []
         for slot, maps in v.maps.items():
             if slot not in self.rig.slots:
                 continue
@@ -298,8 +317,13 @@ class BlendState:
             same = st.blend is not None and st.blend.blend_id == maps.blend_id
             if same and not force:
                 continue
+            todo.append((slot, maps))
+        lead = self.lead_ns if self.lead_ns is not None else auto_lead_ns(sum(wire_bytes(m) for _, m in todo))
+        self.last_lead_ns = lead
+        at = self.clock_ns() + lead
+        for slot, maps in todo:
             self._update_slot(slot, blend=maps, blend_at_ns=at, source="blend")
-            changed += 1
+        changed = len(todo)
         self.applied = v.key
         if changed:     # a switch that changed no slot puts nothing new on screen to wait for
             self.switched_at_ns = at

@@ -1,5 +1,6 @@
 """Failover's switch lead and the maps it holds ahead: rig.toml's ``[blend] switch_lead_ms`` is the
-lead of a switch (not the content's latency budget) and a bad one is one line; the single-loss
+lead of a switch (not the content's latency budget; by default from the bytes the switch pushes) and
+a bad one is one line; the single-loss
 maps computed ahead are held as their float16 wire encoding, the first ready to push and the rest
 compressed within the budget, the likeliest loss first; a loss whose maps are held compressed
 switches once they are inflated, to exactly the maps computed directly."""
@@ -69,10 +70,14 @@ def test_a_switch_lead_outside_1_to_1000_ms_is_one_line_and_changes_nothing(tmp_
 
 def test_the_switch_lead_is_its_own_setting_not_the_latency_budget(tmp_path):
     path = init_rig(tmp_path / "rig", name="lead", slots=["a"], width=32, height=32, latency_ms=80)
-    assert Rig(path).config.blend.switch_lead_ms == 30.0          # the default
-    (path / "rig.toml").write_text((path / "rig.toml").read_text() + "\n[blend]\nswitch_lead_ms = 12.5\n")
+    assert Rig(path).config.blend.switch_lead_ms is None          # the default: "auto"
+    assert Coordinator(Rig(path), b"t" * 32, encoding=Packets).blending.lead_ns is None
+    good = (path / "rig.toml").read_text()
+    (path / "rig.toml").write_text(good + "\n[blend]\nswitch_lead_ms = 12.5\n")
     coord = Coordinator(Rig(path), b"t" * 32, encoding=Packets)
     assert coord.latency_ns == 80_000_000 and coord.blending.lead_ns == 12_500_000
+    (path / "rig.toml").write_text(good + '\n[blend]\nswitch_lead_ms = "auto"\n')
+    assert Rig(path).config.blend.switch_lead_ms is None
 
 
 def test_losses_ahead_are_held_packed_within_the_budget_and_a_compressed_one_switches_to_the_maps_computed_directly(
@@ -90,7 +95,7 @@ def test_losses_ahead_are_held_packed_within_the_budget_and_a_compressed_one_swi
         return rig.update_slot(slot, **kw)
 
     async def go():
-        state = BlendState(rig, update_slot=update_slot, clock_ns=lambda: now[0], lead_ns=7_000_000,
+        state = BlendState(rig, update_slot=update_slot, clock_ns=lambda: now[0], lead_ns=None,
                            budget_bytes=budget)
         state.load()
         # the likeliest loss first (a node lost before in this run), then each other one once
@@ -114,7 +119,10 @@ def test_losses_ahead_are_held_packed_within_the_budget_and_a_compressed_one_swi
         pushed.clear()
         state.node_lost(victim)
         await state.settled()
-        assert sorted(pushed) == SLOTS and {rig.slot(s).blend_at_ns for s in SLOTS} == {now[0] + 7_000_000}
+        # the automatic lead: 20 ms and the pushed maps' float16 bytes at 1 Gbit/s (two maps of 80x45
+        # texels at 8 bytes each, and the lost slot's black 1x1)
+        lead = 20_000_000 + (2 * 80 * 45 * 8 + 8) * 8
+        assert sorted(pushed) == SLOTS and {rig.slot(s).blend_at_ns for s in SLOTS} == {now[0] + lead}
         assert rig.slot(victim).blend is BLACK_MAPS
         for s in SLOTS:
             if s != victim:

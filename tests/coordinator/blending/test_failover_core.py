@@ -97,7 +97,7 @@ def test_a_lost_node_switches_the_others_at_one_instant_and_its_return_switches_
             # in the same call, every slot switched, the same instant a switch lead ahead
             after = {s: rig.slot(s) for s in slots}
             assert all(after[s].revision == revisions[s] + 1 for s in slots)
-            assert {after[s].blend_at_ns for s in slots} == {now[0] + coord.blending.lead_ns}
+            assert {after[s].blend_at_ns for s in slots} == {now[0] + coord.blending.last_lead_ns}
             assert after["r0c1"].blend is BLACK_MAPS
             assert all(after[s].blend.blend_id != stored[s].blend_id for s in slots if s != "r0c1")
             assert [r.getMessage().split(" from rig")[0] for r in caplog.records if "take over" in r.getMessage()] == \
@@ -128,7 +128,7 @@ def test_a_lost_node_switches_the_others_at_one_instant_and_its_return_switches_
             assert rig.slot("r0c1").blend is BLACK_MAPS        # live, but the still not on its screen yet
             coord.on_report(back, Report(swaps=Swaps.of([(1, now[0], now[0])])))
             assert {s: rig.slot(s).blend.blend_id for s in slots} == {s: stored[s].blend_id for s in slots}
-            assert {rig.slot(s).blend_at_ns for s in slots} == {now[0] + coord.blending.lead_ns}
+            assert {rig.slot(s).blend_at_ns for s in slots} == {now[0] + coord.blending.last_lead_ns}
             assert coord.blend_status().state == "blended"
 
             # two lost at once: computed on demand in a worker thread, then switched
