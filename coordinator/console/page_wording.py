@@ -32,7 +32,9 @@ PAGE_HINTS: dict[tuple[str, str], str] = {
         "table and type where each lies in mm; or choose “the ChArUco board lying on the table”.",
 }
 
-_FLAG = re.compile(r"--(no-)?([a-z][a-z0-9]*(?:-[a-z0-9]+)*)(?:[ =](?!--)([^\s,;)]+))?")
+#: a flag and, when one follows, its value: a token that looks like one (a number, a path, a file
+#: name, a size such as 4x4, a metavar such as N), not a plain word or a bracket of text
+_FLAG = re.compile(r"--(no-)?([a-z][a-z0-9]*(?:-[a-z0-9]+)*)(?:[ =](?!--)(?![(\[])([^\s,;)]*[0-9./:A-Z_][^\s,;)]*))?")
 _NAME = re.compile(r"(?<![\w\-\[.])([a-z][a-z0-9]*(?:_[a-z0-9]+)+)(?![\w\-])(?!\s*=)")
 
 
@@ -79,6 +81,12 @@ def reword(text: str, fields: Iterable[Mapping[str, Any]]) -> str:
     out.append(text[pos:])
     text = "".join(out)
     return _NAME.sub(lambda m: f"“{names[m.group(1)]['label']}”" if m.group(1) in names else m.group(1), text)
+
+
+def helps_for_the_page(fields: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A job's form fields (:func:`~coordinator.jobs.options.form_fields`) with their help texts
+    reworded as :func:`reword` does (``--no-table`` -> "Use table" unticked)."""
+    return [{**f, "help": reword(f["help"], fields)} for f in fields]
 
 
 def for_the_page(kind: str | None, text: str | None) -> str | None:
