@@ -59,6 +59,13 @@
     return m || { number: "", colour: "#888888" };
   }
 
+  // a slot out of the blend (node lost, or a lamp the watchdog named) says so, with its lamp's gain
+  function note(s, slot) {
+    const lamp = ((s.blend && s.blend.lamps) || []).find((l) => l.slot === slot);
+    const out = ((s.blend && s.blend.lost) || []).includes(slot);
+    return (lamp ? `, lamp at ${fmt(lamp.gain, 2)}` : "") + (out ? ", out of the blend" : "");
+  }
+
   function centre(fp) {
     return [fp.reduce((a, p) => a + p[0], 0) / fp.length, fp.reduce((a, p) => a + p[1], 0) / fp.length];
   }
@@ -126,7 +133,7 @@
       f.polygon.setAttribute("points", n.footprint.map(([x, y]) => `${x},${y}`).join(" "));
       // the colour Identify puts on that projector (a style: the state's colour comes from the style sheet)
       f.polygon.style.fill = on || hot ? mark(s, n.slot).colour : "";
-      f.title.textContent = `${mark(s, n.slot).number} ${n.slot}: ${n.state}${out.has(n.slot) ? ", out of the blend" : ""}`;
+      f.title.textContent = `${mark(s, n.slot).number} ${n.slot}: ${n.state}${note(s, n.slot)}`;
       if (on || hot) {
         const [cx, cy] = centre(n.footprint);
         labels.push(svgEl("text", { class: "fp-label fp-name", x: cx, y: cy, "font-size": fontSize, "data-slot": n.slot },
@@ -163,7 +170,7 @@
       it.sw.style.backgroundColor = mk.colour;
       it.num.textContent = mk.number;
       it.st.setAttribute("class", `slot-state state-${n.state}`);
-      it.st.textContent = n.state + (n.footprint ? "" : ", no pose") + (out.has(n.slot) ? ", out of the blend" : "");
+      it.st.textContent = n.state + (n.footprint ? "" : ", no pose") + note(s, n.slot);
       if (it.li.parentNode !== list) list.appendChild(it.li);
     }
   }
@@ -185,7 +192,7 @@
         unposed.appendChild(tile);
       }
       tile.setAttribute("class", `tile state-${n.state}${out.has(n.slot) ? " out-of-blend" : ""}${selected.has(n.slot) ? " selected" : ""}`);
-      tile.setAttribute("title", `${n.state}${out.has(n.slot) ? ", out of the blend" : ""}`);
+      tile.setAttribute("title", `${n.state}${note(s, n.slot)}`);
     }
   }
 
