@@ -453,15 +453,14 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
             out["coordinator_cpu_ms_per_s_page_open"] = _cpu_ms_per_s(args.cpu_seconds)
             out["console_cpu_percent_of_core"] = round(
                 (out["coordinator_cpu_ms_per_s_page_open"] - out["coordinator_cpu_ms_per_s_page_closed"]) / 10.0, 2)
+            # cues: GO until every projector swaps; a crossfade's skew across the nodes (bench/console_cues.py)
+            if args.cue_rounds > 0:
+                out.update(cue_figures(rig, slots, rounds=args.cue_rounds, fade_s=args.cue_fade))
             out.update(play_figures(rig, driver, slots, args.thumbnail_seconds))
             rig.call(lambda: rig.coord.play_sequence(None, PlaySettings(fps=30, pattern="counter", frames=150, wait=False)))
             time.sleep(2.5)
             driver.save_screenshot(str(screenshot))
             out["screenshot"] = str(screenshot)
-
-            # cues: GO until every projector swaps; a crossfade's skew across the nodes (bench/console_cues.py)
-            if args.cue_rounds > 0:
-                out.update(cue_figures(rig, slots, rounds=args.cue_rounds, fade_s=args.cue_fade))
 
             # a node killed until the page shows it lost
             lost = []

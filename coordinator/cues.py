@@ -42,7 +42,7 @@ from protos.store import atomic_write_json
 log = logging.getLogger(__name__)
 
 CUES_FILE = "cues.json"
-#: decoded still assets kept for the next fire (each one content-sized image)
+#: stills kept ready for the next fire (decoded, fitted and encoded; each one content-sized image)
 KEEP_STILLS = 4
 
 
@@ -206,11 +206,11 @@ class CueEngine:
             if content is None:
                 raise CueError(f"cue {cue.id}: the rig has no content yet (show an image with --persist first, "
                                "or name a still asset)")
-            return self._show_still(lambda: content, tag, others, fade_ns)
+            return self._show_still(f"content:{content.content_id}", lambda: content, tag, others, fade_ns)
         asset_id = core.distribution.store.resolve(cue.target)      # AssetError names what there is
         m = core._manifest(asset_id)
         if m.kind == "still":
-            return self._show_still(lambda: self._still(asset_id, m), tag, others, fade_ns)
+            return self._show_still(asset_id, lambda: self._still(asset_id, m), tag, others, fade_ns)
         if cue.kind == "still":
             raise CueError(f"cue {cue.id}: asset {cue.target!r} is a {m.kind}, not a still: make it an asset cue")
         if cue.slots:
@@ -221,11 +221,17 @@ class CueEngine:
             return st.anchor_ns
         return play
 
-    def _show_still(self, content: Callable[[], Content], tag: str, others, fade_ns: int):
+    def _show_still(self, key: str, content: Callable[[], Content], tag: str, others, fade_ns: int):
         core = self.core
 
         async def show():
-            prepared = await asyncio.to_thread(lambda: core.prepare_still(content()))
+            prepared = self._stills.get(key)
+            if prepared is None:      # decoded, fitted and encoded once, off the event loop
+                prepared = await asyncio.to_thread(lambda: core.prepare_still(content()))
+                self._stills[key] = prepared
+                while len(self._stills) > KEEP_STILLS:
+                    self._stills.popitem(last=False)
+            self._stills.move_to_end(key)
             self._hand_over(fade_ns)
             return core.playback.show(prepared, tag=tag, slot_contents=others, fade_ns=fade_ns).pts_ns
         return show
@@ -238,19 +244,11 @@ class CueEngine:
             show.stop(at_ns=self.core.clock_ns() + self.core.latency_ns)
 
     def _still(self, asset_id: str, manifest) -> Content:
-        """A still asset as content (blocking: called in a worker thread); the last few are kept."""
-        got = self._stills.get(asset_id)
-        if got is not None:
-            self._stills.move_to_end(asset_id)
-            return got
+        """A still asset as content (blocking: called in a worker thread)."""
         from coordinator.image_decode import read_image_file
 
         path = self.core.distribution.store.blob_path(manifest.blobs[0].sha256)
-        content = Content(read_image_file(path), name=manifest.name or asset_id[:12])
-        self._stills[asset_id] = content
-        while len(self._stills) > KEEP_STILLS:
-            self._stills.popitem(last=False)
-        return content
+        return Content(read_image_file(path), name=manifest.name or asset_id[:12])
 
     def _asset_kind(self, key: str) -> str | None:
         try:
