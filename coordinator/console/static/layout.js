@@ -2,13 +2,14 @@
 // normal case: many projectors covering one table). A list of the slots sits beside the drawing;
 // clicking a slot there or its footprint selects it: the selected footprints are drawn on top in
 // their identify colour (the colour and number `Identify` puts on that projector), the others
-// fade, and only the selected and the hovered carry a label. The tools act on the selection:
+// fade, and only the selected (up to six) and the hovered carry a label. The tools act on the selection:
 // solo (only the selected projectors show the picture, the others black), and test patterns
 // (none selected: every projector). Rig data goes on the page as text or attributes only.
 "use strict";
 
 (function () {
   const PATTERNS = [["grid", "grid"], ["crosshair", "crosshair"], ["bars", "colour bars"], ["white", "white"]];
+  const MAX_LABELS = 6;      // the selected footprints labelled at once (the hovered one always is)
   const selected = new Set();
   let hovered = null;
   let last = null;
@@ -134,7 +135,7 @@
       // the colour Identify puts on that projector (a style: the state's colour comes from the style sheet)
       f.polygon.style.fill = on || hot ? mark(s, n.slot).colour : "";
       f.title.textContent = `${mark(s, n.slot).number} ${n.slot}: ${n.state}${note(s, n.slot)}`;
-      if (on || hot) {
+      if (hot || (on && selected.size <= MAX_LABELS)) {     // more labels at once would pile up again
         const [cx, cy] = centre(n.footprint);
         labels.push(svgEl("text", { class: "fp-label fp-name", x: cx, y: cy, "font-size": fontSize, "data-slot": n.slot },
                           `${mark(s, n.slot).number} ${n.slot}: ${n.state}`));
