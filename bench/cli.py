@@ -13,6 +13,7 @@ BENCHMARKS: dict[str, str] = {
     "swarm": "coordinator CPU per node and per frame under a swarm of protocol-level nodes (timeline, live)",
     "room": "virtual-room capture speed and light-drop statistics per projector subset",
     "calibration": "captures, time and error of sequential vs multiplexed calibration",
+    "board": "the printed ChArUco board found on the room's table: table mapping error per sheet size, oblique view",
     "compensation": "blur-compensation solve time and quality, ours vs the per-projector baseline",
     "compensation_room": "blur compensation through the coordinator's jobs in the virtual room: captures, L error, quality",
     "compensation_cluster": "a video compensated on a local Dask cluster of 1 and 2 workers vs the same segments here",

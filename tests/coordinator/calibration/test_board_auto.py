@@ -15,11 +15,11 @@ import asyncio
 import json
 import re
 
-import cv2
 import numpy as np
 import pytest
 from PIL import Image
 
+from bench.board import OBLIQUE_CAMERA, OBLIQUE_SIZE, board_view, driver_with_board
 from bench.calibration import board_albedo, make_rig
 from coordinator.jobs import JobError
 from imaging.calibration.board import DEFAULT_BOARD, board_page, page_image
@@ -75,47 +75,18 @@ class _StubRoom:
 
 
 def test_the_default_board_is_read_by_a_camera_looking_at_the_table_at_an_angle():
-    dpi = 150.0
     page = board_page()                                   # what `shadowless rig board` prints by default
     assert page.spec == DEFAULT_BOARD
-    img = page_image(page, dpi=dpi)
-    # page px -> table mm: the board centred on the table's centre, the sheet's top edge towards +y
-    ox, oy = page.offset_mm
-    k = 25.4 / dpi
-    page_to_table = np.array([[k, 0, DEFAULT_BOARD.origin_mm[0] - ox + 0.5 * k],
-                              [0, -k, DEFAULT_BOARD.origin_mm[1] + oy - 0.5 * k], [0, 0, 1]])
-    # a 1944x1458 camera above the table's front edge, looking down at an angle (the room's, 3x finer)
-    table_to_camera = np.array([[1.435, 0.0614, 970.5], [0.0, -1.383, 727.5], [0.0, 1.898e-4, 1.0]])
-    ss = 2
-    up = np.diag([ss, ss, 1.0]) @ np.array([[1, 0, 0.5 * (ss - 1) / ss], [0, 1, 0.5 * (ss - 1) / ss], [0, 0, 1]])
-    fine = cv2.warpPerspective(img, up @ table_to_camera @ page_to_table, (1944 * ss, 1458 * ss),
-                               flags=cv2.INTER_AREA, borderValue=255)
-    seen = cv2.resize(fine, (1944, 1458), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
-    seen = 0.05 + 0.8 * seen + np.random.default_rng(3).normal(0, 0.01, seen.shape).astype(np.float32)
+    seen = board_view(page, OBLIQUE_CAMERA, OBLIQUE_SIZE)   # the sheet centred on the table, seen at an angle
     table_xy, px = detect_charuco(seen, DEFAULT_BOARD)
     assert len(table_xy) >= 50                                            # of 60 inner corners
-    err = np.linalg.norm(px - apply_homography(table_to_camera, table_xy), axis=1)
+    err = np.linalg.norm(px - apply_homography(OBLIQUE_CAMERA, table_xy), axis=1)
     assert np.sqrt(np.mean(err ** 2)) < 0.3, err
 
 
 @pytest.fixture(scope="module")
 def room():
     return Room(reference_scene())
-
-
-class _BoardCamera:
-    """The room's camera seeing a board's black and white squares on the table."""
-
-    supports_exposure = False
-
-    def __init__(self, camera, albedo):
-        self.camera, self.albedo = camera, albedo
-
-    def capture(self, *, exposure=None):
-        return self.camera.capture(exposure=exposure) * self.albedo[:, :, None]
-
-    def close(self):
-        self.camera.close()
 
 
 def test_calibrate_finds_the_rigs_board_on_the_table_without_being_told(room, tmp_path, capsys):
@@ -132,11 +103,7 @@ def test_calibrate_finds_the_rigs_board_on_the_table_without_being_told(room, tm
     capsys.readouterr()
     albedo = board_albedo(room, CharucoSpec.from_dict(json.loads((rig.path / "board.json").read_text())))
 
-    class BoardOnTable(RoomDriver):
-        def open_camera(self, spec):
-            return _BoardCamera(super().open_camera(spec), albedo)
-
-    driver = BoardOnTable(room, rig)
+    driver = driver_with_board(room, rig, albedo)
     mapped = asyncio.run(driver.run("calibrate", {"table_only": True, "settle_s": 0}))
     assert mapped["captures"] == 2 and mapped["slots"] == {}
     assert any(f"found the board of {rig.path / 'board.json'} on the table" in e for e in driver.events
