@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.console import browser_missing, chromium, log_in, text_of, visible, wait_for
+from bench.console import browser_missing, chromium, log_in, visible, wait_for
 from bench.machine import machine
 from coordinator.app import CoordinatorApp
 from coordinator.rig import HomographyPose, Rig
@@ -102,7 +102,7 @@ def _shoot(url: str, token: str, select: str, out: Path, width: int, slots: list
         labels = driver.execute_script(
             "return Array.from(document.querySelectorAll('#layout text.fp-name')).map(t => t.textContent);")
         return {"picture": str(out), "picture_px": [int(crop.shape[1]), int(crop.shape[0])],
-                "banner": text_of(driver, "health"), "labels": labels,
+                "banner": driver.find_element(By.ID, "health").text.splitlines(), "labels": labels,
                 "faded": driver.execute_script("return document.querySelectorAll('#layout g.faded').length;")}
     finally:
         driver.quit()
