@@ -433,7 +433,7 @@ async def _show(args) -> int:
     async with await open_client(args) as c:
         r = await c.show(img, name=Path(args.image).name, persist=args.persist, fit=args.fit or "")
         await warn_unposed(c)
-    print(f"showing {args.image} ({img.shape[1]}x{img.shape[0]} {img.dtype}) as frame {r.frame_id}, content {r.content_id}")
+    print(f"showing {args.image} ({img.shape[1]}x{img.shape[0]} {img.dtype}), content {r.content_id}")   # the frame id is for machines
     return 0
 
 
