@@ -239,5 +239,10 @@
       await postJSON("/api/job", { kind: "calibrate", params: await params() });
     }));
     showWay();
+    // without a camera (pictures.js disables its Refresh button) there is nothing to calibrate from
+    const refresh = $("camera-refresh");
+    const camera = () => { $("calib").hidden = refresh.disabled; };
+    new MutationObserver(camera).observe(refresh, { attributes: true, attributeFilter: ["disabled"] });
+    camera();
   });
 })();
