@@ -40,6 +40,7 @@ from coordinator.console import cues as cue_routes
 from coordinator.console.actions import MAX_UPLOAD_BYTES, Actions
 from coordinator.console.hosts import HostCheck
 from coordinator.console.people import People
+from coordinator.console.page_wording import helps_for_the_page
 from coordinator.console.pictures import Pictures
 from coordinator.console.slot_routes import SlotRoutes
 from coordinator.console.thumbnails import Thumbnails
@@ -296,7 +297,7 @@ class ConsoleApp:
                 out = {}
                 for kind in JOBS:
                     try:
-                        out[kind] = form_fields(resolve(kind).options)
+                        out[kind] = helps_for_the_page(form_fields(resolve(kind).options))   # no flags
                     except JobError as exc:      # a job whose libraries this install lacks
                         out[kind] = {"unavailable": str(exc)}
                 return out
