@@ -119,8 +119,9 @@ class CueEngine:
 
     def fire(self, index: int, *, who: str = "", fade: bool = True, follow: bool = True,
              restoring: bool = False) -> str:
-        """Fire cue ``index``: what can be refused is refused here (one line, nothing changed);
-        what takes time (a still asset's decoding, a pattern) runs on after the call, in order."""
+        """Fire cue ``index``: what can be refused is refused here (one line, nothing changed). A cue
+        whose picture is ready goes to the nodes in this call; what takes time (a still's first
+        decoding, a pattern) runs on after it, and fires follow in the order they were asked."""
         cue = self.cues.cues[index]
         core = self.core
         job = core.running_job()
@@ -129,6 +130,9 @@ class CueEngine:
                                    "for it or cancel it before firing a cue")
         fade_ns = int(round(cue.fade_s * 1e9)) if fade else 0
         action = self._prepare(cue, fade_ns)
+        prev = self._chain
+        now = prev is None or prev.done()
+        shown = action() if now else None      # a refusal here changes nothing
         self._cancel_follow()
         self.current = index
         self.fired_at = time.time()
@@ -139,28 +143,34 @@ class CueEngine:
         who = who or "-"
         nxt = self.next_index()
         follow_s = cue.follow_s if follow and nxt is not None else None
-        prev = self._chain
 
-        async def run() -> None:
-            if prev is not None and not prev.done():
-                await asyncio.gather(prev, return_exceptions=True)
-            ok, result = True, f"cue {cue.label} fired"
-            try:
-                shown = await action()
-            except Exception as exc:   # noqa: BLE001 - the operator hears why in the log and the action log
-                ok, result = False, f"cue {cue.label} failed: {exc}"
+        def done(shown_ns: int | None, error: Exception | None = None) -> None:
+            ok, result = error is None, f"cue {cue.label} fired"
+            if error is not None:
+                result = f"cue {cue.label} failed: {error}"
                 log.error("cues: %s", result)
-            else:
-                if self.current == index:
-                    self.shown_ns = shown or self.shown_ns
-                    self.fade_until_ns = self.shown_ns + fade_ns
-                    self._screen = self._on_screen()
-                    if follow_s is not None:
-                        self._start_follow(index, self.shown_ns + int(follow_s * 1e9))
+            elif self.current == index:
+                self.shown_ns = shown_ns or self.shown_ns
+                self.fade_until_ns = self.shown_ns + fade_ns
+                self._screen = self._on_screen()
+                if follow_s is not None:
+                    self._start_follow(index, self.shown_ns + int(follow_s * 1e9))
             self._record(who, ok, result, cue, restoring)
 
-        self._chain = task = asyncio.get_running_loop().create_task(run(), name=f"cue:{cue.id}")
-        self._keep(task)
+        if now and not asyncio.iscoroutine(shown):
+            done(shown)
+        else:
+            async def run() -> None:
+                if prev is not None and not prev.done():
+                    await asyncio.gather(prev, return_exceptions=True)
+                try:
+                    got = shown if now else action()
+                    done(await got if asyncio.iscoroutine(got) else got)
+                except Exception as exc:   # noqa: BLE001 - the operator hears why in the log and the action log
+                    done(None, exc)
+
+            self._chain = task = asyncio.get_running_loop().create_task(run(), name=f"cue:{cue.id}")
+            self._keep(task)
         what = f", fading over {cue.fade_s:g} s" if fade_ns else ""
         then = f"; cue {self.cues.cues[nxt].id} follows in {follow_s:g} s" if follow_s is not None else ""
         upcoming = f"next: {self.cues.cues[nxt].label}" if nxt is not None else "that was the last cue"
@@ -181,13 +191,14 @@ class CueEngine:
 
     # ------------------------------------------------------------------ what a cue does
     def _prepare(self, cue: Cue, fade_ns: int) -> Callable[[], Any]:
-        """Check cue ``cue`` can be fired now; return the coroutine function that shows it and
-        returns the rig instant it is on screen from (None: about a latency budget from now)."""
+        """Check cue ``cue`` can be fired now; return the function that shows it and returns the
+        rig instant it is on screen from (None: about a latency budget from now), or a coroutine
+        that does when it must wait (a still decoded the first time, a pattern)."""
         core = self.core
         others = {s: None for s in core.rig.slots if s not in cue.slots} if cue.slots else None
         tag = f"show:cue:{cue.id}"
         if cue.kind == "blackout":
-            async def black():
+            def black():
                 core.playback.stop()
                 self._hand_over(fade_ns)
                 core.playback.blackout(fade_ns=fade_ns, tag=tag)
@@ -200,7 +211,7 @@ class CueEngine:
             async def pattern():
                 await core.show_test_pattern(cue.target, list(cue.slots) or None)
                 return None
-            return pattern
+            return lambda: pattern()
         if cue.kind == "still" and cue.target == "content":
             content = core.rig.content
             if content is None:
@@ -216,24 +227,28 @@ class CueEngine:
         if cue.slots:
             raise CueError(f"cue {cue.id}: a {m.kind} plays on every projector; leave the cue's slots out")
 
-        async def play():
-            st = core.play_asset(asset_id, fade_ns=fade_ns)
-            return st.anchor_ns
+        def play():
+            return core.play_asset(asset_id, fade_ns=fade_ns).anchor_ns
         return play
 
     def _show_still(self, key: str, content: Callable[[], Content], tag: str, others, fade_ns: int):
         core = self.core
 
-        async def show():
-            prepared = self._stills.get(key)
-            if prepared is None:      # decoded, fitted and encoded once, off the event loop
-                prepared = await asyncio.to_thread(lambda: core.prepare_still(content()))
-                self._stills[key] = prepared
-                while len(self._stills) > KEEP_STILLS:
-                    self._stills.popitem(last=False)
+        def send(prepared: Content) -> int:
             self._stills.move_to_end(key)
             self._hand_over(fade_ns)
             return core.playback.show(prepared, tag=tag, slot_contents=others, fade_ns=fade_ns).pts_ns
+
+        async def first_time() -> int:      # decoded, fitted and encoded once, off the event loop
+            prepared = await asyncio.to_thread(lambda: core.prepare_still(content()))
+            self._stills[key] = prepared
+            while len(self._stills) > KEEP_STILLS:
+                self._stills.popitem(last=False)
+            return send(prepared)
+
+        def show():
+            prepared = self._stills.get(key)
+            return send(prepared) if prepared is not None else first_time()
         return show
 
     def _hand_over(self, fade_ns: int) -> None:
