@@ -1,0 +1,69 @@
+"""The operator's documentation holds together: every relative link in README.md and docs/*.md
+names a file that exists, the README stays short, and every benchmark JSON the pages name (and
+every one kept under docs/benchmarks/) parses and says what measured it, where and when."""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
+JSON_NAME = re.compile(r"benchmarks/[\w.-]+\.json")
+README_MAX_LINES = 300
+
+
+def _targets(page: Path) -> list[str]:
+    """The relative link targets of a Markdown page, without their #fragment (code blocks skipped)."""
+    text = re.sub(r"(?ms)^```.*?^```", "", page.read_text(encoding="utf-8"))
+    out = []
+    for target in LINK.findall(text):
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target) or target.startswith("#"):
+            continue                      # http:, https:, mailto:, and anchors within the page
+        out.append(target.split("#", 1)[0])
+    return out
+
+
+def test_the_pages_exist():
+    names = {p.name for p in PAGES}
+    for page in ("quickstart.md", "operator-guide.md", "venue-checklist.md", "console.md",
+                 "show-control.md", "research.md", "studies.md", "benchmarks.md", "deployment.md",
+                 "architecture.md", "solver.md"):
+        assert page in names, f"docs/{page} is missing"
+
+
+def test_every_relative_link_points_to_a_file():
+    broken = []
+    for page in PAGES:
+        for target in _targets(page):
+            if not (page.parent / target).exists():
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+    assert not broken, "links to files that do not exist:\n" + "\n".join(broken)
+
+
+def test_the_link_check_sees_a_broken_link(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("[ok](page.md) [web](https://example.org) [here](#top) [gone](missing.md#x)\n"
+                    "```\n[in code](nowhere.md)\n```\n")
+    assert _targets(page) == ["page.md", "missing.md"]
+
+
+def test_readme_stays_short():
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").count("\n")
+    assert lines < README_MAX_LINES, f"README.md has {lines} lines; move detail into docs/"
+
+
+def test_every_benchmark_json_named_parses():
+    named = set()
+    for page in PAGES:
+        named.update(JSON_NAME.findall(page.read_text(encoding="utf-8")))
+    assert named, "no page names a benchmark JSON"
+    kept = {f"benchmarks/{p.name}" for p in (ROOT / "docs" / "benchmarks").glob("*.json")}
+    assert named <= kept, f"named but not kept in docs/benchmarks/: {sorted(named - kept)}"
+    for name in sorted(kept):
+        doc = json.loads((ROOT / "docs" / name).read_text(encoding="utf-8"))
+        missing = {"name", "command", "date", "machine", "result"} - set(doc)
+        assert not missing, f"docs/{name} lacks {sorted(missing)}"
+        assert re.fullmatch(r"\d{4}-\d{2}-\d{2}", doc["date"]), f"docs/{name}: date {doc['date']!r}"
+        assert doc["machine"].get("cpus"), f"docs/{name}: the machine says no cpu count"
