@@ -7,7 +7,9 @@ reports are read as they reach the core (every swap: its frame id and the host's
 which is the rig clock's truth since the nodes share the host):
 
 * ``go_to_swap_ms``: from the GO call to the swap of the cue's first frame on the last node
-  (target: at most one frame at 60 Hz plus the latency budget);
+  (target: at most one frame at 60 Hz plus the latency budget); a node that dropped the frame as
+  late shows it when the coordinator sends it again with twice the budget, which counts
+  (``go_resent_after_a_late_drop`` says how often);
 * ``crossfade_skew_ms``: for every step of every crossfade shown by every node, the latest swap
   less the earliest (target p99: 2 ms).
 """
@@ -84,7 +86,7 @@ def cue_figures(rig: Any, slots: list[str], *, rounds: int = 10, fade_s: float =
     log = rig.call(lambda: SwapLog(coord))
     go_ms: list[float] = []
     skews: list[float] = []
-    steps_seen = steps_all = 0
+    steps_seen = steps_all = resent = 0
     try:
         for i, cue in enumerate(cues):
             before = rig.call(lambda: coord.playback.current_frame.frame_id if coord.playback.current_frame else 0)
@@ -105,6 +107,7 @@ def cue_figures(rig: Any, slots: list[str], *, rounds: int = 10, fade_s: float =
                 time.sleep(0.01)
             time.sleep(0.05)
             if not cue.fade_s:
+                resent += rig.call(lambda: log.swapped(frame.frame_id, slots)) is None    # a node dropped it late
                 go_ms.append((max(rig.call(lambda: log.first_from(frame.frame_id, slots))) - t_go) / 1e6)
             if cue.fade_s:
                 for k in range(frame.fade_steps + 1):
@@ -120,6 +123,7 @@ def cue_figures(rig: Any, slots: list[str], *, rounds: int = 10, fade_s: float =
         "cues": {"rounds": rounds, "fade_s": fade_s, "latency_budget_ms": latency_ms,
                  "go_to_swap_target_ms": round(FRAME_MS + latency_ms, 1),
                  "go_to_swap_ms_p50": _p(go_ms, 50), "go_to_swap_ms_max": _p(go_ms, 100),
+                 "go_resent_after_a_late_drop": resent,
                  "crossfade_steps": steps_all, "crossfade_steps_shown_by_all": steps_seen,
                  "crossfade_skew_ms_p50": _p(skews, 50), "crossfade_skew_ms_max": _p(skews, 100),
                  "crossfade_skew_target_ms": SKEW_TARGET_MS},
