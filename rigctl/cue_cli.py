@@ -34,7 +34,8 @@ current cue, so a restarted coordinator shows it again. The console's cue panel 
 
 Targets: a still is `content` (the rig's own content, set with `shadowless show --persist`) or a still
 asset of the rig's store (`shadowless content add`); an asset is any asset (a video plays as a
-timeline show on every projector, cut in); a pattern is white, grid, crosshair or bars.
+timeline show on every projector, its first frames mixed with what was on screen during a fade); a
+pattern is white, grid, crosshair or bars (patterns cut: they are projector pixels). Going back cuts.
 """
 
 EXAMPLES = """\
