@@ -83,6 +83,18 @@ def _parts(text: str) -> list[str]:
     return names
 
 
+def _budget(text: str) -> str | float:
+    if text == "auto":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        v = -1.0
+    if not 0.0 < v <= 64:
+        raise argparse.ArgumentTypeError(f"a CPU budget is a fraction of a core (e.g. 0.06) or auto, got {text!r}")
+    return v
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = __doc__.split("\n\n")[0].replace("`shadowless bench uniformity`: ", "")
     parser.epilog = ("examples:\n"
@@ -128,9 +140,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--switch-lead-ms", type=float, default=None,
                         help="failover: rig.toml's [blend] switch_lead_ms, how far ahead the new maps are set "
                              "(default: the rig's); 1 shows what pushing and uploading the maps take")
-    parser.add_argument("--cpu-budget", type=float, default=None, metavar="FRACTION",
+    parser.add_argument("--cpu-budget", type=_budget, default=None, metavar="FRACTION|auto",
                         help="failover: run each rig again with each node process held to FRACTION of a core "
-                             "(a cgroup v1 group per node; needs root), e.g. 0.06 for P25 on 2 cores")
+                             "(a cgroup v1 group per node; needs root), e.g. 0.06 for P25 on 2 cores; auto: "
+                             "three quarters of the machine shared by the rig's nodes (0.06 for P25, 0.17 for P9 "
+                             "on 2 cores)")
     parser.add_argument("--cpu-period-ms", type=float, default=20.0,
                         help="the budget's CFS period (default 20 ms: a node out of quota waits at most that long)")
     parser.add_argument("--node-frames", type=int, default=None, help="frames per profile of `bench node` (default 120; "
