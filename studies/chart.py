@@ -2,6 +2,7 @@
 configuration from zero, the yardstick drawn to scale, the letter groups under the names."""
 from __future__ import annotations
 
+import math
 from xml.sax.saxutils import escape
 
 from studies.scheffe import ScheffeResult
@@ -11,7 +12,9 @@ def scale_chart_svg(res: ScheffeResult, *, level: float = 0.05, title: str = "Sc
     """An SVG document (text) of ``res``'s scale values, items in input order."""
     w, h, left, right, top, bottom = 640, 360, 60, 20, 40, 70
     vals = [float(v) for v in res.scale]
-    y_abs = max(max(abs(v) for v in vals), res.yardstick.get(level, 0.0)) * 1.15 or 1.0
+    yard = res.yardstick.get(level, math.nan)
+    yard = yard if math.isfinite(yard) else None           # undefined (an error term of 0): not drawn
+    y_abs = max(max(abs(v) for v in vals), yard or 0.0) * 1.15 or 1.0
     plot_h = h - top - bottom
     zero = top + plot_h / 2
     scale = (plot_h / 2) / y_abs
@@ -32,13 +35,13 @@ def scale_chart_svg(res: ScheffeResult, *, level: float = 0.05, title: str = "Sc
         out.append(f'<text x="{x + step * 0.3:.1f}" y="{h - bottom + 18}" text-anchor="middle">{escape(name)}</text>')
         out.append(f'<text x="{x + step * 0.3:.1f}" y="{h - bottom + 34}" text-anchor="middle" '
                    f'fill="#555">{escape(letter)}</text>')
-    if level in res.yardstick:
-        y = res.yardstick[level] * scale
+    if yard is not None:
+        y = yard * scale
         x = w - right - 12
         out.append(f'<line x1="{x}" y1="{zero - y / 2:.1f}" x2="{x}" y2="{zero + y / 2:.1f}" stroke="#c03" '
                    f'stroke-width="3"/>')
         out.append(f'<text x="{x - 6}" y="{zero - y / 2 - 6:.1f}" text-anchor="end" fill="#c03">'
-                   f'Y(p&lt;{level:g}) = {res.yardstick[level]:.3f}</text>')
+                   f'Y(p&lt;{level:g}) = {yard:.3f}</text>')
     out.append(f'<text x="{left}" y="{h - 8}" fill="#555">scale value (positive: preferred); configurations '
                f'sharing a letter do not differ at p &lt; {level:g}</text>')
     out.append("</svg>")

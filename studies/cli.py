@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
+import sys
 
 #: subcommand -> (module with configure(parser) and run(args), one-line summary); the order of --help
 STUDIES: dict[str, tuple[str, str]] = {
     "scheffe": ("studies.scheffe_cli", "Scheffé's paired comparison (Nakaya's modification)"),
-    "paired": ("studies.paired_cli", "paired test of task times (log scale)"),
+    "paired": ("studies.paired_cli", "paired test of task times (log scale) or accuracies"),
     "schedule": ("studies.schedule_cli", "a balanced, randomized pair schedule for P participants (CSV)"),
     "run": ("studies.run_cli", "one participant's trials on the rig, side by side; answers appended to RATINGS"),
     "motion": ("sim.motion_cli", "a hand moving over the table: light drop per frame, synthetic aperture vs reactive "
@@ -33,18 +35,21 @@ DETAILS: dict[str, str] = {
     "scheffe": (
         "  scheffe RATINGS.csv   Scheffé's paired comparison, Nakaya's modification: columns\n"
         "                        participant,first,second,score (every participant rates every pair\n"
-        "                        once; score > 0 prefers first, e.g. -2..2). Prints the ANOVA table,\n"
-        "                        the scale values, the yardsticks at p < .05 and .01 and letter groups.\n"
-        "                        With an image column (`study run` writes one) each participant on\n"
-        "                        each image is one judge (--image NAME: that image only)."),
+        "                        once; score > 0 prefers first; scale -2..2 unless --scale). Prints the\n"
+        "                        ANOVA table, the scale values, the yardsticks at p < .05 and .01,\n"
+        "                        letter groups and warnings of a side preference. With an image column\n"
+        "                        (`study run` writes one) each participant on each image is one judge;\n"
+        "                        with a question column, one analysis per question."),
     "paired": (
-        "  paired TIMES.csv      task times in two conditions: columns participant,condition,time_s.\n"
-        "                        Shapiro-Wilk on the log-time differences, then a paired t test (with\n"
-        "                        Cohen's d_z) or Wilcoxon's signed-rank test (with r)."),
+        "  paired FILE.csv       one measure in two conditions: participant,condition and time_s or\n"
+        "                        accuracy. Differences second - first: a paired t test (with Cohen's\n"
+        "                        d_z) or Wilcoxon's signed-rank test (with r), chosen by Shapiro-Wilk\n"
+        "                        for times (on their log), Wilcoxon for accuracies (zeros welcome)."),
 }
 
 #: examples for the subcommands with DETAILS; the others point to their own --help
 EXAMPLES = ("  shadowless study scheffe study2.csv --chart sop.svg\n"
+            "  shadowless study scheffe sato.csv --scale -3..3 --json\n"
             "  shadowless study paired study1.csv --json")
 
 
@@ -58,15 +63,37 @@ def _loading_parser(base: type[argparse.ArgumentParser]) -> type[argparse.Argume
             self.study_module = study_module
             self.study_loaded = False
 
+        def add_argument(self, *args, **kwargs):
+            action = super().add_argument(*args, **kwargs)
+            if kwargs.get("metavar") == "MIN..MAX":      # see _join_ranges
+                self.range_options = getattr(self, "range_options", set()) | set(action.option_strings)
+            return action
+
         def parse_known_args(self, args=None, namespace=None):
             if not self.study_loaded:
                 self.study_loaded = True
                 module = importlib.import_module(self.study_module)
                 module.configure(self)
                 self.set_defaults(study=module)
-            return super().parse_known_args(args, namespace)
+            return super().parse_known_args(_join_ranges(self, sys.argv[1:] if args is None else args), namespace)
 
     return StudyParser
+
+
+_RANGE = re.compile(r"^-\d[\d.]*\.\.-?\d")
+
+
+def _join_ranges(parser: argparse.ArgumentParser, args: list[str]) -> list[str]:
+    """``--scale -3..3`` as ``--scale=-3..3``: argparse takes a word that starts with a dash and is
+    not a plain number for an option, so a range with a negative MIN would need the ``=``."""
+    options = getattr(parser, "range_options", set())
+    out = list(args)
+    k = 0
+    while k < len(out) - 1:
+        if out[k] in options and _RANGE.match(out[k + 1]):
+            out[k:k + 2] = [f"{out[k]}={out[k + 1]}"]
+        k += 1
+    return out
 
 
 def configure(p: argparse.ArgumentParser, studies: dict[str, tuple[str, str]] = STUDIES) -> None:

@@ -1,12 +1,17 @@
 """The ratings file a study run appends to, one answer at a time, so that a crash loses nothing.
 
-Each answer is one CSV line ``participant,first,second,score,image,trial,answer`` written with a
-single ``write`` on a file opened for appending and ``fsync``-ed before the next trial is
-shown: once the operator sees the next trial, the answer is on disk. ``first`` and ``second``
-are the configurations on the participant's left and right, ``answer`` what the participant
-said (-2 clearly left .. 2 clearly right) and ``score = -answer`` (positive: the first, left,
-one preferred), the form ``shadowless study scheffe`` reads; with the image column it takes each
-participant on each image as one judge.
+Each answer is one CSV line ``participant,first,second,score,image,trial,answer,question``
+written with a single ``write`` on a file opened for appending and ``fsync``-ed before the next
+question or trial is shown: once the operator sees the next one, the answer is on disk.
+``first`` and ``second`` are the configurations on the participant's left and right, ``answer``
+what the participant said (-2 clearly left .. 2 clearly right), ``score = -answer`` (positive:
+the first, left, one preferred), the form ``shadowless study scheffe`` reads, and ``question``
+the key of the question answered (a trial asks every question of the run, each its own line).
+With the image column `study scheffe` takes each participant on each image as one judge, with
+the question column it analyses each question on its own.
+
+A file from before a run asked two questions (the same columns without ``question``) is still
+read by `study scheffe`, but not appended to: a run starts a new file.
 
 A machine that stops in the middle of a write can leave a last line without its newline: it is
 cut off when the file is opened again, and that trial is asked again. The file's header is
@@ -20,7 +25,9 @@ import os
 import tempfile
 from pathlib import Path
 
-COLUMNS = ("participant", "first", "second", "score", "image", "trial", "answer")
+COLUMNS = ("participant", "first", "second", "score", "image", "trial", "answer", "question")
+#: the columns of a ratings file from before a trial asked two questions
+LEGACY_COLUMNS = COLUMNS[:-1]
 
 
 class RatingsLog:
@@ -37,7 +44,7 @@ class RatingsLog:
                 self._create()
             except OSError as exc:
                 raise ValueError(f"cannot create {self.path}: {exc.strerror or exc}") from None
-        self.answered: set[tuple[str, str, str, str]] = set()   # (participant, image, first, second)
+        self.answered: set[tuple[str, str, str, str, str]] = set()   # (participant, image, first, second, question)
         self._read()
 
     def _create(self) -> None:
@@ -71,23 +78,31 @@ class RatingsLog:
                 os.fsync(f.fileno())
             self.repaired, data = len(data) - keep, data[:keep]
         reader = csv.DictReader(io.StringIO(data.decode("utf-8", errors="replace")))
+        if reader.fieldnames is not None and "question" not in reader.fieldnames \
+                and set(LEGACY_COLUMNS) <= set(reader.fieldnames):
+            raise ValueError(f"{self.path}: written before a study run asked two questions per trial (no question "
+                             f"column): `study scheffe` still reads it; give the run a new --ratings file")
         if reader.fieldnames is None or not set(COLUMNS) <= set(reader.fieldnames):
             raise ValueError(f"{self.path}: not a study ratings file: its header must name the columns "
                              f"{', '.join(COLUMNS)} (found: {', '.join(reader.fieldnames or []) or 'none'})")
         for k, r in enumerate(reader, start=2):
             if None in r.values() or not r["participant"]:
                 raise ValueError(f"{self.path}:{k}: a rating needs every column ({', '.join(COLUMNS)})")
-            self.answered.add((r["participant"], r["image"], r["first"], r["second"]))
+            self.answered.add((r["participant"], r["image"], r["first"], r["second"], r["question"]))
 
-    def has(self, participant: int | str, image: str, left: str, right: str) -> bool:
-        return (str(participant), image, left, right) in self.answered
+    def has(self, participant: int | str, image: str, left: str, right: str, question: str) -> bool:
+        return (str(participant), image, left, right, question) in self.answered
 
-    def append(self, participant: int | str, image: str, left: str, right: str, trial: int, answer: int) -> None:
-        """Write one answer (-2 .. 2: clearly left .. clearly right) and fsync it."""
+    def append(self, participant: int | str, image: str, left: str, right: str, trial: int, answer: int,
+               question: str) -> None:
+        """Write one answer (-2 .. 2: clearly left .. clearly right) to ``question`` and fsync it."""
         if answer not in (-2, -1, 0, 1, 2):
             raise ValueError(f"an answer is -2 .. 2, got {answer!r}")
+        if not question:
+            raise ValueError("an answer names its question")
         buf = io.StringIO()
-        csv.writer(buf, lineterminator="\n").writerow((participant, left, right, -answer, image, trial, answer))
+        csv.writer(buf, lineterminator="\n").writerow((participant, left, right, -answer, image, trial, answer,
+                                                        question))
         data = buf.getvalue().encode()
         fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
         try:
@@ -96,4 +111,4 @@ class RatingsLog:
             os.fsync(fd)
         finally:
             os.close(fd)
-        self.answered.add((str(participant), image, left, right))
+        self.answered.add((str(participant), image, left, right, question))

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import re
 import sys
 from pathlib import Path
 
@@ -14,34 +15,39 @@ from rigctl.rig_target import open_client
 from coordinator.schema import read_text
 from studies.configurations import load_configurations
 from studies.ratings_log import RatingsLog
-from studies.runner import RunSettings, run_trials
+from studies.runner import QUESTIONS, RunSettings, run_trials
 from studies.schedule import read_schedule
 from protos import auth, cli_types
 
 EPILOG = """\
 each trial: the picture on both halves of the table, the left half lit by the left configuration's
 projectors, the right half by the right one's (a projector in both lights both, one in neither is
-dark). The operator types the participant's answer and Enter:
+dark). Each trial asks every question in turn (default: the paper's two, below); the operator
+reads it out and types the participant's answer and Enter:
   -2 clearly left   -1 slightly left   0 equal   1 slightly right   2 clearly right
-  r  show the trial again          q  stop (the same command resumes where it stopped)
-Each answer is on disk (appended, fsync) before the next trial is shown: RATINGS gets
-participant,first,second,score,image,trial,answer with first = left, second = right and
-score = -answer, what `shadowless study scheffe RATINGS` reads.
+  r  show the trial again (same question)   q  stop (the same command resumes where it stopped)
+Each answer is on disk (appended, fsync) before the next is asked: RATINGS gets
+participant,first,second,score,image,trial,answer,question with first = left, second = right,
+score = -answer and the question's key, what `shadowless study scheffe RATINGS` reads (one
+analysis per question).
+
+default questions (--question KEY=TEXT, repeated, replaces them):
+{questions}
 
 left and right are the participant's at the table's near edge (the content's bottom row); one
 standing at the far edge needs --mirror.
 
 examples:
   shadowless study run schedule.csv --rig-dir rig --participant 3 --ratings q1.csv
-  shadowless study run schedule.csv --rig-dir rig --participant 3 --surround 0.15 --question \\
-      "Which side looks more like a pattern of the surface itself?" --ratings q1.csv"""
+  shadowless study run schedule.csv --rig-dir rig --participant 3 --surround 0.15 \\
+      --question "sop=Which side looks more like a pattern of the surface itself?" --ratings sop.csv"""
 
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = ("Run one participant's trials of a schedule (from `shadowless study schedule`) on the rig: "
                      "each pair of configurations side by side on the two halves of the table, the answer typed at "
                      "this terminal and appended to the ratings file at once.")
-    p.epilog = EPILOG
+    p.epilog = EPILOG.format(questions="\n".join(f"  {key:<8}{text}" for key, text in QUESTIONS))
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("schedule", type=cli_types.existing_file, help="the schedule CSV")
     p.add_argument("--participant", type=cli_types.int_range(1), required=True, metavar="K", help="whose trials")
@@ -51,7 +57,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="the configurations file (default: the 5x5 rig's P1, P9D, P9W, P13, P17, P20, P25)")
     p.add_argument("--image-dir", type=cli_types.existing_dir, metavar="DIR",
                    help="where the schedule's images are (default: as named, else beside the schedule)")
-    p.add_argument("--question", default="", metavar="TEXT", help="printed for the operator before the first trial")
+    p.add_argument("--question", type=_question, action="append", metavar="KEY=TEXT",
+                   help="a question each trial asks: its key (a word, stored with each answer) and its words; "
+                        "repeat for several (default: the two below)")
     p.add_argument("--surround", type=cli_types.number(0, 1), default=0.0, metavar="LEVEL",
                    help="level around the picture on each half, 0..1 (default 0: black)")
     p.add_argument("--margin", type=cli_types.number(0, 0.45), default=0.05, metavar="FRACTION",
@@ -60,6 +68,15 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="black between trials and before a repeat (default 1)")
     p.add_argument("--mirror", action="store_true", help="the participant stands at the far edge of the table")
     add_connection_args(p)
+
+
+def _question(text: str) -> tuple[str, str]:
+    key, sep, words = text.partition("=")
+    key = key.strip()
+    if not sep or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", key) or not words.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is not KEY=TEXT with KEY a word, e.g. "
+                                         f"\"shadow=On which side is the hand's shadow less disturbing?\"")
+    return key, words.strip()
 
 
 def _image_loader(args: argparse.Namespace):
@@ -73,6 +90,9 @@ def _image_loader(args: argparse.Namespace):
 
 
 async def _run(args: argparse.Namespace) -> int:
+    questions = tuple(args.question or QUESTIONS)
+    if len({key for key, _ in questions}) != len(questions):
+        raise OperatorError("each --question needs a key of its own")
     if not args.rig_dir:
         raise OperatorError("--rig-dir is needed: the rig's content size places the two halves")
     try:
@@ -99,7 +119,7 @@ async def _run(args: argparse.Namespace) -> int:
     for name in sorted({t.image for t in trials}):     # every picture found before the first trial
         load(name)
     settings = RunSettings((cfg.content_width, cfg.content_height), margin=args.margin, surround=args.surround,
-                           mirror=args.mirror, gap_s=args.gap, question=args.question)
+                           mirror=args.mirror, gap_s=args.gap, questions=questions)
     async with await open_client(args) as c:
         await run_trials(c, sorted(trials, key=lambda t: t.trial), log, configs, settings, load=load, ask=input)
     return 0

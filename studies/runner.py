@@ -7,7 +7,11 @@ each slot of the rig is told which halves it lights (the left configuration's sl
 half, the right one's the right half, slots in both both, every other slot none). Between trials
 and before a repeat the rig is black for ``gap_s`` so that a change is seen as one.
 
-A trial already in the ratings file is skipped, so a stopped run resumes with the same command.
+Each trial asks every question of the run in turn (by default the two of the paper's second
+study, :data:`QUESTIONS`), each answer on disk before the next is asked; ``r`` shows the trial
+again and asks the same question again. A question already answered in the ratings file is
+not asked again, and a trial whose every question is answered is skipped, so a stopped run
+resumes with the same command.
 Before each trial the slots the two configurations name must be live with a pose; if one is
 not, the operator is told which and may retry or stop.
 """
@@ -27,6 +31,14 @@ from studies.stimulus import compose, slot_regions
 ANSWERS = {"-2": -2, "-1": -1, "0": 0, "1": 1, "2": 2, "+1": 1, "+2": 2}
 HELP = "-2 clearly left, -1 slightly left, 0 equal, 1 slightly right, 2 clearly right; r repeat, q stop"
 
+#: the questions a trial asks unless told otherwise: (key, the words the operator reads out). The
+#: paper's second study asked two questions of every pair; the sense of projection (does the
+#: picture read as the surface's own pattern, or as light thrown on it) and the shadow.
+QUESTIONS: tuple[tuple[str, str], ...] = (
+    ("sop", "Which side looks more like a pattern of the surface itself, less like a projection?"),
+    ("shadow", "On which side is the hand's shadow less disturbing?"),
+)
+
 
 @dataclass
 class RunSettings:
@@ -37,7 +49,7 @@ class RunSettings:
     surround: float = 0.0
     mirror: bool = False
     gap_s: float = 1.0
-    question: str = ""
+    questions: tuple[tuple[str, str], ...] = QUESTIONS
     _composed: dict[str, np.ndarray] = field(default_factory=dict, init=False, repr=False)
 
     def content(self, image: str, load: Callable[[str], np.ndarray]) -> np.ndarray:
@@ -61,15 +73,19 @@ async def run_trials(client, trials: Sequence[Trial], log: RatingsLog, configura
 
     ``ask(prompt)`` reads the operator's line, blocking (EOFError counts as ``q``); ``load(name)`` an image.
     """
-    todo = [t for t in trials if not log.has(t.participant, t.image, t.left, t.right)]
+    def open_questions(t: Trial) -> list[tuple[str, str]]:
+        return [(key, text) for key, text in settings.questions if not log.has(t.participant, t.image, t.left, t.right,
+                                                                                 key)]
+
+    todo = [t for t in trials if open_questions(t)]
     total, done = len(trials), len(trials) - len(todo)
     if not todo:
         say(f"participant {trials[0].participant}: all {total} trials are answered already")
         return 0, 0
     if done:
         say(f"participant {trials[0].participant}: resuming after {done} of {total} trials answered")
-    if settings.question:
-        say(f"question: {settings.question}")
+    for key, text in settings.questions:
+        say(f"question {key}: {text}")
     rig_slots = [n.slot for n in (await client.status()).nodes]
     answered = 0
     for k, tr in enumerate(todo):
@@ -81,24 +97,26 @@ async def run_trials(client, trials: Sequence[Trial], log: RatingsLog, configura
         regions = slot_regions(rig_slots, configurations[tr.left], configurations[tr.right], settings.content_size,
                                mirror=settings.mirror)
         content = settings.content(tr.image, load)
-        prompt = (f"[{done + k + 1}/{total}] {tr.image}: left {tr.left} | right {tr.right}  answer ({HELP}): ")
+        head = f"[{done + k + 1}/{total}] {tr.image}: left {tr.left} | right {tr.right} "
         shown = False
-        while True:
-            if not shown:
-                await _black(client, settings.gap_s)
-                await client.show(content, name=f"study {tr.image}: {tr.left} | {tr.right}", slot_regions=regions)
-                shown = True
-            line = (await _ask(ask, prompt)).strip().lower()
-            if line == "q":
-                return await _stopped(client, answered, len(todo) - k, say)
-            if line == "r":
-                shown = False
-                continue
-            if line in ANSWERS:
-                log.append(tr.participant, tr.image, tr.left, tr.right, tr.trial, ANSWERS[line])
-                answered += 1
-                break
-            say(f"  {line!r} is not an answer: {HELP}")
+        for key, text in open_questions(tr):
+            prompt = f"{head} {key}: {text}  answer ({HELP}): "
+            while True:
+                if not shown:
+                    await _black(client, settings.gap_s)
+                    await client.show(content, name=f"study {tr.image}: {tr.left} | {tr.right}", slot_regions=regions)
+                    shown = True
+                line = (await _ask(ask, prompt)).strip().lower()
+                if line == "q":
+                    return await _stopped(client, answered, len(todo) - k, say)
+                if line == "r":
+                    shown = False
+                    continue
+                if line in ANSWERS:
+                    log.append(tr.participant, tr.image, tr.left, tr.right, tr.trial, ANSWERS[line], key)
+                    break
+                say(f"  {line!r} is not an answer: {HELP}")
+        answered += 1
     await client.stop(blackout=True)
     say(f"participant {trials[0].participant}: all {total} trials answered ({answered} now); ratings in {log.path}")
     return answered, 0

@@ -23,6 +23,22 @@ effects ``g`` (what the pair adds beyond the two scale values) and error. With
 
 The sums of squares are the least-squares decomposition of that model (tests fit it with numpy
 directly and compare).
+
+What the numbers cannot say is said, not guessed: when the error sum of squares is 0 (a panel
+whose every rating the model explains, or all-zero ratings) an F ratio is ``MS / 0`` or
+``0 / 0`` and the yardstick is 0; they are reported as undefined (NaN here, null in JSON) with
+the reason in :attr:`AnovaRow.undefined` and :attr:`ScheffeResult.undefined`, never as
+``F = inf, p = 0``. Scores are read on a stated scale (:func:`read_ratings`, ``-2..2`` unless
+told): a score outside it, or a fraction on a scale of whole steps, is refused naming the file,
+row and value.
+
+Nakaya's design has no order term: each judge rates each pair once, shown one way round, so a
+preference for the side (or the moment) a configuration is shown on is not separated from the
+configurations in this table. What it does to the result depends on the balance of sides: with
+every pair shown each way round equally often across judges (``shadowless study schedule``
+does that) a side preference only adds to the error term, widening the yardsticks; without
+that balance it shifts the scale values, and nothing in the table shows it. The checks in
+:mod:`studies.side_checks` look for it from outside the model, as warnings.
 """
 from __future__ import annotations
 
@@ -41,8 +57,9 @@ class AnovaRow:
     ss: float
     df: int
     ms: float
-    f: float          # NaN for error and total
-    p: float          # NaN for error and total
+    f: float          # NaN for error and total, and when undefined
+    p: float          # NaN for error and total, and when undefined
+    undefined: str = ""   # why F and p are undefined (an effect's row only); "" when they are defined
 
 
 @dataclass(frozen=True)
@@ -54,8 +71,9 @@ class ScheffeResult:
     participants: tuple[str, ...]
     scale: np.ndarray                       # (t,) float64
     anova: tuple[AnovaRow, ...]
-    yardstick: dict[float, float]           # level -> Y
-    letters: dict[float, tuple[str, ...]]   # level -> a letter string per item
+    yardstick: dict[float, float]           # level -> Y; NaN when undefined
+    letters: dict[float, tuple[str, ...]]   # level -> a letter string per item; no entry when undefined
+    undefined: str = ""                     # why the yardsticks are undefined; "" when they are defined
 
     def row(self, source: str) -> AnovaRow:
         return next(r for r in self.anova if r.source == source)
@@ -98,14 +116,68 @@ def ratings_array(rows: list[tuple[str, str, str, float]]) -> tuple[np.ndarray, 
     return x, tuple(items), tuple(people)
 
 
-def read_ratings(path: str | Path, *, image: str | None = None) -> list[tuple[str, str, str, float]]:
+#: the scale `study run` records on (-2 clearly left .. 2 clearly right), and the default of :func:`read_ratings`
+RUN_SCALE = (-2.0, 2.0)
+
+
+def parse_scale(text: str) -> tuple[float, float]:
+    """``"-3..3"`` -> (-3.0, 3.0). ValueError unless it is MIN..MAX, symmetric around 0: the rating
+    of i over j is minus the rating of j over i, so a paired-comparison scale has both sides."""
+    lo, sep, hi = str(text).strip().partition("..")
+    try:
+        a, b = float(lo), float(hi)
+    except ValueError:
+        a = b = math.nan
+    if not sep or not (math.isfinite(a) and math.isfinite(b)):
+        raise ValueError(f"{text!r} is not a scale MIN..MAX, e.g. -3..3")
+    if not (a < 0 < b and a == -b):
+        raise ValueError(f"{text!r}: a paired-comparison scale runs from -MAX to MAX (a rating of i over j is minus "
+                         f"the rating of j over i), e.g. -3..3")
+    return a, b
+
+
+def scale_text(scale: tuple[float, float]) -> str:
+    return f"{scale[0]:g}..{scale[1]:g}"
+
+
+def read_questions(path: str | Path) -> tuple[tuple[str, ...], bool]:
+    """The questions a ratings file answers, in order of first appearance, and whether it is a
+    run's file from before `study run` asked two questions (the run's columns without ``question``).
+
+    ``()`` for a file without a question column (one question, unnamed)."""
+    p = Path(path)
+    try:
+        with p.open(newline="") as f:
+            reader = csv.DictReader(f)
+            cols = set(reader.fieldnames or [])
+            if "question" not in cols:
+                return (), {"image", "trial", "answer"} <= cols
+            seen: dict[str, None] = {}
+            for r in reader:
+                seen.setdefault(r.get("question") or "", None)
+    except OSError as exc:
+        raise ValueError(f"cannot read {p}: {exc.strerror or exc}") from None
+    return tuple(seen), False
+
+
+def read_ratings(path: str | Path, *, image: str | None = None, question: str | None = None,
+                 scale: tuple[float, float] = RUN_SCALE, continuous: bool = False,
+                 judge_per_image: bool = True) -> list[tuple[str, str, str, float]]:
     """A ratings CSV with columns ``participant,first,second,score`` (a header row).
 
     With an ``image`` column too (``shadowless study run`` writes one), each participant on each
-    image is one judge, ``participant/image``: Nakaya's design has every judge rate every pair
-    once, and a participant rates every pair once per image. ``image``: keep that image's rows only.
+    image is one judge, ``participant/image`` (unless ``judge_per_image`` is False): Nakaya's design
+    has every judge rate every pair once, and a participant rates every pair once per image.
+    ``image``: keep that image's rows only. With a ``question`` column (a run's file records
+    every question of a trial), ``question`` keeps that question's rows; a file of several
+    questions needs it (each is its own analysis).
+
+    Every score must lie on ``scale`` (MIN, MAX) and, unless ``continuous``, be a whole number:
+    ValueError naming the file, row and value otherwise (the rows of other images and questions
+    too: a file with a bad row is a bad file).
     """
     p = Path(path)
+    lo, hi = scale
     try:
         with p.open(newline="") as f:
             reader = csv.DictReader(f)
@@ -113,16 +185,35 @@ def read_ratings(path: str | Path, *, image: str | None = None) -> list[tuple[st
             if not reader.fieldnames or not need <= set(reader.fieldnames):
                 raise ValueError(f"{p}: the header must name the columns participant, first, second, score "
                                  f"(found: {', '.join(reader.fieldnames or []) or 'none'})")
-            rows = []
+            asked = "question" in reader.fieldnames
+            rows, questions = [], set()
             for k, r in enumerate(reader, start=2):
-                img = r.get("image") or ""
-                if image is not None and img != image:
-                    continue
                 try:
-                    rows.append((f"{r['participant']}/{img}" if img else r["participant"], r["first"], r["second"],
-                                 float(r["score"])))
+                    score = float(r["score"])
                 except (TypeError, ValueError):
                     raise ValueError(f"{p}:{k}: score {r.get('score')!r} is not a number") from None
+                if not math.isfinite(score):
+                    raise ValueError(f"{p}:{k}: score {r['score']!r} is not a number")
+                if not lo <= score <= hi:
+                    raise ValueError(f"{p}:{k}: score {r['score']!r} is outside the scale {scale_text(scale)} "
+                                     f"(--scale gives another)")
+                if not continuous and score != round(score):
+                    raise ValueError(f"{p}:{k}: score {r['score']!r} is not a whole step of the scale "
+                                     f"{scale_text(scale)} (--continuous allows fractions)")
+                img, q = r.get("image") or "", r.get("question") or ""
+                questions.add(q)
+                if (image is not None and img != image) or (question is not None and q != question):
+                    continue
+                judge = f"{r['participant']}/{img}" if img and judge_per_image else r["participant"]
+                rows.append((judge, r["first"], r["second"], score))
+            if question is not None and not asked:
+                raise ValueError(f"{p}: no question column (one question per trial): leave out the question")
+            if question is None and len(questions) > 1:
+                raise ValueError(f"{p}: answers {len(questions)} questions ({', '.join(sorted(questions))}): "
+                                 f"analyse one at a time")
+            if question is not None and question not in questions:
+                raise ValueError(f"{p}: no answers to question {question!r} (questions: "
+                                 f"{', '.join(sorted(questions)) or 'none'})")
             if image is not None and not rows:
                 raise ValueError(f"{p}: no ratings of image {image!r}")
     except OSError as exc:
@@ -163,18 +254,34 @@ def scheffe_nakaya(x: np.ndarray, items: tuple[str, ...], participants: tuple[st
     s_g = float((xij ** 2).sum() / n - s_a)
     s_t = float((x[iu] ** 2).sum())
     s_e = s_t - s_a - s_ab - s_g
+    if s_e <= 1e-10 * s_t:      # 0 up to rounding (the sums are of integers on a whole-step scale)
+        s_e = 0.0
     df = {"main effect": t - 1, "individual differences": (t - 1) * (n - 1),
           "combination": (t - 1) * (t - 2) // 2}
-    df_e = n * t * (t - 1) // 2 - sum(df.values())
-    ms_e = s_e / df_e if df_e > 0 else float("nan")
+    df_e = n * t * (t - 1) // 2 - sum(df.values())     # (t - 1)(t - 2)(n - 1) / 2 >= 1 for t >= 3, n >= 2
+    ms_e = s_e / df_e
     rows = []
     for source, ss in (("main effect", s_a), ("individual differences", s_ab), ("combination", s_g)):
         ms = ss / df[source]
-        f = ms / ms_e if ms_e > 0 else float("inf")
-        rows.append(AnovaRow(source, ss, df[source], ms, f, float(stats.f.sf(f, df[source], df_e))))
-    rows.append(AnovaRow("error", s_e, df_e, ms_e, float("nan"), float("nan")))
-    rows.append(AnovaRow("total", s_t, n * t * (t - 1) // 2, float("nan"), float("nan"), float("nan")))
+        if s_t == 0:
+            why = "every rating is 0: F = 0 / 0"
+        elif ms_e == 0:
+            why = (f"the error term is 0 (the model explains every rating): F = {'0 / 0' if ms <= 0 else 'MS / 0'} "
+                   f"is undefined, not significant")
+        else:
+            why = ""
+        if why:
+            rows.append(AnovaRow(source, ss, df[source], ms, math.nan, math.nan, why))
+        else:
+            f = ms / ms_e
+            rows.append(AnovaRow(source, ss, df[source], ms, f, float(stats.f.sf(f, df[source], df_e))))
+    rows.append(AnovaRow("error", s_e, df_e, ms_e, math.nan, math.nan))
+    rows.append(AnovaRow("total", s_t, n * t * (t - 1) // 2, math.nan, math.nan, math.nan))
     scale = xi / (t * n)
+    if ms_e == 0:
+        why = ("every rating is 0: no yardstick" if s_t == 0 else
+               "the error term is 0: a yardstick of 0 would call every difference significant; it is undefined")
+        return ScheffeResult(items, participants, scale, tuple(rows), {lv: math.nan for lv in levels}, {}, why)
     yard = {lv: float(stats.studentized_range.ppf(1 - lv, t, df_e) * math.sqrt(ms_e / (t * n))) for lv in levels}
     return ScheffeResult(items, participants, scale, tuple(rows), yard,
                          {lv: _letters(scale, y) for lv, y in yard.items()})

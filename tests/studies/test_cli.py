@@ -38,7 +38,7 @@ def test_scheffe_and_paired_from_csv(tmp_path):
     done = study("paired", tmp_path / "t.csv", "--json")
     assert done.returncode == 0, done.stderr
     d = json.loads(done.stdout)
-    assert d["conditions"] == ["P1", "P25"] and d["p"] < 0.01 and d["ratio"] < 1
+    assert d["conditions"] == ["P1", "P25"] and d["p"] < 0.01 and d["geometric_mean_ratio"] < 1 and d["statistic"] < 0
 
 
 def test_bad_study_files_are_one_line_and_status_2(tmp_path):

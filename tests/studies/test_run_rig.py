@@ -3,7 +3,8 @@ gRPC, real GL). Configuration A is r0c0 + r0c1, B is r0c1 alone, r0c2 is in neit
 shows A and B side by side, so r0c0 must light one half only, r0c1 both, r0c2 nothing. What
 every node rendered (its snapshot) is compared with an independent reference: the trial content
 masked with numpy and warped with OpenCV. The operator's keyboard is a script: a wrong key, a
-repeat, an answer, a stop, then the same run again resumes at the open trial."""
+repeat, an answer to each of two questions, a stop, then the same run again resumes at the open
+trial; a trial stopped between its two questions asks only the open one."""
 from __future__ import annotations
 
 import asyncio
@@ -102,16 +103,19 @@ def test_trials_light_each_half_with_its_configuration_and_resume(rig, tmp_path)
     configs_file.write_text(CONFIGS)
     configs = load_configurations(configs_file)
     trials = make_schedule(1, ["A", "B"], ["card"], design="ordered", seed=0)     # A|B and B|A
-    settings = RunSettings(CONTENT, margin=0.0, surround=0.2, gap_s=0.0)
+    settings = RunSettings(CONTENT, margin=0.0, surround=0.2, gap_s=0.0,
+                           questions=(("sop", "Which looks painted on?"), ("shadow", "Which shadow disturbs less?")))
     content = compose(card, CONTENT, margin=0.0, surround=0.2)
     half = {"left": slice(0, CONTENT[0] // 2), "right": slice(CONTENT[0] // 2, CONTENT[0])}
     log = RatingsLog(tmp_path / "ratings.csv")
     said: list[str] = []
     checked: list[tuple[str, str]] = []
+    asked: list[str] = []
 
     def checker(client, script):
         def ask(prompt: str) -> str:
             left, right = re.search(r"left (\S+) \| right (\S+) ", prompt).groups()
+            asked.append(re.search(r" (sop|shadow): ", prompt).group(1))
             shots = wait_snapshots(rig, client.last.frame_id)
             for i, s in enumerate(SLOTS):
                 cols = [half[side] for side, cfg in (("left", left), ("right", right)) if s in configs[cfg]]
@@ -134,7 +138,7 @@ def test_trials_light_each_half_with_its_configuration_and_resume(rig, tmp_path)
                 assert refused.value.code == "INVALID_ARGUMENT" and says in refused.value.details
             rec = Recorded(c)
             first = await run_trials(rec, trials, log, configs, settings, load=lambda name: card,
-                                     ask=checker(rec, ["x", "r", "2", "q"]), say=said.append)
+                                     ask=checker(rec, ["x", "r", "2", "0", "1", "q"]), say=said.append)
             again = await run_trials(rec, trials, RatingsLog(log.path), configs, settings, load=lambda name: card,
                                      ask=checker(rec, ["-1"]), say=said.append)
             showing = (await c.status()).showing
@@ -143,11 +147,14 @@ def test_trials_light_each_half_with_its_configuration_and_resume(rig, tmp_path)
     first, again, showing = asyncio.run(go())
     assert first == (1, 1) and again == (1, 0)
     (l1, r1), (l2, r2) = (trials[0].left, trials[0].right), (trials[1].left, trials[1].right)
-    # trial 1 shown, shown again after 'x' was refused and 'r' asked for a repeat; trial 2 once, then once more
-    assert checked == [(l1, r1)] * 3 + [(l2, r2)] * 2
+    # trial 1 shown, its sop asked again after 'x' was refused and 'r' asked for a repeat, then its shadow;
+    # trial 2's sop answered, a stop before its shadow, which the second run asks alone
+    assert checked == [(l1, r1)] * 4 + [(l2, r2)] * 3
+    assert asked == ["sop", "sop", "sop", "shadow", "sop", "shadow", "shadow"]
     assert any("'x' is not an answer" in s for s in said) and any("resuming after 1 of 2" in s for s in said)
     rows = log.path.read_text().splitlines()
-    assert rows[1:] == [f"1,{l1},{r1},-2,card,1,2", f"1,{l2},{r2},1,card,2,-1"]
+    assert rows[1:] == [f"1,{l1},{r1},-2,card,1,2,sop", f"1,{l1},{r1},0,card,1,0,shadow",
+                        f"1,{l2},{r2},-1,card,2,1,sop", f"1,{l2},{r2},1,card,2,-1,shadow"]
     assert "black" in showing
 
 
@@ -167,11 +174,12 @@ def test_the_command_runs_a_participant_from_the_keyboard(rig, tmp_path):
     run = [*base, "run", str(tmp_path / "s.csv"), "--participant", "2", "--ratings", str(tmp_path / "r.csv"),
            "--configurations", str(tmp_path / "configs.toml"), "--gap", "0", "--rig-dir", str(rig.rig_dir),
            "--coordinator", rig.target]
-    done = subprocess.run(run, input="7\n1\n-2\n", capture_output=True, text=True, timeout=120, env=env)
+    done = subprocess.run(run, input="7\n1\n2\n-2\n0\n", capture_output=True, text=True, timeout=120, env=env)
     assert done.returncode == 0, done.stderr
     assert "'7' is not an answer" in done.stdout and "all 2 trials answered" in done.stdout
     rows = (tmp_path / "r.csv").read_text().splitlines()
-    assert len(rows) == 3 and [r.split(",")[6] for r in rows[1:]] == ["1", "-2"]
+    assert len(rows) == 5 and [r.split(",")[6] for r in rows[1:]] == ["1", "2", "-2", "0"]
+    assert [r.split(",")[7] for r in rows[1:]] == ["sop", "shadow"] * 2        # the default two questions
     assert {r.split(",")[4] for r in rows[1:]} == {"one.png", "two.png"}
     again = subprocess.run(run, input="", capture_output=True, text=True, timeout=120, env=env)
     assert again.returncode == 0 and "all 2 trials are answered already" in again.stdout, again.stderr
