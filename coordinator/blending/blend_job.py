@@ -21,12 +21,16 @@ stored with it folded in.
 
 The contributions live on a grid over the camera image. On a planar rig (a table, a wall) each
 projector's pixels are placed on it through its homography. A mesh rig (``experimental_mesh``)
-places them through the texture (:mod:`imaging.blending.mesh`: the camera's view of the mesh and
-each texel's point through each projector's 3x4 pose, from the 3D calibration), over the part of
-the image where the camera sees the mesh, and models each projector's light as a smooth function of
-its pixels times the cosine of its incidence over the squared distance. It is experimental: on the
-room's bust its own model predicts a non-uniformity near 30 % after blending (the shading varies
-faster than the maps and the blob samples follow), so it is off unless asked for.
+places them through the 3D poses (:mod:`imaging.blending.mesh`: the camera's view of the mesh
+rasterised at the grid's size, each grid point's surface point projected through each
+projector's 3x4 pose, a shadow-map test for what it reaches), and models each projector's light
+as its lamp's smooth light in its own pixels times the geometric factor of the irradiance
+(``cos(incidence) / distance^2``, from the mesh's interpolated normals), which changes as fast as
+the surface bends. The blobs are read with that factor divided out pixel by pixel, inside each
+disc only (:mod:`imaging.blending.mesh_samples`), the flat white then holds the modelled lights'
+sum at every point, and the maps are fitted jointly by least squares against the target
+(:mod:`imaging.blending.mesh_maps`), since a texel of a projector's map may light two surfaces
+far apart. It stays experimental until it meets issue 37's 3 % on the room's bust.
 """
 from __future__ import annotations
 
@@ -47,8 +51,8 @@ from coordinator.rig import HomographyPose
 from imaging.blending.contributions import Contributions, apply_homography_grid, grid_shape, grid_to_camera
 from imaging.blending.errors import BlendError
 from imaging.blending.fit import fit_contributions
-from imaging.blending.mesh import mesh_projector_xy, texel_projector_table
-from imaging.compensation.texture_space import MeshCaster
+from imaging.blending.mesh import MeshPlacement, mesh_placement
+from imaging.blending.mesh_samples import match_flat_white, read_capture_shaded
 from imaging.blending.metrics import ratio_image, seam_step, to_grid, uniformity
 from imaging.blending.predict import predict
 from imaging.blending.sample_plan import plan_samples
@@ -157,39 +161,35 @@ async def run(ctx: JobContext, opts: BlendOptions) -> BlendResult:
         raise
 
 
-async def _mesh_placement(ctx: JobContext, opts: BlendOptions, slots: list[str], cam: tuple[int, int], scale: int,
-                          content: tuple[int, int]) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """A mesh rig: the surface on the grid (where the camera sees the mesh) and each slot's projector
-    coordinates there, through the texture (:mod:`imaging.blending.mesh`), and the geometric factor of each
-    one's light there (:func:`imaging.blending.fit.fit_contributions`' ``shading``)."""
-    from coordinator.compensation.mesh_rig import mesh_geometry
+async def _mesh_placement(ctx: JobContext, opts: BlendOptions, slots: list[str], cam: tuple[int, int], scale: int
+                          ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray], MeshPlacement]:
+    """A mesh rig: the surface on the grid (where the camera sees the mesh), each slot's projector coordinates
+    there and the geometric factor of its light there (:func:`imaging.blending.fit.fit_contributions`'
+    ``shading``), from the camera's and the projectors' 3D poses and the mesh (:mod:`imaging.blending.mesh`);
+    and the same on a grid twice as fine, which the blobs are read on (:mod:`imaging.blending.mesh_samples`)."""
+    from coordinator.compensation.mesh_rig import camera_projection, rig_mesh
     from imaging.compensation.errors import CompensationError
 
+    rig = ctx.rig
     try:
-        geo = await ctx.compute(mesh_geometry, ctx.rig, slots, opts.camera, projectors=True, camera_size=cam)
+        P, size = camera_projection(rig.path, opts.camera)
+        mesh = rig_mesh(rig, slots)
     except CompensationError as exc:
         raise JobError(str(exc)) from exc
+    if tuple(size) != tuple(cam):
+        raise JobError(f"camera {opts.camera} delivers {cam[0]}x{cam[1]} images but was calibrated at "
+                       f"{size[0]}x{size[1]}: calibrate again")
     shape = grid_shape(cam, scale)
-
-    def tables() -> dict[str, np.ndarray]:
-        mesh = geo.mesh
-        with MeshCaster(mesh.vertices, mesh.uvs, mesh.faces) as caster:
-            atlas = caster.atlas(content)
-        return {s: texel_projector_table(atlas, ctx.rig.slot(s).pose.matrix, geo.projectors[s]) for s in slots}
-
-    xy = await ctx.compute(mesh_projector_xy, geo.view.x, geo.view.y, await ctx.compute(tables), shape)
-    pts = grid_to_camera(cam, shape)
-    on = geo.view.on_mesh[np.clip(np.rint(pts[..., 1]).astype(int), 0, cam[1] - 1),
-                          np.clip(np.rint(pts[..., 0]).astype(int), 0, cam[0] - 1)]
-    surface = cv2.erode(on.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    shading = {}
-    for s in slots:   # irradiance's geometric factor: cos(incidence) / depth^2, through each projector's view
-        v = geo.projectors[s]
-        g = np.where(v.on_mesh, v.cos / np.maximum(v.depth, 1.0) ** 2, 0.0).astype(np.float32)
-        g /= max(float(np.median(g[v.on_mesh])) if v.on_mesh.any() else 1.0, 1e-30)
-        u = np.nan_to_num(xy[s], nan=-10.0).astype(np.float32)
-        shading[s] = cv2.remap(g, u[..., 0], u[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return surface, xy, shading
+    poses = {s: (rig.slot(s).pose.matrix, ctx.projector_size(s), rig.slot(s).pose.near_mm, rig.slot(s).pose.far_mm)
+             for s in slots}
+    try:
+        placed = await ctx.compute(mesh_placement, mesh.vertices, mesh.faces, P, cam, shape, poses)
+        fine = await ctx.compute(mesh_placement, mesh.vertices, mesh.faces, P, cam,
+                                 grid_shape(cam, max(1, scale // 2)), poses)
+    except BlendError as exc:
+        raise JobError(str(exc)) from exc
+    surface = cv2.erode(placed.surface.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return surface, placed.xy, placed.shading, fine
 
 
 async def _white(ctx: JobContext, opts: BlendOptions, shape: tuple[int, int]) -> np.ndarray:
@@ -211,7 +211,7 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
     cam = (before.shape[1], before.shape[0])
     ctx.progress("white", "", 1, 1, "flat white, no blend")
     scale = opts.grid_scale or max(1, int(math.ceil(max(cam) / GRID_TARGET)))
-    shading = None
+    shading = fine = None
     if isinstance(rig.slot(slots[0]).pose, HomographyPose):
         H, cal_size = rig_geometry(ctx, opts.camera)
         if cal_size != (0, 0) and tuple(cal_size) != cam:
@@ -224,7 +224,7 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
             m = rig.slot(s).pose.matrix @ Hinv
             c2p[s] = m / m[2, 2]
     else:
-        surface, c2p, shading = await _mesh_placement(ctx, opts, slots, cam, scale, content)
+        surface, c2p, shading, fine = await _mesh_placement(ctx, opts, slots, cam, scale)
     sizes = {s: ctx.projector_size(s) for s in slots}
     try:
         plan = await ctx.compute(plan_samples, cam, c2p, sizes, surface=surface, radius=opts.blob_radius,
@@ -248,16 +248,25 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
         frames = await ctx.compute(plan.frames, k)
         await ctx.show(frames, settle_s=opts.settle_s)
         cap = await ctx.capture(opts.camera, frames=opts.frames, exposure=e) / np.float32(exposure)
-        read = await ctx.compute(read_capture, cap, black, plan, k, samples)
+        if fine is None:
+            read = await ctx.compute(read_capture, cap, black, plan, k, samples)
+        else:
+            read = await ctx.compute(read_capture_shaded, cap, black, plan, k, samples, fine.xy, fine.shading)
         ctx.progress("blobs", "", k + 2, plan.captures + 1, f"{read} blobs read", value=float(read))
     blob_captures = ctx.captures - c0 - opts.frames
 
     tc = time.monotonic()
     try:
         measured, fit_figs = await ctx.compute(fit_contributions, plan, samples, black, c2p, scale=scale,
-                                               surface=surface, degree=opts.degree, shading=shading)
+                                               surface=surface, degree=opts.degree, shading=shading,
+                                               shaded=fine is not None)
     except BlendError as exc:
         raise JobError(str(exc)) from exc
+    if fine is not None:     # a mesh: the flat white measured the lights' sum at every point; hold the model to it
+        flat = to_grid(before - black, measured.shape)
+        measured = Contributions(measured.camera_size, measured.scale, match_flat_white(measured.white, flat, surface),
+                                 dict(measured.black), dict(measured.camera_to_projector),
+                                 dict(measured.projector_size), measured.projector_xy)
     gains = {s: float(rig.slot(s).gain) for s in slots}
     contributions = Contributions(measured.camera_size, measured.scale,
                                   {s: measured.white[s] * np.float32(gains[s]) for s in slots},

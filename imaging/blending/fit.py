@@ -85,8 +85,8 @@ def _fit_log(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, camera_to_projector: Mapping[str, np.ndarray],
                       *, scale: int, surface: np.ndarray | None = None, degree: int = 4,
-                      smoothing: float | None = None, shading: Mapping[str, np.ndarray] | None = None
-                      ) -> tuple[Contributions, dict]:
+                      smoothing: float | None = None, shading: Mapping[str, np.ndarray] | None = None,
+                      shaded: bool = False) -> tuple[Contributions, dict]:
     """The rig's :class:`Contributions` from the blob samples and the black capture.
 
     Parameters
@@ -107,6 +107,8 @@ def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, cam
         A known factor of each projector's light on the grid (a mesh: the cosine of the light's incidence
         over the squared distance, which changes with the surface's shape, not smoothly in the projector's
         pixels); the smooth model is fitted to the light divided by it and multiplied back.
+    shaded : bool
+        The samples already have the shading divided out (:func:`imaging.blending.mesh_samples.read_capture_shaded`).
     camera_to_projector : slot -> (3, 3) float64 or (h', w', 2)
         Full-camera pixels -> projector pixels (those the plan placed the blobs with): a homography, or a mesh
         rig's projector coordinates on a grid over the camera image (the result then holds them on its grid).
@@ -133,8 +135,9 @@ def fit_contributions(plan: SamplePlan, samples: Samples, black: np.ndarray, cam
         shade = None
         if shading is not None and s in shading:
             shade = np.asarray(shading[s], np.float32)
-            at = _grid_at(shade, plan.sites[sites], (Wc, Hc))
-            values = np.where((at > 0)[:, None], values / np.maximum(at, 1e-12)[:, None], 0.0)
+            if not shaded:
+                at = _grid_at(shade, plan.sites[sites], (Wc, Hc))
+                values = np.where((at > 0)[:, None], values / np.maximum(at, 1e-12)[:, None], 0.0)
         lum = luma(values.astype(np.float32))
         ok = np.all(values > 0, axis=1)
         if ok.sum() >= MIN_SAMPLES:

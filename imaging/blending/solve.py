@@ -397,6 +397,13 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
                    np.clip(sampled[..., 3], 0.0, 1.0).astype(np.float32))
         n = int(fp.sum())
         uncovered[s] = float(((count == 1) & fp).sum() / n) if n else 1.0
+    if c.projector_xy is not None and all(s in c.projector_xy for s in active):
+        # a mesh: sampled maps miss the target where a texel spans surfaces or fast shading; fit them instead
+        from imaging.blending.mesh_maps import fit_alpha_maps
+        alphas = fit_alpha_maps({s: c.white[s] for s in active}, {s: c.projector_coords(s) for s in active},
+                                {s: c.projector_size[s] for s in active}, {s: maps[s][0] for s in active},
+                                {s: r[s][..., None] * Q for s in active}, target, covered)
+        maps = {s: (alphas[s], maps[s][1]) for s in active}
     return BlendSolution(maps=maps, target=target.astype(np.float32),
                          black_target=np.where(covered, plan.black_target, 0.0).astype(np.float32),
                          covered=covered, headroom=float(plan.used), brightness_cost=float(plan.cost),

@@ -1,0 +1,138 @@
+"""A mesh rig's alpha maps, fitted jointly so that the light they give matches the target where the camera
+sees the surface.
+
+On a planar rig a map texel covers a small patch of one surface, so sampling the wanted gain ``r_i Q``
+(:mod:`imaging.blending.solve`) at each texel's point is enough. On a mesh a texel of a projector's map
+(``map_scale`` pixels a side) may light two surfaces far apart (a chin and the neck behind it), or a patch
+over which the shading changes much faster than the map can: sampled, the maps miss the target there by
+tens of percent. So the maps are fitted instead, per colour channel, by sparse least squares over every
+camera grid point ``x`` the blend covers:
+
+* **the light** (weight 1): ``sum_i T_i(x) alpha_i(u_i(x)) = target(x)``, relative to the target, where
+  ``alpha_i(u)`` is the node's own bilinear sampling of the map (:func:`bilinear_matrix`, the convention of
+  :func:`imaging.blending.predict.sample_map`); a point one projector's texel misses is made up by the
+  others' where they reach it;
+* **the share** (weight ``share``): each projector's part stays near its weighted share ``r_i Q`` (what the
+  planar solve asks), so that the partition of the light between projectors, and the fades at their
+  footprints' edges, are kept where the light alone does not decide;
+* **smoothness** (weight ``smooth``): neighbouring texels stay close, which also carries values into
+  texels that light nothing the camera sees.
+
+The unknown is the change from the sampled maps (``initial``): the least-norm change leaves a texel no
+equation reaches as it was. Alphas are clipped to 0..1 afterwards, as the node does.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
+
+__all__ = ["bilinear_matrix", "fit_alpha_maps", "SHARE", "SMOOTH"]
+
+#: weight of each projector's share against the light's equations
+SHARE = 0.05
+#: weight of the texel-to-texel smoothness
+SMOOTH = 0.05
+#: the normal equations' ridge (keeps texels no equation reaches where they were)
+RIDGE = 1e-6
+
+
+def bilinear_matrix(u: np.ndarray, projector_size: tuple[int, int], map_size: tuple[int, int]) -> sp.csr_matrix:
+    """``(n, mh * mw)`` CSR float64: row ``k`` holds the bilinear weights with which a node samples a map of
+    ``map_size`` = (mw, mh) over a projector of ``projector_size`` = (W, H) at projector pixel ``u[k]``
+    (``u``: (n, 2) finite): texel centres at ``(t + 0.5) W / mw - 0.5``, clamped at the edges."""
+    W, H = projector_size
+    mw, mh = map_size
+    u = np.asarray(u, np.float64).reshape(-1, 2)
+    tx = np.clip((u[:, 0] + 0.5) * (mw / W) - 0.5, 0.0, mw - 1.0)
+    ty = np.clip((u[:, 1] + 0.5) * (mh / H) - 0.5, 0.0, mh - 1.0)
+    x0 = np.floor(tx).astype(np.int64)
+    y0 = np.floor(ty).astype(np.int64)
+    fx, fy = tx - x0, ty - y0
+    x1, y1 = np.minimum(x0 + 1, mw - 1), np.minimum(y0 + 1, mh - 1)
+    n = len(u)
+    rows = np.repeat(np.arange(n), 4)
+    cols = np.stack([y0 * mw + x0, y0 * mw + x1, y1 * mw + x0, y1 * mw + x1], axis=1).reshape(-1)
+    vals = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1).reshape(-1)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, mw * mh))
+
+
+def _differences(mw: int, mh: int) -> sp.csr_matrix:
+    """``(edges, mh * mw)``: the difference across every horizontal and vertical pair of neighbouring texels."""
+    idx = np.arange(mw * mh).reshape(mh, mw)
+    a = np.concatenate([idx[:, :-1].ravel(), idx[:-1, :].ravel()])
+    b = np.concatenate([idx[:, 1:].ravel(), idx[1:, :].ravel()])
+    m = len(a)
+    rows = np.concatenate([np.arange(m), np.arange(m)])
+    return sp.csr_matrix((np.concatenate([np.ones(m), -np.ones(m)]), (rows, np.concatenate([a, b]))),
+                         shape=(m, mw * mh))
+
+
+def fit_alpha_maps(white: dict, coords: dict, projector_size: dict, initial: dict, share: dict, target: np.ndarray,
+                   covered: np.ndarray, *, share_weight: float = SHARE, smooth: float = SMOOTH) -> dict:
+    """The alpha maps, fitted (see the module docstring).
+
+    Parameters
+    ----------
+    white : slot -> (h, w, 3) float32, each projector's light above black at full white on the grid
+    coords : slot -> (h, w, 2) float64, its projector pixel of every grid point (NaN where it does not reach)
+    projector_size : slot -> (W, H)
+    initial : slot -> (mh, mw, 3) float32, the sampled alpha maps (their size is the maps')
+    share : slot -> (h, w, 3) float32, the gain ``r_i Q`` each projector is asked for on the grid
+    target : (h, w, 3) the light wanted above black; covered : (h, w) bool, where it is asked for
+
+    Returns
+    -------
+    slot -> (mh, mw, 3) float32 alpha maps in 0..1
+    """
+    slots = list(initial)
+    cov = np.asarray(covered, bool) & np.all(np.asarray(target) > 0, axis=-1)
+    idx = np.flatnonzero(cov)
+    n = len(idx)
+    if n == 0 or not slots:
+        return {s: np.asarray(initial[s], np.float32) for s in slots}
+    tgt = np.asarray(target, np.float64).reshape(-1, 3)[idx]
+    sizes, offsets, B, reach = {}, {}, {}, {}
+    total = 0
+    for s in slots:
+        mh, mw = initial[s].shape[:2]
+        sizes[s] = (mw, mh)
+        offsets[s] = total
+        total += mw * mh
+        u = np.asarray(coords[s], np.float64).reshape(-1, 2)[idx]
+        ok = np.isfinite(u).all(axis=1) & np.any(np.asarray(white[s]).reshape(-1, 3)[idx] > 0, axis=1)
+        reach[s] = np.flatnonzero(ok)
+        B[s] = bilinear_matrix(u[ok], projector_size[s], (mw, mh))
+    D = {s: _differences(*sizes[s]) for s in slots}
+    out = {s: np.empty((sizes[s][1], sizes[s][0], 3), np.float32) for s in slots}
+    for ch in range(3):
+        t = tgt[:, ch]
+        light_blocks, share_blocks, share_rhs, smooth_blocks = [], [], [], []
+        for s in slots:
+            k = reach[s]
+            T = np.asarray(white[s], np.float64).reshape(-1, 3)[idx][k, ch] / t[k]   # relative light per unit alpha
+            rows = (sp.diags(T) @ B[s]).tocsr()
+            light_blocks.append(rows)
+            share_blocks.append(share_weight * rows)
+            share_rhs.append(share_weight * T * np.asarray(share[s], np.float64).reshape(-1, 3)[idx][k, ch])
+            smooth_blocks.append(smooth * D[s])
+        # the light: rows are grid points; each slot's block lands on its reached points' rows
+        light = sp.hstack([_scatter(light_blocks[j], reach[s], n) for j, s in enumerate(slots)])
+        A = sp.vstack([light, sp.block_diag(share_blocks), sp.block_diag(smooth_blocks)]).tocsr()
+        b = np.concatenate([np.ones(n), *share_rhs, np.zeros(sum(d.shape[0] for d in D.values()))])
+        x0 = np.concatenate([np.asarray(initial[s], np.float64)[..., ch].ravel() for s in slots])
+        # the normal equations, with a faint pull of every texel toward its sampled value (a texel no equation
+        # reaches keeps it), solved directly
+        N = (A.T @ A).tocsc() + sp.identity(total, format="csc") * RIDGE
+        delta = spsolve(N, A.T @ (b - A @ x0))
+        x = np.clip(x0 + delta, 0.0, 1.0)
+        for s in slots:
+            mw, mh = sizes[s]
+            out[s][..., ch] = x[offsets[s]:offsets[s] + mw * mh].reshape(mh, mw)
+    return out
+
+
+def _scatter(block: sp.csr_matrix, rows: np.ndarray, n: int) -> sp.csr_matrix:
+    """``block``'s rows placed at ``rows`` of an ``n``-row matrix (the others empty)."""
+    coo = block.tocoo()
+    return sp.csr_matrix((coo.data, (rows[coo.row], coo.col)), shape=(n, block.shape[1]))
