@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import textwrap
 from pathlib import Path
 
 from studies.report import dumps, num_text, p_text
@@ -23,7 +24,7 @@ from studies.scheffe import (
     scale_text,
     scheffe_nakaya,
 )
-from studies.side_checks import SideEffect, warnings as side_warnings
+from studies.side_checks import DESIGN_NOTE, SideEffect, warnings as side_warnings
 
 LEGACY_NOTE = ("written before `study run` asked two questions per trial (no question column): its one question "
                "is analysed as it was")
@@ -67,7 +68,7 @@ def _analysis_doc(res: ScheffeResult, side: SideEffect, warns: list[str], note: 
         **({"undefined": res.undefined} if res.undefined else {}),
         "side_effect": {"estimate": side.estimate, "t": side.t, "df": side.df, "p": side.p,
                         "pairs_both_ways": side.pairs_both_ways, "pairs": side.pairs,
-                        **({"undefined": side.undefined} if side.undefined else {})},
+                        **({"undefined": side.undefined} if side.undefined else {}), "about": DESIGN_NOTE},
         "warnings": warns,
         **({"note": note} if note else {}),
     }
@@ -99,6 +100,7 @@ def _print_table(res: ScheffeResult, side: SideEffect, warns: list[str]) -> None
     else:
         print(f"side effect (toward the first-shown one): {side.estimate:+.3f} scale steps, t = {side.t:.2f}, "
               f"df = {side.df}, p = {p_text(side.p)} ({side.pairs_both_ways} of {side.pairs} pairs shown both ways)")
+    print(textwrap.fill(f"({DESIGN_NOTE})", 100, initial_indent="  ", subsequent_indent="   "))
     for w in warns:
         print(f"warning: {w}")
 

@@ -43,6 +43,11 @@ import numpy as np
 
 Row = tuple[str, str, str, float]
 
+#: what the report says beside the side effect (the paragraph above, in one sentence)
+DESIGN_NOTE = ("Nakaya's design has no side (order) term: with the sides balanced across judges a side preference "
+               "only widens the yardsticks, without that balance it shifts the scale values unseen; it is estimated "
+               "here from the pairs shown both ways round, and a participant's own habit shows only if it is total")
+
 
 @dataclass(frozen=True)
 class SideEffect:

@@ -132,3 +132,25 @@ def test_accuracies_with_zeros_and_ties_are_ranked_as_the_textbook_does(tmp_path
     same = paired_tests(first, first + 0.1, log=False, test="t")
     assert math.isnan(same.statistic) and "t = mean / 0" in same.undefined
 
+
+
+def test_the_paired_command_names_direction_ratios_and_undefined_numbers(tmp_path, capsys):
+    from shadowless.cli import main
+
+    ratios = [0.5, 0.9, 0.95, 1.2, 3.0, 0.97, 1.8]
+    f = tmp_path / "t.csv"
+    f.write_text("participant,condition,time_s\n" + "".join(f"p{k},P1,2\np{k},P25,{2 * q}\n" for k, q in enumerate(ratios)))
+    assert main(["study", "paired", str(f), "--test", "wilcoxon"]) == 0
+    text = capsys.readouterr().out
+    assert "differences are P25 − P1" in text and "Wilcoxon signed-rank (P25 − P1): W+ = " in text
+    assert f"geometric mean of the ratios {math.prod(ratios) ** (1 / 7):.3f}x, median of the ratios 0.970x" in text
+    a = tmp_path / "a.csv"
+    a.write_text("participant,condition,accuracy\n" + "".join(f"p{k},P1,{v}\np{k},P25,{v}\n" for k, v in
+                                                               enumerate((0, 0.5, 1, 0))))
+    assert main(["study", "paired", str(a), "--json"]) == 0
+    doc = strict_json(capsys.readouterr().out)
+    assert doc["p"] is None and doc["r"] is None and doc["df"] is None and "every difference is 0" in doc["undefined"]
+    assert doc["geometric_mean_ratio"] is None and "0 or negative" in doc["ratio_undefined"]
+    assert main(["study", "paired", str(a)]) == 0
+    text = capsys.readouterr().out
+    assert "Wilcoxon signed-rank: undefined: every difference is 0" in text and "ratios P25 / P1: undefined" in text
