@@ -38,6 +38,11 @@ def _scale(text: str) -> tuple[float, float]:
 
 
 def configure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Scheffé's paired comparison (Nakaya's modification) of a study's ratings: the ANOVA table, the "
+                     "scale values, the yardsticks at p < .05 and .01 and letter groups, per question. An F or a "
+                     "yardstick over an error term of 0 is undefined and said to be (null in JSON), never infinite. "
+                     "Beside the analysis: the side effect (a preference for the first-shown, left, one, which "
+                     "Nakaya's model has no term for) and participants who chose one side every time, as warnings.")
     p.add_argument("ratings", type=Path, help="CSV: participant,first,second,score")
     p.add_argument("--image", metavar="NAME", help="ratings with an image column (`study run` writes one): this "
                    "image's only (default: every image, each participant on each image one judge)")
@@ -48,7 +53,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                         f"a score outside it, or a fraction, is refused naming its row")
     p.add_argument("--continuous", action="store_true", help="the scale is continuous: fractions are scores too")
     p.add_argument("--chart", type=Path, metavar="SVG", help="write the scale values as a bar chart here (one "
-                   "question: this file; several: KEY inserted before the suffix, e.g. sop.quality.svg)")
+                   "question: this file; several: one per question, e.g. c.svg gives c.sop.svg and c.shadow.svg)")
     p.add_argument("--json", action="store_true", help="print JSON for scripts")
 
 
