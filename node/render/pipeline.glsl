@@ -31,6 +31,25 @@ uniform int from_grey;          // 1: it has 1 or 2 channels
 uniform int from_on;            // 1: content_from holds it; 0: it was black
 uniform int fade_on;            // 1: a fade is under way
 uniform float fade_mix;         // the new picture's share, 0..1
+// A video frame's YUV planes (protos/yuv.py, node/yuv.py), converted here instead of on the CPU:
+// content holds Y; yuv 1: chroma_u and chroma_v hold U and V; yuv 2: chroma_u holds UV interleaved
+// (NV12, P010). RGB = yuv_matrix * (Y, U, V) as sampled + yuv_offset (protos/yuv.py's yuv_affine),
+// chroma bilinear at the luma position, clamped at its edges; luma as any content (outside: black).
+uniform int content_yuv;        // 0: content is RGB(A) or grey; 1: planar YUV; 2: semi-planar YUV
+uniform sampler2D chroma_u;
+uniform sampler2D chroma_v;
+uniform mat3 yuv_matrix;
+uniform vec3 yuv_offset;
+uniform vec4 chroma_xform;      // luma texel -> chroma texel: xy * chroma_xform.xy + chroma_xform.zw
+uniform vec2 luma_scale;        // content pixel -> luma texel: (xy + 0.5) * luma_scale - 0.5
+// The same for the picture a fade starts from (content_from holds its Y)
+uniform int from_yuv;
+uniform sampler2D from_chroma_u;
+uniform sampler2D from_chroma_v;
+uniform mat3 from_yuv_matrix;
+uniform vec3 from_yuv_offset;
+uniform vec4 from_chroma_xform;
+uniform vec2 from_luma_scale;
 
 vec3 content_rgb(vec4 t) {
     return content_grey != 0 ? t.rrr : t.rgb;
@@ -58,7 +77,50 @@ vec3 sample_texture(sampler2D tex, int grey, vec2 xy) {
     return grey != 0 ? t.rrr : t.rgb;
 }
 
+// Bilinear at xy (texels) with the indices clamped to the texture (chroma's edges repeat).
+vec4 sample_clamped(sampler2D tex, vec2 xy) {
+    ivec2 size = textureSize(tex, 0);
+    vec2 base = floor(xy);
+    vec2 f = xy - base;
+    ivec2 p0 = clamp(ivec2(base), ivec2(0), size - 1);
+    ivec2 p1 = clamp(ivec2(base) + 1, ivec2(0), size - 1);
+    vec4 top = (1.0 - f.x) * texelFetch(tex, p0, 0) + f.x * texelFetch(tex, ivec2(p1.x, p0.y), 0);
+    vec4 bottom = (1.0 - f.x) * texelFetch(tex, ivec2(p0.x, p1.y), 0) + f.x * texelFetch(tex, p1, 0);
+    return (1.0 - f.y) * top + f.y * bottom;
+}
+
+// A YUV picture at content pixel xy: luma bilinear with texels outside weighing 0, as
+// sample_texture does, so its edges fade to black as an RGB picture's do; the conversion is
+// affine, so it is applied to the weighted sum: sum(w_i (M (y_i, u, v) + o)) = M (Y, W u, W v) + W o.
+vec3 sample_yuv(sampler2D luma, sampler2D cu, sampler2D cv, int mode, mat3 m, vec3 o, vec4 cx, vec2 scale,
+                vec2 xy) {
+    vec2 l = (xy + 0.5) * scale - 0.5;
+    ivec2 size = textureSize(luma, 0);
+    if (!(all(greaterThan(l, vec2(-1.0))) && all(lessThan(l, vec2(size))))) {
+        return vec3(0.0);
+    }
+    vec2 base = floor(l);
+    vec2 f = l - base;
+    ivec2 p0 = ivec2(base);
+    ivec2 p1 = p0 + 1;
+    vec2 w0 = (1.0 - f) * vec2(greaterThanEqual(p0, ivec2(0)));
+    vec2 w1 = f * vec2(lessThan(p1, size));
+    ivec2 q0 = max(p0, ivec2(0));
+    ivec2 q1 = min(p1, size - 1);
+    float top = w0.x * texelFetch(luma, q0, 0).r + w1.x * texelFetch(luma, ivec2(q1.x, q0.y), 0).r;
+    float bottom = w0.x * texelFetch(luma, ivec2(q0.x, q1.y), 0).r + w1.x * texelFetch(luma, q1, 0).r;
+    float y = w0.y * top + w1.y * bottom;
+    float weight = (w0.x + w1.x) * (w0.y + w1.y);
+    vec2 c = l * cx.xy + cx.zw;
+    vec2 uv = mode == 2 ? sample_clamped(cu, c).rg : vec2(sample_clamped(cu, c).r, sample_clamped(cv, c).r);
+    return m * vec3(y, uv * weight) + o * weight;
+}
+
 vec3 sample_content(vec2 xy) {
+    if (content_yuv != 0) {
+        return sample_yuv(content, chroma_u, chroma_v, content_yuv, yuv_matrix, yuv_offset, chroma_xform,
+                          luma_scale, xy);
+    }
     return sample_texture(content, content_grey, xy);
 }
 
@@ -68,7 +130,13 @@ vec3 sample_faded(vec2 xy) {
     if (fade_on == 0) {
         return value;
     }
-    vec3 before = from_on != 0 ? sample_texture(content_from, from_grey, xy) : vec3(0.0);
+    vec3 before = vec3(0.0);
+    if (from_on != 0) {
+        before = from_yuv != 0
+            ? sample_yuv(content_from, from_chroma_u, from_chroma_v, from_yuv, from_yuv_matrix, from_yuv_offset,
+                         from_chroma_xform, from_luma_scale, xy)
+            : sample_texture(content_from, from_grey, xy);
+    }
     return mix(before, value, fade_mix);
 }
 

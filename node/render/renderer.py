@@ -37,9 +37,11 @@ import numpy as np
 
 from node.errors import NodeError
 from node.render.mesh import Mesh
+from node.render.yuv_textures import YuvTextures, layout_key
 from node.render.shaders import (MIN_GL_VERSION, MIN_GLES_VERSION, glsl_header, has_norm16_textures, is_gles,
                                   load_shader, shading_language)
 from protos.blend import BlendMaps
+from protos.yuv import YuvFrame
 
 __all__ = ["Mesh", "RenderError", "Renderer", "SPACES"]
 
@@ -70,10 +72,11 @@ class _Content:
     shape: tuple[int, ...]
     dtype: np.dtype
     grey: bool
+    yuv: YuvTextures | None = None    # a YUV picture: its planes (texture is then its Y plane)
 
     @property
     def size(self) -> tuple[int, int]:
-        return (self.shape[1], self.shape[0])
+        return self.yuv.content_size if self.yuv is not None else (self.shape[1], self.shape[0])
 
 
 def _check_size(width: int, height: int, limit: int) -> tuple[int, int]:
@@ -143,6 +146,11 @@ class Renderer:
             prog["blend_on"].value = 0
             prog["content_from"].value = 3    # a crossfade's picture before (render(fade=...))
             prog["fade_on"].value = 0
+            # a YUV picture's chroma planes, and those of the picture a fade starts from (yuv_textures.py)
+            for name, unit in (("chroma_u", 4), ("chroma_v", 5), ("from_chroma_u", 6), ("from_chroma_v", 7)):
+                prog[name].value = unit
+            prog["content_yuv"].value = 0
+            prog["from_yuv"].value = 0
         # the blend maps in use (None: none) and those uploaded ahead of use, by blend id
         self._blend: tuple[str, Any, tuple[int, int]] | None = None
         self._blend_ahead: tuple[str, Any, tuple[int, int]] | None = None
@@ -151,6 +159,8 @@ class Renderer:
         self._contents: dict[str, _Content] = {}
         # forgotten textures kept for reuse, by ((H, W, C), dtype); at most SPARE_TEXTURES
         self._spare: dict[tuple[tuple[int, ...], np.dtype], Any] = {}
+        # the last YUV picture forgotten: its textures, refilled by the next of the same layout
+        self._spare_yuv: YuvTextures | None = None
         self._lut_tex: Any = None
         self._lut_shape: tuple[int, int] | None = None
         self.set_lut(None)
@@ -511,6 +521,9 @@ class Renderer:
         """
         if not isinstance(content_id, str) or not content_id:
             raise ValueError(f"content_id must be a non-empty string, got {content_id!r}")
+        if isinstance(image, YuvFrame):
+            self._upload_yuv(content_id, image)
+            return
         arr = np.asarray(image)
         if arr.ndim == 2:
             arr = arr[:, :, None]
@@ -542,6 +555,38 @@ class Renderer:
             tex.repeat_x = tex.repeat_y = False
         self._contents[content_id] = _Content(tex, arr.shape, arr.dtype, c <= 2)
 
+    def _upload_yuv(self, content_id: str, frame: YuvFrame) -> None:
+        """A video frame's planes as textures, converted to RGB in the shader (:mod:`protos.yuv`);
+        drawn at ``frame.content_size``: the warp scales the planes to it."""
+        lw, lh = frame.luma_size
+        if not (1 <= lw <= self._max_texture and 1 <= lh <= self._max_texture):
+            raise ValueError(f"content size {lw}x{lh} is outside 1..{self._max_texture} pixels per side")
+        shape, dtype = frame.planes[0].shape, frame.planes[0].dtype
+        existing = self._contents.get(content_id)
+        if existing is not None:
+            if existing.yuv is not None and existing.yuv.key == layout_key(frame):
+                return
+            raise ValueError(f"content {content_id!r} is already uploaded as another picture; content ids are "
+                             "immutable (forget() it first)")
+        if self._spare_yuv is not None and self._spare_yuv.key == layout_key(frame):
+            planes, self._spare_yuv = self._spare_yuv, None
+            planes.refill(frame)
+        else:
+            if frame.bits > 8 and not self._norm16 and not self._norm16_note_logged:
+                self._norm16_as_float(np.zeros((1, 1), np.uint16))   # logs the note once
+            planes = YuvTextures(frame, self._plane_texture, self._norm16)
+        self._contents[content_id] = _Content(planes.textures[0], shape, dtype, False, planes)
+
+    def _plane_texture(self, data: np.ndarray) -> Any:
+        """One plane's texture: (h, w) or (h, w, 2) uint8, uint16 or float32 (unfiltered, unrepeated)."""
+        h, w = data.shape[:2]
+        comps = 1 if data.ndim == 2 else data.shape[2]
+        tex = self.ctx.texture((w, h), comps, np.ascontiguousarray(data), dtype=_TEXTURE_DTYPES[data.dtype],
+                               alignment=1)
+        tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+        tex.repeat_x = tex.repeat_y = False
+        return tex
+
     def _norm16_as_float(self, data: np.ndarray) -> np.ndarray:
         """(H, W, C) uint16 -> float32 / 65535, for a context without 16-bit normalised textures."""
         if not self._norm16_note_logged:
@@ -560,7 +605,11 @@ class Renderer:
         allocating one per frame); the others are released.
         """
         entry = self._contents.pop(content_id, None)
-        if entry is not None:
+        if entry is not None and entry.yuv is not None:
+            if self._spare_yuv is not None:
+                self._spare_yuv.release()
+            self._spare_yuv = entry.yuv
+        elif entry is not None:
             old = self._spare.pop((entry.shape, entry.dtype), None)
             if old is not None:
                 old.release()
@@ -635,6 +684,7 @@ class Renderer:
         prog["content_grey"].value = int(entry.grey)
         prog["apply_lut"].value = int(apply_lut)
         entry.texture.use(0)
+        self._bind_yuv(prog, entry, mesh=True)
         self._lut_tex.use(1)
         self._bind_blend()
         fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
@@ -667,6 +717,19 @@ class Renderer:
                 prog["from_on"].value = int(before is not None)
                 prog["from_grey"].value = int(before.grey) if before is not None else 0
         (before.texture if before is not None else self._blend_none).use(3)
+        if before is not None and before.yuv is not None:
+            before.yuv.bind((self._warp, self._mesh_prog), "from_", (3, 6, 7), mesh=self._pose is not None
+                            and self._pose[0] == "projection")
+        else:
+            for prog in (self._warp, self._mesh_prog):
+                prog["from_yuv"].value = 0
+
+    def _bind_yuv(self, prog: Any, entry: _Content, *, mesh: bool = False) -> None:
+        """The content's YUV planes and uniforms for the next draw (content_yuv 0 for RGB content)."""
+        if entry.yuv is None:
+            prog["content_yuv"].value = 0
+        else:
+            entry.yuv.bind((prog,), "", (0, 4, 5), mesh=mesh)
 
     def _draw_warp(self, entry: _Content, matrix: bytes, apply_lut: bool) -> None:
         prog = self._warp
@@ -674,6 +737,7 @@ class Renderer:
         prog["content_grey"].value = int(entry.grey)
         prog["apply_lut"].value = int(apply_lut)
         entry.texture.use(0)
+        self._bind_yuv(prog, entry)
         self._lut_tex.use(1)
         self._bind_blend()
         self.ctx.enable_only(self._mgl.NOTHING)
@@ -700,8 +764,14 @@ class Renderer:
             return
         self._released = True
         for entry in self._contents.values():
-            entry.texture.release()
+            if entry.yuv is not None:
+                entry.yuv.release()
+            else:
+                entry.texture.release()
         self._contents.clear()
+        if self._spare_yuv is not None:
+            self._spare_yuv.release()
+            self._spare_yuv = None
         for tex in self._spare.values():
             tex.release()
         self._spare.clear()
