@@ -46,7 +46,10 @@ def prepare(rig_dir, room: Room, camera: str, *, watchdog: bool):
 
     toml = rig_dir / "rig.toml"
     text = toml.read_text().replace("cameras = []", f'cameras = ["{camera}"]')
-    toml.write_text(text + f"\n[blend]\nwatchdog = {'true' if watchdog else 'false'}\nwatchdog_interval_s = 1.0\n")
+    # a lead long enough that every node of a loaded test machine hears of a switch before its instant
+    # (the automatic lead suits nodes with CPUs of their own): the common instant is what is tested here
+    toml.write_text(text + f"\n[blend]\nwatchdog = {'true' if watchdog else 'false'}\nwatchdog_interval_s = 1.0\n"
+                           "switch_lead_ms = 300\n")
     rig = Rig(rig_dir)
     luts = truth_luts(room, SLOTS)
     for s in SLOTS:
