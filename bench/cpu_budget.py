@@ -17,7 +17,8 @@ removed by the next budget made. :func:`unavailable` says in one line why budget
 here (not root, no cgroup v1 ``cpu`` hierarchy: e.g. a cgroup v2 only host); a benchmark prints
 it and runs without budgets.
 
-Only the standard library: any benchmark may use it.
+``python -m bench.cpu_budget [FRACTION]`` checks a budget here: a busy process held to FRACTION (0.1)
+for 2 s, and the share of a core it got. Only the standard library: any benchmark may use it.
 """
 from __future__ import annotations
 
@@ -243,3 +244,38 @@ def _descendants(pid: int) -> list[int]:
             out += kids
             todo += kids
     return out
+
+
+def _self_check(fraction: float = 0.1, seconds: float = 2.0) -> dict:
+    """A busy child process in a budget of ``fraction`` for ``seconds``: the share of a core it got."""
+    import subprocess
+    import sys
+    import time
+
+    child = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        with CpuBudget(fraction, period_us=20_000, name="self-check") as budget:
+            budget.add(child.pid)
+            tick = os.sysconf("SC_CLK_TCK")
+
+            def cpu() -> float:
+                fields = Path(f"/proc/{child.pid}/stat").read_text().rsplit(")", 1)[1].split()
+                return (int(fields[11]) + int(fields[12])) / tick
+            c0, t0 = cpu(), time.monotonic()
+            time.sleep(seconds)
+            got = (cpu() - c0) / (time.monotonic() - t0)
+            return {"asked": fraction, "got": round(got, 3), **budget.stats()}
+    finally:
+        child.kill()
+        child.wait()
+
+
+if __name__ == "__main__":       # python -m bench.cpu_budget [FRACTION]: can budgets be made here, and do they hold
+    import json
+    import sys
+
+    why = unavailable()
+    if why:
+        print(why, file=sys.stderr)
+        raise SystemExit(1)
+    print(json.dumps(_self_check(float(sys.argv[1]) if len(sys.argv) > 1 else 0.1)))
