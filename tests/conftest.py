@@ -18,6 +18,24 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("SHADOWLESS_TEST", "1")
+_PYCACHE = os.environ.get("SHADOWLESS_TESTS_PYCACHE",
+                          str(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "shadowless-tests"))
+if sys.dont_write_bytecode and not os.environ.get("PYTHONPYCACHEPREFIX") and _PYCACHE not in ("", "off"):
+    # Bytecode is not to be written beside the sources here (PYTHONDONTWRITEBYTECODE, as container
+    # images often set): it goes to a cache of the tests' own instead (SHADOWLESS_TESTS_PYCACHE, "off"
+    # to leave the environment's choice), outside the checkout; else each of the suite's thousand-odd
+    # `python -m shadowless` processes compiles the project again (a quarter of a second for a
+    # coordinator) and each worker rewrites every test module's asserts (half its collection time).
+    # Python checks each cached file against its source's mtime and size.
+    try:
+        Path(_PYCACHE).mkdir(parents=True, exist_ok=True)
+    except OSError:
+        pass   # nowhere to cache: the environment's choice stands
+    else:
+        os.environ.pop("PYTHONDONTWRITEBYTECODE", None)     # the processes the tests start, and xdist's workers
+        os.environ["PYTHONPYCACHEPREFIX"] = _PYCACHE
+        sys.pycache_prefix = _PYCACHE
+        sys.dont_write_bytecode = False
 if os.environ.get("PYTEST_XDIST_WORKER"):  # workers side by side: rigs of one never seen by the other
     os.environ["SHADOWLESS_MDNS_SERVICE"] = "_shadowless-" + os.environ["PYTEST_XDIST_WORKER"]
 
