@@ -22,7 +22,8 @@ BENCHMARKS: dict[str, str] = {
     "node": "what a node costs its edge computer: render/upload time, CPU, memory, install size (GL 3.3+ and 3.1)",
     "discovery": "real nodes join their rig while a twin (same id, other token) and another rig advertise",
     "console": "the operator console in headless Chromium: page load, time to all live, update latency, CPU, thumbnails",
-    "console_shots": "the console's layout over 25 overlapping projectors, photographed for docs/console-layout.png",
+    "console_shots": "every console screenshot in docs/ from a running console: the layout over 25 overlapping "
+                     "projectors, point picking, the cue panel and the whole page during a show in the virtual room",
     "console_login": "guessers on many loopback addresses vs the console's login limits: tries evaluated, operator's time in",
     "bust": "coverage on the bust from poses + mesh vs the room's truth; fingertip touches: shadow area vs coverage",
     "motion": "a hand waving over the table: light drop per frame, synthetic aperture vs reactive compensation with latency",
