@@ -32,6 +32,7 @@ Only standard library, numpy, PyAV and ``node.*``: the edge node's install.
 """
 from __future__ import annotations
 
+import logging
 import os
 from bisect import bisect_right
 from fractions import Fraction
@@ -40,8 +41,13 @@ from pathlib import Path
 import av
 import numpy as np
 
+from node.decoders import DecoderChoice, choose
 from node.errors import NodeError
 from node.image_files import PngError, PngTooLarge, decode_png
+from node.yuv import why_not, yuv_planes
+from protos.yuv import YuvFrame
+
+log = logging.getLogger(__name__)
 
 __all__ = ["DecodeError", "VideoDecoder", "content_dtype", "decode_image", "frame_to_array", "match_channels"]
 
@@ -217,12 +223,25 @@ class VideoDecoder:
     Not thread-safe: one thread reads (:class:`node.asset_frames.DecodeAhead`'s worker). The
     file is opened on the first :meth:`read`. ``seeks`` and ``decoded`` (frames out of the
     decoder, skipped ones included) count the work done.
+
+    ``yuv``: a 3-channel video's frames come as :class:`protos.yuv.YuvFrame` (the decoder's
+    planes, converted to RGB by the renderer's shader, scaled to ``size`` there) when the shader
+    covers their format (:mod:`node.yuv`), else as arrays from swscale, said once in the log.
+    ``decoder``: the wish :func:`node.decoders.choose` resolves per stream ("auto", "software",
+    a decoder's name, a hardware device type); :attr:`choice` is the decoder in use. A hardware
+    decoder that fails on the stream's first picture is passed over for software, said once.
     """
 
     def __init__(self, path: str | os.PathLike[str], *, frames: int, channels: int, bit_depth: int,
                  rate: Fraction | None = None, demuxer: str | None = None, threads: int = 0,
-                 max_forward: int | None = None, size: tuple[int, int] | None = None) -> None:
+                 max_forward: int | None = None, size: tuple[int, int] | None = None, yuv: bool = False,
+                 decoder: str = "software") -> None:
         self.path = str(path)
+        self.yuv = yuv and channels == 3
+        self.wish = decoder
+        self.choice: DecoderChoice | None = None     # the decoder in use, once open
+        self._ctx = None                           # a decoder by name: its own codec context
+        self._rgb_noted = False
         self.size = size          # (w, h) frames are resampled to (None: the video's own)
         self.frames = frames
         self.channels = channels
@@ -243,15 +262,42 @@ class VideoDecoder:
         self._keyframes: list[int] | None = None
 
     # ------------------------------------------------------------------ opening
-    def _open(self) -> None:
+    def _open_file(self, hwaccel=None):
         try:
-            container = av.open(self.path, mode="r", format=self._demuxer)
+            container = av.open(self.path, mode="r", format=self._demuxer, hwaccel=hwaccel)
         except (av.FFmpegError, OSError) as exc:
             raise DecodeError(f"cannot open the video ({exc})") from exc
         if not container.streams.video:
             container.close()
             raise DecodeError("the file holds no video stream")
+        return container
+
+    def _frames(self):
+        """The decoded frames from the container's position on (a decoder by name: through its own context)."""
+        if self._ctx is None:
+            return self._container.decode(self._stream)
+        ctx = self._ctx
+        ctx.flush_buffers()
+        return (f for packet in self._container.demux(self._stream) for f in ctx.decode(packet))
+
+    def _open(self) -> None:
+        container = self._open_file()
         stream = container.streams.video[0]
+        if self.choice is None:
+            self.choice = choose(stream.codec_context.name, self.wish)
+        self._ctx = None
+        if self.choice.kind == "hwaccel":
+            container.close()
+            container = self._open_file(self.choice.hwaccel)
+            stream = container.streams.video[0]
+        elif self.choice.kind == "decoder":
+            try:
+                ctx = av.CodecContext.create(self.choice.name, "r")
+                ctx.extradata = stream.codec_context.extradata
+                ctx.width, ctx.height = stream.codec_context.width, stream.codec_context.height
+                self._ctx = ctx
+            except Exception as exc:   # noqa: BLE001 - it opened when probed: say so, use software
+                self._software(f"{self.choice.name} failed on this stream ({exc})", stream.codec_context.name)
         stream.codec_context.thread_type = "AUTO"      # frame + slice threads
         stream.codec_context.thread_count = self._threads
         rate = self._rate_hint or stream.average_rate or stream.guessed_rate
@@ -260,9 +306,16 @@ class VideoDecoder:
             raise DecodeError("the video stream has no frame rate or time base")
         self._container, self._stream = container, stream
         self._tb, self._rate = Fraction(stream.time_base), Fraction(rate)
-        self._gen = container.decode(stream)
+        self._gen = self._frames()
         self._prev = self._pending = None
-        first = self._pull()
+        try:
+            first = self._pull()
+        except DecodeError as exc:
+            if self.choice.kind == "software":
+                raise
+            self._software(f"{self.choice.describe()} failed on its first picture ({exc})", self.choice.codec)
+            self.close()
+            return self._open()
         if first is None:
             raise DecodeError("the video stream has no decodable frames")
         if self._pts0 is None:
@@ -281,8 +334,12 @@ class VideoDecoder:
             self._gen.close()
         if self._container is not None:
             self._container.close()
-        self._container = self._stream = self._gen = None
+        self._container = self._stream = self._gen = self._ctx = None
         self._prev = self._pending = self._last = None
+
+    def _software(self, why: str, codec: str) -> None:
+        log.warning("video %s: %s; decoding it in software", Path(self.path).name[:12], why)
+        self.choice = DecoderChoice(codec, codec, "software", note=why)
 
     # ------------------------------------------------------------------ time <-> index
     def _index(self, frame: av.VideoFrame, counted: int | None) -> int:
@@ -326,7 +383,7 @@ class VideoDecoder:
             return None
         except av.FFmpegError as exc:
             self._gen.close()
-            self._gen = self._container.decode(self._stream)
+            self._gen = self._frames()
             self._prev = self._pending = None   # position unknown: the next read seeks
             raise DecodeError(f"decoding failed ({exc})") from exc
         self.decoded += 1
@@ -384,7 +441,7 @@ class VideoDecoder:
             else:
                 self.seeks += 1
                 self._gen.close()
-                self._gen = self._container.decode(self._stream)
+                self._gen = self._frames()
                 self._prev = self._pending = None
             frame = self._forward(k)
             if frame is not None:
@@ -397,9 +454,9 @@ class VideoDecoder:
                 raise DecodeError(f"frame {k} precedes the video's first frame")
             back = 2 * back if back else max(1, round(self._rate))
 
-    def read(self, k: int) -> np.ndarray:
+    def read(self, k: int) -> np.ndarray | YuvFrame:
         """Frame ``k`` (0-based), ``(H, W, channels)`` in :func:`content_dtype` of the bit depth
-        (``H, W`` from :attr:`size` when set).
+        (``H, W`` from :attr:`size` when set), or with ``yuv`` a :class:`~protos.yuv.YuvFrame`.
 
         Reading the same ``k`` twice in a row returns the same array. Raises
         :class:`DecodeError` when the file cannot be opened or decoded.
@@ -414,6 +471,12 @@ class VideoDecoder:
             frame = self._forward(k)
         if frame is None:
             frame = self._seek(k)
-        arr = frame_to_array(frame, self.channels, self.bit_depth, self.size)
+        arr = yuv_planes(frame, self.size) if self.yuv else None
+        if arr is None:
+            if self.yuv and not self._rgb_noted:
+                self._rgb_noted = True
+                log.info("video %s: %s; converting its frames to RGB on the CPU (swscale)", Path(self.path).name[:12],
+                         why_not(frame))
+            arr = frame_to_array(frame, self.channels, self.bit_depth, self.size)
         self._last = (k, arr)
         return arr

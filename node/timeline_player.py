@@ -31,9 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from node.asset_frames import DecodeAhead, DecodeStats, FrameError, open_frames
+from node.decoders import wish_from_env
 from node.records import AssetFiles, ShowUpdateData
 from protos.asset_manifest import Manifest, ManifestError
 from protos.timeline import NS, Schedule, Timeline
+from protos.yuv import YuvFrame
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +88,8 @@ def fit_frame(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """``image`` (H, W, C) at ``size`` (w, h): itself if it has that size, else nearest-neighbour
     resampled (texel centres aligned)."""
     w, h = size
+    if isinstance(image, YuvFrame):       # the renderer scales its planes on the GPU
+        return image if image.content_size == (w, h) else image.at_size((w, h))
     if image.shape[1] == w and image.shape[0] == h:
         return image
     ys = ((np.arange(h) + 0.5) * image.shape[0] / h).astype(np.intp)
@@ -124,6 +128,10 @@ class TimelinePlayer:
         #: (w, h) a video's frames are decoded to (the content size the node warps from; None: the
         #: video's own). The presenter sets it from its assignment; a change reopens the decoder.
         self.content_size: tuple[int, int] | None = None
+        #: a video's frames come as YUV planes, converted by the renderer (node/yuv.py), decoded by
+        #: the decoder the node's --decoder wishes for (node/decoders.py)
+        self.yuv = True
+        self.decoder = wish_from_env()
         self._decoder_revision = -1
         self.suspended_revision = -1
         self.done: tuple[int, int] | None = None     # (revision, tick) of the last event handled
@@ -280,7 +288,8 @@ class TimelinePlayer:
             if files is None:
                 raise FrameError(f"asset {event.asset_id[:12]} is not in the node's cache yet")
             try:
-                dec = DecodeAhead(open_frames(AssetFilesView(files), event.asset_id, size=self.content_size),
+                dec = DecodeAhead(open_frames(AssetFilesView(files), event.asset_id, size=self.content_size,
+                                              yuv=self.yuv, decoder=self.decoder),
                                   depth=self.depth, loop=event.loop)
             except FrameError:
                 self._failed.add(event.asset_id)
