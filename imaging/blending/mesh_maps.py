@@ -25,16 +25,18 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import lsqr, spsolve
 
 __all__ = ["bilinear_matrix", "fit_alpha_maps", "SHARE", "SMOOTH"]
 
 #: weight of each projector's share against the light's equations
-SHARE = 0.05
+SHARE = 0.2
 #: weight of the texel-to-texel smoothness
-SMOOTH = 0.05
-#: the normal equations' ridge (keeps texels no equation reaches where they were)
+SMOOTH = 0.3
+#: the normal equations' ridge (keeps an unknown the equations do not pin where it was)
 RIDGE = 1e-6
+#: more unknowns than this (texels some grid point samples, all projectors) are solved iteratively
+DIRECT_MAX = 150_000
 
 
 def bilinear_matrix(u: np.ndarray, projector_size: tuple[int, int], map_size: tuple[int, int]) -> sp.csr_matrix:
@@ -104,6 +106,9 @@ def fit_alpha_maps(white: dict, coords: dict, projector_size: dict, initial: dic
         reach[s] = np.flatnonzero(ok)
         B[s] = bilinear_matrix(u[ok], projector_size[s], (mw, mh))
     D = {s: _differences(*sizes[s]) for s in slots}
+    # only texels some grid point samples are unknowns; the others keep their sampled values (the smoothness
+    # still ties the unknowns to them)
+    touched = np.flatnonzero(np.concatenate([np.asarray(abs(B[s]).sum(axis=0)).ravel() > 0 for s in slots]))
     out = {s: np.empty((sizes[s][1], sizes[s][0], 3), np.float32) for s in slots}
     for ch in range(3):
         t = tgt[:, ch]
@@ -121,11 +126,16 @@ def fit_alpha_maps(white: dict, coords: dict, projector_size: dict, initial: dic
         A = sp.vstack([light, sp.block_diag(share_blocks), sp.block_diag(smooth_blocks)]).tocsr()
         b = np.concatenate([np.ones(n), *share_rhs, np.zeros(sum(d.shape[0] for d in D.values()))])
         x0 = np.concatenate([np.asarray(initial[s], np.float64)[..., ch].ravel() for s in slots])
-        # the normal equations, with a faint pull of every texel toward its sampled value (a texel no equation
-        # reaches keeps it), solved directly
-        N = (A.T @ A).tocsc() + sp.identity(total, format="csc") * RIDGE
-        delta = spsolve(N, A.T @ (b - A @ x0))
-        x = np.clip(x0 + delta, 0.0, 1.0)
+        At = A[:, touched].tocsc()
+        rhs = b - A @ x0
+        x = x0.copy()
+        if len(touched) <= DIRECT_MAX:
+            # the normal equations, with a faint pull of every unknown toward its sampled value, solved directly
+            N = (At.T @ At).tocsc() + sp.identity(len(touched), format="csc") * RIDGE
+            x[touched] += spsolve(N, At.T @ rhs)
+        else:       # too many for a direct solve: iterate from the sampled maps
+            x[touched] += lsqr(At, rhs, atol=1e-5, btol=1e-5, iter_lim=300)[0]
+        x = np.clip(x, 0.0, 1.0)
         for s in slots:
             mw, mh = sizes[s]
             out[s][..., ch] = x[offsets[s]:offsets[s] + mw * mh].reshape(mh, mw)
