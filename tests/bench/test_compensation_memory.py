@@ -2,8 +2,10 @@
 cannot fit, drops the per-projector baseline alone when only that does not fit, and its estimates lie
 between the measured peak and twice it.
 
-Every run is a real `python -m shadowless` process; ``SHADOWLESS_MEMORY_LIMIT`` gives it a budget of the
-test's choosing, so a refusal is fast and the same on any machine."""
+A run that measures memory is a real `python -m shadowless` process (its peak is its own); the refusals and
+the memory plan, which allocate nothing, run in the test's interpreter (``shadowless.cli.main``, output
+captured at the file descriptors), the issue's command as a real process too. ``SHADOWLESS_MEMORY_LIMIT``
+gives each a budget of the test's choosing, so a refusal is fast and the same on any machine."""
 from __future__ import annotations
 
 import json
@@ -12,6 +14,8 @@ import subprocess
 import sys
 
 import pytest
+
+from cli_inprocess import run_shadowless
 
 SMALL = ["--paper-size", "none", "--video-frames", "0", "--sweep-frames", "", "--repeats", "1", "--max-iter", "30",
          "--bandwidth-mib", "64", "--paper-reference-seconds", "2"]
@@ -26,9 +30,21 @@ def bench(args: list[str], limit: str | None = None, timeout: float = 300) -> su
                           capture_output=True, text=True, timeout=timeout)
 
 
-def test_the_issue_command_refuses_before_allocating_when_even_ours_does_not_fit():
+def here(args: list[str], limit: str | None, capfd, monkeypatch) -> subprocess.CompletedProcess:
+    """`shadowless bench compensation ARGS` in this interpreter, under the budget ``limit``."""
+    if limit is None:
+        monkeypatch.delenv("SHADOWLESS_MEMORY_LIMIT", raising=False)
+    else:
+        monkeypatch.setenv("SHADOWLESS_MEMORY_LIMIT", limit)
+    code, out, err = run_shadowless(["bench", "compensation", *args], capfd)
+    return subprocess.CompletedProcess(args, code, out, err)
+
+
+@pytest.mark.parametrize("where", ["process", "here"])
+def test_the_issue_command_refuses_before_allocating_when_even_ours_does_not_fit(where, capfd, monkeypatch):
     # the command that was OOM-killed, on a 2 GB budget: one line, status 2, nothing generated
-    out = bench(["--projectors", "25", "--size", "2592x1944"], limit="2G", timeout=60)
+    args = ["--projectors", "25", "--size", "2592x1944"]
+    out = bench(args, limit="2G", timeout=60) if where == "process" else here(args, "2G", capfd, monkeypatch)
     lines = out.stderr.strip().splitlines()
     assert out.returncode == 2 and len(lines) == 1 and not out.stdout, (out.returncode, out.stderr[-2000:])
     assert lines[0].startswith("shadowless bench compensation: needs about "), lines
@@ -97,8 +113,8 @@ CORPUS = [
 
 
 @pytest.mark.parametrize("name,args,limit,expect", CORPUS, ids=[c[0] for c in CORPUS])
-def test_bad_sizes_and_budgets_cost_one_line(name, args, limit, expect, corpus_table):
-    out = bench(args, limit=limit, timeout=60)
+def test_bad_sizes_and_budgets_cost_one_line(name, args, limit, expect, corpus_table, capfd, monkeypatch):
+    out = here(args, limit, capfd, monkeypatch)
     lines = out.stderr.strip().splitlines()
     corpus_table("bench compensation memory", f"{name}: {' '.join(args)}" + (f" (limit {limit})" if limit else ""),
                  lines[-1] if lines else "", out.returncode)
@@ -106,8 +122,8 @@ def test_bad_sizes_and_budgets_cost_one_line(name, args, limit, expect, corpus_t
     assert lines[0].startswith("shadowless bench compensation: ") and expect in lines[0], lines[0]
 
 
-def test_the_memory_plan_of_the_issue_command_on_a_30_gb_machine():
-    out = bench(["--projectors", "25", "--size", "2592x1944", "--memory-plan"], limit="30G", timeout=60)
+def test_the_memory_plan_of_the_issue_command_on_a_30_gb_machine(capfd, monkeypatch):
+    out = here(["--projectors", "25", "--size", "2592x1944", "--memory-plan"], "30G", capfd, monkeypatch)
     assert out.returncode == 0, out.stderr[-2000:]
     mem = json.loads(out.stdout)["memory"]
     est = mem["estimates_gib"]
