@@ -10,6 +10,7 @@ from pathlib import Path
 
 from node.app import Node, NodeConfig
 from node.asset_cache import default_cache_dir
+from node.decoders import ENV as DECODER_ENV, check_wish
 from node.output_spec import parse_output_spec
 from node.render.context import GL_CHOICES, GL_ENV
 from protos.auth import TokenError, resolve_token
@@ -24,6 +25,14 @@ def output_spec(text: str) -> str:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def decoder_wish(text: str) -> str:
+    """--decoder's argparse type (node.decoders.check_wish)."""
+    try:
+        return check_wish(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -59,6 +68,12 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "OpenGL 3.1+ where the driver offers it, else OpenGL ES 3.0+ (offscreen, room and kms "
                         "outputs; the window output is desktop GL only); gl or gles forces one. "
                         "`shadowless status` shows what each node got")
+    p.add_argument("--decoder", type=decoder_wish, metavar="auto|software|NAME",
+                   help="the video decoder: auto (default, or $SHADOWLESS_DECODER) takes a hardware decoder where "
+                        "one opens here (h264_v4l2m2m, hevc_v4l2m2m on a Raspberry Pi; VAAPI, DRM), else software; "
+                        "software forces FFmpeg's own; NAME a decoder (h264_v4l2m2m), a family (v4l2m2m) or a "
+                        "hardware device type (vaapi, drm, cuda), software when it cannot open, with one log line "
+                        "saying why. `shadowless status` shows each node's decoder")
     p.add_argument("--snapshot-dir", type=Path, metavar="DIR",
                    help="write every shown still to DIR/<slot>.png (for inspection)")
     p.add_argument("--tls-ca", metavar="PEM", help="connect with TLS, trusting this CA certificate")
@@ -113,6 +128,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = node_config(args, token, tls_ca)
     if args.gl:  # the presenter process, which makes the context, inherits the environment
         os.environ[GL_ENV] = args.gl
+    if args.decoder:
+        os.environ[DECODER_ENV] = args.decoder
 
     async def main() -> int:
         node = Node(cfg)
