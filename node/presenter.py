@@ -35,6 +35,7 @@ import numpy as np
 
 from node.asset_frames import FrameError, FrameNotReady
 from node.clock import ClockEstimate
+from node.decoders import choose, wish_from_env
 from node.fade import Crossfade, ShowFade
 from node.live_video import LiveDecoder
 from node.outputs.base import Output, SwapInfo
@@ -197,7 +198,8 @@ class Presenter:
         self.native_size = self.out.native_size()
         w, h = self.native_size or (640, 360)
         self.renderer = Renderer(ctx, w, h)
-        self.gl_info = gl_description(ctx)
+        # status's "renders with" line names the video decoder too (node/decoders.py: --decoder)
+        self.gl_info = f"{gl_description(ctx)}; video decoder {choose('h264', wish_from_env()).describe()}"
         log.info("rendering with %s", self.gl_info)
         self._rt = RealtimeWindow(self._realtime_wanted)
         self._warm_up()
