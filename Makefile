@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PROTOS := $(wildcard protos/*.proto)
 
-.PHONY: demo test setup protos kernels check-protos system-deps clean
+.PHONY: demo test setup protos kernels check-protos system-deps clean check-arm64
 
 setup: $(STAMP) protos kernels
 
@@ -57,6 +57,12 @@ demo: setup
 # advertise an mDNS service of their own, so no worker sees another's.
 test: setup system-deps
 	$(PY) -m pytest -q -n 3 --dist loadfile
+
+# Not part of `make test` (about 10 minutes, as root, with the network): a clean Debian 12 arm64
+# root under qemu-user-static installs a node with deploy/install-node.sh, and the node joins a
+# coordinator here and renders the x86 node's frame (deploy/check-arm64.sh --help).
+check-arm64: setup
+	deploy/check-arm64.sh
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

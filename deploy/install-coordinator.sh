@@ -23,8 +23,10 @@ The rig:
                       \`shadowless rig init DIR RIG_INIT_ARGS\` creates one, as the shadowless user,
                       and prints the rig's id (RIG= on every node) and its token (copy it to them)
   --listen HOST:PORT  the gRPC address (default 0.0.0.0:7600)
-  --token FILE        an existing rig token to keep using (installed as DIR/token, mode 0600,
-                      when DIR has none yet), e.g. when moving a rig to a new machine
+  --token FILE        an existing rig token to keep using (installed as DIR/token when DIR has
+                      none yet), e.g. when moving a rig to a new machine. A token this script
+                      puts there is readable by the group shadowless (mode 0640): operators in
+                      it run shadowless commands without sudo (usermod -aG shadowless NAME)
   -- ARGS...          arguments for \`shadowless rig init\`, e.g. -- --name table --grid 5x5
 
 $COMMON_HELP
@@ -35,7 +37,7 @@ examples:
 EOF
 }
 
-RIG_DIR="" LISTEN="" TOKEN=""
+RIG_DIR="" LISTEN="" TOKEN="" NEW_TOKEN=0
 init_args=()
 while (($#)); do
   case $1 in
@@ -108,6 +110,7 @@ token_file=$ROOT${token_file:-$RIG_DIR/token}
 if [[ -n $TOKEN ]]; then
   if keep_or_install 0600 "$TOKEN" "$token_file" token; then
     own "$token_file"
+    NEW_TOKEN=1
   fi
 fi
 if [[ -e $rig/rig.toml ]]; then
@@ -123,8 +126,11 @@ else
   else
     (cd / && runuser -u "$USER_NAME" -- "$VENV/bin/shadowless" rig init "$rig" "${init_args[@]}")
   fi
+  NEW_TOKEN=1
 fi
 [[ -e $token_file ]] || warn "no token at $token_file: the coordinator will not start without it"
+# a token this run put there is shared with the operators' group (a kept one keeps its mode)
+if ((NEW_TOKEN)) && [[ -e $token_file ]]; then share_token "$token_file"; fi
 
 enable_service shadowless-coordinator.service
 say "coordinator installed${ROOT:+ under $ROOT}. Follow it with: journalctl -fu shadowless-coordinator;"

@@ -16,6 +16,11 @@ VENV=/opt/shadowless/venv
 USER_NAME=shadowless
 STATE=/var/lib/shadowless
 WORK=""                      # a temporary directory, removed on exit
+LINK=/usr/local/bin/shadowless   # the command on everyone's PATH (sudo's secure_path too)
+OPERATORS=shadowless         # the group whose members may read the rig's token (run shadowless commands)
+# Compiles a pinned package that has no wheel for this machine (moderngl and glcontext on aarch64);
+# installed only then. Their GL calls are loaded at run time: no GL headers are needed.
+BUILD_PACKAGES=(g++ libc6-dev python3-dev)
 
 COMMON_HELP="\
 Where it installs from:
@@ -181,9 +186,35 @@ install_package() {
     spec="$SOURCE[$1]"
   fi
   say "installing shadowless[$1] into $venv (pins: $CONSTRAINTS)"
+  # Wheels only first: on x86-64 every pinned package has one. Where one has none (moderngl and
+  # glcontext on aarch64), pip must compile it: what it would build is asked of pip (a dry run
+  # without the restriction), the compiler and Python's headers are installed then, and only then
+  # (a node stays lean elsewhere), and pip runs again. A venue without internet brings the
+  # compiled wheels instead (deploy/wheelhouse.sh, then --pip-args "--no-index --find-links DIR").
+  local err report built
+  err=$(mktemp)
+  report=$(mktemp)
   # shellcheck disable=SC2086  # PIP_ARGS is a list of words
-  "$venv/bin/python" -m pip install --disable-pip-version-check -c "$CONSTRAINTS" $PIP_ARGS "$spec" ||
-    die "pip could not install shadowless[$1] from $SOURCE"
+  if ! "$venv/bin/python" -m pip install --disable-pip-version-check --only-binary :all: -c "$CONSTRAINTS" $PIP_ARGS \
+      "$spec" 2>"$err"; then
+    # shellcheck disable=SC2086
+    if ! "$venv/bin/python" -m pip install --disable-pip-version-check --dry-run --quiet --report "$report" \
+        -c "$CONSTRAINTS" $PIP_ARGS "$spec" 2>/dev/null; then
+      cat "$err" >&2
+      rm -f "$err" "$report"
+      die "pip could not install shadowless[$1] from $SOURCE"
+    fi
+    built=$("$venv/bin/python" -c 'import json, sys
+items = json.load(open(sys.argv[1]))["install"]
+print(", ".join("{} {}".format(i["metadata"]["name"], i["metadata"]["version"]) for i in items
+                if "archive_info" in i["download_info"] and not i["download_info"]["url"].endswith(".whl")))' "$report")
+    say "${built:-a package} has no wheel for this machine ($(uname -m)): pip compiles it, with the build tools"
+    apt_install "${BUILD_PACKAGES[@]}"
+    # shellcheck disable=SC2086
+    "$venv/bin/python" -m pip install --disable-pip-version-check -c "$CONSTRAINTS" $PIP_ARGS "$spec" ||
+      die "pip could not install shadowless[$1] from $SOURCE (a compile error above? the build tools: ${BUILD_PACKAGES[*]})"
+  fi
+  rm -f "$err" "$report"
   if [[ -f $SOURCE ]]; then
     # pip keeps an installed version equal to the wheel's: a rebuilt wheel replaces it all the same
     # shellcheck disable=SC2086
@@ -193,6 +224,28 @@ install_package() {
   "$venv/bin/shadowless" --version >/dev/null || die "$venv/bin/shadowless does not run"
   cleanup
   WORK=""
+  link_command
+}
+
+# link_command: $LINK -> $VENV/bin/shadowless (a symlink: it reaches every shell, login or not, and
+# sudo); an existing file of another origin is left alone, with a warning
+link_command() {
+  local link=$ROOT$LINK
+  if [[ -e $link && ! -L $link ]]; then
+    warn "$link exists and is not a link to $VENV/bin/shadowless: left alone (run $VENV/bin/shadowless)"
+    return
+  fi
+  mkdir -p "$(dirname "$link")"
+  ln -sfn "$VENV/bin/shadowless" "$link"
+  say "linked $LINK -> $VENV/bin/shadowless (shadowless is on the PATH)"
+}
+
+# share_token FILE: readable by the operators' group (mode 0640, group $OPERATORS), so that its
+# members run shadowless commands without sudo; add one with: usermod -aG $OPERATORS NAME
+share_token() {
+  system chgrp "$OPERATORS" "$1"
+  system chmod 0640 "$1"
+  say "the token $1 is readable by the group $OPERATORS: let an operator in with: sudo usermod -aG $OPERATORS NAME"
 }
 
 # keep_or_install MODE SRC DEST WHAT: DEST from SRC unless DEST exists (then say so); 0 if installed
@@ -227,8 +280,14 @@ render_env() {
   done
 }
 
-# enable_service NAME: daemon-reload, enable, and (unless --no-start) restart it now
+# enable_service NAME: daemon-reload, enable, and (unless --no-start) restart it now. In an image
+# being prepared, or a chroot, where systemd is not running, it is only enabled (for the next boot).
 enable_service() {
+  if [[ -z $ROOT && ! -d /run/systemd/system ]]; then
+    system systemctl enable "$1"
+    say "systemd is not running here (an image or a chroot): $1 is enabled and starts at the next boot"
+    return
+  fi
   system systemctl daemon-reload
   system systemctl enable "$1"
   if (( START )); then

@@ -21,7 +21,8 @@ Install a shadowless node for one projector on this edge computer and start it
 The node:
   --slot SLOT         this projector's slot in the rig, e.g. r0c0 (required the first time)
   --token FILE        the rig's token (RIG_DIR/token on the coordinator), installed as
-                      /etc/shadowless/token, mode 0600, owner shadowless (required the first time)
+                      /etc/shadowless/token, owner shadowless, readable by the group shadowless
+                      (mode 0640; operators join it) (required the first time)
   --rig RIG_ID        the rig's id (\`shadowless rig init\` prints it; the id line of rig.toml):
                       join only that rig's coordinators (default: any that proves the token)
   --output SPEC       kms (default: HDMI through KMS/DRM, no X, e.g. Raspberry Pi OS Lite),
@@ -141,6 +142,7 @@ fi
 if [[ -n $TOKEN ]]; then
   if keep_or_install 0600 "$TOKEN" "$TOKEN_DEST" token; then
     own "$TOKEN_DEST"
+    share_token "$TOKEN_DEST"
   fi
 fi
 

@@ -69,7 +69,11 @@ class NodeConfig:
     cache_dir: Path | None = None           # None: default_cache_dir() / slot
     cache_max_bytes: int = 8 << 30
     fetch_rate: float | None = None         # bytes per second; None: unlimited
+    discovery_timeout_s: float | None = None  # give up (DISCOVERY_GAVE_UP_EXIT) if mDNS finds nothing so long; None: never
 
+
+#: the node's exit status when --discovery-timeout passed without a coordinator found over mDNS
+DISCOVERY_GAVE_UP_EXIT = 4
 
 #: how long one look over mDNS waits for a first advertisement
 DISCOVERY_TIMEOUT_S = 3.0
@@ -160,6 +164,7 @@ class Node:
     # ---------------------------------------------------------------- main loop
     async def run(self) -> int:
         self._loop = asyncio.get_running_loop()
+        self._looking_since = time.monotonic()
         discovery, early = None, None
         if self.cfg.coordinator is None:
             discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
@@ -213,7 +218,9 @@ class Node:
                     elif not tried:     # every target is backing off: wait for the first one due
                         delay = max(0.05, min(backoff, self.book.next_due(candidates, time.monotonic())))
                 except DiscoveryError as exc:
-                    log.warning("%s", exc)
+                    if self._gives_up(exc):
+                        return DISCOVERY_GAVE_UP_EXIT
+                    log.warning("%s; still looking (or pass --coordinator HOST:PORT)", exc)
                 # a node that lost its coordinator (and plays on alone) looks for it again at least
                 # every ALONE_BACKOFF_S: the show's changes (pause, stop) wait for it to rejoin
                 cap = self.cfg.backoff_max_s
@@ -353,6 +360,16 @@ class Node:
     def stop(self) -> None:
         self._stopping.set()
 
+    def _gives_up(self, exc: DiscoveryError) -> bool:
+        """True (having said so in one line) once --discovery-timeout has passed since the node began
+        looking, without any coordinator found; a node that has joined once keeps looking."""
+        limit = self.cfg.discovery_timeout_s
+        if limit is None or self.joins or time.monotonic() - self._looking_since < limit:
+            return False
+        log.error("%s; gave up after --discovery-timeout %g s: start the coordinator, check that this machine "
+                  "is on its network (multicast reaches it), or pass --coordinator HOST:PORT", exc, limit)
+        return True
+
     async def _candidates(self, discovery: Discovery | None) -> list[Candidate]:
         """The coordinators to try: the one given by --coordinator, or every advertised one (of the
         rig named by --rig when given). Several rigs on one network are fine: only a coordinator
@@ -361,8 +378,7 @@ class Node:
             return [Candidate(self.cfg.coordinator)]
         ads = await discovery.find(rig=self.cfg.rig, timeout=DISCOVERY_TIMEOUT_S, settle=DISCOVERY_SETTLE_S)
         if not ads:
-            raise DiscoveryError(f"{discovery.nothing_found(DISCOVERY_TIMEOUT_S, self.cfg.rig)}; still looking "
-                                 "(or pass --coordinator HOST:PORT)")
+            raise DiscoveryError(discovery.nothing_found(DISCOVERY_TIMEOUT_S, self.cfg.rig))
         seen = {(a.target, a.rig_id) for a in ads}
         if seen != self._advertised:
             self._advertised = seen

@@ -11,6 +11,7 @@ from pathlib import Path
 from node.app import Node, NodeConfig
 from node.asset_cache import default_cache_dir
 from node.decoders import ENV as DECODER_ENV, check_wish
+from node.display_check import DISPLAY_HELD_EXIT, display_conflict, running_programs
 from node.output_spec import parse_output_spec
 from node.render.context import GL_CHOICES, GL_ENV
 from protos.auth import TokenError, resolve_token
@@ -50,7 +51,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         "  shadowless node --slot r2c2 --coordinator 10.0.0.2:7600 --token-file token\n"
         "  shadowless node --slot r0c0 --output room://127.0.0.1:7700   # the virtual room\n"
         "  shadowless node --slot r0c0 --cache-dir /var/cache/shadowless --cache-max 20G\n"
-        "  shadowless node --slot r0c0 --gl gles   # a Mali or Adreno board: OpenGL ES 3 even if desktop GL is offered"
+        "  shadowless node --slot r0c0 --gl gles   # a Mali or Adreno board: OpenGL ES 3 even if desktop GL is offered\n"
+        "  shadowless node --slot r0c0 --discovery-timeout 20   # does mDNS find the coordinator from here?\n"
+        "\n"
+        "exit status: 0 stopped, 2 a wrong option or token file, 3 the output could not be opened or the\n"
+        "renderer stopped, 4 no coordinator found within --discovery-timeout, 78 a desktop holds the\n"
+        "display the output needs (the line says what to do; the service is not restarted for it)"
     )
     p.add_argument("--slot", required=True, help="this projector's slot in the rig (e.g. r0c0)")
     p.add_argument("--token-file", metavar="FILE", help="rig token file (default: $SHADOWLESS_TOKEN_FILE)")
@@ -59,6 +65,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                                                "its name); empty or absent: any coordinator that proves the token")
     p.add_argument("--mdns-interface", action="append", metavar="IP",
                    help="browse mDNS only on this IPv4 address (repeatable; default: every interface)")
+    p.add_argument("--discovery-timeout", type=cli_types.number(1, 86400), metavar="S",
+                   help="give up with exit status 4 if no coordinator is found over mDNS within S seconds of the "
+                        "start (a check of the network; default: keep looking, as a service should)")
     p.add_argument("--output", type=output_spec, default="offscreen", metavar="SPEC",
                    help="offscreen (default), window[:MONITOR] (fullscreen on a display through X), kms[:DISPLAY] "
                         "(fullscreen without X, KMS/DRM: a display index or connector such as kms:HDMI-A-1), or "
@@ -109,7 +118,8 @@ def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) ->
                       ping_hz=args.ping_hz, ping_settled_s=args.ping_settled_s, realtime=not args.no_realtime,
                       cache_dir=Path(args.cache_dir) if args.cache_dir else default_cache_dir() / args.slot,
                       cache_max_bytes=args.cache_max,
-                      fetch_rate=float(args.fetch_rate) if args.fetch_rate else None)
+                      fetch_rate=float(args.fetch_rate) if args.fetch_rate else None,
+                      discovery_timeout_s=args.discovery_timeout)
 
 
 def log_name(args: argparse.Namespace) -> str:
@@ -125,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
     except (TokenError, OSError) as exc:
         log.error("%s", exc)
         return 2
+    problem = display_conflict(parse_output_spec(args.output).kind, os.environ, running_programs())
+    if problem:     # said once; the unit does not restart the node for this status
+        log.error("%s", problem)
+        return DISPLAY_HELD_EXIT
     cfg = node_config(args, token, tls_ca)
     if args.gl:  # the presenter process, which makes the context, inherits the environment
         os.environ[GL_ENV] = args.gl

@@ -9,6 +9,7 @@ token fails there). Nonces are single use.
 """
 from __future__ import annotations
 
+import grp
 import hashlib
 import hmac
 import os
@@ -55,8 +56,21 @@ def verify(expected: bytes, given: bytes) -> bool:
     return hmac.compare_digest(expected, given)
 
 
+#: the group whose members may read a rig token (deploy's install scripts make the token mode 0640 with it)
+OPERATORS_GROUP = "shadowless"
+
+
+def _operators_group(p: Path) -> bool:
+    """Whether ``p`` belongs to the operators' group: readable by that group only is allowed."""
+    try:
+        return grp.getgrgid(p.stat().st_gid).gr_name == OPERATORS_GROUP
+    except (KeyError, OSError):
+        return False
+
+
 def read_token(path: str | os.PathLike[str]) -> bytes:
-    """Read a rig token from ``path`` (whitespace stripped); refuse short or world-readable files."""
+    """Read a rig token from ``path`` (whitespace stripped); refuse short or world-readable files, and
+    files its group may read unless that group is the operators' (OPERATORS_GROUP, read only)."""
     p = Path(path)
     if p.is_dir():
         raise TokenError(f"rig token file {p} is a directory, not a file (pass the token file inside it?)")
@@ -76,7 +90,7 @@ def read_token(path: str | os.PathLike[str]) -> bytes:
         raise TokenError(f"rig token file {p} is not a token (binary data or several words; is it the right file?)")
     if len(text.encode()) < MIN_TOKEN_BYTES:
         raise TokenError(f"rig token in {p} is shorter than {MIN_TOKEN_BYTES} bytes")
-    if mode & 0o077:
+    if mode & 0o077 and not (mode & 0o077 == 0o040 and _operators_group(p)):
         who = " and ".join(w for w, bits in (("its group", 0o070), ("every user", 0o007)) if mode & bits)
         raise TokenError(f"rig token file {p} can be read by {who} (mode {mode:04o}): anyone who reads it can join "
                          f"or drive the rig; fix it with: chmod 600 {p}")
