@@ -18,23 +18,25 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("SHADOWLESS_TEST", "1")
-_PYCACHE = os.environ.get("SHADOWLESS_TESTS_PYCACHE",
-                          str(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "shadowless-tests"))
-if sys.dont_write_bytecode and not os.environ.get("PYTHONPYCACHEPREFIX") and _PYCACHE not in ("", "off"):
+#: the tests' own cache, outside the checkout (SHADOWLESS_TESTS_CACHE; "off": none): bytecode, and each
+#: test's last duration (which orders the modules across xdist's workers, see below)
+_CACHE = os.environ.get("SHADOWLESS_TESTS_CACHE",
+                        str(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "shadowless-tests"))
+_CACHE = None if _CACHE in ("", "off") else Path(_CACHE)
+if _CACHE is not None and sys.dont_write_bytecode and not os.environ.get("PYTHONPYCACHEPREFIX"):
     # Bytecode is not to be written beside the sources here (PYTHONDONTWRITEBYTECODE, as container
-    # images often set): it goes to a cache of the tests' own instead (SHADOWLESS_TESTS_PYCACHE, "off"
-    # to leave the environment's choice), outside the checkout; else each of the suite's thousand-odd
-    # `python -m shadowless` processes compiles the project again (a quarter of a second for a
+    # images often set): it goes to the tests' cache instead, else each of the suite's thousand-odd
+    # `python -m shadowless` processes compiles the project again (a quarter of a second of CPU for a
     # coordinator) and each worker rewrites every test module's asserts (half its collection time).
     # Python checks each cached file against its source's mtime and size.
     try:
-        Path(_PYCACHE).mkdir(parents=True, exist_ok=True)
+        (_CACHE / "pycache").mkdir(parents=True, exist_ok=True)
     except OSError:
         pass   # nowhere to cache: the environment's choice stands
     else:
         os.environ.pop("PYTHONDONTWRITEBYTECODE", None)     # the processes the tests start, and xdist's workers
-        os.environ["PYTHONPYCACHEPREFIX"] = _PYCACHE
-        sys.pycache_prefix = _PYCACHE
+        os.environ["PYTHONPYCACHEPREFIX"] = str(_CACHE / "pycache")
+        sys.pycache_prefix = str(_CACHE / "pycache")
         sys.dont_write_bytecode = False
 if os.environ.get("PYTEST_XDIST_WORKER"):  # workers side by side: rigs of one never seen by the other
     os.environ["SHADOWLESS_MDNS_SERVICE"] = "_shadowless-" + os.environ["PYTEST_XDIST_WORKER"]
@@ -223,8 +225,81 @@ def pytest_runtest_protocol(item, nextitem):
         f.write(line + "\n")
 
 
+# ---- the longest modules first -----------------------------------------------------------------
+# `--dist loadfile` hands each worker a module at a time, and pytest-xdist queues the modules with the
+# most tests first: its modules of one long test (a benchmark, a rig of real processes) came last,
+# and the run ended with one worker on a long module while the others had nothing left. Each session
+# records its tests' durations in the tests' cache; the next one queues its modules by their recorded
+# time (a test never timed counts DEFAULT_TEST_S), the longest first. The controller reads the record
+# once and hands it to its workers, so that every worker collects in one order.
+DEFAULT_TEST_S = 0.5
+_DURATIONS_KEY = "shadowless_durations"
+_durations_seen: dict[str, float] = {}
+
+
+def _durations_file() -> Path | None:
+    return None if _CACHE is None else _CACHE / "durations.json"
+
+
+def _read_durations() -> dict[str, float]:
+    import json
+
+    path = _durations_file()
+    try:
+        data = json.loads(path.read_text()) if path is not None else {}
+    except (OSError, ValueError):
+        return {}
+    return {k: float(v) for k, v in data.items() if isinstance(v, (int, float))} if isinstance(data, dict) else {}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node):
+    """(pytest-xdist, in the controller) Every worker gets the controller's record of durations."""
+    node.workerinput[_DURATIONS_KEY] = node.config._shadowless_durations
+
+
+def pytest_collection_modifyitems(config, items):
+    """In an xdist worker: the modules ordered by their recorded time, the longest first (a module's
+    tests keep their order)."""
+    durations = getattr(config, "workerinput", {}).get(_DURATIONS_KEY)
+    if not durations:
+        return
+    cost: dict[str, float] = {}
+    for item in items:
+        module = item.nodeid.split("::", 1)[0]
+        cost[module] = cost.get(module, 0.0) + durations.get(item.nodeid, DEFAULT_TEST_S)
+    first_seen = {m: i for i, m in enumerate(dict.fromkeys(item.nodeid.split("::", 1)[0] for item in items))}
+    items.sort(key=lambda item: (-cost[item.nodeid.split("::", 1)[0]], first_seen[item.nodeid.split("::", 1)[0]]))
+
+
+def pytest_runtest_logreport(report):
+    """(In the controller, or a run without workers) each test's setup, call and teardown, summed."""
+    _durations_seen[report.nodeid] = _durations_seen.get(report.nodeid, 0.0) + (report.duration or 0.0)
+
+
+def pytest_sessionfinish(session):
+    """The durations of the tests this session ran, merged into the record (in the controller only)."""
+    import json
+
+    path = _durations_file()
+    if path is None or hasattr(session.config, "workerinput") or not _durations_seen:
+        return
+    record = _read_durations()
+    record.update({k: round(v, 3) for k, v in _durations_seen.items()})
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(record, sort_keys=True))
+        tmp.replace(path)
+    except OSError:
+        pass   # a read-only cache: the next session orders as this one did
+
+
 def pytest_configure(config):
     global _SESSION_TMP
+    config._shadowless_durations = {} if hasattr(config, "workerinput") else _read_durations()
+    if config._shadowless_durations and getattr(config.option, "dist", "no") == "loadfile":
+        config.option.loadscopereorder = False    # the workers' order (above), not "most tests first"
     config.addinivalue_line("markers", "allow_leaks: a module-scoped rig fixture owns processes across tests")
     # beside, not inside, another session's directory: pytest-xdist's workers inherit the TMPDIR set
     # below, and Chromium refuses a socket path longer than 107 bytes
