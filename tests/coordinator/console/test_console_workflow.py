@@ -56,8 +56,8 @@ def test_the_whole_workflow_from_the_page_in_the_virtual_room(tmp_path, browser_
     with RoomServerThread(room) as server, \
             RoomConsoleRig(tmp_path / "rig", server.address, room.projector_size(SLOTS[0])) as rig:
         rig_dir = rig.local.rig_dir
-        add_user(rig_dir, *OPERATOR[:1], "operator", OPERATOR[1], tmp_path)
-        add_user(rig_dir, *VIEWER[:1], "viewer", VIEWER[1], tmp_path)
+        add_user(rig_dir, OPERATOR[0], "operator", OPERATOR[1], tmp_path)
+        add_user(rig_dir, VIEWER[0], "viewer", VIEWER[1], tmp_path)
         driver = chromium(tmp_path / "chromium-profile")
         try:
             driver.get(rig.url)
@@ -159,5 +159,7 @@ def test_the_whole_workflow_from_the_page_in_the_virtual_room(tmp_path, browser_
                                  what="the viewer's GO refused on the page", timeout=60)
             assert "vera is a viewer" in refusal and "\n" not in refusal.strip(), refusal
             assert rig.call(lambda: rig.coord.cue_state().current) == 2
+            wait_until(lambda: text_of(driver, "actions"), lambda t: "vera" in t and "refused" in t,
+                       what="the refused GO in the action log, under the viewer's name", timeout=60)
         finally:
             driver.quit()
