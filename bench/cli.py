@@ -33,6 +33,7 @@ BENCHMARKS: dict[str, str] = {
     "uniformity": "per-pixel blending in the virtual room: flat-white uniformity before/after (table, wall seams, bust), "
                   "failover and lamp watchdog with real processes, blend captures, the node's cost",
     "show_control": "what people and OSC cost: a login's password check (CPU), OSC status round trip, gain to applied",
+    "specular": "a glossy table seen by an observer: peak highlight and its area under P1, P9, P25 at matched light vs 1/N",
     "image_bombs": "small files declaring 100-megapixel images, console decoder before/after: peak memory, time, outcome",
 }
 

@@ -39,6 +39,7 @@ from sim.optics import (
 )
 from sim.raster import MeshRaster
 from sim.scene import ProjectorSpec, Scene
+from sim.specular import SpecularView, specular_view
 
 __all__ = [
     "NOTHING",
@@ -87,7 +88,7 @@ class Plan:
     sigmas: tuple[float, ...]  # blur of each level, projector px
     mapx: np.ndarray  # (hr, wr) float32 field coordinates (-10: unlit)
     mapy: np.ndarray
-    weight: np.ndarray  # (hr, wr) float32 albedo * peak * irradiance * profile * static visibility
+    weight: np.ndarray  # (hr, wr) float32 (albedo + gloss's pi f_s) * peak * irradiance * profile * static visibility
     lo: np.ndarray  # (hr, wr) int8 level
     alpha: np.ndarray  # (hr, wr) float32 blend towards level lo + 1
     coef: dict[int, np.ndarray]  # level -> (hr, wr, 3) or (hr, wr) float32
@@ -125,6 +126,7 @@ class View:
     plans: dict[str, Plan] = field(default_factory=dict)
     surf: np.ndarray = field(default=None)  # (n,) flat ROI indices that see a surface
     scratch: np.ndarray = field(default=None)  # (hr, wr, 3) float32 work buffer of captures
+    specular: SpecularView | None = None  # the glossy surface's lobe towards this camera (sim.specular); None: matte
 
     def __post_init__(self) -> None:
         self.surf = np.flatnonzero(self.kind.reshape(-1) != NOTHING)
@@ -261,7 +263,9 @@ def build_view(scene: Scene, camera: int, mesh_maps: MeshMaps | None = None) -> 
     cam_area = np.full(pts.shape[:2], np.inf)
     surf = kind[sl] != NOTHING
     cam_area[surf] = footprint_area(cam, pts[surf], nrm[surf])
-    return View(camera, roi, kind[sl].copy(), pts, nrm, albedo[sl].copy(), content[sl].copy(), dist[sl].copy(), cam_area)
+    view = View(camera, roi, kind[sl].copy(), pts, nrm, albedo[sl].copy(), content[sl].copy(), dist[sl].copy(), cam_area)
+    view.specular = specular_view(scene.gloss, view.kind.reshape(-1)[view.surf], {"table": TABLE, "mesh": MESH}, cam.center)
+    return view
 
 
 def build_plan(view: View, spec: ProjectorSpec, *, upsample: int | None = None, mesh_maps: MeshMaps | None = None) -> Plan:
@@ -334,6 +338,8 @@ def build_plan(view: View, spec: ProjectorSpec, *, upsample: int | None = None, 
     mapx = roi_map(fx, -10.0, np.float32)
     mapy = roi_map(fy, -10.0, np.float32)
     light = view.s_albedo * spec.peak * e
+    if view.specular is not None:  # a glossy surface: its lobe towards this camera, lit by the same irradiance
+        light = light + view.specular.reflectance(dev.center, pts, nrm) * spec.peak * e
     profile = spec.profile_at(u, v)  # a hot spot and vignetting (sim.photometry); None when even
     if profile is not None:
         light = light * profile

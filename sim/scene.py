@@ -49,6 +49,7 @@ from sim.geometry import Pinhole, intrinsics, look_at, rotation_about
 from sim.mesh import Mesh, bust, load_mesh
 from sim.optics import Response, Sensor, irradiance_factor, random_response
 from sim.photometry import PROJECTOR_KEYS, Photometry, Profile, apply_photometry, parse_photometry, projector_photometry
+from sim.specular import Gloss
 
 # PROJECTOR_NATIVE, CAMERA_NATIVE (the reference devices' native resolutions, a layout's defaults)
 # and TABLE_SIZE come from protos.layout, which reads layout files for the room and the coordinator.
@@ -188,6 +189,8 @@ class Scene:
     mesh_source: str | None = None
     hand_albedo: float = 0.45
     name: str = "room"
+    #: Glossy coats (:mod:`sim.specular`); none by default, and then the room renders as it always did.
+    gloss: tuple[Gloss, ...] = ()
 
     def __post_init__(self) -> None:
         slots = [p.slot for p in self.projectors]
@@ -197,6 +200,9 @@ class Scene:
             raise LayoutError("a room needs at least one projector and one camera")
         if self.table is None and self.mesh is None:
             raise LayoutError("a room needs a surface: a table, a mesh, or both")
+        for g in self.gloss:
+            if not isinstance(g, Gloss) or getattr(self, g.surface) is None:
+                raise LayoutError(f"gloss {g} is not a Gloss on a surface this room has (table: {self.table is not None}, mesh: {self.mesh is not None})")
 
     @property
     def slots(self) -> list[str]:
