@@ -6,6 +6,7 @@ import asyncio
 import signal
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from protos import cli_types
@@ -15,6 +16,8 @@ from sim.photometry import Photometry
 from sim.rigs import LAYOUTS, layout_path
 from sim.room import Room
 from sim.scene import SUBSETS, load_layout, reference_scene, write_layout
+from sim.specular import parse_gloss
+from sim.observer import parse_point, with_observer
 from sim.wire.service import DEFAULT_PORT, NO_SIGNAL, serve
 
 EPILOG = """\
@@ -36,6 +39,8 @@ examples:
   shadowless room --layout my-room.toml
   shadowless room --layout wall-3x1                 # 3 projectors side by side, footprints overlapping by 20 %
   shadowless room --layout bust-walls               # 6 projectors on the walls around the bust, 3 cameras
+  shadowless room --gloss table:0.1:0.02 --observer 0,-60,900   # a varnished table, and an eye (the last camera)
+                                                    # that sees each lens's highlight: room://HOST:PORT?camera=1
   shadowless room --brightness-spread 0.15 --white-spread 0.15 --hotspot 0.2 --vignetting 0.3
                                                     # units that differ, and uneven light across each image
 
@@ -84,6 +89,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--cameras", type=int, choices=(1, 3), default=1,
                    help="cameras of the reference rig: 1 (on the ceiling) or 3 (plus front-left and back-right of the "
                         "bust, cameras 1 and 2: room://HOST:PORT?camera=N); a layout file lists its own")
+    g.add_argument("--gloss", type=_gloss, action="append", metavar="SURFACE:STRENGTH:ROUGHNESS",
+                   help="a glossy coat (Blinn-Phong highlights) on the table or the mesh, e.g. table:0.1:0.02 (strength 0..1, "
+                        "roughness 0..1, 0.02 varnish); none by default")
+    g.add_argument("--observer", type=_point, metavar="X,Y,Z",
+                   help="an eye at X,Y,Z mm looking at the table's centre, served as the last camera (sees the highlights)")
     g.add_argument("--write-layout", metavar="FILE", help="write the room's layout as TOML and exit (a starting point for --layout)")
     u = parser.add_argument_group("uneven light (off by default; see below)")
     u.add_argument("--brightness-spread", type=cli_types.number(0, 0.9), default=None, metavar="F",
@@ -112,6 +122,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         "(default) or black, as a real projector that lost its source (its black level stays)")
 
 
+def _gloss(text: str):
+    try:
+        return parse_gloss(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _point(text: str):
+    try:
+        return parse_point(text, what="observer")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def photometry_args(args: argparse.Namespace) -> dict:
     """The uneven-light flags given (name -> value), for :class:`sim.photometry.Photometry`."""
     names = ("brightness_spread", "white_spread", "hotspot", "hotspot_width", "vignetting")
@@ -135,6 +159,10 @@ def build_room(args: argparse.Namespace):
     else:
         scene = reference_scene(ps, cs, args.surface, args.seed, pitch=args.pitch, aperture=args.aperture,
                                 cameras=args.cameras, photometry=Photometry(**light) if light else None)
+    if getattr(args, "gloss", None):
+        scene = replace(scene, gloss=tuple(args.gloss))
+    if getattr(args, "observer", None):
+        scene = with_observer(scene, args.observer)
     room = Room(scene, seed=args.seed, noise=not args.no_noise)
     if args.subset:
         if args.subset not in SUBSETS:

@@ -139,3 +139,53 @@ def test_gloss_and_observer_refuse_bad_input_in_one_line(scene):
         parse_point("0,0", what="observer")
     with pytest.raises(LayoutError, match="its own position"):
         with_observer(scene, (0.0, 0.0, 0.0))
+
+
+def test_a_glossy_bust_shows_the_lobe_of_its_own_normals_and_leaves_the_table_matte():
+    """Gloss on the mesh only: the table's pixels render bit for bit as the matte room's; the bust's follow the
+    brute-force BRDF at each pixel's point and interpolated normal (the room's truth), for the lens of p1."""
+    bust = reference_scene(0.0625, 0.0625, surface="bust", jitter=False)
+    bust = replace(bust, projectors=(bust.projector("p1"),))   # one lens: one shadow map to rasterise
+    scene = with_observer(bust, (0.0, -800.0, 600.0), target=(0.0, 0.0, 250.0), size=(96, 72), up=(0.0, 0.0, 1.0))
+    coat = Gloss("mesh", 0.3, 0.2)
+    plain, glossy = Room(scene, noise=False), Room(replace(scene, gloss=(coat,)), noise=False)
+    for room in (plain, glossy):
+        white(room)
+        room.set_active(["p1"])
+    obs = len(scene.cameras) - 1
+    a = plain.render_linear(obs)[:, :, 1].astype(np.float64)
+    b = glossy.render_linear(obs)[:, :, 1].astype(np.float64)
+    surface = glossy.truth.surface(obs)
+    table, mesh = surface.kind == 1, surface.kind == 2
+    assert table.any() and np.array_equal(a[table], b[table])
+    lit = mesh & (a > 0.05 * a.max())
+    ys, xs = np.nonzero(lit)
+    assert len(ys) > 50
+    lens, eye = glossy.truth.projector("p1").center, glossy.truth.camera(obs).center
+    n = coat.exponent
+    checked = 0
+    for y, x in zip(ys[::7], xs[::7]):
+        p = surface.points[y, x].astype(np.float64)
+        N = surface.normals[y, x].astype(np.float64)
+        N /= np.linalg.norm(N)
+        L, V = (lens - p) / np.linalg.norm(lens - p), (eye - p) / np.linalg.norm(eye - p)
+        H = (L + V) / np.linalg.norm(L + V)
+        expected = coat.strength * (n + 8) / 8 * max(float(N @ H), 0.0) ** n if N @ L > 0 and N @ V > 0 else 0.0
+        assert (b[y, x] / a[y, x] - 1.0) * scene.mesh_albedo == pytest.approx(expected, rel=1e-3, abs=1e-4), (x, y)
+        checked += expected > 0.05
+    assert checked > 3                           # some of the checked pixels are in the highlight
+
+
+def test_shadowless_room_takes_a_gloss_and_an_observer():
+    import argparse
+
+    from sim.cli import build_room, configure
+
+    parser = argparse.ArgumentParser(prog="shadowless room")
+    configure(parser)
+    room = build_room(parser.parse_args(["--gloss", "table:0.1:0.02", "--observer", "0,-60,900", "--projector-scale", "0.1"]))
+    assert room.scene.gloss == (Gloss("table", 0.1, 0.02),)
+    assert [c.name for c in room.scene.cameras] == ["ceiling", "observer"]
+    assert np.allclose(room.scene.cameras[1].pinhole.center, (0.0, -60.0, 900.0))
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--gloss", "table:0.1"])
