@@ -38,7 +38,9 @@ The closed form (the table is a plane z = 0, the lens a point light at its optic
   their count grows as N: the total area grows roughly as ``N ln(P_1 / (N tau)) / ln(P_1 / tau)``
   times P1's, until ``P_1 / N`` falls below ``tau`` and every highlight vanishes at once.
   Valid while the highlights stay apart (``neighbour_lobe_share``: the largest share of a
-  highlight's peak that the other lenses' lobes add there).
+  highlight's peak that the other lenses' lobes add there). Where they overlap (a rougher coat,
+  ``--gloss table:0.1:0.05``), ``closed_form_overlapping`` adds the other lenses' lobes at each
+  mirror point, and the highlights merge into one glow (``highlights_merged``).
 
 JSON: per configuration the measured and closed-form peak and area, the highlight count, the
 per-highlight errors; ``P25_peak_over_P1``, ``closed_form_error`` (the largest relative error of a
@@ -310,6 +312,8 @@ def specular_figures(*, gloss: Gloss, observer, observer_px=OBSERVER_SIZE, thres
             "highlights": int(count - 1), "highlights_closed_form": int(sum(1 for r in visible if r["peak_closed_form"] > threshold)),
             "highlights_merged": merged, "lenses_not_in_view": len(lenses) - len(visible),
             "per_highlight_peak_error_max": max((abs(r["peak_error"]) for r in visible), default=None),
+            # where the lobes overlap: each highlight's peak with the other lenses' lobes there added
+            "peak_closed_form_overlapping": max((r["peak_closed_form"] * (1.0 + (r["neighbour_lobe_share"] or 0.0)) for r in visible), default=0.0),
             "neighbour_lobe_share_max": max((r["neighbour_lobe_share"] or 0.0 for r in visible), default=None),
             "per_lens": lenses,
         }
@@ -323,6 +327,8 @@ def specular_figures(*, gloss: Gloss, observer, observer_px=OBSERVER_SIZE, thres
         r["one_over_n"] = ref["lenses"] / r["lenses"]
         r["closed_form_error"] = r["peak_over_reference"] / r["closed_form"] - 1.0
         r["error_vs_one_over_n"] = r["peak_over_reference"] / r["one_over_n"] - 1.0
+        r["closed_form_overlapping"] = r["peak_closed_form_overlapping"] / ref["peak_closed_form_overlapping"]
+        r["closed_form_overlapping_error"] = r["peak_over_reference"] / r["closed_form_overlapping"] - 1.0
         r["area_over_reference"] = r["area_mm2"] / ref["area_mm2"] if ref["area_mm2"] else None
         r["area_error"] = r["area_mm2"] / r["area_mm2_closed_form"] - 1.0 if r["area_mm2_closed_form"] else None
         # the area's rule of thumb: N highlights, each of area proportional to ln(peak / threshold)
