@@ -1,5 +1,8 @@
 """`shadowless rig export` / `shadowless rig import` through the real command: a rig's calibration
-to MPCDI and back into another rig directory, and every refusal as one line with exit status 2."""
+to MPCDI and back into another rig directory, and every refusal as one line with exit status 2.
+
+The command runs in the test's interpreter (``shadowless.cli.main``, output captured at the file
+descriptors); the round trip's export and import and a refusal also run as real processes."""
 from __future__ import annotations
 
 import hashlib
@@ -11,6 +14,7 @@ import zipfile
 import numpy as np
 import pytest
 
+from cli_inprocess import run_shadowless
 from rigctl.mpcdi.frustum import normalised
 from coordinator.rig import HomographyPose, Mesh, ProjectionPose, Rig, init_rig
 from coordinator.rig_lock import RigLock, RigLockError, holder
@@ -21,9 +25,25 @@ CONTENT = (120, 60)
 TABLE_SLOTS = ["p1", "p2", "p3", "spare"]
 
 
-def rig_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", "rig", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
+_CAPTURE: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _capture(capfd):
+    """:func:`rig_cli` reads what the command printed from this test's ``capfd``."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def rig_cli(*args: str, process: bool = False, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    """`shadowless rig ARGS...` in this interpreter, or with ``process`` as a real process."""
+    argv = ["rig", *map(str, args)]
+    if process:
+        return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True,
+                              timeout=timeout)
+    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    return subprocess.CompletedProcess(argv, code, out, err)
 
 
 def one_line_error(r: subprocess.CompletedProcess) -> str:
@@ -73,7 +93,7 @@ def table(tmp_path) -> Rig:
 
 def test_a_table_rig_round_trips_into_a_fresh_rig(table, tmp_path):
     out = tmp_path / "table.mpcdi"
-    r = rig_cli("export", table.path, out)
+    r = rig_cli("export", table.path, out, process=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.count("\n") == 1 and "profile 2d" in r.stdout and "4 slots" in r.stdout
     assert "1 without a pose (spare)" in r.stdout and "KiB" in r.stdout
@@ -84,7 +104,7 @@ def test_a_table_rig_round_trips_into_a_fresh_rig(table, tmp_path):
     assert rig_cli("export", table.path, out, "--force").returncode == 0
 
     fresh = new_rig(tmp_path / "fresh")
-    r = rig_cli("import", out, fresh.path)
+    r = rig_cli("import", out, fresh.path, process=True)
     assert r.returncode == 0, r.stderr
     assert "p1: homography, changed (pose, gain, LUT; revision 0 -> 1)" in r.stdout
     assert "spare: no pose, unchanged" in r.stdout
@@ -196,7 +216,7 @@ def test_a_damaged_archive_is_one_line_and_changes_nothing(table, tmp_path):
     data = out.read_bytes()
     truncated = tmp_path / "truncated.mpcdi"
     truncated.write_bytes(data[: len(data) // 2])
-    assert "not an MPCDI archive" in one_line_error(rig_cli("import", truncated, fresh.path))
+    assert "not an MPCDI archive" in one_line_error(rig_cli("import", truncated, fresh.path, process=True))
     no_xml = tmp_path / "no_xml.mpcdi"
     with zipfile.ZipFile(out) as z, zipfile.ZipFile(no_xml, "w") as w:
         for name in z.namelist():

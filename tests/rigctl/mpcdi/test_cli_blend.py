@@ -1,6 +1,7 @@
 """`shadowless rig export` / `rig import` carry a rig's stored blend: into another rig's blend store
 bit for bit, only for the slots imported, and an archive with a malformed blend map is refused in
-one line with nothing in the rig changed."""
+one line with nothing in the rig changed. The command runs in the test's interpreter (output captured at
+the file descriptors), one export as a real process."""
 from __future__ import annotations
 
 import hashlib
@@ -11,7 +12,9 @@ import zipfile
 from xml.etree import ElementTree as ET
 
 import numpy as np
+import pytest
 
+from cli_inprocess import run_shadowless
 from coordinator.blend_store import StoredBlend, load_blend, save_blend
 from coordinator.rig import HomographyPose, Rig, init_rig
 from protos.blend import BlendMaps
@@ -19,9 +22,25 @@ from protos.blend import BlendMaps
 SIZE = (64, 40)
 
 
-def rig_cli(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", "rig", *map(str, args)], capture_output=True,
-                          text=True, timeout=120)
+_CAPTURE: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _capture(capfd):
+    """:func:`rig_cli` reads what the command printed from this test's ``capfd``."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def rig_cli(*args, process: bool = False) -> subprocess.CompletedProcess:
+    """`shadowless rig ARGS...` in this interpreter (output captured at the file descriptors), or with
+    ``process`` as a real process."""
+    argv = ["rig", *map(str, args)]
+    if process:
+        return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
+    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    return subprocess.CompletedProcess(argv, code, out, err)
 
 
 def one_line_error(r: subprocess.CompletedProcess) -> str:
@@ -71,7 +90,7 @@ def blended_table(path) -> Rig:
 def test_a_blend_travels_from_rig_to_rig_bit_for_bit(tmp_path):
     rig = blended_table(tmp_path / "table")
     out = tmp_path / "table.mpcdi"
-    r = rig_cli("export", rig.path, out)
+    r = rig_cli("export", rig.path, out, process=True)
     assert r.returncode == 0 and "blend maps for 3" in r.stdout, r.stderr
     fresh = new_rig(tmp_path / "fresh")
     r = rig_cli("import", out, fresh.path, "--dry-run")
