@@ -99,6 +99,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--subsets", default=",".join(DEFAULT_SUBSETS),
                         help=f"configurations, comma-separated, the first the reference (names: {', '.join(SUBSETS)}; default %(default)s)")
     parser.add_argument("--projector-scale", type=float, default=0.25, help="projector resolution vs 1280x800 (default 0.25)")
+    parser.add_argument("--picture", metavar="FILE.png",
+                        help="also write what the observer sees under each configuration, side by side (log scale: "
+                             "black, the diffuse light, P1's peak white)")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -232,9 +235,10 @@ def _render(room: Room, slots: list[str], lamp: float, camera: int) -> np.ndarra
 
 
 def specular_figures(*, gloss: Gloss, observer, observer_px=OBSERVER_SIZE, threshold: float = DEFAULT_THRESHOLD,
-                     subsets=DEFAULT_SUBSETS, projector_scale: float = 0.25) -> dict:
+                     subsets=DEFAULT_SUBSETS, projector_scale: float = 0.25, picture: str | None = None) -> dict:
     """Everything the benchmark reports (the JSON document without the machine), for the configurations
-    named in ``subsets`` (the first is the reference the ratios are taken to)."""
+    named in ``subsets`` (the first is the reference the ratios are taken to); with ``picture``, also the
+    observer's views side by side in that PNG file."""
     if gloss.surface != "table":
         raise ValueError(f"bench specular measures a glossy table; --gloss {gloss} is on the {gloss.surface}")
     t0 = time.perf_counter()
@@ -256,12 +260,13 @@ def specular_figures(*, gloss: Gloss, observer, observer_px=OBSERVER_SIZE, thres
     centre_px, _ = pinhole.project(np.zeros((1, 3)))
     areas = _pixel_areas(glossy, obs)
     n = gloss.exponent
-    results, lobe_check, reference = {}, None, None
+    results, lobe_check, reference, views = {}, None, None, []
     for name, slots in configs.items():
         lamp = lamps[name]
         diffuse_img = _render(plain, slots, lamp, obs)
         glossy_img = _render(glossy, slots, lamp, obs)
         excess = glossy_img - diffuse_img
+        views.append((label(name), glossy_img))
         d = _bilinear(diffuse_img, float(centre_px[0, 0]), float(centre_px[0, 1]))
         d_closed = albedo * lamp * centre_light(base, slots)
         mask = (excess > threshold * d).astype(np.uint8)
@@ -350,8 +355,25 @@ def specular_figures(*, gloss: Gloss, observer, observer_px=OBSERVER_SIZE, thres
         doc["P25_peak_over_P1_target_max"] = TARGET_FACTOR / 25
         doc["P25_target_met"] = bool(ratio <= TARGET_FACTOR / 25)
     doc["closed_form_within_5_percent"] = bool(doc["closed_form_error"] <= 0.05)
+    if picture:
+        write_picture(picture, views, diffuse=ref["diffuse_level"], top=ref["peak"] + 1.0)
+        doc["picture"] = str(picture)
     doc["seconds"] = round(time.perf_counter() - t0, 2)
     return doc
+
+
+def write_picture(path: str, views: list[tuple[str, np.ndarray]], *, diffuse: float, top: float) -> None:
+    """The observer's views side by side, each (H, W) float64 signal on a log scale: 0 black, ``top`` x
+    ``diffuse`` white, named in its corner."""
+    panels = []
+    for name, img in views:
+        v = np.log1p(np.maximum(img, 0.0) / diffuse) / math.log1p(top)
+        panel = np.clip(v * 255.0, 0, 255).astype(np.uint8)
+        panel = cv2.cvtColor(panel, cv2.COLOR_GRAY2BGR)
+        cv2.putText(panel, name, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 200, 255), 2, cv2.LINE_AA)
+        panels.append(panel)
+    if not cv2.imwrite(str(path), np.concatenate(panels, axis=1)):
+        raise ValueError(f"cannot write the picture {path}")
 
 
 def _surface_point(pinhole, yx) -> np.ndarray:
@@ -397,7 +419,7 @@ def run(args: argparse.Namespace) -> int:
         if not 0 < args.threshold:
             raise ValueError(f"--threshold must be above 0, got {args.threshold}")
         doc = specular_figures(gloss=gloss, observer=observer, observer_px=size, threshold=args.threshold,
-                               subsets=subsets, projector_scale=args.projector_scale)
+                               subsets=subsets, projector_scale=args.projector_scale, picture=args.picture)
     except ValueError as exc:
         raise SystemExit(f"shadowless bench specular: {exc}") from None
     doc["machine"] = machine()

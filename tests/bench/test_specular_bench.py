@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 
+import cv2
 import pytest
 
 from bench import specular
@@ -12,9 +13,10 @@ from sim.specular import Gloss
 
 
 @pytest.fixture(scope="module")
-def doc():
+def doc(tmp_path_factory):
     return specular_figures(gloss=Gloss("table", 0.1, 0.02), observer=(0.0, -60.0, 900.0), observer_px=(200, 150),
-                            subsets=("P1", "P9D", "P25"), projector_scale=0.125)
+                            subsets=("P1", "P9D", "P25"), projector_scale=0.125,
+                            picture=str(tmp_path_factory.mktemp("specular") / "views.png"))
 
 
 def test_peak_highlight_falls_as_one_lens_share_of_the_light(doc):
@@ -40,6 +42,10 @@ def test_peak_highlight_falls_as_one_lens_share_of_the_light(doc):
     # the render against the BRDF evaluated by brute force, down to a thousandth of the peak
     assert doc["lobe_check"]["max_error"] < 1e-4
     json.dumps(doc, allow_nan=False)
+    # the picture: the three views side by side, P1's highlight white, the diffuse table grey
+    views = cv2.imread(doc["picture"], cv2.IMREAD_GRAYSCALE)
+    assert views.shape == (150, 600)
+    assert views[40:, :200].max() >= 250 and views[40:, 400:].max() < 160   # below the names
 
 
 def test_bench_specular_refuses_bad_options_in_one_line():
