@@ -13,6 +13,8 @@ occluders  analytic solids with exact ray tests, the queries over many of them
 hand       the hand with forearm built from those solids, hand paths
 scene      projectors, cameras, table, mesh; the paper's 5x5 rig; subsets P1 ... P25; layout files
 photometry uneven light: brightness and white-point spread, hot spot, vignetting, the lamp's checks
+specular   a glossy coat (energy-normalised Blinn-Phong) on the table or the mesh; off by default
+observer   an eye at any point, added to a scene as its last camera
 rigs       rigs that partly overlap (the 3x1 wall, projectors on the walls around the bust), shipped
            layouts (sim/layouts/), one call for any room in process or as `shadowless room` arguments
 raster     moderngl (EGL) rasterisation: camera G-buffers and projector depth maps of meshes
