@@ -87,18 +87,18 @@ EXAMPLES = """examples:
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.epilog = EXAMPLES
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument("--gloss", default=DEFAULT_GLOSS,
+    parser.add_argument("--gloss", default=DEFAULT_GLOSS, metavar="table:STRENGTH:ROUGHNESS",
                         help=f"the table's coat, table:STRENGTH:ROUGHNESS (strength 0..1, the share of the light the lobe "
-                             f"reflects; roughness 0..1, 0.03 varnish; default {DEFAULT_GLOSS})")
-    parser.add_argument("--observer", default=DEFAULT_OBSERVER,
+                             f"reflects; roughness 0..1, 0.02 varnish, 0.05 satin; default {DEFAULT_GLOSS})")
+    parser.add_argument("--observer", default=DEFAULT_OBSERVER, metavar="X,Y,Z",
                         help=f"the observer's eye X,Y,Z in mm (table centre at 0,0,0, projectors 1400 mm up; default {DEFAULT_OBSERVER})")
-    parser.add_argument("--observer-px", default=f"{OBSERVER_SIZE[0]}x{OBSERVER_SIZE[1]}",
+    parser.add_argument("--observer-px", default=f"{OBSERVER_SIZE[0]}x{OBSERVER_SIZE[1]}", metavar="WxH",
                         help="the observer's image, WIDTHxHEIGHT pixels (default %(default)s)")
-    parser.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD,
+    parser.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD, metavar="F",
                         help=f"a highlight is where the specular excess is above this share of the diffuse level (default {DEFAULT_THRESHOLD})")
-    parser.add_argument("--subsets", default=",".join(DEFAULT_SUBSETS),
+    parser.add_argument("--subsets", default=",".join(DEFAULT_SUBSETS), metavar="NAMES",
                         help=f"configurations, comma-separated, the first the reference (names: {', '.join(SUBSETS)}; default %(default)s)")
-    parser.add_argument("--projector-scale", type=float, default=0.25, help="projector resolution vs 1280x800 (default 0.25)")
+    parser.add_argument("--projector-scale", type=float, default=0.25, metavar="S", help="projector resolution vs 1280x800 (default 0.25)")
     parser.add_argument("--picture", metavar="FILE.png",
                         help="also write what the observer sees under each configuration, side by side (log scale: "
                              "black, the diffuse light, P1's peak white)")
@@ -241,6 +241,8 @@ def specular_figures(*, gloss: Gloss, observer, observer_px=OBSERVER_SIZE, thres
     observer's views side by side in that PNG file."""
     if gloss.surface != "table":
         raise ValueError(f"bench specular measures a glossy table; --gloss {gloss} is on the {gloss.surface}")
+    if not 0 < observer[2] < 1400:
+        raise ValueError(f"the observer's eye must be above the table and below the projectors (0 < Z < 1400 mm), got Z = {observer[2]:g}")
     t0 = time.perf_counter()
     base = with_observer(equal_lens_scene(projector_scale), observer, size=observer_px)
     obs = len(base.cameras) - 1

@@ -67,7 +67,7 @@ class Gloss:
     strength : float in [0, 1]
         ``k_s``: the share of the light the specular lobe reflects (0: no highlight at all).
     roughness : float in (0, 1]
-        ``alpha``: 0.03 a varnished table (a sharp highlight), 0.2 satin, 1 almost matte.
+        ``alpha``: 0.02 a varnished table (a sharp highlight), 0.05 satin, 0.3 a dull sheen, 1 almost matte.
     """
 
     surface: str
@@ -80,7 +80,7 @@ class Gloss:
         if not (isinstance(self.strength, (int, float)) and 0.0 <= self.strength <= 1.0):
             raise ValueError(f"gloss strength must be a number from 0 to 1 (the share of the light the lobe reflects), got {self.strength!r}")
         if not (isinstance(self.roughness, (int, float)) and 0.0 < self.roughness <= 1.0):
-            raise ValueError(f"gloss roughness must be a number above 0 and at most 1 (0.03 a varnished table), got {self.roughness!r}")
+            raise ValueError(f"gloss roughness must be a number above 0 and at most 1 (0.02 a varnished table), got {self.roughness!r}")
         object.__setattr__(self, "strength", float(self.strength))
         object.__setattr__(self, "roughness", float(self.roughness))
 

@@ -52,7 +52,7 @@ def test_bench_specular_refuses_bad_options_in_one_line():
     parser = argparse.ArgumentParser()
     specular.configure(parser)
     for argv, words in ((["--gloss", "mesh:0.1:0.02"], "glossy table"), (["--gloss", "table:0.1"], "SURFACE:STRENGTH:ROUGHNESS"),
-                        (["--observer", "0,0"], "X,Y,Z"), (["--subsets", "P1,P7"], "unknown configuration P7"),
+                        (["--observer", "0,0"], "X,Y,Z"), (["--observer", "0,0,-10"], "above the table"), (["--subsets", "P1,P7"], "unknown configuration P7"),
                         (["--observer-px", "12"], "WIDTHxHEIGHT")):
         with pytest.raises(SystemExit) as err:
             specular.run(parser.parse_args(argv))
