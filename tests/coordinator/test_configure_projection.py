@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 
+from cli_inprocess import run_shadowless
 from coordinator.api import NodeState
 from shadowless.local import LocalRig
 from waits import wait_until_async
@@ -45,16 +46,35 @@ def rig(tmp_path):
         r.close()
 
 
-def cli(rig: LocalRig, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", *args, "--coordinator", rig.target, "--rig-dir",
-                           str(rig.rig_dir)], capture_output=True, text=True, timeout=120)
+_CAPTURE: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _capture(capfd):
+    """:func:`cli` reads what a command run in this interpreter printed from this test's ``capfd``."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def _here(argv: list[str]) -> subprocess.CompletedProcess:
+    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    return subprocess.CompletedProcess(argv, code, out, err)
+
+
+def cli(rig: LocalRig, *args: str, process: bool = False) -> subprocess.CompletedProcess:
+    """`shadowless ARGS...` against ``rig``: in this interpreter, or with ``process`` as a real process."""
+    argv = [*args, "--coordinator", rig.target, "--rig-dir", str(rig.rig_dir)]
+    if not process:
+        return _here(argv)
+    return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
 
 
 def test_a_projection_pose_with_its_mesh_reaches_the_rig_and_the_node(rig, tmp_path):
     (tmp_path / "quad.obj").write_text(QUAD_OBJ)
     np.save(tmp_path / "p.npy", P)
     r = cli(rig, "configure", "--slot", "r0c0", "--projection", str(tmp_path / "p.npy"), "--mesh",
-            str(tmp_path / "quad.obj"))
+            str(tmp_path / "quad.obj"), process=True)
     assert r.returncode == 0, r.stderr
     doc = json.loads((rig.rig_dir / "slots" / "r0c0.json").read_text())
     assert doc["pose"]["kind"] == "projection"

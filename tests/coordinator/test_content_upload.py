@@ -16,6 +16,7 @@ import grpc
 import numpy as np
 import pytest
 
+from cli_inprocess import run_shadowless
 from coordinator.assets import AssetStore
 from rigctl.client import CallRefused
 from rigctl.content_format import human_bytes
@@ -58,16 +59,34 @@ def rig(tmp_path_factory):
         r.close()
 
 
-def cli(rig, *args: str) -> subprocess.CompletedProcess:
-    argv = [sys.executable, "-m", "shadowless", "content", *args, "--coordinator", rig.coordinator_target,
-            "--token-file", str(rig.rig_dir / "token")]
-    return subprocess.run(argv, capture_output=True, text=True, timeout=120)
+_CAPTURE: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _capture(capfd):
+    """:func:`cli` reads what a command run in this interpreter printed from this test's ``capfd``."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def _here(argv: list[str]) -> subprocess.CompletedProcess:
+    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    return subprocess.CompletedProcess(argv, code, out, err)
+
+
+def cli(rig, *args: str, process: bool = False) -> subprocess.CompletedProcess:
+    """`shadowless content ARGS...` against ``rig``: in this interpreter, or with ``process`` as a real process."""
+    argv = ["content", *args, "--coordinator", rig.coordinator_target, "--token-file", str(rig.rig_dir / "token")]
+    if not process:
+        return _here(argv)
+    return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
 
 
 def test_a_video_added_from_another_machine_is_the_asset_a_local_add_makes(rig, tmp_path):
     clip = tmp_path / "clip.mp4"
     write_clip(clip)
-    r = cli(rig, "add", str(clip))
+    r = cli(rig, "add", str(clip), process=True)
     assert r.returncode == 0, r.stderr
     aid = r.stdout.strip()
     assert "added" in r.stderr and f"sent {human_bytes(clip.stat().st_size)}" in r.stderr
@@ -126,7 +145,7 @@ def test_a_folder_uploads_as_an_image_sequence_at_its_rate(rig, tmp_path):
     assert (m.kind, m.name, m.frames, m.bit_depth, m.fps) == ("sequence", "intro", 4, 16, 12.0)
 
 
-def test_compensate_uploads_a_video_file_from_another_machine(rig, tmp_path, capsys):
+def test_compensate_uploads_a_video_file_from_another_machine(rig, tmp_path, capfd):
     import argparse
 
     from rigctl import compensation_cli as compensate_cli
@@ -141,7 +160,7 @@ def test_compensate_uploads_a_video_file_from_another_machine(rig, tmp_path, cap
     assert kind == "compensate_video" and params["max_frames"] == 2
     m = AssetStore(rig.rig_dir).get(params["asset"])
     assert (m.kind, m.name, m.frames) == ("video", "scene", 10)
-    assert "uploaded to the store" in capsys.readouterr().err
+    assert "uploaded to the store" in capfd.readouterr().err
 
 
 def test_damaged_bytes_are_refused_and_dropped_and_bad_names_and_strangers_too(rig, tmp_path):

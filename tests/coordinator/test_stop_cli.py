@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from cli_inprocess import run_shadowless
 from shadowless.local import LocalRig
 from waits import wait_until
 
@@ -39,10 +40,27 @@ def showing(rig) -> str:
     return asyncio.run(go())
 
 
-def cli(rig, *args, check=True):
-    argv = [sys.executable, "-m", "shadowless", *args, "--coordinator", rig.coordinator_target, "--rig-dir",
-            str(rig.rig_dir)]
-    r = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+_CAPTURE: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _capture(capfd):
+    """:func:`cli` reads what a command run in this interpreter printed from this test's ``capfd``."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def _here(argv: list[str]) -> subprocess.CompletedProcess:
+    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    return subprocess.CompletedProcess(argv, code, out, err)
+
+
+def cli(rig, *args, check=True, process=False):
+    """`shadowless ARGS...` against ``rig``: in this interpreter, or with ``process`` as a real process."""
+    argv = [*args, "--coordinator", rig.coordinator_target, "--rig-dir", str(rig.rig_dir)]
+    r = subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True,
+                       timeout=120) if process else _here(argv)
     if check:
         assert r.returncode == 0, r.stderr
     return r
@@ -51,7 +69,7 @@ def cli(rig, *args, check=True):
 def test_show_refuses_another_aspect_unless_fitted_then_blackout_and_stop(rig, tmp_path):
     img = np.full((40, 40, 3), 200, np.uint8)
     cv2.imwrite(str(tmp_path / "square.png"), img)
-    r = cli(rig, "show", str(tmp_path / "square.png"), "--persist", check=False)
+    r = cli(rig, "show", str(tmp_path / "square.png"), "--persist", check=False, process=True)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "40x40" in r.stderr and "64x32" in r.stderr and "contain" in r.stderr
     cli(rig, "show", str(tmp_path / "square.png"), "--persist", "--fit", "contain")
