@@ -1,4 +1,6 @@
-"""`shadowless room`: help that teaches, a real process serving on 127.0.0.1, clean shutdown."""
+"""`shadowless room`: help that teaches, a real process serving on 127.0.0.1, clean shutdown. The help and
+the refusals run in the test's interpreter (output captured at the file descriptors), the first help also
+as a real process."""
 from __future__ import annotations
 
 import re
@@ -10,18 +12,35 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_inprocess import run_shadowless
 from sim.link import RoomClient
 from sim.scene import load_layout
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def shadowless(*args: str, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, cwd=ROOT, timeout=120, **kw)
+_CAPTURE: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _capture(capfd):
+    """A command run in this interpreter is read from this test's ``capfd``."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def shadowless(*args: str, process: bool = False) -> subprocess.CompletedProcess:
+    """`shadowless ARGS...`: in this interpreter, or with ``process`` as a real process."""
+    if process:
+        return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, cwd=ROOT,
+                              timeout=120)
+    code, out, err = run_shadowless(list(args), _CAPTURE["fd"])
+    return subprocess.CompletedProcess(list(args), code, out, err)
 
 
 def test_help_teaches_layout_scales_port_and_hands():
-    out = shadowless("room", "--help")
+    out = shadowless("room", "--help", process=True)
     assert out.returncode == 0
     text = out.stdout
     for needle in ("--layout", "--projector-scale", "--camera-scale", "--port", "--hand X,Y", "--hand-height", "--hand-path",

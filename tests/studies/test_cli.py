@@ -1,4 +1,5 @@
-"""`shadowless study`: the analyses through the real CLI (registered in shadowless/cli.py)."""
+"""`shadowless study`: the analyses through the real CLI (registered in shadowless/cli.py), run in the
+test's interpreter (output captured at the file descriptors), the first analysis also as a real process."""
 from __future__ import annotations
 
 import json
@@ -6,11 +7,29 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
+
+from cli_inprocess import run_shadowless
 
 
-def study(*args):
-    return subprocess.run([sys.executable, "-m", "shadowless", "study", *map(str, args)], capture_output=True,
-                          text=True, timeout=120)
+_CAPTURE: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _capture(capfd):
+    """A command run in this interpreter is read from this test's ``capfd``."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def study(*args, process: bool = False) -> subprocess.CompletedProcess:
+    """`shadowless study ARGS...`: in this interpreter, or with ``process`` as a real process."""
+    argv = ["study", *map(str, args)]
+    if process:
+        return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
+    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    return subprocess.CompletedProcess(argv, code, out, err)
 
 
 def test_scheffe_and_paired_from_csv(tmp_path):
@@ -24,7 +43,7 @@ def test_scheffe_and_paired_from_csv(tmp_path):
                 v = np.clip(np.round(effects[names[i]] - effects[names[j]] + rng.normal(0, 0.7)), -2, 2)
                 lines.append(f"s{person},{names[i]},{names[j]},{v:g}")
     (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
-    done = study("scheffe", tmp_path / "r.csv", "--json", "--chart", tmp_path / "c.svg")
+    done = study("scheffe", tmp_path / "r.csv", "--json", "--chart", tmp_path / "c.svg", process=True)
     assert done.returncode == 0, done.stderr
     d = json.loads(done.stdout)
     assert max(d["scale"], key=d["scale"].get) == "P25" and min(d["scale"], key=d["scale"].get) == "P1"
