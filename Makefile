@@ -54,7 +54,10 @@ demo: setup
 # Three workers (pytest-xdist) on the two cores, a test module's tests on one of them (module-scoped
 # rigs are set up once): much of a test's time is spent waiting on processes and sockets, so a third
 # worker fills it (9:26 against 2 workers' 11:09 for about 1,690 tests, 8:22 for 1,695); each worker's rigs
-# advertise an mDNS service of their own, so no worker sees another's.
+# advertise an mDNS service of their own, so no worker sees another's. The modules are queued by the time
+# their tests took in the last run, the longest first, and bytecode is cached outside the checkout where
+# the environment forbids it beside the sources (tests/conftest.py; both in ~/.cache/shadowless-tests,
+# SHADOWLESS_TESTS_CACHE=off for neither).
 test: setup system-deps
 	$(PY) -m pytest -q -n 3 --dist loadfile
 
