@@ -75,7 +75,7 @@ def _question(text: str) -> tuple[str, str]:
     key = key.strip()
     if not sep or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", key) or not words.strip():
         raise argparse.ArgumentTypeError(f"{text!r} is not KEY=TEXT with KEY a word, e.g. "
-                                         f"\"shadow=On which side is the hand's shadow less disturbing?\"")
+                                         f"\"projected=Which side looks more like a projected pattern?\"")
     return key, words.strip()
 
 

@@ -32,11 +32,13 @@ ANSWERS = {"-2": -2, "-1": -1, "0": 0, "1": 1, "2": 2, "+1": 1, "+2": 2}
 HELP = "-2 clearly left, -1 slightly left, 0 equal, 1 slightly right, 2 clearly right; r repeat, q stop"
 
 #: the questions a trial asks unless told otherwise: (key, the words the operator reads out). The
-#: paper's second study asked two questions of every pair; the sense of projection (does the
-#: picture read as the surface's own pattern, or as light thrown on it) and the shadow.
+#: paper's second study asked two questions of every pair, both about the sense of projection: which
+#: picture reads more as a pattern of the surface itself (its material), and which reads more as a
+#: projected pattern. A lower sense of projection shows as more of the first and less of the second;
+#: the two are asked separately because a participant need not answer them as mirror images.
 QUESTIONS: tuple[tuple[str, str], ...] = (
-    ("sop", "Which side looks more like a pattern of the surface itself, less like a projection?"),
-    ("shadow", "On which side is the hand's shadow less disturbing?"),
+    ("intrinsic", "Which side looks more like a pattern of the surface itself, part of its material?"),
+    ("projected", "Which side looks more like a projected pattern?"),
 )
 
 

@@ -53,7 +53,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                         f"a score outside it, or a fraction, is refused naming its row")
     p.add_argument("--continuous", action="store_true", help="the scale is continuous: fractions are scores too")
     p.add_argument("--chart", type=Path, metavar="SVG", help="write the scale values as a bar chart here (one "
-                   "question: this file; several: one per question, e.g. c.svg gives c.sop.svg and c.shadow.svg)")
+                   "question: this file; several: one per question, e.g. c.svg gives c.intrinsic.svg and c.projected.svg)")
     p.add_argument("--json", action="store_true", help="print JSON for scripts")
 
 

@@ -179,7 +179,7 @@ def test_the_command_runs_a_participant_from_the_keyboard(rig, tmp_path):
     assert "'7' is not an answer" in done.stdout and "all 2 trials answered" in done.stdout
     rows = (tmp_path / "r.csv").read_text().splitlines()
     assert len(rows) == 5 and [r.split(",")[6] for r in rows[1:]] == ["1", "2", "-2", "0"]
-    assert [r.split(",")[7] for r in rows[1:]] == ["sop", "shadow"] * 2        # the default two questions
+    assert [r.split(",")[7] for r in rows[1:]] == ["intrinsic", "projected"] * 2   # the default two questions
     assert {r.split(",")[4] for r in rows[1:]} == {"one.png", "two.png"}
     again = subprocess.run(run, input="", capture_output=True, text=True, timeout=120, env=env)
     assert again.returncode == 0 and "all 2 trials are answered already" in again.stdout, again.stderr
