@@ -526,9 +526,9 @@ async def _failover_budgeted(args, work: Path, light: Light, name: str, slots: l
     except CpuBudgetError as exc:
         _log(f"failover: {exc}")
         return {"skipped": str(exc)}
-    except TimeoutError as exc:        # the shared-CPU figures of this rig stand
-        _log(f"failover: {name} with the CPU budget: {exc}")
-        return {"failed": str(exc)}
+    except Exception as exc:        # a job or a wait the starved nodes failed: the shared-CPU figures stand
+        _log(f"failover: {name} with the CPU budget: {type(exc).__name__}: {exc}")
+        return {"failed": f"{type(exc).__name__}: {exc}"}
 
 
 async def part_watchdog(args, work: Path, light: Light) -> dict:
