@@ -45,7 +45,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("shadowless.demo", "the whole rig in the virtual room: what `make demo` runs"),
     "study": ("shadowless.study", "studies: Scheffé paired comparison, paired task times; in the room: a moving hand (motion), "
                                   "shadow proxies of the layouts (proxies, pointwise)"),
-    "plan": ("planner.cli", "choose projector positions that keep a hand's shadow least visible (layout, picture, curve)"),
+    "plan": ("shadowless.placement", "choose projector positions that keep a hand's shadow least visible (layout, picture, curve); --placement: where to put the object"),
     "bench": ("bench.cli", "benchmarks that print JSON (sync, venue, room, calibration, compensation, node, console, motion, plan, …)"),
 }
 
