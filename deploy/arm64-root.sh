@@ -58,10 +58,19 @@ arm_binfmt() {
   arm_say "registered binfmt_misc entry $ARM_BINFMT ($QEMU; removed at the end)"
 }
 
+ARM_ENV=()                   # more VAR=VALUE for arm_in (PIP_CERT, see arm_trust)
+
 # arm_in CMD...: CMD inside the root, as root, with a plain environment
 arm_in() {
   chroot "$ARM_ROOT" /usr/bin/env -i HOME=/root TERM=dumb LANG=C.UTF-8 \
-    PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin DEBIAN_FRONTEND=noninteractive "$@"
+    PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin DEBIAN_FRONTEND=noninteractive "${ARM_ENV[@]}" "$@"
+}
+
+# arm_trust FILE: pip in the root trusts the certificates in FILE (a network that inspects TLS
+# with a certificate authority of its own; the root's Debian bundle does not know it)
+arm_trust() {
+  install -m 0644 "$1" "$ARM_ROOT/etc/ssl/certs/host-ca-bundle.pem"
+  ARM_ENV+=(PIP_CERT=/etc/ssl/certs/host-ca-bundle.pem)
 }
 
 arm_mount() {   # arm_mount MOUNTPOINT MOUNT-ARGS...: mount, and remember it for arm_cleanup
@@ -135,9 +144,14 @@ arm_stop_processes() {
   kill -KILL $pids 2>/dev/null || true
 }
 
-arm_cleanup() {
+# arm_release: the root's processes stopped and its mounts undone (binfmt_misc stays as it is)
+arm_release() {
   arm_stop_processes
   arm_umount_all
+}
+
+arm_cleanup() {
+  arm_release
   if ((ARM_BINFMT_MINE)); then
     echo -1 >"/proc/sys/fs/binfmt_misc/$ARM_BINFMT" 2>/dev/null || true
     ARM_BINFMT_MINE=0
@@ -182,8 +196,8 @@ EOF
     ARM_ROOT=$b
     arm_mount_root "$b"
     { arm_in apt-get update -q && arm_in apt-get install -y -q --no-install-recommends "${ARM_BASE_EXTRAS[@]}"; } \
-      >"$ARM_CACHE/base-extras.log" 2>&1 || { arm_cleanup; arm_die "apt-get failed in the root; see $ARM_CACHE/base-extras.log"; }
-    arm_cleanup
+      >"$ARM_CACHE/base-extras.log" 2>&1 || { arm_release; arm_die "apt-get failed in the root; see $ARM_CACHE/base-extras.log"; }
+    arm_release
     ARM_ROOT=""
     rm -f "$b/etc/resolv.conf"
     touch "$b/.extras-done"

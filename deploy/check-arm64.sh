@@ -39,6 +39,8 @@ Options:
   --mirror URL        the Debian mirror (default $ARM_MIRROR)
   --with-coordinator  also run deploy/install-coordinator.sh in the root (adds several minutes)
   --keep              leave the run's root in DIR/root (unmounted) for inspection
+  --ca-bundle FILE    certificates pip in the root trusts (a network that inspects TLS with an
+                      authority of its own; default \$PIP_CERT when set, else Debian's bundle)
   --host-python PY    the Python with this checkout's packages and OpenCV that runs the x86
                       side (default $REPO/.venv/bin/python)
   -h, --help          this text
@@ -48,7 +50,7 @@ and reaches only the Debian mirror and PyPI.
 EOF
 }
 
-KEEP=0 COORD=0 HOST_PY=$REPO/.venv/bin/python
+KEEP=0 COORD=0 HOST_PY=$REPO/.venv/bin/python CA=${PIP_CERT:-}
 while (($#)); do
   case $1 in
     --*=*) set -- "${1%%=*}" "${1#*=}" "${@:2}"; continue ;;
@@ -57,6 +59,7 @@ while (($#)); do
     --mirror) [[ $# -ge 2 && -n $2 ]] || arm_die "--mirror needs a URL"; ARM_MIRROR=$2; shift 2 ;;
     --with-coordinator) COORD=1; shift ;;
     --keep) KEEP=1; shift ;;
+    --ca-bundle) [[ $# -ge 2 && -f $2 ]] || arm_die "--ca-bundle needs a file of certificates"; CA=$2; shift 2 ;;
     --host-python) [[ $# -ge 2 && -n $2 ]] || arm_die "--host-python needs a path"; HOST_PY=$2; shift 2 ;;
     *) arm_die "unknown argument $1 (see --help)" ;;
   esac
@@ -81,6 +84,10 @@ arm_binfmt
 arm_base
 arm_fresh_root
 arm_say "a fresh Debian 12 arm64 root in $ARM_ROOT ($(elapsed))"
+if [[ -n $CA ]]; then
+  arm_trust "$CA"
+  arm_say "pip in the root trusts the certificates of $CA (PIP_CERT)"
+fi
 
 # The checkout as an operator would carry it (its committed and uncommitted files, no venv, no git).
 mkdir -p "$ARM_ROOT/root/shadowless"

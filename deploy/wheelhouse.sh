@@ -87,6 +87,8 @@ else
   arm_binfmt
   arm_base
   arm_fresh_root
+  # a network that inspects TLS: pip in the root trusts what pip here trusts
+  if [[ -n ${PIP_CERT:-} && -f $PIP_CERT ]]; then arm_trust "$PIP_CERT"; fi
   copy_checkout "$ARM_ROOT/root/shadowless"
   arm_say "building the wheels of shadowless[$EXTRAS] for aarch64 in the arm64 root (log $ARM_CACHE/wheelhouse.log)"
   {
