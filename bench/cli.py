@@ -28,6 +28,7 @@ BENCHMARKS: dict[str, str] = {
     "bust": "coverage on the bust from poses + mesh vs the room's truth; fingertip touches: shadow area vs coverage",
     "motion": "a hand waving over the table: light drop per frame, synthetic aperture vs reactive compensation with latency",
     "plan": "the layout planner: 25 of 100 ceiling positions (time), proxy curve and knee, the paper's guidelines, bust walls",
+    "placement": "where the bust goes under the 5x5 ceiling rig: min coverage chosen vs default, search time, the coverage tool's check",
     "preauth": "unauthenticated calls under the size cap: coordinator memory (peak, after), status time, nodes live, log",
     "crash": "kill -9 of the coordinator during every write path: rigs that fail to start, writes lost, files left over",
     "uniformity": "per-pixel blending in the virtual room: flat-white uniformity before/after (table, wall seams, bust), "

@@ -230,18 +230,28 @@ def hand_shadow(points: np.ndarray, area: np.ndarray, irradiance: np.ndarray, ce
     for hand in hands:
         prims = hand.primitives()
         blocked_light = np.zeros(len(X))
+        spheres = [prim.bounding_sphere() for prim in prims]
         for i, c in enumerate(np.asarray(centers, np.float64)):
-            lit = E[i] > 0
-            if not lit.any():
-                continue
-            v = X[lit] - c
+            v = X - c
             dist = np.linalg.norm(v, axis=1)
             d = v / dist[:, None]
-            blocked = np.zeros(len(v), bool)
-            for prim in prims:
-                t_in, t_out = prim.interval_from(c, d[:, 0], d[:, 1], d[:, 2])
-                blocked |= (t_in < dist - 1e-6) & (t_out > 1e-6)
-            blocked_light[np.flatnonzero(lit)[blocked]] += E[i, lit][blocked]
+            # only rays passing near one of the primitives are tested against it (exact below)
+            near = np.zeros((len(prims), len(X)), bool)
+            for k, (sc, sr) in enumerate(spheres):
+                along = d @ (sc - c)
+                closest = np.clip(along, 0.0, dist)
+                gap2 = np.sum((c + d * closest[:, None] - sc) ** 2, axis=1)
+                near[k] = (gap2 <= sr * sr) & (E[i] > 0)
+            if not near.any():
+                continue
+            blocked = np.zeros(len(X), bool)
+            for k, prim in enumerate(prims):
+                idx = np.flatnonzero(near[k] & ~blocked)
+                if not len(idx):
+                    continue
+                t_in, t_out = prim.interval_from(c, d[idx, 0], d[idx, 1], d[idx, 2])
+                blocked[idx] |= (t_in < dist[idx] - 1e-6) & (t_out > 1e-6)
+            blocked_light[blocked] += E[i, blocked]
         with np.errstate(divide="ignore", invalid="ignore"):
             drop = np.where(total > 0, blocked_light / np.where(total > 0, total, 1.0), 0.0)
         shares.append(float(a[drop > DROP_LIMIT].sum() / a.sum()))

@@ -130,6 +130,7 @@ class Judge:
         stride = max(1, len(self.points) // hand_samples)
         self.hand_idx = np.arange(0, len(self.points), stride)
         self.evaluations = 0
+        self._counts: dict[Placement, np.ndarray] = {}
 
     def coverage(self, p: Placement):
         """(count (n,) int, irradiance (S, n) float64) of the texels with the object at ``p``."""
@@ -144,6 +145,7 @@ class Judge:
     def __call__(self, p: Placement) -> Score:
         self.evaluations += 1
         count, E = self.coverage(p)
+        self._counts[p] = count
         lit = count > 0
         a = self.area
         total = float(a.sum())
@@ -156,7 +158,7 @@ class Judge:
 
     def count_map(self, p: Placement) -> tuple[np.ndarray, np.ndarray]:
         """(room points (n, 3) float64, count (n,) int) for the picture."""
-        count, _ = self.coverage(p)
+        count = self._counts[p] if p in self._counts else self.coverage(p)[0]
         return p.to_room(self.points), count
 
 
@@ -170,6 +172,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--seconds", type=cli_types.number(1, 3600), default=40.0, metavar="S", help="time budget of the search; the final check comes after it (default 40)")
     g.add_argument("--step", type=cli_types.number(10, 1000), default=200.0, metavar="MM", help="coarse grid spacing (default 200)")
     g.add_argument("--turns", type=cli_types.int_range(1, 72), default=6, metavar="N", help="coarse turns of the object, evenly over 360 deg (default 6)")
+    g.add_argument("--rounds", type=cli_types.int_range(0, 10), default=3, metavar="N",
+                   help="finer rounds after the coarse grid, each halving the steps (default 3)")
     g.add_argument("--search-texture", type=cli_types.size, default=(64, 64), metavar="WxH", help="texels while searching (default 64x64)")
     g.add_argument("--search-resolution", type=cli_types.size, default=(320, 200), metavar="WxH",
                    help="projector images while searching (default 320x200)")
@@ -187,11 +191,29 @@ def run(args: argparse.Namespace) -> int:
     return run_placement(args)
 
 
-def run_placement(args: argparse.Namespace) -> int:
-    def say(text: str) -> None:
-        print(f"placement: {text}", file=sys.stderr, flush=True)
+def _say(text: str) -> None:
+    print(f"placement: {text}", file=sys.stderr, flush=True)
 
-    t0 = time.perf_counter()
+
+def run_placement(args: argparse.Namespace) -> int:
+    doc = place(args, say=_say)
+    if args.json:
+        print(json.dumps(doc, indent=1))
+        return 0
+    c, d = doc["chosen"], doc["default"]
+    for label, s in (("chosen", c), ("default", d)):
+        print(f"{label}: x {s['x_mm']:.0f} mm, y {s['y_mm']:.0f} mm, yaw {s['yaw_deg']:.0f} deg: every lit point reached by at least "
+              f"{s['count_min']} projectors ({s['count_p5']} on all but the worst 5 %), {s['unlit_pct']:.1f}% unlit, "
+              f"{s['hand_shadow_pct']:.1f}% under a hand's deep shadow, {s['count_mean']:.2f} projectors on average")
+    print(f"searched {doc['evaluated']} placements in {doc['search_seconds']:.1f} s"
+          f"{' (time budget reached)' if doc['stopped_early'] else ''}; wrote {doc['layout']} and {doc['picture']}")
+    print(f"check it: {doc['check_command']}")
+    return 0
+
+
+def place(args: argparse.Namespace, *, say=lambda text: None) -> dict:
+    """Search, check, write the layout and the picture; the figures (JSON-able)."""
+    t0, cpu0 = time.perf_counter(), time.process_time()
     layout_out = Path("placement.toml" if args.layout == "plan.toml" else args.layout)
     picture_out = Path("placement.png" if args.picture == "plan.png" else args.picture)
     room = load_room(args.room)
@@ -199,7 +221,7 @@ def run_placement(args: argparse.Namespace) -> int:
         f"{room.table_size[0]:.0f} x {room.table_size[1]:.0f} mm table")
     quick = Judge(room, resolution=tuple(args.search_resolution), texture=tuple(args.search_texture), shadow_scale=1)
     default = Placement()
-    result = search(quick, room.vertices, room.table_size, step_mm=args.step, yaws=args.turns, seconds=args.seconds,
+    result = search(quick, room.vertices, room.table_size, step_mm=args.step, yaws=args.turns, rounds=args.rounds, seconds=args.seconds,
                     include=(default,), progress=say)
     say(f"searched {len(result.evaluated)} placements in {result.seconds:.1f} s"
         + (" (time budget reached)" if result.stopped_early else ""))
@@ -232,16 +254,8 @@ def run_placement(args: argparse.Namespace) -> int:
                   "shadow_scale": args.shadow_scale},
         "tilt": "none: the object stands on its base",
         "layout": str(layout_out), "picture": str(picture_out), "seconds": round(time.perf_counter() - t0, 1),
+        "cpu_seconds": round(time.process_time() - cpu0, 1),
+        "check_command": f"shadowless rig init DIR --layout {layout_out} --resolution {res} && shadowless coverage --rig-dir DIR "
+                         f"--planned --texture {args.texture[0]}x{args.texture[1]} --shadow-scale {args.shadow_scale}",
     }
-    if args.json:
-        print(json.dumps(doc, indent=1))
-        return 0
-    c, d = checked[chosen], checked[default]
-    print(f"chosen: {chosen}: at least {c.count_min} projectors on every lit point, {c.unlit_pct:.1f}% unlit, "
-          f"{c.shadow_pct:.1f}% under a hand's deep shadow, {c.count_mean:.2f} projectors on average")
-    print(f"default: {default}: at least {d.count_min}, {d.unlit_pct:.1f}% unlit, {d.shadow_pct:.1f}% under a hand's deep shadow, "
-          f"{d.count_mean:.2f} on average")
-    print(f"searched {len(result.evaluated)} placements in {result.seconds:.1f} s; wrote {layout_out} and {picture_out}")
-    print(f"check it: shadowless rig init DIR --layout {layout_out} --resolution {res} && shadowless coverage --rig-dir DIR --planned "
-          f"--texture {args.texture[0]}x{args.texture[1]} --shadow-scale {args.shadow_scale}")
-    return 0
+    return doc
