@@ -24,6 +24,8 @@ STUDIES: dict[str, tuple[str, str]] = {
     "paired": ("studies.paired_cli", "paired test of task times (log scale) or accuracies"),
     "schedule": ("studies.schedule_cli", "a balanced, randomized pair schedule for P participants (CSV)"),
     "run": ("studies.run_cli", "one participant's trials on the rig, side by side; answers appended to RATINGS"),
+    "search": ("studies.search_cli", "the search task (study 1): one participant's trials on the rig, timed on the "
+                                     "rig clock"),
     "motion": ("sim.motion_cli", "a hand moving over the table: light drop per frame, synthetic aperture vs reactive "
                                  "compensation"),
     "proxies": ("studies.proxies_cli", "geometric proxies of the sense of projection per layout, against the paper's "

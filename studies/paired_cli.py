@@ -15,6 +15,8 @@ from studies.report import dumps, num_text, p_text
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("times", type=Path, metavar="FILE",
                    help="CSV: participant,condition,time_s (seconds) or participant,condition,accuracy (0..1)")
+    p.add_argument("--measure", choices=("time_s", "accuracy"), default=None,
+                   help="the column to compare when the file has both (`study search` writes both; default time_s)")
     p.add_argument("--raw", action="store_true", help="compare the times themselves, not their logarithms "
                    "(accuracies are always compared as they are)")
     p.add_argument("--test", choices=TESTS, default=None,
@@ -43,7 +45,7 @@ def _doc(column: str, r: PairedResult) -> dict:
 
 
 def _report(args: argparse.Namespace) -> int:
-    column, names, a, b = read_measures(args.times)
+    column, names, a, b = read_measures(args.times, args.measure)
     times = column == "time_s"
     test = args.test or ("auto" if times else "wilcoxon")
     r = paired_tests(a, b, names=names, log=times and not args.raw, test=test, zero_method=args.zeros)
