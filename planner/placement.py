@@ -146,7 +146,7 @@ def search(score: Callable[[Placement], Score], footprint: np.ndarray, table_siz
     """Maximise ``score(placement).key`` over placements whose footprint stays on the table.
 
     Coarse: a grid ``step_mm`` apart over the positions that fit at any yaw, times ``yaws`` yaws
-    evenly over the turn, plus ``include`` (the default placement, so the result is never worse
+    evenly over the turn, judged from the table's centre outwards, after ``include`` (the default placement, so the result is never worse
     than it). Then ``rounds`` times: around each of the ``keep`` best so far, one move at a time:
     half the previous step along x and along y (both ways) and half the previous yaw step (both ways). Stops early when
     ``seconds`` have passed (the best so far is the answer; ``stopped_early`` says so).
@@ -181,7 +181,9 @@ def search(score: Callable[[Placement], Score], footprint: np.ndarray, table_siz
     if len(xs) == 1 and len(ys) == 1:  # the object fits only when turned: search the whole table
         xs, ys = _axis(-half[0], half[0], step_mm), _axis(-half[1], half[1], step_mm)
     yaw_step = 360.0 / max(1, yaws)
-    coarse = list(include) + [Placement(float(x), float(y), float(k * yaw_step)) for x in xs for y in ys for k in range(yaws)]
+    grid = [Placement(float(x), float(y), float(k * yaw_step)) for x in xs for y in ys for k in range(yaws)]
+    # nearest the table's centre first: a budget that runs out has judged the middle of the table
+    coarse = list(include) + sorted(grid, key=lambda p: (round(math.hypot(p.x, p.y), 1), p.yaw_deg))
     judge(coarse, "coarse")
     step = step_mm
     for r in range(rounds):

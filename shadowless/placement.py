@@ -41,12 +41,13 @@ object placement (--placement): where to put the object on the table
   shadowless plan --placement                          # the bust under the 5x5 ceiling rig
   shadowless plan --placement --room rig.toml --seconds 30 --layout placed.toml --picture placed.png
   shadowless rig init rigs/placed --layout placed.toml --resolution 320x200
-  shadowless coverage --rig-dir rigs/placed --planned --texture 128x128   # checks the placement's figures
-                                                       # the coverage tool checks the placement
+  shadowless coverage --rig-dir rigs/placed --planned --texture 128x128   # the coverage tool checks the placement
 The projectors stay; the object moves on the table (x, y) and turns about the vertical (no tilt).
 Best: the most projectors reaching its worst-reached point (the coverage tool's count_min), then
-the least surface left unlit or where a pointing hand takes more than half of the light (hands
+on all but the worst 5 % of the surface (count_p5), then the least surface left unlit or where a pointing hand takes more than half of the light (hands
 around the object at 250 and 420 mm, from six directions), then the most projectors on average.
+The search judges placements at --search-texture and --search-resolution; the best three and the
+default are judged again at the check's settings, and the default wins unless one beats it there.
 """
 
 
