@@ -143,7 +143,8 @@ def _zero_ranks(d: np.ndarray) -> float:
     return float(r[d == 0].sum())
 
 
-def read_measures(path: str | Path, measure: str | None = None) -> tuple[str, tuple[str, str], np.ndarray, np.ndarray]:
+def read_measures(path: str | Path,
+                  measure: str | None = None) -> tuple[str, tuple[str, str], np.ndarray, np.ndarray]:
     """A CSV with columns ``participant,condition`` and a measure, ``time_s`` (seconds, positive)
     or ``accuracy`` (a fraction 0..1), with exactly two conditions; ``measure`` names the column
     to read when the file has both (default: ``time_s`` if present). A participant's repeated
@@ -160,7 +161,8 @@ def read_measures(path: str | Path, measure: str | None = None) -> tuple[str, tu
             if measure is not None and measure not in MEASURES:
                 raise ValueError(f"the measure is one of {', '.join(MEASURES)}, not {measure!r}")
             if measure is not None and measure not in cols:
-                raise ValueError(f"{p}: has no {measure} column (found: {', '.join(reader.fieldnames or []) or 'none'})")
+                raise ValueError(f"{p}: has no {measure} column "
+                                 f"(found: {', '.join(reader.fieldnames or []) or 'none'})")
             column = measure or next((c for c in MEASURES if c in cols), None)
             if not {"participant", "condition"} <= cols or column is None:
                 raise ValueError(f"{p}: the header must name the columns participant, condition and time_s or "

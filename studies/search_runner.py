@@ -160,7 +160,7 @@ async def onset(client, frame_id: int, slots: Sequence[str], *, timeout_s: float
         if st.uptime_s - start > timeout_s:
             raise TimeoutError(f"frame {frame_id} was not reported on screen by {', '.join(slots)} "
                                f"within {timeout_s:g} s")
-        await asyncio.sleep(0.01)
+        await asyncio.sleep(0.02)
 
 
 async def run_search(client, trials: Sequence[SearchTrial], log: SearchLog,

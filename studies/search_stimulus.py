@@ -76,11 +76,12 @@ def make_layout(seed: int, table_mm: tuple[float, float] = (1200.0, 800.0), *, s
     for cols in range(1, sheets + 1):
         rows = math.ceil(sheets / cols)
         cw, ch = tw / cols, th / rows
-        if min(cw, ch) >= short + 20 and max(cw, ch) >= long_ + 20 and (best is None or cols * rows < best[0] * best[1]):
+        fits = min(cw, ch) >= short + 20 and max(cw, ch) >= long_ + 20
+        if fits and (best is None or cols * rows < best[0] * best[1]):
             best = (cols, rows)
     if best is None:
-        raise ValueError(f"a table of {tw:g} x {th:g} mm cannot hold {sheets} sheets of {short:g} x {long_:g} mm apart; "
-                         f"give a larger table")
+        raise ValueError(f"a table of {tw:g} x {th:g} mm cannot hold {sheets} sheets of {short:g} x {long_:g} mm "
+                         f"apart; give a larger table")
     cols, rows = best
     cw, ch = tw / cols, th / rows
     rng = np.random.default_rng(seed)
@@ -134,7 +135,8 @@ def text_page(size: tuple[int, int], seed: int, *, blur_px: float = 0.7) -> np.n
     return np.clip(out, 0.0, 1.0)
 
 
-def render_content(layout: SearchLayout, size: tuple[int, int], *, grey: float = 0.5, blur_px: float = 0.7) -> np.ndarray:
+def render_content(layout: SearchLayout, size: tuple[int, int], *, grey: float = 0.5,
+                   blur_px: float = 0.7) -> np.ndarray:
     """What the rig projects for ``layout``: (h, w, 3) uint16 for content ``size = (w, h)``, a page
     of text on each projected sheet, ``grey`` (0..1) everywhere else, printed sheets included (they
     are paper under the grey light)."""

@@ -4,7 +4,8 @@ Scripted participants answer each trial after a drawn time waited on the rig clo
 frame is checked against the layout (lit by its condition only, text on the three projected
 sheets and grey elsewhere, from an independent numpy reference of the layout's rectangles); the
 results file is read by `study paired` for times and for accuracies. The command runs one more
-participant, refuses an unknown condition without touching the results, and its help teaches."""
+scripted participant and one at the keyboard, refuses an unknown condition without touching the
+results, and its help teaches."""
 from __future__ import annotations
 
 import asyncio
@@ -20,6 +21,7 @@ from waits import wait_until
 
 from shadowless.local import LocalRig
 from studies import cli as study_cli
+from studies.paired import read_measures
 from studies.search_log import SearchLog
 from studies.search_runner import (ScriptedParticipant, SearchSettings, parse_answer, run_search,
                                    search_schedule)
@@ -79,13 +81,15 @@ def rig(tmp_path_factory):
 
 
 class Checked(ScriptedParticipant):
-    """A scripted participant that first checks what every node shows for the trial."""
+    """A scripted participant that first checks what every node shows for the trial (if ``check``)."""
 
-    def __init__(self, seed, rig, client):
+    def __init__(self, seed, rig, client, check):
         super().__init__(seed, TIMES, miss=0.35)
-        self.rig, self.client, self.checked = rig, client, 0
+        self.rig, self.client, self.check, self.checked = rig, client, check, 0
 
     async def answer(self, prompt, trial, layout, onset_s, rig_now):
+        if not self.check:
+            return await super().answer(prompt, trial, layout, onset_s, rig_now)
         frame = self.client.last.frame_id
         wait_until(lambda: [json.loads((self.rig.snapshot_dir / f"{s}.json").read_text()).get("frame_id", 0)
                             if (self.rig.snapshot_dir / f"{s}.json").exists() else 0 for s in SLOTS],
@@ -140,7 +144,7 @@ def test_scripted_participants_run_the_task_and_study_paired_reads_the_results(r
             rec = Recorded(c)
             for k in (1, 2, 3):
                 who = f"scripted:{k}"
-                people[who] = Checked(k, rig, rec)
+                people[who] = Checked(k, rig, rec, check=k == 1)     # one of each condition checked
                 trials = search_schedule(who, ["A", "B"], 1, seed=9, order=k)
                 assert await run_search(rec, trials, SearchLog(results), CONFIGS, settings, people[who],
                                         say=said.append) == (2, 0)
@@ -151,7 +155,7 @@ def test_scripted_participants_run_the_task_and_study_paired_reads_the_results(r
     again, showing = asyncio.run(go())
     assert again == (0, 0) and any("all 2 trials are answered already" in s for s in said) and "black" in showing
     rows = list(csv.DictReader(results.open()))
-    assert len(rows) == 6 and sum(p.checked for p in people.values()) == 6
+    assert len(rows) == 6 and sum(p.checked for p in people.values()) == 2
     assert len(list((tmp_path / "layouts").glob("*.png"))) == 6
     for who, person in people.items():
         mine = [r for r in rows if r["participant"] == who]
@@ -168,11 +172,15 @@ def test_scripted_participants_run_the_task_and_study_paired_reads_the_results(r
     times = _paired(results, "time_s")
     assert times["conditions"] == ["B", "A"] and times["n"] == 3 and times["log"] is True
     assert times["mean_difference"] < 0            # A − B: B's drawn times are 2.5 times A's
+    times_only = tmp_path / "times.csv"
+    times_only.write_text("participant,condition,time_s\n1,A,2\n1,B,3\n2,A,2\n2,B,3\n3,A,2\n3,B,4\n")
+    with pytest.raises(ValueError, match="has no accuracy column"):
+        read_measures(times_only, "accuracy")
     acc = _paired(results, "accuracy")
     assert acc["measure"] == "accuracy" and acc["test"] == "Wilcoxon signed-rank" and acc["n"] == 3
 
 
-def test_the_command_runs_a_scripted_participant_and_teaches(rig, tmp_path):
+def test_the_command_runs_a_scripted_participant_and_teaches(rig, tmp_path, monkeypatch):
     (tmp_path / "configs.toml").write_text('[configurations]\nA = ["r0c0"]\nB = ["r0c1"]\n')
     cmd = ["search", "--rig-dir", str(rig.rig_dir), "--coordinator", rig.target, "--participant", "scripted:5",
            "--conditions", "A,B", "--configurations", str(tmp_path / "configs.toml"), "--trials", "1",
@@ -183,6 +191,16 @@ def test_the_command_runs_a_scripted_participant_and_teaches(rig, tmp_path):
     assert "all 2 trials answered" in out.getvalue()
     rows = list(csv.DictReader((tmp_path / "r.csv").open()))
     assert [r["participant"] for r in rows] == ["scripted:5"] * 2 and {r["condition"] for r in rows} == {"A", "B"}
+    # a participant by keyboard: a mistyped answer is refused and asked again, q stops with a trial open
+    monkeypatch.setattr("sys.stdin", io.StringIO("x\n1 2 2\n0 1 2\nq\n"))
+    keyboard = [*cmd[:cmd.index("--participant")], "--participant", "4", *cmd[cmd.index("--conditions"):]]
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert study_cli.run(study_cli_parser().parse_args(keyboard)) == 0
+    assert "'x' is not 3 sheet numbers" in out.getvalue() and "'1 2 2' is not 3 different" in out.getvalue()
+    assert "stopped with 1 trial(s) open" in out.getvalue()
+    rows = list(csv.DictReader((tmp_path / "r.csv").open()))
+    assert [(r["participant"], r["chosen"]) for r in rows[2:]] == [("4", "0 1 2")]
     with pytest.raises(SystemExit) as refused:
         study_cli.run(study_cli_parser().parse_args([*cmd[:-2], "--results", str(tmp_path / "r2.csv"),
                                                      "--conditions", "A,C"]))
