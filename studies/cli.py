@@ -46,13 +46,15 @@ DETAILS: dict[str, str] = {
         "  paired FILE.csv       one measure in two conditions: participant,condition and time_s or\n"
         "                        accuracy. Differences second - first: a paired t test (with Cohen's\n"
         "                        d_z) or Wilcoxon's signed-rank test (with r), chosen by Shapiro-Wilk\n"
-        "                        for times (on their log), Wilcoxon for accuracies (zeros welcome)."),
+        "                        for times (on their log), Wilcoxon for accuracies (zeros welcome);\n"
+        "                        --measure picks one in a file with both (`study search` writes both)."),
 }
 
 #: examples for the subcommands with DETAILS; the others point to their own --help
 EXAMPLES = ("  shadowless study scheffe study2.csv --chart sop.svg\n"
             "  shadowless study scheffe sato.csv --scale -3..3 --json\n"
-            "  shadowless study paired study1.csv --json")
+            "  shadowless study paired study1.csv --json\n"
+            "  shadowless study paired search.csv --measure accuracy")
 
 
 def _loading_parser(base: type[argparse.ArgumentParser]) -> type[argparse.ArgumentParser]:
