@@ -23,10 +23,11 @@ three projected sheets as fast as they can while staying accurate, walking round
 blocking light with their body but not touching the sheets.
 
 each trial: black for --gap seconds, then the trial's content lit by the condition's projectors
-only (the others black). Before it shows, the layout is printed and its picture (sheets numbered
-0-9 as seen from the participant's side, the projected ones marked P) written to --pictures:
-lay the sheets out as it shows (printed sheets on the white places, blank ones on the P places).
-When the participant has chosen, type their three numbers and Enter (e.g. "2 5 7"):
+only (the others black). Before it shows, the blank sheets' numbers are printed and the layout's
+picture (sheets numbered 0-9 as seen from the participant's side, the projected ones marked P)
+written to --pictures: lay the sheets out as it shows (printed sheets on the white places, blank
+ones on the P places) and press Enter to show the trial. When the participant has chosen, type
+their three numbers and Enter (e.g. "2 5 7"):
   r  show the trial again (its time starts again)   q  stop (the same command resumes)
 
 timing is the rig clock's: from the instant the last of the condition's projectors reported the
@@ -172,5 +173,5 @@ async def _run(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(_run(args))
-    except (OperatorError, auth.TokenError) as exc:
+    except (OperatorError, auth.TokenError, TimeoutError) as exc:    # TimeoutError: a frame never reported
         raise SystemExit(f"shadowless study search: {exc}") from None

@@ -204,8 +204,16 @@ async def run_search(client, trials: Sequence[SearchTrial], log: SearchLog,
             cv2.imwrite(str(path), cv2.cvtColor(layout_picture(layout), cv2.COLOR_RGB2BGR))
             picture = f" (layout: {path})"
         regions = {s: ([(0, 0, w, h)] if s in need else []) for s in rig_slots}
-        head = f"[{tr.trial}/{total}] {tr.condition}, layout {tr.seed}{picture}"
-        say(head)
+        say(f"[{tr.trial}/{total}] {tr.condition}, layout {tr.seed}{picture}: blank sheets on "
+            f"{' '.join(map(str, layout.projected))}, printed ones on the others")
+        ask = getattr(participant, "ask", None)     # the experimenter lays the sheets out first
+        if ask is not None:
+            try:
+                ready = ask("  lay the sheets out as the picture shows; Enter shows the trial, q stops: ")
+            except EOFError:
+                ready = "q"
+            if ready.strip().lower() == "q":
+                return await _stopped(client, answered, len(todo) - k, say, "stopped")
         while True:
             if settings.gap_s > 0:
                 await client.stop(blackout=True)

@@ -191,8 +191,9 @@ def test_the_command_runs_a_scripted_participant_and_teaches(rig, tmp_path, monk
     assert "all 2 trials answered" in out.getvalue()
     rows = list(csv.DictReader((tmp_path / "r.csv").open()))
     assert [r["participant"] for r in rows] == ["scripted:5"] * 2 and {r["condition"] for r in rows} == {"A", "B"}
-    # a participant by keyboard: a mistyped answer is refused and asked again, q stops with a trial open
-    monkeypatch.setattr("sys.stdin", io.StringIO("x\n1 2 2\n0 1 2\nq\n"))
+    # a participant by keyboard: Enter once the sheets are laid out, a mistyped answer is refused and asked
+    # again, q (at the next layout) stops with a trial open
+    monkeypatch.setattr("sys.stdin", io.StringIO("\nx\n1 2 2\n0 1 2\nq\n"))
     keyboard = [*cmd[:cmd.index("--participant")], "--participant", "4", *cmd[cmd.index("--conditions"):]]
     out = io.StringIO()
     with redirect_stdout(out):
