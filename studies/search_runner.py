@@ -3,7 +3,8 @@
 A trial: black for ``gap_s``, then the trial's content (:func:`studies.search_stimulus.render_content`)
 shown through the operator API (:meth:`rigctl.link.Client.show`), lit only by the slots of the
 trial's condition (every other slot black, by per-slot regions). The experimenter's picture of
-the layout (sheets numbered 0-9) is written before the trial is shown.
+the layout (sheets numbered 0-9) is written before the trial is shown, and at the keyboard the
+experimenter presses Enter once the sheets lie as it shows.
 
 Timing is the rig clock's, never the runner's: the coordinator's status carries its uptime (its
 monotonic clock since it started) and, per node, the frame it last swapped and how long ago its
