@@ -16,6 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.yuv import yuv_planes
+from protos.yuv import YuvFrame
+
 log = logging.getLogger(__name__)
 
 #: hard limits on a live picture, so a malformed packet cannot exhaust memory
@@ -44,9 +47,12 @@ class LiveDecoder:
     """Decodes the live stream's pictures in order; see the module docstring.
 
     Counters: ``decoded`` pictures, ``skipped`` (waiting for a keyframe, or undecodable).
+    ``yuv``: an RGB picture comes as the decoder's planes (:class:`protos.yuv.YuvFrame`, converted
+    by the renderer's shader) when the shader covers its format and it has the packet's size.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, *, yuv: bool = False) -> None:
+        self.yuv = yuv
         self._ctx = None
         self._stream: str | None = None
         self._next: int | None = None        # sequence expected next; None: wait for a keyframe
@@ -66,9 +72,9 @@ class LiveDecoder:
         """Forget the stream (a new coordinator instance): wait for a keyframe again."""
         self._ctx, self._stream, self._next = None, None, None
 
-    def feed(self, chunk: VideoChunk) -> np.ndarray | None:
+    def feed(self, chunk: VideoChunk) -> np.ndarray | YuvFrame | None:
         """The decoded picture of ``chunk``, ``(height, width, channels)`` uint8 (8-bit) or uint16
-        (10-bit), or None when it cannot be decoded correctly (waiting for a keyframe, a gap in
+        (10-bit) (with ``yuv``, RGB pictures as a :class:`~protos.yuv.YuvFrame`), or None when it cannot be decoded correctly (waiting for a keyframe, a gap in
         the sequence, a malformed packet)."""
         if not (0 < chunk.width <= MAX_SIDE and 0 < chunk.height <= MAX_SIDE) or chunk.channels not in (1, 3) \
                 or chunk.bit_depth not in (8, 10):
@@ -99,7 +105,7 @@ class LiveDecoder:
         self.decoded += 1
         return image
 
-    def _decode(self, chunk: VideoChunk) -> np.ndarray:
+    def _decode(self, chunk: VideoChunk) -> np.ndarray | YuvFrame:
         import av
 
         frames = self._ctx.decode(av.Packet(chunk.data))
@@ -108,6 +114,10 @@ class LiveDecoder:
         f = frames[0]
         if f.width < chunk.width or f.height < chunk.height or f.width > chunk.width + 1 or f.height > chunk.height + 1:
             raise ValueError(f"picture is {f.width}x{f.height}, the packet says {chunk.width}x{chunk.height}")
+        if self.yuv and chunk.channels == 3 and (f.width, f.height) == (chunk.width, chunk.height):
+            planes = yuv_planes(f)
+            if planes is not None:
+                return planes
         img = f.to_ndarray(format="rgb24" if chunk.bit_depth == 8 else "rgb48le")
         img = img[:chunk.height, :chunk.width, :chunk.channels]
         return np.ascontiguousarray(img)

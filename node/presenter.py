@@ -158,7 +158,7 @@ class Presenter:
         self._held_late = False
         self._timeline_cid: str | None = None
         self._last_event_pts: int | None = None
-        self.live = LiveDecoder()        # live video pictures (coordinator/live_video.py)
+        self.live = LiveDecoder(yuv=True)   # live video pictures (coordinator/live_video.py), as YUV planes
         self.previews = PreviewMaker(clock.now)
         self._fbo_shown = False          # the renderer's framebuffer holds what the projector shows
         self._stream_next_ns: int | None = None   # when the next streamed frame is expected (local ns)

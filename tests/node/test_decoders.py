@@ -113,3 +113,22 @@ def test_video_frames_come_as_planes_unless_the_shader_cannot_convert_them(video
     assert all(isinstance(a, np.ndarray) and a.shape == (64, 96, 3) for a in frames)
     lines = [r.getMessage() for r in caplog.records if "swscale" in r.getMessage()]
     assert len(lines) == 1 and "pixel format yuv420p12le" in lines[0], lines
+
+
+def test_live_pictures_come_as_planes_that_stand_for_the_rgb_picture():
+    from coordinator.live_video import LiveEncoder
+    from node.live_video import LiveDecoder, VideoChunk
+
+    h, w = 64, 96
+    yy, xx = np.mgrid[0:h, 0:w]
+    frame = np.stack([xx * 2, yy * 3, np.full_like(xx, 90)], axis=2).astype(np.uint8)
+    pic = LiveEncoder(width=w, height=h, channels=3, bit_depth=8, fps=30).encode(frame, keyframe=True)
+    chunk = VideoChunk(stream_id=pic.stream_id, sequence=pic.sequence, keyframe=pic.keyframe, data=pic.data,
+                       width=pic.width, height=pic.height, channels=3, bit_depth=8, codec=pic.codec,
+                       content_id=pic.content_id)
+    planes, rgb = LiveDecoder(yuv=True).feed(chunk), LiveDecoder().feed(chunk)
+    assert isinstance(planes, YuvFrame) and planes.content_size == (w, h)
+    # swscale's fast path and the reference upsample chroma apart by a few codes (tests/protos/test_yuv.py);
+    # the wrong matrix would be tens of codes off on these colours
+    diff = np.abs(np.floor(np.clip(to_rgb(planes), 0, 1) * 255 + 0.5) - rgb)
+    assert diff.max() <= 8 and diff.mean() <= 1.5, (diff.max(), diff.mean())
