@@ -68,6 +68,12 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="the profiles run in turn this many times, the frames split between the rounds (default: "
                         "one round per 40 frames, at most 3)")
     p.add_argument("--dtype", choices=["uint8", "uint16", "float32"], default="uint8", help="content samples")
+    p.add_argument("--video", action="store_true",
+                   help="instead: the CPU per frame of a 1080p30 H.264 video (made here) through the node's decoder, "
+                        "upload and render, the RGB path (swscale) against the YUV path (planes converted in the "
+                        "shader), as ratios in one run (bench/node_video.py); --content is the video's size")
+    p.add_argument("--video-frames", type=cli_types.int_range(20, 100_000), default=120, metavar="N",
+                   help="frames of the --video run (default 120: 4 s at 30 fps; each path decodes them all)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
 
 
@@ -246,6 +252,14 @@ def node_install() -> dict:
 def run(args: argparse.Namespace) -> int:
     if args.worker:
         print(json.dumps(_worker(args)))
+        return 0
+    if args.video:
+        from bench.node_video import timed
+
+        print(f"bench node --video: {args.video_frames} frames of {args.content[0]}x{args.content[1]} H.264, "
+              "RGB and YUV paths in turn", file=sys.stderr)
+        print(json.dumps({"benchmark": "node", "machine": machine(), "video": timed(args.size, args.content,
+                                                                                  args.video_frames)}, indent=2))
         return 0
     profiles: dict[str, dict] = {}
     pooled = {name: {"upload": [], "render": [], "cpu": [], "without": [], "with": [], "pairs": []}

@@ -1,0 +1,205 @@
+"""`shadowless bench node --video`: the CPU a node spends per frame of a 1080p30 H.264 video, on the
+path it had (swscale to RGB, an RGB texture) and on the one it has (the decoder's YUV planes as
+textures, converted in the shader), in one run, as ratios.
+
+The video is made here (libx264, moving bars and ramps, ``--video-frames`` frames at 30 fps) and
+read through the node's own decoder (:class:`node.asset_decode.VideoDecoder`, resampled to the
+content size on the RGB path as the node does; one decoder thread, so that the decoding's CPU falls
+in the phase that asked for the frame: a node's frame threads spend about as much, spread over
+cores); each frame is then
+uploaded to a renderer of the output size and rendered through a homography, the GPU waited for
+(``finish``), as before a swap. The two paths take turns in blocks of ``BLOCK`` frames, so a shared
+machine's drifting load falls on both alike.
+
+CPU is counted per thread from ``/proc/self/task/*/schedstat`` (nanoseconds on the CPU), so that
+llvmpipe's rasterizer threads (``llvmpipe-N``: they stand in for the GPU here) are reported apart:
+``node_cpu_ms_per_frame`` is every other thread's CPU (the calling thread, FFmpeg's decoder
+threads) per frame, the sum of ``decode`` (a third decoder that only decodes, in blocks taking
+turns with the two paths), ``convert`` (each path's conversion of that decoder's frames: swscale
+to RGB, or the planes' copy out of the decoder's buffers), ``upload`` and
+``render`` (submission and waiting); ``read_ms`` is what reading a frame through the node's decoder
+cost on each path (decode and convert together, as a check of the split), and
+``rasterizer_ms_per_frame`` the llvmpipe threads' CPU during the render.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+#: frames of one path before the other takes its turn
+BLOCK = 10
+
+
+def _thread_cpu_ns() -> tuple[int, int]:
+    """(CPU ns of this process's threads but the rasterizer's, CPU ns of llvmpipe's threads)."""
+    other = raster = 0
+    for task in os.scandir("/proc/self/task"):
+        try:
+            with open(f"{task.path}/schedstat") as f:
+                ns = int(f.read().split()[0])
+            with open(f"{task.path}/comm") as f:
+                name = f.read().strip()
+        except (OSError, ValueError, IndexError):
+            continue       # a thread that ended meanwhile
+        if name.startswith("llvmpipe"):
+            raster += ns
+        else:
+            other += ns
+    return other, raster
+
+
+def make_video(path: Path, size: tuple[int, int], frames: int) -> None:
+    """A ``size`` H.264 video (yuv420p, 30 fps, tagged BT.709 limited range) of moving bars and ramps."""
+    import av
+
+    w, h = size
+    x = np.linspace(0, 255, w, dtype=np.float32)
+    y = np.linspace(0, 255, h, dtype=np.float32)[:, None]
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = w, h, "yuv420p"
+        s.options = {"preset": "veryfast", "crf": "20", "g": "60"}
+        s.codec_context.colorspace = 1         # BT.709, tagged: swscale and the shader read the same matrix
+        s.codec_context.color_range = 1        # limited
+        for i in range(frames):
+            img = np.empty((h, w, 3), np.uint8)
+            img[:, :, 0] = (x + 4 * i) % 256
+            img[:, :, 1] = (y + 2 * i) % 256
+            img[:, :, 2] = ((x[None, :] // 128 + y // 128 + i // 8) % 2) * 200
+            yuv = av.VideoFrame.from_ndarray(img, format="rgb24").reformat(format="yuv420p", dst_colorspace="ITU709",
+                                                                           dst_color_range="MPEG")
+            for p in s.encode(yuv):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+
+
+class _DecodeOnly:
+    """Frames decoded and not converted (one thread), ``BLOCK`` at a time: the decode's share."""
+
+    def __init__(self, path: Path) -> None:
+        import av
+
+        self._c = av.open(str(path))
+        st = self._c.streams.video[0]
+        st.codec_context.thread_count = 1
+        self._frames = self._c.decode(st)
+
+    def read(self, k: int):
+        return next(self._frames, None)
+
+    def close(self) -> None:
+        self._c.close()
+
+
+def run_video(size: tuple[int, int], content: tuple[int, int], frames: int) -> dict:
+    """The figures (see the module docstring) as a dict."""
+    from node.asset_decode import VideoDecoder, frame_to_array
+    from node.yuv import yuv_planes
+    from node.decoders import choose, wish_from_env
+    from node.render import Renderer
+
+    w, h = size
+    cw, ch = content
+    with tempfile.TemporaryDirectory(prefix="bench-node-video-") as tmp:
+        path = Path(tmp) / "video.mp4"
+        make_video(path, content, frames)
+        r = Renderer.standalone(w, h)
+        try:
+            scale = min(w / cw, h / ch)
+            r.set_homography(np.array([[scale, 0.02, 3.0], [-0.01, scale, 2.0], [1e-6, 2e-6, 1.0]]), (cw, ch))
+            r.set_lut(np.stack([np.linspace(0, 1, 256) ** (1 / g) for g in (2.1, 2.2, 2.3)]).astype(np.float32))
+            wish = wish_from_env()
+            decoders = {
+                "rgb": VideoDecoder(path, frames=frames, channels=3, bit_depth=8, rate=Fraction(30), size=(cw, ch),
+                                    decoder=wish, threads=1),
+                "yuv": VideoDecoder(path, frames=frames, channels=3, bit_depth=8, rate=Fraction(30), size=(cw, ch),
+                                    decoder=wish, yuv=True, threads=1),
+            }
+            raw = _DecodeOnly(path)
+            sums = {p: {"read": 0, "upload": 0, "render": 0, "raster": 0, "frames": 0} for p in decoders}
+            decode = {"ns": 0, "frames": 0, "rgb": 0, "yuv": 0}
+            k = 0
+            levels = {}
+            while k < frames:
+                for j in range(k, min(k + BLOCK, frames)):       # the decode alone, under the same load
+                    a0, _ = _thread_cpu_ns()
+                    f = raw.read(j)
+                    a1, _ = _thread_cpu_ns()
+                    # each path's conversion of that frame (swscale may use threads of its own)
+                    t0, _ = _thread_cpu_ns()
+                    frame_to_array(f, 3, 8, (cw, ch))
+                    t1, _ = _thread_cpu_ns()
+                    yuv_planes(f, (cw, ch))
+                    t2, _ = _thread_cpu_ns()
+                    if j >= 2:
+                        decode["ns"] += a1 - a0
+                        decode["rgb"] += t1 - t0
+                        decode["yuv"] += t2 - t1
+                        decode["frames"] += 1
+                for name, dec in decoders.items():
+                    for j in range(k, min(k + BLOCK, frames)):
+                        a0, _ = _thread_cpu_ns()
+                        image = dec.read(j)
+                        a1, _ = _thread_cpu_ns()
+                        r.upload("f", image)
+                        a2, b2 = _thread_cpu_ns()
+                        r.render("f")
+                        r.ctx.finish()
+                        a3, b3 = _thread_cpu_ns()
+                        r.forget("f")
+                        if j >= 2:     # the first frames open the decoder and compile the shader's variant
+                            s = sums[name]
+                            s["read"] += a1 - a0
+                            s["upload"] += a2 - a1
+                            s["render"] += a3 - a2
+                            s["raster"] += b3 - b2
+                            s["frames"] += 1
+                        if j == frames // 2:
+                            levels[name] = r.read().astype(np.float64)
+                k += BLOCK
+            decoder = decoders["yuv"].choice.describe()
+            for dec in (*decoders.values(), raw):
+                dec.close()
+        finally:
+            r.release()
+    nd = max(decode["frames"], 1)
+    decode_ms = decode["ns"] / 1e6 / nd
+    paths = {}
+    for name, s in sums.items():
+        n = max(s["frames"], 1)
+        read = s["read"] / 1e6 / n
+        split = {"decode_ms": round(decode_ms, 3), "convert_ms": round(decode[name] / 1e6 / nd, 3),
+                 "upload_ms": round(s["upload"] / 1e6 / n, 3), "render_ms": round(s["render"] / 1e6 / n, 3)}
+        paths[name] = {"node_cpu_ms_per_frame": round(sum(split.values()), 3), **split,
+                       "read_ms": round(read, 3), "rasterizer_ms_per_frame": round(s["raster"] / 1e6 / n, 3),
+                       "frames": s["frames"]}
+
+    def ratio(key: str) -> float | None:
+        return round(paths["yuv"][key] / paths["rgb"][key], 3) if paths["rgb"][key] else None
+
+    diff = np.abs(levels["yuv"] - levels["rgb"]) if len(levels) == 2 else None
+    return {
+        "size": list(size), "content": list(content), "codec": "h264", "frames": frames, "fps": 30,
+        "decoder": decoder, "node_cpu_ms_per_frame": paths["yuv"]["node_cpu_ms_per_frame"],
+        "paths": paths,
+        "yuv_vs_rgb": {k: ratio(k) for k in ("node_cpu_ms_per_frame", "convert_ms", "upload_ms", "render_ms",
+                                             "rasterizer_ms_per_frame")},
+        # the two paths' pictures of one frame: swscale's and the shader's conversions differ by a few
+        # levels at chroma edges (tests/protos/test_yuv.py), and the RGB path's area resampling
+        "picture_levels_apart": None if diff is None else {"mean": round(float(diff.mean()), 3),
+                                                            "p99": round(float(np.percentile(diff, 99)), 1)},
+        "target_node_cpu_ms_per_frame": 3.0,
+    }
+
+
+def timed(size, content, frames) -> dict:
+    t0 = time.perf_counter()
+    out = run_video(size, content, frames)
+    out["seconds"] = round(time.perf_counter() - t0, 1)
+    return out
