@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.surface import bust_poses
+from protos.wording import count
 from sim.rigs import layout_toml
 from sim.scene import reference_scene
 
@@ -173,7 +174,7 @@ def search(score: Callable[[Placement], Score], footprint: np.ndarray, table_siz
             if (i + 1) % 10 == 0 or i + 1 == len(todo):
                 best = max(order, key=lambda q: _key(seen, q))
                 progress(f"{label}: {i + 1}/{len(todo)} placements, best so far {best} "
-                         f"(min {_score(seen, best).count_min} projectors), {time.perf_counter() - t0:.0f} s")
+                         f"(at least {count(_score(seen, best).count_min, 'projector')} on every lit point), {time.perf_counter() - t0:.0f} s")
 
     reach = float(np.max(np.linalg.norm(np.asarray(footprint)[:, :2], axis=1)))
     half = np.asarray(table_size, np.float64) / 2 - 20.0

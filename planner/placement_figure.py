@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from planner.placement import Placement
+from protos.wording import count as counted
 
 __all__ = ["placement_picture", "count_colour"]
 
@@ -88,7 +89,7 @@ def placement_picture(path: str | Path, table_size: tuple[float, float], vertice
         cv2.putText(img, "x mm", (margin_l + W // 2 - 14, ph - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
         cv2.putText(img, "y mm", (4, margin_t - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
         reached = count[count > 0]
-        title = f"{label}: {placement}; min {int(reached.min()) if len(reached) else 0} projectors"
+        title = f"{label}: {placement}; every lit point reached by at least {counted(int(reached.min()) if len(reached) else 0, 'projector')}"
         cv2.putText(img, title, (margin_l + 60, margin_t - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (0, 0, 0), 1, cv2.LINE_AA)
         out.append(img)
     # the colour bar: 0 (grey) .. max_count

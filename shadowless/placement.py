@@ -33,6 +33,7 @@ from planner.placement import Placement, Score, area_quantile, hand_shadow, plac
 from planner.placement_figure import placement_picture
 from protos import cli_types
 from protos.layout import LayoutFileError, parse_layout
+from protos.wording import count
 from protos.spaces import scale_intrinsics
 from sim.mesh import bust, load_mesh
 
@@ -204,7 +205,7 @@ def run_placement(args: argparse.Namespace) -> int:
     c, d = doc["chosen"], doc["default"]
     for label, s in (("chosen", c), ("default", d)):
         print(f"{label}: x {s['x_mm']:.0f} mm, y {s['y_mm']:.0f} mm, yaw {s['yaw_deg']:.0f} deg: every lit point reached by at least "
-              f"{s['count_min']} projectors ({s['count_p5']} on all but the worst 5 %), {s['unlit_pct']:.1f}% unlit, "
+              f"{count(s['count_min'], 'projector')} ({s['count_p5']} on all but the worst 5 %), {s['unlit_pct']:.1f}% unlit, "
               f"{s['hand_shadow_pct']:.1f}% under a hand's deep shadow, {s['count_mean']:.2f} projectors on average")
     print(f"searched {doc['evaluated']} placements in {doc['search_seconds']:.1f} s"
           f"{' (time budget reached)' if doc['stopped_early'] else ''}; wrote {doc['layout']} and {doc['picture']}")
