@@ -62,11 +62,13 @@ class Room:
     uvs: np.ndarray           # (V, 2) float32
     devices: list[tuple[str, Pinhole]]   # room frame, native sizes
     table_size: tuple[float, float]
+    default: Placement = Placement()   # where the layout puts the object (its [mesh] position and yaw_deg)
 
 
 def load_room(path: str | None) -> Room:
     """The layout at ``path`` (default: :func:`planner.placement.reference_layout`); its object
-    (the bust when it names none) in its own frame, scaled but neither moved nor turned."""
+    (the bust when it names none) in its own frame, scaled but neither moved nor turned; where the
+    layout puts it (its z offset is dropped: the object stands on the table) is the default placement."""
     if path is None:
         doc = reference_layout()
         base = Path.cwd()
@@ -97,8 +99,9 @@ def load_room(path: str | None) -> Room:
         doc = {**doc, "mesh": {"builtin": "bust"}}
     devices = [(d.name, Pinhole(d.K, d.R, d.t, d.size)) for d in layout.projectors]
     table = layout.table.size if layout.table is not None else (1200.0, 600.0)
+    default = Placement(float(spec.position[0]), float(spec.position[1]), spec.yaw_deg) if spec is not None and spec.placed else Placement()
     return Room(doc, (np.asarray(v, np.float64) * scale).astype(np.float32), np.asarray(f, np.uint32),
-                np.asarray(uv, np.float32), devices, tuple(table))
+                np.asarray(uv, np.float32), devices, tuple(table), default)
 
 
 class Judge:
@@ -222,7 +225,7 @@ def place(args: argparse.Namespace, *, say=lambda text: None) -> dict:
     say(f"{len(room.devices)} projectors, object of {len(room.faces)} triangles on a "
         f"{room.table_size[0]:.0f} x {room.table_size[1]:.0f} mm table")
     quick = Judge(room, resolution=tuple(args.search_resolution), texture=tuple(args.search_texture), shadow_scale=1)
-    default = Placement()
+    default = room.default
     result = search(quick, room.vertices, room.table_size, step_mm=args.step, yaws=args.turns, rounds=args.rounds, seconds=args.seconds,
                     include=(default,), progress=say)
     say(f"searched {len(result.evaluated)} placements in {result.seconds:.1f} s"
