@@ -14,7 +14,11 @@ RGB(A) order. How each kind of file is read:
 * **JPEG, TIFF** -- PyAV, through FFmpeg's ``jpeg_pipe`` / ``tiff_pipe`` demuxers (a cached blob
   has no file suffix, so the demuxer is named from the blob's original name).
 * **.npy** -- ``numpy.load(mmap_mode="r")`` then a copy: float32 ``(H, W)`` or ``(H, W, C)``.
-* **Video** -- :class:`VideoDecoder`: PyAV, frame threads, sequential decoding, seeking for jumps.
+* **Video** -- :class:`VideoDecoder`: PyAV, frame threads, sequential decoding, seeking for jumps;
+  the decoder chosen by :mod:`node.decoders` (hardware where it opens, else software). With
+  ``yuv`` an RGB video's frames are handed over as the decoder's planes
+  (:class:`protos.yuv.YuvFrame`, :mod:`node.yuv`), which the renderer converts in its shader,
+  instead of going through swscale below.
 
 Pixel conversions go through FFmpeg's swscale (PyAV's ``to_ndarray(format=...)``), honouring the
 frame's colour tags (untagged YUV is treated as BT.601 limited range, as FFmpeg does):
