@@ -21,7 +21,7 @@ import av
 import numpy as np
 import pytest
 
-from node.render import Renderer
+from node.render import Mesh, Renderer
 from node.yuv import yuv_planes
 from protos.spaces import warp_content
 from protos.yuv import to_rgb
@@ -93,9 +93,22 @@ def test_the_warp_scales_the_planes_to_the_content_and_fades_from_them(r):
         r.render("grey", fade=("yuv", 0.5))
         mixed = r.read().astype(np.int32)
         assert np.abs(mixed - (got + grey) / 2.0).max() <= 1.0
+        # on a mesh the planes are addressed through the texture coordinates: as the reference picture is
+        f = 120.0
+        p = np.array([[f, 0, (PW - 1) / 2, 0], [0, f, (PH - 1) / 2, 0], [0, 0, 1, 600.0]])
+        v = np.array([[-900, -700, 0], [900, -700, 0], [900, 700, 0], [-900, 700, 0]], np.float32)
+        r.set_projection(p, Mesh(v, np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32),
+                                 np.array([[0, 1, 2], [0, 2, 3]], np.uint32)), near=100.0, far=2000.0)
+        r.render("yuv")
+        on_mesh = r.read().astype(np.int32)
+        r.upload("ref", ref)
+        r.render("ref")
+        diff = np.abs(on_mesh - r.read().astype(np.int32))
+        assert diff.max() <= 1 and (diff > 0).mean() <= 0.05, f"max {diff.max()}, {(diff > 0).mean():.3f} differ"
+        assert on_mesh.mean() > 20        # the picture is there
     finally:
-        r.forget("yuv")
-        r.forget("grey")
+        for cid in ("yuv", "grey", "ref"):
+            r.forget(cid)
         r.clear_pose()
 
 
