@@ -208,7 +208,7 @@ install_package() {
 items = json.load(open(sys.argv[1]))["install"]
 print(", ".join("{} {}".format(i["metadata"]["name"], i["metadata"]["version"]) for i in items
                 if "archive_info" in i["download_info"] and not i["download_info"]["url"].endswith(".whl")))' "$report")
-    say "${built:-a package} has no wheel for this machine ($(uname -m)): pip compiles it, with the build tools"
+    say "no wheel for this machine ($(uname -m)) of ${built:-a pinned package}: pip compiles from source, with the build tools"
     apt_install "${BUILD_PACKAGES[@]}"
     # shellcheck disable=SC2086
     "$venv/bin/python" -m pip install --disable-pip-version-check -c "$CONSTRAINTS" $PIP_ARGS "$spec" ||

@@ -161,7 +161,7 @@ def test_the_install_brings_the_build_tools_for_what_has_no_wheel(tmp_path):
                         f"--no-index --find-links {found} --no-cache-dir --quiet"],
                        capture_output=True, text=True, timeout=300, env={**env, "PIP_CONFIG_FILE": os.devnull})
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "moderngl 5.13.0 has no wheel for this machine" in r.stdout, r.stdout
+    assert "no wheel for this machine" in r.stdout and "of moderngl 5.13.0: pip compiles" in r.stdout, r.stdout
     (build,) = [line for line in r.stdout.splitlines() if line.startswith("would run:") and "g++" in line.split()]
     assert {"g++", "libc6-dev", "python3-dev"} <= set(build.split()) and "apt-get install" in build
     assert os.readlink(root / "usr/local/bin/shadowless") == "/opt/shadowless/venv/bin/shadowless"
