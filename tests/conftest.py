@@ -202,7 +202,7 @@ _COSTS = os.environ.get("SHADOWLESS_TEST_COSTS")
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """With ``SHADOWLESS_TEST_COSTS=FILE``, each test (setup, call and teardown) appends
-    ``{"test", "wall_s", "cpu_s", "children_cpu_s"}`` to FILE: the wall time, this interpreter's CPU
+    ``{"test", "outcome", "wall_s", "cpu_s", "children_cpu_s"}`` to FILE: the wall time, this interpreter's CPU
     time and that of the child processes it waited for (a module-scoped rig's processes count at the
     teardown that stops them). Summed per module, it tells what a module costs the machine, which its
     wall time on a busy machine does not."""
@@ -219,7 +219,9 @@ def pytest_runtest_protocol(item, nextitem):
 
     wall, cpu, kids = time.monotonic(), time.process_time(), children()
     yield
-    line = json.dumps({"test": item.nodeid, "wall_s": round(time.monotonic() - wall, 3),
+    failed = any(getattr(item, f"_shadowless_{when}_failed", False) for when in ("setup", "call", "teardown"))
+    line = json.dumps({"test": item.nodeid, "outcome": "failed" if failed else "passed",
+                       "wall_s": round(time.monotonic() - wall, 3),
                        "cpu_s": round(time.process_time() - cpu, 3), "children_cpu_s": round(children() - kids, 3)})
     with open(_COSTS, "a") as f:
         f.write(line + "\n")
@@ -332,6 +334,8 @@ def pytest_runtest_makereport(item, call):
     so a skip means something is missing, and it fails the run with its reason."""
     outcome = yield
     rep = outcome.get_result()
+    if rep.failed:
+        setattr(item, f"_shadowless_{rep.when}_failed", True)    # for SHADOWLESS_TEST_COSTS
     if CI and rep.skipped and not hasattr(rep, "wasxfail"):
         reason = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
         rep.outcome = "failed"
