@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from cli_inprocess import run_shadowless
+from cli_inprocess import cli_capture, shadowless_here  # noqa: F401 - cli_capture: the module's autouse fixture
 from coordinator.api import NodeState
 from shadowless.local import LocalRig
 from waits import wait_until_async
@@ -46,27 +46,11 @@ def rig(tmp_path):
         r.close()
 
 
-_CAPTURE: dict = {}
-
-
-@pytest.fixture(autouse=True)
-def _capture(capfd):
-    """:func:`cli` reads what a command run in this interpreter printed from this test's ``capfd``."""
-    _CAPTURE["fd"] = capfd
-    yield
-    _CAPTURE.clear()
-
-
-def _here(argv: list[str]) -> subprocess.CompletedProcess:
-    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
-    return subprocess.CompletedProcess(argv, code, out, err)
-
-
 def cli(rig: LocalRig, *args: str, process: bool = False) -> subprocess.CompletedProcess:
     """`shadowless ARGS...` against ``rig``: in this interpreter, or with ``process`` as a real process."""
     argv = [*args, "--coordinator", rig.target, "--rig-dir", str(rig.rig_dir)]
     if not process:
-        return _here(argv)
+        return shadowless_here(argv)
     return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
 
 

@@ -16,7 +16,7 @@ import grpc
 import numpy as np
 import pytest
 
-from cli_inprocess import run_shadowless
+from cli_inprocess import cli_capture, shadowless_here  # noqa: F401 - cli_capture: the module's autouse fixture
 from coordinator.assets import AssetStore
 from rigctl.client import CallRefused
 from rigctl.content_format import human_bytes
@@ -59,27 +59,11 @@ def rig(tmp_path_factory):
         r.close()
 
 
-_CAPTURE: dict = {}
-
-
-@pytest.fixture(autouse=True)
-def _capture(capfd):
-    """:func:`cli` reads what a command run in this interpreter printed from this test's ``capfd``."""
-    _CAPTURE["fd"] = capfd
-    yield
-    _CAPTURE.clear()
-
-
-def _here(argv: list[str]) -> subprocess.CompletedProcess:
-    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
-    return subprocess.CompletedProcess(argv, code, out, err)
-
-
 def cli(rig, *args: str, process: bool = False) -> subprocess.CompletedProcess:
     """`shadowless content ARGS...` against ``rig``: in this interpreter, or with ``process`` as a real process."""
     argv = ["content", *args, "--coordinator", rig.coordinator_target, "--token-file", str(rig.rig_dir / "token")]
     if not process:
-        return _here(argv)
+        return shadowless_here(argv)
     return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
 
 

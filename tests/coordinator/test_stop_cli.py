@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cli_inprocess import run_shadowless
+from cli_inprocess import cli_capture, shadowless_here  # noqa: F401 - cli_capture: the module's autouse fixture
 from shadowless.local import LocalRig
 from waits import wait_until
 
@@ -40,27 +40,11 @@ def showing(rig) -> str:
     return asyncio.run(go())
 
 
-_CAPTURE: dict = {}
-
-
-@pytest.fixture(autouse=True)
-def _capture(capfd):
-    """:func:`cli` reads what a command run in this interpreter printed from this test's ``capfd``."""
-    _CAPTURE["fd"] = capfd
-    yield
-    _CAPTURE.clear()
-
-
-def _here(argv: list[str]) -> subprocess.CompletedProcess:
-    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
-    return subprocess.CompletedProcess(argv, code, out, err)
-
-
 def cli(rig, *args, check=True, process=False):
     """`shadowless ARGS...` against ``rig``: in this interpreter, or with ``process`` as a real process."""
     argv = [*args, "--coordinator", rig.coordinator_target, "--rig-dir", str(rig.rig_dir)]
     r = subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True,
-                       timeout=120) if process else _here(argv)
+                       timeout=120) if process else shadowless_here(argv)
     if check:
         assert r.returncode == 0, r.stderr
     return r

@@ -12,22 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_inprocess import run_shadowless
+from cli_inprocess import cli_capture, run_here  # noqa: F401 - cli_capture: the module's autouse fixture
 from sim.link import RoomClient
 from sim.scene import load_layout
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-_CAPTURE: dict = {}
-
-
-@pytest.fixture(autouse=True)
-def _capture(capfd):
-    """A command run in this interpreter is read from this test's ``capfd``."""
-    _CAPTURE["fd"] = capfd
-    yield
-    _CAPTURE.clear()
 
 
 def shadowless(*args: str, process: bool = False) -> subprocess.CompletedProcess:
@@ -35,7 +24,7 @@ def shadowless(*args: str, process: bool = False) -> subprocess.CompletedProcess
     if process:
         return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, cwd=ROOT,
                               timeout=120)
-    code, out, err = run_shadowless(list(args), _CAPTURE["fd"])
+    code, out, err = run_here(list(args))
     return subprocess.CompletedProcess(list(args), code, out, err)
 
 

@@ -7,20 +7,8 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
-from cli_inprocess import run_shadowless
-
-
-_CAPTURE: dict = {}
-
-
-@pytest.fixture(autouse=True)
-def _capture(capfd):
-    """A command run in this interpreter is read from this test's ``capfd``."""
-    _CAPTURE["fd"] = capfd
-    yield
-    _CAPTURE.clear()
+from cli_inprocess import cli_capture, run_here  # noqa: F401 - cli_capture: the module's autouse fixture
 
 
 def study(*args, process: bool = False) -> subprocess.CompletedProcess:
@@ -28,7 +16,7 @@ def study(*args, process: bool = False) -> subprocess.CompletedProcess:
     argv = ["study", *map(str, args)]
     if process:
         return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
-    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    code, out, err = run_here(argv)
     return subprocess.CompletedProcess(argv, code, out, err)
 
 

@@ -5,7 +5,12 @@ interpreter's start; keep a few real processes beside it for what only a process
 status as the shell sees it)."""
 from __future__ import annotations
 
+import subprocess
 import traceback
+
+import pytest
+
+_CAPTURE: dict = {}
 
 
 def run_shadowless(argv: list[str], capfd) -> tuple[int, str, str]:
@@ -24,3 +29,23 @@ def run_shadowless(argv: list[str], capfd) -> tuple[int, str, str]:
         code = 1
     out, err = capfd.readouterr()
     return code, out, err
+
+
+@pytest.fixture(autouse=True)
+def cli_capture(capfd):
+    """Import this into a test module (it is autouse there) whose helpers run commands with
+    :func:`run_here` or :func:`shadowless_here`: they read the current test's ``capfd`` through it."""
+    _CAPTURE["fd"] = capfd
+    yield
+    _CAPTURE.clear()
+
+
+def run_here(argv: list[str]) -> tuple[int, str, str]:
+    """:func:`run_shadowless` with the current test's ``capfd`` (needs :func:`cli_capture`)."""
+    return run_shadowless(argv, _CAPTURE["fd"])
+
+
+def shadowless_here(argv: list[str]) -> subprocess.CompletedProcess:
+    """:func:`run_here` as a :class:`subprocess.CompletedProcess`, to stand in for a real process's result."""
+    code, out, err = run_here(argv)
+    return subprocess.CompletedProcess(argv, code, out, err)

@@ -14,7 +14,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from cli_inprocess import run_shadowless
+from cli_inprocess import cli_capture, run_here  # noqa: F401 - cli_capture: the module's autouse fixture
 from rigctl.mpcdi.frustum import normalised
 from coordinator.rig import HomographyPose, Mesh, ProjectionPose, Rig, init_rig
 from coordinator.rig_lock import RigLock, RigLockError, holder
@@ -25,24 +25,13 @@ CONTENT = (120, 60)
 TABLE_SLOTS = ["p1", "p2", "p3", "spare"]
 
 
-_CAPTURE: dict = {}
-
-
-@pytest.fixture(autouse=True)
-def _capture(capfd):
-    """:func:`rig_cli` reads what the command printed from this test's ``capfd``."""
-    _CAPTURE["fd"] = capfd
-    yield
-    _CAPTURE.clear()
-
-
 def rig_cli(*args: str, process: bool = False, timeout: float = 120.0) -> subprocess.CompletedProcess:
     """`shadowless rig ARGS...` in this interpreter, or with ``process`` as a real process."""
     argv = ["rig", *map(str, args)]
     if process:
         return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True,
                               timeout=timeout)
-    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    code, out, err = run_here(argv)
     return subprocess.CompletedProcess(argv, code, out, err)
 
 

@@ -12,25 +12,13 @@ import zipfile
 from xml.etree import ElementTree as ET
 
 import numpy as np
-import pytest
 
-from cli_inprocess import run_shadowless
+from cli_inprocess import cli_capture, run_here  # noqa: F401 - cli_capture: the module's autouse fixture
 from coordinator.blend_store import StoredBlend, load_blend, save_blend
 from coordinator.rig import HomographyPose, Rig, init_rig
 from protos.blend import BlendMaps
 
 SIZE = (64, 40)
-
-
-_CAPTURE: dict = {}
-
-
-@pytest.fixture(autouse=True)
-def _capture(capfd):
-    """:func:`rig_cli` reads what the command printed from this test's ``capfd``."""
-    _CAPTURE["fd"] = capfd
-    yield
-    _CAPTURE.clear()
 
 
 def rig_cli(*args, process: bool = False) -> subprocess.CompletedProcess:
@@ -39,7 +27,7 @@ def rig_cli(*args, process: bool = False) -> subprocess.CompletedProcess:
     argv = ["rig", *map(str, args)]
     if process:
         return subprocess.run([sys.executable, "-m", "shadowless", *argv], capture_output=True, text=True, timeout=120)
-    code, out, err = run_shadowless(argv, _CAPTURE["fd"])
+    code, out, err = run_here(argv)
     return subprocess.CompletedProcess(argv, code, out, err)
 
 
