@@ -19,8 +19,9 @@ WORK=""                      # a temporary directory, removed on exit
 LINK=/usr/local/bin/shadowless   # the command on everyone's PATH (sudo's secure_path too)
 OPERATORS=shadowless         # the group whose members may read the rig's token (run shadowless commands)
 # Compiles a pinned package that has no wheel for this machine (moderngl and glcontext on aarch64);
-# installed only then. Their GL calls are loaded at run time: no GL headers are needed.
-BUILD_PACKAGES=(g++ libc6-dev python3-dev)
+# installed only then. glcontext's X11 part includes Xlib's headers; GL and EGL themselves are
+# loaded at run time (dlopen), so no GL or EGL headers are needed.
+BUILD_PACKAGES=(g++ libc6-dev python3-dev libx11-dev)
 
 COMMON_HELP="\
 Where it installs from:

@@ -163,7 +163,7 @@ def test_the_install_brings_the_build_tools_for_what_has_no_wheel(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     assert "no wheel for this machine" in r.stdout and "of moderngl 5.13.0: pip compiles" in r.stdout, r.stdout
     (build,) = [line for line in r.stdout.splitlines() if line.startswith("would run:") and "g++" in line.split()]
-    assert {"g++", "libc6-dev", "python3-dev"} <= set(build.split()) and "apt-get install" in build
+    assert {"g++", "libc6-dev", "python3-dev", "libx11-dev"} <= set(build.split()) and "apt-get install" in build
     assert os.readlink(root / "usr/local/bin/shadowless") == "/opt/shadowless/venv/bin/shadowless"
     staged = root / "etc/shadowless/token"
     assert f"would run: chgrp shadowless {staged}" in r.stdout and f"would run: chmod 0640 {staged}" in r.stdout
