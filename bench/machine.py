@@ -43,7 +43,7 @@ def streaming_bandwidth(*, mib: int = 512, threads: int = 2, repeats: int = 5) -
 
     Beside the copy, the same threads read the same array with a compiled loop (a float32 sum,
     vectorised): ``read_gb_per_s`` is its best rate and ``read_over_copy`` the ratio, what a
-    loop that does nothing but read scores against the copy. Where the README's figures were taken it
+    loop that does nothing but read scores against the copy. Where the figures in docs/benchmarks.md were taken it
     is 0.55-0.58: the copy (glibc's memcpy) is counted at nearly twice the rate at
     which plain loads bring bytes in, so a solver that streams its matrix through loads meets
     that ceiling first.

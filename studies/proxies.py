@@ -32,7 +32,7 @@ pose (lower is better, every one):
     orderings with the default poses (about 5.4 to 44); 10 is a round number
     inside it, not a fit. It rewards a compact shadow, so it prefers few
     projectors close together: each of those weights ranks P9D ahead of
-    P25, and the planner minimising it stops improving after two (README).
+    P25, and the planner minimising it stops improving after two (docs/research.md).
 ``edge_per_arcmin``
     The steepest drop gradient at the eye's scale, in drop per arcminute of
     visual angle: the drop map is blurred by a Gaussian of ``edge_sigma_mm``,

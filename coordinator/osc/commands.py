@@ -3,7 +3,7 @@
 Every command calls the same :class:`~coordinator.server.Coordinator` method as the console and
 the command line (through :class:`OscRig`), so OSC validates nothing of its own; :func:`run`
 returns the line the action log keeps, or raises the rig's refusal. The table :data:`ADDRESSES`
-is the documentation too (``--help``-like text for the README and the refusal of an unknown
+is the documentation too (``--help``-like text for docs/show-control.md and the refusal of an unknown
 address).
 """
 from __future__ import annotations
@@ -55,7 +55,7 @@ class Address:
     logged: bool = True         # whether each message is an entry of the action log
 
 
-#: the address space, in the order the README lists it
+#: the address space, in the order docs/show-control.md lists it
 ADDRESSES: tuple[Address, ...] = (
     Address(f"{PREFIX}/go", "", "fire the next cue (the first one when none fired yet)"),
     Address(f"{PREFIX}/back", "", "fire the cue before the current one"),

@@ -75,7 +75,7 @@ def test_only_the_baseline_is_dropped_when_only_it_does_not_fit():
 
 
 # (part, arguments that run only that part) at small sizes where the part's arrays outweigh the interpreter
-# (ours alone is measured where the baseline is dropped, above; the larger sizes are in the README's
+# (ours alone is measured where the baseline is dropped, above; the larger sizes are in docs/benchmarks.md's
 # table from `shadowless bench compensation`, whose JSON carries both figures)
 PARTS = [
     ("per_projectors", ["--size", "324x243", "--projectors", "9", *SMALL]),
