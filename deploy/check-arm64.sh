@@ -106,7 +106,7 @@ arm_in bash /root/shadowless/deploy/install-node.sh --slot r0c1 --token /root/to
   >"$ARM_CACHE/install-node.log" 2>&1 || { tail -n 25 "$ARM_CACHE/install-node.log" >&2; arm_die "install-node.sh failed in the arm64 root"; }
 INSTALL_NODE_S=$(($(date +%s) - t))
 arm_say "install-node.sh succeeded in ${INSTALL_NODE_S} s"
-INSTALL_COORD_S=null
+INSTALL_COORD_S=None
 if ((COORD)); then
   arm_say "installing the coordinator in the root: deploy/install-coordinator.sh (log $ARM_CACHE/install-coordinator.log)"
   t=$(date +%s)
