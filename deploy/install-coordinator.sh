@@ -85,7 +85,7 @@ fi
 
 # OpenCV (headless), SciPy and moderngl come as wheels; they want EGL/Mesa for calibration's
 # OpenGL, GLib and OpenMP from the system.
-apt_install python3-venv libegl1 libgl1-mesa-dri libgles2 libglib2.0-0 libgomp1
+apt_install python3-venv libegl1 libgl1 libgl1-mesa-dri libgles2 libglib2.0-0 libgomp1   # libgl1: see install-node.sh
 ensure_user
 
 mkdir -p "$ETC" "$UNITS" "$ROOT$STATE"

@@ -109,10 +109,11 @@ if [[ -n $XAUTH ]]; then
   [[ -f $XAUTH ]] || die "--xauthority $XAUTH: no such file"
 fi
 
-packages=(python3-venv libegl1 libgl1-mesa-dri libgles2 libsdl2-2.0-0)
+# libgl1: glcontext's EGL backend loads libGL.so.1 for desktop OpenGL even headless (without it a
+# node falls back to OpenGL ES, which every Pi has, but desktop GL is the tested default)
+packages=(python3-venv libegl1 libgl1 libgl1-mesa-dri libgles2 libsdl2-2.0-0)
 extras=node,kms
 if ((X11)); then
-  packages+=(libgl1)
   extras+=,window
 fi
 apt_install "${packages[@]}"

@@ -27,6 +27,9 @@ GL_ENV = "SHADOWLESS_GL"
 # glcontext's EGL backend's messages when the display does not offer desktop OpenGL 3.1+ (as
 # opposed to EGL failing as a whole), and moderngl's when the context it got is older.
 _API_REFUSED = ("eglBindAPI failed", "eglChooseConfig failed", "eglCreateContext failed", "Requested OpenGL version")
+# glcontext's message when the desktop GL library itself is missing (a system with libEGL and
+# libGLESv2 but no libGL.so.1): OpenGL ES may still be had there.
+_NO_LIBGL = " not loaded"
 
 
 class ContextUnavailable(RuntimeError):
@@ -77,7 +80,7 @@ def create_headless_context(choice: str | None = None) -> Any:
         return _desktop()
     except Exception as exc:  # moderngl/glcontext raise plain Exceptions here
         desktop_error = exc
-        if choice == "gl" or not str(exc).startswith(_API_REFUSED):
+        if choice == "gl" or not (str(exc).startswith(_API_REFUSED) or str(exc).endswith(_NO_LIBGL)):
             raise ContextUnavailable(f"desktop OpenGL 3.1+: {exc}") from exc
     try:
         ctx = _gles()

@@ -176,7 +176,7 @@ def test_the_node_says_what_it_would_do_to_the_system(node):
     lines = would_run(r.stdout)
     assert "apt-get update -q" in lines
     (apt,) = [line for line in lines if "apt-get install" in line]
-    for package in ("python3-venv", "libegl1", "libgl1-mesa-dri", "libgles2", "libsdl2-2.0-0"):
+    for package in ("python3-venv", "libegl1", "libgl1", "libgl1-mesa-dri", "libgles2", "libsdl2-2.0-0"):
         assert package in apt.split()
     (useradd,) = [line for line in lines if line.startswith("useradd ")]
     assert "--system" in useradd and "--groups video,render shadowless" in useradd
@@ -242,7 +242,7 @@ def test_the_coordinator_is_staged_complete_with_its_rig(coordinator, token):
     assert f"pins: {REPO / 'constraints.txt'}" in r.stdout, "the wheel's pins: the script's checkout's"
     lines = would_run(r.stdout)
     (apt,) = [line for line in lines if "apt-get install" in line]
-    assert {"python3-venv", "libegl1", "libgl1-mesa-dri", "libglib2.0-0"} <= set(apt.split())
+    assert {"python3-venv", "libegl1", "libgl1", "libgl1-mesa-dri", "libglib2.0-0"} <= set(apt.split())
     assert any(line.startswith("useradd ") and "--groups video,render shadowless" in line for line in lines)
     assert lines[-2:] == ["systemctl enable shadowless-coordinator.service",
                           "systemctl restart shadowless-coordinator.service"]

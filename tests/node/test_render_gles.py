@@ -114,6 +114,10 @@ def test_the_reported_capability_is_the_context_egl_made():
     # the context enforces GLSL ES: the renderer's shaders need their precision header there
     assert (fallback["#version 300 es"], fallback["#version 140"]) == ("refused", "refused")
 
+    # a system without the desktop GL library (libEGL and libGLESv2 only) renders with OpenGL ES too
+    no_libgl = probe(GLCONTEXT_LINUX_LIBGL="libGL-absent.so.1")
+    assert (no_libgl["client_api"], no_libgl["client_version"]) == ("gles", 3), no_libgl
+
     bare = probe(**BARE_GLES30, **{GL_ENV: "gles"})
     assert (bare["client_api"], bare["client_version"]) == ("gles", 3) and bare["gl_version"].startswith("OpenGL ES 3.0")
     assert bare["description"] == f"OpenGL ES 3.0, GLSL ES 3.00, {bare['gl_renderer']}; 16-bit content as float32"

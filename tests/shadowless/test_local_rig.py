@@ -77,7 +77,8 @@ def test_every_node_discovers_and_joins(rig):
         tol = 5.0 + n.clock_rtt_ms / 2 + abs(rig.drifts[n.slot]) * 1e-6 * elapsed_s * 1e3
         assert n.clock_offset_ms == pytest.approx(-rig.offsets[n.slot], abs=tol), n.slot
         # ... and each estimate agrees with the host clock the rig clock really is
-        assert abs(n.clock_error_ms) < 5.0, (n.slot, n.clock_error_ms)
+        # (within the same half round trip: 6.2 ms off was seen on a machine at load 25)
+        assert abs(n.clock_error_ms) < 5.0 + n.clock_rtt_ms / 2, (n.slot, n.clock_error_ms, n.clock_rtt_ms)
 
 
 def homography_for(i: int) -> np.ndarray:
