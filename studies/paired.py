@@ -1,6 +1,8 @@
 """Paired comparison of one measure in two conditions, each participant in both: the analysis of
-the paper's first study (a search task on the table, with and without the synthetic aperture;
-its task times and its accuracies).
+the paper's first study (ten A5 sheets on the table, three of them blank and carrying projected
+text; the participant names the three, under the 25-projector rig and under one bright projector;
+its completion times and its accuracies, the fraction of the three named; `studies.search_runner`
+runs it on the rig).
 
 Every difference is **second − first** (the conditions in the order the file names them first):
 t, Cohen's d_z, the signed effect r and the mean and median differences all point the same way,
