@@ -55,25 +55,34 @@ vec3 content_rgb(vec4 t) {
     return content_grey != 0 ? t.rrr : t.rgb;
 }
 
-vec3 sample_texture(sampler2D tex, int grey, vec2 xy) {
+// Bilinear at xy (texels) with texels outside the texture weighing 0 (BORDER_CONSTANT 0);
+// `weight` is the sum of the weights of the texels inside (1 well inside, 0 at one pixel out).
+vec4 sample_border(sampler2D tex, vec2 xy, out float weight) {
     ivec2 size = textureSize(tex, 0);
     // At or beyond one pixel outside (or not a number) all four texels are outside: 0.
     // Inside, p0 is in -1..size-1 and p1 in 0..size, so only those two tests remain.
     if (!(all(greaterThan(xy, vec2(-1.0))) && all(lessThan(xy, vec2(size))))) {
-        return vec3(0.0);
+        weight = 0.0;
+        return vec4(0.0);
     }
     vec2 base = floor(xy);
     vec2 f = xy - base;
     ivec2 p0 = ivec2(base);
     ivec2 p1 = p0 + 1;
-    // Texels outside the content weigh 0 (BORDER_CONSTANT 0); fetch clamped, branch-free.
+    // Fetch clamped, branch-free; the weights drop the texels outside.
     vec2 w0 = (1.0 - f) * vec2(greaterThanEqual(p0, ivec2(0)));
     vec2 w1 = f * vec2(lessThan(p1, size));
     ivec2 q0 = max(p0, ivec2(0));
     ivec2 q1 = min(p1, size - 1);
     vec4 top = w0.x * texelFetch(tex, q0, 0) + w1.x * texelFetch(tex, ivec2(q1.x, q0.y), 0);
     vec4 bottom = w0.x * texelFetch(tex, ivec2(q0.x, q1.y), 0) + w1.x * texelFetch(tex, q1, 0);
-    vec4 t = w0.y * top + w1.y * bottom;
+    weight = (w0.x + w1.x) * (w0.y + w1.y);
+    return w0.y * top + w1.y * bottom;
+}
+
+vec3 sample_texture(sampler2D tex, int grey, vec2 xy) {
+    float weight;
+    vec4 t = sample_border(tex, xy, weight);
     return grey != 0 ? t.rrr : t.rgb;
 }
 
@@ -89,28 +98,17 @@ vec4 sample_clamped(sampler2D tex, vec2 xy) {
     return (1.0 - f.y) * top + f.y * bottom;
 }
 
-// A YUV picture at content pixel xy: luma bilinear with texels outside weighing 0, as
-// sample_texture does, so its edges fade to black as an RGB picture's do; the conversion is
-// affine, so it is applied to the weighted sum: sum(w_i (M (y_i, u, v) + o)) = M (Y, W u, W v) + W o.
+// A YUV picture at content pixel xy: luma bilinear with texels outside weighing 0 (sample_border),
+// so its edges fade to black as an RGB picture's do; the conversion is affine, so it is applied to
+// the weighted sum: sum(w_i (M (y_i, u, v) + o)) = M (Y, W u, W v) + W o.
 vec3 sample_yuv(sampler2D luma, sampler2D cu, sampler2D cv, int mode, mat3 m, vec3 o, vec4 cx, vec2 scale,
                 vec2 xy) {
     vec2 l = (xy + 0.5) * scale - 0.5;
-    ivec2 size = textureSize(luma, 0);
-    if (!(all(greaterThan(l, vec2(-1.0))) && all(lessThan(l, vec2(size))))) {
+    float weight;
+    float y = sample_border(luma, l, weight).r;
+    if (weight == 0.0) {
         return vec3(0.0);
     }
-    vec2 base = floor(l);
-    vec2 f = l - base;
-    ivec2 p0 = ivec2(base);
-    ivec2 p1 = p0 + 1;
-    vec2 w0 = (1.0 - f) * vec2(greaterThanEqual(p0, ivec2(0)));
-    vec2 w1 = f * vec2(lessThan(p1, size));
-    ivec2 q0 = max(p0, ivec2(0));
-    ivec2 q1 = min(p1, size - 1);
-    float top = w0.x * texelFetch(luma, q0, 0).r + w1.x * texelFetch(luma, ivec2(q1.x, q0.y), 0).r;
-    float bottom = w0.x * texelFetch(luma, ivec2(q0.x, q1.y), 0).r + w1.x * texelFetch(luma, q1, 0).r;
-    float y = w0.y * top + w1.y * bottom;
-    float weight = (w0.x + w1.x) * (w0.y + w1.y);
     vec2 c = l * cx.xy + cx.zw;
     vec2 uv = mode == 2 ? sample_clamped(cu, c).rg : vec2(sample_clamped(cu, c).r, sample_clamped(cv, c).r);
     return m * vec3(y, uv * weight) + o * weight;
