@@ -24,6 +24,7 @@ import numpy as np
 
 from imaging.calibration.errors import CalibrationError
 from imaging.calibration.threed import Pinhole, gl_projection
+from imaging.egl import standalone_context
 
 _TEXEL_VS = """
 #version 330
@@ -149,15 +150,7 @@ class CoverageRaster:
             raise ValueError(f"need vertices (V, 3), faces (F, 3), uvs (V, 2); got {v.shape}, {f.shape}, {uv.shape}")
         self.vertices, self.faces, self.uvs = v, f, uv
         self.normals = vertex_normals(v, f)
-        try:
-            import moderngl  # here, not at the top: only 3D work needs OpenGL and its EGL driver
-        except ImportError as exc:  # pragma: no cover - dependency missing
-            raise CalibrationError("coverage needs moderngl (install shadowless with the 'node' extra)") from exc
-        try:
-            self.ctx = moderngl.create_standalone_context(backend="egl")
-        except Exception as exc:
-            raise CalibrationError(f"cannot create an OpenGL context through EGL ({exc}); install Mesa's EGL "
-                                   "(e.g. apt-get install libegl1 libgl1-mesa-dri) or use a machine with a GPU") from exc
+        self.ctx = standalone_context(CalibrationError, "coverage")
         try:
             data = np.hstack([v, self.normals, uv]).astype("f4")
             self._vbo = self.ctx.buffer(data.tobytes())

@@ -32,7 +32,7 @@ def create_context():
     except Exception as exc:  # moderngl raises plain Exception subclasses
         raise RenderError(
             f"cannot create an OpenGL context through EGL ({exc}); install Mesa's EGL and GL drivers "
-            "(e.g. apt-get install libegl1 libgl1-mesa-dri) or run on a machine with a GPU"
+            "(e.g. apt-get install libegl1 libgl1 libgl1-mesa-dri) or run on a machine with a GPU"
         ) from exc
 
 

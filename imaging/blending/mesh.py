@@ -31,6 +31,7 @@ from typing import Mapping
 import numpy as np
 
 from imaging.blending.errors import BlendError
+from imaging.egl import standalone_context
 
 __all__ = ["SurfaceView", "SurfaceRaster", "MeshPlacement", "vertex_normals", "grid_projection", "placement",
            "mesh_placement", "REFERENCE_MM"]
@@ -125,15 +126,7 @@ class SurfaceRaster:
         if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or not len(f):
             raise BlendError(f"a mesh needs vertices (V, 3) and faces (F, 3), got {v.shape} and {f.shape}")
         self.vertices = v
-        try:
-            import moderngl  # here: only a mesh rig's blend needs OpenGL
-        except ImportError as exc:  # pragma: no cover - dependency missing
-            raise BlendError("a mesh rig's blend needs moderngl (the 'node' extra)") from exc
-        try:
-            self.ctx = moderngl.create_standalone_context(backend="egl")
-        except Exception as exc:
-            raise BlendError(f"cannot create an OpenGL context through EGL ({exc}); install Mesa's EGL "
-                             "(e.g. apt-get install libegl1 libgl1-mesa-dri) or use a machine with a GPU") from exc
+        self.ctx = standalone_context(BlendError, "a mesh rig's blend")
         try:
             self._prog = self.ctx.program(vertex_shader=_VS, fragment_shader=_FS)
             data = np.hstack([v, vertex_normals(v, f)]).astype("f4")

@@ -38,6 +38,7 @@ from imaging.calibration.errors import CalibrationError
 from imaging.calibration.planar import fit_homography
 from imaging.calibration.points import PointSet
 from protos.mesh_files import MeshFileError, read_mesh
+from imaging.egl import standalone_context
 
 SHADERS = Path(__file__).resolve().parent / "shaders"
 TABLE, MESH = 1, 2
@@ -525,17 +526,7 @@ class SurfaceCaster:
     def __init__(self, mesh: MeshData | None, *, table_mm: tuple[float, float] | None = None):
         if mesh is None and table_mm is None:
             raise ValueError("nothing to cast onto: give a mesh, a table or both")
-        try:
-            # imported here, not at the top: OpenGL is needed only by 3D calibration, and loading it
-            # (and its EGL driver) is heavy; a planar rig's coordinator never does
-            import moderngl
-        except ImportError as exc:  # pragma: no cover - dependency missing
-            raise CalibrationError("3D calibration needs moderngl (install shadowless with the 'node' extra)") from exc
-        try:
-            self.ctx = moderngl.create_standalone_context(backend="egl")
-        except Exception as exc:
-            raise CalibrationError(f"cannot create an OpenGL context through EGL ({exc}); install Mesa's EGL "
-                                   "(e.g. apt-get install libegl1 libgl1-mesa-dri) or use a machine with a GPU") from exc
+        self.ctx = standalone_context(CalibrationError, "3D calibration")
         parts_v, parts_f, kinds = [], [], []
         n = 0
         if table_mm is not None:

@@ -34,6 +34,7 @@ from scipy import ndimage
 
 from imaging.compensation.errors import CompensationError
 from protos.spaces import as_linear, bilinear_taps, lut_lookup
+from imaging.egl import standalone_context
 
 __all__ = ["DeviceView", "TexelMap", "MeshCaster", "normalised_projection", "device_centre", "texel_camera_map",
            "content_at_view", "mesh_warp", "texels_per_pixel", "padding_index", "padded"]
@@ -191,16 +192,7 @@ class MeshCaster:
             raise ValueError(f"mesh must be vertices (V, 3), uvs (V, 2), faces (F, 3); got {v.shape}, {uv.shape}, "
                              f"{f.shape}")
         self.vertices = v
-        try:
-            # imported here: OpenGL (and its EGL driver) is loaded only by the mesh path
-            import moderngl
-        except ImportError as exc:  # pragma: no cover - dependency missing
-            raise CompensationError("compensation on a mesh needs moderngl (the 'node' extra)") from exc
-        try:
-            self.ctx = moderngl.create_standalone_context(backend="egl")
-        except Exception as exc:
-            raise CompensationError(f"cannot create an OpenGL context through EGL ({exc}); install Mesa's EGL "
-                                    "(e.g. apt-get install libegl1 libgl1-mesa-dri) or use a machine with a GPU") from exc
+        self.ctx = standalone_context(CompensationError, "compensation on a mesh")
         try:
             self._view = self.ctx.program(vertex_shader=_VIEW_VS, fragment_shader=_VIEW_FS)
             self._atlas = self.ctx.program(vertex_shader=_ATLAS_VS, fragment_shader=_ATLAS_FS)

@@ -182,5 +182,5 @@ def headless_context() -> "moderngl.Context":
     except ContextUnavailable as exc:
         raise OutputError(
             f"cannot create a headless OpenGL 3.1+ or OpenGL ES 3.0+ context through EGL ({exc}); install Mesa's "
-            "EGL and DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri) or the GPU vendor's EGL"
+            "EGL and DRI drivers (e.g. apt-get install libegl1 libgl1 libgl1-mesa-dri) or the GPU vendor's EGL"
         ) from exc

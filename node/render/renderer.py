@@ -191,7 +191,7 @@ class Renderer:
         except ContextUnavailable as exc:
             raise RenderError(
                 "cannot create a headless OpenGL 3.1+ or OpenGL ES 3.0+ context through EGL "
-                f"({exc}); install Mesa's EGL and DRI drivers (e.g. apt-get install libegl1 libgl1-mesa-dri)"
+                f"({exc}); install Mesa's EGL and DRI drivers (e.g. apt-get install libegl1 libgl1 libgl1-mesa-dri)"
             ) from exc
         try:
             renderer = cls(ctx, width, height)
