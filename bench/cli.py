@@ -2,11 +2,15 @@
 
 Each benchmark is a module ``bench/<name>.py`` exposing ``configure(parser)``
 and ``run(args) -> int``; it prints the figures, the machine and the parameters.
+``--keep-json FILE`` (before or after NAME) also writes that document to FILE with the command,
+date, machine and load, as docs/benchmarks/ keeps it (bench/keep.py).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+
+from bench import keep
 
 BENCHMARKS: dict[str, str] = {
     "sync": "swap synchronisation of N real node processes on loopback",
@@ -61,10 +65,20 @@ def _configure_one(name: str, p: argparse.ArgumentParser) -> None:
         p.set_defaults(_bench=None)
         return
     mod.configure(p)
+    keep.add_options(p, after_name=True)
     p.set_defaults(_bench=mod)
 
 
+EPILOG = """\
+keep a run's JSON for the docs (the command, date, machine and load around it):
+  shadowless bench --keep-json docs/benchmarks/crash.json --note "quiet machine" crash --trials 200
+"""
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
+    keep.add_options(parser)
+    if parser.epilog is None:
+        parser.epilog = EPILOG
     sub = parser.add_subparsers(dest="bench", metavar="NAME", required=True, action=_LazyBenchmarks)
     for name, summary in BENCHMARKS.items():
         sub.add_parser(name, help=summary, description=summary)
@@ -73,4 +87,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args._bench is None:
         raise SystemExit(f"benchmark {args.bench!r} is not available in this build")
+    if getattr(args, "keep_json", None):
+        return keep.run_kept(args, args._bench.run)
+    if getattr(args, "keep_note", None):
+        raise SystemExit("--note goes with --keep-json FILE: it is kept as the JSON's source")
     return int(args._bench.run(args) or 0)
