@@ -14,6 +14,10 @@ this checkout made relative to it, in the command and the result alike, so a kep
 file outside the repository; when anything was cut, ``source`` says so. FILE is checked before the
 benchmark starts (an hour's run must not end in a refusal) and written at once when it ends, by
 rename, so a failed or interrupted run leaves what FILE held before.
+
+``python -m bench.keep FILE [--note TEXT] -- COMMAND ...`` does the same for a command that is not a
+benchmark (``shadowless study proxies --json``, ``shadowless coverage ... --json``): its last JSON
+document is kept, or its printed lines when it prints none.
 """
 from __future__ import annotations
 
@@ -97,7 +101,7 @@ _STOP = r"[^\s'\"()\[\]{},;]"
 def cut_paths(value: Any, *, repo: Path = REPO, scratch: list[str] | None = None) -> tuple[Any, bool]:
     """``value`` (JSON: dicts, lists, strings, numbers) with every path under a scratch directory
     (the temporary directory, /tmp) cut to its last name and every path inside ``repo`` made
-    relative to it, in strings and in keys; and whether anything was cut.
+    relative to it, in strings and in keys; and whether a scratch path was cut.
 
     >>> cut_paths({"log": "see /tmp/run-x1/logs/node.log:", "n": 2}, repo=Path("/r"), scratch=["/tmp"])
     ({'log': 'see node.log:', 'n': 2}, True)
@@ -121,9 +125,8 @@ def cut_paths(value: Any, *, repo: Path = REPO, scratch: list[str] | None = None
         new = s
         for pat in pats:
             new = pat.sub(name, new)
-        new = repo_pat.sub(lambda m: "" if m.group(0).endswith("/") else ".", new)
         cut = cut or new != s
-        return new
+        return repo_pat.sub(lambda m: "" if m.group(0).endswith("/") else ".", new)
 
     def walk(v: Any) -> Any:
         if isinstance(v, str):
@@ -229,3 +232,80 @@ def run_kept(args: argparse.Namespace, run: Callable[[argparse.Namespace], int |
     status = "" if code == 0 else f" (the benchmark exited {code})"
     print(f"shadowless bench: kept the JSON in {path}{status}", file=sys.stderr)
     return code
+
+
+# ------------------------------------------------------------------ any command's output
+USAGE_EPILOG = """\
+examples:
+  python -m bench.keep docs/benchmarks/proxies.json -- shadowless study proxies --json
+  python -m bench.keep docs/benchmarks/coverage.json --note "after plan --budget 17" -- \\
+      shadowless coverage --rig-dir rigs/planned --planned --json
+
+`shadowless bench` has this built in (shadowless bench --keep-json FILE NAME ...); this form is for
+the commands that are not benchmarks but print figures the docs quote. The command runs as a
+process of its own (`shadowless` is this interpreter's), its output passes through as it comes,
+and its last JSON document is kept as the result; a command that prints none has its printed lines
+kept instead, as {"text": [lines]}.
+"""
+
+
+def run_command(path: Path, words: list[str], note: str | None) -> int:
+    """Run ``words`` (a command line; ``shadowless`` is this interpreter's) with its stdout kept
+    in ``path`` as the result: its last JSON document, else its lines as ``{"text": [...]}``."""
+    import subprocess
+
+    argv = [sys.executable, "-m", "shadowless", *words[1:]] if words[0] == "shadowless" else words
+    load_start, started = load(), time.time()
+    copy = io.StringIO()
+    try:
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, bufsize=1)
+    except OSError as exc:
+        raise SystemExit(f"cannot run {words[0]}: {exc.strerror or exc}") from None
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        sys.stdout.write(line)
+        copy.write(line)
+    code = proc.wait()
+    text = copy.getvalue()
+    doc = last_document(text)
+    if doc is None:
+        lines = [line.rstrip() for line in text.splitlines() if line.strip()]
+        if not lines:
+            print(f"bench.keep: nothing kept in {path}: {words[0]} printed nothing", file=sys.stderr)
+            return code or 1
+        doc = {"text": lines}
+    write(path, wrap(path.stem, shlex.join(words), doc, note=note, started=started, finished=time.time(),
+                     load_start=load_start, load_end=load(), exit_status=code))
+    status = "" if code == 0 else f" (the command exited {code})"
+    print(f"bench.keep: kept the output in {path}{status}", file=sys.stderr)
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.keep", formatter_class=argparse.RawDescriptionHelpFormatter,
+        usage="python -m bench.keep [-h] FILE [--note TEXT] -- COMMAND ...",
+        description="Run a command and keep its printed figures as docs/benchmarks/ keeps a benchmark's JSON "
+                    "(the command, date, machine, load at start and end, the note, the result).",
+        epilog=USAGE_EPILOG)
+    parser.add_argument("file", metavar="FILE", help="the .json file to write (a directory: DIR/COMMAND.json)")
+    parser.add_argument("--note", metavar="TEXT", help="where the run came from (who, beside what), kept as 'source'")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--" not in argv:
+        parser.parse_args(argv)           # --help, or a mistake in the options, first
+        parser.error("put the command after -- (python -m bench.keep FILE -- COMMAND ...)")
+    cut = argv.index("--")
+    args = parser.parse_args(argv[:cut])
+    words = argv[cut + 1:]
+    if not words:
+        parser.error("name the command to run after --")
+    stem = words[0] if words[0] != "shadowless" or len(words) < 2 else "_".join(w for w in words[1:3] if not w.startswith("-"))
+    try:
+        path = target(args.file, stem)
+    except SystemExit as exc:
+        parser.exit(2, f"{parser.prog}: {exc.code}\n")
+    return run_command(path, words, args.note)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -55,3 +55,17 @@ def test_the_last_json_document_among_printed_lines():
     text = 'progress 1\n{"a": 1}\nnot json {\n{\n "b": [1,\n  2]\n}\ntail\n'
     assert last_document(text) == {"b": [1, 2]}
     assert last_document("no document here\n") is None
+
+
+def test_any_command_s_printed_figures_are_kept_as_json_or_as_lines(tmp_path, capfd):
+    from bench.keep import main
+
+    prog = "import json; print('fitting'); print(json.dumps({'knee': 17}))"
+    assert main([str(tmp_path / "fig.json"), "--note", "a check", "--", sys.executable, "-c", prog]) == 0
+    kept = json.loads((tmp_path / "fig.json").read_text())
+    assert kept["result"] == {"knee": 17} and kept["source"] == "a check" and kept["name"] == "fig"
+    assert "fitting" in capfd.readouterr().out                   # the output passes through
+    assert main([str(tmp_path / "text.json"), "--", sys.executable, "-c", "print('16.3 projectors');print(' ')"]) == 0
+    assert json.loads((tmp_path / "text.json").read_text())["result"] == {"text": ["16.3 projectors"]}
+    assert main([str(tmp_path / "none.json"), "--", sys.executable, "-c", "raise SystemExit(3)"]) == 3
+    assert not (tmp_path / "none.json").exists() and "printed nothing" in capfd.readouterr().err
