@@ -512,7 +512,7 @@ async def part_failover(args, work: Path, light: Light) -> dict:
 
 async def _failover_budgeted(args, work: Path, light: Light, name: str, slots: list[str], fraction: float) -> dict:
     """The same failover with each node process held to ``fraction`` of a core; or why it could not run."""
-    from bench.cpu_budget import CpuBudget, CpuBudgetError, unavailable
+    from shadowless.cpu_budget import CpuBudget, CpuBudgetError, unavailable
     why = unavailable()
     if why:
         _log(f"failover: {why}")

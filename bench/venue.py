@@ -33,6 +33,17 @@ Last, ``live``: a natural-looking sequence at the video's size played as live fr
 as H.264 by the coordinator, streamed to every node): bytes per node-frame against raw, PSNR,
 encode cost; see :mod:`bench.venue_live`.
 ``decode_ms_per_frame`` is a reference: one software decode of the video on this host.
+
+**CPU budgets** (``--node-cpu F``, root and a cgroup cpu controller: :mod:`shadowless.rig_budget`):
+every node process is held to F of a core, as if each ran on a small computer of its own, its
+rasterizer's threads (llvmpipe, the GPU's stand-in) in a group of their own (``--node-gpu``: no
+limit by default), the coordinator in its own (``--coordinator-cpu``: by default what is left of
+the machine's cores after the nodes, at least 0.5) and this process in one without a limit.
+Restarted processes go back into their groups. The document then says ``node_cpu_limit``,
+``node_gpu_limit``, ``coordinator_cpu_limit`` and, under ``cpu_budget``, each group's CPU time and
+time held back over the whole run (``groups``) and over the timeline show
+(``timeline.cpu_budget``). Every group is removed at the end, also on Ctrl-C and on errors, and a
+killed run's groups at the next start.
 """
 from __future__ import annotations
 
@@ -57,7 +68,10 @@ from coordinator.api import NodeState
 from coordinator.assets import AssetStore
 from coordinator.rig import parse_config
 from shadowless.local import LocalRig, grid_names
+from shadowless import exit_cleanup
+from shadowless.cpu_budget import CpuBudgetError
 from shadowless.netns import VenueError, available, parse_rate
+from shadowless.rig_budget import DEFAULT_PERIOD_MS, RigBudgets, coordinator_default, parse_gpu
 
 #: bit rate of the generated video at 1920x1080, 30 fps (scaled with pixels per second)
 REFERENCE_BIT_RATE = 8_000_000
@@ -72,6 +86,23 @@ def _size(text: str) -> tuple[int, int]:
     if not m:
         raise argparse.ArgumentTypeError(f"not a size WxH: {text!r}")
     return int(m.group(1)), int(m.group(2))
+
+
+def _fraction(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a fraction of a core: {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"a share of a core must be > 0, got {text!r}")
+    return v
+
+
+def _gpu(text: str):
+    try:
+        return parse_gpu(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _rate(text: str) -> str:
@@ -91,7 +122,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.epilog = ("examples (root; iproute2):\n"
                 "  shadowless bench venue --nodes 4 --link 1gbit --seconds 8\n"
                 "  shadowless bench venue --nodes 4 --link 100mbit --seconds 8\n"
-                "  shadowless bench venue --nodes 8 --link 100mbit --coordinator-link 1gbit")
+                "  shadowless bench venue --nodes 8 --link 100mbit --coordinator-link 1gbit\n"
+                "  shadowless bench venue --nodes 4 --node-cpu 0.4                # each node a small computer's CPU\n"
+                "  shadowless bench venue --nodes 8 --node-cpu 0.2 --size 960x540\n"
+                "  python -m shadowless.cpu_budget cleanup                        # groups a killed run left")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--nodes", type=int, default=4, help="node processes (default 4)")
     p.add_argument("--link", type=_rate, default="1gbit", metavar="RATE",
@@ -112,6 +146,20 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--poll-s", type=float, default=0.2, help="status poll interval (default 0.2 s)")
     p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds (default 600)")
     p.add_argument("--keep", metavar="DIR", help="keep the rig's work directory (rig, logs, caches, video) in DIR")
+    b = p.add_argument_group("CPU budgets (root and a cgroup cpu controller, v1 or v2)")
+    b.add_argument("--node-cpu", type=_fraction, metavar="F",
+                   help="hold every node process to F of a core (one cgroup each), as if each ran on a small "
+                        "computer of its own (default: no budgets)")
+    b.add_argument("--node-gpu", type=_gpu, default=None, metavar="G",
+                   help="with --node-cpu: each node's rasterizer threads (llvmpipe, the GPU's stand-in) go in a "
+                        "group of their own held to G of a core; 'max' (the default): no limit; 'node': they stay "
+                        "in the node's budget, as on a board that draws on its CPU")
+    b.add_argument("--coordinator-cpu", type=_fraction, metavar="C",
+                   help="with --node-cpu: the coordinator's share of a core (default: what is left of this "
+                        "machine's cores after the nodes' budgets, at least 0.5)")
+    b.add_argument("--cpu-period-ms", type=float, default=DEFAULT_PERIOD_MS, metavar="MS",
+                   help=f"the budgets' CFS period (default {DEFAULT_PERIOD_MS:g} ms: a held node waits a few ms at "
+                        "a time, as a slower CPU would, not 100 ms)")
 
 
 # ---------------------------------------------------------------- the test video
@@ -297,12 +345,12 @@ async def _poll(rig: LocalRig, asset_id: str, args, t_start: float) -> _Watch:
             await asyncio.sleep(max(0.0, interval - (time.monotonic() - t_ask)))
 
 
-async def _measure(args, workdir: Path, video: Path) -> dict:
+async def _measure(args, workdir: Path, video: Path, budgets: RigBudgets | None) -> dict:
     n = args.nodes
     slots = grid_names(n)
     ow, oh = args.output_size
     rig = LocalRig(slots, workdir, output_size=(ow, oh), content_size=(ow, oh), netns=True, link=args.link,
-                   coordinator_link=args.coordinator_link, env=venue_show.ENV)
+                   coordinator_link=args.coordinator_link, env=venue_show.ENV, budgets=budgets)
     try:
         rig.create()                       # the venue, the relay to the coordinator, the rig directory
         print(rig.venue.describe(), file=sys.stderr, flush=True)
@@ -318,7 +366,8 @@ async def _measure(args, workdir: Path, video: Path) -> dict:
             rig.start_node(s)
         watch = await _poll(rig, manifest.asset_id, args, t_start)
         print("bench venue: playing the asset by timeline, then a node rejoins mid-show …", file=sys.stderr, flush=True)
-        show = await venue_show.measure(rig, manifest.asset_id, size=args.size, fps=args.fps, cpu=cpu_seconds)
+        show = await venue_show.measure(rig, manifest.asset_id, size=args.size, fps=args.fps, cpu=cpu_seconds,
+                                        budgets=budgets)
         if args.live_seconds > 0:
             print("bench venue: live frames, encoded once and streamed to every node …", file=sys.stderr, flush=True)
             show["live"] = await venue_live.measure(rig, size=args.size, fps=args.fps, seconds=args.live_seconds)
@@ -361,12 +410,28 @@ def _check(args) -> str | None:
         return "--heartbeat-ms must be 50..60000"
     if any(v % 2 for v in args.size):
         return f"--size must be even in both dimensions, got {args.size[0]}x{args.size[1]}"
+    if args.node_cpu is None and (args.node_gpu is not None or args.coordinator_cpu is not None):
+        return "--node-gpu and --coordinator-cpu set budgets beside --node-cpu: give --node-cpu too"
     if args.keep and Path(args.keep).exists() and any(Path(args.keep).iterdir()):
         return f"--keep {args.keep}: the directory is not empty (a kept rig would already hold the asset)"
     ok, reason = available()
     if not ok:
         return f"cannot build a venue network here: {reason}"
+    if args.node_cpu is not None:
+        why = budgets_for(args).check()
+        if why:
+            return why
     return None
+
+
+def budgets_for(args) -> RigBudgets:
+    """The run's CPU budgets (not made yet): a group per node (and per node's rasterizer), the
+    coordinator's, this process's."""
+    slots = grid_names(args.nodes)
+    coordinator = (args.coordinator_cpu if args.coordinator_cpu is not None
+                   else coordinator_default(args.nodes, args.node_cpu, args.node_gpu))
+    return RigBudgets(slots, node_cpu=args.node_cpu, node_gpu=args.node_gpu, coordinator_cpu=coordinator,
+                      own=True, period_ms=args.cpu_period_ms)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -374,6 +439,17 @@ def run(args: argparse.Namespace) -> int:
     if problem:
         print(f"shadowless bench venue: {problem}", file=sys.stderr)
         return 2
+    budgets = budgets_for(args) if args.node_cpu is not None else None
+    if budgets is not None:
+        try:
+            budgets.open()              # this process in its group from now on; the others as they start
+        except CpuBudgetError as exc:
+            print(f"shadowless bench venue: {exc}", file=sys.stderr)
+            return 2
+        exit_cleanup.register(budgets.close)     # removed even if this process is terminated
+        print(f"bench venue: CPU budgets ({budgets.hierarchy.label}): each node {args.node_cpu:g} of a core, "
+              f"its rasterizer threads {budgets.rasterizer}; the coordinator {budgets.coordinator_cpu:g}",
+              file=sys.stderr, flush=True)
     workdir = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="shadowless-venue-"))
     try:
         workdir.mkdir(parents=True, exist_ok=True)
@@ -387,7 +463,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench venue: {info['bytes'] / 1e6:.1f} MB ({info['codec']}, {info['bit_rate_mbit_s']:g} Mbit/s) in "
               f"{time.monotonic() - t0:.1f} s", file=sys.stderr, flush=True)
         try:
-            figures = asyncio.run(_measure(args, workdir, video))
+            figures = asyncio.run(_measure(args, workdir, video, budgets))
         except VenueError as exc:
             print(f"shadowless bench venue: {exc}", file=sys.stderr)
             return 2
@@ -404,12 +480,26 @@ def run(args: argparse.Namespace) -> int:
                 "video_bit_rate_mbit_s": info["bit_rate_mbit_s"], "heartbeat_ms": args.heartbeat_ms,
                 "poll_s": args.poll_s, "live_seconds": args.live_seconds,
             },
+            **_limits(budgets),
             **figures,
         }
+        if budgets is not None:
+            doc["cpu_budget"] = {**budgets.describe(), "groups": budgets.stats()}
         if args.keep:
             doc["workdir"] = str(workdir)
         print(json.dumps(doc, indent=2))
         return 0
     finally:
+        if budgets is not None:
+            exit_cleanup.unregister(budgets.close)
+            budgets.close()
         if not args.keep:
             shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _limits(budgets: RigBudgets | None) -> dict:
+    """The budgets' limits, at the document's top level (None: no budget)."""
+    if budgets is None:
+        return {"node_cpu_limit": None, "node_gpu_limit": None, "coordinator_cpu_limit": None}
+    d = budgets.describe()
+    return {k: d[k] for k in ("node_cpu_limit", "node_gpu_limit", "coordinator_cpu_limit")}

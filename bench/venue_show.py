@@ -145,8 +145,20 @@ def _alive(rig: LocalRig) -> None:
         raise RuntimeError("the coordinator exited:\n" + rig.log("coordinator")[-3000:])
 
 
-async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fps: float, cpu) -> dict:
-    """Play the asset once; the sync tracker's figures over its ticks, the coordinator's traffic."""
+def budget_delta(before: dict, after: dict) -> dict:
+    """Each CPU budget group's CPU time, time held back and periods held back between two
+    :meth:`~shadowless.rig_budget.RigBudgets.stats` readings."""
+    out = {}
+    for k, a in after.items():
+        b = before.get(k, {})
+        out[k] = {f: round(a.get(f, 0) - b.get(f, 0), 3) for f in ("cpu_s", "throttled_s", "throttled") if f in a}
+    return out
+
+
+async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fps: float, cpu,
+                   budgets=None) -> dict:
+    """Play the asset once; the sync tracker's figures over its ticks, the coordinator's traffic
+    (and, with ``budgets``, what each CPU budget group used and was held back over the show)."""
     n = len(rig.slots)
     before = await c.status()
     tracked_before = before.sync.frames + before.sync.frames_late + before.sync.frames_dropped
@@ -154,6 +166,7 @@ async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fp
     logs = log_sizes(rig)
     cpu0 = {s: tree_cpu(cpu, pid) for s, pid in pids.items()} | {"coordinator": cpu(rig.coordinator.pid)}
     host0 = host_busy_s()
+    groups0 = budgets.stats() if budgets is not None else None
     t0 = time.monotonic()
     play = await c.play_asset(asset_id, delay_s=START_DELAY_S)
     duration = play.frames * play.rate_den / play.rate_num
@@ -161,6 +174,7 @@ async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fp
     await asyncio.sleep(max(0.0, (end_ns - time.monotonic_ns()) / 1e9))
     cpu1 = {s: tree_cpu(cpu, pid) for s, pid in pids.items()} | {"coordinator": cpu(rig.coordinator.pid)}
     host1 = host_busy_s()
+    groups1 = budgets.stats() if budgets is not None else None
     busy = duration + START_DELAY_S
     await asyncio.sleep(SETTLE_S)                   # the last ticks' reports (or the tracker's timeout)
     _alive(rig)
@@ -194,6 +208,8 @@ async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fp
         # every core of the host (os.cpu_count()), busy on anything: the rig's processes and any other load
         "host_cpu_busy_cores": _r((host1 - host0) / busy, 2),
         "host_cpu_other_cores": _r((host1 - host0 - sum(cpu1[k] - cpu0[k] for k in cpu1)) / busy, 2),
+        # with CPU budgets: each group's CPU time and time held back over the show (start delay + duration)
+        **({"cpu_budget": budget_delta(groups0, groups1)} if budgets is not None else {}),
     }
 
 
@@ -331,9 +347,9 @@ async def coordinator_restart(rig: LocalRig, asset_id: str) -> dict:
     }
 
 
-async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu) -> dict:
+async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu, budgets=None) -> dict:
     async with await rig.client(timeout=60.0) as c:
-        tl = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu)
+        tl = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu, budgets=budgets)
         rj = await rejoin(rig, c, asset_id)
     restart = await coordinator_restart(rig, asset_id)
     restart["skew_p99_ms_before"] = tl["skew_p99_ms"]

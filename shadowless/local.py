@@ -40,6 +40,8 @@ from protos.wording import count
 from shadowless import exit_cleanup
 from shadowless.hold import console_lines, hold
 from shadowless.netns import COORDINATOR, Venue, VenueError, available, parse_rate
+from shadowless.cpu_budget import CpuBudgetError
+from shadowless.rig_budget import DEFAULT_PERIOD_MS, RigBudgets, parse_gpu
 
 
 def free_port() -> int:
@@ -75,6 +77,9 @@ class LocalRig:
     netns, link, coordinator_link:
         ``netns=True`` builds a venue of its own for the slots, with these link rates, and closes
         it with the rig.
+    budgets:
+        Open :class:`~shadowless.rig_budget.RigBudgets`: the coordinator and every node, each time
+        it starts, goes into its group (closed by its owner, not by the rig).
     """
 
     def __init__(self, slots: list[str], workdir: Path, *, output_size=(160, 90), content_size=(160, 90),
@@ -83,7 +88,7 @@ class LocalRig:
                  rig_name: str | None = None, extra_node_args: dict[str, list[str]] | None = None, mdns: bool = True,
                  coordinator_args: list[str] | None = None, env: dict[str, str] | None = None,
                  venue: Venue | None = None, netns: bool = False, link: str = "1gbit",
-                 coordinator_link: str | None = None, console: bool = False):
+                 coordinator_link: str | None = None, console: bool = False, budgets: RigBudgets | None = None):
         self.slots = list(slots)
         self.workdir = Path(workdir)
         self.rig_dir = self.workdir / "rig"
@@ -99,6 +104,7 @@ class LocalRig:
         self.mdns = mdns
         self.coordinator_args = list(coordinator_args or [])
         self.console = console
+        self.budgets = budgets       # each process started (or restarted) goes into its CPU budget's group
         self.extra_env = dict(env or {})
         self.venue = venue
         self._own_venue = venue is None and netns
@@ -186,6 +192,8 @@ class LocalRig:
         else:
             args += ["--no-console"]
         self.coordinator = self._spawn("coordinator", args + self.coordinator_args)
+        if self.budgets is not None:
+            self.budgets.place("coordinator", self.coordinator.pid)
 
     def console_url(self, timeout: float = 30.0) -> str:
         """The operator console's address once the coordinator serves it (``console=True``)."""
@@ -226,6 +234,8 @@ class LocalRig:
     def start_node(self, slot: str, extra: list[str] | None = None) -> subprocess.Popen:
         proc = self._spawn(f"node-{slot}", self.node_args(slot) + (extra or []), host=slot)
         self.nodes[slot] = proc
+        if self.budgets is not None:
+            self.budgets.place(slot, proc.pid)
         return proc
 
     def stop_node(self, slot: str, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
@@ -345,7 +355,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                 "  shadowless local --nodes 4 --hold                        # then log in to the console it prints\n"
                 "  sudo shadowless local --nodes 4 --netns                  # 1 Gbit/s links\n"
                 "  sudo shadowless local --nodes 9 --netns --link 100mbit   # a Wi-Fi-class venue\n"
-                "  python -m shadowless.netns cleanup                       # remove what a crashed run left")
+                "  sudo shadowless local --nodes 4 --node-cpu 0.4           # each node a small computer's CPU\n"
+                "  python -m shadowless.netns cleanup                       # remove what a crashed run left\n"
+                "  python -m shadowless.cpu_budget cleanup                  # ... and the CPU budgets' groups")
     p.add_argument("--nodes", type=cli_types.int_range(1, 256), default=4, help="how many node processes (default 4)")
     p.add_argument("--fps", type=cli_types.number(0, 1000, lo_open=True), default=30.0, help="sequence frame rate (default 30)")
     p.add_argument("--seconds", type=cli_types.number(0, 86400, lo_open=True), default=5.0, help="sequence length (default 5 s)")
@@ -363,11 +375,35 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="run every process in its own network namespace on a rate-limited bridge (root)")
     v.add_argument("--link", default="1gbit", metavar="RATE", help="with --netns: every link's rate (default 1gbit)")
     v.add_argument("--coordinator-link", metavar="RATE", help="with --netns: the coordinator's link rate (default --link)")
+    b = p.add_argument_group("CPU budgets (root and a cgroup cpu controller, v1 or v2)")
+    b.add_argument("--node-cpu", type=cli_types.number(0, 1024, lo_open=True), metavar="F",
+                   help="hold every node process to F of a core (one cgroup each; a restarted node goes back into "
+                        "it), as if each ran on a small computer of its own (default: no budget)")
+    b.add_argument("--node-gpu", type=_gpu, default=None, metavar="G",
+                   help="with --node-cpu: each node's rasterizer threads (llvmpipe, the GPU's stand-in) go in a "
+                        "group of their own held to G of a core; 'max' (the default): no limit; 'node': they stay "
+                        "in the node's budget")
+    b.add_argument("--cpu-period-ms", type=cli_types.number(1, 1000), default=DEFAULT_PERIOD_MS, metavar="MS",
+                   help=f"the budgets' CFS period (default {DEFAULT_PERIOD_MS:g} ms)")
+
+
+def _gpu(text: str):
+    try:
+        return parse_gpu(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def spread(n: int, amplitude: float, seed: int) -> list[float]:
     rng = np.random.default_rng(seed)
     return [float(v) for v in rng.uniform(-amplitude, amplitude, n)] if amplitude else [0.0] * n
+
+
+def _budgets(args, slots: list[str]) -> RigBudgets | None:
+    """The nodes' CPU budgets asked for (not made yet), or None."""
+    if getattr(args, "node_cpu", None) is None:
+        return None
+    return RigBudgets(slots, node_cpu=args.node_cpu, node_gpu=args.node_gpu, period_ms=args.cpu_period_ms)
 
 
 async def _local(args) -> int:
@@ -382,9 +418,18 @@ async def _local(args) -> int:
     workdir = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="shadowless-local-"))
     remove = _Remover(None if args.keep else workdir)
     exit_cleanup.register(remove)     # registered before the rig's closer, so it runs after it
+    budgets = _budgets(args, slots)
     try:
-        return await _run_local(args, picture, slots, workdir, (w, h))
+        if budgets is not None:
+            budgets.open()
+            exit_cleanup.register(budgets.close)      # also before the rig's closer: the groups go after the processes
+        return await _run_local(args, picture, slots, workdir, (w, h), budgets)
+    except CpuBudgetError as exc:
+        raise SystemExit(f"shadowless local: {exc}") from None
     finally:
+        if budgets is not None:
+            exit_cleanup.unregister(budgets.close)
+            budgets.close()
         exit_cleanup.unregister(remove)
         remove()
 
@@ -410,13 +455,14 @@ async def give_poses(c: Client, slots: list[str]) -> str:
             "calibrates with `shadowless calibrate`)")
 
 
-async def _run_local(args, picture, slots: list[str], workdir: Path, size: tuple[int, int]) -> int:
+async def _run_local(args, picture, slots: list[str], workdir: Path, size: tuple[int, int],
+                     budgets: RigBudgets | None = None) -> int:
     w, h = size
     offsets = dict(zip(slots, spread(len(slots), args.clock_offset_ms, 1)))
     drifts = dict(zip(slots, spread(len(slots), args.clock_drift_ppm, 2)))
     with LocalRig(slots, workdir, output_size=(w, h), content_size=(w, h), clock_offsets_ms=offsets,
                   clock_drifts_ppm=drifts, snapshots=True, netns=args.netns, link=args.link,
-                  coordinator_link=args.coordinator_link, console=not args.netns) as rig:
+                  coordinator_link=args.coordinator_link, console=not args.netns, budgets=budgets) as rig:
         if rig.venue is not None:
             print(rig.venue.describe(), file=sys.stderr)
         print(f"rig {rig.rig_name}: coordinator on {rig.coordinator_target}, {count(len(slots), 'node')}; "
@@ -437,6 +483,8 @@ async def _run_local(args, picture, slots: list[str], workdir: Path, size: tuple
                       "workdir": str(workdir) if args.keep else None}
             if args.netns:
                 result["venue"] = {"link": args.link, "coordinator_link": args.coordinator_link or args.link}
+            if budgets is not None:
+                result["cpu_budget"] = {**budgets.describe(), "groups": budgets.stats(), "summary": budgets.summary()}
             _print_result(args, result, workdir)
             if args.hold:
                 then = ("every process stops" if args.keep
@@ -454,12 +502,23 @@ def _print_result(args, result: dict, workdir: Path) -> None:
           f"{result['frames_shown']}, late {result['frames_late']}, dropped {result['frames_dropped']}")
     print(f"swap skew p50 {s['skew_p50_ms']} ms, p99 {s['skew_p99_ms']} ms, max {s['skew_max_ms']} ms "
           f"({s['skew_source']}); clock error p99 {s['clock_error_p99_ms']} ms; out of order {s['out_of_order']}")
+    if "cpu_budget" in result:
+        print(result["cpu_budget"]["summary"])
     print(f"snapshots of the still: {workdir / 'snapshots'}" + ("" if args.keep or args.hold else
                                                                  " (removed with the rig; keep them with --keep DIR)"),
           flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.node_cpu is None and args.node_gpu is not None:
+        print("shadowless local: --node-gpu sets the rasterizer's budget beside --node-cpu: give --node-cpu too",
+              file=sys.stderr)
+        return 2
+    budgets = _budgets(args, grid_names(args.nodes))
+    why = budgets.check() if budgets is not None else ""
+    if why:            # refused before anything starts
+        print(f"shadowless local: {why}", file=sys.stderr)
+        return 2
     if args.netns:
         try:
             for rate in (args.link, args.coordinator_link or args.link):

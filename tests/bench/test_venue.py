@@ -8,16 +8,22 @@ counts within their bounds, the coordinator's traffic far below raw frames), nev
 on time or skew (a busy machine is slower, never faster), and that no namespace of the
 benchmark's venue is left. With ``CI=true`` it must run (namespaces can be built as root);
 elsewhere it skips only when :func:`shadowless.netns.available` says venues cannot be built.
+
+Where CPU budgets can be made (root, a cgroup cpu controller) it runs with ``--node-cpu 0.5``: every
+node, its rasterizer's threads, the coordinator and the benchmark each had a group of their own
+that measured what ran in it (restarted processes included), and no group is left afterwards.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 
 import pytest
 
 from bench import cli as bench_cli
+from shadowless.cpu_budget import groups_of, host_hierarchy, unavailable
 from shadowless.netns import namespaces as netns_names, parse_rate
 
 
@@ -28,8 +34,10 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     parser = argparse.ArgumentParser()
     bench_cli.configure(parser)
     keep = tmp_path / "run"
+    budgets = not unavailable()
     args = parser.parse_args(["venue", "--nodes", "2", "--link", "100mbit", "--size", "320x180", "--fps", "30",
-                              "--seconds", "1", "--output-size", "160x90", "--keep", str(keep)])
+                              "--seconds", "1", "--output-size", "160x90", "--keep", str(keep)]
+                             + (["--node-cpu", "0.5"] if budgets else []))
     assert bench_cli.run(args) == 0
     out = capsys.readouterr()
     doc = json.loads(out.out)
@@ -126,3 +134,27 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert lv["encode_ms_per_frame"] > 0 and lv["encode_ms_per_frame_here"] > 0
     assert 0 <= lv["frames_shown"] <= lv["frames_sent"]
     assert doc["parameters"]["live_seconds"] == 2
+
+    # CPU budgets: a group each, measuring what ran in it; none left afterwards
+    if not budgets:
+        assert doc["node_cpu_limit"] is None
+        return
+    assert doc["node_cpu_limit"] == 0.5 and doc["node_gpu_limit"] is None
+    assert doc["coordinator_cpu_limit"] == max(0.5, doc["machine"]["cpus"] - 2 * 0.5)
+    cb = doc["cpu_budget"]
+    assert cb["period_ms"] == 10 and cb["rasterizer"].startswith("in a group of their own")
+    groups = cb["groups"]
+    assert set(groups) == {"bench", "coordinator"} | {f"{k} {s}" for k in ("node", "rasterizer") for s in slots}
+    assert groups["coordinator"]["limit"] == doc["coordinator_cpu_limit"] and groups["bench"]["limit"] is None
+    for s in slots:
+        assert groups[f"node {s}"]["limit"] == 0.5 and groups[f"node {s}"]["cpu_s"] > 0
+        # the rasterizer's thread (LP_NUM_THREADS=1) of every presenter it ran, the restarted node's too
+        assert groups[f"rasterizer {s}"]["threads"] >= (2 if s == doc["rejoin"]["node"] else 1)
+        assert groups[f"rasterizer {s}"]["cpu_s"] > 0
+    assert groups["coordinator"]["cpu_s"] > 0 and groups["bench"]["cpu_s"] > 0
+    assert all(g["throttled_s"] >= 0 for g in groups.values())
+    assert all(tl["cpu_budget"][f"node {s}"]["cpu_s"] > 0 for s in slots)    # the show's share of it
+    assert groups_of(os.getpid()) == []                    # this process went back to the root group
+    hierarchy, _ = host_hierarchy()
+    assert not [d.name for d in hierarchy.root.iterdir() if d.name.startswith("shadowless-")
+                and f"-{os.getpid()}-" in d.name], "every group the run made is removed"
