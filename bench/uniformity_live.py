@@ -41,6 +41,7 @@ import asyncio
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -392,8 +393,16 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["message"] = st.message
         out["covered"] = st.covered
         rest = [s for s in slots if s != victim]
-        await _wait("the remaining nodes showing new maps", lambda: _switched(live) and any(
-            live.slot_blend_id(s) != old_ids[s] for s in rest) and live.showing_assigned(rest), 60)
+        reported: dict[str, int] = {}       # slot -> when the coordinator first heard it shows its new maps
+
+        def shown_everywhere() -> bool:
+            for s in rest:
+                sess, want = live.session(s), live.slot_blend_id(s)
+                if s not in reported and want != old_ids[s] and sess is not None and sess.blend_id == want:
+                    reported[s] = time.monotonic_ns()
+            return _switched(live) and any(live.slot_blend_id(s) != old_ids[s] for s in rest) \
+                and live.showing_assigned(rest)
+        await _wait("the remaining nodes showing new maps", shown_everywhere, 60, step=0.002)
         changed = [s for s in rest if live.slot_blend_id(s) != old_ids[s]]
         out["maps_changed"] = len(changed)
         since = live.since_ns(changed)
@@ -401,6 +410,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
         out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
         out.update(_switch_timing(live, since, declared_ns, show, period_ns))
+        out["stages_ms"] = _stages(live, changed, declared_ns, reported)
         out["message_after"] = live.blend_status().message
         late1 = _late(live, rest)
         out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
@@ -449,6 +459,56 @@ def _switch_timing(live: Live, since: list[int], declared_ns: int, show: str, pe
             "late_nodes": len(late), "nodes_switched": len(since),
             "last_after_instant_ms": _r((max(since) - at) / 1e6, 2),
             "late_after_instant_ms": sorted(_r(v / 1e6, 1) for v in late)}
+
+
+#: a node's log line of its first swap with new maps (node/presenter.py), with the maps' way there
+_TIMING = re.compile(r"blend (\S+) on screen from rig instant (\d+); timing instant=(\d+) received=(\d+) "
+                     r"decoded=(\d+) presenter=(\d+) uploaded=(\d+) swapped=(\d+)")
+#: the stages of a failover, in order: (name, the stamp it starts from, the stamp it ends at)
+_STAGES = (("declared_to_wanted", "declared", "wanted"), ("wanted_to_ready", "wanted", "ready"),
+           ("ready_to_set", "ready", "set"), ("set_to_received", "set", "received"),
+           ("received_to_decoded", "received", "decoded"), ("decoded_to_presenter", "decoded", "presenter"),
+           ("presenter_to_uploaded", "presenter", "uploaded"), ("uploaded_to_shown", "uploaded", "shown"),
+           ("instant_to_shown", "instant", "shown"), ("shown_to_swapped", "shown", "swapped"),
+           ("swapped_to_reported", "swapped", "reported"), ("declared_to_shown", "declared", "shown"))
+
+
+def _stages(live: Live, slots: list[str], declared_ns: int, reported: dict[str, int]) -> dict:
+    """Where one failover's time went, on the rig clock: per stage, its p50 and max over the nodes (ms).
+    The coordinator's stamps (the loss declared, the variant wanted, ready, every assignment set, the common
+    instant) are :attr:`coordinator.blending.state.BlendState.last_switch`; each node's (its network process
+    received and decoded the maps, its presenter received and uploaded them, the pts of the first frame
+    shown with them and when that swap was done) are its log line of that swap; "reported" is when this
+    benchmark saw the node's heartbeat name the maps. A stage a node skipped (its maps came after the
+    instant: shown at once) is still counted from its stamps."""
+    state = getattr(live.core, "blending", None)
+    common = dict(getattr(state, "last_switch", {}) or {})
+    if not common:
+        return {}
+    common["declared"] = declared_ns
+    common["instant"] = common.get("instant", 0)
+    per: dict[str, list[float]] = {name: [] for name, _, _ in _STAGES}
+    found = 0
+    for s in slots:
+        want = live.slot_blend_id(s)
+        rows = [m for m in _TIMING.finditer(live.local.log(f"node-{s}")) if m.group(1) == want]
+        if not rows:
+            continue
+        found += 1
+        m = rows[-1]
+        stamps = dict(common, shown=int(m.group(2)), received=int(m.group(4)), decoded=int(m.group(5)),
+                      presenter=int(m.group(6)), uploaded=int(m.group(7)), swapped=int(m.group(8)))
+        if s in reported:
+            stamps["reported"] = reported[s]
+        for name, a, b in _STAGES:
+            if stamps.get(a) and stamps.get(b):
+                per[name].append((stamps[b] - stamps[a]) / 1e6)
+    out: dict = {"nodes": found}
+    for name, _, _ in _STAGES:
+        v = per[name]
+        if v:
+            out[name] = {"p50": _r(float(np.median(v)), 2), "max": _r(max(v), 2)}
+    return out
 
 
 def _last_check(live: Live) -> dict | None:

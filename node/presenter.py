@@ -12,7 +12,10 @@ from which it is shown. The presenter uploads them ahead and switches the render
 first frame whose pts is at or after that instant (a streamed frame or a show's tick), so every
 node of the rig switches at one common swap instant; when no frame is due then (a still, a paused
 show), it shows the frame on screen again with them at that instant. Maps that cannot be used are
-refused in one log line, and the blend on screen stays.
+refused in one log line, and the blend on screen stays. A blend switch that reaches the presenter
+while a rendered frame waits for its time is taken then (:attr:`Presenter.inbox`), and that frame
+rendered again with the new maps when it is at or after their instant: a failover's maps do not wait
+for the frame after it. What the switch holds is :mod:`node.blend_switch`'s.
 
 Between frames it also makes the previews the coordinator asks for (:mod:`node.preview`):
 right after a swap, or while idle, when the renderer's framebuffer holds what the projector
@@ -34,6 +37,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from node.asset_frames import FrameError, FrameNotReady
+from node.blend_switch import BlendSwitch
 from node.clock import ClockEstimate
 from node.decoders import choose, wish_from_env
 from node.fade import Crossfade, ShowFade
@@ -53,7 +57,7 @@ from protos.blend import BlendMaps
 log = logging.getLogger(__name__)
 
 #: the fields of an assignment a blend switch alone changes
-_BLEND_FIELDS = frozenset({"revision", "blend", "blend_at_ns", "blend_error"})
+_BLEND_FIELDS = frozenset({"revision", "blend", "blend_at_ns", "blend_error", "received_host_ns", "decoded_host_ns"})
 
 
 def _same_but_blend(a: NodeAssignment, b: NodeAssignment) -> bool:
@@ -131,6 +135,9 @@ class Presenter:
     STREAM_GAP_NS = 1_000_000_000
     #: a frame shown this long with no next one known is taken for a still (not a sequence's first)
     STILL_AFTER_NS = 250_000_000
+    #: while a rendered frame waits for its time, blend switches are taken until this long (plus twice
+    #: the longest recent render) before it: what rendering it again with new maps needs
+    REDRAW_MARGIN_NS = 3_000_000
 
     def __init__(self, *, slot: str, output: Output, clock: PresenterClock,
                  report: Callable[[str, object], None], realtime: bool = True):
@@ -165,11 +172,13 @@ class Presenter:
         self._work_from_ns = 0           # when the current message's (or tick's) work began
         self._work_ns: deque[int] = deque(maxlen=30)   # per frame shown: its work until ready to swap
         self._swapped_at_ns = 0          # local time of the last frame swapped in
-        # blend maps: the next ones (maps or None, rig instant from which they show), None: no change due
-        self._blend_next: tuple[BlendMaps | None, int] | None = None
-        self._blend_unshown = False      # the renderer switched maps; no frame shown with them yet
-        self.blend_on_screen = ""        # the id of the maps on screen ("" none)
-        self.blend_since_rig_ns = 0      # pts of the first frame shown with them
+        # blend maps: the next ones and their instant, those on screen (node/blend_switch.py)
+        self.blend = BlendSwitch(clock.host_now, lambda host, est: est.rig_time(clock.from_host(host)))
+        #: where messages come from while the presenter waits for a frame's time (its process's pipe:
+        #: ``poll(timeout_s) -> bool``, ``recv() -> (kind, payload)``), so that blend maps that arrive
+        #: meanwhile reach the frame already rendered; None: the wait only sleeps (a test's thread)
+        self.inbox = None
+        self._deferred: deque = deque()  # messages read while waiting, not handled then: handled next, in order
         self._fade: Crossfade | None = None   # a crossfade under way (node/fade.py)
         self._show_fade: ShowFade | None = None   # a timeline show's crossfade in
 
@@ -186,11 +195,11 @@ class Presenter:
         now = est.rig_time(self.clock.now()) if est is not None else None
         show = ShowStatus(revision=max(0, self.player.schedule.revision), state=self.player.state(now),
                           last_frame=self.timeline_last_frame, shown=self.timeline_shown, late=self.timeline_missed)
-        blend_id = self.blend_on_screen
+        blend_id = self.blend.on_screen
         return PresenterStatus(shown=self.shown, late=self.late, dropped=self.dropped,
                                render_ms_p50=self.render_ms_p50(),
                                revision=self.assignment.revision if self.assignment else 0, show=show,
-                               blend_id=blend_id, blend_since_rig_ns=self.blend_since_rig_ns if blend_id else 0)
+                               blend_id=blend_id, blend_since_rig_ns=self.blend.since_rig_ns if blend_id else 0)
 
     def open(self) -> None:
         ctx = self.out.make_context()
@@ -242,6 +251,11 @@ class Presenter:
         getattr(self, "_on_" + kind)(self.renderer, self.out, payload)
         if _DEBUG_TIMING and (dt := time.perf_counter() - t) > 0.005 and kind != "frame":
             log.info("timing: %s took %.1f ms", kind, dt * 1e3)
+
+    def next_deferred(self):
+        """A message read from the inbox while waiting for a frame's time and not handled then (the loop
+        handles it before reading the inbox again), or None."""
+        return self._deferred.popleft() if self._deferred else None
 
     def idle(self) -> None:
         self.out.poll()   # a window keeps handling its events between frames
@@ -318,7 +332,40 @@ class Presenter:
             self._on_evict(renderer, out, list(pkt.evict))
 
     def _on_assignment(self, renderer, out: Output, a: NodeAssignment) -> None:
+        got = self.clock.host_now()
+        # a failover's push changes the blend alone, for a later instant: the frame on screen is shown
+        # again with the new maps then (_blend_step), not now with the old ones as well; and the
+        # renderer's pose, LUT and gain stay as they are (nothing to set again on the switch's way)
+        blend_only = self.assignment is not None and _same_but_blend(self.assignment, a)
         size = self.native_size or (a.width, a.height)
+        if not blend_only:
+            self._set_assignment(renderer, a, size)
+        at_once = self._offer_blend(renderer, a, got)
+        self.assignment = a
+        if not blend_only:
+            # a video asset decodes straight to the content size the homography maps (see fit_frame)
+            self.player.content_size = (tuple(a.content_size) if a.pose_kind == "homography" and all(a.content_size)
+                                        else None)
+            log.info("assignment r%d: %s pose, %dx%d, gain %.3f, LUT %s", a.revision, a.pose_kind, *size, a.gain,
+                     "yes" if a.lut is not None else "identity")
+        if not at_once:
+            self._send_stats()
+        # what is on screen now follows the new assignment at once
+        if self._current is not None and (at_once or not blend_only):
+            try:
+                self._render(renderer, self._current)
+            except ValueError as exc:
+                log.error("cannot re-render the current frame with the new assignment: %s", exc)
+                renderer.render(None)
+            out.prepare(renderer)
+            out.swap()
+            self._shown_again(out, renderer)
+        if at_once:
+            self._blend_shown(self._rig_now())
+            self._send_stats()
+
+    def _set_assignment(self, renderer, a: NodeAssignment, size: tuple[int, int]) -> None:
+        """The renderer's size, pose, LUT and gain as ``a`` says (one that cannot be rendered: black)."""
         if self.native_size and (a.width, a.height) != self.native_size:
             log.warning("assignment says %dx%d but the output is %dx%d; rendering at the output's size",
                         a.width, a.height, *self.native_size)
@@ -338,87 +385,67 @@ class Presenter:
             log.error("assignment r%d cannot be rendered (%s); this projector shows black until the next one",
                       a.revision, exc)
             renderer.clear_pose()
-        # a failover's push changes the blend alone, for a later instant: the frame on screen is shown
-        # again with the new maps then (_blend_step), not now with the old ones as well
-        blend_later = self.assignment is not None and _same_but_blend(self.assignment, a)
-        at_once = self._offer_blend(renderer, a)
-        blend_later = blend_later and not at_once
-        self.assignment = a
-        # a video asset decodes straight to the content size the homography maps (see fit_frame)
-        self.player.content_size = (tuple(a.content_size) if a.pose_kind == "homography" and all(a.content_size)
-                                    else None)
-        log.info("assignment r%d: %s pose, %dx%d, gain %.3f, LUT %s", a.revision, a.pose_kind, *size, a.gain,
-                 "yes" if a.lut is not None else "identity")
-        self._send_stats()
-        # what is on screen now follows the new assignment at once
-        if self._current is not None and not blend_later:
-            try:
-                self._render(renderer, self._current)
-            except ValueError as exc:
-                log.error("cannot re-render the current frame with the new assignment: %s", exc)
-                renderer.render(None)
-            out.prepare(renderer)
-            out.swap()
-            self._shown_again(out, renderer)
-        if at_once:
-            self._blend_shown(self._rig_now())
-            self._send_stats()
 
     # ---------------------------------------------------------------- blend maps
     def _rig_now(self) -> int:
         est = self.pacer.estimate
         return est.rig_time(self.clock.now()) if est is not None else 0
 
-    def _offer_blend(self, renderer, a: NodeAssignment) -> bool:
-        """Take the blend an assignment asks for: refused maps are logged and change nothing; new
-        maps are uploaded ahead and wait for their instant, or are switched to at once (0, or an
-        instant already past). Whether the renderer switched now."""
-        if a.blend_error:
-            log.error("assignment r%d: blend maps refused (%s); the blend on screen stays", a.revision, a.blend_error)
-            return False
-        maps, at = a.blend, a.blend_at_ns
-        want = maps.blend_id if maps is not None else ""
-        nxt = self._blend_next
-        if nxt is not None and (nxt[0].blend_id if nxt[0] is not None else "") == want:
-            self._blend_next = (nxt[0], at)
-        elif want == renderer.blend_id:
-            self._blend_next = None      # what is on screen already (a switch back before the instant)
-            return False
-        else:
-            if maps is not None:
-                try:
-                    renderer.load_blend(maps)
-                except ValueError as exc:
-                    log.error("assignment r%d: blend maps refused (%s); the blend on screen stays", a.revision, exc)
-                    return False
-            self._blend_next = (maps, at)
-            log.info("assignment r%d: blend %s %s", a.revision, want or "none",
-                     "at once" if at <= 0 else f"from rig instant {at}")
-        if at <= 0 or (self.pacer.estimate is not None and at <= self._rig_now()):
-            self._switch_blend(renderer)
-            return True
-        return False
+    def _offer_blend(self, renderer, a: NodeAssignment, got_host_ns: int) -> bool:
+        """The blend ``a`` asks for (:meth:`node.blend_switch.BlendSwitch.offer`); whether it shows now."""
+        return self.blend.offer(renderer, a, self._rig_now() if self.pacer.estimate is not None else None, got_host_ns)
 
-    def _switch_blend(self, renderer) -> None:
-        """The renderer draws with the next maps from now on; the first frame swapped in stamps them."""
-        maps, _at = self._blend_next
-        self._blend_next = None
-        renderer.set_blend(maps)
-        self._blend_unshown = True
+    def _wait_taking_blends(self, frame: FrameOrder, deadline: int) -> None:
+        """Wait until shortly before ``deadline`` (local ns), the frame ``frame`` rendered for it, taking
+        any blend switch that arrives meanwhile (an assignment that changes the blend alone): if the
+        frame is at or after the new maps' instant, it is rendered again with them, so a failover's maps
+        reach the frame already waiting for its time instead of the one after it. Anything else read is
+        kept for the loop (in order: once a message is kept, every later one is too). The last stretch
+        before the deadline, the time to render the frame again, is left to the swap's precise sleep."""
+        inbox = self.inbox
+        while inbox is not None and not self._deferred:
+            margin = self.REDRAW_MARGIN_NS + 2 * int(max(self._render_ms, default=0.0) * 1e6)
+            left = deadline - margin - self.clock.now()
+            if left <= 0:
+                return
+            try:
+                if not inbox.poll(left / 1e9):
+                    return
+                msg = inbox.recv()
+            except (EOFError, OSError):
+                return          # the node process is gone: the loop finds out on its own read
+            kind, payload = msg
+            if kind != "assignment" or self.assignment is None or not _same_but_blend(self.assignment, payload):
+                self._deferred.append(msg)
+                return
+            self._blend_while_waiting(payload, frame)
+
+    def _blend_while_waiting(self, a: NodeAssignment, frame: FrameOrder) -> None:
+        """A blend switch read while ``frame`` waits for its time: taken as :meth:`_on_assignment` takes
+        it, and the frame rendered again when the new maps are due at its pts."""
+        renderer = self.renderer
+        at_once = self._offer_blend(renderer, a, self.clock.host_now())
+        self.assignment = a
+        log.info("assignment r%d: the blend alone, taken while frame %d waits for its time", a.revision, frame.frame_id)
+        self._send_stats()
+        if at_once or self.blend.due_for(frame.pts_ns):
+            try:
+                self._render(renderer, frame)       # switches to the next maps (at once: already)
+            except ValueError as exc:
+                log.error("cannot render frame %d again with the new blend: %s", frame.frame_id, exc)
+                return
+            self.out.prepare(renderer)
+            self._ctx.finish()
 
     def _blend_shown(self, pts_ns: int) -> None:
-        if self._blend_unshown:
-            self._blend_unshown = False
-            self.blend_on_screen = self.renderer.blend_id
-            self.blend_since_rig_ns = pts_ns
-            log.info("blend %s on screen from rig instant %d", self.renderer.blend_id or "none", pts_ns)
+        self.blend.shown(self.renderer.blend_id, pts_ns, self.pacer.estimate)
 
     def _blend_due(self) -> tuple[int, int] | None:
         """When to show the frame on screen again with the next maps, when no frame will: (local ns,
         rig ns); None when no switch is due, the clock is unknown, or a show's tick at or after the
         instant will switch them. While streamed frames come, the first one at or after the instant
         switches them: this waits until one is overdue (the stream stopped)."""
-        nxt, est = self._blend_next, self.pacer.estimate
+        nxt, est = self.blend.next, self.pacer.estimate
         if nxt is None or est is None or self._next_event() is not None:
             return None
         due, pts = est.local_time(nxt[1]), nxt[1]
@@ -445,7 +472,7 @@ class Presenter:
             return      # not yet (the loop asks timeline_wait again)
         (due, pts), est = when, self.pacer.estimate
         renderer, out = self.renderer, self.out
-        self._switch_blend(renderer)
+        self.blend.switch(renderer)
         frame = self._current
         if frame is not None:
             try:
@@ -696,8 +723,8 @@ class Presenter:
 
     def _render(self, renderer, frame: FrameOrder) -> None:
         self._fbo_shown = False
-        if self._blend_next is not None and frame.pts_ns >= self._blend_next[1]:
-            self._switch_blend(renderer)      # the first frame at or after the blend's instant
+        if self.blend.due_for(frame.pts_ns):
+            self.blend.switch(renderer)       # the first frame at or after the blend's instant
         t = time.perf_counter()
         apply_lut, fade = frame.apply_lut, None
         if self._fade is not None and self._fade.covers(frame):
@@ -835,6 +862,7 @@ class Presenter:
             return
         deadline = pacer.deadline(frame)
         self._work_ns.append(max(0, self.clock.now() - self._work_from_ns))
+        self._wait_taking_blends(frame, deadline)
         with self._rt:
             self.clock.sleep_until(deadline)
             out.swap()

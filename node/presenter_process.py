@@ -76,6 +76,7 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
         out = open_output(settings.output_spec, slot=settings.slot, snapshot_dir=settings.snapshot_dir)
         p = Presenter(slot=settings.slot, output=out, clock=clock, report=report, realtime=settings.realtime)
         p.open()
+        p.inbox = conn_in         # blend switches reach a frame that waits for its time (Presenter.inbox)
     except Exception as exc:
         log.exception("cannot open output %r", settings.output_spec)
         conn_out.send(("failed", f"{type(exc).__name__}: {exc}"))
@@ -88,7 +89,14 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
             if now - alive_at >= ALIVE_EVERY_S:     # for the node's systemd watchdog (node.systemd)
                 conn_out.send(("alive", None))
                 alive_at = now
-            # messages first; the show's timeline is followed between them (see Presenter.timeline_wait)
+            # messages first (those read while a frame waited for its time before the pipe's); the
+            # show's timeline is followed between them (see Presenter.timeline_wait)
+            kept = p.next_deferred()
+            if kept is not None:
+                if kept[0] == "stop":
+                    break
+                p.handle(*kept)
+                continue
             wait = p.timeline_wait()
             if not conn_in.poll(0.5 if wait is None else min(wait, 0.5)):
                 if wait is not None and wait <= 0.5:    # its time came (else: idle, and ask again)

@@ -45,6 +45,8 @@ class NodeAssignment:
     blend: BlendMaps | None = None       # the slot's blend maps (None: none)
     blend_at_ns: int = 0                 # rig instant from which they are shown (0: at once)
     blend_error: str = ""                # the assignment carried maps that cannot be used: why ("" none)
+    received_host_ns: int = 0            # host monotonic time the node process began decoding it (0: unknown)
+    decoded_host_ns: int = 0             # host monotonic time it was decoded (0: unknown)
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ client) touch protobuf.
 """
 from __future__ import annotations
 
+import time
 from fractions import Fraction
 from typing import Callable, Sequence
 
@@ -56,7 +57,9 @@ _DROP_REASONS = {
 def assignment_from_message(msg: node_pb2.Assignment) -> NodeAssignment:
     """ValueError if the message is inconsistent (wrong matrix sizes, mesh or LUT arrays). Blend maps
     that cannot be used do not refuse the assignment: it carries why in ``blend_error`` (the presenter
-    keeps the blend it shows and applies the rest)."""
+    keeps the blend it shows and applies the rest). It carries the host's monotonic times its decoding
+    began and ended (the presenter logs them with a blend switch: where a failover's time goes)."""
+    received = time.monotonic_ns()
     kind = msg.WhichOneof("pose") or "none"
     homography = projection = None
     mesh = None
@@ -96,6 +99,7 @@ def assignment_from_message(msg: node_pb2.Assignment) -> NodeAssignment:
         homography=homography, projection=projection, mesh=mesh, near_mm=near, far_mm=far, lut=lut,
         gain=msg.gain if msg.gain > 0 else 1.0, content_size=(msg.content_width, msg.content_height),
         blend=blend, blend_at_ns=blend_at, blend_error=blend_error,
+        received_host_ns=received, decoded_host_ns=time.monotonic_ns(),
     )
 
 

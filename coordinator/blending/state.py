@@ -109,6 +109,10 @@ class BlendState:
         self.lamps_since: dict[str, float] = {}    # slot -> unix time the lamp was named
         self.applied: VariantKey = variant_key(())
         self.switched_at_ns = 0                # the rig instant of the last switch
+        #: the last switch's way on the rig clock (ns): "wanted" (the state changed), "ready" (its maps at
+        #: hand: held ready, or inflated or computed), "set" (every slot's assignment changed), "instant"
+        self.last_switch: dict[str, int] = {}
+        self._wanted_ns = 0
         self.switches = 0
         self._pending: asyncio.Task | None = None
         self._suspended = False                # a blend job measures: nothing is pushed
@@ -275,6 +279,7 @@ class BlendState:
         key = self.wanted_key()
         if key == self.applied and not force:
             return
+        self._wanted_ns = self.clock_ns()
         v = self.variants.get(key)
         if v is not None:
             self._switch(v, force=force)
@@ -309,6 +314,7 @@ class BlendState:
         log.error("blend: cannot re-blend for %s: %s; the projectors keep their maps", _describe_key(key), why)
 
     def _switch(self, v: Variant, *, force: bool = False) -> None:
+        ready = self.clock_ns()
         todo = []
         for slot, maps in v.maps.items():
             if slot not in self.rig.slots:
@@ -323,6 +329,7 @@ class BlendState:
         at = self.clock_ns() + lead
         for slot, maps in todo:
             self._update_slot(slot, blend=maps, blend_at_ns=at, source="blend")
+        self.last_switch = {"wanted": self._wanted_ns or ready, "ready": ready, "set": self.clock_ns(), "instant": at}
         changed = len(todo)
         self.applied = v.key
         if changed:     # a switch that changed no slot puts nothing new on screen to wait for

@@ -237,3 +237,57 @@ def test_a_slow_frame_is_rendered_again_early_enough_and_one_too_slow_says_when_
     assert rig.out.last_info.swap_rig_ns == rig.rig_now()
     assert "shown 140.0 ms after its instant" in caplog.text
     close(rig.shown(), blended(slower))
+
+
+class Inbox:
+    """The presenter's pipe as a test fills it: ``poll`` says whether a message waits (the time it may
+    wait passes on the test's clock when none does), ``recv`` takes it."""
+
+    def __init__(self, host: ManualClock, messages):
+        self.host = host
+        self.messages = list(messages)
+        self.polls = 0
+
+    def poll(self, timeout: float) -> bool:
+        self.polls += 1
+        if self.messages:
+            return True
+        self.host.t += max(1, round(timeout * 1e9))
+        return False
+
+    def recv(self):
+        return self.messages.pop(0)
+
+
+def test_maps_that_arrive_while_a_frame_waits_for_its_time_are_in_that_frame(rig):
+    m = maps(8)
+    pts = rig.rig_now() + 500 * MS
+    # (room before the frame's time: the last stretch, twice its render's real time, is not waited in)
+    # the failover's maps reach the presenter after the frame for pts was rendered, before its time
+    rig.p.inbox = Inbox(rig.host, [("assignment", assignment(2, m, pts - 5 * MS))])
+    rig.frame(1, pts)
+    assert rig.out.last_info.swap_rig_ns == pts
+    close(rig.shown(), blended(m))
+    assert (rig.status.blend_id, rig.status.blend_since_rig_ns) == (m.blend_id, pts)
+
+    # maps due after the waiting frame are not in it: the first frame at or after their instant has them
+    later = maps(9)
+    pts = rig.rig_now() + 500 * MS
+    rig.p.inbox = Inbox(rig.host, [("assignment", assignment(3, later, pts + 10 * MS))])
+    rig.frame(2, pts)
+    close(rig.shown(), blended(m))
+    rig.frame(3, pts + 33 * MS)
+    close(rig.shown(), blended(later))
+    assert rig.status.blend_since_rig_ns == pts + 33 * MS
+
+
+def test_other_messages_read_while_a_frame_waits_are_handled_after_it_in_order(rig):
+    m = maps(10)
+    pts = rig.rig_now() + 500 * MS
+    gain = ("assignment", assignment(2, gain=0.5))           # not the blend alone: it waits for the loop
+    blend = ("assignment", assignment(3, m, pts - 5 * MS, gain=0.5))
+    rig.p.inbox = inbox = Inbox(rig.host, [gain, blend])
+    rig.frame(1, pts)
+    close(rig.shown(), blended(None))
+    assert len(inbox.messages) == 1 and inbox.messages[0] is blend, "nothing read after a message kept for the loop"
+    assert rig.p.next_deferred() is gain and rig.p.next_deferred() is None
