@@ -442,9 +442,12 @@ class Renderer:
         w, h = maps.size
         if w > self._max_texture or h > self._max_texture:
             raise ValueError(f"blend maps of {w}x{h} texels exceed this GPU's {self._max_texture} per side")
-        data = np.empty((h, w, 4), "<f2")      # the wire's float16, without a float32 copy of both maps
-        data[:, :, :3] = maps.alpha
-        data[:, :, 3] = maps.beta
+        # the wire's float16 bytes (a decoded or packed instance holds them; numpy converts float32 to
+        # float16 slowly: 13 ms for 1080p maps against under 1 ms to copy the halves)
+        alpha, beta = maps.encode()
+        data = np.empty((h, w, 4), "<f2")
+        data[:, :, :3] = np.frombuffer(alpha, "<f2").reshape(h, w, 3)
+        data[:, :, 3] = np.frombuffer(beta, "<f2").reshape(h, w)
         tex = self.ctx.texture((w, h), 4, data, dtype="f2", alignment=1)
         tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
         tex.repeat_x = tex.repeat_y = False

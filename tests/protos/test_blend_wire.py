@@ -58,6 +58,34 @@ def test_the_record_encodes_as_float16_and_decodes_exactly():
     assert maps(9, 7, seed=5).blend_id != m.blend_id
     with pytest.raises(BlendMapError, match="need 378 \\+ 126 bytes"):
         BlendMaps.decode(9, 7, a[:-2], b)
+
+
+def test_decoding_checks_the_halves_bits_as_the_arrays_check_their_values():
+    """Every float16 bit pattern: decoded maps hold exactly the float32 values of the halves sent when
+    all lie in 0..1 (subnormals, -0 and 1.0 included), and anything else is refused with the arrays' own
+    one line (NaN, infinite, above 1, negative); the reference is numpy's float16 to float32."""
+    every = np.arange(2 ** 16, dtype=np.uint16)
+    values = every.view("<f2").astype(np.float32)
+    good = np.isfinite(values) & (values >= 0) & (values <= 1)
+    assert good.sum() == 0x3C01 + 1
+    ok = every[good]
+    rng = np.random.default_rng(3)
+    w, h = 64, ok.size // 64 // 3
+    a = rng.permutation(ok)[: w * h * 3].astype("<u2").tobytes()
+    b = rng.permutation(ok)[: w * h].astype("<u2").tobytes()
+    got = BlendMaps.decode(w, h, a, b)
+    want = BlendMaps(np.frombuffer(a, "<f2").reshape(h, w, 3).astype(np.float32),
+                     np.frombuffer(b, "<f2").reshape(h, w).astype(np.float32))
+    assert np.array_equal(got.alpha, want.alpha) and np.array_equal(got.beta, want.beta)
+    assert got.blend_id == want.blend_id and got.encode() == (a, b)
+    for bits in rng.choice(every[~good], 40, replace=False):
+        v = float(np.uint16(bits).view("<f2"))
+        bad = np.frombuffer(a, "<u2").copy()
+        bad[17] = bits
+        with pytest.raises(BlendMapError) as err:
+            BlendMaps.decode(w, h, bad.tobytes(), b)
+        words = "holds NaN or infinite" if not np.isfinite(v) else "must lie in 0..1"
+        assert str(err.value).startswith("alpha map") and words in str(err.value) and "\n" not in str(err.value)
     with pytest.raises(BlendMapError, match="texels per side"):
         BlendMaps.decode(0, 7, b"", b"")
 
