@@ -135,8 +135,8 @@ class Presenter:
     STREAM_GAP_NS = 1_000_000_000
     #: a frame shown this long with no next one known is taken for a still (not a sequence's first)
     STILL_AFTER_NS = 250_000_000
-    #: while a rendered frame waits for its time, blend switches are taken until this long (plus twice
-    #: the longest recent render) before it: what rendering it again with new maps needs
+    #: while a rendered frame waits for its time, blend switches are taken until this long (plus the
+    #: longest recent frame's work until ready to swap) before it: what rendering it again needs
     REDRAW_MARGIN_NS = 3_000_000
 
     def __init__(self, *, slot: str, output: Output, clock: PresenterClock,
@@ -196,10 +196,12 @@ class Presenter:
         show = ShowStatus(revision=max(0, self.player.schedule.revision), state=self.player.state(now),
                           last_frame=self.timeline_last_frame, shown=self.timeline_shown, late=self.timeline_missed)
         blend_id = self.blend.on_screen
+        decoder = self.player.decoder_in_use()      # the heartbeat's own field (node/decoders.py)
         return PresenterStatus(shown=self.shown, late=self.late, dropped=self.dropped,
                                render_ms_p50=self.render_ms_p50(),
                                revision=self.assignment.revision if self.assignment else 0, show=show,
-                               blend_id=blend_id, blend_since_rig_ns=self.blend.since_rig_ns if blend_id else 0)
+                               blend_id=blend_id, blend_since_rig_ns=self.blend.since_rig_ns if blend_id else 0,
+                               decoder=decoder.label, decoder_note=decoder.note)
 
     def open(self) -> None:
         ctx = self.out.make_context()
@@ -404,7 +406,7 @@ class Presenter:
         before the deadline, the time to render the frame again, is left to the swap's precise sleep."""
         inbox = self.inbox
         while inbox is not None and not self._deferred:
-            margin = self.REDRAW_MARGIN_NS + 2 * int(max(self._render_ms, default=0.0) * 1e6)
+            margin = self.REDRAW_MARGIN_NS + max(self._work_ns, default=0)
             left = deadline - margin - self.clock.now()
             if left <= 0:
                 return

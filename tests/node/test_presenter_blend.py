@@ -262,7 +262,7 @@ class Inbox:
 def test_maps_that_arrive_while_a_frame_waits_for_its_time_are_in_that_frame(rig):
     m = maps(8)
     pts = rig.rig_now() + 500 * MS
-    # (room before the frame's time: the last stretch, twice its render's real time, is not waited in)
+    # (room before the frame's time: the last stretch, a frame's work, is left to the swap's sleep)
     # the failover's maps reach the presenter after the frame for pts was rendered, before its time
     rig.p.inbox = Inbox(rig.host, [("assignment", assignment(2, m, pts - 5 * MS))])
     rig.frame(1, pts)
