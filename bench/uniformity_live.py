@@ -22,8 +22,12 @@ camera.
   (``[blend] switch_lead_ms``, ``--switch-lead-ms``) and how many nodes heard of the maps too late for
   the common instant (``late_nodes``: they show them from their next frame); then the node is started
   again and the time until the maps switched back. With ``--cpu-budget F`` each rig runs a second
-  time with every node process held to ``F`` of a core (:mod:`bench.cpu_budget`, one cgroup per node;
-  under ``cpu_budget``), so that starved CPU and the protocol can be told apart.
+  time with every node process held to ``F`` of a core and its rasterizer's threads (llvmpipe, the
+  GPU's stand-in) in a group of their own without a limit (:mod:`shadowless.rig_budget`; under
+  ``cpu_budget``), so that starved CPU and the protocol can be told apart. ``stages_ms`` says where
+  a failover's time went: the coordinator's stamps (wanted, ready, set, the instant) and each node's
+  (received, decoded, read by the presenter, uploaded, the first frame shown with the maps, its swap
+  done, the coordinator told), p50 and max over the nodes.
 * **Watchdog**: one lamp dimmed to 50 % and another to 0 through the room's lamp switch while
   their nodes stay live; the time until the watchdog names each, its gain estimates against the
   room's truth, and the non-uniformity over both footprints once re-blended. The rig shows a flat
@@ -188,11 +192,11 @@ def room_process(args, light: Light, work: Path, slots: list[str]):
 
 @contextlib.asynccontextmanager
 async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog: bool, show: str,
-                   budgets: dict | None = None):
+                   budgets=None):
     """The room (a process), a coordinator in this process and one node process per slot, blended, showing
     flat white (``show``: "timeline", a looping show at ``args.fps``, or "still"). ``Live.room`` is a twin
     of the room process built here the same way, for the truth only (footprints, what reaches where).
-    ``budgets``: slot -> :class:`bench.cpu_budget.CpuBudget` each node process is put in."""
+    ``budgets``: a :class:`shadowless.rig_budget.RigBudgets` every node process (restarts too) is put in."""
     from coordinator.app import CoordinatorApp
     from rigctl.job_command import ProgressView, run_job
 
@@ -205,7 +209,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                            **({} if args.map_scale is None else {"map_scale": args.map_scale})})
     with room_process(args, light, work, slots) as address:
         local = LocalRig(slots, work, output_size=room.projector_size(slots[0]), content_size=content,
-                         node_output=f"room://{address}", mdns=False, latency_ms=80.0)
+                         node_output=f"room://{address}", mdns=False, latency_ms=80.0, budgets=budgets)
         local.create()
         rig = Rig(local.rig_dir)
         for s, lut in truth_luts(room, slots).items():
@@ -221,9 +225,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
         try:
             t = time.perf_counter()
             for s in slots:
-                proc = local.start_node(s)
-                if budgets:
-                    budgets[s].add(proc.pid)
+                local.start_node(s)
             async with await local.client() as c:
                 await local.wait_live(c, timeout=600)
                 _log(f"{len(slots)} nodes live ({time.perf_counter() - t:.0f} s)")
@@ -362,8 +364,7 @@ def _target(live: Live, headroom):
     return target + black, covered & lit
 
 
-async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str], *,
-                        budgets: dict | None = None) -> dict:
+async def _failover_one(args, work: Path, light: Light, name: str, slots: list[str], *, budgets=None) -> dict:
     victim = "r2c2" if "r2c2" in slots else slots[len(slots) // 2]
     period_ns = 1e9 / args.fps
     show = args.show if args.show != "auto" else ("timeline" if len(slots) <= 9 else "still")
@@ -422,7 +423,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
              f"frames later; non-uniformity in its footprint {out['after']}, light kept {out['light_kept']}")
         out["frame_period_ms"] = _r(period_ns / 1e6, 3)
         _log(f"{name}: {json.dumps(out)}")
-        # the node returns (outside any CPU budget: its start is not what is measured): the maps switch back
+        # the node returns (in its CPU budget, as any node start): the maps switch back
         t_back = time.monotonic_ns()
         live.local.start_node(victim)
         try:
@@ -435,11 +436,14 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         except TimeoutError as exc:
             out["switch_back_s"] = None
             out["after_return_note"] = str(exc)
-        if budgets:
-            stats = [b.stats() for b in budgets.values()]
-            out["budget"] = {"fraction": next(iter(budgets.values())).fraction, "period_ms": args.cpu_period_ms,
-                             "nodes_throttled": sum(1 for st in stats if st.get("throttled")),
-                             "throttled_s": _r(sum(st.get("throttled_s", 0.0) for st in stats), 3)}
+        if budgets is not None:
+            stats = budgets.stats()
+            nodes = [v for k, v in stats.items() if k.startswith("node ")]
+            out["budget"] = {**budgets.describe(), "nodes_throttled": sum(1 for st in nodes if st.get("throttled")),
+                             "throttled_s": _r(sum(st.get("throttled_s", 0.0) for st in nodes), 3),
+                             "node_cpu_s": _r(sum(st.get("cpu_s", 0.0) for st in nodes), 3),
+                             "rasterizer_cpu_s": _r(sum(v.get("cpu_s", 0.0) for k, v in stats.items()
+                                                        if k.startswith("rasterizer ")), 3)}
     return out
 
 
@@ -571,17 +575,20 @@ async def part_failover(args, work: Path, light: Light) -> dict:
 
 
 async def _failover_budgeted(args, work: Path, light: Light, name: str, slots: list[str], fraction: float) -> dict:
-    """The same failover with each node process held to ``fraction`` of a core; or why it could not run."""
-    from shadowless.cpu_budget import CpuBudget, CpuBudgetError, unavailable
-    why = unavailable()
+    """The same failover with each node process held to ``fraction`` of a core, its rasterizer's threads
+    (llvmpipe: the GPU's stand-in, which a node's own GPU would run) in a group of their own without a
+    limit, so that a node's CPU and the protocol are measured, not 25 software GPUs on a few cores; or
+    why it could not run."""
+    from shadowless.cpu_budget import CpuBudgetError
+    from shadowless.rig_budget import RigBudgets
+    budgets = RigBudgets(slots, node_cpu=fraction, node_gpu=None, period_ms=args.cpu_period_ms)
+    why = budgets.check()
     if why:
         _log(f"failover: {why}")
         return {"skipped": why}
-    _log(f"failover: {name} again, each node held to {fraction:g} of a core")
+    _log(f"failover: {name} again, each node held to {fraction:g} of a core (its rasterizer apart)")
     try:
-        with contextlib.ExitStack() as stack:
-            budgets = {s: stack.enter_context(CpuBudget(fraction, period_us=int(args.cpu_period_ms * 1000), name=s))
-                       for s in slots}
+        with budgets:
             return await _failover_one(args, work, light, f"{name}-budget", slots, budgets=budgets)
     except CpuBudgetError as exc:
         _log(f"failover: {exc}")
