@@ -142,6 +142,8 @@ class NodeStatus:
     software_version: str = ""    # the node's shadowless version
     output: str = ""              # its output kind (offscreen, window, kms, room://…)
     gl: str = ""                  # the GL it renders with, e.g. "OpenGL 3.1, GLSL 1.40, V3D 4.2"
+    decoder: str = ""             # what it decodes videos with: "software", "h264_v4l2m2m", "vaapi (hwaccel)"; "" unknown
+    decoder_note: str = ""        # why its --decoder wish was not granted ("" it was, or unknown)
 
 
 @dataclass(frozen=True)

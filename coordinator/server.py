@@ -299,18 +299,26 @@ class Coordinator:
     def live_sessions(self) -> list[NodeSession]:
         return [s for s in self.by_slot.values() if not s.closed and s.frames_open]
 
-    def _drop_session(self, sess: NodeSession, *, lost: bool) -> None:
+    def _drop_session(self, sess: NodeSession, *, lost: bool, left: str = "") -> None:
         sess.close()
         self.sessions.pop(sess.session, None)
         if lost:
             sess.state = NodeState.LOST
-            log.warning("node %s lost (last seen %.1f s ago)", sess.slot, self.now() - sess.last_seen)
+            if left:      # it said goodbye: its projector is gone all the same
+                log.info("node %s left (%s)", sess.slot, left)
+            else:
+                log.warning("node %s lost (last seen %.1f s ago)", sess.slot, self.now() - sess.last_seen)
             self.blending.node_lost(sess.slot)      # the others' maps take over its footprint
         self.sync.forget_slot(sess.slot)
 
     def mark_lost(self, sess: NodeSession) -> None:
         if not sess.closed:
             self._drop_session(sess, lost=True)
+
+    def mark_left(self, sess: NodeSession, why: str) -> None:
+        """The node stops on purpose (its last report said why): "left", not "lost", same failover."""
+        if not sess.closed:
+            self._drop_session(sess, lost=True, left=why or "stopping")
 
     def sweep(self) -> None:
         """Mark nodes silent for longer than rig.toml's ``lost_after_ms`` lost; finalise stale frames."""
@@ -685,7 +693,8 @@ class Coordinator:
             hb = sess.heartbeat
             if hb is not None:
                 base.update(clock_offset_ms=hb.clock_offset_ns / 1e6, clock_drift_ppm=hb.clock_drift_ppm, show=hb.show,
-                            clock_rtt_ms=hb.clock_rtt_ns / 1e6, assignment_revision=hb.assignment_revision)
+                            clock_rtt_ms=hb.clock_rtt_ns / 1e6, assignment_revision=hb.assignment_revision,
+                            decoder=hb.decoder, decoder_note=hb.decoder_note)
                 if sess.same_host and hb.host_monotonic_ns:
                     base["clock_error_ms"] = (hb.rig_estimate_ns - hb.host_monotonic_ns) / 1e6
             live_at = self.live_at.get(sess.session) if sess.state == NodeState.LIVE else None

@@ -52,6 +52,8 @@ class Heartbeat:
     show: NodeShow = NodeShow()              # the show as the node follows it
     blend_id: str = ""                       # the blend maps on the node's screen ("": none)
     blend_since_rig_ns: int = 0              # pts of the first frame the node showed with them (0: none)
+    decoder: str = ""                        # what it decodes videos with ("software", "h264_v4l2m2m"; "" unknown)
+    decoder_note: str = ""                   # why its --decoder wish was not granted ("" it was)
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +88,7 @@ class Report:
     swaps: Swaps = NO_SWAPS
     drops: tuple = ()
     preview: Preview | None = None
+    goodbye: str = ""          # the node stops on purpose: why (its last report); "" not leaving
 
 
 @dataclass(frozen=True)

@@ -92,6 +92,9 @@ ALONE_BACKOFF_S = 1.0
 #: preview requests reach the presenter at most this often (those in between coalesce into the next)
 PREVIEW_EVERY_S = 0.5
 
+#: how long a node that stops on purpose waits for the coordinator to take its goodbye
+GOODBYE_S = 1.0
+
 
 def _version() -> str:
     """The installed shadowless distribution's version (the node does not import the CLI package)."""
@@ -117,6 +120,7 @@ class Node:
         self._alone_since: float | None = None   # time.monotonic() when the coordinator was lost
         self._alone_ms = 0.0                       # how long the last time without it lasted
         self._stopping = asyncio.Event()
+        self._stop_reason = ""                     # why the node stops on purpose (its goodbye)
         self.joins = 0
         self._assets_passed: set[str] = set()    # assets whose files the presenter has
         self._show_asset: str | None = None      # the asset the current show plays
@@ -357,7 +361,10 @@ class Node:
         self.book.unreachable(cand, reason, time.monotonic())
         log.warning("could not reach the coordinator at %s (%s)", cand.label(), reason)
 
-    def stop(self) -> None:
+    def stop(self, why: str = "stopped") -> None:
+        """Stop on purpose (a signal, Ctrl-C): a joined node tells its coordinator why before it goes,
+        which then says the node left instead of lost (and still hands its light to the others)."""
+        self._stop_reason = self._stop_reason or why
         self._stopping.set()
 
     def _gives_up(self, exc: DiscoveryError) -> bool:
@@ -429,6 +436,15 @@ class Node:
                 asyncio.create_task(self._previews(link), name="previews"),
             ]
             done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+            report = tasks[2]
+            if self._stopping.is_set() and report in pending and self._stream is not None:
+                # the last report says goodbye, then the stream ends (the coordinator answers at once)
+                self._stream.goodbye(self._stop_reason)
+                said, _ = await asyncio.wait({report}, timeout=GOODBYE_S)
+                pending -= said
+                done |= said
+                if said:
+                    log.info("told the coordinator at %s this node leaves (%s)", target, self._stop_reason)
             for t in pending:
                 t.cancel()
             await asyncio.gather(*pending, return_exceptions=True)
@@ -549,4 +565,5 @@ class Node:
                                frames_dropped=st.dropped, render_ms_p50=st.render_ms_p50, host_monotonic_ns=host,
                                clock=clock, assets=self.fetcher.progress(),
                                show=replace(st.show, alone_ms=self._alone_ms), blend_id=st.blend_id,
-                               blend_since_rig_ns=st.blend_since_rig_ns)
+                               blend_since_rig_ns=st.blend_since_rig_ns, decoder=st.decoder,
+                               decoder_note=st.decoder_note)

@@ -148,8 +148,8 @@ def run(args: argparse.Namespace) -> int:
     async def main() -> int:
         node = Node(cfg)
         loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, node.stop)
+        for sig, why in ((signal.SIGINT, "interrupted (Ctrl-C)"), (signal.SIGTERM, "stopped (SIGTERM)")):
+            loop.add_signal_handler(sig, node.stop, why)
         return await node.run()
 
     return asyncio.run(main())

@@ -54,11 +54,16 @@ class DecoderChoice:
     hwaccel: Any = field(default=None, compare=False)
     detail: str = field(default="", compare=False)   # what each candidate said, for the log
 
+    @property
+    def label(self) -> str:
+        """The decoder alone, as a heartbeat's ``decoder`` names it: ``h264_v4l2m2m``,
+        ``vaapi (hwaccel)`` or ``software`` (the note apart)."""
+        return {"software": "software", "decoder": self.name, "hwaccel": f"{self.name} (hwaccel)"}[self.kind]
+
     def describe(self) -> str:
-        """What status shows: ``h264_v4l2m2m``, ``vaapi (hwaccel)``, ``software`` or
+        """What the log shows: ``h264_v4l2m2m``, ``vaapi (hwaccel)``, ``software`` or
         ``software (h264_v4l2m2m: cannot open here)``."""
-        text = {"software": "software", "decoder": self.name, "hwaccel": f"{self.name} (hwaccel)"}[self.kind]
-        return f"{text} ({self.note})" if self.note else text
+        return f"{self.label} ({self.note})" if self.note else self.label
 
 
 def check_wish(text: str) -> str:

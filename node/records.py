@@ -186,6 +186,8 @@ class HeartbeatRecord:
     show: ShowStatus | None = None
     blend_id: str = ""                    # the blend on screen ("" none)
     blend_since_rig_ns: int = 0           # pts of the first frame shown with it (0: none)
+    decoder: str = ""                     # what videos are decoded with (DecoderChoice.label; "" unknown)
+    decoder_note: str = ""                # why the --decoder wish was not granted ("" it was)
 
 
 @dataclass(frozen=True)
@@ -210,6 +212,7 @@ class ReportBatch:
     swaps: tuple[SwapRecord, ...] = ()
     drops: tuple[DropRecord, ...] = ()
     preview: PreviewRecord | None = None
+    goodbye: str = ""         # the node stops on purpose: why (its last message); "" not leaving
 
 
 # ------------------------------------------------------------------ handshake
@@ -275,3 +278,5 @@ class PresenterStatus:
     show: ShowStatus = ShowStatus()
     blend_id: str = ""         # the blend maps on screen ("" none)
     blend_since_rig_ns: int = 0   # pts (rig clock) of the first frame shown with them (0: none)
+    decoder: str = ""          # what videos are decoded with: the open video's decoder, else the wish's
+    decoder_note: str = ""     # why the --decoder wish was not granted ("" it was)

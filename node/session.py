@@ -20,7 +20,7 @@ import os
 import random
 import time
 from collections.abc import AsyncIterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
 from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimate, ClockEstimator, ClockSample, LocalClock
@@ -229,6 +229,7 @@ class ReportStream:
         self.batcher = ReportBatcher(heartbeat_s, batch_s=batch_s, timeline_batch_s=timeline_batch_s)
         self._heartbeat, self._now, self._sent = heartbeat, now, sent
         self._wake = asyncio.Event()
+        self._goodbye = ""
 
     def add(self, report: Report) -> None:
         if self.batcher.add(report, self._now()):
@@ -238,8 +239,16 @@ class ReportStream:
         self.batcher.want_heartbeat()
         self._wake.set()
 
+    def goodbye(self, why: str) -> None:
+        """The node stops on purpose: the next message is the last, carrying a heartbeat, whatever
+        waits and ``why``; then the stream ends (:meth:`run` returns once the coordinator has it)."""
+        self._goodbye = why or "stopping"
+        self.batcher.want_heartbeat()
+        self._wake.set()
+
     async def run(self, link: ReportLink) -> None:
-        """Stream reports until the call breaks (LinkError) or the task is cancelled."""
+        """Stream reports until the call breaks (LinkError), the task is cancelled, or a
+        :meth:`goodbye` went."""
         await link.report(self._batches())
 
     async def _batches(self) -> AsyncIterator[ReportBatch]:
@@ -247,6 +256,11 @@ class ReportStream:
         while True:
             now = self._now()
             batch = batcher.poll(now, self._heartbeat)
+            if batch is not None and self._goodbye:
+                batch = replace(batch, goodbye=self._goodbye)
+                self._sent(batch)
+                yield batch
+                return
             if batch is not None:
                 self._sent(batch)
                 yield batch

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from node.asset_frames import DecodeAhead, DecodeStats, FrameError, open_frames
-from node.decoders import wish_from_env
+from node.decoders import DecoderChoice, choose, wish_from_env
 from node.records import AssetFiles, ShowUpdateData
 from protos.asset_manifest import Manifest, ManifestError
 from protos.timeline import NS, Schedule, Timeline
@@ -47,6 +47,11 @@ QUIET_BEFORE_NS = 8_000_000
 QUIET_AFTER_NS = 1_000_000
 #: ticks reported late at most at once (after a long stall)
 MAX_SKIPPED_REPORTS = 120
+#: a video's decoder threads (FFmpeg's frame and slice threads). Each frame thread holds a picture
+#: in flight and a context of its own: FFmpeg's choice (one per core, plus one) cost 13 MB more than
+#: two at 1080p on 2 cores, more on a 4-core board, for no more CPU; decoding ahead
+#: (DecodeAhead) needs throughput, which two threads give (bench/node_video_memory.py)
+DECODE_THREADS = 2
 
 
 class AssetFilesView:
@@ -289,7 +294,7 @@ class TimelinePlayer:
                 raise FrameError(f"asset {event.asset_id[:12]} is not in the node's cache yet")
             try:
                 dec = DecodeAhead(open_frames(AssetFilesView(files), event.asset_id, size=self.content_size,
-                                              yuv=self.yuv, decoder=self.decoder),
+                                              yuv=self.yuv, decoder=self.decoder, threads=DECODE_THREADS),
                                   depth=self.depth, loop=event.loop)
             except FrameError:
                 self._failed.add(event.asset_id)
@@ -299,6 +304,15 @@ class TimelinePlayer:
             dec.want(event.frame, loop=event.loop)
             self._decoder_revision = event.revision
         return dec
+
+    def decoder_in_use(self) -> DecoderChoice:
+        """What videos are decoded with: the open video's decoder (a hardware one that failed on the
+        stream's first picture became software there), else what the node's wish resolves to for
+        H.264 (probed once per process, :func:`node.decoders.choose`)."""
+        dec = self._decoder
+        video = getattr(dec.source, "decoder", None) if dec is not None else None
+        choice = getattr(video, "choice", None)
+        return choice if choice is not None else choose("h264", self.decoder)
 
     def quiet_around(self, event: TimelineEvent, swap_host_ns: int) -> None:
         """``event`` swaps in at ``swap_host_ns`` (the host's clock): its decoder starts no work

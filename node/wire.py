@@ -251,7 +251,8 @@ def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
     msg = node_pb2.Heartbeat(
         assignment_revision=hb.assignment_revision, frames_shown=hb.frames_shown, frames_late=hb.frames_late,
         frames_dropped=hb.frames_dropped, render_ms_p50=hb.render_ms_p50, host_monotonic_ns=hb.host_monotonic_ns,
-        blend_id=hb.blend_id, blend_since_rig_ns=hb.blend_since_rig_ns,
+        blend_id=hb.blend_id, blend_since_rig_ns=hb.blend_since_rig_ns, decoder=hb.decoder,
+        decoder_note=hb.decoder_note,
     )
     if hb.clock is not None:
         msg.clock_offset_ns = hb.clock.offset_ns
@@ -281,4 +282,5 @@ def report_message(batch: ReportBatch) -> node_pb2.NodeReport:
     if batch.swaps:
         msg.swaps.CopyFrom(swaps_message(batch.swaps))
     msg.drops.extend(drop_message(d) for d in batch.drops)
+    msg.goodbye = batch.goodbye
     return msg

@@ -284,7 +284,7 @@ class FrameDrop(_message.Message):
     def __init__(self, frame_id: _Optional[int] = ..., reason: _Optional[_Union[DropReason, str]] = ..., late_by_ns: _Optional[int] = ...) -> None: ...
 
 class Heartbeat(_message.Message):
-    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets", "show", "blend_id", "blend_since_rig_ns")
+    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets", "show", "blend_id", "blend_since_rig_ns", "decoder", "decoder_note")
     ASSIGNMENT_REVISION_FIELD_NUMBER: _ClassVar[int]
     CLOCK_OFFSET_NS_FIELD_NUMBER: _ClassVar[int]
     CLOCK_DRIFT_PPM_FIELD_NUMBER: _ClassVar[int]
@@ -300,6 +300,8 @@ class Heartbeat(_message.Message):
     SHOW_FIELD_NUMBER: _ClassVar[int]
     BLEND_ID_FIELD_NUMBER: _ClassVar[int]
     BLEND_SINCE_RIG_NS_FIELD_NUMBER: _ClassVar[int]
+    DECODER_FIELD_NUMBER: _ClassVar[int]
+    DECODER_NOTE_FIELD_NUMBER: _ClassVar[int]
     assignment_revision: int
     clock_offset_ns: int
     clock_drift_ppm: float
@@ -315,7 +317,9 @@ class Heartbeat(_message.Message):
     show: NodeShow
     blend_id: str
     blend_since_rig_ns: int
-    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ..., show: _Optional[_Union[NodeShow, _Mapping]] = ..., blend_id: _Optional[str] = ..., blend_since_rig_ns: _Optional[int] = ...) -> None: ...
+    decoder: str
+    decoder_note: str
+    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ..., show: _Optional[_Union[NodeShow, _Mapping]] = ..., blend_id: _Optional[str] = ..., blend_since_rig_ns: _Optional[int] = ..., decoder: _Optional[str] = ..., decoder_note: _Optional[str] = ...) -> None: ...
 
 class NodeShow(_message.Message):
     __slots__ = ("revision", "state", "last_frame", "frames_shown", "frames_late", "alone_ms")
@@ -334,16 +338,18 @@ class NodeShow(_message.Message):
     def __init__(self, revision: _Optional[int] = ..., state: _Optional[_Union[NodeShowState, str]] = ..., last_frame: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., alone_ms: _Optional[int] = ...) -> None: ...
 
 class NodeReport(_message.Message):
-    __slots__ = ("heartbeat", "drops", "swaps", "preview")
+    __slots__ = ("heartbeat", "drops", "swaps", "preview", "goodbye")
     HEARTBEAT_FIELD_NUMBER: _ClassVar[int]
     DROPS_FIELD_NUMBER: _ClassVar[int]
     SWAPS_FIELD_NUMBER: _ClassVar[int]
     PREVIEW_FIELD_NUMBER: _ClassVar[int]
+    GOODBYE_FIELD_NUMBER: _ClassVar[int]
     heartbeat: Heartbeat
     drops: _containers.RepeatedCompositeFieldContainer[FrameDrop]
     swaps: Swaps
     preview: Preview
-    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., drops: _Optional[_Iterable[_Union[FrameDrop, _Mapping]]] = ..., swaps: _Optional[_Union[Swaps, _Mapping]] = ..., preview: _Optional[_Union[Preview, _Mapping]] = ...) -> None: ...
+    goodbye: str
+    def __init__(self, heartbeat: _Optional[_Union[Heartbeat, _Mapping]] = ..., drops: _Optional[_Iterable[_Union[FrameDrop, _Mapping]]] = ..., swaps: _Optional[_Union[Swaps, _Mapping]] = ..., preview: _Optional[_Union[Preview, _Mapping]] = ..., goodbye: _Optional[str] = ...) -> None: ...
 
 class ReportAck(_message.Message):
     __slots__ = ()

@@ -101,6 +101,7 @@ def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
             "shown": n.frames_shown, "late": n.frames_late, "dropped": n.frames_dropped,
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
             "software": n.software_version, "output": n.output, "gl": n.gl,
+            "decoder": (f"{n.decoder} ({n.decoder_note})" if n.decoder_note else n.decoder) or None,
             "show": {"state": n.show.state.value, "revision": n.show.revision, "last_frame": n.show.last_frame,
                      "shown": n.show.frames_shown, "missed": n.show.frames_late, "alone_ms": round(n.show.alone_ms)},
             "refusal": refused.get(n.slot) if n.state.value in ("expected", "lost") else None,
@@ -190,7 +191,8 @@ def status_table(d: dict, *, tty: bool = False) -> str:
                   last_swap_cell(n), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
                   show_cell(n["show"]), assets_cell(n["assets"]))
     lines.append(rendered(t, tty=tty))
-    lines += _grouped(d["nodes"], "gl", "renders with") + _grouped(d["nodes"], "software", "runs shadowless")
+    lines += _grouped(d["nodes"], "gl", "renders with") + _grouped(d["nodes"], "decoder", "decodes video with")
+    lines += _grouped(d["nodes"], "software", "runs shadowless")
     if "blend" in d:                          # the per-pixel blend, and a failover as an alarm under the table
         lines += blend_lines(d["blend"])
     for n in d["nodes"]:

@@ -84,7 +84,7 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
             state = "refused"
         slots.append({
             "slot": n.slot, "state": state, "node_state": n.state.value, "host": n.hostname, "pid": n.pid,
-            "output": n.output, "gl": n.gl, "software": n.software_version,
+            "output": n.output, "gl": n.gl, "decoder": n.decoder, "software": n.software_version,
             "clock_offset_ms": _num(n.clock_offset_ms, 1), "clock_drift_ppm": _num(n.clock_drift_ppm, 1),
             "clock_rtt_ms": _num(n.clock_rtt_ms, 1), "clock_error_ms": _num(n.clock_error_ms, 2),
             "frames_shown": n.frames_shown, "frames_late": n.frames_late, "frames_dropped": n.frames_dropped,

@@ -142,7 +142,8 @@ def report_from_message(msg: node_pb2.NodeReport) -> Report:
                        host_monotonic_ns=h.host_monotonic_ns, rig_estimate_ns=h.rig_estimate_ns,
                        assets=tuple(asset_progress_from_message(a) for a in h.assets),
                        show=node_show_from_message(h.show), blend_id=h.blend_id[:64],
-                       blend_since_rig_ns=h.blend_since_rig_ns)
+                       blend_since_rig_ns=h.blend_since_rig_ns, decoder=h.decoder[:64],
+                       decoder_note=h.decoder_note[:160])
     swaps = swaps_from_message(msg.swaps) if msg.HasField("swaps") else NO_SWAPS
     drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
     preview = None
@@ -150,7 +151,7 @@ def report_from_message(msg: node_pb2.NodeReport) -> Report:
         p = msg.preview
         preview = Preview(request_id=p.request_id, frame_id=p.frame_id, png=p.png, width=p.width, height=p.height,
                           output_width=p.output_width, output_height=p.output_height)
-    return Report(heartbeat=hb, swaps=swaps, drops=drops, preview=preview)
+    return Report(heartbeat=hb, swaps=swaps, drops=drops, preview=preview, goodbye=msg.goodbye[:160])
 
 
 def preview_request_message(request_id: int) -> node_pb2.PreviewRequest:

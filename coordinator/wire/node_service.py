@@ -78,7 +78,11 @@ class NodeLinkService(HandshakeService):
             async for rep in request_iterator:
                 if sess.closed:
                     break
-                self.c.on_report(sess, node_messages.report_from_message(rep))
+                report = node_messages.report_from_message(rep)
+                self.c.on_report(sess, report)
+                if report.goodbye:     # it stops on purpose: left, not lost
+                    self.c.mark_left(sess, report.goodbye)
+                    break
         except (asyncio.CancelledError, grpc.aio.AioRpcError):
             pass
         except ValueError as exc:

@@ -180,7 +180,7 @@ function renderNodes(slots) {
     r.tr.setAttribute("data-state", n.state);
     r.nodeState = n.node_state;
     c.host.textContent = n.host ? `${n.host} (pid ${n.pid})` : "–";
-    c.host.title = [n.output, n.gl, n.software && `shadowless ${n.software}`].filter(Boolean).join(" · ");
+    c.host.title = [n.output, n.gl, n.decoder && `video decoder ${n.decoder}`, n.software && `shadowless ${n.software}`].filter(Boolean).join(" · ");
     c.offset.textContent = fmt(n.clock_offset_ms, 1);
     c.drift.textContent = fmt(n.clock_drift_ppm, 1);
     c.rtt.textContent = fmt(n.clock_rtt_ms, 1);
