@@ -63,7 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import venue_live, venue_show
-from bench.machine import machine
+from bench.machine import load, machine
 from coordinator.api import NodeState
 from coordinator.assets import AssetStore
 from coordinator.rig import parse_config
@@ -149,7 +149,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     b = p.add_argument_group("CPU budgets (root and a cgroup cpu controller, v1 or v2)")
     b.add_argument("--node-cpu", type=_fraction, metavar="F",
                    help="hold every node process to F of a core (one cgroup each), as if each ran on a small "
-                        "computer of its own (default: no budgets)")
+                        "computer of its own; the coordinator and this benchmark then get groups of their own too, "
+                        "and every group is measured (default: no budgets)")
     b.add_argument("--node-gpu", type=_gpu, default=None, metavar="G",
                    help="with --node-cpu: each node's rasterizer threads (llvmpipe, the GPU's stand-in) go in a "
                         "group of their own held to G of a core; 'max' (the default): no limit; 'node': they stay "
@@ -458,6 +459,7 @@ def run(args: argparse.Namespace) -> int:
         video = workdir / "media" / f"test-{w}x{h}-{args.fps:g}fps-{args.seconds:g}s.mp4"
         print(f"bench venue: encoding a {w}x{h} {args.fps:g} fps {args.seconds:g} s test video at "
               f"{bit_rate / 1e6:g} Mbit/s …", file=sys.stderr, flush=True)
+        load_at_start = load()
         t0 = time.monotonic()
         info = make_video(video, size=args.size, fps=args.fps, seconds=args.seconds, bit_rate=bit_rate)
         print(f"bench venue: {info['bytes'] / 1e6:.1f} MB ({info['codec']}, {info['bit_rate_mbit_s']:g} Mbit/s) in "
@@ -469,10 +471,14 @@ def run(args: argparse.Namespace) -> int:
             return 2
         except (RuntimeError, TimeoutError) as exc:     # a process died, or the nodes never got there
             print(f"shadowless bench venue: {exc}", file=sys.stderr)
+            if budgets is not None:                     # what the groups took until then: starved or held?
+                print(f"bench venue: {budgets.summary()}; each group: {json.dumps(budgets.stats())}; "
+                      f"load {load()}", file=sys.stderr)
             return 1
         doc = {
             "benchmark": "venue",
             "machine": machine(),
+            "load": {"start": load_at_start, "end": load()},   # 1, 5, 15 min: other work beside the run
             "parameters": {
                 "nodes": args.nodes, "link": args.link, "coordinator_link": args.coordinator_link or args.link,
                 "size": f"{w}x{h}", "output_size": "{}x{}".format(*args.output_size), "fps": args.fps,

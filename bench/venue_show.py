@@ -145,13 +145,15 @@ def _alive(rig: LocalRig) -> None:
         raise RuntimeError("the coordinator exited:\n" + rig.log("coordinator")[-3000:])
 
 
-def budget_delta(before: dict, after: dict) -> dict:
+def budget_delta(before: dict, after: dict, ticks: int) -> dict:
     """Each CPU budget group's CPU time, time held back and periods held back between two
-    :meth:`~shadowless.rig_budget.RigBudgets.stats` readings."""
+    :meth:`~shadowless.rig_budget.RigBudgets.stats` readings, and its CPU per tick of the show (ms)."""
     out = {}
     for k, a in after.items():
         b = before.get(k, {})
         out[k] = {f: round(a.get(f, 0) - b.get(f, 0), 3) for f in ("cpu_s", "throttled_s", "throttled") if f in a}
+        if "cpu_s" in out[k]:
+            out[k]["cpu_ms_per_tick"] = round(out[k]["cpu_s"] * 1e3 / max(1, ticks), 2)
     return out
 
 
@@ -209,7 +211,7 @@ async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fp
         "host_cpu_busy_cores": _r((host1 - host0) / busy, 2),
         "host_cpu_other_cores": _r((host1 - host0 - sum(cpu1[k] - cpu0[k] for k in cpu1)) / busy, 2),
         # with CPU budgets: each group's CPU time and time held back over the show (start delay + duration)
-        **({"cpu_budget": budget_delta(groups0, groups1)} if budgets is not None else {}),
+        **({"cpu_budget": budget_delta(groups0, groups1, expected)} if budgets is not None else {}),
     }
 
 
@@ -350,7 +352,11 @@ async def coordinator_restart(rig: LocalRig, asset_id: str) -> dict:
 async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu, budgets=None) -> dict:
     async with await rig.client(timeout=60.0) as c:
         tl = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu, budgets=budgets)
-        rj = await rejoin(rig, c, asset_id)
+        try:
+            rj = await rejoin(rig, c, asset_id)
+        except TimeoutError as exc:     # a starved node never catches up: say so, and measure the rest
+            rj = {"node": rig.slots[-1], "failed": str(exc).splitlines()[0]}
+            await c.stop_show()
     restart = await coordinator_restart(rig, asset_id)
     restart["skew_p99_ms_before"] = tl["skew_p99_ms"]
     return {"timeline": tl, "rejoin": rj, "coordinator_restart": restart}

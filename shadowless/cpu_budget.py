@@ -47,8 +47,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = ["CpuBudget", "CpuBudgetError", "Hierarchy", "MIN_QUOTA_US", "PREFIX", "cleanup_leftovers",
-           "find_hierarchy", "group_name", "leftover_groups", "parse_cpu_stat", "unavailable", "v1_files",
-           "v2_files"]
+           "find_hierarchy", "group_name", "groups_of", "leftover_groups", "parse_cpu_stat", "remove_group",
+           "unavailable", "v1_files", "v2_files"]
 
 #: the kernel refuses a CFS quota below 1 ms and a period outside 1 ms .. 1 s
 MIN_QUOTA_US = 1000
@@ -235,8 +235,8 @@ def _ids(path: Path) -> list[int]:
         return []
 
 
-def _empty_and_remove(group: Path, root: Path, version: int, *, patience_s: float = 3.0) -> None:
-    """Move everything in ``group`` (and its children, for v2's threaded ones) back to ``root``, then
+def remove_group(group: Path, root: Path, version: int, *, patience_s: float = 3.0) -> None:
+    """Remove a group made here: move everything in ``group`` (and its children, for v2's threaded ones) back to ``root``, then
     remove the children and the group (a group with tasks cannot be removed). A task that is exiting
     holds its group busy for a moment: the removal is tried again for up to ``patience_s``."""
     import time
@@ -299,7 +299,7 @@ def cleanup_leftovers(hierarchy: Hierarchy | None = None) -> list[str]:
             continue
         for name in leftover_groups(names, _pid_alive):
             try:
-                _empty_and_remove(root / name, root, hierarchy.version)
+                remove_group(root / name, root, hierarchy.version)
                 removed.append(name if root == hierarchy.root else f"{name} ({root.name})")
             except OSError:
                 pass
@@ -424,10 +424,10 @@ class CpuBudget:
         """Move what is left in the group back to the root group and remove the group (idempotent)."""
         if self.path is not None:
             path, self.path = self.path, None
-            _empty_and_remove(path, self.hierarchy.root, self.hierarchy.version)
+            remove_group(path, self.hierarchy.root, self.hierarchy.version)
         if self.acct_path is not None:
             path, self.acct_path = self.acct_path, None
-            _empty_and_remove(path, self.hierarchy.acct, 1)
+            remove_group(path, self.hierarchy.acct, 1)
 
     # ------------------------------------------------------------ members
     @property
@@ -531,7 +531,7 @@ def _check_fraction(fraction, period_us: int) -> float:
     if quota < MIN_QUOTA_US:
         raise CpuBudgetError(f"a budget of {fraction:g} of a core over {int(period_us) / 1000:g} ms is a quota "
                              f"of {quota} us, under the kernel's 1 ms: use a period of at least "
-                             f"{math.ceil(MIN_QUOTA_US / fraction)} us")
+                             f"{math.ceil(MIN_QUOTA_US / fraction / 1000)} ms")
     return fraction
 
 

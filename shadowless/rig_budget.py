@@ -68,8 +68,8 @@ def rasterizer_refusal(env: dict | None = None) -> str:
     """Why rasterizer threads cannot be split off here, in one line ("" when they can)."""
     env = os.environ if env is None else env
     if env.get("LP_NUM_THREADS", "1").strip() == "0":
-        return ("--node-gpu needs llvmpipe's rasterizer threads, but LP_NUM_THREADS=0 draws on the presenter's "
-                "own thread: unset it, or use --node-gpu node")
+        return ("the rasterizer's threads cannot be split off from the nodes: LP_NUM_THREADS=0 makes llvmpipe draw "
+                "on the presenter's own thread; unset it, or give --node-gpu node")
     return ""
 
 

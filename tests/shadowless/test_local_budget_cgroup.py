@@ -19,7 +19,7 @@ from waits import wait_until
 
 from shadowless.cpu_budget import (CpuBudget, CpuBudgetError, Hierarchy, cleanup_leftovers, enable_cpu,
                                    find_hierarchy, group_name, groups_of, host_hierarchy, leftover_groups,
-                                   parse_cpu_stat, unavailable, v1_files, v2_files)
+                                   parse_cpu_stat, remove_group, unavailable, v1_files, v2_files)
 
 HYBRID = """\
 cgroup /sys/fs/cgroup/cpu cgroup rw,relatime,cpu 0 0
@@ -196,3 +196,45 @@ def test_a_killed_runs_groups_are_removed_by_the_next_budget(tmp_path):
                 os.kill(child, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+
+
+def test_v2_thread_rules_and_removal_on_the_kernels_cgroup2_mount():
+    """The cgroup v2 rules the threaded layout relies on, on this kernel's cgroup2 mount (which has
+    no cpu controller on a v1 host, so no limits here): a process written into a threaded child,
+    one of its threads into the other child, no thread leaving the subtree alone; then the module's
+    removal takes the whole subtree's processes back to the root and removes children and group."""
+    _root_only()
+    mounts = [line.split() for line in Path("/proc/mounts").read_text().splitlines()]
+    v2 = [Path(m[1]) for m in mounts if len(m) > 2 and m[2] == "cgroup2"]
+    if not v2:
+        pytest.skip("no cgroup2 mount on this host")
+    root = v2[0]
+    group = root / group_name("probe", os.getpid(), 0)
+    code = "import threading, time\nt = threading.Thread(target=time.sleep, args=(600,), daemon=True); t.start()\n" \
+           "print(t.native_id, flush=True); time.sleep(600)\n"
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        tid = int(proc.stdout.readline())
+        group.mkdir()
+        for child in ("proc", "thr"):
+            (group / child).mkdir()
+            (group / child / "cgroup.type").write_text("threaded")
+        assert (group / "cgroup.type").read_text().strip() == "domain threaded"
+        (group / "proc" / "cgroup.procs").write_text(str(proc.pid))
+        (group / "thr" / "cgroup.threads").write_text(str(tid))
+        assert groups_of(proc.pid) == [f"/{group.name}/proc"]
+        assert groups_of(proc.pid, tid) == [f"/{group.name}/thr"]
+        assert (group / "cgroup.procs").read_text().split() == [str(proc.pid)]   # the subtree's processes
+        with pytest.raises(OSError) as exc:              # a thread does not leave its threaded subtree alone
+            (root / "cgroup.threads").write_text(str(tid))
+        assert exc.value.errno == errno.EOPNOTSUPP
+        remove_group(group, root, 2)
+        assert not group.exists() and groups_of(proc.pid) == [] and groups_of(proc.pid, tid) == []
+    finally:
+        proc.kill()
+        proc.wait()
+        if group.exists():
+            for child in ("proc", "thr"):
+                if (group / child).exists():
+                    (group / child).rmdir()
+            group.rmdir()
