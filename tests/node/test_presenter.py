@@ -154,7 +154,7 @@ def test_frames_on_time_are_shown_at_their_time_and_reported_in_order(rig):
     assert rig.out.swaps == 3
     assert (rig.out.last_image == 30).all() and rig.out.last_info.frame_id == 3   # really rendered
     assert rig.status == PresenterStatus(shown=3, late=0, dropped=0, render_ms_p50=rig.status.render_ms_p50,
-                                         revision=1)
+                                         revision=1, decoder="software", decoder_note=rig.status.decoder_note)
 
 
 def test_a_frame_that_arrives_after_its_time_is_dropped_as_late(rig):
