@@ -71,7 +71,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--video", action="store_true",
                    help="instead: the CPU per frame of a 1080p30 H.264 video (made here) through the node's decoder, "
                         "upload and render, the RGB path (swscale) against the YUV path (planes converted in the "
-                        "shader), as ratios in one run (bench/node_video.py); --content is the video's size")
+                        "shader), as ratios in one run, split into decode, convert, upload, render, Python and "
+                        "the rasterizer's share; then the resident memory of a presenter-like process playing it, "
+                        "before and after, split into its parts (bench/node_video.py); --content is the video's size")
     p.add_argument("--video-frames", type=cli_types.int_range(20, 100_000), default=120, metavar="N",
                    help="frames of the --video run (default 120: 4 s at 30 fps; each path decodes them all)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -254,12 +256,13 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(_worker(args)))
         return 0
     if args.video:
-        from bench.node_video import timed
+        from bench.node_video import summary, timed
 
         print(f"bench node --video: {args.video_frames} frames of {args.content[0]}x{args.content[1]} H.264, "
-              "RGB and YUV paths in turn", file=sys.stderr)
-        print(json.dumps({"benchmark": "node", "machine": machine(), "video": timed(args.size, args.content,
-                                                                                  args.video_frames)}, indent=2))
+              "RGB and YUV paths in turn, then the memory of a presenter playing it", file=sys.stderr)
+        video = timed(args.size, args.content, args.video_frames)
+        print(json.dumps({"benchmark": "node", "machine": machine(), "video": video}, indent=2))
+        print("\n".join(summary(video)), file=sys.stderr)
         return 0
     profiles: dict[str, dict] = {}
     pooled = {name: {"upload": [], "render": [], "cpu": [], "without": [], "with": [], "pairs": []}

@@ -20,10 +20,25 @@ to RGB, or the planes' copy out of the decoder's buffers), ``upload`` and
 ``render`` (submission and waiting); ``read_ms`` is what reading a frame through the node's decoder
 cost on each path (decode and convert together, as a check of the split), and
 ``rasterizer_ms_per_frame`` the llvmpipe threads' CPU during the render.
+
+The YUV path hands the decoder's planes over as views (:mod:`node.yuv`), so its ``convert`` is
+building the views; ``convert_copied_ms`` is what copying them cost (the node before). Printed
+apart (``split``): ``node_cpu_ms_per_frame_without_decode`` (what a hardware decoder would leave
+on the CPU, less the hardware decoder's own driver calls, not measured here), and of it
+``python_and_gl_calls_ms``, the per-frame work that does not grow with the picture (the same
+upload and render of a 64x36 YUV picture into a 64x36 output: Python, moderngl, the driver's
+fixed cost); ``rasterizer_share`` is llvmpipe's part of all the CPU a frame took.
+
+Memory (``memory``): :mod:`bench.node_video_memory` in a process of its own per setting, as a
+presenter plays the video, before (planes copied, FFmpeg's choice of decoder threads) and after
+(views, the node's threads), each with its resident memory split into its parts.
 """
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from fractions import Fraction
@@ -97,7 +112,60 @@ class _DecodeOnly:
         self._c.close()
 
 
-def run_video(size: tuple[int, int], content: tuple[int, int], frames: int) -> dict:
+def _say(text: str) -> None:
+    print(f"bench node --video: {text}", file=sys.stderr, flush=True)
+
+
+def fixed_cost(frames: int = 60) -> float:
+    """CPU ms per frame (this process's threads but the rasterizer's) of uploading and rendering a
+    64x36 YUV picture into a 64x36 output: the per-frame cost that does not grow with pixels."""
+    from node.render import Renderer
+    from protos.yuv import YuvFrame
+
+    r = Renderer.standalone(64, 36)
+    try:
+        r.set_homography(np.eye(3), (64, 36))
+        planes = (np.full((36, 64), 120, np.uint8), np.full((18, 32), 128, np.uint8), np.full((18, 32), 128, np.uint8))
+        pic = YuvFrame(planes=planes, layout="planar", sub=(2, 2), bits=8, msb=False, matrix="bt709",
+                       full_range=False, siting="left", size=None)
+        total = 0
+        for k in range(frames + 2):
+            a0, _ = _thread_cpu_ns()
+            r.upload(f"f{k}", pic)
+            r.render(f"f{k}")
+            r.ctx.finish()
+            if k:
+                r.forget(f"f{k - 1}")
+            a1, _ = _thread_cpu_ns()
+            if k >= 2:
+                total += a1 - a0
+        return total / 1e6 / frames
+    finally:
+        r.release()
+
+
+def memory(path: Path, size: tuple[int, int], content: tuple[int, int], frames: int) -> dict:
+    """:mod:`bench.node_video_memory` before and after, each in a process of its own."""
+    from node.timeline_player import DECODE_THREADS, TimelinePlayer
+
+    depth = TimelinePlayer().depth
+    settings = {"before": ["--depth", str(depth), "--threads", "0", "--copy"],
+                "after": ["--depth", str(depth), "--threads", str(DECODE_THREADS)]}
+    out = {}
+    for name, extra in settings.items():
+        _say(f"memory, {name}: a presenter-like process plays {frames} frames")
+        cmd = [sys.executable, "-m", "bench.node_video_memory", str(path), "--size", "x".join(map(str, size)),
+               "--content", "x".join(map(str, content)), "--frames", str(frames), *extra]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
+        if done.returncode != 0:
+            raise RuntimeError(f"the memory worker ({name}) failed:\n{done.stderr[-3000:]}")
+        out[name] = json.loads(done.stdout.strip().splitlines()[-1])
+    out["rss_mb_after_vs_before"] = round(out["after"]["rss_mb"] - out["before"]["rss_mb"], 1)
+    out["target_rss_mb"] = 150.0
+    return out
+
+
+def run_video(size: tuple[int, int], content: tuple[int, int], frames: int, *, memory_frames: int = 30) -> dict:
     """The figures (see the module docstring) as a dict."""
     from node.asset_decode import VideoDecoder, frame_to_array
     from node.yuv import yuv_planes
@@ -123,7 +191,7 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int) -> d
             }
             raw = _DecodeOnly(path)
             sums = {p: {"read": 0, "upload": 0, "render": 0, "raster": 0, "frames": 0} for p in decoders}
-            decode = {"ns": 0, "frames": 0, "rgb": 0, "yuv": 0}
+            decode = {"ns": 0, "frames": 0, "rgb": 0, "yuv": 0, "yuv_copied": 0}
             k = 0
             levels = {}
             while k < frames:
@@ -137,10 +205,13 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int) -> d
                     t1, _ = _thread_cpu_ns()
                     yuv_planes(f, (cw, ch))
                     t2, _ = _thread_cpu_ns()
+                    yuv_planes(f, (cw, ch), copy=True)      # the node before: the planes copied
+                    t3, _ = _thread_cpu_ns()
                     if j >= 2:
                         decode["ns"] += a1 - a0
                         decode["rgb"] += t1 - t0
                         decode["yuv"] += t2 - t1
+                        decode["yuv_copied"] += t3 - t2
                         decode["frames"] += 1
                 for name, dec in decoders.items():
                     for j in range(k, min(k + BLOCK, frames)):
@@ -163,11 +234,15 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int) -> d
                         if j == frames // 2:
                             levels[name] = r.read().astype(np.float64)
                 k += BLOCK
+                _say(f"{min(k, frames)} of {frames} frames on both paths")
             decoder = decoders["yuv"].choice.describe()
             for dec in (*decoders.values(), raw):
                 dec.close()
         finally:
             r.release()
+        _say("the per-frame fixed cost (a 64x36 picture)")
+        fixed = fixed_cost()
+        mem = memory(path, size, content, memory_frames)
     nd = max(decode["frames"], 1)
     decode_ms = decode["ns"] / 1e6 / nd
     paths = {}
@@ -184,9 +259,21 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int) -> d
         return round(paths["yuv"][key] / paths["rgb"][key], 3) if paths["rgb"][key] else None
 
     diff = np.abs(levels["yuv"] - levels["rgb"]) if len(levels) == 2 else None
+    y = paths["yuv"]
+    y["convert_copied_ms"] = round(decode["yuv_copied"] / 1e6 / nd, 3)
+    without = round(y["convert_ms"] + y["upload_ms"] + y["render_ms"], 3)
+    split = {
+        "decode_ms": y["decode_ms"], "convert_ms": y["convert_ms"], "upload_ms": y["upload_ms"],
+        "render_ms": y["render_ms"], "node_cpu_ms_per_frame_without_decode": without,
+        "python_and_gl_calls_ms": round(fixed, 3),
+        "pixels_ms": round(without - fixed, 3),      # what grows with the picture: the driver's copies and setup
+        "rasterizer_ms_per_frame": y["rasterizer_ms_per_frame"],
+        "rasterizer_share": round(y["rasterizer_ms_per_frame"] / (y["rasterizer_ms_per_frame"] + y["node_cpu_ms_per_frame"]), 3),
+    }
     return {
         "size": list(size), "content": list(content), "codec": "h264", "frames": frames, "fps": 30,
-        "decoder": decoder, "node_cpu_ms_per_frame": paths["yuv"]["node_cpu_ms_per_frame"],
+        "decoder": decoder, "node_cpu_ms_per_frame": y["node_cpu_ms_per_frame"],
+        "node_cpu_ms_per_frame_without_decode": without, "split": split,
         "paths": paths,
         "yuv_vs_rgb": {k: ratio(k) for k in ("node_cpu_ms_per_frame", "convert_ms", "upload_ms", "render_ms",
                                              "rasterizer_ms_per_frame")},
@@ -195,6 +282,7 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int) -> d
         "picture_levels_apart": None if diff is None else {"mean": round(float(diff.mean()), 3),
                                                             "p99": round(float(np.percentile(diff, 99)), 1)},
         "target_node_cpu_ms_per_frame": 3.0,
+        "memory": mem,
     }
 
 
@@ -203,3 +291,23 @@ def timed(size, content, frames) -> dict:
     out = run_video(size, content, frames)
     out["seconds"] = round(time.perf_counter() - t0, 1)
     return out
+
+
+def summary(v: dict) -> list[str]:
+    """The figures of :func:`run_video` as a few lines an operator reads."""
+    s, m = v["split"], v["memory"]
+    a, b = m["after"], m["before"]
+    parts = ", ".join(f"{k.replace('_', ' ')} {val:g}" for k, val in a["split_mb"].items() if k != "gl_context_anon")
+    return [
+        f"node CPU per {v['content'][0]}x{v['content'][1]} H.264 frame on the YUV path: {v['node_cpu_ms_per_frame']:.2f} ms"
+        f" = decode {s['decode_ms']:.2f} + convert {s['convert_ms']:.2f} (copying the planes cost "
+        f"{v['paths']['yuv']['convert_copied_ms']:.2f}) + upload {s['upload_ms']:.2f} + render {s['render_ms']:.2f}"
+        f" ({v['decoder']})",
+        f"without the decode (what a hardware decoder would leave): {s['node_cpu_ms_per_frame_without_decode']:.2f} ms"
+        f" (target {v['target_node_cpu_ms_per_frame']:g}), of which Python and GL calls {s['python_and_gl_calls_ms']:.2f}"
+        f" ms and the pixels' copies and setup {s['pixels_ms']:.2f} ms",
+        f"llvmpipe's rasterizer (the GPU here): {s['rasterizer_ms_per_frame']:.1f} ms of CPU per frame, "
+        f"{100 * s['rasterizer_share']:.0f} % of all the CPU a frame took",
+        f"resident memory while playing: {b['rss_mb']:g} MB before, {a['rss_mb']:g} MB now (peak {a['peak_rss_mb']:g}; "
+        f"target {m['target_rss_mb']:g}): {parts}",
+    ]

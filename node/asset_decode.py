@@ -475,7 +475,9 @@ class VideoDecoder:
             frame = self._forward(k)
         if frame is None:
             frame = self._seek(k)
-        arr = yuv_planes(frame, self.size) if self.yuv else None
+        # a decoder by name (V4L2 M2M) lends out a fixed set of buffers: its frames are copied, so that
+        # the frames decoded ahead do not hold them; other frames' planes are views (node/yuv.py)
+        arr = yuv_planes(frame, self.size, copy=True if self.choice.kind == "decoder" else None) if self.yuv else None
         if arr is None:
             if self.yuv and not self._rgb_noted:
                 self._rgb_noted = True

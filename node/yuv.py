@@ -1,7 +1,12 @@
 """A decoded video frame's planes, as the renderer uploads them (:class:`protos.yuv.YuvFrame`).
 
-:func:`yuv_planes` copies a PyAV frame's planes out of the decoder's buffers (one copy per
-plane, no conversion) and reads its colour tags; the renderer converts to RGB in its shader.
+:func:`yuv_planes` hands a PyAV frame's planes over as read-only views of the decoder's own
+buffers where their rows are unpadded (1080p and 720p 4:2:0 are), else as copies without the
+padding, and reads its colour tags; the renderer converts to RGB in its shader. A view holds
+the decoded frame (FFmpeg counts references to its buffers: the decoder allocates others while
+a frame is held, and never writes into one it has output), so no copy is made between the
+decoder and the texture. Decoders that lend out a fixed set of device buffers (V4L2 M2M) must
+get theirs back: their frames are copied (``copy=True``).
 It answers None for what the shader does not cover, and the caller converts with swscale as
 before (:func:`node.asset_decode.frame_to_array`), saying so once per stream (:func:`why_not`).
 
@@ -18,7 +23,11 @@ import numpy as np
 
 from protos.yuv import YuvFrame, guess_matrix
 
-__all__ = ["FORMATS", "why_not", "yuv_planes"]
+__all__ = ["COPY_PLANES", "FORMATS", "why_not", "yuv_planes"]
+
+#: copy every plane out of the decoder's frame (the node before it handed over views): what
+#: ``bench node --video``'s memory figures compare (bench/node_video_memory.py)
+COPY_PLANES = False
 
 #: pixel format -> (layout, chroma subsampling, bits, MSB-aligned, full range implied)
 FORMATS = {
@@ -52,29 +61,36 @@ def why_not(frame) -> str:
     return ""
 
 
-def _plane(plane, rows: int, cols: int, comps: int, dtype: np.dtype) -> np.ndarray:
-    """A PyAV plane's samples without the row padding: (rows, cols) or (rows, cols, comps), copied."""
+def _plane(plane, rows: int, cols: int, comps: int, dtype: np.dtype, copy: bool) -> np.ndarray:
+    """A PyAV plane's samples without the row padding: (rows, cols) or (rows, cols, comps),
+    C-contiguous: a read-only view of the frame's buffer when its rows are unpadded and ``copy``
+    is False (the view keeps the frame alive), else a copy."""
     per_row = plane.line_size // dtype.itemsize
-    arr = np.frombuffer(plane, dtype=dtype, count=rows * per_row).reshape(rows, per_row)[:, :cols * comps]
-    out = np.array(arr, order="C")    # one copy: off the decoder's buffer, which it reuses
-    return out if comps == 1 else out.reshape(rows, cols, comps)
+    arr = np.frombuffer(plane, dtype=dtype, count=rows * per_row).reshape(rows, per_row)
+    if copy or per_row != cols * comps:
+        arr = np.array(arr[:, :cols * comps], order="C")
+    else:
+        arr.flags.writeable = False       # the decoder's buffer: nobody writes into it
+    return arr if comps == 1 else arr.reshape(rows, cols, comps)
 
 
-def yuv_planes(frame, size: tuple[int, int] | None = None) -> YuvFrame | None:
+def yuv_planes(frame, size: tuple[int, int] | None = None, *, copy: bool | None = None) -> YuvFrame | None:
     """``frame`` (a PyAV ``VideoFrame``) as a :class:`~protos.yuv.YuvFrame` standing for content
     of ``size`` (w, h; None: the frame's own), or None when its format or matrix is not covered
-    (:func:`why_not` says why)."""
+    (:func:`why_not` says why). ``copy``: copy the planes out of the frame (True: a decoder that
+    needs its buffers back; None: :data:`COPY_PLANES`); else unpadded planes are views of it."""
     if why_not(frame):
         return None
     layout, sub, bits, msb, full_implied = FORMATS[frame.format.name]
     dtype = np.dtype(np.uint8) if bits == 8 else np.dtype("<u2")
     w, h = frame.width, frame.height
     cw, ch = -(-w // sub[0]), -(-h // sub[1])
-    planes = [_plane(frame.planes[0], h, w, 1, dtype)]
+    copy = COPY_PLANES if copy is None else copy
+    planes = [_plane(frame.planes[0], h, w, 1, dtype, copy)]
     if layout == "planar":
-        planes += [_plane(frame.planes[1], ch, cw, 1, dtype), _plane(frame.planes[2], ch, cw, 1, dtype)]
+        planes += [_plane(frame.planes[1], ch, cw, 1, dtype, copy), _plane(frame.planes[2], ch, cw, 1, dtype, copy)]
     else:
-        planes.append(_plane(frame.planes[1], ch, cw, 2, dtype))
+        planes.append(_plane(frame.planes[1], ch, cw, 2, dtype, copy))
     cs = int(frame.colorspace)
     matrix = _COLORSPACES.get(cs) or guess_matrix(h)
     full = full_implied or int(frame.color_range) == _FULL

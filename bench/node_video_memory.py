@@ -1,0 +1,150 @@
+"""What a node's presenter holds in memory while it plays a 1080p H.264 video (``shadowless bench node
+--video`` runs this in processes of its own, one per setting).
+
+A worker is as lean as a presenter process: it imports what :mod:`node.presenter` imports, makes a
+renderer of the output size on a headless context (llvmpipe here: it stands in for the GPU driver,
+and its LLVM makes the context heavy), and plays the video through the node's own frame source
+(:func:`node.asset_frames.open_frames` over the asset's files, decoded ahead by
+:class:`node.asset_frames.DecodeAhead` as :class:`node.timeline_player.TimelinePlayer` does, the
+frames as YUV planes uploaded to the renderer's textures and rendered through a homography, one
+frame after the other as fast as they come).
+
+Resident memory (``VmRSS``, MB) is read at each step, so that it splits into: the interpreter; the
+presenter's imports (numpy, PyAV, protobuf); the GL context with the output's framebuffer and
+the shaders compiled by a first draw; the decoder (its reference frames and frame threads'
+buffers, measured as the growth while the first frames decode, less the frame queue); the frame
+queue (what :class:`DecodeAhead` holds, counted by construction from the frames it buffers: the
+planes' own bytes when they are copies, 0 when they are views of the decoder's frames, which the
+decoder's share then includes); and the textures (the growth of the first upload and draw).
+``rss_mb`` is the median over the second half of the frames (steady), ``peak_rss_mb`` the
+process's ``VmHWM``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+
+def rss_mb(field: str = "VmRSS") -> float:
+    """This process's resident memory (``VmRSS``) or its peak (``VmHWM``), MB."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _held_bytes(ahead) -> int:
+    """Bytes of the frames ``ahead`` (a DecodeAhead) buffers that are its own copies (views of the
+    decoder's frames count 0: they are the decoder's buffers, counted with it)."""
+    total = 0
+    with ahead._cond:
+        frames = list(ahead._ready.values())
+    for f in frames:
+        planes = getattr(f, "planes", None) or (f,)
+        for p in planes:
+            if getattr(p, "base", None) is None or p.flags.owndata:
+                total += getattr(p, "nbytes", 0)
+    return total
+
+
+def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], frames: int, depth: int,
+            threads: int, copy: bool) -> dict:
+    """Play ``frames`` frames of ``video`` as a presenter would, reading its memory (see the module docstring).
+    ``depth``: frames decoded ahead; ``threads``: decoder threads (0: FFmpeg's choice); ``copy``:
+    the planes copied out of the decoder's frames (the node before) or handed over as views."""
+    r0 = rss_mb()
+    import numpy as np
+
+    import node.presenter  # noqa: F401 - what a presenter process imports
+    from node.asset_frames import DecodeAhead, open_frames
+    from node.decoders import wish_from_env
+    from node.records import AssetFiles
+    from node.render import Renderer
+    from node.timeline_player import AssetFilesView
+    from node import yuv as node_yuv
+    from protos.asset_manifest import Blob, Manifest, sha256_hex
+
+    r_imports = rss_mb()
+    w, h = size
+    cw, ch = content
+    r = Renderer.standalone(w, h)
+    anon_before_context = rss_mb("RssAnon")
+    try:
+        scale = min(w / cw, h / ch)
+        r.set_homography(np.array([[scale, 0.02, 3.0], [-0.01, scale, 2.0], [1e-6, 2e-6, 1.0]]), (cw, ch))
+        r.set_lut(np.stack([np.linspace(0, 1, 256) ** (1 / g) for g in (2.1, 2.2, 2.3)]).astype(np.float32))
+        r.render(None)
+        r.ctx.finish()
+        r_context = rss_mb()
+        anon_context = rss_mb("RssAnon") - anon_before_context
+        node_yuv.COPY_PLANES = copy
+        sha = sha256_hex(video.read_bytes())
+        m = Manifest(kind="video", name=video.name, blobs=(Blob(sha, video.stat().st_size, video.name),),
+                     width=cw, height=ch, channels=3, bit_depth=8, frames=frames, fps=30.0)
+        files = AssetFiles(asset_id=m.asset_id, manifest=m.canonical(), blob_paths={sha: str(video)})
+        ahead = DecodeAhead(open_frames(AssetFilesView(files), m.asset_id, threads=threads, size=(cw, ch), yuv=True,
+                                        decoder=wish_from_env()), depth=depth)
+        try:
+            ahead.want(0)
+            ahead.get(0, 60.0)
+            ahead.wait_ahead(60.0)
+            r_decoder = rss_mb()
+            queue_mb = _held_bytes(ahead) / 2**20
+            steady, t0 = [], time.perf_counter()
+            r_textures = None
+            for k in range(frames):
+                frame = ahead.get(k, 60.0)
+                r.upload(f"f{k}", frame)
+                r.render(f"f{k}")
+                r.ctx.finish()
+                if k:
+                    r.forget(f"f{k - 1}")
+                if r_textures is None:
+                    r_textures = rss_mb()
+                if k >= frames // 2:
+                    steady.append(rss_mb())
+            seconds = time.perf_counter() - t0
+        finally:
+            ahead.close()
+    finally:
+        r.release()
+    decoder_and_queue = r_decoder - r_context
+    return {
+        "settings": {"depth": depth, "threads": threads, "planes": "copied" if copy else "views of the decoder's frames"},
+        "rss_mb": round(statistics.median(steady), 1), "peak_rss_mb": round(rss_mb("VmHWM"), 1),
+        # of the resident memory at the end: the process's own (heap, buffers) and the files it maps
+        # (shared libraries: the same pages serve every process on the host that maps them)
+        "rss_anon_mb": round(rss_mb("RssAnon"), 1), "rss_file_mb": round(rss_mb("RssFile"), 1),
+        "split_mb": {"interpreter": round(r0, 1), "imports": round(r_imports - r0, 1),
+                     "gl_context": round(r_context - r_imports, 1), "gl_context_anon": round(anon_context, 1),
+                     "decoder": round(decoder_and_queue - queue_mb, 1), "frame_queue": round(queue_mb, 1),
+                     "textures": round(r_textures - r_decoder, 1),
+                     "playing": round(statistics.median(steady) - r_textures, 1)},
+        "frames": frames, "fps_reached": round(frames / seconds, 1),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="bench.node_video_memory")
+    p.add_argument("video", type=Path)
+    p.add_argument("--size", default="1920x1080")
+    p.add_argument("--content", default="1920x1080")
+    p.add_argument("--frames", type=int, default=120)
+    p.add_argument("--depth", type=int, required=True)
+    p.add_argument("--threads", type=int, required=True)
+    p.add_argument("--copy", action="store_true")
+    a = p.parse_args(argv)
+    size = tuple(int(v) for v in a.size.split("x"))
+    content = tuple(int(v) for v in a.content.split("x"))
+    print(json.dumps(measure(a.video, size=size, content=content, frames=a.frames, depth=a.depth, threads=a.threads,
+                             copy=a.copy)))
+    return 0
+
+
+if __name__ == "__main__":   # a process as lean as a presenter (bench/node_video.py starts it)
+    sys.exit(main())
