@@ -158,6 +158,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     b.add_argument("--coordinator-cpu", type=_fraction, metavar="C",
                    help="with --node-cpu: the coordinator's share of a core (default: what is left of this "
                         "machine's cores after the nodes' budgets, at least 0.5)")
+    b.add_argument("--reserve", action="store_true",
+                   help="with --node-cpu: give every node's, rasterizer's and the coordinator's group a high CFS "
+                        "weight, so that other work on this host does not starve them (each still never gets "
+                        "more than its limit; on a quiet host this changes nothing)")
     b.add_argument("--cpu-period-ms", type=float, default=DEFAULT_PERIOD_MS, metavar="MS",
                    help=f"the budgets' CFS period (default {DEFAULT_PERIOD_MS:g} ms: a held node waits a few ms at "
                         "a time, as a slower CPU would, not 100 ms)")
@@ -411,8 +415,8 @@ def _check(args) -> str | None:
         return "--heartbeat-ms must be 50..60000"
     if any(v % 2 for v in args.size):
         return f"--size must be even in both dimensions, got {args.size[0]}x{args.size[1]}"
-    if args.node_cpu is None and (args.node_gpu is not None or args.coordinator_cpu is not None):
-        return "--node-gpu and --coordinator-cpu set budgets beside --node-cpu: give --node-cpu too"
+    if args.node_cpu is None and (args.node_gpu is not None or args.coordinator_cpu is not None or args.reserve):
+        return "--node-gpu, --coordinator-cpu and --reserve go with budgets: give --node-cpu too"
     if args.keep and Path(args.keep).exists() and any(Path(args.keep).iterdir()):
         return f"--keep {args.keep}: the directory is not empty (a kept rig would already hold the asset)"
     ok, reason = available()
@@ -432,7 +436,7 @@ def budgets_for(args) -> RigBudgets:
     coordinator = (args.coordinator_cpu if args.coordinator_cpu is not None
                    else coordinator_default(args.nodes, args.node_cpu, args.node_gpu))
     return RigBudgets(slots, node_cpu=args.node_cpu, node_gpu=args.node_gpu, coordinator_cpu=coordinator,
-                      own=True, period_ms=args.cpu_period_ms)
+                      own=True, period_ms=args.cpu_period_ms, reserve=args.reserve)
 
 
 def run(args: argparse.Namespace) -> int:

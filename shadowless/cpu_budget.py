@@ -145,16 +145,21 @@ def _quota(fraction: float | None, period_us: int) -> int | None:
     return None if fraction is None else int(round(fraction * period_us))
 
 
-def v1_files(fraction: float | None, period_us: int) -> dict[str, str]:
-    """What a v1 group's files are set to, in order: the period, then the quota (-1: no limit)."""
+def v1_files(fraction: float | None, period_us: int, weight: int | None = None) -> dict[str, str]:
+    """What a v1 group's files are set to, in order: the period, then the quota (-1: no limit), and
+    with ``weight`` (v2's scale, 1..10000, 100 the kernel's default) ``cpu.shares`` (1024 the default)."""
     q = _quota(fraction, period_us)
-    return {"cpu.cfs_period_us": str(period_us), "cpu.cfs_quota_us": str(-1 if q is None else q)}
+    out = {"cpu.cfs_period_us": str(period_us), "cpu.cfs_quota_us": str(-1 if q is None else q)}
+    if weight is not None:
+        out["cpu.shares"] = str(max(2, round(weight * 1024 / 100)))
+    return out
 
 
-def v2_files(fraction: float | None, period_us: int) -> dict[str, str]:
-    """What a v2 group's ``cpu.max`` is set to: ``"QUOTA PERIOD"``, or ``"max PERIOD"`` for no limit."""
+def v2_files(fraction: float | None, period_us: int, weight: int | None = None) -> dict[str, str]:
+    """What a v2 group's ``cpu.max`` is set to: ``"QUOTA PERIOD"``, or ``"max PERIOD"`` for no limit;
+    and its ``cpu.weight`` with ``weight``."""
     q = _quota(fraction, period_us)
-    return {"cpu.max": f"{'max' if q is None else q} {period_us}"}
+    return {"cpu.max": f"{'max' if q is None else q} {period_us}", **({"cpu.weight": str(weight)} if weight else {})}
 
 
 def enable_cpu(subtree_control: str) -> str | None:
@@ -340,12 +345,16 @@ class CpuBudget:
     thread_fraction : float or None
         With ``threads`` on v2: the limit of the threads' child group (v1: give threads a budget
         of their own instead).
+    weight : int or None
+        The group's CFS weight against other work when cores are contended, on v2's scale (1..10000;
+        None: the kernel's default, 100). A high weight makes a budget closer to a computer of its
+        own on a busy host: the group gets its limit whenever it can run (never more).
     hierarchy : Hierarchy or None
         Where (default: this host's, :func:`find_hierarchy`).
     """
 
     def __init__(self, fraction: float | None, *, period_us: int = 100_000, name: str = "", kind: str = "bench",
-                 threads: bool = False, thread_fraction: float | None = None,
+                 threads: bool = False, thread_fraction: float | None = None, weight: int | None = None,
                  hierarchy: Hierarchy | None = None):
         self.fraction = None if fraction is None else _check_fraction(fraction, period_us)
         self.thread_fraction = None if thread_fraction is None else _check_fraction(thread_fraction, period_us)
@@ -353,6 +362,9 @@ class CpuBudget:
             raise CpuBudgetError(f"a CPU budget's period must be {MIN_PERIOD_US}..{MAX_PERIOD_US} us, got {period_us}")
         self.period_us = int(period_us)
         self.quota_us = _quota(self.fraction, self.period_us)
+        if weight is not None and not (isinstance(weight, int) and 1 <= weight <= 10_000):
+            raise CpuBudgetError(f"a CPU budget's weight is 1..10000 (100: the kernel's default), got {weight!r}")
+        self.weight = weight
         self.name, self.kind, self.threads = name, kind, bool(threads)
         group_name(kind, 0, 0)                   # the kind is checked now, not when the group is made
         self.hierarchy = hierarchy
@@ -388,7 +400,7 @@ class CpuBudget:
         self.path = path
         try:
             if h.version == 1:
-                for f, v in v1_files(self.fraction, self.period_us).items():
+                for f, v in v1_files(self.fraction, self.period_us, self.weight).items():
                     _write(path / f, v)
                 if h.acct is not None and h.acct != h.root:
                     self.acct_path = h.acct / name
@@ -406,9 +418,11 @@ class CpuBudget:
         if want:
             _write(h.root / "cgroup.subtree_control", want)
         if not self.threads:
-            for f, v in v2_files(self.fraction, self.period_us).items():
+            for f, v in v2_files(self.fraction, self.period_us, self.weight).items():
                 _write(path / f, v)
             return
+        if self.weight is not None:          # the subtree competes with its siblings as one
+            _write(path / "cpu.weight", self.weight)
         # the threaded layout: children first made threaded, then cpu enabled for them
         for child, fraction in ((V2_PROCS, self.fraction), (V2_THREADS, self.thread_fraction)):
             (path / child).mkdir()

@@ -383,6 +383,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="with --node-cpu: each node's rasterizer threads (llvmpipe, the GPU's stand-in) go in a "
                         "group of their own held to G of a core; 'max' (the default): no limit; 'node': they stay "
                         "in the node's budget")
+    b.add_argument("--reserve", action="store_true",
+                   help="with --node-cpu: give every node's, rasterizer's and the coordinator's group a high CFS "
+                        "weight, so that other work on this host does not starve them (each still never gets "
+                        "more than its limit; on a quiet host this changes nothing)")
     b.add_argument("--cpu-period-ms", type=cli_types.number(1, 1000), default=DEFAULT_PERIOD_MS, metavar="MS",
                    help=f"the budgets' CFS period (default {DEFAULT_PERIOD_MS:g} ms)")
 
@@ -403,7 +407,8 @@ def _budgets(args, slots: list[str]) -> RigBudgets | None:
     """The nodes' CPU budgets asked for (not made yet), or None."""
     if getattr(args, "node_cpu", None) is None:
         return None
-    return RigBudgets(slots, node_cpu=args.node_cpu, node_gpu=args.node_gpu, period_ms=args.cpu_period_ms)
+    return RigBudgets(slots, node_cpu=args.node_cpu, node_gpu=args.node_gpu, period_ms=args.cpu_period_ms,
+                      reserve=args.reserve)
 
 
 async def _local(args) -> int:
@@ -510,9 +515,8 @@ def _print_result(args, result: dict, workdir: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.node_cpu is None and args.node_gpu is not None:
-        print("shadowless local: --node-gpu sets the rasterizer's budget beside --node-cpu: give --node-cpu too",
-              file=sys.stderr)
+    if args.node_cpu is None and (args.node_gpu is not None or args.reserve):
+        print("shadowless local: --node-gpu and --reserve go with budgets: give --node-cpu too", file=sys.stderr)
         return 2
     budgets = _budgets(args, grid_names(args.nodes))
     why = budgets.check() if budgets is not None else ""

@@ -10,6 +10,10 @@ only once the node's presenter made its GL context, so :class:`RigBudgets` looks
 short bounded poll after each node starts or restarts (:data:`THREAD_POLL_S`, until none has
 appeared for :data:`THREAD_SETTLE_S`) and moves each it finds.
 
+A budget caps, it does not reserve: on a host busy with other work a node gets less than its
+share and its late frames measure that work. ``reserve=True`` gives the budget groups a high CFS
+weight, so they get their limits whenever they can run (never more) and the other work waits.
+
 With llvmpipe's threads turned off (``LP_NUM_THREADS=0``) the drawing runs on the presenter's own
 thread and cannot be split; :func:`rasterizer_refusal` says so. In cgroup v2 a split node is a
 threaded subtree (see :mod:`shadowless.cpu_budget`); where the host refuses threaded groups the
@@ -36,6 +40,8 @@ THREAD_POLL_S = 60.0
 #: ... and stop once none appeared for this long after the first
 THREAD_SETTLE_S = 3.0
 POLL_INTERVAL_S = 0.1
+#: the CFS weight of every budget group with ``reserve`` (v2's scale; 100 is the kernel's default)
+RESERVE_WEIGHT = 10_000
 RASTERIZER_PREFIX = "llvmpipe-"
 
 
@@ -120,15 +126,20 @@ class RigBudgets:
         Put this process (the one running the rig) in a group of its own without a limit, to measure it.
     period_ms : float
         The CFS period of every group.
+    reserve : bool
+        Give the nodes', rasterizers' and coordinator's groups :data:`RESERVE_WEIGHT`, so that other
+        work on the host does not starve them: each gets its limit whenever it can run, never more
+        (a computer of its own is not shared; on a quiet host this changes nothing).
     """
 
     def __init__(self, slots: list[str], *, node_cpu: float, node_gpu: float | str | None = None,
                  coordinator_cpu: float | None | bool = False, own: bool = False,
-                 period_ms: float = DEFAULT_PERIOD_MS, hierarchy: Hierarchy | None = None):
+                 period_ms: float = DEFAULT_PERIOD_MS, reserve: bool = False, hierarchy: Hierarchy | None = None):
         self.slots = list(slots)
         self.node_cpu, self.node_gpu = node_cpu, node_gpu
         self.coordinator_cpu, self.own = coordinator_cpu, own
         self.period_us = int(round(period_ms * 1000))
+        self.reserve = reserve
         self.hierarchy = hierarchy
         self.nodes: dict[str, _Node] = {}
         self.coordinator: CpuBudget | None = None
@@ -184,7 +195,7 @@ class RigBudgets:
                 self.bench = self._make(None, "bench", "bench")
                 self.bench.add(os.getpid(), children=False)
             if self.coordinator_cpu is not False:
-                self.coordinator = self._make(self.coordinator_cpu, "coordinator", "coordinator")
+                self.coordinator = self._make(self.coordinator_cpu, "coordinator", "coordinator", weight=self._weight)
             for s in self.slots:
                 self.nodes[s] = self._node(s, gpu)
         except BaseException:
@@ -203,18 +214,23 @@ class RigBudgets:
         self._budgets.append(b)
         return b
 
+    @property
+    def _weight(self) -> int | None:
+        return RESERVE_WEIGHT if self.reserve else None
+
     def _node(self, slot: str, gpu: float | None) -> _Node:
+        w = self._weight
         if not self.split:
-            return _Node(self._make(self.node_cpu, "node", slot), None)
+            return _Node(self._make(self.node_cpu, "node", slot, weight=w), None)
         if self.hierarchy.version == 1:
-            return _Node(self._make(self.node_cpu, "node", slot), self._make(gpu, "gpu", slot))
+            return _Node(self._make(self.node_cpu, "node", slot, weight=w), self._make(gpu, "gpu", slot, weight=w))
         try:        # v2: one threaded subtree per node
-            return _Node(self._make(self.node_cpu, "node", slot, threads=True, thread_fraction=gpu), None)
+            return _Node(self._make(self.node_cpu, "node", slot, threads=True, thread_fraction=gpu, weight=w), None)
         except CpuBudgetError as exc:
             self.split = False
             self.rasterizer = (f"in the node's budget: this host refuses cgroup v2 threaded groups ({exc}); "
                                "the rasterizer's CPU counts as the node's")
-            return _Node(self._make(self.node_cpu, "node", slot), None)
+            return _Node(self._make(self.node_cpu, "node", slot, weight=w), None)
 
     def close(self) -> None:
         """Stop looking for threads; move everything back to the root group and remove every group (idempotent)."""
@@ -333,7 +349,7 @@ class RigBudgets:
                 "node_gpu_limit": self.node_gpu if isinstance(self.node_gpu, float) else
                 ("node" if self.node_gpu == "node" else None),
                 "coordinator_cpu_limit": None if self.coordinator_cpu is False else self.coordinator_cpu,
-                "rasterizer": self.rasterizer,
+                "rasterizer": self.rasterizer, "reserve_weight": self._weight,
                 **({"errors": self.errors} if self.errors else {})}
 
     def summary(self) -> str:

@@ -47,6 +47,10 @@ def test_group_files_names_and_stats():
     assert v1_files(0.4, 10_000) == {"cpu.cfs_period_us": "10000", "cpu.cfs_quota_us": "4000"}
     assert v1_files(None, 100_000)["cpu.cfs_quota_us"] == "-1"
     assert v2_files(0.4, 10_000) == {"cpu.max": "4000 10000"} and v2_files(None, 20_000) == {"cpu.max": "max 20000"}
+    assert v1_files(0.4, 10_000, weight=10_000)["cpu.shares"] == "102400"          # 100 is 1024 shares
+    assert v2_files(0.4, 10_000, weight=10_000) == {"cpu.max": "4000 10000", "cpu.weight": "10000"}
+    with pytest.raises(CpuBudgetError, match="weight is 1..10000"):
+        CpuBudget(0.4, weight=20_000)
     assert enable_cpu("cpuset io memory") == "+cpu" and enable_cpu("cpu memory") is None
     assert group_name("node", 42, 3) == "shadowless-node-42-3"
     with pytest.raises(CpuBudgetError):
