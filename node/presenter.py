@@ -353,6 +353,7 @@ class Presenter:
         if not at_once:
             self._send_stats()
         # what is on screen now follows the new assignment at once
+        swapped = None
         if self._current is not None and (at_once or not blend_only):
             try:
                 self._render(renderer, self._current)
@@ -361,9 +362,9 @@ class Presenter:
                 renderer.render(None)
             out.prepare(renderer)
             out.swap()
-            self._shown_again(out, renderer)
-        if at_once:
-            self._blend_shown(self._rig_now())
+            swapped = self._shown_again(out, renderer)
+        if at_once:     # on screen from that swap (with no frame to show again: from now)
+            self._blend_shown(self._rig_now() if swapped is None else swapped)
             self._send_stats()
 
     def _set_assignment(self, renderer, a: NodeAssignment, size: tuple[int, int]) -> None:
@@ -499,9 +500,10 @@ class Presenter:
         self._blend_shown(pts)
         self._send_stats()
 
-    def _shown_again(self, out: Output, renderer, swap_rig_ns: int | None = None, host: int | None = None) -> None:
+    def _shown_again(self, out: Output, renderer, swap_rig_ns: int | None = None, host: int | None = None) -> int:
         """The frame on screen was rendered again (a new assignment, or blend) and swapped in: the
-        output hears of it as of a swap (the room shows it; a snapshot is written)."""
+        output hears of it as of a swap (the room shows it; a snapshot is written). The swap's rig
+        instant (``swap_rig_ns``, or now, taken before the output reads the frame back)."""
         self._fbo_shown = True
         f = self._current
         host = self.clock.host_now() if host is None else host
@@ -509,6 +511,7 @@ class Presenter:
             swap_rig_ns = self._rig_now()
         out.after_swap(renderer, SwapInfo(slot=self.slot, frame_id=f.frame_id, tag=f.tag, pts_ns=f.pts_ns,
                                           swap_rig_ns=swap_rig_ns, host_monotonic_ns=host))
+        return swap_rig_ns
 
     def _on_content(self, renderer, out, content: tuple[str, np.ndarray]) -> None:
         cid, image = content
