@@ -209,9 +209,9 @@ class Presenter:
         self.native_size = self.out.native_size()
         w, h = self.native_size or (640, 360)
         self.renderer = Renderer(ctx, w, h)
-        # status's "renders with" line names the video decoder too (node/decoders.py: --decoder)
-        self.gl_info = f"{gl_description(ctx)}; video decoder {choose('h264', wish_from_env()).describe()}"
-        log.info("rendering with %s", self.gl_info)
+        # the video decoder has a heartbeat field of its own (status(), node/decoders.py: --decoder)
+        self.gl_info = gl_description(ctx)
+        log.info("rendering with %s; video decoder %s", self.gl_info, choose('h264', wish_from_env()).describe())
         self._rt = RealtimeWindow(self._realtime_wanted)
         self._warm_up()
         self.renderer.render(None)
