@@ -581,7 +581,8 @@ async def _failover_budgeted(args, work: Path, light: Light, name: str, slots: l
     why it could not run."""
     from shadowless.cpu_budget import CpuBudgetError
     from shadowless.rig_budget import RigBudgets
-    budgets = RigBudgets(slots, node_cpu=fraction, node_gpu=None, period_ms=args.cpu_period_ms)
+    # reserved (a high CFS weight): on a machine busy with other work the nodes still get their share
+    budgets = RigBudgets(slots, node_cpu=fraction, node_gpu=None, period_ms=args.cpu_period_ms, reserve=True)
     why = budgets.check()
     if why:
         _log(f"failover: {why}")
