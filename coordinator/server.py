@@ -305,6 +305,7 @@ class Coordinator:
         if lost:
             sess.state = NodeState.LOST
             if left:      # it said goodbye: its projector is gone all the same
+                sess.left = left
                 log.info("node %s left (%s)", sess.slot, left)
             else:
                 log.warning("node %s lost (last seen %.1f s ago)", sess.slot, self.now() - sess.last_seen)
@@ -704,7 +705,8 @@ class Coordinator:
                 live_age_ms=(now_ns - live_at) / 1e6 if live_at is not None else math.nan,
                 last_seen_age_ms=(now - sess.last_seen) * 1e3, last_swap_frame=sess.last_swap_frame,
                 last_swap_age_ms=(now - sess.last_swap_at) * 1e3 if sess.last_swap_at else math.nan,
-                frames_late=sess.late, frames_dropped=sess.dropped, frames_shown=sess.shown))
+                frames_late=sess.late, frames_dropped=sess.dropped, frames_shown=sess.shown,
+                left=sess.left if sess.state == NodeState.LOST else ""))
         late_s, late = self._late_window.observe(now, {n.slot: n.frames_late + n.frames_dropped for n in nodes
                                                        if n.state in (NodeState.LIVE, NodeState.JOINED)})
         return RigStatus(

@@ -113,6 +113,7 @@ class NodeSession:
     last_seen: float
     state: NodeState = NodeState.JOINED
     closed: bool = False
+    left: str = ""          # why the node stopped on purpose (its goodbye); "" it went silent or is here
     frames_open: bool = False
     packets: deque = field(default_factory=deque)
     packet_event: asyncio.Event = field(default_factory=asyncio.Event)

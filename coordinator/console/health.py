@@ -66,7 +66,7 @@ def health_view(status: RigStatus, *, now: float | None = None) -> dict[str, Any
 
     lost = sorted(by_state[NodeState.LOST], key=lambda n: -n.last_seen_age_ms)
     for n in lost[:MAX_LISTED]:
-        alarms.append(_alarm("alarm", "lost", f"{n.slot} lost (its node went silent)", slots=[n.slot],
+        alarms.append(_alarm("alarm", "lost", f"{n.slot} left ({n.left})" if n.left else f"{n.slot} lost (its node went silent)", slots=[n.slot],
                              since=now - n.last_seen_age_ms / 1e3))
     if len(lost) > MAX_LISTED:
         rest = [n.slot for n in lost[MAX_LISTED:]]

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from coordinator.api import NodeState
+from coordinator.console.health import health_view
 from coordinator.rig import init_rig
 from protos.auth import read_token
 from rigctl.link import Client
@@ -77,6 +78,9 @@ def test_a_node_stopped_on_purpose_left_and_names_its_decoder(tmp_path):
         assert "this node leaves (stopped (SIGTERM))" in node_log.read_text()
         gone = wait_until(node_status, lambda n: n.state != NodeState.LIVE, what="the node's slot no longer live")
         assert gone.state == NodeState.LOST      # its projector is gone all the same: the failover runs
+        assert gone.left == "stopped (SIGTERM)", gone      # carried over the wire to the operators
+        banner = [a["text"] for a in health_view(_status(address, token))["alarms"] if a["kind"] == "lost"]
+        assert banner == ["r0c0 left (stopped (SIGTERM))"], banner
         text = second_log.read_text()
         assert "node r0c0 left (stopped (SIGTERM))" in text, text
         assert "node r0c0 lost" not in text, text
