@@ -361,6 +361,7 @@ class Presenter:
                 log.error("cannot re-render the current frame with the new assignment: %s", exc)
                 renderer.render(None)
             out.prepare(renderer)
+            self._ctx.finish()      # drawn before the swap (else an output's read back would draw it after)
             out.swap()
             swapped = self._shown_again(out, renderer)
         if at_once:     # on screen from that swap (with no frame to show again: from now)
