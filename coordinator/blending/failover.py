@@ -19,7 +19,9 @@ encode when a loss pushes them); the losses most likely first (nodes lost before
 those that carry the most light. The first are held ready to push; when the rest would not fit the
 budget that way, they are held compressed (about a seventh at 1080p; a loss inflates them in a
 worker thread, tens of milliseconds instead of seconds of computation), so that at 1080p map sizes
-the single losses of 25 projectors fit in 256 MiB.
+the single losses of 25 projectors fit in 256 MiB. A blend whose maps are at least 256 texels wide
+fails over to maps four times coarser (:func:`variant_scale`): smooth maps sampled bilinearly keep
+the light, and a loss pushes a sixteenth of the bytes (at 1080p, 65 KB per node instead of 1 MB).
 """
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ from imaging.blending.solve import compute_blend
 from protos.blend import BlendMaps
 
 __all__ = ["BLACK_MAPS", "DEAD_GAIN", "MAX_PRECOMPUTED_BYTES", "Variant", "VariantKey", "Variants", "base_white", "compute_variant",
-           "map_scale_of", "variant_key"]
+           "map_scale_of", "variant_key", "variant_scale"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +57,12 @@ MAX_PRECOMPUTED_BYTES = 256 * 2 ** 20
 KEPT_RATIO = 0.98
 #: passes of the correction toward the full blend's light (see :func:`compute_variant`)
 CORRECTIONS = 3
+#: a failover's maps are computed this many times coarser than the full blend's when those are at least
+#: VARIANT_COARSE_FROM texels wide (1080p maps of 480x270 give 120x68): the maps are smooth, the shader
+#: samples them bilinearly, and a loss then pushes a sixteenth of the bytes (bench uniformity: a P25
+#: loss with variant maps at 1/16 of the projector's width kept 0.63 % non-uniformity, 0.59 % at 1/4)
+VARIANT_COARSEN = 4
+VARIANT_COARSE_FROM = 256
 
 #: (slots whose node is lost, lamp gains other than 1 as sorted (slot, gain) pairs; below DEAD_GAIN: dead)
 VariantKey = tuple[frozenset, tuple]
@@ -114,6 +122,14 @@ class Variant:
         if not self.compressed:
             return self
         return replace(self, maps={s: m.inflated() for s, m in self.maps.items()})
+
+
+def variant_scale(maps: Mapping[str, BlendMaps], contributions: Contributions) -> int:
+    """The map scale of a blend's failover variants: :func:`map_scale_of` the full blend's maps, times
+    :data:`VARIANT_COARSEN` when they are at least :data:`VARIANT_COARSE_FROM` texels wide (at most 64)."""
+    scale = map_scale_of(maps, contributions)
+    widest = max((m.size[0] for m in maps.values() if m is not BLACK_MAPS), default=0)
+    return min(64, scale * VARIANT_COARSEN) if widest >= VARIANT_COARSE_FROM else scale
 
 
 def map_scale_of(maps: Mapping[str, BlendMaps], contributions: Contributions) -> int:
@@ -245,7 +261,7 @@ class Variants:
                  budget_bytes: int = MAX_PRECOMPUTED_BYTES):
         self.contributions = contributions
         self.base_maps = dict(base_maps)
-        self.map_scale = map_scale_of(self.base_maps, contributions)
+        self.map_scale = variant_scale(self.base_maps, contributions)
         self.budget_bytes = budget_bytes
         self._white: np.ndarray | None = None
         self._shares: dict[str, float] | None = None

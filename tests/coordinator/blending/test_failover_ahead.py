@@ -141,6 +141,36 @@ def test_losses_ahead_are_held_packed_within_the_budget_and_a_compressed_one_swi
     asyncio.run(go())
 
 
+def test_large_maps_fail_over_to_coarser_maps_that_keep_the_light():
+    """Maps at least 256 texels wide: a loss's maps are computed four times coarser (a sixteenth of the
+    bytes to push) and the light they predict in the lost footprint stays within 1 % of that of maps as
+    fine as the full blend's (the reference: the same variant computed at the full blend's scale)."""
+    from coordinator.blending.failover import variant_scale
+    from imaging.blending.contributions import luma
+    from imaging.blending.predict import predict
+    camera, projector = (240, 160), (256, 144)
+    c = rectangle_rig(wall_rects(3, 0.3, camera), camera_size=camera, scale=4, projector_size=projector,
+                      peaks=[0.9, 1.1, 1.0], names=SLOTS)
+    maps = {s: BlendMaps(a, b) for s, (a, b) in compute_blend(c, map_scale=1).maps.items()}
+    assert variant_scale(maps, c) == 4
+    small = {s: BlendMaps(a[::4, ::4], b[::4, ::4]) for s, (a, b) in ((s, (m.alpha, m.beta)) for s, m in maps.items())}
+    assert variant_scale(small, c) == 4, "maps under 256 texels wide: at the full blend's own scale (256 / 64)"
+    v = Variants(c, maps)
+    white = base_white(c, maps)
+    key = variant_key({"mid"})
+    coarse, fine = v.compute(key), compute_variant(c, maps, white, key, map_scale=1)
+    assert coarse.maps["left"].size == (64, 36) and fine.maps["left"].size == (256, 144)
+
+    def light(variant):
+        pairs = {s: (m.alpha, m.beta) for s, m in variant.maps.items() if m is not BLACK_MAPS}
+        return luma(predict(c, pairs, 1.0, lost=("mid",)) - predict(c, pairs, 0.0, lost=("mid",)))
+    got, want = light(coarse), light(fine)
+    fp = c.footprint("mid") & (want > 0.05 * want.max())      # where the others reach
+    ratio = got[fp] / want[fp]
+    assert np.percentile(np.abs(ratio - 1.0), 99) < 0.01, np.percentile(np.abs(ratio - 1.0), 99)
+    assert coarse.kept >= 0.99 * fine.kept
+
+
 def test_packed_maps_are_the_maps_as_the_wire_carries_them():
     rng = np.random.default_rng(1)
     y, x = np.mgrid[0:27, 0:48] / 48.0
