@@ -52,6 +52,7 @@ from imaging.blending.contributions import Contributions, apply_homography_grid,
 from imaging.blending.errors import BlendError
 from imaging.blending.fit import fit_contributions
 from imaging.blending.mesh import MeshPlacement, mesh_placement
+from imaging.blending.mesh_maps import map_scale_for
 from imaging.blending.mesh_samples import match_flat_white, read_capture_shaded
 from imaging.blending.metrics import ratio_image, seam_step, to_grid, uniformity
 from imaging.blending.predict import predict
@@ -66,6 +67,8 @@ OPTIONS = BlendOptions
 
 #: grid pixels across the camera's longer side when grid_scale is not given
 GRID_TARGET = 400
+#: the maps' downscale on a planar rig, and the coarsest on a mesh rig, when map_scale is "auto"
+DEFAULT_MAP_SCALE = 4
 #: the uniformity figures average blocks of 1/BLOCKS of the grid's longer side
 BLOCKS = 40
 
@@ -273,8 +276,12 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
                                   dict(measured.black), dict(measured.camera_to_projector), dict(measured.projector_size),
                                   measured.projector_xy)
     headroom = None if opts.headroom == "auto" else float(opts.headroom)
+    map_scale = opts.map_scale
+    if map_scale == "auto":
+        map_scale = DEFAULT_MAP_SCALE if fine is None else map_scale_for(c2p, coarsest=DEFAULT_MAP_SCALE)
+        ctx.log(f"blend: maps at 1/{map_scale} of each projector's resolution")
     try:
-        sol = await ctx.compute(compute_blend, contributions, headroom=headroom, map_scale=opts.map_scale,
+        sol = await ctx.compute(compute_blend, contributions, headroom=headroom, map_scale=map_scale,
                                 smoothness=opts.smoothness, ramp=opts.ramp)
     except BlendError as exc:
         raise JobError(str(exc)) from exc
@@ -323,7 +330,7 @@ async def _run(ctx: JobContext, opts: BlendOptions, slots: list[str]) -> BlendRe
         blob_exposure=_r(exposure, 3), samples={s: int(v["samples"]) for s, v in fit_figs["slots"].items()},
         uncovered={s: _r(v, 4) for s, v in sol.uncovered.items()},
         white_point=[_r(float(v), 4) for v in sol.white_point], black_fraction=fit_figs["black_fraction"],
-        grid=[int(sol.target.shape[1]), int(sol.target.shape[0])], map_scale=opts.map_scale,
+        grid=[int(sol.target.shape[1]), int(sol.target.shape[0])], map_scale=map_scale,
         compute_s=_r(compute_s, 3), wall_s=_r(time.monotonic() - t0, 3), blend_id=blend_id, created_at=created)
     info = {**result.to_wire(), "smoothness": opts.smoothness, "ramp": opts.ramp, "fit": fit_figs["slots"],
             "camera": opts.camera, "gains_folded": gains, "slot_digests": slot_digests(rig, slots)}

@@ -18,7 +18,8 @@ Results (:func:`mesh_placement`), all on the grid ``(h, w)``:
 * ``xy[slot]``: ``(h, w, 2) float32`` the projector pixel showing each grid point's surface point,
   NaN where the projector does not light it (outside its frame, facing away, hidden by the mesh);
   the :class:`~imaging.blending.contributions.Contributions`' ``projector_xy``;
-* ``shading[slot]``: ``(h, w) float32`` ``cos(theta) (1000 mm / d)^2``, 0 where not lit;
+* ``shading[slot]``: ``(h, w) float32`` ``cos(theta) (1000 mm / d)^2`` times the share of the point's grid
+  cell that the projector's drawn pixels light (:func:`placement`'s ``hit``), 0 where not lit;
 * ``surface``: ``(h, w) bool`` grid points that see the mesh.
 
 OpenGL (moderngl on EGL) is imported on use; run it from one thread.
@@ -31,6 +32,7 @@ from typing import Mapping
 import numpy as np
 
 from imaging.blending.errors import BlendError
+from imaging.blending.mesh_maps import FOOTPRINT_SAMPLES, footprint_points, snap_pixels
 from imaging.egl import standalone_context
 
 __all__ = ["SurfaceView", "SurfaceRaster", "MeshPlacement", "vertex_normals", "grid_projection", "placement",
@@ -71,16 +73,25 @@ void main() {
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(V, 3) float32`` unit normals: the area-weighted mean of the faces around each vertex, turned
-    outwards (a mesh wound clockwise, of negative enclosed volume, is turned round)."""
+    outwards (a mesh wound clockwise, of negative enclosed volume, is turned round).
+
+    Vertices at the same position are one point of the surface: a mesh with a texture atlas repeats a
+    vertex once per chart that meets there, and each copy sees only its own chart's faces. Their faces are
+    pooled, so that the normal does not jump along the atlas's seams (on the room's bust by 15 degrees in the
+    median, 1 to 2 degrees on the crown, where 1 degree is 7 % of the light a projector grazing it at 13
+    degrees gives)."""
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     tri = v[f]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])      # length: twice the area
     if np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() < 0:
         n = -n
-    acc = np.zeros_like(v)
+    _, point = np.unique(v, axis=0, return_inverse=True)
+    point = point.reshape(-1)
+    acc = np.zeros((int(point.max()) + 1 if len(point) else 0, 3))
     for k in range(3):
-        np.add.at(acc, f[:, k], n)
+        np.add.at(acc, point[f[:, k]], n)
+    acc = acc[point]
     norm = np.linalg.norm(acc, axis=1, keepdims=True)
     return (acc / np.where(norm > 0, norm, 1.0)).astype(np.float32)
 
@@ -190,14 +201,22 @@ class SurfaceRaster:
 
 
 def placement(surface: SurfaceView, P: np.ndarray, size: tuple[int, int], depth: np.ndarray, *,
-              vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              vertices: np.ndarray, hit: np.ndarray | None = None,
+              samples: int = FOOTPRINT_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
     """One projector at the points of ``surface``: ``(xy (h, w, 2) float32, shading (h, w) float32)``.
 
     ``P``: the projector's (3, 4) pose; ``size``: its (W, H); ``depth``: ``(H, W)`` its own view's depth
     (:meth:`SurfaceRaster.view`'s, ``inf`` off the mesh). A point is lit when it lies inside the frame, faces
     the projector, and is not hidden: it is hidden only when all four depth texels around its pixel are
     nearer than it by more than a bias (one texel's span at the point's slope, 1 to 25 mm), so that the
-    test neither speckles a lit surface nor eats its silhouette."""
+    test neither speckles a lit surface nor eats its silhouette.
+
+    ``hit``: ``(H, W) bool``, the projector's pixels whose centre sees the mesh (its own view's), which are the
+    pixels a node draws the mesh's content on (it clears the others to black). Given, ``shading`` is multiplied
+    by the share of each point's grid cell whose light comes from such pixels (``samples`` x ``samples`` points
+    of the cell's footprint, :func:`imaging.blending.mesh_maps.footprint_points`): along the projector's own
+    silhouette, which the crown of a bust is for a projector grazing it, its pixels' staircase stretches over
+    many camera pixels, and points lit by none of its drawn pixels are not lit (``xy`` NaN)."""
     pm = _normalised(P, vertices)
     W, H = size
     X = surface.points
@@ -226,10 +245,20 @@ def placement(surface: SurfaceView, P: np.ndarray, size: tuple[int, int], depth:
     c = np.clip(cos, 0.05, 1.0)
     bias = np.minimum(1.0 + 2.0 * (z / max(focal, 1e-9)) * np.sqrt(1.0 - c * c) / c, 25.0)
     lit = inside & ~(z > far + bias)
-    xy = np.where(lit[..., None], u, np.nan).astype(np.float32)
+    xy = np.where(lit[..., None], u, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         shade = np.where(lit, cos * (REFERENCE_MM / dist) ** 2, 0.0)
-    return xy, shade.astype(np.float32)
+    if hit is not None and lit.any():
+        hm = np.asarray(hit, bool)
+        if hm.shape != (H, W):
+            raise BlendError(f"a projector's hit mask must be its size {(H, W)}, got {hm.shape}")
+        rows = np.flatnonzero(lit)
+        pix = snap_pixels(footprint_points(xy, rows, samples=max(int(samples), 1)), (W, H)).astype(np.int64)
+        cover = hm[pix[..., 1], pix[..., 0]].mean(axis=1)
+        shade.reshape(-1)[rows] *= cover
+        dark = rows[cover == 0]
+        xy.reshape(-1, 2)[dark] = np.nan
+    return xy.astype(np.float32), shade.astype(np.float32)
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,5 +285,5 @@ def mesh_placement(vertices: np.ndarray, faces: np.ndarray, camera_P: np.ndarray
         xy, shading = {}, {}
         for s, (P, size, near, far) in projectors.items():
             own = raster.view(P, size, near=near, far=far)
-            xy[s], shading[s] = placement(surface, P, size, own.depth, vertices=vertices)
+            xy[s], shading[s] = placement(surface, P, size, own.depth, vertices=vertices, hit=own.hit)
     return MeshPlacement(surface.hit, xy, shading)

@@ -5,7 +5,8 @@ and the distance, :mod:`imaging.blending.mesh`), and a disc drawn in the project
 slanted surface as a narrow ellipse, which a round window in the camera overshoots. So a blob is read on
 a grid over the camera image (``xy``, ``shading``: :func:`imaging.blending.mesh.mesh_placement` at that
 grid) from the grid pixels around its site that the blob's own projector lights **inside the disc**
-(their projector pixel within ``inner`` of the disc's radius of its centre, clear of its blurred rim),
+(their projector pixel within ``inner`` of the disc's radius of its centre, clear of its blurred rim, and the
+projector pixels around it all inside the disc as it is drawn: :func:`_whole_pixels`),
 each divided by its shading: what remains is the lamp's light (smooth in the projector's pixels). The
 value is the per-channel trimmed mean (the middle 80 %) of those ratios;
 :func:`imaging.blending.fit.fit_contributions` then takes the samples as they are (``shaded=True``).
@@ -63,8 +64,9 @@ def read_capture_shaded(capture: np.ndarray, black: np.ndarray, plan: SamplePlan
         g = shading[s][ys, xs]
         centre = plan.projector_xy[s][j]
         rad = inner * float(plan.projector_radius[s][j])
+        full = _whole_pixels(u, centre, float(plan.projector_radius[s][j]))
         with np.errstate(invalid="ignore"):
-            inside = np.isfinite(u).all(axis=1) & (np.hypot(u[:, 0] - centre[0], u[:, 1] - centre[1]) <= rad) & (g > 0)
+            inside = full & (np.hypot(u[:, 0] - centre[0], u[:, 1] - centre[1]) <= rad) & (g > 0)
         if inside.sum() < MIN_PIXELS:
             continue
         ratio = np.sort(img[ys[inside], xs[inside]] / g[inside][:, None], axis=0)
@@ -72,6 +74,28 @@ def read_capture_shaded(capture: np.ndarray, black: np.ndarray, plan: SamplePlan
         samples.add(s, j, ratio[cut:len(ratio) - cut].mean(axis=0))
         read += 1
     return read
+
+
+#: a point read from a disc lies this far (projector pixels) inside the pixels the disc draws
+EDGE_MARGIN = 0.3
+
+
+def _whole_pixels(u: np.ndarray, centre: np.ndarray, radius: float, *, margin: float = EDGE_MARGIN) -> np.ndarray:
+    """``(n,) bool``: the points ``u`` ((n, 2) projector pixels, NaN allowed) whose light comes from the disc's
+    pixels alone: the pixels holding ``u`` and the points ``margin`` around it on both axes all have their centres
+    within ``radius`` of ``centre``, as :func:`imaging.blending.sample_plan.draw_discs` draws it (a node shows a
+    pixel as a square of one value, which the lens spreads a little). A disc that a projector grazes spans a
+    pixel or two across in the projector's pixels, and a point near its drawn rim reads part of it: a reading
+    taken there would make the grazed surface look darker than it is."""
+    ok = np.isfinite(u).all(axis=1)
+    v = np.where(ok[:, None], u, 0.0)
+    full = ok.copy()
+    for dx in (-margin, margin):
+        for dy in (-margin, margin):
+            px = np.floor(v[:, 0] + dx + 0.5)
+            py = np.floor(v[:, 1] + dy + 0.5)
+            full &= (px - centre[0]) ** 2 + (py - centre[1]) ** 2 <= radius * radius
+    return full
 
 
 def match_flat_white(white: Mapping[str, np.ndarray], flat: np.ndarray, surface: np.ndarray, *,
