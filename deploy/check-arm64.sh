@@ -3,8 +3,9 @@
 # alone: a clean Debian 12 arm64 root (Raspberry Pi OS Bookworm's base) run under
 # qemu-user-static, the real deploy/install-node.sh inside it, the installed node started there
 # joining a coordinator on this machine, and its frame compared with an x86 node's.
-# About 10 minutes once the root is cached (its first build takes about as long again); kept out
-# of `make test`: run it (`make check-arm64`) after each change to the install.
+# About 10 minutes once the root and the pip cache are filled; from an empty cache 45 minutes on a
+# busy 2-core machine (17 to build the root, 25 to install with moderngl and glcontext compiled
+# under qemu). Kept out of `make test`: run it (`make check-arm64`) after each change to the install.
 set -euo pipefail
 
 PROG=check-arm64.sh
