@@ -69,7 +69,7 @@ from coordinator.assets import AssetStore
 from coordinator.rig import parse_config
 from shadowless.local import LocalRig, grid_names
 from shadowless import exit_cleanup
-from shadowless.cpu_budget import CpuBudgetError
+from shadowless.cpu_budget import CpuBudgetError, cleanup_leftovers, unavailable
 from shadowless.netns import VenueError, available, parse_rate
 from shadowless.rig_budget import DEFAULT_PERIOD_MS, RigBudgets, coordinator_default, parse_gpu
 
@@ -444,6 +444,8 @@ def run(args: argparse.Namespace) -> int:
     if problem:
         print(f"shadowless bench venue: {problem}", file=sys.stderr)
         return 2
+    if not unavailable():
+        cleanup_leftovers()             # a killed run's groups, as Venue.create removes its namespaces
     budgets = budgets_for(args) if args.node_cpu is not None else None
     if budgets is not None:
         try:
