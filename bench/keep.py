@@ -214,6 +214,10 @@ def write(path: Path, doc: dict) -> None:
 def run_kept(args: argparse.Namespace, run: Callable[[argparse.Namespace], int | None]) -> int:
     """Run one benchmark (``run(args)``) with its printed JSON kept in ``args.keep_json``."""
     path = target(args.keep_json, args.bench)
+    note = getattr(args, "keep_note", None)
+    for name in ("keep_json", "keep_note"):       # the benchmark's parameters are those of a run without them
+        if hasattr(args, name):
+            delattr(args, name)
     command = command_as_typed() or f"shadowless bench {args.bench}"
     load_start, started = load(), time.time()
     tee = _Tee(sys.stdout)
@@ -226,7 +230,7 @@ def run_kept(args: argparse.Namespace, run: Callable[[argparse.Namespace], int |
     if doc is None:
         print(f"shadowless bench: nothing kept in {path}: {args.bench} printed no JSON document", file=sys.stderr)
         return code or 1
-    kept = wrap(path.stem, command, doc, note=getattr(args, "keep_note", None), started=started,
+    kept = wrap(path.stem, command, doc, note=note, started=started,
                 finished=time.time(), load_start=load_start, load_end=load(), exit_status=code)
     write(path, kept)
     status = "" if code == 0 else f" (the benchmark exited {code})"

@@ -69,3 +69,15 @@ def test_any_command_s_printed_figures_are_kept_as_json_or_as_lines(tmp_path, ca
     assert json.loads((tmp_path / "text.json").read_text())["result"] == {"text": ["16.3 projectors"]}
     assert main([str(tmp_path / "none.json"), "--", sys.executable, "-c", "raise SystemExit(3)"]) == 3
     assert not (tmp_path / "none.json").exists() and "printed nothing" in capfd.readouterr().err
+
+
+def test_the_benchmark_sees_its_own_arguments_only(tmp_path, capsys):
+    import argparse
+
+    from bench.keep import run_kept
+
+    args = argparse.Namespace(bench="probe", keep_json=str(tmp_path), keep_note="n", seconds=2)
+    assert run_kept(args, lambda a: print(json.dumps({"parameters": vars(a)}))) == 0
+    kept = json.loads((tmp_path / "probe.json").read_text())
+    assert kept["result"] == {"parameters": {"bench": "probe", "seconds": 2}} and kept["source"] == "n"
+    assert json.loads(capsys.readouterr().out) == kept["result"]
