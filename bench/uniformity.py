@@ -101,6 +101,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                      "  shadowless bench uniformity --quick                  # a small rig, every part (minutes)\n"
                      "  shadowless bench uniformity --only table,wall        # the in-process parts alone\n"
                      "  shadowless bench uniformity --only failover --failover-rigs P9\n"
+                     "  shadowless bench uniformity --only bust --diagnose out/   # the mesh blend's model against the room\n"
                      "  shadowless bench uniformity                          # the full run (long)")
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("--quick", action="store_true",
@@ -150,6 +151,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--node-frames", type=int, default=None, help="frames per profile of `bench node` (default 120; "
                                                                       "20 with --quick)")
     parser.add_argument("--keep", metavar="DIR", help="keep rig directories and logs here")
+    parser.add_argument("--diagnose", metavar="DIR", default=None,
+                        help="bust: after the blend, compare each projector's modelled light with the room's, by "
+                             "incidence angle, and the blended light as predicted and as rendered; the figures go "
+                             "under parts.bust.diagnosis, the picture to DIR/bust_diagnosis.png")
 
 
 def _defaults(args: argparse.Namespace) -> None:
@@ -263,6 +268,11 @@ async def part_bust(args, work: Path) -> dict:
            "reach_min_max": [int(b.count[mask].min()), int(b.count[mask].max())] if mask.any() else None,
            "blend_captures": b.captures, "job": _job_figures(b.result), "notes": b.notes + ["4x4 blocks on the bust"]}
     _log(f"bust: non-uniformity where >= 3 reach {out['before']} -> {out['after']}")
+    if args.diagnose:
+        from bench.uniformity_diagnose import diagnose
+        out["diagnosis"] = diagnose(room, work / "bust", mask, Path(args.diagnose))
+        _log(f"bust: diagnosis in {Path(args.diagnose) / out['diagnosis']['picture']}: blended light "
+             f"{out['diagnosis']['blended']}")
     return out
 
 
