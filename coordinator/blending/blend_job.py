@@ -25,12 +25,18 @@ places them through the 3D poses (:mod:`imaging.blending.mesh`: the camera's vie
 rasterised at the grid's size, each grid point's surface point projected through each
 projector's 3x4 pose, a shadow-map test for what it reaches), and models each projector's light
 as its lamp's smooth light in its own pixels times the geometric factor of the irradiance
-(``cos(incidence) / distance^2``, from the mesh's interpolated normals), which changes as fast as
-the surface bends. The blobs are read with that factor divided out pixel by pixel, inside each
-disc only (:mod:`imaging.blending.mesh_samples`), the flat white then holds the modelled lights'
-sum at every point, and the maps are fitted jointly by least squares against the target
-(:mod:`imaging.blending.mesh_maps`), since a texel of a projector's map may light two surfaces
-far apart. It stays experimental until it meets issue 37's 3 % on the room's bust.
+(``cos(incidence) / distance^2``, from the mesh's interpolated normals, copies of a vertex pooled),
+which changes as fast as the surface bends, times the share of each grid cell that the pixels its
+node draws light (a node draws only pixels whose centre sees the mesh: along a projector's own
+silhouette, the crown of a bust for a projector grazing it, the staircase of its pixels reaches far
+over the surface). The blobs are read with that factor divided out pixel by pixel, inside each
+disc's drawn pixels only (:mod:`imaging.blending.mesh_samples`), the flat white then holds the
+modelled lights' sum at every point, and the maps are fitted jointly by least squares against the
+target (:mod:`imaging.blending.mesh_maps`), through each grid cell's footprint in each projector's
+pixels (a grazed cell spans several), since a texel of a projector's map may light two surfaces far
+apart; ``map_scale`` "auto" makes them as fine as the grid resolves. On the room's bust, where 3 to 6
+projectors reach, the light's p99 non-uniformity goes from 0.36 to 0.027 (issue 37's target: 0.03;
+``shadowless bench uniformity --only bust``, and ``--diagnose DIR`` for the model against the room).
 """
 from __future__ import annotations
 

@@ -102,8 +102,8 @@ class BlendOptions:
                                       "can change its exposure")
     experimental_mesh: bool = option(False, group=MEASURE,
                                      help="blend a mesh rig (3D poses) too: experimental (on the room's bust, where 3 "
-                                          "or more projectors reach, the light's non-uniformity goes from about 0.36 "
-                                          "to about 0.03, against a target of 0.03)")
+                                          "or more projectors reach, the light's non-uniformity goes from 0.36 to "
+                                          "0.027, against a target of 0.03)")
     settle_s: float = option(0.05, lo=0.0, hi=30.0, flag="--settle", metavar="S", group=CAMERA,
                              help="wait after every swap before capturing, seconds")
 
