@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imaging.blending.mesh_maps import bilinear_matrix, fit_alpha_maps
+from imaging.blending.mesh_maps import bilinear_matrix, fit_alpha_maps, footprint_matrix, map_scale_for
 from imaging.blending.predict import sample_map
 
 
@@ -18,6 +18,33 @@ def test_the_sampling_matrix_is_the_nodes_bilinear_sampling():
     want = sample_map(values, u.reshape(-1, 1, 2), size)[:, 0]
     assert np.allclose(B @ values.ravel(), want, atol=1e-5)
     assert np.allclose(B.sum(axis=1), 1.0)
+
+
+def test_a_cells_footprint_is_the_mean_of_the_pixels_it_covers_and_the_map_scale_follows_it():
+    # an affine placement: grid cell (gx, gy) at projector pixel (3 gx + 0.4 gy + 5, 0.5 gy + 4), so a cell spans
+    # 3 pixels along x; counted by brute force, 16 points per cell snapped to pixel centres
+    h, w, size = 20, 30, (100, 20)
+    gy, gx = np.mgrid[0:h, 0:w].astype(np.float64)
+    coords = np.stack([3.0 * gx + 0.4 * gy + 5.0, 0.5 * gy + 4.0], axis=-1)
+    coords[0, 0] = np.nan                                            # not reached: its neighbours go one-sided
+    rows = np.flatnonzero(np.isfinite(coords).all(axis=-1).ravel())
+    alpha = np.random.default_rng(1).random((size[1], size[0]))
+    got = footprint_matrix(coords, rows, size, size, samples=4) @ alpha.ravel()
+    o = (np.arange(4) + 0.5) / 4 - 0.5
+    want = []
+    for r in rows:
+        y, x = divmod(int(r), w)
+        vals = [alpha[int(np.clip(np.floor(0.5 * (y + b) + 4.0 + 0.5), 0, size[1] - 1)),
+                      int(np.clip(np.floor(3.0 * (x + a) + 0.4 * (y + b) + 5.0 + 0.5), 0, size[0] - 1))]
+                for a in o for b in o]
+        want.append(np.mean(vals))
+    assert np.allclose(got, want, atol=1e-9)
+    # with no samples it is the node's bilinear sampling at the cell's centre
+    point = footprint_matrix(coords, rows, size, size, samples=0)
+    assert np.allclose(point.toarray(), bilinear_matrix(coords.reshape(-1, 2)[rows], size, size).toarray())
+    # a cell spans sqrt(3 * 0.5) = 1.22 pixels: maps at full resolution; a placement 3 times as coarse: 1/4
+    assert map_scale_for({"a": coords}) == 1
+    assert map_scale_for({"a": 3.0 * coords}) == 4 and map_scale_for({"a": 3.0 * coords}, coarsest=8) == 4
 
 
 def _light(T: dict, maps: dict, coords: dict, size) -> np.ndarray:
