@@ -142,8 +142,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="failover: rig.toml's [blend] switch_lead_ms, how far ahead the new maps are set "
                              "(default: the rig's); 1 shows what pushing and uploading the maps take")
     parser.add_argument("--cpu-budget", type=_budget, default=None, metavar="FRACTION|auto",
-                        help="failover: run each rig again with each node process held to FRACTION of a core "
-                             "(a cgroup v1 group per node; needs root), e.g. 0.06 for P25 on 2 cores; auto: "
+                        help="failover: run each rig again with each node process held to FRACTION of a core, "
+                             "reserved, its rasterizer's threads (the GPU's stand-in) apart without a limit (a "
+                             "cgroup per node; needs root), e.g. 0.06 for P25 on 2 cores; auto: "
                              "three quarters of the machine shared by the rig's nodes (0.06 for P25, 0.17 for P9 "
                              "on 2 cores)")
     parser.add_argument("--cpu-period-ms", type=float, default=20.0,
