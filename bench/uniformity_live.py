@@ -403,7 +403,7 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
                     reported[s] = time.monotonic_ns()
             return _switched(live) and any(live.slot_blend_id(s) != old_ids[s] for s in rest) \
                 and live.showing_assigned(rest)
-        await _wait("the remaining nodes showing new maps", shown_everywhere, 60, step=0.002)
+        await _wait("the remaining nodes showing new maps", shown_everywhere, 60)
         changed = [s for s in rest if live.slot_blend_id(s) != old_ids[s]]
         out["maps_changed"] = len(changed)
         since = live.since_ns(changed)
