@@ -14,28 +14,31 @@
 // ordered dither, floor(255 * value + t), so that a slow ramp scaled by the maps does not band.
 // Without them (or for patterns, apply_lut 0) the output is what it was without blending, bit for bit.
 
+// One program per variant (shaders.py's variant_defines puts these #define lines after the
+// #version line; the renderer compiles each combination at its first use and keeps it), so that
+// no frame pays for a path it does not take (llvmpipe runs a uniform's branches with masks, both
+// sides):
+//   CONTENT_KIND  1 RGB(A), 2 grey (1 or 2 channels, .r replicated), 3 planar YUV, 4 semi-planar YUV
+//   FADE_FROM     -1 no fade; 0 a fade from black; 1..4 from a picture of that kind (content_from)
+//   BLEND         1: blend maps are set (only with APPLY_LUT 1)
+//   APPLY_LUT     1: gain, blend and LUT; 0: clamp(value) only (e.g. calibration patterns)
+
 uniform sampler2D content;      // (H, W) texels, row 0 = top row of the image, never filtered
-uniform int content_grey;       // 1: content has 1 or 2 channels, replicate .r to RGB
 uniform sampler2D lut;          // (3, E) R32F: row c = channel c, sample k at luminance k / (E - 1)
 uniform int lut_size;           // E >= 2
 uniform float gain;
-uniform int apply_lut;
 uniform sampler2D blend;        // (h, w) RGBA16F: rgb = alpha, a = beta; row 0 = top row of the output
-uniform int blend_on;           // 1: blend maps are set
 uniform vec4 blend_xform;       // (w / W, h / H, H, 0): fragment -> map coordinates (see blend_at)
 uniform int out_rows;           // H, the output's rows (the dither counts rows from the top)
 // A crossfade (node/fade.py, protos/fade.py): the picture shown before is mixed in, on the linear
 // content values, before the gain, the blend and the LUT: mix(before, value, fade_mix).
 uniform sampler2D content_from; // the picture before, sampled as content is (same size and space)
-uniform int from_grey;          // 1: it has 1 or 2 channels
-uniform int from_on;            // 1: content_from holds it; 0: it was black
-uniform int fade_on;            // 1: a fade is under way
 uniform float fade_mix;         // the new picture's share, 0..1
 // A video frame's YUV planes (protos/yuv.py, node/yuv.py), converted here instead of on the CPU:
-// content holds Y; yuv 1: chroma_u and chroma_v hold U and V; yuv 2: chroma_u holds UV interleaved
-// (NV12, P010). RGB = yuv_matrix * (Y, U, V) as sampled + yuv_offset (protos/yuv.py's yuv_affine),
-// chroma bilinear at the luma position, clamped at its edges; luma as any content (outside: black).
-uniform int content_yuv;        // 0: content is RGB(A) or grey; 1: planar YUV; 2: semi-planar YUV
+// content holds Y; planar: chroma_u and chroma_v hold U and V; semi-planar: chroma_u holds UV
+// interleaved (NV12, P010). RGB = yuv_matrix * (Y, U, V) as sampled + yuv_offset (protos/yuv.py's
+// yuv_affine), chroma bilinear at the luma position, clamped at its edges; luma as any content
+// (outside: black).
 uniform sampler2D chroma_u;
 uniform sampler2D chroma_v;
 uniform mat3 yuv_matrix;
@@ -43,17 +46,12 @@ uniform vec3 yuv_offset;
 uniform vec4 chroma_xform;      // luma texel -> chroma texel: xy * chroma_xform.xy + chroma_xform.zw
 uniform vec2 luma_scale;        // content pixel -> luma texel: (xy + 0.5) * luma_scale - 0.5
 // The same for the picture a fade starts from (content_from holds its Y)
-uniform int from_yuv;
 uniform sampler2D from_chroma_u;
 uniform sampler2D from_chroma_v;
 uniform mat3 from_yuv_matrix;
 uniform vec3 from_yuv_offset;
 uniform vec4 from_chroma_xform;
 uniform vec2 from_luma_scale;
-
-vec3 content_rgb(vec4 t) {
-    return content_grey != 0 ? t.rrr : t.rgb;
-}
 
 // Bilinear at xy (texels) with texels outside the texture weighing 0 (BORDER_CONSTANT 0);
 // `weight` is the sum of the weights of the texels inside (1 well inside, 0 at one pixel out).
@@ -115,27 +113,30 @@ vec3 sample_yuv(sampler2D luma, sampler2D cu, sampler2D cv, int mode, mat3 m, ve
 }
 
 vec3 sample_content(vec2 xy) {
-    if (content_yuv != 0) {
-        return sample_yuv(content, chroma_u, chroma_v, content_yuv, yuv_matrix, yuv_offset, chroma_xform,
-                          luma_scale, xy);
-    }
-    return sample_texture(content, content_grey, xy);
+#if CONTENT_KIND >= 3
+    return sample_yuv(content, chroma_u, chroma_v, CONTENT_KIND - 2, yuv_matrix, yuv_offset, chroma_xform,
+                      luma_scale, xy);
+#else
+    return sample_texture(content, CONTENT_KIND - 1, xy);
+#endif
 }
 
 // The frame's own content at xy, with the picture before mixed in while a fade is under way.
 vec3 sample_faded(vec2 xy) {
     vec3 value = sample_content(xy);
-    if (fade_on == 0) {
-        return value;
-    }
+#if FADE_FROM < 0
+    return value;
+#else
+#if FADE_FROM >= 3
+    vec3 before = sample_yuv(content_from, from_chroma_u, from_chroma_v, FADE_FROM - 2, from_yuv_matrix,
+                             from_yuv_offset, from_chroma_xform, from_luma_scale, xy);
+#elif FADE_FROM >= 1
+    vec3 before = sample_texture(content_from, FADE_FROM - 1, xy);
+#else
     vec3 before = vec3(0.0);
-    if (from_on != 0) {
-        before = from_yuv != 0
-            ? sample_yuv(content_from, from_chroma_u, from_chroma_v, from_yuv, from_yuv_matrix, from_yuv_offset,
-                         from_chroma_xform, from_luma_scale, xy)
-            : sample_texture(content_from, from_grey, xy);
-    }
+#endif
     return mix(before, value, fade_mix);
+#endif
 }
 
 float lut_channel(float v, int channel) {
@@ -173,19 +174,22 @@ float dither_threshold() {
 
 vec4 finish(vec3 value) {
     vec3 v = value;
-    bool blended = apply_lut != 0 && blend_on != 0;
-    if (apply_lut != 0) {
-        if (blended) {
-            vec4 ab = blend_at();
-            v = ab.rgb * v + ab.a;
-        }
-        v = clamp(v * gain, 0.0, 1.0);
-        v = vec3(lut_channel(v.r, 0), lut_channel(v.g, 1), lut_channel(v.b, 2));
-    }
+#if APPLY_LUT
+#if BLEND
+    vec4 ab = blend_at();
+    v = ab.rgb * v + ab.a;
+#endif
+    v = clamp(v * gain, 0.0, 1.0);
+    v = vec3(lut_channel(v.r, 0), lut_channel(v.g, 1), lut_channel(v.b, 2));
+#endif
     v = clamp(v, 0.0, 1.0);
     // Quantise here, to round(255 * v) (halves up), so the unorm8 framebuffer stores exactly
     // that level whether the driver's float->unorm conversion rounds or truncates
     // (+0.25 keeps k/255 from landing a hair below k under truncation). Blended: dithered.
-    vec3 level = blended ? floor(v * 255.0 + dither_threshold()) : floor(v * 255.0 + 0.5);
+#if APPLY_LUT && BLEND
+    vec3 level = floor(v * 255.0 + dither_threshold());
+#else
+    vec3 level = floor(v * 255.0 + 0.5);
+#endif
     return vec4((level + 0.25) / 255.0, 1.0);
 }

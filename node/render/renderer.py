@@ -38,8 +38,8 @@ import numpy as np
 from node.errors import NodeError
 from node.render.mesh import Mesh
 from node.render.yuv_textures import YuvTextures, layout_key
-from node.render.shaders import (MIN_GL_VERSION, MIN_GLES_VERSION, glsl_header, has_norm16_textures, is_gles,
-                                  load_shader, shading_language)
+from node.render.shaders import (BLACK, GREY, MIN_GL_VERSION, MIN_GLES_VERSION, RGB, YUV_PLANAR, YUV_SEMIPLANAR,
+                                  Variant, glsl_header, has_norm16_textures, is_gles, load_shader, shading_language)
 from protos.blend import BlendMaps
 from protos.yuv import YuvFrame
 
@@ -77,6 +77,13 @@ class _Content:
     @property
     def size(self) -> tuple[int, int]:
         return self.yuv.content_size if self.yuv is not None else (self.shape[1], self.shape[0])
+
+    @property
+    def kind(self) -> int:
+        """pipeline.glsl's kind of this content (RGB, GREY, YUV_PLANAR, YUV_SEMIPLANAR)."""
+        if self.yuv is not None:
+            return YUV_PLANAR if self.yuv.mode == 1 else YUV_SEMIPLANAR
+        return GREY if self.grey else RGB
 
 
 def _check_size(width: int, height: int, limit: int) -> tuple[int, int]:
@@ -128,29 +135,18 @@ class Renderer:
         self._released = False
         self._max_texture = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
         self._width, self._height = _check_size(width, height, self._max_texture)
-        try:
-            # moderngl resolves `#include "pipeline.glsl"` from ctx.includes
-            header = glsl_header(ctx.version_code, self._gles)
-            ctx.includes["pipeline.glsl"] = load_shader("pipeline.glsl")
-            fullscreen = load_shader("fullscreen.vert.glsl", header)
-            self._warp = ctx.program(vertex_shader=fullscreen, fragment_shader=load_shader("warp.frag.glsl", header))
-            self._mesh_prog = ctx.program(vertex_shader=load_shader("mesh.vert.glsl", header),
-                                          fragment_shader=load_shader("mesh.frag.glsl", header))
-        except moderngl.Error as exc:
-            raise RenderError(f"the renderer's shaders do not compile on this driver: {exc}") from exc
-        self._warp_vao = ctx.vertex_array(self._warp, [])
-        for prog in (self._warp, self._mesh_prog):
-            prog["content"].value = 0
-            prog["lut"].value = 1
-            prog["blend"].value = 2
-            prog["blend_on"].value = 0
-            prog["content_from"].value = 3    # a crossfade's picture before (render(fade=...))
-            prog["fade_on"].value = 0
-            # a YUV picture's chroma planes, and those of the picture a fade starts from (yuv_textures.py)
-            for name, unit in (("chroma_u", 4), ("chroma_v", 5), ("from_chroma_u", 6), ("from_chroma_v", 7)):
-                prog[name].value = unit
-            prog["content_yuv"].value = 0
-            prog["from_yuv"].value = 0
+        # One program per shader and variant (pipeline.glsl's #defines), compiled at first use and kept;
+        # the uniforms' values live here and go to the program a draw uses (_use). Texture units:
+        # content_from is a crossfade's picture before (render(fade=...)); then a YUV picture's chroma
+        # planes and those of the picture a fade starts from (yuv_textures.py).
+        self._header = glsl_header(ctx.version_code, self._gles)
+        self._uniforms: dict[str, Any] = {"content": 0, "lut": 1, "blend": 2, "content_from": 3, "chroma_u": 4,
+                                          "chroma_v": 5, "from_chroma_u": 6, "from_chroma_v": 7}
+        # (shader, Variant) -> [program, its uniforms by name, the values last written, its VAO or None]
+        self._programs: dict[tuple[str, Variant], list] = {}
+        # moderngl resolves `#include "pipeline.glsl"` from ctx.includes
+        ctx.includes["pipeline.glsl"] = load_shader("pipeline.glsl")
+        self._program("warp", Variant.of(RGB))     # refuses now, with the driver's words, if it cannot compile
         # the blend maps in use (None: none) and those uploaded ahead of use, by blend id
         self._blend: tuple[str, Any, tuple[int, int]] | None = None
         self._blend_ahead: tuple[str, Any, tuple[int, int]] | None = None
@@ -170,7 +166,6 @@ class Renderer:
         self._pose_content_size: tuple[int, int] | None = None
         self._warp_pose_bytes = b""
         self._warp_identity_bytes = b""
-        self._mesh_vao: Any = None
         self._mesh_vbo: Any = None
         self._mesh_ibo: Any = None
         self._fbo: Any = None
@@ -211,7 +206,7 @@ class Renderer:
         self._color.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
         self._depth = None
         self._fbo = None
-        self._attach_depth(self._mesh_vao is not None)
+        self._attach_depth(self._mesh_vbo is not None)
         # GLES reads RGBA only (GL_RGB is not a format glReadPixels must accept there): alpha dropped
         self._raw = np.empty((self._height, self._width, 4), np.uint8) if self._gles else None
         self._image = np.empty((self._height, self._width, 3), np.uint8)  # row 0 at the top
@@ -236,6 +231,51 @@ class Renderer:
     def _window_to_pixels(self) -> np.ndarray:
         """(3, 3) float64: GL window coords (centres at +0.5, rows bottom-up) -> OpenCV pixels."""
         return np.array([[1.0, 0.0, -0.5], [0.0, -1.0, self._height - 0.5], [0.0, 0.0, 1.0]])
+
+    # ------------------------------------------------------------------ programs
+    def _program(self, shader: str, variant: Variant) -> list:
+        """The program of ``shader`` ("warp" or "mesh") for ``variant``, compiled at its first use:
+        [program, its uniforms by name, the values last written to it, its vertex array or None]."""
+        entry = self._programs.get((shader, variant))
+        if entry is not None:
+            return entry
+        header = self._header + variant.defines()
+        vertex = "fullscreen.vert.glsl" if shader == "warp" else "mesh.vert.glsl"
+        try:
+            prog = self.ctx.program(vertex_shader=load_shader(vertex, header),
+                                    fragment_shader=load_shader(f"{shader}.frag.glsl", header))
+        except self._mgl.Error as exc:
+            raise RenderError(f"the renderer's shaders do not compile on this driver: {exc}") from exc
+        members = {name: prog[name] for name in prog if isinstance(prog[name], self._mgl.Uniform)}
+        entry = [prog, members, {}, self.ctx.vertex_array(prog, []) if shader == "warp" else None]
+        self._programs[(shader, variant)] = entry
+        return entry
+
+    def _use(self, shader: str, variant: Variant) -> list:
+        """The program for the next draw, with every uniform it has set to the renderer's value
+        (written only where it changed since that program's last draw)."""
+        entry = self._program(shader, variant)
+        prog, members, written = entry[0], entry[1], entry[2]
+        values = self._uniforms
+        for name, member in members.items():
+            value = values.get(name)
+            if value is None or written.get(name) == value:
+                continue
+            if isinstance(value, bytes):
+                member.write(value)
+            else:
+                member.value = value
+            written[name] = value
+        if shader == "mesh" and entry[3] is None:
+            entry[3] = self.ctx.vertex_array(prog, [(self._mesh_vbo, "3f 2f", "in_position", "in_uv")],
+                                             index_buffer=self._mesh_ibo, index_element_size=4)
+        return entry
+
+    def _release_mesh_arrays(self) -> None:
+        for (shader, _), entry in self._programs.items():
+            if shader == "mesh" and entry[3] is not None:
+                entry[3].release()
+                entry[3] = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -337,17 +377,12 @@ class Renderer:
         if np.median(depth) < 0:
             pm = -pm
         data = np.concatenate([mesh.vertices, mesh.uvs], axis=1).astype(np.float32)
-        for obj in (self._mesh_vao, self._mesh_vbo, self._mesh_ibo):
+        self._release_mesh_arrays()     # each mesh program's vertex array is made at its next draw
+        for obj in (self._mesh_vbo, self._mesh_ibo):
             if obj is not None:
                 obj.release()
         self._mesh_vbo = self.ctx.buffer(data.tobytes())
         self._mesh_ibo = self.ctx.buffer(mesh.faces.tobytes())
-        self._mesh_vao = self.ctx.vertex_array(
-            self._mesh_prog,
-            [(self._mesh_vbo, "3f 2f", "in_position", "in_uv")],
-            index_buffer=self._mesh_ibo,
-            index_element_size=4,
-        )
         self._attach_depth(True)
         self._pose = ("projection", pm, near, far)
         self._pose_content_size = None
@@ -357,10 +392,11 @@ class Renderer:
         """Forget the pose: content frames render black until a new pose is set."""
         self._pose = None
         self._pose_content_size = None
-        for obj in (self._mesh_vao, self._mesh_vbo, self._mesh_ibo):
+        self._release_mesh_arrays()
+        for obj in (self._mesh_vbo, self._mesh_ibo):
             if obj is not None:
                 obj.release()
-        self._mesh_vao = self._mesh_vbo = self._mesh_ibo = None
+        self._mesh_vbo = self._mesh_ibo = None
 
     def _update_pose_uniforms(self) -> None:
         """Recompute the pose's uniforms (they depend on the output size too)."""
@@ -385,7 +421,7 @@ class Renderer:
             clip[2] = (far + near) / (far - near) * d
             clip[2, 3] -= 2.0 * far * near / (far - near)
             clip[3] = d
-            self._mesh_prog["world_to_clip"].write(_mat_bytes(clip))
+            self._uniforms["world_to_clip"] = _mat_bytes(clip)
 
     # ------------------------------------------------------------------ luminance
     def set_lut(self, lut: np.ndarray | None) -> None:
@@ -416,16 +452,14 @@ class Renderer:
             self._lut_tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
             self._lut_shape = (3, e)
         self._lut_tex.write(table.tobytes())
-        for prog in (self._warp, self._mesh_prog):
-            prog["lut_size"].value = e
+        self._uniforms["lut_size"] = e
 
     def set_gain(self, gain: float) -> None:
         """Linear gain applied to the content before the LUT (>= 0)."""
         g = float(gain)
         if not math.isfinite(g) or g < 0:
             raise ValueError(f"gain must be finite and >= 0, got {gain!r}")
-        for prog in (self._warp, self._mesh_prog):
-            prog["gain"].value = g
+        self._uniforms["gain"] = g
         self._gain = g
 
     @property
@@ -501,10 +535,8 @@ class Renderer:
     def _update_blend_uniforms(self) -> None:
         """The blend's uniforms (they depend on the output size too)."""
         w, h = self._blend[2] if self._blend is not None else (1, 1)
-        for prog in (self._warp, self._mesh_prog):
-            prog["blend_on"].value = int(self._blend is not None)
-            prog["blend_xform"].value = (w / self._width, h / self._height, float(self._height), 0.0)
-            prog["out_rows"].value = self._height
+        self._uniforms["blend_xform"] = (w / self._width, h / self._height, float(self._height), 0.0)
+        self._uniforms["out_rows"] = self._height
 
     def _bind_blend(self) -> None:
         (self._blend[1] if self._blend is not None else self._blend_none).use(2)
@@ -668,12 +700,12 @@ class Renderer:
                     f"{self._width}x{self._height}; they must match"
                 )
             self._set_fade(None)
-            self._draw_warp(entry, self._warp_identity_bytes, apply_lut)
+            self._draw_warp(entry, self._warp_identity_bytes, apply_lut, None)
             return
         if self._pose is None:
             fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
             return
-        self._set_fade(fade)
+        fade_from = self._set_fade(fade)
         if self._pose[0] == "homography":
             if entry.size != self._pose_content_size:
                 cw, ch = self._pose_content_size
@@ -681,70 +713,61 @@ class Renderer:
                     f"content {content_id!r} is {entry.size[0]}x{entry.size[1]} but the homography pose "
                     f"was set for {cw}x{ch} content"
                 )
-            self._draw_warp(entry, self._warp_pose_bytes, apply_lut)
+            self._draw_warp(entry, self._warp_pose_bytes, apply_lut, fade_from)
             return
-        prog = self._mesh_prog
-        prog["content_grey"].value = int(entry.grey)
-        prog["apply_lut"].value = int(apply_lut)
-        entry.texture.use(0)
-        self._bind_yuv(prog, entry, mesh=True)
-        self._lut_tex.use(1)
-        self._bind_blend()
+        self._bind_content(entry, mesh=True)
+        vao = self._use("mesh", self._variant(entry, apply_lut, fade_from))[3]
         fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
         self.ctx.enable_only(self._mgl.DEPTH_TEST)
         self.ctx.depth_func = "<"
         try:
-            self._mesh_vao.render(self._mgl.TRIANGLES)
+            vao.render(self._mgl.TRIANGLES)
         finally:
             self.ctx.enable_only(self._mgl.NOTHING)
 
-    def _set_fade(self, fade: tuple[str, float] | None) -> None:
-        """The fade's uniforms and texture for the next draw (None: no fade)."""
-        on = fade is not None
+    def _variant(self, entry: _Content, apply_lut: bool, fade_from: int | None) -> Variant:
+        return Variant.of(entry.kind, fade_from, self._blend is not None, apply_lut)
+
+    def _set_fade(self, fade: tuple[str, float] | None) -> int | None:
+        """The fade's uniforms and texture for the next draw; the kind of the picture it starts from
+        (BLACK for none), or None without a fade."""
+        if fade is None:
+            return None
+        before_id, m = fade
+        if not 0.0 <= float(m) <= 1.0:
+            raise ValueError(f"a fade's mix must be in 0..1, got {m!r}")
         before = None
-        if on:
-            before_id, m = fade
-            if not 0.0 <= float(m) <= 1.0:
-                raise ValueError(f"a fade's mix must be in 0..1, got {m!r}")
-            if before_id:
-                before = self._contents.get(before_id)
-                if before is None:
-                    raise KeyError(f"content {before_id!r} to fade from is not uploaded")
-                if self._pose_content_size is not None and before.size != self._pose_content_size:
-                    raise ValueError(f"content {before_id!r} to fade from is {before.size[0]}x{before.size[1]}, "
-                                     f"the pose's content is {self._pose_content_size[0]}x{self._pose_content_size[1]}")
-        for prog in (self._warp, self._mesh_prog):
-            prog["fade_on"].value = int(on)
-            if on:
-                prog["fade_mix"].value = float(fade[1])
-                prog["from_on"].value = int(before is not None)
-                prog["from_grey"].value = int(before.grey) if before is not None else 0
-        (before.texture if before is not None else self._blend_none).use(3)
-        if before is not None and before.yuv is not None:
-            before.yuv.bind((self._warp, self._mesh_prog), "from_", (3, 6, 7), mesh=self._pose is not None
-                            and self._pose[0] == "projection")
-        else:
-            for prog in (self._warp, self._mesh_prog):
-                prog["from_yuv"].value = 0
+        if before_id:
+            before = self._contents.get(before_id)
+            if before is None:
+                raise KeyError(f"content {before_id!r} to fade from is not uploaded")
+            if self._pose_content_size is not None and before.size != self._pose_content_size:
+                raise ValueError(f"content {before_id!r} to fade from is {before.size[0]}x{before.size[1]}, "
+                                 f"the pose's content is {self._pose_content_size[0]}x{self._pose_content_size[1]}")
+        self._uniforms["fade_mix"] = float(m)
+        if before is None:
+            return BLACK
+        before.texture.use(3)
+        if before.yuv is not None:
+            before.yuv.bind(self._uniforms, "from_", (3, 6, 7),
+                            mesh=self._pose is not None and self._pose[0] == "projection")
+        return before.kind
 
-    def _bind_yuv(self, prog: Any, entry: _Content, *, mesh: bool = False) -> None:
-        """The content's YUV planes and uniforms for the next draw (content_yuv 0 for RGB content)."""
-        if entry.yuv is None:
-            prog["content_yuv"].value = 0
-        else:
-            entry.yuv.bind((prog,), "", (0, 4, 5), mesh=mesh)
-
-    def _draw_warp(self, entry: _Content, matrix: bytes, apply_lut: bool) -> None:
-        prog = self._warp
-        prog["frag_to_content"].write(matrix)
-        prog["content_grey"].value = int(entry.grey)
-        prog["apply_lut"].value = int(apply_lut)
+    def _bind_content(self, entry: _Content, *, mesh: bool = False) -> None:
+        """The content's texture(s), the LUT and the blend maps bound for the next draw, and a YUV
+        picture's uniforms set."""
         entry.texture.use(0)
-        self._bind_yuv(prog, entry)
+        if entry.yuv is not None:
+            entry.yuv.bind(self._uniforms, "", (0, 4, 5), mesh=mesh)
         self._lut_tex.use(1)
         self._bind_blend()
+
+    def _draw_warp(self, entry: _Content, matrix: bytes, apply_lut: bool, fade_from: int | None) -> None:
+        self._uniforms["frag_to_content"] = matrix
+        self._bind_content(entry)
+        vao = self._use("warp", self._variant(entry, apply_lut, fade_from))[3]
         self.ctx.enable_only(self._mgl.NOTHING)
-        self._warp_vao.render(self._mgl.TRIANGLES, vertices=3)
+        vao.render(self._mgl.TRIANGLES, vertices=3)
 
     def read(self) -> np.ndarray:
         """What the projector receives: (height, width, 3) uint8 RGB, row 0 at the top.
@@ -783,10 +806,12 @@ class Renderer:
                 entry[1].release()
         self._blend = self._blend_ahead = None
         self._blend_none.release()
-        for obj in (
-            self._mesh_vao, self._mesh_vbo, self._mesh_ibo, self._warp_vao, self._warp, self._mesh_prog,
-            self._lut_tex, self._fbo, self._color, self._depth,
-        ):  # fmt: skip
+        for prog, _, _, vao in self._programs.values():
+            if vao is not None:
+                vao.release()
+            prog.release()
+        self._programs.clear()
+        for obj in (self._mesh_vbo, self._mesh_ibo, self._lut_tex, self._fbo, self._color, self._depth):
             if obj is not None:
                 obj.release()
         if self._owns_ctx:

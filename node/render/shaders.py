@@ -11,7 +11,7 @@ of their own.
 from __future__ import annotations
 
 from importlib import resources
-from typing import Any
+from typing import Any, NamedTuple
 
 #: the oldest desktop OpenGL the renderer runs on: 3.1 (GLSL 1.40)
 MIN_GL_VERSION = 310
@@ -22,6 +22,36 @@ MIN_GLES_VERSION = 300
 # without one: every value the renderer computes (content coordinates of a 4K projector,
 # 16-bit and float content, the LUT) needs highp, which OpenGL ES 3.0 guarantees in both stages.
 _GLES_HEADER = "#version 300 es\nprecision highp float;\nprecision highp int;\nprecision highp sampler2D;\n"
+
+
+#: a content's kind, as pipeline.glsl's CONTENT_KIND and FADE_FROM number them (0: black, only as a fade's start)
+BLACK, RGB, GREY, YUV_PLANAR, YUV_SEMIPLANAR = 0, 1, 2, 3, 4
+
+
+class Variant(NamedTuple):
+    """One compiled form of the warp and mesh fragment shaders (pipeline.glsl's #define lines).
+
+    ``content``: the frame's kind (RGB .. YUV_SEMIPLANAR); ``fade_from``: None without a fade, else
+    the kind of the picture it starts from (BLACK for none); ``blend``: blend maps are applied
+    (only with ``apply_lut``; :meth:`of` drops it otherwise); ``apply_lut``: gain, blend and LUT.
+    """
+
+    content: int
+    fade_from: int | None
+    blend: bool
+    apply_lut: bool
+
+    @classmethod
+    def of(cls, content: int, fade_from: int | None = None, blend: bool = False, apply_lut: bool = True) -> "Variant":
+        """The variant, normalised: blend maps count only where the LUT is applied."""
+        return cls(int(content), None if fade_from is None else int(fade_from), bool(blend and apply_lut),
+                   bool(apply_lut))
+
+    def defines(self) -> str:
+        """The #define lines that select this variant, to follow the #version line."""
+        fade = -1 if self.fade_from is None else self.fade_from
+        return (f"#define CONTENT_KIND {self.content}\n#define FADE_FROM {fade}\n#define BLEND {int(self.blend)}\n"
+                f"#define APPLY_LUT {int(self.apply_lut)}\n")
 
 
 def is_gles(ctx: Any) -> bool:

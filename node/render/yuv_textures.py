@@ -5,7 +5,7 @@ one-channel texture (R8, or R16 normalised for 10-bit samples), U and V likewise
 as a two-channel one (RG8 / RG16: NV12, P010). Where 16-bit normalised textures do not exist
 (OpenGL ES without GL_EXT_texture_norm16) 16-bit planes go up as float32 divided by 65535, which
 samples the same values. The conversion to RGB runs in ``pipeline.glsl``'s ``sample_yuv`` with
-the uniforms :meth:`YuvTextures.bind` sets, from :func:`protos.yuv.yuv_affine`.
+the uniforms :meth:`YuvTextures.bind` sets (its ``mode`` picks the shader's variant), from :func:`protos.yuv.yuv_affine`.
 
 Threading: as the renderer, on the thread that owns the GL context.
 """
@@ -74,21 +74,20 @@ class YuvTextures:
         self.luma_size = frame.luma_size
         self.content_size = frame.content_size
 
-    def bind(self, progs: tuple, prefix: str, units: tuple[int, int, int], *, mesh: bool = False) -> None:
+    def bind(self, uniforms: dict, prefix: str, units: tuple[int, int, int], *, mesh: bool = False) -> None:
         """Bind the planes to ``units`` (Y, then the chroma planes) and set the uniforms named
-        ``prefix`` + ``yuv``... in each of ``progs`` ("" for the content, "from_" for a fade's start).
-        ``mesh``: the mesh shader addresses the luma's own texels (no content-size scaling)."""
+        ``prefix`` + ``yuv_matrix``... in ``uniforms`` (the renderer's values, which go to the program
+        a draw uses; "" for the content, "from_" for a fade's start). ``mesh``: the mesh shader
+        addresses the luma's own texels (no content-size scaling)."""
         lw, lh = self.luma_size
         cw, ch = self.content_size
         scale = (1.0, 1.0) if mesh else (lw / cw, lh / ch)
         for tex, unit in zip(self.textures, units):
             tex.use(unit)
-        for prog in progs:
-            prog[f"{prefix}yuv" if prefix else "content_yuv"].value = self.mode
-            prog[f"{prefix}yuv_matrix"].write(self.matrix)
-            prog[f"{prefix}yuv_offset"].value = self.offset
-            prog[f"{prefix}chroma_xform"].value = self.chroma_xform
-            prog[f"{prefix}luma_scale"].value = scale
+        uniforms[f"{prefix}yuv_matrix"] = self.matrix
+        uniforms[f"{prefix}yuv_offset"] = self.offset
+        uniforms[f"{prefix}chroma_xform"] = self.chroma_xform
+        uniforms[f"{prefix}luma_scale"] = scale
 
     def release(self) -> None:
         for tex in self.textures:
