@@ -225,6 +225,7 @@ class Presenter:
         shader at its first draw, ~0.1 s), not while the first real frame waits for its deadline
         (nor the first frame shown with blend maps, at the instant every node switches)."""
         r = self.renderer
+        r.warm_up()     # the shader variants of video, blends and fades too (node/render/renderer.py)
         img = np.zeros((r.height, r.width, 3), np.uint8)
         r.upload("__warm__", img)
         r.set_homography(np.eye(3), (r.width, r.height))

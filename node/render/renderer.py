@@ -62,6 +62,16 @@ _TEXTURE_DTYPES = {
 }
 
 
+#: what Renderer.warm_up compiles: stills with the LUT, with blend maps and without the LUT
+#: (patterns), 8-bit video (planar with and without blend maps, NV12), and the fades a show makes
+#: most (from black, between stills, between videos, from a still to a video); ~0.6 MB each
+WARM_VARIANTS = (
+    Variant.of(RGB), Variant.of(RGB, blend=True), Variant.of(RGB, apply_lut=False), Variant.of(GREY, apply_lut=False),
+    Variant.of(YUV_PLANAR), Variant.of(YUV_PLANAR, blend=True), Variant.of(YUV_SEMIPLANAR),
+    Variant.of(RGB, BLACK), Variant.of(RGB, RGB), Variant.of(YUV_PLANAR, YUV_PLANAR), Variant.of(YUV_PLANAR, RGB),
+)
+
+
 class RenderError(NodeError, RuntimeError):
     """OpenGL is unusable or refused a request; the message says what to check."""
 
@@ -768,6 +778,51 @@ class Renderer:
         vao = self._use("warp", self._variant(entry, apply_lut, fade_from))[3]
         self.ctx.enable_only(self._mgl.NOTHING)
         vao.render(self._mgl.TRIANGLES, vertices=3)
+
+    def warm_up(self) -> None:
+        """Compile the shader variants a node draws most and draw each once, into a 2x2 corner of
+        the framebuffer (then cleared), so that the driver compiles them now (llvmpipe JITs a
+        program at its first draw, per texture format: ~0.1 s and several MB each), not while a
+        frame waits for its deadline: :data:`WARM_VARIANTS`, on 8-bit content. Others compile at
+        their first draw. The pose, blend maps, LUT and uploaded content are left as they were."""
+        def picture(kind: int) -> _Content:
+            if kind in (RGB, GREY):
+                shape = (2, 2, 3) if kind == RGB else (2, 2, 1)
+                tex = self.ctx.texture((2, 2), shape[2], np.zeros(shape, np.uint8), dtype="f1", alignment=1)
+                return _Content(tex, shape, np.dtype(np.uint8), kind == GREY)
+            y, c = np.zeros((2, 2), np.uint8), np.full((1, 1), 128, np.uint8)
+            planes = (y, c, c) if kind == YUV_PLANAR else (y, np.full((1, 1, 2), 128, np.uint8))
+            frame = YuvFrame(planes=planes, layout="planar" if kind == YUV_PLANAR else "semiplanar")
+            yuv = YuvTextures(frame, self._plane_texture, self._norm16)
+            return _Content(yuv.textures[0], (2, 2), np.dtype(np.uint8), False, yuv)
+
+        pictures = {kind: picture(kind) for kind in (RGB, GREY, YUV_PLANAR, YUV_SEMIPLANAR)}
+        saved = dict(self._uniforms)
+        fbo = self._fbo
+        try:
+            fbo.viewport = (0, 0, 2, 2)
+            fbo.use()
+            self._uniforms.update(frag_to_content=_mat_bytes(np.eye(3)), fade_mix=0.5)
+            self.ctx.enable_only(self._mgl.NOTHING)
+            for v in WARM_VARIANTS:
+                if v.fade_from is not None and v.fade_from != BLACK:
+                    before = pictures[v.fade_from]
+                    before.texture.use(3)
+                    if before.yuv is not None:
+                        before.yuv.bind(self._uniforms, "from_", (3, 6, 7))
+                self._bind_content(pictures[v.content])
+                self._use("warp", v)[3].render(self._mgl.TRIANGLES, vertices=3)
+        finally:
+            self._uniforms.clear()
+            self._uniforms.update(saved)
+            fbo.viewport = (0, 0, self._width, self._height)
+            fbo.use()
+            fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+            for entry in pictures.values():
+                if entry.yuv is not None:
+                    entry.yuv.release()
+                else:
+                    entry.texture.release()
 
     def read(self) -> np.ndarray:
         """What the projector receives: (height, width, 3) uint8 RGB, row 0 at the top.
