@@ -126,8 +126,12 @@ class Variant:
 
 def variant_scale(maps: Mapping[str, BlendMaps], contributions: Contributions) -> int:
     """The map scale of a blend's failover variants: :func:`map_scale_of` the full blend's maps, times
-    :data:`VARIANT_COARSEN` when they are at least :data:`VARIANT_COARSE_FROM` texels wide (at most 64)."""
+    :data:`VARIANT_COARSEN` when they are at least :data:`VARIANT_COARSE_FROM` texels wide (at most 64).
+    A mesh rig's maps keep their scale: they follow a grazed surface's detail pixel by pixel (the bust's
+    crown), which maps four times coarser would lose during the failover."""
     scale = map_scale_of(maps, contributions)
+    if getattr(contributions, "projector_xy", None):
+        return scale
     widest = max((m.size[0] for m in maps.values() if m is not BLACK_MAPS), default=0)
     return min(64, scale * VARIANT_COARSEN) if widest >= VARIANT_COARSE_FROM else scale
 

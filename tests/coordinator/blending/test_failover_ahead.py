@@ -7,6 +7,7 @@ switches once they are inflated, to exactly the maps computed directly."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -155,6 +156,9 @@ def test_large_maps_fail_over_to_coarser_maps_that_keep_the_light():
     assert variant_scale(maps, c) == 4
     small = {s: BlendMaps(a[::4, ::4], b[::4, ::4]) for s, (a, b) in ((s, (m.alpha, m.beta)) for s, m in maps.items())}
     assert variant_scale(small, c) == 4, "maps under 256 texels wide: at the full blend's own scale (256 / 64)"
+    grid = c.white["left"].shape[:2]
+    mesh = dataclasses.replace(c, projector_xy={s: np.full((*grid, 2), np.nan, np.float32) for s in SLOTS})
+    assert variant_scale(maps, mesh) == 1, "a mesh rig's variants keep the full blend's scale"
     v = Variants(c, maps)
     white = base_white(c, maps)
     key = variant_key({"mid"})
