@@ -24,7 +24,8 @@
 //   APPLY_LUT     1: gain, blend and LUT; 0: clamp(value) only (e.g. calibration patterns)
 
 uniform sampler2D content;      // (H, W) texels, row 0 = top row of the image, never filtered
-uniform sampler2D lut;          // (3, E) R32F: row c = channel c, sample k at luminance k / (E - 1)
+uniform sampler2D lut;          // (3, E - 1) RG32F: row c = channel c, texel k = (sample k, sample k + 1)
+                                // of E at luminance k / (E - 1): one fetch per channel
 uniform int lut_size;           // E >= 2
 uniform float gain;
 uniform sampler2D blend;        // (h, w) RGBA16F: rgb = alpha, a = beta; row 0 = top row of the output
@@ -96,6 +97,22 @@ vec4 sample_clamped(sampler2D tex, vec2 xy) {
     return (1.0 - f.y) * top + f.y * bottom;
 }
 
+// sample_clamped of two textures of one size (planar U and V) at xy, with one set of indices: (U, V).
+vec2 sample_clamped2(sampler2D tu, sampler2D tv, vec2 xy) {
+    ivec2 size = textureSize(tu, 0);
+    vec2 base = floor(xy);
+    vec2 f = xy - base;
+    ivec2 p0 = clamp(ivec2(base), ivec2(0), size - 1);
+    ivec2 p1 = clamp(ivec2(base) + 1, ivec2(0), size - 1);
+    ivec2 p2 = ivec2(p1.x, p0.y);
+    ivec2 p3 = ivec2(p0.x, p1.y);
+    vec2 top = (1.0 - f.x) * vec2(texelFetch(tu, p0, 0).r, texelFetch(tv, p0, 0).r)
+               + f.x * vec2(texelFetch(tu, p2, 0).r, texelFetch(tv, p2, 0).r);
+    vec2 bottom = (1.0 - f.x) * vec2(texelFetch(tu, p3, 0).r, texelFetch(tv, p3, 0).r)
+                  + f.x * vec2(texelFetch(tu, p1, 0).r, texelFetch(tv, p1, 0).r);
+    return (1.0 - f.y) * top + f.y * bottom;
+}
+
 // A YUV picture at content pixel xy: luma bilinear with texels outside weighing 0 (sample_border),
 // so its edges fade to black as an RGB picture's do; the conversion is affine, so it is applied to
 // the weighted sum: sum(w_i (M (y_i, u, v) + o)) = M (Y, W u, W v) + W o.
@@ -108,7 +125,7 @@ vec3 sample_yuv(sampler2D luma, sampler2D cu, sampler2D cv, int mode, mat3 m, ve
         return vec3(0.0);
     }
     vec2 c = l * cx.xy + cx.zw;
-    vec2 uv = mode == 2 ? sample_clamped(cu, c).rg : vec2(sample_clamped(cu, c).r, sample_clamped(cv, c).r);
+    vec2 uv = mode == 2 ? sample_clamped(cu, c).rg : sample_clamped2(cu, cv, c);
     return m * vec3(y, uv * weight) + o * weight;
 }
 
@@ -142,9 +159,8 @@ vec3 sample_faded(vec2 xy) {
 float lut_channel(float v, int channel) {
     float t = clamp(v, 0.0, 1.0) * float(lut_size - 1);
     int i = min(int(t), lut_size - 2);
-    float y0 = texelFetch(lut, ivec2(i, channel), 0).r;
-    float y1 = texelFetch(lut, ivec2(i + 1, channel), 0).r;
-    return mix(y0, y1, t - float(i));
+    vec2 y = texelFetch(lut, ivec2(i, channel), 0).rg;
+    return mix(y.x, y.y, t - float(i));
 }
 
 // The blend maps at this fragment: projector pixel (x, y) (OpenCV, rows from the top) reads the

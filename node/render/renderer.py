@@ -447,21 +447,22 @@ class Renderer:
             table = np.asarray(lut, dtype=np.float32)
             if table.ndim != 2 or table.shape[0] not in (1, 3) or table.shape[1] < 2:
                 raise ValueError(f"LUT must be (C, E) with C in {{1, 3}} and E >= 2, got shape {table.shape}")
-            if table.shape[1] > self._max_texture:
-                raise ValueError(f"LUT has {table.shape[1]} samples; this GPU allows at most {self._max_texture}")
+            if table.shape[1] - 1 > self._max_texture:
+                raise ValueError(f"LUT has {table.shape[1]} samples; this GPU allows at most {self._max_texture + 1}")
             if not np.isfinite(table).all():
                 raise ValueError("LUT values must be finite")
             if table.shape[0] == 1:
                 table = np.repeat(table, 3, axis=0)
-        table = np.ascontiguousarray(table)
         e = table.shape[1]
+        # texel k of row c holds samples k and k + 1 (pipeline.glsl's lut_channel: one fetch per channel)
+        pairs = np.ascontiguousarray(np.stack([table[:, :-1], table[:, 1:]], axis=2))
         if self._lut_shape != (3, e):
             if self._lut_tex is not None:
                 self._lut_tex.release()
-            self._lut_tex = self.ctx.texture((e, 3), 1, dtype="f4")
+            self._lut_tex = self.ctx.texture((e - 1, 3), 2, dtype="f4")
             self._lut_tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
             self._lut_shape = (3, e)
-        self._lut_tex.write(table.tobytes())
+        self._lut_tex.write(pairs.tobytes())
         self._uniforms["lut_size"] = e
 
     def set_gain(self, gain: float) -> None:
