@@ -76,6 +76,13 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "before and after, split into its parts (bench/node_video.py); --content is the video's size")
     p.add_argument("--video-frames", type=cli_types.int_range(20, 100_000), default=120, metavar="N",
                    help="frames of the --video run (default 120: 4 s at 30 fps; each path decodes them all)")
+    p.add_argument("--variants", action="store_true",
+                   help="instead: llvmpipe's CPU per frame (the GPU's work here) for each shader variant the node "
+                        "draws (RGB, grey, planar YUV, NV12; fades, blend maps, no LUT) at 640x360 and at --size "
+                        "(bench/node_variants.py)")
+    p.add_argument("--against", metavar="COMMIT",
+                   help="with --variants: the same figures for that commit's renderer, taking turns with this one's "
+                        "in one run, and their ratio")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
 
 
@@ -254,6 +261,20 @@ def node_install() -> dict:
 def run(args: argparse.Namespace) -> int:
     if args.worker:
         print(json.dumps(_worker(args)))
+        return 0
+    if args.variants:
+        from bench import node_variants
+
+        sizes = [(640, 360)] + ([tuple(args.size)] if tuple(args.size) != (640, 360) else [])
+        rounds = args.rounds or 3
+        print(f"bench node --variants: {len(node_variants.VARIANTS)} variants at "
+              f"{', '.join(f'{w}x{h}' for w, h in sizes)}, {rounds} round{'s' if rounds != 1 else ''} of "
+              f"{node_variants.FRAMES} frames each" + (f", against {args.against}" if args.against else ""),
+              file=sys.stderr)
+        res = node_variants.variants(sizes, rounds, node_variants.FRAMES, args.against)
+        print(json.dumps({"benchmark": "node", "machine": machine(), "load": os.getloadavg(), "variants": res},
+                         indent=2))
+        print("\n".join(node_variants.summary(res)), file=sys.stderr)
         return 0
     if args.video:
         from bench.node_video import summary, timed

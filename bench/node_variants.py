@@ -3,7 +3,8 @@ warp draws (RGB, grey, planar YUV, NV12; with a fade, blend maps, without the LU
 sizes given, and optionally the same for the renderer of another commit in the same run.
 
 For each size, a worker process makes a renderer on a headless context, a homography pose, a LUT
-and a gain, and for each variant uploads its content once, draws ``FRAMES`` warm-up frames, then
+and a gain, and for each variant (all of them twice, the first pass dropped) uploads its content, draws
+three warm-up frames, then
 draws frames waiting for each (``finish``), counting the CPU of llvmpipe's rasterizer threads
 (``llvmpipe-N`` in ``/proc/self/task``: they stand in for the GPU here) and of the calling thread.
 ``--against COMMIT`` extracts that commit's ``node/`` and ``protos/`` into a temporary directory
@@ -91,7 +92,8 @@ def worker(size: tuple[int, int], frames: int) -> dict:
         bw, bh = max(1, w // 4), max(1, h // 4)
         maps = BlendMaps(np.full((bh, bw, 3), 0.8, np.float32), np.full((bh, bw), 0.02, np.float32))
         out = {}
-        for name, (kind, fade_from, blend, lut) in VARIANTS.items():
+        # twice over: the first pass's figures (the process's and the driver's first frames) are dropped
+        for name, (kind, fade_from, blend, lut) in [*VARIANTS.items(), *VARIANTS.items()]:
             r.upload(name, _content(kind, (cw, ch), 1))
             fade = None
             if fade_from == "black":
