@@ -23,6 +23,11 @@ blended shader's first draw (the driver compiles its variant: ``rss_shader_varia
 decoding, uploading and rendering with the maps (``rss_maps_mb``) is ``blend.rss_delta_mb``
 (target <= 10 MB). The top-level figures are the default profile's; each profile's are under
 ``blend.profiles``.
+
+``--variants`` (:mod:`bench.node_variants`) measures instead llvmpipe's CPU per frame for each
+shader variant the node draws (RGB, grey, planar YUV, NV12, with fades, blend maps, without the
+LUT), at 640x360 and at ``--size``; ``--against COMMIT`` runs that commit's renderer in turn with
+this one's and gives their ratio per variant.
 """
 from __future__ import annotations
 

@@ -6,6 +6,13 @@ fragment shader warps the content through the homography pose, or the textured m
 of a projection pose with depth test. The same shader then applies the node's gain
 and inverse-response LUT and quantises to 8 bits. See ``pipeline.glsl``.
 
+The fragment shader is compiled once per variant (:class:`~node.render.shaders.Variant`: the
+content's kind, a fade's start, blend maps, the LUT; #define lines after the #version line), at
+the variant's first draw, and kept: llvmpipe runs both sides of a uniform's branches, so one
+program for every path cost two to five times the rasterizer's CPU of the path taken.
+:meth:`Renderer.warm_up` compiles the common ones ahead. The uniforms' values live in the
+renderer and go to the program a draw uses, written only where they changed.
+
 Blend maps (:class:`protos.blend.BlendMaps`, :meth:`Renderer.set_blend`) live in one RGBA16F
 texture (rgb = alpha, a = beta, as the wire's float16); frames that apply the LUT are then
 ``LUT(clamp(gain * (alpha * value + beta)))``, dithered before the 8-bit output
