@@ -11,7 +11,7 @@ document is also written to FILE inside a wrapper that says where it came from::
 
 Paths of scratch files (under the temporary directory) are cut to their names and paths inside
 this checkout made relative to it, in the command and the result alike, so a kept JSON names no
-file outside the repository; when anything was cut, ``source`` says so. FILE is checked before the
+file outside the repository; when a scratch path was cut, ``source`` says so. FILE is checked before the
 benchmark starts (an hour's run must not end in a refusal) and written at once when it ends, by
 rename, so a failed or interrupted run leaves what FILE held before.
 
