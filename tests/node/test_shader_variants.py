@@ -7,12 +7,17 @@ with blend maps, or without the LUT in turn, and compared with :func:`protos.spa
 of the same pictures mixed by :func:`protos.fade.mix_reference`: a program that took another
 path (a grey picture's channel, the wrong picture before, no dither, no LUT) lands many levels
 off. YUV pictures carry one chroma value each, so their conversion is affine in Y and the
-reference converts them first (:func:`protos.yuv.to_rgb`). The other GL flavours run the same
-shaders through the render, YUV, fade and blend tests' child processes.
+reference converts them first (:func:`protos.yuv.to_rgb`). The grid runs again in a child process
+on a bare OpenGL ES 3.0; OpenGL 3.1 runs the shaders through the render, YUV, fade and blend tests'
+child processes.
 """
 from __future__ import annotations
 
 import itertools
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +28,7 @@ from protos.fade import mix_reference
 from protos.spaces import as_linear, warp_content
 from protos.yuv import YuvFrame, to_rgb
 
+HERE = Path(__file__).resolve().parent
 PW, PH = 48, 36
 CW, CH = 40, 30
 POSE = np.array([[1.1, 0.04, 2.0], [0.03, 1.05, -1.0], [1e-4, 2e-4, 1.0]])
@@ -102,3 +108,25 @@ def test_warming_up_changes_neither_the_picture_nor_the_content(r):
     assert r.has("still") and r.read().max() == 0      # the framebuffer is left cleared
     r.render("still")
     assert np.array_equal(r.read(), before)
+
+
+CHILD = """
+import sys
+sys.path.insert(0, {tests!r})
+import test_shader_variants as t
+r = next(t.r.__wrapped__())
+t.test_every_content_and_fade_variant_draws_what_numpy_computes(r)
+print("ok", r.ctx.version_code)
+"""
+
+
+@pytest.mark.skipif(bool(os.environ.get("SHADOWLESS_GL")), reason="a child of this test, or a chosen API")
+def test_every_variant_compiles_and_draws_alike_on_a_bare_opengl_es_3_0():
+    # GLSL ES 3.00 is the strictest of the three languages the shaders are compiled as
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MESA_")}
+    extra = {"SHADOWLESS_GL": "gles", "MESA_GLES_VERSION_OVERRIDE": "3.0",
+             "MESA_EXTENSION_OVERRIDE": "-GL_EXT_texture_norm16"}
+    done = subprocess.run([sys.executable, "-c", CHILD.format(tests=str(HERE))], capture_output=True, text=True,
+                          env={**env, **extra}, cwd=HERE.parents[1], timeout=600)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
+    assert done.stdout.split() == ["ok", "300"], done.stdout + done.stderr
