@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 from coordinator.jobs.errors import JobError
 from coordinator.jobs.options import option
@@ -26,35 +26,34 @@ MEASURE = "what to measure"
 BLEND = "the blend"
 
 
-def parse_headroom(value: Any) -> str | float:
-    """"auto" or a fraction in 0..0.9; a one-line :class:`JobError` otherwise."""
+def _auto_or(value: Any, convert: Callable[[str], Any], valid: Callable[[Any], bool], refusal: str) -> Any:
+    """"auto", or ``value`` (a number, or text that ``convert`` reads) when ``valid``; else a one-line
+    :class:`JobError`: ``refusal`` followed by the value given."""
     if isinstance(value, str):
         text = value.strip().lower()
         if text == "auto":
             return "auto"
         try:
-            value = float(text)
+            value = convert(text)
         except ValueError:
-            raise JobError(f"headroom must be 'auto' or a number in 0..{HEADROOM_MAX}, got {value!r}") from None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not 0.0 <= float(value) <= HEADROOM_MAX:
-        raise JobError(f"headroom must be 'auto' or a number in 0..{HEADROOM_MAX}, got {value!r}")
-    return float(value)
+            raise JobError(f"{refusal}, got {value!r}") from None
+    if isinstance(value, bool) or not valid(value):
+        raise JobError(f"{refusal}, got {value!r}")
+    return value
+
+
+def parse_headroom(value: Any) -> str | float:
+    """"auto" or a fraction in 0..0.9; a one-line :class:`JobError` otherwise."""
+    got = _auto_or(value, float, lambda v: isinstance(v, (int, float)) and math.isfinite(v)
+                   and 0.0 <= float(v) <= HEADROOM_MAX, f"headroom must be 'auto' or a number in 0..{HEADROOM_MAX}")
+    return got if got == "auto" else float(got)
 
 
 def parse_map_scale(value: Any) -> str | int:
     """"auto" or an integer 1..MAP_SCALE_MAX; a one-line :class:`JobError` otherwise."""
-    if isinstance(value, str):
-        text = value.strip().lower()
-        if text == "auto":
-            return "auto"
-        try:
-            value = int(text)
-        except ValueError:
-            raise JobError(f"map_scale must be 'auto' or an integer 1..{MAP_SCALE_MAX}, got {value!r}") from None
-    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAP_SCALE_MAX:
-        raise JobError(f"map_scale must be 'auto' or an integer 1..{MAP_SCALE_MAX}, got {value!r}")
-    return int(value)
+    got = _auto_or(value, int, lambda v: isinstance(v, int) and 1 <= v <= MAP_SCALE_MAX,
+                   f"map_scale must be 'auto' or an integer 1..{MAP_SCALE_MAX}")
+    return got if got == "auto" else int(got)
 
 
 @dataclass(frozen=True, kw_only=True)
