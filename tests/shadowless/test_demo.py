@@ -15,6 +15,7 @@ import urllib.request
 
 import cv2
 import psutil
+from procs import stop
 from waits import wait_until
 
 
@@ -46,13 +47,7 @@ def test_demo_writes_the_comparison_shows_the_papers_observation_and_serves_its_
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=180) == 0, log.read_text()[-3000:]
     finally:
-        if proc.poll() is None:        # a failed check: SIGTERM still stops what it started
-            proc.terminate()
-            try:
-                proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc)        # a failed check: SIGTERM still stops what it started
     _, alive = psutil.wait_procs(children, timeout=30)
     assert not alive, alive
     assert "SIGINT: stopping the rig" in log.read_text()

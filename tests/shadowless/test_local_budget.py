@@ -11,6 +11,7 @@ import sys
 
 import psutil
 import pytest
+from procs import stop
 from waits import wait_until
 
 from shadowless.cpu_budget import groups_of, host_hierarchy, unavailable
@@ -58,13 +59,7 @@ def test_local_holds_each_node_in_its_group_and_removes_every_group(tmp_path):
         out, _ = proc.communicate(timeout=120)
         assert proc.returncode == 0, err.read_text()
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc)
     gone, alive = psutil.wait_procs(children, timeout=30)
     assert not alive, alive
     assert re.search(r"CPU budget \(cgroup v\d .*\): 2 nodes at 0\.5 of a core each took [\d.]+ s of CPU", out), out

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import cv2
 import psutil
+from procs import stop
 from waits import wait_until
 
 
@@ -40,13 +41,7 @@ def test_local_hold_stays_up_serves_the_console_and_cleans_up_on_ctrl_c(tmp_path
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=120) == 0, err.read_text()
     finally:
-        if proc.poll() is None:        # a failed check: SIGTERM still stops what it started
-            proc.terminate()
-            try:
-                proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc)        # a failed check: SIGTERM still stops what it started
     gone, alive = psutil.wait_procs(children, timeout=30)
     assert not alive, alive
     assert not workdir.exists(), "the temporary directory, token included, is removed"
