@@ -4,13 +4,18 @@ The presenter (:mod:`node.presenter`) owns the renderer and the frames; this hol
 blend maps needs between an assignment and the first swap with them: the next maps and their instant,
 whether the renderer draws with maps no frame has shown yet, the maps on screen and the pts of the
 first frame shown with them (what the node reports), and the maps' way to the screen (the host times
-their assignment was received, decoded, reached the presenter and was uploaded), logged with that
-first swap on the rig clock so that a failover's time can be followed stage by stage.
+their assignment was received, decoded, reached the presenter and was uploaded, and the first frame
+with them was rendered and finished, ready for its swap), logged with that first swap on the rig clock
+so that a failover's time can be followed stage by stage: a node whose frame was ready before the
+common instant only waited for it.
 """
 from __future__ import annotations
 
 import logging
+from dataclasses import fields
 from typing import Callable
+
+import numpy as np
 
 from node.clock import ClockEstimate
 from node.records import NodeAssignment
@@ -18,8 +23,31 @@ from protos.blend import BlendMaps
 
 log = logging.getLogger("node.presenter")
 
+#: the fields of an assignment a blend switch alone changes
+_BLEND_FIELDS = frozenset({"revision", "blend", "blend_at_ns", "blend_error", "received_host_ns", "decoded_host_ns"})
+
+
+def same_but_blend(a: NodeAssignment, b: NodeAssignment) -> bool:
+    """Whether two assignments differ in their revision and blend alone (arrays compared by value,
+    a mesh by its id)."""
+    for f in fields(NodeAssignment):
+        if f.name in _BLEND_FIELDS:
+            continue
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if not (isinstance(x, np.ndarray) and isinstance(y, np.ndarray) and x.shape == y.shape
+                    and np.array_equal(x, y)):
+                return False
+        elif f.name == "mesh":
+            if (x is None) != (y is None) or (x is not None and x.mesh_id != y.mesh_id):
+                return False
+        elif x != y:
+            return False
+    return True
+
+
 #: the stamps of the log line of a first swap with new maps, after ``instant`` (rig ns; 0 unknown)
-TIMING_NAMES = ("received", "decoded", "presenter", "uploaded", "swapped")
+TIMING_NAMES = ("received", "decoded", "presenter", "uploaded", "ready", "swapped")
 
 
 class BlendSwitch:
@@ -42,6 +70,7 @@ class BlendSwitch:
         self.on_screen = ""             # the id of the maps on screen ("" none)
         self.since_rig_ns = 0           # pts of the first frame shown with them
         self._stamps: tuple[int, ...] | None = None
+        self._ready_host_ns = 0         # when the first frame with the next maps was ready for its swap
 
     def offer(self, renderer, a: NodeAssignment, rig_now: int | None, got_host_ns: int) -> bool:
         """Take the blend assignment ``a`` asks for (it reached the presenter at ``got_host_ns``):
@@ -85,6 +114,13 @@ class BlendSwitch:
         self.next = None
         renderer.set_blend(maps)
         self.unshown = True
+        self._ready_host_ns = 0
+
+    def ready(self) -> None:
+        """The frame that first shows the maps switched to is rendered and finished: it waits only for its
+        swap (stamped once per switch; a frame rendered again keeps the first stamp)."""
+        if self.unshown and not self._ready_host_ns:
+            self._ready_host_ns = self.host_now()
 
     def shown(self, blend_id: str, pts_ns: int, estimate: ClockEstimate | None) -> None:
         """A frame of ``pts_ns`` was swapped in: the first with maps ``blend_id`` (the renderer's) when it
@@ -96,11 +132,11 @@ class BlendSwitch:
             log.info("blend %s on screen from rig instant %d%s", blend_id or "none", pts_ns, self._timing(estimate))
 
     def _timing(self, estimate: ClockEstimate | None) -> str:
-        """"; timing instant=.. received=.. decoded=.. presenter=.. uploaded=.. swapped=.." (rig ns; 0
-        unknown: an assignment made in a test), or "" when the clock is unknown."""
+        """"; timing instant=.. received=.. decoded=.. presenter=.. uploaded=.. ready=.. swapped=.." (rig
+        ns; 0 unknown: an assignment made in a test), or "" when the clock is unknown."""
         stamps, self._stamps = self._stamps, None
         if stamps is None or estimate is None:
             return ""
         at, *hosts = stamps
-        rig = [self.to_rig(h, estimate) if h else 0 for h in (*hosts, self.host_now())]
+        rig = [self.to_rig(h, estimate) if h else 0 for h in (*hosts, self._ready_host_ns, self.host_now())]
         return f"; timing instant={at} " + " ".join(f"{n}={v}" for n, v in zip(TIMING_NAMES, rig))

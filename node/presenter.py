@@ -31,13 +31,13 @@ import os
 import statistics
 import time
 from collections import deque
-from dataclasses import fields, replace
+from dataclasses import replace
 from typing import Callable, Protocol
 
 import numpy as np
 
 from node.asset_frames import FrameError, FrameNotReady
-from node.blend_switch import BlendSwitch
+from node.blend_switch import BlendSwitch, same_but_blend as _same_but_blend
 from node.clock import ClockEstimate
 from node.decoders import choose, wish_from_env
 from node.fade import Crossfade, ShowFade
@@ -55,28 +55,6 @@ from node.wire import live_packet_from_bytes
 from protos.blend import BlendMaps
 
 log = logging.getLogger(__name__)
-
-#: the fields of an assignment a blend switch alone changes
-_BLEND_FIELDS = frozenset({"revision", "blend", "blend_at_ns", "blend_error", "received_host_ns", "decoded_host_ns"})
-
-
-def _same_but_blend(a: NodeAssignment, b: NodeAssignment) -> bool:
-    """Whether two assignments differ in their revision and blend alone (arrays compared by value,
-    a mesh by its id)."""
-    for f in fields(NodeAssignment):
-        if f.name in _BLEND_FIELDS:
-            continue
-        x, y = getattr(a, f.name), getattr(b, f.name)
-        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
-            if not (isinstance(x, np.ndarray) and isinstance(y, np.ndarray) and x.shape == y.shape
-                    and np.array_equal(x, y)):
-                return False
-        elif f.name == "mesh":
-            if (x is None) != (y is None) or (x is not None and x.mesh_id != y.mesh_id):
-                return False
-        elif x != y:
-            return False
-    return True
 
 #: log each swap's distance from its deadline (diagnostics)
 _DEBUG_TIMING = bool(os.environ.get("SHADOWLESS_DEBUG_TIMING"))
@@ -363,6 +341,7 @@ class Presenter:
                 renderer.render(None)
             out.prepare(renderer)
             self._ctx.finish()      # drawn before the swap (else an output's read back would draw it after)
+            self.blend.ready()
             out.swap()
             swapped = self._shown_again(out, renderer)
         if at_once:     # on screen from that swap (with no frame to show again: from now)
@@ -441,6 +420,7 @@ class Presenter:
                 return
             self.out.prepare(renderer)
             self._ctx.finish()
+            self.blend.ready()
 
     def _blend_shown(self, pts_ns: int) -> None:
         self.blend.shown(self.renderer.blend_id, pts_ns, self.pacer.estimate)
@@ -487,6 +467,7 @@ class Presenter:
                 renderer.render(None)
             out.prepare(renderer)
             self._ctx.finish()
+            self.blend.ready()
         late = self.clock.now() - due > LATE_TOLERANCE_NS    # rendered too slowly for its instant (as a frame)
         with self._rt:
             self.clock.sleep_until(due)
@@ -861,6 +842,7 @@ class Presenter:
         pacer = self.pacer
         out.prepare(renderer)
         self._ctx.finish()   # the frame must be complete in the back buffer before its time comes
+        self.blend.ready()
         drop = pacer.ready(frame)
         if drop is not None:
             if frame.content_id == f"timeline:{frame.frame_id}":
