@@ -12,6 +12,13 @@ together: every changed slot gets its maps with one common rig-clock instant, a 
 a node's taking them take, far less than the content's latency budget for small maps, more for
 1080p maps to 25 nodes), so every node shows the new maps from the same swap on; a node that hears
 of them after that instant shows them from its next frame. One log line per switch.
+
+The automatic lead also learns what the rig's nodes need: each node reports the pts of its first frame
+with the maps (its heartbeat), and a switch that some node showed more than :data:`LATE_SLACK_NS` after
+its instant (it received the maps, or had its frame rendered again, too late) makes the next switch's
+lead that switch's lead plus the latest node's delay, at most the content's latency budget (rig.toml's
+``latency_ms``, what a frame is given to reach every projector); each switch every node showed in time
+gives back a part of it (:data:`LEARNED_DECAY`). A rig whose nodes are quick keeps the short lead.
 A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
 compressed is inflated there).
 """
@@ -42,6 +49,11 @@ AHEAD_AFTER_SWITCH_S = 0.5
 #: one texture upload, the frame on screen rendered again), and the link the maps are pushed over
 AUTO_LEAD_BASE_NS = 20_000_000
 AUTO_LEAD_LINK_BITS_PER_S = 1e9
+#: a node that shows a switch's maps more than this after its instant was late (a playing show's first tick
+#: at or after the instant is up to one frame period after it: 33 ms at 30 fps)
+LATE_SLACK_NS = 40_000_000
+#: the part of the learned lead a switch shown in time by every node gives back
+LEARNED_DECAY = 0.1
 
 
 def auto_lead_ns(wire_bytes: int) -> int:
@@ -82,7 +94,10 @@ class BlendState:
         The rig clock (ns).
     lead_ns : int or None
         How far ahead of now a switch takes effect (rig.toml's ``[blend] switch_lead_ms``); None:
-        :func:`auto_lead_ns` of the maps each switch pushes.
+        :func:`auto_lead_ns` of the maps each switch pushes, or what the nodes showed they need (learned).
+    node_session : callable, optional
+        ``node_session(slot)``: the slot's node session (its ``blend_id`` and ``blend_since_rig_ns``, what
+        its heartbeat says is on screen since when), or None; the automatic lead learns from it.
     wall_clock : callable
         Unix seconds (the status's times).
     budget_bytes : int
@@ -90,12 +105,19 @@ class BlendState:
     """
 
     def __init__(self, rig: Rig, *, update_slot: Callable[..., Any], clock_ns: Callable[[], int], lead_ns: int | None,
-                 wall_clock: Callable[[], float] = time.time, budget_bytes: int = MAX_PRECOMPUTED_BYTES):
+                 wall_clock: Callable[[], float] = time.time, budget_bytes: int = MAX_PRECOMPUTED_BYTES,
+                 node_session: Callable[[str], Any] | None = None):
         self.rig = rig
         self._update_slot = update_slot
         self.clock_ns = clock_ns
         self.lead_ns = None if lead_ns is None else int(lead_ns)
+        self.node_session = node_session
         self.last_lead_ns = 0                  # the lead of the last switch
+        #: the automatic lead's parts at the last switch (ns): "auto" (maps and link), "learned", "cap"
+        self.last_lead_parts: dict[str, int] = {}
+        self.learned_lead_ns = 0               # the lead the nodes showed they need (0: nothing learned)
+        self.last_late_ns = 0                  # how late the latest node showed the last switch learned from
+        self._pushed: tuple[int, int, dict[str, str]] | None = None   # the last switch: (instant, lead, slot -> id)
         self.wall_clock = wall_clock
         self.budget_bytes = budget_bytes
         self.stored: StoredBlend | None = None
@@ -324,11 +346,14 @@ class BlendState:
             if same and not force:
                 continue
             todo.append((slot, maps))
-        lead = self.lead_ns if self.lead_ns is not None else auto_lead_ns(sum(wire_bytes(m) for _, m in todo))
+        lead = self.lead_ns if self.lead_ns is not None else self._auto_lead(todo)
         self.last_lead_ns = lead
         at = self.clock_ns() + lead
         for slot, maps in todo:
             self._update_slot(slot, blend=maps, blend_at_ns=at, source="blend")
+        out_now = set(v.key[0]) | {s for s, g in v.key[1] if g < DEAD_GAIN}     # they show nothing to learn from
+        if todo:
+            self._pushed = (at, lead, {slot: maps.blend_id for slot, maps in todo if slot not in out_now})
         self.last_switch = {"wanted": self._wanted_ns or ready, "ready": ready, "set": self.clock_ns(), "instant": at}
         changed = len(todo)
         self.applied = v.key
@@ -351,6 +376,43 @@ class BlendState:
         # and the cores belong to sending the new maps
         delay = max(0.0, (at - self.clock_ns()) / 1e9) + AHEAD_AFTER_SWITCH_S
         asyncio.get_running_loop().call_later(delay, self._ahead)
+
+    def _auto_lead(self, todo) -> int:
+        """The automatic lead of a switch pushing ``todo`` ((slot, maps) pairs): :func:`auto_lead_ns` of
+        its maps, or what the nodes showed the switches before needed, within the latency budget."""
+        self._learn()
+        auto = auto_lead_ns(sum(wire_bytes(m) for _, m in todo))
+        cap = int(float(self.rig.config.latency_ms) * 1e6)
+        learned = min(self.learned_lead_ns, cap)
+        self.last_lead_parts = {"auto": auto, "learned": learned, "cap": cap}
+        return max(auto, learned)
+
+    def _learn(self) -> None:
+        """What the last switch showed of the nodes: when the latest of them showed its maps (from their
+        heartbeats; one that still shows others is as late as now). Late beyond :data:`LATE_SLACK_NS`: the
+        learned lead becomes that switch's lead plus the delay; in time: it gives back a part."""
+        pushed, self._pushed = self._pushed, None
+        if pushed is None or self.node_session is None:
+            return
+        at, lead, ids = pushed
+        now, late, heard = self.clock_ns(), 0, 0
+        for slot, blend_id in ids.items():
+            sess = self.node_session(slot)
+            if sess is None or getattr(sess, "closed", False):
+                continue        # lost since: it tells nothing of the switch
+            heard += 1
+            since = sess.blend_since_rig_ns if sess.blend_id == blend_id else now
+            late = max(late, since - at)
+        if not heard:
+            return
+        self.last_late_ns = late
+        if late > LATE_SLACK_NS:
+            self.learned_lead_ns = lead + late
+            log.info("blend: the last switch reached the last node's screen %.0f ms after its instant; the next "
+                     "switches lead by up to %.0f ms", late / 1e6, min(self.learned_lead_ns,
+                                                                        self.rig.config.latency_ms * 1e6) / 1e6)
+        else:
+            self.learned_lead_ns = int(self.learned_lead_ns * (1.0 - LEARNED_DECAY))
 
     # ------------------------------------------------------------------ status
     def status(self) -> BlendStatus:

@@ -1,0 +1,109 @@
+"""The automatic switch lead learns what the rig's nodes need.
+
+Each node's heartbeat says which maps it shows and from which pts. A switch that some node showed
+more than the slack after its instant makes the next switch lead by that switch's lead plus the
+delay, never beyond the content's latency budget; a switch every node showed in time gives a part
+of it back; a fixed ``switch_lead_ms`` is kept as it is.
+"""
+from __future__ import annotations
+
+import asyncio
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from coordinator.blending.state import LATE_SLACK_NS, LEARNED_DECAY, BlendState
+from coordinator.rig import Rig
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_failover_ahead import SLOTS, blended  # noqa: E402  (three projectors side by side, blended)
+
+MS = 1_000_000
+
+
+@dataclass
+class Session:
+    """What a node's heartbeat told the core: the maps on its screen and the pts they show from."""
+    blend_id: str = ""
+    blend_since_rig_ns: int = 0
+    closed: bool = False
+
+
+def test_a_late_switch_lengthens_the_next_lead_within_the_latency_budget_and_a_timely_one_shortens_it(tmp_path):
+    path, _, _ = blended(tmp_path)                 # latency budget 40 ms
+    rig = Rig(path)
+    now = [5_000_000_000]
+    sessions = {s: Session() for s in SLOTS}
+
+    def show(at: int, late: dict[str, int]) -> None:
+        """Every live node shows its new maps: from the instant, or ``late[slot]`` after it."""
+        for s, sess in sessions.items():
+            if not sess.closed:
+                sess.blend_id, sess.blend_since_rig_ns = rig.slot(s).blend.blend_id, at + late.get(s, 0)
+
+    async def go():
+        state = BlendState(rig, update_slot=rig.update_slot, clock_ns=lambda: now[0], lead_ns=None,
+                           node_session=sessions.get)
+        state.load()                               # (each loss's maps computed when it comes)
+        sessions["right"].closed = True
+        state.node_lost("right")                   # nothing learned yet: the maps' own lead
+        await state.settled()
+        auto = state.last_lead_parts["auto"]
+        assert state.last_lead_ns == auto < 40 * MS and state.last_lead_parts["learned"] == 0
+        show(now[0] + auto, {"left": 25 * MS, "mid": 3 * MS})     # left showed them 25 ms late: in the slack
+        now[0] += 10**9
+        sessions["right"] = Session()
+        state.node_live("right")
+        await state.settled()
+        lead = state.last_lead_ns
+        assert lead == state.last_lead_parts["auto"], "a delay within the slack teaches nothing"
+        show(now[0] + lead, {"mid": 45 * MS})      # mid 45 ms late: beyond the slack
+        now[0] += 10**9
+        sessions["left"].closed = True
+        state.node_lost("left")
+        await state.settled()
+        assert state.learned_lead_ns == lead + 45 * MS and state.last_late_ns == 45 * MS
+        assert state.last_lead_ns == 40 * MS, "at most the latency budget"
+        at = now[0] + state.last_lead_ns
+        show(at, {})                               # every node in time
+        now[0] += 10**9
+        sessions["left"] = Session()
+        state.node_live("left")
+        await state.settled()
+        assert state.learned_lead_ns == int((lead + 45 * MS) * (1 - LEARNED_DECAY))
+        assert state.last_lead_ns == 40 * MS
+        # a node that never showed the switch's maps is as late as now
+        at = now[0] + state.last_lead_ns
+        show(at, {})
+        sessions["mid"].blend_id = "something else"
+        now[0] = at + 2 * LATE_SLACK_NS
+        sessions["right"].closed = True
+        state.node_lost("right")
+        await state.settled()
+        assert state.last_late_ns == 2 * LATE_SLACK_NS
+        state.close()
+
+    asyncio.run(go())
+
+
+def test_a_fixed_switch_lead_is_kept_whatever_the_nodes_showed(tmp_path):
+    path, _, _ = blended(tmp_path, "\n[blend]\nswitch_lead_ms = 12.5\n")
+    rig = Rig(path)
+    now = [5_000_000_000]
+    sessions = {s: Session() for s in SLOTS}
+
+    async def go():
+        state = BlendState(rig, update_slot=rig.update_slot, clock_ns=lambda: now[0], lead_ns=12_500_000,
+                           node_session=sessions.get)
+        state.load()
+        state.node_lost("right")
+        await state.settled()
+        for s in ("left", "mid"):
+            sessions[s] = Session(rig.slot(s).blend.blend_id, now[0] + 12_500_000 + 200 * MS)
+        now[0] += 10**9
+        state.node_live("right")
+        await state.settled()
+        assert state.last_lead_ns == 12_500_000
+        state.close()
+
+    asyncio.run(go())
