@@ -33,6 +33,9 @@ Last, ``live``: a natural-looking sequence at the video's size played as live fr
 as H.264 by the coordinator, streamed to every node): bytes per node-frame against raw, PSNR,
 encode cost; see :mod:`bench.venue_live`.
 ``decode_ms_per_frame`` is a reference: one software decode of the video on this host.
+``--only PART[,PART]`` runs only some of these parts after the distribution (``timeline``,
+``rejoin``, ``restart``: the coordinator killed and restarted mid-show, ``live``); the document
+has the sections of those that ran.
 
 **CPU budgets** (``--node-cpu F``, root and a cgroup cpu controller: :mod:`shadowless.rig_budget`):
 every node process is held to F of a core, as if each ran on a small computer of its own, its
@@ -113,6 +116,20 @@ def _rate(text: str) -> str:
     return text
 
 
+#: what follows the distribution, in order: the timeline show, a node's rejoin, the coordinator's
+#: restart (bench/venue_show.py), live frames (bench/venue_live.py)
+PARTS = ("timeline", "rejoin", "restart", "live")
+
+
+def _parts(text: str) -> tuple[str, ...]:
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [n for n in names if n not in PARTS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"unknown part {', '.join(bad) or repr(text)}; the parts are "
+                                         f"{', '.join(PARTS)}")
+    return tuple(names)
+
+
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = ("A rig on a virtual venue network (one network namespace per process, a bridge, tc-rate-limited "
                      "links; needs root and iproute2): time to discover the coordinator by multicast mDNS, and time "
@@ -125,6 +142,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                 "  shadowless bench venue --nodes 8 --link 100mbit --coordinator-link 1gbit\n"
                 "  shadowless bench venue --nodes 4 --node-cpu 0.4                # each node a small computer's CPU\n"
                 "  shadowless bench venue --nodes 8 --node-cpu 0.2 --size 960x540\n"
+                "  shadowless bench venue --nodes 4 --node-cpu 0.4 --output-size 320x180 --only restart\n"
                 "  python -m shadowless.cpu_budget cleanup                        # groups a killed run left")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--nodes", type=int, default=4, help="node processes (default 4)")
@@ -145,6 +163,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="the rig's heartbeat (readiness travels in heartbeats: the times' resolution; default 100)")
     p.add_argument("--poll-s", type=float, default=0.2, help="status poll interval (default 0.2 s)")
     p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds (default 600)")
+    p.add_argument("--only", type=_parts, metavar="PART[,PART]",
+                   help=f"after the distribution, run only these parts ({', '.join(PARTS)}; default all), e.g. "
+                        "--only restart for the coordinator's restart alone")
     p.add_argument("--keep", metavar="DIR", help="keep the rig's work directory (rig, logs, caches, video) in DIR")
     b = p.add_argument_group("CPU budgets (root and a cgroup cpu controller, v1 or v2)")
     b.add_argument("--node-cpu", type=_fraction, metavar="F",
@@ -352,6 +373,7 @@ async def _poll(rig: LocalRig, asset_id: str, args, t_start: float) -> _Watch:
 
 async def _measure(args, workdir: Path, video: Path, budgets: RigBudgets | None) -> dict:
     n = args.nodes
+    parts = args.only or PARTS
     slots = grid_names(n)
     ow, oh = args.output_size
     rig = LocalRig(slots, workdir, output_size=(ow, oh), content_size=(ow, oh), netns=True, link=args.link,
@@ -370,10 +392,13 @@ async def _measure(args, workdir: Path, video: Path, budgets: RigBudgets | None)
         for s in slots:
             rig.start_node(s)
         watch = await _poll(rig, manifest.asset_id, args, t_start)
-        print("bench venue: playing the asset by timeline, then a node rejoins mid-show …", file=sys.stderr, flush=True)
+        shows = [p for p in venue_show.PARTS if p in parts]
+        if shows:
+            print(f"bench venue: the asset played by timeline: {', '.join(shows)} …", file=sys.stderr, flush=True)
         show = await venue_show.measure(rig, manifest.asset_id, size=args.size, fps=args.fps, cpu=cpu_seconds,
+                                        parts=shows,
                                         budgets=budgets)
-        if args.live_seconds > 0:
+        if args.live_seconds > 0 and "live" in parts:
             print("bench venue: live frames, encoded once and streamed to every node …", file=sys.stderr, flush=True)
             show["live"] = await venue_live.measure(rig, size=args.size, fps=args.fps, seconds=args.live_seconds)
         coordinator_bps = rig.venue.coordinator_link_bps
@@ -491,6 +516,7 @@ def run(args: argparse.Namespace) -> int:
                 "seconds": args.seconds, "bit_rate": bit_rate, "codec": info["codec"],
                 "video_bit_rate_mbit_s": info["bit_rate_mbit_s"], "heartbeat_ms": args.heartbeat_ms,
                 "poll_s": args.poll_s, "live_seconds": args.live_seconds,
+                "only": list(args.only or PARTS),
             },
             **_limits(budgets),
             **figures,

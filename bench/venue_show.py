@@ -294,19 +294,24 @@ def _logged_after(text: str, what: str, wall0: float):
     return None
 
 
-async def coordinator_restart(rig: LocalRig, asset_id: str) -> dict:
+async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets=None) -> dict:
     """Loop the asset; kill the coordinator (SIGKILL) mid-show and start it again ``OUTAGE_S`` later
-    on the same rig directory; which ticks each node swapped in, before, during and after."""
+    on the same rig directory; which ticks each node swapped in, before, during and after, where
+    the missed ones fall, and what each node did and spent while it rejoined."""
     logs = log_sizes(rig)
     async with await rig.client(timeout=60.0) as c:
         play = await c.play_asset(asset_id, loop=True, delay_s=START_DELAY_S)
     base, t_show = play.frame_id_base, play.anchor_ns / 1e9
     await asyncio.sleep(max(0.0, t_show + KILL_AFTER_S - time.monotonic()))
     _alive(rig)
+    pids = {s: p.pid for s, p in rig.nodes.items()}
     kill_ns = time.monotonic_ns()
     rig.stop_coordinator(signal.SIGKILL)
-    await asyncio.sleep(OUTAGE_S)
-    back_ns = time.monotonic_ns()
+    await asyncio.sleep(1.0)                        # the nodes' own reaction to the loss settles
+    alone0 = _cpu_reading(cpu, pids, budgets)
+    await asyncio.sleep(OUTAGE_S - 1.0)
+    alone1 = _cpu_reading(cpu, pids, budgets)
+    back_ns, back_wall = time.monotonic_ns(), time.time()
     rig.start_coordinator()
     async with await rig.client(timeout=60.0) as c:
         st = await rig.wait_live(c, timeout=REJOIN_TIMEOUT_S)
@@ -314,31 +319,50 @@ async def coordinator_restart(rig: LocalRig, asset_id: str) -> dict:
         resumed = st.show.state == "playing" and st.show.revision == play.revision
         await asyncio.sleep(AFTER_REJOIN_S)
         _alive(rig)
+        after_ns = time.monotonic_ns()
+        back1 = _cpu_reading(cpu, pids, budgets)
         st = await c.status()                       # the restarted coordinator's tracker: ticks after its start
         stopped = await c.stop_show()
         await asyncio.sleep(max(0.0, (stopped.change_at_ns - time.monotonic_ns()) / 1e9) + 0.5)
+
+    def tick_at(t_ns: int) -> int:                  # the tick id due at or after rig instant t_ns
+        return base + math.ceil((t_ns - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9))
+
     # every tick from 1 s before the kill to AFTER_REJOIN_S after every node was live again
-    first = math.ceil((kill_ns - 1_000_000_000 - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9))
-    last = math.floor((live_ns + AFTER_REJOIN_S * 1e9 - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9))
-    window = range(base + first, base + last + 1)
-    missed, out_of_order, alone_ticks = {}, 0, {}
-    outage = range(base + math.ceil((kill_ns - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9)),
-                   base + math.floor((back_ns - play.anchor_ns) * play.rate_num / (play.rate_den * 1e9)) + 1)
+    first = tick_at(kill_ns - 1_000_000_000)
+    last = tick_at(live_ns + int(AFTER_REJOIN_S * 1e9)) - 1
+    window = range(first, last + 1)
+    outage = range(tick_at(kill_ns), tick_at(back_ns))
+    missed, out_of_order, alone_ticks, phases, stages, after_join = {}, 0, {}, {}, {}, {}
     for s in rig.slots:
         text = rig.log("node-" + s)[logs[s]:]
         ids = [int(m.group(1)) for m in SWAP.finditer(text)]
         out_of_order += sum(1 for a, b in zip(ids, ids[1:]) if b <= a)
         got = set(ids)
-        missed[s] = sum(1 for t in window if t not in got)
+        lost = [t for t in window if t not in got]
+        missed[s] = len(lost)
         alone_ticks[s] = sum(1 for t in outage if t in got)
+        # where the missed ticks fall: before the kill, while no coordinator ran, after its restart
+        phases[s] = {"before_kill": sum(1 for t in lost if t < outage.start),
+                     "outage": sum(1 for t in lost if t in outage),
+                     "after_restart": sum(1 for t in lost if t >= outage.stop)}
+        stages[s] = rejoin_stages(text, back_wall)
+        joined = stages[s].get("joined")
+        if joined is not None:
+            # the missed ticks after the restart, in ms from the node's join (on the rig clock)
+            join_ns = back_ns + int(joined * 1e6)
+            after_join[s] = [round((tick_ns(play, t - base) - join_ns) / 1e6) for t in lost if t >= outage.stop][:60]
     nodes = {n.slot: n for n in st.nodes}
-    return {
+    out = {
         "outage_s": round((back_ns - kill_ns) / 1e9, 3),
         "back_s": round((live_ns - back_ns) / 1e9, 3),   # from the restart until every node was live again
         "show_taken_back": resumed,
         "ticks_in_window": len(window),
         "frames_missed": sum(missed.values()),
         "frames_missed_by_node": missed,
+        "frames_missed_by_phase": phases,
+        "missed_ms_after_join": after_join,
+        "rejoin_stages_ms": stages,
         "ticks_during_outage": len(outage),
         "ticks_swapped_alone": alone_ticks,
         "out_of_order": out_of_order,
@@ -347,16 +371,80 @@ async def coordinator_restart(rig: LocalRig, asset_id: str) -> dict:
         "skew_p99_ms_after": _r(st.sync.skew_p99_ms), "skew_max_ms_after": _r(st.sync.skew_max_ms),
         "frames_after": st.sync.frames,
     }
+    if cpu is not None:
+        # each node's CPU (ms per tick) alone (the outage's last OUTAGE_S - 1 s) and from the restart to the
+        # end of the window: the node process itself ("link") and with its presenter ("node")
+        ticks_alone = (alone1["t"] - alone0["t"]) * play.rate_num / play.rate_den / 1e9
+        ticks_back = (after_ns - back_ns) * play.rate_num / play.rate_den / 1e9
+        out["cpu_ms_per_tick"] = {
+            "alone": _cpu_per_tick(alone0, alone1, ticks_alone),
+            "rejoining": _cpu_per_tick(alone1, back1, ticks_back),
+        }
+    return out
 
 
-async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu, budgets=None) -> dict:
+def _cpu_reading(cpu, pids: dict[str, int], budgets) -> dict:
+    """CPU seconds now of each node process alone (its link side: ``link``) and with its presenter
+    (``node``: with budgets, the node's group, the rasterizer's threads left out, and that group's time
+    held back, ``throttled``; without, the process tree, rasterizer included), and the monotonic
+    instant."""
+    if cpu is None:
+        return {}
+    r = {"t": time.monotonic_ns(), "link": {s: cpu(p) for s, p in pids.items()}}
+    if budgets is not None:
+        stats = budgets.stats()
+        r["node"] = {s: stats.get(f"node {s}", {}).get("cpu_s", 0.0) for s in pids}
+        r["throttled"] = {s: stats.get(f"node {s}", {}).get("throttled_s", 0.0) for s in pids}
+    else:
+        r["node"] = {s: tree_cpu(cpu, p) for s, p in pids.items()}
+    return r
+
+
+def _cpu_per_tick(a: dict, b: dict, ticks: float) -> dict:
+    return {k: {s: _r((b[k][s] - a[k][s]) * 1e3 / max(ticks, 1e-9), 2) for s in a[k]} for k in a if k != "t"}
+
+
+#: the node's log lines that mark the steps of a rejoin, by step
+REJOIN_STEPS = {"joined": "joined rig", "clock": "clock burst", "wanted": "the rig wants",
+                "assignment": "node.presenter: assignment", "show": "node.presenter: timeline r"}
+
+
+def rejoin_stages(text: str, wall0: float) -> dict:
+    """ms from ``wall0`` (the coordinator's restart, time.time()) to the first log line of each
+    rejoin step after it (a step not logged is left out)."""
+    out = {}
+    for step, what in REJOIN_STEPS.items():
+        for line in text.splitlines():
+            if what not in line:
+                continue
+            try:
+                at = datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f").timestamp()
+            except ValueError:
+                continue
+            if at >= wall0:
+                out[step] = round((at - wall0) * 1e3)
+                break
+    return out
+
+
+#: the shows this module plays, in order (``bench venue --only`` picks some)
+PARTS = ("timeline", "rejoin", "restart")
+
+
+async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu, budgets=None, parts=PARTS) -> dict:
+    out = {}
     async with await rig.client(timeout=60.0) as c:
-        tl = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu, budgets=budgets)
-        try:
-            rj = await rejoin(rig, c, asset_id)
-        except TimeoutError as exc:     # a starved node never catches up: say so, and measure the rest
-            rj = {"node": rig.slots[-1], "failed": str(exc).splitlines()[0]}
-            await c.stop_show()
-    restart = await coordinator_restart(rig, asset_id)
-    restart["skew_p99_ms_before"] = tl["skew_p99_ms"]
-    return {"timeline": tl, "rejoin": rj, "coordinator_restart": restart}
+        if "timeline" in parts:
+            out["timeline"] = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu, budgets=budgets)
+        if "rejoin" in parts:
+            try:
+                out["rejoin"] = await rejoin(rig, c, asset_id)
+            except TimeoutError as exc:     # a starved node never catches up: say so, and measure the rest
+                out["rejoin"] = {"node": rig.slots[-1], "failed": str(exc).splitlines()[0]}
+                await c.stop_show()
+    if "restart" in parts:
+        restart = await coordinator_restart(rig, asset_id, cpu=cpu, budgets=budgets)
+        if "timeline" in out:
+            restart["skew_p99_ms_before"] = out["timeline"]["skew_p99_ms"]
+        out["coordinator_restart"] = restart
+    return out

@@ -33,6 +33,7 @@ from node.asset_fetch import AssetFetcher
 from node.clock import ClockEstimate, LocalClock
 from node.errors import CoordinatorNotTrusted, DiscoveryError, Refused
 from node.link import CoordinatorLink, LinkError
+from node.network_priority import yield_to_presenter
 from node.presenter_process import PresenterProcess, PresenterSettings
 from node.records import AssetFiles, DropRecord, HeartbeatRecord, NodeInfo, PreviewRecord, SwapRecord
 from node.session import Joined, ReportStream, SessionCore
@@ -183,6 +184,7 @@ class Node:
             snapshot_dir=self.cfg.snapshot_dir, realtime=self.cfg.realtime,
             log_level=logging.getLogger().getEffectiveLevel(), log_name=f"node {self.cfg.slot}"))
         self.presenter.start()
+        yield_to_presenter()        # from now on the presenter has the node's CPU first
         # the coordinator is looked for while the presenter starts (a new interpreter, the GL context)
         if discovery is not None:
             early = asyncio.ensure_future(self._candidates(discovery))
@@ -358,6 +360,9 @@ class Node:
             await asyncio.gather(*pending, *([watch] if watch is not None else []), return_exceptions=True)
 
     def _unreachable(self, cand: Candidate, reason: str) -> None:
+        # a node playing on alone asks again at least every ALONE_BACKOFF_S (the show waits for it)
+        self.book.unreachable_max_s = (min(ALONE_BACKOFF_S, self.cfg.backoff_max_s) if self._alone_since is not None
+                                       else self.cfg.backoff_max_s)
         self.book.unreachable(cand, reason, time.monotonic())
         log.warning("could not reach the coordinator at %s (%s)", cand.label(), reason)
 

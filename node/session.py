@@ -40,6 +40,9 @@ UNTRUSTED_JOIN_TIMEOUT_S = 2.5
 #: clock exchanges right after a join, before anything else (a first estimate), and their spacing
 BURST_PINGS = 8
 BURST_SPACING_S = 0.01
+#: ... and after a join that kept the estimate (the same rig clock: a coordinator restarted on its host,
+#: a broken link): one exchange, to see the estimate still holds; the settled schedule does the rest
+KEPT_BURST_PINGS = 1
 
 
 class Link(Protocol):
@@ -100,6 +103,7 @@ class SessionCore:
         self.settled = False          # the estimate is good enough for sparse exchanges (until the clock changes)
         self.instance_id = ""         # the coordinator instance joined last
         self.clock_id = ""            # and its rig clock's identity
+        self.kept = False             # the last join kept the clock estimate
 
     # ---------------------------------------------------------------- handshake
     async def hello(self, link: Link, *, timeout: float = 5.0) -> tuple[HelloReply, bytes]:
@@ -141,7 +145,9 @@ class SessionCore:
                                             client_nonce=nonce, server_nonce=hello.server_nonce, client_proof=proof,
                                             info=self.info()))
         previous = self.instance_id
-        return Joined(reply=reply, hello=hello, previous_instance=previous, clock_kept=self.adopt(reply))
+        kept = self.adopt(reply)
+        self.kept = kept and self.estimator.estimate is not None
+        return Joined(reply=reply, hello=hello, previous_instance=previous, clock_kept=kept)
 
     def adopt(self, reply: JoinReply) -> bool:
         """The clock-id rule, for a join's coordinator instance: the same instance, or another one on
@@ -166,10 +172,18 @@ class SessionCore:
 
     async def ping_burst(self, link: Link, after: Callable[[ClockEstimate | None], None] = lambda est: None,
                          *, count: int = BURST_PINGS) -> None:
-        """A first estimate right after a join, before anything can be scheduled on it."""
+        """A first estimate right after a join, before anything can be scheduled on it; after a join
+        that kept the estimate, KEPT_BURST_PINGS exchanges only (the estimate the node plays on is
+        good: a burst would cost both sides for nothing, the coordinator most when every node rejoins
+        its restart at once)."""
+        if self.kept:
+            count = min(count, KEPT_BURST_PINGS)
+        t0 = time.monotonic()
         for _ in range(count):
             after(await self.ping(link))
             await asyncio.sleep(BURST_SPACING_S)
+        log.log(self._news, "%s: clock burst of %d exchanges in %.0f ms", self.slot, count,
+                (time.monotonic() - t0) * 1e3)
 
     async def pings(self, link: Link, after: Callable[[ClockEstimate | None], None] = lambda est: None) -> None:
         """Clock exchanges for the rest of the session, each ``ping_period()`` apart (±20 %, so that
