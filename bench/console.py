@@ -307,8 +307,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "(default 10)")
     p.add_argument("--warmup", type=float, default=25.0,
                    help="seconds for the nodes' clock estimates to settle before measuring CPU (default 25)")
-    p.add_argument("--screenshot", metavar="PNG", help="where to save the page's screenshot "
-                                                       "(default: a file in the temporary directory)")
+    p.add_argument("--screenshot", metavar="PNG", help="where to save the page's screenshot (default: console.png "
+                                                       "in the run's directory, kept only with --keep)")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory and logs here")
     p.add_argument("--cue-rounds", type=int, default=10,
                    help="cuts and crossfades each fired with GO for go_to_swap_ms_p99 and crossfade_skew_ms_p99 "
@@ -464,7 +464,7 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
 
             # a node killed until the page shows it lost
             lost = []
-            for slot in slots[-min(args.kills, n):]:
+            for slot in slots[n - min(args.kills, n):]:     # --kills 0: none
                 t = time.monotonic()
                 rig.kill_node(slot)
                 wait_for(lambda: page_states(driver).get(slot) == "lost", 60, f"{slot} lost")
@@ -477,16 +477,26 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
     return out
 
 
+def screenshot_file(option: str | None, workdir: Path) -> Path:
+    """Where the page's screenshot goes: ``--screenshot PNG`` (its folder made), else console.png in
+    the run's directory ``workdir``, which goes with it unless ``--keep`` keeps it: a run leaves no
+    picture behind that nobody asked for."""
+    shot = Path(option) if option else workdir / "console.png"
+    shot.parent.mkdir(parents=True, exist_ok=True)
+    return shot
+
+
 def run(args: argparse.Namespace) -> int:
     missing = browser_missing()
     if missing:
         print(f"bench console: {missing}", file=sys.stderr)
         return 2
-    shot = Path(args.screenshot) if args.screenshot else Path(tempfile.gettempdir()) / f"shadowless-console-{os.getpid()}.png"
-    shot.parent.mkdir(parents=True, exist_ok=True)
     print(f"bench console: {args.nodes} nodes, headless Chromium …", file=sys.stderr, flush=True)
     with run_dir(args.keep, f"console-n{args.nodes}") as base:
+        shot = screenshot_file(args.screenshot, base)
         result = measure(args, base, shot)
+    if not args.screenshot and not args.keep:
+        result["screenshot"] = None     # it went with the run's directory
     doc = {"benchmark": "console", "machine": machine(),
            "parameters": {"nodes": args.nodes, "gain_changes": args.gain_changes, "kills": args.kills,
                           "cpu_seconds": args.cpu_seconds, "warmup_s": args.warmup,

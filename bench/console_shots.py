@@ -26,12 +26,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import AsyncIterator
 
 import numpy as np
 
@@ -132,16 +134,16 @@ def _shoot(url: str, token: str, select: str, out: Path, width: int, slots: list
         driver.quit()
 
 
-async def _main(args: argparse.Namespace, workdir: Path) -> dict:
-    n = args.projectors
-    cols = math.ceil(math.sqrt(n))
-    slots = [f"r{i // cols + 1}c{i % cols + 1}" for i in range(n)]
-    select = args.select or slots[min(7, n - 1)]
-    if select not in slots:
-        raise SystemExit(f"--select {select!r}: not a slot of this rig ({slots[0]} … {slots[-1]})")
+@contextlib.asynccontextmanager
+async def overlapping_rig(slots: list[str], workdir: Path) -> AsyncIterator[tuple[LocalRig, CoordinatorApp]]:
+    """The layout's rig in ``workdir``: a coordinator with its console in this process, every slot
+    posed by :func:`table_poses`, all but the last joined by protocol-level nodes. Yields the local
+    rig (its token) and the running app. On leaving, the coordinator stops first and ends the
+    swarm's sessions as closed, then the swarm: its nodes say no goodbye, so stopped first each
+    would be logged as a node lost, which a normal shutdown is not."""
     local = LocalRig(slots, workdir, output_size=OUTPUT, content_size=CONTENT, mdns=False).create()
     rig = Rig(local.rig_dir)
-    for s, H in zip(slots, table_poses(n)):
+    for s, H in zip(slots, table_poses(len(slots))):
         rig.update_slot(s, pose=HomographyPose(H))
     app = CoordinatorApp(Rig(local.rig_dir), local.token, listen=f"127.0.0.1:{local.port}", advertise=False,
                          console="127.0.0.1:0")
@@ -150,13 +152,26 @@ async def _main(args: argparse.Namespace, workdir: Path) -> dict:
                               fetch="manifest", join_concurrency=8))   # under the per-address budget
     try:
         await swarm.start()
+        yield local, app
+    finally:
+        try:
+            await app.stop(grace=1.0)
+        finally:
+            await swarm.stop()
+
+
+async def _main(args: argparse.Namespace, workdir: Path) -> dict:
+    n = args.projectors
+    cols = math.ceil(math.sqrt(n))
+    slots = [f"r{i // cols + 1}c{i % cols + 1}" for i in range(n)]
+    select = args.select or slots[min(7, n - 1)]
+    if select not in slots:
+        raise SystemExit(f"--select {select!r}: not a slot of this rig ({slots[0]} … {slots[-1]})")
+    async with overlapping_rig(slots, workdir) as (local, app):
         url = f"http://127.0.0.1:{app.console_port}/"
         t0 = time.monotonic()
         shot = await asyncio.to_thread(_shoot, url, local.token.decode(), select, args.out, args.width, slots, workdir)
         shot["seconds"] = round(time.monotonic() - t0, 1)
-    finally:
-        await swarm.stop()      # the nodes first (their leaving is logged as lost), then the coordinator
-        await app.stop(grace=1.0)
     return {"benchmark": "console_shots", "machine": machine(), "projectors": n, "selected": select,
             "never_connected": slots[-1], **shot}
 
