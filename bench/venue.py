@@ -35,7 +35,8 @@ encode cost; see :mod:`bench.venue_live`.
 ``decode_ms_per_frame`` is a reference: one software decode of the video on this host.
 ``--only PART[,PART]`` runs only some of these parts after the distribution (``timeline``,
 ``rejoin``, ``restart``: the coordinator killed and restarted mid-show, ``live``); the document
-has the sections of those that ran.
+has the sections of those that ran. ``--quick`` shortens the shows around the kills (a smoke run
+of the benchmark itself, as the test suite makes).
 
 **CPU budgets** (``--node-cpu F``, root and a cgroup cpu controller: :mod:`shadowless.rig_budget`):
 every node process is held to F of a core, as if each ran on a small computer of its own, its
@@ -166,6 +167,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--only", type=_parts, metavar="PART[,PART]",
                    help=f"after the distribution, run only these parts ({', '.join(PARTS)}; default all), e.g. "
                         "--only restart for the coordinator's restart alone")
+    p.add_argument("--quick", action="store_true",
+                   help="shorter shows around the kills (1.5 s before each, a 2.5 s coordinator outage, 1.5 s after "
+                        "each rejoin, instead of 3, 5 and 4 s): a smoke run of the benchmark, its figures say less")
     p.add_argument("--keep", metavar="DIR", help="keep the rig's work directory (rig, logs, caches, video) in DIR")
     b = p.add_argument_group("CPU budgets (root and a cgroup cpu controller, v1 or v2)")
     b.add_argument("--node-cpu", type=_fraction, metavar="F",
@@ -396,7 +400,7 @@ async def _measure(args, workdir: Path, video: Path, budgets: RigBudgets | None)
         if shows:
             print(f"bench venue: the asset played by timeline: {', '.join(shows)} …", file=sys.stderr, flush=True)
         show = await venue_show.measure(rig, manifest.asset_id, size=args.size, fps=args.fps, cpu=cpu_seconds,
-                                        parts=shows,
+                                        parts=shows, times=venue_show.QUICK if args.quick else venue_show.Times(),
                                         budgets=budgets)
         if args.live_seconds > 0 and "live" in parts:
             print("bench venue: live frames, encoded once and streamed to every node …", file=sys.stderr, flush=True)
@@ -516,7 +520,7 @@ def run(args: argparse.Namespace) -> int:
                 "seconds": args.seconds, "bit_rate": bit_rate, "codec": info["codec"],
                 "video_bit_rate_mbit_s": info["bit_rate_mbit_s"], "heartbeat_ms": args.heartbeat_ms,
                 "poll_s": args.poll_s, "live_seconds": args.live_seconds,
-                "only": list(args.only or PARTS),
+                "only": list(args.only or PARTS), "quick": args.quick,
             },
             **_limits(budgets),
             **figures,

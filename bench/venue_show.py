@@ -31,7 +31,17 @@ Three shows, one after the other, on the venue :mod:`bench.venue` built and dist
   ran; ``out_of_order``: swaps whose id was not above the node's previous one; ``alone_ms``: how
   long each node says it went on alone (its heartbeat); ``skew_p99_ms_after``: the restarted
   coordinator's skew over the ticks after it started, beside the first show's
-  (``skew_p99_ms_before``).
+  (``skew_p99_ms_before``). Where the missed ticks fall, per node: ``frames_missed_by_phase``
+  (``before_kill``, ``outage``: while no coordinator ran, ``after_restart``) and
+  ``missed_around_join`` (those after the restart by when they fell from the node's join: before
+  it, 0-0.5 s, 0.5-1 s, 1-2 s after, later); ``rejoin_stages_ms``: ms from the restart to the
+  first log line of each step of the node's rejoin (``joined``, ``clock``: its clock exchanges
+  done, ``wanted``: the wanted list checked against its cache, and ``assignment`` or ``show`` only
+  if the presenter took a changed one); ``cpu_ms_per_tick``: each node's CPU per tick of the show
+  over the outage's last ``OUTAGE_S`` - 1 s (``alone``) and from the restart to the end of the
+  window (``rejoining``): ``link``, the node process itself (the coordinator link, mDNS, fetches,
+  reports), and ``node``, with its presenter (with budgets: the node's group, the rasterizer's
+  threads left out, and ``throttled``, the time that group was held back by its budget).
 """
 from __future__ import annotations
 
@@ -41,6 +51,7 @@ import os
 import re
 import signal
 import time
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -57,6 +68,21 @@ OUTAGE_S = 5.0
 REJOIN_TIMEOUT_S = 60.0
 #: a show's ticks are settled (every node reported, or the tracker's 3 s timeout) this long after the last
 SETTLE_S = 3.5
+
+
+@dataclass(frozen=True)
+class Times:
+    """How long the shows play around their kills (the defaults are the constants above)."""
+
+    kill_after_s: float = KILL_AFTER_S
+    rejoin_show_s: float = REJOIN_SHOW_S
+    after_rejoin_s: float = AFTER_REJOIN_S
+    outage_s: float = OUTAGE_S
+
+
+#: ``bench venue --quick``: the shows shortened for a smoke run of the benchmark itself (its
+#: figures then say less: a 2.5 s outage, 1.5 s of show after each rejoin)
+QUICK = Times(kill_after_s=1.5, rejoin_show_s=4.0, after_rejoin_s=1.5, outage_s=2.5)
 #: how far ahead of now a show starts
 START_DELAY_S = 0.5
 SWAP = re.compile(r"timing frame (\d+): swap")
@@ -215,14 +241,14 @@ async def timeline(rig: LocalRig, c, asset_id: str, *, size: tuple[int, int], fp
     }
 
 
-async def rejoin(rig: LocalRig, c, asset_id: str) -> dict:
+async def rejoin(rig: LocalRig, c, asset_id: str, times: Times = Times()) -> dict:
     """Loop the asset; kill one node mid-show and start it again; when it is back, how well it agrees."""
     victim, peers = rig.slots[-1], rig.slots[:-1]
     logs = log_sizes(rig)
     play = await c.play_asset(asset_id, loop=True, delay_s=START_DELAY_S)
     base = play.frame_id_base
     t_show = play.anchor_ns / 1e9                   # rig clock = this host's monotonic clock
-    await asyncio.sleep(max(0.0, t_show + KILL_AFTER_S - time.monotonic()))
+    await asyncio.sleep(max(0.0, t_show + times.kill_after_s - time.monotonic()))
     _alive(rig)
     proc = rig.nodes[victim]
     # the node's whole process group (it leads its own session): the node and its presenter process,
@@ -244,7 +270,7 @@ async def rejoin(rig: LocalRig, c, asset_id: str) -> dict:
                                f"restart:\n{rig.log('node-' + victim)[since:][-3000:]}")
         await asyncio.sleep(0.1)
     back_ns = tick_ns(play, first - base)
-    end = max(t_show + REJOIN_SHOW_S, back_ns / 1e9 + AFTER_REJOIN_S)
+    end = max(t_show + times.rejoin_show_s, back_ns / 1e9 + times.after_rejoin_s)
     await asyncio.sleep(max(0.0, end - time.monotonic()))
     _alive(rig)
     stopped = await c.stop_show()
@@ -294,7 +320,7 @@ def _logged_after(text: str, what: str, wall0: float):
     return None
 
 
-async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets=None) -> dict:
+async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets=None, times: Times = Times()) -> dict:
     """Loop the asset; kill the coordinator (SIGKILL) mid-show and start it again ``OUTAGE_S`` later
     on the same rig directory; which ticks each node swapped in, before, during and after, where
     the missed ones fall, and what each node did and spent while it rejoined."""
@@ -302,25 +328,30 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     async with await rig.client(timeout=60.0) as c:
         play = await c.play_asset(asset_id, loop=True, delay_s=START_DELAY_S)
     base, t_show = play.frame_id_base, play.anchor_ns / 1e9
-    await asyncio.sleep(max(0.0, t_show + KILL_AFTER_S - time.monotonic()))
+    await asyncio.sleep(max(0.0, t_show + times.kill_after_s - time.monotonic()))
     _alive(rig)
     pids = {s: p.pid for s, p in rig.nodes.items()}
     kill_ns = time.monotonic_ns()
     rig.stop_coordinator(signal.SIGKILL)
     await asyncio.sleep(1.0)                        # the nodes' own reaction to the loss settles
     alone0 = _cpu_reading(cpu, pids, budgets)
-    await asyncio.sleep(OUTAGE_S - 1.0)
+    await asyncio.sleep(times.outage_s - 1.0)
     alone1 = _cpu_reading(cpu, pids, budgets)
     back_ns, back_wall = time.monotonic_ns(), time.time()
     rig.start_coordinator()
+    samples: list[tuple[int, dict[str, float]]] = []
+    sampler = asyncio.create_task(_sample_link_cpu(cpu, pids, samples)) if cpu is not None else None
     async with await rig.client(timeout=60.0) as c:
         st = await rig.wait_live(c, timeout=REJOIN_TIMEOUT_S)
         live_ns = time.monotonic_ns()
         resumed = st.show.state == "playing" and st.show.revision == play.revision
-        await asyncio.sleep(AFTER_REJOIN_S)
+        await asyncio.sleep(times.after_rejoin_s)
         _alive(rig)
         after_ns = time.monotonic_ns()
         back1 = _cpu_reading(cpu, pids, budgets)
+        if sampler is not None:
+            sampler.cancel()
+            await asyncio.gather(sampler, return_exceptions=True)
         st = await c.status()                       # the restarted coordinator's tracker: ticks after its start
         stopped = await c.stop_show()
         await asyncio.sleep(max(0.0, (stopped.change_at_ns - time.monotonic_ns()) / 1e9) + 0.5)
@@ -330,7 +361,7 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
 
     # every tick from 1 s before the kill to AFTER_REJOIN_S after every node was live again
     first = tick_at(kill_ns - 1_000_000_000)
-    last = tick_at(live_ns + int(AFTER_REJOIN_S * 1e9)) - 1
+    last = tick_at(live_ns + int(times.after_rejoin_s * 1e9)) - 1
     window = range(first, last + 1)
     outage = range(tick_at(kill_ns), tick_at(back_ns))
     missed, out_of_order, alone_ticks, phases, stages, after_join = {}, 0, {}, {}, {}, {}
@@ -346,12 +377,12 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         phases[s] = {"before_kill": sum(1 for t in lost if t < outage.start),
                      "outage": sum(1 for t in lost if t in outage),
                      "after_restart": sum(1 for t in lost if t >= outage.stop)}
-        stages[s] = rejoin_stages(text, back_wall)
+        stages[s] = rejoin_stages(text, back_wall, play.revision)
         joined = stages[s].get("joined")
         if joined is not None:
-            # the missed ticks after the restart, in ms from the node's join (on the rig clock)
+            # the missed ticks after the restart, by when they fell from the node's join (rig clock)
             join_ns = back_ns + int(joined * 1e6)
-            after_join[s] = [round((tick_ns(play, t - base) - join_ns) / 1e6) for t in lost if t >= outage.stop][:60]
+            after_join[s] = _bins([(tick_ns(play, t - base) - join_ns) / 1e9 for t in lost if t >= outage.stop])
     nodes = {n.slot: n for n in st.nodes}
     out = {
         "outage_s": round((back_ns - kill_ns) / 1e9, 3),
@@ -361,7 +392,7 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         "frames_missed": sum(missed.values()),
         "frames_missed_by_node": missed,
         "frames_missed_by_phase": phases,
-        "missed_ms_after_join": after_join,
+        "missed_around_join": after_join,
         "rejoin_stages_ms": stages,
         "ticks_during_outage": len(outage),
         "ticks_swapped_alone": alone_ticks,
@@ -380,7 +411,40 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
             "alone": _cpu_per_tick(alone0, alone1, ticks_alone),
             "rejoining": _cpu_per_tick(alone1, back1, ticks_back),
         }
+        # the node process's CPU in the first second after its join, less a second of its rate alone:
+        # what the rejoin itself cost it (ms)
+        alone_ms_per_s = {s: (alone1["link"][s] - alone0["link"][s]) * 1e12 / max(1, alone1["t"] - alone0["t"])
+                          for s in pids}
+        out["link_cpu_ms_first_s_after_join"] = {
+            s: _r(_cpu_between(samples, s, back_ns + int(stages[s]["joined"] * 1e6), 1_000_000_000)
+                  - alone_ms_per_s[s], 1) if "joined" in stages[s] else None for s in pids}
     return out
+
+
+#: bins of ``missed_around_join``: seconds from a node's join to a missed tick's instant
+JOIN_BINS = ((-math.inf, 0.0, "before"), (0.0, 0.5, "0-0.5s"), (0.5, 1.0, "0.5-1s"), (1.0, 2.0, "1-2s"),
+             (2.0, math.inf, "later"))
+
+
+def _bins(offsets: list[float]) -> dict[str, int]:
+    return {name: sum(1 for x in offsets if lo <= x < hi) for lo, hi, name in JOIN_BINS}
+
+
+async def _sample_link_cpu(cpu, pids: dict[str, int], samples: list, period_s: float = 0.05) -> None:
+    """Every ``period_s`` until cancelled: (monotonic ns, each node process's CPU seconds) into ``samples``."""
+    while True:
+        samples.append((time.monotonic_ns(), {s: cpu(p) for s, p in pids.items()}))
+        await asyncio.sleep(period_s)
+
+
+def _cpu_between(samples: list, slot: str, t0: int, span_ns: int) -> float:
+    """CPU ms of ``slot``'s node process over [t0, t0 + span_ns], from the samples nearest the ends
+    (NaN when the samples do not cover it)."""
+    inside = [(t, c[slot]) for t, c in samples if t0 - 50_000_000 <= t <= t0 + span_ns + 50_000_000]
+    if len(inside) < 2:
+        return math.nan
+    (ta, a), (tb, b) = inside[0], inside[-1]
+    return (b - a) * 1e3 * span_ns / max(1, tb - ta)
 
 
 def _cpu_reading(cpu, pids: dict[str, int], budgets) -> dict:
@@ -404,18 +468,19 @@ def _cpu_per_tick(a: dict, b: dict, ticks: float) -> dict:
     return {k: {s: _r((b[k][s] - a[k][s]) * 1e3 / max(ticks, 1e-9), 2) for s in a[k]} for k in a if k != "t"}
 
 
-#: the node's log lines that mark the steps of a rejoin, by step
-REJOIN_STEPS = {"joined": "joined rig", "clock": "clock burst", "wanted": "the rig wants",
-                "assignment": "node.presenter: assignment", "show": "node.presenter: timeline r"}
-
-
-def rejoin_stages(text: str, wall0: float) -> dict:
+def rejoin_stages(text: str, wall0: float, revision: int) -> dict:
     """ms from ``wall0`` (the coordinator's restart, time.time()) to the first log line of each
-    rejoin step after it (a step not logged is left out)."""
+    rejoin step after it (a step not logged is left out): joined, the clock exchanges done, the
+    wanted list checked against the cache, and only if the presenter took them again, a changed
+    assignment (pose, LUT, gain) or the show's ``revision`` as a new one."""
+    steps = {"joined": re.compile("joined rig"), "clock": re.compile("clock burst"),
+             "wanted": re.compile("the rig wants"),
+             "assignment": re.compile(r"node\.presenter: assignment r\d+: \w+ pose,"),
+             "show": re.compile(rf"node\.presenter: timeline r{revision}:")}
     out = {}
-    for step, what in REJOIN_STEPS.items():
+    for step, what in steps.items():
         for line in text.splitlines():
-            if what not in line:
+            if not what.search(line):
                 continue
             try:
                 at = datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f").timestamp()
@@ -431,19 +496,20 @@ def rejoin_stages(text: str, wall0: float) -> dict:
 PARTS = ("timeline", "rejoin", "restart")
 
 
-async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu, budgets=None, parts=PARTS) -> dict:
+async def measure(rig: LocalRig, asset_id: str, *, size, fps, cpu, budgets=None, parts=PARTS,
+                  times: Times = Times()) -> dict:
     out = {}
     async with await rig.client(timeout=60.0) as c:
         if "timeline" in parts:
             out["timeline"] = await timeline(rig, c, asset_id, size=size, fps=fps, cpu=cpu, budgets=budgets)
         if "rejoin" in parts:
             try:
-                out["rejoin"] = await rejoin(rig, c, asset_id)
+                out["rejoin"] = await rejoin(rig, c, asset_id, times)
             except TimeoutError as exc:     # a starved node never catches up: say so, and measure the rest
                 out["rejoin"] = {"node": rig.slots[-1], "failed": str(exc).splitlines()[0]}
                 await c.stop_show()
     if "restart" in parts:
-        restart = await coordinator_restart(rig, asset_id, cpu=cpu, budgets=budgets)
+        restart = await coordinator_restart(rig, asset_id, cpu=cpu, budgets=budgets, times=times)
         if "timeline" in out:
             restart["skew_p99_ms_before"] = out["timeline"]["skew_p99_ms"]
         out["coordinator_restart"] = restart

@@ -1,6 +1,7 @@
-"""`shadowless bench venue` on a tiny venue: 2 nodes on 100 Mbit/s links, a 1-second 320x180 video,
-played by timeline, then looped while one node is killed and restarted, then looped while the
-coordinator is killed and restarted 5 s later; then 2 s of live frames.
+"""`shadowless bench venue --quick` on a tiny venue: 2 nodes on 100 Mbit/s links, a 1-second 320x180
+video, played by timeline, then looped while one node is killed and restarted, then looped while the
+coordinator is killed and restarted 2.5 s later (--quick: the shows around the kills shortened);
+then 2 s of live frames.
 
 Checks that the JSON document has every figure and that they agree with each other (every node
 live and ready, times measured from the right origins, the ideal from the link rate, the show's
@@ -36,7 +37,7 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     keep = tmp_path / "run"
     budgets = not unavailable()
     args = parser.parse_args(["venue", "--nodes", "2", "--link", "100mbit", "--size", "320x180", "--fps", "30",
-                              "--seconds", "1", "--output-size", "160x90", "--keep", str(keep)]
+                              "--seconds", "1", "--output-size", "160x90", "--quick", "--keep", str(keep)]
                              + (["--node-cpu", "0.5"] if budgets else []))
     assert bench_cli.run(args) == 0
     out = capsys.readouterr()
@@ -52,6 +53,7 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert (p["nodes"], p["link"], p["coordinator_link"], p["size"], p["output_size"]) == \
         (2, "100mbit", "100mbit", "320x180", "160x90")
     assert p["fps"] == 30 and p["seconds"] == 1 and p["codec"]
+    assert p["quick"] and p["only"] == ["timeline", "rejoin", "restart", "live"]
     assert "live_frames" not in doc           # the live figures are the `live` section (below)
 
     slots = set(doc["ready_s"])
@@ -106,17 +108,28 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert 0 <= rj["frame_agreement"] <= 1 and 0 <= rj["peer_agreement"] <= 1
     assert 0 < rj["joined_s"] <= rj["asset_passed_s"]     # the log's steps of the rejoin, in order
     assert rj["frame_agreement"] == pytest.approx(1 - rj["ticks_missed"] / rj["ticks_compared"], abs=1e-4)
-    assert rj["show_s"] >= 10 and rj["out_of_order"] == 0
+    assert rj["show_s"] >= 4 and rj["out_of_order"] == 0
 
     # the coordinator killed mid-show and restarted: every node played on alone and was taken back
     cr = doc["coordinator_restart"]
-    assert cr["show_taken_back"] and cr["outage_s"] >= 5.0 and cr["back_s"] > 0
+    assert cr["show_taken_back"] and cr["outage_s"] >= 2.5 and cr["back_s"] > 0
     assert cr["ticks_during_outage"] > 0 and set(cr["ticks_swapped_alone"]) == slots
     assert all(0 < n <= cr["ticks_during_outage"] for n in cr["ticks_swapped_alone"].values())
     assert cr["frames_missed"] == sum(cr["frames_missed_by_node"].values())
     assert 0 <= cr["frames_missed"] <= 2 * cr["ticks_in_window"]
     assert cr["out_of_order"] == 0
-    assert all(a >= 4_000 for a in cr["alone_ms"].values())      # each node says it went on alone
+    assert all(a >= 2_000 for a in cr["alone_ms"].values())      # each node says it went on alone
+    # where the missed ticks fell, and what each node did and spent while it rejoined
+    for s in slots:
+        phases, around = cr["frames_missed_by_phase"][s], cr["missed_around_join"][s]
+        assert sum(phases.values()) == cr["frames_missed_by_node"][s]
+        assert sum(around.values()) == phases["after_restart"]
+        steps = cr["rejoin_stages_ms"][s]
+        assert 0 < steps["joined"] <= steps["clock"] and steps["joined"] <= steps["wanted"]
+        assert "assignment" not in steps and "show" not in steps     # nothing changed: nothing re-applied
+        for when in ("alone", "rejoining"):
+            assert cr["cpu_ms_per_tick"][when]["link"][s] >= 0 and cr["cpu_ms_per_tick"][when]["node"][s] > 0
+        assert cr["link_cpu_ms_first_s_after_join"][s] is not None
     assert cr["skew_p99_ms_before"] == tl["skew_p99_ms"]
 
     # live frames: the natural sequence went as video, encoded once, far below raw frames
