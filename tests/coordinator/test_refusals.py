@@ -34,6 +34,19 @@ def small_rig(tmp_path):
     r.close()
 
 
+@pytest.fixture(scope="module")
+def quiet_rig(tmp_path_factory):
+    """A coordinator without nodes, shared by the tests that only call it over gRPC: what each asks for
+    is refused whatever the others did (a tampered proof, an unknown slot, a replayed nonce, a call
+    without a session), so one coordinator start serves them all."""
+    r = LocalRig(["r0c0", "r0c1"], tmp_path_factory.mktemp("quiet"), output_size=(32, 32), content_size=(32, 32),
+                 mdns=False).create()
+    r.start_coordinator()
+    r.wait_ready()
+    yield r
+    r.close()
+
+
 def test_wrong_protocol_version_gets_a_clear_refusal(small_rig):
     small_rig.start_node("r0c0", ["--protocol-version", str(PROTOCOL_VERSION + 1)])
     log = wait_for_log(small_rig, "node-r0c0", "protocol version mismatch")
@@ -102,27 +115,27 @@ async def _join(port: int, token: bytes, slot: str, *, tamper: bool = False):
         return await stub.Join(node_pb2.JoinRequest(login=login, info=node_pb2.NodeInfo(hostname="test")))
 
 
-def test_coordinator_refuses_a_node_without_the_token(small_rig):
+def test_coordinator_refuses_a_node_without_the_token(quiet_rig):
     with pytest.raises(grpc.aio.AioRpcError) as err:
-        run(_join(small_rig.port, small_rig.token, "r0c0", tamper=True))
+        run(_join(quiet_rig.port, quiet_rig.token, "r0c0", tamper=True))
     assert err.value.code() == grpc.StatusCode.UNAUTHENTICATED
     assert "rig token mismatch" in err.value.details() and "r0c0" in err.value.details()
 
 
-def test_unknown_slot_is_refused_with_the_known_slots(small_rig):
+def test_unknown_slot_is_refused_with_the_known_slots(quiet_rig):
     with pytest.raises(grpc.aio.AioRpcError) as err:
-        run(_join(small_rig.port, small_rig.token, "r9c9"))
+        run(_join(quiet_rig.port, quiet_rig.token, "r9c9"))
     assert err.value.code() == grpc.StatusCode.NOT_FOUND
     assert "r0c0, r0c1" in err.value.details()
 
 
-def test_nonces_are_single_use(small_rig):
+def test_nonces_are_single_use(quiet_rig):
     async def replay():
-        async with grpc.aio.insecure_channel(f"127.0.0.1:{small_rig.port}") as ch:
+        async with grpc.aio.insecure_channel(f"127.0.0.1:{quiet_rig.port}") as ch:
             stub = node_pb2_grpc.NodeLinkStub(ch)
             cn = auth.new_nonce()
             hello = await stub.Hello(common_pb2.HelloRequest(protocol_version=PROTOCOL_VERSION, client_nonce=cn, role="node", slot="r0c0"))
-            proof = auth.client_proof(small_rig.token, "node", hello.rig_id, "r0c0", cn, hello.server_nonce)
+            proof = auth.client_proof(quiet_rig.token, "node", hello.rig_id, "r0c0", cn, hello.server_nonce)
             login = common_pb2.LoginRequest(protocol_version=PROTOCOL_VERSION, role="node", slot="r0c0", client_nonce=cn,
                                             server_nonce=hello.server_nonce, client_proof=proof)
             await stub.Join(node_pb2.JoinRequest(login=login))
@@ -133,9 +146,9 @@ def test_nonces_are_single_use(small_rig):
     assert "single use" in err.value.details()
 
 
-def test_calls_without_a_session_are_refused(small_rig):
+def test_calls_without_a_session_are_refused(quiet_rig):
     async def go():
-        async with grpc.aio.insecure_channel(f"127.0.0.1:{small_rig.port}") as ch:
+        async with grpc.aio.insecure_channel(f"127.0.0.1:{quiet_rig.port}") as ch:
             stub = node_pb2_grpc.NodeLinkStub(ch)
             async for _ in stub.Frames(node_pb2.StreamRequest()):
                 pass
@@ -145,12 +158,12 @@ def test_calls_without_a_session_are_refused(small_rig):
     assert err.value.code() == grpc.StatusCode.UNAUTHENTICATED
 
 
-def test_health_and_reflection_answer_generic_tools(small_rig):
+def test_health_and_reflection_answer_generic_tools(quiet_rig):
     from grpc_health.v1 import health_pb2, health_pb2_grpc
     from grpc_reflection.v1alpha import reflection_pb2, reflection_pb2_grpc
 
     async def go():
-        async with grpc.aio.insecure_channel(f"127.0.0.1:{small_rig.port}") as ch:
+        async with grpc.aio.insecure_channel(f"127.0.0.1:{quiet_rig.port}") as ch:
             health = await health_pb2_grpc.HealthStub(ch).Check(health_pb2.HealthCheckRequest(service="shadowless.v1.NodeLink"))
             refl = reflection_pb2_grpc.ServerReflectionStub(ch)
 
