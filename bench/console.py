@@ -464,7 +464,11 @@ def measure(args: argparse.Namespace, workdir: Path, screenshot: Path) -> dict:
 
             # a node killed until the page shows it lost
             lost = []
-            for slot in slots[n - min(args.kills, n):]:     # --kills 0: none
+            killed = slots[n - min(args.kills, n):]      # --kills 0: none
+            if killed:      # the coordinator's "node ... lost" warnings that follow are these, on purpose
+                print(f"bench console: killing {', '.join(killed)} (SIGKILL) to time the page's 'lost'",
+                      file=sys.stderr, flush=True)
+            for slot in killed:
                 t = time.monotonic()
                 rig.kill_node(slot)
                 wait_for(lambda: page_states(driver).get(slot) == "lost", 60, f"{slot} lost")
