@@ -16,7 +16,9 @@ Parts (``--only`` picks some; each prints progress lines on stderr):
   during a flat-white show (a still on rigs of more than 9 nodes, ``--show``), the time until the coordinator declares it lost, the non-uniformity in its
   footprint once the remaining nodes show their new maps, and how many frames after the
   declaration those maps were on screen (the nodes' heartbeats: the pts of the first frame
-  shown with them); then the node returns and the maps switch back;
+  shown with them); then the node returns and the maps switch back, and the same node is lost
+  once more (``again``: the switch lead the coordinator learned from the switches before, which
+  a rig's first failover after its coordinator starts does not have);
 * ``watchdog`` -- the same rig (P25) showing a flat-white still, with one lamp dimmed to 50 % and one to 0 through the room's
   lamp switch while the nodes stay live: the time until the watchdog names each, its gain
   estimate against the room's truth, and the non-uniformity once re-blended;
@@ -62,6 +64,8 @@ FIGURES: dict[str, tuple[str, float | None, str]] = {
     "failover.P25.frames_after_declared": ("failover", 3, "<="),
     "failover.P9.after": ("failover", 0.02, "<="),
     "failover.P9.frames_after_declared": ("failover", 3, "<="),
+    "failover.P25.frames_after_declared_again": ("failover", 3, "<="),
+    "failover.P9.frames_after_declared_again": ("failover", 3, "<="),
     "watchdog.detect_s": ("watchdog", 2.0, "<="),
     "watchdog.gain_error": ("watchdog", 0.05, "<="),
     "captures.1": ("captures", None, "reported"),
@@ -340,6 +344,7 @@ def _flat_figures(results: dict) -> dict:
         r = (f.get(rig) or f.get(rig + "W") or {}) if f else {}
         fig[f"failover.{rig}.after"] = r.get("after")
         fig[f"failover.{rig}.frames_after_declared"] = r.get("frames_after_declared")
+        fig[f"failover.{rig}.frames_after_declared_again"] = (r.get("again") or {}).get("frames_after_declared")
     return {k: fig.get(k) for k in FIGURES}
 
 

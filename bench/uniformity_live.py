@@ -372,7 +372,6 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         headroom = live.result.get("headroom") if isinstance(live.result, dict) else None
         target, covered = await asyncio.to_thread(_target, live, args.headroom)
         footprint = await asyncio.to_thread(lambda: live.room.truth.irradiance(victim, 0, occluders=False) > 0)
-        old_ids = {s: live.slot_blend_id(s) for s in slots}
         before = await live.acapture(args.frames, not_before_ns=live.shown_pts)
         k = scale_of(before, target, covered)
         out: dict = {"slots": len(slots), "show": show, "lost": victim, "headroom": headroom,
@@ -382,40 +381,8 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["state_before"] = st.state
         late0 = _late(live, slots)
         out["precomputed"] = _precomputed(live, victim)
-        # the kill: the node process dies, its projector loses its signal
-        t_kill = time.monotonic_ns()
-        live.local.nodes[victim].send_signal(signal.SIGKILL)
-        # the room process blacks the dead node's projector out when its stream breaks off (--no-signal black)
-        st = await _wait(f"{victim} declared lost", lambda: (lambda b: b if victim in b.lost else None)(
-            live.blend_status()), 120)
-        seen_ns = time.monotonic_ns()
-        declared_ns = _declared_ns(st.since, seen_ns)
-        out["detect_s"] = _r((declared_ns - t_kill) / 1e9, 3)
-        out["message"] = st.message
-        out["covered"] = st.covered
-        rest = [s for s in slots if s != victim]
-        reported: dict[str, int] = {}       # slot -> when the coordinator first heard it shows its new maps
-
-        def shown_everywhere() -> bool:
-            for s in rest:
-                sess, want = live.session(s), live.slot_blend_id(s)
-                if s not in reported and want != old_ids[s] and sess is not None and sess.blend_id == want:
-                    reported[s] = time.monotonic_ns()
-            return _switched(live) and any(live.slot_blend_id(s) != old_ids[s] for s in rest) \
-                and live.showing_assigned(rest)
-        await _wait("the remaining nodes showing new maps", shown_everywhere, 60)
-        changed = [s for s in rest if live.slot_blend_id(s) != old_ids[s]]
-        out["maps_changed"] = len(changed)
-        since = live.since_ns(changed)
-        out["frames_after_declared"] = _r(max(0.0, (max(since) - declared_ns) / period_ns), 2)
-        out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
-        out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
-        out.update(_switch_timing(live, since, declared_ns, show, period_ns))
-        out["stages_ms"] = _stages(live, changed, declared_ns, reported)
-        out["message_after"] = live.blend_status().message
-        late1 = _late(live, rest)
-        out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
-        after = await live.acapture(args.frames, not_before_ns=max(since))
+        out.update(await _lose(live, victim, slots, period_ns, show, late0))
+        after = await live.acapture(args.frames, not_before_ns=out.pop("_since"))
         out["after"] = _r(nonuniformity(after, target, covered, within=footprint, scale=k))
         out["after_own_scale"] = _r(nonuniformity(after, target, covered, within=footprint))
         out["light_kept"] = _r(scale_of(after, target, covered & footprint) / scale_of(before, target, covered & footprint), 4)
@@ -424,18 +391,23 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
         out["frame_period_ms"] = _r(period_ns / 1e6, 3)
         _log(f"{name}: {json.dumps(out)}")
         # the node returns (in its CPU budget, as any node start): the maps switch back
-        t_back = time.monotonic_ns()
-        live.local.start_node(victim)
-        try:
-            await _wait(f"{victim} back in the blend", lambda: victim not in live.blend_status().lost
-                        and live.showing_assigned(slots), 180, step=0.05)
-            since = live.since_ns(slots)
-            out["switch_back_s"] = _r((max(since) - t_back) / 1e9, 2)
-            back = await live.acapture(args.frames, not_before_ns=max(since))
-            out["after_return"] = _r(nonuniformity(back, target, covered, within=footprint, scale=k))
-        except TimeoutError as exc:
-            out["switch_back_s"] = None
-            out["after_return_note"] = str(exc)
+        back = await _come_back(args, live, victim, slots)
+        out.update(back)
+        if "_since" in back:
+            got = await live.acapture(args.frames, not_before_ns=out.pop("_since"))
+            out["after_return"] = _r(nonuniformity(got, target, covered, within=footprint, scale=k))
+            # the same loss again, with the switch lead the coordinator learned from the switches before
+            try:
+                again = await _lose(live, victim, slots, period_ns, show, _late(live, slots))
+                got = await live.acapture(args.frames, not_before_ns=again.pop("_since"))
+                again["after"] = _r(nonuniformity(got, target, covered, within=footprint, scale=k))
+                _log(f"{name}: the same loss again: new maps {again['frames_after_declared']} frames after it was "
+                     f"declared (lead {again.get('switch_lead_ms')} ms); non-uniformity {again['after']}")
+                await _come_back(args, live, victim, slots)
+            except TimeoutError as exc:       # the figures of the first loss stand
+                again = {"failed": str(exc)}
+            out["again"] = again
+            _log(f"{name}: {json.dumps(again)}")
         if budgets is not None:
             stats = budgets.stats()
             nodes = [v for k, v in stats.items() if k.startswith("node ")]
@@ -444,6 +416,72 @@ async def _failover_one(args, work: Path, light: Light, name: str, slots: list[s
                              "node_cpu_s": _r(sum(st.get("cpu_s", 0.0) for st in nodes), 3),
                              "rasterizer_cpu_s": _r(sum(v.get("cpu_s", 0.0) for k, v in stats.items()
                                                         if k.startswith("rasterizer ")), 3)}
+    return out
+
+
+async def _lose(live: Live, victim: str, slots: list[str], period_ns: float, show: str, late0: dict) -> dict:
+    """Kill ``victim``'s node process (its projector loses its signal) and follow the failover until every
+    other node shows its new maps: the detection time, how many frames after the loss was declared the maps
+    were on screen, the switch's timing and stages (``_since``: the pts the last node showed them from)."""
+    old_ids = {s: live.slot_blend_id(s) for s in slots}
+    t_kill = time.monotonic_ns()
+    live.local.nodes[victim].send_signal(signal.SIGKILL)
+    # the room process blacks the dead node's projector out when its stream breaks off (--no-signal black)
+    st = await _wait(f"{victim} declared lost", lambda: (lambda b: b if victim in b.lost else None)(
+        live.blend_status()), 120)
+    seen_ns = time.monotonic_ns()
+    declared_ns = _declared_ns(st.since, seen_ns)
+    out: dict = {"detect_s": _r((declared_ns - t_kill) / 1e9, 3), "message": st.message, "covered": st.covered}
+    rest = [s for s in slots if s != victim]
+    reported: dict[str, int] = {}       # slot -> when the coordinator first heard it shows its new maps
+
+    def shown_everywhere() -> bool:
+        for s in rest:
+            sess, want = live.session(s), live.slot_blend_id(s)
+            if s not in reported and want != old_ids[s] and sess is not None and sess.blend_id == want:
+                reported[s] = time.monotonic_ns()
+        return _switched(live) and any(live.slot_blend_id(s) != old_ids[s] for s in rest) \
+            and live.showing_assigned(rest)
+    await _wait("the remaining nodes showing new maps", shown_everywhere, 60)
+    changed = [s for s in rest if live.slot_blend_id(s) != old_ids[s]]
+    out["maps_changed"] = len(changed)
+    since = live.since_ns(changed)
+    out["frames_after_declared"] = _r(max(0.0, (max(since) - declared_ns) / period_ns), 2)
+    out["switch_spread_ms"] = _r((max(since) - min(since)) / 1e6, 3)
+    out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
+    out.update(_switch_timing(live, since, declared_ns, show, period_ns))
+    out["stages_ms"] = _stages(live, changed, declared_ns, reported)
+    out["message_after"] = live.blend_status().message
+    late1 = _late(live, rest)
+    out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
+    out["_since"] = max(since)
+    return out
+
+
+async def _come_back(args, live: Live, victim: str, slots: list[str]) -> dict:
+    """Start ``victim``'s node again and wait until every node shows the whole rig's maps: how long that took
+    (``_since``: the pts the last node showed them from), or why it did not happen."""
+    t_back = time.monotonic_ns()
+    live.local.start_node(victim)
+    try:
+        await _wait(f"{victim} back in the blend", lambda: victim not in live.blend_status().lost
+                    and live.showing_assigned(slots), 180, step=0.05)
+    except TimeoutError as exc:
+        return {"switch_back_s": None, "after_return_note": str(exc)}
+    since = live.since_ns(slots)
+    out = {"switch_back_s": _r((max(since) - t_back) / 1e9, 2), "_since": max(since)}
+    # the switch back's own timing: its lead (learned from the loss's switch, when the nodes were late
+    # then) against when each node showed the maps, and where its time went
+    state = getattr(live.core, "blending", None)
+    wanted = int((getattr(state, "last_switch", None) or {}).get("wanted", 0))
+    if wanted:
+        period_ns = 1e9 / args.fps
+        show = args.show if args.show != "auto" else ("timeline" if len(slots) <= 9 else "still")
+        back = _switch_timing(live, since, wanted, show, period_ns)
+        back.pop("instant_after_declared_ms", None)
+        back["stages_ms"] = {k: v for k, v in _stages(live, slots, wanted, {}).items()
+                             if not k.startswith("declared")}
+        out["switch_back"] = back
     return out
 
 
@@ -459,7 +497,10 @@ def _switch_timing(live: Live, since: list[int], declared_ns: int, show: str, pe
     slack = 1_000_000 if show == "still" else period_ns
     late = [s - at for s in since if s - at > slack]
     lead = getattr(state, "last_lead_ns", None) or getattr(state, "lead_ns", 0) or 0
-    return {"switch_lead_ms": _r(lead / 1e6, 3), "lead_setting": "auto" if getattr(state, "lead_ns", 1) is None else "fixed", "instant_after_declared_ms": _r((at - declared_ns) / 1e6, 2),
+    parts = {k: _r(v / 1e6, 3) for k, v in (getattr(state, "last_lead_parts", None) or {}).items()}
+    return {"switch_lead_ms": _r(lead / 1e6, 3), "lead_setting": "auto" if getattr(state, "lead_ns", 1) is None else "fixed",
+            **({"lead_parts_ms": parts} if parts and getattr(state, "lead_ns", 1) is None else {}),
+            "instant_after_declared_ms": _r((at - declared_ns) / 1e6, 2),
             "late_nodes": len(late), "nodes_switched": len(since),
             "last_after_instant_ms": _r((max(since) - at) / 1e6, 2),
             "late_after_instant_ms": sorted(_r(v / 1e6, 1) for v in late)}
@@ -467,22 +508,25 @@ def _switch_timing(live: Live, since: list[int], declared_ns: int, show: str, pe
 
 #: a node's log line of its first swap with new maps (node/presenter.py), with the maps' way there
 _TIMING = re.compile(r"blend (\S+) on screen from rig instant (\d+); timing instant=(\d+) received=(\d+) "
-                     r"decoded=(\d+) presenter=(\d+) uploaded=(\d+) swapped=(\d+)")
+                     r"decoded=(\d+) presenter=(\d+) uploaded=(\d+)(?: ready=(\d+))? swapped=(\d+)")
 #: the stages of a failover, in order: (name, the stamp it starts from, the stamp it ends at)
 _STAGES = (("declared_to_wanted", "declared", "wanted"), ("wanted_to_ready", "wanted", "ready"),
            ("ready_to_set", "ready", "set"), ("set_to_received", "set", "received"),
            ("received_to_decoded", "received", "decoded"), ("decoded_to_presenter", "decoded", "presenter"),
-           ("presenter_to_uploaded", "presenter", "uploaded"), ("uploaded_to_shown", "uploaded", "shown"),
+           ("presenter_to_uploaded", "presenter", "uploaded"), ("uploaded_to_rendered", "uploaded", "rendered"),
+           ("rendered_to_instant", "rendered", "instant"), ("uploaded_to_shown", "uploaded", "shown"),
            ("instant_to_shown", "instant", "shown"), ("shown_to_swapped", "shown", "swapped"),
            ("swapped_to_reported", "swapped", "reported"), ("declared_to_shown", "declared", "shown"))
 
 
 def _stages(live: Live, slots: list[str], declared_ns: int, reported: dict[str, int]) -> dict:
-    """Where one failover's time went, on the rig clock: per stage, its p50 and max over the nodes (ms).
+    """Where one failover's time went, on the rig clock: per stage, its min, p50 and max over the nodes (ms).
     The coordinator's stamps (the loss declared, the variant wanted, ready, every assignment set, the common
     instant) are :attr:`coordinator.blending.state.BlendState.last_switch`; each node's (its network process
-    received and decoded the maps, its presenter received and uploaded them, the pts of the first frame
-    shown with them and when that swap was done) are its log line of that swap; "reported" is when this
+    received and decoded the maps, its presenter received and uploaded them, its first frame with them was
+    rendered and finished ("rendered", its log's "ready"; ``rendered_to_instant`` below 0: after the instant,
+    that node's frame was late),
+    the pts of the first frame shown with them and when that swap was done) are its log line of that swap; "reported" is when this
     benchmark saw the node's heartbeat name the maps. A stage a node skipped (its maps came after the
     instant: shown at once) is still counted from its stamps."""
     state = getattr(live.core, "blending", None)
@@ -501,7 +545,8 @@ def _stages(live: Live, slots: list[str], declared_ns: int, reported: dict[str, 
         found += 1
         m = rows[-1]
         stamps = dict(common, shown=int(m.group(2)), received=int(m.group(4)), decoded=int(m.group(5)),
-                      presenter=int(m.group(6)), uploaded=int(m.group(7)), swapped=int(m.group(8)))
+                      presenter=int(m.group(6)), uploaded=int(m.group(7)), rendered=int(m.group(8) or 0),
+                      swapped=int(m.group(9)))
         if s in reported:
             stamps["reported"] = reported[s]
         for name, a, b in _STAGES:
@@ -511,7 +556,7 @@ def _stages(live: Live, slots: list[str], declared_ns: int, reported: dict[str, 
     for name, _, _ in _STAGES:
         v = per[name]
         if v:
-            out[name] = {"p50": _r(float(np.median(v)), 2), "max": _r(max(v), 2)}
+            out[name] = {"min": _r(min(v), 2), "p50": _r(float(np.median(v)), 2), "max": _r(max(v), 2)}
     return out
 
 
