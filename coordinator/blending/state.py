@@ -19,6 +19,8 @@ its instant (it received the maps, or had its frame rendered again, too late) ma
 lead that switch's lead plus the latest node's delay, at most the content's latency budget (rig.toml's
 ``latency_ms``, what a frame is given to reach every projector); each switch every node showed in time
 gives back a part of it (:data:`LEARNED_DECAY`). A rig whose nodes are quick keeps the short lead.
+The blend job's own push, at once to every node, teaches the first failover: how far apart the nodes
+put that same redraw on screen.
 A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
 compressed is inflated there).
 """
@@ -249,6 +251,7 @@ class BlendState:
                 log.warning("blend: the new blend cannot be read (%s); keeping the maps on the projectors", exc)
                 return
             self._take(stored, contributions)
+            self._learn_from_job()
             # the measurement is the lamps' new reference: the watchdog's gains start again from 1
             self.lamp_gains.clear()
             self.lamps_since.clear()
@@ -386,6 +389,23 @@ class BlendState:
         learned = min(self.learned_lead_ns, cap)
         self.last_lead_parts = {"auto": auto, "learned": learned, "cap": cap}
         return max(auto, learned)
+
+    def _learn_from_job(self) -> None:
+        """The blend job pushed its maps to every node at once: how far apart the nodes put that same redraw
+        on screen (their heartbeats) is a switch's spread. Beyond :data:`LATE_SLACK_NS`, the first failover
+        leads by :data:`AUTO_LEAD_BASE_NS` plus that spread, as if the quickest node had been just in time."""
+        if self.node_session is None or self.stored is None:
+            return
+        showed, since = {}, []          # the nodes that show the job's maps (the others tell nothing)
+        for slot, maps in self.stored.maps.items():
+            sess = self.node_session(slot)
+            if sess is not None and not getattr(sess, "closed", False) and sess.blend_id == maps.blend_id \
+                    and sess.blend_since_rig_ns > 0:
+                showed[slot] = maps.blend_id
+                since.append(sess.blend_since_rig_ns)
+        if len(since) >= 2:
+            self._pushed = (min(since), AUTO_LEAD_BASE_NS, showed)
+            self._learn()
 
     def _learn(self) -> None:
         """What the last switch showed of the nodes: when the latest of them showed its maps (from their

@@ -3,7 +3,8 @@
 Each node's heartbeat says which maps it shows and from which pts. A switch that some node showed
 more than the slack after its instant makes the next switch lead by that switch's lead plus the
 delay, never beyond the content's latency budget; a switch every node showed in time gives a part
-of it back; a fixed ``switch_lead_ms`` is kept as it is.
+of it back; a blend job's push, at once to every node, teaches the first failover how far apart the
+nodes put the same redraw on screen; a fixed ``switch_lead_ms`` is kept as it is.
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from coordinator.blending.state import LATE_SLACK_NS, LEARNED_DECAY, BlendState
+from coordinator.blending.state import AUTO_LEAD_BASE_NS, LATE_SLACK_NS, LEARNED_DECAY, BlendState
 from coordinator.rig import Rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -104,6 +105,30 @@ def test_a_fixed_switch_lead_is_kept_whatever_the_nodes_showed(tmp_path):
         state.node_live("right")
         await state.settled()
         assert state.last_lead_ns == 12_500_000
+        state.close()
+
+    asyncio.run(go())
+
+
+def test_the_blend_jobs_push_teaches_the_first_failover_how_far_apart_the_nodes_show_a_redraw(tmp_path):
+    path, _, _ = blended(tmp_path)                 # latency budget 40 ms
+    rig = Rig(path)
+    now = [5_000_000_000]
+    sessions = {s: Session() for s in SLOTS}
+
+    async def go():
+        state = BlendState(rig, update_slot=rig.update_slot, clock_ns=lambda: now[0], lead_ns=None,
+                           node_session=sessions.get)
+        state.load()
+        for spread, learned in ((LATE_SLACK_NS // 2, 0), (15 * MS, 0), (60 * MS, AUTO_LEAD_BASE_NS + 60 * MS)):
+            for k, s in enumerate(SLOTS):          # the job's maps on every screen, the last `spread` after the first
+                sessions[s] = Session(rig.slot(s).blend.blend_id, now[0] - 500 * MS + spread * k // 2)
+            state.learned_lead_ns = 0
+            await state.reload()
+            assert state.learned_lead_ns == learned, spread
+        state.node_lost("right")
+        await state.settled()
+        assert state.last_lead_ns == 40 * MS, "the first failover leads by what the job's push showed (capped)"
         state.close()
 
     asyncio.run(go())
