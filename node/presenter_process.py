@@ -147,6 +147,7 @@ class PresenterProcess:
                                     name=f"presenter-{settings.slot}", daemon=True)
         self._child_ends = (child_in, child_out)
         _grow_pipe(self._to_child.fileno())
+        _grow_pipe(self._from_child.fileno())   # the presenter's reports never wait for the (lower-priority) node side
         self.native_size: tuple[int, int] | None = None
         self.gl_info = ""            # what the presenter renders with, once ready
         self.failed: str | None = None
