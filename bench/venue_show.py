@@ -41,7 +41,13 @@ Three shows, one after the other, on the venue :mod:`bench.venue` built and dist
   over the outage's last ``OUTAGE_S`` - 1 s (``alone``) and from the restart to the end of the
   window (``rejoining``): ``link``, the node process itself (the coordinator link, mDNS, fetches,
   reports), and ``node``, with its presenter (with budgets: the node's group, the rasterizer's
-  threads left out, and ``throttled``, the time that group was held back by its budget).
+  threads left out, and ``throttled``, the time that group was held back by its budget);
+  ``link_cpu_ms_first_s_after_join``: the node process's CPU in the first second after its join,
+  less a second of its rate alone (what the rejoin itself cost it); ``restart_timeline``: from the
+  restart on, in bins of ``bin_s``, the restarted coordinator's CPU (ms) and the ticks missed by
+  any node, with each node's join (s), so that misses can be told from the coordinator's start-up
+  (which shares this host's cores with the nodes; a venue's coordinator has a machine of its own)
+  and from the nodes' rejoins.
 """
 from __future__ import annotations
 
@@ -340,7 +346,8 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     back_ns, back_wall = time.monotonic_ns(), time.time()
     rig.start_coordinator()
     samples: list[tuple[int, dict[str, float]]] = []
-    sampler = asyncio.create_task(_sample_link_cpu(cpu, pids, samples)) if cpu is not None else None
+    sampled = {**pids, "coordinator": rig.coordinator.pid}
+    sampler = asyncio.create_task(_sample_link_cpu(cpu, sampled, samples)) if cpu is not None else None
     async with await rig.client(timeout=60.0) as c:
         st = await rig.wait_live(c, timeout=REJOIN_TIMEOUT_S)
         live_ns = time.monotonic_ns()
@@ -415,12 +422,31 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         # what the rejoin itself cost it (ms)
         alone_ms_per_s = {s: (alone1["link"][s] - alone0["link"][s]) * 1e12 / max(1, alone1["t"] - alone0["t"])
                           for s in pids}
+        # from the restart on, in bins of TIMELINE_BIN_S: the restarted coordinator's CPU and the ticks
+        # missed by any node (whether the misses follow the coordinator's start-up or the nodes' joins)
+        bins = max(1, math.ceil((after_ns - back_ns) / (TIMELINE_BIN_S * 1e9)))
+        missed_bins = [0] * bins
+        for s in rig.slots:
+            got = set(int(m.group(1)) for m in SWAP.finditer(rig.log("node-" + s)[logs[s]:]))
+            for t in window:
+                k = int((tick_ns(play, t - base) - back_ns) // (TIMELINE_BIN_S * 1e9))
+                if t not in got and 0 <= k < bins:
+                    missed_bins[k] += 1
+        out["restart_timeline"] = {
+            "bin_s": TIMELINE_BIN_S,
+            "coordinator_cpu_ms": [_r(_cpu_between(samples, "coordinator", back_ns + int(k * TIMELINE_BIN_S * 1e9),
+                                                   int(TIMELINE_BIN_S * 1e9)), 0) for k in range(bins)],
+            "missed": missed_bins,
+            "joined_s": {s: _r(stages[s]["joined"] / 1e3, 2) if "joined" in stages[s] else None for s in rig.slots},
+        }
         out["link_cpu_ms_first_s_after_join"] = {
             s: _r(_cpu_between(samples, s, back_ns + int(stages[s]["joined"] * 1e6), 1_000_000_000)
                   - alone_ms_per_s[s], 1) if "joined" in stages[s] else None for s in pids}
     return out
 
 
+#: the bins of ``restart_timeline`` (seconds)
+TIMELINE_BIN_S = 0.5
 #: bins of ``missed_around_join``: seconds from a node's join to a missed tick's instant
 JOIN_BINS = ((-math.inf, 0.0, "before"), (0.0, 0.5, "0-0.5s"), (0.5, 1.0, "0.5-1s"), (1.0, 2.0, "1-2s"),
              (2.0, math.inf, "later"))
@@ -431,7 +457,7 @@ def _bins(offsets: list[float]) -> dict[str, int]:
 
 
 async def _sample_link_cpu(cpu, pids: dict[str, int], samples: list, period_s: float = 0.05) -> None:
-    """Every ``period_s`` until cancelled: (monotonic ns, each node process's CPU seconds) into ``samples``."""
+    """Every ``period_s`` until cancelled: (monotonic ns, each process's CPU seconds, by name) into ``samples``."""
     while True:
         samples.append((time.monotonic_ns(), {s: cpu(p) for s, p in pids.items()}))
         await asyncio.sleep(period_s)

@@ -130,6 +130,9 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
         for when in ("alone", "rejoining"):
             assert cr["cpu_ms_per_tick"][when]["link"][s] >= 0 and cr["cpu_ms_per_tick"][when]["node"][s] > 0
         assert cr["link_cpu_ms_first_s_after_join"][s] is not None
+    rt = cr["restart_timeline"]
+    assert rt["bin_s"] > 0 and len(rt["missed"]) == len(rt["coordinator_cpu_ms"]) and set(rt["joined_s"]) == slots
+    assert sum(rt["missed"]) <= cr["frames_missed"]
     assert cr["skew_p99_ms_before"] == tl["skew_p99_ms"]
 
     # live frames: the natural sequence went as video, encoded once, far below raw frames
