@@ -20,10 +20,14 @@ C-contiguous and read-only (one frame may be handed out more than once).
 
 :class:`DecodeAhead` runs a source on a background thread that keeps the next ``depth`` frames
 of the expected order decoded. **Memory**: it holds at most ``depth`` decoded frames (the
-current one included) plus the one being decoded, ``(depth + 1) * frame_bytes``: a 1080p RGB
-uint8 frame is 1920 * 1080 * 3 = 6.2 MB (depth 8: ~56 MB), 10/12/16-bit content doubles that;
-a video decoder adds its own reference frames (H.264/HEVC: up to 16 YUV frames of 3.1 MB at
-1080p 8-bit, plus one in flight per frame thread).
+current one included) plus the one being decoded, and fewer of large frames: no more than
+:data:`AHEAD_BYTES` of them, but always :data:`MIN_AHEAD` (133 ms at 30 fps, more than a CPU
+budget's throttled stretch of 60 ms). A 1080p 4:2:0 frame is 3.1 MB (4 frames ahead instead of
+8: 12 MB less), a 1080p RGB uint8 frame 6.2 MB, 10/12/16-bit content doubles that; frames of
+640x360 and smaller keep the whole ``depth``. A video decoder adds its own reference frames
+(H.264/HEVC: up to 16 YUV frames of 3.1 MB at 1080p 8-bit, plus one in flight per frame
+thread); YUV frames handed over as views of the decoder's buffers (:mod:`node.yuv`) are those
+buffers, held until the frame leaves the window.
 
 Failures are :class:`FrameError` (a :class:`~node.errors.NodeError`) naming the asset and the
 frame, with the decoder's reason.
@@ -49,6 +53,18 @@ from protos.yuv import YuvFrame
 __all__ = ["DecodeAhead", "DecodeError", "DecodeStats", "FrameError", "FrameNotReady", "FrameSource", "open_frames"]
 
 _TIMINGS_KEPT = 512
+#: decoded frames ahead hold at most this many bytes (but always MIN_AHEAD frames)
+AHEAD_BYTES = 12 * 2**20
+#: frames decoded ahead whatever their size (when depth allows)
+MIN_AHEAD = 4
+
+
+def frame_bytes(frame) -> int:
+    """Bytes of a decoded frame: an array's, or the sum of a :class:`YuvFrame`'s planes."""
+    planes = getattr(frame, "planes", None)
+    if planes is not None:
+        return sum(int(p.nbytes) for p in planes)
+    return int(getattr(frame, "nbytes", 0))
 
 
 class FrameError(NodeError):
@@ -295,6 +311,7 @@ class DecodeAhead:
         self.source = source
         self.depth = depth
         self.loop = loop
+        self._ahead = depth       # frames of the window decoded ahead (fewer of large frames)
         self._cond = threading.Condition()
         self._window: deque[int] = deque()      # the next frames of the order; [0] is the current one
         self._plan: Iterator[int] = iter(())    # the rest of the order
@@ -395,7 +412,7 @@ class DecodeAhead:
         """Wait until every expected frame in the window is decoded; whether it happened in time."""
         deadline = time.monotonic() + max(0.0, timeout)
         with self._cond:
-            while not self._closed and self._fatal is None and any(k not in self._ready for k in self._window):
+            while not self._closed and self._fatal is None and self._next_job() is not None:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
@@ -435,7 +452,8 @@ class DecodeAhead:
 
     # ------------------------------------------------------------------ the thread
     def _next_job(self) -> int | None:
-        for k in self._window:
+        """The first frame of the window's first ``_ahead`` not decoded yet (lock held)."""
+        for k in itertools.islice(self._window, self._ahead):
             if k not in self._ready:
                 return k
         return None
@@ -463,6 +481,8 @@ class DecodeAhead:
                         self._errors += 1
                     else:
                         self._ms.append(ms)
+                        size = frame_bytes(out)
+                        self._ahead = min(self.depth, max(MIN_AHEAD, AHEAD_BYTES // size if size else self.depth))
                     if k in self._window:
                         self._ready[k] = out
                     self._cond.notify_all()
