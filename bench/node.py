@@ -286,8 +286,10 @@ def run(args: argparse.Namespace) -> int:
 
         print(f"bench node --video: {args.video_frames} frames of {args.content[0]}x{args.content[1]} H.264, "
               "RGB and YUV paths in turn, then the memory of a presenter playing it", file=sys.stderr)
+        load = os.getloadavg()
         video = timed(args.size, args.content, args.video_frames)
-        print(json.dumps({"benchmark": "node", "machine": machine(), "video": video}, indent=2))
+        print(json.dumps({"benchmark": "node", "machine": machine(), "load": {"start": load, "end": os.getloadavg()},
+                          "video": video}, indent=2))
         print("\n".join(summary(video)), file=sys.stderr)
         return 0
     profiles: dict[str, dict] = {}

@@ -11,8 +11,9 @@ uploaded to a renderer of the output size and rendered through a homography, the
 (``finish``), as before a swap. The two paths take turns in blocks of ``BLOCK`` frames, so a shared
 machine's drifting load falls on both alike.
 
-CPU is counted per thread from ``/proc/self/task/*/schedstat`` (nanoseconds on the CPU), so that
-llvmpipe's rasterizer threads (``llvmpipe-N``: they stand in for the GPU here) are reported apart:
+CPU is counted per thread (the calling thread's CPU clock, the others' ``/proc/self/task/*/schedstat``,
+nanoseconds on the CPU; :class:`_ThreadClock`), so that llvmpipe's rasterizer threads
+(``llvmpipe-N``: they stand in for the GPU here) are reported apart:
 ``node_cpu_ms_per_frame`` is every other thread's CPU (the calling thread, FFmpeg's decoder
 threads) per frame, the sum of ``decode`` (a third decoder that only decodes, in blocks taking
 turns with the two paths), ``convert`` (each path's conversion of that decoder's frames: swscale
@@ -27,11 +28,17 @@ apart (``split``): ``node_cpu_ms_per_frame_without_decode`` (what a hardware dec
 on the CPU, less the hardware decoder's own driver calls, not measured here), and of it
 ``python_and_gl_calls_ms``, the per-frame work that does not grow with the picture (the same
 upload and render of a 64x36 YUV picture into a 64x36 output: Python, moderngl, the driver's
-fixed cost); ``rasterizer_share`` is llvmpipe's part of all the CPU a frame took.
+fixed cost); ``rasterizer_share`` is llvmpipe's part of all the CPU a frame took;
+``probe_ms_per_reading`` what one reading of the threads' CPU costs (each interval holds one, not
+subtracted; the bench before 2026-12-06's evening spent ~0.4 ms per reading opening files, which
+its figures counted as the node's).
 
 Memory (``memory``): :mod:`bench.node_video_memory` in a process of its own per setting, as a
-presenter plays the video, before (planes copied, FFmpeg's choice of decoder threads) and after
-(views, the node's threads), each with its resident memory split into its parts.
+presenter plays the video, before (planes copied, FFmpeg's choice of decoder threads, ``depth``
+frames decoded ahead whatever their size) and after (views, the node's threads, the decode-ahead's
+byte budget: :data:`node.asset_frames.AHEAD_BYTES`), each with its resident memory split into its
+parts and without llvmpipe's libraries (``rss_mb_without_software_gpu_libs``; ``rss_mb`` is the
+headline).
 """
 from __future__ import annotations
 
@@ -40,6 +47,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from fractions import Fraction
 from pathlib import Path
@@ -50,22 +58,64 @@ import numpy as np
 BLOCK = 10
 
 
+class _ThreadClock:
+    """CPU ns per thread of this process: the calling thread's from its CPU clock
+    (``CLOCK_THREAD_CPUTIME_ID``), the others' from ``/proc/self/task/*/schedstat``, read through
+    file descriptors kept open (``pread``). The bench before opened two files per thread at each
+    reading, ~0.4 ms of the calling thread's CPU with ten threads, which the intervals measured
+    counted as the node's; and a running thread's ``schedstat`` lags its CPU clock by up to a
+    scheduler tick, which moved time between the intervals (upload, render) of one frame."""
+
+    def __init__(self) -> None:
+        self._dir = os.open("/proc/self/task", os.O_RDONLY | os.O_DIRECTORY)
+        self._fds: dict[str, tuple[int, int]] = {}     # tid -> (schedstat fd, comm fd)
+        self._me = str(threading.get_native_id())
+
+    def read(self) -> tuple[int, int]:
+        """(CPU ns of this process's threads but the rasterizer's, CPU ns of llvmpipe's threads)."""
+        other, raster = time.thread_time_ns(), 0
+        tids = os.listdir(self._dir)
+        for tid in tids:
+            if tid == self._me:
+                continue
+            fds = self._fds.get(tid)
+            try:
+                if fds is None:
+                    fds = self._fds[tid] = (os.open(f"/proc/self/task/{tid}/schedstat", os.O_RDONLY),
+                                            os.open(f"/proc/self/task/{tid}/comm", os.O_RDONLY))
+                ns = int(os.pread(fds[0], 64, 0).split()[0])
+                name = os.pread(fds[1], 64, 0)
+            except (OSError, ValueError, IndexError):
+                continue       # a thread that ended meanwhile
+            if name.startswith(b"llvmpipe"):
+                raster += ns
+            else:
+                other += ns
+        for tid in [t for t in self._fds if t not in tids]:    # threads that ended
+            for fd in self._fds.pop(tid):
+                os.close(fd)
+        return other, raster
+
+
+_CLOCK: _ThreadClock | None = None
+
+
 def _thread_cpu_ns() -> tuple[int, int]:
     """(CPU ns of this process's threads but the rasterizer's, CPU ns of llvmpipe's threads)."""
-    other = raster = 0
-    for task in os.scandir("/proc/self/task"):
-        try:
-            with open(f"{task.path}/schedstat") as f:
-                ns = int(f.read().split()[0])
-            with open(f"{task.path}/comm") as f:
-                name = f.read().strip()
-        except (OSError, ValueError, IndexError):
-            continue       # a thread that ended meanwhile
-        if name.startswith("llvmpipe"):
-            raster += ns
-        else:
-            other += ns
-    return other, raster
+    global _CLOCK
+    if _CLOCK is None or _CLOCK._me != str(threading.get_native_id()):
+        _CLOCK = _ThreadClock()
+    return _CLOCK.read()
+
+
+def probe_cost(readings: int = 200) -> float:
+    """CPU ms one reading of :func:`_thread_cpu_ns` costs the calling thread (each interval measured
+    holds one; not subtracted from the figures)."""
+    _thread_cpu_ns()
+    t0 = time.thread_time_ns()
+    for _ in range(readings):
+        _thread_cpu_ns()
+    return (time.thread_time_ns() - t0) / 1e6 / readings
 
 
 def make_video(path: Path, size: tuple[int, int], frames: int) -> None:
@@ -149,7 +199,7 @@ def memory(path: Path, size: tuple[int, int], content: tuple[int, int], frames: 
     from node.timeline_player import DECODE_THREADS, TimelinePlayer
 
     depth = TimelinePlayer().depth
-    settings = {"before": ["--depth", str(depth), "--threads", "0", "--copy"],
+    settings = {"before": ["--depth", str(depth), "--threads", "0", "--copy", "--ahead-mb", "1e6"],
                 "after": ["--depth", str(depth), "--threads", str(DECODE_THREADS)]}
     out = {}
     for name, extra in settings.items():
@@ -242,6 +292,7 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int, *, m
             r.release()
         _say("the per-frame fixed cost (a 64x36 picture)")
         fixed = fixed_cost()
+        probe = probe_cost()
         mem = memory(path, size, content, memory_frames)
     nd = max(decode["frames"], 1)
     decode_ms = decode["ns"] / 1e6 / nd
@@ -268,6 +319,8 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int, *, m
         "python_and_gl_calls_ms": round(fixed, 3),
         "pixels_ms": round(without - fixed, 3),      # what grows with the picture: the driver's copies and setup
         "rasterizer_ms_per_frame": y["rasterizer_ms_per_frame"],
+        # what one reading of the threads' CPU costs the calling thread; each interval above holds one
+        "probe_ms_per_reading": round(probe, 4),
         "rasterizer_share": round(y["rasterizer_ms_per_frame"] / (y["rasterizer_ms_per_frame"] + y["node_cpu_ms_per_frame"]), 3),
     }
     return {
@@ -309,5 +362,6 @@ def summary(v: dict) -> list[str]:
         f"llvmpipe's rasterizer (the GPU here): {s['rasterizer_ms_per_frame']:.1f} ms of CPU per frame, "
         f"{100 * s['rasterizer_share']:.0f} % of all the CPU a frame took",
         f"resident memory while playing: {b['rss_mb']:g} MB before, {a['rss_mb']:g} MB now (peak {a['peak_rss_mb']:g}; "
-        f"target {m['target_rss_mb']:g}): {parts}",
+        f"target {m['target_rss_mb']:g}): {parts}; without llvmpipe's libraries (a GPU's driver replaces them) "
+        f"{a['rss_mb_without_software_gpu_libs']:g} MB",
     ]

@@ -18,7 +18,10 @@ planes' own bytes when they are copies, 0 when they are views of the decoder's f
 decoder's share then includes); and the textures (the growth of the first upload and draw: one
 picture's planes, 3 MB at 1080p 4:2:0, and llvmpipe's compiled YUV shader, about 13 MB of it).
 ``rss_mb`` is the median over the second half of the frames (steady), ``peak_rss_mb`` the
-process's ``VmHWM``.
+process's ``VmHWM``; ``rss_mb_without_software_gpu_libs`` is ``rss_mb`` less the resident pages
+of llvmpipe's libraries (``software_gpu_libs_mb``: LLVM, Mesa's DRI driver, read from
+``/proc/self/smaps`` at the end), which a GPU's driver replaces on an edge computer; ``rss_mb``
+is the headline.
 """
 from __future__ import annotations
 
@@ -39,6 +42,27 @@ def rss_mb(field: str = "VmRSS") -> float:
     return float("nan")
 
 
+#: the software GPU's libraries (llvmpipe): LLVM (its code and the tables its start-up relocates),
+#: Mesa's DRI driver and LLVM's solver; a GPU's driver takes their place on an edge computer
+SOFTWARE_GPU_LIBS = ("libLLVM", "_dri.so", "libgallium", "libz3")
+
+
+def software_gpu_mb() -> float:
+    """Resident MB of this process's mappings of :data:`SOFTWARE_GPU_LIBS` (file pages, shared by
+    every process on the host that maps them, and the private pages of their relocations)."""
+    total = 0
+    inside = False
+    with open("/proc/self/smaps") as f:
+        for line in f:
+            head = line.split(None, 5)
+            if head and "-" in head[0] and not head[0].endswith(":"):
+                path = head[5].strip() if len(head) > 5 else ""
+                inside = any(k in path for k in SOFTWARE_GPU_LIBS)
+            elif inside and head[0] == "Rss:":
+                total += int(head[1])
+    return total / 1024
+
+
 def _held_bytes(ahead) -> int:
     """Bytes of the frames ``ahead`` (a DecodeAhead) buffers that are its own copies (views of the
     decoder's frames count 0: they are the decoder's buffers, counted with it)."""
@@ -54,10 +78,12 @@ def _held_bytes(ahead) -> int:
 
 
 def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], frames: int, depth: int,
-            threads: int, copy: bool) -> dict:
+            threads: int, copy: bool, ahead_bytes: int | None = None) -> dict:
     """Play ``frames`` frames of ``video`` as a presenter would, reading its memory (see the module docstring).
     ``depth``: frames decoded ahead; ``threads``: decoder threads (0: FFmpeg's choice); ``copy``:
-    the planes copied out of the decoder's frames (the node before) or handed over as views."""
+    the planes copied out of the decoder's frames (the node before) or handed over as views;
+    ``ahead_bytes``: the decode-ahead's byte budget (None: the node's,
+    :data:`node.asset_frames.AHEAD_BYTES`; the node before had none)."""
     r0 = rss_mb()
     import numpy as np
 
@@ -84,6 +110,10 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         r_context = rss_mb()
         anon_context = rss_mb("RssAnon") - anon_before_context
         node_yuv.COPY_PLANES = copy
+        if ahead_bytes is not None:
+            import node.asset_frames
+
+            node.asset_frames.AHEAD_BYTES = ahead_bytes
         sha = sha256_hex(video.read_bytes())
         m = Manifest(kind="video", name=video.name, blobs=(Blob(sha, video.stat().st_size, video.name),),
                      width=cw, height=ch, channels=3, bit_depth=8, frames=frames, fps=30.0)
@@ -114,13 +144,19 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
             ahead.close()
     finally:
         r.release()
+    software_gpu = software_gpu_mb()
     decoder_and_queue = r_decoder - r_context
     return {
-        "settings": {"depth": depth, "threads": threads, "planes": "copied" if copy else "views of the decoder's frames"},
+        "settings": {"depth": depth, "threads": threads, "planes": "copied" if copy else "views of the decoder's frames",
+                     "ahead_mb": round((ahead_bytes if ahead_bytes is not None else _node_ahead_bytes()) / 2**20, 1)},
         "rss_mb": round(statistics.median(steady), 1), "peak_rss_mb": round(max(rss_mb("VmHWM"), *steady), 1),
         # of the resident memory at the end: the process's own (heap, buffers) and the files it maps
         # (shared libraries: the same pages serve every process on the host that maps them)
         "rss_anon_mb": round(rss_mb("RssAnon"), 1), "rss_file_mb": round(rss_mb("RssFile"), 1),
+        # llvmpipe's libraries' pages (SOFTWARE_GPU_LIBS), and the resident memory without them: what
+        # is left where a GPU's driver replaces the software one (rss_mb stays the figure to meet)
+        "software_gpu_libs_mb": round(software_gpu, 1),
+        "rss_mb_without_software_gpu_libs": round(statistics.median(steady) - software_gpu, 1),
         "split_mb": {"interpreter": round(r0, 1), "imports": round(r_imports - r0, 1),
                      "gl_context": round(r_context - r_imports, 1), "gl_context_anon": round(anon_context, 1),
                      "decoder": round(decoder_and_queue - queue_mb, 1), "frame_queue": round(queue_mb, 1),
@@ -128,6 +164,12 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
                      "playing": round(statistics.median(steady) - r_textures, 1)},
         "frames": frames, "fps_reached": round(frames / seconds, 1),
     }
+
+
+def _node_ahead_bytes() -> int:
+    from node.asset_frames import AHEAD_BYTES
+
+    return AHEAD_BYTES
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,11 +181,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--depth", type=int, required=True)
     p.add_argument("--threads", type=int, required=True)
     p.add_argument("--copy", action="store_true")
+    p.add_argument("--ahead-mb", type=float, default=None,
+                   help="the decode-ahead's byte budget in MB (default: the node's; the node before had none)")
     a = p.parse_args(argv)
     size = tuple(int(v) for v in a.size.split("x"))
     content = tuple(int(v) for v in a.content.split("x"))
     print(json.dumps(measure(a.video, size=size, content=content, frames=a.frames, depth=a.depth, threads=a.threads,
-                             copy=a.copy)))
+                             copy=a.copy, ahead_bytes=None if a.ahead_mb is None else int(a.ahead_mb * 2**20))))
     return 0
 
 
