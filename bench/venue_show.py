@@ -345,7 +345,8 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     alone1 = _cpu_reading(cpu, pids, budgets)
     back_ns, back_wall = time.monotonic_ns(), time.time()
     rig.start_coordinator()
-    samples: list[tuple[int, dict[str, float]]] = []
+    # CPU seconds by process from here on (the readings just before the restart first: the coordinator had none)
+    samples: list[tuple[int, dict[str, float]]] = [(alone1["t"], {**alone1["link"], "coordinator": 0.0})] if alone1 else []
     sampled = {**pids, "coordinator": rig.coordinator.pid}
     sampler = asyncio.create_task(_sample_link_cpu(cpu, sampled, samples)) if cpu is not None else None
     async with await rig.client(timeout=60.0) as c:
@@ -463,13 +464,17 @@ async def _sample_link_cpu(cpu, pids: dict[str, int], samples: list, period_s: f
         await asyncio.sleep(period_s)
 
 
-def _cpu_between(samples: list, slot: str, t0: int, span_ns: int) -> float:
-    """CPU ms of ``slot``'s node process over [t0, t0 + span_ns], from the samples nearest the ends
-    (NaN when the samples do not cover it)."""
-    inside = [(t, c[slot]) for t, c in samples if t0 - 50_000_000 <= t <= t0 + span_ns + 50_000_000]
-    if len(inside) < 2:
+def _cpu_between(samples: list, name: str, t0: int, span_ns: int) -> float:
+    """CPU ms of process ``name`` over [t0, t0 + span_ns], from the last sample at or before its start
+    and the first at or after its end, scaled to the span (NaN when the samples do not reach both
+    ends, or lie more than twice the span apart: this process was starved of CPU itself)."""
+    before = [(t, c[name]) for t, c in samples if t <= t0]
+    after = [(t, c[name]) for t, c in samples if t >= t0 + span_ns]
+    if not before or not after:
         return math.nan
-    (ta, a), (tb, b) = inside[0], inside[-1]
+    (ta, a), (tb, b) = before[-1], after[0]
+    if tb - ta > 2 * span_ns:
+        return math.nan
     return (b - a) * 1e3 * span_ns / max(1, tb - ta)
 
 

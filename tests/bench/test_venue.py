@@ -129,7 +129,7 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
         assert "assignment" not in steps and "show" not in steps     # nothing changed: nothing re-applied
         for when in ("alone", "rejoining"):
             assert cr["cpu_ms_per_tick"][when]["link"][s] >= 0 and cr["cpu_ms_per_tick"][when]["node"][s] > 0
-        assert cr["link_cpu_ms_first_s_after_join"][s] is not None
+    assert set(cr["link_cpu_ms_first_s_after_join"]) == slots     # None where this process's samples were starved
     rt = cr["restart_timeline"]
     assert rt["bin_s"] > 0 and len(rt["missed"]) == len(rt["coordinator_cpu_ms"]) and set(rt["joined_s"]) == slots
     assert sum(rt["missed"]) <= cr["frames_missed"]
