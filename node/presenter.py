@@ -217,7 +217,7 @@ class Presenter:
         r.render("__warm__", space="content", apply_lut=True)
         r.set_blend(None)
         self._ctx.finish()
-        r.forget("__warm__")
+        r.forget("__warm__", reuse=False)     # drawn once: its 8 MB texture not kept for reuse
         r.set_lut(None)
         r.clear_pose()
 
