@@ -10,13 +10,16 @@ frames as YUV planes uploaded to the renderer's textures and rendered through a 
 frame after the other as fast as they come).
 
 Resident memory (``VmRSS``, MB) is read at each step, so that it splits into: the interpreter; the
-presenter's imports (numpy, PyAV, protobuf); the GL context with the output's framebuffer and
-the shaders compiled by a first draw; the decoder (its reference frames and frame threads'
+presenter's imports (numpy, PyAV, protobuf); the GL context with the output's framebuffer;
+the presenter's warm-up (``warm_up``: :meth:`node.render.Renderer.warm_up`'s shader variants,
+which llvmpipe compiles, and a picture of the output's size drawn and forgotten, as
+:mod:`node.presenter` does at start); the decoder (its reference frames and frame threads'
 buffers, measured as the growth while the first frames decode, less the frame queue); the frame
 queue (what :class:`DecodeAhead` holds, counted by construction from the frames it buffers: the
 planes' own bytes when they are copies, 0 when they are views of the decoder's frames, which the
 decoder's share then includes); and the textures (the growth of the first upload and draw: one
-picture's planes, 3 MB at 1080p 4:2:0, and llvmpipe's compiled YUV shader, about 13 MB of it).
+picture's planes, 3 MB at 1080p 4:2:0, less the warm-up picture's texture, which llvmpipe frees
+once another texture takes its unit: the share can be negative).
 ``rss_mb`` is the median over the second half of the frames (steady), ``peak_rss_mb`` the
 process's ``VmHWM``; ``rss_mb_without_software_gpu_libs`` is ``rss_mb`` less the resident pages
 of llvmpipe's libraries (``software_gpu_libs_mb``: LLVM, Mesa's DRI driver, read from
@@ -103,12 +106,25 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     anon_before_context = rss_mb("RssAnon")
     try:
         scale = min(w / cw, h / ch)
-        r.set_homography(np.array([[scale, 0.02, 3.0], [-0.01, scale, 2.0], [1e-6, 2e-6, 1.0]]), (cw, ch))
-        r.set_lut(np.stack([np.linspace(0, 1, 256) ** (1 / g) for g in (2.1, 2.2, 2.3)]).astype(np.float32))
+        lut = np.stack([np.linspace(0, 1, 256) ** (1 / g) for g in (2.1, 2.2, 2.3)]).astype(np.float32)
         r.render(None)
         r.ctx.finish()
         r_context = rss_mb()
         anon_context = rss_mb("RssAnon") - anon_before_context
+        # the presenter's warm-up (node/presenter.py): the shader variants a show draws, compiled at
+        # start, and a picture of the output's size drawn in content and projector space, then forgotten
+        r.warm_up()
+        picture = np.zeros((h, w, 3), np.uint8)
+        r.upload("__warm__", picture)
+        r.set_homography(np.eye(3), (w, h))
+        r.render("__warm__", space="content")
+        r.render("__warm__", space="projector", apply_lut=False)
+        r.ctx.finish()
+        r.forget("__warm__", reuse=False)
+        del picture
+        r_warm = rss_mb()
+        r.set_homography(np.array([[scale, 0.02, 3.0], [-0.01, scale, 2.0], [1e-6, 2e-6, 1.0]]), (cw, ch))
+        r.set_lut(lut)
         node_yuv.COPY_PLANES = copy
         if ahead_bytes is not None:
             import node.asset_frames
@@ -145,7 +161,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     finally:
         r.release()
     software_gpu = software_gpu_mb()
-    decoder_and_queue = r_decoder - r_context
+    decoder_and_queue = r_decoder - r_warm
     return {
         "settings": {"depth": depth, "threads": threads, "planes": "copied" if copy else "views of the decoder's frames",
                      "ahead_mb": round((ahead_bytes if ahead_bytes is not None else _node_ahead_bytes()) / 2**20, 1)},
@@ -159,6 +175,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         "rss_mb_without_software_gpu_libs": round(statistics.median(steady) - software_gpu, 1),
         "split_mb": {"interpreter": round(r0, 1), "imports": round(r_imports - r0, 1),
                      "gl_context": round(r_context - r_imports, 1), "gl_context_anon": round(anon_context, 1),
+                     "warm_up": round(r_warm - r_context, 1),
                      "decoder": round(decoder_and_queue - queue_mb, 1), "frame_queue": round(queue_mb, 1),
                      "textures": round(r_textures - r_decoder, 1),
                      "playing": round(statistics.median(steady) - r_textures, 1)},
