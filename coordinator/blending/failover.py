@@ -19,7 +19,10 @@ encode when a loss pushes them); the losses most likely first (nodes lost before
 those that carry the most light. The first are held ready to push; when the rest would not fit the
 budget that way, they are held compressed (about a seventh at 1080p; a loss inflates them in a
 worker thread, tens of milliseconds instead of seconds of computation), so that at 1080p map sizes
-the single losses of 25 projectors fit in 256 MiB. A blend whose maps are at least 256 texels wide
+the single losses of 25 projectors fit in 256 MiB. The variants ahead are background work: their
+worker thread is a thread of its own, :data:`AHEAD_NICE` below the event loop's priority, so that
+while they compute, the event loop (a switch's pushes, the nodes' heartbeats) and any process of the
+same priority on the machine get the CPU first. A blend whose maps are at least 256 texels wide
 fails over to maps four times coarser (:func:`variant_scale`): smooth maps sampled bilinearly keep
 the light, and a loss pushes a sixteenth of the bytes (at 1080p, 65 KB per node instead of 1 MB).
 """
@@ -27,7 +30,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable, Mapping
 
@@ -250,6 +256,21 @@ def compute_variant(contributions: Contributions, base_maps: Mapping[str, BlendM
     return Variant(key, maps, kept, helpers, time.perf_counter() - t0)
 
 
+#: how much lower the variants-ahead thread's priority is (nice value added; Linux has per-thread nice)
+AHEAD_NICE = 10
+
+
+def _background_thread() -> None:
+    """The variants-ahead thread lowers its own priority (raising a nice value needs no privilege)."""
+    if not hasattr(os, "setpriority"):
+        return
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + AHEAD_NICE))
+    except OSError:
+        pass
+
+
 class Variants:
     """The variants of one blend: computed on demand or ahead, kept within a memory budget.
 
@@ -274,6 +295,7 @@ class Variants:
         self._cache: dict[VariantKey, Variant] = {base: Variant(base, dict(self.base_maps))}
         self._failed: dict[VariantKey, str] = {}
         self._ahead: asyncio.Task | None = None
+        self._pool: ThreadPoolExecutor | None = None     # the variants-ahead thread (low priority)
         #: the order of the last run ahead (its keys), for reports
         self.planned: list[VariantKey] = []
 
@@ -382,7 +404,9 @@ class Variants:
                 break
             left = sum(1 for k in keys[i + 1:] if k not in self._cache and k not in self._failed)
             try:
-                await asyncio.to_thread(self._compute_ahead, key, left)
+                if self._pool is None:
+                    self._pool = ThreadPoolExecutor(1, thread_name_prefix="blend-ahead", initializer=_background_thread)
+                await asyncio.get_running_loop().run_in_executor(self._pool, self._compute_ahead, key, left)
                 made += 1
             except BlendError:
                 continue
@@ -401,6 +425,9 @@ class Variants:
         if self._ahead is not None and not self._ahead.done():
             self._ahead.cancel()
         self._ahead = None
+        pool, self._pool = self._pool, None
+        if pool is not None:        # its thread ends after the variant it computes, if any
+            pool.shutdown(wait=False, cancel_futures=True)
 
     async def wait_ahead(self) -> None:
         """Until the current run ahead ended (tests and benchmarks)."""
