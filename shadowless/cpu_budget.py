@@ -53,6 +53,9 @@ __all__ = ["CpuBudget", "CpuBudgetError", "Hierarchy", "MIN_QUOTA_US", "PREFIX",
 #: the kernel refuses a CFS quota below 1 ms and a period outside 1 ms .. 1 s
 MIN_QUOTA_US = 1000
 MIN_PERIOD_US, MAX_PERIOD_US = 1000, 1_000_000
+#: a group's real-time grant per real-time period (v1 ``cpu.rt_runtime_us``), and what a node asks for:
+#: 2 % of the host's usual 1 s period, far more than a swap window's few microseconds a frame
+MIN_REALTIME_US, MAX_REALTIME_US, NODE_REALTIME_US = 1000, 500_000, 20_000
 PREFIX = "shadowless-"
 #: ``shadowless-<kind>-<pid>-<n>``; ``<kind>`` may hold dashes (the last two numbers are pid and counter)
 _NAME = re.compile(rf"^{PREFIX}([a-z0-9][a-z0-9-]*?)-(\d+)-(\d+)$")
@@ -349,13 +352,22 @@ class CpuBudget:
         The group's CFS weight against other work when cores are contended, on v2's scale (1..10000;
         None: the kernel's default, 100). A high weight makes a budget closer to a computer of its
         own on a busy host: the group gets its limit whenever it can run (never more).
+    realtime_us : int or None
+        v1 only: real-time time granted to the group per real-time period (``cpu.rt_runtime_us``,
+        the period is the host's ``cpu.rt_period_us``, usually 1 s). A v1 group is made with none,
+        so a thread in it cannot take SCHED_FIFO at all: a node's swap window (node/realtime.py)
+        is refused and its swap waits behind its own threads. The grant is small (the node sleeps
+        to the deadline and swaps in it, it never renders there) and is not part of ``fraction``.
+        What the host's real-time budget allows is granted, halving down to 1 ms when the sum over
+        sibling groups is full; ``realtime_granted_us`` says what was (0: none; v2 has no
+        per-group real-time time, so there it stays 0).
     hierarchy : Hierarchy or None
         Where (default: this host's, :func:`find_hierarchy`).
     """
 
     def __init__(self, fraction: float | None, *, period_us: int = 100_000, name: str = "", kind: str = "bench",
                  threads: bool = False, thread_fraction: float | None = None, weight: int | None = None,
-                 hierarchy: Hierarchy | None = None):
+                 realtime_us: int | None = None, hierarchy: Hierarchy | None = None):
         self.fraction = None if fraction is None else _check_fraction(fraction, period_us)
         self.thread_fraction = None if thread_fraction is None else _check_fraction(thread_fraction, period_us)
         if not (MIN_PERIOD_US <= int(period_us) <= MAX_PERIOD_US):
@@ -365,6 +377,11 @@ class CpuBudget:
         if weight is not None and not (isinstance(weight, int) and 1 <= weight <= 10_000):
             raise CpuBudgetError(f"a CPU budget's weight is 1..10000 (100: the kernel's default), got {weight!r}")
         self.weight = weight
+        if realtime_us is not None and not (isinstance(realtime_us, int) and MIN_REALTIME_US <= realtime_us <= MAX_REALTIME_US):
+            raise CpuBudgetError(f"a CPU budget's real-time grant is {MIN_REALTIME_US}..{MAX_REALTIME_US} us a period, "
+                                 f"got {realtime_us!r}")
+        self.realtime_us = realtime_us
+        self.realtime_granted_us = 0
         self.name, self.kind, self.threads = name, kind, bool(threads)
         group_name(kind, 0, 0)                   # the kind is checked now, not when the group is made
         self.hierarchy = hierarchy
@@ -405,6 +422,8 @@ class CpuBudget:
                 if h.acct is not None and h.acct != h.root:
                     self.acct_path = h.acct / name
                     self.acct_path.mkdir()
+                if self.realtime_us:
+                    self.realtime_granted_us = grant_realtime(path, self.realtime_us)
             else:
                 self._open_v2(path)
         except OSError as exc:
@@ -518,6 +537,8 @@ class CpuBudget:
             d = self.path / (V2_THREADS if part == "threads" else V2_PROCS)
         fraction = self.thread_fraction if part == "threads" else self.fraction
         out: dict = {"limit": fraction, "period_ms": self.period_us / 1000}
+        if self.realtime_us:
+            out["realtime_granted_us"] = self.realtime_granted_us
         try:
             text = (d / "cpu.stat").read_text()
         except OSError:
@@ -531,6 +552,24 @@ class CpuBudget:
                 usage = None
         out.update(parse_cpu_stat(text, h.version, usage))
         return out
+
+
+def grant_realtime(group: Path, want_us: int) -> int:
+    """Give a v1 group ``want_us`` of real-time time per real-time period, or the most the host
+    allows below it (halving down to :data:`MIN_REALTIME_US`: the kernel refuses a grant that would
+    take the sibling groups' sum past their parent's); the time granted, 0 when none could be
+    (no ``cpu.rt_runtime_us``: a kernel without real-time group scheduling, or v2)."""
+    f = group / "cpu.rt_runtime_us"
+    if not f.exists():
+        return 0
+    us = int(want_us)
+    while us >= MIN_REALTIME_US:
+        try:
+            _write(f, us)
+            return us
+        except OSError:
+            us //= 2
+    return 0
 
 
 def _check_fraction(fraction, period_us: int) -> float:

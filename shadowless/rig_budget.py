@@ -27,7 +27,7 @@ import threading
 import time
 from pathlib import Path
 
-from shadowless.cpu_budget import CpuBudget, CpuBudgetError, Hierarchy, host_hierarchy, unavailable
+from shadowless.cpu_budget import NODE_REALTIME_US, CpuBudget, CpuBudgetError, Hierarchy, host_hierarchy, unavailable
 
 __all__ = ["DEFAULT_PERIOD_MS", "RigBudgets", "coordinator_default", "parse_gpu", "rasterizer_refusal",
            "rasterizer_threads"]
@@ -220,10 +220,11 @@ class RigBudgets:
 
     def _node(self, slot: str, gpu: float | None) -> _Node:
         w = self._weight
+        if self.hierarchy.version == 1:      # the node's swap window may take SCHED_FIFO, as on a computer of its own
+            node = self._make(self.node_cpu, "node", slot, weight=w, realtime_us=NODE_REALTIME_US)
+            return _Node(node, self._make(gpu, "gpu", slot, weight=w) if self.split else None)
         if not self.split:
             return _Node(self._make(self.node_cpu, "node", slot, weight=w), None)
-        if self.hierarchy.version == 1:
-            return _Node(self._make(self.node_cpu, "node", slot, weight=w), self._make(gpu, "gpu", slot, weight=w))
         try:        # v2: one threaded subtree per node
             return _Node(self._make(self.node_cpu, "node", slot, threads=True, thread_fraction=gpu, weight=w), None)
         except CpuBudgetError as exc:
@@ -350,7 +351,13 @@ class RigBudgets:
                 ("node" if self.node_gpu == "node" else None),
                 "coordinator_cpu_limit": None if self.coordinator_cpu is False else self.coordinator_cpu,
                 "rasterizer": self.rasterizer, "reserve_weight": self._weight,
+                "node_realtime_us": self.realtime_granted(),
                 **({"errors": self.errors} if self.errors else {})}
+
+    def realtime_granted(self) -> dict[str, int]:
+        """Per slot, the real-time time its node's group was granted per real-time period (us; 0: none, so
+        the node's swap window runs at normal priority and says so in its log)."""
+        return {s: n.cpu.realtime_granted_us for s, n in self.nodes.items()}
 
     def summary(self) -> str:
         """One line for an operator: the budget and what the groups took so far."""
@@ -363,4 +370,9 @@ class RigBudgets:
                 f"each took {cpu:.1f} s of CPU, held back {held:.1f} s; rasterizer threads {self.rasterizer}")
         if self.split:
             text += f", took {ras:.1f} s"
+        rt = self.realtime_granted()
+        if self.hierarchy is not None and self.hierarchy.version == 1 and rt:
+            short = sum(1 for v in rt.values() if not v)
+            text += ("; swaps at real-time priority" if not short else
+                     f"; {short} of {n} nodes swap at normal priority (the host's real-time time is used up)")
         return text
