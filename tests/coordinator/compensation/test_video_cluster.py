@@ -45,7 +45,9 @@ CONTENT = (160, 80)
 RATE = Fraction(24000, 1001)
 FRAMES = 24
 SOURCE = (192, 96)
-SOLVE = {"iterations": 3, "first_iterations": 40}
+# a segment's cold start: 10 iterations (not the job's default) are plenty here, where what is checked is that
+# a cluster run gives the bytes of a local one, not how well a frame converges
+SOLVE = {"iterations": 3, "first_iterations": 10}
 
 
 def run(driver: RoomDriver, params: dict, kind: str = "compensate_video") -> dict:
