@@ -44,7 +44,6 @@ from typing import Iterable, Mapping
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from imaging.blending.contributions import LUMA, Contributions, apply_homography_grid
 from imaging.blending.envelope import lower_envelope, upper_envelope
@@ -147,6 +146,7 @@ def _weight(c: Contributions, slot: str, ramp: float) -> np.ndarray:
         hit = frame_weight(c.projector_coords(slot), c.projector_size[slot], ramp) * fp
         if c.projector_xy is not None and slot in c.projector_xy and fp.any():
             # a mesh: the footprint also ends where the object hides the surface from the projector; ramp there too
+            from scipy import ndimage    # at use: the coordinator imports this module at start (SciPy: ~48 MB)
             d = ndimage.distance_transform_edt(fp)
             t = np.clip(d / max(ramp * math.sqrt(float(fp.sum())), 1.0), 0.0, 1.0)
             hit = np.where(fp, np.maximum(hit * (t * t * (3.0 - 2.0 * t)), WEIGHT_FLOOR), 0.0).astype(np.float32)
@@ -205,6 +205,7 @@ def _fill_nearest(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """``values`` with every invalid pixel set to its nearest valid pixel's value (leading axes (h, w))."""
     if valid.all() or not valid.any():
         return values
+    from scipy import ndimage
     idx = ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
     return values[idx[0], idx[1]]
 

@@ -43,7 +43,6 @@ from typing import Mapping, Sequence
 
 import cv2
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from imaging.blending.predict import sample_map
 from protos.blend import BlendMaps
@@ -287,6 +286,7 @@ def fit_gains(capture: np.ndarray, columns: Sequence[np.ndarray], *, prior_sd: f
         sw = np.sqrt(w / max(w.sum(), 1.0))
         Aw = np.vstack([A * sw[:, None], np.sqrt(prior) * np.eye(N)])
         bw = np.concatenate([b * sw, np.sqrt(prior) * np.ones(N)])
+        from scipy.optimize import lsq_linear    # at use: the coordinator imports this module at start
         g_new = lsq_linear(Aw, bw, bounds=(0.0, max_gain), method="bvls", tol=1e-12).x
         r = A @ g_new - b
         kept = w > 0
@@ -339,6 +339,7 @@ def _bounded(G: np.ndarray, rhs: np.ndarray, hi: float) -> np.ndarray:
     if np.all(np.isfinite(h)) and np.all(h >= 0) and np.all(h <= hi):
         return h
     L = np.linalg.cholesky(G + 1e-12 * np.trace(G) * np.eye(len(rhs)))
+    from scipy.optimize import lsq_linear
     return lsq_linear(L.T, np.linalg.solve(L, rhs), bounds=(0.0, hi), method="bvls").x
 
 
