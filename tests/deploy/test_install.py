@@ -75,6 +75,25 @@ def staged_version(root: Path) -> str:
     return r.stdout.strip()
 
 
+VENV = Path("opt/shadowless/venv")
+
+
+def venv_from(node_root: Path, root: Path, *, without_shadowless: bool = False) -> None:
+    """Copy the venv the node install made into ``root``, so that the script finds one and installs into
+    it, as it would over an earlier install: creating a venv (with pip bootstrapped into it) is most of an
+    install's cost, and the node fixture's fresh install checks it. ``without_shadowless``: shadowless is
+    taken out of the copy first (every file its RECORD lists), so that only the install under test can
+    put it back."""
+    shutil.copytree(node_root / VENV, root / VENV, symlinks=True)
+    if without_shadowless:
+        (site,) = (root / VENV / "lib").glob("python3*/site-packages")
+        (dist,) = site.glob("shadowless-*.dist-info")
+        for line in (dist / "RECORD").read_text().splitlines():
+            (site / line.rsplit(",", 2)[0]).unlink(missing_ok=True)
+        shutil.rmtree(dist, ignore_errors=True)
+        assert not list(site.glob("shadowless-*.dist-info")) and not (root / VENV / "bin/shadowless").exists()
+
+
 @pytest.fixture(scope="module")
 def token(tmp_path_factory) -> Path:
     p = tmp_path_factory.mktemp("token") / "token"
@@ -110,9 +129,11 @@ def wheel(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def coordinator(tmp_path_factory, token, wheel):
-    """A coordinator installed from a wheel, keeping an existing token, with a 2x2 rig."""
+def coordinator(tmp_path_factory, token, wheel, node):
+    """A coordinator installed from a wheel, keeping an existing token, with a 2x2 rig (into a copy of the
+    node's venv without shadowless: the wheel is what puts it there)."""
     root = tmp_path_factory.mktemp("coordinator-root")
+    venv_from(node[0], root, without_shadowless=True)
     return root, install("install-coordinator.sh", root, "--source", wheel, "--token", token,
                          "--", "--name", "table", "--grid", "2x2")
 
@@ -212,11 +233,7 @@ def test_a_window_output_gets_the_x11_dropin(node, tmp_path, token):
     cookie = tmp_path / "cookie"
     cookie.write_bytes(b"\x01\x00MIT-MAGIC-COOKIE-1")
     root = tmp_path / "root"
-    # The venv the node install made (its creation, with pip in it, is most of an install's cost) is copied
-    # in, so the script finds one and installs into it, as it would over a kms node turned window: the
-    # venv's creation is checked by the node fixture's fresh install; here, what a window output adds.
-    venv = Path("opt/shadowless/venv")
-    shutil.copytree(node[0] / venv, root / venv, symlinks=True)
+    venv_from(node[0], root)      # as over a kms node turned window: what is checked is what a window output adds
     r = install("install-node.sh", root, "--slot", "r0c0", "--token", token, "--output", "window:1",
                 "--xauthority", cookie, "--no-start")
     dropin = root / "etc/systemd/system/shadowless-node.service.d/x11.conf"
