@@ -176,7 +176,8 @@ class Coordinator:
         # the per-pixel blend: its failover switches take effect a switch lead ahead, on every node at once
         lead = rig.config.blend.switch_lead_ms
         self.blending = BlendState(rig, update_slot=self.update_slot, clock_ns=self.clock_ns,
-                                   lead_ns=None if lead is None else int(lead * 1e6), node_session=self.by_slot.get)
+                                   lead_ns=None if lead is None else int(lead * 1e6), node_session=self.by_slot.get,
+                                   show_active=lambda: self.show_state.active)
         self.lamp_watchdog = LampWatchdog(self.blending, camera_specs=lambda: self._camera_specs, busy=self.running_job,
                                           on_screen=self.still_on_screen, live_slots=self.live_slots,
                                           interval_s=rig.config.blend.watchdog_interval_s, clock_ns=self.clock_ns,

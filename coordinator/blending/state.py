@@ -19,8 +19,9 @@ its instant (it received the maps, or had its frame rendered again, too late) ma
 lead that switch's lead plus the latest node's delay, at most the content's latency budget (rig.toml's
 ``latency_ms``, what a frame is given to reach every projector); each switch every node showed in time
 gives back a part of it (:data:`LEARNED_DECAY`). A rig whose nodes are quick keeps the short lead.
-The blend job's own push, at once to every node, teaches the first failover: how far apart the nodes
-put that same redraw on screen.
+The blend job's own push, at once to every node, teaches the first failover while no show plays: how
+far apart the nodes put that same redraw on screen (during a show each node renders its ticks anyway,
+so a switch costs it no redraw of its own).
 A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
 compressed is inflated there).
 """
@@ -100,6 +101,8 @@ class BlendState:
     node_session : callable, optional
         ``node_session(slot)``: the slot's node session (its ``blend_id`` and ``blend_since_rig_ns``, what
         its heartbeat says is on screen since when), or None; the automatic lead learns from it.
+    show_active : callable, optional
+        Whether a show's timeline plays (its ticks are rendered anyway: a switch redraws nothing more).
     wall_clock : callable
         Unix seconds (the status's times).
     budget_bytes : int
@@ -108,16 +111,18 @@ class BlendState:
 
     def __init__(self, rig: Rig, *, update_slot: Callable[..., Any], clock_ns: Callable[[], int], lead_ns: int | None,
                  wall_clock: Callable[[], float] = time.time, budget_bytes: int = MAX_PRECOMPUTED_BYTES,
-                 node_session: Callable[[str], Any] | None = None):
+                 node_session: Callable[[str], Any] | None = None, show_active: Callable[[], bool] | None = None):
         self.rig = rig
         self._update_slot = update_slot
         self.clock_ns = clock_ns
         self.lead_ns = None if lead_ns is None else int(lead_ns)
         self.node_session = node_session
+        self.show_active = show_active
         self.last_lead_ns = 0                  # the lead of the last switch
-        #: the automatic lead's parts at the last switch (ns): "auto" (maps and link), "learned", "cap"
+        #: the automatic lead's parts at the last switch (ns): "auto" (maps and link), "learned", "redraw", "cap"
         self.last_lead_parts: dict[str, int] = {}
         self.learned_lead_ns = 0               # the lead the nodes showed they need (0: nothing learned)
+        self.redraw_lead_ns = 0                # what the blend job's push showed a redraw on every node needs
         self.last_late_ns = 0                  # how late the latest node showed the last switch learned from
         self._pushed: tuple[int, int, dict[str, str]] | None = None   # the last switch: (instant, lead, slot -> id)
         self.wall_clock = wall_clock
@@ -386,26 +391,29 @@ class BlendState:
         self._learn()
         auto = auto_lead_ns(sum(wire_bytes(m) for _, m in todo))
         cap = int(float(self.rig.config.latency_ms) * 1e6)
-        learned = min(self.learned_lead_ns, cap)
-        self.last_lead_parts = {"auto": auto, "learned": learned, "cap": cap}
+        playing = self.show_active is not None and self.show_active()
+        redraw = 0 if playing else self.redraw_lead_ns
+        learned = min(max(self.learned_lead_ns, redraw), cap)
+        self.last_lead_parts = {"auto": auto, "learned": min(self.learned_lead_ns, cap), "redraw": redraw, "cap": cap}
         return max(auto, learned)
 
     def _learn_from_job(self) -> None:
         """The blend job pushed its maps to every node at once: how far apart the nodes put that same redraw
-        on screen (their heartbeats) is a switch's spread. Beyond :data:`LATE_SLACK_NS`, the first failover
-        leads by :data:`AUTO_LEAD_BASE_NS` plus that spread, as if the quickest node had been just in time."""
+        on screen (their heartbeats) is what a switch of a still spreads over. Beyond :data:`LATE_SLACK_NS`,
+        a switch while no show plays leads by :data:`AUTO_LEAD_BASE_NS` plus that spread (as if the quickest
+        node had been just in time); within it, by nothing more."""
         if self.node_session is None or self.stored is None:
             return
-        showed, since = {}, []          # the nodes that show the job's maps (the others tell nothing)
+        since = []                      # of the nodes that show the job's maps (the others tell nothing)
         for slot, maps in self.stored.maps.items():
             sess = self.node_session(slot)
             if sess is not None and not getattr(sess, "closed", False) and sess.blend_id == maps.blend_id \
                     and sess.blend_since_rig_ns > 0:
-                showed[slot] = maps.blend_id
                 since.append(sess.blend_since_rig_ns)
         if len(since) >= 2:
-            self._pushed = (min(since), AUTO_LEAD_BASE_NS, showed)
-            self._learn()
+            spread = max(since) - min(since)
+            self.redraw_lead_ns = AUTO_LEAD_BASE_NS + spread if spread > LATE_SLACK_NS else 0
+            log.info("blend: the nodes showed the blend job's maps within %.0f ms of each other", spread / 1e6)
 
     def _learn(self) -> None:
         """What the last switch showed of the nodes: when the latest of them showed its maps (from their

@@ -3,8 +3,8 @@
 Each node's heartbeat says which maps it shows and from which pts. A switch that some node showed
 more than the slack after its instant makes the next switch lead by that switch's lead plus the
 delay, never beyond the content's latency budget; a switch every node showed in time gives a part
-of it back; a blend job's push, at once to every node, teaches the first failover how far apart the
-nodes put the same redraw on screen; a fixed ``switch_lead_ms`` is kept as it is.
+of it back; a blend job's push, at once to every node, teaches a still's first failover how far apart
+the nodes put the same redraw on screen (not a show's: its ticks are rendered anyway); a fixed ``switch_lead_ms`` is kept as it is.
 """
 from __future__ import annotations
 
@@ -117,18 +117,27 @@ def test_the_blend_jobs_push_teaches_the_first_failover_how_far_apart_the_nodes_
     sessions = {s: Session() for s in SLOTS}
 
     async def go():
+        playing = [False]
         state = BlendState(rig, update_slot=rig.update_slot, clock_ns=lambda: now[0], lead_ns=None,
-                           node_session=sessions.get)
+                           node_session=sessions.get, show_active=lambda: playing[0])
         state.load()
-        for spread, learned in ((LATE_SLACK_NS // 2, 0), (15 * MS, 0), (60 * MS, AUTO_LEAD_BASE_NS + 60 * MS)):
+        for spread, learned in ((LATE_SLACK_NS // 2, 0), (60 * MS, AUTO_LEAD_BASE_NS + 60 * MS)):
             for k, s in enumerate(SLOTS):          # the job's maps on every screen, the last `spread` after the first
                 sessions[s] = Session(rig.slot(s).blend.blend_id, now[0] - 500 * MS + spread * k // 2)
-            state.learned_lead_ns = 0
             await state.reload()
-            assert state.learned_lead_ns == learned, spread
+            assert state.redraw_lead_ns == learned, spread
+        playing[0] = True                          # a show's ticks are rendered anyway: nothing more to wait for
         state.node_lost("right")
         await state.settled()
-        assert state.last_lead_ns == 40 * MS, "the first failover leads by what the job's push showed (capped)"
+        assert state.last_lead_ns == state.last_lead_parts["auto"] < 40 * MS
+        at = now[0] + state.last_lead_ns
+        for s in ("left", "mid"):                  # both in time: nothing learned from that switch
+            sessions[s] = Session(rig.slot(s).blend.blend_id, at)
+        playing[0] = False
+        now[0] += 10**9
+        state.node_live("right")
+        await state.settled()
+        assert state.last_lead_ns == 40 * MS, "a still's switch leads by what the job's push showed (capped)"
         state.close()
 
     asyncio.run(go())
