@@ -13,15 +13,17 @@ a node's taking them take, far less than the content's latency budget for small 
 1080p maps to 25 nodes), so every node shows the new maps from the same swap on; a node that hears
 of them after that instant shows them from its next frame. One log line per switch.
 
-The automatic lead also learns what the rig's nodes need: each node reports the pts of its first frame
+The automatic lead of a switch while no show plays (a still on screen, which every node must render
+again) also learns what the rig's nodes need: each node reports the pts of its first frame
 with the maps (its heartbeat), and a switch that some node showed more than :data:`LATE_SLACK_NS` after
 its instant (it received the maps, or had its frame rendered again, too late) makes the next switch's
 lead that switch's lead plus the latest node's delay, at most the content's latency budget (rig.toml's
 ``latency_ms``, what a frame is given to reach every projector); each switch every node showed in time
 gives back a part of it (:data:`LEARNED_DECAY`). A rig whose nodes are quick keeps the short lead.
-The blend job's own push, at once to every node, teaches the first failover while no show plays: how
-far apart the nodes put that same redraw on screen (during a show each node renders its ticks anyway,
-so a switch costs it no redraw of its own).
+The blend job's own push, at once to every node, teaches the first such failover: how far apart the
+nodes put that same redraw on screen. While a show plays, each node renders its ticks anyway and a
+switch costs it no redraw of its own: the lead is the maps' own, and a show's late ticks (the CPU's,
+not the lead's) teach nothing.
 A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
 compressed is inflated there).
 """
@@ -52,8 +54,8 @@ AHEAD_AFTER_SWITCH_S = 0.5
 #: one texture upload, the frame on screen rendered again), and the link the maps are pushed over
 AUTO_LEAD_BASE_NS = 20_000_000
 AUTO_LEAD_LINK_BITS_PER_S = 1e9
-#: a node that shows a switch's maps more than this after its instant was late (a playing show's first tick
-#: at or after the instant is up to one frame period after it: 33 ms at 30 fps)
+#: a node that shows a switch's maps more than this after its instant was late (a swap's own jitter, and
+#: the slack a slow node's single redraw is given, stay below it)
 LATE_SLACK_NS = 40_000_000
 #: the part of the learned lead a switch shown in time by every node gives back
 LEARNED_DECAY = 0.1
@@ -360,7 +362,7 @@ class BlendState:
         for slot, maps in todo:
             self._update_slot(slot, blend=maps, blend_at_ns=at, source="blend")
         out_now = set(v.key[0]) | {s for s, g in v.key[1] if g < DEAD_GAIN}     # they show nothing to learn from
-        if todo:
+        if todo and not self._playing():     # a show's late ticks are the CPU's, not the lead's
             self._pushed = (at, lead, {slot: maps.blend_id for slot, maps in todo if slot not in out_now})
         self.last_switch = {"wanted": self._wanted_ns or ready, "ready": ready, "set": self.clock_ns(), "instant": at}
         changed = len(todo)
@@ -391,11 +393,16 @@ class BlendState:
         self._learn()
         auto = auto_lead_ns(sum(wire_bytes(m) for _, m in todo))
         cap = int(float(self.rig.config.latency_ms) * 1e6)
-        playing = self.show_active is not None and self.show_active()
-        redraw = 0 if playing else self.redraw_lead_ns
-        learned = min(max(self.learned_lead_ns, redraw), cap)
-        self.last_lead_parts = {"auto": auto, "learned": min(self.learned_lead_ns, cap), "redraw": redraw, "cap": cap}
+        if self._playing():     # each node renders its ticks anyway: only the maps' way there counts
+            self.last_lead_parts = {"auto": auto, "learned": 0, "redraw": 0, "cap": cap}
+            return auto
+        learned = min(max(self.learned_lead_ns, self.redraw_lead_ns), cap)
+        self.last_lead_parts = {"auto": auto, "learned": min(self.learned_lead_ns, cap), "redraw": self.redraw_lead_ns,
+                                "cap": cap}
         return max(auto, learned)
+
+    def _playing(self) -> bool:
+        return self.show_active is not None and bool(self.show_active())
 
     def _learn_from_job(self) -> None:
         """The blend job pushed its maps to every node at once: how far apart the nodes put that same redraw

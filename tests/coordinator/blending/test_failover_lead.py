@@ -131,12 +131,13 @@ def test_the_blend_jobs_push_teaches_the_first_failover_how_far_apart_the_nodes_
         await state.settled()
         assert state.last_lead_ns == state.last_lead_parts["auto"] < 40 * MS
         at = now[0] + state.last_lead_ns
-        for s in ("left", "mid"):                  # both in time: nothing learned from that switch
-            sessions[s] = Session(rig.slot(s).blend.blend_id, at)
+        for s in ("left", "mid"):                  # late ticks of a show: the CPU's, not the lead's
+            sessions[s] = Session(rig.slot(s).blend.blend_id, at + 200 * MS)
         playing[0] = False
         now[0] += 10**9
         state.node_live("right")
         await state.settled()
+        assert state.learned_lead_ns == 0, "a switch during a show teaches nothing"
         assert state.last_lead_ns == 40 * MS, "a still's switch leads by what the job's push showed (capped)"
         state.close()
 
