@@ -12,12 +12,11 @@ import re
 import signal
 import time
 
-import av
 import numpy as np
 import pytest
 
 from coordinator.assets import AssetStore
-from shadowless.local import LocalRig
+import clip_rig
 from waits import wait_until, wait_until_async
 
 SLOTS = ["r0c0", "r0c1", "r0c2"]
@@ -29,17 +28,7 @@ CLOCK_SETTLED_MS = 2.0
 
 
 def write_clip(path, *, shift: int = 0) -> None:
-    codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
-    with av.open(str(path), "w") as c:
-        s = c.add_stream(codec, rate=FPS)
-        s.width, s.height, s.pix_fmt = W, H, "yuv420p"
-        for i in range(FPS * SECONDS):
-            arr = np.full((H, W, 3), (i * 3 + shift) % 256, np.uint8)
-            arr[:, (i % W)] = 255
-            for pkt in s.encode(av.VideoFrame.from_ndarray(arr, format="rgb24")):
-                c.mux(pkt)
-        for pkt in s.encode():
-            c.mux(pkt)
+    clip_rig.write_clip(path, size=(W, H), fps=FPS, seconds=SECONDS, shift=shift)
 
 
 def run(coro):
@@ -49,12 +38,7 @@ def run(coro):
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory):
     work = tmp_path_factory.mktemp("showrig")
-    r = LocalRig(SLOTS, work, output_size=(W, H), content_size=(W, H), mdns=False,
-                 env={"SHADOWLESS_DEBUG_TIMING": "1"})
-    r.create()
-    clip = work / "clip.mp4"
-    write_clip(clip)
-    AssetStore(r.rig_dir).add(clip, name="clip")
+    r = clip_rig.clip_rig(SLOTS, work, size=(W, H), fps=FPS, seconds=SECONDS)
     with r:
         yield r
 

@@ -17,12 +17,10 @@ import asyncio
 import re
 import signal
 
-import av
-import numpy as np
 import pytest
 
-from coordinator.assets import AssetStore
 from shadowless.local import LocalRig
+from clip_rig import clip_rig
 from waits import wait_until_async
 
 SLOT = "r0c0"
@@ -32,18 +30,6 @@ SWAP = re.compile(r"timing frame (\d+): swap")
 APPLIED = re.compile(r"node.presenter: assignment r\d+: \w+ pose,")
 #: blend maps loaded into the renderer
 BLEND_LOADED = re.compile(r"assignment r\d+: blend ")
-
-
-def write_clip(path) -> None:
-    codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
-    with av.open(str(path), "w") as c:
-        s = c.add_stream(codec, rate=FPS)
-        s.width, s.height, s.pix_fmt = W, H, "yuv420p"
-        for i in range(FPS * SECONDS):
-            for pkt in s.encode(av.VideoFrame.from_ndarray(np.full((H, W, 3), i * 7 % 256, np.uint8), format="rgb24")):
-                c.mux(pkt)
-        for pkt in s.encode():
-            c.mux(pkt)
 
 
 async def node_show(c) -> tuple:
@@ -57,12 +43,7 @@ def swapped_since(rig: LocalRig, at: int, base: int) -> list[int]:
 
 @pytest.mark.allow_leaks     # the restarted coordinator belongs to the rig, stopped with it
 def test_a_node_rejoining_a_restarted_coordinator_fetches_passes_and_applies_nothing_again(tmp_path):
-    rig = LocalRig([SLOT], tmp_path, output_size=(W, H), content_size=(W, H), mdns=False,
-                   env={"SHADOWLESS_DEBUG_TIMING": "1"})
-    rig.create()
-    clip = tmp_path / "clip.mp4"
-    write_clip(clip)
-    AssetStore(rig.rig_dir).add(clip, name="clip")
+    rig = clip_rig([SLOT], tmp_path, size=(W, H), fps=FPS, seconds=SECONDS)
     with rig:
         async def play():
             async with await rig.client() as c:
