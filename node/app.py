@@ -489,7 +489,8 @@ class Node:
 
     async def _assignments(self, link: CoordinatorLink) -> None:
         async for assignment in link.assignments():
-            self.presenter.submit("assignment", assignment)
+            if self.session.assignment_news(assignment):    # a rejoin's unchanged one is not passed again
+                self.presenter.submit("assignment", assignment)
 
     async def _frames(self, link: CoordinatorLink) -> None:
         # The packets go to the presenter as received bytes: parsing (and copying the images)
@@ -566,7 +567,8 @@ class Node:
     def _heartbeat(self) -> HeartbeatRecord:
         host, clock = self.session.clock_status()
         st = self.presenter.stats
-        return HeartbeatRecord(assignment_revision=st.revision, frames_shown=st.shown, frames_late=st.late,
+        return HeartbeatRecord(assignment_revision=self.session.assignment_revision(st.revision),
+                               frames_shown=st.shown, frames_late=st.late,
                                frames_dropped=st.dropped, render_ms_p50=st.render_ms_p50, host_monotonic_ns=host,
                                clock=clock, assets=self.fetcher.progress(),
                                show=replace(st.show, alone_ms=self._alone_ms), blend_id=st.blend_id,

@@ -23,11 +23,14 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
+import numpy as np
+
+from node.blend_switch import same_but_blend
 from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimate, ClockEstimator, ClockSample, LocalClock
 from node.errors import CoordinatorNotTrusted
 from node.link import LinkError
-from node.records import (ClockStatus, HeartbeatRecord, HelloReply, JoinReply, JoinRequest, NodeInfo, PingReply,
-                          ReportBatch)
+from node.records import (ClockStatus, HeartbeatRecord, HelloReply, JoinReply, JoinRequest, NodeAssignment, NodeInfo,
+                          PingReply, ReportBatch)
 from node.report_batch import Report, ReportBatcher
 from protos import auth
 from protos.version import PROTOCOL_VERSION
@@ -43,6 +46,14 @@ BURST_SPACING_S = 0.01
 #: ... and after a join that kept the estimate (the same rig clock: a coordinator restarted on its host,
 #: a broken link): one exchange, to see the estimate still holds; the settled schedule does the rest
 KEPT_BURST_PINGS = 1
+
+#: a Hello proven while advertised coordinators were screened is the first half of the Join that
+#: follows on the same target within this long (the coordinator honours its nonce for 30 s): a
+#: rejoin found over mDNS makes one handshake, not two
+PROVEN_HELLO_S = 10.0
+
+#: the assignment revisions passed to the presenter that a heartbeat may still name (the newest)
+KEPT_REVISIONS = 16
 
 
 class Link(Protocol):
@@ -104,6 +115,12 @@ class SessionCore:
         self.instance_id = ""         # the coordinator instance joined last
         self.clock_id = ""            # and its rig clock's identity
         self.kept = False             # the last join kept the clock estimate
+        # a verified Hello not yet used by a Join: (target, reply, client nonce, time.monotonic())
+        self._proven: tuple[str, HelloReply, bytes, float] | None = None
+        # the assignment last passed to the presenter (kept across sessions: a rejoin sends it again),
+        # and the revision heartbeats report for the one the presenter holds (see assignment_revision)
+        self._held: NodeAssignment | None = None
+        self._revisions: dict[int, int] = {}
 
     # ---------------------------------------------------------------- handshake
     async def hello(self, link: Link, *, timeout: float = 5.0) -> tuple[HelloReply, bytes]:
@@ -119,6 +136,7 @@ class SessionCore:
             raise CoordinatorNotTrusted(
                 f"the coordinator at {link.target} (rig {hello.rig_name!r}) could not prove it knows the rig token: "
                 "this node has the wrong token file, or that advertiser is not our coordinator")
+        self._proven = (link.target, hello, nonce, time.monotonic())
         return hello, nonce
 
     async def _tell_not_trusted(self, link: Link, hello: HelloReply, client_nonce: bytes) -> None:
@@ -138,16 +156,40 @@ class SessionCore:
 
     async def join(self, link: Link) -> Joined:
         """Prove the token both ways and join; then the clock-id rule (:meth:`adopt`). Raises
-        CoordinatorNotTrusted or LinkError (``refused`` when the coordinator will not change its mind)."""
-        hello, nonce = await self.hello(link)
-        proof = auth.client_proof(self.token, "node", hello.rig_id, self.slot, nonce, hello.server_nonce)
-        reply = await link.join(JoinRequest(protocol_version=self.protocol_version, slot=self.slot,
-                                            client_nonce=nonce, server_nonce=hello.server_nonce, client_proof=proof,
-                                            info=self.info()))
+        CoordinatorNotTrusted or LinkError (``refused`` when the coordinator will not change its mind).
+
+        A Hello this core verified on the same target less than PROVEN_HELLO_S ago (the node screens
+        advertised coordinators with one, on a connection of its own) is not repeated: the Join uses
+        its nonces. Should the coordinator refuse them (it restarted meanwhile: another instance's
+        secret), the handshake is made again from its start, once."""
+        proven, self._proven = self._proven, None
+        if proven is not None and proven[0] == link.target and time.monotonic() - proven[3] < PROVEN_HELLO_S:
+            hello, nonce = proven[1], proven[2]
+            try:
+                reply = await self._login(link, hello, nonce)
+            except LinkError as exc:
+                if not exc.refused:
+                    raise
+                log.info("%s: the coordinator at %s refused the handshake it answered %.1f s ago (%s); "
+                         "shaking hands again", self.slot, link.target, time.monotonic() - proven[3], exc.code)
+                hello, nonce = await self.hello(link)
+                self._proven = None
+                reply = await self._login(link, hello, nonce)
+        else:
+            hello, nonce = await self.hello(link)
+            self._proven = None
+            reply = await self._login(link, hello, nonce)
         previous = self.instance_id
         kept = self.adopt(reply)
         self.kept = kept and self.estimator.estimate is not None
         return Joined(reply=reply, hello=hello, previous_instance=previous, clock_kept=kept)
+
+    async def _login(self, link: Link, hello: HelloReply, nonce: bytes) -> JoinReply:
+        """The node's half of the handshake on a verified ``hello``: the Join with its proof."""
+        proof = auth.client_proof(self.token, "node", hello.rig_id, self.slot, nonce, hello.server_nonce)
+        return await link.join(JoinRequest(protocol_version=self.protocol_version, slot=self.slot,
+                                           client_nonce=nonce, server_nonce=hello.server_nonce, client_proof=proof,
+                                           info=self.info()))
 
     def adopt(self, reply: JoinReply) -> bool:
         """The clock-id rule, for a join's coordinator instance: the same instance, or another one on
@@ -157,10 +199,40 @@ class SessionCore:
             return True
         same_clock = bool(reply.clock_id) and reply.clock_id == self.clock_id
         self.instance_id, self.clock_id = reply.instance_id, reply.clock_id
+        # the revisions the presenter's assignments had are the last instance's: none of them is
+        # reported as this one's (which numbers its own; a restarted coordinator may reuse them)
+        self._revisions = {}
         if not same_clock:
             self.estimator.reset()
             self.settled = False
+            self._held = None       # another rig clock: a blend's instant means something else there
         return same_clock
+
+    # ---------------------------------------------------------------- the presenter's assignment
+    def assignment_news(self, a: NodeAssignment) -> bool:
+        """Whether assignment ``a`` must go to the presenter: not when it equals the one passed last
+        but for its revision (what a rejoin is sent first: the presenter holds it already, and would
+        only compare it again). Either way, heartbeats report ``a``'s revision for what the presenter
+        holds from now on (:meth:`assignment_revision`)."""
+        held = self._held
+        if held is not None and unchanged(held, a):
+            self._revisions[held.revision] = a.revision
+            if a.revision != held.revision:
+                log.info("%s: assignment r%d is the one the presenter holds (r%d): not passed again",
+                         self.slot, a.revision, held.revision)
+            return False
+        self._held = a
+        self._revisions[a.revision] = a.revision
+        while len(self._revisions) > KEPT_REVISIONS:   # the presenter applies them in order: the oldest are done
+            del self._revisions[next(iter(self._revisions))]
+        return True
+
+    def assignment_revision(self, presenter_revision: int) -> int:
+        """The assignment revision a heartbeat reports, from the one the presenter says it applied: the
+        coordinator joined last numbers them (an unchanged one kept across a rejoin takes the new
+        number), and until that coordinator's first assignment reached the presenter, 0 (the one it
+        holds was numbered by another instance, whose numbers a restarted coordinator may reuse)."""
+        return self._revisions.get(presenter_revision, 0)
 
     # ---------------------------------------------------------------- clock
     async def ping(self, link: Link) -> ClockEstimate | None:
@@ -228,6 +300,17 @@ class SessionCore:
         """The host instant at which the rig clock reads ``rig_ns``, by the estimate (None: none yet)."""
         est = self.estimator.estimate
         return None if est is None else self.clock.to_host(est.local_time(rig_ns))
+
+
+def unchanged(a: NodeAssignment, b: NodeAssignment) -> bool:
+    """Whether two assignments differ in their revision (and the host times they were received) alone:
+    the same pose, LUT, gain and size, and the same blend maps from the same instant."""
+    if not same_but_blend(a, b) or (a.blend_at_ns, a.blend_error) != (b.blend_at_ns, b.blend_error):
+        return False
+    if a.blend is None or b.blend is None:
+        return a.blend is None and b.blend is None
+    return (a.blend.blend_id == b.blend.blend_id and np.array_equal(a.blend.alpha, b.blend.alpha)
+            and np.array_equal(a.blend.beta, b.blend.beta))
 
 
 class ReportStream:

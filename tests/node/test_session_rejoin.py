@@ -5,7 +5,9 @@ and started again on the same rig directory mid-show.
 What the node does on its return is read from its own record of it, its log: it must not fetch the
 asset again, pass it to its presenter again, re-apply an unchanged assignment (pose, LUT, gain) or
 take the unchanged show as a new one (which would restart its decoder), and it keeps its clock
-estimate with a single exchange instead of a burst. Every one of these steps logs a line when it
+estimate with a single exchange instead of a burst. The restarted coordinator numbers the unchanged
+assignment otherwise (its slot file renumbered while it was down): the node does not pass it to its
+presenter either, and reports it under the new number. Every one of these steps logs a line when it
 happens (``fetching asset``, ``passed to the presenter``, the presenter's ``assignment rN: ... pose``
 and a blend's ``assignment rN: blend``, ``timeline rN``, ``clock burst``), and the test first checks
 that the node's first join logged them (a blend aside: this rig has none), so that their absence
@@ -19,6 +21,7 @@ import signal
 
 import pytest
 
+from coordinator.rig import Rig
 from shadowless.local import LocalRig
 from clip_rig import clip_rig
 from waits import wait_until_async
@@ -30,6 +33,10 @@ SWAP = re.compile(r"timing frame (\d+): swap")
 APPLIED = re.compile(r"node.presenter: assignment r\d+: \w+ pose,")
 #: blend maps loaded into the renderer
 BLEND_LOADED = re.compile(r"assignment r\d+: blend ")
+
+
+async def node_revision(c) -> int:
+    return (await c.status()).nodes[0].assignment_revision
 
 
 async def node_show(c) -> tuple:
@@ -64,6 +71,13 @@ def test_a_node_rejoining_a_restarted_coordinator_fetches_passes_and_applies_not
         assert APPLIED.search(first), first[-3000:]
         since = len(first)
         rig.stop_coordinator(signal.SIGKILL)
+        # the restarted coordinator numbers the same assignment otherwise (here: 3 revisions on, the slot
+        # itself unchanged), as one does after a failover's blend-only revisions, which it never stored
+        stored = Rig(rig.rig_dir)
+        held = stored.slots[SLOT].revision
+        for _ in range(3):
+            renumbered = stored.update_slot(SLOT, gain=stored.slots[SLOT].gain).revision
+        del stored
         rig.start_coordinator()
 
         async def back():
@@ -76,10 +90,13 @@ def test_a_node_rejoining_a_restarted_coordinator_fetches_passes_and_applies_not
                                        lambda ids: len(ids) >= 10, what="10 ticks of the show swapped after the restart")
                 shown = await wait_until_async(lambda: node_show(c), lambda s: s[1] == "playing",
                                                what="the node reporting the show it plays")
+                # the node reports the new number for the assignment its presenter kept
+                revision = await wait_until_async(lambda: node_revision(c), lambda r: r == renumbered,
+                                                  what=f"the node reporting assignment r{renumbered}")
                 await c.stop_show()
-                return shown
+                return shown, revision
 
-        shown = asyncio.run(back())
+        shown, revision = asyncio.run(back())
     after = rig.log("node-" + SLOT)[since:]
     assert "same rig clock, keeping the clock estimate and the show" in after, after[-3000:]
     assert "joined rig" in after and "1 ready in the cache" in after, after[-3000:]
@@ -88,6 +105,10 @@ def test_a_node_rejoining_a_restarted_coordinator_fetches_passes_and_applies_not
     assert "fetching asset" not in after and "ready: " not in after
     assert "passed to the presenter" not in after
     assert not APPLIED.search(after) and not BLEND_LOADED.search(after)
+    # the renumbered assignment was recognised as the one held, and not passed to the presenter
+    assert f"assignment r{renumbered} is the one the presenter holds (r{held}): not passed again" in after, after[-3000:]
+    assert f"node.presenter: assignment r{renumbered}" not in after
+    assert revision == renumbered
     assert f"node.presenter: timeline r{p.revision}:" not in after
     assert "resyncing" not in after
     assert shown[2] == p.revision and shown[3] == 1
