@@ -9,7 +9,7 @@
 // Then the node's luminance pipeline: value = LUT(clamp(gain * value)) per channel,
 // or clamp(value) when apply_lut is 0; quantised to round(255 * value).
 //
-// With blend maps (blend_on 1; protos/blend.py, protos/spaces.py's blended_output), frames that
+// With blend maps (BLEND 1; protos/blend.py, protos/spaces.py's blended_output), frames that
 // apply the LUT become LUT(clamp(gain * (alpha * value + beta))) and are quantised with a 4x4
 // ordered dither, floor(255 * value + t), so that a slow ramp scaled by the maps does not band.
 // Without them (or for patterns, apply_lut 0) the output is what it was without blending, bit for bit.
@@ -28,8 +28,9 @@ uniform sampler2D lut;          // (3, E - 1) RG32F: row c = channel c, texel k 
                                 // of E at luminance k / (E - 1): one fetch per channel
 uniform int lut_size;           // E >= 2
 uniform float gain;
-uniform sampler2D blend;        // (h, w) RGBA16F: rgb = alpha, a = beta; row 0 = top row of the output
-uniform vec4 blend_xform;       // (w / W, h / H, H, 0): fragment -> map coordinates (see blend_at)
+uniform sampler2D blend;        // (h, w) RGBA32F or RGBA16F: rgb = alpha, a = beta; row 0 = the output's
+                                // bottom row (GL order); LINEAR, CLAMP_TO_EDGE (node/render/blend_texture.py)
+uniform vec2 blend_xform;       // (1 / W, 1 / H): fragment -> texture coordinates (see blend_at)
 uniform int out_rows;           // H, the output's rows (the dither counts rows from the top)
 // A crossfade (node/fade.py, protos/fade.py): the picture shown before is mixed in, on the linear
 // content values, before the gain, the blend and the LUT: mix(before, value, fade_mix).
@@ -164,18 +165,12 @@ float lut_channel(float v, int channel) {
 }
 
 // The blend maps at this fragment: projector pixel (x, y) (OpenCV, rows from the top) reads the
-// map at ((x + 0.5) w / W - 0.5, (y + 0.5) h / H - 0.5), bilinear between the four texels around
-// it with their indices clamped to the map. x + 0.5 is gl_FragCoord.x, y + 0.5 is H - gl_FragCoord.y.
+// map at ((x + 0.5) w / W - 0.5, (y + 0.5) h / H - 0.5), bilinear between the four texels around it,
+// clamped to the edge texels; the texture unit's filter does it, from texture coordinate
+// gl_FragCoord.xy / (W, H) on the map stored bottom row first (one fetch; llvmpipe filters float32
+// texels far faster than four texelFetch and our weights).
 vec4 blend_at() {
-    ivec2 size = textureSize(blend, 0);
-    vec2 m = vec2(gl_FragCoord.x, blend_xform.z - gl_FragCoord.y) * blend_xform.xy - 0.5;
-    vec2 base = floor(m);
-    vec2 f = m - base;
-    ivec2 p0 = clamp(ivec2(base), ivec2(0), size - 1);
-    ivec2 p1 = clamp(ivec2(base) + 1, ivec2(0), size - 1);
-    vec4 top = (1.0 - f.x) * texelFetch(blend, p0, 0) + f.x * texelFetch(blend, ivec2(p1.x, p0.y), 0);
-    vec4 bottom = (1.0 - f.x) * texelFetch(blend, ivec2(p0.x, p1.y), 0) + f.x * texelFetch(blend, p1, 0);
-    return (1.0 - f.y) * top + f.y * bottom;
+    return textureLod(blend, gl_FragCoord.xy * blend_xform, 0.0);
 }
 
 // The 4x4 Bayer threshold (B + 0.5) / 16 at this fragment, B = BAYER4[y % 4][x % 4] with y counted

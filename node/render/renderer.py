@@ -13,8 +13,9 @@ program for every path cost two to five times the rasterizer's CPU of the path t
 :meth:`Renderer.warm_up` compiles the common ones ahead. The uniforms' values live in the
 renderer and go to the program a draw uses, written only where they changed.
 
-Blend maps (:class:`protos.blend.BlendMaps`, :meth:`Renderer.set_blend`) live in one RGBA16F
-texture (rgb = alpha, a = beta, as the wire's float16); frames that apply the LUT are then
+Blend maps (:class:`protos.blend.BlendMaps`, :meth:`Renderer.set_blend`) live in one RGBA32F
+texture filtered by the texture unit (rgb = alpha, a = beta, the wire's float16 values; see
+:mod:`node.render.blend_texture`); frames that apply the LUT are then
 ``LUT(clamp(gain * (alpha * value + beta)))``, dithered before the 8-bit output
 (:func:`protos.spaces.blended_output` is the reference). Maps may be uploaded ahead of the frame
 that first shows them (:meth:`Renderer.load_blend`).
@@ -43,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from node.errors import NodeError
+from node.render.blend_texture import blend_texture
 from node.render.mesh import Mesh
 from node.render.yuv_textures import YuvTextures, layout_key
 from node.render.shaders import (BLACK, GREY, MIN_GL_VERSION, MIN_GLES_VERSION, RGB, YUV_PLANAR, YUV_SEMIPLANAR,
@@ -167,7 +169,7 @@ class Renderer:
         # the blend maps in use (None: none) and those uploaded ahead of use, by blend id
         self._blend: tuple[str, Any, tuple[int, int]] | None = None
         self._blend_ahead: tuple[str, Any, tuple[int, int]] | None = None
-        # bound to the blend's unit while no maps are set (never sampled then: blend_on is 0)
+        # bound to the blend's unit while no maps are set (never sampled then: no BLEND variant draws)
         self._blend_none = ctx.texture((1, 1), 4, np.array([1, 1, 1, 0], np.float16).tobytes(), dtype="f2")
         self._contents: dict[str, _Content] = {}
         # forgotten textures kept for reuse, by ((H, W, C), dtype); at most SPARE_TEXTURES
@@ -491,19 +493,7 @@ class Renderer:
             raise ValueError(f"blend maps must be a BlendMaps, got {type(maps).__name__}")
 
     def _blend_texture(self, maps: BlendMaps) -> tuple[str, Any, tuple[int, int]]:
-        w, h = maps.size
-        if w > self._max_texture or h > self._max_texture:
-            raise ValueError(f"blend maps of {w}x{h} texels exceed this GPU's {self._max_texture} per side")
-        # the wire's float16 bytes (a decoded or packed instance holds them; numpy converts float32 to
-        # float16 slowly: 13 ms for 1080p maps against under 1 ms to copy the halves)
-        alpha, beta = maps.encode()
-        data = np.empty((h, w, 4), "<f2")
-        data[:, :, :3] = np.frombuffer(alpha, "<f2").reshape(h, w, 3)
-        data[:, :, 3] = np.frombuffer(beta, "<f2").reshape(h, w)
-        tex = self.ctx.texture((w, h), 4, data, dtype="f2", alignment=1)
-        tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
-        tex.repeat_x = tex.repeat_y = False
-        return maps.blend_id, tex, (w, h)
+        return maps.blend_id, blend_texture(self.ctx, self._mgl, maps, self._max_texture), maps.size
 
     def load_blend(self, maps: BlendMaps) -> None:
         """Upload blend maps ahead of the frame that first shows them (:meth:`set_blend` then switches
@@ -551,9 +541,8 @@ class Renderer:
         return self._blend[0] if self._blend is not None else ""
 
     def _update_blend_uniforms(self) -> None:
-        """The blend's uniforms (they depend on the output size too)."""
-        w, h = self._blend[2] if self._blend is not None else (1, 1)
-        self._uniforms["blend_xform"] = (w / self._width, h / self._height, float(self._height), 0.0)
+        """The blend's uniforms (they depend on the output size only)."""
+        self._uniforms["blend_xform"] = (1.0 / self._width, 1.0 / self._height)
         self._uniforms["out_rows"] = self._height
 
     def _bind_blend(self) -> None:

@@ -80,9 +80,16 @@ def has_norm16_textures(ctx: Any) -> bool:
     return not is_gles(ctx) or "GL_EXT_texture_norm16" in ctx.extensions
 
 
+def has_float_linear(ctx: Any) -> bool:
+    """Whether float32 textures can be filtered (LINEAR): always on desktop OpenGL, on OpenGL ES
+    only with GL_OES_texture_float_linear (core GLES 3.x filters float16 only)."""
+    return not is_gles(ctx) or "GL_OES_texture_float_linear" in ctx.extensions
+
+
 def fallbacks(ctx: Any) -> tuple[str, ...]:
     """What the renderer does differently on ``ctx`` for want of a format, in a few words each."""
-    return () if has_norm16_textures(ctx) else ("16-bit content as float32",)
+    return tuple(note for ok, note in ((has_norm16_textures(ctx), "16-bit content as float32"),
+                                       (has_float_linear(ctx), "blend maps as float16")) if not ok)
 
 
 def load_shader(name: str, header: str = "") -> str:
