@@ -34,11 +34,12 @@ subtracted; the bench before 2026-12-06's evening spent ~0.4 ms per reading open
 its figures counted as the node's).
 
 Memory (``memory``): :mod:`bench.node_video_memory` in a process of its own per setting, as a
-presenter plays the video, before (planes copied, FFmpeg's choice of decoder threads, ``depth``
-frames decoded ahead whatever their size) and after (views, the node's threads, the decode-ahead's
-byte budget: :data:`node.asset_frames.AHEAD_BYTES`), each with its resident memory split into its
-parts and without llvmpipe's libraries (``rss_mb_without_software_gpu_libs``; ``rss_mb`` is the
-headline).
+presenter plays the video, before (the decoder's two threads as frame and slice threads, FFmpeg's
+"AUTO", as the node had them until 2026-12-06's late evening) and after (the node's: slice threads,
+:data:`node.asset_decode.THREAD_TYPE`), both with the planes handed over as views and the
+decode-ahead's byte budget (:data:`node.asset_frames.AHEAD_BYTES`), each with its resident memory
+split into its parts and without llvmpipe's libraries (``rss_mb_without_software_gpu_libs``;
+``rss_mb`` is the headline).
 """
 from __future__ import annotations
 
@@ -199,7 +200,7 @@ def memory(path: Path, size: tuple[int, int], content: tuple[int, int], frames: 
     from node.timeline_player import DECODE_THREADS, TimelinePlayer
 
     depth = TimelinePlayer().depth
-    settings = {"before": ["--depth", str(depth), "--threads", "0", "--copy", "--ahead-mb", "1e6"],
+    settings = {"before": ["--depth", str(depth), "--threads", str(DECODE_THREADS), "--thread-type", "AUTO"],
                 "after": ["--depth", str(depth), "--threads", str(DECODE_THREADS)]}
     out = {}
     for name, extra in settings.items():
@@ -361,7 +362,7 @@ def summary(v: dict) -> list[str]:
         f" ms and the pixels' copies and setup {s['pixels_ms']:.2f} ms",
         f"llvmpipe's rasterizer (the GPU here): {s['rasterizer_ms_per_frame']:.1f} ms of CPU per frame, "
         f"{100 * s['rasterizer_share']:.0f} % of all the CPU a frame took",
-        f"resident memory while playing: {b['rss_mb']:g} MB before, {a['rss_mb']:g} MB now (peak {a['peak_rss_mb']:g}; "
+        f"resident memory while playing: {b['rss_mb']:g} MB with frame threads (before), {a['rss_mb']:g} MB now (peak {a['peak_rss_mb']:g}; "
         f"target {m['target_rss_mb']:g}): {parts}; without llvmpipe's libraries (a GPU's driver replaces them) "
         f"{a['rss_mb_without_software_gpu_libs']:g} MB",
     ]

@@ -81,12 +81,14 @@ def _held_bytes(ahead) -> int:
 
 
 def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], frames: int, depth: int,
-            threads: int, copy: bool, ahead_bytes: int | None = None) -> dict:
+            threads: int, copy: bool, ahead_bytes: int | None = None, thread_type: str | None = None) -> dict:
     """Play ``frames`` frames of ``video`` as a presenter would, reading its memory (see the module docstring).
     ``depth``: frames decoded ahead; ``threads``: decoder threads (0: FFmpeg's choice); ``copy``:
     the planes copied out of the decoder's frames (the node before) or handed over as views;
     ``ahead_bytes``: the decode-ahead's byte budget (None: the node's,
-    :data:`node.asset_frames.AHEAD_BYTES`; the node before had none)."""
+    :data:`node.asset_frames.AHEAD_BYTES`; the node before had none); ``thread_type``: how the
+    decoder's threads share the work (None: the node's, :data:`node.asset_decode.THREAD_TYPE`;
+    "AUTO", frame and slice threads, before 2026-12-06's late evening)."""
     r0 = rss_mb()
     import numpy as np
 
@@ -126,6 +128,10 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         r.set_homography(np.array([[scale, 0.02, 3.0], [-0.01, scale, 2.0], [1e-6, 2e-6, 1.0]]), (cw, ch))
         r.set_lut(lut)
         node_yuv.COPY_PLANES = copy
+        import node.asset_decode
+
+        if thread_type is not None:
+            node.asset_decode.THREAD_TYPE = thread_type
         if ahead_bytes is not None:
             import node.asset_frames
 
@@ -163,7 +169,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     software_gpu = software_gpu_mb()
     decoder_and_queue = r_decoder - r_warm
     return {
-        "settings": {"depth": depth, "threads": threads, "planes": "copied" if copy else "views of the decoder's frames",
+        "settings": {"depth": depth, "threads": threads, "thread_type": node.asset_decode.THREAD_TYPE, "planes": "copied" if copy else "views of the decoder's frames",
                      "ahead_mb": round((ahead_bytes if ahead_bytes is not None else _node_ahead_bytes()) / 2**20, 1)},
         "rss_mb": round(statistics.median(steady), 1), "peak_rss_mb": round(max(rss_mb("VmHWM"), *steady), 1),
         # of the resident memory at the end: the process's own (heap, buffers) and the files it maps
@@ -200,11 +206,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--copy", action="store_true")
     p.add_argument("--ahead-mb", type=float, default=None,
                    help="the decode-ahead's byte budget in MB (default: the node's; the node before had none)")
+    p.add_argument("--thread-type", choices=("SLICE", "FRAME", "AUTO"), default=None,
+                   help="how the decoder's threads share the work (default: the node's)")
     a = p.parse_args(argv)
     size = tuple(int(v) for v in a.size.split("x"))
     content = tuple(int(v) for v in a.content.split("x"))
     print(json.dumps(measure(a.video, size=size, content=content, frames=a.frames, depth=a.depth, threads=a.threads,
-                             copy=a.copy, ahead_bytes=None if a.ahead_mb is None else int(a.ahead_mb * 2**20))))
+                             copy=a.copy, ahead_bytes=None if a.ahead_mb is None else int(a.ahead_mb * 2**20),
+                             thread_type=a.thread_type)))
     return 0
 
 

@@ -14,7 +14,8 @@ RGB(A) order. How each kind of file is read:
 * **JPEG, TIFF** -- PyAV, through FFmpeg's ``jpeg_pipe`` / ``tiff_pipe`` demuxers (a cached blob
   has no file suffix, so the demuxer is named from the blob's original name).
 * **.npy** -- ``numpy.load(mmap_mode="r")`` then a copy: float32 ``(H, W)`` or ``(H, W, C)``.
-* **Video** -- :class:`VideoDecoder`: PyAV, frame threads, sequential decoding, seeking for jumps;
+* **Video** -- :class:`VideoDecoder`: PyAV, slice threads (:data:`THREAD_TYPE`), sequential
+  decoding, seeking for jumps;
   the decoder chosen by :mod:`node.decoders` (hardware where it opens, else software). With
   ``yuv`` an RGB video's frames are handed over as the decoder's planes
   (:class:`protos.yuv.YuvFrame`, :mod:`node.yuv`), which the renderer converts in its shader,
@@ -58,6 +59,14 @@ __all__ = ["DecodeError", "VideoDecoder", "content_dtype", "decode_image", "fram
 # blob suffix -> FFmpeg demuxer (a cached blob's path has no suffix to guess from)
 _IMAGE_DEMUXERS = {".png": "png_pipe", ".jpg": "jpeg_pipe", ".jpeg": "jpeg_pipe", ".tif": "tiff_pipe",
                    ".tiff": "tiff_pipe"}
+#: how a video decoder's threads share a stream's work (FFmpeg's ``thread_type``): "SLICE", the
+#: slices of one picture, so no thread holds a picture of its own. Frame threads ("FRAME", "AUTO")
+#: decode pictures side by side, each thread keeping a picture in flight and a copy of the decoder's
+#: state: 12 MB more resident at 1080p with two threads, for the same CPU per frame
+#: (bench/node_video_memory.py). A stream of one slice per picture (x264's default) then decodes
+#: on one thread: 3.5 ms per 1080p frame on this project's x86 machine, well within a 30 fps
+#: period; a small board decodes in hardware (node/decoders.py)
+THREAD_TYPE = "SLICE"
 _EOF_SLACK = 2   # frames a stream may fall short of its manifest's count (then its last frame is held)
 _VIDEO_DEMUXERS = {".mp4": "mov", ".mov": "mov", ".mkv": "matroska", ".avi": "avi"}
 # (channels, sample depth) -> swscale output format
@@ -302,7 +311,7 @@ class VideoDecoder:
                 self._ctx = ctx
             except Exception as exc:   # noqa: BLE001 - it opened when probed: say so, use software
                 self._software(f"{self.choice.name} failed on this stream ({exc})", stream.codec_context.name)
-        stream.codec_context.thread_type = "AUTO"      # frame + slice threads
+        stream.codec_context.thread_type = THREAD_TYPE
         stream.codec_context.thread_count = self._threads
         rate = self._rate_hint or stream.average_rate or stream.guessed_rate
         if not rate or stream.time_base is None:

@@ -47,10 +47,11 @@ QUIET_BEFORE_NS = 8_000_000
 QUIET_AFTER_NS = 1_000_000
 #: ticks reported late at most at once (after a long stall)
 MAX_SKIPPED_REPORTS = 120
-#: a video's decoder threads (FFmpeg's frame and slice threads). Each frame thread holds a picture
-#: in flight and a context of its own: FFmpeg's choice (one per core, plus one) cost 13 MB more than
-#: two at 1080p on 2 cores, more on a 4-core board, for no more CPU; decoding ahead
-#: (DecodeAhead) needs throughput, which two threads give (bench/node_video_memory.py)
+#: a video's decoder threads, slice threads (:data:`node.asset_decode.THREAD_TYPE`): they share
+#: the slices of one picture, so a stream cut in slices decodes on two threads and one of a single
+#: slice on one, with no picture held per thread. Frame threads held a picture in flight and a
+#: decoder's state each: 12 MB more at 1080p with two threads (FFmpeg's choice, one per core plus
+#: one, 25 MB more), for the same CPU per frame (bench/node_video_memory.py)
 DECODE_THREADS = 2
 
 
