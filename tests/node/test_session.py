@@ -2,20 +2,23 @@
 
 The clock-id rule (an estimate survives a coordinator restart on the same rig clock, never a new
 clock), the handshake's proofs both ways (and the random-proof Join that tells an untrusted
-coordinator why it is not joined), and the clock a heartbeat carries. A real coordinator restarted
+coordinator why it is not joined), the clock a heartbeat carries, and the assignment a rejoin sends
+again, which the presenter is not given twice. A real coordinator restarted
 under both the node's and the swarm's cores is tests/shadowless/test_swarm.py's.
 """
 from __future__ import annotations
 
 import asyncio
 
+import numpy as np
 import pytest
 
 from node.clock import ClockSample, LocalClock
 from node.errors import CoordinatorNotTrusted
-from node.records import HelloReply, JoinReply, NodeInfo, PingReply
+from node.records import HelloReply, JoinReply, NodeAssignment, NodeInfo, PingReply
 from node.session import SessionCore
 from protos import auth
+from protos.blend import BlendMaps
 
 TOKEN = b"t" * 32
 RIG = "rig-1"
@@ -118,3 +121,34 @@ def test_pings_build_the_estimate_a_heartbeat_carries():
     assert abs(status.offset_ns - OFFSET_NS) < 50_000_000       # the scripted clock's lead, within the round trip
     assert abs(c.rig_time(host) - status.rig_estimate_ns) <= 1
     assert abs(c.host_time(status.rig_estimate_ns) - host) <= 1
+
+
+def assignment(revision: int, *, gain: float = 1.0, blend: BlendMaps | None = None, blend_at_ns: int = 0):
+    return NodeAssignment(revision=revision, slot="r0c0", width=64, height=48, pose_kind="homography",
+                          homography=np.eye(3), projection=None, mesh=None, near_mm=100.0, far_mm=1e4, lut=None,
+                          gain=gain, content_size=(64, 48), blend=blend, blend_at_ns=blend_at_ns,
+                          received_host_ns=revision)
+
+
+def maps(level: float) -> BlendMaps:
+    return BlendMaps(np.full((4, 6, 3), level, np.float32), np.zeros((4, 6), np.float32))
+
+
+def test_an_assignment_equal_but_for_its_revision_is_not_passed_again_and_reported_under_its_new_number():
+    c = core()
+    c.adopt(reply("i1", "monotonic:boot"))
+    assert c.assignment_revision(0) == 0                          # the presenter holds nothing yet
+    assert c.assignment_news(assignment(3, blend=maps(0.5), blend_at_ns=7))
+    assert c.assignment_revision(3) == 3
+    c.adopt(reply("i2", "monotonic:boot"))                        # restarted on its host
+    assert c.assignment_revision(3) == 0                          # r3 was the old instance's number
+    assert not c.assignment_news(assignment(1, blend=maps(0.5), blend_at_ns=7))   # the same, renumbered
+    assert c.assignment_revision(3) == 1                          # what the presenter holds is r1 now
+    for changed in (assignment(2, gain=0.9, blend=maps(0.5), blend_at_ns=7),
+                    assignment(3, blend=maps(0.25), blend_at_ns=7),
+                    assignment(4, blend=maps(0.25), blend_at_ns=9),
+                    assignment(5)):
+        assert c.assignment_news(changed), changed.revision       # any other change goes to the presenter
+    assert c.assignment_revision(5) == 5 and c.assignment_revision(4) == 4
+    c.adopt(reply("i3", "instance:i3"))                           # another rig clock: everything is passed
+    assert c.assignment_news(assignment(1))
