@@ -116,6 +116,9 @@ class Presenter:
     #: while a rendered frame waits for its time, blend switches are taken until this long (plus the
     #: longest recent frame's work until ready to swap) before it: what rendering it again needs
     REDRAW_MARGIN_NS = 3_000_000
+    #: a still is rendered again with new blend maps this long before their instant at the earliest, and
+    #: held in the back buffer until it (messages meanwhile wait, as while a frame waits for its time)
+    BLEND_EARLY_NS = 150_000_000
 
     def __init__(self, *, slot: str, output: Output, clock: PresenterClock,
                  report: Callable[[str, object], None], realtime: bool = True):
@@ -445,9 +448,15 @@ class Presenter:
         return None if when is None else when[0] - self._blend_lead_ns() + self.PREPARE_NS
 
     def _blend_lead_ns(self) -> int:
-        """How long before a blend's instant the frame on screen is rendered again: PREPARE_NS, or twice
-        the longest recent frame's work when that is longer (a 1080p frame on a slow GPU)."""
-        return max(self.PREPARE_NS, 2 * max(self._work_ns, default=0))
+        """How long before a blend's instant the frame on screen is rendered again: on a still, as soon as
+        the maps are known (at most BLEND_EARLY_NS ahead), so that nodes sharing cores render in turn
+        during the whole lead, not all in its last moment; else PREPARE_NS, or twice the longest recent
+        frame's work when that is longer (a 1080p frame on a slow GPU)."""
+        lead = max(self.PREPARE_NS, 2 * max(self._work_ns, default=0))
+        stream = self._stream_next_ns
+        if stream is None or stream + self.STILL_AFTER_NS <= self.clock.now():   # no stream due: a still
+            lead = max(lead, self.BLEND_EARLY_NS)
+        return lead
 
     def _blend_step(self) -> None:
         """Show the frame on screen again with the next maps, swapped in at their instant (or at once,

@@ -83,3 +83,24 @@ def test_maps_that_come_after_their_instant_are_shown_at_once_and_say_they_were_
     assert when > at and rig.status.blend_since_rig_ns == when
     line = re.search(r"timing instant=(\d+) .* ready=(\d+) swapped=(\d+)", caplog.text)
     assert line is not None and int(line.group(2)) > int(line.group(1)), "ready after the instant: late"
+
+
+def test_a_still_is_rendered_again_as_soon_as_its_maps_arrive_and_held_until_their_instant(rig):
+    """Nodes that share cores render in turn: a still's redraw starts when the maps arrive (up to
+    BLEND_EARLY_NS ahead), not PREPARE_NS before the instant, so the last in the queue is still on time."""
+    rig.out = rig.p.out = Recording(rig.host, rig.rig_now, slot="r0c0", keep_last=True)
+    rig.out.prepare_ns = 5 * MS
+    rig.frame(1, rig.rig_now() + 20 * MS)
+    m = maps(13)
+    arrived = rig.rig_now()
+    at = arrived + 120 * MS                          # a failover's lead: more than PREPARE_NS
+    rig.p.handle("assignment", assignment(2, m, at))
+    swaps_before = len(rig.out.swaps)
+    wait = rig.p.timeline_wait()
+    assert wait == 0, f"the redraw waits {wait * 1e3:.1f} ms after the maps arrived"
+    rig.p.timeline_step()
+    new = rig.out.swaps[swaps_before:]
+    assert [when for when, _ in new] == [at], "swapped in once, at the instant"
+    close(new[0][1], blended(m))
+    assert rig.out.ready[-1] - arrived <= 5 * MS < at - rig.out.ready[-1], "ready as soon as the maps came"
+    assert rig.p.timeline_wait() is None and rig.status.blend_since_rig_ns == at

@@ -130,7 +130,7 @@ def test_a_still_is_shown_again_with_the_maps_at_their_instant(rig):
     rig.p.handle("assignment", assignment(2, m, at))
     assert rig.out.last_info is before, "maps due later: the frame is not shown again before their instant"
     wait = rig.p.timeline_wait()
-    assert wait is not None and wait == pytest.approx(0.25)        # 50 ms ahead of the instant
+    assert wait is not None and wait == pytest.approx(0.3 - Presenter.BLEND_EARLY_NS / 1e9)   # rendered early
     rig.p.timeline_step()                                          # too early: nothing happens
     assert (rig.shown() == blended(None)).all() and rig.status.blend_id == ""
     rig.host.t += int(wait * 1e9)
