@@ -11,7 +11,9 @@ solved again elsewhere, to the same bytes; when every worker is killed, the scat
 source are lost with them and sent again, to the same bytes; a cancelled cluster run resumes without solving its
 finished segments again; without ``distributed`` the job fails with one line naming the extra.
 
-The module's tests share one calibrated rig and one cluster, and run in file order."""
+The module's tests share one calibrated rig, one local run of 12-frame segments (the bytes the kill
+tests' runs must give) and one cluster; each test starts and ends with both workers running, so the
+tests pass alone and in any order."""
 from __future__ import annotations
 
 import asyncio
@@ -23,6 +25,7 @@ import time
 from fractions import Fraction
 
 import av
+import dask
 import numpy as np
 import pytest
 
@@ -36,7 +39,7 @@ from node.asset_decode import VideoDecoder, video_demuxer
 from shadowless.room_driver import RoomDriver
 from sim.room import Room
 from sim.scene import reference_scene
-from waits import wait_until_async
+from waits import wait_until, wait_until_async
 
 distributed = pytest.importorskip("distributed")
 
@@ -45,6 +48,8 @@ CONTENT = (160, 80)
 RATE = Fraction(24000, 1001)
 FRAMES = 24
 SOURCE = (192, 96)
+#: a restarted worker is back in 2-4 s at load 9 on 2 cores, 10 s on a slowed host: the deadline is for a hang
+RESTART_S = 180.0
 # a segment's cold start: 10 iterations (not the job's default) are plenty here, where what is checked is that
 # a cluster run gives the bytes of a local one, not how well a frame converges
 SOLVE = {"iterations": 3, "first_iterations": 10}
@@ -99,12 +104,47 @@ def setup(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def cluster():
+def local_12(setup) -> str:
+    """The SHA-256 of a single-machine run of 12-frame segments (the asset "local 12"), which the
+    cluster runs of the kill and resume tests must give."""
+    rig, driver, _ = setup
+    run(driver, {"asset": "clip", **SOLVE, "segment_frames": 12, "name": "local 12"})
+    return sha(AssetStore(rig.path), "local 12")
+
+
+@pytest.fixture(scope="module")
+def local_cluster():
     # Dask's offload thread lives as long as the process: started here, not inside a test
     distributed.utils._offload_executor.submit(lambda: None).result()
-    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, host="127.0.0.1",
-                                  dashboard_address=None) as c, distributed.Client(c) as client:
+    # A LocalCluster closes a worker's nanny for good when no worker of its name is back
+    # lost-worker-timeout (15 s) after a death, and that timer is not cancelled when the worker
+    # comes back: a worker killed by one test, back, then killed again by the next test had its
+    # nanny closed while it was restarting on a slowed host (only 1 of 2 workers ever came back).
+    # The nannies restart their workers; nothing here should give up on them.
+    with dask.config.set({"distributed.deploy.lost-worker-timeout": "1 hour"}), \
+            distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, host="127.0.0.1",
+                                     dashboard_address=None) as c, distributed.Client(c) as client:
         yield c, client
+
+
+def both_workers_running(lc, client) -> None:
+    """Wait for the cluster's 2 workers to run (a killed one is restarted by its nanny); on the
+    deadline, say what the scheduler and the nannies were doing."""
+    def seen() -> dict:
+        workers = client.scheduler_info(n_workers=-1)["workers"].values()
+        return {"running": sorted(str(w["name"]) for w in workers if w["status"] == "running"),
+                "nannies": {str(name): f"{n.status.name}, worker process {'alive' if n.is_alive() else 'gone'}"
+                            for name, n in lc.workers.items()}}
+    wait_until(seen, lambda s: len(s["running"]) == 2, what="both Dask workers running", timeout=RESTART_S)
+
+
+@pytest.fixture
+def cluster(local_cluster):
+    """The module's cluster with both workers running, before the test and after it (a killed
+    worker's restart belongs to the test that killed it)."""
+    both_workers_running(*local_cluster)
+    yield local_cluster
+    both_workers_running(*local_cluster)
 
 
 def test_segments_cut_every_n_frames():
@@ -173,7 +213,7 @@ def run_killing(driver: RoomDriver, client, params: dict, *, every: bool = False
 
 
 @pytest.mark.allow_leaks   # the restarted worker belongs to the module's cluster
-def test_a_worker_killed_mid_segment_is_replaced_and_its_segment_solved_again(setup, cluster):
+def test_a_worker_killed_mid_segment_is_replaced_and_its_segment_solved_again(setup, cluster, local_12):
     rig, driver, _ = setup
     lc, client = cluster
     store = AssetStore(rig.path)
@@ -182,13 +222,11 @@ def test_a_worker_killed_mid_segment_is_replaced_and_its_segment_solved_again(se
     assert killed, "no worker reported a frame"
     assert out["cluster"]["segments_retried"] >= 1, out["cluster"]
     assert killed[0] not in out["cluster"]["per_worker"]   # its segment was delivered by another
-    run(driver, {**params, "name": "local 12"})
-    assert sha(store, "survived") == sha(store, "local 12")
-    client.wait_for_workers(2, timeout=60)   # the nanny restarted it, for the next test
+    assert sha(store, "survived") == local_12
 
 
 @pytest.mark.allow_leaks   # the restarted workers belong to the module's cluster
-def test_inputs_lost_with_every_worker_are_sent_again_and_the_run_finishes(setup, cluster):
+def test_inputs_lost_with_every_worker_are_sent_again_and_the_run_finishes(setup, cluster, local_12):
     rig, driver, _ = setup
     lc, client = cluster
     store = AssetStore(rig.path)
@@ -199,11 +237,10 @@ def test_inputs_lost_with_every_worker_are_sent_again_and_the_run_finishes(setup
     lines = [e for e in driver.events if isinstance(e, str) and "inputs were lost with a worker" in e]
     assert lines and all("sending L and the source again" in e for e in lines), driver.events
     assert not set(killed) & set(out["cluster"]["per_worker"])   # every segment came from a restarted worker
-    assert sha(store, "lost inputs") == sha(store, "local 12")   # (made by the test above)
-    client.wait_for_workers(2, timeout=60)
+    assert sha(store, "lost inputs") == local_12
 
 
-def test_a_cancelled_cluster_run_resumes_without_solving_its_finished_segments(setup, cluster):
+def test_a_cancelled_cluster_run_resumes_without_solving_its_finished_segments(setup, cluster, local_12):
     rig, driver, _ = setup
     lc, _ = cluster
     store = AssetStore(rig.path)
@@ -230,7 +267,7 @@ def test_a_cancelled_cluster_run_resumes_without_solving_its_finished_segments(s
     assert c["segments"] == 2 and sum(w["frames"] for w in c["per_worker"].values()) == FRAMES
     assert c["per_worker"]["(earlier run)"] == {"segments": 1, "frames": 12, "solve_s": pytest.approx(
         c["per_worker"]["(earlier run)"]["solve_s"])}
-    assert sha(store, "resumed") == sha(store, "local 12")   # (made by the test above)
+    assert sha(store, "resumed") == local_12
 
 
 def test_without_distributed_the_job_names_the_extra(setup, monkeypatch):
