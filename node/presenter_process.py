@@ -13,16 +13,25 @@ cross the pipe); out, ``("ready", (size, gl_info))``,
 ``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)``,
 ``("drop", DropRecord)``, ``("preview", PreviewRecord)`` (a console thumbnail, when asked) and
 ``("alive", None)`` (every second while its loop runs).
+
+The process is started as ``python -c ...`` with the two pipes' ends passed as file descriptors
+(:func:`child_main`), not through :mod:`multiprocessing`'s spawn: that also starts its resource
+tracker, a third Python process per node (13 MB resident) that the presenter never uses. The
+settings are the pipe's first message. When the node process ends, however it ends, its end of
+the pipe closes and the presenter's loop stops (EOF), as a daemon process of :mod:`multiprocessing`
+did.
 """
 from __future__ import annotations
 
 import fcntl
 import logging
-import multiprocessing
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
+from multiprocessing.connection import Connection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -121,6 +130,18 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
         p.close()
 
 
+def child_main() -> None:
+    """The presenter process's entry point: ``python -c`` calls it with its two pipe ends'
+    descriptors (in, out) as arguments; the settings are the first message in."""
+    fd_in, fd_out = (int(v) for v in sys.argv[1:3])
+    conn_in, conn_out = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
+    try:
+        settings = conn_in.recv()
+    except EOFError:     # the node process is gone
+        return
+    presenter_main(conn_in, conn_out, settings)
+
+
 def _grow_pipe(fd: int, want: int = 8 * 2**20) -> None:
     """Make a pipe's kernel buffer as large as allowed (default 64 KiB holds one small frame)."""
     try:
@@ -140,11 +161,12 @@ class PresenterProcess:
     """
 
     def __init__(self, settings: PresenterSettings):
-        ctx = multiprocessing.get_context("spawn")
-        child_in, self._to_child = ctx.Pipe(duplex=False)      # (reader, writer)
-        self._from_child, child_out = ctx.Pipe(duplex=False)
-        self._process = ctx.Process(target=presenter_main, args=(child_in, child_out, settings),
-                                    name=f"presenter-{settings.slot}", daemon=True)
+        from multiprocessing import Pipe
+
+        child_in, self._to_child = Pipe(duplex=False)      # (reader, writer)
+        self._from_child, child_out = Pipe(duplex=False)
+        self._settings = settings
+        self._process: subprocess.Popen | None = None
         self._child_ends = (child_in, child_out)
         _grow_pipe(self._to_child.fileno())
         _grow_pipe(self._from_child.fileno())   # the presenter's reports never wait for the (lower-priority) node side
@@ -159,9 +181,25 @@ class PresenterProcess:
         self._alive_at = time.monotonic()
 
     def start(self) -> None:
-        self._process.start()
+        child_in, child_out = self._child_ends
+        # the node's own package first on the path, wherever the node process was started from
+        root = str(Path(__file__).resolve().parent.parent)
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
+        self._process = subprocess.Popen(
+            [sys.executable, "-c", "from node.presenter_process import child_main; child_main()",
+             str(child_in.fileno()), str(child_out.fileno())],
+            pass_fds=(child_in.fileno(), child_out.fileno()), env=env, stdin=subprocess.DEVNULL)
         for end in self._child_ends:
             end.close()
+        try:
+            self._to_child.send(self._settings)     # the pipe's first message (child_main)
+        except (OSError, ValueError):
+            self.failed = "the presenter process exited"
+
+    @property
+    def pid(self) -> int | None:
+        """The presenter process's id (None before :meth:`start`)."""
+        return self._process.pid if self._process is not None else None
 
     def submit(self, kind: str, payload=None) -> None:
         """Send to the presenter. The pipe is grown to megabytes so this does not block
@@ -220,19 +258,28 @@ class PresenterProcess:
         while not self._ready.is_set() and time.monotonic() < deadline:
             if self._from_child.poll(0.1):
                 self._readable()
-            elif not self._process.is_alive():
-                self.failed = self.failed or f"the presenter process exited with {self._process.exitcode}"
+            elif not self._running():
+                self.failed = self.failed or f"the presenter process exited with {self._process.returncode}"
                 break
         return self._ready.is_set() and self.failed is None
 
     def is_alive(self) -> bool:
-        return self._process.is_alive() and self.failed is None
+        return self._running() and self.failed is None
+
+    def _running(self) -> bool:
+        return self._process is not None and self._process.poll() is None
 
     def stop(self, timeout: float = 5.0) -> None:
         self.submit("stop")
-        self._process.join(timeout)
-        if self._process.is_alive():
-            self._process.terminate()
-            self._process.join(2.0)
+        if self._process is not None:
+            try:
+                self._process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self._process.terminate()
+                try:
+                    self._process.wait(2.0)
+                except subprocess.TimeoutExpired:
+                    self._process.kill()
+                    self._process.wait()
         self._to_child.close()
         self._from_child.close()

@@ -44,10 +44,10 @@ def _frozen_silence(s: socket.socket, pid: int) -> list[str]:
 
 
 def _presenter_of(pid: int) -> int:
-    """The node's presenter: its child started by multiprocessing's spawn (not the resource tracker)."""
+    """The node's presenter: its child started by node.presenter_process (child_main)."""
     for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
         cmd = Path(f"/proc/{child}/cmdline").read_bytes().replace(b"\0", b" ")
-        if b"spawn_main" in cmd:
+        if b"child_main" in cmd:
             return int(child)
     raise AssertionError(f"no presenter process under {pid}")
 
