@@ -27,7 +27,8 @@ Three shows, one after the other, on the venue :mod:`bench.venue` built and dist
   (SIGKILL) and started again on the same rig directory ``OUTAGE_S`` later. ``frames_missed``:
   over every node, the ticks from 1 s before the kill to ``AFTER_REJOIN_S`` after every node was
   live again that the node did not swap in (from the nodes' logs: whatever the cause, a late drop
-  under load included); ``ticks_swapped_alone``: the ticks each node swapped while no coordinator
+  under load included), ``frames_missed_late_drops`` the part of them each node logged as late drops
+  (its frame was not ready in time; the rest it neither swapped nor dropped); ``ticks_swapped_alone``: the ticks each node swapped while no coordinator
   ran; ``out_of_order``: swaps whose id was not above the node's previous one; ``alone_ms``: how
   long each node says it went on alone (its heartbeat); ``skew_p99_ms_after``: the restarted
   coordinator's skew over the ticks after it started, beside the first show's
@@ -372,7 +373,7 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     last = tick_at(live_ns + int(times.after_rejoin_s * 1e9)) - 1
     window = range(first, last + 1)
     outage = range(tick_at(kill_ns), tick_at(back_ns))
-    missed, out_of_order, alone_ticks, phases, stages, after_join = {}, 0, {}, {}, {}, {}
+    missed, out_of_order, alone_ticks, phases, stages, after_join, late = {}, 0, {}, {}, {}, {}, {}
     for s in rig.slots:
         text = rig.log("node-" + s)[logs[s]:]
         ids = [int(m.group(1)) for m in SWAP.finditer(text)]
@@ -380,6 +381,10 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         got = set(ids)
         lost = [t for t in window if t not in got]
         missed[s] = len(lost)
+        # of those, the ticks the node itself dropped as late (its frame was not ready in time: CPU),
+        # the others it never swapped nor dropped (nothing scheduled them)
+        dropped_late = {int(m.group(1)) for m in LATE.finditer(text)}
+        late[s] = sum(1 for t in lost if t in dropped_late)
         alone_ticks[s] = sum(1 for t in outage if t in got)
         # where the missed ticks fall: before the kill, while no coordinator ran, after its restart
         phases[s] = {"before_kill": sum(1 for t in lost if t < outage.start),
@@ -399,6 +404,7 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         "ticks_in_window": len(window),
         "frames_missed": sum(missed.values()),
         "frames_missed_by_node": missed,
+        "frames_missed_late_drops": late,
         "frames_missed_by_phase": phases,
         "missed_around_join": after_join,
         "rejoin_stages_ms": stages,

@@ -124,6 +124,7 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
         phases, around = cr["frames_missed_by_phase"][s], cr["missed_around_join"][s]
         assert sum(phases.values()) == cr["frames_missed_by_node"][s]
         assert sum(around.values()) == phases["after_restart"]
+        assert 0 <= cr["frames_missed_late_drops"][s] <= cr["frames_missed_by_node"][s]
         steps = cr["rejoin_stages_ms"][s]
         assert 0 < steps["joined"] <= steps["clock"] and steps["joined"] <= steps["wanted"]
         assert "assignment" not in steps and "show" not in steps     # nothing changed: nothing re-applied
