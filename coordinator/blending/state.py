@@ -19,9 +19,11 @@ with the maps (its heartbeat), and a switch that some node showed more than :dat
 its instant (it received the maps, or had its frame rendered again, too late) makes the next switch's
 lead that switch's lead plus the latest node's delay, at most the content's latency budget (rig.toml's
 ``latency_ms``, what a frame is given to reach every projector); each switch every node showed in time
-gives back a part of it (:data:`LEARNED_DECAY`). A rig whose nodes are quick keeps the short lead.
-The blend job's own push, at once to every node, teaches the first such failover: how far apart the
-nodes put that same redraw on screen. While a show plays, each node renders its ticks anyway and a
+makes the next lead a part (:data:`LEARNED_DECAY`) shorter than its own. A rig whose nodes are quick
+keeps the short lead, and a lead longer than the nodes need shrinks: it would only delay the new maps,
+since a node that is late shows them as soon as it has them whatever the lead. The blend job's own
+push, at once to every node, teaches the first such failover: how far apart the nodes put that same
+redraw on screen; the first switch of a still then teaches in its place. While a show plays, each node renders its ticks anyway and a
 switch costs it no redraw of its own: the lead is the maps' own, and a show's late ticks (the CPU's,
 not the lead's) teach nothing.
 A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
@@ -441,13 +443,15 @@ class BlendState:
         if not heard:
             return
         self.last_late_ns = late
+        # the nodes' own switch says more than the blend job's push did: from now on it alone teaches
+        self.redraw_lead_ns = 0
+        cap = int(float(self.rig.config.latency_ms) * 1e6)
         if late > LATE_SLACK_NS:
-            self.learned_lead_ns = lead + late
+            self.learned_lead_ns = min(lead + late, cap)
             log.info("blend: the last switch reached the last node's screen %.0f ms after its instant; the next "
-                     "switches lead by up to %.0f ms", late / 1e6, min(self.learned_lead_ns,
-                                                                        self.rig.config.latency_ms * 1e6) / 1e6)
-        else:
-            self.learned_lead_ns = int(self.learned_lead_ns * (1.0 - LEARNED_DECAY))
+                     "switches lead by up to %.0f ms", late / 1e6, self.learned_lead_ns / 1e6)
+        else:       # in time: give back a part of the lead it had (a lead longer than needed only delays)
+            self.learned_lead_ns = int(lead * (1.0 - LEARNED_DECAY))
 
     # ------------------------------------------------------------------ status
     def status(self) -> BlendStatus:

@@ -63,16 +63,16 @@ def test_a_late_switch_lengthens_the_next_lead_within_the_latency_budget_and_a_t
         sessions["left"].closed = True
         state.node_lost("left")
         await state.settled()
-        assert state.learned_lead_ns == lead + 45 * MS and state.last_late_ns == 45 * MS
+        assert state.learned_lead_ns == min(lead + 45 * MS, 40 * MS) and state.last_late_ns == 45 * MS
         assert state.last_lead_ns == 40 * MS, "at most the latency budget"
         at = now[0] + state.last_lead_ns
-        show(at, {})                               # every node in time
+        show(at, {})                               # every node in time: the next lead is a part shorter
         now[0] += 10**9
         sessions["left"] = Session()
         state.node_live("left")
         await state.settled()
-        assert state.learned_lead_ns == int((lead + 45 * MS) * (1 - LEARNED_DECAY))
-        assert state.last_lead_ns == 40 * MS
+        assert state.learned_lead_ns == int(40 * MS * (1 - LEARNED_DECAY))
+        assert state.last_lead_ns == max(state.last_lead_parts["auto"], int(40 * MS * (1 - LEARNED_DECAY)))
         # a node that never showed the switch's maps is as late as now
         at = now[0] + state.last_lead_ns
         show(at, {})
@@ -139,6 +139,14 @@ def test_the_blend_jobs_push_teaches_the_first_failover_how_far_apart_the_nodes_
         await state.settled()
         assert state.learned_lead_ns == 0, "a switch during a show teaches nothing"
         assert state.last_lead_ns == 40 * MS, "a still's switch leads by what the job's push showed (capped)"
+        at = now[0] + state.last_lead_ns
+        for s in SLOTS:                            # every node showed that switch in time
+            sessions[s] = Session(rig.slot(s).blend.blend_id, at)
+        now[0] += 10**9
+        state.node_lost("right")
+        await state.settled()
+        assert state.redraw_lead_ns == 0, "the nodes' own switch teaches from now on, not the job's push"
+        assert state.last_lead_ns == max(state.last_lead_parts["auto"], int(40 * MS * (1 - LEARNED_DECAY)))
         state.close()
 
     asyncio.run(go())
