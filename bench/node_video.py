@@ -39,7 +39,11 @@ presenter plays the video, before (the decoder's two threads as frame and slice 
 :data:`node.asset_decode.THREAD_TYPE`), both with the planes handed over as views and the
 decode-ahead's byte budget (:data:`node.asset_frames.AHEAD_BYTES`), each with its resident memory
 split into its parts and without llvmpipe's libraries (``rss_mb_without_software_gpu_libs``;
-``rss_mb`` is the headline).
+``rss_mb`` is the headline). A node is two processes: the presenter (measured above) and the node
+process (network, session, cache), measured apart in a real ``shadowless node`` that is told of no
+reachable coordinator (``node_processes``: each process's ``rss_mb``, ``anon_mb`` and ``pss_mb``);
+``node_total_mb`` adds the node process to the presenter playing: ``rss_sum`` counts twice the
+library pages both map, ``at_least`` adds only the node process's own heap.
 """
 from __future__ import annotations
 
@@ -197,6 +201,7 @@ def fixed_cost(frames: int = 60) -> float:
 
 def memory(path: Path, size: tuple[int, int], content: tuple[int, int], frames: int) -> dict:
     """:mod:`bench.node_video_memory` before and after, each in a process of its own."""
+    from bench.node_video_memory import node_processes
     from node.timeline_player import DECODE_THREADS, TimelinePlayer
 
     depth = TimelinePlayer().depth
@@ -213,6 +218,14 @@ def memory(path: Path, size: tuple[int, int], content: tuple[int, int], frames: 
         out[name] = json.loads(done.stdout.strip().splitlines()[-1])
     out["rss_mb_after_vs_before"] = round(out["after"]["rss_mb"] - out["before"]["rss_mb"], 1)
     out["target_rss_mb"] = 150.0
+    _say("memory: a real node's processes (not joined, idle)")
+    procs = node_processes()
+    node = procs["node_process"]
+    out["node_processes"] = procs
+    # the whole node while it plays: the presenter's figure plus the node process's. The plain sum
+    # counts twice the library pages both map; the node process's own heap (anon) is the least it adds
+    out["node_total_mb"] = {"rss_sum": round(out["after"]["rss_mb"] + node["rss_mb"], 1),
+                            "at_least": round(out["after"]["rss_mb"] + node["anon_mb"], 1)}
     return out
 
 
@@ -365,4 +378,7 @@ def summary(v: dict) -> list[str]:
         f"resident memory while playing: {b['rss_mb']:g} MB with frame threads (before), {a['rss_mb']:g} MB now (peak {a['peak_rss_mb']:g}; "
         f"target {m['target_rss_mb']:g}): {parts}; without llvmpipe's libraries (a GPU's driver replaces them) "
         f"{a['rss_mb_without_software_gpu_libs']:g} MB",
+        f"the whole node while playing, with its node process ({m['node_processes']['node_process']['rss_mb']:g} MB,"
+        f" {m['node_processes']['processes']} processes in all): {m['node_total_mb']['at_least']:g} to"
+        f" {m['node_total_mb']['rss_sum']:g} MB",
     ]

@@ -30,8 +30,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
+import socket
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -187,6 +192,67 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
                      "playing": round(statistics.median(steady) - r_textures, 1)},
         "frames": frames, "fps_reached": round(frames / seconds, 1),
     }
+
+
+def _process_memory(pid: int) -> dict:
+    """Resident memory of process ``pid``: ``rss_mb`` (VmRSS), ``anon_mb`` (RssAnon) and ``pss_mb`` (its
+    proportional share: a page mapped by n processes counts 1/n; /proc/PID/smaps_rollup)."""
+    out = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        if key in ("VmRSS", "RssAnon"):
+            out["rss_mb" if key == "VmRSS" else "anon_mb"] = round(int(value.split()[0]) / 1024, 1)
+    for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+        if line.startswith("Pss:"):
+            out["pss_mb"] = round(int(line.split()[1]) / 1024, 1)
+    return out
+
+
+def node_processes(timeout: float = 300.0) -> dict:
+    """The processes of a real node (``shadowless node``, offscreen, told of a coordinator that is not
+    there, so it never joins) once it said READY (its presenter made its context and warmed up):
+    how many there are and each one's memory (:func:`_process_memory`). The node process (network,
+    session, cache) does not decode or draw, so its memory is what it adds to the presenter's."""
+    from protos import auth
+
+    with tempfile.TemporaryDirectory(prefix="bench-node-processes-") as tmp:
+        token = Path(tmp) / "token"
+        token.write_text(auth.new_token() + "\n")
+        token.chmod(0o600)
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        sock.bind(str(Path(tmp) / "notify"))
+        env = {**os.environ, "NOTIFY_SOCKET": str(Path(tmp) / "notify")}
+        env.pop("WATCHDOG_USEC", None)
+        proc = subprocess.Popen([sys.executable, "-m", "shadowless", "node", "--slot", "r0c0", "--coordinator",
+                                 "127.0.0.1:1", "--token-file", str(token), "--cache-dir", str(Path(tmp) / "cache"),
+                                 "-q"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + timeout
+            ready = False
+            while not ready and time.monotonic() < deadline and proc.poll() is None:
+                sock.settimeout(1.0)
+                try:
+                    ready = b"READY=1" in sock.recv(4096)
+                except socket.timeout:
+                    pass
+            if not ready:
+                raise RuntimeError(f"the node did not say READY within {timeout:g} s: {proc.stderr.read()[-2000:]}"
+                                   if proc.poll() is not None else f"the node did not say READY within {timeout:g} s")
+            kids = [int(k) for k in Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()]
+            out = {"processes": 1 + len(kids), "node_process": _process_memory(proc.pid)}
+            for k in kids:
+                cmd = Path(f"/proc/{k}/cmdline").read_bytes()
+                out["presenter_idle" if b"child_main" in cmd else f"child_{k}"] = _process_memory(k)
+            return out
+        finally:
+            sock.close()
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
 
 
 def _node_ahead_bytes() -> int:
