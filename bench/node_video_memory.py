@@ -13,8 +13,8 @@ Resident memory (``VmRSS``, MB) is read at each step, so that it splits into: th
 presenter's imports (numpy, PyAV, protobuf); the GL context with the output's framebuffer;
 the presenter's warm-up (``warm_up``: :meth:`node.render.Renderer.warm_up`'s shader variants,
 which llvmpipe compiles, and a picture of the output's size drawn and forgotten, as
-:mod:`node.presenter` does at start); the decoder (its reference frames and frame threads'
-buffers, measured as the growth while the first frames decode, less the frame queue); the frame
+:mod:`node.presenter` does at start); the decoder (its reference and reordered frames, its
+threads' buffers, measured as the growth while the first frames decode, less the frame queue); the frame
 queue (what :class:`DecodeAhead` holds, counted by construction from the frames it buffers: the
 planes' own bytes when they are copies, 0 when they are views of the decoder's frames, which the
 decoder's share then includes); and the textures (the growth of the first upload and draw: one
