@@ -9,6 +9,7 @@ the core compares it with the slot as it is now.
 from __future__ import annotations
 
 import hashlib
+import weakref
 from collections.abc import Mapping
 
 from coordinator.rig import Rig, SlotState, hash_slot_state
@@ -33,4 +34,23 @@ def changed_since(rig: Rig, measured: Mapping[str, str] | None) -> list[str]:
     a blend stored without them, or a slot the rig no longer has, is not judged)."""
     if not measured:
         return []
-    return sorted(s for s, d in measured.items() if s in rig.slots and slot_digest(rig.slot(s)) != d)
+    return sorted(s for s, d in measured.items() if s in rig.slots and _current_digest(rig, s) != d)
+
+
+#: per rig, per slot: (pose, LUT, gain, size) as last hashed, and their digest
+_DIGESTS: "weakref.WeakKeyDictionary[Rig, dict[str, tuple[tuple, str]]]" = weakref.WeakKeyDictionary()
+
+
+def _current_digest(rig: Rig, slot: str) -> str:
+    """:func:`slot_digest` of the slot as it is now, hashed again only when its pose or LUT was replaced or
+    its gain or size changed (a status asks every slot each time: 25 LUTs took 2 ms of the event loop).
+    The pose and LUT are compared by identity: the rig replaces them, never changes them in place."""
+    st = rig.slot(slot)
+    held = _DIGESTS.setdefault(rig, {})
+    key = (st.pose, st.lut, st.gain, st.width, st.height)
+    last = held.get(slot)
+    if last is not None and last[0][0] is key[0] and last[0][1] is key[1] and last[0][2:] == key[2:]:
+        return last[1]
+    digest = slot_digest(st)
+    held[slot] = (key, digest)
+    return digest

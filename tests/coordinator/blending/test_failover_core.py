@@ -352,6 +352,9 @@ def test_a_blend_says_it_is_stale_once_a_pose_lut_or_gain_changes_after_its_meas
                 and "shadowless blend" in st.message, st
             coord.rig.update_slot("r0c1", gain=1.0)     # back as measured: nothing to say
             assert "changed since" not in coord.blend_status().message
+            # a new LUT (a response run) replaces the array: the status, asked often, sees it at once
+            coord.rig.update_slot("r0c0", lut=np.tile(np.linspace(0, 1, 64, dtype=np.float32) ** 1.2, (3, 1)))
+            assert "of r0c0 changed since it was measured" in coord.blend_status().message
         finally:
             await coord.close()
 
