@@ -15,7 +15,8 @@ include SciPy, OpenCV or scikit-image.
 
 What a blend costs (``blend``): each worker then renders as many frames again, in blocks of
 ``BLEND_BLOCK`` that take turns without and with blend maps of a quarter of the output's resolution
-(one RGBA16F texture, the node's dithered pipeline). Each block with maps is compared with the
+(one RGBA32F texture sampled by the texture unit's bilinear filter, RGBA16F where float32 cannot be
+filtered; the node's dithered pipeline). Each block with maps is compared with the
 blocks without on either side, so a shared machine's changing load moves both alike; the median of
 these ratios over the rounds is ``blend.render_ratio`` (target <= 1.05 at 1080p; the ratio of the
 pooled medians, ``median_ratio``, mixes busy and quiet moments). The resident memory grown by the
@@ -157,6 +158,7 @@ def _blend_cost(r, images: list[np.ndarray], frames: int) -> dict:
     """Render ``frames`` more frames, in blocks of BLEND_BLOCK without and with blend maps of a
     BLEND_SCALE-th of the output's resolution: the render times with and without (ms, their medians
     and ratio), and the resident memory the maps cost (made, uploaded, rendered with)."""
+    from node.render.shaders import has_float_linear
     from protos.blend import BlendMaps
 
     # the maps as the wire brings them (float16 bytes), made before the count starts
@@ -209,9 +211,11 @@ def _blend_cost(r, images: list[np.ndarray], frames: int) -> dict:
     return {"maps": [w, h], "rss_delta_mb": round(rss_delta, 2),
             "rss_shader_variant_mb": round(rss_compiled - rss_before, 2),
             "rss_maps_mb": round(rss_delta - (rss_compiled - rss_before), 2),
-            # what the node holds for the maps by construction (decoded float32 arrays, float16 texture):
-            # the measured growth can be smaller where the heap reuses memory freed before
-            "held_mb": round((maps.alpha.nbytes + maps.beta.nbytes + w * h * 4 * 2) / 2**20, 2),
+            # what the node holds for the maps by construction (decoded float32 arrays, an RGBA32F texture,
+            # RGBA16F where float32 cannot be filtered): the measured growth can be smaller where the heap
+            # reuses memory freed before
+            "held_mb": round((maps.alpha.nbytes + maps.beta.nbytes
+                              + w * h * 4 * (4 if has_float_linear(r.ctx) else 2)) / 2**20, 2),
             "samples_ms": {"without": times[False], "with": times[True]}, "pair_ratios": pairs}
 
 

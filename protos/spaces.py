@@ -240,8 +240,9 @@ def blend_sample(alpha: np.ndarray, beta: np.ndarray, projector_size: Sequence[i
     ``(m, n)`` map has its centre at projector pixel ``((j + 0.5) W / n - 0.5, (i + 0.5) H / m - 0.5)``,
     so projector pixel ``(x, y)`` reads the map at ``((x + 0.5) n / W - 0.5, (y + 0.5) m / H - 0.5)``,
     interpolated bilinearly between the four texels around it, indices clamped to the map (its edge
-    texels extend to the frame's border). The node holds the maps as float16, as the wire carries
-    them: they are rounded to float16 here too.
+    texels extend to the frame's border): what a texture unit's LINEAR filter with CLAMP_TO_EDGE
+    computes, which the node uses (node/render/blend_texture.py). The node holds the maps' float16
+    values, as the wire carries them: they are rounded to float16 here too.
 
     Parameters
     ----------

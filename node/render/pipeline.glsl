@@ -168,9 +168,10 @@ float lut_channel(float v, int channel) {
 // map at ((x + 0.5) w / W - 0.5, (y + 0.5) h / H - 0.5), bilinear between the four texels around it,
 // clamped to the edge texels; the texture unit's filter does it, from texture coordinate
 // gl_FragCoord.xy / (W, H) on the map stored bottom row first (one fetch; llvmpipe filters float32
-// texels far faster than four texelFetch and our weights).
+// texels far faster than four texelFetch and our weights). The map has no mipmaps and minifies and
+// magnifies alike (LINEAR), so the level of detail does not matter.
 vec4 blend_at() {
-    return textureLod(blend, gl_FragCoord.xy * blend_xform, 0.0);
+    return texture(blend, gl_FragCoord.xy * blend_xform);
 }
 
 // The 4x4 Bayer threshold (B + 0.5) / 16 at this fragment, B = BAYER4[y % 4][x % 4] with y counted

@@ -3,6 +3,13 @@ reference of protos/spaces.py (:func:`~protos.spaces.blended_output`, :func:`~pr
 with ``blend=``): ``LUT(clamp(gain * (alpha * value + beta)))``, the maps bilinear on their grid, a
 4x4 ordered dither before the 8-bit output.
 
+The node samples the maps with the texture unit's bilinear filter (LINEAR, CLAMP_TO_EDGE, one
+fetch); the reference interpolates between texel centres with indices clamped, and is itself
+checked against an independent bilinear, OpenCV's ``resize`` (INTER_LINEAR), as is the GL output.
+llvmpipe's filter weights are float; a GPU whose sub-texel weights have 8 bits moves an alpha by at
+most 1/512 of the step between two neighbouring texels (none at all for maps at a quarter of the
+output's resolution, whose weights 1/8, 3/8, 5/8, 7/8 are exact in 8 bits).
+
 The GPU computes in float32 and the reference in float64, so a value whose ``255 v + t`` lands a
 hair from an integer may come out one level apart: at most 1 level, on at most 0.2 % of the values
 (measured: under 0.01 %). Without maps, or for frames that do not apply the LUT (patterns), the
@@ -105,6 +112,24 @@ def test_the_reference_samples_the_maps_on_their_grid():
     assert (a1 == 0.25).all() and (b1 == 0.5).all()
 
 
+def cv2_maps(maps: BlendMaps, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The maps at every pixel of an output of ``size`` (W, H) by OpenCV's bilinear resize, from the
+    float16 values a node holds: alpha (H, W, 3), beta (H, W), float64."""
+    import cv2
+
+    stack = np.concatenate([maps.alpha, maps.beta[:, :, None]], axis=2).astype(np.float16).astype(np.float32)
+    out = cv2.resize(stack, size, interpolation=cv2.INTER_LINEAR).astype(np.float64)
+    return out[:, :, :3], out[:, :, 3]
+
+
+@pytest.mark.parametrize("map_size", [(40, 30), (37, 23), (1, 1), (160, 120)])
+def test_the_reference_samples_as_an_independent_bilinear(map_size):
+    maps = random_maps(*map_size)
+    a, b = blend_sample(maps.alpha, maps.beta, (PW, PH))
+    ca, cb = cv2_maps(maps, (PW, PH))
+    assert np.abs(a - ca).max() < 1e-5 and np.abs(b - cb).max() < 1e-5
+
+
 def test_the_dither_keeps_each_blocks_mean():
     """Each 4x4 block holds every threshold once: a value k + f shows k + 1 on a share f of it."""
     t = dither_thresholds((8, 8))
@@ -131,6 +156,18 @@ def test_random_maps_on_random_content_match_the_reference(r, map_size):
     # the maps really act: without them the picture is another one
     r.set_blend(None)
     assert (np.abs(draw(r, content).astype(int) - want) > 1).mean() > 0.5
+
+
+@pytest.mark.parametrize("map_size", [(40, 30), (37, 23)])
+def test_the_maps_on_screen_are_an_independent_bilinear_of_them(r, map_size):
+    """Full white through the maps, no LUT: each pixel shows floor(255 (alpha + beta) + t), alpha and
+    beta from OpenCV's resize of the maps (a quarter of the output's resolution, and an odd ratio)."""
+    maps = random_maps(*map_size, beta_max=0.1)
+    r.set_blend(maps)
+    got = draw(r, np.ones((PH, PW, 3), np.float32), space="projector")
+    a, b = cv2_maps(maps, (PW, PH))
+    want = np.floor(np.clip(a + b[:, :, None], 0, 1) * 255 + dither_thresholds((PW, PH))[:, :, None])
+    close(got, want.astype(np.uint8))
 
 
 def test_ramps_through_smooth_maps_match_the_reference(r):

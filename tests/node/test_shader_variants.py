@@ -125,7 +125,7 @@ def test_every_variant_compiles_and_draws_alike_on_a_bare_opengl_es_3_0():
     # GLSL ES 3.00 is the strictest of the three languages the shaders are compiled as
     env = {k: v for k, v in os.environ.items() if not k.startswith("MESA_")}
     extra = {"SHADOWLESS_GL": "gles", "MESA_GLES_VERSION_OVERRIDE": "3.0",
-             "MESA_EXTENSION_OVERRIDE": "-GL_EXT_texture_norm16"}
+             "MESA_EXTENSION_OVERRIDE": "-GL_EXT_texture_norm16 -GL_OES_texture_float_linear"}
     done = subprocess.run([sys.executable, "-c", CHILD.format(tests=str(HERE))], capture_output=True, text=True,
                           env={**env, **extra}, cwd=HERE.parents[1], timeout=600)
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
