@@ -100,7 +100,7 @@ class Window:
         self.pids, self.stats_file = (coord_pid, swarm_pid), stats_file
 
     def _fresh_stats(self, timeout: float = 10.0) -> dict:
-        """The swarm's counters as it next writes them (about every second; a busy machine delays
+        """The swarm's counters as it next writes them (four times a second; a busy machine delays
         it): read at once, a window shorter than the writes' spacing could see one write at both
         ends and count nothing. After ``timeout`` s without a write, what the file holds."""
         since = time.time()
