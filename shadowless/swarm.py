@@ -187,6 +187,15 @@ def default_slots(n: int) -> list[str]:
 
 
 # ---------------------------------------------------------------- `shadowless swarm`
+def _settled_s(text: str) -> float:
+    """--ping-settled-s: 0 (pings at --ping-hz always, as a node before it settled its exchanges:
+    ``bench swarm --rates dense``) or 1 to 60 seconds."""
+    value = cli_types.number(0, 60)(text)
+    if 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"'{text}' is neither 0 nor a number from 1 to 60")
+    return value
+
+
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = (
         "Load-test a coordinator before a show: run N protocol-level nodes in this one process. Each discovers the "
@@ -221,7 +230,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                      help="assets: the manifest and one blob per node (default), every blob, or the manifest only")
     how.add_argument("--ping-hz", type=cli_types.number(0.1, 100), default=4.0,
                      help="clock pings per second per node until its clock is settled (default 4, as a node)")
-    how.add_argument("--ping-settled-s", type=cli_types.number(1, 60), default=10.0, metavar="S",
+    how.add_argument("--ping-settled-s", type=_settled_s, default=10.0, metavar="S",
                      help="then one ping every S seconds (default 10, as a node; 0: --ping-hz always)")
     how.add_argument("--report-batch-ms", type=cli_types.number(0, 10000), default=50.0,
                      help="swaps and drops of streamed frames are batched over this long (default 50, as a node)")

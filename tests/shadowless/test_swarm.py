@@ -8,6 +8,7 @@ estimates the same way across coordinator restarts: they run one session core.
 """
 from __future__ import annotations
 
+import argparse
 import asyncio
 import socket
 import subprocess
@@ -28,7 +29,7 @@ from node.link import CoordinatorLink
 from node.session import SessionCore
 from protos.timeline import Schedule, Timeline, as_rate
 from shadowless.local import LocalRig
-from shadowless.swarm import Swarm, SwarmConfig, default_slots
+from shadowless.swarm import Swarm, SwarmConfig, configure, default_slots
 from shadowless.swarm_config import SwarmStats
 from shadowless.swarm_node import SwarmNode, Ticker, next_tick
 
@@ -136,6 +137,17 @@ def test_cli_refuses_a_rig_without_enough_slots(tmp_path):
     r = subprocess.run([sys.executable, "-m", "shadowless", "swarm", "--help"], capture_output=True, text=True,
                        timeout=60, check=False)
     assert r.returncode == 0 and "load-test" in r.stdout.lower() and "--fetch" in r.stdout
+
+
+def test_settled_pings_take_0_as_the_help_says_and_refuse_what_lies_between():
+    # bench swarm --rates dense passes 0 (a ping at --ping-hz always); 0 < S < 1 would flood the coordinator
+    p = argparse.ArgumentParser()
+    configure(p)
+    assert p.parse_args(["--nodes", "2", "--ping-settled-s", "0"]).ping_settled_s == 0
+    assert p.parse_args(["--nodes", "2", "--ping-settled-s", "60"]).ping_settled_s == 60
+    for bad in ("0.5", "61", "-1"):
+        with pytest.raises(SystemExit):
+            p.parse_args(["--nodes", "2", "--ping-settled-s", bad])
 
 
 @pytest.mark.parametrize("bad", [{"slots": []}, {"slots": ["a", "a"]}, {"slots": ["a"], "fetch": "some"}])
