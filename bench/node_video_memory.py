@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import socket
 import statistics
 import subprocess
@@ -214,6 +213,7 @@ def node_processes(timeout: float = 300.0) -> dict:
     how many there are and each one's memory (:func:`_process_memory`). The node process (network,
     session, cache) does not decode or draw, so its memory is what it adds to the presenter's."""
     from protos import auth
+    from shadowless.process_stop import stop_process
 
     with tempfile.TemporaryDirectory(prefix="bench-node-processes-") as tmp:
         token = Path(tmp) / "token"
@@ -246,13 +246,7 @@ def node_processes(timeout: float = 300.0) -> dict:
             return out
         finally:
             sock.close()
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(30)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+            stop_process(proc, timeout=30)
 
 
 def _node_ahead_bytes() -> int:

@@ -22,7 +22,6 @@ import argparse
 import asyncio
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -37,6 +36,7 @@ from coordinator.assets import AssetStore
 from rigctl.commands import play_dict
 from node.image_files import write_png
 from shadowless.local import LocalRig, grid_names
+from shadowless.process_stop import stop_process
 
 TICK_S = os.sysconf("SC_CLK_TCK")
 
@@ -214,13 +214,8 @@ async def _one(n: int, args, workdir: Path) -> dict:
                               "live_cpu_ms_per_frame": round(1e3 * win.coord_cpu / max(1, d["frames_sent"]), 3)}
             mem = proc_mem_mb(coord)
     finally:
-        if swarm is not None and swarm.poll() is None:
-            swarm.send_signal(signal.SIGTERM)
-            try:
-                swarm.wait(30)
-            except subprocess.TimeoutExpired:
-                swarm.kill()
-                swarm.wait()
+        if swarm is not None:
+            stop_process(swarm, timeout=30)
         rig.close()
     timeline = [v["timeline_cpu_ms_per_node_per_s"] for k, v in phases.items() if k.startswith("timeline_")]
     return {

@@ -39,6 +39,7 @@ from protos import cli_types
 from protos.wording import count
 from shadowless import exit_cleanup
 from shadowless.hold import console_lines, hold
+from shadowless.process_stop import stop_process
 from shadowless.netns import COORDINATOR, Venue, VenueError, available, parse_rate
 from shadowless.cpu_budget import CpuBudgetError
 from shadowless.rig_budget import DEFAULT_PERIOD_MS, RigBudgets, parse_gpu
@@ -206,13 +207,8 @@ class LocalRig:
         return f"http://127.0.0.1:{int(f.read_text())}/"
 
     def stop_coordinator(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
-        if self.coordinator is not None and self.coordinator.poll() is None:
-            self.coordinator.send_signal(sig)
-            try:
-                self.coordinator.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.coordinator.kill()
-                self.coordinator.wait()
+        if self.coordinator is not None:
+            stop_process(self.coordinator, sig, timeout)
 
     def node_args(self, slot: str) -> list[str]:
         args = ["node", "--slot", slot, "--token-file", str(self.rig_dir / "token"), "--output", self.node_output]
@@ -240,13 +236,8 @@ class LocalRig:
 
     def stop_node(self, slot: str, sig: int = signal.SIGTERM, timeout: float = 10.0) -> None:
         proc = self.nodes.get(slot)
-        if proc is not None and proc.poll() is None:
-            proc.send_signal(sig)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        if proc is not None:
+            stop_process(proc, sig, timeout)
 
     def close(self) -> None:
         """Stop every process: the coordinator first, so that it ends its node sessions as closed (nodes
