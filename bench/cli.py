@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 
 from bench import keep
 
@@ -84,7 +85,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
         sub.add_parser(name, help=summary, description=summary)
 
 
+def unwind_on_signals() -> None:
+    """SIGTERM and SIGHUP (a timeout, a closed terminal, a service stop) end a benchmark as Ctrl-C does:
+    by an exception that unwinds it (SystemExit 128 + the signal), so its ``with`` and ``finally``
+    blocks run: its temporary directories (hundreds of MB for the room's captures) are removed and the
+    processes it started are stopped. Only over the default handler; a second signal kills at once."""
+    def unwind(signum, frame):
+        signal.signal(signum, signal.SIG_DFL)
+        raise SystemExit(128 + signum)
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(sig) == signal.SIG_DFL:
+            signal.signal(sig, unwind)
+
+
 def run(args: argparse.Namespace) -> int:
+    unwind_on_signals()
     if args._bench is None:
         raise SystemExit(f"benchmark {args.bench!r} is not available in this build")
     if getattr(args, "keep_json", None):
