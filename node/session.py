@@ -163,6 +163,7 @@ class SessionCore:
         its nonces. Should the coordinator refuse them (it restarted meanwhile: another instance's
         secret), the handshake is made again from its start, once."""
         proven, self._proven = self._proven, None
+        reply = None
         if proven is not None and proven[0] == link.target and time.monotonic() - proven[3] < PROVEN_HELLO_S:
             hello, nonce = proven[1], proven[2]
             try:
@@ -172,10 +173,7 @@ class SessionCore:
                     raise
                 log.info("%s: the coordinator at %s refused the handshake it answered %.1f s ago (%s); "
                          "shaking hands again", self.slot, link.target, time.monotonic() - proven[3], exc.code)
-                hello, nonce = await self.hello(link)
-                self._proven = None
-                reply = await self._login(link, hello, nonce)
-        else:
+        if reply is None:
             hello, nonce = await self.hello(link)
             self._proven = None
             reply = await self._login(link, hello, nonce)
