@@ -167,8 +167,8 @@ class Renderer:
         ctx.includes["pipeline.glsl"] = load_shader("pipeline.glsl")
         self._program("warp", Variant.of(RGB))     # refuses now, with the driver's words, if it cannot compile
         # the blend maps in use (None: none) and those uploaded ahead of use, by blend id
-        self._blend: tuple[str, Any, tuple[int, int]] | None = None
-        self._blend_ahead: tuple[str, Any, tuple[int, int]] | None = None
+        self._blend: tuple[str, Any] | None = None
+        self._blend_ahead: tuple[str, Any] | None = None
         # bound to the blend's unit while no maps are set (never sampled then: no BLEND variant draws)
         self._blend_none = ctx.texture((1, 1), 4, np.array([1, 1, 1, 0], np.float16).tobytes(), dtype="f2")
         self._contents: dict[str, _Content] = {}
@@ -492,8 +492,8 @@ class Renderer:
         if not isinstance(maps, BlendMaps):
             raise ValueError(f"blend maps must be a BlendMaps, got {type(maps).__name__}")
 
-    def _blend_texture(self, maps: BlendMaps) -> tuple[str, Any, tuple[int, int]]:
-        return maps.blend_id, blend_texture(self.ctx, self._mgl, maps, self._max_texture), maps.size
+    def _blend_texture(self, maps: BlendMaps) -> tuple[str, Any]:
+        return maps.blend_id, blend_texture(self.ctx, self._mgl, maps, self._max_texture)
 
     def load_blend(self, maps: BlendMaps) -> None:
         """Upload blend maps ahead of the frame that first shows them (:meth:`set_blend` then switches
