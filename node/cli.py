@@ -107,6 +107,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     test.add_argument("--clock-offset-ms", type=cli_types.number(-1e9, 1e9), default=0.0, help="offset this node's clock by this much")
     test.add_argument("--clock-drift-ppm", type=cli_types.number(-10000, 10000), default=0.0, help="make this node's clock run fast/slow")
     test.add_argument("--protocol-version", type=int, default=PROTOCOL_VERSION, help=argparse.SUPPRESS)
+    test.add_argument("--refusal-backoff-s", type=cli_types.number(0.1, 3600), default=10.0, help=argparse.SUPPRESS)
 
 
 def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) -> NodeConfig:
@@ -119,7 +120,7 @@ def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) ->
                       cache_dir=Path(args.cache_dir) if args.cache_dir else default_cache_dir() / args.slot,
                       cache_max_bytes=args.cache_max,
                       fetch_rate=float(args.fetch_rate) if args.fetch_rate else None,
-                      discovery_timeout_s=args.discovery_timeout)
+                      discovery_timeout_s=args.discovery_timeout, refusal_backoff_s=args.refusal_backoff_s)
 
 
 def log_name(args: argparse.Namespace) -> str:
