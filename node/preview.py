@@ -3,8 +3,8 @@
 The coordinator asks (about once a second, only while someone looks); the presenter makes one
 between frames, never between a frame's render and its swap and never when it would not fit
 before the next frame is due (:meth:`node.presenter.Presenter`), at most one per
-:data:`MIN_INTERVAL_NS` whatever it is asked. A preview is the renderer's output read back
-(:meth:`node.render.renderer.Renderer.read`), area-averaged down to at most
+:data:`MIN_INTERVAL_NS` whatever it is asked. A preview is the renderer's output read back a band
+of rows at a time (:meth:`node.render.renderer.Renderer.read_rows`), area-averaged down to at most
 :data:`MAX_WIDTH` x :data:`MAX_HEIGHT` pixels (numpy, see :func:`downscale`) and encoded as an
 8-bit RGB PNG (:func:`node.image_files.encode_png`): at most ~58 kB, usually a few kB.
 """
@@ -80,6 +80,26 @@ def downscale(image: np.ndarray, factor: int | None = None) -> np.ndarray:
     return ((sums + n // 2) // n).astype(np.uint8)
 
 
+#: the rows of the output a preview reads back at a time, at most (whole blocks of the preview's factor)
+BAND_ROWS = 96
+
+
+def downscale_rendered(renderer: "Renderer") -> np.ndarray:
+    """:func:`downscale` of what ``renderer`` holds (``downscale(renderer.read())``, the same pixels),
+    read back a band of whole blocks at a time (:meth:`Renderer.read_rows`): a preview never holds
+    the full-size picture, which at 1080p the presenter kept resident twice over (6 MB read back,
+    6 MB left to the allocator by the flip) for a picture of at most 160 x 120.
+
+    Returns
+    -------
+    (ceil(height / k), ceil(width / k), 3) uint8, k = :func:`preview_factor` of the output's size.
+    """
+    w, h = renderer.width, renderer.height
+    k = preview_factor(w, h)
+    band = k * max(1, BAND_ROWS // k)
+    return np.concatenate([downscale(renderer.read_rows(top, min(band, h - top)), k) for top in range(0, h, band)])
+
+
 def encode_preview(small: np.ndarray) -> bytes:
     """(h, w, 3) uint8 -> PNG bytes (fast zlib level: the picture is small and made between frames)."""
     return encode_png(small, compress_level=3, filter="paeth")
@@ -123,7 +143,7 @@ class PreviewMaker:
         """Read back what the renderer holds (the caller makes sure it is what the projector shows)
         and answer the pending request with it."""
         t0 = self.now()
-        small = downscale(renderer.read())
+        small = downscale_rendered(renderer)
         png = encode_preview(small)
         self._costs.append(max(0, self.now() - t0))
         self._last_ns = t0
@@ -136,5 +156,5 @@ class PreviewMaker:
         """Make a preview nobody asked for and keep only its cost (at open: the first real one is not
         the first to run the PNG encoder)."""
         t0 = self.now()
-        encode_preview(downscale(renderer.read()))
+        encode_preview(downscale_rendered(renderer))
         self._costs.append(max(0, self.now() - t0))

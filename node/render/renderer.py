@@ -46,6 +46,7 @@ import numpy as np
 from node.errors import NodeError
 from node.render.blend_texture import blend_texture
 from node.render.mesh import Mesh
+from node.render.readback import ReadBack
 from node.render.yuv_textures import YuvTextures, layout_key
 from node.render.shaders import (BLACK, GREY, MIN_GL_VERSION, MIN_GLES_VERSION, RGB, YUV_PLANAR, YUV_SEMIPLANAR,
                                   Variant, glsl_header, has_norm16_textures, is_gles, load_shader, shading_language)
@@ -226,9 +227,7 @@ class Renderer:
         self._depth = None
         self._fbo = None
         self._attach_depth(self._mesh_vbo is not None)
-        # GLES reads RGBA only (GL_RGB is not a format glReadPixels must accept there): alpha dropped
-        self._raw = np.empty((self._height, self._width, 4), np.uint8) if self._gles else None
-        self._image = np.empty((self._height, self._width, 3), np.uint8)  # row 0 at the top
+        self._readback = ReadBack(self._width, self._height, rgba=self._gles)
         # projector space: GL window coords -> OpenCV projector pixels (the content *is* in projector pixels)
         self._warp_identity_bytes = _mat_bytes(self._window_to_pixels())
         self._update_pose_uniforms()
@@ -828,15 +827,16 @@ class Renderer:
         """What the projector receives: (height, width, 3) uint8 RGB, row 0 at the top.
 
         The returned array is the renderer's own buffer, overwritten by the next
-        :meth:`read` (and reallocated by :meth:`resize`): copy it to keep it.
+        :meth:`read` (and reallocated by :meth:`resize`): copy it to keep it. Read a strip of rows
+        at a time (:mod:`node.render.readback`): no second full-size copy.
         """
-        if self._raw is None:   # in place, flipped (numpy buffers the overlap): one resident copy
-            self._fbo.read_into(self._image, components=3, alignment=1)
-            self._image[...] = self._image[::-1]
-            return self._image
-        self._fbo.read_into(self._raw, components=4, alignment=1)
-        np.copyto(self._image, self._raw[::-1, :, :3])
-        return self._image
+        return self._readback.read(self._fbo)
+
+    def read_rows(self, top: int, rows: int) -> np.ndarray:
+        """Rows ``top`` to ``top + rows - 1`` of what :meth:`read` returns, read back alone (a
+        preview reads a band at a time, never holding the full-size picture): (rows, width, 3) uint8
+        RGB, a view of a buffer overwritten by the next call. ValueError outside the output."""
+        return self._readback.rows(self._fbo, top, rows)
 
     # ------------------------------------------------------------------ teardown
     def release(self) -> None:

@@ -416,6 +416,27 @@ def test_read_has_row_zero_at_the_top_and_reuses_its_buffer(renderer):
     assert renderer.read() is a and a.max() == 0  # overwritten in place: callers copy what they keep
 
 
+def test_rows_read_alone_and_a_preview_read_by_bands_are_the_full_read_back(renderer):
+    """read() reads in strips and a preview (node.preview) by bands of rows, so that neither holds a
+    second full-size picture: every row and the preview must be what one full read-back gives. 331 x
+    250: several strips and bands, the last of each cut short, and preview blocks of 3 x 3 pixels."""
+    from node.preview import downscale, downscale_rendered
+
+    w, h = 331, 250
+    renderer.resize(w, h)
+    image = RNG.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    full = render_image(renderer, image, space="projector").copy()
+    np.testing.assert_array_equal(full, image)
+    for top, rows in ((0, 1), (h - 1, 1), (0, h), (37, 100), (200, 50)):
+        np.testing.assert_array_equal(renderer.read_rows(top, rows), image[top:top + rows], err_msg=f"{top}+{rows}")
+    small = downscale_rendered(renderer)
+    assert small.shape == (84, 111, 3)
+    np.testing.assert_array_equal(small, downscale(image))
+    for top, rows in ((-1, 2), (0, 0), (h - 1, 2)):
+        with pytest.raises(ValueError, match="within the output"):
+            renderer.read_rows(top, rows)
+
+
 def test_upload_of_a_known_id_is_not_repeated(renderer):
     one = np.full((PH, PW, 3), 10, np.uint8)
     two = np.full((PH, PW, 3), 20, np.uint8)
