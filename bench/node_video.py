@@ -43,7 +43,10 @@ split into its parts and without llvmpipe's libraries (``rss_mb_without_software
 process (network, session, cache), measured apart in a real ``shadowless node`` that is told of no
 reachable coordinator (``node_processes``: each process's ``rss_mb``, ``anon_mb`` and ``pss_mb``);
 ``node_total_mb`` adds the node process to the presenter playing: ``rss_sum`` counts twice the
-library pages both map, ``at_least`` adds only the node process's own heap.
+library pages both map, ``at_least`` adds only the node process's own heap;
+``node_total_mb.without_software_gpu_libs`` the same without llvmpipe's libraries (which only the
+presenter maps): what an edge computer's node holds before its GPU driver's own libraries and
+buffers. The presenter's split also has ``preview``, the read-back of the preview it makes at start.
 """
 from __future__ import annotations
 
@@ -226,6 +229,11 @@ def memory(path: Path, size: tuple[int, int], content: tuple[int, int], frames: 
     # counts twice the library pages both map; the node process's own heap (anon) is the least it adds
     out["node_total_mb"] = {"rss_sum": round(out["after"]["rss_mb"] + node["rss_mb"], 1),
                             "at_least": round(out["after"]["rss_mb"] + node["anon_mb"], 1)}
+    # the same where a GPU's driver takes the place of llvmpipe's libraries (the node process maps none
+    # of them): what an edge computer's node holds, before its GPU driver's own libraries and buffers
+    edge = out["after"]["rss_mb_without_software_gpu_libs"]
+    out["node_total_mb"]["without_software_gpu_libs"] = {"rss_sum": round(edge + node["rss_mb"], 1),
+                                                         "at_least": round(edge + node["anon_mb"], 1)}
     return out
 
 
@@ -380,5 +388,7 @@ def summary(v: dict) -> list[str]:
         f"{a['rss_mb_without_software_gpu_libs']:g} MB",
         f"the whole node while playing, with its node process ({m['node_processes']['node_process']['rss_mb']:g} MB,"
         f" {m['node_processes']['processes']} processes in all): {m['node_total_mb']['at_least']:g} to"
-        f" {m['node_total_mb']['rss_sum']:g} MB",
+        f" {m['node_total_mb']['rss_sum']:g} MB; without llvmpipe's libraries"
+        f" {m['node_total_mb']['without_software_gpu_libs']['at_least']:g} to"
+        f" {m['node_total_mb']['without_software_gpu_libs']['rss_sum']:g} MB",
     ]

@@ -13,9 +13,10 @@ Resident memory (``VmRSS``, MB) is read at each step, so that it splits into: th
 presenter's imports (numpy, PyAV, protobuf); the GL context with the output's framebuffer;
 the presenter's warm-up (``warm_up``: :meth:`node.render.Renderer.warm_up`'s shader variants,
 which llvmpipe compiles, and a picture of the output's size drawn and forgotten, as
-:mod:`node.presenter` does at start); the decoder (its reference and reordered frames, its
-threads' buffers, measured as the growth while the first frames decode, less the frame queue); the frame
-queue (what :class:`DecodeAhead` holds, counted by construction from the frames it buffers: the
+:mod:`node.presenter` does at start); the preview it makes at start to time one (``preview``:
+:meth:`node.preview.PreviewMaker.time_once`, the read-back); the decoder (its reference and
+reordered frames, its threads' buffers, measured as the growth while the first frames decode,
+less the frame queue); the frame queue (what :class:`DecodeAhead` holds, counted by construction from the frames it buffers: the
 planes' own bytes when they are copies, 0 when they are views of the decoder's frames, which the
 decoder's share then includes); and the textures (the growth of the first upload and draw: one
 picture's planes, 3 MB at 1080p 4:2:0, less the warm-up picture's texture, which llvmpipe frees
@@ -99,6 +100,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     import node.presenter  # noqa: F401 - what a presenter process imports
     from node.asset_frames import DecodeAhead, open_frames
     from node.decoders import wish_from_env
+    from node.preview import PreviewMaker
     from node.records import AssetFiles
     from node.render import Renderer
     from node.timeline_player import AssetFilesView
@@ -108,8 +110,8 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     r_imports = rss_mb()
     w, h = size
     cw, ch = content
-    r = Renderer.standalone(w, h)
     anon_before_context = rss_mb("RssAnon")
+    r = Renderer.standalone(w, h)
     try:
         scale = min(w / cw, h / ch)
         lut = np.stack([np.linspace(0, 1, 256) ** (1 / g) for g in (2.1, 2.2, 2.3)]).astype(np.float32)
@@ -129,6 +131,10 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         r.forget("__warm__", reuse=False)
         del picture
         r_warm = rss_mb()
+        # the preview the presenter makes at open to time one (node/presenter.py, PreviewMaker.time_once):
+        # its read-back stays with the process
+        PreviewMaker(time.monotonic_ns).time_once(r)
+        r_preview = rss_mb()
         r.set_homography(np.array([[scale, 0.02, 3.0], [-0.01, scale, 2.0], [1e-6, 2e-6, 1.0]]), (cw, ch))
         r.set_lut(lut)
         node_yuv.COPY_PLANES = copy
@@ -171,7 +177,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     finally:
         r.release()
     software_gpu = software_gpu_mb()
-    decoder_and_queue = r_decoder - r_warm
+    decoder_and_queue = r_decoder - r_preview
     return {
         "settings": {"depth": depth, "threads": threads, "thread_type": node.asset_decode.THREAD_TYPE, "planes": "copied" if copy else "views of the decoder's frames",
                      "ahead_mb": round((ahead_bytes if ahead_bytes is not None else _node_ahead_bytes()) / 2**20, 1)},
@@ -185,7 +191,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         "rss_mb_without_software_gpu_libs": round(statistics.median(steady) - software_gpu, 1),
         "split_mb": {"interpreter": round(r0, 1), "imports": round(r_imports - r0, 1),
                      "gl_context": round(r_context - r_imports, 1), "gl_context_anon": round(anon_context, 1),
-                     "warm_up": round(r_warm - r_context, 1),
+                     "warm_up": round(r_warm - r_context, 1), "preview": round(r_preview - r_warm, 1),
                      "decoder": round(decoder_and_queue - queue_mb, 1), "frame_queue": round(queue_mb, 1),
                      "textures": round(r_textures - r_decoder, 1),
                      "playing": round(statistics.median(steady) - r_textures, 1)},
