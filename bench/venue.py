@@ -43,7 +43,11 @@ every node process is held to F of a core, as if each ran on a small computer of
 rasterizer's threads (llvmpipe, the GPU's stand-in) in a group of their own (``--node-gpu``: no
 limit by default), the coordinator in its own (``--coordinator-cpu``: by default what is left of
 the machine's cores after the nodes, at least 0.5) and this process in one without a limit.
-Restarted processes go back into their groups. The document then says ``node_cpu_limit``,
+Restarted processes go back into their groups. The nodes come first: their groups weigh ten
+times the coordinator's, so that the coordinator (a restarted one's start-up included) gets what
+they leave, as on separate computers; and each node may spend up to ``--cpu-burst`` of its quota
+more in one CFS period out of what it saved, so that a frame's work that comes at once is not cut
+into 10 ms periods (its average stays F). The document then says ``node_cpu_limit``,
 ``node_gpu_limit``, ``coordinator_cpu_limit`` and, under ``cpu_budget``, each group's CPU time and
 time held back over the whole run (``groups``) and over the timeline show
 (``timeline.cpu_budget``). Every group is removed at the end, also on Ctrl-C and on errors, and a
@@ -75,7 +79,7 @@ from shadowless.local import LocalRig, grid_names
 from shadowless import exit_cleanup
 from shadowless.cpu_budget import CpuBudgetError, cleanup_leftovers, unavailable
 from shadowless.netns import VenueError, available, parse_rate
-from shadowless.rig_budget import DEFAULT_PERIOD_MS, RigBudgets, coordinator_default, parse_gpu
+from shadowless.rig_budget import DEFAULT_BURST, DEFAULT_PERIOD_MS, RigBudgets, coordinator_default, parse_gpu
 
 #: bit rate of the generated video at 1920x1080, 30 fps (scaled with pixels per second)
 REFERENCE_BIT_RATE = 8_000_000
@@ -107,6 +111,16 @@ def _gpu(text: str):
         return parse_gpu(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _burst(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a fraction of a quota: {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"--cpu-burst is 0..1 (of a node's quota per period), got {text!r}")
+    return v
 
 
 def _rate(text: str) -> str:
@@ -187,6 +201,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="with --node-cpu: give every node's, rasterizer's and the coordinator's group a high CFS "
                         "weight, so that other work on this host does not starve them (each still never gets "
                         "more than its limit; on a quiet host this changes nothing)")
+    b.add_argument("--cpu-burst", type=_burst, default=DEFAULT_BURST, metavar="B",
+                   help=f"with --node-cpu: each node may spend up to B of its quota more in one CFS period out of "
+                        f"what it left unused before (0..1, default {DEFAULT_BURST:g}; 0: none), so that a frame's "
+                        "work that comes at once is not cut into periods as no computer of its own would cut it; "
+                        "its average stays --node-cpu")
     b.add_argument("--cpu-period-ms", type=float, default=DEFAULT_PERIOD_MS, metavar="MS",
                    help=f"the budgets' CFS period (default {DEFAULT_PERIOD_MS:g} ms: a held node waits a few ms at "
                         "a time, as a slower CPU would, not 100 ms)")
@@ -465,7 +484,7 @@ def budgets_for(args) -> RigBudgets:
     coordinator = (args.coordinator_cpu if args.coordinator_cpu is not None
                    else coordinator_default(args.nodes, args.node_cpu, args.node_gpu))
     return RigBudgets(slots, node_cpu=args.node_cpu, node_gpu=args.node_gpu, coordinator_cpu=coordinator,
-                      own=True, period_ms=args.cpu_period_ms, reserve=args.reserve)
+                      own=True, period_ms=args.cpu_period_ms, reserve=args.reserve, burst=args.cpu_burst)
 
 
 def run(args: argparse.Namespace) -> int:

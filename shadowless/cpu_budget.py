@@ -148,21 +148,31 @@ def _quota(fraction: float | None, period_us: int) -> int | None:
     return None if fraction is None else int(round(fraction * period_us))
 
 
-def v1_files(fraction: float | None, period_us: int, weight: int | None = None) -> dict[str, str]:
-    """What a v1 group's files are set to, in order: the period, then the quota (-1: no limit), and
-    with ``weight`` (v2's scale, 1..10000, 100 the kernel's default) ``cpu.shares`` (1024 the default)."""
+def v1_files(fraction: float | None, period_us: int, weight: int | None = None,
+             burst_us: int | None = None) -> dict[str, str]:
+    """What a v1 group's files are set to, in order: the period, then the quota (-1: no limit), with
+    ``burst_us`` (and a limit) ``cpu.cfs_burst_us``, and with ``weight`` (v2's scale, 1..10000, 100
+    the kernel's default) ``cpu.shares`` (1024 the default)."""
     q = _quota(fraction, period_us)
     out = {"cpu.cfs_period_us": str(period_us), "cpu.cfs_quota_us": str(-1 if q is None else q)}
+    if burst_us and q is not None:
+        out["cpu.cfs_burst_us"] = str(min(int(burst_us), q))
     if weight is not None:
         out["cpu.shares"] = str(max(2, round(weight * 1024 / 100)))
     return out
 
 
-def v2_files(fraction: float | None, period_us: int, weight: int | None = None) -> dict[str, str]:
+def v2_files(fraction: float | None, period_us: int, weight: int | None = None,
+             burst_us: int | None = None) -> dict[str, str]:
     """What a v2 group's ``cpu.max`` is set to: ``"QUOTA PERIOD"``, or ``"max PERIOD"`` for no limit;
-    and its ``cpu.weight`` with ``weight``."""
+    with ``burst_us`` (and a limit) its ``cpu.max.burst``, and its ``cpu.weight`` with ``weight``."""
     q = _quota(fraction, period_us)
-    return {"cpu.max": f"{'max' if q is None else q} {period_us}", **({"cpu.weight": str(weight)} if weight else {})}
+    out = {"cpu.max": f"{'max' if q is None else q} {period_us}"}
+    if burst_us and q is not None:
+        out["cpu.max.burst"] = str(min(int(burst_us), q))
+    if weight:
+        out["cpu.weight"] = str(weight)
+    return out
 
 
 def enable_cpu(subtree_control: str) -> str | None:
@@ -173,13 +183,18 @@ def enable_cpu(subtree_control: str) -> str | None:
 
 def parse_cpu_stat(text: str, version: int, usage_ns: int | None = None) -> dict:
     """A group's ``cpu.stat`` as figures: ``periods``, ``throttled`` (periods held back),
-    ``throttled_s``, and ``cpu_s`` (v2: its ``usage_usec``; v1: ``usage_ns`` from ``cpuacct.usage``)."""
+    ``throttled_s``, ``cpu_s`` (v2: its ``usage_usec``; v1: ``usage_ns`` from ``cpuacct.usage``),
+    and where the kernel counts CFS bursts, ``bursts`` (periods that spent saved quota) and ``burst_s``."""
     st: dict[str, int] = {}
     for line in text.splitlines():
         parts = line.split()
         if len(parts) == 2 and parts[1].lstrip("-").isdigit():
             st[parts[0]] = int(parts[1])
     out: dict = {"periods": st.get("nr_periods", 0), "throttled": st.get("nr_throttled", 0)}
+    if "nr_bursts" in st:
+        out["bursts"] = st["nr_bursts"]
+        burst = st.get("burst_usec", 0) * 1000 if version == 2 else st.get("burst_time", 0)
+        out["burst_s"] = round(burst / 1e9, 3)
     if version == 2:
         out["throttled_s"] = round(st.get("throttled_usec", 0) / 1e6, 3)
         if "usage_usec" in st:
@@ -226,6 +241,15 @@ def _pid_alive(pid: int) -> bool:
 def _write(path: Path, value: object) -> None:
     with open(path, "w") as f:
         f.write(f"{value}\n")
+
+
+def _write_optional(path: Path, value: object) -> int:
+    """Write a number to a cgroup file the kernel may lack (CFS burst came in Linux 5.14): the
+    number written, 0 when the file is not there."""
+    if not path.exists():
+        return 0
+    _write(path, value)
+    return int(value)
 
 
 def _text(path: Path) -> str:
@@ -352,6 +376,13 @@ class CpuBudget:
         The group's CFS weight against other work when cores are contended, on v2's scale (1..10000;
         None: the kernel's default, 100). A high weight makes a budget closer to a computer of its
         own on a busy host: the group gets its limit whenever it can run (never more).
+    burst_us : int or None
+        CPU time (us, at most the quota) the group may spend in one period beyond its quota out of
+        what it left unused in earlier periods (v1 ``cpu.cfs_burst_us``, v2 ``cpu.max.burst``; None:
+        none, the kernel's default). The average stays ``fraction``; a burst lets work that comes
+        at once (a frame's decode on two threads) finish as it would on a computer of its own, whose
+        cores are not cut into periods. ``burst_granted_us`` says what the kernel took (0: none, a
+        kernel without CFS burst).
     realtime_us : int or None
         v1 only: real-time time granted to the group per real-time period (``cpu.rt_runtime_us``,
         the period is the host's ``cpu.rt_period_us``, usually 1 s). A v1 group is made with none,
@@ -367,7 +398,7 @@ class CpuBudget:
 
     def __init__(self, fraction: float | None, *, period_us: int = 100_000, name: str = "", kind: str = "bench",
                  threads: bool = False, thread_fraction: float | None = None, weight: int | None = None,
-                 realtime_us: int | None = None, hierarchy: Hierarchy | None = None):
+                 realtime_us: int | None = None, burst_us: int | None = None, hierarchy: Hierarchy | None = None):
         self.fraction = None if fraction is None else _check_fraction(fraction, period_us)
         self.thread_fraction = None if thread_fraction is None else _check_fraction(thread_fraction, period_us)
         if not (MIN_PERIOD_US <= int(period_us) <= MAX_PERIOD_US):
@@ -382,6 +413,10 @@ class CpuBudget:
                                  f"got {realtime_us!r}")
         self.realtime_us = realtime_us
         self.realtime_granted_us = 0
+        if burst_us is not None and not (isinstance(burst_us, int) and burst_us >= 0):
+            raise CpuBudgetError(f"a CPU budget's burst is a whole number of us >= 0, got {burst_us!r}")
+        self.burst_us = burst_us or None
+        self.burst_granted_us = 0
         self.name, self.kind, self.threads = name, kind, bool(threads)
         group_name(kind, 0, 0)                   # the kind is checked now, not when the group is made
         self.hierarchy = hierarchy
@@ -417,8 +452,11 @@ class CpuBudget:
         self.path = path
         try:
             if h.version == 1:
-                for f, v in v1_files(self.fraction, self.period_us, self.weight).items():
-                    _write(path / f, v)
+                for f, v in v1_files(self.fraction, self.period_us, self.weight, self.burst_us).items():
+                    if f == "cpu.cfs_burst_us":
+                        self.burst_granted_us = _write_optional(path / f, v)
+                    else:
+                        _write(path / f, v)
                 if h.acct is not None and h.acct != h.root:
                     self.acct_path = h.acct / name
                     self.acct_path.mkdir()
@@ -437,8 +475,11 @@ class CpuBudget:
         if want:
             _write(h.root / "cgroup.subtree_control", want)
         if not self.threads:
-            for f, v in v2_files(self.fraction, self.period_us, self.weight).items():
-                _write(path / f, v)
+            for f, v in v2_files(self.fraction, self.period_us, self.weight, self.burst_us).items():
+                if f == "cpu.max.burst":
+                    self.burst_granted_us = _write_optional(path / f, v)
+                else:
+                    _write(path / f, v)
             return
         if self.weight is not None:          # the subtree competes with its siblings as one
             _write(path / "cpu.weight", self.weight)
@@ -450,8 +491,11 @@ class CpuBudget:
         if want:
             _write(path / "cgroup.subtree_control", want)
         for child, fraction in ((V2_PROCS, self.fraction), (V2_THREADS, self.thread_fraction)):
-            for f, v in v2_files(fraction, self.period_us).items():
-                _write(path / child / f, v)
+            for f, v in v2_files(fraction, self.period_us, burst_us=self.burst_us if child == V2_PROCS else None).items():
+                if f == "cpu.max.burst":
+                    self.burst_granted_us = _write_optional(path / child / f, v)
+                else:
+                    _write(path / child / f, v)
 
     def close(self) -> None:
         """Move what is left in the group back to the root group and remove the group (idempotent)."""
@@ -539,6 +583,8 @@ class CpuBudget:
         out: dict = {"limit": fraction, "period_ms": self.period_us / 1000}
         if self.realtime_us:
             out["realtime_granted_us"] = self.realtime_granted_us
+        if self.burst_us:
+            out["burst_us"] = self.burst_granted_us
         try:
             text = (d / "cpu.stat").read_text()
         except OSError:

@@ -42,7 +42,7 @@ from shadowless.hold import console_lines, hold
 from shadowless.process_stop import stop_process
 from shadowless.netns import COORDINATOR, Venue, VenueError, available, parse_rate
 from shadowless.cpu_budget import CpuBudgetError
-from shadowless.rig_budget import DEFAULT_PERIOD_MS, RigBudgets, parse_gpu
+from shadowless.rig_budget import DEFAULT_BURST, DEFAULT_PERIOD_MS, RigBudgets, parse_gpu
 
 
 def free_port() -> int:
@@ -378,6 +378,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="with --node-cpu: give every node's, rasterizer's and the coordinator's group a high CFS "
                         "weight, so that other work on this host does not starve them (each still never gets "
                         "more than its limit; on a quiet host this changes nothing)")
+    b.add_argument("--cpu-burst", type=cli_types.number(0, 1), default=DEFAULT_BURST, metavar="B",
+                   help=f"with --node-cpu: each node may spend up to B of its quota more in one CFS period out of "
+                        f"what it saved before (0..1, default {DEFAULT_BURST:g}; 0: none); its average stays F")
     b.add_argument("--cpu-period-ms", type=cli_types.number(1, 1000), default=DEFAULT_PERIOD_MS, metavar="MS",
                    help=f"the budgets' CFS period (default {DEFAULT_PERIOD_MS:g} ms)")
 
@@ -399,7 +402,7 @@ def _budgets(args, slots: list[str]) -> RigBudgets | None:
     if getattr(args, "node_cpu", None) is None:
         return None
     return RigBudgets(slots, node_cpu=args.node_cpu, node_gpu=args.node_gpu, period_ms=args.cpu_period_ms,
-                      reserve=args.reserve)
+                      reserve=args.reserve, burst=args.cpu_burst)
 
 
 async def _local(args) -> int:

@@ -14,6 +14,22 @@ A budget caps, it does not reserve: on a host busy with other work a node gets l
 share and its late frames measure that work. ``reserve=True`` gives the budget groups a high CFS
 weight, so they get their limits whenever they can run (never more) and the other work waits.
 
+**The nodes come first.** On a real rig no node shares a CPU with the coordinator or with another
+node; here they share two cores, and someone waits when all want to run at once. A node's groups
+(its budget and its rasterizer's) get ten times the coordinator's CFS weight
+(:data:`NODE_WEIGHT` against the kernel's 100; with ``reserve``, :data:`RESERVE_WEIGHT` against
+:data:`COORDINATOR_RESERVE_WEIGHT`), so that the coordinator gets what the nodes leave, as its
+default share (:func:`coordinator_default`) already says, and a restarted coordinator's start-up
+(about 1 s of CPU, mostly imports) does not make the nodes' frames late: it takes longer instead,
+which the figures show (``back_s``). The nodes cannot take more than their limits for it.
+
+**Bursts.** A quota per period (0.4 of a core over 10 ms: 4 ms) cuts work that comes at once into
+pieces: a frame's decode on two slice threads spends the quota in 2 ms and the frame's render
+then waits 8 ms for the next period, which a small computer of its own, whose cores are not cut
+into periods, never does. Each node's group may therefore spend, in one period, up to ``burst``
+of its quota more out of what it left unused before (CFS burst: v1 ``cpu.cfs_burst_us``, v2
+``cpu.max.burst``; 1.0 by default, the most the kernel allows); its average stays its limit.
+
 With llvmpipe's threads turned off (``LP_NUM_THREADS=0``) the drawing runs on the presenter's own
 thread and cannot be split; :func:`rasterizer_refusal` says so. In cgroup v2 a split node is a
 threaded subtree (see :mod:`shadowless.cpu_budget`); where the host refuses threaded groups the
@@ -29,8 +45,8 @@ from pathlib import Path
 
 from shadowless.cpu_budget import NODE_REALTIME_US, CpuBudget, CpuBudgetError, Hierarchy, host_hierarchy, unavailable
 
-__all__ = ["DEFAULT_PERIOD_MS", "RigBudgets", "coordinator_default", "parse_gpu", "rasterizer_refusal",
-           "rasterizer_threads"]
+__all__ = ["COORDINATOR_RESERVE_WEIGHT", "DEFAULT_BURST", "DEFAULT_PERIOD_MS", "NODE_WEIGHT", "RESERVE_WEIGHT",
+           "RigBudgets", "coordinator_default", "parse_gpu", "rasterizer_refusal", "rasterizer_threads"]
 
 #: the CFS period of every group: short, so a held node waits at most a few ms at a time (closer
 #: to a slower CPU of its own than 100 ms on, 150 ms off would be)
@@ -40,8 +56,14 @@ THREAD_POLL_S = 60.0
 #: ... and stop once none appeared for this long after the first
 THREAD_SETTLE_S = 3.0
 POLL_INTERVAL_S = 0.1
-#: the CFS weight of every budget group with ``reserve`` (v2's scale; 100 is the kernel's default)
+#: the CFS weight of a node's groups (its budget, its rasterizer's), v2's scale (the kernel's default
+#: is 100, the coordinator's): the nodes come first
+NODE_WEIGHT = 1_000
+#: with ``reserve``: the nodes' groups' weight, and the coordinator's (still a tenth of the nodes')
 RESERVE_WEIGHT = 10_000
+COORDINATOR_RESERVE_WEIGHT = 1_000
+#: a node's CFS burst by default, as a fraction of its quota per period (1.0: the kernel's most)
+DEFAULT_BURST = 1.0
 RASTERIZER_PREFIX = "llvmpipe-"
 
 
@@ -126,16 +148,23 @@ class RigBudgets:
         Put this process (the one running the rig) in a group of its own without a limit, to measure it.
     period_ms : float
         The CFS period of every group.
+    burst : float
+        Each node's CFS burst as a fraction of its quota per period (0..1; 0: none), see above.
     reserve : bool
-        Give the nodes', rasterizers' and coordinator's groups :data:`RESERVE_WEIGHT`, so that other
+        Give the nodes' and rasterizers' groups :data:`RESERVE_WEIGHT` and the coordinator's
+        :data:`COORDINATOR_RESERVE_WEIGHT` (not the kernel's 100 and :data:`NODE_WEIGHT`), so that other
         work on the host does not starve them: each gets its limit whenever it can run, never more
         (a computer of its own is not shared; on a quiet host this changes nothing).
     """
 
     def __init__(self, slots: list[str], *, node_cpu: float, node_gpu: float | str | None = None,
                  coordinator_cpu: float | None | bool = False, own: bool = False,
-                 period_ms: float = DEFAULT_PERIOD_MS, reserve: bool = False, hierarchy: Hierarchy | None = None):
+                 period_ms: float = DEFAULT_PERIOD_MS, reserve: bool = False, burst: float = DEFAULT_BURST,
+                 hierarchy: Hierarchy | None = None):
+        if not (isinstance(burst, (int, float)) and 0.0 <= burst <= 1.0):
+            raise CpuBudgetError(f"a node's CFS burst is a fraction of its quota, 0..1, got {burst!r}")
         self.slots = list(slots)
+        self.burst = float(burst)
         self.node_cpu, self.node_gpu = node_cpu, node_gpu
         self.coordinator_cpu, self.own = coordinator_cpu, own
         self.period_us = int(round(period_ms * 1000))
@@ -195,7 +224,8 @@ class RigBudgets:
                 self.bench = self._make(None, "bench", "bench")
                 self.bench.add(os.getpid(), children=False)
             if self.coordinator_cpu is not False:
-                self.coordinator = self._make(self.coordinator_cpu, "coordinator", "coordinator", weight=self._weight)
+                self.coordinator = self._make(self.coordinator_cpu, "coordinator", "coordinator",
+                                              weight=self.coordinator_weight)
             for s in self.slots:
                 self.nodes[s] = self._node(s, gpu)
         except BaseException:
@@ -215,23 +245,37 @@ class RigBudgets:
         return b
 
     @property
-    def _weight(self) -> int | None:
-        return RESERVE_WEIGHT if self.reserve else None
+    def node_weight(self) -> int:
+        """The CFS weight of a node's groups (v2's scale)."""
+        return RESERVE_WEIGHT if self.reserve else NODE_WEIGHT
+
+    @property
+    def coordinator_weight(self) -> int | None:
+        """The coordinator's CFS weight (None: the kernel's default, 100)."""
+        return COORDINATOR_RESERVE_WEIGHT if self.reserve else None
+
+    @property
+    def burst_us(self) -> int | None:
+        """A node's CFS burst (us a period; None: none)."""
+        us = int(round(self.burst * self.node_cpu * self.period_us))
+        return us or None
 
     def _node(self, slot: str, gpu: float | None) -> _Node:
-        w = self._weight
+        w = self.node_weight
+        b = self.burst_us
         if self.hierarchy.version == 1:      # the node's swap window may take SCHED_FIFO, as on a computer of its own
-            node = self._make(self.node_cpu, "node", slot, weight=w, realtime_us=NODE_REALTIME_US)
+            node = self._make(self.node_cpu, "node", slot, weight=w, realtime_us=NODE_REALTIME_US, burst_us=b)
             return _Node(node, self._make(gpu, "gpu", slot, weight=w) if self.split else None)
         if not self.split:
-            return _Node(self._make(self.node_cpu, "node", slot, weight=w), None)
+            return _Node(self._make(self.node_cpu, "node", slot, weight=w, burst_us=b), None)
         try:        # v2: one threaded subtree per node
-            return _Node(self._make(self.node_cpu, "node", slot, threads=True, thread_fraction=gpu, weight=w), None)
+            return _Node(self._make(self.node_cpu, "node", slot, threads=True, thread_fraction=gpu, weight=w,
+                                    burst_us=b), None)
         except CpuBudgetError as exc:
             self.split = False
             self.rasterizer = (f"in the node's budget: this host refuses cgroup v2 threaded groups ({exc}); "
                                "the rasterizer's CPU counts as the node's")
-            return _Node(self._make(self.node_cpu, "node", slot, weight=w), None)
+            return _Node(self._make(self.node_cpu, "node", slot, weight=w, burst_us=b), None)
 
     def close(self) -> None:
         """Stop looking for threads; move everything back to the root group and remove every group (idempotent)."""
@@ -350,9 +394,15 @@ class RigBudgets:
                 "node_gpu_limit": self.node_gpu if isinstance(self.node_gpu, float) else
                 ("node" if self.node_gpu == "node" else None),
                 "coordinator_cpu_limit": None if self.coordinator_cpu is False else self.coordinator_cpu,
-                "rasterizer": self.rasterizer, "reserve_weight": self._weight,
+                "rasterizer": self.rasterizer, "reserve_weight": RESERVE_WEIGHT if self.reserve else None,
+                "node_weight": self.node_weight, "coordinator_weight": self.coordinator_weight,
+                "node_burst_us": self.burst_granted(),
                 "node_realtime_us": self.realtime_granted(),
                 **({"errors": self.errors} if self.errors else {})}
+
+    def burst_granted(self) -> dict[str, int]:
+        """Per slot, the CFS burst its node's group was given (us a period; 0: none, or a kernel without it)."""
+        return {s: n.cpu.burst_granted_us for s, n in self.nodes.items()}
 
     def realtime_granted(self) -> dict[str, int]:
         """Per slot, the real-time time its node's group was granted per real-time period (us; 0: none, so

@@ -12,7 +12,8 @@ elsewhere it skips only when :func:`shadowless.netns.available` says venues cann
 
 Where CPU budgets can be made (root, a cgroup cpu controller) it runs with ``--node-cpu 0.5``: every
 node, its rasterizer's threads, the coordinator and the benchmark each had a group of their own
-that measured what ran in it (restarted processes included), and no group is left afterwards.
+that measured what ran in it (restarted processes included), the nodes' groups weighing more than
+the coordinator's and allowed a burst, and no group is left afterwards.
 """
 from __future__ import annotations
 
@@ -160,6 +161,9 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert doc["coordinator_cpu_limit"] == max(0.5, doc["machine"]["cpus"] - 2 * 0.5)
     cb = doc["cpu_budget"]
     assert cb["period_ms"] == 10 and cb["rasterizer"].startswith("in a group of their own")
+    # the nodes come first (ten times the coordinator's weight) and may burst by their quota, 5 ms a period
+    assert cb["node_weight"] == 1000 and cb["coordinator_weight"] is None
+    assert set(cb["node_burst_us"]) == slots and set(cb["node_burst_us"].values()) <= {0, 5000}
     groups = cb["groups"]
     assert set(groups) == {"bench", "coordinator"} | {f"{k} {s}" for k in ("node", "rasterizer") for s in slots}
     assert groups["coordinator"]["limit"] == doc["coordinator_cpu_limit"] and groups["bench"]["limit"] is None

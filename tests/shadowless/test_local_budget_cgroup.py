@@ -2,8 +2,9 @@
 and a v2 group's files are set to, the v2 threaded layout written into a directory standing in for
 the hierarchy (this machine has cgroup v1's cpu controller, not v2's), and, for real in the host's
 hierarchy, a budget that holds a busy process, splits off one of its threads, measures both, and
-is removed; a run killed with SIGKILL leaves groups that the next budget removes. The real parts
-skip when not root or when the host has no cgroup cpu controller."""
+is removed; a run killed with SIGKILL leaves groups that the next budget removes; a budget with a
+CFS burst spends saved quota at once; a rig's node groups weigh ten times its coordinator's. The
+real parts skip when not root or when the host has no cgroup cpu controller."""
 from __future__ import annotations
 
 import errno
@@ -20,6 +21,7 @@ from waits import wait_until
 from shadowless.cpu_budget import (CpuBudget, CpuBudgetError, Hierarchy, cleanup_leftovers, enable_cpu,
                                    find_hierarchy, group_name, groups_of, host_hierarchy, leftover_groups,
                                    parse_cpu_stat, remove_group, unavailable, v1_files, v2_files)
+from shadowless.rig_budget import COORDINATOR_RESERVE_WEIGHT, NODE_WEIGHT, RESERVE_WEIGHT, RigBudgets
 
 HYBRID = """\
 cgroup /sys/fs/cgroup/cpu cgroup rw,relatime,cpu 0 0
@@ -60,11 +62,20 @@ def test_group_files_names_and_stats():
              "other-13-0", "shadowless-venue-probe-14-2"]
     assert leftover_groups(names, alive) == ["shadowless-bench-12-0", "shadowless-gpu-11-1",
                                              "shadowless-venue-probe-14-2"]
-    v1 = "nr_periods 50\nnr_throttled 7\nthrottled_time 2500000000\nnr_bursts 0\n"
+    v1 = "nr_periods 50\nnr_throttled 7\nthrottled_time 2500000000\nnr_bursts 3\nburst_time 6000000\n"
     assert parse_cpu_stat(v1, 1, usage_ns=1_234_000_000) == {"periods": 50, "throttled": 7, "throttled_s": 2.5,
-                                                           "cpu_s": 1.234}
+                                                           "cpu_s": 1.234, "bursts": 3, "burst_s": 0.006}
     v2 = "usage_usec 3000000\nuser_usec 2000000\nsystem_usec 1000000\nnr_periods 9\nnr_throttled 2\nthrottled_usec 40000\n"
     assert parse_cpu_stat(v2, 2) == {"periods": 9, "throttled": 2, "throttled_s": 0.04, "cpu_s": 3.0}
+    assert parse_cpu_stat(v2 + "nr_bursts 1\nburst_usec 2500\n", 2)["burst_s"] == 0.003
+    # a burst is at most the quota, and only with a limit
+    assert v1_files(0.4, 10_000, burst_us=4000)["cpu.cfs_burst_us"] == "4000"
+    assert v1_files(0.4, 10_000, burst_us=9000)["cpu.cfs_burst_us"] == "4000"
+    assert "cpu.cfs_burst_us" not in v1_files(None, 10_000, burst_us=4000)
+    assert list(v1_files(0.4, 10_000, burst_us=4000)) == ["cpu.cfs_period_us", "cpu.cfs_quota_us", "cpu.cfs_burst_us"]
+    assert v2_files(0.2, 10_000, burst_us=5000) == {"cpu.max": "2000 10000", "cpu.max.burst": "2000"}
+    with pytest.raises(CpuBudgetError, match="burst is a whole number"):
+        CpuBudget(0.4, burst_us=-1)
     with pytest.raises(CpuBudgetError, match="under the kernel's 1 ms"):
         CpuBudget(0.05, period_us=10_000)
     with pytest.raises(CpuBudgetError, match="fraction of one core"):
@@ -242,3 +253,64 @@ def test_v2_thread_rules_and_removal_on_the_kernels_cgroup2_mount():
                 if (group / child).exists():
                     (group / child).rmdir()
             group.rmdir()
+
+
+def test_a_real_budgets_burst_lets_work_that_comes_at_once_spend_saved_quota():
+    """A process that sleeps, then spins for several ms, in a budget of 0.2 of a core over 10 ms: with
+    a burst the kernel lets it spend quota it saved while asleep (``bursts`` counted), and its
+    average stays held (throttled too, since each spin is longer than quota and burst together)."""
+    h = _host()
+    code = textwrap.dedent("""
+        import time
+        while True:
+            time.sleep(0.03)
+            t = time.thread_time()
+            while time.thread_time() - t < 0.006: pass
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        with CpuBudget(0.2, period_us=10_000, name="test", kind="node", burst_us=2000, hierarchy=h) as b:
+            if not b.burst_granted_us:
+                pytest.skip("this kernel has no CFS burst (Linux 5.14+)")
+            assert b.burst_granted_us == 2000
+            b.add(proc.pid)
+            st = wait_until(b.stats, lambda s: s.get("bursts", 0) >= 5 and s.get("throttled", 0) >= 5,
+                            what="bursts spent and the group still held")
+            assert st["burst_us"] == 2000 and st["burst_s"] > 0, st
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.mark.parametrize("reserve", [False, True])
+def test_a_rigs_nodes_come_first_and_may_burst(reserve):
+    """A rig's groups as made on this host: each node's budget and its rasterizer's group weigh ten
+    times the coordinator's (the coordinator gets what the nodes leave, as on separate computers
+    nobody waits for another), higher still with ``reserve``; each node's budget may burst by its
+    quota, and the document says all of it."""
+    h = _host()
+    with RigBudgets(["a", "b"], node_cpu=0.4, coordinator_cpu=0.5, own=True, reserve=reserve, hierarchy=h) as rb:
+        node_w, coord_w = (RESERVE_WEIGHT, COORDINATOR_RESERVE_WEIGHT) if reserve else (NODE_WEIGHT, 100)
+        assert node_w == 10 * coord_w
+
+        def weight(b) -> int:
+            if h.version == 2:
+                return int((b.path / "cpu.weight").read_text())
+            return round(int((b.path / "cpu.shares").read_text()) * 100 / 1024)
+        for s in ("a", "b"):
+            node = rb.nodes[s]
+            assert weight(node.cpu) == node_w
+            if node.gpu is not None:
+                assert weight(node.gpu) == node_w
+        assert weight(rb.coordinator) == coord_w and weight(rb.bench) == 100
+        d = rb.describe()
+        assert (d["node_weight"], d["coordinator_weight"]) == (node_w, coord_w if reserve else None)
+        burst = rb.nodes["a"].cpu.burst_granted_us
+        assert d["node_burst_us"] == {"a": burst, "b": burst}
+        if burst:
+            assert burst == 4000 and rb.stats()["node a"]["burst_us"] == 4000
+        assert "burst_us" not in rb.stats()["coordinator"]
+    with pytest.raises(CpuBudgetError, match="burst is a fraction"):
+        RigBudgets(["a"], node_cpu=0.4, burst=1.5)
+    with RigBudgets(["a"], node_cpu=0.4, burst=0, hierarchy=h) as rb:
+        assert rb.describe()["node_burst_us"] == {"a": 0}
