@@ -206,7 +206,6 @@ class Presenter:
         shader at its first draw, ~0.1 s), not while the first real frame waits for its deadline
         (nor the first frame shown with blend maps, at the instant every node switches)."""
         r = self.renderer
-        r.warm_up()     # the shader variants of video, blends and fades too (node/render/renderer.py)
         img = np.zeros((r.height, r.width, 3), np.uint8)
         r.upload("__warm__", img)
         r.set_homography(np.eye(3), (r.width, r.height))
@@ -221,6 +220,10 @@ class Presenter:
         r.set_blend(None)
         self._ctx.finish()
         r.forget("__warm__", reuse=False)     # drawn once: its 8 MB texture not kept for reuse
+        # the shader variants of video, blends and fades too (node/render/renderer.py); drawn after the
+        # forget, so that llvmpipe lets the warm picture's texture go now (it keeps a released texture
+        # until a draw binds another), not at the first content: 8 MB less for an idle presenter at 1080p
+        r.warm_up()
         r.set_lut(None)
         r.clear_pose()
 
