@@ -27,7 +27,10 @@ camera.
   ``cpu_budget``), so that starved CPU and the protocol can be told apart. ``stages_ms`` says where
   a failover's time went: the coordinator's stamps (wanted, ready, set, the instant) and each node's
   (received, decoded, read by the presenter, uploaded, the first frame shown with the maps, its swap
-  done, the coordinator told), p50 and max over the nodes.
+  done, the coordinator told), p50 and max over the nodes. ``cpu_ms`` says whose CPU the loss took,
+  from the kill until every node was seen showing its maps (:mod:`bench.uniformity_cpu`): the node
+  processes, their presenters, the room, this process (the coordinator), the whole host and the rest
+  of it (``others``), so that a slow switch can be told to be the rig's work or a shared machine's.
 * **Watchdog**: one lamp dimmed to 50 % and another to 0 through the room's lamp switch while
   their nodes stay live; the time until the watchdog names each, its gain estimates against the
   room's truth, and the non-uniformity over both footprints once re-blended. The rig shows a flat
@@ -57,6 +60,7 @@ import numpy as np
 
 from bench.calibration import table_points_from_truth
 from bench.compensation_room import points_doc
+from bench.uniformity_cpu import CpuSnapshot, children_of
 from bench.uniformity_measure import nonuniformity, scale_of
 from bench.uniformity_room import blend_params, stored_target, truth_luts
 from bench.uniformity_scenes import Light, Missing, slots_of, table_room
@@ -86,6 +90,14 @@ class Live:
     shown_pts: int = 0                 # the rig instant the flat white went on screen
     result: dict | None = None         # the blend job's result
     ahead_s: float | None = None       # how long the coordinator took to compute the failover variants ahead
+    room_pid: int = 0                  # the room process
+
+    def cpu_snapshot(self, slots) -> CpuSnapshot:
+        """The run times of ``slots``' node processes, their presenters, the room and this process (the coordinator)."""
+        nodes = [p.pid for s, p in self.local.nodes.items() if s in slots and p.poll() is None]
+        return CpuSnapshot({"nodes": nodes, "presenters": [c for p in nodes for c in children_of(p)],
+                            "room": [self.room_pid] if self.room_pid else [], "coordinator": [os.getpid()]},
+                           threads_of=os.getpid())
 
     @property
     def core(self):
@@ -166,7 +178,7 @@ def _room_command(args, light: Light, port: int) -> list[str]:
 @contextlib.contextmanager
 def room_process(args, light: Light, work: Path, slots: list[str]):
     """The room as a process of its own (25 nodes' frames would starve a coordinator sharing its process),
-    powering ``slots``; yields its address."""
+    powering ``slots``; yields its address and its process id."""
     from shadowless.local import free_port
     from sim.link import RoomClient
     port = free_port()
@@ -179,7 +191,7 @@ def room_process(args, light: Light, work: Path, slots: list[str]):
         with RoomClient(address) as rc:
             rc.wait_ready(300)
             rc.set_active(list(slots))
-        yield address
+        yield address, proc.pid
     finally:
         proc.terminate()
         try:
@@ -207,7 +219,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
     content = (int(round(tw / 4)), int(round(th / 4)))
     params = blend_params({"headroom": "auto" if args.headroom is None else args.headroom,
                            **({} if args.map_scale is None else {"map_scale": args.map_scale})})
-    with room_process(args, light, work, slots) as address:
+    with room_process(args, light, work, slots) as (address, room_pid):
         local = LocalRig(slots, work, output_size=room.projector_size(slots[0]), content_size=content,
                          node_output=f"room://{address}", mdns=False, latency_ms=80.0, budgets=budgets)
         local.create()
@@ -236,7 +248,7 @@ async def live_rig(args, work: Path, light: Light, slots: list[str], *, watchdog
                 t = time.perf_counter()
                 result = await run_job(c, "blend", params, view=ProgressView())
                 _log(f"{len(slots)} projectors blended through the nodes ({time.perf_counter() - t:.0f} s)")
-                live = Live(room, address, local, app, c, list(slots), content)
+                live = Live(room, address, local, app, c, list(slots), content, room_pid=room_pid)
                 await _wait("the coordinator holding the new blend", lambda: _loaded(live, result), 60)
                 if show == "timeline":
                     await _wait_holding(c, slots)
@@ -424,6 +436,8 @@ async def _lose(live: Live, victim: str, slots: list[str], period_ns: float, sho
     other node shows its new maps: the detection time, how many frames after the loss was declared the maps
     were on screen, the switch's timing and stages (``_since``: the pts the last node showed them from)."""
     old_ids = {s: live.slot_blend_id(s) for s in slots}
+    rest = [s for s in slots if s != victim]
+    cpu0 = await asyncio.to_thread(live.cpu_snapshot, rest)
     t_kill = time.monotonic_ns()
     live.local.nodes[victim].send_signal(signal.SIGKILL)
     # the room process blacks the dead node's projector out when its stream breaks off (--no-signal black)
@@ -432,7 +446,6 @@ async def _lose(live: Live, victim: str, slots: list[str], period_ns: float, sho
     seen_ns = time.monotonic_ns()
     declared_ns = _declared_ns(st.since, seen_ns)
     out: dict = {"detect_s": _r((declared_ns - t_kill) / 1e9, 3), "message": st.message, "covered": st.covered}
-    rest = [s for s in slots if s != victim]
     reported: dict[str, int] = {}       # slot -> when the coordinator first heard it shows its new maps
 
     def shown_everywhere() -> bool:
@@ -443,6 +456,8 @@ async def _lose(live: Live, victim: str, slots: list[str], period_ns: float, sho
         return _switched(live) and any(live.slot_blend_id(s) != old_ids[s] for s in rest) \
             and live.showing_assigned(rest)
     await _wait("the remaining nodes showing new maps", shown_everywhere, 60)
+    t_all = time.monotonic_ns()
+    cpu2 = await asyncio.to_thread(live.cpu_snapshot, rest)     # read off the event loop, after the switch
     changed = [s for s in rest if live.slot_blend_id(s) != old_ids[s]]
     out["maps_changed"] = len(changed)
     since = live.since_ns(changed)
@@ -451,6 +466,8 @@ async def _lose(live: Live, victim: str, slots: list[str], period_ns: float, sho
     out["ms_after_declared"] = _r((max(since) - declared_ns) / 1e6, 2)
     out.update(_switch_timing(live, since, declared_ns, show, period_ns))
     out["stages_ms"] = _stages(live, changed, declared_ns, reported)
+    # whose CPU the loss took, from the kill until every node was seen showing its maps (its detection too)
+    out["cpu_ms"] = {"window_ms": _r((t_all - t_kill) / 1e6, 1), **cpu2.since(cpu0)}
     out["message_after"] = live.blend_status().message
     late1 = _late(live, rest)
     out["show_ticks_missed_meanwhile"] = sum(late1[s] - late0.get(s, 0) for s in rest)
