@@ -19,8 +19,9 @@ reordered frames, its threads' buffers, measured as the growth while the first f
 less the frame queue); the frame queue (what :class:`DecodeAhead` holds, counted by construction from the frames it buffers: the
 planes' own bytes when they are copies, 0 when they are views of the decoder's frames, which the
 decoder's share then includes); and the textures (the growth of the first upload and draw: one
-picture's planes, 3 MB at 1080p 4:2:0, less the warm-up picture's texture, which llvmpipe frees
-once another texture takes its unit: the share can be negative).
+picture's planes, 3 MB at 1080p 4:2:0; before the presenter compiled its variants after the
+warm-up picture, it also gave back that picture's texture, which llvmpipe frees once a draw binds
+another texture, and the share was negative).
 ``rss_mb`` is the median over the second half of the frames (steady), ``peak_rss_mb`` the
 process's ``VmHWM``; ``rss_mb_without_software_gpu_libs`` is ``rss_mb`` less the resident pages
 of llvmpipe's libraries (``software_gpu_libs_mb``: LLVM, Mesa's DRI driver, read from
@@ -119,9 +120,9 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         r.ctx.finish()
         r_context = rss_mb()
         anon_context = rss_mb("RssAnon") - anon_before_context
-        # the presenter's warm-up (node/presenter.py): the shader variants a show draws, compiled at
-        # start, and a picture of the output's size drawn in content and projector space, then forgotten
-        r.warm_up()
+        # the presenter's warm-up (node/presenter.py): a picture of the output's size drawn in content
+        # and projector space, then forgotten, and the shader variants a show draws compiled after it (their
+        # draws bind other textures, so llvmpipe lets the picture's texture go)
         picture = np.zeros((h, w, 3), np.uint8)
         r.upload("__warm__", picture)
         r.set_homography(np.eye(3), (w, h))
@@ -130,6 +131,8 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         r.ctx.finish()
         r.forget("__warm__", reuse=False)
         del picture
+        r.warm_up()
+        r.ctx.finish()
         r_warm = rss_mb()
         # the preview the presenter makes at open to time one (node/presenter.py, PreviewMaker.time_once):
         # its read-back stays with the process
