@@ -13,6 +13,7 @@ could be read.
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 __all__ = ["CpuSnapshot", "children_of"]
@@ -78,24 +79,42 @@ def children_of(pid: int) -> list[int]:
 
 
 class CpuSnapshot:
-    """Run times of groups of processes (group name -> pids) now; :meth:`since` another gives ms per group."""
+    """Run times of groups of processes (group name -> pids) now; :meth:`since` another gives ms per group.
+
+    Reading ``/proc`` for fifty processes costs this process a few milliseconds: this process (any group
+    holding it), the threads of ``threads_of`` (this process) and the host are read both before and after
+    the others, and :meth:`since` counts from the earlier snapshot's end to the later one's start, so that
+    neither snapshot's own reading is counted."""
 
     def __init__(self, groups: dict[str, list[int]], *, threads_of: int | None = None):
+        self.me = os.getpid()
         self.groups = {k: list(v) for k, v in groups.items()}
-        self.ns = {k: {p: _run_ns(p) for p in v} for k, v in self.groups.items()}
-        self.threads = _threads_ns(threads_of) if threads_of else {}
-        self.host_ns = _host_busy_ns()
+        self._threads_of = threads_of
+        self.first = self._mark()
+        self.ns = {k: {p: _run_ns(p) for p in v if p != self.me} for k, v in self.groups.items()}
+        self.last = self._mark()
+
+    def _mark(self) -> tuple[int, int, int, dict[str, int]]:
+        """(monotonic ns, the host's busy ns, this process's run ns, its threads' run ns by name)"""
+        return (time.monotonic_ns(), _host_busy_ns(), _run_ns(self.me),
+                _threads_ns(self._threads_of) if self._threads_of else {})
 
     def since(self, before: "CpuSnapshot") -> dict[str, float]:
-        """CPU ms per group between ``before`` and this snapshot (processes present in both)."""
-        out = {}
+        """CPU ms per group between ``before`` and this snapshot (processes present in both), ``span_ms`` the
+        time between the two, ``host`` the whole host's busy ms and ``others`` what of it no group ran."""
+        t0, host0, me0, threads0 = before.last
+        t1, host1, me1, threads1 = self.first
+        out: dict = {"span_ms": round((t1 - t0) / 1e6, 1)}
         for k, now in self.ns.items():
             was = before.ns.get(k, {})
-            out[k] = round(sum(max(0, v - was[p]) for p, v in now.items() if p in was) / 1e6, 2)
-        if self.host_ns and before.host_ns:     # the whole host, and what was not the groups' (others' work)
-            out["host"] = round((self.host_ns - before.host_ns) / 1e6, 1)
+            ns = sum(max(0, v - was[p]) for p, v in now.items() if p in was)
+            if self.me in self.groups[k] and self.me in before.groups.get(k, ()):
+                ns += max(0, me1 - me0)
+            out[k] = round(ns / 1e6, 2)
+        if host0 and host1:     # the whole host, and what was not the groups' (others' work)
+            out["host"] = round((host1 - host0) / 1e6, 1)
             out["others"] = round(max(0.0, out["host"] - sum(out[k] for k in self.ns)), 1)
-        if self.threads:       # one process's threads by name, the busiest first
-            diff = {n: (v - before.threads.get(n, 0)) / 1e6 for n, v in self.threads.items()}
+        if threads1:       # one process's threads by name, the busiest first
+            diff = {n: (v - threads0.get(n, 0)) / 1e6 for n, v in threads1.items()}
             out["threads"] = {n: round(v, 2) for n, v in sorted(diff.items(), key=lambda kv: -kv[1]) if v >= 0.5}
         return out
