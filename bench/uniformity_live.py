@@ -553,6 +553,7 @@ def _stages(live: Live, slots: list[str], declared_ns: int, reported: dict[str, 
     common["declared"] = declared_ns
     common["instant"] = common.get("instant", 0)
     per: dict[str, list[float]] = {name: [] for name, _, _ in _STAGES}
+    received: dict[str, float] = {}     # slot -> ms from the set to that node's network side having the maps
     found = 0
     for s in slots:
         want = live.slot_blend_id(s)
@@ -569,11 +570,15 @@ def _stages(live: Live, slots: list[str], declared_ns: int, reported: dict[str, 
         for name, a, b in _STAGES:
             if stamps.get(a) and stamps.get(b):
                 per[name].append((stamps[b] - stamps[a]) / 1e6)
+        if stamps.get("set") and stamps.get("received"):
+            received[s] = (stamps["received"] - stamps["set"]) / 1e6
     out: dict = {"nodes": found}
     for name, _, _ in _STAGES:
         v = per[name]
         if v:
             out[name] = {"min": _r(min(v), 2), "p50": _r(float(np.median(v)), 2), "max": _r(max(v), 2)}
+    if received:        # in the order the coordinator set them: a fan-out in that order, or the nodes' own turns
+        out["set_to_received_by_slot"] = {s: _r(v, 1) for s, v in received.items()}
     return out
 
 
