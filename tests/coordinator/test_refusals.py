@@ -222,8 +222,9 @@ def test_tls_channel(tmp_path):
 def test_a_second_node_for_a_taken_slot_is_refused_and_the_first_keeps_it(small_rig):
     """Two node processes started for one slot on one machine: the second takes the slot once
     (it could be a restart), the first is then refused when it comes back for it, and the slot
-    stays with the second instead of changing hands forever."""
-    first = small_rig.start_node("r0c0")
+    stays with the second instead of changing hands forever. The first asks again 1 s after a
+    refusal (an operator's node waits 10 s: a test hook), so its second refusal comes without that wait."""
+    first = small_rig.start_node("r0c0", ["--refusal-backoff-s", "1"])
     wait_for_log(small_rig, "node-r0c0", "joined rig")
     twin = small_rig._spawn("node-r0c0-twin", small_rig.node_args("r0c0"))
     try:
