@@ -49,7 +49,8 @@ from node.render.mesh import Mesh
 from node.render.readback import ReadBack
 from node.render.yuv_textures import YuvTextures, layout_key
 from node.render.shaders import (BLACK, GREY, MIN_GL_VERSION, MIN_GLES_VERSION, RGB, YUV_PLANAR, YUV_SEMIPLANAR,
-                                  Variant, glsl_header, has_norm16_textures, is_gles, load_shader, shading_language)
+                                  Variant, glsl_header, has_norm16_textures, is_gles, is_software_rasterizer,
+                                  load_shader, shading_language)
 from protos.blend import BlendMaps
 from protos.yuv import YuvFrame
 
@@ -150,6 +151,10 @@ class Renderer:
             )
         self.ctx = ctx
         self._norm16 = has_norm16_textures(ctx)
+        #: a planar YUV picture's U and V go up interleaved into one texture and draw as semi-planar
+        #: (yuv_textures.py): four chroma fetches per pixel instead of eight, for an interleave on the
+        #: CPU per frame; worth it where the CPU also draws. Read at each upload.
+        self.interleave_chroma = is_software_rasterizer(ctx)
         self._norm16_note_logged = False
         self._owns_ctx = False
         self._released = False
@@ -609,13 +614,15 @@ class Renderer:
                 return
             raise ValueError(f"content {content_id!r} is already uploaded as another picture; content ids are "
                              "immutable (forget() it first)")
-        if self._spare_yuv is not None and self._spare_yuv.key == layout_key(frame):
+        spare = self._spare_yuv
+        if spare is not None and spare.key == layout_key(frame) and spare.interleaved == (
+                self.interleave_chroma and frame.layout == "planar"):
             planes, self._spare_yuv = self._spare_yuv, None
             planes.refill(frame)
         else:
             if frame.bits > 8 and not self._norm16 and not self._norm16_note_logged:
                 self._norm16_as_float(np.zeros((1, 1), np.uint16))   # logs the note once
-            planes = YuvTextures(frame, self._plane_texture, self._norm16)
+            planes = YuvTextures(frame, self._plane_texture, self._norm16, self.interleave_chroma)
         self._contents[content_id] = _Content(planes.textures[0], shape, dtype, False, planes)
 
     def _plane_texture(self, data: np.ndarray) -> Any:
@@ -782,7 +789,8 @@ class Renderer:
         """Compile the shader variants a node draws most and draw each once, into a 2x2 corner of
         the framebuffer (then cleared), so that the driver compiles them now (llvmpipe JITs a
         program at its first draw, per texture format: ~0.1 s and several MB each), not while a
-        frame waits for its deadline: :data:`WARM_VARIANTS`, on 8-bit content. Others compile at
+        frame waits for its deadline: :data:`WARM_VARIANTS`, on 8-bit content (planar YUV as the kind it
+        draws as: semi-planar where its chroma is interleaved, :attr:`interleave_chroma`). Others compile at
         their first draw. The pose, blend maps, LUT and uploaded content are left as they were."""
         def picture(kind: int) -> _Content:
             if kind in (RGB, GREY):
@@ -792,10 +800,16 @@ class Renderer:
             y, c = np.zeros((2, 2), np.uint8), np.full((1, 1), 128, np.uint8)
             planes = (y, c, c) if kind == YUV_PLANAR else (y, np.full((1, 1, 2), 128, np.uint8))
             frame = YuvFrame(planes=planes, layout="planar" if kind == YUV_PLANAR else "semiplanar")
-            yuv = YuvTextures(frame, self._plane_texture, self._norm16)
+            yuv = YuvTextures(frame, self._plane_texture, self._norm16, self.interleave_chroma)
             return _Content(yuv.textures[0], (2, 2), np.dtype(np.uint8), False, yuv)
 
         pictures = {kind: picture(kind) for kind in (RGB, GREY, YUV_PLANAR, YUV_SEMIPLANAR)}
+        # a planar picture draws as the kind its textures are (semi-planar where its chroma is interleaved):
+        # the programs compiled are those its frames will use, each once
+        drawn: dict[Variant, Variant] = {}
+        for v in WARM_VARIANTS:
+            fade = v.fade_from if v.fade_from in (None, BLACK) else pictures[v.fade_from].kind
+            drawn.setdefault(Variant.of(pictures[v.content].kind, fade, v.blend, v.apply_lut), v)
         saved = dict(self._uniforms)
         fbo = self._fbo
         try:
@@ -803,14 +817,14 @@ class Renderer:
             fbo.use()
             self._uniforms.update(frag_to_content=_mat_bytes(np.eye(3)), fade_mix=0.5)
             self.ctx.enable_only(self._mgl.NOTHING)
-            for v in WARM_VARIANTS:
+            for d, v in drawn.items():
                 if v.fade_from is not None and v.fade_from != BLACK:
                     before = pictures[v.fade_from]
                     before.texture.use(3)
                     if before.yuv is not None:
                         before.yuv.bind(self._uniforms, "from_", (3, 6, 7))
                 self._bind_content(pictures[v.content])
-                self._use("warp", v)[3].render(self._mgl.TRIANGLES, vertices=3)
+                self._use("warp", d)[3].render(self._mgl.TRIANGLES, vertices=3)
         finally:
             self._uniforms.clear()
             self._uniforms.update(saved)

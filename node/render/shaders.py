@@ -74,6 +74,13 @@ def shading_language(version_code: int, gles: bool = False) -> str:
     return "GLSL 3.30" if version_code >= 330 else "GLSL 1.40"
 
 
+def is_software_rasterizer(ctx: Any) -> bool:
+    """Whether ``ctx`` draws on the CPU (Mesa's llvmpipe or softpipe, SwiftShader), by its GL_RENDERER:
+    there a texel fetch costs the same CPU as the node's own work."""
+    renderer = str(ctx.info.get("GL_RENDERER", "")).lower()
+    return any(name in renderer for name in ("llvmpipe", "softpipe", "swiftshader"))
+
+
 def has_norm16_textures(ctx: Any) -> bool:
     """Whether 16-bit normalised textures (R16, RGBA16) exist: always on desktop OpenGL, on
     OpenGL ES only with GL_EXT_texture_norm16 (core GLES 3.x has none)."""

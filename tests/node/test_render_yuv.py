@@ -112,6 +112,33 @@ def test_the_warp_scales_the_planes_to_the_content_and_fades_from_them(r):
         r.clear_pose()
 
 
+def test_planar_chroma_draws_the_same_picture_interleaved_or_not(r):
+    # on llvmpipe a planar picture's U and V go up interleaved (four chroma fetches per pixel, not
+    # eight); the shader's planar path, which a GPU draws, must land on the same levels, bit for bit
+    pose = np.array([[1.1, 0.04, 2.0], [0.03, 1.05, -1.0], [1e-4, 2e-4, 1.0]])
+    r.set_homography(pose, (PW, PH))
+    default = r.interleave_chroma
+    try:
+        for fmt in ("yuv420p", "yuv420p10le", "yuv422p"):
+            y = planes(fmt, "bt709", False)
+            got = []
+            for interleave in (True, False, True):     # the last one after the planar picture's textures are forgotten
+                r.interleave_chroma = interleave
+                r.upload("yuv", y)
+                try:
+                    r.render("yuv")
+                    got.append(r.read().astype(np.int32))
+                finally:
+                    r.forget("yuv")
+            for other, interleave in zip(got[1:], ("planar", "interleaved again")):
+                diff = np.abs(other - got[0])
+                assert diff.max() == 0, f"{fmt} {interleave}: max {diff.max()}, {(diff > 0).mean():.3f} differ"
+            assert got[0].std() > 20, f"{fmt}: the picture is not there"
+    finally:
+        r.interleave_chroma = default
+        r.clear_pose()
+
+
 GL31 = {"MESA_GL_VERSION_OVERRIDE": "3.1", "MESA_GLSL_VERSION_OVERRIDE": "140", "GLCONTEXT_GLVERSION": "310",
         "SHADOWLESS_GL": "gl", "SHADOWLESS_TEST_GL_VERSION": "310"}
 GLES_BARE = {"MESA_GL_VERSION_OVERRIDE": "3.0", "SHADOWLESS_GL": "gles", "MESA_GLES_VERSION_OVERRIDE": "3.0",
@@ -123,6 +150,7 @@ import test_render_yuv as t
 r = next(t.r.__wrapped__())
 t.test_the_shader_converts_every_layout_as_the_reference_does(r)
 t.test_the_warp_scales_the_planes_to_the_content_and_fades_from_them(r)
+t.test_planar_chroma_draws_the_same_picture_interleaved_or_not(r)
 print("ok", r.ctx.version_code, r._norm16)
 """
 
