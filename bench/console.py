@@ -280,6 +280,23 @@ def text_of(driver, element_id: str) -> str:
     return driver.execute_script(f"return document.getElementById('{element_id}').textContent;")
 
 
+def click(driver, element_id: str, timeout: float = 60.0) -> None:
+    """Click the element with ``element_id`` once nothing covers it: a page laid out again between
+    Selenium's scroll and its click (a banner or a table growing above it, slow on a loaded host)
+    makes the click land on another element, which Chromium refuses rather than clicks; tried again
+    until ``timeout``."""
+    from selenium.common.exceptions import ElementClickInterceptedException, StaleElementReferenceException
+
+    def attempt() -> bool:
+        try:
+            driver.find_element("id", element_id).click()
+            return True
+        except (ElementClickInterceptedException, StaleElementReferenceException):
+            return False
+
+    wait_for(attempt, timeout, f"#{element_id} clickable (not covered by another element)", poll=0.1)
+
+
 def log_in(driver, token: str, timeout: float = 60.0) -> None:
     """Type the token into the login form and submit it."""
     from selenium.webdriver.common.by import By

@@ -9,8 +9,8 @@ import grpc
 import numpy as np
 import pytest
 
-from bench.console import (ConsoleRig, all_shown, chromium, log_in, page_gains, page_states, text_of,
-                           visible, wait_for)
+from bench.console import (ConsoleRig, all_shown, chromium, click, log_in, page_gains, page_states,
+                           text_of, visible, wait_for)
 from coordinator.rig import Content
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import Select
@@ -86,14 +86,14 @@ def test_the_console_in_a_browser(tmp_path, browser_ready, silent_camera):
             assert driver.title != "pwned"
 
             # Blackout and Stop act on the rig, once confirmed on the page
-            driver.find_element("id", "blackout").click()
+            click(driver, "blackout")
             wait_for(lambda: visible(driver, "confirm-bar"), 60, "the blackout's confirmation")
-            driver.find_element("id", "confirm-go").click()
+            click(driver, "confirm-go")
             wait_for(lambda: rig.call(lambda: rig.coord.status().showing) == "black (blackout)", 60, "blackout on the rig")
             wait_for(lambda: "blackout" in text_of(driver, "showing"), 60, "blackout on the page")
-            driver.find_element("id", "stop").click()
+            click(driver, "stop")
             wait_for(lambda: visible(driver, "confirm-bar"), 60, "the stop's confirmation")
-            driver.find_element("id", "confirm-go").click()
+            click(driver, "confirm-go")
             wait_for(lambda: "grey card" in rig.call(lambda: rig.coord.status().showing), 60, "the content restored")
             wait_for(lambda: "grey card" in text_of(driver, "showing"), 60, "the content on the page")
 

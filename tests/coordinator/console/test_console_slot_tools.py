@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.console import ConsoleRig, chromium, log_in, text_of, visible, wait_for
+from bench.console import ConsoleRig, chromium, click, log_in, text_of, visible, wait_for
 from coordinator import test_patterns
 from coordinator.rig import Content
 from coordinator.unposed import unposed_warning
@@ -129,11 +129,11 @@ def test_patterns_solo_selection_confirmation_and_banner(tmp_path, browser_ready
             assert driver.find_elements("css selector", '#unposed .tile[data-slot="r0c1"]')
 
             # Blackout asks on the page first; only the confirmation acts
-            driver.find_element("id", "blackout").click()
+            click(driver, "blackout")
             wait_for(lambda: visible(driver, "confirm-bar"), 60, "the confirmation")
             assert driver.switch_to.active_element.get_attribute("id") == "confirm-cancel"
             assert "white card" in rig.call(lambda: rig.coord.status().showing)
-            driver.find_element("id", "confirm-go").click()
+            click(driver, "confirm-go")
             wait_for(lambda: rig.call(lambda: rig.coord.status().showing) == "black (blackout)", 60, "blackout")
 
             # a node killed: the banner turns to an alarm naming it, with how long ago
