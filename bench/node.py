@@ -28,7 +28,9 @@ decoding, uploading and rendering with the maps (``rss_maps_mb``) is ``blend.rss
 ``--variants`` (:mod:`bench.node_variants`) measures instead llvmpipe's CPU per frame for each
 shader variant the node draws (RGB, grey, planar YUV, NV12, with fades, blend maps, without the
 LUT), at 640x360 and at ``--size``; ``--against COMMIT`` runs that commit's renderer in turn with
-this one's and gives their ratio per variant.
+this one's and gives their ratio per variant. ``--ablate`` (:mod:`bench.node_ablation`): llvmpipe's
+CPU per output pixel of the warp with one piece of its shader taken out at a time, what a pixel's
+draw is made of.
 """
 from __future__ import annotations
 
@@ -86,6 +88,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="instead: llvmpipe's CPU per frame (the GPU's work here) for each shader variant the node "
                         "draws (RGB, grey, planar YUV, NV12; fades, blend maps, no LUT) at 640x360 and at --size "
                         "(bench/node_variants.py)")
+    p.add_argument("--ablate", action="store_true",
+                   help="instead: llvmpipe's CPU per output pixel of the warp with one piece of the shader taken "
+                        "out at a time (the LUT, the content's fetches, the chroma, the YUV matrix...), at 640x360 and at "
+                        "--size, to see what a pixel costs (bench/node_ablation.py)")
     p.add_argument("--against", metavar="COMMIT",
                    help="with --variants: the same figures for that commit's renderer, taking turns with this one's "
                         "in one run, and their ratio")
@@ -271,6 +277,15 @@ def run(args: argparse.Namespace) -> int:
     if args.worker:
         print(json.dumps(_worker(args)))
         return 0
+    if args.ablate:
+        from bench import node_ablation
+
+        sizes = [(640, 360)] + ([tuple(args.size)] if tuple(args.size) != (640, 360) else [])
+        res = node_ablation.ablate(sizes, args.rounds or 3, 12)
+        print(json.dumps({"benchmark": "node", "machine": machine(), "load": os.getloadavg(), "ablation": res},
+                         indent=2))
+        print("\n".join(node_ablation.summary(res)), file=sys.stderr)
+        return 0
     if args.variants:
         from bench import node_variants
 
@@ -278,9 +293,10 @@ def run(args: argparse.Namespace) -> int:
         rounds = args.rounds or 3
         print(f"bench node --variants: {len(node_variants.VARIANTS)} variants at "
               f"{', '.join(f'{w}x{h}' for w, h in sizes)}, {rounds} round{'s' if rounds != 1 else ''} of "
-              f"{node_variants.FRAMES} frames each" + (f", against {args.against}" if args.against else ""),
+              f"{node_variants.FRAMES} frames each, {args.content[0]}x{args.content[1]} content"
+              + (f", against {args.against}" if args.against else ""),
               file=sys.stderr)
-        res = node_variants.variants(sizes, rounds, node_variants.FRAMES, args.against)
+        res = node_variants.variants(sizes, rounds, node_variants.FRAMES, args.against, tuple(args.content))
         print(json.dumps({"benchmark": "node", "machine": machine(), "load": os.getloadavg(), "variants": res},
                          indent=2))
         print("\n".join(node_variants.summary(res)), file=sys.stderr)

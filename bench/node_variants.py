@@ -2,7 +2,8 @@
 warp draws (RGB, grey, planar YUV, NV12; with a fade, blend maps, without the LUT), at the output
 sizes given, and optionally the same for the renderer of another commit in the same run.
 
-For each size, a worker process makes a renderer on a headless context, a homography pose, a LUT
+For each size, a worker process makes a renderer on a headless context, a homography pose (from
+content of ``--content``'s size, 1920x1080 by default), a LUT
 and a gain, and for each variant (all of them twice, the first pass dropped) uploads its content, draws
 three warm-up frames, then
 draws frames waiting for each (``finish``), counting the CPU of llvmpipe's rasterizer threads
@@ -76,13 +77,14 @@ def _content(kind: str, size: tuple[int, int], seed: int):
     return YuvFrame(planes=(y, c), layout="semiplanar")
 
 
-def worker(size: tuple[int, int], frames: int) -> dict:
-    """Per variant: llvmpipe's CPU ms per frame and the calling thread's, at output ``size``."""
+def worker(size: tuple[int, int], frames: int, content: tuple[int, int] = (1920, 1080)) -> dict:
+    """Per variant: llvmpipe's CPU ms per frame and the calling thread's, at output ``size``, the
+    content (and a video's planes) ``content`` (w, h) pixels."""
     from node.render import Renderer
     from protos.blend import BlendMaps
 
     w, h = size
-    cw, ch = 1920, 1080
+    cw, ch = content
     r = Renderer.standalone(w, h)
     try:
         s = min(w / cw, h / ch)
@@ -119,11 +121,11 @@ def worker(size: tuple[int, int], frames: int) -> dict:
         r.release()
 
 
-def _run_worker(size: tuple[int, int], frames: int, tree: Path | None) -> dict:
+def _run_worker(size: tuple[int, int], frames: int, tree: Path | None, content: tuple[int, int]) -> dict:
     """One worker process, on this tree's renderer or on ``tree``'s (its node/ and protos/ first)."""
     path = [str(tree)] if tree is not None else []
     code = ("import json, sys; sys.path[:0] = %r; sys.path.append(%r); from bench.node_variants import worker; "
-            "print(json.dumps(worker(%r, %d)))" % (path, str(REPO), tuple(size), frames))
+            "print(json.dumps(worker(%r, %d, %r)))" % (path, str(REPO), tuple(size), frames, tuple(content)))
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1800,
                           cwd=str(tree) if tree is not None else str(REPO), env={**os.environ, "SHADOWLESS_GL": "gl"})
     if done.returncode != 0:
@@ -138,7 +140,8 @@ def _extract(commit: str, into: Path) -> None:
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
 
 
-def variants(sizes: list[tuple[int, int]], rounds: int, frames: int, against: str | None) -> dict:
+def variants(sizes: list[tuple[int, int]], rounds: int, frames: int, against: str | None,
+             content: tuple[int, int] = (1920, 1080)) -> dict:
     """The figures per size and variant (medians over ``rounds``), with ``against``'s beside them."""
     tmp = Path(tempfile.mkdtemp(prefix="shadowless-variants-")) if against else None
     try:
@@ -149,9 +152,9 @@ def variants(sizes: list[tuple[int, int]], rounds: int, frames: int, against: st
             runs: dict[str, list[dict]] = {"now": [], "before": []}
             for k in range(rounds):
                 print(f"bench node --variants: {w}x{h}, round {k + 1}/{rounds}", file=sys.stderr, flush=True)
-                runs["now"].append(_run_worker((w, h), frames, None))
+                runs["now"].append(_run_worker((w, h), frames, None, content))
                 if tmp is not None:
-                    runs["before"].append(_run_worker((w, h), frames, tmp))
+                    runs["before"].append(_run_worker((w, h), frames, tmp, content))
             per: dict = {}
             for name in VARIANTS:
                 entry = {}
@@ -163,7 +166,8 @@ def variants(sizes: list[tuple[int, int]], rounds: int, frames: int, against: st
                     entry["ratio"] = round(entry["now"]["rasterizer_ms"] / entry["before"]["rasterizer_ms"], 3)
                 per[name] = entry
             result[f"{w}x{h}"] = per
-        return {"against": against, "rounds": rounds, "frames": frames, "variants": result}
+        return {"against": against, "rounds": rounds, "frames": frames, "content": "{}x{}".format(*content),
+                "variants": result}
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -35,3 +35,14 @@ def test_bench_node_measures_every_profile():
     assert install["forbidden_present"] == []
     assert {"numpy", "grpcio", "moderngl", "av"} <= set(install["distributions"])
     assert install["total_mb"] > 10
+
+
+def test_every_ablation_still_applies_to_the_shader():
+    # `bench node --ablate`'s ablations are text edits of pipeline.glsl: one that no longer matches
+    # would measure nothing (the bench refuses it); checked here without drawing, so it costs nothing
+    from bench.node_ablation import ABLATIONS, ablated
+    from node.render.shaders import load_shader
+
+    base = load_shader("pipeline.glsl")
+    for name in ABLATIONS:
+        assert (ablated(base, name) == base) == (name == "whole"), name
