@@ -46,14 +46,18 @@ def _host_busy_ns() -> int:
     return busy * 1_000_000_000 // os.sysconf("SC_CLK_TCK")
 
 
+def _tasks(pid: int) -> list[str]:
+    """The thread ids of ``pid`` as /proc names them ([] once it is gone)."""
+    try:
+        return os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return []
+
+
 def _threads_ns(pid: int) -> dict[str, int]:
     """Nanoseconds run per thread name of ``pid`` (threads of one name summed)."""
     out: dict[str, int] = {}
-    try:
-        tasks = os.listdir(f"/proc/{pid}/task")
-    except OSError:
-        return out
-    for tid in tasks:
+    for tid in _tasks(pid):
         try:
             name = Path(f"/proc/{pid}/task/{tid}/comm").read_text().strip()
             ns = int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0])
@@ -66,11 +70,7 @@ def _threads_ns(pid: int) -> dict[str, int]:
 def children_of(pid: int) -> list[int]:
     """The direct children of ``pid`` (a node process's presenter)."""
     out: list[int] = []
-    try:
-        tasks = os.listdir(f"/proc/{pid}/task")
-    except OSError:
-        return out
-    for tid in tasks:
+    for tid in _tasks(pid):
         try:
             out += [int(v) for v in Path(f"/proc/{pid}/task/{tid}/children").read_text().split()]
         except (OSError, ValueError):
