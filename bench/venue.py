@@ -75,6 +75,7 @@ from bench.machine import load, machine
 from coordinator.api import NodeState
 from coordinator.assets import AssetStore
 from coordinator.rig import parse_config
+from protos import cli_types
 from shadowless.local import LocalRig, grid_names
 from shadowless import exit_cleanup
 from shadowless.cpu_budget import CpuBudgetError, cleanup_leftovers, unavailable
@@ -111,16 +112,6 @@ def _gpu(text: str):
         return parse_gpu(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _burst(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a fraction of a quota: {text!r}") from None
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f"--cpu-burst is 0..1 (of a node's quota per period), got {text!r}")
-    return v
 
 
 def _rate(text: str) -> str:
@@ -201,7 +192,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="with --node-cpu: give every node's, rasterizer's and the coordinator's group a high CFS "
                         "weight, so that other work on this host does not starve them (each still never gets "
                         "more than its limit; on a quiet host this changes nothing)")
-    b.add_argument("--cpu-burst", type=_burst, default=DEFAULT_BURST, metavar="B",
+    b.add_argument("--cpu-burst", type=cli_types.number(0, 1), default=DEFAULT_BURST, metavar="B",
                    help=f"with --node-cpu: each node may spend up to B of its quota more in one CFS period out of "
                         f"what it left unused before (0..1, default {DEFAULT_BURST:g}; 0: none), so that a frame's "
                         "work that comes at once is not cut into periods as no computer of its own would cut it; "
