@@ -62,6 +62,7 @@ from protos.discovery import Discovery
 from shadowless.local import LocalRig, grid_names
 from shadowless.netns import Venue, VenueError
 from shadowless.netns import available as netns_available
+from shadowless.process_stop import stop_process
 
 SIZE = (32, 18)
 NOT_TRUSTED_MARK = "could not prove it knows the rig token"
@@ -308,13 +309,7 @@ def hostile_trial(workdir: Path, n: int, *, venue: bool = False, when: str = "af
         }
     finally:
         if hostile is not None:
-            if hostile.poll() is None:
-                hostile.terminate()
-                try:
-                    hostile.wait(10)
-                except subprocess.TimeoutExpired:
-                    hostile.kill()
-                    hostile.wait()
+            stop_process(hostile)
             hostile.stdout.close()
         real.close()
         if v is not None:

@@ -66,6 +66,7 @@ from bench.uniformity_room import blend_params, stored_target, truth_luts
 from bench.uniformity_scenes import Light, Missing, slots_of, table_room
 from coordinator.rig import HomographyPose, Rig
 from shadowless.local import LocalRig
+from shadowless.process_stop import stop_process
 from sim.room import Room
 
 __all__ = ["part_failover", "part_watchdog"]
@@ -193,12 +194,7 @@ def room_process(args, light: Light, work: Path, slots: list[str]):
             rc.set_active(list(slots))
         yield address, proc.pid
     finally:
-        proc.terminate()
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc, timeout=20)
         log.close()
 
 

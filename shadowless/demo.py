@@ -35,6 +35,7 @@ from protos.wording import count
 from shadowless import exit_cleanup
 from shadowless.hold import console_lines, hold
 from shadowless.local import LocalRig, free_port
+from shadowless.process_stop import stop_process
 from sim.link import RoomClient
 from sim.hand import Hand
 from sim.scene import SUBSETS
@@ -263,11 +264,7 @@ async def _demo(args) -> int:
                                then=f"the room, the coordinator and every node stop; the results stay in {out}/")
     finally:
         exit_cleanup.unregister(room_proc.terminate)
-        room_proc.terminate()
-        try:
-            room_proc.wait(10)
-        except subprocess.TimeoutExpired:
-            room_proc.kill()
+        stop_process(room_proc)
         room_log.close()
     if not args.serve:
         _say("to keep this rig up and try its operator console: shadowless demo --serve (Ctrl-C stops it)")
