@@ -307,6 +307,14 @@ def _still_asset(tmp_path):
     return AssetFiles(asset_id=m.asset_id, manifest=m.canonical(), blob_paths={sha256_hex(data): str(path)})
 
 
+def first_frame_decoded(presenter) -> None:
+    """Wait (in real time) for the decoder thread's first frame of the show's asset: the test's
+    clock stands still, so a first tick due a few of its milliseconds from now would otherwise
+    give that thread only those few real milliseconds before the tick counts as late."""
+    wait_until(presenter.player.decode_stats, lambda st: st is not None and st.decoded >= 1,
+               what="the decoder thread's first frame of the show's asset")
+
+
 def _timeline_update(files, anchor_ns: int, *, revision: int = 1, base: int = 500):
     from fractions import Fraction
 
@@ -324,6 +332,7 @@ def test_timeline_ticks_are_swapped_at_their_time_with_ids_from_the_base(rig, tm
     anchor = rig.rig_now() + 100 * MS
     p.handle("asset", files)
     p.handle("show", _timeline_update(files, anchor))
+    first_frame_decoded(p)
     assert p.timeline_wait() == pytest.approx(0.05)      # prepared 50 ms ahead of the first tick
     for _ in range(3):
         p.timeline_step()
@@ -353,6 +362,7 @@ def test_the_presenter_reports_the_show_as_it_follows_it(rig, tmp_path):
     p.handle("show", _timeline_update(files, anchor, revision=4))
     assert p.status().show.state == "none" and p.status().show.revision == 4   # not begun yet
     p.handle("asset", files)
+    first_frame_decoded(p)
     for _ in range(2):
         p.timeline_step()
     st = p.status().show
@@ -371,6 +381,7 @@ def test_a_coordinator_frame_suspends_the_timeline_until_a_newer_revision(rig, t
     anchor = rig.rig_now() + 10 * MS
     p.handle("asset", files)
     p.handle("show", _timeline_update(files, anchor))
+    first_frame_decoded(p)
     p.timeline_step()
     rig.show(rig.frame(10_000, in_ms=5, content="c10"))          # a still: it takes the output
     assert p.timeline_wait() is None
@@ -392,6 +403,7 @@ def test_a_paused_shows_frame_that_misses_its_instant_is_shown_a_moment_later(ri
     anchor = rig.rig_now() + 60 * MS
     update = _timeline_update(files, anchor, revision=3, base=700)
     p.handle("show", replace(update, timeline=replace(update.timeline, paused=True)))
+    first_frame_decoded(p)
     rig.out.prepare_ns = 70 * MS          # the first attempt finishes 10 ms after the frame's instant
     p.timeline_step()
     assert rig.swaps == [] and rig.drops == []
@@ -414,6 +426,7 @@ def test_a_stop_blacks_the_output_without_a_report(rig, tmp_path):
     anchor = rig.rig_now() + 10 * MS
     p.handle("asset", files)
     p.handle("show", _timeline_update(files, anchor))
+    first_frame_decoded(p)
     p.timeline_step()
     p.handle("show", ShowUpdateData(stop_at_ns=anchor + 50 * MS, stop_revision=2))
     swaps_before = rig.out.swaps

@@ -14,6 +14,7 @@ from fractions import Fraction
 
 import numpy as np
 import pytest
+from waits import wait_until
 
 from node.clock import ClockEstimate, LocalClock
 from node.outputs import OffscreenOutput
@@ -166,6 +167,8 @@ def test_a_show_switches_at_its_first_tick_at_or_after_the_instant(rig, tmp_path
     tl = Timeline(asset_id=man.asset_id, frames=1, rate=Fraction(10), anchor_ns=anchor, loop=True, revision=1)
     rig.p.handle("asset", files)
     rig.p.handle("show", ShowUpdateData(timeline=tl, frame_id_base=500))
+    wait_until(rig.p.player.decode_stats, lambda st: st is not None and st.decoded >= 1,
+               what="the decoder thread's first frame (the test's clock stands still meanwhile)")
     m = maps(4)
     at = anchor + 150 * MS                       # between the second and third ticks
     rig.p.handle("assignment", assignment(2, m, at))

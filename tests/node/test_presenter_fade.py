@@ -81,6 +81,7 @@ def test_a_show_fades_in_from_the_still_on_screen(rig, tmp_path):
                   fade_ns=400 * MS)
     p.handle("asset", files)
     p.handle("show", ShowUpdateData(timeline=tl, frame_id_base=500))
+    harness.first_frame_decoded(p)
     seen = []
     for k in range(6):
         p.timeline_step()

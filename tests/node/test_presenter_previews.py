@@ -211,6 +211,7 @@ def test_previews_during_a_timeline_show_keep_every_tick_on_time(rig, monkeypatc
     p = rig.presenter
     p.handle("asset", files)
     p.handle("show", harness._timeline_update(files, rig.rig_now() + 60 * MS))   # 10 ticks a second
+    harness.first_frame_decoded(p)
     for i in range(12):
         p.handle("preview", i + 1)
         p.timeline_step()

@@ -35,6 +35,7 @@ def test_a_stop_arriving_after_the_restored_still_leaves_the_still_on_screen(tmp
         anchor = rig.rig_now() + 10 * MS
         p.handle("asset", files)
         p.handle("show", harness._timeline_update(files, anchor))
+        harness.first_frame_decoded(p)
         p.timeline_step()                                   # the show's first tick is on screen
         stop_at = rig.rig_now()                             # the coordinator stops the show now ...
         still = rig.frame(10_000, in_ms=30, content="c200")  # ... and restores its content a moment later
