@@ -24,12 +24,34 @@ log = logging.getLogger("node")
 #: nice value added to the network side (CFS weight 1024 at 0 against 110 at 10: when the two
 #: processes compete, the presenter gets about nine tenths of the CPU)
 NETWORK_NICE = 10
+#: the environment variable that sets another step (0: none), so that a benchmark can measure what
+#: the step is worth (``SHADOWLESS_NETWORK_NICE=0 shadowless bench venue ...``)
+NICE_ENV = "SHADOWLESS_NETWORK_NICE"
 
 
-def yield_to_presenter(step: int = NETWORK_NICE) -> int:
-    """Raise the nice value of every thread of this process by ``step`` (capped at 19). Returns
-    the threads changed (0 where the platform has no per-thread priorities)."""
-    if not hasattr(os, "setpriority") or not os.path.isdir("/proc/self/task"):
+def nice_step(env: dict | None = None) -> int:
+    """The step :func:`yield_to_presenter` takes by default: :data:`NETWORK_NICE`, or the environment's
+    ``SHADOWLESS_NETWORK_NICE`` (0..19; anything else is ignored with a warning)."""
+    text = (os.environ if env is None else env).get(NICE_ENV, "").strip()
+    if not text:
+        return NETWORK_NICE
+    try:
+        step = int(text)
+    except ValueError:
+        step = -1
+    if not 0 <= step <= 19:
+        log.warning("%s=%r is not a nice step 0..19: using %d", NICE_ENV, text, NETWORK_NICE)
+        return NETWORK_NICE
+    return step
+
+
+def yield_to_presenter(step: int | None = None) -> int:
+    """Raise the nice value of every thread of this process by ``step`` (default :func:`nice_step`;
+    capped at 19). Returns the threads changed (0 where the platform has no per-thread priorities,
+    or for a step of 0)."""
+    if step is None:
+        step = nice_step()
+    if step == 0 or not hasattr(os, "setpriority") or not os.path.isdir("/proc/self/task"):
         return 0
     changed = 0
     for tid in os.listdir("/proc/self/task"):

@@ -136,8 +136,25 @@ go.set(); t.join()
 after = threading.Thread(target=lambda: seen.__setitem__("after", nice())); after.start(); after.join()
 print(base, n, nice(), seen["before"], seen["after"], NETWORK_NICE)
 """
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True)
+    env = {k: v for k, v in os.environ.items() if k != "SHADOWLESS_NETWORK_NICE"}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True,
+                         env=env)
     base, changed, main, before, after, step = map(int, out.stdout.split())
     assert changed >= 2                     # the main thread and the one started before
     assert main == before == after == min(19, base + step)
     assert os.getpriority(os.PRIO_PROCESS, 0) == base     # the process that started it is untouched
+    # SHADOWLESS_NETWORK_NICE=0 (a benchmark measuring what the step is worth): no thread is changed
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True,
+                         env={**env, "SHADOWLESS_NETWORK_NICE": "0"})
+    base, changed, main, before, after, _ = map(int, out.stdout.split())
+    assert changed == 0 and main == before == after == base
+
+
+def test_the_network_side_s_nice_step_is_read_from_the_environment():
+    from node.network_priority import NETWORK_NICE, nice_step
+
+    assert nice_step({}) == NETWORK_NICE
+    assert nice_step({"SHADOWLESS_NETWORK_NICE": "0"}) == 0
+    assert nice_step({"SHADOWLESS_NETWORK_NICE": " 5 "}) == 5
+    assert nice_step({"SHADOWLESS_NETWORK_NICE": "20"}) == NETWORK_NICE     # out of range: ignored
+    assert nice_step({"SHADOWLESS_NETWORK_NICE": "high"}) == NETWORK_NICE
