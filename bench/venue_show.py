@@ -62,6 +62,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
+from bench.venue_throttle import ThrottleSampler, drops, miss_causes, throttles_per_s
 from shadowless.local import LocalRig
 
 #: the rejoin show: the node is killed this long after the show starts ...
@@ -332,6 +333,22 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     on the same rig directory; which ticks each node swapped in, before, during and after, where
     the missed ones fall, and what each node did and spent while it rejoined."""
     logs = log_sizes(rig)
+    # when each node's budget held it back (to tell a tick missed for CPU from one missed otherwise)
+    groups = {s: n.cpu.path / "cpu.stat" for s, n in budgets.nodes.items()
+              if n.cpu.path is not None} if budgets is not None else {}
+    sampler = ThrottleSampler(groups) if groups else None
+    if sampler is not None:
+        sampler.__enter__()
+    try:
+        return await _coordinator_restart(rig, asset_id, logs, cpu=cpu, budgets=budgets, times=times,
+                                          throttles=sampler)
+    finally:
+        if sampler is not None:
+            sampler.stop()
+
+
+async def _coordinator_restart(rig: LocalRig, asset_id: str, logs: dict[str, int], *, cpu, budgets, times: Times,
+                               throttles: ThrottleSampler | None) -> dict:
     async with await rig.client(timeout=60.0) as c:
         play = await c.play_asset(asset_id, loop=True, delay_s=START_DELAY_S)
     base, t_show = play.frame_id_base, play.anchor_ns / 1e9
@@ -374,6 +391,8 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     window = range(first, last + 1)
     outage = range(tick_at(kill_ns), tick_at(back_ns))
     missed, out_of_order, alone_ticks, phases, stages, after_join, late = {}, 0, {}, {}, {}, {}, {}
+    causes: dict[str, dict[str, int]] = {}
+    period_ns = int(1e9 * play.rate_den / play.rate_num)
     for s in rig.slots:
         text = rig.log("node-" + s)[logs[s]:]
         ids = [int(m.group(1)) for m in SWAP.finditer(text)]
@@ -385,6 +404,7 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         # the others it never swapped nor dropped (nothing scheduled them)
         dropped_late = {int(m.group(1)) for m in LATE.finditer(text)}
         late[s] = sum(1 for t in lost if t in dropped_late)
+        causes[s] = miss_causes(lost, lambda t: tick_ns(play, t - base), period_ns, drops(text), throttles, s)
         alone_ticks[s] = sum(1 for t in outage if t in got)
         # where the missed ticks fall: before the kill, while no coordinator ran, after its restart
         phases[s] = {"before_kill": sum(1 for t in lost if t < outage.start),
@@ -405,6 +425,8 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         "frames_missed": sum(missed.values()),
         "frames_missed_by_node": missed,
         "frames_missed_late_drops": late,
+        # why: its budget held the node back just before the tick, its decoder was late, or neither
+        "frames_missed_causes": causes,
         "frames_missed_by_phase": phases,
         "missed_around_join": after_join,
         "rejoin_stages_ms": stages,
@@ -416,6 +438,9 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
         "skew_p99_ms_after": _r(st.sync.skew_p99_ms), "skew_max_ms_after": _r(st.sync.skew_max_ms),
         "frames_after": st.sync.frames,
     }
+    if throttles is not None:
+        lo, hi = tick_ns(play, first - base), tick_ns(play, last - base)
+        out["throttles_per_s"] = {s: throttles_per_s(throttles, s, lo, hi) for s in rig.slots}
     if cpu is not None:
         # each node's CPU (ms per tick) alone (the outage's last OUTAGE_S - 1 s) and from the restart to the
         # end of the window: the node process itself ("link") and with its presenter ("node")

@@ -126,6 +126,12 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
         assert sum(phases.values()) == cr["frames_missed_by_node"][s]
         assert sum(around.values()) == phases["after_restart"]
         assert 0 <= cr["frames_missed_late_drops"][s] <= cr["frames_missed_by_node"][s]
+        # each missed tick has one cause; the late drops are those with a logged drop
+        causes = cr["frames_missed_causes"][s]
+        assert sum(causes.values()) == cr["frames_missed_by_node"][s]
+        assert causes["not_dropped"] == cr["frames_missed_by_node"][s] - cr["frames_missed_late_drops"][s]
+        if budgets:
+            assert cr["throttles_per_s"][s] >= 0
         steps = cr["rejoin_stages_ms"][s]
         assert 0 < steps["joined"] <= steps["clock"] and steps["joined"] <= steps["wanted"]
         assert "assignment" not in steps and "show" not in steps     # nothing changed: nothing re-applied
