@@ -6,7 +6,7 @@ as a two-channel one (RG8 / RG16: NV12, P010). With ``interleave`` a planar pict
 up interleaved into one two-channel texture, as NV12's, and draw as semi-planar: the shader then
 fetches four chroma texels per pixel instead of eight. The renderer asks for it on a software
 rasterizer (llvmpipe), where the same CPU pays for both: the interleave costs about 0.4 ms per
-1080p 4:2:0 frame (and a 1 MB buffer kept for the next), four R8 fetches about 13 ns per output
+1080p 4:2:0 frame (and a 1 MB buffer kept for the next, one per thread), four R8 fetches about 13 ns per output
 pixel (3 ms per 640x360 frame). Where 16-bit normalised textures do not exist (OpenGL ES without
 GL_EXT_texture_norm16) 16-bit planes go up as float32 divided by 65535, which samples the same
 values. The conversion to RGB runs in ``pipeline.glsl``'s ``sample_yuv`` with the uniforms
@@ -17,6 +17,7 @@ Threading: as the renderer, on the thread that owns the GL context.
 """
 from __future__ import annotations
 
+import threading
 from typing import Any, Callable
 
 import numpy as np
@@ -29,6 +30,20 @@ __all__ = ["YuvTextures", "layout_key"]
 def layout_key(frame: YuvFrame) -> tuple:
     """What two frames must share to reuse each other's textures: each plane's shape and dtype."""
     return tuple((p.shape, p.dtype.str) for p in frame.planes)
+
+
+#: the interleaved chroma's buffer, one per thread and shared by every :class:`YuvTextures` on it: the
+#: texture's write copies it at once, so a picture's textures need not keep their own (1 MB per
+#: 1080p 4:2:0 picture, and a renderer keeps two or three pictures' textures while a video plays)
+_scratch = threading.local()
+
+
+def _interleave_buffer(shape: tuple[int, int], dtype: np.dtype) -> np.ndarray:
+    """A (h, w, 2) array of ``dtype`` for U and V interleaved, reused on this thread."""
+    buf = getattr(_scratch, "uv", None)
+    if buf is None or buf.shape[:2] != shape or buf.dtype != dtype:
+        buf = _scratch.uv = np.empty((*shape, 2), dtype)
+    return buf
 
 
 def _mat_bytes(m: np.ndarray) -> bytes:
@@ -49,7 +64,6 @@ class YuvTextures:
         self.key = layout_key(frame)
         self._norm16 = norm16
         self._interleave = interleave and frame.layout == "planar"
-        self._uv: np.ndarray | None = None      # the interleaved chroma, (h, w, 2), reused frame to frame
         self.textures = [make(self._data(p)) for p in self._planes(frame)]
         self.set_frame(frame)
 
@@ -63,11 +77,10 @@ class YuvTextures:
         if not self._interleave:
             return tuple(frame.planes)
         y, u, v = frame.planes
-        if self._uv is None or self._uv.shape[:2] != u.shape or self._uv.dtype != u.dtype:
-            self._uv = np.empty((*u.shape, 2), u.dtype)
-        self._uv[:, :, 0] = u
-        self._uv[:, :, 1] = v
-        return y, self._uv
+        uv = _interleave_buffer(u.shape, u.dtype)
+        uv[:, :, 0] = u
+        uv[:, :, 1] = v
+        return y, uv
 
     def _data(self, plane: np.ndarray) -> np.ndarray:
         if plane.dtype == np.uint8 or self._norm16:
