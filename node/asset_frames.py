@@ -40,7 +40,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -317,6 +317,9 @@ class DecodeAhead:
         self._plan: Iterator[int] = iter(())    # the rest of the order
         self._ready: dict[int, np.ndarray | FrameError] = {}
         self._closed = False
+        self._finished = False    # the thread left its loop (set under the lock)
+        self._detached: Callable[[], None] | None = None   # close(wait=False): the thread closes the source, then calls it
+        self._source_closed = False
         self._fatal: BaseException | None = None
         self._hits = self._misses = self._jumps = self._decoded = self._errors = 0
         self._quiet: tuple[int, int] = (0, 0)   # host ns: start no decode within [start, end)
@@ -490,18 +493,49 @@ class DecodeAhead:
             with self._cond:
                 self._fatal = exc
                 self._cond.notify_all()
+        finally:
+            with self._cond:
+                self._finished = True
+                then = self._detached
+            if then is not None:
+                self._close_source(then)
 
-    def close(self) -> None:
+    def _close_source(self, then: Callable[[], None] | None = None) -> None:
+        """Close the source once, whoever gets here first; then call ``then``."""
+        with self._cond:
+            if self._source_closed:
+                return
+            self._source_closed = True
+        self.source.close()
+        if then is not None:
+            then()
+
+    def close(self, *, wait: bool = True, then: Callable[[], None] | None = None) -> None:
         """Stop the thread (it finishes the frame it is decoding), join it, close the source.
-        Idempotent."""
+        Idempotent. ``wait=False``: return at once; the thread closes the source itself once the
+        frame it is decoding is done (the caller's thread never waits for a decode). ``then`` is called
+        after the source's close, on the thread that closed it, by the call that closed it (not by a
+        later one): e.g. :func:`node.heap_trim.trim_now`, the decoder's memory given back there."""
         with self._cond:
             self._closed = True
             self._window.clear()
             self._ready.clear()
+            if not wait:
+                self._detached = then or (lambda: None)
+            finished = self._finished
             self._cond.notify_all()
+        if not wait:
+            if finished:       # the thread is gone (or going) and did not see the request
+                self._close_source(then)
+            return
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join()
-        self.source.close()
+        self._close_source(then)
+
+    def closed(self) -> bool:
+        """Whether the source is closed (after :meth:`close`; with ``wait=False``, once the thread closed it)."""
+        with self._cond:
+            return self._source_closed
 
     def __enter__(self) -> "DecodeAhead":
         return self

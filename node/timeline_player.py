@@ -32,6 +32,7 @@ import numpy as np
 
 from node.asset_frames import DecodeAhead, DecodeStats, FrameError, open_frames
 from node.decoders import DecoderChoice, choose, wish_from_env
+from node.heap_trim import trim_now
 from node.records import AssetFiles, ShowUpdateData
 from protos.asset_manifest import Manifest, ManifestError
 from protos.timeline import NS, Schedule, Timeline
@@ -257,6 +258,13 @@ class TimelinePlayer:
 
     def mark_done(self, event: TimelineEvent) -> None:
         self.done = (event.revision, event.tick)
+        if event.kind == "stop" and self._decoder is not None:
+            # the stopped show's decoder (its pictures, its context: 28 MB at 1080p) is not kept for a
+            # show that may never come; a newer revision reopens one when it is scheduled (prepare).
+            # The decode thread closes it and gives its memory back (node/heap_trim.py), so this
+            # thread, about to swap the stop in, waits for neither the frame being decoded nor the trim
+            self._decoder.close(wait=False, then=trim_now)
+            self._decoder = None
 
     # ------------------------------------------------------------------ frames
     def frame(self, event: TimelineEvent, timeout_s: float) -> np.ndarray:

@@ -18,6 +18,7 @@ from node.asset_frames import DecodeAhead, FrameError, FrameNotReady, FrameSourc
 from node.errors import NodeError
 from node.image_files import encode_png
 from protos.asset_manifest import Blob, Manifest, sha256_hex
+from tests.support.waits import wait_until
 
 RATE = Fraction(24)
 
@@ -487,6 +488,39 @@ def test_decode_ahead_never_blocks_past_the_timeout_and_close_joins(cache):
     ahead.close()                                           # idempotent
     with pytest.raises(FrameError, match="closed"):
         ahead.get(0, timeout=0)
+
+
+def test_decode_ahead_closed_without_waiting_lets_its_thread_close_the_source_then_calls_back(cache):
+    src = _GatedStill(cache)
+    closed_by: list[str] = []
+    src.close = lambda: closed_by.append(threading.current_thread().name)
+    ahead = DecodeAhead(src, depth=2)
+    thread = ahead._thread
+    try:
+        ahead.want(0)
+        wait_until(lambda: list(src.started), what="the thread's first decode under way")
+        called: list[str] = []
+        # the thread is inside a decode the gate holds: this call returns without waiting for it
+        ahead.close(wait=False, then=lambda: called.append(threading.current_thread().name))
+        assert thread.is_alive() and not ahead.closed() and called == []
+        src.gate.set()
+        wait_until(lambda: list(called), what="the callback after the source's close")
+        assert closed_by == [thread.name] and called == [thread.name] and ahead.closed()
+    finally:
+        src.gate.set()
+        ahead.close()                                       # idempotent: the source is closed once
+    assert not thread.is_alive() and closed_by == [thread.name]
+    with pytest.raises(FrameError, match="closed"):
+        ahead.get(0, timeout=0)
+
+
+def test_decode_ahead_closed_without_waiting_after_its_thread_ended_closes_the_source_at_once(cache):
+    src = _GatedStill(cache, open_gate=True)
+    ahead = DecodeAhead(src, depth=2)
+    ahead.close()
+    src2_closed: list[int] = []
+    ahead.close(wait=False, then=lambda: src2_closed.append(1))   # already closed: nothing more happens
+    assert ahead.closed() and src2_closed == []
 
 
 class _StartTimes(_GatedStill):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from fractions import Fraction
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,9 @@ from node.asset_frames import FrameError
 from node.records import AssetFiles, ShowUpdateData
 from node.timeline_player import AssetFilesView, TimelinePlayer, fit_frame
 from protos.asset_manifest import Blob, Manifest, sha256_hex
-from protos.timeline import Timeline
+from protos.timeline import NS, Timeline
+from tests.support.clip_rig import write_clip
+from tests.support.waits import wait_until
 
 MS = 1_000_000
 AID = "a" * 64
@@ -153,3 +156,45 @@ def test_fit_frame_resamples_to_the_content_size():
     out = fit_frame(img, (4, 4))
     assert out.shape == (4, 4, 1) and out[0, 0, 0] == 0 and out[3, 3, 0] == 3
     assert fit_frame(img, (2, 2)) is img
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS in /proc/self/status")
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
+def test_a_stop_closes_the_video_decoder_and_gives_its_memory_back(tmp_path):
+    """After a stop the presenter's process does not keep the stopped video's decoder (its frame pool:
+    six or more pictures) nor the memory glibc would keep once it is freed (node/heap_trim.py)."""
+    w, h, n = 1280, 720, 24
+    path = tmp_path / "v.mp4"
+    write_clip(path, size=(w, h), fps=30, seconds=n / 30)
+    data = path.read_bytes()
+    sha = sha256_hex(data)
+    m = Manifest(kind="video", name="v.mp4", blobs=(Blob(sha, len(data), "v.mp4"),), width=w, height=h, channels=3,
+                 bit_depth=8, frames=n, fps=30.0)
+    files = AssetFiles(asset_id=m.asset_id, manifest=m.canonical(), blob_paths={sha: str(path)})
+    p = TimelinePlayer()
+    p.add_asset(files)
+    p.offer(ShowUpdateData(timeline=timeline(asset_id=m.asset_id, frames=n, rate=Fraction(30)), frame_id_base=BASE))
+    p.offer(ShowUpdateData(stop_at_ns=T0 + 10 * NS // 30 + 1, stop_revision=2))
+    try:
+        after, shown = T0, 0
+        while (ev := p.next_event(after)) is not None and ev.kind == "frame":
+            p.frame(ev, 10.0)         # the frame as the presenter takes it (its planes: views of the decoder's)
+            p.mark_done(ev)
+            after, shown = ev.pts_ns + 1, shown + 1
+        assert shown >= 9 and ev is not None and ev.kind == "stop"
+        assert p.decode_stats() is not None
+        playing = _rss_mb()
+        p.mark_done(ev)
+        assert p.decode_stats() is None          # no decoder kept for a show that stopped
+        # the decoder's pictures (1.4 MB each at 720p 4:2:0) and context go back to the system
+        wait_until(_rss_mb, lambda mb: mb < playing - 4.0, what=f"resident memory below {playing - 4.0:.1f} MB "
+                   f"(playing: {playing:.1f} MB) once the stopped video's decoder closed", timeout=30.0)
+    finally:
+        p.close()
