@@ -22,7 +22,10 @@ decoder's share then includes); and the textures (the growth of the first upload
 picture's planes, 3 MB at 1080p 4:2:0; before the presenter compiled its variants after the
 warm-up picture, it also gave back that picture's texture, which llvmpipe frees once a draw binds
 another texture, and the share was negative).
-``rss_mb`` is the median over the second half of the frames (steady), ``peak_rss_mb`` the
+``rss_mb`` is the median over the second half of the frames (steady), ``rss_mb_after_stop`` what is
+left once the show stopped (as :meth:`node.timeline_player.TimelinePlayer.mark_done` does it: the
+decode thread closes the decoder, then gives the freed memory back, :mod:`node.heap_trim`);
+``by_mapping_mb`` the steady memory by mapping (:func:`mappings_mb`), ``peak_rss_mb`` the
 process's ``VmHWM``; ``rss_mb_without_software_gpu_libs`` is ``rss_mb`` less the resident pages
 of llvmpipe's libraries (``software_gpu_libs_mb``: LLVM, Mesa's DRI driver, read from
 ``/proc/self/smaps`` at the end), which a GPU's driver replaces on an edge computer; ``rss_mb``
@@ -38,6 +41,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -72,6 +76,43 @@ def software_gpu_mb() -> float:
     return total / 1024
 
 
+#: how :func:`mappings_mb` groups a mapping's path (the first key found in it names the group)
+MAPPING_GROUPS = (("libLLVM", "llvmpipe: libLLVM"), ("_dri.so", "llvmpipe: Mesa's driver"),
+                  ("libgallium", "llvmpipe: Mesa's driver"), ("libz3", "llvmpipe: libz3"),
+                  ("libGL", "GL loaders (libGL, libEGL, libGLdispatch)"),
+                  ("libEGL", "GL loaders (libGL, libEGL, libGLdispatch)"),
+                  ("libglapi", "GL loaders (libGL, libEGL, libGLdispatch)"),
+                  ("libGLdispatch", "GL loaders (libGL, libEGL, libGLdispatch)"),
+                  ("/av/", "PyAV and FFmpeg"), ("av.libs", "PyAV and FFmpeg"), ("pyav.libs", "PyAV and FFmpeg"),
+                  ("numpy", "numpy and OpenBLAS"), ("libpython", "the interpreter"), ("/bin/python", "the interpreter"),
+                  ("/libc.so", "libc, libm, libstdc++"), ("libm.so", "libc, libm, libstdc++"),
+                  ("libstdc++", "libc, libm, libstdc++"), ("site-packages", "other Python extensions"),
+                  ("lib-dynload", "other Python extensions"), ("/usr/lib", "other system libraries"),
+                  ("[heap]", "heap (brk)"), ("[stack]", "main thread's stack"))
+
+
+def mappings_mb(pid: str = "self") -> dict:
+    """Resident MB of process ``pid`` by mapping (``/proc/PID/smaps``): the libraries grouped by
+    :data:`MAPPING_GROUPS`, the anonymous mappings apart by size (``anon, 1 MB or more``: glibc's
+    mmap'd blocks and arenas, llvmpipe's buffers and textures, FFmpeg's pictures, numpy's large
+    arrays; ``anon, under 1 MB``: thread stacks' touched pages, small mmaps), and ``other``."""
+    groups: dict[str, int] = {}
+    key = "other"
+    with open(f"/proc/{pid}/smaps") as f:
+        for line in f:
+            head = line.split(None, 5)
+            if head and "-" in head[0] and not head[0].endswith(":"):
+                path = head[5].strip() if len(head) > 5 else ""
+                if not path:
+                    lo, hi = (int(v, 16) for v in head[0].split("-"))
+                    key = "anon, 1 MB or more" if hi - lo >= 2**20 else "anon, under 1 MB"
+                else:
+                    key = next((g for k, g in MAPPING_GROUPS if k in path), "other")
+            elif head and head[0] == "Rss:":
+                groups[key] = groups.get(key, 0) + int(head[1])
+    return {k: round(v / 1024, 1) for k, v in sorted(groups.items(), key=lambda kv: -kv[1])}
+
+
 def _held_bytes(ahead) -> int:
     """Bytes of the frames ``ahead`` (a DecodeAhead) buffers that are its own copies (views of the
     decoder's frames count 0: they are the decoder's buffers, counted with it)."""
@@ -101,6 +142,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     import node.presenter  # noqa: F401 - what a presenter process imports
     from node.asset_frames import DecodeAhead, open_frames
     from node.decoders import wish_from_env
+    from node.heap_trim import trim_now
     from node.preview import PreviewMaker
     from node.records import AssetFiles
     from node.render import Renderer
@@ -174,7 +216,19 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
                     r_textures = rss_mb()
                 if k >= frames // 2:
                     steady.append(rss_mb())
+                if k == frames - 1:
+                    by_mapping = mappings_mb()
             seconds = time.perf_counter() - t0
+            # the show stops: the presenter blacks out, forgets the video's texture and has the decode
+            # thread close the decoder and give the freed memory back (TimelinePlayer.mark_done)
+            r.forget(f"f{frames - 1}")
+            r.render(None)
+            r.ctx.finish()
+            trimmed = threading.Event()
+            ahead.close(wait=False, then=lambda: (trim_now(), trimmed.set()))
+            if not trimmed.wait(60.0):
+                raise RuntimeError("the decode thread did not close the decoder within 60 s of the stop")
+            r_stopped = rss_mb()
         finally:
             ahead.close()
     finally:
@@ -184,7 +238,9 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
     return {
         "settings": {"depth": depth, "threads": threads, "thread_type": node.asset_decode.THREAD_TYPE, "planes": "copied" if copy else "views of the decoder's frames",
                      "ahead_mb": round((ahead_bytes if ahead_bytes is not None else _node_ahead_bytes()) / 2**20, 1)},
-        "rss_mb": round(statistics.median(steady), 1), "peak_rss_mb": round(max(rss_mb("VmHWM"), *steady), 1),
+        "rss_mb": round(statistics.median(steady), 1),
+        # once the show stopped (the decoder closed and its memory given back, node/timeline_player.py)
+        "rss_mb_after_stop": round(r_stopped, 1), "peak_rss_mb": round(max(rss_mb("VmHWM"), *steady), 1),
         # of the resident memory at the end: the process's own (heap, buffers) and the files it maps
         # (shared libraries: the same pages serve every process on the host that maps them)
         "rss_anon_mb": round(rss_mb("RssAnon"), 1), "rss_file_mb": round(rss_mb("RssFile"), 1),
@@ -198,6 +254,8 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
                      "decoder": round(decoder_and_queue - queue_mb, 1), "frame_queue": round(queue_mb, 1),
                      "textures": round(r_textures - r_decoder, 1),
                      "playing": round(statistics.median(steady) - r_textures, 1)},
+        # where the steady memory is, by mapping, at the last frame (before anything is released)
+        "by_mapping_mb": by_mapping,
         "frames": frames, "fps_reached": round(frames / seconds, 1),
     }
 

@@ -62,3 +62,16 @@ def test_software_gpu_pages_are_part_of_the_resident_memory_once_a_context_exist
     assert done.returncode == 0, done.stderr[-3000:]
     before, gpu, rss = (float(v) for v in done.stdout.split())
     assert before == 0 and 0 < gpu < rss
+
+
+def test_the_memory_by_mapping_adds_up_to_the_resident_memory_and_names_the_interpreter():
+    code = ("from bench.node_video_memory import mappings_mb, rss_mb; import json; "
+            "m = mappings_mb(); print(json.dumps([m, rss_mb()]))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    import json
+
+    groups, rss = json.loads(done.stdout)
+    # read one after the other, a few pages apart at most; each group rounded to 0.1 MB
+    assert abs(sum(groups.values()) - rss) <= 1.0 + 0.05 * len(groups), (groups, rss)
+    assert groups.get("the interpreter", 0) > 0 and all(v >= 0 for v in groups.values())
