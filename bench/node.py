@@ -84,6 +84,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "before and after, split into its parts (bench/node_video.py); --content is the video's size")
     p.add_argument("--video-frames", type=cli_types.int_range(20, 100_000), default=120, metavar="N",
                    help="frames of the --video run (default 120: 4 s at 30 fps; each path decodes them all)")
+    p.add_argument("--memory-only", action="store_true",
+                   help="with --video: only the memory part (a presenter-like process playing the video, by part and "
+                        "by mapping, and a real node's processes), not the CPU per frame: about a minute instead of "
+                        "several")
     p.add_argument("--variants", action="store_true",
                    help="instead: llvmpipe's CPU per frame (the GPU's work here) for each shader variant the node "
                         "draws (RGB, grey, planar YUV, NV12; fades, blend maps, no LUT) at 640x360 and at --size "
@@ -300,6 +304,19 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"benchmark": "node", "machine": machine(), "load": os.getloadavg(), "variants": res},
                          indent=2))
         print("\n".join(node_variants.summary(res)), file=sys.stderr)
+        return 0
+    if args.memory_only and not args.video:
+        raise SystemExit("--memory-only goes with --video: it measures the memory of a presenter playing a video")
+    if args.video and args.memory_only:
+        from bench.node_video import memory_only, memory_summary
+
+        print(f"bench node --video --memory-only: the memory of a presenter playing {args.content[0]}x{args.content[1]} "
+              "H.264, and of a node's processes", file=sys.stderr)
+        load = os.getloadavg()
+        video = memory_only(args.size, args.content, args.video_frames)
+        print(json.dumps({"benchmark": "node", "machine": machine(), "load": {"start": load, "end": os.getloadavg()},
+                          "video": video}, indent=2))
+        print("\n".join(memory_summary(video["memory"])), file=sys.stderr)
         return 0
     if args.video:
         from bench.node_video import summary, timed

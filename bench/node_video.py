@@ -47,6 +47,9 @@ library pages both map, ``at_least`` adds only the node process's own heap;
 ``node_total_mb.without_software_gpu_libs`` the same without llvmpipe's libraries (which only the
 presenter maps): what an edge computer's node holds before its GPU driver's own libraries and
 buffers. The presenter's split also has ``preview``, the read-back of the preview it makes at start.
+``bench node --video --memory-only`` runs the memory part alone (:func:`memory_only`, about 30 s),
+with each process's memory by mapping (``by_mapping_mb``) and the presenter's after the show stops
+(``rss_mb_after_stop``).
 """
 from __future__ import annotations
 
@@ -361,6 +364,18 @@ def run_video(size: tuple[int, int], content: tuple[int, int], frames: int, *, m
     }
 
 
+def memory_only(size: tuple[int, int], content: tuple[int, int], frames: int, *, memory_frames: int = 30) -> dict:
+    """Only :func:`memory` (``bench node --video --memory-only``): the video made, the presenter-like
+    worker playing its first ``memory_frames`` frames, a real node's processes."""
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="bench-node-video-") as tmp:
+        path = Path(tmp) / "video.mp4"
+        make_video(path, content, frames)
+        mem = memory(path, size, content, min(memory_frames, frames))
+    return {"size": list(size), "content": list(content), "codec": "h264", "frames": frames, "fps": 30,
+            "memory": mem, "seconds": round(time.perf_counter() - t0, 1)}
+
+
 def timed(size, content, frames) -> dict:
     t0 = time.perf_counter()
     out = run_video(size, content, frames)
@@ -368,11 +383,27 @@ def timed(size, content, frames) -> dict:
     return out
 
 
-def summary(v: dict) -> list[str]:
-    """The figures of :func:`run_video` as a few lines an operator reads."""
-    s, m = v["split"], v["memory"]
+def memory_summary(m: dict) -> list[str]:
+    """The figures of :func:`memory` as a few lines an operator reads."""
     a, b = m["after"], m["before"]
     parts = ", ".join(f"{k.replace('_', ' ')} {val:g}" for k, val in a["split_mb"].items() if k != "gl_context_anon")
+    top = ", ".join(f"{k} {val:g}" for k, val in list(a.get("by_mapping_mb", {}).items())[:6])
+    return [
+        f"resident memory while playing: {b['rss_mb']:g} MB with frame threads (before), {a['rss_mb']:g} MB now (peak {a['peak_rss_mb']:g}; "
+        f"target {m['target_rss_mb']:g}): {parts}; without llvmpipe's libraries (a GPU's driver replaces them) "
+        f"{a['rss_mb_without_software_gpu_libs']:g} MB; once the show stopped {a.get('rss_mb_after_stop', float('nan')):g} MB",
+        f"by mapping while playing (MB): {top}",
+        f"the whole node while playing, with its node process ({m['node_processes']['node_process']['rss_mb']:g} MB,"
+        f" {m['node_processes']['processes']} processes in all): {m['node_total_mb']['at_least']:g} to"
+        f" {m['node_total_mb']['rss_sum']:g} MB; without llvmpipe's libraries"
+        f" {m['node_total_mb']['without_software_gpu_libs']['at_least']:g} to"
+        f" {m['node_total_mb']['without_software_gpu_libs']['rss_sum']:g} MB",
+    ]
+
+
+def summary(v: dict) -> list[str]:
+    """The figures of :func:`run_video` as a few lines an operator reads."""
+    s = v["split"]
     return [
         f"node CPU per {v['content'][0]}x{v['content'][1]} H.264 frame on the YUV path: {v['node_cpu_ms_per_frame']:.2f} ms"
         f" = decode {s['decode_ms']:.2f} + convert {s['convert_ms']:.2f} (copying the planes cost "
@@ -383,12 +414,5 @@ def summary(v: dict) -> list[str]:
         f" ms and the pixels' copies and setup {s['pixels_ms']:.2f} ms",
         f"llvmpipe's rasterizer (the GPU here): {s['rasterizer_ms_per_frame']:.1f} ms of CPU per frame, "
         f"{100 * s['rasterizer_share']:.0f} % of all the CPU a frame took",
-        f"resident memory while playing: {b['rss_mb']:g} MB with frame threads (before), {a['rss_mb']:g} MB now (peak {a['peak_rss_mb']:g}; "
-        f"target {m['target_rss_mb']:g}): {parts}; without llvmpipe's libraries (a GPU's driver replaces them) "
-        f"{a['rss_mb_without_software_gpu_libs']:g} MB",
-        f"the whole node while playing, with its node process ({m['node_processes']['node_process']['rss_mb']:g} MB,"
-        f" {m['node_processes']['processes']} processes in all): {m['node_total_mb']['at_least']:g} to"
-        f" {m['node_total_mb']['rss_sum']:g} MB; without llvmpipe's libraries"
-        f" {m['node_total_mb']['without_software_gpu_libs']['at_least']:g} to"
-        f" {m['node_total_mb']['without_software_gpu_libs']['rss_sum']:g} MB",
+        *memory_summary(v["memory"]),
     ]

@@ -261,8 +261,9 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
 
 
 def _process_memory(pid: int) -> dict:
-    """Resident memory of process ``pid``: ``rss_mb`` (VmRSS), ``anon_mb`` (RssAnon) and ``pss_mb`` (its
-    proportional share: a page mapped by n processes counts 1/n; /proc/PID/smaps_rollup)."""
+    """Resident memory of process ``pid``: ``rss_mb`` (VmRSS), ``anon_mb`` (RssAnon), ``pss_mb`` (its
+    proportional share: a page mapped by n processes counts 1/n; /proc/PID/smaps_rollup) and
+    ``by_mapping_mb`` (:func:`mappings_mb`)."""
     out = {}
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         key, _, value = line.partition(":")
@@ -271,6 +272,7 @@ def _process_memory(pid: int) -> dict:
     for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
         if line.startswith("Pss:"):
             out["pss_mb"] = round(int(line.split()[1]) / 1024, 1)
+    out["by_mapping_mb"] = mappings_mb(str(pid))
     return out
 
 

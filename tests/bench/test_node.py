@@ -46,3 +46,27 @@ def test_every_ablation_still_applies_to_the_shader():
     base = load_shader("pipeline.glsl")
     for name in ABLATIONS:
         assert (ablated(base, name) == base) == (name == "whole"), name
+
+
+def test_bench_node_video_memory_only_measures_the_presenter_by_part_and_mapping_and_after_the_stop():
+    done = subprocess.run([sys.executable, "-m", "shadowless", "bench", "node", "--video", "--memory-only", "--size",
+                           "96x64", "--content", "96x64", "--video-frames", "20"], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    v = json.loads(done.stdout)["video"]
+    assert "paths" not in v, "no CPU part"
+    m = v["memory"]
+    a = m["after"]
+    assert a["rss_mb"] > 0 and 0 < a["rss_mb_after_stop"] and a["split_mb"]["imports"] > 0
+    # the mappings add up to the process's resident memory (read a frame apart, rounded to 0.1 MB each)
+    assert abs(sum(a["by_mapping_mb"].values()) - a["rss_mb"]) <= 3.0, a["by_mapping_mb"]
+    assert a["by_mapping_mb"].get("llvmpipe: libLLVM", 0) > 0 < a["by_mapping_mb"].get("PyAV and FFmpeg", 0)
+    node = m["node_processes"]["node_process"]
+    assert node["by_mapping_mb"].get("the interpreter", 0) > 0 and "llvmpipe: libLLVM" not in node["by_mapping_mb"]
+    assert "by mapping while playing" in done.stderr
+
+
+def test_memory_only_needs_video():
+    done = subprocess.run([sys.executable, "-m", "shadowless", "bench", "node", "--memory-only"], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 2 and "--memory-only goes with --video" in done.stderr
