@@ -58,20 +58,38 @@ class RoomDescription(_message.Message):
     def __init__(self, name: _Optional[str] = ..., projectors: _Optional[_Iterable[_Union[ProjectorDescription, _Mapping]]] = ..., rig_slots: _Optional[_Iterable[str]] = ..., cameras: _Optional[_Iterable[_Union[CameraDescription, _Mapping]]] = ..., surface: _Optional[str] = ...) -> None: ...
 
 class DisplayedFrame(_message.Message):
-    __slots__ = ("slot", "frame_id", "swap_rig_ns", "host_monotonic_ns", "image", "tag")
+    __slots__ = ("slot", "frame_id", "swap_rig_ns", "host_monotonic_ns", "image", "tag", "shared")
     SLOT_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     SWAP_RIG_NS_FIELD_NUMBER: _ClassVar[int]
     HOST_MONOTONIC_NS_FIELD_NUMBER: _ClassVar[int]
     IMAGE_FIELD_NUMBER: _ClassVar[int]
     TAG_FIELD_NUMBER: _ClassVar[int]
+    SHARED_FIELD_NUMBER: _ClassVar[int]
     slot: str
     frame_id: int
     swap_rig_ns: int
     host_monotonic_ns: int
     image: _common_pb2.Image
     tag: str
-    def __init__(self, slot: _Optional[str] = ..., frame_id: _Optional[int] = ..., swap_rig_ns: _Optional[int] = ..., host_monotonic_ns: _Optional[int] = ..., image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., tag: _Optional[str] = ...) -> None: ...
+    shared: SharedFrame
+    def __init__(self, slot: _Optional[str] = ..., frame_id: _Optional[int] = ..., swap_rig_ns: _Optional[int] = ..., host_monotonic_ns: _Optional[int] = ..., image: _Optional[_Union[_common_pb2.Image, _Mapping]] = ..., tag: _Optional[str] = ..., shared: _Optional[_Union[SharedFrame, _Mapping]] = ...) -> None: ...
+
+class SharedFrame(_message.Message):
+    __slots__ = ("pid", "fd", "offset", "seq", "width", "height")
+    PID_FIELD_NUMBER: _ClassVar[int]
+    FD_FIELD_NUMBER: _ClassVar[int]
+    OFFSET_FIELD_NUMBER: _ClassVar[int]
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    pid: int
+    fd: int
+    offset: int
+    seq: int
+    width: int
+    height: int
+    def __init__(self, pid: _Optional[int] = ..., fd: _Optional[int] = ..., offset: _Optional[int] = ..., seq: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ...) -> None: ...
 
 class DisplayAck(_message.Message):
     __slots__ = ("frames",)

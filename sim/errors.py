@@ -27,3 +27,8 @@ class MeshError(SimError, ValueError):
 
 class RenderError(SimError, RuntimeError):
     """The OpenGL (EGL) context the room rasterises meshes with cannot be used."""
+
+
+class SharedFrameUnavailable(SimError):
+    """A node's frames in shared memory cannot be opened here (another host, another user's): the
+    node sends them inline instead."""

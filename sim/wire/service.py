@@ -26,9 +26,10 @@ from grpc_reflection.v1alpha import reflection
 from protos import codec, room_pb2, room_pb2_grpc
 from protos.version import SERVER_GRPC_OPTIONS
 from sim.wire import messages as wire
-from sim.errors import FrameError, SimError, UnknownSlotError
+from sim.errors import FrameError, SharedFrameUnavailable, SimError, UnknownSlotError
 from sim.occluders import flatten
 from sim.room import Room
+from sim.wire.shared_frames import SharedFrames
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +62,8 @@ class _Shown:
 def _code_for(exc: BaseException) -> grpc.StatusCode:
     if isinstance(exc, UnknownSlotError):
         return grpc.StatusCode.NOT_FOUND
+    if isinstance(exc, SharedFrameUnavailable):
+        return grpc.StatusCode.FAILED_PRECONDITION
     if isinstance(exc, (FrameError, codec.ImageCodecError, ValueError, TypeError)):
         return grpc.StatusCode.INVALID_ARGUMENT
     return grpc.StatusCode.INTERNAL
@@ -96,6 +99,9 @@ class RoomService(room_pb2_grpc.RoomServicer):
         self._arrived: dict[str, float] = {}  # slot -> monotonic s of its last frame
         self._changed: asyncio.Condition | None = None
         self.frames_received = 0
+        #: of those, frames read from the node's shared memory, and those skipped there (overwritten)
+        self.frames_shared = 0
+        self.frames_overwritten = 0
 
     def _condition(self) -> asyncio.Condition:
         if self._changed is None:
@@ -145,11 +151,19 @@ class RoomService(room_pb2_grpc.RoomServicer):
         accepted = 0
         opened: set[str] = set()
         cond = self._condition()
+        shared = SharedFrames()
         try:
             async for msg in request_iterator:
                 try:
                     spec = self.room.projector(msg.slot)
-                    image = codec.decode_image(msg.image)
+                    if msg.HasField("shared"):
+                        image = shared.read(msg.shared, spec.size)
+                        if image is None:     # overwritten by a newer frame before it was read: that one follows
+                            self.frames_overwritten += 1
+                            continue
+                        self.frames_shared += 1
+                    else:
+                        image = codec.decode_image(msg.image)
                     w, h = spec.size
                     if image.dtype != np.uint8 or image.shape[2] not in (1, 3):
                         raise FrameError(f"frame {msg.frame_id} for {msg.slot} must be uint8 RGB input values, got {image.shape[2]} channels of {image.dtype}")
@@ -175,6 +189,7 @@ class RoomService(room_pb2_grpc.RoomServicer):
                 async with cond:
                     cond.notify_all()
         finally:
+            shared.close()
             for slot in opened:
                 self._streams[slot] -= 1
             if self.no_signal == "black":
