@@ -165,8 +165,10 @@ class TimelinePlayer:
         return asset_id in self._files and asset_id not in self._failed
 
     def suspend(self) -> None:
-        """A coordinator frame takes the output: ignore the timeline until a newer revision."""
+        """A coordinator frame takes the output: ignore the timeline until a newer revision (which
+        reopens a decoder when it is scheduled: the open one is let go, :meth:`_let_decoder_go`)."""
         self.suspended_revision = self.schedule.revision
+        self._let_decoder_go()
 
     def reset(self) -> None:
         """A coordinator on a new rig clock: forget the schedule (its Show stream sends it again)."""
@@ -258,11 +260,16 @@ class TimelinePlayer:
 
     def mark_done(self, event: TimelineEvent) -> None:
         self.done = (event.revision, event.tick)
-        if event.kind == "stop" and self._decoder is not None:
-            # the stopped show's decoder (its pictures, its context: 28 MB at 1080p) is not kept for a
-            # show that may never come; a newer revision reopens one when it is scheduled (prepare).
-            # The decode thread closes it and gives its memory back (node/heap_trim.py), so this
-            # thread, about to swap the stop in, waits for neither the frame being decoded nor the trim
+        if event.kind == "stop":
+            self._let_decoder_go()
+
+    def _let_decoder_go(self) -> None:
+        """The show stopped or was suspended: its decoder (its pictures, its context: 28 MB at 1080p)
+        is not kept for a show that may never come; a newer revision reopens one when it is scheduled
+        (:meth:`prepare`). The decode thread closes it and gives its memory back
+        (:mod:`node.heap_trim`), so the presenter's thread, about to swap the stop or the coordinator's
+        frame in, waits for neither the frame being decoded nor the trim."""
+        if self._decoder is not None:
             self._decoder.close(wait=False, then=trim_now)
             self._decoder = None
 

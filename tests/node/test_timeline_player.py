@@ -167,9 +167,11 @@ def _rss_mb() -> float:
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
-def test_a_stop_closes_the_video_decoder_and_gives_its_memory_back(tmp_path):
-    """After a stop the presenter's process does not keep the stopped video's decoder (its frame pool:
-    six or more pictures) nor the memory glibc would keep once it is freed (node/heap_trim.py)."""
+@pytest.mark.parametrize("how", ["stop", "suspend"])
+def test_a_stop_or_a_suspension_closes_the_video_decoder_and_gives_its_memory_back(tmp_path, how):
+    """After a stop (or a coordinator frame suspending the timeline) the presenter's process does not
+    keep the video's decoder (its frame pool: six or more pictures) nor the memory glibc would keep
+    once it is freed (node/heap_trim.py)."""
     w, h, n = 1280, 720, 24
     path = tmp_path / "v.mp4"
     write_clip(path, size=(w, h), fps=30, seconds=n / 30)
@@ -191,7 +193,10 @@ def test_a_stop_closes_the_video_decoder_and_gives_its_memory_back(tmp_path):
         assert shown >= 9 and ev is not None and ev.kind == "stop"
         assert p.decode_stats() is not None
         playing = _rss_mb()
-        p.mark_done(ev)
+        if how == "stop":
+            p.mark_done(ev)
+        else:
+            p.suspend()
         assert p.decode_stats() is None          # no decoder kept for a show that stopped
         # the decoder's pictures (1.4 MB each at 720p 4:2:0) and context go back to the system
         wait_until(_rss_mb, lambda mb: mb < playing - 4.0, what=f"resident memory below {playing - 4.0:.1f} MB "
