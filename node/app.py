@@ -18,7 +18,6 @@ report stream are :mod:`node.session`'s, which the swarm shares.
 from __future__ import annotations
 
 import asyncio
-import importlib.metadata
 import logging
 import math
 import os
@@ -42,7 +41,7 @@ from node.targets import Candidate, TargetBook, read_known_rig, write_known_rig
 from protos.discovery import Discovery
 from protos.discovery import DiscoveryError as MdnsUnusable
 from protos.host import boot_id
-from protos.version import PROTOCOL_VERSION
+from protos.version import PROTOCOL_VERSION, SOFTWARE_VERSION
 
 log = logging.getLogger("node")
 
@@ -95,14 +94,6 @@ PREVIEW_EVERY_S = 0.5
 
 #: how long a node that stops on purpose waits for the coordinator to take its goodbye
 GOODBYE_S = 1.0
-
-
-def _version() -> str:
-    """The installed shadowless distribution's version (the node does not import the CLI package)."""
-    try:
-        return importlib.metadata.version("shadowless")
-    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - running from an uninstalled tree
-        return "unknown"
 
 
 class Node:
@@ -163,7 +154,7 @@ class Node:
         """What this node says about itself when it joins (its output's size once the presenter knows it)."""
         size = (self.presenter.native_size if self.presenter is not None else None) or (0, 0)
         return NodeInfo(hostname=socket.gethostname(), host_boot_id=boot_id(), pid=os.getpid(),
-                        software_version=_version(), output=self.cfg.output.split("?")[0],
+                        software_version=SOFTWARE_VERSION, output=self.cfg.output.split("?")[0],
                         native_size=(size[0], size[1]), gl=self.presenter.gl_info if self.presenter is not None else "")
 
     # ---------------------------------------------------------------- main loop

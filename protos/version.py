@@ -9,6 +9,11 @@ import re
 #: accepts small messages only (MAX_REQUEST_BYTES); Stop can black out; fit modes.
 PROTOCOL_VERSION = 4
 
+#: the software's own version (pyproject.toml says the same; a test checks): what ``shadowless
+#: --version`` prints and a node reports when it joins. Kept here, not read through importlib.metadata,
+#: whose 31 modules cost a node's network process 1.4 MB resident for this one string.
+SOFTWARE_VERSION = "0.1.0"
+
 
 def _service_type() -> str:
     """``_NAME._tcp.local.`` with ``_NAME`` from ``SHADOWLESS_MDNS_SERVICE`` (unset or empty: ``_shadowless``).

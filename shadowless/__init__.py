@@ -1,3 +1,5 @@
 """shadowless: many projectors, one synthetic-aperture projector."""
 
-__version__ = "0.1.0"
+from protos.version import SOFTWARE_VERSION as __version__
+
+__all__ = ["__version__"]
