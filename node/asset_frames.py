@@ -319,6 +319,7 @@ class DecodeAhead:
         self._closed = False
         self._finished = False    # the thread left its loop (set under the lock)
         self._detached: Callable[[], None] | None = None   # close(wait=False): the thread closes the source, then calls it
+        self._linger_s = 0.0
         self._source_closed = False
         self._fatal: BaseException | None = None
         self._hits = self._misses = self._jumps = self._decoded = self._errors = 0
@@ -496,8 +497,10 @@ class DecodeAhead:
         finally:
             with self._cond:
                 self._finished = True
-                then = self._detached
+                then, linger = self._detached, self._linger_s
             if then is not None:
+                if linger > 0:
+                    time.sleep(linger)     # this thread's last act: nothing waits for it
                 self._close_source(then)
 
     def _close_source(self, then: Callable[[], None] | None = None) -> None:
@@ -510,18 +513,21 @@ class DecodeAhead:
         if then is not None:
             then()
 
-    def close(self, *, wait: bool = True, then: Callable[[], None] | None = None) -> None:
+    def close(self, *, wait: bool = True, then: Callable[[], None] | None = None, linger_s: float = 0.0) -> None:
         """Stop the thread (it finishes the frame it is decoding), join it, close the source.
         Idempotent. ``wait=False``: return at once; the thread closes the source itself once the
         frame it is decoding is done (the caller's thread never waits for a decode). ``then`` is called
         after the source's close, on the thread that closed it, by the call that closed it (not by a
-        later one): e.g. :func:`node.heap_trim.trim_now`, the decoder's memory given back there."""
+        later one): e.g. :func:`node.heap_trim.trim_now`, the decoder's memory given back there.
+        ``linger_s`` (with ``wait=False``): the thread waits this long first, so that the close and
+        ``then`` fall after a swap the caller is about to make."""
         with self._cond:
             self._closed = True
             self._window.clear()
             self._ready.clear()
             if not wait:
                 self._detached = then or (lambda: None)
+                self._linger_s = max(0.0, float(linger_s))
             finished = self._finished
             self._cond.notify_all()
         if not wait:

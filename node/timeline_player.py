@@ -54,6 +54,11 @@ MAX_SKIPPED_REPORTS = 120
 #: decoder's state each: 12 MB more at 1080p with two threads (FFmpeg's choice, one per core plus
 #: one, 25 MB more), for the same CPU per frame (bench/node_video_memory.py)
 DECODE_THREADS = 2
+#: a stopped or suspended show's decoder is closed and its memory given back this long after the
+#: stop is prepared (the presenter prepares a swap PREPARE_NS, 50 ms, before it), on the decode
+#: thread: the trim took 6 ms on a quiet host, 54-69 ms of wall time at load 27, during which the
+#: presenter's thread waited up to 10-23 ms for a 4 kB allocation (6 ms at worst without the trim)
+LET_GO_AFTER_S = 0.25
 
 
 class AssetFilesView:
@@ -267,10 +272,11 @@ class TimelinePlayer:
         """The show stopped or was suspended: its decoder (its pictures, its context: 28 MB at 1080p)
         is not kept for a show that may never come; a newer revision reopens one when it is scheduled
         (:meth:`prepare`). The decode thread closes it and gives its memory back
-        (:mod:`node.heap_trim`), so the presenter's thread, about to swap the stop or the coordinator's
-        frame in, waits for neither the frame being decoded nor the trim."""
+        (:mod:`node.heap_trim`), :data:`LET_GO_AFTER_S` from now, so the presenter's thread, about to
+        swap the stop or the coordinator's frame in, waits for neither the frame being decoded nor the
+        trim, and the trim (a few ms of arena locks and GIL hand-offs) falls after that swap."""
         if self._decoder is not None:
-            self._decoder.close(wait=False, then=trim_now)
+            self._decoder.close(wait=False, then=trim_now, linger_s=LET_GO_AFTER_S)
             self._decoder = None
 
     # ------------------------------------------------------------------ frames
