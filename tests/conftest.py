@@ -234,7 +234,63 @@ def pytest_runtest_protocol(item, nextitem):
 # records its tests' durations in the tests' cache; the next one queues its modules by their recorded
 # time (a test never timed counts DEFAULT_TEST_S), the longest first. The controller reads the record
 # once and hands it to its workers, so that every worker collects in one order.
+#
+# A clean clone (CI) has no record, and its run used to end on whatever long module xdist queued last:
+# there the modules of KNOWN_SECONDS (each module's seconds in the record on the project's 2-core machine
+# on 2026-12-07, rounded) go first in that order, and every other module counts DEFAULT_TEST_S a test. A
+# module the record has timed (any of its tests) is ordered by the record instead, which follows the tests
+# as they change; this list only has to keep the long modules ahead of the short ones.
 DEFAULT_TEST_S = 0.5
+KNOWN_SECONDS: dict[str, float] = {
+    "tests/bench/test_compensation_memory.py": 82,
+    "tests/coordinator/calibration/test_job_room.py": 75,
+    "tests/coordinator/console/test_console_workflow.py": 70,
+    "tests/coordinator/test_show_rig.py": 59,
+    "tests/node/test_discovery_hostile.py": 58,
+    "tests/coordinator/compensation/test_video_cluster.py": 52,
+    "tests/coordinator/compensation/test_job_end_to_end.py": 44,
+    "tests/deploy/test_install.py": 43,
+    "tests/bench/test_venue.py": 41,
+    "tests/coordinator/compensation/test_bench.py": 36,
+    "tests/coordinator/console/test_console_pictures.py": 36,
+    "tests/coordinator/test_crash_recovery.py": 32,
+    "tests/shadowless/test_local_rig.py": 30,
+    "tests/shadowless/test_demo.py": 28,
+    "tests/bench/test_swarm.py": 28,
+    "tests/coordinator/calibration/test_end_to_end.py": 27,
+    "tests/coordinator/console/test_console_browser.py": 24,
+    "tests/sim/test_bench_room.py": 23,
+    "tests/coordinator/blending/test_blend_job_nodes.py": 23,
+    "tests/coordinator/console/test_console_thumbnails.py": 23,
+    "tests/coordinator/test_distribution.py": 22,
+    "tests/coordinator/compensation/test_mesh_cameras.py": 22,
+    "tests/coordinator/compensation/test_job_room.py": 21,
+    "tests/shadowless/test_netns.py": 21,
+    "tests/imaging/calibration/test_multiplex3d.py": 20,
+    "tests/rigctl/test_rig_target.py": 20,
+    "tests/coordinator/test_refusals.py": 17,
+    "tests/imaging/compensation/test_solver.py": 16,
+    "tests/sim/test_lamp_process.py": 14,
+    "tests/node/test_systemd_node.py": 14,
+    "tests/coordinator/compensation/test_mesh_jobs.py": 13,
+    "tests/coordinator/console/test_console_blend.py": 13,
+    "tests/test_imports.py": 13,
+    "tests/coordinator/test_admission.py": 13,
+    "tests/node/test_session_rejoin.py": 13,
+    "tests/protos/test_service_type.py": 12,
+    "tests/planner/test_pointwise.py": 12,
+    "tests/node/test_outputs.py": 12,
+    "tests/coordinator/test_mdns_names.py": 12,
+    "tests/coordinator/test_flood.py": 12,
+    "tests/protos/test_discovery_refusals.py": 11,
+    "tests/bench/test_console_login_bench.py": 11,
+    "tests/node/test_render_gles.py": 11,
+    "tests/bench/test_compensation_bust_oracle.py": 11,
+    "tests/imaging/compensation/test_memory_estimate.py": 10,
+    "tests/shadowless/test_swarm.py": 10,
+    "tests/coordinator/console/test_console_page_tools.py": 10,
+    "tests/coordinator/blending/test_watchdog_room.py": 10,
+}
 _DURATIONS_KEY = "shadowless_durations"
 _durations_seen: dict[str, float] = {}
 
@@ -256,20 +312,28 @@ def _read_durations() -> dict[str, float]:
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_configure_node(node):
-    """(pytest-xdist, in the controller) Every worker gets the controller's record of durations."""
-    node.workerinput[_DURATIONS_KEY] = node.config._shadowless_durations
+    """(pytest-xdist, in the controller) Under ``--dist loadfile`` every worker gets the controller's
+    record of durations (perhaps empty: then KNOWN_SECONDS orders the long modules)."""
+    if getattr(node.config.option, "dist", "no") == "loadfile":
+        node.workerinput[_DURATIONS_KEY] = node.config._shadowless_durations
 
 
 def pytest_collection_modifyitems(config, items):
-    """In an xdist worker: the modules ordered by their recorded time, the longest first (a module's
-    tests keep their order)."""
+    """In an xdist worker of a ``--dist loadfile`` session: the modules ordered by their recorded time
+    (KNOWN_SECONDS for a module never timed), the longest first (a module's tests keep their order)."""
     durations = getattr(config, "workerinput", {}).get(_DURATIONS_KEY)
-    if not durations:
+    if durations is None:    # not a worker of a --dist loadfile session
         return
     cost: dict[str, float] = {}
+    timed: set[str] = set()
     for item in items:
         module = item.nodeid.split("::", 1)[0]
         cost[module] = cost.get(module, 0.0) + durations.get(item.nodeid, DEFAULT_TEST_S)
+        if item.nodeid in durations:
+            timed.add(module)
+    for module, seconds in KNOWN_SECONDS.items():
+        if module in cost and module not in timed:
+            cost[module] = seconds
     first_seen = {m: i for i, m in enumerate(dict.fromkeys(item.nodeid.split("::", 1)[0] for item in items))}
     items.sort(key=lambda item: (-cost[item.nodeid.split("::", 1)[0]], first_seen[item.nodeid.split("::", 1)[0]]))
 
@@ -300,7 +364,7 @@ def pytest_sessionfinish(session):
 def pytest_configure(config):
     global _SESSION_TMP
     config._shadowless_durations = {} if hasattr(config, "workerinput") else _read_durations()
-    if config._shadowless_durations and getattr(config.option, "dist", "no") == "loadfile":
+    if getattr(config.option, "dist", "no") == "loadfile":
         config.option.loadscopereorder = False    # the workers' order (above), not "most tests first"
     config.addinivalue_line("markers", "allow_leaks: a module-scoped rig fixture owns processes across tests")
     # beside, not inside, another session's directory: pytest-xdist's workers inherit the TMPDIR set
