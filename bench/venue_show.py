@@ -334,7 +334,7 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     the missed ones fall, and what each node did and spent while it rejoined."""
     logs = log_sizes(rig)
     # when each node's budget held it back (to tell a tick missed for CPU from one missed otherwise)
-    groups = {s: n.cpu.path / "cpu.stat" for s, n in budgets.nodes.items()
+    groups = {s: n.cpu.limited_stat_path() for s, n in budgets.nodes.items()
               if n.cpu.path is not None} if budgets is not None else {}
     sampler = ThrottleSampler(groups) if groups else None
     if sampler is not None:

@@ -568,6 +568,16 @@ class CpuBudget:
             return []
         return _ids(self.path / "cgroup.procs")
 
+    def limited_stat_path(self) -> Path | None:
+        """The ``cpu.stat`` of the group that holds this budget's limit (v2's threaded layout: its
+        processes' child, whose ``nr_throttled`` the domain does not count), or None before
+        :meth:`open`."""
+        if self.path is None:
+            return None
+        if self.hierarchy.version == 2 and self.threads:
+            return self.path / V2_PROCS / "cpu.stat"
+        return self.path / "cpu.stat"
+
     def stats(self, part: str | None = None) -> dict:
         """What the budget did: its limit, CFS periods elapsed, periods in which it was held back
         (``throttled``), the time held back (``throttled_s``) and the CPU time used (``cpu_s``).

@@ -106,6 +106,8 @@ def test_v2_threaded_layout_in_a_stand_in_hierarchy(tmp_path):
     assert (d / "cgroup.subtree_control").read_text() == "+cpu\n"
     assert [(d / c / "cgroup.type").read_text() for c in ("proc", "thr")] == ["threaded\n", "threaded\n"]
     assert (d / "proc" / "cpu.max").read_text() == "8000 20000\n" and (d / "thr" / "cpu.max").read_text() == "max 20000\n"
+    # the throttle counts that say the limit held the group back are the limited child's
+    assert split.limited_stat_path() == d / "proc" / "cpu.stat" and plain.limited_stat_path() == plain.path / "cpu.stat"
     split.add(os.getpid(), children=False)
     assert (d / "proc" / "cgroup.procs").read_text() == f"{os.getpid()}\n"
     assert split.add_thread(1234) and (d / "thr" / "cgroup.threads").read_text() == "1234\n"
