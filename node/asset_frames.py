@@ -35,6 +35,7 @@ frame, with the decoder's reason.
 from __future__ import annotations
 
 import itertools
+import logging
 import threading
 import time
 from collections import deque
@@ -49,6 +50,8 @@ from node.asset_decode import DecodeError, VideoDecoder, content_dtype, decode_i
 from node.errors import NodeError
 from protos.asset_manifest import Manifest
 from protos.yuv import YuvFrame
+
+log = logging.getLogger(__name__)
 
 __all__ = ["DecodeAhead", "DecodeError", "DecodeStats", "FrameError", "FrameNotReady", "FrameSource", "open_frames"]
 
@@ -501,7 +504,10 @@ class DecodeAhead:
             if then is not None:
                 if linger > 0:
                     time.sleep(linger)     # this thread's last act: nothing waits for it
-                self._close_source(then)
+                try:
+                    self._close_source(then)
+                except Exception:  # noqa: BLE001 - nobody is left to raise it to
+                    log.exception("closing %s after its show let it go", self.source.asset_id[:12])
 
     def _close_source(self, then: Callable[[], None] | None = None) -> None:
         """Close the source once, whoever gets here first; then call ``then``."""
