@@ -744,6 +744,11 @@ class Presenter:
 
     def _on_frame(self, renderer, out: Output, frame: FrameOrder) -> None:
         pacer = self.pacer
+        if self.player.issued_before_newest(frame.frame_id):
+            # sent before the show that is now newest began (a still's resend on the Frames stream that
+            # the Show stream overtook): the show the operator asked for last stays on screen
+            self._drop(DropRecord(frame.frame_id, DropReason.SUPERSEDED))
+            return
         self.player.suspend()    # a coordinator frame takes the output from the timeline
         drop = pacer.admit(frame, renderer.has)
         if drop is not None:

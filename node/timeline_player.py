@@ -175,6 +175,15 @@ class TimelinePlayer:
         self.suspended_revision = self.schedule.revision
         self._let_decoder_go()
 
+    def issued_before_newest(self, frame_id: int) -> bool:
+        """Whether coordinator frame ``frame_id`` was issued before the newest revision, a timeline:
+        its id is below that revision's frame id base (the coordinator takes every base above every
+        id it issued before, and a takeover's frames above every tick a node may still swap). Such a
+        frame, e.g. a still's resend that raced the show's start on the other stream, must not
+        suspend the show."""
+        base = self._bases.get(self.schedule.revision)
+        return base is not None and frame_id < base
+
     def reset(self) -> None:
         """A coordinator on a new rig clock: forget the schedule (its Show stream sends it again)."""
         self.schedule = Schedule()

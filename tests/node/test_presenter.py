@@ -392,6 +392,21 @@ def test_a_coordinator_frame_suspends_the_timeline_until_a_newer_revision(rig, t
     assert [s.frame_id for s in rig.swaps] == [500, 10_000, 20_000]
 
 
+def test_a_coordinator_frame_issued_before_the_newest_show_does_not_suspend_it(rig, tmp_path):
+    """A still's resend sent just before a show began (Frames stream) may reach the node after the
+    show (Show stream): its id is below the show's frame id base, so it is dropped as superseded and
+    the show plays on, where it used to leave this one node suspended until the next revision."""
+    files = _still_asset(tmp_path)
+    p = rig.presenter
+    p.handle("asset", files)
+    p.handle("show", _timeline_update(files, rig.rig_now() + 100 * MS, base=20_000))
+    first_frame_decoded(p)
+    rig.show(rig.frame(19_999, in_ms=5, content="c10"))          # issued before the show's base
+    assert [(d.frame_id, d.reason) for d in rig.drops] == [(19_999, DropReason.SUPERSEDED)]
+    assert p.status().show.state != "suspended"
+    p.timeline_step()
+    assert [s.frame_id for s in rig.swaps] == [20_000]
+
 def test_a_paused_shows_frame_that_misses_its_instant_is_shown_a_moment_later(rig, tmp_path):
     """Every node must hold the paused frame for the whole pause: one rendered too late for its
     instant is tried again CATCH_UP_NS later (no drop reported), not left out."""
