@@ -41,7 +41,6 @@ from urllib.parse import parse_qsl
 import numpy as np
 
 from coordinator.errors import CoordinatorError
-from coordinator.wire.room_camera import RoomCallError, RoomCaptureLink, RoomFailure
 from protos.store import atomic_write_bytes
 
 #: File names of a recorded/replayed sequence: 000001.png, 000002.png, ...
@@ -214,6 +213,8 @@ class RoomCamera(_SizeCheck):
         self.timeout_s = float(spec.options.get("timeout", timeout_s or 60.0))
         self.wait = spec.options.get("wait", "1") == "1"
         self._last_ns = 0
+        # the room's gRPC link and messages only when a room camera is opened, not at every coordinator's start
+        from coordinator.wire.room_camera import RoomCaptureLink
         self._link = RoomCaptureLink(self.target)
         self._lock = threading.Lock()
 
@@ -224,6 +225,7 @@ class RoomCamera(_SizeCheck):
     def capture(self, *, exposure: float | None = None) -> np.ndarray:
         if exposure is not None and not (math.isfinite(exposure) and exposure > 0):
             raise CameraError(f"camera {self.spec}: exposure must be a positive factor, got {exposure}")
+        from coordinator.wire.room_camera import RoomCallError, RoomFailure
         timeout_ms = int(min(self.timeout_s, 30.0) * 1000)
         try:
             with self._lock:

@@ -10,8 +10,6 @@ from pathlib import Path
 
 from coordinator.console.hosts import allowed_host
 from coordinator.errors import OPERATOR_ERRORS, CoordinatorError, RigError
-from coordinator.rig import Rig
-from coordinator.app import CoordinatorApp
 from protos.store import atomic_write_text
 from protos.auth import TokenError, resolve_token
 
@@ -63,6 +61,10 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 async def serve(args: argparse.Namespace) -> int:
+    # imported here, not above: `shadowless coordinator --help` (and a mistyped option) need no server
+    from coordinator.app import CoordinatorApp
+    from coordinator.rig import Rig
+
     rig = Rig(args.rig)
     token_file = args.token_file
     if not token_file:

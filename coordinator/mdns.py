@@ -17,12 +17,10 @@ from __future__ import annotations
 
 import logging
 import socket
-
-from zeroconf import DNSService, InterfaceChoice, IPVersion, NonUniqueNameException, RecordUpdateListener
-from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
+from functools import cache
+from typing import Any
 
 from coordinator.errors import CoordinatorError
-from protos.discovery import DiscoveryError, check_interfaces, names_in_use
 from protos.version import PROTOCOL_VERSION, SERVICE_TYPE
 
 log = logging.getLogger(__name__)
@@ -51,25 +49,33 @@ def _local_ipv4_addresses() -> list[str]:
     return addrs or ["127.0.0.1"]
 
 
-class _Squatters(RecordUpdateListener):
-    """Logs (once each) the other targets that responses name for this coordinator's own instance name."""
+@cache
+def _squatters_class() -> type:
+    """The listener class, made on first use: zeroconf must be its base, and zeroconf is imported only
+    by a coordinator that advertises (``--no-mdns`` starts without it)."""
+    from zeroconf import DNSService, RecordUpdateListener
 
-    def __init__(self, name: str, server: str, port: int):
-        super().__init__()
-        self.name, self.own = name.lower(), (server.lower(), port)
-        self.seen: set[tuple[str, int]] = set()
+    class _Squatters(RecordUpdateListener):
+        """Logs (once each) the other targets that responses name for this coordinator's own instance name."""
 
-    def async_update_records(self, zc, now: float, records) -> None:
-        for update in records:
-            rec = update.new
-            if isinstance(rec, DNSService) and rec.name.lower() == self.name and rec.ttl:
-                target = (rec.server.lower(), rec.port)
-                if target != self.own and target not in self.seen and len(self.seen) < 64:
-                    self.seen.add(target)
-                    log.warning("another mDNS responder answers for this coordinator's name %s, pointing at %s "
-                                "port %d (an advertiser that did not probe for the name); nodes and operators "
-                                "join only the coordinator that proves the rig token", rec.name, rec.server,
-                                rec.port)
+        def __init__(self, name: str, server: str, port: int):
+            super().__init__()
+            self.name, self.own = name.lower(), (server.lower(), port)
+            self.seen: set[tuple[str, int]] = set()
+
+        def async_update_records(self, zc, now: float, records) -> None:
+            for update in records:
+                rec = update.new
+                if isinstance(rec, DNSService) and rec.name.lower() == self.name and rec.ttl:
+                    target = (rec.server.lower(), rec.port)
+                    if target != self.own and target not in self.seen and len(self.seen) < 64:
+                        self.seen.add(target)
+                        log.warning("another mDNS responder answers for this coordinator's name %s, pointing at %s "
+                                    "port %d (an advertiser that did not probe for the name); nodes and operators "
+                                    "join only the coordinator that proves the rig token", rec.name, rec.server,
+                                    rec.port)
+
+    return _Squatters
 
 
 class Advertiser:
@@ -81,15 +87,16 @@ class Advertiser:
     """
 
     def __init__(self, *, rig_name: str, rig_id: str, instance_id: str, interfaces: list[str] | None):
+        from protos.discovery import DiscoveryError, check_interfaces   # zeroconf: only when advertising
         try:
             check_interfaces(interfaces)
         except DiscoveryError as exc:
             raise CoordinatorError(str(exc)) from None
         self.rig_name, self.rig_id, self.instance_id, self.port = rig_name, rig_id, instance_id, 0
         self.interfaces = interfaces
-        self._azc: AsyncZeroconf | None = None
-        self._info: AsyncServiceInfo | None = None
-        self._squatters: _Squatters | None = None
+        self._azc: Any = None          # zeroconf.asyncio.AsyncZeroconf, once started
+        self._info: Any = None         # zeroconf.asyncio.AsyncServiceInfo
+        self._squatters: Any = None    # the _squatters_class() listener
 
     @property
     def name(self) -> str:
@@ -97,6 +104,10 @@ class Advertiser:
 
     async def start(self, port: int) -> None:
         """Claim a free instance name and advertise the coordinator's gRPC ``port``."""
+        from zeroconf import InterfaceChoice, IPVersion, NonUniqueNameException
+        from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
+
+        from protos.discovery import names_in_use
         self.port = port
         addresses = self.interfaces or _local_ipv4_addresses()
         try:
@@ -128,7 +139,7 @@ class Advertiser:
                         "nodes and operators find this rig by its id %s all the same", wanted,
                         ", ".join(addresses), self._info.name, self.rig_id)
         log.info("advertising %s on %s port %d", self._info.name, ", ".join(addresses), self.port)
-        self._squatters = _Squatters(self._info.name, self._info.server, self.port)
+        self._squatters = _squatters_class()(self._info.name, self._info.server, self.port)
         self._azc.zeroconf.async_add_listener(self._squatters, None)
 
     async def stop(self) -> None:

@@ -7,8 +7,8 @@ import logging
 import os
 import signal
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from node.app import Node, NodeConfig
 from node.asset_cache import default_cache_dir
 from node.decoders import ENV as DECODER_ENV, check_wish
 from node.display_check import DISPLAY_HELD_EXIT, display_conflict, running_programs
@@ -17,6 +17,9 @@ from node.render.context import GL_CHOICES, GL_ENV
 from protos.auth import TokenError, resolve_token
 from protos import cli_types
 from protos.version import PROTOCOL_VERSION
+
+if TYPE_CHECKING:
+    from node.app import NodeConfig
 
 
 def output_spec(text: str) -> str:
@@ -112,6 +115,10 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def node_config(args: argparse.Namespace, token: bytes, tls_ca: bytes | None) -> NodeConfig:
     """The node's configuration from its parsed options (the cache directory defaults per slot)."""
+    # node.app (gRPC, the wire, the presenter) is imported here, not above: `shadowless node --help`
+    # and a mistyped option need none of it
+    from node.app import NodeConfig
+
     return NodeConfig(slot=args.slot, token=token, coordinator=args.coordinator, rig=args.rig or None,
                       mdns_interfaces=args.mdns_interface, output=args.output, snapshot_dir=args.snapshot_dir,
                       clock_offset_ms=args.clock_offset_ms, clock_drift_ppm=args.clock_drift_ppm,
@@ -145,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
         os.environ[GL_ENV] = args.gl
     if args.decoder:
         os.environ[DECODER_ENV] = args.decoder
+
+    from node.app import Node
 
     async def main() -> int:
         node = Node(cfg)

@@ -39,8 +39,6 @@ from coordinator.blending.failover import DEAD_GAIN
 from coordinator.blending.state import BlendState
 from coordinator.camera import Camera, CameraError, open_camera
 from coordinator.rig import HomographyPose
-from imaging.blending.watchdog import (content_on_grid, fit_changes, grid_mean, maps_on_grid, predicted_light,
-                                       steady_cells)
 from protos.timeline import Timeline
 
 __all__ = ["CHANGE_TOLERANCE", "NAME_TOLERANCE", "LampWatchdog", "WatchdogCheck", "steady_span"]
@@ -271,6 +269,9 @@ class LampWatchdog:
     def _measure(self, spec: str, not_before: int, contributions, content: np.ndarray, slots: list[str],
                  maps: dict, poses: dict, baseline: list[float]):
         """Capture and fit (worker thread): (rig ns of the capture, GainFit)."""
+        # the fit's numerics (OpenCV) on the first check, not at every coordinator's start
+        from imaging.blending.watchdog import (content_on_grid, fit_changes, grid_mean, maps_on_grid,
+                                               predicted_light, steady_cells)
         c = contributions
         shape = c.shape
 

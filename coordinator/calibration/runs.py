@@ -18,12 +18,15 @@ import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from coordinator.calibration.options import CalibrateOptions, Inputs
 from coordinator.jobs import JobContext, JobError
 from protos.store import atomic_write_json
+
+if TYPE_CHECKING:   # named in annotations only: a coordinator's start (recovery) loads no calibration options
+    from coordinator.calibration.options import CalibrateOptions, Inputs
 
 #: Files of ``calibration/`` that are not a projector's figures.
 _NOT_SLOTS = ("run.json", "cameras.json", "alignment.json")

@@ -1,0 +1,39 @@
+"""A coordinator (and a node) starts without the machinery it needs only later.
+
+Every test of the suite and every restart during a show pays a process's imports: what a job, a
+room camera or mDNS needs is imported when it is first used, not at start. Each check runs in a
+fresh interpreter (``python -c``), so it fails when someone adds back a top-level import.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+
+def _loaded_after(code: str, names: tuple[str, ...]) -> list[str]:
+    """Which of ``names`` (modules, or packages with their submodules) a fresh interpreter holds after ``code``."""
+    probe = (f"import sys, json\n{code}\n"
+             f"print(json.dumps(sorted(m for m in sys.modules if any(m == n or m.startswith(n + '.') "
+             f"for n in {list(names)!r}))))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=120)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+#: not needed to serve: a job's numerics, mDNS (a coordinator with --no-mdns), the room camera's wire
+LATER = ("scipy", "skimage", "zeroconf", "protos.discovery", "coordinator.wire.room_camera",
+         "coordinator.calibration.options", "imaging.calibration", "coordinator.compensation",
+         "coordinator.coverage_job", "coordinator.blending.blend_job", "imaging.blending.watchdog",
+         "coordinator.console", "coordinator.osc.service", "aiohttp")
+
+
+def test_the_coordinator_composition_root_imports_no_job_machinery():
+    assert _loaded_after("import coordinator.app", LATER) == []
+
+
+def test_help_and_option_parsing_import_no_server_nor_node_runtime():
+    code = ("from shadowless.cli import build_parser\n"
+            "build_parser('coordinator').parse_args(['coordinator', '--rig', 'r'])\n"
+            "build_parser('node').parse_args(['node', '--slot', 'r0c0'])")
+    assert _loaded_after(code, ("coordinator.app", "coordinator.server", "coordinator.rig", "node.app",
+                                "grpc", "zeroconf", "cv2")) == []
