@@ -174,12 +174,22 @@ class _Stdout:
         return getattr(self._stream, name)
 
 
+#: OpenBLAS's worker threads spin-wait 2**N CPU cycles for more work before they sleep. Its default
+#: (N=28: about 0.1 s of a core) is paid by every process that imports NumPy, right at the import, and
+#: again after each BLAS call that used the threads: a coordinator restarted in a show took it from the
+#: nodes sharing its cores, and the test suite from its hundreds of processes. N=4 lets them sleep at
+#: once; BLAS still runs on every core (a job's large products wake the threads), the results are the same.
+BLAS_ENV = {"OPENBLAS_THREAD_TIMEOUT": "4"}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit status. Output into a pipe whose reader has gone (``shadowless
     status | head -1``) ends the command quietly, as Python's documentation advises (its "Note on
     SIGPIPE"): stdout is pointed at /dev/null so the interpreter's last flush cannot fail again,
     and the exit status is 1, with nothing on stderr. This holds for every command, also one that
     catches OSError around its printing: the failed write raises :class:`ReaderGone` instead."""
+    for name, value in BLAS_ENV.items():     # before the command imports NumPy; the children inherit it
+        os.environ.setdefault(name, value)
     real = sys.stdout
     sys.stdout = _Stdout(real) if real is not None and not isinstance(real, _Stdout) else real
     try:

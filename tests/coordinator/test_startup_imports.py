@@ -1,4 +1,4 @@
-"""A coordinator (and a node) starts without the machinery it needs only later.
+"""A coordinator (and a node) starts without the machinery it needs only later, nor idle BLAS spin.
 
 Every test of the suite and every restart during a show pays a process's imports: what a job, a
 room camera or mDNS needs is imported when it is first used, not at start. Each check runs in a
@@ -7,6 +7,7 @@ fresh interpreter (``python -c``), so it fails when someone adds back a top-leve
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -37,3 +38,20 @@ def test_help_and_option_parsing_import_no_server_nor_node_runtime():
             "build_parser('node').parse_args(['node', '--slot', 'r0c0'])")
     assert _loaded_after(code, ("coordinator.app", "coordinator.server", "coordinator.rig", "node.app",
                                 "grpc", "zeroconf", "cv2")) == []
+
+
+def _blas_timeout_after_main(env_value: str | None) -> str:
+    code = ("import os\nfrom shadowless.cli import main\n"
+            "try:\n    main(['--version'])\nexcept SystemExit:\n    pass\n"
+            "print(os.environ.get('OPENBLAS_THREAD_TIMEOUT'))")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    if env_value is not None:
+        env["OPENBLAS_THREAD_TIMEOUT"] = env_value
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120, env=env)
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_every_shadowless_process_lets_idle_blas_threads_sleep_unless_told_otherwise():
+    # OpenBLAS's default spin after NumPy's import cost each process about 0.1 s of a core
+    assert _blas_timeout_after_main(None) == "4"
+    assert _blas_timeout_after_main("20") == "20"
