@@ -335,7 +335,10 @@ class Presenter:
                                         else None)
             log.info("assignment r%d: %s pose, %dx%d, gain %.3f, LUT %s", a.revision, a.pose_kind, *size, a.gain,
                      "yes" if a.lut is not None else "identity")
-        if not at_once:
+        if not at_once and not (blend_only and self.blend.next is not None):
+            # a blend switch for a later instant changes nothing the node reports until its maps show:
+            # its stats (the revision with them) go then (_blend_step, or the swap of the frame that
+            # first shows them), one message a switch instead of two, each waking the node process
             self._send_stats()
         # what is on screen now follows the new assignment at once
         swapped = None
@@ -417,7 +420,7 @@ class Presenter:
         at_once = self._offer_blend(renderer, a, self.clock.host_now())
         self.assignment = a
         log.info("assignment r%d: the blend alone, taken while frame %d waits for its time", a.revision, frame.frame_id)
-        self._send_stats()
+        # no stats now: the frame's swap (or drop) sends them in a moment, with the revision and any new maps
         if at_once or self.blend.due_for(frame.pts_ns):
             try:
                 self._render(renderer, frame)       # switches to the next maps (at once: already)

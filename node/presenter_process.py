@@ -31,6 +31,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -130,6 +131,11 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
         p.close()
 
 
+#: a directory: each presenter process writes a cProfile of its life there (its main thread's CPU time) (``presenter-<slot>-<pid>.prof``,
+#: when its loop ends); unset (the default), nothing is profiled
+PROFILE_ENV = "SHADOWLESS_PROFILE_DIR"
+
+
 def child_main() -> None:
     """The presenter process's entry point: ``python -c`` calls it with its two pipe ends'
     descriptors (in, out) as arguments; the settings are the first message in."""
@@ -139,7 +145,18 @@ def child_main() -> None:
         settings = conn_in.recv()
     except EOFError:     # the node process is gone
         return
-    presenter_main(conn_in, conn_out, settings)
+    where = os.environ.get(PROFILE_ENV)
+    if not where:
+        presenter_main(conn_in, conn_out, settings)
+        return
+    import cProfile
+    prof = cProfile.Profile(time.thread_time)      # CPU time of this (main) thread: waits count nothing
+    prof.enable()
+    try:
+        presenter_main(conn_in, conn_out, settings)
+    finally:
+        prof.disable()
+        prof.dump_stats(str(Path(where) / f"presenter-{settings.slot}-{os.getpid()}.prof"))
 
 
 def _grow_pipe(fd: int, want: int = 8 * 2**20) -> None:
@@ -179,6 +196,8 @@ class PresenterProcess:
         #: called when the presenter's stats name other blend maps on screen (the node's heartbeat goes at once)
         self.on_blend_change: Callable[[], None] | None = None
         self._alive_at = time.monotonic()
+        #: messages received from the presenter, by kind ("stats", "swap", "alive", ...)
+        self.received: Counter[str] = Counter()
 
     def start(self) -> None:
         child_in, child_out = self._child_ends
@@ -237,6 +256,7 @@ class PresenterProcess:
 
     def _dispatch(self, kind: str, payload) -> None:
         self._alive_at = time.monotonic()
+        self.received[kind] += 1
         if kind == "ready":
             size, self.gl_info = payload
             self.native_size = tuple(size) if size else None
