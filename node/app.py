@@ -26,6 +26,7 @@ import socket
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from node.asset_cache import default_cache_dir
 from node.asset_fetch import AssetFetcher
@@ -38,10 +39,11 @@ from node.records import AssetFiles, DropRecord, HeartbeatRecord, NodeInfo, Prev
 from node.session import Joined, ReportStream, SessionCore
 from node.systemd import NodeNotifier
 from node.targets import Candidate, TargetBook, read_known_rig, write_known_rig
-from protos.discovery import Discovery
-from protos.discovery import DiscoveryError as MdnsUnusable
 from protos.host import boot_id
 from protos.version import PROTOCOL_VERSION, SOFTWARE_VERSION
+
+if TYPE_CHECKING:
+    from protos.discovery import Discovery
 
 log = logging.getLogger("node")
 
@@ -163,6 +165,7 @@ class Node:
         self._looking_since = time.monotonic()
         discovery, early = None, None
         if self.cfg.coordinator is None:
+            from protos.discovery import Discovery, DiscoveryError as MdnsUnusable   # zeroconf: only a node that browses
             discovery = Discovery(interfaces=self.cfg.mdns_interfaces)
             try:
                 await discovery.start()

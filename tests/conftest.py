@@ -18,6 +18,9 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("SHADOWLESS_TEST", "1")
+# OpenBLAS's idle threads sleep at once instead of spinning ~0.1 s of a core after each call (as every
+# `shadowless` process sets for itself in shadowless.cli.main): the workers' own numpy counts too
+os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "4")
 #: the tests' own cache, outside the checkout (SHADOWLESS_TESTS_CACHE; "off": none): bytecode, and each
 #: test's last duration (which orders the modules across xdist's workers, see below)
 _CACHE = os.environ.get("SHADOWLESS_TESTS_CACHE",

@@ -37,7 +37,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable, Mapping
 
-import cv2
 import numpy as np
 
 from imaging.blending.contributions import Contributions, apply_homography_grid, luma
@@ -161,6 +160,8 @@ def _grid_field_in_map(values: np.ndarray, contributions: Contributions, slot: s
                        size: tuple[int, int]) -> np.ndarray:
     """A camera-grid field (h, w, C) float32 sampled at the centres of ``slot``'s map texels
     (``size`` = (mw, mh)): bilinear, edges replicated. (mh, mw, C) float32."""
+    import cv2  # lazy: the blend state loads this module at every coordinator's start
+
     W, H = contributions.projector_size[slot]
     cam_W, cam_H = contributions.camera_size
     gh, gw = contributions.shape

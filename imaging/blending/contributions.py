@@ -23,7 +23,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
-import cv2
 import numpy as np
 
 from imaging.blending.errors import BlendError
@@ -87,6 +86,8 @@ def projector_mapper(mapping: np.ndarray, camera_size: tuple[int, int]):
     table = np.ascontiguousarray(m, np.float32)
 
     def f(points: np.ndarray) -> np.ndarray:
+        import cv2  # lazy: a coordinator's start loads this module; OpenCV only when a blend is computed or sampled
+
         p = np.asarray(points, np.float64)
         n = int(np.prod(p.shape[:-1]))
         rows = max(1, -(-n // 1024))     # remap takes maps of at most 32767 a side: lay the points out 1024 wide

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import Mapping
 
-import cv2
 import numpy as np
 
 from imaging.blending.contributions import Contributions
@@ -21,6 +20,8 @@ __all__ = ["sample_map", "predict"]
 def sample_map(values: np.ndarray, u: np.ndarray, projector_size: tuple[int, int]) -> np.ndarray:
     """``values`` ((mh, mw) or (mh, mw, C) float32, a map over a projector of ``projector_size``) at projector
     pixels ``u`` ((h, w, 2)), bilinear between texel centres and clamped at the edges; NaN ``u`` gives 0."""
+    import cv2  # lazy: a coordinator's start loads this module; OpenCV only when a blend is computed or sampled
+
     W, H = projector_size
     a = np.ascontiguousarray(np.asarray(values, np.float32))
     mh, mw = a.shape[:2]

@@ -42,7 +42,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
 
-import cv2
 import numpy as np
 
 from imaging.blending.contributions import LUMA, Contributions, apply_homography_grid
@@ -377,6 +376,8 @@ def compute_blend(contributions: Contributions, *, lost: Iterable[str] = frozens
     covered = plan.covered
     target = plan.L[..., None] * plan.white[None, None, :]
     S, S_y, lift, r = plan.S, plan.S_y, plan.lift, plan.r
+
+    import cv2  # lazy: a coordinator's start loads this module; OpenCV only when a blend is solved
 
     # per slot, alpha = r_i Q_c and beta = r_i P on the grid (exact there), then resampled into its map grid
     with np.errstate(divide="ignore", invalid="ignore"):

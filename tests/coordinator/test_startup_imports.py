@@ -25,7 +25,7 @@ def _loaded_after(code: str, names: tuple[str, ...]) -> list[str]:
 LATER = ("scipy", "skimage", "zeroconf", "protos.discovery", "coordinator.wire.room_camera",
          "coordinator.calibration.options", "imaging.calibration", "coordinator.compensation",
          "coordinator.coverage_job", "coordinator.blending.blend_job", "imaging.blending.watchdog",
-         "coordinator.console", "coordinator.osc.service", "aiohttp")
+         "coordinator.console", "coordinator.osc.service", "aiohttp", "cv2")
 
 
 def test_the_coordinator_composition_root_imports_no_job_machinery():
@@ -55,3 +55,8 @@ def test_every_shadowless_process_lets_idle_blas_threads_sleep_unless_told_other
     # OpenBLAS's default spin after NumPy's import cost each process about 0.1 s of a core
     assert _blas_timeout_after_main(None) == "4"
     assert _blas_timeout_after_main("20") == "20"
+
+
+def test_a_node_told_its_coordinator_does_not_import_mdns():
+    """A node given --coordinator never browses: zeroconf loads only in a node that looks for its rig."""
+    assert _loaded_after("import node.app", ("zeroconf", "protos.discovery")) == []
