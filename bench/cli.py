@@ -40,6 +40,8 @@ BENCHMARKS: dict[str, str] = {
                   "failover and lamp watchdog with real processes, blend captures, the node's cost",
     "show_control": "what people and OSC cost: a login's password check (CPU), OSC status round trip, gain to applied",
     "specular": "a glossy table seen by an observer: peak highlight and its area under P1, P9, P25 at matched light vs 1/N",
+    "startup": "CPU a coordinator (with and without mDNS and the console) and a node spend from exec to serving "
+               "and to joined, against another commit's taking turns",
     "image_bombs": "small files declaring 100-megapixel images, console decoder before/after: peak memory, time, outcome",
 }
 
