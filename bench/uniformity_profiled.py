@@ -14,7 +14,8 @@ from pathlib import Path
 def main() -> int:
     from shadowless.cli import main as shadowless_main
     prof = cProfile.Profile(time.thread_time)      # CPU time of this (main) thread: waits count nothing
-    out = Path(os.environ.get("SHADOWLESS_PROFILE_DIR") or ".") / f"{(sys.argv[1:] or ['shadowless'])[0]}-{os.getpid()}.prof"
+    command = (sys.argv[1:] or ["shadowless"])[0]
+    out = Path(os.environ.get("SHADOWLESS_PROFILE_DIR") or ".") / f"{command}-{os.getpid()}.prof"
 
     def dump() -> None:
         prof.disable()

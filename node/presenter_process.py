@@ -131,8 +131,8 @@ def presenter_main(conn_in, conn_out, settings: PresenterSettings) -> None:
         p.close()
 
 
-#: a directory: each presenter process writes a cProfile of its life there (its main thread's CPU time) (``presenter-<slot>-<pid>.prof``,
-#: when its loop ends); unset (the default), nothing is profiled
+#: a directory: each presenter process writes a cProfile of its life there (its main thread's CPU
+#: time, ``presenter-<slot>-<pid>.prof``) when its loop ends; unset (the default), nothing is profiled
 PROFILE_ENV = "SHADOWLESS_PROFILE_DIR"
 
 
