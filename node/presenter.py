@@ -336,9 +336,8 @@ class Presenter:
             log.info("assignment r%d: %s pose, %dx%d, gain %.3f, LUT %s", a.revision, a.pose_kind, *size, a.gain,
                      "yes" if a.lut is not None else "identity")
         if not at_once and not (blend_only and self.blend.next is not None):
-            # a blend switch for a later instant changes nothing the node reports until its maps show:
-            # its stats (the revision with them) go then (_blend_step, or the swap of the frame that
-            # first shows them), one message a switch instead of two, each waking the node process
+            # a switch for a later instant reports nothing until its maps show (_blend_step or the swap
+            # that first shows them): one stats message a switch, not two, each waking the node process
             self._send_stats()
         # what is on screen now follows the new assignment at once
         swapped = None
@@ -748,8 +747,7 @@ class Presenter:
     def _on_frame(self, renderer, out: Output, frame: FrameOrder) -> None:
         pacer = self.pacer
         if self.player.issued_before_newest(frame.frame_id):
-            # sent before the show that is now newest began (a still's resend on the Frames stream that
-            # the Show stream overtook): the show the operator asked for last stays on screen
+            # sent before the newest show began (a still's resend the Show stream overtook): the show stays
             self._drop(DropRecord(frame.frame_id, DropReason.SUPERSEDED))
             return
         self.player.suspend()    # a coordinator frame takes the output from the timeline
