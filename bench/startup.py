@@ -145,7 +145,11 @@ def run(args: argparse.Namespace) -> int:
     if args.starts < 1:
         raise SystemExit("--starts must be at least 1")
     with run_dir(args.keep, "startup") as work:
-        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        # as from an operator's shell: without what this process's own `shadowless` set for itself (the
+        # BLAS threads' spin, shadowless/cli.py), which each tree's programs set, or not, themselves
+        from shadowless.cli import BLAS_ENV
+
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE" and k not in BLAS_ENV}
         env["PYTHONPYCACHEPREFIX"] = str(work / "pycache")      # bytecode cached, as an installed rig has it
         env["LP_NUM_THREADS"] = "1"                              # the presenter's llvmpipe: one thread
         for rig in ("rig", "node_rig"):     # one rig serves one coordinator: the nodes' stays up for the run
