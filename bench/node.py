@@ -307,27 +307,21 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.memory_only and not args.video:
         raise SystemExit("--memory-only goes with --video: it measures the memory of a presenter playing a video")
-    if args.video and args.memory_only:
-        from bench.node_video import memory_only, memory_summary
-
-        print(f"bench node --video --memory-only: the memory of a presenter playing {args.content[0]}x{args.content[1]} "
-              "H.264, and of a node's processes", file=sys.stderr)
-        load = os.getloadavg()
-        video = memory_only(args.size, args.content, args.video_frames)
-        print(json.dumps({"benchmark": "node", "machine": machine(), "load": {"start": load, "end": os.getloadavg()},
-                          "video": video}, indent=2))
-        print("\n".join(memory_summary(video["memory"])), file=sys.stderr)
-        return 0
     if args.video:
-        from bench.node_video import summary, timed
+        from bench import node_video
 
-        print(f"bench node --video: {args.video_frames} frames of {args.content[0]}x{args.content[1]} H.264, "
-              "RGB and YUV paths in turn, then the memory of a presenter playing it", file=sys.stderr)
+        mem = args.memory_only
+        clip = f"{args.content[0]}x{args.content[1]} H.264"
+        what = (f"the memory of a presenter playing {clip}, and of a node's processes" if mem else
+                f"{args.video_frames} frames of {clip}, RGB and YUV paths in turn, then the memory of a presenter "
+                "playing it")
+        print(f"bench node --video{' --memory-only' if mem else ''}: {what}", file=sys.stderr)
         load = os.getloadavg()
-        video = timed(args.size, args.content, args.video_frames)
+        video = (node_video.memory_only if mem else node_video.timed)(args.size, args.content, args.video_frames)
         print(json.dumps({"benchmark": "node", "machine": machine(), "load": {"start": load, "end": os.getloadavg()},
                           "video": video}, indent=2))
-        print("\n".join(summary(video)), file=sys.stderr)
+        lines = node_video.memory_summary(video["memory"]) if mem else node_video.summary(video)
+        print("\n".join(lines), file=sys.stderr)
         return 0
     profiles: dict[str, dict] = {}
     pooled = {name: {"upload": [], "render": [], "cpu": [], "without": [], "with": [], "pairs": []}

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from bench.workdir import run_dir
 from coordinator.rig import init_rig
+from protos.cli_types import int_range, names
 
 REPO = Path(__file__).resolve().parents[1]
 _TICK = os.sysconf("SC_CLK_TCK")
@@ -44,8 +45,8 @@ examples:
   shadowless bench startup --starts 20 --against HEAD~3
   shadowless bench startup --kinds coordinator --starts 5
 """
-    parser.add_argument("--starts", type=int, default=10, metavar="N", help="starts of each kind (default 10)")
-    parser.add_argument("--kinds", default=",".join(KINDS), metavar="K,…",
+    parser.add_argument("--starts", type=int_range(1), default=10, metavar="N", help="starts of each kind (default 10)")
+    parser.add_argument("--kinds", type=names, default=list(KINDS), metavar="K,…",
                         help=f"which starts to measure, of {', '.join(KINDS)} (default: all)")
     parser.add_argument("--against", metavar="COMMIT", help="also start that commit's programs, taking turns")
     parser.add_argument("--keep", metavar="DIR", help="keep the rig, bytecode and logs in DIR/startup")
@@ -138,12 +139,10 @@ def _summary(values: list[float]) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    kinds = args.kinds
     unknown = [k for k in kinds if k not in KINDS]
-    if unknown or not kinds:
-        raise SystemExit(f"--kinds: {', '.join(unknown) or 'nothing'} is not one of {', '.join(KINDS)}")
-    if args.starts < 1:
-        raise SystemExit("--starts must be at least 1")
+    if unknown:
+        raise SystemExit(f"--kinds: {', '.join(unknown)} is not one of {', '.join(KINDS)}")
     with run_dir(args.keep, "startup") as work:
         # as from an operator's shell: without what this process's own `shadowless` set for itself (the
         # BLAS threads' spin, shadowless/cli.py), which each tree's programs set, or not, themselves
@@ -165,7 +164,9 @@ def run(args: argparse.Namespace) -> int:
             starters = {name: _Starter(tree, work, env) for name, tree in trees.items()}
             figures: dict[str, dict[str, list[float]]] = {k: {name: [] for name in trees} for k in kinds}
             # the node's coordinator: this tree's, kept for the run
-            _, coord, port = starters["now"].coordinator(keep=True, rig="node_rig") if "node" in kinds else (0.0, None, 0)
+            coord, port = None, 0
+            if "node" in kinds:
+                _, coord, port = starters["now"].coordinator(keep=True, rig="node_rig")
             try:
                 for k in range(args.starts + 1):        # start 0 writes the bytecode and is not counted
                     print(f"bench startup: round {k}/{args.starts}", file=sys.stderr, flush=True)
