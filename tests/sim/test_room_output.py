@@ -2,43 +2,15 @@
 from __future__ import annotations
 
 import socket
-import time
 
-import numpy as np
 import pytest
+from room_stand_ins import StandInRenderer, info, small_room
 from waits import wait_until
 
-from node.outputs import OutputError, SwapInfo, open_output
+from node.outputs import OutputError, open_output
 from node.outputs.room_link import RoomOutput
 from sim.link import RoomClient
-from sim.room import Room
-from sim.scene import reference_scene
 from sim.wire.service import RoomServerThread
-
-
-class StandInRenderer:
-    """What the presenter hands to an output: something with read() -> (h, w, 3) uint8 (reused buffer)."""
-
-    def __init__(self, w: int, h: int) -> None:
-        self.buffer = np.zeros((h, w, 3), np.uint8)
-
-    def show(self, value: int) -> "StandInRenderer":
-        self.buffer[:] = value
-        return self
-
-    def read(self) -> np.ndarray:
-        return self.buffer
-
-
-def info(frame_id: int, slot: str = "r2c2") -> SwapInfo:
-    now = time.monotonic_ns()
-    return SwapInfo(slot=slot, frame_id=frame_id, tag=f"show-{frame_id}", pts_ns=now, swap_rig_ns=now, host_monotonic_ns=now)
-
-
-def small_room() -> Room:
-    room = Room(reference_scene(projector_scale=0.125, camera_scale=0.125), noise=False)
-    room.set_active(["r2c2"])
-    return room
 
 
 def free_port() -> int:

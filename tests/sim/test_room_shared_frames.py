@@ -10,22 +10,19 @@ import re
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import grpc
 import numpy as np
 import pytest
+from room_stand_ins import StandInRenderer, info, small_room
 from waits import wait_until
 
-from node.outputs import SwapInfo
 from node.outputs.frame_ring import FrameRing
 from node.outputs.room_link import RoomOutput
-from protos import codec, room_pb2, room_pb2_grpc
+from protos import room_pb2, room_pb2_grpc
 from sim.link import RoomClient
-from sim.room import Room
-from sim.scene import reference_scene
 from sim.wire.service import RoomServerThread
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -54,31 +51,6 @@ for k, line in enumerate(itertools.chain(["0"], sys.stdin), start=1):
     print("sent", k, out.shares_frames, flush=True)
 out.close()
 """
-
-
-def small_room() -> Room:
-    room = Room(reference_scene(projector_scale=0.125, camera_scale=0.125), noise=False)
-    room.set_active(["r2c2"])
-    return room
-
-
-def info(frame_id: int, slot: str = "r2c2") -> SwapInfo:
-    now = time.monotonic_ns()
-    return SwapInfo(slot=slot, frame_id=frame_id, tag=f"show-{frame_id}", pts_ns=now, swap_rig_ns=now, host_monotonic_ns=now)
-
-
-class Frame:
-    """What the presenter hands to an output: read() -> (h, w, 3) uint8, a reused buffer."""
-
-    def __init__(self, w: int, h: int) -> None:
-        self.buffer = np.zeros((h, w, 3), np.uint8)
-
-    def show(self, value: int) -> "Frame":
-        self.buffer[:] = value
-        return self
-
-    def read(self) -> np.ndarray:
-        return self.buffer
 
 
 def test_a_node_process_frames_reach_the_room_through_shared_memory_exactly():
@@ -114,7 +86,7 @@ def test_the_room_shows_exactly_the_shared_pixels_as_it_shows_inline_ones():
         with RoomServerThread(small_room()) as server, RoomClient(server.address) as client:
             out = RoomOutput(f"room://{server.address}", slot="r2c2", share_frames=share)
             try:
-                frame = Frame(160, 100)
+                frame = StandInRenderer(160, 100)
                 frame.buffer[:] = picture
                 out.after_swap(frame, info(1))
                 assert out.flush()
@@ -204,7 +176,7 @@ def test_a_room_that_cannot_see_the_node_process_gets_its_frames_inline():
             out = RoomOutput(f"room://{m.group(1)}", slot="r2c2")
             assert out.shares_frames
             w, h = out.native_size()
-            out.after_swap(Frame(w, h).show(255), info(7))
+            out.after_swap(StandInRenderer(w, h).show(255), info(7))
             seen = wait_until(lambda: (client.capture().frames.get("r2c2", (0, 0))[0], out.shares_frames, out.last_error),
                               lambda s: s[0] == 7, what="frame 7 in the room, sent inline once it refused the memory")
             assert seen[1] is False and "FAILED_PRECONDITION" in seen[2]
