@@ -9,7 +9,7 @@ to zeroconf's own QU probe reaches one of them at random), then zeroconf probes 
 keeps the rig's own name and id, by which nodes and operators find it whatever the instance name.
 
 A responder that claims the name later, without probing (a hostile advertiser, or a program that
-ignores RFC 6762), is logged once per address it points at (:class:`_Squatters`); the coordinator
+ignores RFC 6762), is logged once per address it points at (:mod:`coordinator.mdns_squatters`); the coordinator
 keeps its name rather than renaming after it (an advertiser that follows every rename would keep it
 renaming forever, and nodes find the rig by its id and token all the same).
 """
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import socket
-from functools import cache
 from typing import Any
 
 from coordinator.errors import CoordinatorError
@@ -49,35 +48,6 @@ def _local_ipv4_addresses() -> list[str]:
     return addrs or ["127.0.0.1"]
 
 
-@cache
-def _squatters_class() -> type:
-    """The listener class, made on first use: zeroconf must be its base, and zeroconf is imported only
-    by a coordinator that advertises (``--no-mdns`` starts without it)."""
-    from zeroconf import DNSService, RecordUpdateListener
-
-    class _Squatters(RecordUpdateListener):
-        """Logs (once each) the other targets that responses name for this coordinator's own instance name."""
-
-        def __init__(self, name: str, server: str, port: int):
-            super().__init__()
-            self.name, self.own = name.lower(), (server.lower(), port)
-            self.seen: set[tuple[str, int]] = set()
-
-        def async_update_records(self, zc, now: float, records) -> None:
-            for update in records:
-                rec = update.new
-                if isinstance(rec, DNSService) and rec.name.lower() == self.name and rec.ttl:
-                    target = (rec.server.lower(), rec.port)
-                    if target != self.own and target not in self.seen and len(self.seen) < 64:
-                        self.seen.add(target)
-                        log.warning("another mDNS responder answers for this coordinator's name %s, pointing at %s "
-                                    "port %d (an advertiser that did not probe for the name); nodes and operators "
-                                    "join only the coordinator that proves the rig token", rec.name, rec.server,
-                                    rec.port)
-
-    return _Squatters
-
-
 class Advertiser:
     """Registers the rig on the chosen interfaces; unregisters on :meth:`stop`.
 
@@ -96,7 +66,7 @@ class Advertiser:
         self.interfaces = interfaces
         self._azc: Any = None          # zeroconf.asyncio.AsyncZeroconf, once started
         self._info: Any = None         # zeroconf.asyncio.AsyncServiceInfo
-        self._squatters: Any = None    # the _squatters_class() listener
+        self._squatters: Any = None    # coordinator.mdns_squatters.Squatters, once started
 
     @property
     def name(self) -> str:
@@ -107,6 +77,7 @@ class Advertiser:
         from zeroconf import InterfaceChoice, IPVersion, NonUniqueNameException
         from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
 
+        from coordinator.mdns_squatters import Squatters
         from protos.discovery import names_in_use
         self.port = port
         addresses = self.interfaces or _local_ipv4_addresses()
@@ -139,7 +110,7 @@ class Advertiser:
                         "nodes and operators find this rig by its id %s all the same", wanted,
                         ", ".join(addresses), self._info.name, self.rig_id)
         log.info("advertising %s on %s port %d", self._info.name, ", ".join(addresses), self.port)
-        self._squatters = _squatters_class()(self._info.name, self._info.server, self.port)
+        self._squatters = Squatters(self._info.name, self._info.server, self.port)
         self._azc.zeroconf.async_add_listener(self._squatters, None)
 
     async def stop(self) -> None:
