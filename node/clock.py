@@ -17,8 +17,6 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
-import numpy as np
-
 
 class LocalClock:
     """This host's monotonic clock, optionally offset and drifting (test hooks).
@@ -180,38 +178,46 @@ class ClockEstimator:
         return self._estimate
 
     def _fit(self, samples: list[ClockSample]) -> ClockEstimate | None:
+        # plain Python over at most ``max_samples`` exchanges (a few hundred, well under a millisecond):
+        # the node process, which runs this, imports no numpy (6-7 MB of its memory)
         if not samples:
             return None
-        rtts = np.array([s.rtt for s in samples], dtype=np.float64)
-        mids = np.array([s.midpoint for s in samples], dtype=np.float64)
-        offs = np.array([s.offset for s in samples], dtype=np.float64)
-        best = float(rtts.min())
+        rtts = [float(s.rtt) for s in samples]
+        mids = [s.midpoint for s in samples]
+        offs = [s.offset for s in samples]
+        best = min(rtts)
         # The fastest exchange of each time bucket: spread over the window for the drift,
-        # each as free of queueing delay as that moment allowed.
-        buckets = np.floor((mids - mids.min()) / self.bucket_ns).astype(np.int64)
-        order = np.lexsort((rtts, buckets))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = buckets[order][1:] != buckets[order][:-1]
-        pick = order[first]
-        keep = pick[rtts[pick] <= best * (1.0 + self.rtt_slack) + self.rtt_margin_ns]
-        m, o, r = mids[keep], offs[keep], rtts[keep]
-        w = 1.0 / (r - best + max(best, 100_000.0))   # an exchange's error bound grows with its excess round trip
-        ref = float(mids[-1])
-        span = float(m.max() - m.min()) if len(m) else 0.0
+        # each as free of queueing delay as that moment allowed (ties: the earliest exchange).
+        start = min(mids)
+        fastest: dict[int, int] = {}
+        for i, (mid, rtt) in enumerate(zip(mids, rtts)):
+            b = math.floor((mid - start) / self.bucket_ns)
+            j = fastest.get(b)
+            if j is None or rtt < rtts[j]:
+                fastest[b] = i
+        limit = best * (1.0 + self.rtt_slack) + self.rtt_margin_ns
+        keep = [fastest[b] for b in sorted(fastest) if rtts[fastest[b]] <= limit]
+        m = [mids[i] for i in keep]
+        o = [offs[i] for i in keep]
+        # an exchange's error bound grows with its excess round trip
+        w = [1.0 / (rtts[i] - best + max(best, 100_000.0)) for i in keep]
+        ref = mids[-1]
+        span = max(m) - min(m) if m else 0.0
         fitted = len(m) >= 4 and span >= self.min_drift_span_ns
         if fitted:
-            x = m - ref
-            sw = w.sum()
-            xm = (w * x).sum() / sw
-            ym = (w * o).sum() / sw
-            var = (w * (x - xm) ** 2).sum()
-            drift = float((w * (x - xm) * (o - ym)).sum() / var) if var > 0 else 0.0
+            x = [v - ref for v in m]
+            sw = math.fsum(w)
+            xm = math.fsum(wi * xi for wi, xi in zip(w, x)) / sw
+            ym = math.fsum(wi * oi for wi, oi in zip(w, o)) / sw
+            var = math.fsum(wi * (xi - xm) ** 2 for wi, xi in zip(w, x))
+            cov = math.fsum(wi * (xi - xm) * (oi - ym) for wi, xi, oi in zip(w, x, o))
+            drift = cov / var if var > 0 else 0.0
             offset = ym - drift * xm
         else:
             # too short for a drift: the single fastest exchange is the best offset we have
-            i = int(np.argmin(rtts))
-            drift, offset, ref = 0.0, float(offs[i]), float(mids[i])
+            i = rtts.index(best)
+            drift, offset, ref = 0.0, offs[i], mids[i]
         if not math.isfinite(offset) or not math.isfinite(drift):
             return self._estimate
-        return ClockEstimate(offset_ns=offset, drift=drift, ref_local_ns=ref, best_rtt_ns=int(best), samples=int(len(keep)),
+        return ClockEstimate(offset_ns=offset, drift=drift, ref_local_ns=ref, best_rtt_ns=int(best), samples=len(keep),
                              span_ns=span, drift_fitted=fitted)

@@ -18,7 +18,7 @@ import grpc
 
 from node import wire
 from node.errors import NodeError
-from node.records import (BlobChunkData, HelloReply, JoinReply, JoinRequest, NodeAssignment, PingReply, ReportBatch,
+from node.records import (AssignmentBytes, BlobChunkData, HelloReply, JoinReply, JoinRequest, PingReply, ReportBatch,
                           ShowUpdateData, WantedAssets)
 from protos import node_pb2, node_pb2_grpc
 from protos.version import GRPC_OPTIONS, SESSION_KEY
@@ -166,16 +166,12 @@ class CoordinatorLink:
             reply = await self._stub.Ping(wire.ping_request(t0_local_ns), metadata=self._md, timeout=2)
         return wire.ping_reply_from_message(reply)
 
-    async def assignments(self) -> AsyncIterator[NodeAssignment]:
-        """The node's assignments as they change (malformed ones are logged and skipped)."""
+    async def assignments(self) -> AsyncIterator[AssignmentBytes]:
+        """The node's assignments as they change, as their bytes: the presenter process decodes them
+        (:func:`node.wire.assignment_from_bytes`) and logs and skips a malformed one."""
         with _translated():
             async for msg in self._stub.Assignments(wire.stream_request(), metadata=self._md):
-                try:
-                    assignment = wire.assignment_from_message(msg)
-                except ValueError as exc:
-                    log.error("ignoring a malformed assignment r%d: %s", msg.revision, exc)
-                    continue
-                yield assignment
+                yield wire.assignment_bytes(msg)
 
     async def frame_packets(self) -> AsyncIterator[bytes]:
         """The Frames stream as received bytes (see :func:`node.wire.packet_from_bytes`)."""

@@ -9,8 +9,9 @@ single thread never waits for anyone's GIL.
 Both directions are pipes of ``(kind, payload)`` tuples of plain data: in, what
 :meth:`node.presenter.Presenter.handle` takes (the show's timeline and an asset's file
 paths included: the presenter decodes the asset's frames itself, so decoded frames never
-cross the pipe); out, ``("ready", (size, gl_info))``,
-``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)``,
+cross the pipe; an assignment crosses as its bytes, :class:`node.records.AssignmentBytes`, which
+:class:`Inbox` decodes here: the node process holds no array and imports no numpy); out,
+``("ready", (size, gl_info))``, ``("failed", text)``, ``("stats", PresenterStatus)``, ``("swap", SwapRecord)``,
 ``("drop", DropRecord)``, ``("preview", PreviewRecord)`` (a console thumbnail, when asked) and
 ``("alive", None)`` (every second while its loop runs).
 
@@ -31,14 +32,15 @@ import subprocess
 import sys
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Callable
 
 from node.clock import LocalClock, precise_timers
-from node.records import DropRecord, PresenterStatus, PreviewRecord, SwapRecord
+from node.records import AssignmentBytes, DropRecord, PresenterStatus, PreviewRecord, SwapRecord
+from node.wire import assignment_from_bytes
 from protos import logging_setup
 
 log = logging.getLogger(__name__)
@@ -59,6 +61,51 @@ class PresenterSettings:
 
 #: how often the presenter's loop says it is alive (whatever else it sends)
 ALIVE_EVERY_S = 1.0
+
+
+class Inbox:
+    """The presenter process's end of the pipe in (``poll(timeout_s) -> bool``, ``recv() -> (kind,
+    payload)``, as :attr:`node.presenter.Presenter.inbox` reads it), with each assignment that
+    crosses as its bytes (:class:`node.records.AssignmentBytes`) decoded into the
+    :class:`node.records.NodeAssignment` the presenter takes (:func:`node.wire.assignment_from_bytes`);
+    a malformed one is logged and skipped. Every other message, and an assignment already decoded
+    (a test's), passes as it is. The end of the pipe (EOFError) is raised by the :meth:`recv` after
+    a :meth:`poll` that saw it, as a :class:`~multiprocessing.connection.Connection` does."""
+
+    def __init__(self, conn: Connection):
+        self._conn = conn
+        self._ready: deque = deque()      # messages read and decoded, not yet received
+        self._gone: BaseException | None = None
+
+    def poll(self, timeout: float = 0.0) -> bool:
+        """Whether :meth:`recv` returns at once (a message, or the pipe's end), waiting up to ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while not self._ready and self._gone is None:
+            if not self._conn.poll(max(0.0, deadline - time.monotonic())):
+                return False
+            try:
+                self._take(self._conn.recv())
+            except (EOFError, OSError) as exc:
+                self._gone = exc
+        return True
+
+    def recv(self):
+        while not self._ready:
+            if self._gone is not None:
+                raise self._gone
+            self._take(self._conn.recv())
+        return self._ready.popleft()
+
+    def _take(self, msg) -> None:
+        kind, payload = msg
+        if kind == "assignment" and isinstance(payload, AssignmentBytes):
+            try:
+                payload = assignment_from_bytes(payload)
+            except ValueError as exc:
+                log.error("ignoring a malformed assignment r%d: %s", payload.revision, exc)
+                return
+            msg = (kind, payload)
+        self._ready.append(msg)
 
 
 def tune_process() -> None:
@@ -140,11 +187,12 @@ def child_main() -> None:
     """The presenter process's entry point: ``python -c`` calls it with its two pipe ends'
     descriptors (in, out) as arguments; the settings are the first message in."""
     fd_in, fd_out = (int(v) for v in sys.argv[1:3])
-    conn_in, conn_out = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
+    pipe_in, conn_out = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
     try:
-        settings = conn_in.recv()
+        settings = pipe_in.recv()
     except EOFError:     # the node process is gone
         return
+    conn_in = Inbox(pipe_in)
     where = os.environ.get(PROFILE_ENV)
     if not where:
         presenter_main(conn_in, conn_out, settings)

@@ -2,18 +2,24 @@
 
 :mod:`node.wire` turns the coordinator's messages into these and back; every other
 module of the node speaks only these (dataclasses, numpy arrays, plain values).
+
+numpy and the blend maps are named here for the types only: the node process (network, session,
+cache) holds no array (an assignment crosses it as :class:`AssignmentBytes`) and imports no numpy.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 # the records the coordinator speaks too are defined once, in protos.records; the node's parts
 # name them from here with the rest
-from protos.blend import BlendMaps
 from protos.records import DropReason, NodeInfo
 from protos.timeline import Timeline
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from protos.blend import BlendMaps
 
 
 # ------------------------------------------------------------------ coordinator -> node
@@ -47,6 +53,17 @@ class NodeAssignment:
     blend_error: str = ""                # the assignment carried maps that cannot be used: why ("" none)
     received_host_ns: int = 0            # host monotonic time the node process began decoding it (0: unknown)
     decoded_host_ns: int = 0             # host monotonic time it was decoded (0: unknown)
+
+
+@dataclass(frozen=True)
+class AssignmentBytes:
+    """An assignment as the node process passes it on: the message's bytes, decoded into a
+    :class:`NodeAssignment` by the presenter process (:func:`node.wire.assignment_from_bytes`), which
+    needs its arrays; the node process only compares it with the one it passed last."""
+
+    revision: int
+    data: bytes                          # the Assignment message without its revision (deterministic encoding)
+    received_host_ns: int = 0            # host monotonic time the node process received it (0: unknown)
 
 
 @dataclass(frozen=True)

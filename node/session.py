@@ -23,13 +23,10 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
-import numpy as np
-
-from node.blend_switch import same_but_blend
 from node.clock import CLOCK_WINDOW_NS, SETTLE_SPAN_NS, ClockEstimate, ClockEstimator, ClockSample, LocalClock
 from node.errors import CoordinatorNotTrusted
 from node.link import LinkError
-from node.records import (ClockStatus, HeartbeatRecord, HelloReply, JoinReply, JoinRequest, NodeAssignment, NodeInfo,
+from node.records import (AssignmentBytes, ClockStatus, HeartbeatRecord, HelloReply, JoinReply, JoinRequest, NodeInfo,
                           PingReply, ReportBatch)
 from node.report_batch import Report, ReportBatcher
 from protos import auth
@@ -119,7 +116,7 @@ class SessionCore:
         self._proven: tuple[str, HelloReply, bytes, float] | None = None
         # the assignment last passed to the presenter (kept across sessions: a rejoin sends it again),
         # and the revision heartbeats report for the one the presenter holds (see assignment_revision)
-        self._held: NodeAssignment | None = None
+        self._held: AssignmentBytes | None = None
         self._revisions: dict[int, int] = {}
 
     # ---------------------------------------------------------------- handshake
@@ -207,13 +204,13 @@ class SessionCore:
         return same_clock
 
     # ---------------------------------------------------------------- the presenter's assignment
-    def assignment_news(self, a: NodeAssignment) -> bool:
+    def assignment_news(self, a: AssignmentBytes) -> bool:
         """Whether assignment ``a`` must go to the presenter: not when it equals the one passed last
         but for its revision (what a rejoin is sent first: the presenter holds it already, and would
         only compare it again). Either way, heartbeats report ``a``'s revision for what the presenter
         holds from now on (:meth:`assignment_revision`)."""
         held = self._held
-        if held is not None and unchanged(held, a):
+        if held is not None and held.data == a.data:     # the same message but for its revision
             self._revisions[held.revision] = a.revision
             if a.revision != held.revision:
                 log.info("%s: assignment r%d is the one the presenter holds (r%d): not passed again",
@@ -299,16 +296,6 @@ class SessionCore:
         est = self.estimator.estimate
         return None if est is None else self.clock.to_host(est.local_time(rig_ns))
 
-
-def unchanged(a: NodeAssignment, b: NodeAssignment) -> bool:
-    """Whether two assignments differ in their revision (and the host times they were received) alone:
-    the same pose, LUT, gain and size, and the same blend maps from the same instant."""
-    if not same_but_blend(a, b) or (a.blend_at_ns, a.blend_error) != (b.blend_at_ns, b.blend_error):
-        return False
-    if a.blend is None or b.blend is None:
-        return a.blend is None and b.blend is None
-    return (a.blend.blend_id == b.blend.blend_id and np.array_equal(a.blend.alpha, b.blend.alpha)
-            and np.array_equal(a.blend.beta, b.blend.beta))
 
 
 class ReportStream:

@@ -4,17 +4,24 @@ Everything the coordinator sends becomes a :mod:`node.records` dataclass (numpy 
 inside) here, and every report the node sends is built here from one. Only this module,
 :mod:`node.link` (the gRPC client) and :mod:`node.outputs.room_link` (the virtual room's
 client) touch protobuf.
+
+The node process imports this module and no numpy: what needs arrays (an assignment's pose, mesh,
+LUT and blend maps, a frame packet's images) is decoded in the presenter process, by the two
+functions that import numpy's users when first called (:func:`assignment_from_bytes`,
+:func:`live_packet_from_bytes`). The node process passes an assignment on as its bytes
+(:func:`assignment_bytes`).
 """
 from __future__ import annotations
 
 import time
 from fractions import Fraction
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
-import numpy as np
+from google.protobuf.message import DecodeError
 
 from node.records import (
     AssetProgressRecord,
+    AssignmentBytes,
     BlobChunkData,
     ContentBlob,
     DropReason,
@@ -34,10 +41,11 @@ from node.records import (
     SwapRecord,
     WantedAssets,
 )
-from node.live_video import VideoChunk
-from protos import codec, common_pb2, node_pb2
-from protos.blend import BlendMapError, BlendMaps
+from protos import common_pb2, node_pb2
 from protos.timeline import Timeline
+
+if TYPE_CHECKING:
+    from node.live_video import VideoChunk
 
 #: DropReason <-> the wire's enum
 _VIDEO_CODECS = {node_pb2.VIDEO_CODEC_H264: "h264", node_pb2.VIDEO_CODEC_HEVC: "hevc"}
@@ -54,12 +62,39 @@ _DROP_REASONS = {
 # ------------------------------------------------------------------ coordinator -> node
 
 
-def assignment_from_message(msg: node_pb2.Assignment) -> NodeAssignment:
+def assignment_bytes(msg: node_pb2.Assignment) -> AssignmentBytes:
+    """What the node process passes on of an assignment (``msg`` loses its revision): its bytes in
+    the deterministic encoding, so that an assignment the coordinator renumbered alone (a rejoin's)
+    has the same bytes as the one before, and the time it was received."""
+    received = time.monotonic_ns()
+    revision = msg.revision
+    msg.ClearField("revision")
+    return AssignmentBytes(revision=revision, data=msg.SerializeToString(deterministic=True), received_host_ns=received)
+
+
+def assignment_from_bytes(rec: AssignmentBytes) -> NodeAssignment:
+    """The presenter process's side of :func:`assignment_bytes`: :func:`assignment_from_message` of the
+    bytes, with the revision and the time the node process received it. ValueError as there, or if
+    the bytes are no Assignment."""
+    try:
+        msg = node_pb2.Assignment.FromString(rec.data)
+    except DecodeError as exc:
+        raise ValueError(f"not an assignment: {exc}") from exc
+    msg.revision = rec.revision
+    return assignment_from_message(msg, received_host_ns=rec.received_host_ns or None)
+
+
+def assignment_from_message(msg: node_pb2.Assignment, *, received_host_ns: int | None = None) -> NodeAssignment:
     """ValueError if the message is inconsistent (wrong matrix sizes, mesh or LUT arrays). Blend maps
     that cannot be used do not refuse the assignment: it carries why in ``blend_error`` (the presenter
-    keeps the blend it shows and applies the rest). It carries the host's monotonic times its decoding
-    began and ended (the presenter logs them with a blend switch: where a failover's time goes)."""
-    received = time.monotonic_ns()
+    keeps the blend it shows and applies the rest). It carries the host's monotonic times it was
+    received (``received_host_ns``; None: now, when its decoding begins) and decoded (the presenter logs
+    them with a blend switch: where a failover's time goes)."""
+    import numpy as np                                   # the presenter process's (see the module's docstring)
+
+    from protos.blend import BlendMapError, BlendMaps
+
+    received = time.monotonic_ns() if received_host_ns is None else received_host_ns
     kind = msg.WhichOneof("pose") or "none"
     homography = projection = None
     mesh = None
@@ -128,6 +163,9 @@ def live_packet_from_bytes(data: bytes, slot: str, *, known: Callable[[str], boo
 
     ValueError (a protobuf DecodeError) if ``data`` is not a FramePacket.
     """
+    from node.live_video import VideoChunk           # the presenter process's, as the images' numpy
+    from protos import codec
+
     pkt = node_pb2.FramePacket.FromString(data)
     contents = []
     seen: set[str] = set()
@@ -233,9 +271,12 @@ def asset_progress_message(p: AssetProgressRecord) -> node_pb2.AssetProgress:
 def swaps_message(swaps: Sequence[SwapRecord]) -> node_pb2.Swaps:
     """``swaps`` as delta-coded columns (protos/node.proto, ``Swaps``): each value after a
     column's first is the difference to the value before it."""
-    cols = np.array([(s.frame_id, s.swap_rig_ns, s.host_monotonic_ns) for s in swaps], dtype=np.int64).reshape(-1, 3)
-    d = np.diff(cols, axis=0, prepend=np.zeros((1, 3), dtype=np.int64))
-    return node_pb2.Swaps(frame_id=d[:, 0].tolist(), swap_rig_ns=d[:, 1].tolist(), host_monotonic_ns=d[:, 2].tolist())
+    def deltas(values: list[int]) -> list[int]:
+        return [v - u for u, v in zip([0, *values[:-1]], values)]
+
+    return node_pb2.Swaps(frame_id=deltas([s.frame_id for s in swaps]),
+                          swap_rig_ns=deltas([s.swap_rig_ns for s in swaps]),
+                          host_monotonic_ns=deltas([s.host_monotonic_ns for s in swaps]))
 
 
 def drop_message(rec: DropRecord) -> node_pb2.FrameDrop:

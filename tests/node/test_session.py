@@ -15,9 +15,10 @@ import pytest
 
 from node.clock import ClockSample, LocalClock
 from node.errors import CoordinatorNotTrusted
-from node.records import HelloReply, JoinReply, NodeAssignment, NodeInfo, PingReply
+from node import wire
+from node.records import AssignmentBytes, HelloReply, JoinReply, NodeInfo, PingReply
 from node.session import SessionCore
-from protos import auth
+from protos import auth, node_pb2
 from protos.blend import BlendMaps
 
 TOKEN = b"t" * 32
@@ -123,11 +124,18 @@ def test_pings_build_the_estimate_a_heartbeat_carries():
     assert abs(c.host_time(status.rig_estimate_ns) - host) <= 1
 
 
-def assignment(revision: int, *, gain: float = 1.0, blend: BlendMaps | None = None, blend_at_ns: int = 0):
-    return NodeAssignment(revision=revision, slot="r0c0", width=64, height=48, pose_kind="homography",
-                          homography=np.eye(3), projection=None, mesh=None, near_mm=100.0, far_mm=1e4, lut=None,
-                          gain=gain, content_size=(64, 48), blend=blend, blend_at_ns=blend_at_ns,
-                          received_host_ns=revision)
+def assignment(revision: int, *, gain: float = 1.0, blend: BlendMaps | None = None, blend_at_ns: int = 0
+               ) -> AssignmentBytes:
+    """An assignment as the node process holds it (its bytes), from the message a coordinator sends."""
+    msg = node_pb2.Assignment(revision=revision, slot="r0c0", output_width=64, output_height=48, gain=gain,
+                              content_width=64, content_height=48)
+    msg.homography.m.extend(np.eye(3).ravel().tolist())
+    if blend is not None:
+        alpha, beta = blend.encode()
+        (w, h) = blend.size
+        msg.blend.CopyFrom(node_pb2.Blend(width=w, height=h, alpha=alpha, beta=beta, blend_id=blend.blend_id,
+                                          at_rig_ns=blend_at_ns))
+    return wire.assignment_bytes(msg)
 
 
 def maps(level: float) -> BlendMaps:

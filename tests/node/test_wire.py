@@ -103,19 +103,47 @@ def test_packets_become_plain_data_for_one_slot():
     assert empty.contents == () and empty.frame is None and empty.evict is None
 
 
-def test_assignments_become_plain_data():
-    msg = node_pb2.Assignment(revision=3, slot="r0c0", output_width=64, output_height=48, gain=0.0,
+def assignment_message(revision: int = 3) -> node_pb2.Assignment:
+    msg = node_pb2.Assignment(revision=revision, slot="r0c0", output_width=64, output_height=48, gain=0.0,
                               content_width=32, content_height=24)
     msg.homography.m.extend(np.eye(3).ravel().tolist())
     msg.lut.channels, msg.lut.entries = 1, 4
     msg.lut.values = np.linspace(0, 1, 4, dtype="<f4").tobytes()
-    a = wire.assignment_from_message(msg)
-    assert (a.pose_kind, a.width, a.height, a.gain, a.content_size) == ("homography", 64, 48, 1.0, (32, 24))
+    alpha = np.full((2, 3, 3), 0.5, "<f2").tobytes()
+    msg.blend.CopyFrom(node_pb2.Blend(width=3, height=2, alpha=alpha, beta=bytes(12), blend_id="b1", at_rig_ns=77))
+    return msg
+
+
+def test_assignments_become_plain_data():
+    a = wire.assignment_from_message(assignment_message())
+    assert (a.revision, a.pose_kind, a.width, a.height, a.gain, a.content_size) == (3, "homography", 64, 48, 1.0, (32, 24))
     np.testing.assert_array_equal(a.homography, np.eye(3))
     assert a.lut.shape == (1, 4) and a.mesh is None
+    assert (a.blend.blend_id, a.blend.size, a.blend_at_ns, a.blend_error) == ("b1", (3, 2), 77, "")
+    assert a.received_host_ns <= a.decoded_host_ns
+    msg = assignment_message()
     msg.homography.m.append(1.0)
     with pytest.raises(ValueError, match="9 values"):
         wire.assignment_from_message(msg)
+
+
+def test_the_node_process_passes_an_assignment_on_as_bytes_that_a_renumbering_leaves_alone():
+    rec = wire.assignment_bytes(assignment_message(3))
+    assert rec.revision == 3 and rec.received_host_ns > 0
+    assert wire.assignment_bytes(assignment_message(9)).data == rec.data          # renumbered alone: the same bytes
+    changed = assignment_message(3)
+    changed.blend.at_rig_ns = 78
+    assert wire.assignment_bytes(changed).data != rec.data
+    # the presenter process's side: the same assignment as decoding the message there would give
+    a, direct = wire.assignment_from_bytes(rec), wire.assignment_from_message(assignment_message(3))
+    assert a.revision == 3 and a.received_host_ns == rec.received_host_ns <= a.decoded_host_ns
+    for name in ("pose_kind", "width", "height", "gain", "content_size", "blend_at_ns", "blend_error"):
+        assert getattr(a, name) == getattr(direct, name), name
+    np.testing.assert_array_equal(a.homography, direct.homography)
+    np.testing.assert_array_equal(a.lut, direct.lut)
+    assert a.blend.blend_id == direct.blend.blend_id and a.blend.encode() == direct.blend.encode()
+    with pytest.raises(ValueError, match="not an assignment"):
+        wire.assignment_from_bytes(type(rec)(revision=4, data=b"\xff\xff\xff"))
 
 
 def test_asset_calls_and_progress_keep_the_wire_format():
