@@ -51,8 +51,10 @@ class NodeAssignment:
     blend: BlendMaps | None = None       # the slot's blend maps (None: none)
     blend_at_ns: int = 0                 # rig instant from which they are shown (0: at once)
     blend_error: str = ""                # the assignment carried maps that cannot be used: why ("" none)
-    received_host_ns: int = 0            # host monotonic time the node process began decoding it (0: unknown)
-    decoded_host_ns: int = 0             # host monotonic time it was decoded (0: unknown)
+    received_host_ns: int = 0            # host monotonic time the node process received it (0: unknown)
+    # host monotonic time it was decoded (0: unknown): by the presenter process, once it crossed the pipe
+    # as AssignmentBytes, so the time from received to decoded includes the pipe's
+    decoded_host_ns: int = 0
 
 
 @dataclass(frozen=True)
