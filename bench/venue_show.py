@@ -27,7 +27,8 @@ Three shows, one after the other, on the venue :mod:`bench.venue` built and dist
   (SIGKILL) and started again on the same rig directory ``OUTAGE_S`` later. ``frames_missed``:
   over every node, the ticks from 1 s before the kill to ``AFTER_REJOIN_S`` after every node was
   live again that the node did not swap in (from the nodes' logs: whatever the cause, a late drop
-  under load included), ``frames_missed_late_drops`` the part of them each node logged as late drops
+  under load included; the restart's own share is below), ``frames_missed_late_drops`` the part of
+  them each node logged as late drops
   (its frame was not ready in time; the rest it neither swapped nor dropped); ``ticks_swapped_alone``: the ticks each node swapped while no coordinator
   ran; ``out_of_order``: swaps whose id was not above the node's previous one; ``alone_ms``: how
   long each node says it went on alone (its heartbeat); ``skew_p99_ms_after``: the restarted
@@ -48,7 +49,12 @@ Three shows, one after the other, on the venue :mod:`bench.venue` built and dist
   restart on, in bins of ``bin_s``, the restarted coordinator's CPU (ms) and the ticks missed by
   any node, with each node's join (s), so that misses can be told from the coordinator's start-up
   (which shares this host's cores with the nodes; a venue's coordinator has a machine of its own)
-  and from the nodes' rejoins.
+  and from the nodes' rejoins. The show plays ``RESTART_BACKGROUND_S`` longer before this kill, so
+  that ``background`` (node-ticks, missed, ``per_tick``: the show beside its running coordinator, from
+  ``BACKGROUND_FROM_S`` after its start to the kill) gives the nodes' own rate of missed ticks;
+  ``frames_missed_after_kill`` (of ``ticks_after_kill`` node-ticks, from the kill to the window's end)
+  less that rate over as many ticks is ``frames_missed_restart_share``, what the restart itself cost
+  (``frames_missed`` also counts the second before the kill).
 """
 from __future__ import annotations
 
@@ -76,6 +82,11 @@ OUTAGE_S = 5.0
 REJOIN_TIMEOUT_S = 60.0
 #: a show's ticks are settled (every node reported, or the tracker's 3 s timeout) this long after the last
 SETTLE_S = 3.5
+#: the coordinator-restart show plays this much longer before its kill than KILL_AFTER_S, so that the
+#: nodes' own rate of missed ticks beside a running coordinator (``background``) is measured on enough ticks
+RESTART_BACKGROUND_S = 5.0
+#: ... counted from this long after the show's start (its first ticks are the decoders' warm-up)
+BACKGROUND_FROM_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -86,11 +97,12 @@ class Times:
     rejoin_show_s: float = REJOIN_SHOW_S
     after_rejoin_s: float = AFTER_REJOIN_S
     outage_s: float = OUTAGE_S
+    restart_background_s: float = RESTART_BACKGROUND_S
 
 
 #: ``bench venue --quick``: the shows shortened for a smoke run of the benchmark itself (its
-#: figures then say less: a 2.5 s outage, 1.5 s of show after each rejoin)
-QUICK = Times(kill_after_s=1.5, rejoin_show_s=4.0, after_rejoin_s=1.5, outage_s=2.5)
+#: figures then say less: a 2.5 s outage, 1.5 s of show after each rejoin, little background)
+QUICK = Times(kill_after_s=1.5, rejoin_show_s=4.0, after_rejoin_s=1.5, outage_s=2.5, restart_background_s=0.0)
 #: how far ahead of now a show starts
 START_DELAY_S = 0.5
 SWAP = re.compile(r"timing frame (\d+): swap")
@@ -340,11 +352,15 @@ async def coordinator_restart(rig: LocalRig, asset_id: str, *, cpu=None, budgets
     if sampler is not None:
         sampler.__enter__()
     try:
-        return await _coordinator_restart(rig, asset_id, logs, cpu=cpu, budgets=budgets, times=times,
-                                          throttles=sampler)
+        out = await _coordinator_restart(rig, asset_id, logs, cpu=cpu, budgets=budgets, times=times,
+                                         throttles=sampler)
     finally:
         if sampler is not None:
             sampler.stop()
+    if sampler is not None:        # what the sampler itself took from the cores the nodes share
+        out["throttle_sampler"] = {"period_ms": sampler.period_s * 1e3, "samples": sampler.samples,
+                                   "cpu_ms": round(sampler.cpu_s * 1e3, 1)}
+    return out
 
 
 async def _coordinator_restart(rig: LocalRig, asset_id: str, logs: dict[str, int], *, cpu, budgets, times: Times,
@@ -352,7 +368,7 @@ async def _coordinator_restart(rig: LocalRig, asset_id: str, logs: dict[str, int
     async with await rig.client(timeout=60.0) as c:
         play = await c.play_asset(asset_id, loop=True, delay_s=START_DELAY_S)
     base, t_show = play.frame_id_base, play.anchor_ns / 1e9
-    await asyncio.sleep(max(0.0, t_show + times.kill_after_s - time.monotonic()))
+    await asyncio.sleep(max(0.0, t_show + times.kill_after_s + times.restart_background_s - time.monotonic()))
     _alive(rig)
     pids = {s: p.pid for s, p in rig.nodes.items()}
     kill_ns = time.monotonic_ns()
@@ -390,6 +406,9 @@ async def _coordinator_restart(rig: LocalRig, asset_id: str, logs: dict[str, int
     last = tick_at(live_ns + int(times.after_rejoin_s * 1e9)) - 1
     window = range(first, last + 1)
     outage = range(tick_at(kill_ns), tick_at(back_ns))
+    # the show as it played beside its coordinator before the kill: the nodes' own rate of missed ticks
+    background = range(tick_at(play.anchor_ns + int(BACKGROUND_FROM_S * 1e9)), outage.start)
+    background_missed = 0
     missed, out_of_order, alone_ticks, phases, stages, after_join, late = {}, 0, {}, {}, {}, {}, {}
     causes: dict[str, dict[str, int]] = {}
     period_ns = int(1e9 * play.rate_den / play.rate_num)
@@ -400,6 +419,7 @@ async def _coordinator_restart(rig: LocalRig, asset_id: str, logs: dict[str, int
         got = set(ids)
         lost = [t for t in window if t not in got]
         missed[s] = len(lost)
+        background_missed += sum(1 for t in background if t not in got)
         # of those, the ticks the node itself dropped as late (its frame was not ready in time: CPU),
         # the others it never swapped nor dropped (nothing scheduled them)
         dropped_late = {int(m.group(1)) for m in LATE.finditer(text)}
@@ -423,6 +443,8 @@ async def _coordinator_restart(rig: LocalRig, asset_id: str, logs: dict[str, int
         "show_taken_back": resumed,
         "ticks_in_window": len(window),
         "frames_missed": sum(missed.values()),
+        **restart_share(background_missed, len(background) * len(rig.slots), phases,
+                        (last + 1 - outage.start) * len(rig.slots)),
         "frames_missed_by_node": missed,
         "frames_missed_late_drops": late,
         # why: its budget held the node back just before the tick, its decoder was late, or neither
@@ -475,6 +497,24 @@ async def _coordinator_restart(rig: LocalRig, asset_id: str, logs: dict[str, int
             s: _r(_cpu_between(samples, s, back_ns + int(stages[s]["joined"] * 1e6), 1_000_000_000)
                   - alone_ms_per_s[s], 1) if "joined" in stages[s] else None for s in pids}
     return out
+
+
+def restart_share(background_missed: int, background_ticks: int, phases: dict[str, dict[str, int]],
+                  ticks_after_kill: int) -> dict:
+    """What the restart itself cost, beside ``frames_missed`` (which counts the second before the kill too):
+    ``background`` (node-ticks, missed, missed per tick) over the show before the kill, from
+    BACKGROUND_FROM_S after its start, the nodes' own rate beside a running coordinator;
+    ``frames_missed_after_kill`` of ``ticks_after_kill`` (node-ticks from the kill to the window's end);
+    ``frames_missed_restart_share``: those less the background rate over as many ticks (may be below 0)."""
+    rate = background_missed / background_ticks if background_ticks else None
+    after = sum(p["outage"] + p["after_restart"] for p in phases.values())
+    return {
+        "background": {"ticks": background_ticks, "missed": background_missed,
+                       "per_tick": None if rate is None else round(rate, 5)},
+        "ticks_after_kill": ticks_after_kill,
+        "frames_missed_after_kill": after,
+        "frames_missed_restart_share": None if rate is None else round(after - rate * ticks_after_kill, 1),
+    }
 
 
 #: the bins of ``restart_timeline`` (seconds)

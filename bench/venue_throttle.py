@@ -13,7 +13,9 @@ bench's JSON cannot tell them apart from counts over a whole run (``throttled_s`
 
 :class:`ThrottleSampler` reads each node group's ``cpu.stat`` every ``period_s`` on a thread of the
 bench (the groups' ``nr_throttled`` counts the CFS periods in which each was held back) and keeps
-the instants at which the count grew. :func:`miss_causes` sorts a node's missed ticks with them and
+the instants at which the count grew (each file is kept open and read with one ``pread``: about
+6 us a read against 36 us for an open, read and close, measured at load 20; ``cpu_s`` says what the
+thread used). :func:`miss_causes` sorts a node's missed ticks with them and
 with the node's logged drops. The sampler's resolution is its period (5 ms: half a CFS period of
 10 ms); a throttle is counted against a tick when it was seen from one tick period before the
 tick's instant to ``SLACK_NS`` after it (the sample that sees a throttle comes up to a period
@@ -21,6 +23,7 @@ late).
 """
 from __future__ import annotations
 
+import os
 import re
 import threading
 import time
@@ -33,14 +36,27 @@ DROP = re.compile(r"timing frame (\d+): dropped \(late\) (-?[\d.]+) ms late")
 SLACK_NS = 6_000_000
 
 
-def _throttled(path: Path) -> int | None:
+_KEY = b"nr_throttled "
+
+
+def _throttled(fd: int | None) -> int | None:
+    """``nr_throttled`` of the ``cpu.stat`` open as ``fd`` (a cgroup file is made afresh at each read
+    from offset 0: one pread, no open and close), None when it cannot be read."""
+    if fd is None:
+        return None
     try:
-        for line in path.read_text().splitlines():
-            if line.startswith("nr_throttled "):
-                return int(line.split()[1])
+        text = os.pread(fd, 4096, 0)
+        i = text.index(_KEY) + len(_KEY)
+        return int(text[i:text.index(b"\n", i)])
     except (OSError, ValueError):
         return None
-    return None
+
+
+def _open(path: Path) -> int | None:
+    try:
+        return os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
 
 
 class ThrottleSampler:
@@ -53,6 +69,8 @@ class ThrottleSampler:
         self.period_s = period_s
         self.events: dict[str, list[int]] = {name: [] for name in self.stats}
         self.samples = 0
+        #: the CPU time the sampler's thread used (s): the bench's own cost, on the cores the nodes share
+        self.cpu_s = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="throttle-sampler", daemon=True)
 
@@ -69,15 +87,22 @@ class ThrottleSampler:
             self._thread.join(timeout=2.0)
 
     def _run(self) -> None:
-        last = {name: _throttled(p) for name, p in self.stats.items()}
-        while not self._stop.wait(self.period_s):
-            now = time.monotonic_ns()
-            self.samples += 1
-            for name, p in self.stats.items():
-                n = _throttled(p)
-                if n is not None and last[name] is not None and n > last[name]:
-                    self.events[name].append(now)
-                last[name] = n
+        fds = {name: _open(p) for name, p in self.stats.items()}
+        try:
+            last = {name: _throttled(fd) for name, fd in fds.items()}
+            while not self._stop.wait(self.period_s):
+                now = time.monotonic_ns()
+                self.samples += 1
+                for name, fd in fds.items():
+                    n = _throttled(fd)
+                    if n is not None and last[name] is not None and n > last[name]:
+                        self.events[name].append(now)
+                    last[name] = n
+        finally:
+            self.cpu_s = time.thread_time()
+            for fd in fds.values():
+                if fd is not None:
+                    os.close(fd)
 
     def throttled_between(self, name: str, lo_ns: int, hi_ns: int) -> bool:
         return any(lo_ns <= t <= hi_ns for t in self.events.get(name, ()))

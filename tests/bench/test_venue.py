@@ -120,6 +120,15 @@ def test_venue_bench_discovers_and_distributes_to_every_node(ns, capsys, tmp_pat
     assert 0 <= cr["frames_missed"] <= 2 * cr["ticks_in_window"]
     assert cr["out_of_order"] == 0
     assert all(a >= 2_000 for a in cr["alone_ms"].values())      # each node says it went on alone
+    # the restart's own share: the misses from the kill on, less the nodes' rate before it (--quick: 0.5 s of it)
+    bg = cr["background"]
+    assert bg["ticks"] > 0 and 0 <= bg["missed"] <= bg["ticks"] and bg["per_tick"] == round(bg["missed"] / bg["ticks"], 5)
+    assert cr["frames_missed_after_kill"] == sum(p["outage"] + p["after_restart"]
+                                                 for p in cr["frames_missed_by_phase"].values())
+    assert 0 < cr["ticks_after_kill"] < cr["ticks_in_window"] * len(slots)
+    assert cr["frames_missed_restart_share"] <= cr["frames_missed_after_kill"]
+    if budgets:
+        assert cr["throttle_sampler"]["samples"] > 0 and cr["throttle_sampler"]["cpu_ms"] > 0
     # where the missed ticks fell, and what each node did and spent while it rejoined
     for s in slots:
         phases, around = cr["frames_missed_by_phase"][s], cr["missed_around_join"][s]

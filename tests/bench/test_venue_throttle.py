@@ -29,6 +29,19 @@ def test_the_sampler_keeps_the_instants_at_which_the_throttle_count_grew(tmp_pat
     assert s.throttled_between("r0c0", before, t) and not s.throttled_between("r0c0", 0, before - 1)
     assert not s.throttled_between("other", 0, t)
     assert throttles_per_s(s, "r0c0", t, t + 1_000_000_000) == 1.0
+    assert s.cpu_s > 0                               # its own CPU, for the document
+
+
+def test_a_group_file_that_cannot_be_read_is_no_throttle(tmp_path):
+    stat = tmp_path / "cpu.stat"
+    stat.write_text(_stat(1))
+    with ThrottleSampler({"r0c0": stat, "gone": tmp_path / "missing"}, period_s=0.002) as s:
+        wait_until(lambda: s.samples, lambda n: n >= 2, what="two samples")
+        stat.write_text("nr_periods 3\n")            # no nr_throttled line: not counted either way
+        wait_until(lambda: s.samples, lambda n: n >= 4, what="two more")
+        stat.write_text(_stat(4))
+        wait_until(lambda: s.samples, lambda n: n >= 6, what="two more")
+    assert s.events == {"r0c0": [], "gone": []}
 
 
 def test_missed_ticks_are_sorted_by_cause(tmp_path):
