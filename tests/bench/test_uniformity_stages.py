@@ -69,3 +69,27 @@ def test_the_stages_follow_each_node_from_the_coordinator_to_its_swap(caplog):
     assert st["wanted_to_ready"]["max"] == 0.0 and st["ready_to_set"]["max"] == 0.0, "the coordinator's own stamps"
     assert st["instant_to_shown"]["max"] == 21.0 and st["declared_to_shown"]["max"] == 111.0
     assert st["swapped_to_reported"] == {"min": 4.0, "p50": 4.0, "max": 4.0}
+
+
+def test_the_switch_benchmark_reads_each_switch_from_the_same_lines(caplog):
+    """bench.uniformity_switch repeats a failover's switch: per switch (the lines of its instant alone), the last
+    node's delay past the instant, the arrivals after the set, and what a failover with that lead would score."""
+    from bench.uniformity_switch import _summary, _switch_way
+    maps = BlendMaps(np.full((2, 2, 3), 0.5, np.float32), np.zeros((2, 2), np.float32))
+    set_ns, at = 1_000 * MS, 1_080 * MS
+    early = dict(received=1_010 * MS, decoded=1_011 * MS, presenter=1_012 * MS, uploaded=1_013 * MS,
+                 ready=1_040 * MS, shown=at, swapped=at + 1 * MS)
+    late = dict(received=1_050 * MS, decoded=1_051 * MS, presenter=1_060 * MS, uploaded=1_061 * MS,
+                ready=1_100 * MS, shown=1_101 * MS, swapped=1_101 * MS)
+    other = dict(early, shown=at + 500 * MS)       # a line of another switch (instant) is left out
+    logs = {"node-a": node_line(caplog, maps, at, early),
+            "node-b": node_line(caplog, maps, at + 1, other) + node_line(caplog, maps, at, late)}
+    way = _switch_way(SimpleNamespace(log=lambda name: logs[name]), ["a", "b"], at, set_ns)
+    assert way["nodes"] == 2 and way["late_nodes"] == 1
+    assert way["last_after_instant_ms"] == 21.0
+    assert way["set_to_received_by_slot"] == {"a": 10.0, "b": 50.0} and way["received_max_ms"] == 50.0
+    assert way["rendered_before_instant_min_ms"] == -20.0
+    s = _summary([way, dict(way, last_after_instant_ms=0.0), {}], lead_ms=80.0, frame_ms=1e3 / 30)
+    assert s["switches_read"] == 2
+    f = s["frames_at_lead"]      # (80 + 21) / 33.3 and 80 / 33.3 frames
+    assert (f["max"], f["within_3"]) == (3.03, 1) and abs(f["p50"] - 2.715) <= 0.006
