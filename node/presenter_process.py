@@ -77,11 +77,12 @@ class Inbox:
         self._ready: deque = deque()      # messages read and decoded, not yet received
         self._gone: BaseException | None = None
 
-    def poll(self, timeout: float = 0.0) -> bool:
-        """Whether :meth:`recv` returns at once (a message, or the pipe's end), waiting up to ``timeout`` s."""
-        deadline = time.monotonic() + timeout
+    def poll(self, timeout: float | None = 0.0) -> bool:
+        """Whether :meth:`recv` returns at once (a message, or the pipe's end), waiting up to ``timeout`` s
+        (None: until it does)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
         while not self._ready and self._gone is None:
-            if not self._conn.poll(max(0.0, deadline - time.monotonic())):
+            if not self._conn.poll(None if deadline is None else max(0.0, deadline - time.monotonic())):
                 return False
             try:
                 self._take(self._conn.recv())

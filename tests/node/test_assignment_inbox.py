@@ -42,6 +42,8 @@ def test_assignments_arrive_decoded_and_everything_else_as_sent_in_order():
     np.testing.assert_array_equal(a.homography, np.eye(3))
     assert inbox.recv() == ("show", None)
     assert not inbox.poll(0.0)
+    writer.send(("stats", 1))
+    assert inbox.poll(None) and inbox.recv() == ("stats", 1)      # None: waits until a message is there
 
 
 def test_a_malformed_assignment_is_skipped_and_logged(caplog):
