@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -64,3 +65,25 @@ def test_side_by_side_layout():
         side_by_side([a], ["x", "y"])
     with pytest.raises(ValueError):
         side_by_side([])
+
+
+def test_psnr_is_scikit_images_to_the_last_bit():
+    from skimage.metrics import peak_signal_noise_ratio
+    rng = np.random.default_rng(0)
+    for shape in [(40, 30), (48, 64, 3), (7, 7)]:
+        for dt in (np.float32, np.float64):
+            t = rng.random(shape).astype(dt)
+            c = (t + rng.normal(0, 0.05, shape)).astype(dt)
+            want = peak_signal_noise_ratio(t.astype(np.float64), np.clip(c.astype(np.float64), 0, 1), data_range=1.0)
+            assert quality(t, c).psnr == float(want), (shape, dt)
+    assert quality(t, t).psnr == float("inf")
+
+
+def test_quality_imports_no_metric_that_loads_scipy_stats():
+    # skimage.metrics.simple_metrics (PSNR's module) imports scipy.stats, 0.6 CPU-s in every process
+    import ast
+
+    import imaging.compensation.quality as q
+    names = {a.name for n in ast.walk(ast.parse(Path(q.__file__).read_text()))
+             if isinstance(n, ast.ImportFrom) and n.module == "skimage.metrics" for a in n.names}
+    assert names == {"structural_similarity"}, names
