@@ -19,6 +19,7 @@ Every import counts, including those inside functions and those under ``if TYPE_
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -122,7 +123,11 @@ def _imports(module: str, path: Path) -> set[str]:
     return found
 
 
-GRAPH = {m: _imports(m, p) for m, p in MODULES.items()}
+@functools.cache
+def graph() -> dict[str, set[str]]:
+    """Each module's imports, parsed on first use: at module level every xdist worker parsed the whole
+    project while collecting (1.6 CPU-s each), though one worker runs these tests."""
+    return {m: _imports(m, p) for m, p in MODULES.items()}
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -184,19 +189,19 @@ def test_there_are_modules_to_check():
 
 
 def test_no_import_cycles():
-    assert _cycles(GRAPH) == []
+    assert _cycles(graph()) == []
 
 
 @pytest.mark.parametrize("package", sorted(ALLOWED))
 def test_imports_go_in_the_intended_direction(package):
-    bad = sorted(f"{m} -> {o}" for m, outs in GRAPH.items() if m.split(".")[0] == package
+    bad = sorted(f"{m} -> {o}" for m, outs in graph().items() if m.split(".")[0] == package
                  for o in outs if o.split(".")[0] not in ALLOWED[package] | {package})
     assert bad == []
 
 
 def test_protobuf_only_at_the_wire_edges():
-    users = {m for m, outs in GRAPH.items() if any(o.startswith("protos.") and o.endswith(("_pb2", "_pb2_grpc"))
-                                                     for o in outs)}
+    users = {m for m, outs in graph().items() if any(o.startswith("protos.") and o.endswith(("_pb2", "_pb2_grpc"))
+                                                       for o in outs)}
     outside = {m for m in users if not m.startswith("protos")}
     assert outside <= WIRE_MODULES, sorted(outside - WIRE_MODULES)
     assert WIRE_MODULES <= outside, f"no longer using generated code: {sorted(WIRE_MODULES - outside)}"
@@ -244,7 +249,7 @@ def _reach(module: str) -> set[str]:
     seen: set[str] = set()
     todo = [module]
     while todo:
-        for o in GRAPH.get(todo.pop(), ()):
+        for o in graph().get(todo.pop(), ()):
             if o not in seen:
                 seen.add(o)
                 todo.append(o)
@@ -268,7 +273,7 @@ def test_the_core_reaches_no_edge_and_the_edges_see_it_only_through_its_protocol
     edges = [m for m in MODULES if _is_edge(m) and m != "coordinator.app"]
     assert len(edges) > 10
     assert sorted(f"{m} -> coordinator.server" for m in edges if "coordinator.server" in _reach(m)) == []
-    assert "coordinator.server" in GRAPH["coordinator.app"], "the root builds the core"
+    assert "coordinator.server" in graph()["coordinator.app"], "the root builds the core"
 
 
 def test_every_allowed_import_goes_down_a_floor():
