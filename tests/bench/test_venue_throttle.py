@@ -36,11 +36,12 @@ def test_a_group_file_that_cannot_be_read_is_no_throttle(tmp_path):
     stat = tmp_path / "cpu.stat"
     stat.write_text(_stat(1))
     with ThrottleSampler({"r0c0": stat, "gone": tmp_path / "missing"}, period_s=0.002) as s:
-        wait_until(lambda: s.samples, lambda n: n >= 2, what="two samples")
-        stat.write_text("nr_periods 3\n")            # no nr_throttled line: not counted either way
-        wait_until(lambda: s.samples, lambda n: n >= 4, what="two more")
-        stat.write_text(_stat(4))
-        wait_until(lambda: s.samples, lambda n: n >= 6, what="two more")
+        for text in ("nr_periods 3\n", _stat(4)):    # no nr_throttled line: not counted either way
+            seen = s.samples
+            wait_until(lambda: s.samples, lambda n: n >= seen + 2, what="two samples")   # one read the text before
+            stat.write_text(text)
+        seen = s.samples
+        wait_until(lambda: s.samples, lambda n: n >= seen + 2, what="two samples after the last")
     assert s.events == {"r0c0": [], "gone": []}
 
 
