@@ -449,13 +449,19 @@ class DecodeAhead:
         a swap whose thread wakes at real-time priority and then waits for that lock is late
         by as much, more when other processes hold the CPU the decode thread needs to let go
         of it (measured: swaps up to 20 ms late, a few per thousand, four nodes on two cores)."""
-        self._quiet = (int(start_host_ns), int(end_host_ns))
+        with self._cond:
+            self._quiet = (int(start_host_ns), int(end_host_ns))
+            self._cond.notify_all()
 
     def _keep_quiet(self) -> None:
-        start, end = self._quiet
-        now = time.monotonic_ns()
-        if start <= now < end:
-            time.sleep((end - now) / 1e9)
+        """Wait while the quiet window holds; a window set meanwhile (moved, cut short) is followed."""
+        with self._cond:
+            while not self._closed:
+                start, end = self._quiet
+                now = time.monotonic_ns()
+                if not start <= now < end:
+                    return
+                self._cond.wait((end - now) / 1e9)
 
     # ------------------------------------------------------------------ the thread
     def _next_job(self) -> int | None:

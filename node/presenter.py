@@ -680,7 +680,7 @@ class Presenter:
             log.error("cannot show frame %d of asset %s: %s", ev.frame, ev.asset_id[:12], exc)
             self._drop(DropRecord(ev.frame_id, DropReason.UNRENDERABLE))
             return False
-        self.player.quiet_around(ev, self.clock.to_host(pacer.deadline(order)))
+        self.player.quiet_around(ev, self.clock.to_host(pacer.deadline(order)), rendering=True)
         a = self.assignment
         if a is not None and a.pose_kind == "homography" and all(a.content_size):
             image = fit_frame(image, a.content_size)
@@ -857,17 +857,17 @@ class Presenter:
 
     def _swap_at_pts(self, renderer, out: Output, frame: FrameOrder) -> None:
         """Finish the rendered frame, wait for its time, swap, report (or drop it as late)."""
-        pacer = self.pacer
         out.prepare(renderer)
         self._ctx.finish()   # the frame must be complete in the back buffer before its time comes
+        self.player.rendered()      # a timeline frame's decoder, quiet while it was made, may work again
         self.blend.ready()
-        drop = pacer.ready(frame)
+        drop = self.pacer.ready(frame)
         if drop is not None:
             if frame.content_id == f"timeline:{frame.frame_id}":
                 renderer.forget(frame.content_id)
             self._drop(drop)
             return
-        deadline = pacer.deadline(frame)
+        deadline = self.pacer.deadline(frame)
         self._work_ns.append(max(0, self.clock.now() - self._work_from_ns))
         self._wait_taking_blends(frame, deadline)
         with self._rt:
@@ -879,7 +879,7 @@ class Presenter:
         if _DEBUG_TIMING:
             log.info("timing frame %d: swap %.3f ms after deadline", frame.frame_id,
                      (host - self.clock.to_host(deadline)) / 1e6)
-        swap = pacer.shown(frame, host)
+        swap = self.pacer.shown(frame, host)
         self._blend_shown(frame.pts_ns)
         if self._timeline_reports:
             swap = replace(swap, timeline=True)

@@ -25,6 +25,7 @@ timeline.frame_of_tick(tick)`` is swapped in at ``timeline.pts(tick)`` and repor
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,6 +47,9 @@ CATCH_UP_NS = 30_000_000
 #: period, if shorter) to this long after it: the swap never waits for the interpreter lock
 QUIET_BEFORE_NS = 8_000_000
 QUIET_AFTER_NS = 1_000_000
+#: while the presenter makes a frame (from its start to its render finished) no decode starts either, for at
+#: most this long (and half a frame period): the frame due next period comes before one due frames later
+RENDER_QUIET_MAX_NS = 16_000_000
 #: ticks reported late at most at once (after a long stall)
 MAX_SKIPPED_REPORTS = 120
 #: a video's decoder threads, slice threads (:data:`node.asset_decode.THREAD_TYPE`): they share
@@ -136,6 +140,7 @@ class TimelinePlayer:
         self._stops: dict[int, int] = {}             # stop instant -> revision
         self._files: dict[str, AssetFiles] = {}
         self._decoder: DecodeAhead | None = None
+        self._after_render: tuple[int, int] | None = None     # the window around a swap, once its frame is made
         self._decoder_size: tuple[int, int] | None = None
         #: (w, h) a video's frames are decoded to (the content size the node warps from; None: the
         #: video's own). The presenter sets it from its assignment; a change reopens the decoder.
@@ -345,15 +350,31 @@ class TimelinePlayer:
         choice = getattr(video, "choice", None)
         return choice if choice is not None else choose("h264", self.decoder)
 
-    def quiet_around(self, event: TimelineEvent, swap_host_ns: int) -> None:
+    def quiet_around(self, event: TimelineEvent, swap_host_ns: int, *, rendering: bool = False) -> None:
         """``event`` swaps in at ``swap_host_ns`` (the host's clock): its decoder starts no work
         from QUIET_BEFORE_NS (at most a third of a frame period) before it to QUIET_AFTER_NS
-        after it (:meth:`node.asset_frames.DecodeAhead.quiet`)."""
+        after it (:meth:`node.asset_frames.DecodeAhead.quiet`). With ``rendering`` the frame is being
+        made now: no decode starts from now until :meth:`rendered` (at most RENDER_QUIET_MAX_NS and
+        half a frame period), then the window around the swap holds."""
         if self._decoder is None:
             return
         tl = self.schedule.at(event.pts_ns)
         before = QUIET_BEFORE_NS if tl is None else min(QUIET_BEFORE_NS, int(NS / tl.rate / 3))
-        self._decoder.quiet(swap_host_ns - before, swap_host_ns + QUIET_AFTER_NS)
+        window = (swap_host_ns - before, swap_host_ns + QUIET_AFTER_NS)
+        if rendering:
+            now = time.monotonic_ns()
+            most = RENDER_QUIET_MAX_NS if tl is None else min(RENDER_QUIET_MAX_NS, int(NS / tl.rate / 2))
+            self._after_render = window
+            self._decoder.quiet(now, window[1] if now + most >= window[0] else now + most)
+            return
+        self._decoder.quiet(*window)
+
+    def rendered(self) -> None:
+        """The frame :meth:`quiet_around` was told of with ``rendering`` is made: the decoder may work
+        until the window around its swap."""
+        window, self._after_render = self._after_render, None
+        if window is not None and self._decoder is not None:
+            self._decoder.quiet(*window)
 
     def close(self) -> None:
         if self._decoder is not None:

@@ -551,3 +551,26 @@ def test_decode_ahead_starts_no_decode_while_a_swap_is_due(cache):
         ahead.want(2)
         assert ahead.get(2, timeout=30)[0, 0, 0] == 2
         assert len(src.starts) > before
+
+
+def test_decode_ahead_follows_a_quiet_window_moved_while_it_waits(cache):
+    """The presenter keeps decodes back while it makes a frame and then cuts the window down to the
+    swap's (node.timeline_player ``quiet_around(..., rendering=True)``, ``rendered``): the thread,
+    waiting in a window, follows the one it finds when the window changes, a longer one as a
+    shorter one, and does not sleep to the end of the window it saw first."""
+    src = _StartTimes(cache)
+    with DecodeAhead(src, depth=3) as ahead:
+        now = time.monotonic_ns()
+        ahead.quiet(now, now + 150_000_000)
+        ahead.want(0)
+        time.sleep(0.05)                                # (the thread takes the job and waits in the window)
+        end = now + 600_000_000
+        ahead.quiet(now, end)                           # made longer while the thread waits in it
+        assert ahead.get(0, timeout=30)[0, 0, 0] == 0
+        assert min(src.starts) >= end
+        ahead.get(2, timeout=30)                        # frames 0-2 decoded; frame 3 is not
+        ahead.quiet(time.monotonic_ns(), time.monotonic_ns() + 60_000_000_000)     # a minute ...
+        ahead.want(3)
+        time.sleep(0.05)
+        ahead.quiet(0, 1)                               # ... cut short: the decode starts now, not in a minute
+        assert ahead.get(3, timeout=30)[0, 0, 0] == 3
