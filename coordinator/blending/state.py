@@ -23,7 +23,9 @@ makes the next lead a part (:data:`LEARNED_DECAY`) shorter than its own. A rig w
 keeps the short lead, and a lead longer than the nodes need shrinks: it would only delay the new maps,
 since a node that is late shows them as soon as it has them whatever the lead. The blend job's own
 push, at once to every node, teaches the first such failover: how far apart the nodes put that same
-redraw on screen; the first switch of a still then teaches in its place. While a show plays, each node renders its ticks anyway and a
+redraw on screen; that stays the least a still's switch leads by until the next blend job, since a
+switch every node showed in time cannot tell how much of its lead it needed (decaying below it made
+the second failover of a P25 room rig late where the first was in time). While a show plays, each node renders its ticks anyway and a
 switch costs it no redraw of its own: the lead is the maps' own, and a show's late ticks (the CPU's,
 not the lead's) teach nothing.
 A variant not computed ahead is computed in a worker thread, never on the event loop (and one held
@@ -427,7 +429,8 @@ class BlendState:
     def _learn(self) -> None:
         """What the last switch showed of the nodes: when the latest of them showed its maps (from their
         heartbeats; one that still shows others is as late as now). Late beyond :data:`LATE_SLACK_NS`: the
-        learned lead becomes that switch's lead plus the delay; in time: it gives back a part."""
+        learned lead becomes that switch's lead plus the delay; in time: it gives back a part (the lead itself
+        stays at least what the blend job's push showed, :meth:`_auto_lead`)."""
         pushed, self._pushed = self._pushed, None
         if pushed is None or self.node_session is None:
             return
@@ -443,8 +446,8 @@ class BlendState:
         if not heard:
             return
         self.last_late_ns = late
-        # the nodes' own switch says more than the blend job's push did: from now on it alone teaches
-        self.redraw_lead_ns = 0
+        # the blend job's push stays the floor: a switch every node showed in time cannot tell how much of its
+        # lead it needed, so the decay below stops at what that push showed a redraw on every node needs
         cap = int(float(self.rig.config.latency_ms) * 1e6)
         if late > LATE_SLACK_NS:
             self.learned_lead_ns = min(lead + late, cap)
