@@ -50,13 +50,19 @@ def node_line(caplog, maps: BlendMaps, at: int, stamps: dict[str, int]) -> str:
     return caplog.text
 
 
-def test_the_stages_follow_each_node_from_the_coordinator_to_its_swap(caplog):
+def two_nodes():
+    """Maps, the set and instant of a switch, and the stamps of a node in time and of one 21 ms late."""
     maps = BlendMaps(np.full((2, 2, 3), 0.5, np.float32), np.zeros((2, 2), np.float32))
     set_ns, at = 1_000 * MS, 1_080 * MS
     early = dict(received=1_010 * MS, decoded=1_011 * MS, presenter=1_012 * MS, uploaded=1_013 * MS,
                  ready=1_040 * MS, shown=at, swapped=at + 1 * MS)
     late = dict(received=1_050 * MS, decoded=1_051 * MS, presenter=1_060 * MS, uploaded=1_061 * MS,
                 ready=1_100 * MS, shown=1_101 * MS, swapped=1_101 * MS)
+    return maps, set_ns, at, early, late
+
+
+def test_the_stages_follow_each_node_from_the_coordinator_to_its_swap(caplog):
+    maps, set_ns, at, early, late = two_nodes()
     logs = {"node-a": node_line(caplog, maps, at, early), "node-b": node_line(caplog, maps, at, late)}
     state = SimpleNamespace(last_switch={"wanted": set_ns, "ready": set_ns, "set": set_ns, "instant": at})
     live = SimpleNamespace(core=SimpleNamespace(blending=state), slot_blend_id=lambda s: maps.blend_id,
@@ -75,12 +81,7 @@ def test_the_switch_benchmark_reads_each_switch_from_the_same_lines(caplog):
     """bench.uniformity_switch repeats a failover's switch: per switch (the lines of its instant alone), the last
     node's delay past the instant, the arrivals after the set, and what a failover with that lead would score."""
     from bench.uniformity_switch import _summary, _switch_way
-    maps = BlendMaps(np.full((2, 2, 3), 0.5, np.float32), np.zeros((2, 2), np.float32))
-    set_ns, at = 1_000 * MS, 1_080 * MS
-    early = dict(received=1_010 * MS, decoded=1_011 * MS, presenter=1_012 * MS, uploaded=1_013 * MS,
-                 ready=1_040 * MS, shown=at, swapped=at + 1 * MS)
-    late = dict(received=1_050 * MS, decoded=1_051 * MS, presenter=1_060 * MS, uploaded=1_061 * MS,
-                ready=1_100 * MS, shown=1_101 * MS, swapped=1_101 * MS)
+    maps, set_ns, at, early, late = two_nodes()
     other = dict(early, shown=at + 500 * MS)       # a line of another switch (instant) is left out
     logs = {"node-a": node_line(caplog, maps, at, early),
             "node-b": node_line(caplog, maps, at + 1, other) + node_line(caplog, maps, at, late)}
