@@ -300,7 +300,9 @@ async def compensate_on_cluster(ctx: JobContext, opts: VideoOptions, *, store: A
             except (OSError, TimeoutError, ValueError) as exc:
                 raise JobError(f"cannot reach the Dask scheduler at {opts.cluster}: {exc}") from None
             await _a_worker(client, opts.cluster)
-            workers = len(client.scheduler_info().get("workers", {}))
+            # asked, not cached: an asynchronous client's scheduler_info() is a cache that distributed may
+            # refresh with cluster totals only, whose "workers" is empty
+            workers = len((await client.scheduler.identity(n_workers=-1)).get("workers", {}))
             report(segs.frames, segs.resumed_from, f"sending L and the source to {workers} worker(s)")
             spec = SegmentSpec(key=key, transport=solver.transport, regularization=opts.regularization,
                                iterations=opts.iterations, first_iterations=opts.first_iterations, motion=opts.motion,
