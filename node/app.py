@@ -98,6 +98,10 @@ PREVIEW_EVERY_S = 0.5
 GOODBYE_S = 1.0
 
 
+#: a session's tasks that are the node's own, not the coordinator's streams: their end is no loss
+_NODE_TASKS = frozenset({"stopping", "presenter"})
+
+
 class Node:
     def __init__(self, config: NodeConfig):
         self.cfg = config
@@ -447,15 +451,11 @@ class Node:
             for t in pending:
                 t.cancel()
             await asyncio.gather(*pending, return_exceptions=True)
-            lost = False
-            for t in done:
-                exc = t.exception() if not t.cancelled() else None
-                if isinstance(exc, LinkError):
-                    lost = True
-                    log.warning("lost the coordinator (%s: %s); will rejoin", exc.code, exc.details)
-                elif exc is not None and not isinstance(exc, asyncio.CancelledError):
-                    log.error("session ended by %s: %r", t.get_name(), exc)
-            if lost and not self._stopping.is_set():
+            why = self._why_lost([t for t in tasks if t in done])
+            if why and not self._stopping.is_set():
+                # one line a loss, whichever streams broke and however many (a coordinator killed, a
+                # cable pulled: every stream fails at once; one stopped on purpose: they all end)
+                log.warning("lost the coordinator at %s (%s); will rejoin", target, why)
                 self._alone_since = time.monotonic()
                 self.notifier.status(f"{self.cfg.slot}: lost the coordinator at {target}; rejoining")
                 show = self.presenter.stats.show
@@ -463,6 +463,23 @@ class Node:
                     log.warning("the show (r%d, %s) goes on without the coordinator, on this node's clock estimate",
                                 show.revision, show.state)
             return True
+
+    @staticmethod
+    def _why_lost(done: list[asyncio.Task]) -> str:
+        """Why a session's tasks that ended (``done``, in the order they were made) say the coordinator
+        was lost: the first broken stream's code and details, or that the coordinator ended its streams
+        (one that stops on purpose closes them); "" when none of them was the coordinator's (the node
+        stops, its presenter died). A task that failed otherwise is logged here as an error."""
+        why = ""
+        for t in done:
+            exc = t.exception() if not t.cancelled() else None
+            if isinstance(exc, LinkError):
+                why = why or f"{exc.code}: {exc.details}"
+            elif exc is not None:
+                log.error("session ended by %s: %r", t.get_name(), exc)
+            elif not t.cancelled() and t.get_name() not in _NODE_TASKS:
+                why = why or f"it closed the session: its {t.get_name()} stream ended"
+        return why
 
     def _new_instance(self, joined: Joined) -> None:
         """A join's coordinator instance, after the session core's clock-id rule: the same rig clock
