@@ -1,6 +1,8 @@
 """The operator's documentation holds together: every relative link in README.md and docs/*.md
-names a file that exists, the README stays short, and every benchmark JSON the pages name (and
-every one kept under docs/benchmarks/) parses and says what measured it, where and when."""
+names a file that exists, the README stays short, every benchmark JSON the pages name (and
+every one kept under docs/benchmarks/) parses and says what measured it, where and when, and every
+JSON kept under docs/benchmarks/ is linked from some page, so that no kept run is an orphan a reader
+cannot reach from the figure it measured."""
 from __future__ import annotations
 
 import json
@@ -52,6 +54,33 @@ def test_the_link_check_sees_a_broken_link(tmp_path):
 def test_readme_stays_short():
     lines = (ROOT / "README.md").read_text(encoding="utf-8").count("\n")
     assert lines < README_MAX_LINES, f"README.md has {lines} lines; move detail into docs/"
+
+
+def _linked_json(page: Path) -> set[str]:
+    """The docs/benchmarks/*.json files a page links to, as "benchmarks/NAME.json"."""
+    out = set()
+    for target in _targets(page):
+        match = JSON_NAME.search(target)
+        if match and match.end() == len(target):
+            out.add(match.group(0))
+    return out
+
+
+def test_every_kept_benchmark_json_is_linked():
+    linked = set()
+    for page in PAGES:
+        linked |= _linked_json(page)
+    kept = {f"benchmarks/{p.name}" for p in (ROOT / "docs" / "benchmarks").glob("*.json")}
+    orphans = sorted(kept - linked)
+    assert not orphans, ("kept under docs/benchmarks/ but linked from no page (link each file, not a "
+                         "range such as 'x_1 to _8'):\n" + "\n".join(orphans))
+
+
+def test_the_orphan_check_sees_a_range_and_a_bare_name(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("[a](benchmarks/a.json) to [_3](benchmarks/a_3.json); benchmarks/b.json in prose; "
+                    "[c](../docs/benchmarks/c.json#x)\n```\n[d](benchmarks/d.json)\n```\n")
+    assert _linked_json(page) == {"benchmarks/a.json", "benchmarks/a_3.json", "benchmarks/c.json"}
 
 
 def test_every_benchmark_json_named_parses():
