@@ -71,6 +71,10 @@ class BlendSwitch:
         self.since_rig_ns = 0           # pts of the first frame shown with them
         self._stamps: tuple[int, ...] | None = None
         self._ready_host_ns = 0         # when the first frame with the next maps was ready for its swap
+        self._drawn: BlendMaps | None = None    # the maps the renderer draws with (those the assignment holds)
+        #: what :meth:`undo` restores, from a switch until a frame shows it: (maps drawn before, the
+        #: switch's instant, whether those were still unshown)
+        self._undo: tuple[BlendMaps | None, int, bool] | None = None
 
     def offer(self, renderer, a: NodeAssignment, rig_now: int | None, got_host_ns: int) -> bool:
         """Take the blend assignment ``a`` asks for (it reached the presenter at ``got_host_ns``):
@@ -110,11 +114,26 @@ class BlendSwitch:
 
     def switch(self, renderer) -> None:
         """The renderer draws with the next maps from now on; the first frame swapped in stamps them."""
-        maps, _at = self.next
+        maps, at = self.next
         self.next = None
         renderer.set_blend(maps)
+        self._undo = (self._drawn, at, self.unshown)
+        self._drawn = maps
         self.unshown = True
         self._ready_host_ns = 0
+
+    def undo(self, renderer) -> None:
+        """Call off the last switch before any frame showed it (a still held for the maps' instant when a
+        message came that changes what is shown): the renderer draws with the maps before it again, and
+        the maps switched to are next again, for the same instant, uploaded ahead again."""
+        if self._undo is None:
+            return
+        before, at, unshown = self._undo
+        maps, self._undo = self._drawn, None
+        renderer.set_blend(before)
+        if maps is not None:
+            renderer.load_blend(maps)
+        self._drawn, self.next, self.unshown = before, (maps, at), unshown
 
     def ready(self) -> None:
         """The frame that first shows the maps switched to is rendered and finished: it waits only for its
@@ -126,7 +145,7 @@ class BlendSwitch:
         """A frame of ``pts_ns`` was swapped in: the first with maps ``blend_id`` (the renderer's) when it
         switched since, logged with the maps' way there."""
         if self.unshown:
-            self.unshown = False
+            self.unshown, self._undo = False, None
             self.on_screen = blend_id
             self.since_rig_ns = pts_ns
             log.info("blend %s on screen from rig instant %d%s", blend_id or "none", pts_ns, self._timing(estimate))

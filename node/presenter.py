@@ -11,11 +11,13 @@ A slot's blend maps (:mod:`protos.blend`) arrive with its assignment, each with 
 from which it is shown. The presenter uploads them ahead and switches the renderer to them for the
 first frame whose pts is at or after that instant (a streamed frame or a show's tick), so every
 node of the rig switches at one common swap instant; when no frame is due then (a still, a paused
-show), it shows the frame on screen again with them at that instant. Maps that cannot be used are
-refused in one log line, and the blend on screen stays. A blend switch that reaches the presenter
-while a rendered frame waits for its time is taken then (:attr:`Presenter.inbox`), and that frame
-rendered again with the new maps when it is at or after their instant: a failover's maps do not wait
-for the frame after it. What the switch holds is :mod:`node.blend_switch`'s.
+show), it shows the frame on screen again with them at that instant, held rendered until then while
+the pipe is read: a message that may change what is shown (a stop, a frame, a show) is handled at once,
+and the switch made again after it. Maps that cannot be used are refused in one log line (the blend
+on screen stays). A blend switch that reaches the presenter while a rendered frame waits for its time
+is taken then (:attr:`Presenter.inbox`), and that frame rendered again with the new maps when it is at
+or after their instant: a failover's maps do not wait for the frame after it. What the switch holds
+is :mod:`node.blend_switch`'s.
 
 Between frames it also makes the previews the coordinator asks for (:mod:`node.preview`):
 right after a swap, or while idle, when the renderer's framebuffer holds what the projector
@@ -50,9 +52,9 @@ from node.records import (AssetFiles, DropReason, DropRecord, FrameOrder, NodeAs
                           ShowUpdateData)
 from node.render.renderer import Mesh, Renderer
 from node.render.shaders import gl_description
+from node.render.warm_start import warm_start
 from node.timeline_player import TimelineEvent, TimelinePlayer, fit_frame
 from node.wire import live_packet_from_bytes
-from protos.blend import BlendMaps
 
 log = logging.getLogger(__name__)
 
@@ -117,8 +119,11 @@ class Presenter:
     #: longest recent frame's work until ready to swap) before it: what rendering it again needs
     REDRAW_MARGIN_NS = 3_000_000
     #: a still is rendered again with new blend maps this long before their instant at the earliest, and
-    #: held in the back buffer until it (messages meanwhile wait, as while a frame waits for its time)
+    #: held in the back buffer until it, reading the pipe (:meth:`_hold`)
     BLEND_EARLY_NS = 150_000_000
+    #: messages read while a still is held for its maps' instant that do not end the hold (handled after
+    #: the swap): they change neither what is shown nor when
+    HOLD_GOES_ON = frozenset({"clock", "content", "evict", "preview"})
 
     def __init__(self, *, slot: str, output: Output, clock: PresenterClock,
                  report: Callable[[str, object], None], realtime: bool = True):
@@ -194,38 +199,12 @@ class Presenter:
         self.gl_info = gl_description(ctx)
         log.info("rendering with %s; video decoder %s", self.gl_info, choose('h264', wish_from_env()).describe())
         self._rt = RealtimeWindow(self._realtime_wanted)
-        self._warm_up()
+        warm_start(self.renderer, ctx)     # every shader path drawn once: compiled now, not for a frame
         self.renderer.render(None)
         self.out.prepare(self.renderer)
         self.out.swap()
         self._fbo_shown = True
         self.previews.time_once(self.renderer)    # the PNG encoder's first run, and what a preview costs
-
-    def _warm_up(self) -> None:
-        """Draw once with every shader path so the driver compiles them now (llvmpipe JITs a
-        shader at its first draw, ~0.1 s), not while the first real frame waits for its deadline
-        (nor the first frame shown with blend maps, at the instant every node switches)."""
-        r = self.renderer
-        img = np.zeros((r.height, r.width, 3), np.uint8)
-        r.upload("__warm__", img)
-        r.set_homography(np.eye(3), (r.width, r.height))
-        for lut in (None, np.tile(np.linspace(0, 1, 16, dtype=np.float32), (3, 1))):
-            r.set_lut(lut)
-            r.render("__warm__", space="content", apply_lut=True)
-            r.render("__warm__", space="content", apply_lut=False)
-        r.render("__warm__", space="projector", apply_lut=False)
-        # the blended pipeline too: the first frame shown with blend maps must not wait for it
-        r.set_blend(BlendMaps(np.ones((1, 1, 3), np.float32), np.zeros((1, 1), np.float32)))
-        r.render("__warm__", space="content", apply_lut=True)
-        r.set_blend(None)
-        self._ctx.finish()
-        r.forget("__warm__", reuse=False)     # drawn once: its 8 MB texture not kept for reuse
-        # the shader variants of video, blends and fades too (node/render/renderer.py); drawn after the
-        # forget, so that llvmpipe lets the warm picture's texture go now (it keeps a released texture
-        # until a draw binds another), not at the first content: 8 MB less for an idle presenter at 1080p
-        r.warm_up()
-        r.set_lut(None)
-        r.clear_pose()
 
     def close(self) -> None:
         self.player.close()
@@ -387,6 +366,19 @@ class Presenter:
         """The blend ``a`` asks for (:meth:`node.blend_switch.BlendSwitch.offer`); whether it shows now."""
         return self.blend.offer(renderer, a, self._rig_now() if self.pacer.estimate is not None else None, got_host_ns)
 
+    def _inbox_until(self, until_ns: int):
+        """Messages read from the inbox until local ``until_ns``, one at a time (none without an inbox, nor
+        once the node process is gone: the loop finds out on its own read)."""
+        inbox = self.inbox
+        while inbox is not None and (left := until_ns - self.clock.now()) > 0:
+            try:
+                if not inbox.poll(left / 1e9):
+                    return
+                msg = inbox.recv()
+            except (EOFError, OSError):
+                return
+            yield msg
+
     def _wait_taking_blends(self, frame: FrameOrder, deadline: int) -> None:
         """Wait until shortly before ``deadline`` (local ns), the frame ``frame`` rendered for it, taking
         any blend switch that arrives meanwhile (an assignment that changes the blend alone): if the
@@ -394,23 +386,25 @@ class Presenter:
         reach the frame already waiting for its time instead of the one after it. Anything else read is
         kept for the loop (in order: once a message is kept, every later one is too). The last stretch
         before the deadline, the time to render the frame again, is left to the swap's precise sleep."""
-        inbox = self.inbox
-        while inbox is not None and not self._deferred:
-            margin = self.REDRAW_MARGIN_NS + max(self._work_ns, default=0)
-            left = deadline - margin - self.clock.now()
-            if left <= 0:
-                return
-            try:
-                if not inbox.poll(left / 1e9):
-                    return
-                msg = inbox.recv()
-            except (EOFError, OSError):
-                return          # the node process is gone: the loop finds out on its own read
+        if self._deferred:
+            return
+        for msg in self._inbox_until(deadline - self.REDRAW_MARGIN_NS - max(self._work_ns, default=0)):
             kind, payload = msg
             if kind != "assignment" or self.assignment is None or not _same_but_blend(self.assignment, payload):
                 self._deferred.append(msg)
                 return
             self._blend_while_waiting(payload, frame)
+
+    def _hold(self, due: int) -> bool:
+        """Hold the frame rendered with the next maps until shortly before ``due`` (local ns), reading the
+        pipe: a message that may change what is shown or when (a stop, a frame, a show, an assignment, an
+        asset, a reset) ends the hold at once (False), kept for the loop after those read before it; the
+        others (HOLD_GOES_ON) are kept and the hold goes on. The last stretch is the swap's sleep."""
+        for msg in self._inbox_until(due - self.REDRAW_MARGIN_NS - max(self._work_ns, default=0)):
+            self._deferred.append(msg)
+            if msg[0] not in self.HOLD_GOES_ON:
+                return False
+        return True
 
     def _blend_while_waiting(self, a: NodeAssignment, frame: FrameOrder) -> None:
         """A blend switch read while ``frame`` waits for its time: taken as :meth:`_on_assignment` takes
@@ -483,6 +477,11 @@ class Presenter:
             self._ctx.finish()
             self.blend.ready()
         late = self.clock.now() - due > LATE_TOLERANCE_NS    # rendered too slowly for its instant (as a frame)
+        if not self._hold(due):
+            # a message that may change what is shown is handled first (a stop, at once): a still whose pts
+            # is at or after the instant then shows the maps itself; else this step comes again after it
+            self.blend.undo(renderer)
+            return
         with self._rt:
             self.clock.sleep_until(due)
             if frame is not None:

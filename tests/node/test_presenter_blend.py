@@ -4,7 +4,8 @@ An assignment's blend maps are uploaded ahead and shown from the first frame who
 after their instant: streamed frames and a show's ticks alike; with a still on screen, the still is
 shown again with them at that instant. What the output received is compared with the numpy
 reference (:func:`protos.spaces.blended_output`), not with flags; a malformed blend is refused in
-one log line and nothing on screen changes.
+one log line and nothing on screen changes. A still held rendered for its maps' instant reads the
+pipe: a stop or a frame read meanwhile is handled at once, a clock estimate after the swap.
 """
 from __future__ import annotations
 
@@ -294,3 +295,92 @@ def test_other_messages_read_while_a_frame_waits_are_handled_after_it_in_order(r
     close(rig.shown(), blended(None))
     assert len(inbox.messages) == 1 and inbox.messages[0] is blend, "nothing read after a message kept for the loop"
     assert rig.p.next_deferred() is gain and rig.p.next_deferred() is None
+
+
+class TimedInbox:
+    """The presenter's pipe with messages that arrive at given instants of the test's clock (host ns):
+    ``poll`` waits, moving the clock, until the next one arrives or its timeout passes."""
+
+    def __init__(self, host: ManualClock, messages):
+        self.host = host
+        self.messages = sorted(messages, key=lambda m: m[0])
+
+    def poll(self, timeout: float) -> bool:
+        end = self.host.t + max(1, round(timeout * 1e9))
+        if self.messages and self.messages[0][0] <= end:
+            self.host.t = max(self.host.t, self.messages[0][0])
+            return True
+        self.host.t = end
+        return False
+
+    def recv(self):
+        return self.messages.pop(0)[1]
+
+
+def hold_a_still(rig, lead_ns: int = 300 * MS) -> tuple[BlendMaps, int]:
+    """A still on screen and maps for it at an instant ``lead_ns`` ahead (its pts over a second before
+    it: a still, not a stream); the clock moved to when it is rendered again with them and held."""
+    rig.frame(1, rig.rig_now() + 10 * MS)
+    m = maps(20)
+    at = rig.rig_now() + lead_ns
+    rig.p.handle("assignment", assignment(2, m, at))
+    rig.host.t += int(rig.p.timeline_wait() * 1e9)
+    assert at - rig.rig_now() == Presenter.BLEND_EARLY_NS
+    return m, at
+
+
+def test_a_stop_read_while_a_still_is_held_for_its_maps_is_handled_at_once(rig):
+    m, at = hold_a_still(rig)
+    before = rig.out.last_info
+    arrives = rig.host.t + 20 * MS
+    rig.p.inbox = TimedInbox(rig.host, [(arrives, ("stop", None))])
+    rig.p.timeline_step()
+    assert rig.host.t == arrives and rig.rig_now() < at, "the hold ended when the stop came, not at the instant"
+    assert rig.p.next_deferred() == ("stop", None) and rig.p.next_deferred() is None
+    assert rig.out.last_info is before and (rig.shown() == blended(None)).all(), "nothing swapped"
+    assert rig.status.blend_id == ""
+
+
+def test_a_clock_read_while_a_still_is_held_waits_for_the_swap_at_the_instant(rig):
+    m, at = hold_a_still(rig)
+    est = ClockEstimate(offset_ns=float(RIG_OFFSET_NS), drift=0.0, ref_local_ns=float(START_NS), best_rtt_ns=90_000,
+                        samples=9)
+    rig.p.inbox = TimedInbox(rig.host, [(rig.host.t + 20 * MS, ("clock", est))])
+    rig.p.timeline_step()
+    assert rig.rig_now() == at and rig.out.last_info.swap_rig_ns == at
+    close(rig.shown(), blended(m))
+    assert (rig.status.blend_id, rig.status.blend_since_rig_ns) == (m.blend_id, at)
+    assert rig.p.next_deferred() == ("clock", est), "kept for the loop, after the swap"
+
+
+def test_a_still_read_while_another_is_held_shows_at_its_pts_and_the_maps_at_their_instant(rig):
+    m, at = hold_a_still(rig, lead_ns=1_500 * MS)
+    rig.p.handle("content", ("white", np.full((H, W, 3), 1.0, np.float32)))
+    still = FrameOrder(frame_id=2, pts_ns=at - 50 * MS, content_id="white", space="content", apply_lut=True, tag="show")
+    arrives = rig.host.t + 20 * MS
+    rig.p.inbox = TimedInbox(rig.host, [(arrives, ("frame", still))])
+    rig.p.timeline_step()
+    assert rig.host.t == arrives and rig.p.next_deferred() == ("frame", still)
+    rig.p.handle("frame", still)                          # the loop handles it: before the instant, no maps
+    assert rig.out.last_info.frame_id == 2 and rig.out.last_info.swap_rig_ns == at - 50 * MS
+    assert (rig.shown() == blended(None, 1.0)).all() and rig.status.blend_id == ""
+    rig.host.t += int(rig.p.timeline_wait() * 1e9)        # then the new still is shown again with them
+    rig.p.timeline_step()
+    assert rig.rig_now() == at and rig.out.last_info.frame_id == 2
+    close(rig.shown(), blended(m, 1.0))
+    assert (rig.status.blend_id, rig.status.blend_since_rig_ns) == (m.blend_id, at)
+
+
+def test_a_still_read_while_another_is_held_carries_the_maps_when_it_is_at_or_after_their_instant(rig):
+    m, at = hold_a_still(rig)
+    rig.p.handle("content", ("white", np.full((H, W, 3), 1.0, np.float32)))
+    still = FrameOrder(frame_id=2, pts_ns=at + 10 * MS, content_id="white", space="content", apply_lut=True, tag="show")
+    rig.p.inbox = TimedInbox(rig.host, [(rig.host.t + 20 * MS, ("frame", still))])
+    rig.p.timeline_step()
+    assert rig.rig_now() < at
+    rig.p.handle(*rig.p.next_deferred())
+    assert rig.out.last_info.frame_id == 2 and rig.out.last_info.swap_rig_ns == at + 10 * MS
+    close(rig.shown(), blended(m, 1.0))
+    assert (rig.status.blend_id, rig.status.blend_since_rig_ns) == (m.blend_id, at + 10 * MS)
+    assert rig.p.timeline_wait() is None, "nothing more to do"
+    assert [p.frame_id for k, p in rig.reports if k == "swap"] == [1, 2]
