@@ -167,8 +167,8 @@ class CoordinatorLink:
         return wire.ping_reply_from_message(reply)
 
     async def assignments(self) -> AsyncIterator[AssignmentBytes]:
-        """The node's assignments as they change, as their bytes: the presenter process decodes them
-        (:func:`node.wire.assignment_from_bytes`) and logs and skips a malformed one."""
+        """The node's assignments as they change, as their bytes, each with why the presenter process
+        could not decode it (:func:`node.wire.assignment_problem`: the session refuses such a one)."""
         with _translated():
             async for msg in self._stub.Assignments(wire.stream_request(), metadata=self._md):
                 yield wire.assignment_bytes(msg)

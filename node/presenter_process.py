@@ -68,7 +68,8 @@ class Inbox:
     payload)``, as :attr:`node.presenter.Presenter.inbox` reads it), with each assignment that
     crosses as its bytes (:class:`node.records.AssignmentBytes`) decoded into the
     :class:`node.records.NodeAssignment` the presenter takes (:func:`node.wire.assignment_from_bytes`);
-    a malformed one is logged and skipped. Every other message, and an assignment already decoded
+    a malformed one (the node process refuses them before: :attr:`node.records.AssignmentBytes.problem`)
+    is logged and skipped. Every other message, and an assignment already decoded
     (a test's), passes as it is. The end of the pipe (EOFError) is raised by the :meth:`recv` after
     a :meth:`poll` that saw it, as a :class:`~multiprocessing.connection.Connection` does."""
 

@@ -66,6 +66,7 @@ class AssignmentBytes:
     revision: int
     data: bytes                          # the Assignment message without its revision (deterministic encoding)
     received_host_ns: int = 0            # host monotonic time the node process received it (0: unknown)
+    problem: str = ""                    # why the presenter could not take it ("" it can): refused by the node
 
 
 @dataclass(frozen=True)

@@ -118,6 +118,8 @@ class SessionCore:
         # and the revision heartbeats report for the one the presenter holds (see assignment_revision)
         self._held: AssignmentBytes | None = None
         self._revisions: dict[int, int] = {}
+        #: the newest assignment's refusal, "rN: why" ("" it was taken)
+        self.refused = ""
 
     # ---------------------------------------------------------------- handshake
     async def hello(self, link: Link, *, timeout: float = 5.0) -> tuple[HelloReply, bytes]:
@@ -208,7 +210,15 @@ class SessionCore:
         """Whether assignment ``a`` must go to the presenter: not when it equals the one passed last
         but for its revision (what a rejoin is sent first: the presenter holds it already, and would
         only compare it again). Either way, heartbeats report ``a``'s revision for what the presenter
-        holds from now on (:meth:`assignment_revision`)."""
+        holds from now on (:meth:`assignment_revision`). Nor when the presenter could not take it
+        (``a.problem``): refused here in one log line (and :attr:`refused`), the one held is kept, and
+        heartbeats go on reporting its revision."""
+        if a.problem:       # the presenter could not take it: the one it holds stays, and its revision
+            self.refused = f"r{a.revision}: {a.problem}"
+            log.error("%s: assignment r%d refused (%s); the projector keeps %s", self.slot, a.revision, a.problem,
+                      f"r{self._revisions.get(self._held.revision, self._held.revision)}" if self._held is not None else "none")
+            return False
+        self.refused = ""
         held = self._held
         if held is not None and held.data == a.data:     # the same message but for its revision
             self._revisions[held.revision] = a.revision

@@ -13,7 +13,10 @@ functions that import numpy's users when first called (:func:`assignment_from_by
 """
 from __future__ import annotations
 
+import sys
 import time
+import zlib
+from array import array
 from fractions import Fraction
 from typing import TYPE_CHECKING, Callable, Sequence
 
@@ -65,11 +68,72 @@ _DROP_REASONS = {
 def assignment_bytes(msg: node_pb2.Assignment) -> AssignmentBytes:
     """What the node process passes on of an assignment (``msg`` loses its revision): its bytes in
     the deterministic encoding, so that an assignment the coordinator renumbered alone (a rejoin's)
-    has the same bytes as the one before, and the time it was received."""
+    has the same bytes as the one before, the time it was received, and why the presenter could not
+    take it (:func:`assignment_problem`; "" it can)."""
     received = time.monotonic_ns()
     revision = msg.revision
     msg.ClearField("revision")
-    return AssignmentBytes(revision=revision, data=msg.SerializeToString(deterministic=True), received_host_ns=received)
+    return AssignmentBytes(revision=revision, data=msg.SerializeToString(deterministic=True), received_host_ns=received,
+                           problem=assignment_problem(msg))
+
+
+def assignment_problem(msg: node_pb2.Assignment, largest: Callable[[bytes], int] | None = None) -> str:
+    """Why the presenter process could not decode assignment ``msg`` ("" it can): the one place its
+    shapes are checked against its byte lengths, so that the node process refuses what the presenter's
+    decode would (:func:`assignment_from_message` raises ValueError with it). Blend maps that cannot be
+    used are no reason: the presenter keeps the blend on screen and applies the rest. ``largest``: the
+    largest of little-endian uint32s in bytes (default: without numpy, for the node process)."""
+    kind = msg.WhichOneof("pose")
+    if kind == "homography" and len(msg.homography.m) != 9:
+        return f"homography needs 9 values, got {len(msg.homography.m)}"
+    if kind == "projection":
+        if len(msg.projection.p) != 12:
+            return f"projection needs 12 values, got {len(msg.projection.p)}"
+        m = msg.projection.mesh     # little-endian float32 (x, y, z) and (u, v) per vertex, uint32 triples
+        vertices, uvs, faces = len(m.vertices), len(m.uvs), len(m.faces)
+        if vertices % 12 or uvs % 8 or faces % 12:
+            return f"mesh arrays are not whole (bytes: {vertices} of vertices, {uvs} of uvs, {faces} of faces)"
+        if uvs // 8 != vertices // 12:
+            return f"mesh has {vertices // 12} vertices and {uvs // 8} uvs"
+        if faces and not _faces_within(m.faces, vertices // 12, largest):
+            return f"mesh faces name vertices beyond its {vertices // 12}"
+    if msg.HasField("lut"):
+        lut = msg.lut
+        if lut.channels not in (1, 3) or lut.entries < 2 or len(lut.values) != 4 * lut.channels * lut.entries:
+            return (f"LUT message is inconsistent ({lut.channels} channels of {lut.entries} entries in "
+                    f"{len(lut.values)} bytes)")
+    return ""
+
+
+#: the faces last found within their mesh's vertices without numpy, as (vertex count, faces' byte length,
+#: their crc32): a failover's pushes carry the same mesh again and again, and the node process scans it
+#: once (8 ms for 100k triangles here; the crc32 of 300k takes 1 ms)
+_faces_seen_within: tuple[int, int, int] | None = None
+
+
+def _faces_within(faces: bytes, vertices: int, largest: Callable[[bytes], int] | None) -> bool:
+    """Whether every index ``faces`` holds (little-endian uint32s) names one of ``vertices``."""
+    global _faces_seen_within
+    if largest is not None:
+        return largest(faces) < vertices
+    seen = (vertices, len(faces), zlib.crc32(faces))
+    if seen == _faces_seen_within:
+        return True
+    within = _largest_uint32(faces) < vertices
+    if within:
+        _faces_seen_within = seen
+    return within
+
+
+def _largest_uint32(data: bytes) -> int:
+    """The largest of the little-endian uint32s ``data`` holds (its length a multiple of 4, not 0)."""
+    values = array("I")
+    if values.itemsize != 4:           # pragma: no cover - an ABI whose unsigned int is not 32 bits
+        values = array("L")
+    values.frombytes(data)
+    if sys.byteorder != "little":      # pragma: no cover - every target is little-endian
+        values.byteswap()
+    return max(values)
 
 
 def assignment_from_bytes(rec: AssignmentBytes) -> NodeAssignment:
@@ -85,42 +149,35 @@ def assignment_from_bytes(rec: AssignmentBytes) -> NodeAssignment:
 
 
 def assignment_from_message(msg: node_pb2.Assignment, *, received_host_ns: int | None = None) -> NodeAssignment:
-    """ValueError if the message is inconsistent (wrong matrix sizes, mesh or LUT arrays). Blend maps
-    that cannot be used do not refuse the assignment: it carries why in ``blend_error`` (the presenter
-    keeps the blend it shows and applies the rest). It carries the host's monotonic times it was
-    received (``received_host_ns``; None: now, when its decoding begins) and decoded (the presenter logs
-    them with a blend switch: where a failover's time goes)."""
+    """ValueError if the message is inconsistent (wrong matrix sizes, mesh or LUT arrays: the reasons of
+    :func:`assignment_problem`). Blend maps that cannot be used do not refuse the assignment: it carries
+    why in ``blend_error`` (the presenter keeps the blend it shows and applies the rest). It carries the
+    host's monotonic times it was received (``received_host_ns``; None: now, when its decoding begins)
+    and decoded (the presenter logs them with a blend switch: where a failover's time goes)."""
     import numpy as np                                   # the presenter process's (see the module's docstring)
 
     from protos.blend import BlendMapError, BlendMaps
 
+    if problem := assignment_problem(msg, lambda data: int(np.frombuffer(data, "<u4").max())):
+        raise ValueError(problem)
     received = time.monotonic_ns() if received_host_ns is None else received_host_ns
     kind = msg.WhichOneof("pose") or "none"
     homography = projection = None
     mesh = None
     near, far = 100.0, 10_000.0
     if kind == "homography":
-        if len(msg.homography.m) != 9:
-            raise ValueError(f"homography needs 9 values, got {len(msg.homography.m)}")
         homography = np.array(msg.homography.m, dtype=np.float64).reshape(3, 3)
     elif kind == "projection":
-        if len(msg.projection.p) != 12:
-            raise ValueError(f"projection needs 12 values, got {len(msg.projection.p)}")
         projection = np.array(msg.projection.p, dtype=np.float64).reshape(3, 4)
         m = msg.projection.mesh
         v = np.frombuffer(m.vertices, dtype="<f4").reshape(-1, 3).astype(np.float32)
         uv = np.frombuffer(m.uvs, dtype="<f4").reshape(-1, 2).astype(np.float32)
         f = np.frombuffer(m.faces, dtype="<u4").reshape(-1, 3).astype(np.uint32)
-        if uv.shape[0] != v.shape[0] or (f.size and int(f.max()) >= v.shape[0]):
-            raise ValueError("mesh arrays are inconsistent")
         mesh = MeshData(m.mesh_id, v, uv, f)
         near, far = msg.projection.near_mm or near, msg.projection.far_mm or far
     lut = None
     if msg.HasField("lut"):
-        lut = np.frombuffer(msg.lut.values, dtype="<f4").astype(np.float32)
-        if lut.size != msg.lut.channels * msg.lut.entries or msg.lut.channels not in (1, 3) or msg.lut.entries < 2:
-            raise ValueError("LUT message is inconsistent")
-        lut = lut.reshape(msg.lut.channels, msg.lut.entries)
+        lut = np.frombuffer(msg.lut.values, dtype="<f4").astype(np.float32).reshape(msg.lut.channels, msg.lut.entries)
     blend, blend_at, blend_error = None, 0, ""
     if msg.HasField("blend"):
         b = msg.blend

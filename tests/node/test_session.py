@@ -9,6 +9,7 @@ under both the node's and the swarm's cores is tests/shadowless/test_swarm.py's.
 from __future__ import annotations
 
 import asyncio
+import logging
 
 import numpy as np
 import pytest
@@ -160,3 +161,20 @@ def test_an_assignment_equal_but_for_its_revision_is_not_passed_again_and_report
     assert c.assignment_revision(5) == 5 and c.assignment_revision(4) == 4
     c.adopt(reply("i3", "instance:i3"))                           # another rig clock: everything is passed
     assert c.assignment_news(assignment(1))
+
+
+def test_an_assignment_the_presenter_could_not_take_is_refused_whole_and_the_one_held_kept(caplog):
+    c = core()
+    c.adopt(reply("i1", "monotonic:boot"))
+    assert c.assignment_news(assignment(3))
+    bad = node_pb2.Assignment.FromString(assignment(4, gain=0.5).data)
+    del bad.homography.m[-1]
+    bad.revision = 4
+    with caplog.at_level(logging.INFO, logger="node"):
+        assert not c.assignment_news(wire.assignment_bytes(bad))
+    lines = [r.getMessage() for r in caplog.records if "r4" in r.getMessage()]
+    assert lines == ["r0c0: assignment r4 refused (homography needs 9 values, got 8); the projector keeps r3"]
+    assert c.refused == "r4: homography needs 9 values, got 8"
+    assert c.assignment_revision(3) == 3 and c.assignment_revision(4) == 0   # heartbeats name the one kept
+    assert not c.assignment_news(assignment(5))       # the one held, renumbered: still recognised as held
+    assert c.assignment_revision(3) == 5 and c.refused == ""

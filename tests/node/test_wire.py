@@ -127,6 +127,50 @@ def test_assignments_become_plain_data():
         wire.assignment_from_message(msg)
 
 
+def projection_message(faces: list[int], *, vertices: int = 4, uvs: int | None = None) -> node_pb2.Assignment:
+    msg = assignment_message()
+    msg.projection.p.extend(np.eye(3, 4).ravel().tolist())        # (the homography gives way: a oneof)
+    m = msg.projection.mesh
+    m.mesh_id = "m1"
+    m.vertices = np.zeros((vertices, 3), "<f4").tobytes()
+    m.uvs = np.zeros((vertices if uvs is None else uvs, 2), "<f4").tobytes()
+    m.faces = np.array(faces, "<u4").tobytes()
+    return msg
+
+
+def test_the_node_process_refuses_whatever_the_presenter_could_not_decode_and_nothing_else():
+    """One check (:func:`node.wire.assignment_problem`, no numpy) says why for both processes: the node
+    process refuses with it, and the presenter's decode raises it."""
+    def spoil(change):
+        msg = assignment_message()
+        change(msg)
+        return msg
+
+    bad = {
+        "homography needs 9 values": spoil(lambda m: m.homography.m.append(1.0)),
+        "projection needs 12 values": spoil(lambda m: (m.projection.p.extend([0.0] * 11))),
+        "mesh faces name vertices beyond": projection_message([0, 1, 4]),
+        "mesh has 4 vertices and 3 uvs": projection_message([0, 1, 2], uvs=3),
+        "mesh arrays are not whole": projection_message([0, 1]),
+        "LUT message is inconsistent": spoil(lambda m: setattr(m.lut, "entries", 5)),
+    }
+    bad["LUT message is inconsistent (3 channels"] = spoil(lambda m: setattr(m.lut, "channels", 3))
+    for why, msg in bad.items():
+        rec = wire.assignment_bytes(msg)
+        assert rec.problem.startswith(why), (why, rec.problem)
+        with pytest.raises(ValueError) as raised:
+            wire.assignment_from_message(node_pb2.Assignment.FromString(rec.data))
+        assert str(raised.value) == rec.problem
+    good = {"homography": assignment_message(), "projection": projection_message([0, 1, 2, 3, 2, 1])}
+    blend = assignment_message()
+    blend.blend.beta = b"\x00"                                     # maps that cannot be used: no refusal
+    for what, msg in {**good, "a bad blend": blend}.items():
+        rec = wire.assignment_bytes(msg)
+        assert rec.problem == "", what
+        wire.assignment_from_bytes(rec)
+    assert wire.assignment_from_bytes(wire.assignment_bytes(blend)).blend_error
+
+
 def test_the_node_process_passes_an_assignment_on_as_bytes_that_a_renumbering_leaves_alone():
     rec = wire.assignment_bytes(assignment_message(3))
     assert rec.revision == 3 and rec.received_host_ns > 0
