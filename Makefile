@@ -22,7 +22,7 @@ protos/.generated: $(PROTOS) protos/generate.py
 	$(PY) protos/generate.py
 	@touch $@
 
-# The solver's compiled loops go into Numba's cache now, not on the first solve: about 40 s once
+# The solver's compiled loops go into Numba's cache now, not on the first solve: about 45 s once
 # after an install or a change to them, a second when the cache is current.
 kernels: $(STAMP)
 	@$(PY) -m imaging.compensation.precompile

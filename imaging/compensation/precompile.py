@@ -38,7 +38,7 @@ def precompile(storage: str) -> float:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m imaging.compensation.precompile",
-        description="Compile the blur-compensation solver's kernels into Numba's cache (about 40 s once "
+        description="Compile the blur-compensation solver's kernels into Numba's cache (about 45 s once "
                     "after an install or an update; about a second when the cache is current).")
     parser.add_argument("--storage", choices=STORAGES, action="append",
                         help="weight storage to compile for (repeatable; default: all)")
