@@ -44,3 +44,26 @@ def test_the_console_screenshot_goes_with_the_run_unless_asked_for(tmp_path):
 
     asked = screenshot_file(str(tmp_path / "shots" / "page.png"), Path("unused"))
     assert asked == tmp_path / "shots" / "page.png" and asked.parent.is_dir()
+
+
+def test_the_cue_figures_of_a_small_rig_are_finite_and_a_crossfade_stays_within_a_frame(tmp_path):
+    """`bench console`'s cue part on 2 node processes and 2 rounds of cuts and crossfades: the two
+    figures it reports (GO to the last node's swap, the crossfade's skew across the nodes) are there
+    and finite, most crossfade steps were shown by both nodes, and their skew is below one 60 Hz
+    frame (the target is 2 ms; a frame leaves room for a loaded test host)."""
+    import math
+
+    from bench.console import ConsoleRig
+    from bench.console_cues import FRAME_MS, cue_figures
+
+    slots = ["r1c1", "r1c2"]
+    with ConsoleRig(tmp_path / "rig", slots) as rig:
+        rig.wait_live()
+        figures = cue_figures(rig, slots, rounds=2, fade_s=0.25)
+    for key in ("go_to_swap_ms_p99", "crossfade_skew_ms_p99"):
+        assert isinstance(figures[key], float) and math.isfinite(figures[key]) and figures[key] >= 0, figures
+    cues = figures["cues"]
+    assert cues["rounds"] == 2 and cues["crossfade_steps"] > 2, cues
+    # a step a node dropped as late (a loaded host) is not counted; most are shown by both
+    assert cues["crossfade_steps_shown_by_all"] >= cues["crossfade_steps"] // 2, cues
+    assert figures["crossfade_skew_ms_p99"] < FRAME_MS, figures
