@@ -341,9 +341,10 @@ class OscService:
 
     async def _tick_loop(self) -> None:
         while True:
-            try:
-                await asyncio.wait_for(self._wake.wait(), timeout=TICK_S)
-            except asyncio.TimeoutError:
+            try:    # not wait_for: on 3.11 it loses a cancel that meets a set event, and stop() hung
+                async with asyncio.timeout(TICK_S):
+                    await self._wake.wait()
+            except TimeoutError:
                 pass
             self._wake.clear()
             try:
