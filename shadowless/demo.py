@@ -33,6 +33,7 @@ from protos import cli_types
 from protos.spaces import content_to_table
 from protos.wording import count
 from shadowless import exit_cleanup
+from shadowless.demo_figures import compensation_figure, light_drop_figure, split_quality_picture, teaser_figure
 from shadowless.hold import console_lines, hold
 from shadowless.local import LocalRig, free_port
 from shadowless.process_stop import stop_process
@@ -43,8 +44,9 @@ from sim.scene import SUBSETS
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = __doc__.split("\n\n")[0].replace("`shadowless demo` (what `make demo` runs): ", "").strip()
-    p.epilog = ("writes to OUT: teaser.png (P1 vs P25, without and with the hand), light_drop.png, "
-                "compensation.png (target, without and with blur compensation), report.json and report.md, "
+    p.epilog = ("writes to OUT: teaser.png (P1 vs P25, without and with the hand), light_drop.png (on the table, "
+                "in mm), compensation.png (target, without and with blur compensation, a zoomed crop and the "
+                "difference to the target), report.json and report.md, "
                 "and rig/ (the rig directory and every process's log)")
     p.add_argument("--out", default="results/demo", help="results folder (default results/demo)")
     p.add_argument("--image", help="image to project (default: scikit-image's astronaut)")
@@ -149,26 +151,6 @@ def fit_image(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
 
 
-def _label(img: np.ndarray, text: str) -> np.ndarray:
-    out = img.copy()
-    cv2.rectangle(out, (0, 0), (out.shape[1], 26), (0, 0, 0), -1)
-    cv2.putText(out, text, (8, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
-    return out
-
-
-def _to8(img: np.ndarray) -> np.ndarray:
-    """Camera image (linear float) -> 8-bit sRGB-ish for viewing."""
-    v = np.clip(img, 0, 1) ** (1 / 2.2)
-    return cv2.cvtColor((v * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR)
-
-
-def _heat(drop: np.ndarray, on: np.ndarray) -> np.ndarray:
-    v = (np.clip(drop, 0, 1) * 255).astype(np.uint8)
-    heat = cv2.applyColorMap(v, cv2.COLORMAP_INFERNO)
-    heat[~on] = (40, 40, 40)
-    return heat
-
-
 async def _demo(args) -> int:
 
     t_start = time.monotonic()
@@ -257,8 +239,8 @@ async def _demo(args) -> int:
                 _say("captured P1 and P25, without and with the hand")
                 if args.compensate:
                     report["compensation"] = await _compensate(c, img, work, SUBSETS["P25"])
-                    shutil.copy(rig.rig_dir / "compensation" / "quality.png", out / "compensation.png")
-                _write_results(args, out, report, shots, drops, on, t_start)
+                    _write_compensation_picture(rig.rig_dir / "compensation", out / "compensation.png", report["compensation"])
+                _write_results(args, out, report, shots, drops, cam_p, t_start)
                 if args.serve:
                     await hold(console_lines(rig.console_url(), rig.rig_dir),
                                then=f"the room, the coordinator and every node stop; the results stay in {out}/")
@@ -266,19 +248,41 @@ async def _demo(args) -> int:
         exit_cleanup.unregister(room_proc.terminate)
         stop_process(room_proc)
         room_log.close()
-    if not args.serve:
-        _say("to keep this rig up and try its operator console: shadowless demo --serve (Ctrl-C stops it)")
+    hint = serve_hint(args.serve)
+    if hint:
+        _say(hint)
     return 0
 
 
-def _write_results(args, out: Path, report: dict, shots: dict, drops: dict, on: np.ndarray, t_start: float) -> None:
+def serve_hint(served: bool) -> str | None:
+    """What the demo says last: how to keep the rig up and try its console (None when it did, ``--serve``)."""
+    return None if served else "to keep this rig up and try its operator console: shadowless demo --serve (Ctrl-C stops it)"
+
+
+def _write_compensation_picture(cdir: Path, dest: Path, comp: dict) -> None:
+    """compensation.png: the compensate job's picture (``cdir/quality.png``) split into target / without /
+    compensated and drawn again with a zoomed crop and the difference images
+    (:func:`shadowless.demo_figures.compensation_figure`); the job's own picture when it cannot be split."""
+    region = comp.get("region") or {}
+    tiles = None
+    if region:
+        size = (region["x"][1] - region["x"][0], region["y"][1] - region["y"][0])
+        tiles = split_quality_picture(cv2.imread(str(cdir / "quality.png")), size)
+    if tiles is None:
+        _say("compensation.png: the job's picture as it is (its tiles could not be split for the crop and difference)")
+        shutil.copy(cdir / "quality.png", dest)
+        return
+    picture, shown = compensation_figure(tiles, comp, origin=(region["x"][0], region["y"][0]))
+    cv2.imwrite(str(dest), picture)
+    comp["picture"] = shown
+
+
+def _write_results(args, out: Path, report: dict, shots: dict, drops: dict, camera_p: np.ndarray, t_start: float) -> None:
     """The pictures (teaser.png, light_drop.png) and the report (report.json, report.md, printed)."""
     hx, hy = args.hand
     # exposure: both setups are equally bright (p1 is the paper's high-luminance unit)
-    tiles = [[_label(_to8(shots[(n, h)]), f"{n}{' + hand 0.2 m' if h else ''}") for h in (False, True)] for n in ("P1", "P25")]
-    teaser = np.vstack([np.hstack(row) for row in tiles])
-    cv2.imwrite(str(out / "teaser.png"), teaser)
-    heat = np.hstack([_label(_heat(drops[n], on), f"light drop {n} (black 0 %, yellow 100 %)") for n in ("P1", "P25")])
+    cv2.imwrite(str(out / "teaser.png"), teaser_figure(shots, args.hand_height))
+    heat, _ = light_drop_figure(drops, camera_p, hand_mm=(hx, hy), hand_height_mm=args.hand_height)
     cv2.imwrite(str(out / "light_drop.png"), heat)
     report["total_s"] = round(time.monotonic() - t_start, 1)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
@@ -298,8 +302,10 @@ def _write_results(args, out: Path, report: dict, shots: dict, drops: dict, on: 
                   "| | PSNR (dB) | SSIM |", "|---|---|---|",
                   f"| without compensation | {comp['none']['psnr']:.2f} | {comp['none']['ssim']:.3f} |",
                   f"| compensated | {comp['ours']['psnr']:.2f} | {comp['ours']['ssim']:.3f} |"]
-    lines += ["", "Pictures: teaser.png (P1 vs P25, without and with the hand), light_drop.png"
-              + (", compensation.png (target, without, with compensation)." if comp else "."),
+    lines += ["", "Pictures: teaser.png (P1 vs P25, without and with the hand), light_drop.png (the light the hand takes "
+              "from each point of the table, in mm)"
+              + (", compensation.png (target, without, with compensation: full size, a zoomed crop and the "
+                 "difference to the target)." if comp else "."),
               f"Run time: {report['total_s']} s (start-up {report['startup_s']} s, alignment {report['alignment_s']} s)."]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
@@ -323,7 +329,7 @@ async def _compensate(c, img: np.ndarray, work: Path, slots: list[str]) -> dict:
     return {"projectors": len(slots), "response_captures": resp["captures"],
             "linearity_max_error": resp["linearity"]["max_error"], "transport_captures": tr["captures"],
             "transport_nnz": tr["nnz"], "solve_s": res["solve"]["seconds"], "iterations": res["solve"]["iterations"],
-            "none": q["none"], "ours": q["ours"], "total_s": round(time.monotonic() - t0, 1)}
+            "none": q["none"], "ours": q["ours"], "region": q.get("region"), "total_s": round(time.monotonic() - t0, 1)}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -115,7 +115,8 @@ def _label_spot(q: np.ndarray, text: str, taken: list, size: tuple[int, int]) ->
 
 def heatmap_figure(values: np.ndarray, extent: tuple[float, float, float, float], *, units: str,
                    full_scale: float, outlines: dict[str, np.ndarray] | None = None,
-                   title: str = "alignment residual (largest of any projector)") -> tuple[bytes, dict]:
+                   title: str = "alignment residual (largest of any projector)", bar_units: str = "proj. px",
+                   no_data: str | None = "no dots", open_ended: bool = True) -> tuple[bytes, dict]:
     """PNG bytes of the annotated heat map, and its layout.
 
     The map keeps its pixels (one map pixel, one figure pixel); the plot around it grows to show
@@ -129,6 +130,9 @@ def heatmap_figure(values: np.ndarray, extent: tuple[float, float, float, float]
     units : the axes' unit, e.g. "table mm" or "camera px"
     full_scale : the residual drawn full red (the colour bar's top)
     outlines : slot -> (K, 2) float polygon in ``units`` (a projector's footprint)
+    bar_units : the colour bar's unit, written above it
+    no_data : the legend for NaN (grey) below the colour bar, or None for no legend
+    open_ended : the top label reads ``full_scale+`` (values above it are drawn full red)
 
     Returns
     -------
@@ -201,11 +205,12 @@ def heatmap_figure(values: np.ndarray, extent: tuple[float, float, float, float]
     for k in range(5):
         py = int(round(y0 + (1 - k / 4) * (ph - 1)))
         cv2.line(fig, (bx1, py), (bx1 + 4, py), INK, 1)
-        put_text(fig, _label(full_scale * k / 4) + ("+" if k == 4 else ""), (bx1 + 7, py))
-    put_text(fig, "proj. px", (bx0 + BAR_WIDTH / 2, y0 - 10), align="centre")
-    sy0 = y0 + ph + 18
-    cv2.rectangle(fig, (bx0, sy0 - 5), (bx0 + 10, sy0 + 5), NO_DATA_BGR, -1)
-    put_text(fig, "no dots", (bx0 + 14, sy0))
+        put_text(fig, _label(full_scale * k / 4) + ("+" if k == 4 and open_ended else ""), (bx1 + 7, py))
+    put_text(fig, bar_units, (bx0 + BAR_WIDTH / 2, y0 - 10), align="centre")
+    if no_data is not None:
+        sy0 = y0 + ph + 18
+        cv2.rectangle(fig, (bx0, sy0 - 5), (bx0 + 10, sy0 + 5), NO_DATA_BGR, -1)
+        put_text(fig, no_data, (bx0 + 14, sy0))
 
     ok, buf = cv2.imencode(".png", fig)
     if not ok:  # pragma: no cover

@@ -36,7 +36,9 @@ def test_demo_writes_the_comparison_shows_the_papers_observation_and_serves_its_
         assert p25["umbra_mm2"] == 0 and p25["max"] < 0.6         # 25 projectors: no umbra at all
         teaser = cv2.imread(str(out / "teaser.png"))
         assert teaser is not None and teaser.shape[0] > 400 and teaser.shape[1] > 800
-        assert (out / "light_drop.png").exists() and (out / "report.md").read_text().startswith("# shadowless demo")
+        light_drop = cv2.imread(str(out / "light_drop.png"))     # two 1200 x 600 mm maps at 2 mm a pixel, with axes
+        assert light_drop is not None and light_drop.shape[1] > 2 * 600 and light_drop.shape[0] > 300
+        assert (out / "report.md").read_text().startswith("# shadowless demo")
         assert "compensation" not in report and not (out / "compensation.png").exists()
         url = re.search(r"operator console: (http://127\.0\.0\.1:\d+/)", text).group(1)
         assert f"paste the contents of {out / 'rig' / 'rig' / 'token'}" in text
@@ -51,3 +53,4 @@ def test_demo_writes_the_comparison_shows_the_papers_observation_and_serves_its_
     _, alive = psutil.wait_procs(children, timeout=30)
     assert not alive, alive
     assert "SIGINT: stopping the rig" in log.read_text()
+    assert "shadowless demo --serve" not in log.read_text(), "the hint to serve is for a plain demo only"
