@@ -162,7 +162,7 @@ def measure(video: Path, *, size: tuple[int, int], content: tuple[int, int], fra
         r.ctx.finish()
         r_context = rss_mb()
         anon_context = rss_mb("RssAnon") - anon_before_context
-        # the presenter's warm-up (node/presenter.py): a picture of the output's size drawn in content
+        # the presenter's warm-up (node/render/warm_start.py): a picture of the output's size drawn in content
         # and projector space, then forgotten, and the shader variants a show draws compiled after it (their
         # draws bind other textures, so llvmpipe lets the picture's texture go)
         picture = np.zeros((h, w, 3), np.uint8)

@@ -189,11 +189,12 @@ class SwarmNode:
                 for t in tasks:
                     t.cancel()
                 done = await asyncio.gather(*tasks, return_exceptions=True)
+            broken = [exc for exc in done if isinstance(exc, LinkError)]
+            if broken and not stopping.is_set():     # one loss, however many of its streams broke with it
+                self.stats.sessions_lost += 1
+                log.info("%s lost the coordinator (%s: %s); rejoining", self.slot, broken[0].code, broken[0].details)
             for exc in done:
-                if isinstance(exc, LinkError) and not stopping.is_set():
-                    self.stats.sessions_lost += 1
-                    log.info("%s lost the coordinator (%s: %s); rejoining", self.slot, exc.code, exc.details)
-                elif isinstance(exc, Exception) and not isinstance(exc, asyncio.CancelledError):
+                if isinstance(exc, Exception) and not isinstance(exc, (LinkError, asyncio.CancelledError)):
                     self.stats.errors += 1
                     log.warning("%s: session ended by %r", self.slot, exc)
             return True

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import signal
 import socket
 import subprocess
 import sys
@@ -241,3 +242,36 @@ def test_the_node_and_the_swarm_keep_their_clocks_the_same_way_across_a_coordina
         assert not joined.clock_kept and before is None, f"{name}: another rig clock drops the estimate"
         assert abs(offset_ns(after) - SHIFT_NS) < 50_000_000, f"{name}: and the new clock is measured"
     assert {k: v[0].clock_kept for k, v in second.items()} == {"node": True, "swarm": True}
+
+
+def test_a_killed_coordinator_is_one_session_lost_per_swarm_node(tmp_path):
+    """Every stream of a swarm node's session breaks when its coordinator is killed; that is one loss of
+    the coordinator, counted once (``swarm_sessions_lost`` of `bench swarm`), not once per stream."""
+    slots = ["r0c0", "r0c1", "r0c2"]
+    rig = LocalRig(slots, tmp_path, mdns=False)
+    rig.create()
+
+    async def go():
+        swarm = Swarm(SwarmConfig(slots=slots, token=rig.token, coordinator=rig.target, backoff_max_s=0.5))
+        await swarm.start()
+        try:
+            async with await rig.client() as c:
+                async def live():
+                    st = await c.status()
+                    return st if sum(n.state == NodeState.LIVE for n in st.nodes) == len(slots) else None
+
+                await wait_until_async(live, what="every swarm node live")
+            rig.stop_coordinator(signal.SIGKILL)
+            await wait_until_async(lambda: swarm.stats.sessions_lost, lambda n: n >= len(slots),
+                                   what=f"each of {len(slots)} swarm nodes to count its loss (sessions lost)")
+            # each node counts a loss in one pass over its session's ended streams: past one per node
+            # the count would have jumped by several at once
+            assert swarm.stats.sessions_lost == len(slots), swarm.stats.sessions_lost
+        finally:
+            await swarm.stop()
+
+    rig.start_coordinator()
+    try:
+        asyncio.run(go())
+    finally:
+        rig.close()
