@@ -144,6 +144,7 @@ class NodeStatus:
     gl: str = ""                  # the GL it renders with, e.g. "OpenGL 3.1, GLSL 1.40, V3D 4.2"
     decoder: str = ""             # what it decodes videos with: "software", "h264_v4l2m2m", "vaapi (hwaccel)"; "" unknown
     decoder_note: str = ""        # why its --decoder wish was not granted ("" it was, or unknown)
+    assignment_refused: str = ""  # the newest assignment the node refused: "rN: why" ("" none, or unknown)
     left: str = ""                # lost because it stopped on purpose: why, from its goodbye ("" silent, or not lost)
 
 

@@ -696,7 +696,8 @@ class Coordinator:
             if hb is not None:
                 base.update(clock_offset_ms=hb.clock_offset_ns / 1e6, clock_drift_ppm=hb.clock_drift_ppm, show=hb.show,
                             clock_rtt_ms=hb.clock_rtt_ns / 1e6, assignment_revision=hb.assignment_revision,
-                            decoder=hb.decoder, decoder_note=hb.decoder_note)
+                            decoder=hb.decoder, decoder_note=hb.decoder_note,
+                            assignment_refused=hb.assignment_refused)
                 if sess.same_host and hb.host_monotonic_ns:
                     base["clock_error_ms"] = (hb.rig_estimate_ns - hb.host_monotonic_ns) / 1e6
             live_at = self.live_at.get(sess.session) if sess.state == NodeState.LIVE else None

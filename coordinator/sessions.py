@@ -54,6 +54,7 @@ class Heartbeat:
     blend_since_rig_ns: int = 0              # pts of the first frame the node showed with them (0: none)
     decoder: str = ""                        # what it decodes videos with ("software", "h264_v4l2m2m"; "" unknown)
     decoder_note: str = ""                   # why its --decoder wish was not granted ("" it was)
+    assignment_refused: str = ""             # the newest assignment it refused: "rN: why" ("" none)
 
 
 @dataclass(frozen=True, eq=False)

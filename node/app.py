@@ -584,4 +584,4 @@ class Node:
                                clock=clock, assets=self.fetcher.progress(),
                                show=replace(st.show, alone_ms=self._alone_ms), blend_id=st.blend_id,
                                blend_since_rig_ns=st.blend_since_rig_ns, decoder=st.decoder,
-                               decoder_note=st.decoder_note)
+                               decoder_note=st.decoder_note, assignment_refused=self.session.refused)

@@ -208,6 +208,7 @@ class HeartbeatRecord:
     blend_since_rig_ns: int = 0           # pts of the first frame shown with it (0: none)
     decoder: str = ""                     # what videos are decoded with (DecoderChoice.label; "" unknown)
     decoder_note: str = ""                # why the --decoder wish was not granted ("" it was)
+    assignment_refused: str = ""          # the newest assignment refused: "rN: why" ("" none)
 
 
 @dataclass(frozen=True)

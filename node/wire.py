@@ -351,6 +351,7 @@ def heartbeat_message(hb: HeartbeatRecord) -> node_pb2.Heartbeat:
         frames_dropped=hb.frames_dropped, render_ms_p50=hb.render_ms_p50, host_monotonic_ns=hb.host_monotonic_ns,
         blend_id=hb.blend_id, blend_since_rig_ns=hb.blend_since_rig_ns, decoder=hb.decoder,
         decoder_note=hb.decoder_note,
+        assignment_refused=hb.assignment_refused,
     )
     if hb.clock is not None:
         msg.clock_offset_ns = hb.clock.offset_ns

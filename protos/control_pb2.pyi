@@ -97,7 +97,7 @@ class StatusRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class NodeStatus(_message.Message):
-    __slots__ = ("slot", "state", "hostname", "pid", "clock_offset_ms", "clock_drift_ppm", "clock_rtt_ms", "last_swap_frame", "last_swap_age_ms", "frames_shown", "frames_late", "frames_dropped", "assignment_revision", "pose_kind", "last_seen_age_ms", "clock_error_ms", "joins", "assets_wanted", "assets_ready", "asset_bytes_have", "asset_bytes_total", "assets", "live_age_ms", "show", "software_version", "output", "gl", "decoder", "decoder_note", "left")
+    __slots__ = ("slot", "state", "hostname", "pid", "clock_offset_ms", "clock_drift_ppm", "clock_rtt_ms", "last_swap_frame", "last_swap_age_ms", "frames_shown", "frames_late", "frames_dropped", "assignment_revision", "pose_kind", "last_seen_age_ms", "clock_error_ms", "joins", "assets_wanted", "assets_ready", "asset_bytes_have", "asset_bytes_total", "assets", "live_age_ms", "show", "software_version", "output", "gl", "decoder", "decoder_note", "left", "assignment_refused")
     SLOT_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
     HOSTNAME_FIELD_NUMBER: _ClassVar[int]
@@ -128,6 +128,7 @@ class NodeStatus(_message.Message):
     DECODER_FIELD_NUMBER: _ClassVar[int]
     DECODER_NOTE_FIELD_NUMBER: _ClassVar[int]
     LEFT_FIELD_NUMBER: _ClassVar[int]
+    ASSIGNMENT_REFUSED_FIELD_NUMBER: _ClassVar[int]
     slot: str
     state: NodeState
     hostname: str
@@ -158,7 +159,8 @@ class NodeStatus(_message.Message):
     decoder: str
     decoder_note: str
     left: str
-    def __init__(self, slot: _Optional[str] = ..., state: _Optional[_Union[NodeState, str]] = ..., hostname: _Optional[str] = ..., pid: _Optional[int] = ..., clock_offset_ms: _Optional[float] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ms: _Optional[float] = ..., last_swap_frame: _Optional[int] = ..., last_swap_age_ms: _Optional[float] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., assignment_revision: _Optional[int] = ..., pose_kind: _Optional[str] = ..., last_seen_age_ms: _Optional[float] = ..., clock_error_ms: _Optional[float] = ..., joins: _Optional[int] = ..., assets_wanted: _Optional[int] = ..., assets_ready: _Optional[int] = ..., asset_bytes_have: _Optional[int] = ..., asset_bytes_total: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[_node_pb2.AssetProgress, _Mapping]]] = ..., live_age_ms: _Optional[float] = ..., show: _Optional[_Union[_node_pb2.NodeShow, _Mapping]] = ..., software_version: _Optional[str] = ..., output: _Optional[str] = ..., gl: _Optional[str] = ..., decoder: _Optional[str] = ..., decoder_note: _Optional[str] = ..., left: _Optional[str] = ...) -> None: ...
+    assignment_refused: str
+    def __init__(self, slot: _Optional[str] = ..., state: _Optional[_Union[NodeState, str]] = ..., hostname: _Optional[str] = ..., pid: _Optional[int] = ..., clock_offset_ms: _Optional[float] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ms: _Optional[float] = ..., last_swap_frame: _Optional[int] = ..., last_swap_age_ms: _Optional[float] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., assignment_revision: _Optional[int] = ..., pose_kind: _Optional[str] = ..., last_seen_age_ms: _Optional[float] = ..., clock_error_ms: _Optional[float] = ..., joins: _Optional[int] = ..., assets_wanted: _Optional[int] = ..., assets_ready: _Optional[int] = ..., asset_bytes_have: _Optional[int] = ..., asset_bytes_total: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[_node_pb2.AssetProgress, _Mapping]]] = ..., live_age_ms: _Optional[float] = ..., show: _Optional[_Union[_node_pb2.NodeShow, _Mapping]] = ..., software_version: _Optional[str] = ..., output: _Optional[str] = ..., gl: _Optional[str] = ..., decoder: _Optional[str] = ..., decoder_note: _Optional[str] = ..., left: _Optional[str] = ..., assignment_refused: _Optional[str] = ...) -> None: ...
 
 class SyncStats(_message.Message):
     __slots__ = ("frames", "skew_p50_ms", "skew_p99_ms", "skew_max_ms", "skew_source", "clock_error_p99_ms", "frames_late", "frames_dropped", "out_of_order")

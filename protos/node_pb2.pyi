@@ -284,7 +284,7 @@ class FrameDrop(_message.Message):
     def __init__(self, frame_id: _Optional[int] = ..., reason: _Optional[_Union[DropReason, str]] = ..., late_by_ns: _Optional[int] = ...) -> None: ...
 
 class Heartbeat(_message.Message):
-    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets", "show", "blend_id", "blend_since_rig_ns", "decoder", "decoder_note")
+    __slots__ = ("assignment_revision", "clock_offset_ns", "clock_drift_ppm", "clock_rtt_ns", "clock_samples", "frames_shown", "frames_late", "frames_dropped", "render_ms_p50", "host_monotonic_ns", "rig_estimate_ns", "assets", "show", "blend_id", "blend_since_rig_ns", "decoder", "decoder_note", "assignment_refused")
     ASSIGNMENT_REVISION_FIELD_NUMBER: _ClassVar[int]
     CLOCK_OFFSET_NS_FIELD_NUMBER: _ClassVar[int]
     CLOCK_DRIFT_PPM_FIELD_NUMBER: _ClassVar[int]
@@ -302,6 +302,7 @@ class Heartbeat(_message.Message):
     BLEND_SINCE_RIG_NS_FIELD_NUMBER: _ClassVar[int]
     DECODER_FIELD_NUMBER: _ClassVar[int]
     DECODER_NOTE_FIELD_NUMBER: _ClassVar[int]
+    ASSIGNMENT_REFUSED_FIELD_NUMBER: _ClassVar[int]
     assignment_revision: int
     clock_offset_ns: int
     clock_drift_ppm: float
@@ -319,7 +320,8 @@ class Heartbeat(_message.Message):
     blend_since_rig_ns: int
     decoder: str
     decoder_note: str
-    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ..., show: _Optional[_Union[NodeShow, _Mapping]] = ..., blend_id: _Optional[str] = ..., blend_since_rig_ns: _Optional[int] = ..., decoder: _Optional[str] = ..., decoder_note: _Optional[str] = ...) -> None: ...
+    assignment_refused: str
+    def __init__(self, assignment_revision: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_rtt_ns: _Optional[int] = ..., clock_samples: _Optional[int] = ..., frames_shown: _Optional[int] = ..., frames_late: _Optional[int] = ..., frames_dropped: _Optional[int] = ..., render_ms_p50: _Optional[float] = ..., host_monotonic_ns: _Optional[int] = ..., rig_estimate_ns: _Optional[int] = ..., assets: _Optional[_Iterable[_Union[AssetProgress, _Mapping]]] = ..., show: _Optional[_Union[NodeShow, _Mapping]] = ..., blend_id: _Optional[str] = ..., blend_since_rig_ns: _Optional[int] = ..., decoder: _Optional[str] = ..., decoder_note: _Optional[str] = ..., assignment_refused: _Optional[str] = ...) -> None: ...
 
 class NodeShow(_message.Message):
     __slots__ = ("revision", "state", "last_frame", "frames_shown", "frames_late", "alone_ms")

@@ -102,6 +102,7 @@ def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
             "pose": n.pose_kind, "revision": n.assignment_revision, "joins": n.joins, "assets": assets_dict(n),
             "software": n.software_version, "output": n.output, "gl": n.gl,
             "decoder": (f"{n.decoder} ({n.decoder_note})" if n.decoder_note else n.decoder) or None,
+            "assignment_refused": n.assignment_refused or None,
             "show": {"state": n.show.state.value, "revision": n.show.revision, "last_frame": n.show.last_frame,
                      "shown": n.show.frames_shown, "missed": n.show.frames_late, "alone_ms": round(n.show.alone_ms)},
             "refusal": refused.get(n.slot) if n.state.value in ("expected", "lost") else None,
@@ -199,6 +200,8 @@ def status_table(d: dict, *, tty: bool = False) -> str:
         if n["show"]["alone_ms"]:
             lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "
                          "(its last outage)")
+        if n.get("assignment_refused"):
+            lines.append(f"{n['slot']}: refused assignment {n['assignment_refused']}; it shows r{n['revision']}")
         for item in n["assets"]["items"]:
             if "error" in item:
                 lines.append(f"{n['slot']}: asset {item['id'][:12]} ({item['name']}): {item['error']}")

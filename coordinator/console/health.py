@@ -98,6 +98,11 @@ def health_view(status: RigStatus, *, now: float | None = None) -> dict[str, Any
         alarms.append(_alarm("alarm", "clock", f"clock off by more than {CLOCK_ERROR_MS:g} ms on {_names(off)}",
                              slots=off))
 
+    for n in live:          # the node keeps the assignment before: the projector shows what it showed
+        if n.assignment_refused:
+            alarms.append(_alarm("alarm", "assignment", f"{n.slot} refused assignment {n.assignment_refused}; it "
+                                 f"still shows r{n.assignment_revision}", slots=[n.slot]))
+
     fetching = []
     for n in live:
         failed = [a for a in n.assets if a.error]

@@ -60,7 +60,8 @@ def _node_status_from_message(m: control_pb2.NodeStatus) -> NodeStatus:
                       assets=tuple(asset_progress_from_message(a) for a in m.assets),
                       live_age_ms=m.live_age_ms if m.HasField("live_age_ms") else math.nan,
                       show=node_show_from_message(m.show), software_version=m.software_version, output=m.output,
-                      gl=m.gl, decoder=m.decoder, decoder_note=m.decoder_note, left=m.left)
+                      gl=m.gl, decoder=m.decoder, decoder_note=m.decoder_note, left=m.left,
+                      assignment_refused=m.assignment_refused)
 
 
 def status_message(st: RigStatus) -> control_pb2.RigStatus:

@@ -143,7 +143,8 @@ def report_from_message(msg: node_pb2.NodeReport) -> Report:
                        assets=tuple(asset_progress_from_message(a) for a in h.assets),
                        show=node_show_from_message(h.show), blend_id=h.blend_id[:64],
                        blend_since_rig_ns=h.blend_since_rig_ns, decoder=h.decoder[:64],
-                       decoder_note=h.decoder_note[:160])
+                       decoder_note=h.decoder_note[:160],
+                       assignment_refused=h.assignment_refused[:200])
     swaps = swaps_from_message(msg.swaps) if msg.HasField("swaps") else NO_SWAPS
     drops = tuple((d.frame_id, _DROP.get(d.reason, DropReason.OTHER)) for d in msg.drops)
     preview = None

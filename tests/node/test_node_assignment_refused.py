@@ -1,8 +1,9 @@
 """A malformed assignment is refused by the node process, whole: a coordinator (in this process) and a
 real node process on loopback. The coordinator's assignment message is spoiled on its way (a homography
 of 8 values, as from a coordinator with a bug or another version): the node says so in one log line, its
-presenter never sees it, and its heartbeats go on naming the revision its projector keeps; the next good
-assignment is taken as usual."""
+presenter never sees it, and its heartbeats go on naming the revision its projector keeps, with the
+refusal and its reason, which `shadowless status` and the console's health banner show; the next good
+assignment is taken as usual and clears it."""
 from __future__ import annotations
 
 import asyncio
@@ -10,13 +11,20 @@ import asyncio
 import numpy as np
 
 from coordinator.app import CoordinatorApp
+from coordinator.console.health import health_view
 from coordinator.rig import HomographyPose, Rig
 from coordinator.wire import node_messages
+from rigctl.commands import status_dict, status_table
 from shadowless.local import LocalRig
 from waits import wait_until_async
 
 SLOT = "r0c0"
 W, H = 32, 24
+
+
+async def c_status(rig):
+    async with await rig.client() as c:
+        return await c.status()
 
 
 def test_a_malformed_assignment_is_refused_in_the_node_process_and_the_previous_one_kept(tmp_path, monkeypatch):
@@ -54,12 +62,21 @@ def test_a_malformed_assignment_is_refused_in_the_node_process_and_the_previous_
             hb = await wait_until_async(lambda: sess.heartbeat, lambda h: h is not before,
                                         what="a heartbeat after the refusal")
             assert hb.assignment_revision == good
+            # and says why, as far as the operator's status and the console's health banner
+            assert hb.assignment_refused == f"r{bad}: homography needs 9 values, got 8", hb.assignment_refused
+            st = await c_status(rig)
+            node = next(n for n in st.nodes if n.slot == SLOT)
+            assert node.assignment_refused == hb.assignment_refused
+            assert f"{SLOT}: refused assignment r{bad}: homography needs 9 values" in status_table(status_dict(st))
+            alarm = [a for a in health_view(st)["alarms"] if a["kind"] == "assignment"]
+            assert alarm and f"still shows r{good}" in alarm[0]["text"], health_view(st)["alarms"]
 
             monkeypatch.setattr(node_messages, "assignment_message", real)
             coord.update_slot(SLOT, gain=0.75)
             after = coord.rig.slots[SLOT].revision
             await wait_until_async(lambda: sess.heartbeat.assignment_revision, lambda r: r == after,
                                    what=f"the node taking the good r{after}")
+            assert sess.heartbeat.assignment_refused == ""
             return bad, after
         finally:
             await app.stop()
