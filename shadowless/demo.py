@@ -278,10 +278,15 @@ def _write_compensation_picture(cdir: Path, dest: Path, comp: dict) -> None:
 
 
 def _write_results(args, out: Path, report: dict, shots: dict, drops: dict, camera_p: np.ndarray, t_start: float) -> None:
-    """The pictures (teaser.png, light_drop.png) and the report (report.json, report.md, printed)."""
+    """The pictures (teaser.png and its smaller teaser.jpg, light_drop.png) and the report (report.json,
+    report.md, printed)."""
     hx, hy = args.hand
     # exposure: both setups are equally bright (p1 is the paper's high-luminance unit)
-    cv2.imwrite(str(out / "teaser.png"), teaser_figure(shots, args.hand_height))
+    teaser = teaser_figure(shots, args.hand_height)
+    cv2.imwrite(str(out / "teaser.png"), teaser)
+    # the README's copy (docs/teaser.jpg is this file): three quarters of the size, its captions still legible
+    small = cv2.resize(teaser, None, fx=0.75, fy=0.75, interpolation=cv2.INTER_AREA)
+    cv2.imwrite(str(out / "teaser.jpg"), small, [cv2.IMWRITE_JPEG_QUALITY, 85])
     heat, _ = light_drop_figure(drops, camera_p, hand_mm=(hx, hy), hand_height_mm=args.hand_height)
     cv2.imwrite(str(out / "light_drop.png"), heat)
     report["total_s"] = round(time.monotonic() - t_start, 1)

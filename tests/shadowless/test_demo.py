@@ -36,6 +36,8 @@ def test_demo_writes_the_comparison_shows_the_papers_observation_and_serves_its_
         assert p25["umbra_mm2"] == 0 and p25["max"] < 0.6         # 25 projectors: no umbra at all
         teaser = cv2.imread(str(out / "teaser.png"))
         assert teaser is not None and teaser.shape[0] > 400 and teaser.shape[1] > 800
+        small = cv2.imread(str(out / "teaser.jpg"))          # the README's copy (docs/teaser.jpg)
+        assert small is not None and all(abs(s - 0.75 * t) <= 1 for s, t in zip(small.shape[:2], teaser.shape[:2]))
         light_drop = cv2.imread(str(out / "light_drop.png"))     # two 1200 x 600 mm maps at 2 mm a pixel, with axes
         assert light_drop is not None and light_drop.shape[1] > 2 * 600 and light_drop.shape[0] > 300
         assert (out / "report.md").read_text().startswith("# shadowless demo")
