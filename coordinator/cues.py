@@ -17,8 +17,12 @@ itself back from ``show.json``). Firing a cue:
 * **Auto-follow** (``follow_s``): the next cue fires that many seconds after this one reached the
   screen, on the rig clock. Any manual GO, back, jump or new list cancels it, and so does anything
   else taking the projectors meanwhile (a show, stop, blackout or job from elsewhere).
-* Every fire is logged, and written to the console's action log with who fired it (a name,
-  ``osc:<address>``, ``follow`` for an auto-follow) once a console attached it (:attr:`CueEngine.on_fire`).
+* Every fire is logged, and is one entry of the action log with who fired it. A GO, back or jump
+  asked through an edge that writes its own entry for it (the console, OSC, the command line: they
+  call inside :func:`edge_logs`) is that entry; the engine writes one (:attr:`CueEngine.on_fire`,
+  attached by the console) for the fires nobody asked for through an edge (``follow`` for an
+  auto-follow, a direct call on the core) and for a fire whose picture fails after the edge heard
+  it fires (a still that does not decode, a pattern that cannot be drawn).
 
 The functions at the end are the :class:`~coordinator.server.Coordinator`'s methods (attached in
 its class body); ``self`` there is the core, typed Any: this module may not import it.
@@ -26,12 +30,14 @@ its class body); ``self`` there is the core, typed Any: this module may not impo
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import contextvars
 import json
 import logging
 import time
 import weakref
 from collections import OrderedDict
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from coordinator.api import CueState
 from coordinator.errors import CoordinatorError
@@ -44,6 +50,21 @@ log = logging.getLogger(__name__)
 CUES_FILE = "cues.json"
 #: stills kept ready for the next fire (decoded, fitted and encoded; each one content-sized image)
 KEEP_STILLS = 4
+
+
+#: True while an edge that writes its own action-log entry for the call runs it (:func:`edge_logs`)
+_EDGE_LOGS: contextvars.ContextVar[bool] = contextvars.ContextVar("cue_fire_logged_by_edge", default=False)
+
+
+@contextlib.contextmanager
+def edge_logs() -> Iterator[None]:
+    """Run a GO, back or jump whose action-log entry the caller writes: the engine writes none for
+    it then, unless its picture fails afterwards (one GO, one entry)."""
+    token = _EDGE_LOGS.set(True)
+    try:
+        yield
+    finally:
+        _EDGE_LOGS.reset(token)
 
 
 class CueEngine:
@@ -141,6 +162,7 @@ class CueEngine:
         if not restoring:
             self._save()
         who = who or "-"
+        logged = _EDGE_LOGS.get()      # the caller's own entry says it fires: only a later failure is written here
         nxt = self.next_index()
         follow_s = cue.follow_s if follow and nxt is not None else None
 
@@ -155,7 +177,8 @@ class CueEngine:
                 self._screen = self._on_screen()
                 if follow_s is not None:
                     self._start_follow(index, self.shown_ns + int(follow_s * 1e9))
-            self._record(who, ok, result, cue, restoring)
+            if not (ok and logged):
+                self._record(who, ok, result, cue, restoring)
 
         if now and not asyncio.iscoroutine(shown):
             done(shown)
@@ -293,6 +316,7 @@ class CueEngine:
         self._follow_wall = round(time.time() + (at_ns - self.core.clock_ns()) / 1e9, 3)
 
         async def follow() -> None:
+            _EDGE_LOGS.set(False)       # this task's own context: its fire is nobody's edge call, the engine logs it
             while (left := at_ns - self.core.clock_ns()) > 0:
                 await asyncio.sleep(min(left / 1e9, 0.5))
             if self.current != index or self._on_screen() != self._screen:

@@ -2,7 +2,8 @@
 gRPC handler (``coordinator/wire/control_service.py``), so nothing the console does skips validation.
 
 Every action is logged (:mod:`coordinator.console.audit`) with its result or the reason it was
-refused, and answers JSON: ``{"ok": true, "result": ...}`` or ``{"ok": false, "error": ...}``
+refused, one entry an action (a cue fired from here is not written again by the cue engine:
+:func:`coordinator.cues.edge_logs`), and answers JSON: ``{"ok": true, "result": ...}`` or ``{"ok": false, "error": ...}``
 with 400 (bad input), 409 (the rig refuses now, e.g. a job holds the projectors), the status
 :data:`REFUSAL_STATUS` gives a :class:`~coordinator.errors.Refusal`'s kind, or 500.
 The caller (``app.py``) has already checked the session, the CSRF token and the Origin.
@@ -19,6 +20,7 @@ import numpy as np
 from aiohttp import web
 
 from coordinator.api import Space
+from coordinator.cues import edge_logs
 from coordinator.errors import OPERATOR_ERRORS, Refusal, RefusalKind
 from coordinator.fit import FIT_MODES
 from coordinator.float_range import check_float_range
@@ -102,7 +104,8 @@ class Actions:
         params: dict[str, Any] = {}
         status, ok = 200, False
         try:
-            result = await act(params)
+            with edge_logs():       # this entry is the action's one: a cue fired here is not logged twice
+                result = await act(params)
             ok = True
         except (BadRequest, ValueError) as exc:
             status, result = 400, str(exc)

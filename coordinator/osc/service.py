@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from pythonosc.osc_message_builder import OscMessageBuilder
 from pythonosc.osc_packet import OscPacket, ParseError
 
+from coordinator.cues import edge_logs
 from coordinator.errors import OPERATOR_ERRORS, CoordinatorError, Refusal
 from coordinator.osc import commands, timecode
 from coordinator.osc.config import OscConfig
@@ -201,7 +202,8 @@ class OscService:
             a, (int, float, bool)) else repr(a)[:200] for a in args[:8]]}
         action = address.removeprefix(PREFIX + "/")[:80] if address.startswith(PREFIX + "/") else address[:80]
         try:
-            result = commands.run(self.coord, address, args, who=who)
+            with edge_logs():       # this command's entry is the one: a cue it fires is not logged twice
+                result = commands.run(self.coord, address, args, who=who)
         except (commands.OscError, ValueError) as exc:
             self._refused(sender, who, action, address, str(exc), params)
             return

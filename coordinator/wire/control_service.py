@@ -1,8 +1,10 @@
 """The RigControl service: what the coordinator serves its operators.
 
 Every call but the handshake needs an operator session (checked from the call's metadata before
-any image byte is read). Requests become plain types (:mod:`coordinator.wire.control_messages`,
-images through :mod:`coordinator.wire.image_parts`), the coordinator acts (seen as a
+any image byte is read), and every call that changes the rig is an entry of the rig's action log
+(who: ``token``, the command line's login; the caller's address; ``cli <action>``; done or why
+not). Requests become plain types (:mod:`coordinator.wire.control_messages`, images through
+:mod:`coordinator.wire.image_parts`), the coordinator acts (seen as a
 :class:`coordinator.ports.ServiceRig`), and results go back as messages.
 """
 from __future__ import annotations
@@ -16,11 +18,14 @@ import grpc
 import numpy as np
 
 from coordinator.api import Space
+from coordinator.console.audit import ActionLog
+from coordinator.cues import edge_logs
 from coordinator.errors import OPERATOR_ERRORS, CoordinatorError, Refusal
 from coordinator.float_range import check_float_range
 from coordinator.rig import Content
+from coordinator.users import TOKEN_WHO
 from coordinator.wire import control_messages
-from coordinator.wire.calls import abort, abort_for, guard, session_id
+from coordinator.wire.calls import abort, abort_for, guard, logged, record, record_failure, session_id
 from coordinator.wire.handshake_service import HandshakeService
 from coordinator.wire.image_parts import ImageParts, regions_from_request
 from coordinator.wire.node_messages import space_from_message
@@ -36,9 +41,27 @@ def _decoded(image: Any) -> np.ndarray:
     return check_float_range(img, "the image", hint="clip it before sending (shadowless show/play --clip)")
 
 
+def _show_params(request) -> dict[str, Any]:
+    return {k: v for k, v in (("frame", request.frame), ("at_ns", request.at_ns), ("delay_ms", request.delay_ms)) if v}
+
+
+def _show_result(request, state) -> str:
+    return f"{state.name or state.asset_id[:12] or 'the show'} {state.state} at frame {state.frame}"
+
+
 class RigControlService(HandshakeService):
     """RigControl: an operator logs in, then asks for the rig's status, shows and plays, runs jobs,
-    configures slots and drives the timeline show."""
+    configures slots and drives the timeline show. Every call that changes the rig is an entry of
+    the rig's action log (:func:`coordinator.wire.calls.logged`)."""
+
+    _action_log: ActionLog | None = None
+
+    @property
+    def action_log(self) -> ActionLog:
+        """The rig's action log (the console's and OSC's too: one log per rig directory)."""
+        if self._action_log is None:
+            self._action_log = ActionLog(self.c.rig.path)
+        return self._action_log
 
     def _operator(self, context) -> None:
         self.c.handshake.check_operator(session_id(context))
@@ -60,6 +83,7 @@ class RigControlService(HandshakeService):
         return control_messages.nodes_message(self.c.status().nodes)
 
     async def Show(self, request_iterator, context):
+        params: dict[str, Any] = {}
         try:
             self._operator(context)   # from the call's metadata, before any image byte is read
             first, image = None, ImageParts()
@@ -71,6 +95,8 @@ class RigControlService(HandshakeService):
                     image.add(part.more)
             if first is None:
                 raise ValueError("a Show call sent no image")
+            params.update(name=first.name, space=first.space, persist=first.persist, fit=first.fit,
+                          regions=len(first.slot_regions))
             space = space_from_message(first.space)
             img = image.finish()
             regions = regions_from_request(first)
@@ -83,12 +109,17 @@ class RigControlService(HandshakeService):
 
             content, slot_contents = await asyncio.to_thread(prepare)
             apply_lut = first.apply_lut or space == Space.CONTENT
-            return control_messages.show_result_message(self.c.show(content, space=space, apply_lut=apply_lut,
-                                                        persist=first.persist, slot_contents=slot_contents))
+            res = self.c.show(content, space=space, apply_lut=apply_lut, persist=first.persist,
+                              slot_contents=slot_contents)
+            await record(self.action_log, context, "show", ok=True, params=params,
+                         result=f"showing {first.name or 'an image'} (frame {res.frame_id}, content {res.content_id[:12]})")
+            return control_messages.show_result_message(res)
         except (Refusal, ValueError, codec.ImageCodecError, *OPERATOR_ERRORS) as exc:
+            await record_failure(self.action_log, context, "show", exc, params)
             await abort_for(context, exc)
 
     async def Play(self, request_iterator, context):
+        params: dict[str, Any] = {}
         try:
             self._operator(context)   # from the call's metadata, before any frame is read
             settings = None
@@ -111,6 +142,7 @@ class RigControlService(HandshakeService):
             take_frame()
             if settings is None:
                 raise ValueError("the first PlayItem must carry the settings")
+            params.update(frames=len(frames), pattern=getattr(settings, "pattern", "") or "")
             try:
                 result = await self.c.play_sequence(None if settings.pattern else frames, settings)
             except asyncio.CancelledError:
@@ -118,24 +150,34 @@ class RigControlService(HandshakeService):
                 log.info("play cancelled by its client: stopping the sequence")
                 with contextlib.suppress(CoordinatorError):
                     self.c.stop_all()
+                await asyncio.shield(record(self.action_log, context, "play", ok=False, params=params,
+                                            result="cancelled by its client: the sequence stopped"))
                 raise
+            await record(self.action_log, context, "play", ok=True, params=params,
+                         result=f"{result.frames_shown} of {result.frames_sent} frames shown on {result.nodes} nodes")
             return control_messages.play_result_message(result)
         except (Refusal, ValueError, codec.ImageCodecError, *OPERATOR_ERRORS) as exc:
+            await record_failure(self.action_log, context, "play", exc, params)
             await abort_for(context, exc)
 
     @guard
+    @logged(lambda r: "blackout" if r.blackout else "stop", result=lambda r, reply: f"showing {reply.showing}")
     async def Stop(self, request, context):
         self._operator(context)
         return control_pb2.StopReply(showing=self.c.stop_all(blackout=request.blackout))
 
     async def RunJob(self, request, context):
+        what = f"job {request.kind[:40]}"
         try:
             self._operator(context)
             params = control_messages.job_params_from_request(request)
         except Refusal as exc:
+            await record_failure(self.action_log, context, what, exc)
             await abort(context, exc)
         except ValueError as exc:
+            await record_failure(self.action_log, context, what, ValueError(f"bad job parameters: {exc}"))
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"bad job parameters: {exc}")
+        logged_params = {k: v for k, v in params.items() if isinstance(v, (str, int, float, bool))}
         events: asyncio.Queue = asyncio.Queue()
         task = asyncio.create_task(self.c.run_job(request.kind, params, events.put_nowait), name=f"job:{request.kind}")
         try:
@@ -153,15 +195,23 @@ class RigControlService(HandshakeService):
                 result = task.result()
             except (*OPERATOR_ERRORS, ValueError, OSError) as exc:
                 log.error("job %s failed: %s", request.kind, exc)
+                await record_failure(self.action_log, context, what, exc, logged_params)
                 await context.abort(grpc.StatusCode.FAILED_PRECONDITION, f"{request.kind}: {exc}")
+            await record(self.action_log, context, what, ok=True, result=f"{request.kind} finished",
+                         params=logged_params)
             yield control_messages.job_result_message(result)
         finally:
             if not task.done():
                 log.warning("job %s cancelled by its client", request.kind)
                 task.cancel()
                 await asyncio.gather(task, return_exceptions=True)
+                await asyncio.shield(record(self.action_log, context, what, ok=False, params=logged_params,
+                                            result=f"{request.kind} cancelled by its client"))
 
     @guard
+    @logged("configure", params=lambda r: {"slot": r.slot, "fields": sorted(f.name for f, _ in r.ListFields()
+                                                                               if f.name != "slot")},
+            result=lambda r, reply: f"slot {r.slot} at revision {reply.revision}")
     async def Configure(self, request, context):
         self._operator(context)
         changes = control_messages.slot_changes_from_message(request, mesh_lookup=self.c.rig.mesh)
@@ -173,6 +223,9 @@ class RigControlService(HandshakeService):
 
     # ---------------------------------------------------------------- timeline shows
     @guard
+    @logged("play asset", params=lambda r: {"asset": r.asset, "loop": r.loop, "at_ns": r.at_ns, "delay_ms": r.delay_ms},
+            result=lambda r, s: f"{s.state}: {s.name or s.asset_id[:12]} ({s.frames} frames"
+                                f"{', looped' if r.loop else ''})")
     async def PlayAsset(self, request, context):
         self._operator(context)
         state = self.c.play_asset(request.asset, at_ns=request.at_ns or None,
@@ -187,18 +240,22 @@ class RigControlService(HandshakeService):
         return control_messages.show_state_message(state)
 
     @guard
+    @logged("pause", params=_show_params, result=_show_result)
     async def PauseShow(self, request, context):
         return await self._control("pause", request, context)
 
     @guard
+    @logged("resume", params=_show_params, result=_show_result)
     async def ResumeShow(self, request, context):
         return await self._control("resume", request, context)
 
     @guard
+    @logged("seek", params=_show_params, result=_show_result)
     async def SeekShow(self, request, context):
         return await self._control("seek", request, context)
 
     @guard
+    @logged("stop show", params=_show_params, result=_show_result)
     async def StopShow(self, request, context):
         return await self._control("stop", request, context)
 
@@ -209,33 +266,42 @@ class RigControlService(HandshakeService):
         return control_messages.cue_reply(self.c.cue_state())
 
     @guard
+    @logged("cues", result=lambda r, reply: reply.result)
     async def SetCues(self, request, context):
         self._operator(context)
-        result = self.c.set_cues(CueList.loads(request.cues_json), who=control_messages.cli_who(context.peer()))
+        result = self.c.set_cues(CueList.loads(request.cues_json), who=TOKEN_WHO)
         return control_messages.cue_reply(self.c.cue_state(), result)
 
     @guard
+    @logged(lambda r: f"cue {r.action}"[:40], params=lambda r: {"id": r.cue_id} if r.cue_id else {},
+            result=lambda r, reply: reply.result)
     async def FireCue(self, request, context):
         self._operator(context)
-        who = control_messages.cli_who(context.peer())
-        if request.action == "go":
-            result = self.c.cue_go(who=who)
-        elif request.action == "back":
-            result = self.c.cue_back(who=who)
-        elif request.action == "jump":
-            result = self.c.cue_jump(request.cue_id, who=who)
-        else:
-            raise ValueError(f"unknown cue action {request.action!r} (go, back or jump)")
+        with edge_logs():       # this call's entry is the fire's one
+            result = self._fire(request)
         return control_messages.cue_reply(self.c.cue_state(), result)
+
+    def _fire(self, request) -> str:
+        who = TOKEN_WHO
+        if request.action == "go":
+            return self.c.cue_go(who=who)
+        if request.action == "back":
+            return self.c.cue_back(who=who)
+        if request.action == "jump":
+            return self.c.cue_jump(request.cue_id, who=who)
+        raise ValueError(f"unknown cue action {request.action!r} (go, back or jump)")
 
     # ---------------------------------------------------------------- per-slot tools (coordinator/slot_tools.py)
     @guard
+    @logged("pattern", params=lambda r: {"pattern": r.pattern, "slots": list(r.slots)},
+            result=lambda r, reply: f"showing {reply.showing}")
     async def ShowTestPattern(self, request, context):
         self._operator(context)
         showing = await self.c.show_test_pattern(request.pattern, list(request.slots) or None)
         return control_pb2.StopReply(showing=showing)
 
     @guard
+    @logged("solo", params=lambda r: {"slots": list(r.slots)}, result=lambda r, reply: f"showing {reply.showing}")
     async def Solo(self, request, context):
         self._operator(context)
         return control_pb2.StopReply(showing=self.c.solo(list(request.slots)))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
 import math
 import os
 from pathlib import Path
@@ -162,8 +163,9 @@ async def _drain(call):
 
 
 def _checksums(root: Path) -> dict[str, str]:
+    """What the rig stores (not the logs: the action log records each refused operator call)."""
     return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file() and p.suffix != ".log"}
+            for p in sorted(root.rglob("*")) if p.is_file() and p.suffix != ".log" and p.name != "console-actions.jsonl"}
 
 
 @pytest.fixture(scope="module")
@@ -213,3 +215,7 @@ def test_bad_network_messages_are_refused_clearly(rig, corpus_table):
     assert len(results) >= 28
     assert "Traceback" not in rig.log("coordinator")
     assert _checksums(rig.rig_dir) == before, "a refused message changed what the rig stores"
+    audit = rig.rig_dir / "console-actions.jsonl"
+    logged = [json.loads(line) for line in audit.read_text().splitlines()] if audit.exists() else []
+    assert logged and all(not e["ok"] and e["who"] == "token" and e["action"].startswith("cli ") for e in logged), \
+        "every refused operator call is an entry of the action log, a refusal"

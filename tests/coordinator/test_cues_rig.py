@@ -3,11 +3,12 @@ rendering offscreen and writing what it shows as a snapshot. GO, back, jump and 
 the pictures on both projectors; a crossfade's steps are mixed by the nodes' shaders (a snapshot
 taken mid-fade is the numpy mix of the two pictures at its step's factor, on both nodes, for the
 same step ids); the current cue survives a coordinator restart; every fire is handed to the
-action log with who fired it."""
+action log with who fired it (the command line's GO is its own entry, not the engine's)."""
 from __future__ import annotations
 
 import asyncio
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -166,7 +167,10 @@ def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path, capfd):
             code, out, err = await cli("jump", "6")
             assert code == 0 and out.startswith("cue 6 'Top' (still content) fires; next: 1"), out + err
             await pictures(rig, shown(first), "cue 6 fired from the command line")
-            assert fires[-1]["who"] == "cli@127.0.0.1" and fires[-1]["params"]["cue"] == "6"
+            assert all(f["params"]["cue"] != "6" for f in fires), "the command line's jump is its own entry"
+            last = json.loads((Path(rig.rig_dir) / "console-actions.jsonl").read_text().splitlines()[-1])
+            assert (last["who"], last["address"], last["action"], last["params"]) == (
+                "token", "127.0.0.1", "cli cue jump", {"id": "6"}), last
         finally:
             await app.stop()
 
