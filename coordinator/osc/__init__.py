@@ -24,6 +24,10 @@ The address space (:mod:`coordinator.osc.commands`):
 ``/shadowless/timecode HH:MM:SS:FF|SECONDS``   an external clock the playing show chases
 =============================================  =================================================
 
+MIDI timecode (``mtc_port`` in ``[osc]``, or ``shadowless coordinator --mtc-port NAME``; the
+optional ``midi`` extra) drives the same chase as ``/shadowless/timecode``
+(:mod:`coordinator.osc.mtc`, :mod:`coordinator.osc.mtc_input`).
+
 A refused command is answered ``/shadowless/error ADDRESS REASON``. The status messages
 (``/shadowless/cue/current``, ``/cue/next``, ``/show``, ``/showing``, ``/nodes``, ``/lost``) are
 described in :mod:`coordinator.osc.feedback`, the timecode and its chase in

@@ -9,10 +9,13 @@
     timecode_fps = 25                      # frames per second of "hh:mm:ss:ff" timecode
     timecode_offset_s = 0.0                # the timecode at the show's first frame
     chase_threshold_ms = 100               # the show seeks when the external clock is further off than this
+    mtc_port = "MIDI Interface"            # chase MIDI timecode from this MIDI input (a name or part of
+                                           # one; the `midi` extra; `coordinator --rig DIR --mtc-port list`)
 
 OSC has no authentication: whoever can send a datagram from an allowed address drives the show,
 so ``allow`` names the show controllers and nothing more, and the port should sit on the show
-network only. Every refusal is one :class:`~coordinator.errors.RigError` line naming rig.toml.
+network only. ``mtc_port`` alone (no ``listen``) reads MIDI timecode without listening for OSC.
+Every refusal is one :class:`~coordinator.errors.RigError` line naming rig.toml.
 """
 from __future__ import annotations
 
@@ -27,13 +30,13 @@ from coordinator.schema import parse_toml, read_text
 
 #: senders heard when rig.toml gives no ``allow``: this machine only
 DEFAULT_ALLOW = ("127.0.0.1/32", "::1/128")
-KEYS = ("listen", "allow", "feedback", "timecode_fps", "timecode_offset_s", "chase_threshold_ms")
+KEYS = ("listen", "allow", "feedback", "timecode_fps", "timecode_offset_s", "chase_threshold_ms", "mtc_port")
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
 
 @dataclass(frozen=True)
 class OscConfig:
-    """Show control's settings (the module docstring); ``listen`` None: off."""
+    """Show control's settings (the module docstring); ``listen`` and ``mtc_port`` None: off."""
 
     listen: tuple[str, int] | None = None
     allow: tuple[Network, ...] = tuple(ipaddress.ip_network(n) for n in DEFAULT_ALLOW)
@@ -41,6 +44,12 @@ class OscConfig:
     timecode_fps: float = 25.0
     timecode_offset_s: float = 0.0
     chase_threshold_ms: float = 100.0
+    mtc_port: str | None = None
+
+    @property
+    def on(self) -> bool:
+        """Whether show control runs: OSC listens, or MIDI timecode is read, or both."""
+        return self.listen is not None or self.mtc_port is not None
 
     def allows(self, address: str) -> bool:
         """Whether a datagram from ``address`` (an IP address; IPv4-mapped IPv6 counts as IPv4) is heard."""
@@ -97,7 +106,10 @@ def parse_osc(doc: Any) -> OscConfig:
     feedback = tuple(parse_host_port(f, "each feedback target") for f in feedback_doc)
     if any(port == 0 for _, port in feedback):
         raise ValueError("a feedback target needs a port other than 0")
-    return OscConfig(listen=listen, allow=tuple(allow), feedback=feedback,
+    mtc = doc.get("mtc_port")
+    if mtc is not None and (not isinstance(mtc, str) or not mtc.strip() or len(mtc) > 200):
+        raise ValueError(f"mtc_port must be a MIDI input port's name (or part of it), got {mtc!r}")
+    return OscConfig(listen=listen, allow=tuple(allow), feedback=feedback, mtc_port=mtc.strip() if mtc else None,
                      timecode_fps=_number(doc, "timecode_fps", 25.0, 1.0, 1000.0),
                      timecode_offset_s=_number(doc, "timecode_offset_s", 0.0, -86400.0, 86400.0),
                      chase_threshold_ms=_number(doc, "chase_threshold_ms", 100.0, 1.0, 60000.0))

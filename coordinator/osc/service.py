@@ -11,7 +11,10 @@ and port; the status (:mod:`coordinator.osc.feedback`) goes to the feedback targ
 subscribed senders whenever it changes (checked a few times a second, only while someone listens).
 ``/shadowless/timecode`` keeps the latest external clock; while it is fresh (a message in the last
 second) a playing show is checked against it a few times a second and seeks when it is off
-(:mod:`coordinator.osc.timecode`).
+(:mod:`coordinator.osc.timecode`). MIDI timecode from ``mtc_port`` (:mod:`coordinator.osc.mtc`,
+read by :mod:`coordinator.osc.mtc_input`) is the same external clock, chased the same way: the
+same threshold, the same hold after a seek, and the same stop (MTC that stops is no longer fresh
+after a second). With ``mtc_port`` and no ``listen``, only the chase runs.
 """
 from __future__ import annotations
 
@@ -97,8 +100,8 @@ class OscService:
 
     def __init__(self, coord: "OscRig", config: OscConfig, audit: "ActionLog", *,
                  poke: Callable[[], None] = lambda: None, clock: Callable[[], float] = time.monotonic):
-        if config.listen is None:
-            raise ValueError("OSC is off in this configuration (no listen address)")
+        if not config.on:
+            raise ValueError("show control is off in this configuration (no listen address, no mtc_port)")
         self.coord, self.config, self.audit, self.poke, self.clock = coord, config, audit, poke, clock
         self.port = 0
         self.ignored: dict[str, int] = {}           # sender address -> datagrams dropped (off the allow-list)
@@ -107,7 +110,10 @@ class OscService:
         self._subscribers: dict[tuple[str, int], float] = {}   # (host, port) -> until (clock)
         self._targets: list[tuple] = []             # the feedback targets, resolved
         self._last_key: tuple | None = None
-        self._tc: tuple[float, int, float, str] | None = None   # (seconds, rig ns, clock, who) of the last timecode
+        #: the last external clock: (seconds, rig ns, clock, who, address)
+        self._tc: tuple[float, int, float, str, str] | None = None
+        self.mtc: Any = None                        # the MIDI timecode input (coordinator.osc.mtc_input.MtcInput)
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._hold_until = 0.0
         self._transport: asyncio.DatagramTransport | None = None
         self._task: asyncio.Task | None = None
@@ -116,12 +122,22 @@ class OscService:
 
     @property
     def url(self) -> str:
+        if self.config.listen is None:
+            return "off"
         host = self.config.listen[0]
         return f"udp://{'[' + host + ']' if ':' in host else host}:{self.port}"
 
     # ------------------------------------------------------------------ life
     async def start(self) -> None:
-        loop = asyncio.get_running_loop()
+        loop = self._loop = asyncio.get_running_loop()
+        if self.config.mtc_port is not None:
+            from coordinator.osc.mtc_input import MtcInput     # mido only when MTC is wanted
+            mtc = MtcInput(self.config.mtc_port, self.mtc_readings, self.coord.rig_now)
+            await asyncio.to_thread(mtc.open)       # CoordinatorError in one line: no library, no such port
+            self.mtc = mtc
+        if self.config.listen is None:
+            self._task = asyncio.create_task(self._tick_loop(), name="osc feedback")
+            return
         host, port = self.config.listen
         for t_host, t_port in self.config.feedback:
             try:
@@ -132,6 +148,8 @@ class OscService:
         try:
             transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self), local_addr=(host, port))
         except OSError as exc:
+            if self.mtc is not None:
+                self.mtc.close()
             raise CoordinatorError(f"show control cannot listen on udp {host}:{port}: {exc.strerror or exc}; "
                                    "choose another [osc] listen in rig.toml") from None
         self._transport = transport
@@ -145,6 +163,8 @@ class OscService:
                  "those addresses drives the show)", self.url, allow)
 
     async def stop(self) -> None:
+        if self.mtc is not None:
+            self.mtc.close()
         if self._task is not None:
             self._task.cancel()
             await asyncio.gather(self._task, return_exceptions=True)
@@ -244,7 +264,8 @@ class OscService:
 
     async def _record(self, who: str, sender: tuple[str, int], action: str, ok: bool, result: str,
                       params: dict) -> None:
-        await self.audit.record(who=who, address=sender[0], action=f"osc {action}", ok=ok, result=result,
+        edge = "mtc" if who.startswith("mtc:") else "osc"
+        await self.audit.record(who=who, address=sender[0], action=f"{edge} {action}", ok=ok, result=result,
                                 params=params)
         self.poke()
         self._wake.set()        # the status may have changed: compare it now
@@ -281,14 +302,31 @@ class OscService:
             self._say(f"timecode {sender[0]}", f"timecode from {sender[0]} refused: {exc}")
             self._send([sender], [(f"{PREFIX}/error", (f"{PREFIX}/timecode", str(exc)))])
             return
-        self._tc = (seconds - self.config.timecode_offset_s, self.coord.rig_now(), self.clock(), who)
+        self.external_clock(seconds, self.coord.rig_now(), who, sender[0])
+
+    def external_clock(self, seconds: float, at_ns: int, who: str, address: str) -> None:
+        """The external clock says ``seconds`` (timecode, before ``timecode_offset_s``) at rig time
+        ``at_ns``: what the chase follows from now on (OSC and MIDI timecode alike)."""
+        self._tc = (seconds - self.config.timecode_offset_s, at_ns, self.clock(), who, address)
         self._wake.set()
+
+    def mtc_readings(self, port: str, readings: list) -> None:
+        """MIDI timecode readings of ``port`` (:class:`coordinator.osc.mtc.Reading`), from any thread
+        (rtmidi's): the newest goes to the chase in the event loop."""
+        loop, r = self._loop, readings[-1]
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self.external_clock, r.seconds, r.at_ns, f"mtc:{port}", "midi")
+
+    @property
+    def clock_fresh(self) -> bool:
+        """Whether an external clock (OSC or MIDI timecode) arrived in the last TIMECODE_FRESH_S."""
+        return self._tc is not None and self.clock() - self._tc[2] <= TIMECODE_FRESH_S
 
     def _chase(self) -> None:
         """Seek the playing show when a fresh external clock is further off than the threshold."""
         tc = self._tc
         now = self.clock()
-        if tc is None or now - tc[2] > TIMECODE_FRESH_S or now < self._hold_until:
+        if not self.clock_fresh or now < self._hold_until:
             return
         status = self.coord.status()
         lead = max(MIN_LEAD_NS, int(status.latency_budget_ms * 1e6))
@@ -303,9 +341,9 @@ class OscService:
             self.coord.show_control("seek", frame=seek.frame, at_ns=seek.at_ns)
         except (Refusal, ValueError, *OPERATOR_ERRORS) as exc:
             text = exc.message if isinstance(exc, Refusal) else str(exc)
-            self._spawn(self._record(tc[3], (tc[3].removeprefix("osc:"), 0), "timecode chase", False, text, params))
+            self._spawn(self._record(tc[3], (tc[4], 0), "timecode chase", False, text, params))
             return
-        self._spawn(self._record(tc[3], (tc[3].removeprefix("osc:"), 0), "timecode chase", True,
+        self._spawn(self._record(tc[3], (tc[4], 0), "timecode chase", True,
                                  f"seek to frame {seek.frame}: the show was {abs(seek.drift_s) * 1e3:.0f} ms "
                                  f"{direction} the clock", params))
 

@@ -13,7 +13,7 @@ that every node hears of it in time). It only moves a show that plays: a paused,
 ended or stopped show is left alone, and so is a timecode outside the asset (a show that does
 not loop). A looping show is compared modulo its length.
 
-MIDI timecode is not read: no MIDI library is part of the coordinator's install.
+MIDI timecode (:mod:`coordinator.osc.mtc`) gives the same clock in seconds, chased the same way.
 """
 from __future__ import annotations
 
