@@ -111,8 +111,8 @@ class RigControlService(HandshakeService):
             apply_lut = first.apply_lut or space == Space.CONTENT
             res = self.c.show(content, space=space, apply_lut=apply_lut, persist=first.persist,
                               slot_contents=slot_contents)
-            await record(self.action_log, context, "show", ok=True, params=params,
-                         result=f"showing {first.name or 'an image'} (frame {res.frame_id}, content {res.content_id[:12]})")
+            await record(self.action_log, context, "show", ok=True, params=params, result=f"showing "
+                         f"{first.name or 'an image'} (frame {res.frame_id}, content {res.content_id[:12]})")
             return control_messages.show_result_message(res)
         except (Refusal, ValueError, codec.ImageCodecError, *OPERATOR_ERRORS) as exc:
             await record_failure(self.action_log, context, "show", exc, params)
@@ -223,7 +223,8 @@ class RigControlService(HandshakeService):
 
     # ---------------------------------------------------------------- timeline shows
     @guard
-    @logged("play asset", params=lambda r: {"asset": r.asset, "loop": r.loop, "at_ns": r.at_ns, "delay_ms": r.delay_ms},
+    @logged("play asset",
+            params=lambda r: {"asset": r.asset, "loop": r.loop, "at_ns": r.at_ns, "delay_ms": r.delay_ms},
             result=lambda r, s: f"{s.state}: {s.name or s.asset_id[:12]} ({s.frames} frames"
                                 f"{', looped' if r.loop else ''})")
     async def PlayAsset(self, request, context):

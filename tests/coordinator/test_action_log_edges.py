@@ -31,7 +31,8 @@ def test_command_line_calls_are_in_the_action_log_with_who_and_where(tmp_path, c
                        content_width=64, content_height=32)
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), read_token(rig_dir / "token"), listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+        app = CoordinatorApp(Rig(rig_dir), read_token(rig_dir / "token"), listen="127.0.0.1:0", advertise=False,
+                             console="127.0.0.1:0")
         await app.start()
         where = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", rig_dir]
 
@@ -58,7 +59,8 @@ def test_command_line_calls_are_in_the_action_log_with_who_and_where(tmp_path, c
                                          what="four command-line calls in the action log")
             got = [(e["who"], e["address"], e["action"], e["ok"]) for e in log]
             assert got == [("token", "127.0.0.1", "cli blackout", True), ("token", "127.0.0.1", "cli configure", True),
-                           ("token", "127.0.0.1", "cli stop", True), ("token", "127.0.0.1", "cli configure", False)], got
+                           ("token", "127.0.0.1", "cli stop", True),
+                           ("token", "127.0.0.1", "cli configure", False)], got
             assert log[1]["params"]["slot"] == "r0c1" and "revision" in log[1]["result"]
             assert "nope" in log[3]["result"] and log[0]["result"].startswith("showing black")
             # the console's page shows them: one log per rig directory
@@ -77,7 +79,8 @@ def test_one_go_is_one_entry_from_the_command_line_osc_and_a_follow(tmp_path, ca
         f.write('\n[osc]\nlisten = "127.0.0.1:0"\nallow = ["127.0.0.1"]\n')
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), read_token(rig_dir / "token"), listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
+        app = CoordinatorApp(Rig(rig_dir), read_token(rig_dir / "token"), listen="127.0.0.1:0", advertise=False,
+                             console="127.0.0.1:0")
         await app.start()
         coord = app.coordinator
         where = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", rig_dir]
@@ -92,7 +95,8 @@ def test_one_go_is_one_entry_from_the_command_line_osc_and_a_follow(tmp_path, ca
             log = await wait_until_async(lambda: entries(rig_dir), lambda es: len(es) >= 3,
                                          what="three fires in the action log")
             got = [(e["who"], e["action"], e["params"].get("cue", e["params"].get("id", ""))) for e in log]
-            assert got == [("token", "cli cue go", ""), ("osc:127.0.0.1", "osc go", ""), ("follow", "cue fire", "3")], got
+            assert got == [("token", "cli cue go", ""), ("osc:127.0.0.1", "osc go", ""),
+                           ("follow", "cue fire", "3")], got
             assert log[0]["result"].startswith("cue 1 'Dark' (blackout) fires")
             assert log[1]["result"].startswith("cue 2 'Then' (blackout) fires")
             assert all(e["ok"] for e in log)
