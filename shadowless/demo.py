@@ -33,7 +33,7 @@ from protos import cli_types
 from protos.spaces import content_to_table
 from protos.wording import count
 from shadowless import exit_cleanup
-from shadowless.demo_figures import compensation_figure, light_drop_figure, split_quality_picture, teaser_figure
+from shadowless.demo_figures import light_drop_figure, teaser_figure
 from shadowless.hold import console_lines, hold
 from shadowless.local import LocalRig, free_port
 from shadowless.process_stop import stop_process
@@ -238,8 +238,9 @@ async def _demo(args) -> int:
                 room.set_active(SUBSETS["P25"])
                 _say("captured P1 and P25, without and with the hand")
                 if args.compensate:
-                    report["compensation"] = await _compensate(c, img, work, SUBSETS["P25"])
-                    _write_compensation_picture(rig.rig_dir / "compensation", out / "compensation.png", report["compensation"])
+                    image_name = Path(args.image).stem if args.image else "astronaut"
+                    report["compensation"] = await _compensate(c, img, work, SUBSETS["P25"], image_name)
+                    _write_compensation_picture(rig.rig_dir / "compensation", out / "compensation.png")
                 _write_results(args, out, report, shots, drops, cam_p, t_start)
                 if args.serve:
                     await hold(console_lines(rig.console_url(), rig.rig_dir),
@@ -259,22 +260,12 @@ def serve_hint(served: bool) -> str | None:
     return None if served else "to keep this rig up and try its operator console: shadowless demo --serve (Ctrl-C stops it)"
 
 
-def _write_compensation_picture(cdir: Path, dest: Path, comp: dict) -> None:
-    """compensation.png: the compensate job's picture (``cdir/quality.png``) split into target / without /
-    compensated and drawn again with a zoomed crop and the difference images
-    (:func:`shadowless.demo_figures.compensation_figure`); the job's own picture when it cannot be split."""
-    region = comp.get("region") or {}
-    tiles = None
-    if region:
-        size = (region["x"][1] - region["x"][0], region["y"][1] - region["y"][0])
-        tiles = split_quality_picture(cv2.imread(str(cdir / "quality.png")), size)
-    if tiles is None:
-        _say("compensation.png: the job's picture as it is (its tiles could not be split for the crop and difference)")
-        shutil.copy(cdir / "quality.png", dest)
-        return
-    picture, shown = compensation_figure(tiles, comp, origin=(region["x"][0], region["y"][0]))
-    cv2.imwrite(str(dest), picture)
-    comp["picture"] = shown
+def _write_compensation_picture(cdir: Path, dest: Path) -> None:
+    """compensation.png: the compensate job's own picture (``cdir/quality.png``: full size, the detail
+    where the blur costs most enlarged, and the difference to the target on one colour scale, drawn by
+    :func:`imaging.compensation.quality_figure.compensation_figure` from the job's float captures), the
+    one the operator's console shows."""
+    shutil.copy(cdir / "quality.png", dest)
 
 
 def _write_results(args, out: Path, report: dict, shots: dict, drops: dict, camera_p: np.ndarray, t_start: float) -> None:
@@ -317,15 +308,16 @@ def _write_results(args, out: Path, report: dict, shots: dict, drops: dict, came
     _say(f"results in {out}/ ({report['total_s']} s)")
 
 
-async def _compensate(c, img: np.ndarray, work: Path, slots: list[str]) -> dict:
-    """Blur compensation of the 25-projector rig: responses, summed light transport, one solve, evaluated."""
+async def _compensate(c, img: np.ndarray, work: Path, slots: list[str], name: str) -> dict:
+    """Blur compensation of the 25-projector rig: responses, summed light transport, one solve, evaluated
+    (``name``: the image's, without extension, as the job's picture calls it)."""
     t0 = time.monotonic()
     view = ProgressView(sys.stdout)
     _say(f"blur compensation of {len(slots)} projectors: luminance responses (grey patches, one projector at a time)")
     resp = await run_job(c, "response", {"slots": slots}, view=view)
     _say("light transport: dot grids shown by every projector at once")
     tr = await run_job(c, "transport", {"slots": slots}, view=view)
-    path = work / "target.png"
+    path = work / f"{name}.png"
     cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     _say("solving and capturing the image without and with compensation")
     res = await run_job(c, "compensate", {"image": encode_image_param(path), "slots": slots, "evaluate": True},
@@ -334,7 +326,8 @@ async def _compensate(c, img: np.ndarray, work: Path, slots: list[str]) -> dict:
     return {"projectors": len(slots), "response_captures": resp["captures"],
             "linearity_max_error": resp["linearity"]["max_error"], "transport_captures": tr["captures"],
             "transport_nnz": tr["nnz"], "solve_s": res["solve"]["seconds"], "iterations": res["solve"]["iterations"],
-            "none": q["none"], "ours": q["ours"], "region": q.get("region"), "total_s": round(time.monotonic() - t0, 1)}
+            "none": q["none"], "ours": q["ours"], "region": q.get("region"), "picture": q.get("picture_shows"),
+            "total_s": round(time.monotonic() - t0, 1)}
 
 
 def run(args: argparse.Namespace) -> int:

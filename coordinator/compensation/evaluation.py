@@ -1,5 +1,8 @@
 """The ``compensate`` job's evaluation: capture the rig without compensation, with the per-projector
-baseline and with ours, score each against the target and put them side by side.
+baseline and with ours, score each against the target and draw them
+(:func:`imaging.compensation.quality_figure.compensation_figure`: full size, the detail where the
+blur costs most enlarged, and each one's difference to the target on one colour scale, from the
+float images the scores are computed from).
 
 The order of the captures, the picture (``compensation/quality.png``) and the figures
 (``compensation/quality.json``) are the same on every surface; how a capture is taken (one camera,
@@ -17,14 +20,14 @@ import numpy as np
 from coordinator.compensation.store import SUBDIR, compensation_dir, write_result
 from coordinator.jobs import JobError
 from coordinator.jobs.results import Figures
-from imaging.compensation.quality import side_by_side
+from imaging.compensation.quality_figure import compensation_figure
 from protos.store import atomic_write_bytes
 
 if TYPE_CHECKING:
     from coordinator.compensation.options import CompensateOptions
     from coordinator.jobs import JobContext
 
-__all__ = ["Scoring", "evaluate"]
+__all__ = ["Scoring", "evaluate", "quality_picture"]
 
 
 class Scoring(Protocol):
@@ -43,7 +46,8 @@ class Scoring(Protocol):
         """The scores ``x`` would get through the measured ``L`` (what the solver believed)."""
 
     def tiles(self, tiles: dict[str, np.ndarray], order: list[str]) -> list[np.ndarray]:
-        """The picture's tiles: the target, then ``tiles`` in ``order``."""
+        """The picture's tiles: the target, then ``tiles`` in ``order`` (each (h, w, C) float32, linear,
+        1 = the target level; pixels outside the scored region 0 in every tile)."""
 
     def figures(self) -> Figures:
         """The scored region's (and the exposure's) figures for ``quality.json``."""
@@ -78,15 +82,12 @@ async def evaluate(ctx: JobContext, scoring: Scoring, none: np.ndarray, ours: np
     ctx.progress("evaluate", "", steps, steps, "scored")
 
     order = ["none"] + (["baseline"] if base_x is not None else []) + ["ours"]
-    labels = ["target"] + [f"{k} {scores[k]['psnr']:.2f} dB / {scores[k]['ssim']:.3f}" for k in order]
-    pic = side_by_side(scoring.tiles(tiles, order), labels)
-    ok, png = cv2.imencode(".png", cv2.cvtColor(pic, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise JobError("could not encode the side-by-side picture")
-    atomic_write_bytes(compensation_dir(rig) / "quality.png", png.tobytes())
+    png, shown = await ctx.compute(quality_picture, scoring.tiles(tiles, order), order, scores, scoring.figures(), name)
+    atomic_write_bytes(compensation_dir(rig) / "quality.png", png)
     out = {**scores, "predicted": {"none": await ctx.compute(scoring.predicted, none),
                                    "ours": await ctx.compute(scoring.predicted, ours)},
-           **scoring.figures(), "captures_averaged": frames, "picture": f"{SUBDIR}/quality.png", "image": name}
+           **scoring.figures(), "captures_averaged": frames, "picture": f"{SUBDIR}/quality.png",
+           "picture_shows": shown, "image": name}
     out["ordering"] = {
         "ours_minus_none_db": round(scores["ours"]["psnr"] - scores["none"]["psnr"], 3),
         **({"ours_minus_baseline_db": round(scores["ours"]["psnr"] - scores["baseline"]["psnr"], 3),
@@ -95,3 +96,32 @@ async def evaluate(ctx: JobContext, scoring: Scoring, none: np.ndarray, ours: np
     }
     write_result(rig, "quality.json", out)
     return out
+
+
+def quality_picture(tiles: list[np.ndarray], order: list[str], scores: dict[str, dict], region: Figures,
+                    name: str) -> tuple[bytes, dict]:
+    """``quality.png`` (PNG bytes) and what it shows (:func:`compensation_figure`'s second value).
+
+    ``tiles``: :meth:`Scoring.tiles` (the target, then the captures in ``order``); ``region``:
+    :meth:`Scoring.figures` (a table's scored rectangle in camera px, ``region.x`` / ``region.y``, or a
+    mesh's visible surface: the cameras' views stacked, unscored pixels 0 in every tile)."""
+    target, captures = tiles[0], dict(zip(order, tiles[1:]))
+    box = region.get("region") or {}
+    if "x" in box and "y" in box:
+        origin = (int(box["x"][0]), int(box["y"][0]))
+        where = (f"seen by the camera over the scored region of the table (camera px x {box['x'][0]}..{box['x'][1]}, "
+                 f"y {box['y'][0]}..{box['y'][1]})")
+        mask = None
+    else:
+        # the mesh's tiles are 0 outside the visible surface in every tile; a scored pixel that is exactly 0
+        # in all of them has no error either, so leaving it out moves no figure but the mean's count
+        origin = None
+        where = "seen by the cameras over the object's visible surface (one camera's view under the other)"
+        mask = np.any([np.any(np.asarray(t) != 0, axis=2) for t in tiles], axis=0)
+    title = [f"Blur compensation of {name!r}, {where}.",
+             "PSNR and SSIM: against the target over the scored pixels (the figures of quality.json)."]
+    picture, shown = compensation_figure(target, captures, scores, title=title, mask=mask, origin=origin)
+    ok, png = cv2.imencode(".png", picture)
+    if not ok:
+        raise JobError("could not encode the compensation picture")
+    return png.tobytes(), shown
