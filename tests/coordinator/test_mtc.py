@@ -161,15 +161,15 @@ def test_without_the_library_mtc_refuses_in_one_line_naming_the_extra(tmp_path, 
     assert "shadowless[midi]" in str(e.value) and "\n" not in str(e.value)
     rig_dir = init_rig(tmp_path / "rig", name="mtc", slots=["a"], width=32, height=32, content_width=64,
                        content_height=32)
-    with open(rig_dir / "rig.toml", "a") as f:
-        f.write('\n[osc]\nmtc_port = "MIDI Interface"\n')
-    config = load_osc(rig_dir)
-    assert config.mtc_port == "MIDI Interface" and config.listen is None and config.on
 
     async def go():
         app = CoordinatorApp(Rig(rig_dir), b"m" * 32, listen="127.0.0.1:0", advertise=False)
         await app.start()
         try:
+            with open(rig_dir / "rig.toml", "a") as f:
+                f.write('\n[osc]\nmtc_port = "MIDI Interface"\n')
+            config = load_osc(rig_dir)
+            assert config.mtc_port == "MIDI Interface" and config.listen is None and config.on
             service = OscService(app.coordinator, config, ActionLog(rig_dir))
             with pytest.raises(MidiUnavailable, match=r"pip install 'shadowless\[midi\]'"):
                 await service.start()
