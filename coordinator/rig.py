@@ -18,6 +18,7 @@ A coordinator restarted on the same directory serves the same rig.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
 import re
@@ -31,7 +32,8 @@ import numpy as np
 from coordinator.errors import RigError
 from coordinator.schema import (MAX_GAIN, MAX_SIDE, MIN_SIDE, SLOT_RE, ContentMeta, RigToml, SizeDoc, SlotFile, check_homography,
                                 parse_toml, read_bytes, read_json, read_npy, read_text, valid_gain, validate, validate_lut)
-from protos.store import atomic_save_npy, atomic_save_npz, atomic_write_json, atomic_write_text, remove_stale_temps
+from protos.store import (atomic_save_npy, atomic_save_npz, atomic_write_files, atomic_write_json, atomic_write_text,
+                          remove_stale_temps)
 from protos.auth import new_token
 from protos.blend import BlendMaps
 from protos.spaces import scale_intrinsics
@@ -418,23 +420,36 @@ class Rig:
 
     # ---- mutation (persisted) -----------------------------------------
     def _save_slot(self, st: SlotState) -> None:
-        doc: dict = {"revision": st.revision, "gain": st.gain, "width": st.width, "height": st.height,
-                     "source": st.source, "updated_at": st.updated_at}
-        if isinstance(st.pose, HomographyPose):
-            doc["pose"] = {"kind": "homography", "matrix": st.pose.matrix.tolist()}
-        elif isinstance(st.pose, ProjectionPose):
-            doc["pose"] = self._projection_doc(st.pose)
-        if st.planned is not None:
-            doc["planned"] = self._projection_doc(st.planned)
-        if st.lut is not None:
-            rel = f"luts/{st.name}.r{st.revision}.npy"
-            atomic_save_npy(self.path / rel, st.lut)
-            doc["lut"] = rel
-        atomic_write_json(self.path / "slots" / f"{st.name}.json", doc)
+        self._save_slots([st])
+
+    def _save_slots(self, states: list[SlotState]) -> None:
+        """Write the slots' files (each slot's JSON and LUT) in one batch (:func:`atomic_write_files`:
+        each file whole, old or new, whatever happens), then remove older LUT revisions."""
+        luts: dict[Path, bytes] = {}       # written before the slot files that name them
+        docs: dict[Path, bytes] = {}
+        for st in states:
+            doc: dict = {"revision": st.revision, "gain": st.gain, "width": st.width, "height": st.height,
+                         "source": st.source, "updated_at": st.updated_at}
+            if isinstance(st.pose, HomographyPose):
+                doc["pose"] = {"kind": "homography", "matrix": st.pose.matrix.tolist()}
+            elif isinstance(st.pose, ProjectionPose):
+                doc["pose"] = self._projection_doc(st.pose)
+            if st.planned is not None:
+                doc["planned"] = self._projection_doc(st.planned)
+            if st.lut is not None:
+                rel = f"luts/{st.name}.r{st.revision}.npy"
+                buf = io.BytesIO()
+                np.save(buf, np.asarray(st.lut), allow_pickle=False)
+                luts[self.path / rel] = buf.getvalue()
+                doc["lut"] = rel
+            docs[self.path / "slots" / f"{st.name}.json"] = (json.dumps(doc, indent=2, sort_keys=True) + "\n").encode()
+        files = {**luts, **docs}
+        atomic_write_files(files)
         # remove LUT files of older revisions only after the new state is durable
-        for old in (self.path / "luts").glob(f"{st.name}.r*.npy"):
-            if old.name != f"{st.name}.r{st.revision}.npy":
-                old.unlink(missing_ok=True)
+        for st in states:
+            for old in (self.path / "luts").glob(f"{st.name}.r*.npy"):
+                if old.name != f"{st.name}.r{st.revision}.npy":
+                    old.unlink(missing_ok=True)
 
     def _projection_doc(self, pose: ProjectionPose) -> dict:
         """A projection pose as its slot-file document, its mesh saved first (once per mesh id)."""
@@ -468,6 +483,28 @@ class Rig:
         change of the blend alone writes nothing here (a failover costs no file write); the revision
         it bumps is written with the slot's next other change.
         """
+        st, persist = self._next_state(name, pose=pose, gain=gain, lut=lut, size=size, planned=planned, blend=blend,
+                                       blend_at_ns=blend_at_ns, source=source)
+        if persist:
+            self._save_slot(st)
+        self.slots[name] = st
+        return st
+
+    def update_slots(self, names: "list[str] | tuple[str, ...]", **changes) -> list[SlotState]:
+        """The same change (:meth:`update_slot`'s keywords) on several slots, their files written in
+        one batch (one rename and fsync round for all, instead of a write per slot): every slot is
+        checked before any file is written, so a refused change changes none."""
+        states = [self._next_state(n, **changes) for n in dict.fromkeys(names)]
+        self._save_slots([st for st, persist in states if persist])
+        for st, _ in states:
+            self.slots[st.name] = st
+        return [st for st, _ in states]
+
+    def _next_state(self, name: str, *, pose: Pose | None | object = _UNSET, gain: float | None = None,
+                    lut: np.ndarray | None | object = _UNSET, size: tuple[int, int] | None = None,
+                    planned: ProjectionPose | None | object = _UNSET, blend: BlendMaps | None | object = _UNSET,
+                    blend_at_ns: int | None = None, source: str = "manual") -> tuple[SlotState, bool]:
+        """A slot's state after ``update_slot``'s changes, and whether its file must be written."""
         self._writable()
         st = self.slot(name)
         changes: dict = {}
@@ -503,12 +540,8 @@ class Rig:
                 S = scale_intrinsics(np.eye(3), (st.width, st.height), tuple(size))
                 changes["planned"] = replace(st.planned, matrix=S @ st.planned.matrix)
         if blend_only:      # the slot file holds nothing of the blend: only the revision moves, in memory
-            st = replace(st, **changes, revision=st.revision + 1)
-        else:
-            st = replace(st, **changes, revision=st.revision + 1, source=source, updated_at=time.time())
-            self._save_slot(st)
-        self.slots[name] = st
-        return st
+            return replace(st, **changes, revision=st.revision + 1), False
+        return replace(st, **changes, revision=st.revision + 1, source=source, updated_at=time.time()), True
 
     def set_content(self, content: Content) -> None:
         self._writable()

@@ -574,6 +574,16 @@ class Coordinator:
             sess.assignment_event.set()
         return st
 
+    def update_slots(self, slots: Sequence[str], **changes: Any) -> list:
+        """The same change on several slots, their files written in one batch (:meth:`Rig.update_slots`:
+        all checked first, a refusal changes none), then pushed to their nodes."""
+        states = self.rig.update_slots(list(slots), **changes)
+        for st in states:
+            sess = self.by_slot.get(st.name)
+            if sess is not None:
+                sess.assignment_event.set()
+        return states
+
     def open_camera(self, spec: str) -> Camera:
         cam = open_camera(spec)
         return _AfterLastPattern(cam, self) if isinstance(cam, RoomCamera) else cam

@@ -8,7 +8,6 @@ address).
 """
 from __future__ import annotations
 
-import asyncio
 import math
 from dataclasses import dataclass
 from typing import Any, Awaitable, Callable, Protocol, Sequence
@@ -33,6 +32,8 @@ class OscRig(Protocol):
     def stop_all(self, *, blackout: bool = False) -> str: ...
 
     def update_slot(self, slot: str, **changes: Any) -> SlotState: ...
+
+    def update_slots(self, slots: Sequence[str], **changes: Any) -> list[SlotState]: ...
 
     def play_asset(self, key: str, *, at_ns: int | None = None, delay_ns: int | None = None, loop: bool = False,
                    fps: float | None = None, start_without: bool = False) -> ShowState: ...
@@ -110,17 +111,6 @@ def _cue_method(coord: OscRig, name: str) -> Callable[..., str]:
     return method
 
 
-async def _gain_everywhere(coord: OscRig, value: float) -> str:
-    """Every slot's gain, one slot after the other (each is written to the rig directory first),
-    letting the event loop run between them."""
-    slots = list(coord.rig.slots)
-    coord.update_slot(slots[0], gain=value)     # a refused value is refused before any other slot changes
-    for s in slots[1:]:
-        await asyncio.sleep(0)
-        coord.update_slot(s, gain=value)
-    return f"gain {value:g} on {len(slots)} slots"
-
-
 def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str | Awaitable[str]:
     """Run the command at ``address`` with ``args`` as ``who`` (``osc:<ip>``); the result line (or
     an awaitable of it, for a command that lets the event loop run meanwhile). Raises
@@ -164,7 +154,8 @@ def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str | 
         if args[0].strip() != "*":
             st = coord.update_slot(args[0].strip(), gain=float(value))
             return f"slot {args[0].strip()} gain {st.gain:g} (revision {st.revision})"
-        return _gain_everywhere(coord, float(value))
+        states = coord.update_slots(list(coord.rig.slots), gain=float(value))   # one batch of file writes
+        return f"gain {float(value):g} on {len(states)} slots"
     known = BY_PATH.get(address)
     if known is not None:       # answered by the service itself (status, subscriptions, timecode)
         raise OscError(f"{address} is not a rig command")
