@@ -5,6 +5,8 @@ The wire edge of :mod:`coordinator.uploads` and :class:`coordinator.assets.Asset
 call needs an operator session (RigControl's Login); disk work runs in worker threads, so the
 coordinator's event loop keeps serving nodes while a multi-GB upload is hashed. What the
 coordinator adds here its distribution picks up like any other asset (it watches the store).
+An asset added or removed is an entry of the rig's action log (``cli content add``/``remove``),
+done or refused, as every command-line call that changes the rig (:mod:`coordinator.wire.calls`).
 """
 from __future__ import annotations
 
@@ -15,10 +17,11 @@ from typing import Any
 import grpc
 
 from coordinator.assets import AssetStore
+from coordinator.console.audit import ActionLog
 from coordinator.errors import AssetError, Refusal
 from coordinator.sessions import Handshake
 from coordinator.uploads import UploadFile, Uploads
-from coordinator.wire.calls import abort, session_id
+from coordinator.wire.calls import abort, record, record_failure, session_id
 from protos import control_pb2, control_pb2_grpc
 
 log = logging.getLogger(__name__)
@@ -38,22 +41,29 @@ class ContentStoreService(control_pb2_grpc.ContentStoreServicer):
         self.store = store
         self.uploads = Uploads(store)
         self.handshake = handshake
+        self.action_log = ActionLog(store.rig_dir)
         swept = self.uploads.sweep()
         if swept:
             log.info("removed %d stale upload(s)", len(swept))
 
-    async def _call(self, context: Any, fn, *args, **kwargs):
-        """Check the operator's session, run ``fn`` in a thread, turn errors into statuses."""
+    async def _call(self, context: Any, fn, *args, logged: tuple[str, dict] | None = None, **kwargs):
+        """Check the operator's session, run ``fn`` in a thread, turn errors into statuses;
+        ``logged`` (action, params): a refusal is an entry of the action log too."""
         try:
             self.handshake.check_operator(session_id(context))
             return await asyncio.to_thread(fn, *args, **kwargs)
-        except Refusal as exc:
+        except (Refusal, AssetError, ValueError) as exc:
+            if logged is not None:
+                await record_failure(self.action_log, context, logged[0], exc, logged[1])
+            await self._abort(context, exc)
+
+    async def _abort(self, context: Any, exc: Exception):
+        if isinstance(exc, Refusal):
             await abort(context, exc)
-        except AssetError as exc:
+        if isinstance(exc, AssetError):
             code = grpc.StatusCode.NOT_FOUND if str(exc).startswith("no asset") else grpc.StatusCode.FAILED_PRECONDITION
             await context.abort(code, str(exc))
-        except ValueError as exc:
-            await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
+        await context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(exc))
 
     async def ListAssets(self, request, context):
         rows = await self._call(context, self.store.list)
@@ -82,11 +92,15 @@ class ContentStoreService(control_pb2_grpc.ContentStoreServicer):
         return control_pb2.UploadState(upload_id=uid, have=have)
 
     async def FinishUpload(self, request, context):
+        params = {"upload": request.upload_id[:12], "name": request.name, "fps": request.fps}
         added = await self._call(context, self.uploads.finish, request.upload_id, name=request.name or None,
-                                 fps=request.fps or None)
+                                 fps=request.fps or None, logged=("content add", params))
         m = added.manifest
         log.info("asset %s (%s %r) %s from an upload", m.asset_id[:12], m.kind, m.name,
                  "was already stored" if added.existed else "added")
+        await record(self.action_log, context, "content add", ok=True, params=params,
+                     result=f"asset {m.asset_id[:12]} ({m.kind} {m.name!r}) "
+                            f"{'was already stored' if added.existed else 'added'}")
         return _info(m.asset_id, m.canonical(), existed=added.existed, notes=added.notes)
 
     async def RemoveAsset(self, request, context):
@@ -96,8 +110,10 @@ class ContentStoreService(control_pb2_grpc.ContentStoreServicer):
             self.store.remove(aid)
             return aid, data
 
-        aid, data = await self._call(context, remove)
+        aid, data = await self._call(context, remove, logged=("content remove", {"asset": request.asset}))
         log.info("asset %s removed by an operator", aid[:12])
+        await record(self.action_log, context, "content remove", ok=True, params={"asset": request.asset},
+                     result=f"asset {aid[:12]} removed")
         return _info(aid, data)
 
 
