@@ -213,7 +213,7 @@ def compensation_figure(target: np.ndarray, captures: Mapping[str, np.ndarray], 
                                                   interpolation=cv2.INTER_NEAREST)
 
     def marked(img: np.ndarray) -> np.ndarray:
-        out = big(img, f)
+        out = big(img, f).copy()          # the views stay unmarked: the crops are cut from them
         cv2.rectangle(out, (x0 * f - 1, y0 * f - 1), (x1 * f, y1 * f), CROP_BGR, 2)
         return out
 
