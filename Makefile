@@ -13,7 +13,7 @@ setup: $(STAMP) protos kernels
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -c constraints.txt -e '.[all,dev,cluster]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[all,dev,cluster,midi]'
 	@touch $@
 
 # Generated code is committed; this rebuilds it only when a .proto is newer.

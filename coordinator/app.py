@@ -15,6 +15,7 @@ and last the core (playback ends, the rig's lock is freed).
 """
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import time
@@ -61,11 +62,13 @@ class CoordinatorApp:
     def __init__(self, rig: Rig, token: bytes, *, listen: str = "0.0.0.0:7600", mdns_interfaces: list[str] | None = None,
                  advertise: bool = True, tls: tuple[bytes, bytes] | None = None, latency_ms: float | None = None,
                  cameras: list[str] | None = None, clock_ns: Callable[[], int] = time.monotonic_ns,
-                 console: str | None = None, console_hosts: list[str] | None = None, console_optional: bool = False):
+                 console: str | None = None, console_hosts: list[str] | None = None, console_optional: bool = False,
+                 mtc_port: str | None = None):
         self.listen, self.tls = listen, tls
         self.mdns_interfaces, self.advertise = mdns_interfaces, advertise
         self.console_listen, self.console_optional = console, console_optional
         self.console_hosts = list(console_hosts or ())
+        self.mtc_port = mtc_port    # MIDI timecode's port, over rig.toml's [osc] mtc_port
         #: what `status` says of the console: its address, "NOT SERVED (why)" or "off"
         self.console_state = "off" if console is None else "starting"
         self.port = 0               # the gRPC port, once listening
@@ -150,7 +153,9 @@ class CoordinatorApp:
         port it cannot take stops the start with one line). Its commands go to the console's action log."""
         from coordinator.osc.config import load_osc
         config = load_osc(self.coordinator.rig.path)
-        if config.listen is None:
+        if self.mtc_port:
+            config = dataclasses.replace(config, mtc_port=self.mtc_port)
+        if not config.on:
             return
         from coordinator.console.audit import ActionLog
         from coordinator.osc.service import OscService     # python-osc only when OSC is wanted

@@ -30,7 +30,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         "  shadowless coordinator --rig rigs/table\n"
         "  shadowless coordinator --rig rigs/table --listen 10.0.0.2:7600 --mdns-interface 10.0.0.2\n"
         "  shadowless coordinator --rig rigs/table --tls-cert cert.pem --tls-key key.pem\n"
-        "  shadowless coordinator --rig rigs/table --console 0.0.0.0:7680 --tls-cert cert.pem --tls-key key.pem"
+        "  shadowless coordinator --rig rigs/table --console 0.0.0.0:7680 --tls-cert cert.pem --tls-key key.pem\n"
+        "  shadowless coordinator --rig rigs/table --mtc-port list"
     )
     p.add_argument("--rig", required=True, metavar="DIR", help="rig directory (with rig.toml; see `shadowless rig init`)")
     p.add_argument("--listen", default="0.0.0.0:7600", metavar="HOST:PORT",
@@ -58,6 +59,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="if the console's port is taken, run on without the console (status then says "
                         "'console: NOT SERVED'); by default the coordinator refuses to start")
     p.add_argument("--console-port-file", metavar="FILE", help="write the console's bound port here (for scripts)")
+    p.add_argument("--mtc-port", metavar="NAME",
+                   help="chase MIDI timecode from this MIDI input port (its name or a part naming one port; "
+                        "overrides rig.toml's [osc] mtc_port; `list` prints the ports and exits; needs "
+                        "pip install 'shadowless[midi]')")
 
 
 async def serve(args: argparse.Namespace) -> int:
@@ -78,7 +83,8 @@ async def serve(args: argparse.Namespace) -> int:
     app = CoordinatorApp(rig, token, listen=args.listen, mdns_interfaces=args.mdns_interface,
                          advertise=not args.no_mdns, tls=tls, latency_ms=args.latency_ms,
                          cameras=args.camera, console=None if args.no_console else args.console,
-                         console_hosts=args.console_host, console_optional=args.console_optional)
+                         console_hosts=args.console_host, console_optional=args.console_optional,
+                         mtc_port=args.mtc_port)
     await app.start()
     if args.port_file:
         atomic_write_text(args.port_file, f"{app.port}\n")
@@ -94,8 +100,18 @@ async def serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def list_midi_ports() -> int:
+    """``--mtc-port list``: the MIDI input ports, one a line (a line saying why there are none)."""
+    from coordinator.osc.mtc_input import port_names
+    names = port_names()
+    print("\n".join(names) if names else "no MIDI input ports on this machine")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     try:
+        if args.mtc_port == "list":
+            return list_midi_ports()
         return asyncio.run(serve(args))
     except (*OPERATOR_ERRORS, RigError, TokenError, OSError) as exc:
         log.error("%s", exc)

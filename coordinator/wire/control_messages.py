@@ -299,15 +299,3 @@ def cue_reply(state: Any, result: str = "") -> control_pb2.CueReply:
 def cue_reply_from_message(m: control_pb2.CueReply) -> tuple[dict, str]:
     """The cue state's JSON (see :meth:`coordinator.api.CueState.to_json`) and the result line."""
     return json.loads(m.state_json or "{}"), m.result
-
-
-def cli_who(peer: str) -> str:
-    """Who acted, for the action log, from a gRPC peer (``ipv4:10.0.0.5:41234``): ``cli@10.0.0.5``."""
-    kind, _, rest = peer.partition(":")
-    if kind == "ipv6":
-        host = rest.rpartition(":")[0].strip("[]") or rest
-    elif kind == "ipv4":
-        host = rest.rpartition(":")[0] or rest
-    else:
-        host = kind or "?"
-    return f"cli@{host}"
