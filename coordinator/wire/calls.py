@@ -12,15 +12,17 @@ want of a session writes nothing (whoever lacks the token must not fill the rig'
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable, NoReturn
+from typing import TYPE_CHECKING, Any, Callable, NoReturn
 
 import grpc
 
-from coordinator.console.audit import ActionLog
 from coordinator.errors import OPERATOR_ERRORS, Refusal, RefusalKind
 from coordinator.users import TOKEN_WHO
 from protos import codec
 from protos.version import SESSION_KEY
+
+if TYPE_CHECKING:  # pragma: no cover - types only (the console package is loaded when first served)
+    from coordinator.console.audit import ActionLog
 
 #: the gRPC status of each kind of refusal (the console has its own table of HTTP statuses)
 STATUS_CODES: dict[RefusalKind, grpc.StatusCode] = {
@@ -91,14 +93,14 @@ def _why(exc: BaseException) -> str:
     return " ".join((exc.message if isinstance(exc, Refusal) else str(exc)).split())
 
 
-async def record(log: ActionLog, context: Any, action: str, *, ok: bool, result: str,
+async def record(log: "ActionLog", context: Any, action: str, *, ok: bool, result: str,
                  params: dict[str, Any] | None = None) -> None:
     """One entry of the action log for a call of the command line (the module docstring)."""
     await log.record(who=TOKEN_WHO, address=peer_host(context), action=f"cli {action}", ok=ok, result=result,
                      params=params)
 
 
-async def record_failure(log: ActionLog, context: Any, action: str, exc: BaseException,
+async def record_failure(log: "ActionLog", context: Any, action: str, exc: BaseException,
                          params: dict[str, Any] | None = None) -> None:
     """The entry of a refused or failed call; none for a call without a session."""
     if isinstance(exc, Refusal) and exc.kind == RefusalKind.UNAUTHENTICATED:

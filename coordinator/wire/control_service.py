@@ -12,13 +12,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import grpc
 import numpy as np
 
 from coordinator.api import Space
-from coordinator.console.audit import ActionLog
 from coordinator.cues import edge_logs
 from coordinator.errors import OPERATOR_ERRORS, CoordinatorError, Refusal
 from coordinator.float_range import check_float_range
@@ -31,6 +30,9 @@ from coordinator.wire.image_parts import ImageParts, regions_from_request
 from coordinator.wire.node_messages import space_from_message
 from protos import codec, common_pb2, control_pb2
 from protos.cues import CueList
+
+if TYPE_CHECKING:  # pragma: no cover - types only
+    from coordinator.console.audit import ActionLog
 
 log = logging.getLogger(__name__)
 
@@ -54,12 +56,13 @@ class RigControlService(HandshakeService):
     configures slots and drives the timeline show. Every call that changes the rig is an entry of
     the rig's action log (:func:`coordinator.wire.calls.logged`)."""
 
-    _action_log: ActionLog | None = None
+    _action_log: "ActionLog | None" = None
 
     @property
-    def action_log(self) -> ActionLog:
+    def action_log(self) -> "ActionLog":
         """The rig's action log (the console's and OSC's too: one log per rig directory)."""
         if self._action_log is None:
+            from coordinator.console.audit import ActionLog     # not at start: tests/coordinator/test_startup_imports.py
             self._action_log = ActionLog(self.c.rig.path)
         return self._action_log
 
