@@ -34,6 +34,8 @@ LINE_PX = 20
 GAP = 10
 #: the crop's outline on the full pictures (BGR)
 CROP_BGR = (0, 215, 255)
+#: the default crop: this share of the scored pixels, this wide to 1 high
+CROP_SHARE, CROP_ASPECT = 12, 1.5
 #: each result's name in the captions (the keys of the job's ``quality.json``)
 RESULT_NAMES = {"none": "without compensation", "baseline": "per-projector baseline", "ours": "compensated"}
 
@@ -171,7 +173,8 @@ def compensation_figure(target: np.ndarray, captures: Mapping[str, np.ndarray], 
     mask : (h, w) bool, optional
         The scored pixels (default: all); the others are grey in the difference images and left out
         of the mean errors, the colour scale and the crop's choice.
-    crop : (w, h) tile px of the crop; default a quarter of the width by a third of the height
+    crop : (w, h) tile px of the crop; default 1 / :data:`CROP_SHARE` of the scored pixels, 3:2 (a quarter
+        of the width by a third of the height of a 2:1 view scored everywhere)
     zoom : the crop's enlargement over the full-size tiles
     origin : the tile's top left corner in camera px (the crop's caption says where it is), or None
 
@@ -202,7 +205,12 @@ def compensation_figure(target: np.ndarray, captures: Mapping[str, np.ndarray], 
         err[k] = e
     scale = error_scale(err["none"])
     mean = {k: float(np.nanmean(e)) if inside.any() else 0.0 for k, e in err.items()}
-    cw, ch = crop or (max(8, w // 4), max(8, h // 3))
+    if crop is None:
+        # a twelfth of the scored pixels, 3 wide to 2 high: on a table's 2:1 view a quarter of the width by
+        # a third of the height; on a mesh's (cameras stacked, much of them unscored) a detail, not a strip
+        n = int(inside.sum()) or h * w
+        crop = (int(math.sqrt(n * CROP_ASPECT / CROP_SHARE)), int(math.sqrt(n / CROP_ASPECT / CROP_SHARE)))
+    cw, ch = min(w, max(8, crop[0])), min(h, max(8, crop[1]))
     x0, y0, x1, y1 = _worst_window(np.nan_to_num(err["none"], nan=0.0), (cw, ch))
 
     f = enlargement(h)

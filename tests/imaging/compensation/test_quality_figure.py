@@ -101,9 +101,20 @@ def test_pixels_outside_the_scored_surface_are_grey_and_left_out():
     picture, shown = compensation_figure(target, captures, {}, mask=inside)
     x0, y0, x1, y1 = shown["window"]
     assert inside[y0:y1, x0:x1].mean() > 0.5, shown["window"]   # not where the unscored pixels differ
+    n = inside.sum()                  # a twelfth of the scored pixels, 3:2
+    assert (x1 - x0, y1 - y0) == (int(np.sqrt(n * 1.5 / 12)), int(np.sqrt(n / 1.5 / 12)))
     want = np.abs(none - target).mean(axis=2)[inside].mean()
     assert shown["mean_error"]["none"] == pytest.approx(want, abs=1e-5)
     assert shown["full_scale"] <= 0.2
     assert np.all(picture == NO_DATA_BGR, axis=2).sum() >= 2 * (~inside).sum() * 0.9     # both differences
     with pytest.raises(ValueError, match="mask"):
         compensation_figure(target, captures, {}, mask=inside[:-1])
+
+
+def test_a_tall_picture_of_stacked_cameras_gets_a_detail_not_a_strip():
+    """Several cameras' views one under the other (a mesh rig's evaluation): the crop stays 3:2."""
+    target, none, ours = blurred_results(3 * 200, 180)
+    picture, shown = compensation_figure(target, {"none": none, "ours": ours}, {})
+    x0, y0, x1, y1 = shown["window"]
+    assert (x1 - x0) > (y1 - y0) and (y1 - y0) < 200 and shown["zoom"] == 4
+
