@@ -199,3 +199,27 @@ def test_osc_settings_in_rig_toml(tmp_path):
         with pytest.raises(RigError) as e:
             load_osc(rig_dir)
         assert words in str(e.value) and "[osc]" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_stop_ends_when_it_meets_a_wake_up(tmp_path):
+    """asyncio.wait_for (3.11) drops a cancel that meets its just-set event: the status loop ran on
+    and stop() awaited it forever (a command recorded, or a timecode, right as the coordinator stops)."""
+    rig_dir = init_rig(tmp_path / "rig", name="osc", slots=["a"], width=32, height=32, content_width=64,
+                       content_height=32)
+    with open(rig_dir / "rig.toml", "a") as f:
+        f.write('\n[osc]\nlisten = "127.0.0.1:0"\n')
+
+    async def go():
+        app = CoordinatorApp(Rig(rig_dir), TOKEN, listen="127.0.0.1:0", advertise=False)
+        await app.start()
+        try:
+            osc = app.osc
+            for _ in range(5):      # the status loop reaches its wait for the next check
+                await asyncio.sleep(0)
+            osc.external_clock(1.0, app.coordinator.rig_now(), "osc:127.0.0.1", "127.0.0.1")   # wakes the loop
+            async with asyncio.timeout(30):
+                await osc.stop()
+        finally:
+            await app.stop()
+
+    asyncio.run(go())
