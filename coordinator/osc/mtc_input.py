@@ -15,6 +15,8 @@ them to its event loop).
 from __future__ import annotations
 
 import logging
+import os
+import sys
 from typing import Any, Callable
 
 from coordinator.errors import CoordinatorError
@@ -43,9 +45,16 @@ def _mido() -> Any:
     return mido
 
 
+#: the ALSA sequencer's device: rtmidi's Linux backend needs it (without, ALSA prints its own error first)
+ALSA_SEQ = "/dev/snd/seq"
+
+
 def port_names() -> list[str]:
     """The MIDI input ports of this machine; MidiUnavailable without the library or a MIDI system."""
     mido = _mido()
+    if sys.platform.startswith("linux") and not os.path.exists(ALSA_SEQ):
+        raise MidiUnavailable(f"no MIDI system here: {ALSA_SEQ} is missing (the ALSA sequencer: load the snd-seq "
+                              "module; a container needs the device passed in)")
     try:
         return list(dict.fromkeys(mido.get_input_names()))
     except Exception as exc:  # noqa: BLE001 - rtmidi's SystemError when there is no ALSA sequencer, ...

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import random
 import sys
 from fractions import Fraction
@@ -21,7 +22,7 @@ from coordinator.console.audit import FILE_NAME, ActionLog
 from coordinator.errors import CoordinatorError, RigError
 from coordinator.osc.config import OscConfig, load_osc
 from coordinator.osc.mtc import (RATES, MtcDecoder, Timecode, from_frame_number, full_frame, quarter_frames)
-from coordinator.osc.mtc_input import MidiUnavailable, MtcInput, choose_port, port_names
+from coordinator.osc.mtc_input import ALSA_SEQ, MidiUnavailable, MtcInput, choose_port, port_names
 from coordinator.osc.service import OscService
 from coordinator.rig import Rig, grid_slots, init_rig
 from waits import wait_until_async
@@ -193,8 +194,19 @@ def test_a_port_is_chosen_by_its_name_or_a_part_naming_one():
         choose_port("desk", names)
 
 
+def test_without_a_midi_system_the_refusal_is_one_line_of_ours(capfd):
+    pytest.importorskip("mido", reason="the midi extra is not installed")
+    if not sys.platform.startswith("linux") or os.path.exists(ALSA_SEQ):
+        pytest.skip("this machine has a MIDI system")
+    with pytest.raises(MidiUnavailable, match="no MIDI system here: /dev/snd/seq is missing") as e:
+        port_names()
+    assert "\n" not in str(e.value) and capfd.readouterr().err == "", "no line of ALSA's own before ours"
+
+
 def test_through_a_virtual_midi_port_where_the_machine_has_one():
     mido = pytest.importorskip("mido", reason="the midi extra is not installed")
+    if sys.platform.startswith("linux") and not os.path.exists(ALSA_SEQ):
+        pytest.skip(f"no virtual MIDI port on this machine: no ALSA sequencer ({ALSA_SEQ})")
     try:
         mido.set_backend("mido.backends.rtmidi", load=True)
         out = mido.open_output("shadowless-mtc-test", virtual=True)
