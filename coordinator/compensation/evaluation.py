@@ -116,7 +116,7 @@ def quality_picture(tiles: list[np.ndarray], order: list[str], scores: dict[str,
         # the mesh's tiles are 0 outside the visible surface in every tile; a scored pixel that is exactly 0
         # in all of them has no error either, so leaving it out moves no figure but the mean's count
         origin = None
-        where = "seen by the cameras over the object's visible surface (one camera's view under the other)"
+        where = "seen by the camera over the object's visible surface (several cameras: one's view under the other's)"
         mask = np.any([np.any(np.asarray(t) != 0, axis=2) for t in tiles], axis=0)
     title = [f"Blur compensation of {name!r}, {where}.",
              "PSNR and SSIM: against the target over the scored pixels (the figures of quality.json)."]
