@@ -17,7 +17,6 @@ from typing import Any
 import grpc
 
 from coordinator.assets import AssetStore
-from coordinator.console.audit import ActionLog
 from coordinator.errors import AssetError, Refusal
 from coordinator.sessions import Handshake
 from coordinator.uploads import UploadFile, Uploads
@@ -41,6 +40,7 @@ class ContentStoreService(control_pb2_grpc.ContentStoreServicer):
         self.store = store
         self.uploads = Uploads(store)
         self.handshake = handshake
+        from coordinator.console.audit import ActionLog     # not at start: tests/coordinator/test_startup_imports.py
         self.action_log = ActionLog(store.rig_dir)
         swept = self.uploads.sweep()
         if swept:
