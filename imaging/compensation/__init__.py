@@ -12,7 +12,9 @@ Numerics (pure functions; long ones take ``progress(iteration, objective)``):
 :mod:`.ridge` (the ridge-regularised problem the jobs solve, warm starts for sequences),
 :mod:`.geometry` (content -> camera mapping, PSF radius, dot spacing, target),
 :mod:`.patches` (grey patches of the response measurement), :mod:`.quality` (PSNR/SSIM,
-side-by-side pictures), :mod:`.synthetic` (a synthetic rig for tests and benchmarks).
+side-by-side pictures), :mod:`.quality_figure` (the compensate job's picture: full size, the detail
+where the blur costs most enlarged, the error per pixel on one colour scale), :mod:`.synthetic` (a
+synthetic rig for tests and benchmarks).
 
 The jobs that run these against a rig (measure, store, push) are in :mod:`coordinator.compensation`.
 

@@ -123,6 +123,7 @@
       return;
     }
     showImage(img, c.url);
+    $("pic-compensation-link").setAttribute("href", c.url);
     $("pic-compensation-when").textContent = c.finished_at ? `evaluated ${when(c.finished_at)}` : "";
     const tbody = table.tBodies[0];
     clear(tbody);

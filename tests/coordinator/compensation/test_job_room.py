@@ -152,6 +152,11 @@ def test_compensation_orders_none_baseline_ours_and_persists_the_result(setup):
     assert stored == {k: v for k, v in json.loads(json.dumps(out)).items() if k != "content"}
     assert out["content"].startswith("shown on every projector")
     assert (d / "quality.png").stat().st_size > 1000
+    shows = q["picture_shows"]       # the picture's crop and difference images, from the float captures
+    assert set(shows["mean_error"]) == {"none", "baseline", "ours"}
+    assert shows["mean_error"]["ours"] < shows["mean_error"]["none"]
+    x0, y0, x1, y1 = shows["window_camera_px"]
+    assert q["region"]["x"][0] <= x0 < x1 <= q["region"]["x"][1] and q["region"]["y"][0] <= y0 < y1 <= q["region"]["y"][1]
     assert out["solve"]["objective"] < out["solve"]["initial_objective"]
 
 

@@ -72,6 +72,8 @@ def test_compensation_solves_the_seen_texels_and_leaves_the_rest(setup):
     assert tex["compensated"] + tex["uncompensated"] == tex["on_mesh"] and tex["compensated"] > 0
     assert tex["uncompensated_share"] == pytest.approx(tex["uncompensated"] / tex["on_mesh"], abs=1e-4)
     q = out["quality"]
+    assert "window_camera_px" not in q["picture_shows"] and q["picture_shows"]["mean_error"]["none"] > 0
+    assert (rig.path / "compensation" / "quality.png").stat().st_size > 1000
     # what the solver believed, through the measured L: ours closer to the target than the content itself
     assert q["predicted"]["ours"]["psnr"] > q["predicted"]["none"]["psnr"]
     assert q["region"]["visible_surface_pixels"] == q["ours"]["pixels"] > 100
