@@ -4,22 +4,17 @@ changes the rig; a refused upload is an entry too."""
 from __future__ import annotations
 
 import asyncio
-import json
 
 import numpy as np
 
 from coordinator.app import CoordinatorApp
-from coordinator.console.audit import FILE_NAME
 from coordinator.rig import Rig, grid_slots, init_rig
 from node.image_files import write_png
 from protos.auth import read_token
 from cli_inprocess import run_shadowless
 from waits import wait_until_async
+from action_log import action_log_entries
 
-
-def entries(rig_dir) -> list[dict]:
-    f = rig_dir / FILE_NAME
-    return [json.loads(line) for line in f.read_text().splitlines()] if f.exists() else []
 
 
 def test_content_added_and_removed_from_the_command_line_is_in_the_action_log(tmp_path, capfd):
@@ -45,7 +40,7 @@ def test_content_added_and_removed_from_the_command_line_is_in_the_action_log(tm
             assert code != 0, (out, err)
             code, out, err = await cli("content", "rm", "card")
             assert code == 0, (out, err)
-            return await wait_until_async(lambda: entries(rig_dir), lambda es: len(es) >= 3,
+            return await wait_until_async(lambda: action_log_entries(rig_dir), lambda es: len(es) >= 3,
                                           what="three content calls in the action log")
         finally:
             await app.stop()

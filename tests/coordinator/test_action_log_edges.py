@@ -6,13 +6,11 @@ an entry too, a call without a session is not; one GO is one entry, whichever ed
 from __future__ import annotations
 
 import asyncio
-import json
 import socket
 
 import grpc
 
 from coordinator.app import CoordinatorApp
-from coordinator.console.audit import FILE_NAME
 from coordinator.osc.service import encode
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos import control_pb2, control_pb2_grpc
@@ -20,10 +18,7 @@ from protos.auth import read_token
 from protos.cues import Cue, CueList
 from cli_inprocess import run_shadowless
 from waits import wait_until_async
-
-def entries(rig_dir) -> list[dict]:
-    f = rig_dir / FILE_NAME
-    return [json.loads(line) for line in f.read_text().splitlines()] if f.exists() else []
+from action_log import action_log_entries
 
 
 def test_command_line_calls_are_in_the_action_log_with_who_and_where(tmp_path, capfd):
@@ -55,7 +50,7 @@ def test_command_line_calls_are_in_the_action_log_with_who_and_where(tmp_path, c
                 else:
                     raise AssertionError("a call without a session was served")
 
-            log = await wait_until_async(lambda: entries(rig_dir), lambda es: len(es) >= 4,
+            log = await wait_until_async(lambda: action_log_entries(rig_dir), lambda es: len(es) >= 4,
                                          what="four command-line calls in the action log")
             got = [(e["who"], e["address"], e["action"], e["ok"]) for e in log]
             assert got == [("token", "127.0.0.1", "cli blackout", True), ("token", "127.0.0.1", "cli configure", True),
@@ -92,7 +87,7 @@ def test_one_go_is_one_entry_from_the_command_line_osc_and_a_follow(tmp_path, ca
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
                 s.sendto(encode("/shadowless/go", ()), ("127.0.0.1", app.osc.port))     # cue 2, which follows into 3
             await wait_until_async(lambda: coord.cue_state().current, lambda c: c == 2, what="cue 3 by the follow")
-            log = await wait_until_async(lambda: entries(rig_dir), lambda es: len(es) >= 3,
+            log = await wait_until_async(lambda: action_log_entries(rig_dir), lambda es: len(es) >= 3,
                                          what="three fires in the action log")
             got = [(e["who"], e["action"], e["params"].get("cue", e["params"].get("id", ""))) for e in log]
             assert got == [("token", "cli cue go", ""), ("osc:127.0.0.1", "osc go", ""),

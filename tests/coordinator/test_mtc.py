@@ -6,7 +6,6 @@ virtual port, through the ALSA sequencer) is tried and skipped where the machine
 from __future__ import annotations
 
 import asyncio
-import json
 import os
 import random
 import sys
@@ -18,14 +17,15 @@ import pytest
 
 from coordinator.app import CoordinatorApp
 from coordinator.assets import AssetStore
-from coordinator.console.audit import FILE_NAME, ActionLog
+from coordinator.console.audit import ActionLog
 from coordinator.errors import CoordinatorError, RigError
-from coordinator.osc.config import OscConfig, load_osc
+from coordinator.osc.config import load_osc
 from coordinator.osc.mtc import (RATES, MtcDecoder, Timecode, from_frame_number, full_frame, quarter_frames)
 from coordinator.osc.mtc_input import ALSA_SEQ, MidiUnavailable, MtcInput, choose_port, port_names
 from coordinator.osc.service import OscService
 from coordinator.rig import Rig, grid_slots, init_rig
 from waits import wait_until_async
+from action_log import action_log_entries
 
 NS = 1_000_000_000
 
@@ -112,10 +112,6 @@ def _clip(folder, frames=100):
     return folder
 
 
-def _entries(rig_dir) -> list[dict]:
-    f = rig_dir / FILE_NAME
-    return [json.loads(line) for line in f.read_text().splitlines()] if f.exists() else []
-
 
 def test_mtc_drives_the_chase_and_stops_driving_it_when_it_stops(tmp_path):
     rig_dir = init_rig(tmp_path / "rig", name="mtc", slots=grid_slots(1, 2), width=32, height=32,
@@ -137,7 +133,7 @@ def test_mtc_drives_the_chase_and_stops_driving_it_when_it_stops(tmp_path):
             target = from_frame_number(round((frame_now / 10 + 5.0) * 25), 1)    # 5 s ahead, at 25 fps
             await asyncio.to_thread(port.feed, quarter_frames(target))
             entry = await wait_until_async(
-                lambda: [e for e in _entries(rig_dir) if e["action"] == "mtc timecode chase"],
+                lambda: [e for e in action_log_entries(rig_dir) if e["action"] == "mtc timecode chase"],
                 what="the show chasing MIDI timecode")
             assert entry[0]["ok"] and entry[0]["who"] == "mtc:desk" and entry[0]["address"] == "midi", entry
             assert entry[0]["params"]["drift_ms"] > 4500
@@ -148,7 +144,7 @@ def test_mtc_drives_the_chase_and_stops_driving_it_when_it_stops(tmp_path):
             coord.show_control("seek", frame=0)
             await wait_until_async(lambda: coord.status().show, lambda s: s.state == "playing" and s.frame >= 15,
                                    what="the show playing on from frame 0 (1.5 s)")
-            assert len([e for e in _entries(rig_dir) if e["action"] == "mtc timecode chase"]) == 1
+            assert len([e for e in action_log_entries(rig_dir) if e["action"] == "mtc timecode chase"]) == 1
         finally:
             await app.stop()
 

@@ -20,12 +20,13 @@ from pythonosc.osc_packet import OscPacket
 from coordinator.api import ShowState
 from coordinator.app import CoordinatorApp
 from coordinator.assets import AssetStore
-from coordinator.console.audit import FILE_NAME, ActionLog
+from coordinator.console.audit import ActionLog
 from coordinator.errors import RigError
 from coordinator.osc.config import OscConfig, load_osc, parse_osc
 from coordinator.osc.service import OscService, encode
 from coordinator.osc.timecode import chase, timecode_seconds
 from coordinator.rig import Rig, grid_slots, init_rig
+from action_log import action_log_entries
 from waits import wait_until_async
 
 TOKEN = b"o" * 32
@@ -54,10 +55,6 @@ def _clip(folder, frames=100):
         cv2.imwrite(str(folder / f"{k:03d}.png"), np.full((16, 32, 3), 2 * k, np.uint8))
     return folder
 
-
-def _entries(rig_dir) -> list[dict]:
-    f = rig_dir / FILE_NAME
-    return [json.loads(line) for line in f.read_text().splitlines()] if f.exists() else []
 
 
 def test_show_control_from_another_process(tmp_path, caplog):
@@ -96,7 +93,7 @@ def test_show_control_from_another_process(tmp_path, caplog):
                 assert replies["/shadowless/cue/current"] == ["dark", "house dark"]
                 assert replies["/shadowless/cue/next"] == ["end", "the end"]
             log = {e["action"]: e for e in await wait_until_async(
-                lambda: [e for e in _entries(rig_dir) if e["who"] == "osc:127.0.0.1"], lambda es: len(es) >= 3,
+                lambda: [e for e in action_log_entries(rig_dir) if e["who"] == "osc:127.0.0.1"], lambda es: len(es) >= 3,
                 what="the commands in the action log")}
             assert (log["osc gain"]["ok"], log["osc blackout"]["ok"], log["osc nope"]["ok"]) == (True, True, False)
             assert "black" in log["osc blackout"]["result"] and "2 slots" in log["osc gain"]["result"]
@@ -129,7 +126,7 @@ def test_show_control_from_another_process(tmp_path, caplog):
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
                 s.sendto(encode("/shadowless/timecode", (frame_now / 10 + 2.0,)), ("127.0.0.1", osc.port))
             entry = await wait_until_async(
-                lambda: [e for e in _entries(rig_dir) if e["action"] == "osc timecode chase"],
+                lambda: [e for e in action_log_entries(rig_dir) if e["action"] == "osc timecode chase"],
                 what="the show chasing the timecode")
             assert entry[0]["ok"] and entry[0]["who"] == "osc:127.0.0.1", entry
             assert entry[0]["params"]["drift_ms"] > 1500
@@ -140,7 +137,7 @@ def test_show_control_from_another_process(tmp_path, caplog):
                 {"allow": ["10.9.8.0/24"]}).allow), ActionLog(rig_dir))
             await strict.start()
             try:
-                before = len(_entries(rig_dir))
+                before = len(action_log_entries(rig_dir))
                 with caplog.at_level(logging.WARNING, logger="coordinator.osc.service"):
                     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
                         for _ in range(3):
@@ -149,7 +146,7 @@ def test_show_control_from_another_process(tmp_path, caplog):
                                            what="three datagrams from 127.0.0.1 ignored")
                 said = [r.getMessage() for r in caplog.records if "ignored a message from 127.0.0.1" in r.getMessage()]
                 assert len(said) == 1 and "10.9.8.0/24" in said[0]
-                assert strict.handled == 0 and len(_entries(rig_dir)) == before
+                assert strict.handled == 0 and len(action_log_entries(rig_dir)) == before
             finally:
                 await strict.stop()
         finally:
