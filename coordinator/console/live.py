@@ -247,9 +247,10 @@ class Live:
         next_sample = time.monotonic()
         last = 0.0
         while True:
-            try:
-                await asyncio.wait_for(self._poke.wait(), timeout=self.period_s)
-            except asyncio.TimeoutError:
+            try:    # not wait_for: on 3.11 it drops a cancel that meets a poke, and stop() hung
+                async with asyncio.timeout(self.period_s):
+                    await self._poke.wait()
+            except TimeoutError:
                 pass
             self._poke.clear()
             wait = last + self.period_s - time.monotonic()
@@ -306,9 +307,10 @@ class Live:
                     await resp.write(b": keepalive\n\n")
                     last_write = time.monotonic()
                 ev.clear()
-                try:
-                    await asyncio.wait_for(ev.wait(), timeout=KEEPALIVE_S)
-                except asyncio.TimeoutError:
+                try:    # not wait_for: on 3.11 it drops a cancel that meets a set event
+                    async with asyncio.timeout(KEEPALIVE_S):
+                        await ev.wait()
+                except TimeoutError:
                     pass
         except ConnectionResetError:
             pass
