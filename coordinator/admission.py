@@ -148,9 +148,10 @@ class Budget:
             while True:
                 waker = asyncio.Event()
                 self._wakers.append(waker)
-                try:
-                    await asyncio.wait_for(waker.wait(), max(0.0, deadline - loop.time()))
-                except asyncio.TimeoutError:
+                try:    # not wait_for: on 3.11 it drops a cancel that meets the set waker
+                    async with asyncio.timeout(max(0.0, deadline - loop.time())):
+                        await waker.wait()
+                except TimeoutError:
                     self._refuse()
                     return None
                 if self._fits(address):

@@ -132,8 +132,10 @@ class Previews:
                     if not self.wanted(slot):
                         await wake.wait()
                     else:
-                        with contextlib.suppress(asyncio.TimeoutError):
-                            await asyncio.wait_for(wake.wait(), next_at - now)
+                        # not wait_for: on 3.11 it drops a cancel that meets the set wake event
+                        with contextlib.suppress(TimeoutError):
+                            async with asyncio.timeout(next_at - now):
+                                await wake.wait()
                     continue
                 self._next_id += 1
                 self._asked_id[slot] = self._next_id
