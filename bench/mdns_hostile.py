@@ -57,9 +57,10 @@ async def advertise(*, interface: str, name: str, rig_id: str, service: str, eve
         await azc.async_register_service(info, allow_name_change=False, cooperating_responders=True)
         print(json.dumps({"ready": True, "name": info.name, "port": port}), flush=True)
         while not stop.is_set():
-            try:
-                await asyncio.wait_for(stop.wait(), every)
-            except asyncio.TimeoutError:
+            try:    # not wait_for: on 3.11 it drops a cancel that meets the set stop event
+                async with asyncio.timeout(every):
+                    await stop.wait()
+            except TimeoutError:
                 azc.zeroconf.async_send(azc.zeroconf.generate_service_broadcast(info, None))
     finally:
         await azc.async_unregister_all_services()

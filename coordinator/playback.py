@@ -333,8 +333,9 @@ class Playback:
             evict = []
             self.current_frame, self.current_contents = frame, contents
             self.showing = "calibration pattern"
-            try:
-                result = await asyncio.wait_for(fut, timeout_s)
+            try:    # not wait_for: on 3.11 it drops a cancel (a job cancelled) that meets the verdict
+                async with asyncio.timeout(timeout_s):
+                    result = await fut
             except TimeoutError:    # no verdict in time (a node silent): try again, as for a late one
                 result = None
                 timed_out = sorted(s.slot for s in sessions)

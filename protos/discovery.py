@@ -289,9 +289,10 @@ class Discovery:
             if left <= 0:
                 return False
             self._changed.clear()
-            try:
-                await asyncio.wait_for(self._changed.wait(), left)
-            except asyncio.TimeoutError:
+            try:    # not wait_for: on 3.11 it drops a cancel that meets a sighting, and the caller ran on
+                async with asyncio.timeout(left):
+                    await self._changed.wait()
+            except TimeoutError:
                 return self.generation != since
         return True
 
@@ -325,8 +326,9 @@ class Discovery:
             self._changed.clear()
             until = min(deadline, settled_at) if settled_at is not None else deadline
             until = min(until, now + QUERY_INTERVAL_S)
-            try:
-                await asyncio.wait_for(self._changed.wait(), max(0.05, until - now))
-            except asyncio.TimeoutError:
+            try:    # not wait_for: on 3.11 it drops a cancel that meets a sighting
+                async with asyncio.timeout(max(0.05, until - now)):
+                    await self._changed.wait()
+            except TimeoutError:
                 pass
             self._query()

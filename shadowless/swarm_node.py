@@ -157,8 +157,9 @@ class SwarmNode:
                 self.stats.errors += 1
                 log.warning("%s: %s", self.slot, exc)
             backoff = min(self.cfg.backoff_max_s, backoff * 2)
-            try:
-                await asyncio.wait_for(stopping.wait(), backoff * random.uniform(0.8, 1.2))
+            try:    # not wait_for: on 3.11 it drops a cancel that meets the set stopping event
+                async with asyncio.timeout(backoff * random.uniform(0.8, 1.2)):
+                    await stopping.wait()
             except TimeoutError:
                 pass
 

@@ -153,9 +153,10 @@ class NodeLinkService(HandshakeService):
                     self.c.show_bytes_sent += msg.ByteSize()
                     yield msg
                 changed.clear()
-                try:
-                    await asyncio.wait_for(changed.wait(), BEACON_S)
-                except asyncio.TimeoutError:
+                try:    # not wait_for: on 3.11 it drops a cancel that meets a set event
+                    async with asyncio.timeout(BEACON_S):
+                        await changed.wait()
+                except TimeoutError:
                     pass
         finally:
             unsubscribe()

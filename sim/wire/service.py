@@ -245,9 +245,10 @@ class RoomService(room_pb2_grpc.RoomServicer):
             return [s for s in self.room.active if s in streaming and (s not in self._latest or self._latest[s].swap_rig_ns < not_before)]
 
         async with cond:
-            try:
-                await asyncio.wait_for(cond.wait_for(lambda: not late()), timeout)
-            except asyncio.TimeoutError:
+            try:    # not asyncio.wait_for: on 3.11 it drops a cancel (the call cancelled) that meets the frames
+                async with asyncio.timeout(timeout):
+                    await cond.wait_for(lambda: not late())
+            except TimeoutError:
                 pass
             return late()
 
