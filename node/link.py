@@ -58,7 +58,8 @@ async def probe(target: str, timeout: float = PROBE_TIMEOUT_S) -> None:
         return
     host, port = m.group(1).strip("[]"), int(m.group(2))
     try:
-        _, writer = await asyncio.wait_for(asyncio.open_connection(host, port), timeout)
+        async with asyncio.timeout(timeout):    # not wait_for: on 3.11 it drops a cancel that meets the connect
+            _, writer = await asyncio.open_connection(host, port)
     except (asyncio.TimeoutError, TimeoutError):
         raise LinkError("UNAVAILABLE", f"{target} took no connection within {timeout:g} s") from None
     except OSError as exc:

@@ -146,10 +146,10 @@ class SessionCore:
         bad server proof) could replay a real proof to that coordinator and join as this slot. The
         answer changes nothing here (the node joins nowhere)."""
         try:
-            await asyncio.wait_for(link.join(JoinRequest(
-                protocol_version=self.protocol_version, slot=self.slot, client_nonce=client_nonce,
-                server_nonce=hello.server_nonce, client_proof=os.urandom(auth.PROOF_BYTES), info=self.info())),
-                UNTRUSTED_JOIN_TIMEOUT_S)
+            async with asyncio.timeout(UNTRUSTED_JOIN_TIMEOUT_S):   # not wait_for (3.11 drops a cancel)
+                await link.join(JoinRequest(
+                    protocol_version=self.protocol_version, slot=self.slot, client_nonce=client_nonce,
+                    server_nonce=hello.server_nonce, client_proof=os.urandom(auth.PROOF_BYTES), info=self.info()))
         except (LinkError, asyncio.TimeoutError, OSError):
             pass
 
