@@ -82,7 +82,8 @@ class _Sampler(threading.Thread):
 async def _status_probe(client, stop: threading.Event, times: list[float]) -> None:
     while not stop.is_set():
         t0 = time.monotonic()
-        await asyncio.wait_for(client.status(), 30)
+        async with asyncio.timeout(30):
+            await client.status()
         times.append(time.monotonic() - t0)
         await asyncio.sleep(0.05)
 
@@ -120,7 +121,8 @@ def measure(workdir: Path, *, calls: int, size: int, channels: int, nodes: int, 
                 attack = await asyncio.create_subprocess_exec(
                     sys.executable, "-m", "bench.preauth_wire", rig.target, method, str(calls), str(size), str(channels), payload,
                     stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-                out, err = await asyncio.wait_for(attack.communicate(), 300)
+                async with asyncio.timeout(300):
+                    out, err = await attack.communicate()
                 result["burst_s"] = round(time.monotonic() - t0, 2)
                 result["codes"] = json.loads(out) if attack.returncode == 0 else {"attack failed": err.decode()[-500:]}
                 await asyncio.sleep(settle)

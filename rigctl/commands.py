@@ -480,7 +480,8 @@ async def _play_until_interrupted(c, st: PlaySettings, frames: list[np.ndarray])
         return task.result()
     task.cancel()
     try:
-        showing = await asyncio.wait_for(c.stop(), 10)
+        async with asyncio.timeout(10):
+            showing = await c.stop()
         print(f"stopped on the rig; it shows {showing}", file=sys.stderr)
     except (asyncio.TimeoutError, OperatorError) as exc:
         print(f"could not stop the sequence on the rig ({exc}); run `shadowless stop`", file=sys.stderr)

@@ -85,3 +85,27 @@ def test_the_architecture_document_is_in_the_repository_and_nothing_points_outsi
             if needle in text:
                 offenders.append(f"{f.relative_to(ROOT)}: {needle}")
     assert offenders == []
+
+
+def _asyncio_wait_fors(source: str) -> list[int]:
+    """Lines of ``source`` that call ``asyncio.wait_for`` or import it by name."""
+    hits = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Attribute) and node.attr == "wait_for" and isinstance(node.value, ast.Name) \
+                and node.value.id == "asyncio":
+            hits.append(node.lineno)
+        elif isinstance(node, ast.ImportFrom) and node.module == "asyncio" and any(a.name == "wait_for" for a in node.names):
+            hits.append(node.lineno)
+    return hits
+
+
+def test_no_wait_loses_a_cancel():
+    """On Python 3.11 ``asyncio.wait_for`` drops a cancel that meets the awaited thing's completion, so a
+    loop around it runs on and the stop() awaiting it hangs: the product waits with ``asyncio.timeout``
+    (docs/architecture.md, "Waits that keep a cancel")."""
+    assert _asyncio_wait_fors("import asyncio\nasync def f(e):\n    await asyncio.wait_for(e.wait(), 1)\n") == [3]
+    assert _asyncio_wait_fors("from asyncio import wait_for\n") == [1]
+    assert _asyncio_wait_fors("async def f(c):\n    await c.wait_for(lambda: True)\n") == []   # a Condition's
+    found = [f"{f.relative_to(ROOT)}:{line}" for pkg in PACKAGES for f in sorted((ROOT / pkg).rglob("*.py"))
+             if not f.name.endswith(("_pb2.py", "_pb2_grpc.py")) for line in _asyncio_wait_fors(f.read_text())]
+    assert not found, f"asyncio.wait_for in the product (use `async with asyncio.timeout(t):`): {found}"
