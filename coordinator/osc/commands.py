@@ -60,7 +60,7 @@ class Address:
 ADDRESSES: tuple[Address, ...] = (
     Address(f"{PREFIX}/go", "", "fire the next cue (the first one when none fired yet)"),
     Address(f"{PREFIX}/back", "", "fire the cue before the current one"),
-    Address(f"{PREFIX}/jump", "CUE_ID", "fire the cue with this id"),
+    Address(f"{PREFIX}/jump", "CUE_ID", "fire the cue with this id (a string, or a whole number: 3 or 3.0 for cue 3)"),
     Address(f"{PREFIX}/play", "ASSET [LOOP]", "play an asset (its id, id prefix or name) from its start; LOOP 1 loops"),
     Address(f"{PREFIX}/pause", "", "hold the playing asset on its frame"),
     Address(f"{PREFIX}/resume", "", "go on from the held frame"),
@@ -94,6 +94,18 @@ def _text(address: str, args: Sequence[Any], what: str) -> str:
     return args[0].strip()
 
 
+def _cue_id(address: str, args: Sequence[Any]) -> str:
+    """The cue's id from /jump's first argument: a string, or a whole number as desks and
+    TouchDesigner send it (an int, or a float such as 3.0) for a cue whose id is that number."""
+    if args and isinstance(args[0], (int, float)) and not isinstance(args[0], bool):
+        value = args[0]
+        if not math.isfinite(value) or value != int(value):
+            raise OscError(f"{address} needs the cue's id as its first argument: a string, or a whole number; "
+                           f"got {value!r}")
+        return str(int(value))
+    return _text(address, args, "the cue's id")
+
+
 def _flag(value: Any, address: str) -> bool:
     if isinstance(value, bool):
         return value
@@ -122,7 +134,7 @@ def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str | 
         _no_args(address, args)
         return _cue_method(coord, "cue_back")(who=who)
     if address == f"{PREFIX}/jump":
-        cue_id = _text(address, args, "the cue's id")
+        cue_id = _cue_id(address, args)
         return _cue_method(coord, "cue_jump")(cue_id, who=who)
     if address == f"{PREFIX}/play":
         key = _text(address, args, "the asset (id, id prefix or name)")
