@@ -106,6 +106,7 @@ def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
             "show": {"state": n.show.state.value, "revision": n.show.revision, "last_frame": n.show.last_frame,
                      "shown": n.show.frames_shown, "missed": n.show.frames_late, "alone_ms": round(n.show.alone_ms)},
             "refusal": refused.get(n.slot) if n.state.value in ("expected", "lost") else None,
+            "left": n.left or None,        # lost because it stopped on purpose: why (its goodbye)
         } for n in st.nodes],
         "sync": sync_dict(st.sync),
         "show": show_dict(st.show),
@@ -159,7 +160,7 @@ def last_swap_cell(n: dict, *, now: float | None = None) -> str:
 
 
 #: the colour of a node's state on a terminal (others: yellow)
-STATE_STYLES = {"live": "green", "lost": "red", "refused": "red"}
+STATE_STYLES = {"live": "green", "lost": "red", "left": "red", "refused": "red"}
 
 
 def _grouped(nodes: list[dict], key: str, verb: str) -> list[str]:
@@ -186,9 +187,12 @@ def status_table(d: dict, *, tty: bool = False) -> str:
     t = operator_table("slot", "state", "host", ">offset ms", ">drift ppm", ">rtt ms", "last swap", ">shown", ">late",
                        ">drop", "pose", "show", "assets")
     for n in d["nodes"]:
-        state = "refused" if n.get("refusal") else n["state"]
+        state = "refused" if n.get("refusal") else "left" if n.get("left") else n["state"]
+        clocked = n["rtt_ms"] > 0                  # else no clock exchange yet: no figures, not zeros
         t.add_row(n["slot"], Text(state, style=STATE_STYLES.get(state, "yellow")), n["host"] or "-",
-                  f"{n['clock_offset_ms']:.3f}", f"{n['drift_ppm']:.1f}", f"{n['rtt_ms']:.3f}",
+                  f"{round(n['clock_offset_ms'], 3) or 0.0:.3f}" if clocked else "-",    # no "-0.0"
+                  f"{round(n['drift_ppm'], 1) or 0.0:.1f}" if clocked else "-",
+                  f"{n['rtt_ms']:.3f}" if clocked else "-",
                   last_swap_cell(n), str(n["shown"]), str(n["late"]), str(n["dropped"]), n["pose"],
                   show_cell(n["show"]), assets_cell(n["assets"]))
     lines.append(rendered(t, tty=tty))
@@ -197,6 +201,8 @@ def status_table(d: dict, *, tty: bool = False) -> str:
     if "blend" in d:                          # the per-pixel blend, and a failover as an alarm under the table
         lines += blend_lines(d["blend"])
     for n in d["nodes"]:
+        if n.get("left"):
+            lines.append(f"{n['slot']}: left on purpose: {n['left']}")
         if n["show"]["alone_ms"]:
             lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "
                          "(its last outage)")

@@ -35,3 +35,22 @@ def test_the_last_swap_is_a_frame_a_clock_time_and_an_age():
     assert last_swap_cell(c, now=now) == "-" and c["last_swap_at"] is None
     text = status_table(d)
     assert "up 1 h 2 min" in text.splitlines()[0] and "1796527603756874" not in text
+
+
+def test_unmeasured_clocks_read_as_none_and_a_node_that_stopped_reads_left():
+    """An expected slot (no node has joined) has no clock offset, drift or round trip: the table
+    says "-", not 0.000 ms, which reads as a perfectly synchronised projector (and a drift of
+    -0.04 ppm reads 0.0, not -0.0). A node that stopped on purpose reads "left" with its reason, as
+    the coordinator's log and the console say, not "lost"."""
+    live = NodeStatus(slot="a", state=NodeState.LIVE, clock_offset_ms=0.25, clock_drift_ppm=1.5, clock_rtt_ms=1.2)
+    never = NodeStatus(slot="b", state=NodeState.EXPECTED)
+    gone = NodeStatus(slot="c", state=NodeState.LOST, hostname="h", clock_offset_ms=0.5, clock_drift_ppm=-0.04,
+                      clock_rtt_ms=1.0, left="stopped (SIGTERM)")
+    d = status_dict(RigStatus(rig_id="r", rig_name="hall", instance_id="i", nodes=(live, never, gone)))
+    assert d["nodes"][2]["left"] == "stopped (SIGTERM)" and d["nodes"][0]["left"] is None
+    lines = status_table(d).splitlines()
+    rows = {line.split()[0]: line.split() for line in lines if line.split() and line.split()[0] in "abc"}
+    assert rows["a"][1:6] == ["live", "-", "0.250", "1.5", "1.200"], rows["a"]      # host unknown, then figures
+    assert rows["b"][1:6] == ["expected", "-", "-", "-", "-"], rows["b"]
+    assert rows["c"][1:6] == ["left", "h", "0.500", "0.0", "1.000"], rows["c"]         # not "-0.0"
+    assert "c: left on purpose: stopped (SIGTERM)" in lines
