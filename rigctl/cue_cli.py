@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -97,12 +98,15 @@ def configure(p: argparse.ArgumentParser) -> None:
     jump.add_argument("id", help="the cue's id")
 
 
-def cue_table(state: dict, *, now: float | None = None) -> str:
-    """The cue list as the operator reads it: ▶ the current cue, → the next, then a summary line."""
+def cue_table(state: dict, *, now: float | None = None, rig: str = "") -> str:
+    """The cue list as the operator reads it: ▶ the current cue, → the next, then a summary line.
+    ``rig``: the rig directory the operator named, so that the commands suggested can be pasted as
+    they are (without one they name no rig: the operator reached it some other way)."""
     now = time.time() if now is None else now
+    where = f" {shlex.quote(rig)}" if rig else ""
     cues = [Cue.from_json(c) for c in state.get("cues", [])]
     if not cues:
-        return "no cues yet: add one with `shadowless cue add RIG --kind still --target content`"
+        return f"no cues yet: add one with `shadowless cue add{where or ' RIG'} --kind still --target content`"
     current, nxt = state.get("current"), state.get("next")
     rows = [("", "ID", "NAME", "KIND", "TARGET", "FADE", "FOLLOW", "SLOTS")]
     for i, c in enumerate(cues):
@@ -121,7 +125,7 @@ def cue_table(state: dict, *, now: float | None = None) -> str:
     if nxt is not None:
         follow = state.get("follow_at")
         then = f" (auto-follow in {max(0.0, follow - now):.1f} s)" if isinstance(follow, (int, float)) else ""
-        summary += f"; next: cue {cues[nxt].id}{then} (`shadowless cue go`)"
+        summary += f"; next: cue {cues[nxt].id}{then} (`shadowless cue go{where}`)"
     else:
         summary += "; that was the last cue"
     return "\n".join(lines + ["", f"{count(len(cues), 'cue')}; {summary}"])
@@ -169,14 +173,14 @@ async def _run(args) -> int:
         sub = args.cue_command
         if sub == "list":
             state, _ = await c.cues()
-            print(json.dumps(state, indent=1) if args.json else cue_table(state))
+            print(json.dumps(state, indent=1) if args.json else cue_table(state, rig=args.rig_dir or ""))
             return 0
         if sub in ("add", "rm", "move", "load"):
             state, _ = await c.cues()
             new, said = _edited(state, args)
             state, _ = await c.set_cues(json.dumps(new.to_json()))
             print(said)
-            print(cue_table(state))
+            print(cue_table(state, rig=args.rig_dir or ""))
             return 0
         state, result = await c.fire_cue("jump" if sub == "jump" else sub, getattr(args, "id", "") or "")
         print(result)
