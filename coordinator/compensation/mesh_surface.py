@@ -47,6 +47,7 @@ from coordinator.jobs.results import Figures
 from imaging.compensation.errors import CompensationError
 from imaging.compensation.geometry import row_white
 from imaging.compensation.mesh_geometry import measured_texels
+from imaging.compensation.quality_figure import packed_views
 from imaging.compensation.solver import SolveResult
 from imaging.compensation.texture_space import content_at_view, mesh_warp
 
@@ -211,12 +212,10 @@ class MeshScoring:
         return stacked_scores(self.goal, c, self.sol.region, len(self.cameras))
 
     def tiles(self, tiles: dict[str, np.ndarray], order: list[str]) -> list[np.ndarray]:
-        region = self.sol.region
-        ys, xs = np.nonzero(region)
-        box = (slice(max(ys.min() - 4, 0), ys.max() + 5), slice(max(xs.min() - 4, 0), xs.max() + 5))
-        inside = region[box][:, :, None]
-        return [np.where(inside, self.goal[box], 0)] + [np.where(inside, np.clip(tiles[k][box], 0, 1), 0)
-                                                         for k in order]
+        # each camera's view cut to its own part of the visible surface (not the black between them),
+        # packed one under the other or side by side: only the picture's layout, no score depends on it
+        images = [self.goal] + [np.clip(tiles[k], 0, 1) for k in order]
+        return packed_views(images, self.sol.region, len(self.cameras), across=len(images))
 
     def figures(self) -> Figures:
         sol = self.sol

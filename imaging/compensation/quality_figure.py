@@ -23,7 +23,7 @@ import numpy as np
 from imaging.calibration.heatmap_figure import colourise, put_text, turbo_lut
 from imaging.compensation.quality import MAX_ENLARGEMENT, MIN_PICTURE_HEIGHT, linear_to_srgb
 
-__all__ = ["compensation_figure", "detail_window", "error_scale", "enlargement", "camera_view_srgb", "RESULT_NAMES",
+__all__ = ["compensation_figure", "packed_views", "BLOCK_MARGIN", "detail_window", "error_scale", "enlargement", "camera_view_srgb", "RESULT_NAMES",
            "panel", "row", "column", "caption_band", "text_width", "INK", "PAPER", "GAP", "CROP_BGR"]
 
 INK = (40, 40, 40)
@@ -36,6 +36,8 @@ GAP = 10
 CROP_BGR = (0, 215, 255)
 #: the default crop: this share of the scored pixels, this wide to 1 high
 CROP_SHARE, CROP_ASPECT = 12, 1.5
+#: unscored px kept round each camera's view when several are packed into one tile (:func:`packed_views`)
+BLOCK_MARGIN = 4
 #: each result's name in the captions (the keys of the job's ``quality.json``)
 RESULT_NAMES = {"none": "without compensation", "baseline": "per-projector baseline", "ours": "compensated"}
 
@@ -100,6 +102,68 @@ def enlargement(height: int) -> int:
     """The whole factor a tile ``height`` px high is shown enlarged by: up to :data:`MIN_PICTURE_HEIGHT`
     px high, at most :data:`MAX_ENLARGEMENT` (as :func:`imaging.compensation.quality.side_by_side`)."""
     return min(MAX_ENLARGEMENT, max(1, -(-MIN_PICTURE_HEIGHT // max(int(height), 1))))
+
+
+# ------------------------------------------------------------------------------------------ several views
+def packed_views(images: Sequence[np.ndarray], region: np.ndarray, views: int, *, across: int,
+                 margin: int = BLOCK_MARGIN) -> list[np.ndarray]:
+    """Several cameras' views, each cropped to its own scored pixels, packed into one tile per image.
+
+    ``images``: (H, W, C) float32 each, ``views`` views stacked one under the other (view k is rows
+    k * H // views .. (k + 1) * H // views); ``region``: (H, W) bool, the scored pixels. Each view is cut
+    to its scored pixels' bounding box plus ``margin`` px (inside the view), pixels outside ``region``
+    set to 0, and views without a scored pixel are left out. The cut views are laid one under the other
+    (narrower ones centred) or side by side (shorter ones centred), whichever makes the picture
+    (:func:`compensation_figure` with ``across`` tiles in a row) squarer; the rest is 0. So no band of
+    unscored rows (or columns) between two views is wider than 2 * ``margin``.
+
+    Returns one (h, w, C) float32 tile per image, in their order. Only the layout changes: every
+    scored pixel appears once, with its value."""
+    region = np.asarray(region, bool)
+    H = region.shape[0]
+    if views < 1 or H % views:
+        raise ValueError(f"{H} rows are not {views} stacked views")
+    h = H // views
+    boxes = []
+    for k in range(views):
+        ys, xs = np.nonzero(region[k * h:(k + 1) * h])
+        if ys.size:
+            boxes.append((slice(k * h + max(int(ys.min()) - margin, 0), k * h + min(int(ys.max()) + 1 + margin, h)),
+                          slice(max(int(xs.min()) - margin, 0), min(int(xs.max()) + 1 + margin, region.shape[1]))))
+    if not boxes:
+        raise ValueError("no scored pixel in any view")
+    sizes = [(b[0].stop - b[0].start, b[1].stop - b[1].start) for b in boxes]
+    tall = (sum(s[0] for s in sizes), max(s[1] for s in sizes))
+    wide = (max(s[0] for s in sizes), sum(s[1] for s in sizes))
+    # the picture: ``across`` tiles in a row, twice (views, differences) over the enlarged crop's row
+    # (a twelfth of the scored pixels at 3:2, 4x); the same crop for both layouts
+    n = int(region.sum())
+    cw, ch = 4 * math.sqrt(n * CROP_ASPECT / CROP_SHARE), 4 * math.sqrt(n / CROP_ASPECT / CROP_SHARE)
+
+    def oblong(size: tuple[int, int]) -> float:
+        return abs(math.log(across * max(size[1], cw) / (2 * size[0] + ch)))
+
+    side_by_side = oblong(wide) < oblong(tall)
+    out_h, out_w = wide if side_by_side else tall
+    out = []
+    for img in images:
+        a = _channels(img)
+        if a.shape[:2] != region.shape:
+            raise ValueError(f"image {a.shape[:2]} differs from the region's {region.shape}")
+        tile = np.zeros((out_h, out_w, a.shape[2]), np.float32)
+        at = 0
+        for (ys, xs), (bh, bw) in zip(boxes, sizes):
+            cut = np.where(region[ys, xs][:, :, None], a[ys, xs], 0)
+            if side_by_side:
+                y = (out_h - bh) // 2
+                tile[y:y + bh, at:at + bw] = cut
+                at += bw
+            else:
+                x = (out_w - bw) // 2
+                tile[at:at + bh, x:x + bw] = cut
+                at += bh
+        out.append(tile)
+    return out
 
 
 # ------------------------------------------------------------------------------------------ figures
