@@ -620,7 +620,10 @@ def _runner(coro_fn):
         try:
             return asyncio.run(coro_fn(args))
         except (OperatorError, auth.TokenError) as exc:     # a refused call too (CallRefused)
-            print(f"shadowless {args.command}: {exc}", file=sys.stderr)
+            said = str(exc)
+            if hasattr(args, "fit"):        # the coordinator's words (the console's too) name no option
+                said = said.replace("choose how to fit it:", "choose how to fit it with --fit:")
+            print(f"shadowless {args.command}: {said}", file=sys.stderr)
             return 2
 
     return run
