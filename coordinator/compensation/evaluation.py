@@ -47,7 +47,8 @@ class Scoring(Protocol):
 
     def tiles(self, tiles: dict[str, np.ndarray], order: list[str]) -> list[np.ndarray]:
         """The picture's tiles: the target, then ``tiles`` in ``order`` (each (h, w, C) float32, linear,
-        1 = the target level; pixels outside the scored region 0 in every tile)."""
+        1 = the target level; pixels outside the scored region 0 in every tile; a mesh's several cameras:
+        each one's view cut to its scored pixels, packed by imaging.compensation.quality_figure.packed_views)."""
 
     def figures(self) -> Figures:
         """The scored region's (and the exposure's) figures for ``quality.json``."""
@@ -104,7 +105,7 @@ def quality_picture(tiles: list[np.ndarray], order: list[str], scores: dict[str,
 
     ``tiles``: :meth:`Scoring.tiles` (the target, then the captures in ``order``); ``region``:
     :meth:`Scoring.figures` (a table's scored rectangle in camera px, ``region.x`` / ``region.y``, or a
-    mesh's visible surface: the cameras' views stacked, unscored pixels 0 in every tile)."""
+    mesh's visible surface: the cameras' views, each cut to the object, packed; unscored pixels 0 in every tile)."""
     target, captures = tiles[0], dict(zip(order, tiles[1:]))
     box = region.get("region") or {}
     if "x" in box and "y" in box:
@@ -116,7 +117,8 @@ def quality_picture(tiles: list[np.ndarray], order: list[str], scores: dict[str,
         # the mesh's tiles are 0 outside the visible surface in every tile; a scored pixel that is exactly 0
         # in all of them has no error either, so leaving it out moves no figure but the mean's count
         origin = None
-        where = "seen by the camera over the object's visible surface (several cameras: one's view under the other's)"
+        where = ("seen by the camera over the object's visible surface (several cameras: each one's view cut to "
+                 "the object, next to the others)")
         mask = np.any([np.any(np.asarray(t) != 0, axis=2) for t in tiles], axis=0)
     title = [f"Blur compensation of {name!r}, {where}.",
              "PSNR and SSIM: against the target over the scored pixels (the figures of quality.json)."]
