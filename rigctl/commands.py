@@ -306,14 +306,56 @@ def read_lut(path: str | Path) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- commands
+STATUS_HELP = """\
+the table's columns:
+  state      live (reporting), joined (streams opening), expected (no node yet), lost (its reports
+             stopped), left (it stopped on purpose, with why), refused (a node claiming the slot was
+             turned away: the reason is under the table)
+  offset ms  the node's clock against the rig's, as the node estimates it ("-": no clock exchange yet)
+  drift ppm  how fast its clock runs away from the rig's, in parts per million (settles in about 20 s)
+  rtt ms     the round trip of its clock exchanges with the coordinator
+  last swap  when its picture last changed (the show's frame while one plays), a clock time and an age
+  shown, late, drop   frames it showed, showed late, and never showed
+  pose       homography (a table), projection (a 3x4 pose, an object) or none (the projector shows black)
+  show       its own account of a timeline show: state and last frame
+  assets     content assets ready/wanted and the share of their bytes it holds (! one failed)
+
+examples:
+  shadowless status --rig-dir rigs/table
+  watch -n 2 shadowless status --rig-dir rigs/table        # keep it on a screen
+  shadowless status --rig-dir rigs/table --json            # the same and more, for scripts
+"""
+
+
 def configure_status(p: argparse.ArgumentParser) -> None:
     p.description = ("Show the rig: every slot's node state, clock offset, drift, last swap, late/dropped frames, its "
                      "readiness (assets ready/wanted and the share of their bytes it holds), and the swap skew.")
+    p.epilog = STATUS_HELP
     p.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
     add_connection_args(p)
 
 
 SHOW_ACTIONS = ("pause", "resume", "seek", "stop")
+
+#: the files a folder of frames is made of (sorted by name)
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".npy")
+
+SHOW_HELP = """\
+examples:
+  shadowless show poster.png --rig-dir rigs/table                # until the next show, stop or blackout
+  shadowless show poster.png --persist --rig-dir rigs/table      # the rig's content, kept over restarts
+  shadowless show photo.jpg --fit cover --rig-dir rigs/table     # another aspect: fill, cropped
+  shadowless show pause --rig-dir rigs/table                     # a show started by `shadowless play ASSET`
+  shadowless show seek 250 --in 2 --rig-dir rigs/table           # frame 250, two seconds from now
+"""
+
+PLAY_HELP = """\
+examples:
+  shadowless play intro.mp4 --loop --rig-dir rigs/table          # an asset (`shadowless content add`)
+  shadowless play frames/ --fps 25 --rig-dir rigs/table          # a folder of images, sent frame by frame
+  shadowless play --pattern counter --rig-dir rigs/table         # a counter: the sync figures
+  shadowless stop --rig-dir rigs/table                           # the rig's content again
+"""
 
 
 def configure_show(p: argparse.ArgumentParser) -> None:
@@ -321,6 +363,7 @@ def configure_show(p: argparse.ArgumentParser) -> None:
                      "files keep their precision. `shadowless show pause|resume|seek FRAME|stop` controls the "
                      "timeline show started by `shadowless play ASSET` (each change takes effect on every node at "
                      "the same instant, the coordinator's lead from now, or --in SECONDS).")
+    p.epilog = SHOW_HELP
     p.add_argument("image", help="image file (PNG/TIFF/JPEG, or .npy float32 in [0,1]), or pause, resume, seek, stop")
     p.add_argument("frame", nargs="?", type=cli_types.int_range(0), help="with seek: the asset frame to show")
     p.add_argument("--persist", action="store_true", help="make it the rig's content (shown again after a restart)")
@@ -339,6 +382,7 @@ def configure_play(p: argparse.ArgumentParser) -> None:
     p.description = ("Play an asset of the rig's store on a timeline (each node decodes it from its own cache and "
                      "swaps every frame at its time; the coordinator sends only start, pause, seek, stop), or a "
                      "sequence of images (a folder, sorted by name) or a generated counter pattern, frame by frame.")
+    p.epilog = PLAY_HELP
     p.add_argument("source", nargs="?", help="an asset (id, id prefix or name; see `shadowless content list`) or a "
                    "folder of images (omit with --pattern)")
     p.add_argument("--pattern", choices=["counter"], help="generate frames on the coordinator instead")
@@ -515,7 +559,7 @@ async def _play(args) -> int:
         st = PlaySettings(fps=args.fps, loops=args.loops, wait=not args.no_wait, pattern=args.pattern, frames=args.frames,
                           latency_ms=args.latency_ms)
     elif args.source:
-        files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
+        files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
             raise OperatorError(f"no images in {args.source}")
         frames = [read_image(str(f), clip=args.clip, hint=CLIP_HINT) for f in files]
@@ -525,9 +569,12 @@ async def _play(args) -> int:
         await warn_unposed(c)
         r = await _play_until_interrupted(c, st, frames)
     d = play_dict(r)
+    p99 = d["sync"]["skew_p99_ms"]      # None: fewer than two nodes swapped a frame, nothing to compare
+    skew = f"skew p99 {p99:.3f} ms" if p99 is not None else \
+        "no skew (one node)" if d["nodes"] == 1 else "no skew measured"
     print(json.dumps(d, indent=2) if args.json else
           f"played {d['frames_sent']} frames on {count(d['nodes'], 'node')}: shown by all {d['frames_shown']}, late {d['frames_late']}, "
-          f"dropped {d['frames_dropped']}; skew p99 {d['sync']['skew_p99_ms']} ms")
+          f"dropped {d['frames_dropped']}; {skew}")
     if args.no_wait or (r.nodes and r.frames_shown >= r.frames_sent):
         return 0
     missed = (f"{r.frames_sent - r.frames_shown} of {r.frames_sent} frames were not shown by every live node "
@@ -546,7 +593,7 @@ async def _play_compensated(args) -> int:
 
     if args.pattern or not args.source:
         raise OperatorError("--compensate plays a folder of images (not a generated pattern)")
-    files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff", ".jpg", ".npy"))
+    files = sorted(p for p in Path(args.source).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise OperatorError(f"no images in {args.source}")
     params = {"frames": [encode_image_param(f) for f in files], "fps": args.fps, "loops": args.loops,

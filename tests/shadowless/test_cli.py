@@ -45,6 +45,16 @@ def test_each_command_explains_itself(command, here):
     assert len(r.stdout.splitlines()) > 5
 
 
+@pytest.mark.parametrize("command", ["status", "show", "play", "pattern", "solo", "cue"])
+def test_the_quickstarts_commands_teach_with_examples(command, here):
+    """The quickstart says `shadowless COMMAND --help` explains each command with examples: those it
+    uses do, and status explains its table's columns."""
+    out = here(command, "--help").stdout
+    assert "\nexamples:\n" in out and f"  shadowless {command} " in out, out
+    if command == "status":
+        assert "the table's columns:" in out and "left (it stopped on purpose" in out
+
+
 def test_node_help_documents_the_clock_test_hooks(here):
     out = here("node", "--help").stdout
     assert "--clock-offset-ms" in out and "--clock-drift-ppm" in out and "--protocol-version" not in out
