@@ -69,6 +69,9 @@ async def _run(args) -> int:
     else:
         async with await open_client(args) as c:
             showing = await c.show_test_pattern(args.name, args.slots)
+    if showing.startswith("solo ") and ": " in showing:     # "solo r0c0: <what was on screen>"
+        solo, _, base = showing.partition(": ")
+        showing = f"{solo}, the others black; the picture: {base}"   # not "solo r0c0: ... on every projector"
     print(f"the rig shows {showing}" if not showing.startswith("no solo") else showing)
     return 0
 

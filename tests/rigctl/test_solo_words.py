@@ -1,0 +1,39 @@
+"""`shadowless solo` says which projectors keep the picture and that the others are black: after a
+test pattern on every projector it read "solo r0c0: test pattern grid on every projector (4)", as
+if every projector still showed it. A running coordinator (no nodes needed) and the real
+`shadowless pattern` and `solo` processes."""
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+
+from coordinator.app import CoordinatorApp
+from coordinator.rig import Rig, grid_slots, init_rig
+from protos.auth import read_token
+
+
+def sh(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_solo_says_the_others_are_black(tmp_path):
+    rig = Rig(init_rig(tmp_path / "rig", name="solo", slots=grid_slots(1, 2), width=32, height=32))
+
+    async def go():
+        app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
+        await app.start()
+        try:
+            conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
+            pattern = await asyncio.to_thread(sh, "pattern", "grid", *conn)
+            assert pattern.returncode == 0 and "test pattern grid on every projector (2)" in pattern.stdout, pattern
+            solo = await asyncio.to_thread(sh, "solo", "r0c1", *conn)
+            assert solo.returncode == 0, solo.stderr
+            assert solo.stdout.strip() == ("the rig shows solo r0c1, the others black; the picture: test pattern grid on every "
+                                           "projector (2)"), solo.stdout
+            end = await asyncio.to_thread(sh, "solo", "--end", *conn)
+            assert end.returncode == 0 and end.stdout.strip() == "the rig shows test pattern grid on every projector (2)", end
+        finally:
+            await app.stop()
+
+    asyncio.run(go())
