@@ -499,8 +499,13 @@ def _print_result(args, result: dict, workdir: Path) -> None:
     s = result["sync"]
     print(f"{count(result['nodes'], 'node')}, {result['frames_sent']} frames at {args.fps:g} fps: shown by all "
           f"{result['frames_shown']}, late {result['frames_late']}, dropped {result['frames_dropped']}")
-    print(f"swap skew p50 {s['skew_p50_ms']} ms, p99 {s['skew_p99_ms']} ms, max {s['skew_max_ms']} ms "
-          f"({s['skew_source']}); clock error p99 {s['clock_error_p99_ms']} ms; out of order {s['out_of_order']}")
+    if s["skew_p99_ms"] is not None:
+        skew = (f"swap skew p50 {s['skew_p50_ms']} ms, p99 {s['skew_p99_ms']} ms, max {s['skew_max_ms']} ms "
+                f"({s['skew_source']})")
+    else:                               # skew compares nodes' swaps: None is not a figure to print
+        skew = "swap skew: none (one node, nothing to compare)" if result["nodes"] == 1 else "swap skew: no data"
+    clock = "-" if s["clock_error_p99_ms"] is None else f"{s['clock_error_p99_ms']} ms"
+    print(f"{skew}; clock error p99 {clock}; out of order {s['out_of_order']}")
     if "cpu_budget" in result:
         print(result["cpu_budget"]["summary"])
     print(f"snapshots of the still: {workdir / 'snapshots'}" + ("" if args.keep or args.hold else
