@@ -46,6 +46,18 @@ def cpu_seconds() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
+def said(tag: str) -> str:
+    """What a frame's tag (a machine id: ``show:cue:2``, ``play:9d697ab1``) means to an operator, as the
+    start of the "showing" line that status, stop, OSC and the console print."""
+    if tag == "show:restored":
+        return "the rig's content:"
+    if tag.startswith("show:cue:"):
+        return f"cue {tag.removeprefix('show:cue:')}:"
+    if tag.startswith("play:"):
+        return "a played sequence"
+    return tag
+
+
 def counter_pattern(i: int, width: int, height: int) -> Content:
     """Test frame ``i``: a moving bar and the frame number in binary blocks; (H, W, 3) uint8."""
     img = np.zeros((height, width, 3), np.uint8)
@@ -186,7 +198,7 @@ class Playback:
         frame = self._frame(content.content_id, tag=tag, space=space, apply_lut=apply_lut,
                             slot_content={s: c.content_id if c else "" for s, c in per_slot.items()}, fade_ns=fade_ns)
         self.current_frame = frame
-        self.showing = f"{tag} {content.name or content.content_id}"
+        self.showing = f"{said(tag)} {content.name or content.content_id}"
         if publish:
             self._publish_still(frame)
         return frame
@@ -410,7 +422,7 @@ class Playback:
         nodes_seen: set[str] = set()
         prev_content: str | None = None
         cache_all = frames is not None and st.loops > 0 and sum(f.image.nbytes for f in frames) < 256 * 2**20
-        self.showing = f"{tag} ({count} frames at {fps:g} fps{', live video' if live else ''})"
+        self.showing = f"{said(tag)} ({count} frames at {fps:g} fps{', live video' if live else ''})"
         pending = None
         video_bytes = raw_bytes = 0
         try:
@@ -464,7 +476,7 @@ class Playback:
                                    "raw_bytes": raw_bytes, "encode_cpu_s": live.cpu_s,
                                    "bit_depth": live.bit_depth}
         summary = summarize(results, self.sync.out_of_order - oo_before)
-        self.showing = f"{tag} finished"
+        self.showing = f"{said(tag)}, finished"
         return PlayResult(
             frames_sent=len(sent), frames_shown=summary.frames, frames_late=summary.frames_late,
             frames_dropped=summary.frames_dropped + (len(sent) - len(results)), nodes=len(nodes_seen),

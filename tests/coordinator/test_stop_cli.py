@@ -62,6 +62,7 @@ def test_show_refuses_another_aspect_unless_fitted_then_blackout_and_stop(rig, t
     assert showing(rig) == "black (blackout)"
     out = cli(rig, "stop").stdout
     assert "square.png" in out and "square.png" in showing(rig), "stop brings the rig's content back"
+    assert showing(rig).startswith("the rig's content: "), "in words, not the frame's tag (show:restored)"
 
 
 def test_ctrl_c_on_play_stops_the_sequence_on_the_rig(rig):
@@ -73,7 +74,8 @@ def test_ctrl_c_on_play_stops_the_sequence_on_the_rig(rig):
             assert proc.poll() is None, "play exited before the sequence started"
             return showing(rig)
 
-        wait_until(playing, lambda shown: "play:" in shown, what="the sequence playing on the rig", timeout=120)
+        wait_until(playing, lambda shown: shown.startswith("a played sequence (3000 frames"),
+                   what="the sequence playing on the rig", timeout=120)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
     finally:
@@ -82,4 +84,4 @@ def test_ctrl_c_on_play_stops_the_sequence_on_the_rig(rig):
             proc.communicate()
     assert proc.returncode == 130, err
     assert "stopped on the rig" in err
-    assert "play:" not in showing(rig), "the rig no longer plays the sequence"
+    assert "played sequence" not in showing(rig), "the rig no longer plays the sequence"
