@@ -7,16 +7,12 @@ from __future__ import annotations
 import asyncio
 import re
 import shlex
-import subprocess
-import sys
 
 from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos.auth import read_token
+from procs import shadowless_process
 
-
-def sh(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=120)
 
 
 def test_the_next_cue_hint_names_the_rig_and_works_as_printed(tmp_path):
@@ -27,18 +23,18 @@ def test_the_next_cue_hint_names_the_rig_and_works_as_printed(tmp_path):
         await app.start()
         try:
             coordinator = ["--coordinator", f"127.0.0.1:{app.port}"]
-            empty = await asyncio.to_thread(sh, "cue", "list", str(rig.path), *coordinator)
+            empty = await asyncio.to_thread(shadowless_process, "cue", "list", str(rig.path), *coordinator)
             assert empty.returncode == 0, empty.stderr
             assert f"`shadowless cue add {shlex.quote(str(rig.path))} --kind" in empty.stdout, empty.stdout
 
-            added = await asyncio.to_thread(sh, "cue", "add", str(rig.path), "--kind", "blackout", "--name", "Preset",
+            added = await asyncio.to_thread(shadowless_process, "cue", "add", str(rig.path), "--kind", "blackout", "--name", "Preset",
                                             *coordinator)
             assert added.returncode == 0, added.stderr
             hint = re.search(r"next: cue 1 \(`([^`]+)`\)", added.stdout)
             assert hint and hint.group(1) == f"shadowless cue go {shlex.quote(str(rig.path))}", added.stdout
 
             argv = shlex.split(hint.group(1))      # as a shell splits it; this test has no mDNS: the address
-            fired = await asyncio.to_thread(sh, *argv[1:], *coordinator)
+            fired = await asyncio.to_thread(shadowless_process, *argv[1:], *coordinator)
             assert fired.returncode == 0 and "cue 1 'Preset' (blackout) fires" in fired.stdout, fired
         finally:
             await app.stop()

@@ -4,8 +4,6 @@ nodes needed) and the real `shadowless show` process."""
 from __future__ import annotations
 
 import asyncio
-import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -13,10 +11,8 @@ import numpy as np
 from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos.auth import read_token
+from procs import shadowless_process
 
-
-def sh(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=120)
 
 
 def test_a_picture_of_another_aspect_is_refused_naming_fit(tmp_path):
@@ -30,8 +26,8 @@ def test_a_picture_of_another_aspect_is_refused_naming_fit(tmp_path):
         await app.start()
         try:
             conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
-            refused, shown = await asyncio.gather(asyncio.to_thread(sh, "show", str(square), *conn),
-                                                  asyncio.to_thread(sh, "show", str(square), "--fit", "contain", *conn))
+            refused, shown = await asyncio.gather(asyncio.to_thread(shadowless_process, "show", str(square), *conn),
+                                                  asyncio.to_thread(shadowless_process, "show", str(square), "--fit", "contain", *conn))
             assert refused.returncode == 2 and refused.stdout == "", refused
             assert len(refused.stderr.splitlines()) == 1, refused.stderr
             assert refused.stderr.startswith("shadowless show: the image is 20x20") and \

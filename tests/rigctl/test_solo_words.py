@@ -5,16 +5,12 @@ if every projector still showed it. A running coordinator (no nodes needed) and 
 from __future__ import annotations
 
 import asyncio
-import subprocess
-import sys
 
 from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos.auth import read_token
+from procs import shadowless_process
 
-
-def sh(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=120)
 
 
 def test_solo_says_the_others_are_black(tmp_path):
@@ -25,13 +21,13 @@ def test_solo_says_the_others_are_black(tmp_path):
         await app.start()
         try:
             conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
-            pattern = await asyncio.to_thread(sh, "pattern", "grid", *conn)
+            pattern = await asyncio.to_thread(shadowless_process, "pattern", "grid", *conn)
             assert pattern.returncode == 0 and "test pattern grid on every projector (2)" in pattern.stdout, pattern
-            solo = await asyncio.to_thread(sh, "solo", "r0c1", *conn)
+            solo = await asyncio.to_thread(shadowless_process, "solo", "r0c1", *conn)
             assert solo.returncode == 0, solo.stderr
             assert solo.stdout.strip() == ("the rig shows solo r0c1, the others black; the picture: test pattern grid on every "
                                            "projector (2)"), solo.stdout
-            end = await asyncio.to_thread(sh, "solo", "--end", *conn)
+            end = await asyncio.to_thread(shadowless_process, "solo", "--end", *conn)
             assert end.returncode == 0 and end.stdout.strip() == "the rig shows test pattern grid on every projector (2)", end
         finally:
             await app.stop()

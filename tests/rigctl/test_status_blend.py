@@ -6,8 +6,6 @@ from __future__ import annotations
 import asyncio
 import json
 import re
-import subprocess
-import sys
 import time
 
 import pytest
@@ -23,6 +21,7 @@ from protos.auth import read_token
 from protos.blend import BlendMaps
 from rigctl.blend_status import ago, blend_lines
 from rigctl.commands import status_dict, status_table
+from procs import shadowless_process
 
 NOW = 1_800_000_000.0
 BLENDED = BlendStatus(state="blended", blend_id="b1", created_at=NOW - 7200, headroom=0.08, brightness_cost=0.08)
@@ -112,14 +111,11 @@ def test_an_older_coordinator_without_a_blend_reads_as_none():
     assert blend_lines(status_dict(back, now=NOW)["blend"])[0].startswith("blend: none")
 
 
-def sh(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shadowless", *args], capture_output=True, text=True, timeout=120)
-
 
 async def status_both(conn: list[str]) -> tuple[dict, str]:
     """`shadowless status --json` and `shadowless status`, run side by side: the JSON's blend, the text."""
-    as_json, as_text = await asyncio.gather(asyncio.to_thread(sh, "status", "--json", *conn),
-                                            asyncio.to_thread(sh, "status", *conn))
+    as_json, as_text = await asyncio.gather(asyncio.to_thread(shadowless_process, "status", "--json", *conn),
+                                            asyncio.to_thread(shadowless_process, "status", *conn))
     assert as_json.returncode == 0 and as_text.returncode == 0, (as_json.stderr, as_text.stderr)
     return json.loads(as_json.stdout)["blend"], as_text.stdout
 
