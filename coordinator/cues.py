@@ -40,7 +40,7 @@ from collections import OrderedDict
 from typing import Any, Callable, Iterator
 
 from coordinator.api import CueState
-from coordinator.errors import CoordinatorError
+from coordinator.errors import AssetError, CoordinatorError
 from coordinator.rig import Content
 from protos.cues import Cue, CueError, CueList
 from protos.store import atomic_write_json
@@ -110,6 +110,7 @@ class CueEngine:
         cues.validate()
         cues.check_slots(self.core.rig.slots)
         self._check_patterns(cues)
+        self._check_assets(cues)
         current_id = self.cues.cues[self.current].id if self.current is not None else None
         self._cancel_follow()
         self.cues = cues
@@ -293,6 +294,25 @@ class CueEngine:
             return self.core._manifest(self.core.distribution.store.resolve(key)).kind
         except Exception:  # noqa: BLE001 - an asset gone since: nothing to restore
             return None
+
+    def _check_assets(self, cues: CueList) -> None:
+        """Every asset a cue names is in the store now, and of a kind its cue can show (a refusal when the
+        list is stored, not when the cue fires mid-show). A still cue of the rig's content is checked when
+        it fires: the content may be shown with --persist after the list is made."""
+        distribution = getattr(self.core, "distribution", None)
+        if distribution is None:
+            return
+        for c in cues.cues:
+            if c.kind not in ("still", "asset") or (c.kind == "still" and c.target == "content"):
+                continue
+            try:
+                kind = self.core._manifest(distribution.store.resolve(c.target)).kind
+            except AssetError as exc:
+                raise CueError(f"cue {c.id!r}: {exc}") from None
+            if c.kind == "still" and kind != "still":
+                raise CueError(f"cue {c.id!r}: asset {c.target!r} is a {kind}, not a still: make it an asset cue")
+            if kind != "still" and c.slots:
+                raise CueError(f"cue {c.id!r}: a {kind} plays on every projector; leave the cue's slots out")
 
     def _check_patterns(self, cues: CueList) -> None:
         wanted = [c for c in cues.cues if c.kind == "pattern"]

@@ -75,6 +75,10 @@ def test_the_core_stores_a_valid_list_and_refuses_one_naming_an_unknown_slot(tmp
             coord.set_cues(cues(Cue("1", "", "still", "content", slots=("r9c9",))))
         with pytest.raises(CueError, match="unknown test pattern 'plaid'"):
             coord.set_cues(cues(Cue("1", "", "pattern", "plaid")))
+        # an asset a cue names must be there when the list is stored, not found missing mid-show
+        with pytest.raises(CueError, match="cue '2': no asset matches 'nope.mp4'") as err:
+            coord.set_cues(cues(Cue("1", "", "blackout"), Cue("2", "", "asset", "nope.mp4")))
+        assert "\n" not in str(err.value)
         assert (rig_dir / "cues.json").read_bytes() == before, "a refused list changes nothing stored"
         assert coord.cue_state().cues == first.cues
         state = coord.cue_state()
