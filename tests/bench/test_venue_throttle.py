@@ -3,6 +3,7 @@ stands in for the group's cpu.stat, which only root can make), and a node's miss
 into decode, throttled, unthrottled and not dropped from its log's drops and the sampler's instants."""
 from __future__ import annotations
 
+import os
 import time
 
 from bench.venue_throttle import ThrottleSampler, drops, miss_causes, throttles_per_s
@@ -15,6 +16,18 @@ def _stat(n: int) -> str:
     return f"nr_periods {10 * n}\nnr_throttled {n}\nthrottled_time {n * 1000}\n"
 
 
+def _rewrite(path, text: str) -> None:
+    """The file's text replaced in one write at its start, never truncated first: a kernel makes a
+    cgroup file afresh at each read, and a truncate-then-write (write_text) let the sampler read the
+    empty file between the two, which it counts as unreadable, so the growth across it went unseen."""
+    data = text.encode()
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        assert os.pwrite(fd, data, 0) == len(data)
+    finally:
+        os.close(fd)
+
+
 def test_the_sampler_keeps_the_instants_at_which_the_throttle_count_grew(tmp_path):
     stat = tmp_path / "cpu.stat"
     stat.write_text(_stat(3))
@@ -22,7 +35,7 @@ def test_the_sampler_keeps_the_instants_at_which_the_throttle_count_grew(tmp_pat
         wait_until(lambda: s.samples, lambda n: n >= 3, what="three samples")
         assert s.events["r0c0"] == []               # the count it started with is no throttle
         before = time.monotonic_ns()
-        stat.write_text(_stat(5))
+        _rewrite(stat, _stat(5))                    # as long as the text before: no stale tail
         wait_until(lambda: list(s.events["r0c0"]), lambda ev: len(ev) == 1, what="the growth seen once")
     t = s.events["r0c0"][0]
     assert t >= before
