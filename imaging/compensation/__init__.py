@@ -33,6 +33,7 @@ _EXPORTS = {
     "TransportFileError": "errors",
     "Quality": "quality",
     "side_by_side": "quality",
+    "enlargement": "quality",
     "srgb_to_linear": "quality",
     "linear_to_srgb": "quality",
     "FittedResponse": "response",

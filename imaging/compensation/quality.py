@@ -10,7 +10,7 @@ import numpy as np
 # whose module imports scipy.stats (0.6 s of CPU for every process that imports this one); PSNR is below
 from skimage.metrics import structural_similarity
 
-__all__ = ["Quality", "quality", "side_by_side", "srgb_to_linear", "linear_to_srgb"]
+__all__ = ["Quality", "quality", "side_by_side", "enlargement", "srgb_to_linear", "linear_to_srgb"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,12 @@ MAX_ENLARGEMENT = 4
 _FONT, _FONT_SCALE = cv2.FONT_HERSHEY_SIMPLEX, 0.6
 
 
+def enlargement(height: int) -> int:
+    """The whole factor a picture ``height`` px high is shown enlarged by: up to :data:`MIN_PICTURE_HEIGHT`
+    px high, at most :data:`MAX_ENLARGEMENT` (1: tall enough already)."""
+    return min(MAX_ENLARGEMENT, max(1, -(-MIN_PICTURE_HEIGHT // max(int(height), 1))))
+
+
 def side_by_side(
     images: Sequence[np.ndarray],
     labels: Sequence[str] | None = None,
@@ -111,7 +117,7 @@ def side_by_side(
             w = max(1, round(a.shape[1] * height / a.shape[0]))
             a = cv2.resize(a, (w, height), interpolation=cv2.INTER_AREA)
         tiles.append(a)
-    k = min(MAX_ENLARGEMENT, max(1, -(-MIN_PICTURE_HEIGHT // max(height, 1))))
+    k = enlargement(height)
     if k > 1:
         tiles = [cv2.resize(t, (t.shape[1] * k, t.shape[0] * k), interpolation=cv2.INTER_NEAREST) for t in tiles]
         height *= k

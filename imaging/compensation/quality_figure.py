@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from imaging.calibration.heatmap_figure import colourise, put_text, turbo_lut
-from imaging.compensation.quality import MAX_ENLARGEMENT, MIN_PICTURE_HEIGHT, linear_to_srgb
+from imaging.compensation.quality import enlargement, linear_to_srgb
 
 __all__ = ["compensation_figure", "packed_views", "BLOCK_MARGIN", "detail_window", "error_scale", "enlargement", "camera_view_srgb", "RESULT_NAMES",
            "panel", "row", "column", "caption_band", "text_width", "INK", "PAPER", "GAP", "CROP_BGR"]
@@ -96,12 +96,6 @@ def camera_view_srgb(img: np.ndarray) -> np.ndarray:
     if v.shape[2] == 1:
         v = np.repeat(v, 3, axis=2)
     return cv2.cvtColor(np.rint(v * 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
-
-
-def enlargement(height: int) -> int:
-    """The whole factor a tile ``height`` px high is shown enlarged by: up to :data:`MIN_PICTURE_HEIGHT`
-    px high, at most :data:`MAX_ENLARGEMENT` (as :func:`imaging.compensation.quality.side_by_side`)."""
-    return min(MAX_ENLARGEMENT, max(1, -(-MIN_PICTURE_HEIGHT // max(int(height), 1))))
 
 
 # ------------------------------------------------------------------------------------------ several views
@@ -242,7 +236,7 @@ def compensation_figure(target: np.ndarray, captures: Mapping[str, np.ndarray], 
     zoom : the crop's enlargement over the full-size tiles
     origin : the tile's top left corner in camera px (the crop's caption says where it is), or None
 
-    Tiles below :data:`MIN_PICTURE_HEIGHT` px high are shown enlarged by a whole factor (nearest
+    Tiles below :data:`~imaging.compensation.quality.MIN_PICTURE_HEIGHT` px high are shown enlarged by a whole factor (nearest
     neighbour). Returns the picture and ``{"window": [x0, y0, x1, y1]`` (tile px), ``"window_camera_px"``
     (plus ``origin``, when given), ``"full_scale"`` (the difference colour bar's top; 1 is white,
     the target level), ``"mean_error"`` {key: mean |captured - target| over the scored pixels and channels},
