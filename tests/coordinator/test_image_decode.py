@@ -29,8 +29,8 @@ from coordinator.image_decode import FORMATS as DECODER_FORMATS
 from coordinator.image_decode import MAX_PIXELS, ImageRefused, decode_image, declared_size, read_image_file
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.schema import MAX_SIDE
-from coordinator.app import CoordinatorApp
 from protos.image_limits import MAX_IMAGE_SIDE
+from inprocess_coordinator import inprocess_coordinator
 
 
 TOKEN = b"t" * 32
@@ -197,12 +197,8 @@ def test_the_camera_and_job_readers_go_through_the_decoder(tmp_path):
 async def _console(tmp_path: Path):
     rig = Rig(init_rig(tmp_path / "rig", name="web", slots=grid_slots(1, 1), width=32, height=24,
                        content_width=32, content_height=24))
-    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-    await app.start()
-    try:
+    async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0") as app:
         yield app.coordinator, f"http://127.0.0.1:{app.console_port}"
-    finally:
-        await app.stop()
 
 
 def test_the_console_refuses_each_huge_upload_from_its_header_and_shows_a_valid_one(tmp_path):

@@ -18,7 +18,6 @@ import pytest
 
 from bench.console import ConsoleRig, chromium, log_in, text_of, visible, wait_for
 from coordinator.api import BlendStatus
-from coordinator.app import CoordinatorApp
 from coordinator.blend_store import StoredBlend, blend_dir, save_blend, save_contributions
 from coordinator.console import auth
 from coordinator.console.blend_figure import diverging_lut, figure_png
@@ -26,6 +25,7 @@ from coordinator.rig import Rig, grid_slots, init_rig
 from imaging.blending.solve import compute_blend
 from imaging.blending.synthetic import rectangle_rig, tiled_rects
 from protos.blend import BlendMaps
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"b" * 32
 SLOTS = ["r0c0", "r0c1"]
@@ -55,17 +55,13 @@ def decode(png: bytes) -> np.ndarray:
 @contextlib.asynccontextmanager
 async def console(tmp_path: Path):
     rig = Rig(init_rig(tmp_path / "rig", name="blend", slots=grid_slots(1, 2), width=32, height=32))
-    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-    await app.start()
-    try:
-        async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
-            base = f"http://127.0.0.1:{app.console_port}"
-            r = await s.post(base + "/login", json={"token": TOKEN.decode()}, headers={"Origin": base})
-            assert r.status == 200, await r.text()
-            headers = {"Cookie": f"{auth.COOKIE}={r.cookies[auth.COOKIE].value}"}
-            yield app.coordinator, rig, s, base, headers
-    finally:
-        await app.stop()
+    async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0") as app, \
+            aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
+        base = f"http://127.0.0.1:{app.console_port}"
+        r = await s.post(base + "/login", json={"token": TOKEN.decode()}, headers={"Origin": base})
+        assert r.status == 200, await r.text()
+        headers = {"Cookie": f"{auth.COOKIE}={r.cookies[auth.COOKIE].value}"}
+        yield app.coordinator, rig, s, base, headers
 
 
 def test_the_stored_blend_and_its_picture_over_http(tmp_path):

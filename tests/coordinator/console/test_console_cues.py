@@ -10,11 +10,11 @@ import json
 
 import aiohttp
 
-from coordinator.app import CoordinatorApp
 from coordinator.console import auth
 from coordinator.console.audit import FILE_NAME
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.users import UserStore
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"k" * 32
 PW = "a long password"
@@ -24,12 +24,8 @@ PW = "a long password"
 async def console(tmp_path):
     rig = Rig(init_rig(tmp_path / "rig", name="cues", slots=grid_slots(1, 2), width=32, height=32,
                        content_width=64, content_height=32))
-    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-    await app.start()
-    try:
+    async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0") as app:
         yield app.coordinator, f"http://127.0.0.1:{app.console_port}"
-    finally:
-        await app.stop()
 
 
 async def login(s: aiohttp.ClientSession, base: str, name: str) -> dict:

@@ -13,7 +13,7 @@ import pytest
 
 from coordinator.console import auth
 from coordinator.rig import Rig, grid_slots, init_rig
-from coordinator.app import CoordinatorApp
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"t" * 32
 #: a device cookies' key (the coordinator derives it from the rig token: Coordinator.token_key)
@@ -27,12 +27,8 @@ async def console(tmp_path: Path):
     """A coordinator with its console on 127.0.0.1 (no nodes): (the app, the console's base URL)."""
     rig = Rig(init_rig(tmp_path / "rig", name="limits", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
-    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-    await app.start()
-    try:
+    async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0") as app:
         yield app, f"http://127.0.0.1:{app.console_port}"
-    finally:
-        await app.stop()
 
 
 def client() -> aiohttp.ClientSession:

@@ -1,0 +1,42 @@
+"""A coordinator served in the test's own event loop: its gRPC services (and, when asked, its console
+and show control) on 127.0.0.1, started and stopped around a block.
+
+    async with inprocess_coordinator(Rig(rig_dir), token, console="127.0.0.1:0") as app:
+        ...  # app.port, app.console_port, app.coordinator, app.osc
+
+What it gives: a started :class:`~coordinator.app.CoordinatorApp` that does not advertise over mDNS
+(a test that wants mDNS starts a coordinator process). ``listen`` defaults to any free port on
+127.0.0.1 (``app.port`` says which); every other keyword goes to ``CoordinatorApp`` as it is
+(``console``, ``console_hosts``, ``console_optional``, ``tls``, ``cameras``, ``clock_ns``, ``mtc_port``).
+
+How it cleans up: ``app.stop()`` runs when the block ends, however it ends (normally, by an
+exception, or by the task being cancelled), so the rig directory's lock is free again and no
+listener is left; a body that stops the app itself is fine (stopping twice is harmless). A start
+that fails undoes itself (``CoordinatorApp.start``) and raises here, before the block runs. When
+the block raised and stopping fails too, the block's exception is the one that propagates, with a
+note saying how the stop failed: the test's own failure is never hidden behind its teardown's.
+"""
+from __future__ import annotations
+
+import contextlib
+from typing import Any, AsyncIterator
+
+from coordinator.app import CoordinatorApp
+from coordinator.rig import Rig
+
+
+@contextlib.asynccontextmanager
+async def inprocess_coordinator(rig: Rig, token: bytes, *, listen: str = "127.0.0.1:0",
+                                **options: Any) -> AsyncIterator[CoordinatorApp]:
+    """Start a coordinator for ``rig`` (no mDNS) on ``listen``; yield the app; stop it on the way out."""
+    app = CoordinatorApp(rig, token, listen=listen, advertise=False, **options)
+    await app.start()
+    try:
+        yield app
+    except BaseException as body_error:     # a failure or a cancellation: stop, then let it through as it is
+        try:
+            await app.stop()
+        except Exception as stop_error:     # noqa: BLE001 - said on the body's exception, which goes on
+            body_error.add_note(f"(and stopping the in-process coordinator failed too: {stop_error!r})")
+        raise
+    await app.stop()
