@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from rich.text import Text
 
-from coordinator.api import NodeStatus, PlayResult, PlaySettings, RigStatus, ShowState, SyncSummary
+from coordinator.api import NodeState, NodeStatus, PlayResult, PlaySettings, RigStatus, ShowState, SyncSummary
 from rigctl.blend_status import blend_dict, blend_lines
 from rigctl.client import OperatorError, add_connection_args
 from rigctl.content_format import operator_table, rendered
@@ -72,11 +72,21 @@ def assets_cell(a: dict) -> str:
     return f"{a['ready']}/{a['wanted']} {pct}%{failed}"
 
 
+def clock_current(n: NodeStatus) -> bool:
+    """Whether a node's clock figures (offset, drift, round trip, error) are today's: it is joined
+    or live and made a clock exchange. A lost or departed node's are its last report's, and an
+    expected slot has none: both are shown as none (``-``, null), not as figures that read current.
+    (The console's node table keeps the same rule: :func:`coordinator.console.live.snapshot`.)"""
+    return n.state in (NodeState.LIVE, NodeState.JOINED) and n.clock_rtt_ms > 0
+
+
 def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
     """The rig's status as JSON (what `shadowless status --json` prints). A slot without a joined
     or live node carries the newest refusal of a node claiming it (``refusal``): why it is not there.
     ``now``: the unix time ages count to (default: this machine's clock): the blend's, and each node's
-    last swap as a unix time (``last_swap_at``; its frame id is ``last_swap_frame``)."""
+    last swap as a unix time (``last_swap_at``; its frame id is ``last_swap_frame``). A node's clock
+    figures are null unless they are current (:func:`clock_current`); ``last_seen_age_ms`` is how
+    long ago its last report came (null for a slot no node ever joined)."""
     num = _num
     clock_now = time.time() if now is None else now
     refusals = [{"peer": r.peer, "slot": r.slot, "reason": r.reason, "age_s": round(r.age_s, 1), "count": r.count}
@@ -92,8 +102,8 @@ def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
                 "latency_budget_ms": st.latency_budget_ms, "coordinator_cpu_s": round(st.cpu_s, 3)},
         "nodes": [{
             "slot": n.slot, "state": n.state.value, "host": n.hostname, "pid": n.pid,
-            "clock_offset_ms": round(n.clock_offset_ms, 3), "drift_ppm": round(n.clock_drift_ppm, 2),
-            "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": num(n.clock_error_ms),
+            **_clock_dict(n),
+            "last_seen_age_ms": num(n.last_seen_age_ms) if n.state != NodeState.EXPECTED else None,
             "last_swap_frame": n.last_swap_frame, "last_swap_age_ms": num(n.last_swap_age_ms),
             "last_swap_at": (None if math.isnan(n.last_swap_age_ms) or not n.last_swap_frame
                              else round(clock_now - n.last_swap_age_ms / 1e3, 3)),
@@ -121,6 +131,14 @@ def status_dict(st: RigStatus, *, now: float | None = None) -> dict:
                         "max_calls_per_address": adm.max_calls_per_address,
                         "max_bytes_per_address": adm.max_bytes_per_address, "waited": adm.waited},
     }
+
+
+def _clock_dict(n: NodeStatus) -> dict:
+    """A node's clock figures as JSON: null when they are not current (:func:`clock_current`)."""
+    if not clock_current(n):
+        return {"clock_offset_ms": None, "drift_ppm": None, "rtt_ms": None, "clock_error_ms": None}
+    return {"clock_offset_ms": round(n.clock_offset_ms, 3), "drift_ppm": round(n.clock_drift_ppm, 2),
+            "rtt_ms": round(n.clock_rtt_ms, 3), "clock_error_ms": _num(n.clock_error_ms)}
 
 
 def show_dict(s: ShowState) -> dict:
@@ -188,7 +206,7 @@ def status_table(d: dict, *, tty: bool = False) -> str:
                        ">drop", "pose", "show", "assets")
     for n in d["nodes"]:
         state = "refused" if n.get("refusal") else "left" if n.get("left") else n["state"]
-        clocked = n["rtt_ms"] > 0                  # else no clock exchange yet: no figures, not zeros
+        clocked = n["rtt_ms"] is not None          # else none yet, or lost: no figures, not zeros nor old ones
         t.add_row(n["slot"], Text(state, style=STATE_STYLES.get(state, "yellow")), n["host"] or "-",
                   f"{round(n['clock_offset_ms'], 3) or 0.0:.3f}" if clocked else "-",    # no "-0.0"
                   f"{round(n['drift_ppm'], 1) or 0.0:.1f}" if clocked else "-",
@@ -203,6 +221,8 @@ def status_table(d: dict, *, tty: bool = False) -> str:
     for n in d["nodes"]:
         if n.get("left"):
             lines.append(f"{n['slot']}: left on purpose: {n['left']}")
+        elif n["state"] == "lost" and n.get("last_seen_age_ms") is not None:
+            lines.append(f"{n['slot']}: lost: its node went silent {ago(n['last_seen_age_ms'] / 1e3)}")
         if n["show"]["alone_ms"]:
             lines.append(f"{n['slot']}: went on without the coordinator for {n['show']['alone_ms'] / 1e3:.1f} s "
                          "(its last outage)")
@@ -311,7 +331,8 @@ the table's columns:
   state      live (reporting), joined (streams opening), expected (no node yet), lost (its reports
              stopped), left (it stopped on purpose, with why), refused (a node claiming the slot was
              turned away: the reason is under the table)
-  offset ms  the node's clock against the rig's, as the node estimates it ("-": no clock exchange yet)
+  offset ms  the node's clock against the rig's, as the node estimates it ("-": no clock exchange yet,
+             or the node is lost or left, so its last figures no longer hold; drift and rtt alike)
   drift ppm  how fast its clock runs away from the rig's, in parts per million (settles in about 20 s)
   rtt ms     the round trip of its clock exchanges with the coordinator
   last swap  when its picture last changed (the show's frame while one plays), a clock time and an age

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 from aiohttp import web
 
-from coordinator.api import BlendStatus, NodeState, RigStatus
+from coordinator.api import BlendStatus, NodeState, NodeStatus, RigStatus
 from coordinator.console.health import health_view
 from coordinator.console.page_wording import job_for_the_page
 from coordinator.jobs.registry import JOBS
@@ -85,8 +85,7 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
         slots.append({
             "slot": n.slot, "state": state, "node_state": n.state.value, "host": n.hostname, "pid": n.pid,
             "output": n.output, "gl": n.gl, "decoder": n.decoder, "software": n.software_version,
-            "clock_offset_ms": _num(n.clock_offset_ms, 1), "clock_drift_ppm": _num(n.clock_drift_ppm, 1),
-            "clock_rtt_ms": _num(n.clock_rtt_ms, 1), "clock_error_ms": _num(n.clock_error_ms, 2),
+            **_clock(n),
             "frames_shown": n.frames_shown, "frames_late": n.frames_late, "frames_dropped": n.frames_dropped,
             "assets_ready": n.assets_ready, "assets_wanted": n.assets_wanted, "joins": n.joins,
             "pose_kind": n.pose_kind, "gain": st.gain if st is not None else None,
@@ -119,6 +118,17 @@ def snapshot(status: RigStatus, coord: "ConsoleRig", actions: list[dict[str, Any
         "job": job_for_the_page(coord.job_snapshot()),      # refusals in the form's words, not flags
         "job_kinds": list(JOBS),
     }
+
+
+def _clock(n: NodeStatus) -> dict[str, float | None]:
+    """A node's clock figures for the page: None ("–") unless they are current, that is it is
+    joined or live and made a clock exchange; a lost or departed node's figures are its last
+    report's and an expected slot has none (the rule of `shadowless status`,
+    :func:`rigctl.commands.clock_current`)."""
+    if n.state not in (NodeState.LIVE, NodeState.JOINED) or n.clock_rtt_ms <= 0:
+        return {"clock_offset_ms": None, "clock_drift_ppm": None, "clock_rtt_ms": None, "clock_error_ms": None}
+    return {"clock_offset_ms": _num(n.clock_offset_ms, 1), "clock_drift_ppm": _num(n.clock_drift_ppm, 1),
+            "clock_rtt_ms": _num(n.clock_rtt_ms, 1), "clock_error_ms": _num(n.clock_error_ms, 2)}
 
 
 def _blend(status: RigStatus) -> dict[str, Any]:

@@ -41,8 +41,9 @@ def test_unmeasured_clocks_read_as_none_and_a_node_that_stopped_reads_left():
     """An expected slot (no node has joined) has no clock offset, drift or round trip: the table
     says "-", not 0.000 ms, which reads as a perfectly synchronised projector (and a drift of
     -0.04 ppm reads 0.0, not -0.0). A node that stopped on purpose reads "left" with its reason, as
-    the coordinator's log and the console say, not "lost"."""
-    live = NodeStatus(slot="a", state=NodeState.LIVE, clock_offset_ms=0.25, clock_drift_ppm=1.5, clock_rtt_ms=1.2)
+    the coordinator's log and the console say, not "lost", and its last clock figures no longer hold:
+    "-" too."""
+    live = NodeStatus(slot="a", state=NodeState.LIVE, clock_offset_ms=0.25, clock_drift_ppm=-0.04, clock_rtt_ms=1.2)
     never = NodeStatus(slot="b", state=NodeState.EXPECTED)
     gone = NodeStatus(slot="c", state=NodeState.LOST, hostname="h", clock_offset_ms=0.5, clock_drift_ppm=-0.04,
                       clock_rtt_ms=1.0, left="stopped (SIGTERM)")
@@ -50,7 +51,7 @@ def test_unmeasured_clocks_read_as_none_and_a_node_that_stopped_reads_left():
     assert d["nodes"][2]["left"] == "stopped (SIGTERM)" and d["nodes"][0]["left"] is None
     lines = status_table(d).splitlines()
     rows = {line.split()[0]: line.split() for line in lines if line.split() and line.split()[0] in "abc"}
-    assert rows["a"][1:6] == ["live", "-", "0.250", "1.5", "1.200"], rows["a"]      # host unknown, then figures
+    assert rows["a"][1:6] == ["live", "-", "0.250", "0.0", "1.200"], rows["a"]      # host unknown; not "-0.0"
     assert rows["b"][1:6] == ["expected", "-", "-", "-", "-"], rows["b"]
-    assert rows["c"][1:6] == ["left", "h", "0.500", "0.0", "1.000"], rows["c"]         # not "-0.0"
+    assert rows["c"][1:6] == ["left", "h", "-", "-", "-"], rows["c"]
     assert "c: left on purpose: stopped (SIGTERM)" in lines
