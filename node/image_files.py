@@ -1,4 +1,4 @@
-"""PNG files through FFmpeg's PNG codec (PyAV), and atomic file writes.
+"""PNG files through FFmpeg's PNG codec (PyAV), written atomically (:mod:`protos.atomic_files`).
 
 Decoding reads every PNG FFmpeg reads -- grey, grey+alpha, RGB, RGBA at 8 or 16 bits, palette
 (with or without ``tRNS`` alpha), 1/2/4-bit grey, interlaced (Adam7) -- exactly, to
@@ -11,7 +11,6 @@ PyAV is already part of the node's install, so this adds nothing to it.
 from __future__ import annotations
 
 import os
-import tempfile
 import zlib
 from collections.abc import Mapping
 from pathlib import Path
@@ -20,6 +19,7 @@ import av
 import numpy as np
 
 from node.errors import NodeError
+from protos.atomic_files import atomic_write_bytes  # re-exported: node.outputs.base writes through it
 from protos.image_limits import MAX_IMAGE_SIDE, MAX_PIXELS, within_limits
 
 __all__ = ["FILTERS", "PngError", "PngTooLarge", "atomic_write_bytes", "decode_png", "decode_png_text", "encode_png", "read_png",
@@ -42,37 +42,6 @@ class PngError(NodeError, ValueError):
 
 class PngTooLarge(PngError):
     """A PNG's header declares more pixels than a node decodes (nothing was decoded)."""
-
-
-# ---------------------------------------------------------------------------- files
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically: temp file beside it, fsync, rename, fsync the folder."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    try:
-        dir_fd = os.open(path.parent, os.O_RDONLY)
-    except OSError:  # pragma: no cover - platforms without directory fds
-        return
-    try:
-        os.fsync(dir_fd)
-    except OSError:  # pragma: no cover - some filesystems refuse fsync on folders
-        pass
-    finally:
-        os.close(dir_fd)
 
 
 # ---------------------------------------------------------------------------- encoding

@@ -104,7 +104,7 @@ def test_sweep_logs_count_and_bytes_once_and_stays_inside_the_tree(tmp_path, cap
         os.utime(p, (0, 0))
     (root / "link").symlink_to(outside, target_is_directory=True)   # a symlinked folder is not followed
     (root / ".dangling.json.dddddd.tmp").symlink_to(far)           # nor is a symlink removed as a temp file
-    caplog.set_level("INFO", logger="protos.store")
+    caplog.set_level("INFO", logger="protos.atomic_files")
     assert sorted(remove_stale_temps(root)) == sorted(stale)
     assert far.exists()
     assert [r.getMessage() for r in caplog.records] == [f"removed 2 temp file(s) (11 bytes) left by interrupted writes under {root}"]
