@@ -464,11 +464,15 @@ async def _run_local(args, picture, slots: list[str], workdir: Path, size: tuple
                   coordinator_link=args.coordinator_link, console=not args.netns, budgets=budgets) as rig:
         if rig.venue is not None:
             print(rig.venue.describe(), file=sys.stderr)
+        # a path printed here must still be there when the operator reads it, or say that it goes
+        gone = "" if args.keep or args.hold else " (removed at the end; keep them with --keep DIR)"
         print(f"rig {rig.rig_name}: coordinator on {rig.coordinator_target}, {count(len(slots), 'node')}; "
-              f"logs in {rig.log_dir}", file=sys.stderr, flush=True)
+              f"logs in {rig.log_dir}{gone}", file=sys.stderr, flush=True)
         url = rig.console_url() if rig.console else ""
-        if url and not args.hold:
-            print(f"operator console: {url} (log in with the token in {rig.rig_dir / 'token'})", file=sys.stderr)
+        if url and not args.hold:       # up only while the run lasts; its token file goes at the end unless kept
+            login = (f"log in with the token in {rig.rig_dir / 'token'}" if args.keep
+                     else "--hold keeps it up to log in")
+            print(f"operator console: {url} until the run ends ({login})", file=sys.stderr)
         async with await rig.client() as c:
             await rig.wait_live(c)
             print(await give_poses(c, slots), file=sys.stderr, flush=True)
