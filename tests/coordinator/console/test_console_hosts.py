@@ -22,6 +22,7 @@ from coordinator.console.service import Console
 from coordinator.errors import CoordinatorError
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.app import CoordinatorApp
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"h" * 32
 
@@ -95,13 +96,8 @@ def test_the_allow_list_option_refuses_what_is_not_a_name():
 async def console(tmp_path: Path, hosts: list[str] | None = None):
     rig = Rig(init_rig(tmp_path / "rig", name="hosts", slots=grid_slots(1, 1), width=32, height=32,
                        content_width=32, content_height=32))
-    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0",
-                         console_hosts=hosts)
-    await app.start()
-    try:
+    async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0", console_hosts=hosts) as app:
         yield app.coordinator, app.console_port
-    finally:
-        await app.stop()
 
 
 def client() -> aiohttp.ClientSession:

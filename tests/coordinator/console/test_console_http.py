@@ -25,6 +25,7 @@ from coordinator.errors import CoordinatorError
 from coordinator.rig import Content, HomographyPose, Rig, grid_slots, init_rig
 from coordinator.app import CoordinatorApp
 from coordinator.server import Coordinator
+from inprocess_coordinator import inprocess_coordinator
 from waits import wait_until_async
 
 TOKEN = b"t" * 32
@@ -35,13 +36,9 @@ EVIL = "<script>alert(1)</script>"
 async def console(tmp_path: Path, *, tls: tuple[bytes, bytes] | None = None):
     rig = Rig(init_rig(tmp_path / "rig", name="web", slots=grid_slots(1, 2), width=32, height=32,
                        content_width=64, content_height=32))
-    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0", tls=tls)
-    await app.start()
-    try:
+    async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0", tls=tls) as app:
         scheme = "https" if tls else "http"
         yield app.coordinator, f"{scheme}://127.0.0.1:{app.console_port}"
-    finally:
-        await app.stop()
 
 
 def client(**kw) -> aiohttp.ClientSession:
@@ -366,18 +363,14 @@ def test_the_coordinator_stops_with_an_event_stream_open(tmp_path):
     async def go():
         rig = Rig(init_rig(tmp_path / "rig", name="web", slots=["a"], width=32, height=32, content_width=32,
                            content_height=32))
-        app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-        await app.start()
-        base = f"http://127.0.0.1:{app.console_port}"
-        try:
+        async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0") as app:
+            base = f"http://127.0.0.1:{app.console_port}"
             async with client() as s:
                 headers, _ = await login(s, base)
                 async with s.get(base + "/api/events", headers={"Cookie": headers["Cookie"]}) as stream:
                     assert (await stream.content.readline()).startswith(b"event: history")
                     await asyncio.wait_for(app.stop(), 60)
                     await asyncio.wait_for(stream.content.read(), 30)    # ended by the server
-        finally:
-            await app.stop()
 
     asyncio.run(go())
 
@@ -482,15 +475,11 @@ def test_a_taken_console_port_stops_the_start_unless_the_console_is_optional(tmp
             app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}")
             with pytest.raises(CoordinatorError, match=f"cannot listen on 127.0.0.1:{port}: port {port} in use"):
                 await app.start()
-            app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console=f"127.0.0.1:{port}",
-                                 console_optional=True)
-            await app.start()        # the refused start released the rig's lock
-            try:
+            # the refused start released the rig's lock
+            async with inprocess_coordinator(rig, TOKEN, console=f"127.0.0.1:{port}", console_optional=True) as app:
                 assert app.port and app.console_port == 0
                 st = app.coordinator.status()
                 assert st.rig_name == "web" and st.console == f"NOT SERVED (port {port} in use)"
-            finally:
-                await app.stop()
         finally:
             holder.close()
 

@@ -13,11 +13,11 @@ import aiohttp
 import pytest
 
 from coordinator import users
-from coordinator.app import CoordinatorApp
 from coordinator.console import auth
 from coordinator.console.audit import FILE_NAME
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.users import UserStore
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"p" * 32
 PW = "a long password"
@@ -50,11 +50,9 @@ def test_roles_decide_who_acts_and_the_log_names_them(tmp_path):
         return [json.loads(line) for line in log_file.read_text().splitlines()]
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-        await app.start()
-        base = f"http://127.0.0.1:{app.console_port}"
-        coord = app.coordinator
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), TOKEN, console="127.0.0.1:0") as app:
+            base = f"http://127.0.0.1:{app.console_port}"
+            coord = app.coordinator
             async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
                 viewer, doc = await _login(s, base, {"name": "Vera", "password": PW})
                 assert (doc["who"], doc["role"]) == ("vera", "viewer")
@@ -120,8 +118,6 @@ def test_roles_decide_who_acts_and_the_log_names_them(tmp_path):
                 assert r.status == 401
                 r = await s.post(base + "/logout", headers=admin)
                 assert r.status == 200
-        finally:
-            await app.stop()
 
     asyncio.run(go())
 

@@ -28,12 +28,12 @@ from coordinator.camera import encode_png16, open_camera
 from coordinator.console import auth
 from coordinator.console.pictures import CAMERA_INTERVAL_S, to_srgb
 from coordinator.rig import ProjectionPose, Rig, grid_slots, init_rig, mesh_with_id
-from coordinator.app import CoordinatorApp
 from coordinator.server import Coordinator
 from shadowless.cli import main
 from sim.room import Room
 from sim.scene import reference_scene
 from sim.wire.service import RoomServerThread
+from inprocess_coordinator import inprocess_coordinator
 from waits import wait_until, wait_until_async
 
 TOKEN = b"p" * 32
@@ -126,10 +126,8 @@ async def console(tmp_path: Path, cameras: list[str] | None = None, prepare=None
                        content_width=64, content_height=32))
     if prepare is not None:
         prepare(rig)
-    app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0", cameras=cameras)
-    await app.start()
-    coord = app.coordinator
-    try:
+    async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0", cameras=cameras) as app:
+        coord = app.coordinator
         async with aiohttp.ClientSession(cookie_jar=aiohttp.DummyCookieJar()) as s:
             base = f"http://127.0.0.1:{app.console_port}"
             r = await s.post(base + "/login", json={"token": TOKEN.decode()}, headers={"Origin": base})
@@ -137,8 +135,6 @@ async def console(tmp_path: Path, cameras: list[str] | None = None, prepare=None
             headers = {"Cookie": f"{auth.COOKIE}={r.cookies[auth.COOKIE].value}"}
             coord.console_post_headers = {**headers, "Origin": base, auth.CSRF_HEADER: (await r.json())["csrf"]}
             yield coord, s, base, headers
-    finally:
-        await app.stop()
 
 
 PATHS = ["/api/pictures", "/api/pictures/alignment.png", "/api/pictures/compensation.png",
