@@ -38,7 +38,7 @@ BENCHMARKS: dict[str, str] = {
     "crash": "kill -9 of the coordinator during every write path: rigs that fail to start, writes lost, files left over",
     "uniformity": "per-pixel blending in the virtual room: flat-white uniformity before/after (table, wall seams, bust), "
                   "failover and lamp watchdog with real processes, blend captures, the node's cost",
-    "show_control": "what people and OSC cost: a login's password check (CPU), OSC status round trip, gain to applied",
+    "show_control": "what people and show control cost: a login's password check (CPU), OSC status round trip, gain to applied, the MTC chase's error",
     "specular": "a glossy table seen by an observer: peak highlight and its area under P1, P9, P25 at matched light vs 1/N",
     "startup": "CPU a coordinator (with and without mDNS and the console) and a node spend from exec to serving "
                "and to joined, against another commit's taking turns",

@@ -6,6 +6,8 @@
   ``/shadowless/status`` and waits for the six status messages (the round trip), then
   ``/shadowless/gain * VALUE`` and waits until every slot holds the value (command to applied).
   The load averages say how busy the machine was.
+* **MTC**: the MIDI timecode chase (:mod:`bench.show_control_mtc`): a show chasing MTC sent in
+  real time, its error against the MTC clock once settled, and no seek once MTC stops.
 """
 from __future__ import annotations
 
@@ -16,9 +18,10 @@ import socket
 import statistics
 import time
 
+from bench import show_control_mtc
 from bench.machine import load, machine
 from bench.workdir import run_dir
-from protos.cli_types import int_range
+from protos.cli_types import int_range, number
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -26,6 +29,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="OSC round trips and gain commands timed (default 200)")
     p.add_argument("--logins", type=int_range(1, 1000), default=20, help="password checks timed (default 20)")
     p.add_argument("--slots", type=int_range(1, 256), default=25, help="slots of the rig (default 25)")
+    p.add_argument("--mtc-seconds", type=number(2.0, 600.0), default=8.0,
+                   help="seconds of MIDI timecode sent to a playing show (default 8)")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory here")
 
 
@@ -92,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
     figures = {"login": _logins(args.logins)}
     with run_dir(args.keep, "show-control") as d:
         figures["osc"] = asyncio.run(_osc(args, d))
+        figures["mtc"] = asyncio.run(show_control_mtc.measure(d, args.mtc_seconds))
     doc = {"benchmark": "show_control", "machine": machine(), "load": load(), "figures": figures,
-           "parameters": {"rounds": args.rounds, "logins": args.logins, "slots": args.slots}}
+           "parameters": {"rounds": args.rounds, "logins": args.logins, "slots": args.slots,
+                          "mtc_seconds": args.mtc_seconds}}
     print(json.dumps(doc, indent=2))
     return 0
