@@ -16,7 +16,7 @@ import pytest
 
 from coordinator.console import auth
 from coordinator.rig import Rig, grid_slots, init_rig
-from coordinator.app import CoordinatorApp
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"c" * 32
 
@@ -73,12 +73,10 @@ def console_port(tmp_path):
 
     def run():
         async def main():
-            app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False, console="127.0.0.1:0")
-            await app.start()
-            box["app"], box["loop"], box["stop"] = app, asyncio.get_running_loop(), asyncio.Event()
-            ready.set()
-            await box["stop"].wait()
-            await app.stop()
+            async with inprocess_coordinator(rig, TOKEN, console="127.0.0.1:0") as app:
+                box["app"], box["loop"], box["stop"] = app, asyncio.get_running_loop(), asyncio.Event()
+                ready.set()
+                await box["stop"].wait()
         asyncio.run(main())
 
     t = threading.Thread(target=run, name="corpus-coordinator")

@@ -11,9 +11,9 @@ from selenium.webdriver.common.by import By
 
 from bench.console import chromium, text_of, visible, wait_for
 from coordinator import users
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.users import UserStore
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = "b" * 32
 PW = "viewer's password"
@@ -29,15 +29,10 @@ class _Coordinator:
 
     async def _main(self):
         self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
-        app = CoordinatorApp(Rig(self.rig_dir), TOKEN.encode(), listen="127.0.0.1:0", advertise=False,
-                             console="127.0.0.1:0")
-        await app.start()
-        self.url = f"http://127.0.0.1:{app.console_port}/"
-        self._ready.set()
-        try:
+        async with inprocess_coordinator(Rig(self.rig_dir), TOKEN.encode(), console="127.0.0.1:0") as app:
+            self.url = f"http://127.0.0.1:{app.console_port}/"
+            self._ready.set()
             await self._stop.wait()
-        finally:
-            await app.stop()
 
     def __enter__(self):
         self._thread.start()
