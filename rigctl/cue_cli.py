@@ -75,7 +75,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     add.add_argument("--name", default="", help="a name the operator reads (e.g. 'Act 1: opening')")
     add.add_argument("--id", default="", dest="cue_id", help="the cue's id (default: one more than the largest number)")
     add.add_argument("--fade", type=float, default=0.0, metavar="S",
-                     help="crossfade from what is on screen over S seconds (0: a cut; patterns always cut)")
+                     help="crossfade from what is on screen over S seconds (default 0: a cut; patterns always cut)")
     add.add_argument("--follow", type=float, default=None, metavar="S",
                      help="fire the next cue S seconds after this one reached the screen")
     add.add_argument("--slots", default="", metavar="A,B",

@@ -94,7 +94,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     for name, (module, summary) in COMMANDS.items():
         p = sub.add_parser(name, help=summary, description=summary, formatter_class=argparse.RawDescriptionHelpFormatter)
         if name == command:
-            add_verbosity_args(p, default="info" if name in INFO_BY_DEFAULT else "warning")
+            log_default = "info" if name in INFO_BY_DEFAULT else "warning"
+            add_verbosity_args(p, default=log_default)
             try:
                 mod = importlib.import_module(module)
             except ImportError as exc:
@@ -104,22 +105,23 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                 ) from exc
             configure = getattr(mod, "configure_" + name, None) or mod.configure
             configure(p)
-            _verbosity_everywhere(p)
+            _verbosity_everywhere(p, log_default)
             p.set_defaults(_module=mod)
             parser.command_parser = p
     return parser
 
 
-def _verbosity_everywhere(p: argparse.ArgumentParser, seen: set[int] | None = None) -> None:
+def _verbosity_everywhere(p: argparse.ArgumentParser, default: str, seen: set[int] | None = None) -> None:
     """-v/-q/--log-level also after a sub-action (``shadowless content list -v``), once per parser
-    (a parser with aliases is a choice under several names)."""
+    (a parser with aliases is a choice under several names); ``default``, the command's log level,
+    is what their help names (``shadowless rig board --help``)."""
     seen = set() if seen is None else seen
     for action in getattr(p, "subcommand_actions", ()):
         for sp in action.choices.values():
             if id(sp) not in seen:
                 seen.add(id(sp))
-                add_verbosity_args(sp, nested=True)
-                _verbosity_everywhere(sp, seen)
+                add_verbosity_args(sp, default, nested=True)
+                _verbosity_everywhere(sp, default, seen)
 
 
 def _command_of(words: list[str]) -> str | None:

@@ -355,8 +355,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image", help="still to show first (default: a generated test card)")
     p.add_argument("--size", type=cli_types.size, default="160x90", help="projector output and content size WxH (default 160x90)")
     p.add_argument("--clock-offset-ms", type=cli_types.number(0, 1e9), default=0.0,
-                   help="inject clock offsets spread over ±this many ms across the nodes (test hook)")
-    p.add_argument("--clock-drift-ppm", type=cli_types.number(0, 10000), default=0.0, help="inject drifts spread over ±this many ppm")
+                   help="inject clock offsets spread over ±this many ms across the nodes (test hook; default 0: none)")
+    p.add_argument("--clock-drift-ppm", type=cli_types.number(0, 10000), default=0.0, help="inject drifts spread over ±this many ppm (test hook; default 0: none)")
     p.add_argument("--keep", metavar="DIR", help="keep the rig directory, logs and snapshots in DIR")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument("--hold", action="store_true",
