@@ -7,13 +7,13 @@ import asyncio
 
 import numpy as np
 
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from node.image_files import write_png
 from protos.auth import read_token
 from cli_inprocess import run_shadowless
 from waits import wait_until_async
 from action_log import action_log_entries
+from inprocess_coordinator import inprocess_coordinator
 
 
 
@@ -26,14 +26,12 @@ def test_content_added_and_removed_from_the_command_line_is_in_the_action_log(tm
     broken.write_bytes(b"\x89PNG\r\n\x1a\n not a picture")
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), read_token(rig_dir / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        where = ["--coordinator", f"127.0.0.1:{app.port}", "--token-file", rig_dir / "token"]
+        async with inprocess_coordinator(Rig(rig_dir), read_token(rig_dir / "token")) as app:
+            where = ["--coordinator", f"127.0.0.1:{app.port}", "--token-file", rig_dir / "token"]
 
-        async def cli(*argv):
-            return await asyncio.to_thread(run_shadowless, [*argv, *where], capfd)
+            async def cli(*argv):
+                return await asyncio.to_thread(run_shadowless, [*argv, *where], capfd)
 
-        try:
             code, out, err = await cli("content", "add", picture, "--name", "card")
             assert code == 0, (out, err)
             code, out, err = await cli("content", "add", broken, "--name", "broken")
@@ -42,8 +40,6 @@ def test_content_added_and_removed_from_the_command_line_is_in_the_action_log(tm
             assert code == 0, (out, err)
             return await wait_until_async(lambda: action_log_entries(rig_dir), lambda es: len(es) >= 3,
                                           what="three content calls in the action log")
-        finally:
-            await app.stop()
 
     log = asyncio.run(go())
     got = [(e["who"], e["address"], e["action"], e["ok"]) for e in log]

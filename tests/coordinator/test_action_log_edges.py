@@ -10,7 +10,6 @@ import socket
 
 import grpc
 
-from coordinator.app import CoordinatorApp
 from coordinator.osc.service import encode
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos import control_pb2, control_pb2_grpc
@@ -19,6 +18,7 @@ from protos.cues import Cue, CueList
 from cli_inprocess import run_shadowless
 from waits import wait_until_async
 from action_log import action_log_entries
+from inprocess_coordinator import inprocess_coordinator
 
 
 def test_command_line_calls_are_in_the_action_log_with_who_and_where(tmp_path, capfd):
@@ -26,15 +26,12 @@ def test_command_line_calls_are_in_the_action_log_with_who_and_where(tmp_path, c
                        content_width=64, content_height=32)
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), read_token(rig_dir / "token"), listen="127.0.0.1:0", advertise=False,
-                             console="127.0.0.1:0")
-        await app.start()
-        where = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", rig_dir]
+        async with inprocess_coordinator(Rig(rig_dir), read_token(rig_dir / "token"), console="127.0.0.1:0") as app:
+            where = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", rig_dir]
 
-        async def cli(*argv):
-            return await asyncio.to_thread(run_shadowless, [*argv, *where], capfd)
+            async def cli(*argv):
+                return await asyncio.to_thread(run_shadowless, [*argv, *where], capfd)
 
-        try:
             app.coordinator.set_cues(CueList((Cue("1", "Dark", "blackout"), Cue("2", "Dark again", "blackout"))))
             for argv in (["blackout"], ["configure", "--slot", "r0c1", "--gain", "0.5"], ["stop"]):
                 code, out, err = await cli(*argv)
@@ -61,8 +58,6 @@ def test_command_line_calls_are_in_the_action_log_with_who_and_where(tmp_path, c
             # the console's page shows them: one log per rig directory
             page = app.console.app.audit.recent()
             assert [e["action"] for e in reversed(page)] == [e["action"] for e in log]
-        finally:
-            await app.stop()
 
     asyncio.run(go())
 
@@ -74,12 +69,9 @@ def test_one_go_is_one_entry_from_the_command_line_osc_and_a_follow(tmp_path, ca
         f.write('\n[osc]\nlisten = "127.0.0.1:0"\nallow = ["127.0.0.1"]\n')
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), read_token(rig_dir / "token"), listen="127.0.0.1:0", advertise=False,
-                             console="127.0.0.1:0")
-        await app.start()
-        coord = app.coordinator
-        where = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", rig_dir]
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), read_token(rig_dir / "token"), console="127.0.0.1:0") as app:
+            coord = app.coordinator
+            where = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", rig_dir]
             coord.set_cues(CueList((Cue("1", "Dark", "blackout"), Cue("2", "Then", "blackout", follow_s=0.2),
                                     Cue("3", "Last", "blackout"))))
             code, out, err = await asyncio.to_thread(run_shadowless, ["cue", "go", *where], capfd)
@@ -95,7 +87,5 @@ def test_one_go_is_one_entry_from_the_command_line_osc_and_a_follow(tmp_path, ca
             assert log[0]["result"].startswith("cue 1 'Dark' (blackout) fires")
             assert log[1]["result"].startswith("cue 2 'Then' (blackout) fires")
             assert all(e["ok"] for e in log)
-        finally:
-            await app.stop()
 
     asyncio.run(go())

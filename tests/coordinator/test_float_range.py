@@ -20,7 +20,7 @@ from coordinator.compensation.image_param import decode_image_param, encode_imag
 from coordinator.errors import AssetError
 from coordinator.float_range import check_float_range
 from coordinator.rig import Rig, init_rig
-from coordinator.app import CoordinatorApp
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"f" * 32
 
@@ -77,9 +77,7 @@ def test_grpc_show_and_play_refuse_floats_outside_0_1_from_any_client(tmp_path):
     async def go():
         rig = Rig(init_rig(tmp_path / "rig", name="floats", slots=["r0c0"], width=32, height=24,
                            content_width=32, content_height=24))
-        app = CoordinatorApp(rig, TOKEN, listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(rig, TOKEN) as app:
             async with await Client.connect(f"127.0.0.1:{app.port}", TOKEN) as c:
                 hot = np.full((24, 32, 3), 0.5, np.float32)
                 hot[0, 0] = 7.0
@@ -92,8 +90,6 @@ def test_grpc_show_and_play_refuse_floats_outside_0_1_from_any_client(tmp_path):
                 assert exc.value.code == "INVALID_ARGUMENT" and "0.5 to 7" in exc.value.details
                 r = await c.show(np.clip(hot, 0, 1), name="clipped")
                 assert r.frame_id > 0
-        finally:
-            await app.stop()
 
     asyncio.run(go())
 

@@ -87,16 +87,13 @@ def test_a_refused_start_lets_the_next_start_take_the_rig(rig, held_port):
     from coordinator.errors import CoordinatorError
     from coordinator.rig import Rig
     from coordinator.app import CoordinatorApp
+    from inprocess_coordinator import inprocess_coordinator
 
     async def go():
         app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{held_port}", advertise=False)
         with pytest.raises(CoordinatorError, match=f"port {held_port} is in use"):
             await app.start()
-        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(Rig(rig.rig_dir), rig.token) as app:
             assert app.port and app.coordinator.status().console == "off"
-        finally:
-            await app.stop()
 
     asyncio.run(go())

@@ -16,7 +16,6 @@ import cv2
 import numpy as np
 import pytest
 
-from coordinator.app import CoordinatorApp
 from coordinator.assets import AssetStore
 from coordinator.console.audit import ActionLog
 from coordinator.errors import CoordinatorError, RigError
@@ -27,6 +26,7 @@ from coordinator.osc.service import OscService
 from coordinator.rig import Rig, grid_slots, init_rig
 from waits import wait_until, wait_until_async
 from action_log import action_log_entries
+from inprocess_coordinator import inprocess_coordinator
 
 NS = 1_000_000_000
 
@@ -122,12 +122,10 @@ def test_mtc_drives_the_chase_and_stops_driving_it_when_it_stops(tmp_path):
     AssetStore(rig_dir).add(_clip(tmp_path / "clip", 200), name="clip", fps=10)
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), b"m" * 32, listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        coord, osc = app.coordinator, app.osc
-        # the port's bytes, as rtmidi hands them over in its thread (no MIDI system here: see the last test)
-        port = MtcInput("desk", osc.mtc_readings, coord.rig_now)
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), b"m" * 32) as app:
+            coord, osc = app.coordinator, app.osc
+            # the port's bytes, as rtmidi hands them over in its thread (no MIDI system here: see the last test)
+            port = MtcInput("desk", osc.mtc_readings, coord.rig_now)
             coord.play_asset("clip")
             await wait_until_async(lambda: coord.status().show.state, lambda s: s == "playing", what="the clip playing")
             frame_now = coord.status().show.frame
@@ -146,8 +144,6 @@ def test_mtc_drives_the_chase_and_stops_driving_it_when_it_stops(tmp_path):
             await wait_until_async(lambda: coord.status().show, lambda s: s.state == "playing" and s.frame >= 15,
                                    what="the show playing on from frame 0 (1.5 s)")
             assert len([e for e in action_log_entries(rig_dir) if e["action"] == "mtc timecode chase"]) == 1
-        finally:
-            await app.stop()
 
     asyncio.run(go())
 
@@ -161,9 +157,7 @@ def test_without_the_library_mtc_refuses_in_one_line_naming_the_extra(tmp_path, 
                        content_height=32)
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), b"m" * 32, listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), b"m" * 32) as app:
             with open(rig_dir / "rig.toml", "a") as f:
                 f.write('\n[osc]\nmtc_port = "MIDI Interface"\n')
             config = load_osc(rig_dir)
@@ -172,8 +166,6 @@ def test_without_the_library_mtc_refuses_in_one_line_naming_the_extra(tmp_path, 
             with pytest.raises(MidiUnavailable, match=r"pip install 'shadowless\[midi\]'"):
                 await service.start()
             await service.stop()
-        finally:
-            await app.stop()
 
     asyncio.run(go())
     (rig_dir / "rig.toml").write_text((rig_dir / "rig.toml").read_text().replace('"MIDI Interface"', "3"))

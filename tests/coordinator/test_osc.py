@@ -18,7 +18,6 @@ import pytest
 from pythonosc.osc_packet import OscPacket
 
 from coordinator.api import ShowState
-from coordinator.app import CoordinatorApp
 from coordinator.assets import AssetStore
 from coordinator.console.audit import ActionLog
 from coordinator.errors import RigError
@@ -28,6 +27,7 @@ from coordinator.osc.timecode import chase, timecode_seconds
 from coordinator.rig import Rig, grid_slots, init_rig
 from action_log import action_log_entries
 from waits import wait_until_async
+from inprocess_coordinator import inprocess_coordinator
 
 TOKEN = b"o" * 32
 
@@ -65,15 +65,13 @@ def test_show_control_from_another_process(tmp_path, caplog):
     AssetStore(rig_dir).add(_clip(tmp_path / "clip"), name="clip", fps=10)
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), TOKEN, listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        coord, osc = app.coordinator, app.osc
-        cues = hasattr(coord, "set_cues")
-        if cues:        # the cue list (coordinator/cues.py), when this core has one
-            from protos.cues import Cue, CueList
-            coord.set_cues(CueList((Cue(id="dark", name="house dark", kind="blackout"),
-                                    Cue(id="end", name="the end", kind="blackout"))))
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), TOKEN) as app:
+            coord, osc = app.coordinator, app.osc
+            cues = hasattr(coord, "set_cues")
+            if cues:        # the cue list (coordinator/cues.py), when this core has one
+                from protos.cues import Cue, CueList
+                coord.set_cues(CueList((Cue(id="dark", name="house dark", kind="blackout"),
+                                        Cue(id="end", name="the end", kind="blackout"))))
             messages = [["/shadowless/gain", ["*", 0.5]], ["/shadowless/blackout", []],
                         ["/shadowless/nope", []]] + ([["/shadowless/go", []]] if cues else []) + \
                        [["/shadowless/status", []]]
@@ -149,8 +147,6 @@ def test_show_control_from_another_process(tmp_path, caplog):
                 assert strict.handled == 0 and len(action_log_entries(rig_dir)) == before
             finally:
                 await strict.stop()
-        finally:
-            await app.stop()
 
     asyncio.run(go())
 
@@ -207,16 +203,12 @@ def test_stop_ends_when_it_meets_a_wake_up(tmp_path):
         f.write('\n[osc]\nlisten = "127.0.0.1:0"\n')
 
     async def go():
-        app = CoordinatorApp(Rig(rig_dir), TOKEN, listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), TOKEN) as app:
             osc = app.osc
             for _ in range(5):      # the status loop reaches its wait for the next check
                 await asyncio.sleep(0)
             osc.external_clock(1.0, app.coordinator.rig_now(), "osc:127.0.0.1", "127.0.0.1")   # wakes the loop
             async with asyncio.timeout(30):
                 await osc.stop()
-        finally:
-            await app.stop()
 
     asyncio.run(go())
