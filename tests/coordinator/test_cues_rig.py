@@ -7,12 +7,12 @@ action log with who fired it (the command line's GO is its own entry, not the en
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 from pathlib import Path
 
 import numpy as np
 
-from coordinator.app import CoordinatorApp
 from coordinator.assets import AssetStore
 from coordinator.rig import Content, HomographyPose, Rig
 from node.image_files import decode_png, decode_png_text, write_png
@@ -22,6 +22,7 @@ from protos.spaces import as_linear, warp_content
 from shadowless.local import LocalRig
 from cli_inprocess import run_shadowless
 from waits import wait_until_async
+from inprocess_coordinator import inprocess_coordinator
 
 SLOTS = ["r0c0", "r0c1"]
 W, H = 64, 48
@@ -70,16 +71,15 @@ def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path, capfd):
     black = np.zeros((H, W, 3), np.uint8)
     fires: list[dict] = []
 
-    async def start() -> CoordinatorApp:
-        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{rig.port}", advertise=False)
-        await app.start()
-        app.coordinator.cue_engine().on_fire = lambda **entry: fires.append(entry)
-        return app
+    @contextlib.asynccontextmanager
+    async def served():
+        async with inprocess_coordinator(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{rig.port}") as app:
+            app.coordinator.cue_engine().on_fire = lambda **entry: fires.append(entry)
+            yield app
 
     async def go():
-        app = await start()
-        coord = app.coordinator
-        try:
+        async with served() as app:
+            coord = app.coordinator
             for s in SLOTS:
                 coord.update_slot(s, pose=HomographyPose(np.eye(3)))
                 rig.start_node(s)
@@ -138,12 +138,9 @@ def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path, capfd):
             await wait_until_async(lambda: engine._follow, lambda t: t is None or t.done(),
                                    what="the follow's instant passing", timeout=60)
             assert coord.cue_state().current == 3, "the follow did not fire over the operator's stop"
-        finally:
-            await app.stop()
 
         # a restarted coordinator shows the current cue (4, black) again; the command line drives it
-        app = await start()
-        try:
+        async with served() as app:
             assert app.coordinator.cue_state().current == 3
             await pictures(rig, black, "cue 4 on screen again after the restart")
             where = ["--coordinator", f"127.0.0.1:{rig.port}", "--rig-dir", rig.rig_dir]
@@ -171,8 +168,6 @@ def test_go_back_jump_follow_and_crossfades_on_real_nodes(tmp_path, capfd):
             last = json.loads((Path(rig.rig_dir) / "console-actions.jsonl").read_text().splitlines()[-1])
             assert (last["who"], last["address"], last["action"], last["params"]) == (
                 "token", "127.0.0.1", "cli cue jump", {"id": "6"}), last
-        finally:
-            await app.stop()
 
     try:
         asyncio.run(go())

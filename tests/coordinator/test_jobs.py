@@ -17,9 +17,9 @@ from coordinator.jobs.results import JobResult, optional
 from rigctl.client import CallRefused
 from rigctl.job_command import ProgressView, run_job
 from coordinator.rig import Rig
-from coordinator.app import CoordinatorApp
 from shadowless.local import LocalRig
 from waits import wait_until_async
+from inprocess_coordinator import inprocess_coordinator
 
 SLOTS = ["r0c0", "r0c1", "r0c2"]
 SIZE = (40, 24)
@@ -98,45 +98,43 @@ def nodes_rig(tmp_path, monkeypatch):
 
 def test_jobs_show_patterns_report_progress_fail_clearly_and_cancel(nodes_rig):
     async def go():
-        app = CoordinatorApp(Rig(nodes_rig.rig_dir), nodes_rig.token, listen=f"127.0.0.1:{nodes_rig.port}",
-                             advertise=False)
-        await app.start()
-        coord = app.coordinator
-        try:
-            for s in SLOTS:
-                nodes_rig.start_node(s)
-            async with await nodes_rig.client() as c:
-                await nodes_rig.wait_live(c, timeout=120)
-                view = Capture()
-                result = await run_job(c, "test-patterns", {"count": 4}, view=view)
-                assert result == {"shown": 4, "slots": SLOTS}   # the typed result's wire dict, its None note left out
-                assert ("progress", "patterns", 4, 4) in view.events and ("log", "done") in view.events
+        async with inprocess_coordinator(Rig(nodes_rig.rig_dir), nodes_rig.token,
+                                         listen=f"127.0.0.1:{nodes_rig.port}") as app:
+            coord = app.coordinator
+            try:
+                for s in SLOTS:
+                    nodes_rig.start_node(s)
+                async with await nodes_rig.client() as c:
+                    await nodes_rig.wait_live(c, timeout=120)
+                    view = Capture()
+                    result = await run_job(c, "test-patterns", {"count": 4}, view=view)
+                    assert result == {"shown": 4, "slots": SLOTS}   # the typed result's wire dict, its None note left out
+                    assert ("progress", "patterns", 4, 4) in view.events and ("log", "done") in view.events
 
-                with pytest.raises(CallRefused) as err:
-                    await run_job(c, "test-fail", {}, view=Capture())
-                assert "r0c9 not seen by the camera" in err.value.details
+                    with pytest.raises(CallRefused) as err:
+                        await run_job(c, "test-fail", {}, view=Capture())
+                    assert "r0c9 not seen by the camera" in err.value.details
 
-                with pytest.raises(CallRefused) as err:
-                    await run_job(c, "no-such-job", {}, view=Capture())
-                assert "unknown job" in err.value.details
+                    with pytest.raises(CallRefused) as err:
+                        await run_job(c, "no-such-job", {}, view=Capture())
+                    assert "unknown job" in err.value.details
 
-                with pytest.raises(CallRefused) as err:   # options are checked before the job runs
-                    await run_job(c, "test-patterns", {"count": 0, "colour": 1}, view=Capture())
-                assert "unknown test-patterns parameter(s) colour" in err.value.details
+                    with pytest.raises(CallRefused) as err:   # options are checked before the job runs
+                        await run_job(c, "test-patterns", {"count": 0, "colour": 1}, view=Capture())
+                    assert "unknown test-patterns parameter(s) colour" in err.value.details
 
-                # cancelling the call cancels the job and frees the rig for the next one
-                view = Capture()
-                slow = asyncio.ensure_future(run_job(c, "test-slow", {}, view=view))
-                await wait_until_async(lambda: list(view.events), lambda ev: ("progress", "waiting", 0, 1) in ev,
-                                       what="the slow job's first progress")
-                slow.cancel()
-                await asyncio.gather(slow, return_exceptions=True)
-                await wait_until_async(lambda: coord._job_lock.locked(), lambda locked: not locked,
-                                       what="the cancelled job to free the rig")
-                assert (await run_job(c, "test-patterns", {"count": 1}, view=Capture()))["shown"] == 1
-        finally:
-            nodes_rig.close()
-            await app.stop()
+                    # cancelling the call cancels the job and frees the rig for the next one
+                    view = Capture()
+                    slow = asyncio.ensure_future(run_job(c, "test-slow", {}, view=view))
+                    await wait_until_async(lambda: list(view.events), lambda ev: ("progress", "waiting", 0, 1) in ev,
+                                           what="the slow job's first progress")
+                    slow.cancel()
+                    await asyncio.gather(slow, return_exceptions=True)
+                    await wait_until_async(lambda: coord._job_lock.locked(), lambda locked: not locked,
+                                           what="the cancelled job to free the rig")
+                    assert (await run_job(c, "test-patterns", {"count": 1}, view=Capture()))["shown"] == 1
+            finally:
+                nodes_rig.close()
 
     asyncio.run(go())
 

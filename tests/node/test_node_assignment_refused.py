@@ -10,13 +10,13 @@ import asyncio
 
 import numpy as np
 
-from coordinator.app import CoordinatorApp
 from coordinator.console.health import health_view
 from coordinator.rig import HomographyPose, Rig
 from coordinator.wire import node_messages
 from rigctl.commands import status_dict, status_table
 from shadowless.local import LocalRig
 from waits import wait_until_async
+from inprocess_coordinator import inprocess_coordinator
 
 SLOT = "r0c0"
 W, H = 32, 24
@@ -31,10 +31,8 @@ def test_a_malformed_assignment_is_refused_in_the_node_process_and_the_previous_
     rig = LocalRig([SLOT], tmp_path, output_size=(W, H), content_size=(W, H), mdns=False).create()
 
     async def go():
-        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{rig.port}", advertise=False)
-        await app.start()
-        coord = app.coordinator
-        try:
+        async with inprocess_coordinator(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{rig.port}") as app:
+            coord = app.coordinator
             coord.update_slot(SLOT, pose=HomographyPose(np.eye(3)))
             rig.start_node(SLOT)
             async with await rig.client() as c:
@@ -78,8 +76,6 @@ def test_a_malformed_assignment_is_refused_in_the_node_process_and_the_previous_
                                    what=f"the node taking the good r{after}")
             assert sess.heartbeat.assignment_refused == ""
             return bad, after
-        finally:
-            await app.stop()
 
     try:
         bad, after = asyncio.run(go())

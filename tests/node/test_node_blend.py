@@ -16,7 +16,6 @@ import asyncio
 import json
 import numpy as np
 
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Content, HomographyPose, Rig
 from coordinator.wire import node_messages
 from node.image_files import decode_png, decode_png_text
@@ -24,6 +23,7 @@ from protos.blend import BlendMaps
 from protos.spaces import warp_content
 from shadowless.local import LocalRig
 from waits import wait_until_async
+from inprocess_coordinator import inprocess_coordinator
 
 SLOTS = ["r0c0", "r0c1"]
 W, H = 64, 48
@@ -81,73 +81,71 @@ def test_nodes_show_their_maps_from_their_instant_and_refuse_bad_ones(tmp_path, 
     content = np.stack([x / (W - 1), y / (H - 1), 0.3 + 0.4 * (x + y) / (W + H)], axis=2).astype(np.float32)
 
     async def go():
-        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{rig.port}", advertise=False)
-        await app.start()
-        coord = app.coordinator
-        try:
-            for s in SLOTS:
-                coord.update_slot(s, pose=HomographyPose(np.eye(3)))
-                rig.start_node(s)
-            async with await rig.client() as c:
-                await rig.wait_live(c, timeout=120)
-            coord.show(Content(content))
-            plain = expected(content, None)
-            await pictures(rig, {s: plain for s in SLOTS}, "both nodes showing the still, unblended")
+        async with inprocess_coordinator(Rig(rig.rig_dir), rig.token, listen=f"127.0.0.1:{rig.port}") as app:
+            coord = app.coordinator
+            try:
+                for s in SLOTS:
+                    coord.update_slot(s, pose=HomographyPose(np.eye(3)))
+                    rig.start_node(s)
+                async with await rig.client() as c:
+                    await rig.wait_live(c, timeout=120)
+                coord.show(Content(content))
+                plain = expected(content, None)
+                await pictures(rig, {s: plain for s in SLOTS}, "both nodes showing the still, unblended")
 
-            # maps at once, for one node only
-            first = random_maps()
-            set_blend(coord, "r0c0", first, 0)
-            await pictures(rig, {"r0c0": expected(content, first), "r0c1": plain}, "r0c0 blended, r0c1 not")
-            assert not near(expected(content, first), plain), "the maps change the picture"
-            sess = coord.by_slot["r0c0"]
-            await wait_until_async(lambda: sess.blend_id, lambda b: b == first.blend_id,
-                                   what="r0c0's heartbeat naming its blend")
-            assert sess.blend_since_rig_ns > 0 and coord.by_slot["r0c1"].blend_id == ""
+                # maps at once, for one node only
+                first = random_maps()
+                set_blend(coord, "r0c0", first, 0)
+                await pictures(rig, {"r0c0": expected(content, first), "r0c1": plain}, "r0c0 blended, r0c1 not")
+                assert not near(expected(content, first), plain), "the maps change the picture"
+                sess = coord.by_slot["r0c0"]
+                await wait_until_async(lambda: sess.blend_id, lambda b: b == first.blend_id,
+                                       what="r0c0's heartbeat naming its blend")
+                assert sess.blend_since_rig_ns > 0 and coord.by_slot["r0c1"].blend_id == ""
 
-            # maps for both at one instant ahead: not before it, from it on, both at that instant
-            new = {s: random_maps() for s in SLOTS}
-            at = coord.rig_now() + 3_000_000_000
-            for s in SLOTS:
-                set_blend(coord, s, new[s], at)
-            revisions = {s: coord.rig.slots[s].revision for s in SLOTS}
-            heard = await wait_until_async(
-                lambda: {s: (coord.by_slot[s].heartbeat.assignment_revision, coord.rig_now()) for s in SLOTS},
-                lambda h: all(h[s][0] == revisions[s] for s in SLOTS), what="both nodes holding the new maps")
-            if max(now for _, now in heard.values()) < at:     # the machine kept up: before the instant
-                assert near(snapshot(rig, "r0c0")[0], expected(content, first))
-                assert near(snapshot(rig, "r0c1")[0], plain)
-                assert coord.by_slot["r0c0"].blend_id == first.blend_id and coord.by_slot["r0c1"].blend_id == ""
-            metas = await pictures(rig, {s: expected(content, new[s]) for s in SLOTS}, "both nodes on the new maps")
-            assert all(m["swap_rig_ns"] >= at - 2_000_000 for m in metas.values()), \
-                ({s: (m.get("swap_rig_ns"), m.get("frame_id")) for s, m in metas.items()}, at,
-                 {s: [ln for ln in rig.log(f"node-{s}").splitlines() if "blend" in ln][-6:]
-                  for s in SLOTS})
-            since = await wait_until_async(
-                lambda: {s: (coord.by_slot[s].blend_id, coord.by_slot[s].blend_since_rig_ns) for s in SLOTS},
-                lambda b: all(b[s][0] == new[s].blend_id for s in SLOTS), what="both heartbeats naming the new maps")
-            assert {s: t for s, (_, t) in since.items()} == {s: at for s in SLOTS}, "one common swap instant"
+                # maps for both at one instant ahead: not before it, from it on, both at that instant
+                new = {s: random_maps() for s in SLOTS}
+                at = coord.rig_now() + 3_000_000_000
+                for s in SLOTS:
+                    set_blend(coord, s, new[s], at)
+                revisions = {s: coord.rig.slots[s].revision for s in SLOTS}
+                heard = await wait_until_async(
+                    lambda: {s: (coord.by_slot[s].heartbeat.assignment_revision, coord.rig_now()) for s in SLOTS},
+                    lambda h: all(h[s][0] == revisions[s] for s in SLOTS), what="both nodes holding the new maps")
+                if max(now for _, now in heard.values()) < at:     # the machine kept up: before the instant
+                    assert near(snapshot(rig, "r0c0")[0], expected(content, first))
+                    assert near(snapshot(rig, "r0c1")[0], plain)
+                    assert coord.by_slot["r0c0"].blend_id == first.blend_id and coord.by_slot["r0c1"].blend_id == ""
+                metas = await pictures(rig, {s: expected(content, new[s]) for s in SLOTS}, "both nodes on the new maps")
+                assert all(m["swap_rig_ns"] >= at - 2_000_000 for m in metas.values()), \
+                    ({s: (m.get("swap_rig_ns"), m.get("frame_id")) for s, m in metas.items()}, at,
+                     {s: [ln for ln in rig.log(f"node-{s}").splitlines() if "blend" in ln][-6:]
+                      for s in SLOTS})
+                since = await wait_until_async(
+                    lambda: {s: (coord.by_slot[s].blend_id, coord.by_slot[s].blend_since_rig_ns) for s in SLOTS},
+                    lambda b: all(b[s][0] == new[s].blend_id for s in SLOTS), what="both heartbeats naming the new maps")
+                assert {s: t for s, (_, t) in since.items()} == {s: at for s in SLOTS}, "one common swap instant"
 
-            # maps that cannot be used: one line in the node's log, nothing changes on its projector
-            def spoiled(maps, *, at_ns=0):
-                msg = node_messages.node_pb2.Blend()
-                msg.CopyFrom(real(maps, at_ns=at_ns))
-                msg.beta = np.full(msg.width * msg.height, np.nan, "<f2").tobytes()
-                return msg
+                # maps that cannot be used: one line in the node's log, nothing changes on its projector
+                def spoiled(maps, *, at_ns=0):
+                    msg = node_messages.node_pb2.Blend()
+                    msg.CopyFrom(real(maps, at_ns=at_ns))
+                    msg.beta = np.full(msg.width * msg.height, np.nan, "<f2").tobytes()
+                    return msg
 
-            real = node_messages.blend_message
-            monkeypatch.setattr(node_messages, "blend_message", spoiled)
-            set_blend(coord, "r0c1", random_maps(), 0)
-            revision = coord.rig.slots["r0c1"].revision
-            await wait_until_async(lambda: coord.by_slot["r0c1"].heartbeat.assignment_revision,
-                                   lambda r: r == revision, what="r0c1 holding the spoiled assignment")
-            text = await wait_until_async(lambda: rig.log("node-r0c1"), lambda t: "blend maps refused" in t,
-                                          what="r0c1's refusal")
-            refusals = [line for line in text.splitlines() if "blend maps refused" in line]
-            assert len(refusals) == 1 and "NaN" in refusals[0], refusals
-            assert near(snapshot(rig, "r0c1")[0], expected(content, new["r0c1"]))
-            assert coord.by_slot["r0c1"].blend_id == new["r0c1"].blend_id
-        finally:
-            rig.close()
-            await app.stop()
+                real = node_messages.blend_message
+                monkeypatch.setattr(node_messages, "blend_message", spoiled)
+                set_blend(coord, "r0c1", random_maps(), 0)
+                revision = coord.rig.slots["r0c1"].revision
+                await wait_until_async(lambda: coord.by_slot["r0c1"].heartbeat.assignment_revision,
+                                       lambda r: r == revision, what="r0c1 holding the spoiled assignment")
+                text = await wait_until_async(lambda: rig.log("node-r0c1"), lambda t: "blend maps refused" in t,
+                                              what="r0c1's refusal")
+                refusals = [line for line in text.splitlines() if "blend maps refused" in line]
+                assert len(refusals) == 1 and "NaN" in refusals[0], refusals
+                assert near(snapshot(rig, "r0c1")[0], expected(content, new["r0c1"]))
+                assert coord.by_slot["r0c1"].blend_id == new["r0c1"].blend_id
+            finally:
+                rig.close()
 
     asyncio.run(go())

@@ -11,13 +11,13 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig
 from node.clock import LocalClock
 from node.link import CoordinatorLink
 from node.records import NodeInfo
 from node.session import SessionCore
 from shadowless.local import LocalRig
+from inprocess_coordinator import inprocess_coordinator
 
 SLOT = "r0c0"
 
@@ -56,26 +56,18 @@ def test_a_join_after_screening_shakes_hands_once_and_again_only_when_the_coordi
     core = SessionCore(slot=SLOT, token=rig.token, clock=LocalClock(), info=lambda: NodeInfo(hostname="test"))
 
     async def go():
-        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        target = f"127.0.0.1:{app.port}"
-        try:
+        async with inprocess_coordinator(Rig(rig.rig_dir), rig.token) as app:
+            target = f"127.0.0.1:{app.port}"
             await screen(core, target)
             screened = await join(core, target)         # the screening's Hello is the Join's
             plain = await join(core, target)            # no screening before: a Hello of its own
             await screen(core, target)
             instance = app.coordinator.instance_id
-        finally:
-            await app.stop()
         # the coordinator restarts on the same address between the screening and the join
-        again = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen=target, advertise=False)
-        await again.start()
-        try:
+        async with inprocess_coordinator(Rig(rig.rig_dir), rig.token, listen=target) as again:
             restarted = await join(core, target)
             joined_slots = sorted(again.coordinator.by_slot)
             return screened, plain, restarted, instance, again.coordinator.instance_id, joined_slots
-        finally:
-            await again.stop()
 
     try:
         screened, plain, restarted, first_instance, second_instance, joined_slots = asyncio.run(go())

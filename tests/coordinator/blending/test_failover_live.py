@@ -21,7 +21,6 @@ import signal
 
 import numpy as np
 
-from coordinator.app import CoordinatorApp
 from coordinator.blend_store import StoredBlend, save_blend, save_contributions
 from coordinator.blending.failover import BLACK_MAPS
 from coordinator.rig import Content, HomographyPose, Rig
@@ -36,6 +35,7 @@ from sim.scene import reference_scene
 from sim.wire.service import RoomServerThread
 from room_light import truth_contributions
 from waits import wait_until_async
+from inprocess_coordinator import inprocess_coordinator
 
 SLOTS = ["r1c1", "r1c3", "r3c1", "r3c3"]
 CONTENT = (200, 100)
@@ -134,11 +134,13 @@ def test_a_killed_node_is_covered_by_the_others_and_a_dimmed_lamp_is_named(tmp_p
                             ("one common swap instant, or late for a reason", s, t - at, got)
             return max(t for _, t in got.values())
 
+        def served():
+            """The coordinator in this event loop, on the port the nodes know."""
+            return inprocess_coordinator(Rig(local.rig_dir), local.token, listen=f"127.0.0.1:{local.port}")
+
         async def phase_one():
-            app = CoordinatorApp(Rig(local.rig_dir), local.token, listen=f"127.0.0.1:{local.port}", advertise=False)
-            await app.start()
-            coord = app.coordinator
-            try:
+            async with served() as app:
+                coord = app.coordinator
                 for s in SLOTS:
                     local.start_node(s)
                 async with await local.client() as c:
@@ -185,18 +187,14 @@ def test_a_killed_node_is_covered_by_the_others_and_a_dimmed_lamp_is_named(tmp_p
                 back = await capture()
                 assert abs(np.median(back[fp] / full[fp]) - 1.0) < 0.02
                 return full, frames_late
-            finally:
-                await app.stop()
 
         async def phase_two(full):
             # a lamp at half while the coordinator is down: the nodes play on with the full blend's maps
             room.set_lamp("r3c3", 0.5)
             set_watchdog(local.rig_dir, True)
-            app = CoordinatorApp(Rig(local.rig_dir), local.token, listen=f"127.0.0.1:{local.port}", advertise=False)
             dimmed = await capture()
-            await app.start()
-            coord = app.coordinator
-            try:
+            async with served() as app:
+                coord = app.coordinator
                 st = await wait_until_async(coord.blend_status, lambda b: b.lamps, what="the watchdog naming a lamp")
                 assert [s for s, _ in st.lamps] == ["r3c3"] and abs(st.lamps[0][1] - 0.5) <= 0.05, st
                 await wait_until_async(lambda: coord.blending.applied == coord.blending.wanted_key(), bool,
@@ -209,8 +207,6 @@ def test_a_killed_node_is_covered_by_the_others_and_a_dimmed_lamp_is_named(tmp_p
                 before = np.abs(dimmed[fp] / full[fp] - 1.0).mean()
                 after = np.abs(reblended[fp] / full[fp] - 1.0).mean()
                 assert after < 0.5 * before, (before, after)
-            finally:
-                await app.stop()
 
         try:
             full, frames_late = asyncio.run(phase_one())
