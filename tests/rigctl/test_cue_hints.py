@@ -8,10 +8,10 @@ import asyncio
 import re
 import shlex
 
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos.auth import read_token
 from procs import shadowless_process
+from inprocess_coordinator import inprocess_coordinator
 
 
 
@@ -19,9 +19,7 @@ def test_the_next_cue_hint_names_the_rig_and_works_as_printed(tmp_path):
     rig = Rig(init_rig(tmp_path / "show rig", name="hints", slots=grid_slots(1, 1), width=32, height=32))
 
     async def go():
-        app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(rig, read_token(rig.path / "token")) as app:
             coordinator = ["--coordinator", f"127.0.0.1:{app.port}"]
             empty = await asyncio.to_thread(shadowless_process, "cue", "list", str(rig.path), *coordinator)
             assert empty.returncode == 0, empty.stderr
@@ -36,7 +34,5 @@ def test_the_next_cue_hint_names_the_rig_and_works_as_printed(tmp_path):
             argv = shlex.split(hint.group(1))      # as a shell splits it; this test has no mDNS: the address
             fired = await asyncio.to_thread(shadowless_process, *argv[1:], *coordinator)
             assert fired.returncode == 0 and "cue 1 'Preset' (blackout) fires" in fired.stdout, fired
-        finally:
-            await app.stop()
 
     asyncio.run(go())

@@ -11,9 +11,9 @@ import sys
 import cv2
 import numpy as np
 
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos.auth import read_token
+from inprocess_coordinator import inprocess_coordinator
 
 
 def test_a_folder_of_jpeg_frames_plays_and_no_skew_reads_as_words(tmp_path):
@@ -26,15 +26,11 @@ def test_a_folder_of_jpeg_frames_plays_and_no_skew_reads_as_words(tmp_path):
     rig = Rig(path)
 
     async def go():
-        app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(rig, read_token(rig.path / "token")) as app:
             return await asyncio.to_thread(subprocess.run, [
                 sys.executable, "-m", "shadowless", "play", str(frames), "--fps", "30",
                 "--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)],
                 capture_output=True, text=True, timeout=120)
-        finally:
-            await app.stop()
 
     r = asyncio.run(go())
     assert "no images in" not in r.stderr, r.stderr

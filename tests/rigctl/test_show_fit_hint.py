@@ -8,10 +8,10 @@ import asyncio
 import cv2
 import numpy as np
 
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos.auth import read_token
 from procs import shadowless_process
+from inprocess_coordinator import inprocess_coordinator
 
 
 
@@ -22,9 +22,7 @@ def test_a_picture_of_another_aspect_is_refused_naming_fit(tmp_path):
     cv2.imwrite(str(square), np.full((20, 20, 3), 128, np.uint8))       # 1:1 on a 2:1 content area
 
     async def go():
-        app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(rig, read_token(rig.path / "token")) as app:
             conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
             refused, shown = await asyncio.gather(asyncio.to_thread(shadowless_process, "show", str(square), *conn),
                                                   asyncio.to_thread(shadowless_process, "show", str(square), "--fit", "contain", *conn))
@@ -33,7 +31,5 @@ def test_a_picture_of_another_aspect_is_refused_naming_fit(tmp_path):
             assert refused.stderr.startswith("shadowless show: the image is 20x20") and \
                 "choose how to fit it with --fit: contain" in refused.stderr, refused.stderr
             assert shown.returncode == 0 and shown.stdout.startswith("showing "), shown
-        finally:
-            await app.stop()
 
     asyncio.run(go())

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import asyncio
 
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from protos.auth import read_token
 from procs import shadowless_process
+from inprocess_coordinator import inprocess_coordinator
 
 
 
@@ -17,9 +17,7 @@ def test_solo_says_the_others_are_black(tmp_path):
     rig = Rig(init_rig(tmp_path / "rig", name="solo", slots=grid_slots(1, 2), width=32, height=32))
 
     async def go():
-        app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(rig, read_token(rig.path / "token")) as app:
             conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
             pattern = await asyncio.to_thread(shadowless_process, "pattern", "grid", *conn)
             assert pattern.returncode == 0 and "test pattern grid on every projector (2)" in pattern.stdout, pattern
@@ -29,7 +27,5 @@ def test_solo_says_the_others_are_black(tmp_path):
                                            "projector (2)"), solo.stdout
             end = await asyncio.to_thread(shadowless_process, "solo", "--end", *conn)
             assert end.returncode == 0 and end.stdout.strip() == "the rig shows test pattern grid on every projector (2)", end
-        finally:
-            await app.stop()
 
     asyncio.run(go())

@@ -14,7 +14,6 @@ import numpy as np
 
 from coordinator.api import BlendStatus, RigStatus
 from coordinator.blend_store import StoredBlend, save_blend
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, grid_slots, init_rig
 from coordinator.wire import control_messages
 from protos.auth import read_token
@@ -22,6 +21,7 @@ from protos.blend import BlendMaps
 from rigctl.blend_status import ago, blend_lines
 from rigctl.commands import status_dict, status_table
 from procs import shadowless_process
+from inprocess_coordinator import inprocess_coordinator
 
 NOW = 1_800_000_000.0
 BLENDED = BlendStatus(state="blended", blend_id="b1", created_at=NOW - 7200, headroom=0.08, brightness_cost=0.08)
@@ -127,14 +127,10 @@ def test_the_status_command_prints_the_coordinators_blend(tmp_path):
     never = Rig(init_rig(tmp_path / "never", name="never", slots=grid_slots(1, 2), width=32, height=32))
 
     async def never_blended():
-        app = CoordinatorApp(never, read_token(never.path / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(never, read_token(never.path / "token")) as app:
             conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(never.path)]
             d, text = await status_both(conn)
             assert d["state"] == "none" and "blend: none" in text and "`shadowless blend RIG`" in text, text
-        finally:
-            await app.stop()
 
     asyncio.run(never_blended())
     path = init_rig(tmp_path / "rig", name="hall", slots=grid_slots(1, 2), width=32, height=32)
@@ -147,9 +143,7 @@ def test_the_status_command_prints_the_coordinators_blend(tmp_path):
                                      {"created_at": time.time() - 7300, "headroom": 0.125, "brightness_cost": 0.11}))
 
     async def go():
-        app = CoordinatorApp(rig, read_token(rig.path / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(rig, read_token(rig.path / "token")) as app:
             conn = ["--coordinator", f"127.0.0.1:{app.port}", "--rig-dir", str(rig.path)]
             d, text = await status_both(conn)
             assert d["state"] == "blended" and d["headroom"] == 0.125 and d["brightness_cost"] == 0.11, d
@@ -169,7 +163,5 @@ def test_the_status_command_prints_the_coordinators_blend(tmp_path):
             assert "lamp r0c0 dimmed: estimated gain 0.52 (photometric watchdog)" in lines
             assert any(line.startswith("blend: measured 6") and line.endswith(" min ago, headroom 10 % (costs 10 % of "
                                                                             "brightness)") for line in lines), text
-        finally:
-            await app.stop()
 
     asyncio.run(go())

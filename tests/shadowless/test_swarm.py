@@ -18,10 +18,10 @@ import time
 
 import numpy as np
 import pytest
+from inprocess_coordinator import inprocess_coordinator
 from waits import wait_until, wait_until_async
 
 from coordinator.api import NodeState, PlaySettings
-from coordinator.app import CoordinatorApp
 from coordinator.assets import AssetStore
 from coordinator.rig import Rig
 from node.app import Node, NodeConfig
@@ -209,13 +209,9 @@ def test_the_node_and_the_swarm_keep_their_clocks_the_same_way_across_a_coordina
             second = await join_all(rig.target)
         finally:
             rig.stop_coordinator()
-        app = CoordinatorApp(Rig(rig.rig_dir), rig.token, listen="127.0.0.1:0", advertise=False,
-                             clock_ns=lambda: time.monotonic_ns() + SHIFT_NS)
-        await app.start()
-        try:
+        async with inprocess_coordinator(Rig(rig.rig_dir), rig.token,
+                                         clock_ns=lambda: time.monotonic_ns() + SHIFT_NS) as app:
             third = await join_all(f"127.0.0.1:{app.port}")
-        finally:
-            await app.stop()
         return first, second, third
 
     try:

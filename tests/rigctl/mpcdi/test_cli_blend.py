@@ -148,7 +148,7 @@ def test_a_coordinator_started_on_the_imported_rig_gives_each_slot_its_maps(tmp_
     the imported maps and reports the rig blended."""
     import asyncio
 
-    from coordinator.app import CoordinatorApp
+    from inprocess_coordinator import inprocess_coordinator
     from protos.auth import read_token
 
     rig = blended_table(tmp_path / "table")
@@ -159,13 +159,9 @@ def test_a_coordinator_started_on_the_imported_rig_gives_each_slot_its_maps(tmp_
     want = load_blend(rig.path).maps
 
     async def go():
-        app = CoordinatorApp(Rig(fresh.path), read_token(fresh.path / "token"), listen="127.0.0.1:0", advertise=False)
-        await app.start()
-        try:
+        async with inprocess_coordinator(Rig(fresh.path), read_token(fresh.path / "token")) as app:
             served = {n: app.coordinator.rig.slot(n).blend for n in ("p1", "p2", "p3", "spare")}
             return served, app.coordinator.blend_status()
-        finally:
-            await app.stop()
 
     served, status = asyncio.run(go())
     assert served["spare"] is None
