@@ -107,8 +107,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                        help="fetch assets at most this fast, e.g. 20M for 20 MiB/s (default: as fast as the "
                             "network goes)")
     test = p.add_argument_group("test hooks (make this node deliberately wrong)")
-    test.add_argument("--clock-offset-ms", type=cli_types.number(-1e9, 1e9), default=0.0, help="offset this node's clock by this much")
-    test.add_argument("--clock-drift-ppm", type=cli_types.number(-10000, 10000), default=0.0, help="make this node's clock run fast/slow")
+    test.add_argument("--clock-offset-ms", type=cli_types.number(-1e9, 1e9), default=0.0, help="offset this node's clock by this much (default 0)")
+    test.add_argument("--clock-drift-ppm", type=cli_types.number(-10000, 10000), default=0.0, help="make this node's clock run fast/slow (default 0)")
     test.add_argument("--protocol-version", type=int, default=PROTOCOL_VERSION, help=argparse.SUPPRESS)
     test.add_argument("--refusal-backoff-s", type=cli_types.number(0.1, 3600), default=10.0, help=argparse.SUPPRESS)
 

@@ -65,7 +65,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.epilog = EPILOG
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     s = parser.add_argument_group("surface and hands")
-    s.add_argument("--surface", choices=["table", "bust"], default="table", help="the 1200x600 mm table, or the procedural bust on it")
+    s.add_argument("--surface", choices=["table", "bust"], default="table", help="the 1200x600 mm table (the default), or the procedural bust on it")
     s.add_argument("--pitch", type=cli_types.number(2, 100), default=10.0, metavar="MM", help="table sample spacing (default 10)")
     s.add_argument("--heights", type=_floats, default=(200.0,), metavar="MM,...", help="table hands: height of the lowest point (default 200)")
     s.add_argument("--yaws", type=_floats, default=(-30.0, 0.0, 30.0), metavar="DEG,...", help="table hands: finger directions (default -30,0,30)")

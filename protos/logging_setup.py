@@ -102,9 +102,10 @@ def setup(level: int | str = logging.INFO, *, name: str = "", stream=None, journ
 
 
 def add_verbosity_args(p: argparse.ArgumentParser, default: str = "warning", *, nested: bool = False) -> None:
-    """``-v``/``-q`` (repeatable) and ``--log-level``, shared by every command. ``nested``: on a
-    sub-action's parser, where they add to what was given before the action (no defaults of
-    their own, which argparse would let override the command's)."""
+    """``-v``/``-q`` (repeatable) and ``--log-level``, shared by every command. ``default``: the
+    command's level, which the help names. ``nested``: on a sub-action's parser, where they add to
+    what was given before the action (no defaults of their own, which argparse would let override
+    the command's; the help still names the command's)."""
     unset = {"default": argparse.SUPPRESS} if nested else {}
     g = p.add_argument_group("log output")
     g.add_argument("-v", "--verbose", action="count", **(unset or {"default": 0}),
@@ -112,8 +113,7 @@ def add_verbosity_args(p: argparse.ArgumentParser, default: str = "warning", *, 
     g.add_argument("-q", "--quiet", action="count", **(unset or {"default": 0}),
                    help="fewer log lines (-q: one level up, -qq: two)")
     g.add_argument("--log-level", choices=LEVELS, type=str.lower, **(unset or {"default": None}),
-                   help="the log level outright (overrides -v/-q)" if nested else
-                   f"the log level outright (default {default}; overrides -v/-q)")
+                   help=f"the log level outright (default {default}; overrides -v/-q)")
     if not nested:
         p.set_defaults(_log_default=default)
 

@@ -245,8 +245,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                           "nodes have; sharing costs the coordinator less)")
     how.add_argument("--late-ms", type=cli_types.number(0, 10000), default=10.0,
                      help="a swap the swarm wakes up for later than this is reported as a late drop (default 10)")
-    how.add_argument("--clock-offset-ms", type=cli_types.number(0, 1e9), default=0.0, help="give node clocks random offsets within ±this")
-    how.add_argument("--clock-drift-ppm", type=cli_types.number(0, 10000), default=0.0, help="give node clocks random drifts within ±this")
+    how.add_argument("--clock-offset-ms", type=cli_types.number(0, 1e9), default=0.0, help="give node clocks random offsets within ±this (default 0: none)")
+    how.add_argument("--clock-drift-ppm", type=cli_types.number(0, 10000), default=0.0, help="give node clocks random drifts within ±this (default 0: none)")
     out = p.add_argument_group("how long and what to print")
     out.add_argument("--seconds", type=cli_types.number(0, 1e7, lo_open=True), help="stop after this long (default: until Ctrl-C or SIGTERM)")
     out.add_argument("--stats-file", type=Path, metavar="FILE", help="write the figures here as JSON four times a second")

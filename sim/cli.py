@@ -88,7 +88,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--subset", metavar="NAME", help="power only a named subset: P1, P9D, P9W, P13, P17, P20 or P25")
     g.add_argument("--cameras", type=int, choices=(1, 3), default=1,
                    help="cameras of the reference rig: 1 (on the ceiling) or 3 (plus front-left and back-right of the "
-                        "bust, cameras 1 and 2: room://HOST:PORT?camera=N); a layout file lists its own")
+                        "bust, cameras 1 and 2: room://HOST:PORT?camera=N); a layout file lists its own (default 1)")
     g.add_argument("--gloss", type=_gloss, action="append", metavar="SURFACE:STRENGTH:ROUGHNESS",
                    help="a glossy coat (Blinn-Phong highlights) on the table or the mesh, e.g. table:0.1:0.02 (strength 0..1, "
                         "roughness 0..1, 0.02 varnish); none by default")
@@ -109,8 +109,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     h = parser.add_argument_group("a hand over the table")
     h.add_argument("--hand", type=cli_types.pair, metavar="X,Y", help="place a hand (palm centre, or fingertip with --hand-pose point) at table mm X,Y")
     h.add_argument("--hand-height", type=cli_types.number(0, 2000), default=200.0, metavar="MM", help="height of the hand's lowest point (default 200; 0 touches)")
-    h.add_argument("--hand-pose", choices=["flat", "point"], default="flat", help="flat: palm parallel to the table; point: index finger down")
-    h.add_argument("--hand-yaw", type=cli_types.number(-360, 360), default=0.0, metavar="DEG", help="direction the fingers point, counter-clockwise from +y")
+    h.add_argument("--hand-pose", choices=["flat", "point"], default="flat", help="flat (the default): palm parallel to the table; point: index finger down")
+    h.add_argument("--hand-yaw", type=cli_types.number(-360, 360), default=0.0, metavar="DEG", help="direction the fingers point, counter-clockwise from +y (default 0)")
     h.add_argument("--hand-path", type=cli_types.points_path, metavar="X0,Y0:X1,Y1[:...]", help="move the hand along these points and back, repeatedly")
     h.add_argument("--hand-period", type=cli_types.number(0, 3600, lo_open=True), default=4.0, metavar="S", help="seconds for one round trip of --hand-path (default 4)")
     n = parser.add_argument_group("network")

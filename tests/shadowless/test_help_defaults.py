@@ -11,20 +11,6 @@ from collections.abc import Iterator
 
 from shadowless.cli import COMMANDS, build_parser
 
-#: options whose help is fixed in a file this test's author could not change; the change is asked of
-#: the lead (/tmp/p51/requests/B.md). ("*", option): on every sub-command's parser. Remove an entry
-#: when its help names the default: the test fails on an entry that no longer needs to be here.
-PENDING: dict[tuple[str, str], str] = {
-    ("*", "--log-level"): "protos/logging_setup.py",
-    ("node", "--clock-offset-ms"): "node/cli.py",
-    ("node", "--clock-drift-ppm"): "node/cli.py",
-    ("swarm", "--clock-offset-ms"): "shadowless/swarm.py",
-    ("swarm", "--clock-drift-ppm"): "shadowless/swarm.py",
-    ("room", "--cameras"): "sim/cli.py",
-    ("room", "--hand-pose"): "sim/cli.py",
-    ("room", "--hand-yaw"): "sim/cli.py",
-    ("plan", "--surface"): "planner/cli.py",
-}
 
 
 def parsers(p: argparse.ArgumentParser, path: tuple[str, ...], seen: set[int]
@@ -66,18 +52,10 @@ def silent_defaults() -> list[tuple[str, str, str]]:
     return out
 
 
-def is_pending(words: str, option: str) -> bool:
-    return (words, option) in PENDING or (" " in words and ("*", option) in PENDING)
-
-
 def test_every_help_page_names_its_defaults():
-    silent = silent_defaults()
-    hidden = [s for s in silent if not is_pending(s[0], s[1])]
+    hidden = silent_defaults()
     assert not hidden, "help that does not say the default: " + "; ".join(
         f"shadowless {w} {o} (default {d})" for w, o, d in hidden)
-    done = [k for k in PENDING if not any((w == k[0] or (k[0] == "*" and " " in w)) and o == k[1]
-                                          for w, o, _ in silent)]
-    assert not done, f"these now say their default: remove them from PENDING: {done}"
 
 
 def test_the_walk_sees_sub_commands_and_their_log_level():
