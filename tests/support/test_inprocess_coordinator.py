@@ -11,6 +11,7 @@ import pytest
 from coordinator.rig import Rig, init_rig
 from coordinator.rig_lock import RigLockError, holder
 from inprocess_coordinator import inprocess_coordinator
+from waits import WaitTimeout
 
 TOKEN = b"p" * 32
 
@@ -85,6 +86,22 @@ def test_a_failing_stop_does_not_hide_the_blocks_exception(rig):
     with pytest.raises(LookupError, match="the test's own failure") as exc:
         asyncio.run(go())
     assert any("stop went wrong" in note for note in exc.value.__notes__), exc.value.__notes__
+    assert not serving(rig)
+
+
+def test_a_stop_that_hangs_fails_by_its_deadline_when_given_one(rig):
+    async def go():
+        async with inprocess_coordinator(rig, TOKEN, stop_within=0.5) as app:
+            real_stop = app.stop
+
+            async def stop_then_hang(grace: float = 2.0) -> None:
+                await real_stop(grace)          # really stopped: nothing left serving
+                await asyncio.Event().wait()    # until the deadline cancels it
+
+            app.stop = stop_then_hang
+
+    with pytest.raises(WaitTimeout, match="waited 0.5 s for the in-process coordinator to stop"):
+        asyncio.run(go())
     assert not serving(rig)
 
 
