@@ -207,14 +207,29 @@ class CoordinatorLink:
             call.cancel()
 
     async def report(self, batches: AsyncIterable[ReportBatch]) -> None:
-        """Stream reports until ``batches`` ends or the call breaks."""
+        """Stream reports until ``batches`` ends or the call breaks.
 
-        async def messages():
+        The batches are written by a task of this call's own, ended with it. (Given them as an
+        iterator, gRPC reads them in a task of its own that outlives a call the coordinator ended:
+        it waits for the next batch, up to a heartbeat, and is still pending when the loop closes.)"""
+        call = self._stub.Report(metadata=self._md)
+
+        async def write() -> None:
             async for batch in batches:
-                yield wire.report_message(batch)
+                await call.write(wire.report_message(batch))
+            await call.done_writing()
 
-        with _translated():
-            await self._stub.Report(messages(), metadata=self._md)
+        writer = asyncio.ensure_future(write())
+        # batches that fail end the call, as gRPC's own reader did (a write on an ended call fails too: the
+        # call's end says why)
+        writer.add_done_callback(lambda t: t.cancelled() or t.exception() is None or call.cancel())
+        try:
+            with _translated():
+                await call
+        finally:
+            writer.cancel()
+            await asyncio.gather(writer, return_exceptions=True)
+            call.cancel()
 
     # ---------------------------------------------------------------- assets fetched ahead
     async def wanted(self) -> AsyncIterator[WantedAssets]:
