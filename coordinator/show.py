@@ -335,6 +335,12 @@ class Show:
         self._subscribers.add(event)
         return lambda: self._subscribers.discard(event)
 
+    @property
+    def followers(self) -> int:
+        """How many followers (the nodes' Show streams) are subscribed now: one per open stream, none
+        left by a stream that ended."""
+        return len(self._subscribers)
+
     def upcoming_ticks(self, *, ahead_ns: int = EXPECT_AHEAD_NS) -> list[tuple[int, int]]:
         """``(frame_id, pts_ns)`` of the ticks due up to ``ahead_ns`` from now not listed before
         (each tick is listed once; ticks of a change the coordinator did not know yet are not)."""

@@ -47,12 +47,15 @@ class NodeLinkService(HandshakeService):
         sess = await self._session(context)
         sent = -1
         while not sess.closed:
+            # cleared before the slot is read, not after the message went: a change made while it is
+            # written sets the event again and is sent next (cleared after, it waited for the next change)
+            sess.assignment_event.clear()
             st = self.c.rig.slots[sess.slot]
             if st.revision != sent:
                 sent = st.revision
                 yield node_messages.assignment_message(st, content_size=self.c.content_size)
-            sess.assignment_event.clear()
-            await sess.assignment_event.wait()
+            if not sess.assignment_event.is_set():
+                await sess.assignment_event.wait()
 
     async def Frames(self, request, context):
         sess = await self._session(context)
@@ -140,24 +143,29 @@ class NodeLinkService(HandshakeService):
         sess = await self._session(context)
         changed = asyncio.Event()
         unsubscribe = self.c.subscribe_show(changed)
-        sent = -1
+        sent, beacon_due = -1, False
         try:
             while not sess.closed:
+                # cleared before the show is read, not after the message went: a change made while it
+                # is written sets it again and goes next (cleared after, it waited for the beacon)
+                changed.clear()
                 update = self.c.show_update(beacon=False)
-                if update is not None:
-                    if update.revision == sent:
-                        update = self.c.show_update(beacon=True)
+                if update is not None and update.revision == sent and beacon_due:
+                    update = self.c.show_update(beacon=True)    # nothing new for BEACON_S: a reminder
+                if update is not None and (update.revision != sent or update.beacon):
                     sent = update.revision
                     msg = node_messages.show_update_message(update)
                     self.c.show_updates_sent += 1
                     self.c.show_bytes_sent += msg.ByteSize()
                     yield msg
-                changed.clear()
+                beacon_due = False
+                if changed.is_set():
+                    continue
                 try:    # not wait_for: on 3.11 it drops a cancel that meets a set event
                     async with asyncio.timeout(BEACON_S):
                         await changed.wait()
                 except TimeoutError:
-                    pass
+                    beacon_due = True
         finally:
             unsubscribe()
 

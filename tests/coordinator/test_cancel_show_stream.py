@@ -1,0 +1,232 @@
+"""The coordinator's node streams (NodeLink ``Show`` and ``Assignments``, coordinator/wire/node_service.py)
+at their worst moments, on a real coordinator on loopback with a real node link: a node's Show call
+cancelled right as show changes go out ends with its handler gone (no follower of the show left
+subscribed, no task left behind), and every change reaches the node, even one made while the stream
+writes the one before.
+
+Each stream waits for an event that a change sets. They cleared it after sending, not before reading
+what to send, so a change made while the previous message was written was lost: the node heard of a
+show's change at the next beacon (BEACON_S, 5 s; the change is due 150 ms ahead) and of an
+assignment at the next one. The tests set the beacon an hour away, so only a change wakes a stream."""
+from __future__ import annotations
+
+import asyncio
+import gc
+import time
+
+import numpy as np
+import pytest
+
+from coordinator.api import NodeState
+from coordinator.app import CoordinatorApp
+from coordinator.assets import AssetStore
+from coordinator.rig import Rig, init_rig
+from coordinator.wire import node_service
+from node.clock import LocalClock
+from node.link import CoordinatorLink
+from node.records import HeartbeatRecord, NodeInfo
+from node.session import ReportStream, SessionCore
+from protos import auth
+from waits import wait_until_async
+
+SLOT = "r0c0"
+#: a beacon never comes while a test runs: only a change or the session's close wakes a stream
+NO_BEACON_S = 3600.0
+#: the longest any stop or end may take before the test calls it a hang (generous for a loaded host)
+HANG_S = 30.0
+
+
+def run_clean(coro) -> None:
+    """Run ``coro`` on a fresh loop that fails on what a leaked task leaves: an exception nobody
+    retrieved, "Task was destroyed but it is pending", a task still pending when ``coro`` returns."""
+    seen: list[dict] = []
+    loop = asyncio.new_event_loop()
+    loop.set_exception_handler(lambda _loop, context: seen.append(context))
+
+    async def checked():
+        await coro
+        left = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        assert not left, f"tasks still pending at the end: {left}"
+
+    try:
+        loop.run_until_complete(checked())
+        loop.run_until_complete(loop.shutdown_asyncgens())
+    finally:
+        loop.close()
+        gc.collect()    # a pending task dropped now says so (through the handler) here
+    assert not seen, f"the loop reported: {[c.get('message') for c in seen]}"
+
+
+@pytest.fixture
+def rig_dir(tmp_path):
+    import cv2
+    rig_dir = init_rig(tmp_path / "rig", name="cancel", slots=[SLOT], width=32, height=32, content_width=32,
+                       content_height=32)
+    cv2.imwrite(str(tmp_path / "still.png"), np.zeros((32, 32, 3), np.uint8))
+    AssetStore(rig_dir).add(tmp_path / "still.png", name="still")
+    return rig_dir
+
+
+def heartbeat() -> HeartbeatRecord:
+    return HeartbeatRecord(assignment_revision=0, frames_shown=0, frames_late=0, frames_dropped=0,
+                           render_ms_p50=0.0, host_monotonic_ns=time.monotonic_ns())
+
+
+class Node:
+    """A node's side as node/app.py holds it: joined, reporting, following the show."""
+
+    def __init__(self, target: str, token: bytes):
+        self.link = CoordinatorLink(target)
+        self.core = SessionCore(slot=SLOT, token=token, clock=LocalClock(), info=lambda: NodeInfo(hostname="t"))
+        self.reports = ReportStream(heartbeat, 0.5)
+        self.updates: list = []
+
+    async def __aenter__(self) -> "Node":
+        await self.link.__aenter__()
+        await self.core.join(self.link)
+        self._report = asyncio.create_task(self.reports.run(self.link), name="report")
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        self._report.cancel()
+        await asyncio.gather(self._report, return_exceptions=True)
+        await self.link.__aexit__(*exc)
+
+    def follow(self) -> asyncio.Task:
+        async def go():
+            async for update in self.link.show():
+                self.updates.append(update)
+        return asyncio.create_task(go(), name="follow")
+
+    async def next_update(self, seen: int) -> None:
+        await wait_until_async(lambda: len(self.updates) > seen, what=f"show update {seen + 1} on the node")
+
+
+async def started(rig_dir, token) -> CoordinatorApp:
+    app = CoordinatorApp(Rig(rig_dir), token, listen="127.0.0.1:0", advertise=False)
+    await app.start()
+    app.coordinator.play_asset("still", start_without=True, loop=True)
+    return app
+
+
+def change(c, k: int) -> None:
+    """Show change ``k``: a pause, a resume or a seek (each a new revision sent on every stream)."""
+    action = ("pause", "resume", "seek")[k % 3]
+    c.show_control(action, frame=0)
+
+
+def test_a_show_call_cancelled_as_changes_go_out_leaves_no_handler(rig_dir, monkeypatch):
+    monkeypatch.setattr(node_service, "BEACON_S", NO_BEACON_S)
+    token = auth.read_token(rig_dir / "token")
+    trials = 60
+
+    async def go():
+        app = await started(rig_dir, token)
+        c = app.coordinator
+        try:
+            async with Node(f"127.0.0.1:{app.port}", token) as node:
+                await wait_until_async(lambda: [n.state for n in c.status().nodes], lambda s: s == [NodeState.LIVE],
+                                       what="the node live (its report stream open)")
+                call = node.follow()
+                await node.next_update(0)
+                call.cancel()
+                await asyncio.gather(call, return_exceptions=True)
+                await wait_until_async(lambda: c.show_state.followers, lambda n: n == 0, what="no follower")
+                base = len(asyncio.all_tasks())     # the session's own calls open, no Show call
+                for trial in range(trials):
+                    call = node.follow()
+                    await node.next_update(len(node.updates))
+                    for k in range(trial % 7):      # a burst: the handler is writing when the cancel comes
+                        change(c, k)
+                        await asyncio.sleep(0)
+                    change(c, trial)
+                    for _ in range(trial % 5):      # the cancel 0-4 loop turns after the last change
+                        await asyncio.sleep(0)
+                    call.cancel()
+                    async with asyncio.timeout(HANG_S):
+                        await asyncio.gather(call, return_exceptions=True)
+                    await wait_until_async(lambda: (c.show_state.followers, len(asyncio.all_tasks())),
+                                           lambda s: s == (0, base), timeout=HANG_S,
+                                           what=f"trial {trial}: the cancelled call's handler gone "
+                                                f"(followers, tasks; {base} tasks before)")
+        finally:
+            async with asyncio.timeout(HANG_S):
+                await app.stop()
+
+    run_clean(go())
+
+
+def revision_of(update) -> int:
+    return update.timeline.revision if update.timeline is not None else update.stop_revision
+
+
+def test_every_change_reaches_the_node_even_one_made_while_the_stream_writes(rig_dir, monkeypatch):
+    """The Show and Assignments streams wake on an event that a change sets; one that cleared it after
+    sending (not before reading what to send) lost a change made while it wrote the previous one: the
+    node heard of it at the next beacon (a show's change is due 150 ms ahead), or never (an assignment)."""
+    monkeypatch.setattr(node_service, "BEACON_S", NO_BEACON_S)
+    token = auth.read_token(rig_dir / "token")
+    rounds = 40
+
+    async def go():
+        app = await started(rig_dir, token)
+        c = app.coordinator
+        try:
+            async with Node(f"127.0.0.1:{app.port}", token) as node:
+                assignments: list = []
+
+                async def follow_assignments():
+                    async for a in node.link.assignments():
+                        assignments.append(a)
+
+                show_call, assignment_call = node.follow(), asyncio.create_task(follow_assignments())
+                try:
+                    await node.next_update(0)
+                    await wait_until_async(lambda: assignments, what="the node's first assignment")
+                    for r in range(rounds):
+                        for k in range(1 + r % 6):      # a burst, its changes 0-3 loop turns apart
+                            change(c, k)
+                            c.update_slot(SLOT, gain=0.5 + 0.01 * ((r + k) % 40))
+                            for _ in range(k % 4):
+                                await asyncio.sleep(0)
+                        want = (c.show_state.revision, c.rig.slots[SLOT].revision)
+                        await wait_until_async(lambda: (revision_of(node.updates[-1]), assignments[-1].revision),
+                                               lambda got: got == want, timeout=HANG_S,
+                                               what=f"round {r}: the last show change and assignment on the node")
+                finally:
+                    for t in (show_call, assignment_call):
+                        t.cancel()
+                    await asyncio.gather(show_call, assignment_call, return_exceptions=True)
+        finally:
+            async with asyncio.timeout(HANG_S):
+                await app.stop()
+
+    run_clean(go())
+
+
+def test_a_quiet_show_is_repeated_in_beacons(rig_dir, monkeypatch):
+    monkeypatch.setattr(node_service, "BEACON_S", 0.05)
+    token = auth.read_token(rig_dir / "token")
+
+    async def go():
+        app = await started(rig_dir, token)
+        try:
+            async with Node(f"127.0.0.1:{app.port}", token) as node:
+                call = node.follow()
+                try:
+                    await node.next_update(0)
+                    change(app.coordinator, 0)
+                    revision = app.coordinator.show_state.revision
+                    beacons = await wait_until_async(
+                        lambda: [u for u in node.updates if u.beacon], lambda b: len(b) >= 3, timeout=HANG_S,
+                        what="three beacons on the node")
+                    assert {revision_of(u) for u in beacons} == {revision}
+                    assert [revision_of(u) for u in node.updates if not u.beacon] == [revision - 1, revision]
+                finally:
+                    call.cancel()
+                    await asyncio.gather(call, return_exceptions=True)
+        finally:
+            async with asyncio.timeout(HANG_S):
+                await app.stop()
+
+    run_clean(go())
