@@ -391,7 +391,7 @@ def test_leftover_temp_files_are_removed_when_the_rig_opens(tmp_path, good_rig, 
     outside = tmp_path / ".outside.json.aaaaaa.tmp"          # outside the rig: kept
     outside.write_bytes(b"o")
     os.utime(outside, (old, old))
-    caplog.set_level("INFO", logger="protos.store")
+    caplog.set_level("INFO", logger="protos.atomic_files")
     Rig(rig_dir)
     assert not any(f.exists() for f in leftovers)
     assert fresh.exists() and outside.exists() and all(f.exists() for f in keep)
