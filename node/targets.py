@@ -12,10 +12,11 @@ Pure bookkeeping: no network, no clock of its own (callers pass ``time.monotonic
 from __future__ import annotations
 
 import logging
-import os
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from protos.atomic_files import atomic_write_text
 
 log = logging.getLogger("node")
 
@@ -112,9 +113,6 @@ def read_known_rig(path: Path) -> str:
 def write_known_rig(path: Path, rig_id: str) -> None:
     """Keep ``rig_id`` for the next start (atomically; a failure is logged, never fatal)."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(rig_id + "\n", encoding="ascii")
-        os.replace(tmp, path)
+        atomic_write_text(path, rig_id + "\n")      # fsynced: a power cut leaves the old id or the new
     except OSError as exc:
         log.warning("cannot keep the joined rig's id in %s: %s", path, exc)
