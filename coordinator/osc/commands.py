@@ -2,9 +2,10 @@
 
 Every command calls the same :class:`~coordinator.server.Coordinator` method as the console and
 the command line (through :class:`OscRig`), so OSC validates nothing of its own; :func:`run`
-returns the line the action log keeps, or raises the rig's refusal. The table :data:`ADDRESSES`
-is the documentation too (``--help``-like text for docs/show-control.md and the refusal of an unknown
-address).
+looks the address up in :data:`COMMANDS` and returns the line the action log keeps, or raises the
+rig's refusal. The table :data:`ADDRESSES` is the documentation too (``--help``-like text for
+docs/show-control.md and the refusal of an unknown address); the service
+(:data:`coordinator.osc.service.ANSWERED`) answers exactly the addresses it names.
 """
 from __future__ import annotations
 
@@ -123,52 +124,83 @@ def _cue_method(coord: OscRig, name: str) -> Callable[..., str]:
     return method
 
 
+def _go(coord: OscRig, address: str, args: Sequence[Any], who: str) -> str | Awaitable[str]:
+    _no_args(address, args)
+    return _cue_method(coord, "cue_go")(who=who)
+
+
+def _back(coord: OscRig, address: str, args: Sequence[Any], who: str) -> str | Awaitable[str]:
+    _no_args(address, args)
+    return _cue_method(coord, "cue_back")(who=who)
+
+
+def _jump(coord: OscRig, address: str, args: Sequence[Any], who: str) -> str | Awaitable[str]:
+    cue_id = _cue_id(address, args)
+    return _cue_method(coord, "cue_jump")(cue_id, who=who)
+
+
+def _play(coord: OscRig, address: str, args: Sequence[Any], who: str) -> str:
+    key = _text(address, args, "the asset (id, id prefix or name)")
+    if len(args) > 2:
+        raise OscError(f"{address} takes ASSET and an optional LOOP, got {len(args)} arguments")
+    loop = _flag(args[1], address) if len(args) > 1 else False
+    st = coord.play_asset(key, loop=loop)
+    return f"{st.state}: {st.name or st.asset_id[:12]} ({st.frames} frames at {st.fps:g} fps" \
+           f"{', looped' if loop else ''})"
+
+
+def _hold_or_go_on(coord: OscRig, address: str, args: Sequence[Any], who: str) -> str:
+    _no_args(address, args)
+    action = address.rsplit("/", 1)[1]
+    st = coord.show_control(action)
+    return f"{action}: {st.name or st.asset_id[:12]} {st.state} at frame {st.frame}"
+
+
+def _stop(coord: OscRig, address: str, args: Sequence[Any], who: str) -> str:
+    _no_args(address, args)
+    return f"showing {coord.stop_all(blackout=address.endswith('blackout'))}"
+
+
+def _gain(coord: OscRig, address: str, args: Sequence[Any], who: str) -> str:
+    if len(args) != 2 or not isinstance(args[0], str):
+        raise OscError(f"{address} takes SLOT (a string, * for every slot) and VALUE, got {list(args)!r}")
+    value = args[1]
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}")
+    if args[0].strip() != "*":
+        st = coord.update_slot(args[0].strip(), gain=float(value))
+        return f"slot {args[0].strip()} gain {st.gain:g} (revision {st.revision})"
+    states = coord.update_slots(list(coord.rig.slots), gain=float(value))   # one batch of file writes
+    return f"gain {float(value):g} on {len(states)} slots"
+
+
+#: what runs each rig command: (coord, address, args, who) -> the action log's line, or an awaitable of it.
+#: The service answers the other addresses of :data:`ADDRESSES` itself (status, subscriptions, timecode).
+COMMANDS: dict[str, Callable[[OscRig, str, Sequence[Any], str], "str | Awaitable[str]"]] = {
+    f"{PREFIX}/go": _go,
+    f"{PREFIX}/back": _back,
+    f"{PREFIX}/jump": _jump,
+    f"{PREFIX}/play": _play,
+    f"{PREFIX}/pause": _hold_or_go_on,
+    f"{PREFIX}/resume": _hold_or_go_on,
+    f"{PREFIX}/stop": _stop,
+    f"{PREFIX}/blackout": _stop,
+    f"{PREFIX}/gain": _gain,
+}
+
+
 def run(coord: OscRig, address: str, args: Sequence[Any], *, who: str) -> str | Awaitable[str]:
     """Run the command at ``address`` with ``args`` as ``who`` (``osc:<ip>``); the result line (or
     an awaitable of it, for a command that lets the event loop run meanwhile). Raises
     :class:`OscError` for a malformed message, and whatever the rig refuses with."""
-    if address == f"{PREFIX}/go":
-        _no_args(address, args)
-        return _cue_method(coord, "cue_go")(who=who)
-    if address == f"{PREFIX}/back":
-        _no_args(address, args)
-        return _cue_method(coord, "cue_back")(who=who)
-    if address == f"{PREFIX}/jump":
-        cue_id = _cue_id(address, args)
-        return _cue_method(coord, "cue_jump")(cue_id, who=who)
-    if address == f"{PREFIX}/play":
-        key = _text(address, args, "the asset (id, id prefix or name)")
-        if len(args) > 2:
-            raise OscError(f"{address} takes ASSET and an optional LOOP, got {len(args)} arguments")
-        loop = _flag(args[1], address) if len(args) > 1 else False
-        st = coord.play_asset(key, loop=loop)
-        return f"{st.state}: {st.name or st.asset_id[:12]} ({st.frames} frames at {st.fps:g} fps" \
-               f"{', looped' if loop else ''})"
-    if address in (f"{PREFIX}/pause", f"{PREFIX}/resume"):
-        _no_args(address, args)
-        action = address.rsplit("/", 1)[1]
-        st = coord.show_control(action)
-        return f"{action}: {st.name or st.asset_id[:12]} {st.state} at frame {st.frame}"
-    if address in (f"{PREFIX}/stop", f"{PREFIX}/blackout"):
-        _no_args(address, args)
-        return f"showing {coord.stop_all(blackout=address.endswith('blackout'))}"
-    if address == f"{PREFIX}/gain":
-        if len(args) != 2 or not isinstance(args[0], str):
-            raise OscError(f"{address} takes SLOT (a string, * for every slot) and VALUE, got {list(args)!r}")
-        value = args[1]
-        if isinstance(value, str):
-            try:
-                value = float(value)
-            except ValueError:
-                raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}") from None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise OscError(f"{address}: VALUE must be a number, got {args[1]!r}")
-        if args[0].strip() != "*":
-            st = coord.update_slot(args[0].strip(), gain=float(value))
-            return f"slot {args[0].strip()} gain {st.gain:g} (revision {st.revision})"
-        states = coord.update_slots(list(coord.rig.slots), gain=float(value))   # one batch of file writes
-        return f"gain {float(value):g} on {len(states)} slots"
-    known = BY_PATH.get(address)
-    if known is not None:       # answered by the service itself (status, subscriptions, timecode)
+    command = COMMANDS.get(address)
+    if command is not None:
+        return command(coord, address, args, who)
+    if address in BY_PATH:      # answered by the service itself (status, subscriptions, timecode)
         raise OscError(f"{address} is not a rig command")
     raise OscError(f"unknown address {address[:80]!r}: shadowless answers {PREFIX}/ followed by one of {usage()}")

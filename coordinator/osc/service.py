@@ -82,6 +82,28 @@ def _loopback(host: str) -> bool:
         return host == "localhost"
 
 
+#: the addresses the service answers itself (the name of the method that does), not through
+#: :func:`coordinator.osc.commands.run`: they are not rig commands and are not logged
+_OWN: dict[str, str] = {
+    f"{PREFIX}/status": "_status",
+    f"{PREFIX}/subscribe": "_subscription",
+    f"{PREFIX}/unsubscribe": "_subscription",
+    f"{PREFIX}/timecode": "_timecode",
+}
+#: every address show control answers (any other is refused as unknown): the rig commands and the service's own
+ANSWERED: frozenset[str] = frozenset(commands.COMMANDS) | frozenset(_OWN)
+
+
+def _port(value: Any) -> int | None:
+    """A UDP port from an OSC argument: an int, or a whole float as TouchDesigner sends numbers
+    (9001.0), in 1..65535; None for anything else."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    if isinstance(value, float) and (not math.isfinite(value) or value != int(value)):
+        return None
+    return int(value) if 1 <= value <= 65535 else None
+
+
 class _Protocol(asyncio.DatagramProtocol):
     def __init__(self, service: "OscService"):
         self.service = service
@@ -209,14 +231,9 @@ class OscService:
 
     def _handle(self, address: str, args: list, sender: tuple[str, int]) -> None:
         who = f"osc:{sender[0]}"
-        if address == f"{PREFIX}/status":
-            self._send_status([sender])
-            return
-        if address in (f"{PREFIX}/subscribe", f"{PREFIX}/unsubscribe"):
-            self._subscription(address, args, sender)
-            return
-        if address == f"{PREFIX}/timecode":
-            self._timecode(args, sender, who)
+        own = _OWN.get(address)
+        if own is not None:         # status, subscriptions, timecode: not rig commands, not logged
+            getattr(self, own)(address, args, sender, who)
             return
         params = {"address": address[:200], "args": [a[:200] if isinstance(a, str) else a if isinstance(
             a, (int, float, bool)) else repr(a)[:200] for a in args[:8]]}
@@ -246,7 +263,7 @@ class OscService:
         try:
             result = await pending
         except Exception as exc:  # noqa: BLE001 - as for a command that refuses at once
-            text = exc.message if isinstance(exc, Refusal) else str(exc)
+            text = " ".join((exc.message if isinstance(exc, Refusal) else str(exc)).split())   # one line, as at once
             self._send([sender], [(f"{PREFIX}/error", (address, text))])
             await self._record(who, sender, action, False, text, params)
             return
@@ -270,14 +287,18 @@ class OscService:
         self.poke()
         self._wake.set()        # the status may have changed: compare it now
 
-    # ------------------------------------------------------------------ subscriptions, timecode
-    def _subscription(self, address: str, args: list, sender: tuple[str, int]) -> None:
+    # ------------------------------------------------------------------ status, subscriptions, timecode
+    def _status(self, address: str, args: list, sender: tuple[str, int], who: str) -> None:
+        self._send_status([sender])
+
+    def _subscription(self, address: str, args: list, sender: tuple[str, int], who: str) -> None:
         port = sender[1]
         if args:
-            if isinstance(args[0], bool) or not isinstance(args[0], int) or not 1 <= args[0] <= 65535:
-                self._send([sender], [(f"{PREFIX}/error", (address, f"PORT must be 1..65535, got {args[0]!r}"))])
+            port = _port(args[0])
+            if port is None:
+                self._send([sender], [(f"{PREFIX}/error", (address, f"PORT must be a whole number 1..65535, "
+                                                                    f"got {args[0]!r}"))])
                 return
-            port = args[0]
         key = (sender[0], port)
         if address.endswith("/unsubscribe"):
             self._subscribers.pop(key, None)
@@ -288,7 +309,7 @@ class OscService:
         self._subscribers[key] = self.clock() + SUBSCRIBE_S
         self._send_status([key])
 
-    def _timecode(self, args: list, sender: tuple[str, int], who: str) -> None:
+    def _timecode(self, address: str, args: list, sender: tuple[str, int], who: str) -> None:
         fps = self.config.timecode_fps
         try:
             if len(args) == 2 and isinstance(args[1], (int, float)) and not isinstance(args[1], bool) \
