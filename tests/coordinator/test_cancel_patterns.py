@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 from coordinator.api import NodeState, PlaySettings
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, init_rig
 from node.clock import LocalClock
 from node.link import CoordinatorLink
 from node.records import HeartbeatRecord, NodeInfo, SwapRecord
 from node.session import ReportStream, SessionCore
 from node.wire import packet_from_bytes
+from inprocess_coordinator import inprocess_coordinator
 from protos import auth
 from waits import wait_until_async
 
@@ -98,12 +98,6 @@ def rig_dir(tmp_path):
                     content_height=SIZE)
 
 
-async def live_rig(rig_dir, token):
-    app = CoordinatorApp(Rig(rig_dir), token, listen="127.0.0.1:0", advertise=False)
-    await app.start()
-    return app
-
-
 async def wait_live(c) -> None:
     await wait_until_async(lambda: [n.state for n in c.status().nodes], lambda s: s == [NodeState.LIVE],
                            what="the stand-in node live")
@@ -123,9 +117,8 @@ def test_a_pattern_cancelled_as_its_verdict_arrives_is_cancelled(rig_dir, turns)
     trials = 15
 
     async def go():
-        app = await live_rig(rig_dir, token)
-        c = app.coordinator
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), token, stop_within=HANG_S) as app:
+            c = app.coordinator
             async with SwappingNode(f"127.0.0.1:{app.port}", token):
                 await wait_live(c)
                 await c.show_patterns(pattern(0), settle_s=0)     # the first one: contents reach the node
@@ -161,9 +154,6 @@ def test_a_pattern_cancelled_as_its_verdict_arrives_is_cancelled(rig_dir, turns)
                                            what=f"trial {trial}: the tasks there were before the pattern")
                 if turns == 0:      # in the verdict's own call, the job has not run since: every cancel lands
                     assert delivered == trials
-        finally:
-            async with asyncio.timeout(HANG_S):
-                await app.stop()
 
     run_clean(go())
 
@@ -174,9 +164,8 @@ def test_a_test_pattern_sequence_stops_at_any_moment_of_its_frame(rig_dir):
     period = 1 / fps
 
     async def go():
-        app = await live_rig(rig_dir, token)
-        c = app.coordinator
-        try:
+        async with inprocess_coordinator(Rig(rig_dir), token, stop_within=HANG_S) as app:
+            c = app.coordinator
             async with SwappingNode(f"127.0.0.1:{app.port}", token) as node:
                 await wait_live(c)
                 base = None
@@ -198,8 +187,5 @@ def test_a_test_pattern_sequence_stops_at_any_moment_of_its_frame(rig_dir):
                     base = n if base is None else base
                     await wait_until_async(lambda: len(asyncio.all_tasks()), lambda k: k == base, timeout=HANG_S,
                                            what=f"trial {trial}: no task of the stopped sequence left")
-        finally:
-            async with asyncio.timeout(HANG_S):
-                await app.stop()
 
     run_clean(go())

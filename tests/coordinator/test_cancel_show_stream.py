@@ -11,6 +11,7 @@ assignment at the next one. The tests set the beacon an hour away, so only a cha
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import time
 
@@ -18,7 +19,6 @@ import numpy as np
 import pytest
 
 from coordinator.api import NodeState
-from coordinator.app import CoordinatorApp
 from coordinator.assets import AssetStore
 from coordinator.rig import Rig, init_rig
 from coordinator.wire import node_service
@@ -26,6 +26,7 @@ from node.clock import LocalClock
 from node.link import CoordinatorLink
 from node.records import HeartbeatRecord, NodeInfo
 from node.session import ReportStream, SessionCore
+from inprocess_coordinator import inprocess_coordinator
 from protos import auth
 from waits import wait_until_async
 
@@ -102,11 +103,12 @@ class Node:
         await wait_until_async(lambda: len(self.updates) > seen, what=f"show update {seen + 1} on the node")
 
 
-async def started(rig_dir, token) -> CoordinatorApp:
-    app = CoordinatorApp(Rig(rig_dir), token, listen="127.0.0.1:0", advertise=False)
-    await app.start()
-    app.coordinator.play_asset("still", start_without=True, loop=True)
-    return app
+@contextlib.asynccontextmanager
+async def showing(rig_dir, token):
+    """A coordinator serving the rig (stopped within HANG_S on the way out) with a still playing as a show."""
+    async with inprocess_coordinator(Rig(rig_dir), token, stop_within=HANG_S) as app:
+        app.coordinator.play_asset("still", start_without=True, loop=True)
+        yield app
 
 
 def change(c, k: int) -> None:
@@ -121,9 +123,8 @@ def test_a_show_call_cancelled_as_changes_go_out_leaves_no_handler(rig_dir, monk
     trials = 60
 
     async def go():
-        app = await started(rig_dir, token)
-        c = app.coordinator
-        try:
+        async with showing(rig_dir, token) as app:
+            c = app.coordinator
             async with Node(f"127.0.0.1:{app.port}", token) as node:
                 await wait_until_async(lambda: [n.state for n in c.status().nodes], lambda s: s == [NodeState.LIVE],
                                        what="the node live (its report stream open)")
@@ -149,9 +150,6 @@ def test_a_show_call_cancelled_as_changes_go_out_leaves_no_handler(rig_dir, monk
                                            lambda s: s == (0, base), timeout=HANG_S,
                                            what=f"trial {trial}: the cancelled call's handler gone "
                                                 f"(followers, tasks; {base} tasks before)")
-        finally:
-            async with asyncio.timeout(HANG_S):
-                await app.stop()
 
     run_clean(go())
 
@@ -169,9 +167,8 @@ def test_every_change_reaches_the_node_even_one_made_while_the_stream_writes(rig
     rounds = 40
 
     async def go():
-        app = await started(rig_dir, token)
-        c = app.coordinator
-        try:
+        async with showing(rig_dir, token) as app:
+            c = app.coordinator
             async with Node(f"127.0.0.1:{app.port}", token) as node:
                 assignments: list = []
 
@@ -197,9 +194,6 @@ def test_every_change_reaches_the_node_even_one_made_while_the_stream_writes(rig
                     for t in (show_call, assignment_call):
                         t.cancel()
                     await asyncio.gather(show_call, assignment_call, return_exceptions=True)
-        finally:
-            async with asyncio.timeout(HANG_S):
-                await app.stop()
 
     run_clean(go())
 
@@ -209,8 +203,7 @@ def test_a_quiet_show_is_repeated_in_beacons(rig_dir, monkeypatch):
     token = auth.read_token(rig_dir / "token")
 
     async def go():
-        app = await started(rig_dir, token)
-        try:
+        async with showing(rig_dir, token) as app:
             async with Node(f"127.0.0.1:{app.port}", token) as node:
                 call = node.follow()
                 try:
@@ -225,8 +218,5 @@ def test_a_quiet_show_is_repeated_in_beacons(rig_dir, monkeypatch):
                 finally:
                     call.cancel()
                     await asyncio.gather(call, return_exceptions=True)
-        finally:
-            async with asyncio.timeout(HANG_S):
-                await app.stop()
 
     run_clean(go())

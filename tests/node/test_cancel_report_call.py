@@ -15,12 +15,12 @@ import time
 import pytest
 
 from coordinator.api import NodeState
-from coordinator.app import CoordinatorApp
 from coordinator.rig import Rig, init_rig
 from node.clock import LocalClock
 from node.link import CoordinatorLink, LinkError
 from node.records import HeartbeatRecord, NodeInfo
 from node.session import ReportStream, SessionCore
+from inprocess_coordinator import inprocess_coordinator
 from protos import auth
 from waits import wait_until_async
 
@@ -67,30 +67,26 @@ def test_a_report_call_the_coordinator_ends_leaves_no_task(tmp_path, turns):
 
     async def go():
         for trial in range(3):
-            app = CoordinatorApp(Rig(rig_dir), token, listen="127.0.0.1:0", advertise=False)
-            await app.start()
-            c = app.coordinator
-            core = SessionCore(slot=SLOT, token=token, clock=LocalClock(), info=lambda: NodeInfo(hostname="t"))
-            link = CoordinatorLink(f"127.0.0.1:{app.port}")
-            await link.__aenter__()
-            try:
-                await core.join(link)
-                reports = ReportStream(heartbeat, QUIET_S)
-                call = asyncio.create_task(reports.run(link), name="report")
-                await wait_until_async(lambda: [n.state for n in c.status().nodes], lambda s: s == [NodeState.LIVE],
-                                       what=f"trial {trial}: the node live (its first heartbeat taken)")
-                if turns is not None:
-                    reports.heartbeat_now()     # a batch on its way as the coordinator goes
-                    for _ in range(turns):
-                        await asyncio.sleep(0)
-                async with asyncio.timeout(HANG_S):
-                    await app.stop()
-                    ended = (await asyncio.gather(call, return_exceptions=True))[0]
-                assert ended is None or isinstance(ended, LinkError), f"trial {trial}: {ended!r}"
-                me = asyncio.current_task()
-                await wait_until_async(lambda: asyncio.all_tasks() - {me}, lambda left: not left, timeout=HANG_S,
-                                       what=f"trial {trial}: no task of the ended report call left")
-            finally:
-                await link.__aexit__(None, None, None)
+            async with inprocess_coordinator(Rig(rig_dir), token, stop_within=HANG_S) as app:
+                c = app.coordinator
+                core = SessionCore(slot=SLOT, token=token, clock=LocalClock(), info=lambda: NodeInfo(hostname="t"))
+                async with CoordinatorLink(f"127.0.0.1:{app.port}") as link:
+                    await core.join(link)
+                    reports = ReportStream(heartbeat, QUIET_S)
+                    call = asyncio.create_task(reports.run(link), name="report")
+                    await wait_until_async(lambda: [n.state for n in c.status().nodes],
+                                           lambda s: s == [NodeState.LIVE],
+                                           what=f"trial {trial}: the node live (its first heartbeat taken)")
+                    if turns is not None:
+                        reports.heartbeat_now()     # a batch on its way as the coordinator goes
+                        for _ in range(turns):
+                            await asyncio.sleep(0)
+                    async with asyncio.timeout(HANG_S):
+                        await app.stop()            # the subject: the coordinator ends the node's call
+                        ended = (await asyncio.gather(call, return_exceptions=True))[0]
+                    assert ended is None or isinstance(ended, LinkError), f"trial {trial}: {ended!r}"
+                    me = asyncio.current_task()
+                    await wait_until_async(lambda: asyncio.all_tasks() - {me}, lambda left: not left,
+                                           timeout=HANG_S, what=f"trial {trial}: no task of the ended report call left")
 
     run_clean(go())
