@@ -309,13 +309,14 @@ def test_status_is_the_six_messages_the_page_names(show):
 
 def test_back_fires_the_cue_before_the_current_one(show):
     show.subscribe("b")
-    show.settle(f"{OSC}/jump", "3", probe=show.current_cue, done=lambda c: c == "3", what="cue 3 current")
+    show.settle(f"{OSC}/jump", "3", probe=lambda: (show.current_cue(), show.status().showing),
+                done=lambda seen: seen == ("3", "black (cue 3)"), what="cue 3 current, black shown")
     backs = len(show.entries("osc back"))
     for cue, name, showing in (("2", "two", "cue 2: house"), ("1", "one", "black (cue 1)")):
         mark = show.osc.mark()
-        show.settle(f"{OSC}/back", probe=show.current_cue, done=lambda c, cue=cue: c == cue,
-                    what=f"cue {cue} current after /back")
-        assert show.status().showing == showing
+        show.settle(f"{OSC}/back", probe=lambda: (show.current_cue(), show.status().showing),
+                    done=lambda seen, cue=cue, showing=showing: seen == (cue, showing),
+                    what=f"cue {cue} current after /back, its picture shown")   # a still shows when decoded
         show.osc.wait(mark, "b", f"{OSC}/cue/current", lambda a, c=[cue, name]: a == c,
                       what=f"cue {cue} pushed to the subscriber")
         show.osc.wait(mark, "b", f"{OSC}/showing", lambda a, s=[showing]: a == s, what=f"{showing} pushed")
@@ -386,6 +387,21 @@ def test_gain_on_one_slot(show):
     assert entry["ok"] and "slot r0c1 gain 0.25" in entry["result"], entry
 
 
+def test_timecode_as_hh_mm_ss_ff_moves_a_playing_show(show):
+    """A timecode "hh:mm:ss:ff" (timecode_fps: 25 by default) 1.5 s ahead of the playing show: it seeks."""
+    show.settle(f"{OSC}/play", "clip", 1, probe=lambda: show.status().show.state, done=lambda s: s == "playing",
+                what="the looped clip playing")
+    chases = len(show.entries("osc timecode chase"))
+    st = show.status().show
+    ticks = int(((st.frame / st.fps + 1.5) % (st.frames / st.fps)) * 25)     # the clip loops: 50 frames at 10 fps
+    tc = f"00:00:{ticks // 25:02d}:{ticks % 25:02d}"
+    show.osc.send("a", f"{OSC}/timecode", tc)
+    entry = show.logged("osc timecode chase", chases, f"the show chasing {tc}")
+    assert entry["ok"] and entry["who"] == "osc:127.0.0.1" and entry["params"]["drift_ms"] > 500, entry
+    show.settle(f"{OSC}/stop", probe=lambda: show.status().show.state, done=lambda s: s == "stopped",
+                what="the clip stopped")
+
+
 #: (address, a wrongly typed or counted argument list, words its one-line refusal holds)
 WRONG = [
     ("go", [1], "takes no arguments"),
@@ -409,7 +425,8 @@ WRONG = [
 
 
 def test_a_wrongly_typed_argument_is_refused_in_one_line_and_changes_nothing(show):
-    show.settle(f"{OSC}/jump", "2", probe=show.current_cue, done=lambda c: c == "2", what="cue 2 current")
+    show.settle(f"{OSC}/jump", "2", probe=lambda: (show.current_cue(), show.status().showing),
+                done=lambda seen: seen == ("2", "cue 2: house"), what="cue 2 current, its still shown")
     before = show.observed()
     logged = len(action_log_entries(show.rig_dir))
     for name, args, words in WRONG:
