@@ -26,7 +26,10 @@ import numpy as np
 import pytest
 
 from coordinator.assets import AssetStore
+from coordinator.console.audit import ActionLog
 from coordinator.osc import commands, service
+from coordinator.osc.config import OscConfig
+from coordinator.osc.service import OscService
 from coordinator.rig import Content, Rig, grid_slots, init_rig
 from protos.cues import Cue, CueList
 from action_log import action_log_entries
@@ -132,6 +135,12 @@ class Controller:
                            what=f"{name} to hear {address}: {what}")
         return found[0]
 
+    def subscribe(self, name: str) -> None:
+        """``name`` subscribes and has heard the status that answers it."""
+        mark = self.mark()
+        self.send(name, f"{OSC}/subscribe")
+        self.wait(mark, name, f"{OSC}/lost", what="the status answering its subscription")
+
     def close(self) -> None:
         if self.proc.poll() is None:
             self.proc.stdin.close()
@@ -169,6 +178,10 @@ class Served:
             return fn(*args, **kwargs)
         return self._run(run())
 
+    def wait_for(self, coro_fn):
+        """Await ``coro_fn()`` in the coordinator's loop; what it returned."""
+        return self._run(coro_fn())
+
     def close(self) -> None:
         try:
             self._run(self._stack.aclose())
@@ -205,12 +218,6 @@ class Show:
     def logged(self, action: str, before: int, what: str) -> dict:
         """The action log's entry for ``action`` after the first ``before`` of them (waits for it)."""
         return wait_until(lambda: self.entries(action)[before:], what=f"the action log's {action!r}: {what}")[0]
-
-    def subscribe(self, name: str) -> None:
-        """``name`` subscribes and has heard the status that answers it."""
-        mark = self.osc.mark()
-        self.osc.send(name, f"{OSC}/subscribe")
-        self.osc.wait(mark, name, f"{OSC}/lost", what="the status answering its subscription")
 
     def settle(self, address: str, *args, probe, done, what: str) -> None:
         """Send ``address`` from "a"; wait for its effect (``done(probe())``) and its action log entry."""
@@ -308,7 +315,7 @@ def test_status_is_the_six_messages_the_page_names(show):
 
 
 def test_back_fires_the_cue_before_the_current_one(show):
-    show.subscribe("b")
+    show.osc.subscribe("b")
     show.settle(f"{OSC}/jump", "3", probe=lambda: (show.current_cue(), show.status().showing),
                 done=lambda seen: seen == ("3", "black (cue 3)"), what="cue 3 current, black shown")
     backs = len(show.entries("osc back"))
@@ -333,7 +340,7 @@ def test_back_fires_the_cue_before_the_current_one(show):
 
 
 def test_play_pause_resume_and_stop(show):
-    show.subscribe("b")
+    show.osc.subscribe("b")
     show.settle(f"{OSC}/stop", probe=lambda: show.status().showing, done=lambda s: s == CONTENT,
                 what="the rig's content shown")
     before = {a: len(show.entries(f"osc {a}")) for a in ("play", "pause", "resume", "stop")}
@@ -453,8 +460,8 @@ def test_unsubscribe_stops_the_feedback(show):
     osc = show.osc
     show.settle(f"{OSC}/stop", probe=lambda: show.status().showing, done=lambda s: s == CONTENT,
                 what="the rig's content shown")
-    show.subscribe("a")
-    show.subscribe("b")
+    show.osc.subscribe("a")
+    show.osc.subscribe("b")
     mark = osc.mark()
     osc.send("a", f"{OSC}/subscribe", float(osc.target_port))
     assert osc.wait(mark, "c", f"{OSC}/showing", what="the status at port c, subscribed by a") == [CONTENT]
@@ -480,3 +487,39 @@ def test_unsubscribe_stops_the_feedback(show):
         heard = osc.since(mark, name)
         assert [a for a, _ in heard] == [f"{OSC}/error"], f"{name} heard {heard} after it unsubscribed"
     osc.send("a", f"{OSC}/unsubscribe")
+
+
+def test_a_subscription_lasts_ten_minutes_unless_renewed(show):
+    """A second show control on the same coordinator, its clock the test's: b's subscription carries
+    the changes for 600 s, a renewal another 600 s from then, and then no more (a, subscribed later,
+    still hears the change that b no longer does)."""
+    now = [1000.0]
+    svc = OscService(show.served.coord, OscConfig(listen=("127.0.0.1", 0)), ActionLog(show.rig_dir),
+                     clock=lambda: now[0])
+    show.served.wait_for(svc.start)
+    osc = Controller(svc.port)
+    try:
+        def change(address: str, showing: str, *, heard_by: str, what: str) -> None:
+            mark = osc.mark()
+            osc.send("a", address)
+            wait_until(lambda: show.status().showing, lambda s: s == showing, what=what)
+            osc.wait(mark, heard_by, f"{OSC}/showing", lambda args: args == [showing], what=f"{what}, pushed")
+
+        osc.send("a", f"{OSC}/blackout")
+        wait_until(lambda: show.status().showing, lambda s: s == "black (blackout)", what="the blackout")
+        osc.subscribe("b")          # at 1000 s: until 1600 s
+        now[0] = 1599.0
+        change(f"{OSC}/stop", CONTENT, heard_by="b", what="the content, 599 s into b's subscription")
+        osc.subscribe("b")          # renewed: until 2199 s
+        now[0] = 2100.0
+        change(f"{OSC}/blackout", "black (blackout)", heard_by="b", what="black, 500 s after b renewed")
+        osc.subscribe("a")          # the witness: until 2700 s
+        now[0] = 2200.0
+        mark = osc.mark()
+        change(f"{OSC}/stop", CONTENT, heard_by="a", what="the content, 601 s after b renewed")
+        osc.send("b", f"{OSC}/nope")            # a marker: anything pushed to b came before its answer
+        osc.wait(mark, "b", f"{OSC}/error", what="the marker")
+        assert [a for a, _ in osc.since(mark, "b")] == [f"{OSC}/error"], osc.since(mark, "b")
+    finally:
+        osc.close()
+        show.served.wait_for(svc.stop)
