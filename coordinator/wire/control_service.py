@@ -37,6 +37,19 @@ if TYPE_CHECKING:  # pragma: no cover - types only
 log = logging.getLogger(__name__)
 
 
+class _Caller:
+    """A call's caller as the action log names it, read as the call starts: the entry of a call its
+    client cancelled may be written after gRPC let the call go (RunJob's, in the finally of a handler
+    that yields), when the context's ``peer()`` reads freed memory: the coordinator died of a
+    segmentation fault (tests/coordinator/test_cancel_operator_calls.py)."""
+
+    def __init__(self, context: Any):
+        self._peer = context.peer()
+
+    def peer(self) -> str:
+        return self._peer
+
+
 def _decoded(image: Any) -> np.ndarray:
     img = codec.decode_image(image)
     img = img.astype(np.float32) if img.dtype == np.float16 else img
@@ -123,6 +136,7 @@ class RigControlService(HandshakeService):
 
     async def Play(self, request_iterator, context):
         params: dict[str, Any] = {}
+        caller = _Caller(context)   # for the entry of a call cancelled by its client, written after its end
         try:
             self._operator(context)   # from the call's metadata, before any frame is read
             settings = None
@@ -153,7 +167,7 @@ class RigControlService(HandshakeService):
                 log.info("play cancelled by its client: stopping the sequence")
                 with contextlib.suppress(CoordinatorError):
                     self.c.stop_all()
-                await asyncio.shield(record(self.action_log, context, "play", ok=False, params=params,
+                await asyncio.shield(record(self.action_log, caller, "play", ok=False, params=params,
                                             result="cancelled by its client: the sequence stopped"))
                 raise
             await record(self.action_log, context, "play", ok=True, params=params,
@@ -171,6 +185,7 @@ class RigControlService(HandshakeService):
 
     async def RunJob(self, request, context):
         what = f"job {request.kind[:40]}"
+        caller = _Caller(context)   # for the entry of a call cancelled by its client, written after its end
         try:
             self._operator(context)
             params = control_messages.job_params_from_request(request)
@@ -183,6 +198,7 @@ class RigControlService(HandshakeService):
         logged_params = {k: v for k, v in params.items() if isinstance(v, (str, int, float, bool))}
         events: asyncio.Queue = asyncio.Queue()
         task = asyncio.create_task(self.c.run_job(request.kind, params, events.put_nowait), name=f"job:{request.kind}")
+        getter: asyncio.Future | None = None
         try:
             while True:
                 getter = asyncio.ensure_future(events.get())
@@ -204,11 +220,13 @@ class RigControlService(HandshakeService):
                          params=logged_params)
             yield control_messages.job_result_message(result)
         finally:
+            if getter is not None and not getter.done():    # cancelled while waiting: no event will come for it
+                getter.cancel()
             if not task.done():
                 log.warning("job %s cancelled by its client", request.kind)
                 task.cancel()
                 await asyncio.gather(task, return_exceptions=True)
-                await asyncio.shield(record(self.action_log, context, what, ok=False, params=logged_params,
+                await asyncio.shield(record(self.action_log, caller, what, ok=False, params=logged_params,
                                             result=f"{request.kind} cancelled by its client"))
 
     @guard
