@@ -4,7 +4,8 @@ unsubscribe) and the status reply (its ``/shadowless/showing`` too) do what the 
 show controller in a process of its own (python-osc's client): the effect shows in the coordinator's
 status and action log, a subscriber hears the change, a wrongly typed argument of any address is
 answered with one ``/shadowless/error ADDRESS REASON`` line (nothing changes, no traceback is logged),
-and a subscriber that unsubscribes, by itself or by its PORT, hears nothing more.
+and a subscriber that unsubscribes, by itself or by its PORT, hears nothing more. A subscription lasts
+10 minutes unless renewed, and rig.toml's feedback targets hear every change unasked.
 
 One coordinator (in this process, serving from an event loop on a thread of its own) and one controller
 process serve the module's tests: a rig of two slots whose content is an image "house", with a clip
@@ -522,4 +523,25 @@ def test_a_subscription_lasts_ten_minutes_unless_renewed(show):
         assert [a for a, _ in osc.since(mark, "b")] == [f"{OSC}/error"], osc.since(mark, "b")
     finally:
         osc.close()
+        show.served.wait_for(svc.stop)
+
+
+def test_feedback_targets_hear_every_change_unasked(show):
+    """rig.toml's ``feedback``: a show control whose target is port c sends c the status when it starts
+    and on each change (here one made through the module's show control), without c subscribing."""
+    osc = show.osc
+    showing = show.status().showing
+    mark = osc.mark()
+    svc = OscService(show.served.coord, OscConfig(listen=("127.0.0.1", 0), feedback=(("127.0.0.1", osc.target_port),)),
+                     ActionLog(show.rig_dir))
+    show.served.wait_for(svc.start)
+    try:
+        assert osc.wait(mark, "c", f"{OSC}/showing", what="the status at start") == [showing]
+        osc.wait(mark, "c", f"{OSC}/lost", what="the whole status at start")
+        change, after = (f"{OSC}/blackout", "black (blackout)") if showing != "black (blackout)" else \
+            (f"{OSC}/stop", CONTENT)
+        mark = osc.mark()
+        osc.send("a", change)
+        osc.wait(mark, "c", f"{OSC}/showing", lambda args: args == [after], what=f"{after}, pushed to the target")
+    finally:
         show.served.wait_for(svc.stop)
