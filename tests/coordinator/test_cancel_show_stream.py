@@ -55,7 +55,15 @@ def run_clean(coro) -> None:
     finally:
         loop.close()
         gc.collect()    # a pending task dropped now says so (through the handler) here
+    seen = [c for c in seen if not grpc_poller_of_a_closed_loop(c)]
     assert not seen, f"the loop reported: {[c.get('message') for c in seen]}"
+
+
+def grpc_poller_of_a_closed_loop(context: dict) -> bool:
+    """grpc.aio's completion-queue poller, bound to the first loop of the process (another test's,
+    closed since), reporting "Event loop is closed": the test process's several loops, not the
+    product (one loop a process)."""
+    return "PollerCompletionQueue" in context.get("message", "") and "closed" in str(context.get("exception"))
 
 
 @pytest.fixture
