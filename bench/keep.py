@@ -122,11 +122,14 @@ def cut_paths(value: Any, *, repo: Path = REPO, scratch: list[str] | None = None
 
     def one(s: str) -> str:
         nonlocal cut
-        new = s
+        # the checkout first: a checkout under the temporary directory (a clone in /tmp) is still
+        # the checkout, its paths made relative, not scratch paths cut to their names
+        relative = repo_pat.sub(lambda m: "" if m.group(0).endswith("/") else ".", s)
+        new = relative
         for pat in pats:
             new = pat.sub(name, new)
-        cut = cut or new != s
-        return repo_pat.sub(lambda m: "" if m.group(0).endswith("/") else ".", new)
+        cut = cut or new != relative
+        return new
 
     def walk(v: Any) -> Any:
         if isinstance(v, str):

@@ -51,6 +51,15 @@ def test_scratch_paths_are_cut_to_names_and_the_checkout_made_relative():
     assert cut_paths({"a": "/var/tmp/x"}, repo=Path("/repo"), scratch=["/tmp"]) == ({"a": "/var/tmp/x"}, False)
 
 
+def test_a_checkout_under_the_temporary_directory_is_still_the_checkout():
+    # a clone in /tmp runs the suite: its interpreter's path is the checkout's, made relative, not cut
+    doc = {"command": "/tmp/ci/.venv/bin/python -c x", "log": "/tmp/run-1/a.log"}
+    out, cut = cut_paths(doc, repo=Path("/tmp/ci"), scratch=["/tmp"])
+    assert out == {"command": ".venv/bin/python -c x", "log": "a.log"} and cut
+    assert cut_paths({"command": "/tmp/ci/.venv/bin/python"}, repo=Path("/tmp/ci"), scratch=["/tmp"]) == \
+        ({"command": ".venv/bin/python"}, False)
+
+
 def test_the_last_json_document_among_printed_lines():
     text = 'progress 1\n{"a": 1}\nnot json {\n{\n "b": [1,\n  2]\n}\ntail\n'
     assert last_document(text) == {"b": [1, 2]}
