@@ -109,12 +109,15 @@ class NodeLinkService(HandshakeService):
         sess = await self._session(context)
         sent = -1
         while not sess.closed:
+            # cleared before the list is read, as for the assignments: a change or the session's close
+            # made while the list is written sets it again (cleared after, a close then was missed and
+            # the stream held its call until the server's grace ran out)
+            sess.wanted_event.clear()
             wanted = self.c.wanted
             if wanted.revision != sent:
                 sent = wanted.revision
                 yield node_messages.wanted_message(wanted)
-            sess.wanted_event.clear()
-            if self.c.wanted.revision == sent:
+            if not sess.wanted_event.is_set():
                 await sess.wanted_event.wait()
 
     @guard

@@ -233,3 +233,41 @@ def test_a_quiet_show_is_repeated_in_beacons(rig_dir, monkeypatch):
                     await asyncio.gather(call, return_exceptions=True)
 
     run_clean(go())
+
+
+def test_a_stop_as_the_wanted_assets_change_ends_the_wanted_stream(rig_dir, tmp_path):
+    """The Wanted stream cleared its wake-up after sending and waited if the list had not changed: a
+    session closed while it wrote the list (the rig's assets changed as the coordinator stopped) was
+    missed, and the stream held its call until the server's grace ran out (an hour here)."""
+    import cv2
+    token = auth.read_token(rig_dir / "token")
+
+    async def go():
+        for trial in range(10):
+            async with showing(rig_dir, token) as app:
+                c = app.coordinator
+                async with Node(f"127.0.0.1:{app.port}", token) as node:
+                    lists: list = []
+
+                    async def follow_wanted():
+                        async for w in node.link.wanted():
+                            lists.append(w)
+                    call = asyncio.create_task(follow_wanted())
+                    await wait_until_async(lambda: lists, what=f"trial {trial}: the first wanted list")
+                    picture = tmp_path / f"added-{trial}.png"
+                    cv2.imwrite(str(picture), np.full((32, 32, 3), trial, np.uint8))
+                    AssetStore(rig_dir).add(picture, name=f"added-{trial}")
+                    assert await c.refresh_assets()     # the list changes: every Wanted stream wakes to send it
+                    for _ in range(trial % 5):          # the stop 0-4 loop turns later, as the list is written
+                        await asyncio.sleep(0)
+                    try:
+                        async with asyncio.timeout(HANG_S):
+                            await app.stop(grace=NO_BEACON_S)
+                    except TimeoutError:
+                        pytest.fail(f"trial {trial}: the coordinator's stop hung (the Wanted stream missed its "
+                                    "session's close)")
+                    async with asyncio.timeout(HANG_S):
+                        ended = (await asyncio.gather(call, return_exceptions=True))[0]
+                    assert ended is None, f"trial {trial}: the Wanted call ended by {ended!r}, not by its end"
+
+    run_clean(go())
