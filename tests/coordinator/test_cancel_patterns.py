@@ -123,7 +123,7 @@ def test_a_pattern_cancelled_as_its_verdict_arrives_is_cancelled(rig_dir, turns)
     """``turns``: how many loop turns after the verdict the cancel comes (0: in the same call that
     resolves the pattern's wait, before the waiting task runs again)."""
     token = auth.read_token(rig_dir / "token")
-    trials = 15
+    trials = 10
 
     async def go():
         async with inprocess_coordinator(Rig(rig_dir), token, stop_within=HANG_S) as app:

@@ -129,7 +129,7 @@ def change(c, k: int) -> None:
 def test_a_show_call_cancelled_as_changes_go_out_leaves_no_handler(rig_dir, monkeypatch):
     monkeypatch.setattr(node_service, "BEACON_S", NO_BEACON_S)
     token = auth.read_token(rig_dir / "token")
-    trials = 60
+    trials = 40
 
     async def go():
         async with showing(rig_dir, token) as app:
