@@ -134,6 +134,8 @@ class NodeSession:
     still_retries: int = 0
     #: called when the node's backlog was dropped (it lost pictures of a live video: it needs a keyframe)
     on_backlog_dropped: Callable[[], None] = field(default=lambda: None, repr=False)
+    #: events of the node's streams that wait on one of their own, set when the session closes
+    _close_wakes: set[asyncio.Event] = field(default_factory=set, repr=False)
 
     @property
     def blend_id(self) -> str:
@@ -162,12 +164,23 @@ class NodeSession:
         self.packets.append(packet)
         self.packet_event.set()
 
+    def wake_on_close(self, event: asyncio.Event) -> Callable[[], None]:
+        """``event`` is set when the session closes (at once if it is closed); returns the call that
+        forgets it. For a stream that waits on an event of its own (the Show stream's, which the show's
+        changes set), so that it ends with the session as the others do, not at its next beacon."""
+        if self.closed:
+            event.set()
+        self._close_wakes.add(event)
+        return lambda: self._close_wakes.discard(event)
+
     def close(self) -> None:
         self.closed = True
         self.packet_event.set()
         self.assignment_event.set()
         self.wanted_event.set()
         self.preview_event.set()
+        for event in list(self._close_wakes):
+            event.set()
 
 
 class Handshake:
