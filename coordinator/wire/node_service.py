@@ -77,21 +77,37 @@ class NodeLinkService(HandshakeService):
 
     async def Report(self, request_iterator, context):
         sess = await self._session(context)
-        try:
+        closed = asyncio.Event()
+        # a session the coordinator closes (it stops, the node was lost or replaced) ends the call at
+        # once, not at the node's next report (a graceful stop waited up to a heartbeat for it)
+        forget = sess.wake_on_close(closed)
+
+        async def read() -> None:
             async for rep in request_iterator:
                 if sess.closed:
-                    break
+                    return
                 report = node_messages.report_from_message(rep)
                 self.c.on_report(sess, report)
                 if report.goodbye:     # it stops on purpose: left, not lost
                     self.c.mark_left(sess, report.goodbye)
-                    break
+                    return
+
+        reader = asyncio.ensure_future(read())
+        closing = asyncio.ensure_future(closed.wait())
+        try:
+            await asyncio.wait({reader, closing}, return_when=asyncio.FIRST_COMPLETED)
+            if reader.done():
+                reader.result()     # a broken call or a malformed report
         except (asyncio.CancelledError, grpc.aio.AioRpcError):
             pass
         except ValueError as exc:
             log.warning("node %s sent a malformed report (%s): its session ends", sess.slot, exc)
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT, f"malformed report: {exc}")
         finally:
+            for t in (reader, closing):
+                t.cancel()
+            await asyncio.gather(reader, closing, return_exceptions=True)
+            forget()
             # the report stream is the node's lifeline: when it ends, the node is gone
             self.c.mark_lost(sess)
         return node_pb2.ReportAck()
@@ -142,10 +158,12 @@ class NodeLinkService(HandshakeService):
             await abort(context, exc)
 
     async def Show(self, request, context):
-        """The show's timeline: the state at once, every change, a beacon every BEACON_S."""
+        """The show's timeline: the state at once, every change, a beacon every BEACON_S; it ends
+        when the session closes."""
         sess = await self._session(context)
         changed = asyncio.Event()
         unsubscribe = self.c.subscribe_show(changed)
+        forget = sess.wake_on_close(changed)    # a close ends the stream now, not at its next beacon
         sent, beacon_due = -1, False
         try:
             while not sess.closed:
@@ -170,6 +188,7 @@ class NodeLinkService(HandshakeService):
                 except TimeoutError:
                     beacon_due = True
         finally:
+            forget()
             unsubscribe()
 
     async def Previews(self, request, context):

@@ -1,13 +1,22 @@
 """The coordinator's node streams (NodeLink ``Show`` and ``Assignments``, coordinator/wire/node_service.py)
 at their worst moments, on a real coordinator on loopback with a real node link: a node's Show call
 cancelled right as show changes go out ends with its handler gone (no follower of the show left
-subscribed, no task left behind), and every change reaches the node, even one made while the stream
-writes the one before.
+subscribed, no task left behind), every change reaches the node, even one made while the stream
+writes the one before, and every Show stream ends with its session.
 
 Each stream waits for an event that a change sets. They cleared it after sending, not before reading
 what to send, so a change made while the previous message was written was lost: the node heard of a
 show's change at the next beacon (BEACON_S, 5 s; the change is due 150 ms ahead) and of an
-assignment at the next one. The tests set the beacon an hour away, so only a change wakes a stream."""
+assignment at the next one.
+
+A session's close woke every stream of the node but the Show stream, which noticed it at its next
+beacon, and the report call, which noticed it at the node's next report: a node that left kept its
+Show call up to BEACON_S, and a coordinator's graceful stop waited for them until the node tore its
+calls down (a real node does when any stream ends; one that does not cost the whole grace, 2 s, and
+had its calls cancelled as errors). A coordinator
+stopped right as a change goes out (0-4 loop turns after it, or with its streams quiet) now ends
+every Show call cleanly, and so does a node that says goodbye as a change goes out. The tests set the
+beacon an hour away, so only a change or the close wakes a stream."""
 from __future__ import annotations
 
 import asyncio
@@ -85,21 +94,21 @@ def heartbeat() -> HeartbeatRecord:
 class Node:
     """A node's side as node/app.py holds it: joined, reporting, following the show."""
 
-    def __init__(self, target: str, token: bytes):
+    def __init__(self, target: str, token: bytes, *, heartbeat_s: float = 0.5):
         self.link = CoordinatorLink(target)
         self.core = SessionCore(slot=SLOT, token=token, clock=LocalClock(), info=lambda: NodeInfo(hostname="t"))
-        self.reports = ReportStream(heartbeat, 0.5)
+        self.reports = ReportStream(heartbeat, heartbeat_s)
         self.updates: list = []
 
     async def __aenter__(self) -> "Node":
         await self.link.__aenter__()
         await self.core.join(self.link)
-        self._report = asyncio.create_task(self.reports.run(self.link), name="report")
+        self.report_call = asyncio.create_task(self.reports.run(self.link), name="report")
         return self
 
     async def __aexit__(self, *exc) -> None:
-        self._report.cancel()
-        await asyncio.gather(self._report, return_exceptions=True)
+        self.report_call.cancel()
+        await asyncio.gather(self.report_call, return_exceptions=True)
         await self.link.__aexit__(*exc)
 
     def follow(self) -> asyncio.Task:
@@ -269,5 +278,62 @@ def test_a_stop_as_the_wanted_assets_change_ends_the_wanted_stream(rig_dir, tmp_
                     async with asyncio.timeout(HANG_S):
                         ended = (await asyncio.gather(call, return_exceptions=True))[0]
                     assert ended is None, f"trial {trial}: the Wanted call ended by {ended!r}, not by its end"
+
+    run_clean(go())
+
+
+@pytest.mark.parametrize("moment", [-1, 0, 1, 2, 4])
+def test_a_stop_that_meets_a_change_ends_every_show_stream(rig_dir, monkeypatch, moment):
+    """The coordinator stops ``moment`` loop turns after a show change (-1: with its streams quiet).
+    Its graceful stop waits for every call to end, as long as it takes: a Show stream that waits for
+    its next beacon after its session closed holds it, and so does a report call that waits for the
+    node's next heartbeat (both an hour away here)."""
+    monkeypatch.setattr(node_service, "BEACON_S", NO_BEACON_S)
+    token = auth.read_token(rig_dir / "token")
+
+    async def go():
+        for trial in range(4):
+            async with showing(rig_dir, token) as app:
+                async with Node(f"127.0.0.1:{app.port}", token, heartbeat_s=NO_BEACON_S) as node:
+                    call = node.follow()
+                    await node.next_update(0)
+                    if moment >= 0:
+                        change(app.coordinator, trial)
+                        for _ in range(moment):
+                            await asyncio.sleep(0)
+                    try:    # the subject: a graceful stop as long as it likes, which ends when every call has
+                        async with asyncio.timeout(HANG_S):
+                            await app.stop(grace=NO_BEACON_S)
+                    except TimeoutError:
+                        pytest.fail(f"trial {trial}: the coordinator's stop hung (a call of the node outlived its "
+                                    f"session; {app.coordinator.show_state.followers} Show stream(s) still following)")
+                    async with asyncio.timeout(HANG_S):
+                        ended = (await asyncio.gather(call, return_exceptions=True))[0]
+                    assert ended is None, f"trial {trial}: the node's Show call ended by {ended!r}, not by its end"
+                    assert app.coordinator.show_state.followers == 0
+
+    run_clean(go())
+
+
+def test_a_node_that_leaves_ends_its_show_stream(rig_dir, monkeypatch):
+    monkeypatch.setattr(node_service, "BEACON_S", NO_BEACON_S)
+    token = auth.read_token(rig_dir / "token")
+
+    async def go():
+        async with showing(rig_dir, token) as app:
+            c = app.coordinator
+            for trial in range(5):
+                async with Node(f"127.0.0.1:{app.port}", token) as node:
+                    call = node.follow()
+                    await node.next_update(0)
+                    change(c, trial)            # a change on its way as the node says goodbye
+                    node.reports.goodbye("stopped")
+                    async with asyncio.timeout(HANG_S):
+                        await node.report_call
+                    await wait_until_async(lambda: c.show_state.followers, lambda n: n == 0, timeout=HANG_S,
+                                           what=f"trial {trial}: the Show stream of the node that left ended")
+                    async with asyncio.timeout(HANG_S):
+                        ended = (await asyncio.gather(call, return_exceptions=True))[0]
+                    assert ended is None, f"trial {trial}: the Show call ended by {ended!r}, not by its end"
 
     run_clean(go())
