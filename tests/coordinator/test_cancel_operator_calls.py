@@ -15,7 +15,6 @@ still runs). ``Play`` cancelled while it plays stops the sequence and its entry 
 from __future__ import annotations
 
 import asyncio
-import gc
 import sys
 import types
 from dataclasses import dataclass
@@ -31,42 +30,11 @@ from inprocess_coordinator import inprocess_coordinator
 from protos import auth
 from rigctl.link import Client
 from rigctl.job_command import run_job
+from strict_loop import HANG_S, run_clean
 from waits import wait_until_async
 
-#: the longest any stop or end may take before the test calls it a hang (generous for a loaded host)
-HANG_S = 30.0
 JOB = "test-cancel-ticks"
 TICKS = 5
-
-
-def run_clean(coro) -> None:
-    """Run ``coro`` on a fresh loop that fails on what a leaked task leaves: an exception nobody
-    retrieved, "Task was destroyed but it is pending", a task still pending HANG_S after ``coro`` returned."""
-    seen: list[dict] = []
-    loop = asyncio.new_event_loop()
-    loop.set_exception_handler(lambda _loop, context: seen.append(context))
-
-    async def checked():
-        await coro
-        me = asyncio.current_task()     # what is left may be winding down (gRPC's tasks of a stopped server)
-        await wait_until_async(lambda: asyncio.all_tasks() - {me}, lambda left: not left, timeout=HANG_S,
-                               what="no task left pending at the end")
-
-    try:
-        loop.run_until_complete(checked())
-        loop.run_until_complete(loop.shutdown_asyncgens())
-    finally:
-        loop.close()
-        gc.collect()    # a pending task dropped now says so (through the handler) here
-    seen = [c for c in seen if not grpc_poller_of_a_closed_loop(c)]
-    assert not seen, f"the loop reported: {[c.get('message') for c in seen]}"
-
-
-def grpc_poller_of_a_closed_loop(context: dict) -> bool:
-    """grpc.aio's completion-queue poller, bound to the first loop of the process (another test's,
-    closed since), reporting "Event loop is closed": the test process's several loops, not the
-    product (one loop a process)."""
-    return "PollerCompletionQueue" in context.get("message", "") and "closed" in str(context.get("exception"))
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,6 @@ ends its run and leaves no task and no process."""
 from __future__ import annotations
 
 import asyncio
-import gc
 import os
 import socket
 
@@ -18,33 +17,8 @@ from zeroconf import DNSService, IPVersion, RecordUpdateListener
 from zeroconf.asyncio import AsyncServiceInfo, AsyncZeroconf
 
 from protos.discovery import Discovery
+from strict_loop import HANG_S, run_clean
 from waits import wait_until_async
-
-#: the longest any stop or end may take before the test calls it a hang (generous for a loaded host)
-HANG_S = 30.0
-
-
-def run_clean(coro) -> None:
-    """Run ``coro`` on a fresh loop that fails on what a leaked task leaves: an exception nobody
-    retrieved, "Task was destroyed but it is pending", a task still pending HANG_S after ``coro`` returned."""
-    seen: list[dict] = []
-    loop = asyncio.new_event_loop()
-    loop.set_exception_handler(lambda _loop, context: seen.append(context))
-
-    async def checked():
-        await coro
-        me = asyncio.current_task()     # what is left may be winding down (gRPC's tasks of a stopped server)
-        await wait_until_async(lambda: asyncio.all_tasks() - {me}, lambda left: not left, timeout=HANG_S,
-                               what="no task left pending at the end")
-
-    try:
-        loop.run_until_complete(checked())
-        loop.run_until_complete(loop.shutdown_asyncgens())
-        loop.run_until_complete(loop.shutdown_default_executor())
-    finally:
-        loop.close()
-        gc.collect()    # a pending task dropped now says so (through the handler) here
-    assert not seen, f"the loop reported: {[c.get('message') for c in seen]}"
 
 
 def service_type(tag: str) -> str:

@@ -9,7 +9,6 @@ the loop closed. The link now writes the batches from a task it ends with the ca
 from __future__ import annotations
 
 import asyncio
-import gc
 import time
 
 import pytest
@@ -22,43 +21,12 @@ from node.records import HeartbeatRecord, NodeInfo
 from node.session import ReportStream, SessionCore
 from inprocess_coordinator import inprocess_coordinator
 from protos import auth
+from strict_loop import HANG_S, run_clean
 from waits import wait_until_async
 
 SLOT = "r0c0"
 #: no heartbeat is due while a test runs, once the first went: the node's stream waits for a batch
 QUIET_S = 3600.0
-#: the longest any stop or end may take before the test calls it a hang (generous for a loaded host)
-HANG_S = 30.0
-
-
-def run_clean(coro) -> None:
-    """Run ``coro`` on a fresh loop that fails on what a leaked task leaves: an exception nobody
-    retrieved, "Task was destroyed but it is pending", a task still pending HANG_S after ``coro`` returned."""
-    seen: list[dict] = []
-    loop = asyncio.new_event_loop()
-    loop.set_exception_handler(lambda _loop, context: seen.append(context))
-
-    async def checked():
-        await coro
-        me = asyncio.current_task()     # what is left may be winding down (gRPC's tasks of a stopped server)
-        await wait_until_async(lambda: asyncio.all_tasks() - {me}, lambda left: not left, timeout=HANG_S,
-                               what="no task left pending at the end")
-
-    try:
-        loop.run_until_complete(checked())
-        loop.run_until_complete(loop.shutdown_asyncgens())
-    finally:
-        loop.close()
-        gc.collect()    # a pending task dropped now says so (through the handler) here
-    seen = [c for c in seen if not grpc_poller_of_a_closed_loop(c)]
-    assert not seen, f"the loop reported: {[c.get('message') for c in seen]}"
-
-
-def grpc_poller_of_a_closed_loop(context: dict) -> bool:
-    """grpc.aio's completion-queue poller, bound to the first loop of the process (another test's,
-    closed since), reporting "Event loop is closed": the test process's several loops, not the
-    product (one loop a process)."""
-    return "PollerCompletionQueue" in context.get("message", "") and "closed" in str(context.get("exception"))
 
 
 def heartbeat() -> HeartbeatRecord:
