@@ -214,6 +214,8 @@ class Node:
                         candidates = await found
                     else:
                         candidates = await self._candidates(discovery)
+                    if self._stopping.is_set():
+                        break
                     self.book.forget_absent(candidates)
                     tried, joined = await self._pass(candidates, discovery)
                     if joined:
@@ -386,7 +388,19 @@ class Node:
         that proves it knows this node's token is joined."""
         if discovery is None:
             return [Candidate(self.cfg.coordinator)]
-        ads = await discovery.find(rig=self.cfg.rig, timeout=DISCOVERY_TIMEOUT_S, settle=DISCOVERY_SETTLE_S)
+        look = asyncio.ensure_future(discovery.find(rig=self.cfg.rig, timeout=DISCOVERY_TIMEOUT_S,
+                                                    settle=DISCOVERY_SETTLE_S))
+        stopping = asyncio.ensure_future(self._stopping.wait())
+        try:        # a node stopped on purpose ends its look at once, not when the look times out
+            await asyncio.wait((look, stopping), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stopping.cancel()
+            if not look.done():
+                look.cancel()
+            await asyncio.gather(look, stopping, return_exceptions=True)
+        if not look.done() or look.cancelled():
+            return []       # stopped during the look: nothing to try (the loop ends)
+        ads = look.result()
         if not ads:
             raise DiscoveryError(discovery.nothing_found(DISCOVERY_TIMEOUT_S, self.cfg.rig))
         seen = {(a.target, a.rig_id) for a in ads}

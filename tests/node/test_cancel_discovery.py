@@ -164,3 +164,33 @@ def test_a_node_stopped_as_its_coordinator_appears_stops(tmp_path):
             await room.close()
 
     run_clean(go())
+
+
+def test_a_node_stopped_during_a_long_look_ends_it_at_once(tmp_path, monkeypatch):
+    """A stop (a SIGTERM, Ctrl-C) while the node looks over mDNS ends the look; it used to wait the
+    look out (DISCOVERY_TIMEOUT_S, 3 s). The look is made an hour long, so only a stop that ends it
+    lets the run end before HANG_S."""
+    import node.app
+    from node.app import Node, NodeConfig
+
+    monkeypatch.setattr(node.app, "DISCOVERY_TIMEOUT_S", 3600.0)
+
+    async def go():
+        rig = f"nobody-{os.getpid()}"       # no coordinator of this rig is advertised
+        n = Node(NodeConfig(slot="r0c0", token=b"x" * 32, rig=rig, mdns_interfaces=["127.0.0.1"],
+                            cache_dir=tmp_path / "cache", realtime=False))
+        looking: list[str] = []
+        ready = n.notifier.ready
+        n.notifier.ready = lambda status: (looking.append(status), ready(status))[-1]
+        run = asyncio.create_task(n.run(), name="node")
+        await wait_until_async(lambda: looking or run.done(), what="the node looking for its coordinator")
+        assert not run.done(), run
+        n.stop("stopped by the test")
+        try:
+            async with asyncio.timeout(HANG_S):
+                status = await run
+        except TimeoutError:
+            pytest.fail(f"a node stopped during its hour-long look did not end its run ({looking})")
+        assert status == 0
+
+    run_clean(go())
