@@ -95,15 +95,25 @@ def _text(address: str, args: Sequence[Any], what: str) -> str:
     return args[0].strip()
 
 
+def whole_number(value: Any) -> int | None:
+    """An OSC number that is whole, as desks and TouchDesigner send one (an int, or a float such as
+    3.0), as an int; None for a fraction, a non-finite float, a bool or anything not a number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    if isinstance(value, float) and (not math.isfinite(value) or value != int(value)):
+        return None
+    return int(value)
+
+
 def _cue_id(address: str, args: Sequence[Any]) -> str:
-    """The cue's id from /jump's first argument: a string, or a whole number as desks and
-    TouchDesigner send it (an int, or a float such as 3.0) for a cue whose id is that number."""
+    """The cue's id from /jump's first argument: a string, or a whole number (:func:`whole_number`)
+    for a cue whose id is that number."""
     if args and isinstance(args[0], (int, float)) and not isinstance(args[0], bool):
-        value = args[0]
-        if not math.isfinite(value) or value != int(value):
+        number = whole_number(args[0])
+        if number is None:
             raise OscError(f"{address} needs the cue's id as its first argument: a string, or a whole number; "
-                           f"got {value!r}")
-        return str(int(value))
+                           f"got {args[0]!r}")
+        return str(number)
     return _text(address, args, "the cue's id")
 
 

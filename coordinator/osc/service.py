@@ -95,13 +95,10 @@ ANSWERED: frozenset[str] = frozenset(commands.COMMANDS) | frozenset(_OWN)
 
 
 def _port(value: Any) -> int | None:
-    """A UDP port from an OSC argument: an int, or a whole float as TouchDesigner sends numbers
-    (9001.0), in 1..65535; None for anything else."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    if isinstance(value, float) and (not math.isfinite(value) or value != int(value)):
-        return None
-    return int(value) if 1 <= value <= 65535 else None
+    """A UDP port from an OSC argument: a whole number (:func:`commands.whole_number`: an int, or a
+    float such as TouchDesigner's 9001.0) in 1..65535; None for anything else."""
+    port = commands.whole_number(value)
+    return port if port is not None and 1 <= port <= 65535 else None
 
 
 class _Protocol(asyncio.DatagramProtocol):
